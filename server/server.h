@@ -1,0 +1,67 @@
+// The Surfacer gRPC server: a callback service over a worker pool and an in-memory job store.
+// Used by the `surfacer-server` binary, by the CLI's in-process mode (`surfacer --local`) and by tests.
+// Header kept light: gRPC types are only forward-declared.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <string>
+
+namespace grpc {
+class Channel;
+}
+
+namespace surfacer::server {
+
+// Sizes beyond these answer RESOURCE_EXHAUSTED with a message naming the limit and the flag that raises it.
+struct Limits {
+  std::int64_t max_grid_cells = std::int64_t{1} << 30;       // --max-grid-cells (cells per frame)
+  std::int64_t max_particles = 50'000'000;                   // --max-particles (per frame)
+  std::int64_t max_triangles = 50'000'000;                   // --max-triangles (per frame)
+  std::int64_t max_upload_bytes = std::int64_t{4} << 30;     // --max-upload-bytes (per upload)
+  std::int64_t max_frames = 100'000;                         // --max-frames (per job)
+};
+
+struct ServerOptions {
+  // host:port to listen on; port 0 picks a free port (see SurfacerServer::port()). Empty: in-process only.
+  std::string listen = "127.0.0.1:50051";
+  int workers = 0;           // worker threads; 0 = hardware threads
+  int max_queued_jobs = 64;  // jobs waiting for a worker beyond this answer RESOURCE_EXHAUSTED
+  Limits limits;
+  // Finished jobs (and their frames) are kept this long after finishing, for WatchJob/GetJob.
+  std::chrono::seconds keep_finished = std::chrono::hours(24);
+};
+
+enum class ShutdownMode {
+  kDrain,   // finish running and queued jobs (up to the deadline, then cancel)
+  kCancel,  // cancel running and queued jobs now
+};
+
+class SurfacerServer {
+ public:
+  // Builds and starts the server (health and reflection services included). Throws std::runtime_error when the
+  // address cannot be bound.
+  static std::unique_ptr<SurfacerServer> Start(const ServerOptions& options);
+  ~SurfacerServer();
+
+  SurfacerServer(const SurfacerServer&) = delete;
+  SurfacerServer& operator=(const SurfacerServer&) = delete;
+
+  // Port actually bound (0 when in-process only).
+  int port() const;
+  // A channel to this server that does not touch the network.
+  std::shared_ptr<grpc::Channel> InProcessChannel();
+  // Stops accepting new jobs (health turns NOT_SERVING), then drains or cancels, then stops the gRPC server.
+  // Safe to call more than once and from any thread except a gRPC callback.
+  void Shutdown(ShutdownMode mode, std::chrono::milliseconds deadline = std::chrono::seconds(30));
+  // Blocks until Shutdown() has completed.
+  void Wait();
+
+ private:
+  struct Impl;
+  explicit SurfacerServer(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace surfacer::server
