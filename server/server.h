@@ -24,7 +24,7 @@ struct Limits {
 };
 
 struct ServerOptions {
-  // host:port to listen on; port 0 picks a free port (see SurfacerServer::port()). Empty: in-process only.
+  // host:port to listen on; port 0 picks a free port (see port()). Empty: in-process only.
   std::string listen = "127.0.0.1:50051";
   int workers = 0;           // worker threads; 0 = hardware threads
   int max_queued_jobs = 64;  // jobs waiting for a worker beyond this answer RESOURCE_EXHAUSTED
@@ -42,7 +42,7 @@ class SurfacerServer {
  public:
   // Builds and starts the server (health and reflection services included). Throws std::runtime_error when the
   // address cannot be bound.
-  static std::unique_ptr<SurfacerServer> Start(const ServerOptions& options);
+  static std::unique_ptr<SurfacerServer> start(const ServerOptions& options);
   ~SurfacerServer();
 
   SurfacerServer(const SurfacerServer&) = delete;
@@ -51,12 +51,12 @@ class SurfacerServer {
   // Port actually bound (0 when in-process only).
   int port() const;
   // A channel to this server that does not touch the network.
-  std::shared_ptr<grpc::Channel> InProcessChannel();
+  std::shared_ptr<grpc::Channel> in_process_channel();
   // Stops accepting new jobs (health turns NOT_SERVING), then drains or cancels, then stops the gRPC server.
   // Safe to call more than once and from any thread except a gRPC callback.
-  void Shutdown(ShutdownMode mode, std::chrono::milliseconds deadline = std::chrono::seconds(30));
-  // Blocks until Shutdown() has completed.
-  void Wait();
+  void shutdown(ShutdownMode mode, std::chrono::milliseconds deadline = std::chrono::seconds(30));
+  // Blocks until shutdown() has completed.
+  void wait();
 
  private:
   struct Impl;
