@@ -55,6 +55,8 @@ class SurfacerServer {
   // Stops accepting new jobs (health turns NOT_SERVING), then drains or cancels, then stops the gRPC server.
   // Safe to call more than once and from any thread except a gRPC callback.
   void shutdown(ShutdownMode mode, std::chrono::milliseconds deadline = std::chrono::seconds(30));
+  // Cancels every queued and running job (the server keeps serving). A drain in progress then ends at once.
+  void cancel_jobs(const std::string& reason);
   // Blocks until shutdown() has completed.
   void wait();
 

@@ -1,0 +1,95 @@
+#include "server/frames.h"
+
+#include <chrono>
+
+#include "core/errors.h"
+#include "core/mesh_codec.h"
+#include "core/mesh_io.h"
+#include "server/scene_translate.h"
+
+namespace surfacer::server {
+
+double StageTimer::now() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+FrameEncoding resolve_output(const v1::OutputOptions& options, const Aabb& job_bounds, const std::string& path) {
+  FrameEncoding out;
+  out.encoding = options.encoding() == v1::MESH_ENCODING_PLY ? v1::MESH_ENCODING_PLY : v1::MESH_ENCODING_DRACO;
+  if (options.has_quantization_bits()) {
+    out.quantization_bits = options.quantization_bits();
+    if (out.quantization_bits < 1 || out.quantization_bits > 30) {
+      throw InvalidInput(path + ".quantization_bits",
+                         path + ".quantization_bits (" + std::to_string(out.quantization_bits) +
+                             ") must be in 1..30; the default 14 keeps errors below 1e-4 of the bounds");
+    }
+  }
+  if (options.has_draco_speed()) {
+    out.draco_speed = options.draco_speed();
+    if (out.draco_speed < 0 || out.draco_speed > 10) {
+      throw InvalidInput(path + ".draco_speed", path + ".draco_speed (" + std::to_string(out.draco_speed) +
+                                                    ") must be in 0..10 (default 7)");
+    }
+  }
+  out.quantization_bounds = options.has_quantization_bounds()
+                                ? to_aabb(options.quantization_bounds(), path + ".quantization_bounds")
+                                : job_bounds;
+  out.normals = options.normals();
+  return out;
+}
+
+void fill_mesh_check(const MeshReport& r, v1::MeshCheck& out) {
+  out.set_closed(r.closed);
+  out.set_edge_manifold(r.edge_manifold);
+  out.set_vertex_manifold(r.vertex_manifold);
+  out.set_oriented(r.oriented);
+  out.set_euler_characteristic(r.euler_characteristic);
+  out.set_components(r.components);
+  out.set_boundary_edges(r.boundary_edges);
+  out.set_non_manifold_edges(r.non_manifold_edges);
+  out.set_degenerate_triangles(r.degenerate_triangles);
+  for (auto v : r.valence_histogram) out.add_valence_histogram(v);
+  out.set_min_valence(r.min_valence);
+  out.set_max_valence(r.max_valence);
+  out.set_min_angle_degrees(r.min_angle_degrees);
+  out.set_max_angle_degrees(r.max_angle_degrees);
+  out.set_area(r.area);
+  out.set_volume(r.volume);
+}
+
+FrameOutput make_frame(const Mesh& mesh, const FrameEncoding& encoding, std::int64_t max_triangles,
+                       StageTimer& timer) {
+  if (static_cast<std::int64_t>(mesh.triangles.size()) > max_triangles) {
+    throw ResourceLimit("max_triangles", "the mesh has " + std::to_string(mesh.triangles.size()) +
+                                             " triangles, over the server's limit of " +
+                                             std::to_string(max_triangles) +
+                                             "; lower the resolution or start the server with a larger "
+                                             "--max-triangles");
+  }
+  FrameOutput out;
+  out.encoding = encoding.encoding;
+  const MeshReport report = timer.run("check", [&] { return check_mesh(mesh); });
+  timer.run("encode", [&] {
+    if (encoding.encoding == v1::MESH_ENCODING_PLY) {
+      out.bytes = write_ply(mesh, /*double_precision=*/true);
+    } else {
+      DracoOptions draco;
+      draco.quantization_bits = encoding.quantization_bits;
+      draco.quantization_bounds = encoding.quantization_bounds;
+      draco.speed = encoding.draco_speed;
+      draco.normals = encoding.normals;
+      out.bytes = encode_draco(mesh, draco);
+    }
+  });
+  out.stats.set_vertices(static_cast<std::int64_t>(mesh.vertices.size()));
+  out.stats.set_triangles(static_cast<std::int64_t>(mesh.triangles.size()));
+  fill_mesh_check(report, *out.stats.mutable_check());
+  for (const auto& [stage, seconds] : timer.timings()) {
+    auto* t = out.stats.add_timings();
+    t->set_stage(stage);
+    t->set_seconds(seconds);
+  }
+  return out;
+}
+
+}  // namespace surfacer::server

@@ -1,0 +1,87 @@
+// surfacer-server: the Surfacer gRPC service on a port.
+#include <CLI/CLI.hpp>
+
+#include <csignal>
+#include <fstream>
+#include <iostream>
+#include <thread>
+
+#include "server/log.h"
+#include "server/server.h"
+
+using surfacer::server::LogLevel;
+using surfacer::server::ServerOptions;
+using surfacer::server::ShutdownMode;
+using surfacer::server::SurfacerServer;
+
+int main(int argc, char** argv) {
+  ServerOptions options;
+  std::string port_file;
+  double drain_seconds = 30.0;
+  bool verbose = false;
+
+  CLI::App app{"surfacer-server: turns implicit scenes (and, later, particles) into triangle meshes and streams them "
+               "back frame by frame, Draco-compressed (gRPC service surfacer.v1.Surfacer, plus grpc.health.v1 and "
+               "server reflection).\n\nExample:\n  surfacer-server --listen 0.0.0.0:50051 --workers 2\n"};
+  app.add_option("--listen", options.listen, "host:port to listen on (port 0 picks a free port)")
+      ->capture_default_str();
+  app.add_option("--port-file", port_file, "write the bound port to this file once listening");
+  app.add_option("--workers", options.workers, "worker threads (0 = hardware threads)")->capture_default_str();
+  app.add_option("--max-queued-jobs", options.max_queued_jobs,
+                 "jobs waiting for a worker beyond this are refused with RESOURCE_EXHAUSTED")
+      ->capture_default_str();
+  app.add_option("--max-grid-cells", options.limits.max_grid_cells, "largest grid (cells) a frame may use")
+      ->capture_default_str();
+  app.add_option("--max-particles", options.limits.max_particles, "most particles in one frame")
+      ->capture_default_str();
+  app.add_option("--max-triangles", options.limits.max_triangles, "most triangles in one output frame")
+      ->capture_default_str();
+  app.add_option("--max-upload-bytes", options.limits.max_upload_bytes, "largest single upload, in bytes")
+      ->capture_default_str();
+  app.add_option("--max-frames", options.limits.max_frames, "most frames in one job")->capture_default_str();
+  app.add_option("--drain-seconds", drain_seconds,
+                 "on SIGTERM/SIGINT, let running jobs finish this long before cancelling them (a second signal "
+                 "cancels at once)")
+      ->capture_default_str();
+  app.add_flag("-v,--verbose", verbose, "debug logs");
+  CLI11_PARSE(app, argc, argv);
+  if (verbose) surfacer::server::set_log_level(LogLevel::kDebug);
+
+  // Signals are taken by one thread with sigwait; every other thread blocks them.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+
+  std::unique_ptr<SurfacerServer> server;
+  try {
+    server = SurfacerServer::start(options);
+  } catch (const std::exception& e) {
+    surfacer::server::log_event(LogLevel::kError, "start_failed", {{"error", e.what()}});
+    return 1;
+  }
+  if (!port_file.empty()) {
+    const std::string tmp = port_file + ".tmp";
+    std::ofstream(tmp) << server->port() << "\n";
+    std::rename(tmp.c_str(), port_file.c_str());
+  }
+
+  std::thread signal_thread([&] {
+    int sig = 0;
+    sigwait(&signals, &sig);
+    surfacer::server::log_event(LogLevel::kInfo, "signal", {{"signal", sig == SIGTERM ? "SIGTERM" : "SIGINT"}});
+    std::thread second([&] {
+      int again = 0;
+      sigwait(&signals, &again);
+      surfacer::server::log_event(LogLevel::kWarn, "signal_again", {{"action", "cancel running jobs"}});
+      server->cancel_jobs("server shutting down (second signal)");
+    });
+    second.detach();
+    server->shutdown(ShutdownMode::kDrain,
+                     std::chrono::milliseconds(static_cast<long long>(drain_seconds * 1000.0)));
+  });
+  server->wait();
+  signal_thread.join();
+  return 0;
+}

@@ -1,0 +1,246 @@
+#include "server/scene_translate.h"
+
+#include <Eigen/Geometry>
+
+#include <cmath>
+#include <cstring>
+
+#include "core/errors.h"
+#include "server/uploads.h"
+#include "surfacer/v1/scene.pb.h"
+
+namespace surfacer::server {
+namespace {
+
+using NodeProto = v1::Node;
+
+double or_default(double value, double fallback) { return value == 0.0 ? fallback : value; }
+
+// Runs a core builder and prefixes any InvalidInput it throws with the node's path in the request.
+template <class Build>
+FieldPtr at_path(const std::string& path, Build&& build) {
+  try {
+    return build();
+  } catch (const Error& e) {
+    if (e.kind() != ErrorKind::kInvalidInput) throw;
+    const std::string field = e.field().empty() ? path : path + "." + e.field();
+    throw InvalidInput(field, path + ": " + e.what());
+  }
+}
+
+class Translator {
+ public:
+  explicit Translator(const UploadStore& uploads) : uploads_(uploads) {}
+
+  FieldPtr node(const NodeProto& n, const std::string& path) {
+    if (++depth_ > kMaxDepth) {
+      throw InvalidInput(path, path + ": scene is nested deeper than " + std::to_string(kMaxDepth) +
+                                   " levels; flatten unions into one node with many children");
+    }
+    FieldPtr result = dispatch(n, path);
+    --depth_;
+    return result;
+  }
+
+ private:
+  static constexpr int kMaxDepth = 200;
+
+  FieldPtr dispatch(const NodeProto& n, const std::string& path) {
+    switch (n.kind_case()) {
+      case NodeProto::kSphere: {
+        const auto& s = n.sphere();
+        return at_path(path + ".sphere", [&] { return make_sphere(to_vec3(s.center()), s.radius()); });
+      }
+      case NodeProto::kBox: {
+        const auto& b = n.box();
+        return at_path(path + ".box", [&] { return make_box(to_vec3(b.center()), to_vec3(b.half_size())); });
+      }
+      case NodeProto::kRoundedBox: {
+        const auto& b = n.rounded_box();
+        return at_path(path + ".rounded_box",
+                       [&] { return make_rounded_box(to_vec3(b.center()), to_vec3(b.half_size()), b.radius()); });
+      }
+      case NodeProto::kCylinder: {
+        const auto& c = n.cylinder();
+        return at_path(path + ".cylinder",
+                       [&] { return make_cylinder(to_vec3(c.a()), to_vec3(c.b()), c.radius()); });
+      }
+      case NodeProto::kCone: {
+        const auto& c = n.cone();
+        return at_path(path + ".cone", [&] {
+          return make_cone(to_vec3(c.a()), to_vec3(c.b()), c.radius_a(), c.radius_b());
+        });
+      }
+      case NodeProto::kTorus: {
+        const auto& t = n.torus();
+        Vec3 axis = to_vec3(t.axis());
+        if (axis.isZero()) axis = Vec3::UnitZ();
+        return at_path(path + ".torus", [&] {
+          return make_torus(to_vec3(t.center()), axis, t.major_radius(), t.minor_radius());
+        });
+      }
+      case NodeProto::kPlane: {
+        const auto& p = n.plane();
+        return at_path(path + ".plane", [&] { return make_plane(to_vec3(p.normal()), p.offset()); });
+      }
+      case NodeProto::kCapsule: {
+        const auto& c = n.capsule();
+        return at_path(path + ".capsule",
+                       [&] { return make_capsule(to_vec3(c.a()), to_vec3(c.b()), c.radius()); });
+      }
+      case NodeProto::kGyroid: {
+        const auto& g = n.gyroid();
+        return at_path(path + ".gyroid", [&] { return make_gyroid(g.period(), g.thickness()); });
+      }
+      case NodeProto::kBlobs:
+        return blobs(n.blobs(), path + ".blobs");
+      case NodeProto::kUnion:
+        return csg(CsgOp::kUnion, n.union_(), path + ".union");
+      case NodeProto::kIntersection:
+        return csg(CsgOp::kIntersection, n.intersection(), path + ".intersection");
+      case NodeProto::kDifference:
+        return csg(CsgOp::kDifference, n.difference(), path + ".difference");
+      case NodeProto::kTransform:
+        return transform(n.transform(), path + ".transform");
+      case NodeProto::kGrid:
+        return grid(n.grid(), path + ".grid");
+      case NodeProto::KIND_NOT_SET:
+        break;
+    }
+    throw InvalidInput(path, path + " is empty; give one of sphere, box, rounded_box, cylinder, cone, torus, "
+                                     "plane, capsule, gyroid, blobs, union, intersection, difference, transform, grid");
+  }
+
+  FieldPtr blobs(const v1::Blobs& b, const std::string& path) {
+    std::vector<PointSkeleton> points;
+    points.reserve(b.points_size());
+    for (const auto& p : b.points()) {
+      points.push_back({to_vec3(p.center()), p.radius(), or_default(p.strength(), 1.0)});
+    }
+    std::vector<SegmentSkeleton> segments;
+    segments.reserve(b.segments_size());
+    for (const auto& s : b.segments()) {
+      segments.push_back({to_vec3(s.a()), to_vec3(s.b()), s.radius(), or_default(s.strength(), 1.0)});
+    }
+    BlobOptions options;
+    options.kernel = b.kernel() == v1::KERNEL_BLINN ? BlobKernel::kBlinn : BlobKernel::kWyvill;
+    options.iso = or_default(b.iso(), 0.5);
+    options.blobbiness = or_default(b.blobbiness(), 1.0);
+    return at_path(path, [&] { return make_blobs(points, segments, options); });
+  }
+
+  FieldPtr csg(CsgOp op, const v1::Csg& c, const std::string& path) {
+    std::vector<FieldPtr> children;
+    children.reserve(c.children_size());
+    for (int i = 0; i < c.children_size(); ++i) {
+      children.push_back(node(c.children(i), path + ".children[" + std::to_string(i) + "]"));
+    }
+    CsgOptions options;
+    switch (c.blend()) {
+      case v1::BLEND_RFUNCTION: options.blend = CsgBlend::kRFunction; break;
+      case v1::BLEND_SMOOTH: options.blend = CsgBlend::kSmooth; break;
+      default: options.blend = CsgBlend::kMinMax; break;
+    }
+    options.radius = c.radius();
+    return at_path(path, [&] { return make_csg(op, std::move(children), options); });
+  }
+
+  FieldPtr transform(const v1::Transform& t, const std::string& path) {
+    if (!t.has_child()) {
+      throw InvalidInput(path + ".child", path + ".child is missing; a transform applies to one child node");
+    }
+    FieldPtr child = node(t.child(), path + ".child");
+    Eigen::Matrix3d linear;
+    Vec3 translation;
+    if (t.matrix_size() > 0) {
+      if (t.matrix_size() != 12) {
+        throw InvalidInput(path + ".matrix", path + ".matrix has " + std::to_string(t.matrix_size()) +
+                                                 " numbers; give 12 (row-major 3x4 [A | t]) or none");
+      }
+      for (int r = 0; r < 3; ++r) {
+        for (int c = 0; c < 3; ++c) linear(r, c) = t.matrix(4 * r + c);
+        translation[r] = t.matrix(4 * r + 3);
+      }
+    } else {
+      const double scale = or_default(t.scale(), 1.0);
+      const Vec3 axis = to_vec3(t.rotate_axis());
+      Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();
+      if (t.rotate_degrees() != 0.0) {
+        if (!(axis.norm() > 0.0)) {
+          throw InvalidInput(path + ".rotate_axis",
+                             path + ".rotate_axis is zero; give the axis to rotate about, e.g. {\"z\": 1}");
+        }
+        rotation = Eigen::AngleAxisd(t.rotate_degrees() * M_PI / 180.0, axis.normalized()).toRotationMatrix();
+      }
+      if (!(scale > 0.0) || !std::isfinite(scale)) {
+        throw InvalidInput(path + ".scale", path + ".scale (" + std::to_string(scale) +
+                                                ") must be a finite number > 0 (0 or absent means 1)");
+      }
+      linear = scale * rotation;
+      translation = to_vec3(t.translate());
+    }
+    return at_path(path, [&] { return make_transform(child, linear, translation); });
+  }
+
+  FieldPtr grid(const v1::SampledGrid& g, const std::string& path) {
+    SampledGridDesc desc;
+    desc.origin = to_vec3(g.origin());
+    desc.spacing = to_vec3(g.spacing());
+    desc.nx = g.nx();
+    desc.ny = g.ny();
+    desc.nz = g.nz();
+    desc.potential = g.potential();
+    desc.iso = g.iso();
+    if (!g.upload_id().empty()) {
+      if (g.values_size() > 0) {
+        throw InvalidInput(path + ".values", path + ": give either values or upload_id, not both");
+      }
+      auto blob = uploads_.get(g.upload_id(), path + ".upload_id");
+      if (blob->bytes.size() % sizeof(float) != 0) {
+        throw InvalidInput(path + ".upload_id", path + ".upload_id: upload has " +
+                                                    std::to_string(blob->bytes.size()) +
+                                                    " bytes, not a whole number of float32 values");
+      }
+      std::vector<float> values(blob->bytes.size() / sizeof(float));
+      std::memcpy(values.data(), blob->bytes.data(), values.size() * sizeof(float));
+      return at_path(path, [&] { return make_sampled_grid(desc, values); });
+    }
+    return at_path(path, [&] {
+      return make_sampled_grid(desc, std::span<const float>(g.values().data(), g.values_size()));
+    });
+  }
+
+  const UploadStore& uploads_;
+  int depth_ = 0;
+};
+
+}  // namespace
+
+Vec3 to_vec3(const v1::Vec3& v) { return {v.x(), v.y(), v.z()}; }
+
+Aabb to_aabb(const v1::Bounds& bounds, const std::string& path) {
+  Aabb box{to_vec3(bounds.min()), to_vec3(bounds.max())};
+  if (!box.min.allFinite() || !box.max.allFinite()) {
+    throw InvalidInput(path, path + " has a coordinate that is not a finite number");
+  }
+  static const char* kAxis[] = {"x", "y", "z"};
+  for (int i = 0; i < 3; ++i) {
+    if (!(box.min[i] < box.max[i])) {
+      throw InvalidInput(path + ".max." + kAxis[i], path + ".min." + kAxis[i] + " (" + std::to_string(box.min[i]) +
+                                                         ") must be < " + path + ".max." + kAxis[i] + " (" +
+                                                         std::to_string(box.max[i]) + ")");
+    }
+  }
+  return box;
+}
+
+FieldPtr field_from_scene(const v1::Scene& scene, const std::string& path, const UploadStore& uploads) {
+  if (!scene.has_root()) {
+    throw InvalidInput(path + ".root", path + ".root is missing; a scene needs a root node, e.g. "
+                                              "{\"root\": {\"sphere\": {\"radius\": 1}}}");
+  }
+  Translator translator(uploads);
+  return translator.node(scene.root(), path + ".root");
+}
+
+}  // namespace surfacer::server

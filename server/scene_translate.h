@@ -1,0 +1,27 @@
+// proto Scene -> core Field: the one translation from the wire schema to core's scene builders.
+#pragma once
+
+#include <string>
+
+#include "core/scene.h"
+
+namespace surfacer::v1 {
+class Scene;
+class Bounds;
+class Vec3;
+}  // namespace surfacer::v1
+
+namespace surfacer::server {
+
+class UploadStore;
+
+// Builds the field of `scene`. `path` names the scene in the request (e.g. "spec.isosurface.scenes[0]") and
+// prefixes every error: "spec.isosurface.scenes[0].root.sphere.radius (-1) must be > 0".
+// Throws surfacer::Error(kInvalidInput).
+FieldPtr field_from_scene(const v1::Scene& scene, const std::string& path, const UploadStore& uploads);
+
+Vec3 to_vec3(const v1::Vec3& v);
+// Throws InvalidInput naming `path` when a coordinate is not finite or min >= max on some axis.
+Aabb to_aabb(const v1::Bounds& bounds, const std::string& path);
+
+}  // namespace surfacer::server

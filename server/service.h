@@ -1,0 +1,43 @@
+// surfacer.v1.Surfacer as a gRPC callback service. gRPC threads only validate, enqueue and stream: every frame is
+// computed on the worker pool, and WatchJob streams are fed from there.
+#pragma once
+
+#include <atomic>
+
+#include "server/jobs.h"
+#include "server/server.h"
+#include "server/uploads.h"
+#include "surfacer/v1/surfacer.grpc.pb.h"
+
+namespace surfacer::server {
+
+struct ServiceState {
+  ServerOptions options;
+  int worker_threads = 1;
+  Scheduler* scheduler = nullptr;
+  UploadStore* uploads = nullptr;
+  std::atomic<bool> accepting{true};
+};
+
+class SurfacerService final : public v1::Surfacer::CallbackService {
+ public:
+  explicit SurfacerService(ServiceState& state) : state_(state) {}
+
+  grpc::ServerUnaryReactor* SubmitJob(grpc::CallbackServerContext* context, const v1::SubmitJobRequest* request,
+                                      v1::SubmitJobResponse* response) override;
+  grpc::ServerReadReactor<v1::UploadChunk>* Upload(grpc::CallbackServerContext* context,
+                                                   v1::UploadResponse* response) override;
+  grpc::ServerWriteReactor<v1::JobEvent>* WatchJob(grpc::CallbackServerContext* context,
+                                                   const v1::WatchJobRequest* request) override;
+  grpc::ServerUnaryReactor* GetJob(grpc::CallbackServerContext* context, const v1::GetJobRequest* request,
+                                   v1::Job* response) override;
+  grpc::ServerUnaryReactor* ListJobs(grpc::CallbackServerContext* context, const v1::ListJobsRequest* request,
+                                     v1::ListJobsResponse* response) override;
+  grpc::ServerUnaryReactor* CancelJob(grpc::CallbackServerContext* context, const v1::CancelJobRequest* request,
+                                      v1::Job* response) override;
+
+ private:
+  ServiceState& state_;
+};
+
+}  // namespace surfacer::server
