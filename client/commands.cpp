@@ -1,0 +1,312 @@
+#include "client/commands.h"
+
+#include <grpcpp/client_context.h>
+
+#include <atomic>
+#include <cstdio>
+#include <iomanip>
+#include <ostream>
+#include <sstream>
+
+#include "client/connection.h"
+#include "client/frame_writer.h"
+#include "client/health.h"
+#include "client/interrupt.h"
+#include "client/job_spec.h"
+#include "client/progress.h"
+#include "client/watch.h"
+
+namespace surfacer::client {
+namespace {
+
+// An RPC error answered by the server (not a transport failure).
+template <typename Request, typename Response>
+Response call(Connection& connection, const std::string& what,
+              grpc::Status (v1::Surfacer::Stub::*method)(grpc::ClientContext*, const Request&, Response*),
+              const Request& request) {
+  grpc::ClientContext context;
+  context.set_deadline(connection.unary_deadline());
+  Response response;
+  const grpc::Status status = (connection.stub().*method)(&context, request, &response);
+  if (!status.ok()) throw rpc_error(what, status);
+  return response;
+}
+
+void warn_local(const Connection& connection, std::ostream& err) {
+  if (connection.local()) {
+    err << "surfacer: warning: using an in-process server (no --server and $SURFACER_SERVER unset); its jobs "
+           "disappear when this command exits\n";
+  }
+}
+
+std::string seconds_text(std::chrono::steady_clock::time_point start) {
+  const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.1f s", s);
+  return buf;
+}
+
+std::string dir_text(const std::filesystem::path& dir) {
+  std::string text = dir.string();
+  if (!text.empty() && text.back() != '/') text += '/';
+  return text;
+}
+
+std::string job_error_text(const v1::Job& job) {
+  if (job.error().code() == 0 && job.error().message().empty()) return "";
+  std::string text = status_code_name(static_cast<grpc::StatusCode>(job.error().code()));
+  if (!job.error().message().empty()) text += ": " + job.error().message();
+  return text;
+}
+
+std::string summary(const WatchResult& result, const FrameWriter& writer,
+                    std::chrono::steady_clock::time_point start) {
+  return "wrote " + std::to_string(result.frames_written) + " frame" + (result.frames_written == 1 ? "" : "s") +
+         " to " + dir_text(writer.dir()) + " (" + std::to_string(result.triangles) + " triangles, " +
+         seconds_text(start) + ")";
+}
+
+// The exit code of a watched job's terminal state; prints the summary.
+ExitCode finish_watch(const WatchResult& result, const FrameWriter& writer, ProgressDisplay& progress,
+                      std::chrono::steady_clock::time_point start, bool cancelled_here) {
+  progress.clear();
+  progress.line(summary(result, writer, start));
+  const v1::Job& job = result.job;
+  switch (job.state()) {
+    case v1::JOB_STATE_SUCCEEDED: return ExitCode::kSuccess;
+    case v1::JOB_STATE_CANCELLED: {
+      std::string reason = job_error_text(job);
+      throw CliError(ExitCode::kCancelled, "job " + job.id() + " was cancelled" +
+                                               (cancelled_here ? std::string(" (interrupted)") : std::string()) +
+                                               (reason.empty() ? "" : ": " + reason));
+    }
+    default: {
+      std::string reason = job_error_text(job);
+      throw CliError(ExitCode::kJobFailed,
+                     "job " + job.id() + " failed" + (reason.empty() ? std::string() : ": " + reason));
+    }
+  }
+}
+
+// Best effort, used when the client gives up on a job it started.
+bool cancel_job(Connection& connection, const std::string& job_id) {
+  v1::CancelJobRequest request;
+  request.set_job_id(job_id);
+  grpc::ClientContext context;
+  context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(5));
+  v1::Job job;
+  return connection.stub().CancelJob(&context, request, &job).ok();
+}
+
+std::string submit_job(Connection& connection, const v1::JobSpec& spec, v1::Job* job) {
+  v1::SubmitJobRequest request;
+  *request.mutable_spec() = spec;
+  grpc::ClientContext context;
+  context.set_deadline(connection.unary_deadline());
+  v1::SubmitJobResponse response;
+  const grpc::Status status = connection.stub().SubmitJob(&context, request, &response);
+  if (!status.ok()) {
+    CliError error = rpc_error("the server rejected the job", status);
+    // A rejection is the job's failure (exit 4), unless the server could not be reached at all.
+    if (error.code() == ExitCode::kCancelled) throw CliError(ExitCode::kJobFailed, error.what());
+    throw error;
+  }
+  if (job != nullptr) *job = response.job();
+  return response.job_id();
+}
+
+ExitCode run_run(const ConnectOptions& connect, const RunCommand& command, std::ostream& err, bool tty) {
+  const auto start = std::chrono::steady_clock::now();
+  const v1::JobSpec spec = build_job_spec(command.job);  // usage errors before connecting
+  FrameWriter writer(command.output);
+  auto connection = Connection::open(connect);
+  ProgressDisplay progress(err, tty);
+
+  std::mutex mutex;
+  std::string job_id;
+  JobWatcher* watcher = nullptr;
+  std::atomic<bool> interrupted{false};
+  InterruptHandler interrupts([&](int count) {
+    std::lock_guard lock(mutex);
+    interrupted = true;
+    if (count == 1 && !job_id.empty()) {
+      progress.line("interrupted: cancelling job " + job_id + " (Ctrl-C again to stop waiting)");
+      if (cancel_job(*connection, job_id)) return;
+      progress.line("could not reach the server to cancel job " + job_id);
+    }
+    if (watcher != nullptr) watcher->stop();
+  });
+
+  v1::Job job;
+  const std::string id = submit_job(*connection, spec, &job);
+  {
+    std::lock_guard lock(mutex);
+    job_id = id;
+  }
+  if (interrupted) {  // Ctrl-C while submitting
+    cancel_job(*connection, id);
+    throw CliError(ExitCode::kCancelled, "interrupted: job " + id + " cancelled");
+  }
+  std::string frames;
+  if (job.frames_total() > 0) {
+    frames = " (" + std::to_string(job.frames_total()) + " frame" + (job.frames_total() == 1 ? "" : "s") + ")";
+  }
+  progress.line("submitted job " + id + frames + " to " + connection->describe());
+
+  JobWatcher job_watcher(*connection, id, 0, writer, progress);
+  {
+    std::lock_guard lock(mutex);
+    watcher = &job_watcher;
+  }
+  WatchResult result;
+  try {
+    result = job_watcher.run();
+  } catch (const CliError& e) {
+    {
+      std::lock_guard lock(mutex);
+      watcher = nullptr;
+    }
+    // We started the job and are abandoning it: do not leave it running.
+    if (e.code() != ExitCode::kUnreachable && !interrupted) cancel_job(*connection, id);
+    if (interrupted) throw CliError(ExitCode::kCancelled, "interrupted: stopped watching job " + id);
+    throw;
+  }
+  {
+    std::lock_guard lock(mutex);
+    watcher = nullptr;
+  }
+  return finish_watch(result, writer, progress, start, interrupted);
+}
+
+ExitCode run_submit(const ConnectOptions& connect, const SubmitCommand& command, std::ostream& out,
+                    std::ostream& err) {
+  const v1::JobSpec spec = build_job_spec(command.job);
+  auto connection = Connection::open(connect);
+  warn_local(*connection, err);
+  out << submit_job(*connection, spec, nullptr) << "\n" << std::flush;
+  return ExitCode::kSuccess;
+}
+
+ExitCode run_watch(const ConnectOptions& connect, const WatchCommand& command, std::ostream& err, bool tty) {
+  const auto start = std::chrono::steady_clock::now();
+  FrameWriter writer(command.output);
+  auto connection = Connection::open(connect);
+  warn_local(*connection, err);
+  ProgressDisplay progress(err, tty);
+  JobWatcher watcher(*connection, command.job_id, command.from_frame, writer, progress);
+  const WatchResult result = watcher.run();
+  return finish_watch(result, writer, progress, start, false);
+}
+
+std::string percent_text(double fraction) {
+  char buf[16];
+  std::snprintf(buf, sizeof buf, "%.0f%%", std::clamp(fraction, 0.0, 1.0) * 100.0);
+  return buf;
+}
+
+ExitCode run_status(const ConnectOptions& connect, const StatusCommand& command, std::ostream& out,
+                    std::ostream& err) {
+  auto connection = Connection::open(connect);
+  warn_local(*connection, err);
+  v1::GetJobRequest request;
+  request.set_job_id(command.job_id);
+  const v1::Job job = call(*connection, "status of job " + command.job_id, &v1::Surfacer::Stub::GetJob, request);
+  out << "job:      " << job.id() << "\n";
+  if (!job.name().empty()) out << "name:     " << job.name() << "\n";
+  if (!job.kind().empty()) out << "kind:     " << job.kind() << "\n";
+  out << "state:    " << state_name(job.state()) << "\n";
+  out << "frames:   " << job.frames_done() << "/" << job.frames_total() << "\n";
+  std::string progress = percent_text(job.progress().fraction());
+  if (!job.progress().stage().empty()) {
+    progress += " (" + job.progress().stage() + ", frame " + std::to_string(job.progress().frame_index()) + ")";
+  }
+  out << "progress: " << progress << "\n";
+  const std::string error = job_error_text(job);
+  if (!error.empty()) out << "error:    " << error << "\n";
+  out << std::flush;
+  return ExitCode::kSuccess;
+}
+
+ExitCode run_list(const ConnectOptions& connect, const ListCommand& command, std::ostream& out,
+                  std::ostream& err) {
+  auto connection = Connection::open(connect);
+  warn_local(*connection, err);
+  v1::ListJobsRequest request;
+  for (const std::string& name : command.states) {
+    std::string upper = "JOB_STATE_";
+    for (char c : name) upper += static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+    v1::JobState state;
+    if (!v1::JobState_Parse(upper, &state)) throw CliError(ExitCode::kUsage, "unknown job state " + name);
+    request.add_states(state);
+  }
+  const v1::ListJobsResponse response =
+      call(*connection, "listing jobs", &v1::Surfacer::Stub::ListJobs, request);
+  std::size_t id_width = 6;
+  for (const auto& job : response.jobs()) id_width = std::max(id_width, job.id().size());
+  out << std::left << std::setw(static_cast<int>(id_width)) << "JOB_ID" << "  " << std::setw(9) << "STATE"
+      << "  " << std::setw(11) << "FRAMES" << "  " << std::setw(10) << "KIND" << "  NAME\n";
+  for (const auto& job : response.jobs()) {
+    out << std::setw(static_cast<int>(id_width)) << job.id() << "  " << std::setw(9) << state_name(job.state())
+        << "  " << std::setw(11) << (std::to_string(job.frames_done()) + "/" + std::to_string(job.frames_total()))
+        << "  " << std::setw(10) << (job.kind().empty() ? "-" : job.kind()) << "  " << job.name() << "\n";
+  }
+  out << std::flush;
+  return ExitCode::kSuccess;
+}
+
+ExitCode run_cancel(const ConnectOptions& connect, const CancelCommand& command, std::ostream& out,
+                    std::ostream& err) {
+  auto connection = Connection::open(connect);
+  warn_local(*connection, err);
+  v1::CancelJobRequest request;
+  request.set_job_id(command.job_id);
+  const v1::Job job = call(*connection, "cancelling job " + command.job_id, &v1::Surfacer::Stub::CancelJob, request);
+  if (is_terminal(job.state())) {
+    out << "job " << job.id() << ": " << state_name(job.state()) << "\n";
+  } else {
+    out << "job " << job.id() << ": cancel requested (state " << state_name(job.state()) << ")\n";
+  }
+  out << std::flush;
+  return ExitCode::kSuccess;
+}
+
+ExitCode run_health(const ConnectOptions& connect, const HealthCommand& command, std::ostream& out) {
+  auto connection = Connection::open(connect);
+  const HealthStatus status = check_health(connection->channel_ptr(), command.service, connection->unary_deadline());
+  out << health_status_name(status) << "\n" << std::flush;
+  if (status != HealthStatus::kServing) {
+    throw CliError(ExitCode::kUnreachable, connection->describe() + " is not serving" +
+                                               (command.service.empty() ? std::string()
+                                                                        : " service \"" + command.service + "\"") +
+                                               " (health: " + health_status_name(status) + ")");
+  }
+  return ExitCode::kSuccess;
+}
+
+}  // namespace
+
+ExitCode run_invocation(const Invocation& invocation, std::ostream& out, std::ostream& err, bool tty) {
+  const ConnectOptions& connect = invocation.connect;
+  return std::visit(
+      [&](const auto& command) -> ExitCode {
+        using T = std::decay_t<decltype(command)>;
+        if constexpr (std::is_same_v<T, RunCommand>) {
+          return run_run(connect, command, err, tty);
+        } else if constexpr (std::is_same_v<T, SubmitCommand>) {
+          return run_submit(connect, command, out, err);
+        } else if constexpr (std::is_same_v<T, WatchCommand>) {
+          return run_watch(connect, command, err, tty);
+        } else if constexpr (std::is_same_v<T, StatusCommand>) {
+          return run_status(connect, command, out, err);
+        } else if constexpr (std::is_same_v<T, ListCommand>) {
+          return run_list(connect, command, out, err);
+        } else if constexpr (std::is_same_v<T, CancelCommand>) {
+          return run_cancel(connect, command, out, err);
+        } else {
+          return run_health(connect, command, out);
+        }
+      },
+      invocation.command);
+}
+
+}  // namespace surfacer::client

@@ -1,0 +1,102 @@
+#include "client/connection.h"
+
+#include <grpcpp/create_channel.h>
+#include <grpcpp/security/credentials.h>
+
+#include <cmath>
+#include <stdexcept>
+
+#include "server/log.h"
+#include "server/server.h"
+
+namespace surfacer::client {
+
+std::unique_ptr<Connection> Connection::open(const ConnectOptions& options) {
+  std::unique_ptr<Connection> connection(new Connection());
+  connection->options_ = options;
+  if (options.local()) {
+    server::set_log_level(server::LogLevel::kWarn);  // the CLI prints its own progress
+    server::ServerOptions server_options;
+    server_options.listen = "";
+    server_options.workers = options.workers;
+    try {
+      connection->local_server_ = server::SurfacerServer::start(server_options);
+    } catch (const std::exception& e) {
+      throw CliError(ExitCode::kUnreachable, std::string("cannot start the in-process server: ") + e.what());
+    }
+    connection->channel_ = connection->local_server_->in_process_channel();
+  } else {
+    grpc::ChannelArguments args;
+    // Frames are cut into <= 1 MiB chunks and no message exceeds 4 MiB (surfacer.proto), so the defaults hold.
+    connection->channel_ = grpc::CreateCustomChannel(*options.server, grpc::InsecureChannelCredentials(), args);
+    auto deadline = std::chrono::system_clock::now() +
+                    std::chrono::milliseconds(static_cast<long long>(std::llround(options.timeout_seconds * 1000)));
+    if (!connection->channel_->WaitForConnected(deadline)) {
+      throw CliError(ExitCode::kUnreachable,
+                     "cannot reach a Surfacer server at " + *options.server + " within " +
+                         std::to_string(static_cast<int>(std::ceil(options.timeout_seconds))) +
+                         " s (is surfacer-server running there? check --server or $SURFACER_SERVER, or raise "
+                         "--timeout)");
+    }
+  }
+  connection->stub_ = v1::Surfacer::NewStub(connection->channel_);
+  return connection;
+}
+
+Connection::~Connection() {
+  stub_.reset();
+  channel_.reset();
+  if (local_server_) local_server_->shutdown(server::ShutdownMode::kCancel, std::chrono::seconds(5));
+}
+
+std::string Connection::describe() const {
+  return local() ? std::string("the in-process server") : "the server at " + *options_.server;
+}
+
+bool Connection::wait_connected(std::chrono::system_clock::time_point deadline) {
+  return channel_->WaitForConnected(deadline);
+}
+
+std::chrono::system_clock::time_point Connection::unary_deadline() const {
+  return std::chrono::system_clock::now() +
+         std::chrono::milliseconds(static_cast<long long>(std::llround(options_.timeout_seconds * 1000))) +
+         std::chrono::seconds(20);
+}
+
+std::string status_code_name(grpc::StatusCode code) {
+  switch (code) {
+    case grpc::StatusCode::OK: return "OK";
+    case grpc::StatusCode::CANCELLED: return "CANCELLED";
+    case grpc::StatusCode::UNKNOWN: return "UNKNOWN";
+    case grpc::StatusCode::INVALID_ARGUMENT: return "INVALID_ARGUMENT";
+    case grpc::StatusCode::DEADLINE_EXCEEDED: return "DEADLINE_EXCEEDED";
+    case grpc::StatusCode::NOT_FOUND: return "NOT_FOUND";
+    case grpc::StatusCode::ALREADY_EXISTS: return "ALREADY_EXISTS";
+    case grpc::StatusCode::PERMISSION_DENIED: return "PERMISSION_DENIED";
+    case grpc::StatusCode::RESOURCE_EXHAUSTED: return "RESOURCE_EXHAUSTED";
+    case grpc::StatusCode::FAILED_PRECONDITION: return "FAILED_PRECONDITION";
+    case grpc::StatusCode::ABORTED: return "ABORTED";
+    case grpc::StatusCode::OUT_OF_RANGE: return "OUT_OF_RANGE";
+    case grpc::StatusCode::UNIMPLEMENTED: return "UNIMPLEMENTED";
+    case grpc::StatusCode::INTERNAL: return "INTERNAL";
+    case grpc::StatusCode::UNAVAILABLE: return "UNAVAILABLE";
+    case grpc::StatusCode::DATA_LOSS: return "DATA_LOSS";
+    case grpc::StatusCode::UNAUTHENTICATED: return "UNAUTHENTICATED";
+    default: return "code " + std::to_string(static_cast<int>(code));
+  }
+}
+
+CliError rpc_error(const std::string& context, const grpc::Status& status) {
+  ExitCode code = ExitCode::kJobFailed;
+  if (status.error_code() == grpc::StatusCode::UNAVAILABLE ||
+      status.error_code() == grpc::StatusCode::DEADLINE_EXCEEDED) {
+    code = ExitCode::kUnreachable;
+  } else if (status.error_code() == grpc::StatusCode::CANCELLED) {
+    code = ExitCode::kCancelled;
+  }
+  std::string message = context + ": " + status_code_name(status.error_code());
+  if (!status.error_message().empty()) message += ": " + status.error_message();
+  return CliError(code, message);
+}
+
+}  // namespace surfacer::client

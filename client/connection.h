@@ -1,0 +1,59 @@
+// A connection to a Surfacer server: a channel to host:port, or an in-process server that lives as long as the
+// Connection (surfacer::server::SurfacerServer with no listening port).
+#pragma once
+
+#include <grpcpp/channel.h>
+#include <grpcpp/client_context.h>
+#include <grpcpp/support/status.h>
+
+#include <chrono>
+#include <memory>
+#include <string>
+
+#include "client/exit_codes.h"
+#include "client/options.h"
+#include "surfacer/v1/surfacer.grpc.pb.h"
+
+namespace surfacer::server {
+class SurfacerServer;
+}
+
+namespace surfacer::client {
+
+class Connection {
+ public:
+  // Connects to `options.server`, waiting up to `options.timeout_seconds` (CliError kUnreachable otherwise), or
+  // starts an in-process server with `options.workers` workers (its logs are limited to warnings).
+  static std::unique_ptr<Connection> open(const ConnectOptions& options);
+  ~Connection();
+
+  Connection(const Connection&) = delete;
+  Connection& operator=(const Connection&) = delete;
+
+  v1::Surfacer::Stub& stub() { return *stub_; }
+  grpc::Channel& channel() { return *channel_; }
+  const std::shared_ptr<grpc::Channel>& channel_ptr() const { return channel_; }
+  bool local() const { return local_server_ != nullptr; }
+  // "server localhost:50051" or "the in-process server", for messages.
+  std::string describe() const;
+  // Waits until the channel is connected again (after a broken stream); false when `deadline` passes first.
+  bool wait_connected(std::chrono::system_clock::time_point deadline);
+  // Deadline for unary calls: the connection timeout plus a margin for the call itself.
+  std::chrono::system_clock::time_point unary_deadline() const;
+
+ private:
+  Connection() = default;
+
+  ConnectOptions options_;
+  std::unique_ptr<server::SurfacerServer> local_server_;
+  std::shared_ptr<grpc::Channel> channel_;
+  std::unique_ptr<v1::Surfacer::Stub> stub_;
+};
+
+// "INVALID_ARGUMENT", "UNAVAILABLE", ... for a grpc::StatusCode.
+std::string status_code_name(grpc::StatusCode code);
+// "<context>: CODE: message" as a CliError: UNAVAILABLE and DEADLINE_EXCEEDED -> kUnreachable, CANCELLED ->
+// kCancelled, everything else -> kJobFailed.
+CliError rpc_error(const std::string& context, const grpc::Status& status);
+
+}  // namespace surfacer::client

@@ -1,0 +1,114 @@
+#include "client/frame_assembler.h"
+
+#include <zlib.h>
+
+#include <cstdio>
+
+#include "client/exit_codes.h"
+
+namespace surfacer::client {
+namespace {
+
+std::string hex32(std::uint32_t v) {
+  char buf[16];
+  std::snprintf(buf, sizeof buf, "0x%08x", v);
+  return buf;
+}
+
+[[noreturn]] void integrity(int frame, const std::string& what) {
+  throw CliError(ExitCode::kIntegrity, "frame " + std::to_string(frame) + ": " + what);
+}
+
+}  // namespace
+
+std::uint32_t crc32_of(std::string_view bytes) {
+  uLong crc = crc32(0L, Z_NULL, 0);
+  // zlib takes uInt lengths: feed large buffers in pieces.
+  const auto* data = reinterpret_cast<const Bytef*>(bytes.data());
+  std::size_t left = bytes.size();
+  while (left > 0) {
+    const uInt n = static_cast<uInt>(std::min<std::size_t>(left, 1u << 30));
+    crc = crc32(crc, data, n);
+    data += n;
+    left -= n;
+  }
+  return static_cast<std::uint32_t>(crc);
+}
+
+std::optional<ReceivedFrame> FrameAssembler::on_header(const v1::FrameHeader& header) {
+  const int index = header.frame_index();
+  if (index < 0) integrity(index, "negative frame index in FrameHeader");
+  if (pending_.count(index) != 0) integrity(index, "a second FrameHeader arrived before the frame's last chunk");
+  if (header.num_chunks() < 0) integrity(index, "FrameHeader.num_chunks is negative");
+  const std::uint64_t capacity = static_cast<std::uint64_t>(header.num_chunks()) * kMaxChunkBytes;
+  if (header.total_bytes() > capacity) {
+    integrity(index, "FrameHeader says " + std::to_string(header.total_bytes()) + " bytes in " +
+                         std::to_string(header.num_chunks()) + " chunks of at most 1 MiB");
+  }
+  Pending& pending = pending_[index];
+  pending.header = header;
+  if (header.num_chunks() == 0) return finish(index, pending);
+  pending.bytes.reserve(static_cast<std::size_t>(header.total_bytes()));
+  return std::nullopt;
+}
+
+std::optional<ReceivedFrame> FrameAssembler::on_chunk(const v1::FrameChunk& chunk) {
+  const int index = chunk.frame_index();
+  auto it = pending_.find(index);
+  if (it == pending_.end()) integrity(index, "FrameChunk " + std::to_string(chunk.chunk_index()) + " without a FrameHeader");
+  Pending& pending = it->second;
+  const std::string where = "chunk " + std::to_string(chunk.chunk_index()) + ": ";
+  if (chunk.chunk_index() != pending.chunks) {
+    integrity(index, where + "expected chunk " + std::to_string(pending.chunks) + " (chunks arrive in order)");
+  }
+  if (chunk.data().size() > kMaxChunkBytes) {
+    integrity(index, where + std::to_string(chunk.data().size()) + " bytes exceed the 1 MiB chunk limit");
+  }
+  const std::uint32_t crc = crc32_of(chunk.data());
+  if (crc != chunk.crc32()) {
+    integrity(index, where + "CRC-32 mismatch: computed " + hex32(crc) + ", chunk says " + hex32(chunk.crc32()));
+  }
+  if (pending.bytes.size() + chunk.data().size() > pending.header.total_bytes()) {
+    integrity(index, where + "more bytes than FrameHeader.total_bytes (" +
+                         std::to_string(pending.header.total_bytes()) + ")");
+  }
+  pending.bytes += chunk.data();
+  ++pending.chunks;
+  const bool should_be_last = pending.chunks == pending.header.num_chunks();
+  if (chunk.last() != should_be_last) {
+    integrity(index, where + (chunk.last() ? "marked last, but FrameHeader.num_chunks is " +
+                                                 std::to_string(pending.header.num_chunks())
+                                           : "FrameHeader.num_chunks is " +
+                                                 std::to_string(pending.header.num_chunks()) +
+                                                 " but this chunk is not marked last"));
+  }
+  if (!should_be_last) return std::nullopt;
+  return finish(index, pending);
+}
+
+ReceivedFrame FrameAssembler::finish(int index, Pending& pending) {
+  const v1::FrameHeader& header = pending.header;
+  if (pending.bytes.size() != header.total_bytes()) {
+    integrity(index, "received " + std::to_string(pending.bytes.size()) + " bytes, FrameHeader.total_bytes is " +
+                         std::to_string(header.total_bytes()));
+  }
+  const std::uint32_t crc = crc32_of(pending.bytes);
+  if (crc != header.crc32()) {
+    integrity(index, "whole-frame CRC-32 mismatch: computed " + hex32(crc) + ", FrameHeader says " +
+                         hex32(header.crc32()));
+  }
+  ReceivedFrame frame;
+  frame.index = index;
+  switch (header.encoding()) {
+    case v1::MESH_ENCODING_UNSPECIFIED:
+    case v1::MESH_ENCODING_DRACO: frame.encoding = v1::MESH_ENCODING_DRACO; break;
+    case v1::MESH_ENCODING_PLY: frame.encoding = v1::MESH_ENCODING_PLY; break;
+    default: integrity(index, "unknown MeshEncoding " + std::to_string(header.encoding()));
+  }
+  frame.bytes = std::move(pending.bytes);
+  frame.stats = header.stats();
+  pending_.erase(index);
+  return frame;
+}
+
+}  // namespace surfacer::client

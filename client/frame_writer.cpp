@@ -1,0 +1,174 @@
+#include "client/frame_writer.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <optional>
+
+#include "client/exit_codes.h"
+#include "core/errors.h"
+#include "core/mesh_codec.h"
+#include "core/mesh_io.h"
+
+namespace surfacer::client {
+namespace {
+
+const char* extension(FileFormat format) {
+  switch (format) {
+    case FileFormat::kDrc: return "drc";
+    case FileFormat::kPly: return "ply";
+    case FileFormat::kObj: return "obj";
+  }
+  return "bin";
+}
+
+std::string format_double(const char* fmt, double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, fmt, v);
+  return buf;
+}
+
+[[noreturn]] void write_failed(const std::filesystem::path& path, int error) {
+  throw CliError(ExitCode::kUsage, "cannot write " + path.string() + ": " + std::strerror(error));
+}
+
+}  // namespace
+
+void write_file_atomically(const std::filesystem::path& path, std::string_view bytes) {
+  std::filesystem::path tmp = path;
+  tmp += ".tmp-" + std::to_string(::getpid());
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) write_failed(path, errno);
+  std::size_t done = 0;
+  while (done < bytes.size()) {
+    const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) {
+      const int error = errno;
+      ::close(fd);
+      ::unlink(tmp.c_str());
+      write_failed(path, error);
+    }
+    done += static_cast<std::size_t>(n);
+  }
+  if (::close(fd) != 0) {
+    const int error = errno;
+    ::unlink(tmp.c_str());
+    write_failed(path, error);
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    const int error = errno;
+    ::unlink(tmp.c_str());
+    write_failed(path, error);
+  }
+}
+
+std::string frame_file_name(int index, FileFormat format) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "frame_%04d.%s", index, extension(format));
+  return buf;
+}
+
+std::string stats_csv(const std::map<int, v1::FrameStats>& stats) {
+  std::vector<std::string> stages;
+  for (const auto& [index, s] : stats) {
+    for (const auto& t : s.timings()) {
+      if (std::find(stages.begin(), stages.end(), t.stage()) == stages.end()) stages.push_back(t.stage());
+    }
+  }
+  std::string csv = "frame,vertices,triangles,closed,manifold,euler,components,min_valence,min_angle,area,volume";
+  for (const auto& stage : stages) csv += "," + stage + "_s";
+  csv += ",total_s\n";
+  for (const auto& [index, s] : stats) {
+    const v1::MeshCheck& c = s.check();
+    csv += std::to_string(index) + "," + std::to_string(s.vertices()) + "," + std::to_string(s.triangles()) + "," +
+           (c.closed() ? "1" : "0") + "," + (c.edge_manifold() && c.vertex_manifold() ? "1" : "0") + "," +
+           std::to_string(c.euler_characteristic()) + "," + std::to_string(c.components()) + "," +
+           std::to_string(c.min_valence()) + "," + format_double("%.4f", c.min_angle_degrees()) + "," +
+           format_double("%.9g", c.area()) + "," + format_double("%.9g", c.volume());
+    double total = 0;
+    for (const auto& stage : stages) {
+      csv += ",";
+      for (const auto& t : s.timings()) {
+        if (t.stage() == stage) {
+          csv += format_double("%.6f", t.seconds());
+          total += t.seconds();
+          break;
+        }
+      }
+    }
+    csv += ',';
+    csv += format_double("%.6f", total);
+    csv += '\n';
+  }
+  return csv;
+}
+
+FrameWriter::FrameWriter(FrameOutputOptions options) : options_(std::move(options)) {
+  std::error_code ec;
+  std::filesystem::create_directories(options_.dir, ec);
+  if (ec || !std::filesystem::is_directory(options_.dir)) {
+    throw CliError(ExitCode::kUsage, "cannot create the output directory " + options_.dir.string() + ": " +
+                                         (ec ? ec.message() : std::string("not a directory")));
+  }
+}
+
+std::vector<std::filesystem::path> FrameWriter::write(const ReceivedFrame& frame) {
+  const bool draco = frame.encoding != v1::MESH_ENCODING_PLY;
+  std::vector<FileFormat> formats = options_.formats;
+  if (formats.empty()) formats.push_back(draco ? FileFormat::kDrc : FileFormat::kPly);
+
+  std::optional<Mesh> mesh;
+  auto decoded = [&]() -> const Mesh& {
+    if (!mesh) {
+      try {
+        mesh = draco ? decode_draco(frame.bytes)
+                     : parse_mesh(frame.bytes, MeshFormat::kPly, "frame " + std::to_string(frame.index));
+      } catch (const std::exception& e) {
+        throw CliError(ExitCode::kIntegrity, "frame " + std::to_string(frame.index) + ": its " +
+                                                 (draco ? "Draco" : "PLY") +
+                                                 " bytes passed the CRC-32 check but do not decode: " + e.what());
+      }
+    }
+    return *mesh;
+  };
+
+  std::vector<std::filesystem::path> written;
+  for (FileFormat format : formats) {
+    const std::filesystem::path path = options_.dir / frame_file_name(frame.index, format);
+    std::string converted;
+    std::string_view bytes;
+    switch (format) {
+      case FileFormat::kDrc:
+        if (draco) {
+          bytes = frame.bytes;
+        } else {
+          converted = encode_draco(decoded(), DracoOptions{});
+          bytes = converted;
+        }
+        break;
+      case FileFormat::kPly:
+        if (!draco) {
+          bytes = frame.bytes;  // lossless: double-precision positions as sent
+        } else {
+          converted = write_ply(decoded());
+          bytes = converted;
+        }
+        break;
+      case FileFormat::kObj:
+        converted = write_obj(decoded());
+        bytes = converted;
+        break;
+    }
+    write_file_atomically(path, bytes);
+    written.push_back(path);
+  }
+  stats_[frame.index] = frame.stats;
+  write_file_atomically(options_.dir / "stats.csv", stats_csv(stats_));
+  return written;
+}
+
+}  // namespace surfacer::client

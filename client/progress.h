@@ -1,0 +1,55 @@
+// Progress on stderr while a job is watched. On a terminal: one bar redrawn in place (stage, frame i/n, percent).
+// Otherwise: plain lines, progress at most once a second. Both: one line per finished frame
+// ("frame 3/10: 124512 triangles, closed, 0.21 s") and state changes. Thread-safe (the Ctrl-C handler prints too).
+#pragma once
+
+#include <chrono>
+#include <iosfwd>
+#include <mutex>
+#include <string>
+#include <string_view>
+
+#include "client/frame_assembler.h"
+#include "surfacer/v1/surfacer.pb.h"
+
+namespace surfacer::client {
+
+class ProgressDisplay {
+ public:
+  ProgressDisplay(std::ostream& err, bool tty);
+  ~ProgressDisplay();  // clears the bar
+
+  ProgressDisplay(const ProgressDisplay&) = delete;
+  ProgressDisplay& operator=(const ProgressDisplay&) = delete;
+
+  void on_state(const v1::Job& job);
+  void on_progress(const v1::Progress& progress);
+  void on_frame(const ReceivedFrame& frame);
+  // A message line (the bar is cleared first and redrawn after).
+  void line(std::string_view text);
+  // Removes the bar (before the summary).
+  void clear();
+
+ private:
+  void draw(bool force);
+  void clear_locked();
+  void line_locked(std::string_view text);
+
+  std::mutex mutex_;
+
+  std::ostream& err_;
+  bool tty_;
+  bool bar_shown_ = false;
+  v1::Progress last_;
+  int frames_total_ = 0;
+  int frames_done_ = 0;
+  v1::JobState state_ = v1::JOB_STATE_UNSPECIFIED;
+  std::chrono::steady_clock::time_point last_draw_{};
+};
+
+// "frame 3/10: 124512 triangles, closed, 0.21 s"
+std::string frame_summary(const ReceivedFrame& frame, int frames_total);
+// "RUNNING" for JOB_STATE_RUNNING.
+std::string state_name(v1::JobState state);
+
+}  // namespace surfacer::client

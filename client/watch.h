@@ -1,0 +1,66 @@
+// Following a job with WatchJob: frames are reassembled, verified and written as they arrive (in any order);
+// a stream that breaks with UNAVAILABLE before the job ends is reopened from the smallest frame not yet received
+// (duplicates skipped), with backoff, for up to ~10 s without a successful read.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <mutex>
+#include <set>
+#include <string>
+
+#include "client/connection.h"
+#include "client/frame_writer.h"
+#include "client/progress.h"
+#include "surfacer/v1/surfacer.pb.h"
+
+namespace grpc {
+class ClientContext;
+}
+
+namespace surfacer::client {
+
+struct WatchResult {
+  v1::Job job;  // the terminal state
+  int frames_written = 0;
+  std::int64_t triangles = 0;
+};
+
+struct ReconnectPolicy {
+  std::chrono::milliseconds budget{10'000};        // give up after this long without a successful read
+  std::chrono::milliseconds first_delay{250};      // doubled per attempt ...
+  std::chrono::milliseconds max_delay{2'000};      // ... up to this
+};
+
+class JobWatcher {
+ public:
+  JobWatcher(Connection& connection, std::string job_id, int from_frame, FrameWriter& writer,
+             ProgressDisplay& progress, ReconnectPolicy policy = {});
+
+  // Returns once the job reached a terminal state and the stream ended. Throws CliError: kIntegrity (a frame
+  // failed its checks, a protocol violation, or the job SUCCEEDED with frames missing), kUnreachable (reconnecting
+  // failed), kCancelled (stop() was called), or rpc_error() for other stream errors (e.g. NOT_FOUND).
+  WatchResult run();
+  // Thread-safe: ends the stream now; run() throws CliError(kCancelled).
+  void stop();
+
+ private:
+  void handle_frame(const ReceivedFrame& frame, int requested_from, int frames_total, WatchResult& result);
+  int next_missing() const;
+
+  Connection& connection_;
+  std::string job_id_;
+  int from_frame_;
+  FrameWriter& writer_;
+  ProgressDisplay& progress_;
+  ReconnectPolicy policy_;
+  std::set<int> received_;
+
+  std::mutex mutex_;
+  grpc::ClientContext* context_ = nullptr;
+  bool stopped_ = false;
+};
+
+bool is_terminal(v1::JobState state);
+
+}  // namespace surfacer::client

@@ -1,0 +1,411 @@
+// End to end with real processes: a `surfacer-server` child on a loopback port (or the CLI's in-process server)
+// and the `surfacer` binary, checked through exit codes, files and Debian's draco_decoder.
+#include <fcntl.h>
+#include <netinet/in.h>
+#include <signal.h>
+#include <spawn.h>
+#include <sys/socket.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <thread>
+
+#include "core/mesh_checks.h"
+#include "core/mesh_io.h"
+
+extern char** environ;
+
+namespace surfacer::client {
+namespace {
+
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+
+const fs::path kSource = SURFACER_SOURCE_DIR;
+const fs::path kBinary = SURFACER_BINARY_DIR;
+const fs::path kCli = kBinary / "client" / "surfacer";
+const fs::path kServer = kBinary / "server" / "surfacer-server";
+
+std::string read_file(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+void write_file(const fs::path& path, const std::string& text) { std::ofstream(path, std::ios::binary) << text; }
+
+// A child process with stdout/stderr redirected to files.
+class Child {
+ public:
+  Child(const std::vector<std::string>& args, const fs::path& out, const fs::path& err, bool inherit_server_env) {
+    std::vector<char*> argv;
+    for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    std::vector<std::string> env_strings;
+    for (char** e = environ; *e != nullptr; ++e) {
+      if (!inherit_server_env && std::string(*e).rfind("SURFACER_SERVER=", 0) == 0) continue;
+      env_strings.emplace_back(*e);
+    }
+    std::vector<char*> env;
+    for (auto& e : env_strings) env.push_back(e.data());
+    env.push_back(nullptr);
+    posix_spawn_file_actions_t actions;
+    posix_spawn_file_actions_init(&actions);
+    posix_spawn_file_actions_addopen(&actions, 1, out.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    posix_spawn_file_actions_addopen(&actions, 2, err.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    posix_spawn_file_actions_addopen(&actions, 0, "/dev/null", O_RDONLY, 0);
+    const int rc = posix_spawn(&pid_, args[0].c_str(), &actions, nullptr, argv.data(), env.data());
+    posix_spawn_file_actions_destroy(&actions);
+    if (rc != 0) pid_ = -1;
+  }
+  ~Child() {
+    if (pid_ > 0 && !exited_) {
+      ::kill(pid_, SIGKILL);
+      ::waitpid(pid_, nullptr, 0);
+    }
+  }
+  Child(const Child&) = delete;
+  Child& operator=(const Child&) = delete;
+
+  bool started() const { return pid_ > 0; }
+  void signal(int sig) const {
+    if (pid_ > 0 && !exited_) ::kill(pid_, sig);
+  }
+  // Exit code, 128+signal when killed, or -1 after `timeout` (the child is then killed).
+  int wait(std::chrono::milliseconds timeout) {
+    if (exited_) return code_;
+    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    while (true) {
+      int status = 0;
+      const pid_t r = ::waitpid(pid_, &status, WNOHANG);
+      if (r == pid_) {
+        exited_ = true;
+        code_ = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+        return code_;
+      }
+      if (std::chrono::steady_clock::now() > deadline) {
+        ::kill(pid_, SIGKILL);
+        ::waitpid(pid_, nullptr, 0);
+        exited_ = true;
+        code_ = -1;
+        return code_;
+      }
+      std::this_thread::sleep_for(10ms);
+    }
+  }
+
+ private:
+  pid_t pid_ = -1;
+  bool exited_ = false;
+  int code_ = -1;
+};
+
+struct Result {
+  int code = -1;
+  std::string out;
+  std::string err;
+};
+
+std::ostream& operator<<(std::ostream& os, const Result& r) {
+  return os << "exit " << r.code << "\n--- stdout\n" << r.out << "--- stderr\n" << r.err;
+}
+
+int free_port() {
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  addr.sin_port = 0;
+  ::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr);
+  socklen_t len = sizeof addr;
+  ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len);
+  const int port = ntohs(addr.sin_port);
+  ::close(fd);
+  return port;
+}
+
+constexpr const char* kSphere = R"({"name": "sphere", "root": {"sphere": {"center": {"x": 0, "y": 0, "z": 0}, "radius": 1}}})";
+constexpr const char* kTorus =
+    R"({"name": "torus", "root": {"torus": {"majorRadius": 1, "minorRadius": 0.35}}})";
+constexpr const char* kBadRadius = R"({"name": "bad", "root": {"sphere": {"radius": -1}}})";
+
+// One server for the whole suite (started in SetUpTestSuite, SIGTERM in TearDownTestSuite).
+class CliEndToEnd : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    root_ = fs::temp_directory_path() / ("surfacer_cli_e2e_" + std::to_string(::getpid()));
+    fs::remove_all(root_);
+    fs::create_directories(root_);
+    write_file(root_ / "sphere.json", kSphere);
+    write_file(root_ / "torus.json", kTorus);
+    write_file(root_ / "bad_radius.json", kBadRadius);
+    write_file(root_ / "malformed.json", R"({"root": {"sphere": {"radius": 1,,}}})");
+    const fs::path port_file = root_ / "port";
+    server_ = new Child({kServer.string(), "--listen", "127.0.0.1:0", "--port-file", port_file.string(),
+                         "--workers", "2", "--drain-seconds", "1"},
+                        root_ / "server.out", root_ / "server.err", false);
+    ASSERT_TRUE(server_->started()) << "cannot start " << kServer;
+    const auto deadline = std::chrono::steady_clock::now() + 20s;
+    while (std::chrono::steady_clock::now() < deadline) {
+      const std::string text = read_file(port_file);
+      if (!text.empty() && text.back() == '\n') {
+        port_ = std::stoi(text);
+        break;
+      }
+      std::this_thread::sleep_for(20ms);
+    }
+    ASSERT_GT(port_, 0) << "surfacer-server wrote no port file; its stderr:\n" << read_file(root_ / "server.err");
+    address_ = "127.0.0.1:" + std::to_string(port_);
+  }
+
+  static void TearDownTestSuite() {
+    if (server_ != nullptr) {
+      server_->signal(SIGTERM);
+      EXPECT_EQ(server_->wait(10s), 0) << "surfacer-server did not shut down cleanly on SIGTERM";
+      delete server_;
+      server_ = nullptr;
+    }
+    fs::remove_all(root_);
+  }
+
+  void SetUp() override {
+    ASSERT_GT(port_, 0);
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = root_ / info->name();
+    fs::create_directories(dir_);
+  }
+
+  // Starts the CLI; `remote` prepends --server ADDRESS.
+  std::unique_ptr<Child> spawn(std::vector<std::string> args, bool remote = true, const std::string& tag = "cli") {
+    if (remote) args.insert(args.begin(), {"--server", address_});
+    args.insert(args.begin(), kCli.string());
+    return std::make_unique<Child>(args, dir_ / (tag + ".out"), dir_ / (tag + ".err"), false);
+  }
+  Result cli(std::vector<std::string> args, bool remote = true, std::chrono::seconds timeout = 60s) {
+    static int counter = 0;
+    const std::string tag = "cli" + std::to_string(counter++);
+    auto child = spawn(std::move(args), remote, tag);
+    Result r;
+    r.code = child->wait(timeout);
+    r.out = read_file(dir_ / (tag + ".out"));
+    r.err = read_file(dir_ / (tag + ".err"));
+    return r;
+  }
+
+  static fs::path root_;
+  static Child* server_;
+  static int port_;
+  static std::string address_;
+  fs::path dir_;
+};
+
+fs::path CliEndToEnd::root_;
+Child* CliEndToEnd::server_ = nullptr;
+int CliEndToEnd::port_ = 0;
+std::string CliEndToEnd::address_;
+
+void expect_closed(const Mesh& mesh, const std::string& what) {
+  EXPECT_FALSE(mesh.triangles.empty()) << what;
+  const MeshReport report = check_mesh(mesh);
+  EXPECT_TRUE(report.closed) << what << ": " << report.boundary_edges << " boundary edges";
+}
+
+// Decodes with Debian's draco_decoder (an independent decoder) and checks the mesh.
+void expect_draco_decodes_closed(const fs::path& drc) {
+  const fs::path ply = drc.parent_path() / (drc.stem().string() + "_decoded.ply");
+  const std::string command = "/usr/bin/draco_decoder -i '" + drc.string() + "' -o '" + ply.string() + "' >'" +
+                              ply.string() + ".log' 2>&1";
+  ASSERT_EQ(std::system(command.c_str()), 0) << command << "\n" << read_file(ply.string() + ".log");
+  expect_closed(read_mesh(ply), drc.string());
+}
+
+int count_lines(const std::string& text) { return static_cast<int>(std::count(text.begin(), text.end(), '\n')); }
+
+TEST_F(CliEndToEnd, EveryExampleSceneGivesAClosedDracoFrame) {
+  std::vector<fs::path> scenes;
+  for (const auto& entry : fs::directory_iterator(kSource / "examples" / "scenes")) {
+    if (entry.path().extension() == ".json") scenes.push_back(entry.path());
+  }
+  std::sort(scenes.begin(), scenes.end());
+  ASSERT_FALSE(scenes.empty()) << "no examples/scenes/*.json";
+  for (const auto& scene : scenes) {
+    SCOPED_TRACE(scene.filename().string());
+    const fs::path out = dir_ / scene.stem();
+    Result r = cli({"run", "isosurface", "--scene", scene.string(), "-o", out.string(), "--cells", "48"});
+    ASSERT_EQ(r.code, 0) << r;
+    ASSERT_TRUE(fs::exists(out / "frame_0000.drc")) << r;
+    expect_draco_decodes_closed(out / "frame_0000.drc");
+    EXPECT_NE(r.err.find("wrote 1 frame to " + out.string() + "/"), std::string::npos) << r;
+  }
+}
+
+TEST_F(CliEndToEnd, SequenceWritesOneFramePerSceneAndStatsRows) {
+  Result r = cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--scene",
+                  (root_ / "torus.json").string(), "--cells", "40", "-o", (dir_ / "out").string()});
+  ASSERT_EQ(r.code, 0) << r;
+  EXPECT_TRUE(fs::exists(dir_ / "out" / "frame_0000.drc"));
+  EXPECT_TRUE(fs::exists(dir_ / "out" / "frame_0001.drc"));
+  const std::string csv = read_file(dir_ / "out" / "stats.csv");
+  EXPECT_EQ(count_lines(csv), 3) << csv;  // header + 2 rows
+  EXPECT_NE(csv.find("\n0,"), std::string::npos) << csv;
+  EXPECT_NE(csv.find("\n1,"), std::string::npos) << csv;
+  EXPECT_NE(r.err.find("frame 1/2: "), std::string::npos) << r;
+  EXPECT_NE(r.err.find("closed"), std::string::npos) << r;
+  EXPECT_NE(r.err.find("wrote 2 frames"), std::string::npos) << r;
+}
+
+TEST_F(CliEndToEnd, PlyAndObjFormatsAndRawLosslessPly) {
+  Result r = cli({"run", "isosurface", "--scene", (root_ / "torus.json").string(), "--cells", "40", "-o",
+                  (dir_ / "conv").string(), "--format", "ply,obj"});
+  ASSERT_EQ(r.code, 0) << r;
+  EXPECT_FALSE(fs::exists(dir_ / "conv" / "frame_0000.drc"));
+  expect_closed(read_mesh(dir_ / "conv" / "frame_0000.ply"), "ply");
+  expect_closed(read_mesh(dir_ / "conv" / "frame_0000.obj"), "obj");
+
+  r = cli({"run", "isosurface", "--scene", (root_ / "torus.json").string(), "--cells", "40", "-o",
+           (dir_ / "raw").string(), "--raw"});
+  ASSERT_EQ(r.code, 0) << r;
+  EXPECT_FALSE(fs::exists(dir_ / "raw" / "frame_0000.drc"));
+  const std::string ply = read_file(dir_ / "raw" / "frame_0000.ply");
+  EXPECT_NE(ply.find("property double x"), std::string::npos) << ply.substr(0, 300);
+  expect_closed(read_mesh(dir_ / "raw" / "frame_0000.ply"), "raw ply");
+}
+
+TEST_F(CliEndToEnd, SubmitThenWatchFromFrame) {
+  const std::string sphere = (root_ / "sphere.json").string();
+  Result s = cli({"submit", "isosurface", "--scene", sphere, "--scene", sphere, "--scene", sphere, "--cells", "32"});
+  ASSERT_EQ(s.code, 0) << s;
+  std::string id = s.out;
+  while (!id.empty() && std::isspace(static_cast<unsigned char>(id.back()))) id.pop_back();
+  ASSERT_FALSE(id.empty());
+  ASSERT_EQ(id.find('\n'), std::string::npos) << "submit prints only the job id: " << s;
+
+  Result w = cli({"watch", id, "--from-frame", "1", "-o", (dir_ / "w").string()});
+  ASSERT_EQ(w.code, 0) << w;
+  EXPECT_FALSE(fs::exists(dir_ / "w" / "frame_0000.drc"));
+  EXPECT_TRUE(fs::exists(dir_ / "w" / "frame_0001.drc"));
+  EXPECT_TRUE(fs::exists(dir_ / "w" / "frame_0002.drc"));
+  EXPECT_EQ(count_lines(read_file(dir_ / "w" / "stats.csv")), 3);
+
+  Result st = cli({"status", id});
+  ASSERT_EQ(st.code, 0) << st;
+  EXPECT_NE(st.out.find("SUCCEEDED"), std::string::npos) << st;
+  EXPECT_NE(st.out.find("3/3"), std::string::npos) << st;
+
+  Result ls = cli({"list", "--state", "succeeded"});
+  ASSERT_EQ(ls.code, 0) << ls;
+  EXPECT_NE(ls.out.find(id), std::string::npos) << ls;
+}
+
+TEST_F(CliEndToEnd, UnreachableServerExitsThree) {
+  const std::string address = "127.0.0.1:" + std::to_string(free_port());
+  Result r = cli({"--server", address, "--timeout", "1", "run", "isosurface", "--scene",
+                  (root_ / "sphere.json").string(), "-o", (dir_ / "x").string()},
+                 /*remote=*/false);
+  EXPECT_EQ(r.code, 3) << r;
+  EXPECT_NE(r.err.find("surfacer: error: "), std::string::npos) << r;
+  EXPECT_NE(r.err.find(address), std::string::npos) << r;
+}
+
+TEST_F(CliEndToEnd, MalformedSceneExitsTwoNamingTheFile) {
+  Result r = cli({"run", "isosurface", "--scene", (root_ / "malformed.json").string(), "-o", (dir_ / "x").string()});
+  EXPECT_EQ(r.code, 2) << r;
+  EXPECT_NE(r.err.find("surfacer: error: "), std::string::npos) << r;
+  EXPECT_NE(r.err.find("malformed.json"), std::string::npos) << r;
+  Result missing = cli({"run", "isosurface", "--scene", (root_ / "nope.json").string(), "-o", (dir_ / "x").string()});
+  EXPECT_EQ(missing.code, 2) << missing;
+  EXPECT_NE(missing.err.find("nope.json"), std::string::npos) << missing;
+  Result flag = cli({"run", "isosurface", "--cells", "many"});
+  EXPECT_EQ(flag.code, 2) << flag;
+}
+
+TEST_F(CliEndToEnd, RejectedJobExitsFourNamingTheField) {
+  Result r = cli({"run", "isosurface", "--scene", (root_ / "bad_radius.json").string(), "-o", (dir_ / "x").string()});
+  EXPECT_EQ(r.code, 4) << r;
+  EXPECT_NE(r.err.find("INVALID_ARGUMENT"), std::string::npos) << r;
+  EXPECT_NE(r.err.find("radius"), std::string::npos) << r;
+}
+
+// A job that runs for seconds: many frames at a fine resolution.
+std::vector<std::string> long_job_args(const fs::path& scene, const fs::path& out, const std::string& name) {
+  std::vector<std::string> args = {"run", "isosurface", "--cells", "160", "--name", name, "-o", out.string()};
+  for (int i = 0; i < 40; ++i) {
+    args.push_back("--scene");
+    args.push_back(scene.string());
+  }
+  return args;
+}
+
+TEST_F(CliEndToEnd, CancelFromAnotherCommandMakesRunExitFive) {
+  auto run = spawn(long_job_args(root_ / "torus.json", dir_ / "long", "cancel-me"), true, "run");
+  std::string id;
+  const auto deadline = std::chrono::steady_clock::now() + 20s;
+  while (id.empty() && std::chrono::steady_clock::now() < deadline) {
+    Result ls = cli({"list", "--state", "queued,running"});
+    ASSERT_EQ(ls.code, 0) << ls;
+    std::istringstream lines(ls.out);
+    for (std::string line; std::getline(lines, line);) {
+      if (line.find("cancel-me") != std::string::npos) id = line.substr(0, line.find(' '));
+    }
+    if (id.empty()) std::this_thread::sleep_for(100ms);
+  }
+  ASSERT_FALSE(id.empty()) << "the long job never showed up in `surfacer list`";
+  Result c = cli({"cancel", id});
+  EXPECT_EQ(c.code, 0) << c;
+  const auto t0 = std::chrono::steady_clock::now();
+  EXPECT_EQ(run->wait(20s), 5) << read_file(dir_ / "run.err");
+  EXPECT_LT(std::chrono::steady_clock::now() - t0, 5s);
+  Result st = cli({"status", id});
+  EXPECT_NE(st.out.find("CANCELLED"), std::string::npos) << st;
+}
+
+TEST_F(CliEndToEnd, CtrlCDuringRunCancelsTheJobAndExitsFive) {
+  auto run = spawn(long_job_args(root_ / "torus.json", dir_ / "long", "interrupt-me"), true, "run");
+  const auto deadline = std::chrono::steady_clock::now() + 20s;
+  while (read_file(dir_ / "run.err").find("submitted job") == std::string::npos &&
+         std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(20ms);
+  }
+  const std::string err = read_file(dir_ / "run.err");
+  ASSERT_NE(err.find("submitted job "), std::string::npos) << err;
+  std::string id = err.substr(err.find("submitted job ") + 14);
+  id = id.substr(0, id.find(' '));
+  run->signal(SIGINT);
+  EXPECT_EQ(run->wait(20s), 5) << read_file(dir_ / "run.err");
+  Result st = cli({"status", id});
+  EXPECT_NE(st.out.find("CANCELLED"), std::string::npos) << st;
+}
+
+TEST_F(CliEndToEnd, LocalModeWritesClosedMeshes) {
+  Result r = cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--scene",
+                  (root_ / "torus.json").string(), "--cells", "40", "-o", (dir_ / "local").string(), "--workers",
+                  "2"},
+                 /*remote=*/false);
+  ASSERT_EQ(r.code, 0) << r;
+  expect_closed(read_mesh(dir_ / "local" / "frame_0000.drc"), "local frame 0");
+  expect_closed(read_mesh(dir_ / "local" / "frame_0001.drc"), "local frame 1");
+  EXPECT_EQ(r.err.find("warning"), std::string::npos) << "run needs no in-process warning: " << r;
+
+  Result list = cli({"list"}, /*remote=*/false);
+  EXPECT_EQ(list.code, 0) << list;
+  EXPECT_NE(list.err.find("warning: using an in-process server"), std::string::npos) << list;
+}
+
+TEST_F(CliEndToEnd, HealthPrintsServing) {
+  Result r = cli({"health"});
+  EXPECT_EQ(r.code, 0) << r;
+  EXPECT_EQ(r.out, "SERVING\n") << r;
+  Result local = cli({"health"}, /*remote=*/false);
+  EXPECT_EQ(local.code, 0) << local;
+  EXPECT_EQ(local.out, "SERVING\n") << local;
+}
+
+}  // namespace
+}  // namespace surfacer::client

@@ -1,0 +1,145 @@
+// Command-line parsing of the `surfacer` CLI: no server involved.
+#include <gtest/gtest.h>
+
+#include <sstream>
+
+#include "client/cli.h"
+
+namespace surfacer::client {
+namespace {
+
+struct Parsed {
+  std::variant<Invocation, ExitCode> result;
+  std::string out;
+  std::string err;
+};
+
+Parsed parse(std::vector<std::string> args, const char* env_server = nullptr) {
+  args.insert(args.begin(), "surfacer");
+  std::vector<const char*> argv;
+  for (const auto& a : args) argv.push_back(a.c_str());
+  std::ostringstream out, err;
+  Parsed p{parse_command_line(static_cast<int>(argv.size()), argv.data(), out, err, env_server), "", ""};
+  p.out = out.str();
+  p.err = err.str();
+  return p;
+}
+
+const Invocation& ok(const Parsed& p) {
+  EXPECT_TRUE(std::holds_alternative<Invocation>(p.result)) << p.err;
+  return std::get<Invocation>(p.result);
+}
+
+ExitCode code(const Parsed& p) {
+  return std::holds_alternative<ExitCode>(p.result) ? std::get<ExitCode>(p.result) : ExitCode::kSuccess;
+}
+
+TEST(CliOptions, RunIsosurfaceDefaults) {
+  auto p = parse({"run", "isosurface", "--scene", "a.json", "-o", "out"});
+  const Invocation& inv = ok(p);
+  EXPECT_TRUE(inv.connect.local());
+  const auto& run = std::get<RunCommand>(inv.command);
+  ASSERT_TRUE(run.job.isosurface);
+  EXPECT_EQ(run.job.isosurface->scenes.size(), 1u);
+  EXPECT_FALSE(run.job.isosurface->cells);  // the 128 default is applied when building the spec
+  EXPECT_FALSE(run.job.raw);
+  EXPECT_EQ(run.output.dir, "out");
+  EXPECT_TRUE(run.output.formats.empty());
+}
+
+TEST(CliOptions, RunIsosurfaceAllFlags) {
+  auto p = parse({"run", "isosurface", "--scene", "a.json", "--scene", "b.json", "--cell-size", "0.05",
+                  "--bounds", "-1,-2,-3,1,2,3", "--method", "cubes", "-o", "out", "--format", "ply,obj", "--normals",
+                  "--quantization-bits", "12", "--name", "demo", "--server", "host:1234", "--timeout", "2"});
+  const Invocation& inv = ok(p);
+  EXPECT_EQ(inv.connect.server, "host:1234");
+  EXPECT_DOUBLE_EQ(inv.connect.timeout_seconds, 2.0);
+  const auto& run = std::get<RunCommand>(inv.command);
+  ASSERT_TRUE(run.job.isosurface);
+  EXPECT_EQ(run.job.isosurface->scenes.size(), 2u);
+  EXPECT_EQ(run.job.isosurface->cell_size, 0.05);
+  ASSERT_TRUE(run.job.isosurface->bounds);
+  EXPECT_EQ((*run.job.isosurface->bounds)[0], -1.0);
+  EXPECT_EQ((*run.job.isosurface->bounds)[5], 3.0);
+  EXPECT_EQ(run.job.isosurface->method, "cubes");
+  EXPECT_EQ(run.output.formats, (std::vector<FileFormat>{FileFormat::kPly, FileFormat::kObj}));
+  EXPECT_TRUE(run.job.normals);
+  EXPECT_EQ(run.job.quantization_bits, 12);
+  EXPECT_EQ(run.job.name, "demo");
+}
+
+TEST(CliOptions, GlobalOptionsBeforeSubcommand) {
+  auto p = parse({"--server", "h:1", "run", "--spec", "job.json", "-o", "d"});
+  const Invocation& inv = ok(p);
+  EXPECT_EQ(inv.connect.server, "h:1");
+  const auto& run = std::get<RunCommand>(inv.command);
+  EXPECT_EQ(run.job.spec, "job.json");
+  EXPECT_FALSE(run.job.isosurface);
+}
+
+TEST(CliOptions, ServerFromEnvironmentUnlessLocal) {
+  EXPECT_EQ(ok(parse({"status", "j1"}, "env:9")).connect.server, "env:9");
+  EXPECT_TRUE(ok(parse({"--local", "status", "j1"}, "env:9")).connect.local());
+  EXPECT_EQ(ok(parse({"--server", "x:1", "status", "j1"}, "env:9")).connect.server, "x:1");
+  EXPECT_TRUE(ok(parse({"status", "j1"}, "")).connect.local());
+}
+
+TEST(CliOptions, OtherSubcommands) {
+  auto watch = std::get<WatchCommand>(ok(parse({"watch", "j-7", "--from-frame", "3", "-o", "d"})).command);
+  EXPECT_EQ(watch.job_id, "j-7");
+  EXPECT_EQ(watch.from_frame, 3);
+  auto list = std::get<ListCommand>(ok(parse({"list", "--state", "running,queued"})).command);
+  EXPECT_EQ(list.states, (std::vector<std::string>{"running", "queued"}));
+  EXPECT_EQ(std::get<CancelCommand>(ok(parse({"cancel", "j-1"})).command).job_id, "j-1");
+  EXPECT_EQ(std::get<StatusCommand>(ok(parse({"status", "j-2"})).command).job_id, "j-2");
+  EXPECT_TRUE(std::holds_alternative<HealthCommand>(ok(parse({"health"})).command));
+  auto submit = std::get<SubmitCommand>(ok(parse({"submit", "isosurface", "--scene", "a.json", "--raw"})).command);
+  EXPECT_TRUE(submit.job.raw);
+}
+
+TEST(CliOptions, UsageErrorsExitTwo) {
+  const std::vector<std::vector<std::string>> bad = {
+      {},
+      {"frobnicate"},
+      {"run", "isosurface", "-o", "d"},                                                   // no --scene
+      {"run", "isosurface", "--scene", "a.json"},                                         // no -o
+      {"run", "-o", "d"},                                                                 // no job
+      {"run", "--spec", "j.json", "-o", "d", "isosurface", "--scene", "a.json"},          // both
+      {"run", "isosurface", "--scene", "a", "--cells", "8", "--cell-size", "1", "-o", "d"},  // exclusive
+      {"run", "isosurface", "--scene", "a", "--bounds", "1,2,3", "-o", "d"},
+      {"run", "isosurface", "--scene", "a", "--bounds", "1,0,0,0,1,1", "-o", "d"},  // min > max
+      {"run", "isosurface", "--scene", "a", "--format", "stl", "-o", "d"},
+      {"run", "isosurface", "--scene", "a", "--quantization-bits", "31", "-o", "d"},
+      {"run", "isosurface", "--scene", "a", "--raw", "--quantization-bits", "10", "-o", "d"},
+      {"run", "isosurface", "--scene", "a", "--method", "tiles", "-o", "d"},
+      {"--server", "h:1", "--local", "health"},
+      {"watch", "-o", "d"},
+      {"list", "--state", "sleeping"},
+  };
+  for (const auto& args : bad) {
+    auto p = parse(args);
+    std::string joined;
+    for (const auto& a : args) joined += a + " ";
+    EXPECT_EQ(code(p), ExitCode::kUsage) << joined;
+    EXPECT_NE(p.err.find("surfacer: error: "), std::string::npos) << joined << "\n" << p.err;
+  }
+}
+
+TEST(CliOptions, HelpListsExampleAndExitCodes) {
+  auto p = parse({"--help"});
+  EXPECT_EQ(code(p), ExitCode::kSuccess);
+  EXPECT_NE(p.out.find("Exit codes"), std::string::npos);
+  EXPECT_NE(p.out.find("6  frame integrity error"), std::string::npos);
+  for (const char* sub : {"run", "submit", "watch", "status", "list", "cancel", "health"}) {
+    auto h = parse({sub, "--help"});
+    EXPECT_EQ(code(h), ExitCode::kSuccess) << sub;
+    EXPECT_NE(h.out.find("Example"), std::string::npos) << sub << "\n" << h.out;
+  }
+  auto iso = parse({"run", "isosurface", "--help"});
+  EXPECT_EQ(code(iso), ExitCode::kSuccess);
+  EXPECT_NE(iso.out.find("--scene"), std::string::npos);
+  EXPECT_NE(iso.out.find("Example"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace surfacer::client

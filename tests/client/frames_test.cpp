@@ -1,0 +1,324 @@
+// Frame reassembly and verification, output files, stats.csv, job specs from JSON, health message encoding.
+#include <gtest/gtest.h>
+#include <zlib.h>
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "client/exit_codes.h"
+#include "client/frame_assembler.h"
+#include "client/frame_writer.h"
+#include "client/health.h"
+#include "client/job_spec.h"
+#include "core/mesh_io.h"
+
+namespace surfacer::client {
+namespace {
+
+namespace fs = std::filesystem;
+
+fs::path temp_dir(const std::string& name) {
+  fs::path dir = fs::temp_directory_path() / ("surfacer_client_" + name + "_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+std::string read_file(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+// A frame of `bytes` cut into chunks of `chunk_size`, as the server sends it.
+struct Events {
+  v1::FrameHeader header;
+  std::vector<v1::FrameChunk> chunks;
+};
+
+Events make_frame(int index, const std::string& bytes, std::size_t chunk_size,
+                  v1::MeshEncoding encoding = v1::MESH_ENCODING_DRACO) {
+  Events e;
+  e.header.set_frame_index(index);
+  e.header.set_encoding(encoding);
+  e.header.set_total_bytes(bytes.size());
+  e.header.set_crc32(crc32_of(bytes));
+  e.header.mutable_stats()->set_triangles(12);
+  int n = 0;
+  for (std::size_t pos = 0; pos < bytes.size(); pos += chunk_size, ++n) {
+    v1::FrameChunk c;
+    c.set_frame_index(index);
+    c.set_chunk_index(n);
+    c.set_data(bytes.substr(pos, chunk_size));
+    c.set_crc32(crc32_of(c.data()));
+    e.chunks.push_back(c);
+  }
+  if (!e.chunks.empty()) e.chunks.back().set_last(true);
+  e.header.set_num_chunks(n);
+  return e;
+}
+
+std::optional<ReceivedFrame> feed(FrameAssembler& a, const Events& e) {
+  std::optional<ReceivedFrame> frame = a.on_header(e.header);
+  for (const auto& c : e.chunks) {
+    EXPECT_FALSE(frame) << "frame completed before its last chunk";
+    frame = a.on_chunk(c);
+  }
+  return frame;
+}
+
+ExitCode error_code_of(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const CliError& e) {
+    return e.code();
+  }
+  return ExitCode::kSuccess;
+}
+
+TEST(Crc32, MatchesZlibCheckValue) {
+  EXPECT_EQ(crc32_of("123456789"), 0xCBF43926u);  // the standard CRC-32 check value
+  EXPECT_EQ(crc32_of(""), 0u);
+}
+
+TEST(FrameAssembler, ReassemblesChunksInOrder) {
+  std::string bytes(2500, '\0');
+  for (std::size_t i = 0; i < bytes.size(); ++i) bytes[i] = static_cast<char>(i * 7);
+  FrameAssembler a;
+  auto frame = feed(a, make_frame(4, bytes, 1000));
+  ASSERT_TRUE(frame);
+  EXPECT_EQ(frame->index, 4);
+  EXPECT_EQ(frame->bytes, bytes);
+  EXPECT_EQ(frame->stats.triangles(), 12);
+  EXPECT_TRUE(a.idle());
+}
+
+TEST(FrameAssembler, InterleavedFramesAndUnspecifiedEncoding) {
+  FrameAssembler a;
+  Events f1 = make_frame(1, std::string(30, 'a'), 10, v1::MESH_ENCODING_UNSPECIFIED);
+  Events f2 = make_frame(2, std::string(20, 'b'), 10, v1::MESH_ENCODING_PLY);
+  EXPECT_FALSE(a.on_header(f1.header));
+  EXPECT_FALSE(a.on_header(f2.header));
+  EXPECT_FALSE(a.on_chunk(f1.chunks[0]));
+  EXPECT_FALSE(a.on_chunk(f2.chunks[0]));
+  auto done2 = a.on_chunk(f2.chunks[1]);
+  ASSERT_TRUE(done2);
+  EXPECT_EQ(done2->encoding, v1::MESH_ENCODING_PLY);
+  EXPECT_FALSE(a.on_chunk(f1.chunks[1]));
+  auto done1 = a.on_chunk(f1.chunks[2]);
+  ASSERT_TRUE(done1);
+  EXPECT_EQ(done1->encoding, v1::MESH_ENCODING_DRACO);
+}
+
+TEST(FrameAssembler, EmptyFrame) {
+  FrameAssembler a;
+  auto frame = feed(a, make_frame(0, "", 10));
+  ASSERT_TRUE(frame);
+  EXPECT_TRUE(frame->bytes.empty());
+}
+
+TEST(FrameAssembler, EveryMismatchIsAnIntegrityError) {
+  const std::string bytes(25, 'x');
+  auto expect_integrity = [&](const std::function<void(Events&)>& corrupt, const char* what) {
+    Events e = make_frame(0, bytes, 10);
+    corrupt(e);
+    FrameAssembler a;
+    EXPECT_EQ(error_code_of([&] { feed(a, e); }), ExitCode::kIntegrity) << what;
+  };
+  expect_integrity([](Events& e) { e.chunks[1].set_crc32(e.chunks[1].crc32() ^ 1); }, "chunk crc");
+  expect_integrity([](Events& e) { e.chunks[1].mutable_data()->at(0) = 'y'; }, "chunk data");
+  expect_integrity([](Events& e) { e.header.set_crc32(e.header.crc32() ^ 1); }, "frame crc");
+  expect_integrity([](Events& e) { e.header.set_total_bytes(24); }, "total bytes");
+  expect_integrity([](Events& e) { e.header.set_num_chunks(4); }, "num chunks");
+  expect_integrity([](Events& e) { e.header.set_num_chunks(2); }, "fewer chunks");
+  expect_integrity([](Events& e) { e.chunks[1].set_last(true); }, "early last");
+  expect_integrity([](Events& e) { e.chunks[2].set_last(false); e.header.set_num_chunks(3); }, "missing last");
+  expect_integrity([](Events& e) { std::swap(e.chunks[0], e.chunks[1]); }, "order");
+  expect_integrity([](Events& e) { e.header.set_encoding(static_cast<v1::MeshEncoding>(9)); }, "encoding");
+
+  FrameAssembler a;
+  v1::FrameChunk orphan;
+  orphan.set_frame_index(3);
+  EXPECT_EQ(error_code_of([&] { a.on_chunk(orphan); }), ExitCode::kIntegrity);
+}
+
+TEST(FrameAssembler, ResetDropsPartialFrames) {
+  FrameAssembler a;
+  Events e = make_frame(0, std::string(25, 'x'), 10);
+  a.on_header(e.header);
+  a.on_chunk(e.chunks[0]);
+  a.reset();
+  EXPECT_TRUE(a.idle());
+  auto frame = feed(a, e);  // sent again after a reconnect
+  ASSERT_TRUE(frame);
+}
+
+Mesh tetrahedron() {
+  Mesh m;
+  m.vertices = {Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(0, 1, 0), Vec3(0, 0, 1)};
+  m.triangles = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
+  return m;
+}
+
+TEST(FrameWriter, RawPlyAsReceivedAndConvertedToObj) {
+  const fs::path dir = temp_dir("writer");
+  const std::string ply = write_ply(tetrahedron(), /*double_precision=*/true);
+  Events e = make_frame(2, ply, 1 << 20, v1::MESH_ENCODING_PLY);
+  FrameAssembler a;
+  auto frame = feed(a, e);
+  ASSERT_TRUE(frame);
+
+  FrameWriter writer(FrameOutputOptions{dir / "sub", {FileFormat::kPly, FileFormat::kObj}});
+  auto files = writer.write(*frame);
+  ASSERT_EQ(files.size(), 2u);
+  EXPECT_EQ(read_file(dir / "sub" / "frame_0002.ply"), ply);  // lossless: byte for byte
+  Mesh obj = read_mesh(dir / "sub" / "frame_0002.obj");
+  EXPECT_EQ(obj.triangles.size(), 4u);
+  const std::string csv = read_file(dir / "sub" / "stats.csv");
+  EXPECT_EQ(csv.rfind("frame,vertices,triangles,closed,manifold,euler,components,min_valence,min_angle,area,volume",
+                      0),
+            0u);
+  for (const auto& entry : fs::directory_iterator(dir / "sub")) {
+    EXPECT_EQ(entry.path().string().find(".tmp"), std::string::npos) << entry.path();
+  }
+  fs::remove_all(dir);
+}
+
+TEST(FrameWriter, DefaultFormatFollowsEncoding) {
+  const fs::path dir = temp_dir("writer_default");
+  FrameWriter writer(FrameOutputOptions{dir, {}});
+  ReceivedFrame drc;
+  drc.index = 0;
+  drc.bytes = "not really draco";
+  writer.write(drc);
+  EXPECT_EQ(read_file(dir / "frame_0000.drc"), "not really draco");
+  // Asking for PLY of undecodable Draco bytes is an integrity error.
+  FrameWriter ply_writer(FrameOutputOptions{dir, {FileFormat::kPly}});
+  EXPECT_EQ(error_code_of([&] { ply_writer.write(drc); }), ExitCode::kIntegrity);
+  fs::remove_all(dir);
+}
+
+TEST(FrameWriter, UnwritableDirectoryIsAUsageError) {
+  const fs::path dir = temp_dir("writer_file");
+  std::ofstream(dir / "plain_file") << "x";
+  EXPECT_EQ(error_code_of([&] { FrameWriter w(FrameOutputOptions{dir / "plain_file" / "out", {}}); }),
+            ExitCode::kUsage);
+  fs::remove_all(dir);
+}
+
+TEST(StatsCsv, OneRowPerFrameSortedWithStageColumns) {
+  std::map<int, v1::FrameStats> stats;
+  for (int i : {1, 0}) {
+    v1::FrameStats s;
+    s.set_vertices(10 + i);
+    s.set_triangles(20 + i);
+    s.mutable_check()->set_closed(true);
+    s.mutable_check()->set_edge_manifold(true);
+    s.mutable_check()->set_vertex_manifold(i == 0);
+    s.mutable_check()->set_euler_characteristic(2);
+    s.mutable_check()->set_components(1);
+    auto* t = s.add_timings();
+    t->set_stage("polygonize");
+    t->set_seconds(0.5);
+    if (i == 1) {
+      auto* t2 = s.add_timings();
+      t2->set_stage("encode");
+      t2->set_seconds(0.25);
+    }
+    stats[i] = s;
+  }
+  const std::string csv = stats_csv(stats);
+  std::istringstream lines(csv);
+  std::string header, row0, row1, extra;
+  std::getline(lines, header);
+  std::getline(lines, row0);
+  std::getline(lines, row1);
+  EXPECT_FALSE(std::getline(lines, extra));
+  EXPECT_EQ(header,
+            "frame,vertices,triangles,closed,manifold,euler,components,min_valence,min_angle,area,volume,"
+            "polygonize_s,encode_s,total_s");
+  EXPECT_EQ(row0.rfind("0,10,20,1,1,2,1,", 0), 0u) << row0;
+  EXPECT_EQ(row1.rfind("1,11,21,1,0,2,1,", 0), 0u) << row1;
+  EXPECT_NE(row0.find(",0.500000,,0.500000"), std::string::npos) << row0;
+  EXPECT_NE(row1.find(",0.500000,0.250000,0.750000"), std::string::npos) << row1;
+}
+
+TEST(JobSpec, BuildsIsosurfaceFromSceneFiles) {
+  const fs::path dir = temp_dir("spec");
+  std::ofstream(dir / "ball.json") << R"({"name": "ball", "root": {"sphere": {"radius": 0.5}}})";
+  JobOptions options;
+  options.isosurface = IsosurfaceOptions{{dir / "ball.json", dir / "ball.json"}, {}, {}, {{-1, -1, -1, 1, 1, 1}}, "cubes"};
+  options.raw = true;
+  options.normals = true;
+  v1::JobSpec spec = build_job_spec(options);
+  ASSERT_TRUE(spec.has_isosurface());
+  EXPECT_EQ(spec.isosurface().scenes_size(), 2);
+  EXPECT_DOUBLE_EQ(spec.isosurface().scenes(0).root().sphere().radius(), 0.5);
+  EXPECT_EQ(spec.isosurface().cells(), 128);
+  EXPECT_DOUBLE_EQ(spec.isosurface().bounds().max().z(), 1.0);
+  EXPECT_EQ(spec.isosurface().method(), v1::POLYGONIZER_CUBES);
+  EXPECT_EQ(spec.output().encoding(), v1::MESH_ENCODING_PLY);
+  EXPECT_TRUE(spec.output().normals());
+  EXPECT_EQ(spec.name(), "ball (+1 more)");
+
+  options.isosurface->cell_size = 0.1;
+  options.name = "named";
+  options.raw = false;
+  options.quantization_bits = 11;
+  spec = build_job_spec(options);
+  EXPECT_DOUBLE_EQ(spec.isosurface().cell_size(), 0.1);
+  EXPECT_EQ(spec.name(), "named");
+  EXPECT_EQ(spec.output().quantization_bits(), 11);
+  fs::remove_all(dir);
+}
+
+TEST(JobSpec, WholeSpecFromJsonWithOverrides) {
+  const fs::path dir = temp_dir("spec_json");
+  std::ofstream(dir / "job.json")
+      << R"({"name": "from file", "output": {"quantizationBits": 9},
+             "isosurface": {"scenes": [{"root": {"torus": {"majorRadius": 1, "minorRadius": 0.25}}}], "cells": 40}})";
+  JobOptions options;
+  options.spec = dir / "job.json";
+  v1::JobSpec spec = build_job_spec(options);
+  EXPECT_EQ(spec.name(), "from file");
+  EXPECT_EQ(spec.isosurface().cells(), 40);
+  EXPECT_EQ(spec.output().quantization_bits(), 9);
+  options.raw = true;
+  EXPECT_EQ(build_job_spec(options).output().encoding(), v1::MESH_ENCODING_PLY);
+  fs::remove_all(dir);
+}
+
+TEST(JobSpec, MalformedOrMissingFilesNameTheFile) {
+  const fs::path dir = temp_dir("spec_bad");
+  std::ofstream(dir / "broken.json") << R"({"root": {"sphere": {"radius": }}})";
+  std::ofstream(dir / "typo.json") << R"({"root": {"sphere": {"radios": 1}}})";
+  for (const char* name : {"broken.json", "typo.json", "missing.json"}) {
+    try {
+      read_scene_file(dir / name);
+      ADD_FAILURE() << name << " parsed";
+    } catch (const CliError& e) {
+      EXPECT_EQ(e.code(), ExitCode::kUsage);
+      EXPECT_NE(std::string(e.what()).find(name), std::string::npos) << e.what();
+    }
+  }
+  fs::remove_all(dir);
+}
+
+TEST(Health, EncodesRequestAndDecodesResponse) {
+  EXPECT_EQ(encode_health_request(""), "");
+  EXPECT_EQ(encode_health_request("surfacer.v1.Surfacer"), std::string("\x0a\x14surfacer.v1.Surfacer", 22));
+  HealthStatus status = HealthStatus::kUnknown;
+  ASSERT_TRUE(decode_health_response(std::string("\x08\x01", 2), &status));
+  EXPECT_EQ(status, HealthStatus::kServing);
+  ASSERT_TRUE(decode_health_response(std::string("\x12\x01x\x08\x02", 5), &status));  // unknown field skipped
+  EXPECT_EQ(status, HealthStatus::kNotServing);
+  ASSERT_TRUE(decode_health_response("", &status));
+  EXPECT_EQ(status, HealthStatus::kUnknown);
+  EXPECT_FALSE(decode_health_response(std::string("\x08", 1), &status));
+  EXPECT_EQ(health_status_name(HealthStatus::kServing), "SERVING");
+}
+
+}  // namespace
+}  // namespace surfacer::client
