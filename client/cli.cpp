@@ -3,6 +3,7 @@
 #include <unistd.h>
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <charconv>
 #include <cstdlib>
 #include <iostream>
@@ -104,8 +105,8 @@ std::array<double, 6> parse_bounds(const std::string& text) {
   for (int i = 0; i < 3; ++i) {
     if (!(values[i] < values[i + 3])) {
       throw CliError(ExitCode::kUsage, std::string("--bounds: the minimum ") + axes[i] + " (" +
-                                           std::to_string(values[i]) + ") must be below the maximum " + axes[i] +
-                                           " (" + std::to_string(values[i + 3]) + ")");
+                                           std::to_string(values[i]) + ") must be below the maximum " + axes[i] + " (" +
+                                           std::to_string(values[i + 3]) + ")");
     }
   }
   return values;
@@ -128,8 +129,7 @@ JobOptions finish_job(JobFlags& flags, const std::string& command) {
   }
   if (!job.spec && !has_type) {
     throw CliError(ExitCode::kUsage, command + " needs a job: `surfacer " + command +
-                                         " isosurface --scene FILE ...` or `surfacer " + command +
-                                         " --spec job.json`");
+                                         " isosurface --scene FILE ...` or `surfacer " + command + " --spec job.json`");
   }
   if (job.raw && job.quantization_bits) {
     throw CliError(ExitCode::kUsage,

@@ -2,9 +2,12 @@
 
 #include <grpcpp/client_context.h>
 
+#include <algorithm>
 #include <atomic>
+#include <cctype>
 #include <cstdio>
 #include <iomanip>
+#include <mutex>
 #include <ostream>
 #include <sstream>
 
@@ -59,8 +62,7 @@ std::string job_error_text(const v1::Job& job) {
   return text;
 }
 
-std::string summary(const WatchResult& result, const FrameWriter& writer,
-                    std::chrono::steady_clock::time_point start) {
+std::string summary(const WatchResult& result, const FrameWriter& writer, std::chrono::steady_clock::time_point start) {
   return "wrote " + std::to_string(result.frames_written) + " frame" + (result.frames_written == 1 ? "" : "s") +
          " to " + dir_text(writer.dir()) + " (" + std::to_string(result.triangles) + " triangles, " +
          seconds_text(start) + ")";
@@ -73,7 +75,8 @@ ExitCode finish_watch(const WatchResult& result, const FrameWriter& writer, Prog
   progress.line(summary(result, writer, start));
   const v1::Job& job = result.job;
   switch (job.state()) {
-    case v1::JOB_STATE_SUCCEEDED: return ExitCode::kSuccess;
+    case v1::JOB_STATE_SUCCEEDED:
+      return ExitCode::kSuccess;
     case v1::JOB_STATE_CANCELLED: {
       std::string reason = job_error_text(job);
       throw CliError(ExitCode::kCancelled, "job " + job.id() + " was cancelled" +
@@ -178,8 +181,7 @@ ExitCode run_run(const ConnectOptions& connect, const RunCommand& command, std::
   return finish_watch(result, writer, progress, start, interrupted);
 }
 
-ExitCode run_submit(const ConnectOptions& connect, const SubmitCommand& command, std::ostream& out,
-                    std::ostream& err) {
+ExitCode run_submit(const ConnectOptions& connect, const SubmitCommand& command, std::ostream& out, std::ostream& err) {
   const v1::JobSpec spec = build_job_spec(command.job);
   auto connection = Connection::open(connect);
   warn_local(*connection, err);
@@ -204,8 +206,7 @@ std::string percent_text(double fraction) {
   return buf;
 }
 
-ExitCode run_status(const ConnectOptions& connect, const StatusCommand& command, std::ostream& out,
-                    std::ostream& err) {
+ExitCode run_status(const ConnectOptions& connect, const StatusCommand& command, std::ostream& out, std::ostream& err) {
   auto connection = Connection::open(connect);
   warn_local(*connection, err);
   v1::GetJobRequest request;
@@ -227,8 +228,7 @@ ExitCode run_status(const ConnectOptions& connect, const StatusCommand& command,
   return ExitCode::kSuccess;
 }
 
-ExitCode run_list(const ConnectOptions& connect, const ListCommand& command, std::ostream& out,
-                  std::ostream& err) {
+ExitCode run_list(const ConnectOptions& connect, const ListCommand& command, std::ostream& out, std::ostream& err) {
   auto connection = Connection::open(connect);
   warn_local(*connection, err);
   v1::ListJobsRequest request;
@@ -239,23 +239,24 @@ ExitCode run_list(const ConnectOptions& connect, const ListCommand& command, std
     if (!v1::JobState_Parse(upper, &state)) throw CliError(ExitCode::kUsage, "unknown job state " + name);
     request.add_states(state);
   }
-  const v1::ListJobsResponse response =
-      call(*connection, "listing jobs", &v1::Surfacer::Stub::ListJobs, request);
+  const v1::ListJobsResponse response = call(*connection, "listing jobs", &v1::Surfacer::Stub::ListJobs, request);
   std::size_t id_width = 6;
   for (const auto& job : response.jobs()) id_width = std::max(id_width, job.id().size());
-  out << std::left << std::setw(static_cast<int>(id_width)) << "JOB_ID" << "  " << std::setw(9) << "STATE"
-      << "  " << std::setw(11) << "FRAMES" << "  " << std::setw(10) << "KIND" << "  NAME\n";
+  out << std::left << std::setw(static_cast<int>(id_width)) << "JOB_ID"
+      << "  " << std::setw(9) << "STATE"
+      << "  " << std::setw(11) << "FRAMES"
+      << "  " << std::setw(10) << "KIND"
+      << "  NAME\n";
   for (const auto& job : response.jobs()) {
-    out << std::setw(static_cast<int>(id_width)) << job.id() << "  " << std::setw(9) << state_name(job.state())
-        << "  " << std::setw(11) << (std::to_string(job.frames_done()) + "/" + std::to_string(job.frames_total()))
-        << "  " << std::setw(10) << (job.kind().empty() ? "-" : job.kind()) << "  " << job.name() << "\n";
+    out << std::setw(static_cast<int>(id_width)) << job.id() << "  " << std::setw(9) << state_name(job.state()) << "  "
+        << std::setw(11) << (std::to_string(job.frames_done()) + "/" + std::to_string(job.frames_total())) << "  "
+        << std::setw(10) << (job.kind().empty() ? "-" : job.kind()) << "  " << job.name() << "\n";
   }
   out << std::flush;
   return ExitCode::kSuccess;
 }
 
-ExitCode run_cancel(const ConnectOptions& connect, const CancelCommand& command, std::ostream& out,
-                    std::ostream& err) {
+ExitCode run_cancel(const ConnectOptions& connect, const CancelCommand& command, std::ostream& out, std::ostream& err) {
   auto connection = Connection::open(connect);
   warn_local(*connection, err);
   v1::CancelJobRequest request;
@@ -275,10 +276,10 @@ ExitCode run_health(const ConnectOptions& connect, const HealthCommand& command,
   const HealthStatus status = check_health(connection->channel_ptr(), command.service, connection->unary_deadline());
   out << health_status_name(status) << "\n" << std::flush;
   if (status != HealthStatus::kServing) {
-    throw CliError(ExitCode::kUnreachable, connection->describe() + " is not serving" +
-                                               (command.service.empty() ? std::string()
-                                                                        : " service \"" + command.service + "\"") +
-                                               " (health: " + health_status_name(status) + ")");
+    throw CliError(ExitCode::kUnreachable,
+                   connection->describe() + " is not serving" +
+                       (command.service.empty() ? std::string() : " service \"" + command.service + "\"") +
+                       " (health: " + health_status_name(status) + ")");
   }
   return ExitCode::kSuccess;
 }

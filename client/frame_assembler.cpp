@@ -55,7 +55,8 @@ std::optional<ReceivedFrame> FrameAssembler::on_header(const v1::FrameHeader& he
 std::optional<ReceivedFrame> FrameAssembler::on_chunk(const v1::FrameChunk& chunk) {
   const int index = chunk.frame_index();
   auto it = pending_.find(index);
-  if (it == pending_.end()) integrity(index, "FrameChunk " + std::to_string(chunk.chunk_index()) + " without a FrameHeader");
+  if (it == pending_.end())
+    integrity(index, "FrameChunk " + std::to_string(chunk.chunk_index()) + " without a FrameHeader");
   Pending& pending = it->second;
   const std::string where = "chunk " + std::to_string(chunk.chunk_index()) + ": ";
   if (chunk.chunk_index() != pending.chunks) {
@@ -69,18 +70,18 @@ std::optional<ReceivedFrame> FrameAssembler::on_chunk(const v1::FrameChunk& chun
     integrity(index, where + "CRC-32 mismatch: computed " + hex32(crc) + ", chunk says " + hex32(chunk.crc32()));
   }
   if (pending.bytes.size() + chunk.data().size() > pending.header.total_bytes()) {
-    integrity(index, where + "more bytes than FrameHeader.total_bytes (" +
-                         std::to_string(pending.header.total_bytes()) + ")");
+    integrity(index,
+              where + "more bytes than FrameHeader.total_bytes (" + std::to_string(pending.header.total_bytes()) + ")");
   }
   pending.bytes += chunk.data();
   ++pending.chunks;
   const bool should_be_last = pending.chunks == pending.header.num_chunks();
   if (chunk.last() != should_be_last) {
-    integrity(index, where + (chunk.last() ? "marked last, but FrameHeader.num_chunks is " +
-                                                 std::to_string(pending.header.num_chunks())
-                                           : "FrameHeader.num_chunks is " +
-                                                 std::to_string(pending.header.num_chunks()) +
-                                                 " but this chunk is not marked last"));
+    integrity(index,
+              where + (chunk.last()
+                           ? "marked last, but FrameHeader.num_chunks is " + std::to_string(pending.header.num_chunks())
+                           : "FrameHeader.num_chunks is " + std::to_string(pending.header.num_chunks()) +
+                                 " but this chunk is not marked last"));
   }
   if (!should_be_last) return std::nullopt;
   return finish(index, pending);
@@ -94,16 +95,21 @@ ReceivedFrame FrameAssembler::finish(int index, Pending& pending) {
   }
   const std::uint32_t crc = crc32_of(pending.bytes);
   if (crc != header.crc32()) {
-    integrity(index, "whole-frame CRC-32 mismatch: computed " + hex32(crc) + ", FrameHeader says " +
-                         hex32(header.crc32()));
+    integrity(index,
+              "whole-frame CRC-32 mismatch: computed " + hex32(crc) + ", FrameHeader says " + hex32(header.crc32()));
   }
   ReceivedFrame frame;
   frame.index = index;
   switch (header.encoding()) {
     case v1::MESH_ENCODING_UNSPECIFIED:
-    case v1::MESH_ENCODING_DRACO: frame.encoding = v1::MESH_ENCODING_DRACO; break;
-    case v1::MESH_ENCODING_PLY: frame.encoding = v1::MESH_ENCODING_PLY; break;
-    default: integrity(index, "unknown MeshEncoding " + std::to_string(header.encoding()));
+    case v1::MESH_ENCODING_DRACO:
+      frame.encoding = v1::MESH_ENCODING_DRACO;
+      break;
+    case v1::MESH_ENCODING_PLY:
+      frame.encoding = v1::MESH_ENCODING_PLY;
+      break;
+    default:
+      integrity(index, "unknown MeshEncoding " + std::to_string(header.encoding()));
   }
   frame.bytes = std::move(pending.bytes);
   frame.stats = header.stats();

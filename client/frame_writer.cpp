@@ -3,6 +3,7 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -18,9 +19,12 @@ namespace {
 
 const char* extension(FileFormat format) {
   switch (format) {
-    case FileFormat::kDrc: return "drc";
-    case FileFormat::kPly: return "ply";
-    case FileFormat::kObj: return "obj";
+    case FileFormat::kDrc:
+      return "drc";
+    case FileFormat::kPly:
+      return "ply";
+    case FileFormat::kObj:
+      return "obj";
   }
   return "bin";
 }

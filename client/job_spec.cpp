@@ -31,8 +31,8 @@ Message parse_json_file(const std::filesystem::path& path, const char* what) {
   auto status = google::protobuf::util::JsonStringToMessage(text, &message, options);
   if (!status.ok()) {
     throw CliError(ExitCode::kUsage, std::string(what) + " " + path.string() + " is not a valid " +
-                                         Message::descriptor()->full_name() + " in protobuf JSON: " +
-                                         std::string(status.message()));
+                                         Message::descriptor()->full_name() +
+                                         " in protobuf JSON: " + std::string(status.message()));
   }
   return message;
 }
@@ -45,9 +45,7 @@ void set_vec3(v1::Vec3* v, double x, double y, double z) {
 
 }  // namespace
 
-v1::Scene read_scene_file(const std::filesystem::path& path) {
-  return parse_json_file<v1::Scene>(path, "scene file");
-}
+v1::Scene read_scene_file(const std::filesystem::path& path) { return parse_json_file<v1::Scene>(path, "scene file"); }
 
 v1::JobSpec read_job_spec_file(const std::filesystem::path& path) {
   return parse_json_file<v1::JobSpec>(path, "job spec file");

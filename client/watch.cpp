@@ -34,8 +34,7 @@ int JobWatcher::next_missing() const {
   return next;
 }
 
-void JobWatcher::handle_frame(const ReceivedFrame& frame, int requested_from, int frames_total,
-                              WatchResult& result) {
+void JobWatcher::handle_frame(const ReceivedFrame& frame, int requested_from, int frames_total, WatchResult& result) {
   if (frame.index < requested_from) {
     throw CliError(ExitCode::kIntegrity, "frame " + std::to_string(frame.index) +
                                              ": the server sent it although from_frame was " +

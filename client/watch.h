@@ -27,15 +27,15 @@ struct WatchResult {
 };
 
 struct ReconnectPolicy {
-  std::chrono::milliseconds budget{10'000};        // give up after this long without a successful read
-  std::chrono::milliseconds first_delay{250};      // doubled per attempt ...
-  std::chrono::milliseconds max_delay{2'000};      // ... up to this
+  std::chrono::milliseconds budget{10'000};    // give up after this long without a successful read
+  std::chrono::milliseconds first_delay{250};  // doubled per attempt ...
+  std::chrono::milliseconds max_delay{2'000};  // ... up to this
 };
 
 class JobWatcher {
  public:
-  JobWatcher(Connection& connection, std::string job_id, int from_frame, FrameWriter& writer,
-             ProgressDisplay& progress, ReconnectPolicy policy = {});
+  JobWatcher(Connection& connection, std::string job_id, int from_frame, FrameWriter& writer, ProgressDisplay& progress,
+             ReconnectPolicy policy = {});
 
   // Returns once the job reached a terminal state and the stream ended. Throws CliError: kIntegrity (a frame
   // failed its checks, a protocol violation, or the job SUCCEEDED with frames missing), kUnreachable (reconnecting

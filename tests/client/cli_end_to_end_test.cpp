@@ -1,14 +1,13 @@
 // End to end with real processes: a `surfacer-server` child on a loopback port (or the CLI's in-process server)
 // and the `surfacer` binary, checked through exit codes, files and Debian's draco_decoder.
 #include <fcntl.h>
+#include <gtest/gtest.h>
 #include <netinet/in.h>
 #include <signal.h>
 #include <spawn.h>
 #include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
-
-#include <gtest/gtest.h>
 
 #include <chrono>
 #include <filesystem>
@@ -131,9 +130,9 @@ int free_port() {
   return port;
 }
 
-constexpr const char* kSphere = R"({"name": "sphere", "root": {"sphere": {"center": {"x": 0, "y": 0, "z": 0}, "radius": 1}}})";
-constexpr const char* kTorus =
-    R"({"name": "torus", "root": {"torus": {"majorRadius": 1, "minorRadius": 0.35}}})";
+constexpr const char* kSphere =
+    R"({"name": "sphere", "root": {"sphere": {"center": {"x": 0, "y": 0, "z": 0}, "radius": 1}}})";
+constexpr const char* kTorus = R"({"name": "torus", "root": {"torus": {"majorRadius": 1, "minorRadius": 0.35}}})";
 constexpr const char* kBadRadius = R"({"name": "bad", "root": {"sphere": {"radius": -1}}})";
 
 // One server for the whole suite (started in SetUpTestSuite, SIGTERM in TearDownTestSuite).
@@ -148,8 +147,8 @@ class CliEndToEnd : public ::testing::Test {
     write_file(root_ / "bad_radius.json", kBadRadius);
     write_file(root_ / "malformed.json", R"({"root": {"sphere": {"radius": 1,,}}})");
     const fs::path port_file = root_ / "port";
-    server_ = new Child({kServer.string(), "--listen", "127.0.0.1:0", "--port-file", port_file.string(),
-                         "--workers", "2", "--drain-seconds", "1"},
+    server_ = new Child({kServer.string(), "--listen", "127.0.0.1:0", "--port-file", port_file.string(), "--workers",
+                         "2", "--drain-seconds", "1"},
                         root_ / "server.out", root_ / "server.err", false);
     ASSERT_TRUE(server_->started()) << "cannot start " << kServer;
     const auto deadline = std::chrono::steady_clock::now() + 20s;
@@ -220,8 +219,8 @@ void expect_closed(const Mesh& mesh, const std::string& what) {
 // Decodes with Debian's draco_decoder (an independent decoder) and checks the mesh.
 void expect_draco_decodes_closed(const fs::path& drc) {
   const fs::path ply = drc.parent_path() / (drc.stem().string() + "_decoded.ply");
-  const std::string command = "/usr/bin/draco_decoder -i '" + drc.string() + "' -o '" + ply.string() + "' >'" +
-                              ply.string() + ".log' 2>&1";
+  const std::string command =
+      "/usr/bin/draco_decoder -i '" + drc.string() + "' -o '" + ply.string() + "' >'" + ply.string() + ".log' 2>&1";
   ASSERT_EQ(std::system(command.c_str()), 0) << command << "\n" << read_file(ply.string() + ".log");
   expect_closed(read_mesh(ply), drc.string());
 }
@@ -276,6 +275,16 @@ TEST_F(CliEndToEnd, PlyAndObjFormatsAndRawLosslessPly) {
   const std::string ply = read_file(dir_ / "raw" / "frame_0000.ply");
   EXPECT_NE(ply.find("property double x"), std::string::npos) << ply.substr(0, 300);
   expect_closed(read_mesh(dir_ / "raw" / "frame_0000.ply"), "raw ply");
+}
+
+TEST_F(CliEndToEnd, RunWholeSpecFromJson) {
+  write_file(dir_ / "job.json", std::string(R"({"name": "spec job", "output": {"encoding": "MESH_ENCODING_PLY"},
+      "isosurface": {"cells": 32, "scenes": [)") +
+                                    kSphere + "," + kTorus + "]}}");
+  Result r = cli({"run", "--spec", (dir_ / "job.json").string(), "-o", (dir_ / "spec").string(), "--format", "obj"});
+  ASSERT_EQ(r.code, 0) << r;
+  expect_closed(read_mesh(dir_ / "spec" / "frame_0000.obj"), "spec frame 0");
+  expect_closed(read_mesh(dir_ / "spec" / "frame_0001.obj"), "spec frame 1");
 }
 
 TEST_F(CliEndToEnd, SubmitThenWatchFromFrame) {
@@ -385,8 +394,7 @@ TEST_F(CliEndToEnd, CtrlCDuringRunCancelsTheJobAndExitsFive) {
 
 TEST_F(CliEndToEnd, LocalModeWritesClosedMeshes) {
   Result r = cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--scene",
-                  (root_ / "torus.json").string(), "--cells", "40", "-o", (dir_ / "local").string(), "--workers",
-                  "2"},
+                  (root_ / "torus.json").string(), "--cells", "40", "-o", (dir_ / "local").string(), "--workers", "2"},
                  /*remote=*/false);
   ASSERT_EQ(r.code, 0) << r;
   expect_closed(read_mesh(dir_ / "local" / "frame_0000.drc"), "local frame 0");

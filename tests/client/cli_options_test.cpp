@@ -48,9 +48,11 @@ TEST(CliOptions, RunIsosurfaceDefaults) {
 }
 
 TEST(CliOptions, RunIsosurfaceAllFlags) {
-  auto p = parse({"run", "isosurface", "--scene", "a.json", "--scene", "b.json", "--cell-size", "0.05",
-                  "--bounds", "-1,-2,-3,1,2,3", "--method", "cubes", "-o", "out", "--format", "ply,obj", "--normals",
-                  "--quantization-bits", "12", "--name", "demo", "--server", "host:1234", "--timeout", "2"});
+  auto p = parse(
+      {"run",       "isosurface",          "--scene",  "a.json", "--scene", "b.json",   "--cell-size", "0.05",
+       "--bounds",  "-1,-2,-3,1,2,3",      "--method", "cubes",  "-o",      "out",      "--format",    "ply,obj",
+       "--normals", "--quantization-bits", "12",       "--name", "demo",    "--server", "host:1234",   "--timeout",
+       "2"});
   const Invocation& inv = ok(p);
   EXPECT_EQ(inv.connect.server, "host:1234");
   EXPECT_DOUBLE_EQ(inv.connect.timeout_seconds, 2.0);
@@ -101,10 +103,10 @@ TEST(CliOptions, UsageErrorsExitTwo) {
   const std::vector<std::vector<std::string>> bad = {
       {},
       {"frobnicate"},
-      {"run", "isosurface", "-o", "d"},                                                   // no --scene
-      {"run", "isosurface", "--scene", "a.json"},                                         // no -o
-      {"run", "-o", "d"},                                                                 // no job
-      {"run", "--spec", "j.json", "-o", "d", "isosurface", "--scene", "a.json"},          // both
+      {"run", "isosurface", "-o", "d"},                                                      // no --scene
+      {"run", "isosurface", "--scene", "a.json"},                                            // no -o
+      {"run", "-o", "d"},                                                                    // no job
+      {"run", "--spec", "j.json", "-o", "d", "isosurface", "--scene", "a.json"},             // both
       {"run", "isosurface", "--scene", "a", "--cells", "8", "--cell-size", "1", "-o", "d"},  // exclusive
       {"run", "isosurface", "--scene", "a", "--bounds", "1,2,3", "-o", "d"},
       {"run", "isosurface", "--scene", "a", "--bounds", "1,0,0,0,1,1", "-o", "d"},  // min > max

@@ -134,7 +134,12 @@ TEST(FrameAssembler, EveryMismatchIsAnIntegrityError) {
   expect_integrity([](Events& e) { e.header.set_num_chunks(4); }, "num chunks");
   expect_integrity([](Events& e) { e.header.set_num_chunks(2); }, "fewer chunks");
   expect_integrity([](Events& e) { e.chunks[1].set_last(true); }, "early last");
-  expect_integrity([](Events& e) { e.chunks[2].set_last(false); e.header.set_num_chunks(3); }, "missing last");
+  expect_integrity(
+      [](Events& e) {
+        e.chunks[2].set_last(false);
+        e.header.set_num_chunks(3);
+      },
+      "missing last");
   expect_integrity([](Events& e) { std::swap(e.chunks[0], e.chunks[1]); }, "order");
   expect_integrity([](Events& e) { e.header.set_encoding(static_cast<v1::MeshEncoding>(9)); }, "encoding");
 
@@ -177,8 +182,7 @@ TEST(FrameWriter, RawPlyAsReceivedAndConvertedToObj) {
   Mesh obj = read_mesh(dir / "sub" / "frame_0002.obj");
   EXPECT_EQ(obj.triangles.size(), 4u);
   const std::string csv = read_file(dir / "sub" / "stats.csv");
-  EXPECT_EQ(csv.rfind("frame,vertices,triangles,closed,manifold,euler,components,min_valence,min_angle,area,volume",
-                      0),
+  EXPECT_EQ(csv.rfind("frame,vertices,triangles,closed,manifold,euler,components,min_valence,min_angle,area,volume", 0),
             0u);
   for (const auto& entry : fs::directory_iterator(dir / "sub")) {
     EXPECT_EQ(entry.path().string().find(".tmp"), std::string::npos) << entry.path();
@@ -203,7 +207,9 @@ TEST(FrameWriter, DefaultFormatFollowsEncoding) {
 TEST(FrameWriter, UnwritableDirectoryIsAUsageError) {
   const fs::path dir = temp_dir("writer_file");
   std::ofstream(dir / "plain_file") << "x";
-  EXPECT_EQ(error_code_of([&] { FrameWriter w(FrameOutputOptions{dir / "plain_file" / "out", {}}); }),
+  EXPECT_EQ(error_code_of([&] {
+              FrameWriter w(FrameOutputOptions{dir / "plain_file" / "out", {}});
+            }),
             ExitCode::kUsage);
   fs::remove_all(dir);
 }
@@ -249,7 +255,8 @@ TEST(JobSpec, BuildsIsosurfaceFromSceneFiles) {
   const fs::path dir = temp_dir("spec");
   std::ofstream(dir / "ball.json") << R"({"name": "ball", "root": {"sphere": {"radius": 0.5}}})";
   JobOptions options;
-  options.isosurface = IsosurfaceOptions{{dir / "ball.json", dir / "ball.json"}, {}, {}, {{-1, -1, -1, 1, 1, 1}}, "cubes"};
+  options.isosurface =
+      IsosurfaceOptions{{dir / "ball.json", dir / "ball.json"}, {}, {}, {{-1, -1, -1, 1, 1, 1}}, "cubes"};
   options.raw = true;
   options.normals = true;
   v1::JobSpec spec = build_job_spec(options);
@@ -276,8 +283,7 @@ TEST(JobSpec, BuildsIsosurfaceFromSceneFiles) {
 
 TEST(JobSpec, WholeSpecFromJsonWithOverrides) {
   const fs::path dir = temp_dir("spec_json");
-  std::ofstream(dir / "job.json")
-      << R"({"name": "from file", "output": {"quantizationBits": 9},
+  std::ofstream(dir / "job.json") << R"({"name": "from file", "output": {"quantizationBits": 9},
              "isosurface": {"scenes": [{"root": {"torus": {"majorRadius": 1, "minorRadius": 0.25}}}], "cells": 40}})";
   JobOptions options;
   options.spec = dir / "job.json";

@@ -1,5 +1,7 @@
 // JobWatcher against a scripted fake Surfacer service on a loopback port: reconnect after UNAVAILABLE from the
 // smallest missing frame with duplicates skipped, integrity errors, missing frames, server errors.
+#include "client/watch.h"
+
 #include <grpcpp/security/server_credentials.h>
 #include <grpcpp/server.h>
 #include <grpcpp/server_builder.h>
@@ -14,7 +16,6 @@
 #include "client/connection.h"
 #include "client/frame_writer.h"
 #include "client/progress.h"
-#include "client/watch.h"
 #include "surfacer/v1/surfacer.grpc.pb.h"
 
 namespace surfacer::client {
@@ -213,9 +214,7 @@ TEST_F(WatchTest, ServerErrorEndsTheWatch) {
 }
 
 TEST_F(WatchTest, GivesUpAfterTheReconnectBudget) {
-  start([](int, const v1::WatchJobRequest&, Writer*) {
-    return grpc::Status(grpc::StatusCode::UNAVAILABLE, "down");
-  });
+  start([](int, const v1::WatchJobRequest&, Writer*) { return grpc::Status(grpc::StatusCode::UNAVAILABLE, "down"); });
   const auto t0 = std::chrono::steady_clock::now();
   EXPECT_EQ(watch_error(0, ReconnectPolicy{std::chrono::milliseconds(600), std::chrono::milliseconds(50),
                                            std::chrono::milliseconds(200)}),
