@@ -179,7 +179,8 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
                "run an in-process server for this command only (the default without --server and "
                "$SURFACER_SERVER)")
       ->excludes(server_opt);
-  app.add_option("--workers", connect.workers, "worker threads of the in-process server (0: one per core; ignored with --server)")
+  app.add_option("--workers", connect.workers,
+                 "worker threads of the in-process server (0: one per core; ignored with --server)")
       ->check(CLI::NonNegativeNumber)
       ->type_name("N");
   app.add_option("--timeout", connect.timeout_seconds, "seconds to wait for the server connection (default 10)")
