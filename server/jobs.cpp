@@ -184,15 +184,7 @@ void Job::frame_succeeded(int index, FrameOutput output) {
     progress_.set_fraction(static_cast<double>(frames_done_) / std::max(1, frames_total_));
     ++progress_version_;
     bump_state_locked();
-    if (!is_terminal(state_)) {
-      if (frames_settled_ == frames_total_) {
-        finish_locked(v1::JOB_STATE_SUCCEEDED);
-        finished = true;
-      } else if (cancel_requested_ && running_ == 0) {
-        finish_locked(v1::JOB_STATE_CANCELLED);
-        finished = true;
-      }
-    }
+    finished = settle_locked();
   }
   if (finished) log_event(LogLevel::kInfo, "job_finished", {{"job", id_}, {"state", v1::JobState_Name(state())}});
   notify();
@@ -205,10 +197,7 @@ void Job::frame_failed(int index, int grpc_code, const std::string& message) {
     --running_;
     ++frames_settled_;
     if (grpc_code == kGrpcCancelled && cancel_requested_) {
-      if (running_ == 0 && !is_terminal(state_)) {
-        finish_locked(v1::JOB_STATE_CANCELLED);
-        finished = true;
-      }
+      finished = settle_locked();
     } else if (!is_terminal(state_)) {
       error_.set_code(grpc_code);
       error_.set_message("frame " + std::to_string(index) + ": " + message);
@@ -231,12 +220,21 @@ void Job::frame_cancelled() {
   {
     std::lock_guard lock(mutex_);
     ++frames_settled_;
-    if (!is_terminal(state_) && cancel_requested_ && running_ == 0) {
-      finish_locked(v1::JOB_STATE_CANCELLED);
-      finished = true;
-    }
+    finished = settle_locked();
   }
   if (finished) notify();
+}
+
+bool Job::settle_locked() {
+  if (is_terminal(state_)) return false;
+  if (cancel_requested_) {
+    if (running_ > 0) return false;  // the running frames see the token and settle soon
+    finish_locked(v1::JOB_STATE_CANCELLED);
+    return true;
+  }
+  if (frames_settled_ < frames_total_) return false;
+  finish_locked(frames_done_ == frames_total_ ? v1::JOB_STATE_SUCCEEDED : v1::JOB_STATE_FAILED);
+  return true;
 }
 
 void Job::set_progress(int frame_index, std::string_view stage, double fraction) {
@@ -263,10 +261,7 @@ bool Job::cancel(const std::string& reason) {
     cancel_reason_ = reason;
     error_.set_code(kGrpcCancelled);
     error_.set_message(reason);
-    if (running_ == 0) {
-      finish_locked(v1::JOB_STATE_CANCELLED);
-      finished = true;
-    }
+    finished = settle_locked();
   }
   cancel_.cancel();
   log_event(LogLevel::kInfo, "job_cancel", {{"job", id_}, {"reason", reason}});

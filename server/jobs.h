@@ -97,6 +97,9 @@ class Job {
   void snapshot_locked(v1::Job& job) const;
   void bump_state_locked();
   void finish_locked(v1::JobState state);
+  // Finishes the job when nothing more can happen: cancelled with no frame running, or every frame settled.
+  // Returns true when it did.
+  bool settle_locked();
   void notify();
 
   const std::string id_;

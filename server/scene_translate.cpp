@@ -179,7 +179,14 @@ class Translator {
       linear = scale * rotation;
       translation = to_vec3(t.translate());
     }
-    return at_path(path, [&] { return make_transform(child, linear, translation); });
+    try {
+      return make_transform(child, linear, translation);
+    } catch (const Error& e) {
+      if (e.kind() != ErrorKind::kInvalidInput) throw;
+      // The builder names its arguments `linear` / `translation`; the request calls them matrix / scale.
+      const std::string field = t.matrix_size() > 0 ? "matrix" : "scale";
+      throw InvalidInput(path + "." + field, path + "." + field + ": " + e.what());
+    }
   }
 
   FieldPtr grid(const v1::SampledGrid& g, const std::string& path) {

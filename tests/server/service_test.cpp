@@ -24,7 +24,7 @@ v1::JobSpec slow_spec() {
   auto scene = scene_from_json(R"({"root": {"blobs": {"points": [
       {"center": {"x": -0.5}, "radius": 1.2}, {"center": {"x": 0.5}, "radius": 1.2},
       {"center": {"y": 0.6}, "radius": 1.0}]}}})");
-  return isosurface_spec({scene}, 1200);
+  return isosurface_spec({scene}, 1000);
 }
 
 v1::Job get_job(v1::Surfacer::Stub& stub, const std::string& id, grpc::Status* status = nullptr) {
