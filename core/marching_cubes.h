@@ -25,6 +25,22 @@ struct MarchingCubesOptions {
 // (a sample equal to 0 counts as outside). Closed wherever the surface does not leave `bounds`.
 // Deterministic: the same input yields the same mesh whatever `threads`.
 // Throws InvalidInput for bad options, Cancelled when control's token fires (checked at least once per slab).
+//
+// Details (core/marching_cubes.cpp, core/mc_tables.py):
+// * Vertices are linear interpolations on crossed edges. Ambiguous cube faces are always resolved from the face's own
+//   corners (the inside corners stay connected across the face), so the mesh is a closed, oriented 2-manifold
+//   (edge- and vertex-manifold) for a surface inside `bounds`, and an oriented manifold with boundary where it leaves.
+// * "No degenerate triangles" means no repeated vertex index. A zero sample puts vertices exactly on its grid point
+//   (t = 0 or 1); where one cube holds several such vertices (the surface touches a grid point) a triangle can still
+//   have zero area.
+// * Work is split into z-slabs (up to two per thread); each keeps two z-layers of samples plus per-layer edge-vertex
+//   id arrays, so a Field is never sampled as a whole grid. control.check() runs every z-layer (and every row while
+//   sampling a Field); control.report("polygonize", fraction) after every z-layer, non-decreasing, serialized.
+// * Field normals: normalized Field::value_and_gradient at the vertex. Sample normals: central differences (one-sided
+//   on the border) at the edge's two grid points, interpolated with the vertex's t, normalized. A zero gradient
+//   falls back to the edge direction from its inside to its outside end.
+// * Errors: InvalidInput fields "bounds" (min < max, finite), "cells" (1..2^24 each), "threads" (>= 0), "samples"
+//   (size); ResourceLimit "cells" when a z-layer exceeds 2^31 points or the mesh 2^31 vertices per slab.
 Mesh marching_cubes(const Field& field, const MarchingCubesOptions& options, const RunControl& control = {});
 
 // The same over pre-sampled values (x fastest, (cells+1) per axis points), for dense-grid throughput.
