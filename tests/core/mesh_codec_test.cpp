@@ -1,0 +1,215 @@
+#include "core/mesh_codec.h"
+
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "core/errors.h"
+#include "core/marching_cubes.h"
+#include "core/mesh_checks.h"
+#include "tests/support/test_meshes.h"
+
+namespace surfacer {
+namespace {
+
+Aabb bbox(const Mesh& m) {
+  Aabb b{m.vertices[0], m.vertices[0]};
+  for (const Vec3& p : m.vertices) {
+    b.min = b.min.cwiseMin(p);
+    b.max = b.max.cwiseMax(p);
+  }
+  return b;
+}
+
+// Draco may reorder and deduplicate vertices: compare geometry and topology, never indices.
+void expect_same_shape(const Mesh& original, const Mesh& decoded, double tolerance) {
+  EXPECT_EQ(decoded.triangles.size(), original.triangles.size());
+  EXPECT_LE(testing::max_nearest_vertex_distance(decoded, original), tolerance);
+  EXPECT_LE(testing::max_nearest_vertex_distance(original, decoded), tolerance);
+  const MeshReport a = check_mesh(original), b = check_mesh(decoded);
+  EXPECT_EQ(b.closed, a.closed);
+  EXPECT_EQ(b.edge_manifold, a.edge_manifold);
+  EXPECT_EQ(b.vertex_manifold, a.vertex_manifold);
+  EXPECT_EQ(b.oriented, a.oriented);
+  EXPECT_EQ(b.euler_characteristic, a.euler_characteristic);
+  EXPECT_NEAR(b.volume, a.volume, a.area * tolerance);  // each vertex moves by at most `tolerance`
+}
+
+Mesh mc_sphere(bool normals) {
+  testing::SphereField sphere(Vec3(0.05, -0.02, 0.01), 0.7);
+  MarchingCubesOptions o;
+  o.bounds = Aabb{Vec3::Constant(-1), Vec3::Constant(1)};
+  o.cells = {40, 40, 40};
+  o.normals = normals;
+  return marching_cubes(sphere, o);
+}
+
+TEST(MeshCodec, RoundTripWithinQuantizationError) {
+  const Mesh m = testing::icosphere(4, 1.3, Vec3(0.2, -0.1, 0.4));
+  for (int bits : {8, 11, 14, 20}) {
+    DracoOptions options;
+    options.quantization_bits = bits;
+    const std::string bytes = encode_draco(m, options);
+    const Mesh d = decode_draco(bytes);
+    SCOPED_TRACE(bits);
+    expect_same_shape(m, d, draco_max_error(bbox(m), bits));
+    EXPECT_TRUE(d.normals.empty());
+  }
+}
+
+TEST(MeshCodec, MarchingCubesMeshKeepsTopologyAtEverySpeed) {
+  const Mesh m = mc_sphere(false);
+  for (int speed : {0, 5, 7, 10}) {
+    DracoOptions options;
+    options.speed = speed;
+    options.quantization_bounds = Aabb{Vec3::Constant(-1), Vec3::Constant(1)};
+    const Mesh d = decode_draco(encode_draco(m, options));
+    SCOPED_TRACE(speed);
+    expect_same_shape(m, d, draco_max_error(*options.quantization_bounds, options.quantization_bits));
+    const MeshReport r = check_mesh(d);
+    EXPECT_TRUE(r.closed && r.edge_manifold && r.vertex_manifold && r.oriented);
+    EXPECT_EQ(r.euler_characteristic, 2);
+  }
+}
+
+TEST(MeshCodec, SharedQuantizationBoxPutsFramesOnOneGrid) {
+  // icosphere(2)'s vertices are a prefix of icosphere(3)'s: the common vertices must decode identically.
+  const Mesh coarse = testing::icosphere(2, 0.9);
+  const Mesh fine = testing::icosphere(3, 0.9);
+  DracoOptions options;
+  options.quantization_bits = 10;
+  options.quantization_bounds = Aabb{Vec3::Constant(-1.5), Vec3(1.5, 2.0, 1.0)};
+  const Mesh a = decode_draco(encode_draco(coarse, options));
+  const Mesh b = decode_draco(encode_draco(fine, options));
+  const double step = 3.5 / 1023;
+  for (const Vec3& p : coarse.vertices) {
+    const Vec3 qa = a.vertices[*testing::nearest_vertex(a, p)];
+    const Vec3 qb = b.vertices[*testing::nearest_vertex(b, p)];
+    EXPECT_EQ(qa, qb);
+    // On the grid origin + k * step.
+    for (int c = 0; c < 3; ++c) {
+      const double k = (qa[c] - options.quantization_bounds->min[c]) / step;
+      EXPECT_NEAR(k, std::round(k), 1e-3);
+    }
+  }
+}
+
+TEST(MeshCodec, VertexOutsideBoxIsInvalid) {
+  const Mesh m = testing::icosphere(1);
+  DracoOptions options;
+  options.quantization_bounds = Aabb{Vec3::Constant(-0.5), Vec3::Constant(2)};
+  try {
+    encode_draco(m, options);
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::kInvalidInput);
+    EXPECT_EQ(e.field(), "quantization_bounds");
+  }
+  // A vertex on the box is fine.
+  options.quantization_bounds = Aabb{Vec3::Constant(-1), Vec3::Constant(1)};
+  EXPECT_NO_THROW(encode_draco(m, options));
+}
+
+TEST(MeshCodec, GarbageIsInvalidInput) {
+  std::mt19937 rng(7);
+  std::vector<std::string> inputs = {"", "DRACO", std::string(100, '\0'), "not a draco file at all"};
+  for (int i = 0; i < 20; ++i) {
+    std::string s(1 + rng() % 300, '\0');
+    for (char& c : s) c = static_cast<char>(rng());
+    if (i % 2 == 0) s.replace(0, std::min<std::size_t>(5, s.size()), "DRACO");
+    inputs.push_back(s);
+  }
+  // Truncations and bit flips of a valid frame.
+  const std::string valid = encode_draco(testing::icosphere(2), DracoOptions{});
+  for (std::size_t n : {std::size_t{5}, std::size_t{10}, std::size_t{20}, valid.size() / 2, valid.size() - 1}) {
+    inputs.push_back(valid.substr(0, n));
+  }
+  for (const std::string& s : inputs) {
+    try {
+      decode_draco(s);
+      // Some bit patterns may decode to a (nonsense) mesh; that is acceptable, a crash is not.
+    } catch (const Error& e) {
+      EXPECT_EQ(e.kind(), ErrorKind::kInvalidInput) << e.what();
+      EXPECT_EQ(e.field(), "frame");
+    }
+  }
+  EXPECT_THROW(decode_draco(""), Error);
+  EXPECT_THROW(decode_draco(valid.substr(0, 10)), Error);
+}
+
+TEST(MeshCodec, NormalsRoundTripApproximately) {
+  const Mesh m = mc_sphere(true);
+  ASSERT_EQ(m.normals.size(), m.vertices.size());
+  DracoOptions options;
+  options.normal_bits = 10;
+  const Mesh d = decode_draco(encode_draco(m, options));
+  ASSERT_EQ(d.normals.size(), d.vertices.size());
+  double worst = 1.0;
+  for (std::size_t v = 0; v < d.vertices.size(); ++v) {
+    const std::size_t o = *testing::nearest_vertex(m, d.vertices[v]);
+    worst = std::min(worst, d.normals[v].dot(m.normals[o]));
+  }
+  EXPECT_GT(worst, std::cos(1.0 * 3.14159265358979 / 180.0));  // within 1 degree at 10 bits
+  options.normals = false;
+  EXPECT_TRUE(decode_draco(encode_draco(m, options)).normals.empty());
+}
+
+TEST(MeshCodec, EmptyMeshRoundTrips) {
+  const std::string bytes = encode_draco(Mesh{}, DracoOptions{});
+  EXPECT_FALSE(bytes.empty());
+  const Mesh d = decode_draco(bytes);
+  EXPECT_TRUE(d.empty());
+  EXPECT_TRUE(d.vertices.empty());
+  DracoOptions boxed;
+  boxed.quantization_bounds = Aabb{Vec3::Zero(), Vec3::Ones()};
+  EXPECT_TRUE(decode_draco(encode_draco(Mesh{}, boxed)).empty());
+}
+
+TEST(MeshCodec, DegenerateBoundingBox) {
+  Mesh m;
+  m.vertices = {Vec3(1, 2, 3), Vec3(1, 2, 3), Vec3(1, 2, 3)};
+  m.triangles = {{0, 1, 2}};
+  const Mesh d = decode_draco(encode_draco(m, DracoOptions{}));
+  ASSERT_EQ(d.triangles.size(), 1u);
+  for (const Vec3& p : d.vertices) EXPECT_NEAR((p - Vec3(1, 2, 3)).norm(), 0.0, 1e-5);
+  // Flat mesh: one axis has zero extent.
+  const Mesh square = testing::open_square();
+  expect_same_shape(square, decode_draco(encode_draco(square, DracoOptions{})), draco_max_error(bbox(square), 14));
+}
+
+TEST(MeshCodec, InvalidOptions) {
+  const Mesh m = testing::unit_cube();
+  auto expect_field = [&](DracoOptions o, const std::string& field) {
+    try {
+      encode_draco(m, o);
+      ADD_FAILURE() << field;
+    } catch (const Error& e) {
+      EXPECT_EQ(e.kind(), ErrorKind::kInvalidInput);
+      EXPECT_EQ(e.field(), field);
+    }
+  };
+  DracoOptions o;
+  o.quantization_bits = 0;
+  expect_field(o, "quantization_bits");
+  o.quantization_bits = 31;
+  expect_field(o, "quantization_bits");
+  o = DracoOptions{};
+  o.speed = 11;
+  expect_field(o, "speed");
+  o = DracoOptions{};
+  o.quantization_bounds = Aabb{Vec3::Zero(), Vec3(1, 0, 1)};
+  expect_field(o, "quantization_bounds");
+  Mesh bad = m;
+  bad.triangles.push_back({0, 1, 99});
+  EXPECT_THROW(encode_draco(bad, DracoOptions{}), Error);
+}
+
+TEST(MeshCodec, MaxErrorFormula) {
+  const Aabb box{Vec3::Zero(), Vec3(2, 1, 1)};
+  const double step = 2.0 / ((1 << 14) - 1);
+  EXPECT_GE(draco_max_error(box, 14), 0.5 * step * std::sqrt(3.0));
+  EXPECT_LT(draco_max_error(box, 14), 0.55 * step * std::sqrt(3.0));
+}
+
+}  // namespace
+}  // namespace surfacer
