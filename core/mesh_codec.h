@@ -14,7 +14,7 @@ struct DracoOptions {
   // Quantization box shared by every frame of a job (no cracks or jitter between frames). When absent the mesh's
   // own bounding box is used. Vertices outside the box are an InvalidInput error.
   std::optional<Aabb> quantization_bounds;
-  int speed = 7;         // Draco encoder/decoder speed 0..10
+  int speed = 8;         // Draco encoder/decoder speed 0..10 (8: faster and smaller than 7 on polygonized surfaces)
   bool normals = true;   // encode mesh.normals when present
   int normal_bits = 10;  // 2..30 (octahedral normal quantization), checked only when normals are encoded
 };
