@@ -25,16 +25,17 @@ class IsosurfaceRunner final : public JobRunner {
         worker_threads_(worker_threads) {}
 
   std::string kind() const override { return "isosurface"; }
-  int frame_count() const override { return static_cast<int>(fields_.size()); }
+  int task_count() const override { return static_cast<int>(fields_.size()); }
+  int frame_count() const override { return task_count(); }
 
-  FrameOutput run_frame(int index, const RunControl& control) override {
+  void run_task(int index, FrameSink& sink, const RunControl& control) override {
     MarchingCubesOptions grid = grid_;
     // A single frame gets every core; a sequence runs its frames in parallel, one thread each.
     grid.threads = fields_.size() == 1 ? worker_threads_ : 1;
     StageTimer timer;
     const Mesh mesh = timer.run("polygonize", [&] { return marching_cubes(*fields_[index], grid, control); });
     control.check();
-    return make_frame(mesh, encoding_, max_triangles_, timer);
+    sink.emit(index, make_frame(mesh, encoding_, max_triangles_, timer));
   }
 
  private:

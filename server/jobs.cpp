@@ -26,7 +26,11 @@ bool is_terminal(v1::JobState s) {
 }  // namespace
 
 Job::Job(std::string id, std::string name, std::unique_ptr<JobRunner> runner)
-    : id_(std::move(id)), name_(std::move(name)), runner_(std::move(runner)), frames_total_(runner_->frame_count()) {
+    : id_(std::move(id)),
+      name_(std::move(name)),
+      runner_(std::move(runner)),
+      tasks_total_(runner_->task_count()),
+      frames_total_(runner_->frame_count()) {
   created_ = TimeUtil::GetCurrentTime();
   progress_.set_frames_total(frames_total_);
 }
@@ -145,81 +149,89 @@ void Job::notify() {
   for (const auto& l : live) l->on_job_changed();
 }
 
-bool Job::frame_started() {
+bool Job::task_started() {
   {
     std::lock_guard lock(mutex_);
     if (is_terminal(state_) || cancel_requested_) return false;
     ++running_;
-    if (state_ == v1::JOB_STATE_QUEUED) {
-      state_ = v1::JOB_STATE_RUNNING;
-      started_ = TimeUtil::GetCurrentTime();
-      bump_state_locked();
-    } else {
-      return true;
-    }
+    if (state_ != v1::JOB_STATE_QUEUED) return true;
+    state_ = v1::JOB_STATE_RUNNING;
+    started_ = TimeUtil::GetCurrentTime();
+    bump_state_locked();
   }
   log_event(LogLevel::kInfo, "job_started", {{"job", id_}, {"kind", runner_->kind()}});
   notify();
   return true;
 }
 
-void Job::frame_succeeded(int index, FrameOutput output) {
+void Job::emit(int frame_index, FrameOutput output) {
   auto record = std::make_shared<FrameRecord>();
   record->bytes = std::move(output.bytes);
   auto& h = record->header;
-  h.set_frame_index(index);
+  h.set_frame_index(frame_index);
   h.set_encoding(output.encoding);
   h.set_total_bytes(record->bytes.size());
   h.set_num_chunks(static_cast<int>((record->bytes.size() + kChunkBytes - 1) / kChunkBytes));
   h.set_crc32(crc32_of(record->bytes.data(), record->bytes.size()));
   *h.mutable_stats() = std::move(output.stats);
+  {
+    std::lock_guard lock(mutex_);
+    ++frames_done_;
+    frames_total_ = std::max(frames_total_, frames_done_);
+    frames_.push_back(std::move(record));
+    progress_.set_frames_done(frames_done_);
+    progress_.set_frames_total(frames_total_);
+    ++progress_version_;
+    bump_state_locked();
+  }
+  notify();
+}
+
+void Job::task_succeeded() {
   bool finished = false;
   {
     std::lock_guard lock(mutex_);
     --running_;
-    ++frames_done_;
-    ++frames_settled_;
-    frames_.push_back(std::move(record));
-    progress_.set_frames_done(frames_done_);
-    progress_.set_fraction(static_cast<double>(frames_done_) / std::max(1, frames_total_));
+    ++tasks_done_;
+    ++tasks_settled_;
+    progress_.set_fraction(static_cast<double>(tasks_done_) / std::max(1, tasks_total_));
     ++progress_version_;
-    bump_state_locked();
     finished = settle_locked();
   }
   if (finished) log_event(LogLevel::kInfo, "job_finished", {{"job", id_}, {"state", v1::JobState_Name(state())}});
   notify();
 }
 
-void Job::frame_failed(int index, int grpc_code, const std::string& message) {
+void Job::task_failed(int task, int grpc_code, const std::string& message) {
   bool finished = false;
   {
     std::lock_guard lock(mutex_);
     --running_;
-    ++frames_settled_;
+    ++tasks_settled_;
     if (grpc_code == kGrpcCancelled && cancel_requested_) {
       finished = settle_locked();
     } else if (!is_terminal(state_)) {
       error_.set_code(grpc_code);
-      error_.set_message("frame " + std::to_string(index) + ": " + message);
+      error_.set_message(tasks_total_ > 1 ? "frame " + std::to_string(task) + ": " + message : message);
       finish_locked(v1::JOB_STATE_FAILED);
       finished = true;
     }
   }
-  // A failed frame fails the job: stop its other frames.
+  // A failed task fails the job: stop its other tasks.
   cancel_.cancel();
   if (finished) {
     log_event(LogLevel::kWarn, "job_finished",
-              {{"job", id_}, {"state", v1::JobState_Name(state())}, {"frame", std::to_string(index)},
+              {{"job", id_}, {"state", v1::JobState_Name(state())}, {"task", std::to_string(task)},
                {"error", message}});
   }
   notify();
 }
 
-void Job::frame_cancelled() {
+void Job::task_skipped() {
   bool finished = false;
   {
     std::lock_guard lock(mutex_);
-    ++frames_settled_;
+    ++tasks_settled_;
     finished = settle_locked();
   }
   if (finished) notify();
@@ -228,12 +240,14 @@ void Job::frame_cancelled() {
 bool Job::settle_locked() {
   if (is_terminal(state_)) return false;
   if (cancel_requested_) {
-    if (running_ > 0) return false;  // the running frames see the token and settle soon
+    if (running_ > 0) return false;  // the running tasks see the token and settle soon
     finish_locked(v1::JOB_STATE_CANCELLED);
     return true;
   }
-  if (frames_settled_ < frames_total_) return false;
-  finish_locked(frames_done_ == frames_total_ ? v1::JOB_STATE_SUCCEEDED : v1::JOB_STATE_FAILED);
+  if (tasks_settled_ < tasks_total_) return false;
+  if (tasks_done_ == tasks_total_) frames_total_ = frames_done_;  // open-ended jobs end with what they emitted
+  progress_.set_frames_total(frames_total_);
+  finish_locked(tasks_done_ == tasks_total_ ? v1::JOB_STATE_SUCCEEDED : v1::JOB_STATE_FAILED);
   return true;
 }
 
@@ -245,8 +259,8 @@ void Job::set_progress(int frame_index, std::string_view stage, double fraction)
     last_progress_notify_ = now;
     progress_.set_stage(std::string(stage));
     progress_.set_frame_index(frame_index);
-    const double per_frame = 1.0 / std::max(1, frames_total_);
-    progress_.set_fraction(std::min(1.0, frames_done_ * per_frame + std::clamp(fraction, 0.0, 1.0) * per_frame));
+    const double per_task = 1.0 / std::max(1, tasks_total_);
+    progress_.set_fraction(std::min(1.0, tasks_done_ * per_task + std::clamp(fraction, 0.0, 1.0) * per_task));
     ++progress_version_;
   }
   notify();
@@ -274,7 +288,7 @@ bool Job::cancel(const std::string& reason) {
 Scheduler::Scheduler(WorkerPool& pool, int max_queued_jobs) : pool_(pool), max_queued_jobs_(max_queued_jobs) {}
 
 void Scheduler::submit(std::shared_ptr<Job> job) {
-  const int frames = job->runner().frame_count();
+  const int tasks = job->runner().task_count();
   {
     std::lock_guard lock(mutex_);
     int queued = 0;
@@ -291,42 +305,46 @@ void Scheduler::submit(std::shared_ptr<Job> job) {
     pending_.push_back({job, 0});
   }
   log_event(LogLevel::kInfo, "job_submitted",
-            {{"job", job->id()}, {"kind", job->runner().kind()}, {"frames", std::to_string(frames)}});
-  for (int i = 0; i < frames; ++i) pool_.post([this] { run_next_frame(); });
+            {{"job", job->id()},
+             {"kind", job->runner().kind()},
+             {"tasks", std::to_string(tasks)},
+             {"frames", std::to_string(job->runner().frame_count())}});
+  for (int i = 0; i < tasks; ++i) pool_.post([this] { run_next_task(); });
 }
 
-void Scheduler::run_next_frame() {
+void Scheduler::run_next_task() {
   std::shared_ptr<Job> job;
-  int frame = -1;
+  int task = -1;
   {
     std::lock_guard lock(mutex_);
-    // Round-robin: take one frame of the job at the front, then move it to the back.
+    // Round-robin: take one task of the job at the front, then move the job to the back.
     while (!pending_.empty()) {
       Pending p = std::move(pending_.front());
       pending_.pop_front();
-      if (p.job->terminal() || p.next_frame >= p.job->runner().frame_count()) continue;
+      const int tasks = p.job->runner().task_count();
+      if (p.job->terminal() || p.next_task >= tasks) continue;
       job = p.job;
-      frame = p.next_frame++;
-      if (p.next_frame < job->runner().frame_count()) pending_.push_back(std::move(p));
+      task = p.next_task++;
+      if (p.next_task < tasks) pending_.push_back(std::move(p));
       break;
     }
   }
   if (!job) return;
-  if (!job->frame_started()) {
-    job->frame_cancelled();
+  if (!job->task_started()) {
+    job->task_skipped();
     return;
   }
   RunControl control;
   control.cancel = &job->cancel_token();
-  control.progress = [job = job.get(), frame](std::string_view stage, double fraction) {
-    job->set_progress(frame, stage, fraction);
+  control.progress = [job = job.get(), task](std::string_view stage, double fraction) {
+    job->set_progress(task, stage, fraction);
   };
   try {
-    FrameOutput output = job->runner().run_frame(frame, control);
-    job->frame_succeeded(frame, std::move(output));
+    job->runner().run_task(task, *job, control);
+    job->task_succeeded();
   } catch (...) {
     const grpc::Status status = status_from_exception(std::current_exception());
-    job->frame_failed(frame, status.error_code(), status.error_message());
+    job->task_failed(task, status.error_code(), status.error_message());
   }
 }
 

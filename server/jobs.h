@@ -1,5 +1,5 @@
 // Jobs: state, finished frames and the watchers that stream them; the store that names them; and the scheduler
-// that runs their frames on the worker pool, round-robin across jobs.
+// that runs their tasks on the worker pool, round-robin across jobs.
 #pragma once
 
 #include <chrono>
@@ -26,14 +26,25 @@ struct FrameOutput {
   v1::FrameStats stats;
 };
 
-// A validated, ready-to-run job of one type. run_frame is called from worker threads, concurrently for distinct
-// frame indices; it throws surfacer::Error (or std::bad_alloc) on failure.
+// Receives the frames a task produces. Thread-safe.
+class FrameSink {
+ public:
+  virtual ~FrameSink() = default;
+  virtual void emit(int frame_index, FrameOutput output) = 0;
+};
+
+// A validated, ready-to-run job of one type, cut into independent tasks. Tasks run on worker threads, in parallel
+// for distinct indices; each emits its frames through the sink (a sequence of scenes or particle frames: task i
+// emits frame i; an evolving job — optimization snapshots, active-surface frames — is one task emitting many).
+// run_task throws surfacer::Error (or std::bad_alloc) on failure.
 class JobRunner {
  public:
   virtual ~JobRunner() = default;
   virtual std::string kind() const = 0;
+  virtual int task_count() const = 0;
+  // Frames expected; for open-ended jobs an upper bound (the final count is what was emitted).
   virtual int frame_count() const = 0;
-  virtual FrameOutput run_frame(int index, const RunControl& control) = 0;
+  virtual void run_task(int index, FrameSink& sink, const RunControl& control) = 0;
 };
 
 // Something to wake when a job changes (a WatchJob stream). Called from worker or gRPC threads; must not block.
@@ -63,7 +74,7 @@ struct WatchCursor {
   bool done = false;  // the terminal state has been produced
 };
 
-class Job {
+class Job : public FrameSink {
  public:
   Job(std::string id, std::string name, std::unique_ptr<JobRunner> runner);
 
@@ -84,11 +95,14 @@ class Job {
   bool next_event(WatchCursor& cursor, v1::JobEvent& event) const;
 
   // --- Transitions, called by the scheduler ----------------------------------------------------------------
-  // A frame starts; returns false when the job is already finished (cancelled or failed).
-  bool frame_started();
-  void frame_succeeded(int index, FrameOutput output);
-  void frame_failed(int index, int grpc_code, const std::string& message);
-  void frame_cancelled();
+  // A task starts; returns false when the job is already finished (cancelled or failed).
+  bool task_started();
+  void task_succeeded();
+  void task_failed(int task, int grpc_code, const std::string& message);
+  void task_skipped();
+  // FrameSink: a finished frame (stored, then streamed to watchers).
+  void emit(int frame_index, FrameOutput output) override;
+  // fraction: of the current task.
   void set_progress(int frame_index, std::string_view stage, double fraction);
   // Requests cancellation; returns true when this call finished the job (nothing was running).
   bool cancel(const std::string& reason);
@@ -97,7 +111,7 @@ class Job {
   void snapshot_locked(v1::Job& job) const;
   void bump_state_locked();
   void finish_locked(v1::JobState state);
-  // Finishes the job when nothing more can happen: cancelled with no frame running, or every frame settled.
+  // Finishes the job when nothing more can happen: cancelled with no task running, or every task settled.
   // Returns true when it did.
   bool settle_locked();
   void notify();
@@ -105,7 +119,8 @@ class Job {
   const std::string id_;
   const std::string name_;
   std::unique_ptr<JobRunner> runner_;
-  const int frames_total_;
+  const int tasks_total_;
+  int frames_total_;
   CancelToken cancel_;
 
   mutable std::mutex mutex_;
@@ -117,7 +132,8 @@ class Job {
   v1::JobError error_;
   int running_ = 0;
   int frames_done_ = 0;
-  int frames_settled_ = 0;  // succeeded, failed or skipped
+  int tasks_done_ = 0;
+  int tasks_settled_ = 0;  // succeeded, failed or skipped
   bool cancel_requested_ = false;
   std::string cancel_reason_;
   std::vector<std::shared_ptr<const FrameRecord>> frames_;  // in completion order
@@ -126,7 +142,7 @@ class Job {
   std::vector<std::weak_ptr<JobListener>> listeners_;
 };
 
-// Owns the jobs and runs their frames on the pool, round-robin across running jobs.
+// Owns the jobs and runs their tasks on the pool, round-robin across running jobs.
 class Scheduler {
  public:
   Scheduler(WorkerPool& pool, int max_queued_jobs);
@@ -143,7 +159,7 @@ class Scheduler {
   void forget_finished(std::chrono::seconds age);
 
  private:
-  void run_next_frame();
+  void run_next_task();
 
   WorkerPool& pool_;
   const int max_queued_jobs_;
@@ -152,9 +168,9 @@ class Scheduler {
   std::vector<std::string> order_;  // submission order, for list()
   struct Pending {
     std::shared_ptr<Job> job;
-    int next_frame = 0;
+    int next_task = 0;
   };
-  std::deque<Pending> pending_;  // jobs with frames not yet started, round-robin
+  std::deque<Pending> pending_;  // jobs with tasks not yet started, round-robin
 };
 
 }  // namespace surfacer::server
