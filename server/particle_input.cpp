@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <limits>
 
 #include "core/errors.h"
 #include "server/uploads.h"
@@ -11,6 +12,7 @@ namespace surfacer::server {
 namespace {
 
 void check_count(std::size_t count, const std::string& path, std::int64_t max_particles) {
+  if (count == 0) throw InvalidInput(path, path + " has no particles; every frame needs at least one");
   if (static_cast<std::int64_t>(count) > max_particles) {
     throw ResourceLimit("max_particles", path + " has " + std::to_string(count) +
                                              " particles, over the server's limit of " +
@@ -20,70 +22,97 @@ void check_count(std::size_t count, const std::string& path, std::int64_t max_pa
   }
 }
 
-}  // namespace
-
-ParticleData load_particle_frame(const v1::ParticleFrame& frame, const std::string& path, const UploadStore& uploads,
-                                 std::int64_t max_particles) {
-  ParticleData data;
+// Calls begin(count, has_radius) once, then visit(i, x, y, z, r) for every particle (r = 0 without radii), after
+// checking every value.
+template <class Begin, class Visit>
+void for_each_particle(const v1::ParticleFrame& frame, const std::string& path, const UploadStore& uploads,
+                       std::int64_t max_particles, Begin&& begin, Visit&& visit) {
+  auto check = [&](std::size_t i, double x, double y, double z, double r, bool has_radius) {
+    if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) {
+      throw InvalidInput(path, path + ": particle " + std::to_string(i) + " has a coordinate that is not finite");
+    }
+    if (has_radius && !(r > 0.0 && std::isfinite(r))) {
+      throw InvalidInput(path + ".radii", path + ": particle " + std::to_string(i) + " has radius " +
+                                              std::to_string(r) + "; radii must be finite and > 0");
+    }
+  };
   if (!frame.upload_id().empty()) {
     if (frame.positions_size() > 0 || frame.radii_size() > 0) {
       throw InvalidInput(path + ".upload_id", path + ": give either inline positions or upload_id, not both");
     }
     const auto blob = uploads.get(frame.upload_id(), path + ".upload_id");
-    const std::size_t record = (frame.with_radius() ? 4 : 3) * sizeof(float);
+    const bool has_radius = frame.with_radius();
+    const std::size_t record = (has_radius ? 4 : 3) * sizeof(float);
     if (blob->bytes.size() % record != 0) {
       throw InvalidInput(path + ".upload_id",
                          path + ".upload_id: the upload has " + std::to_string(blob->bytes.size()) +
                              " bytes, not a whole number of " + std::to_string(record) + "-byte records (float32 " +
-                             (frame.with_radius() ? "x y z r" : "x y z") + "); check with_radius");
+                             (has_radius ? "x y z r" : "x y z") + "); check with_radius");
     }
     const std::size_t count = blob->bytes.size() / record;
     check_count(count, path, max_particles);
-    data.positions.resize(count);
-    if (frame.with_radius()) data.radii.resize(count);
+    begin(count, has_radius);
     const char* p = blob->bytes.data();
     for (std::size_t i = 0; i < count; ++i, p += record) {
       float v[4] = {0, 0, 0, 0};
       std::memcpy(v, p, record);
-      data.positions[i] = Vec3(v[0], v[1], v[2]);
-      if (frame.with_radius()) data.radii[i] = v[3];
+      check(i, v[0], v[1], v[2], v[3], has_radius);
+      visit(i, v[0], v[1], v[2], v[3]);
     }
-  } else {
-    if (frame.positions_size() % 3 != 0) {
-      throw InvalidInput(path + ".positions", path + ".positions has " + std::to_string(frame.positions_size()) +
-                                                  " numbers, not a multiple of 3 (x, y, z per particle)");
-    }
-    const std::size_t count = frame.positions_size() / 3;
-    check_count(count, path, max_particles);
-    if (frame.radii_size() != 0 && static_cast<std::size_t>(frame.radii_size()) != count) {
-      throw InvalidInput(path + ".radii", path + ".radii has " + std::to_string(frame.radii_size()) +
-                                              " values for " + std::to_string(count) +
-                                              " particles; give one per particle or none");
-    }
-    data.positions.resize(count);
-    for (std::size_t i = 0; i < count; ++i) {
-      data.positions[i] = Vec3(frame.positions(3 * i), frame.positions(3 * i + 1), frame.positions(3 * i + 2));
-    }
-    data.radii.assign(frame.radii().begin(), frame.radii().end());
+    return;
   }
-  if (data.positions.empty()) {
-    throw InvalidInput(path, path + " has no particles; every frame needs at least one");
+  if (frame.positions_size() % 3 != 0) {
+    throw InvalidInput(path + ".positions", path + ".positions has " + std::to_string(frame.positions_size()) +
+                                                " numbers, not a multiple of 3 (x, y, z per particle)");
   }
-  data.bounds.min = data.bounds.max = data.positions.front();
-  for (std::size_t i = 0; i < data.positions.size(); ++i) {
-    const Vec3& x = data.positions[i];
-    if (!x.allFinite()) {
-      throw InvalidInput(path, path + ": particle " + std::to_string(i) + " has a coordinate that is not finite");
-    }
-    data.bounds.min = data.bounds.min.cwiseMin(x);
-    data.bounds.max = data.bounds.max.cwiseMax(x);
+  const std::size_t count = frame.positions_size() / 3;
+  check_count(count, path, max_particles);
+  const bool has_radius = frame.radii_size() > 0;
+  if (has_radius && static_cast<std::size_t>(frame.radii_size()) != count) {
+    throw InvalidInput(path + ".radii", path + ".radii has " + std::to_string(frame.radii_size()) + " values for " +
+                                            std::to_string(count) + " particles; give one per particle or none");
   }
-  for (std::size_t i = 0; i < data.radii.size(); ++i) {
-    if (!(data.radii[i] > 0.0) || !std::isfinite(data.radii[i])) {
-      throw InvalidInput(path + ".radii", path + ": particle " + std::to_string(i) + " has radius " +
-                                              std::to_string(data.radii[i]) + "; radii must be finite and > 0");
-    }
+  begin(count, has_radius);
+  for (std::size_t i = 0; i < count; ++i) {
+    const double x = frame.positions(3 * i), y = frame.positions(3 * i + 1), z = frame.positions(3 * i + 2);
+    const double r = has_radius ? frame.radii(i) : 0.0;
+    check(i, x, y, z, r, has_radius);
+    visit(i, x, y, z, r);
   }
+}
+
+}  // namespace
+
+ParticleSummary summarize_particle_frame(const v1::ParticleFrame& frame, const std::string& path,
+                                         const UploadStore& uploads, std::int64_t max_particles) {
+  ParticleSummary summary;
+  summary.bounds.min = Vec3::Constant(std::numeric_limits<double>::infinity());
+  summary.bounds.max = -summary.bounds.min;
+  for_each_particle(
+      frame, path, uploads, max_particles,
+      [&](std::size_t count, bool) { summary.count = static_cast<std::int64_t>(count); },
+      [&](std::size_t, double x, double y, double z, double r) {
+        const Vec3 p(x, y, z);
+        summary.bounds.min = summary.bounds.min.cwiseMin(p);
+        summary.bounds.max = summary.bounds.max.cwiseMax(p);
+        summary.max_radius = std::max(summary.max_radius, r);
+      });
+  return summary;
+}
+
+ParticleData load_particle_frame(const v1::ParticleFrame& frame, const std::string& path, const UploadStore& uploads,
+                                 std::int64_t max_particles) {
+  ParticleData data;
+  for_each_particle(
+      frame, path, uploads, max_particles,
+      [&](std::size_t count, bool has_radius) {
+        data.positions.resize(count);
+        if (has_radius) data.radii.resize(count);
+      },
+      [&](std::size_t i, double x, double y, double z, double r) {
+        data.positions[i] = Vec3(x, y, z);
+        if (!data.radii.empty()) data.radii[i] = r;
+      });
   return data;
 }
 

@@ -18,11 +18,22 @@ class UploadStore;
 struct ParticleData {
   std::vector<Vec3> positions;
   std::vector<double> radii;  // empty, or one per particle
-  Aabb bounds;                // of the positions (invalid when empty)
 };
 
-// Throws InvalidInput naming `path` (e.g. "spec.particles.frames[3]") for malformed data (NaN, a byte count that
-// is not a whole number of records, radii count mismatch, negative radius), ResourceLimit naming --max-particles.
+struct ParticleSummary {
+  std::int64_t count = 0;
+  Aabb bounds;           // of the positions
+  double max_radius = 0;  // 0 when the frame has no radii
+};
+
+// Validates a frame and summarizes it without keeping the positions (used at submit time for the job's bounds).
+// Throws InvalidInput naming `path` (e.g. "spec.particles.frames[3]") for malformed data (NaN, a byte count that is
+// not a whole number of records, a radii count mismatch, a radius <= 0, no particles), ResourceLimit naming
+// --max-particles.
+ParticleSummary summarize_particle_frame(const v1::ParticleFrame& frame, const std::string& path,
+                                         const UploadStore& uploads, std::int64_t max_particles);
+
+// Decodes a frame (same checks).
 ParticleData load_particle_frame(const v1::ParticleFrame& frame, const std::string& path, const UploadStore& uploads,
                                  std::int64_t max_particles);
 
