@@ -6,6 +6,7 @@
 #include "core/scene.h"
 
 #include <Eigen/LU>
+#include <Eigen/SVD>
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -100,6 +101,7 @@ Aabb disk_box(const Vec3& c, const Vec3& u, double r) {
 // --- Primitives ----------------------------------------------------------------------------------------------
 class Sphere final : public TemplatedField<Sphere> {
  public:
+  std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
   Sphere(const Vec3& c, double r) : c_(c), r_(r) {}
   template <class T>
   T eval(const V3<T>& p) const {
@@ -115,6 +117,7 @@ class Sphere final : public TemplatedField<Sphere> {
 // Rounded box with outer half extents h and edge radius r (r = 0: sharp box). Quilez, "sdRoundBox".
 class RoundedBox final : public TemplatedField<RoundedBox> {
  public:
+  std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
   RoundedBox(const Vec3& c, const Vec3& h, double r) : c_(c), h_(h), r_(r) {}
   template <class T>
   T eval(const V3<T>& p) const {
@@ -132,6 +135,7 @@ class RoundedBox final : public TemplatedField<RoundedBox> {
 // Capped cylinder: a 2-D box in (radial distance, axial offset from the middle).
 class Cylinder final : public TemplatedField<Cylinder> {
  public:
+  std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
   Cylinder(const Vec3& a, const Vec3& b, double r)
       : a_(a), b_(b), m_((a + b) * 0.5), u_((b - a).normalized()), half_(0.5 * (b - a).norm()), r_(r) {}
   template <class T>
@@ -155,6 +159,7 @@ class Cylinder final : public TemplatedField<Cylinder> {
 // the gradient defined on the surface.
 class Cone final : public TemplatedField<Cone> {
  public:
+  std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
   Cone(const Vec3& a, const Vec3& b, double ra, double rb)
       : a_(a), b_(b), u_((b - a).normalized()), len_((b - a).norm()), ra_(ra), rb_(rb) {
     const double side = std::hypot(len_, ra_ - rb_);
@@ -191,6 +196,7 @@ class Cone final : public TemplatedField<Cone> {
 
 class Torus final : public TemplatedField<Torus> {
  public:
+  std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
   Torus(const Vec3& c, const Vec3& axis, double major, double minor)
       : c_(c), n_(axis.normalized()), major_(major), minor_(minor) {}
   template <class T>
@@ -214,6 +220,7 @@ class Torus final : public TemplatedField<Torus> {
 
 class Plane final : public TemplatedField<Plane> {
  public:
+  std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
   Plane(const Vec3& normal, double offset) : n_(normal.normalized()), offset_(offset / normal.norm()) {}
   template <class T>
   T eval(const V3<T>& p) const {
@@ -228,6 +235,7 @@ class Plane final : public TemplatedField<Plane> {
 
 class Capsule final : public TemplatedField<Capsule> {
  public:
+  std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
   Capsule(const Vec3& a, const Vec3& b, double r) : a_(a), b_(b), ba_(b - a), r_(r) {
     const double baba = ba_.squaredNorm();
     inv_baba_ = baba > 0.0 ? 1.0 / baba : 0.0;
@@ -251,6 +259,9 @@ class Capsule final : public TemplatedField<Capsule> {
 // |g|/k is a first-order distance estimate to the minimal surface g = 0 (|grad g| <= ~1.2 k), not exact.
 class Gyroid final : public TemplatedField<Gyroid> {
  public:
+  // |grad g|^2 / k^2 = sum over the three cyclic terms of (cos x cos y - sin x sin z)^2 <= (cos^2 y + sin^2 z)
+  // (Cauchy-Schwarz), and those sum to 3: |grad (|g| / k)| <= sqrt(3).
+  std::optional<double> lipschitz_bound() const override { return std::sqrt(3.0); }
   Gyroid(double period, double thickness) : k_(2.0 * std::numbers::pi / period), half_thickness_(0.5 * thickness) {}
   template <class T>
   T eval(const V3<T>& p) const {
@@ -288,6 +299,24 @@ class Csg final : public Field {
     }
     gradient = Vec3(acc.d[0], acc.d[1], acc.d[2]);
     return acc.v;
+  }
+
+  // Min/max and the polynomial smooth blend have gradients that are convex combinations of the children's
+  // ((1 - h/2) grad a + (h/2) grad b for the smooth one): the largest child bound. The R-function's gradient is
+  // (1 -+ a/r) grad a + (1 -+ b/r) grad b with r = sqrt(a^2 + b^2), whose weights sum to at most 2 + sqrt(2);
+  // children are folded left to right, so the factor applies per fold.
+  std::optional<double> lipschitz_bound() const override {
+    std::optional<double> acc;
+    for (const FieldPtr& c : children_) {
+      const std::optional<double> l = c->lipschitz_bound();
+      if (!l) return std::nullopt;
+      if (!acc) {
+        acc = *l;
+      } else {
+        acc = std::max(*acc, *l) * (blend_ == CsgBlend::kRFunction ? 2.0 + std::numbers::sqrt2 : 1.0);
+      }
+    }
+    return acc;
   }
 
   std::optional<Aabb> bounds() const override {
@@ -381,7 +410,16 @@ class Csg final : public Field {
 class Transform final : public Field {
  public:
   Transform(FieldPtr child, const Eigen::Matrix3d& a, const Vec3& t, double factor)
-      : child_(std::move(child)), a_(a), inv_(a.inverse()), inv_t_(inv_.transpose()), t_(t), factor_(factor) {}
+      : child_(std::move(child)), a_(a), inv_(a.inverse()), inv_t_(inv_.transpose()), t_(t), factor_(factor) {
+    inv_norm_ = Eigen::JacobiSVD<Eigen::Matrix3d>(inv_).singularValues()(0);  // spectral norm of A^-1
+  }
+
+  // value(p) = factor child(A^-1 (p - t)): the child's bound times factor times |A^-1| (spectral norm).
+  std::optional<double> lipschitz_bound() const override {
+    const std::optional<double> l = child_->lipschitz_bound();
+    if (!l) return std::nullopt;
+    return *l * factor_ * inv_norm_;
+  }
 
   double value(const Vec3& p) const override { return factor_ * child_->value(inv_ * (p - t_)); }
 
@@ -411,6 +449,7 @@ class Transform final : public Field {
   Eigen::Matrix3d a_, inv_, inv_t_;
   Vec3 t_;
   double factor_;  // s when A = s R, else 1
+  double inv_norm_ = 1.0;
 };
 
 void require_distinct(const Vec3& a, const Vec3& b, const std::string& what) {

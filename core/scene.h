@@ -30,6 +30,11 @@ class Field {
   // A box containing the whole solid {value <= 0}, if the solid is bounded; nullopt for unbounded fields
   // (plane, gyroid, complement-like differences keep their first child's bounds).
   virtual std::optional<Aabb> bounds() const = 0;
+  // A constant L with |value(p) - value(q)| <= L |p - q| for all p, q, if one is known; nullopt otherwise (the
+  // default). Polygonizers use it to skip regions that cannot hold the surface (|value(c)| > L r: no zero within r
+  // of c), so it must never be too small; a loose bound only costs speed. Signed distances give 1; CSG and
+  // transforms combine their children's bounds; sampled grids and blobs compute one from their data.
+  virtual std::optional<double> lipschitz_bound() const { return std::nullopt; }
 };
 
 using FieldPtr = std::shared_ptr<const Field>;

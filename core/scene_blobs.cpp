@@ -40,6 +40,7 @@ class Blobs final : public Field {
   Blobs(std::vector<Skeleton> skeletons, const BlobOptions& options)
       : skeletons_(std::move(skeletons)), options_(options) {
     if (options_.kernel == BlobKernel::kWyvill && skeletons_.size() > kGridThreshold) build_grid();
+    compute_lipschitz();
   }
 
   double value(const Vec3& p) const override { return options_.iso - sum<false>(p, nullptr); }
@@ -50,6 +51,13 @@ class Blobs final : public Field {
     gradient = -g;
     return options_.iso - s;
   }
+
+  // Per skeleton, with u = r / R: Wyvill |d/dr| = 6 |s| u (1 - u^2)^2 / R <= (96 / (25 sqrt 5)) |s| / R (maximum at
+  // u = 1/sqrt 5); Blinn |d/dr| = 2 |s| b e^b u e^(-b u^2) / R <= |s| sqrt(2 b) e^(b - 1/2) / R (at u = 1/sqrt(2b)).
+  // The distance to a point or segment is 1-Lipschitz, so these bound each kernel's gradient. Wyvill sums only see
+  // the skeletons whose support holds p: with the grid, the largest per-cell sum; otherwise (and for Blinn) the sum
+  // over all skeletons.
+  std::optional<double> lipschitz_bound() const override { return lipschitz_; }
 
   std::optional<Aabb> bounds() const override {
     if (options_.kernel == BlobKernel::kWyvill) {
@@ -123,6 +131,30 @@ class Blobs final : public Field {
     if constexpr (kGradient) *gradient += (2.0 * dk_dx * s.inv_r2) * d;
   }
 
+  double kernel_slope(const Skeleton& s) const {
+    const double inv_r = std::sqrt(s.inv_r2);
+    if (options_.kernel == BlobKernel::kWyvill) return 96.0 / (25.0 * std::sqrt(5.0)) * std::abs(s.strength) * inv_r;
+    const double b = options_.blobbiness;
+    return std::abs(s.strength) * std::sqrt(2.0 * b) * std::exp(b - 0.5) * inv_r;
+  }
+
+  void compute_lipschitz() {
+    double total = 0.0;
+    for (const Skeleton& s : skeletons_) total += kernel_slope(s);
+    if (!cell_start_.empty()) {
+      double worst = 0.0;
+      for (std::size_t c = 0; c + 1 < cell_start_.size(); ++c) {
+        double sum = 0.0;
+        for (std::uint32_t k = cell_start_[c]; k < cell_start_[c + 1]; ++k) {
+          sum += kernel_slope(skeletons_[cell_items_[k]]);
+        }
+        worst = std::max(worst, sum);
+      }
+      total = worst;
+    }
+    lipschitz_ = total;
+  }
+
   // Uniform grid over the supports; cell size about the median kernel radius, enlarged to cap the cell count.
   void build_grid() {
     Aabb box = skeletons_[0].support;
@@ -179,6 +211,7 @@ class Blobs final : public Field {
   std::int64_t dims_[3] = {0, 0, 0};
   std::vector<std::uint32_t> cell_start_;
   std::vector<std::uint32_t> cell_items_;
+  double lipschitz_ = 0.0;
 };
 
 Skeleton make_skeleton(const Vec3& a, const Vec3& b, double radius, double strength) {

@@ -32,11 +32,16 @@ class SampledGrid final : public Field {
         values_(values.begin(), values.end()) {
     for (int i = 0; i < 3; ++i) max_corner_[i] = origin_[i] + spacing_[i] * (n_[i] - 1);
     compute_bounds();
+    compute_lipschitz();
   }
 
   double value(const Vec3& p) const override { return eval<false>(p, nullptr); }
   double value_and_gradient(const Vec3& p, Vec3& gradient) const override { return eval<true>(p, &gradient); }
   std::optional<Aabb> bounds() const override { return bounds_; }
+  // Inside the grid each partial derivative of the trilinear interpolant is a weighted mean of its cell's edge
+  // difference quotients, so |grad| <= sqrt(Dx^2 + Dy^2 + Dz^2) with D_a the largest |difference| / spacing along
+  // axis a. Outside, the clamped axes contribute the unit vector (p - q)/|p - q| instead: at most sqrt(D^2 + 1).
+  std::optional<double> lipschitz_bound() const override { return lipschitz_; }
 
  private:
   double normalized(std::int64_t index) const { return sign_ * (static_cast<double>(values_[index]) - iso_); }
@@ -118,12 +123,35 @@ class SampledGrid final : public Field {
     bounds_ = box;
   }
 
+  void compute_lipschitz() {
+    const std::int64_t stride[3] = {1, n_[0], std::int64_t{n_[0]} * n_[1]};
+    double sum2 = 1.0;
+    for (int a = 0; a < 3; ++a) {
+      double worst = 0.0;
+      std::int64_t index = 0;
+      for (std::int64_t k = 0; k < n_[2]; ++k) {
+        for (std::int64_t j = 0; j < n_[1]; ++j) {
+          for (std::int64_t i = 0; i < n_[0]; ++i, ++index) {
+            const std::int64_t ijk[3] = {i, j, k};
+            if (ijk[a] + 1 >= n_[a]) continue;
+            const double d = static_cast<double>(values_[index + stride[a]]) - static_cast<double>(values_[index]);
+            worst = std::max(worst, std::abs(d));
+          }
+        }
+      }
+      const double d = worst * inv_spacing_[a];
+      sum2 += d * d;
+    }
+    lipschitz_ = std::sqrt(sum2) * (1.0 + 1e-12);
+  }
+
   Vec3 origin_, spacing_, inv_spacing_, max_corner_;
   std::int64_t n_[3];
   double sign_;  // +1: signed distance (inside below iso); -1: potential (inside above iso)
   double iso_;
   std::vector<float> values_;
   Aabb bounds_;
+  double lipschitz_ = 1.0;
 };
 
 }  // namespace
