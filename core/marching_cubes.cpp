@@ -24,6 +24,7 @@
 #include <limits>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -154,10 +155,15 @@ struct FieldSource {
   using Value = double;
   const Grid& grid;
   const Field& field;
+  std::optional<double> lipschitz = std::nullopt;  // set: sparse evaluation (MarchingCubesOptions::sparse)
 
   const double* load(int k, std::vector<double>& buffer, const RunControl& control) const {
     const int px = grid.points[0], py = grid.points[1];
     buffer.resize(grid.layer_size());
+    if (lipschitz) {
+      load_sparse(k, 0, px, 0, py, buffer.data(), control);
+      return buffer.data();
+    }
     Vec3 p;
     p.z() = grid.coords[2][k];
     for (int j = 0; j < py; ++j) {
@@ -175,6 +181,53 @@ struct FieldSource {
     Vec3 g;
     field.value_and_gradient(p, g);
     return g;
+  }
+
+  // Points [i0, i1) x [j0, j1) of layer k. Every grid edge from one of them ends in the box of points
+  // [i0 - 1, i1] x [j0 - 1, j1] x [k - 1, k + 1]; when the Lipschitz ball around the box's centre proves one strict
+  // sign there, no edge from these points is crossed, so their values are never interpolated and only their sign
+  // matters: f(centre) stands in for all of them. Otherwise the tile is split in four, down to 64 points.
+  void load_sparse(int k, int i0, int i1, int j0, int j1, double* layer, const RunControl& control) const {
+    const int px = grid.points[0];
+    const auto& cx = grid.coords[0];
+    const auto& cy = grid.coords[1];
+    const auto& cz = grid.coords[2];
+    const Vec3 lo(cx[std::max(i0 - 1, 0)], cy[std::max(j0 - 1, 0)], cz[std::max(k - 1, 0)]);
+    const Vec3 hi(cx[std::min(i1, grid.cells[0])], cy[std::min(j1, grid.cells[1])], cz[std::min(k + 1, grid.cells[2])]);
+    const Vec3 centre = 0.5 * (lo + hi);
+    const double f = field.value(centre);
+    if (std::abs(f) > *lipschitz * 0.5 * (hi - lo).norm() * (1.0 + 1e-9)) {
+      for (int j = j0; j < j1; ++j)
+        std::fill(layer + static_cast<std::size_t>(j) * px + i0, layer + static_cast<std::size_t>(j) * px + i1, f);
+      return;
+    }
+    if (static_cast<std::int64_t>(i1 - i0) * (j1 - j0) <= 64) {
+      Vec3 p;
+      p.z() = cz[k];
+      for (int j = j0; j < j1; ++j) {
+        p.y() = cy[j];
+        double* row = layer + static_cast<std::size_t>(j) * px;
+        for (int i = i0; i < i1; ++i) {
+          p.x() = cx[i];
+          row[i] = field.value(p);
+        }
+      }
+      return;
+    }
+    control.check();
+    const int im = (i0 + i1) / 2, jm = (j0 + j1) / 2;
+    if (i1 - i0 >= 2 * (j1 - j0)) {
+      load_sparse(k, i0, im, j0, j1, layer, control);
+      load_sparse(k, im, i1, j0, j1, layer, control);
+    } else if (j1 - j0 >= 2 * (i1 - i0)) {
+      load_sparse(k, i0, i1, j0, jm, layer, control);
+      load_sparse(k, i0, i1, jm, j1, layer, control);
+    } else {
+      load_sparse(k, i0, im, j0, jm, layer, control);
+      load_sparse(k, im, i1, j0, jm, layer, control);
+      load_sparse(k, i0, im, jm, j1, layer, control);
+      load_sparse(k, im, i1, jm, j1, layer, control);
+    }
   }
 };
 
@@ -517,7 +570,9 @@ Mesh run(const Grid& grid, const Source& source, const MarchingCubesOptions& opt
 Mesh marching_cubes(const Field& field, const MarchingCubesOptions& options, const RunControl& control) {
   validate(options);
   const Grid grid(options);
-  return run(grid, FieldSource{grid, field}, options, control);
+  FieldSource source{grid, field};
+  if (options.sparse) source.lipschitz = field.lipschitz_bound();
+  return run(grid, source, options, control);
 }
 
 Mesh marching_cubes_samples(std::span<const float> samples, const MarchingCubesOptions& options,
