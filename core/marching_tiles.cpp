@@ -11,9 +11,9 @@
 // (kBlock + 1)^3 cells (its own cells and the +x/+y/+z layer its tetrahedra reach), so the one halo point a block
 // shares with its neighbour may be evaluated by both: the value is the same (same lattice coordinates, same
 // arithmetic), only the count of evaluations grows (~10-20% of a block's points where the surface crosses faces).
-// With a Lipschitz bound L (Field::lipschitz_bound) the block first skips every 2x2x2-cell sub-block whose
-// reachable points lie within a ball of radius R around a point c with |f(c)| > L R: no sign change is possible
-// there, so none of its tetrahedra is crossed.
+// With a Lipschitz bound L (Field::lipschitz_bound) the block first runs an octree down to single cells and drops
+// every cube whose reachable points lie within a ball of radius R around a point c with |f(c)| > L R: no sign change
+// is possible there, so none of its tetrahedra is crossed (about one evaluation per output triangle remains).
 //
 // Which blocks. (1) seeds: the blocks whose reachable box is within seed_radius of a seed. (2) a Lipschitz bound:
 // a kd-tree descent over the block grid, clipped to bounds and to field.bounds() (outside it f > 0), keeps the
@@ -28,10 +28,12 @@
 //
 // Welding without seams. A crossed edge's vertex is created by one owner block: the block of the first valid
 // tetrahedron in a fixed order of the tetrahedra around the edge (that tetrahedron is crossed, so its block is
-// processed and creates it). Inside a block, an array indexed by (edge home cell, edge class) gives each crossed
-// edge one id; edges owned elsewhere get a "foreign" id (owner block, slot) that the merge resolves by binary search
-// in the owner's sorted slot list. Blocks are concatenated in key order (z, y, x), vertices and triangles in each
-// block's creation order: the mesh is byte-identical whatever the thread count or scheduling.
+// processed and creates it). Inside a block, an array indexed by (edge home cell, edge class) -- kept for the two
+// z-layers of home cells the current cell layer reaches, so it stays in L1 -- gives each crossed edge one id; edges
+// owned elsewhere get a "foreign" id (owner block, slot). The merge groups foreign ids by owner and answers them from
+// the owner's (slot -> vertex) table laid out in a worker's array; no hash maps, no sorting of vertex lists. Blocks
+// are concatenated in key order (z, y, x), vertices and triangles in each block's creation order: the mesh is
+// byte-identical whatever the thread count or scheduling.
 //
 // Triangles. For each crossed tetrahedron (case = inside bits; 0 counts as outside) one triangle (1 or 3 inside) or
 // a quad split along its shorter diagonal (2 inside), oriented outward (toward increasing f): the orientation is
@@ -65,16 +67,15 @@ constexpr int kBlock = 8;                              // cells per block edge
 constexpr int kPad = kBlock + 1;                       // padded cells per block edge
 constexpr int kPadCells = kPad * kPad * kPad;          // 729
 constexpr int kBlockCells = kBlock * kBlock * kBlock;  // 512
-constexpr int kSub = 2;                                // cells per culling sub-block edge
-constexpr int kSubs = kBlock / kSub;                   // sub-blocks per block edge
-constexpr int kReach = 5;                              // tetrahedra of home cell c reach lattice 4c + 5
-constexpr int kSlots = kPadCells * a15::kEdgeCount;    // edge slots of a block
-constexpr double kMinT = 1e-3;                         // clamp of the interpolation parameter
-constexpr double kBallMargin = 1.0 + 1e-9;             // relative safety on Lipschitz radii
+constexpr int kSub = 2;       // cells between the corners of the sign scan (fields without a Lipschitz bound)
+constexpr int kCullCell = 1;  // smallest cube the Lipschitz cull tests, in cells
+constexpr int kReach = 5;     // tetrahedra of home cell c reach lattice 4c + 5
+constexpr int kSlots = kPadCells * a15::kEdgeCount;  // edge slots of a block
+constexpr int kRingSlots = 2 * kPad * kPad * a15::kEdgeCount;
+constexpr double kMinT = 1e-3;              // clamp of the interpolation parameter
+constexpr double kBallMargin = 1.0 + 1e-9;  // relative safety on Lipschitz radii
 constexpr std::uint32_t kNone = 0xffffffffu;
 constexpr std::uint32_t kForeign = 0x80000000u;
-
-static_assert(kBlock % kSub == 0);
 
 // --- Tables derived once from a15_table.h ------------------------------------------------------------------------
 
@@ -91,11 +92,25 @@ struct RingTet {
   int tet;
 };
 
+// Per tetrahedron-local edge, relative to the tetrahedron's home cell: what the marcher needs without looking at
+// the a15 tables again.
+struct EdgeInfo {
+  std::int32_t slot = 0;       // (pad-index offset of the edge's home cell) * kEdgeCount + class
+  std::int32_t ring_slot = 0;  // (in-layer pad-index offset of the home cell) * kEdgeCount + class
+  std::int32_t ring_dk = 0;    // z offset of the home cell (0 or 1)                 // (pad-index offset of the edge's
+                               // home cell) * kEdgeCount + class
+  std::array<std::int8_t, 3> owner{};    // interior owner cell (first ring tetrahedron's home) minus this home
+  std::array<std::uint16_t, 2> value{};  // pad-value offsets (8 * pad-index offset + point) of ends a, b
+  std::array<std::array<std::uint8_t, 3>, 2> lattice{};  // lattice coordinates of ends a, b minus 4 * home
+};
+
 struct Tables {
   std::array<std::array<std::uint8_t, 4>, a15::kTetCount> bit{};  // 8 * offset index + point, per vertex
-  std::uint64_t cell_mask = 0;                                    // union of every tetrahedron's bits
-  std::array<std::uint8_t, 8> offset_points{};                    // points read in cell home + offset
-  std::array<std::array<int, 3>, a15::kTetCount> reach{};         // max lattice coordinate - 4 * home, per axis
+  std::array<std::uint64_t, a15::kTetCount> tet_mask{};           // the 4 bits of each tetrahedron
+  std::array<std::array<EdgeInfo, 6>, a15::kTetCount> edges{};
+  std::uint64_t cell_mask = 0;                             // union of every tetrahedron's bits
+  std::array<std::uint8_t, 8> offset_points{};             // points read in cell home + offset
+  std::array<std::array<int, 3>, a15::kTetCount> reach{};  // max lattice coordinate - 4 * home, per axis
   std::array<std::array<Case, 16>, a15::kTetCount> cases{};
   std::array<std::vector<RingTet>, a15::kEdgeCount> ring;  // tetrahedra around each edge, fixed order
 
@@ -107,6 +122,7 @@ struct Tables {
         const int oi = s.offset[0] + 2 * s.offset[1] + 4 * s.offset[2];
         bit[t][v] = static_cast<std::uint8_t>(8 * oi + s.point);
         cell_mask |= std::uint64_t{1} << bit[t][v];
+        tet_mask[t] |= std::uint64_t{1} << bit[t][v];
         offset_points[oi] |= static_cast<std::uint8_t>(1u << s.point);
         for (int a = 0; a < 3; ++a) {
           const int l = 4 * s.offset[a] + a15::kPoints[s.point][a];
@@ -127,6 +143,26 @@ struct Tables {
         if (a.offset[0] != b.offset[0]) return a.offset[0] > b.offset[0];
         return a.tet < b.tet;
       });
+    }
+    for (int t = 0; t < a15::kTetCount; ++t) {
+      for (int e = 0; e < 6; ++e) {
+        const a15::TetEdge& te = a15::kTetEdges[t][e];
+        EdgeInfo& info = edges[t][e];
+        info.slot = (te.home[0] + kPad * te.home[1] + kPad * kPad * te.home[2]) * a15::kEdgeCount + te.edge;
+        info.ring_slot = (te.home[0] + kPad * te.home[1]) * a15::kEdgeCount + te.edge;
+        info.ring_dk = te.home[2];
+        for (int a = 0; a < 3; ++a) info.owner[a] = static_cast<std::int8_t>(te.home[a] + ring[te.edge][0].offset[a]);
+        int ends[2] = {kEdgeEnds[e][0], kEdgeEnds[e][1]};
+        if (!te.a_first) std::swap(ends[0], ends[1]);
+        for (int n = 0; n < 2; ++n) {
+          const a15::Site& site = a15::kTets[t][ends[n]];
+          info.value[n] = static_cast<std::uint16_t>(
+              8 * (site.offset[0] + kPad * site.offset[1] + kPad * kPad * site.offset[2]) + site.point);
+          for (int a = 0; a < 3; ++a) {
+            info.lattice[n][a] = static_cast<std::uint8_t>(4 * site.offset[a] + a15::kPoints[site.point][a]);
+          }
+        }
+      }
     }
   }
 
@@ -239,14 +275,18 @@ struct BlockOutput {
   std::uint32_t neighbours = 0;  // bit (dx+1) + 3 (dy+1) + 9 (dz+1): blocks the flood must add
 };
 
-struct Scratch {
+struct alignas(64) Scratch {
   std::vector<double> values = std::vector<double>(static_cast<std::size_t>(kPadCells) * 8);
   std::array<std::uint8_t, kPadCells> evaluated{};  // bit p: point p of the padded cell has a value
   std::array<std::uint8_t, kPadCells> valid{};      // bit p: inside bounds
   std::array<std::uint8_t, kPadCells> inside{};     // bit p: value < 0
   std::array<std::uint8_t, kBlockCells> active{};   // cell not culled
-  std::vector<std::uint32_t> slots = std::vector<std::uint32_t>(kSlots, kNone);
-  std::vector<std::uint32_t> touched;
+  // Vertex ids of the edges whose home cells lie in the two z-layers the current cell layer k reaches (k, k + 1),
+  // at [(home z & 1) * kPad^2 + in-layer pad index] * kEdgeCount + class: small enough to stay in L1.
+  std::vector<std::uint32_t> ring = std::vector<std::uint32_t>(kRingSlots, kNone);
+  std::array<std::vector<std::uint32_t>, 2> ring_touched;
+  std::vector<std::uint32_t> slots = std::vector<std::uint32_t>(kSlots, kNone);  // merge: owner slot -> vertex
+  std::vector<Vec3> foreign_positions;  // of the block's foreign vertices, by foreign index
 };
 
 constexpr int pad_index(int i, int j, int k) { return (k * kPad + j) * kPad + i; }
@@ -263,12 +303,21 @@ class BlockMesher {
     out.key = key;
     const std::array<std::int64_t, 3> b = lat_.block_of_key(key);
     for (int a = 0; a < 3; ++a) c0_[a] = b[a] * kBlock;
+    // Interior: every tetrahedron around an edge of this block's tetrahedra (home cells c0 - 1 .. c0 + kBlock) is
+    // valid, so each edge's owner is its first ring tetrahedron.
+    interior_ = true;
+    for (int a = 0; a < 3; ++a) {
+      interior_ = interior_ && c0_[a] >= 1 && 4 * (c0_[a] + kBlock) + kReach <= lat_.max_coord[a];
+    }
     prepare(s);
     cull(s);
     evaluate(s);
     march(s, out);
-    for (std::uint32_t slot : s.touched) s.slots[slot] = kNone;
-    s.touched.clear();
+    for (auto& touched : s.ring_touched) {
+      for (std::uint32_t slot : touched) s.ring[slot] = kNone;
+      touched.clear();
+    }
+    s.foreign_positions.clear();
   }
 
  private:
@@ -306,30 +355,32 @@ class BlockMesher {
       s.active.fill(1);
       return;
     }
-    for (int sk = 0; sk < kSubs; ++sk) {
-      control_.check();
-      for (int sj = 0; sj < kSubs; ++sj) {
-        for (int si = 0; si < kSubs; ++si) {
-          const std::array<int, 3> sub{si, sj, sk};
-          std::array<std::int64_t, 3> lo, hi;
-          for (int a = 0; a < 3; ++a) {
-            lo[a] = 4 * (c0_[a] + sub[a] * kSub);
-            hi[a] = 4 * (c0_[a] + sub[a] * kSub + kSub - 1) + kReach;
-          }
-          bool keep = false;
-          if (const std::optional<Aabb> box = clipped_box(lat_, lo, hi, options_.bounds)) {
-            keep = !ball_excludes(field_, *lipschitz_, *box);
-          }
-          for (int k = 0; k < kSub; ++k) {
-            for (int j = 0; j < kSub; ++j) {
-              for (int i = 0; i < kSub; ++i) {
-                const int cell = ((sk * kSub + k) * kBlock + sj * kSub + j) * kBlock + si * kSub + i;
-                s.active[cell] = keep;
-              }
-            }
-          }
+    s.active.fill(0);
+    cull_cube(s, {0, 0, 0}, kBlock);
+  }
+
+  // Octree over the block's cells: a cube of `size` cells at `lo` is dropped when the Lipschitz ball around the box
+  // its tetrahedra reach excludes a sign change; otherwise its octants are tested, down to kCullCell cells.
+  void cull_cube(Scratch& s, const std::array<int, 3>& lo, int size) {
+    std::array<std::int64_t, 3> llo, lhi;
+    for (int a = 0; a < 3; ++a) {
+      llo[a] = 4 * (c0_[a] + lo[a]);
+      lhi[a] = 4 * (c0_[a] + lo[a] + size - 1) + kReach;
+    }
+    const std::optional<Aabb> box = clipped_box(lat_, llo, lhi, options_.bounds);
+    if (!box || ball_excludes(field_, *lipschitz_, *box)) return;
+    if (size <= kCullCell) {
+      for (int k = lo[2]; k < lo[2] + size; ++k) {
+        for (int j = lo[1]; j < lo[1] + size; ++j) {
+          for (int i = lo[0]; i < lo[0] + size; ++i) s.active[(k * kBlock + j) * kBlock + i] = 1;
         }
       }
+      return;
+    }
+    if (size == kBlock) control_.check();
+    const int half = size / 2;
+    for (int o = 0; o < 8; ++o) {
+      cull_cube(s, {lo[0] + (o & 1) * half, lo[1] + ((o >> 1) & 1) * half, lo[2] + (o >> 2) * half}, half);
     }
   }
 
@@ -366,6 +417,10 @@ class BlockMesher {
     const std::uint64_t mask = tab_.cell_mask;
     for (int k = 0; k < kBlock; ++k) {
       control_.check();
+      // Home layer k - 1 is out of reach from now on; its ring half becomes home layer k + 1's.
+      auto& stale = s.ring_touched[(k + 1) & 1];
+      for (std::uint32_t slot : stale) s.ring[slot] = kNone;
+      stale.clear();
       for (int j = 0; j < kBlock; ++j) {
         for (int i = 0; i < kBlock; ++i) {
           if (!s.active[(k * kBlock + j) * kBlock + i]) continue;
@@ -385,30 +440,33 @@ class BlockMesher {
 
   void march_cell(Scratch& s, BlockOutput& out, int i, int j, int k, std::uint64_t w, std::uint64_t v, bool all_valid) {
     bool crossed = false;
+    const int pc = pad_index(i, j, k);
     for (int t = 0; t < a15::kTetCount; ++t) {
+      const std::uint64_t m = tab_.tet_mask[t];
+      const std::uint64_t x = w & m;
+      if (x == 0 || x == m) continue;
+      if (!all_valid && (v & m) != m) continue;
       const auto& bit = tab_.bit[t];
-      if (!all_valid && !(((v >> bit[0]) & (v >> bit[1]) & (v >> bit[2]) & (v >> bit[3])) & 1)) continue;
       const unsigned c = static_cast<unsigned>(((w >> bit[0]) & 1) | (((w >> bit[1]) & 1) << 1) |
                                                (((w >> bit[2]) & 1) << 2) | (((w >> bit[3]) & 1) << 3));
-      if (c == 0 || c == 15) continue;
       crossed = true;
       const Case& cs = tab_.cases[t][c];
       std::array<std::uint32_t, 4> id;
-      for (int e = 0; e < cs.count; ++e) id[e] = edge_vertex(s, out, i, j, k, t, cs.edge[e]);
+      for (int e = 0; e < cs.count; ++e) id[e] = edge_vertex(s, out, pc, i, j, k, t, cs.edge[e]);
       if (cs.count == 3) {
         out.triangles.push_back(Triangle{id[0], id[1], id[2]});
+        continue;
+      }
+      // Quad: split along the shorter diagonal.
+      const auto pos = [&](std::uint32_t q) -> const Vec3& {
+        return (q & kForeign) ? s.foreign_positions[q & ~kForeign] : out.vertices[q];
+      };
+      if ((pos(id[2]) - pos(id[0])).squaredNorm() <= (pos(id[3]) - pos(id[1])).squaredNorm()) {
+        out.triangles.push_back(Triangle{id[0], id[1], id[2]});
+        out.triangles.push_back(Triangle{id[0], id[2], id[3]});
       } else {
-        // Quad: split along the shorter diagonal (positions are known for own and foreign vertices alike through
-        // the edge geometry, so use the midpoint-free test on the lattice: compare the actual positions).
-        const Vec3 p0 = edge_point(s, i, j, k, t, cs.edge[0]), p1 = edge_point(s, i, j, k, t, cs.edge[1]);
-        const Vec3 p2 = edge_point(s, i, j, k, t, cs.edge[2]), p3 = edge_point(s, i, j, k, t, cs.edge[3]);
-        if ((p2 - p0).squaredNorm() <= (p3 - p1).squaredNorm()) {
-          out.triangles.push_back(Triangle{id[0], id[1], id[2]});
-          out.triangles.push_back(Triangle{id[0], id[2], id[3]});
-        } else {
-          out.triangles.push_back(Triangle{id[1], id[2], id[3]});
-          out.triangles.push_back(Triangle{id[1], id[3], id[0]});
-        }
+        out.triangles.push_back(Triangle{id[1], id[2], id[3]});
+        out.triangles.push_back(Triangle{id[1], id[3], id[0]});
       }
     }
     if (crossed) {
@@ -432,70 +490,57 @@ class BlockMesher {
     }
   }
 
-  // Lattice position, value of vertex v of tetrahedron t in cell (i, j, k).
-  double vertex_value(const Scratch& s, int i, int j, int k, int t, int v) const {
-    const a15::Site& site = a15::kTets[t][v];
-    const int n = pad_index(i + site.offset[0], j + site.offset[1], k + site.offset[2]);
-    return s.values[static_cast<std::size_t>(n) * 8 + site.point];
-  }
-  Vec3 vertex_position(int i, int j, int k, int t, int v) const {
-    const a15::Site& site = a15::kTets[t][v];
-    return point_position(i + site.offset[0], j + site.offset[1], k + site.offset[2], site.point);
-  }
-
-  // The interpolated point on local edge e of tetrahedron t, computed from the edge's endpoint a to b so that every
-  // block computes the same numbers.
-  Vec3 edge_point(const Scratch& s, int i, int j, int k, int t, int e, double* t_out = nullptr) const {
-    int va = kEdgeEnds[e][0], vb = kEdgeEnds[e][1];
-    if (!a15::kTetEdges[t][e].a_first) std::swap(va, vb);
-    const double fa = vertex_value(s, i, j, k, t, va), fb = vertex_value(s, i, j, k, t, vb);
-    const double param = std::clamp(fa / (fa - fb), kMinT, 1.0 - kMinT);
-    if (t_out != nullptr) *t_out = param;
-    const Vec3 pa = vertex_position(i, j, k, t, va), pb = vertex_position(i, j, k, t, vb);
-    return pa + param * (pb - pa);
-  }
-
-  std::uint32_t edge_vertex(Scratch& s, BlockOutput& out, int i, int j, int k, int t, int e) {
-    const a15::TetEdge& te = a15::kTetEdges[t][e];
-    const std::array<int, 3> home{i + te.home[0], j + te.home[1], k + te.home[2]};
-    const std::uint32_t slot =
-        static_cast<std::uint32_t>(pad_index(home[0], home[1], home[2]) * a15::kEdgeCount + te.edge);
-    std::uint32_t& id = s.slots[slot];
-    if (id != kNone) return id;
-    s.touched.push_back(slot);
-    // Owner: the block of the first valid tetrahedron around the edge.
-    const std::array<std::int64_t, 3> global_home{c0_[0] + home[0], c0_[1] + home[1], c0_[2] + home[2]};
-    std::array<std::int64_t, 3> owner{};
-    bool found = false;
-    for (const RingTet& r : tab_.ring[te.edge]) {
-      for (int a = 0; a < 3; ++a) owner[a] = global_home[a] + r.offset[a];
-      if (lat_.tet_valid(owner, r.tet)) {
-        found = true;
-        break;
-      }
-    }
-    if (!found) throw Internal("marching tiles: a crossed edge has no valid tetrahedron");
-    bool own = true;
-    std::array<std::int64_t, 3> owner_block{};
+  // The interpolated point on an edge, from its end a to its end b (every block computes the same numbers);
+  // `param` receives the interpolation parameter.
+  Vec3 edge_point(const Scratch& s, int pc, int i, int j, int k, const EdgeInfo& info, double& param) const {
+    const double fa = s.values[static_cast<std::size_t>(pc) * 8 + info.value[0]];
+    const double fb = s.values[static_cast<std::size_t>(pc) * 8 + info.value[1]];
+    param = std::clamp(fa / (fa - fb), kMinT, 1.0 - kMinT);
+    const std::array<std::int64_t, 3> base{4 * (c0_[0] + i), 4 * (c0_[1] + j), 4 * (c0_[2] + k)};
+    Vec3 p;
     for (int a = 0; a < 3; ++a) {
-      owner_block[a] = owner[a] / kBlock;  // owner >= 0
-      own = own && owner_block[a] * kBlock == c0_[a];
+      const double xa = lat_.world(a, base[a] + info.lattice[0][a]), xb = lat_.world(a, base[a] + info.lattice[1][a]);
+      p[a] = xa + param * (xb - xa);
     }
+    return p;
+  }
+
+  std::uint32_t edge_vertex(Scratch& s, BlockOutput& out, int pc, int i, int j, int k, int t, int e) {
+    const EdgeInfo& info = tab_.edges[t][e];
+    const int half = (k + info.ring_dk) & 1;
+    const auto ring_slot =
+        static_cast<std::uint32_t>((half * kPad * kPad + j * kPad + i) * a15::kEdgeCount + info.ring_slot);
+    std::uint32_t& id = s.ring[ring_slot];
+    if (id != kNone) return id;
+    s.ring_touched[half].push_back(ring_slot);
+    const auto slot = static_cast<std::uint32_t>(pc * a15::kEdgeCount + info.slot);
+    // Owner: the cell of the first valid tetrahedron around the edge, relative to this block.
+    std::array<int, 3> owner{i + info.owner[0], j + info.owner[1], k + info.owner[2]};
+    if (!interior_) owner = boundary_owner(i, j, k, t, e);
+    const bool own =
+        owner[0] >= 0 && owner[0] < kBlock && owner[1] >= 0 && owner[1] < kBlock && owner[2] >= 0 && owner[2] < kBlock;
+    double param = 0.0;
+    const Vec3 p = edge_point(s, pc, i, j, k, info, param);
     if (!own) {
+      const a15::TetEdge& te = a15::kTetEdges[t][e];
+      std::array<std::int64_t, 3> owner_block{};
       std::array<int, 3> local{};
-      for (int a = 0; a < 3; ++a) local[a] = static_cast<int>(global_home[a] - owner_block[a] * kBlock);
+      for (int a = 0; a < 3; ++a) {
+        const int d = owner[a] < 0 ? -1 : (owner[a] >= kBlock ? 1 : 0);
+        owner_block[a] = c0_[a] / kBlock + d;
+        local[a] = (a == 0 ? i : a == 1 ? j : k) + te.home[a] - d * kBlock;  // edge home in the owner block
+      }
       const auto owner_slot =
           static_cast<std::uint32_t>(pad_index(local[0], local[1], local[2]) * a15::kEdgeCount + te.edge);
       id = kForeign | static_cast<std::uint32_t>(out.foreign.size());
       out.foreign.push_back(ForeignRef{lat_.key(owner_block[0], owner_block[1], owner_block[2]), owner_slot});
+      s.foreign_positions.push_back(p);
       return id;
     }
     if (out.vertices.size() >= kForeign) {
       throw ResourceLimit("spacing",
                           "marching tiles produced more than 2^31 vertices in one block; use a larger spacing");
     }
-    double param = 0.0;
-    const Vec3 p = edge_point(s, i, j, k, t, e, &param);
     id = static_cast<std::uint32_t>(out.vertices.size());
     out.vertices.push_back(p);
     out.vertex_slots.push_back(slot);
@@ -506,14 +551,26 @@ class BlockMesher {
       if (len > 0.0 && std::isfinite(len)) {
         g /= len;
       } else {  // flat or broken gradient: the edge direction from its inside end to its outside end
-        int va = kEdgeEnds[e][0], vb = kEdgeEnds[e][1];
-        Vec3 d = vertex_position(i, j, k, t, vb) - vertex_position(i, j, k, t, va);
-        if (vertex_value(s, i, j, k, t, va) >= 0.0) d = -d;
-        g = d.normalized();
+        for (int a = 0; a < 3; ++a) g[a] = static_cast<double>(info.lattice[1][a]) - info.lattice[0][a];
+        if (s.values[static_cast<std::size_t>(pc) * 8 + info.value[0]] >= 0.0) g = -g;
+        g.normalize();
       }
       out.normals.push_back(g);
     }
     return id;
+  }
+
+  // Near the region's boundary some tetrahedra around an edge are not used: the owner is the home cell of the first
+  // valid one in ring order (relative to this block).
+  std::array<int, 3> boundary_owner(int i, int j, int k, int t, int e) const {
+    const a15::TetEdge& te = a15::kTetEdges[t][e];
+    const std::array<int, 3> home{i + te.home[0], j + te.home[1], k + te.home[2]};
+    for (const RingTet& r : tab_.ring[te.edge]) {
+      std::array<std::int64_t, 3> cell{};
+      for (int a = 0; a < 3; ++a) cell[a] = c0_[a] + home[a] + r.offset[a];
+      if (lat_.tet_valid(cell, r.tet)) return {home[0] + r.offset[0], home[1] + r.offset[1], home[2] + r.offset[2]};
+    }
+    throw Internal("marching tiles: a crossed edge has no valid tetrahedron");
   }
 
   const Lattice& lat_;
@@ -523,6 +580,7 @@ class BlockMesher {
   const RunControl& control_;
   const Tables& tab_;
   std::array<std::int64_t, 3> c0_{};
+  bool interior_ = false;
 };
 
 // --- Parallel loop with per-worker scratch -------------------------------------------------------------------------
@@ -768,27 +826,65 @@ std::vector<std::uint64_t> sign_scan(const Lattice& lat, const Field& field, con
 
 // --- Merge ---------------------------------------------------------------------------------------------------------
 
-Mesh merge(std::vector<BlockOutput>& blocks, bool normals, int threads, const RunControl& control) {
+// Resolves foreign ids without sorting whole vertex lists: the references are grouped by owner block, and each
+// owner's (slot -> id) table is laid out in a worker's slot array just long enough to answer them.
+Mesh merge(std::vector<BlockOutput>& blocks, bool normals, std::vector<Scratch>& scratch, const RunControl& control) {
   std::sort(blocks.begin(), blocks.end(), [](const BlockOutput& a, const BlockOutput& b) { return a.key < b.key; });
   const std::size_t n = blocks.size();
+  const int threads = static_cast<int>(scratch.size());
   std::vector<std::uint64_t> keys(n);
-  std::vector<std::size_t> vbase(n + 1, 0), tbase(n + 1, 0);
+  std::vector<std::size_t> vbase(n + 1, 0), tbase(n + 1, 0), fbase(n + 1, 0);
   for (std::size_t b = 0; b < n; ++b) {
     keys[b] = blocks[b].key;
     vbase[b + 1] = vbase[b] + blocks[b].vertices.size();
     tbase[b + 1] = tbase[b] + blocks[b].triangles.size();
+    fbase[b + 1] = fbase[b] + blocks[b].foreign.size();
   }
   if (vbase[n] > std::numeric_limits<std::uint32_t>::max()) {
     throw ResourceLimit("spacing", "marching tiles produced more than 2^32 vertices; use a larger spacing");
   }
-  // Per block: (slot, local id) sorted by slot, for foreign lookups.
-  std::vector<std::vector<std::pair<std::uint32_t, std::uint32_t>>> by_slot(n);
+  const auto missing = [] {
+    return Internal(
+        "marching tiles: an edge vertex was not created by its owner block (is the field's lipschitz_bound() too "
+        "small, or is the field not deterministic?)");
+  };
+  // Owner of every foreign reference (index into the sorted blocks), then references grouped by owner.
+  std::vector<std::uint32_t> owner(fbase[n]);
   parallel_for(static_cast<int>(n), threads, [&](int b) {
-    auto& v = by_slot[b];
+    for (std::size_t f = 0; f < blocks[b].foreign.size(); ++f) {
+      const auto it = std::lower_bound(keys.begin(), keys.end(), blocks[b].foreign[f].block);
+      if (it == keys.end() || *it != blocks[b].foreign[f].block) throw missing();
+      owner[fbase[b] + f] = static_cast<std::uint32_t>(it - keys.begin());
+    }
+  });
+  std::vector<std::size_t> incoming_start(n + 1, 0);
+  for (std::uint32_t o : owner) ++incoming_start[o + 1];
+  for (std::size_t b = 0; b < n; ++b) incoming_start[b + 1] += incoming_start[b];
+  std::vector<std::uint32_t> incoming(fbase[n]);  // global reference index (fbase[b] + f), grouped by owner
+  {
+    std::vector<std::size_t> fill(incoming_start.begin(), incoming_start.end() - 1);
+    for (std::size_t r = 0; r < owner.size(); ++r) incoming[fill[owner[r]]++] = static_cast<std::uint32_t>(r);
+  }
+  std::vector<std::uint32_t> resolved(fbase[n]);  // global vertex id per reference
+  std::vector<std::uint32_t> ref_block(fbase[n]);
+  for (std::size_t b = 0; b < n; ++b) {
+    std::fill(ref_block.begin() + static_cast<std::ptrdiff_t>(fbase[b]),
+              ref_block.begin() + static_cast<std::ptrdiff_t>(fbase[b + 1]), static_cast<std::uint32_t>(b));
+  }
+  for_each_item(static_cast<int>(n), threads, [&](int b, int worker) {
+    if (incoming_start[b] == incoming_start[b + 1]) return;
+    std::vector<std::uint32_t>& table = scratch[worker].slots;
     const auto& slots = blocks[b].vertex_slots;
-    v.resize(slots.size());
-    for (std::uint32_t i = 0; i < slots.size(); ++i) v[i] = {slots[i], i};
-    std::sort(v.begin(), v.end());
+    for (std::uint32_t i = 0; i < slots.size(); ++i) table[slots[i]] = static_cast<std::uint32_t>(vbase[b] + i);
+    bool ok = true;
+    for (std::size_t k = incoming_start[b]; k < incoming_start[b + 1]; ++k) {
+      const std::uint32_t r = incoming[k];
+      const std::uint32_t id = table[blocks[ref_block[r]].foreign[r - fbase[ref_block[r]]].slot];
+      ok = ok && id != kNone;
+      resolved[r] = id;
+    }
+    for (std::uint32_t slot : slots) table[slot] = kNone;
+    if (!ok) throw missing();
   });
   Mesh mesh;
   mesh.vertices.resize(vbase[n]);
@@ -801,24 +897,7 @@ Mesh merge(std::vector<BlockOutput>& blocks, bool normals, int threads, const Ru
     if (normals) {
       std::copy(out.normals.begin(), out.normals.end(), mesh.normals.begin() + static_cast<std::ptrdiff_t>(vbase[b]));
     }
-    std::vector<std::uint32_t> foreign(out.foreign.size());
-    for (std::size_t f = 0; f < out.foreign.size(); ++f) {
-      const ForeignRef& ref = out.foreign[f];
-      const auto it = std::lower_bound(keys.begin(), keys.end(), ref.block);
-      bool ok = it != keys.end() && *it == ref.block;
-      if (ok) {
-        const std::size_t owner = static_cast<std::size_t>(it - keys.begin());
-        const auto& v = by_slot[owner];
-        const auto jt = std::lower_bound(v.begin(), v.end(), std::pair<std::uint32_t, std::uint32_t>{ref.slot, 0});
-        ok = jt != v.end() && jt->first == ref.slot;
-        if (ok) foreign[f] = static_cast<std::uint32_t>(vbase[owner] + jt->second);
-      }
-      if (!ok) {
-        throw Internal(
-            "marching tiles: an edge vertex was not created by its owner block (is the field's "
-            "lipschitz_bound() too small, or is the field not deterministic?)");
-      }
-    }
+    const std::uint32_t* foreign = resolved.data() + fbase[b];
     const auto base = static_cast<std::uint32_t>(vbase[b]);
     Triangle* dst = mesh.triangles.data() + tbase[b];
     for (const Triangle& t : out.triangles) {
@@ -865,7 +944,9 @@ Mesh marching_tiles(const Field& field, const MarchingTilesOptions& options, con
     const int workers = std::min<int>(static_cast<int>(scratch.size()), static_cast<int>(frontier.size()));
     for_each_item(static_cast<int>(frontier.size()), workers, [&](int item, int worker) {
       BlockMesher mesher = mesher_proto;
-      mesher.run(frontier[item], scratch[worker], round[item]);
+      BlockOutput out;  // filled here, moved once: outputs side by side in `round` would share cache lines
+      mesher.run(frontier[item], scratch[worker], out);
+      round[item] = std::move(out);
       progress.update(finished.fetch_add(1, std::memory_order_relaxed) + 1, scheduled);
     });
     std::vector<std::uint64_t> next;
@@ -888,7 +969,7 @@ Mesh marching_tiles(const Field& field, const MarchingTilesOptions& options, con
     scheduled += static_cast<std::int64_t>(next.size());
     frontier = std::move(next);
   }
-  Mesh mesh = merge(done, options.normals, threads, control);
+  Mesh mesh = merge(done, options.normals, scratch, control);
   control.report("polygonize", 1.0);
   return mesh;
 }
