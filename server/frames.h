@@ -38,6 +38,8 @@ class StageTimer {
     } record{this, stage, start};
     return f();
   }
+  // Records a stage timed elsewhere (e.g. by an engine's own stats).
+  void add(std::string stage, double seconds) { timings_.emplace_back(std::move(stage), seconds); }
   const std::vector<std::pair<std::string, double>>& timings() const { return timings_; }
 
  private:

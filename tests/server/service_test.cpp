@@ -142,6 +142,7 @@ TEST(Service, LargeFrameOver5MTrianglesStreamsInChunks) {
   // A gyroid sheet fills the box with surface: ~5 M triangles at 128 cells.
   auto scene = scene_from_json(R"({"root": {"gyroid": {"period": 1.0, "thickness": 0.3}}})");
   auto spec = isosurface_spec({scene}, 136);
+  spec.mutable_isosurface()->set_method(v1::POLYGONIZER_CUBES);  // the chunking is under test, not the polygonizer
   auto* bounds = spec.mutable_isosurface()->mutable_bounds();
   bounds->mutable_min()->set_x(0);
   bounds->mutable_min()->set_y(0);
