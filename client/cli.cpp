@@ -4,113 +4,15 @@
 
 #include <CLI/CLI.hpp>
 #include <algorithm>
-#include <charconv>
 #include <cstdlib>
 #include <iostream>
 #include <string>
 
+#include "client/cli_jobs.h"
 #include "client/commands.h"
 
 namespace surfacer::client {
 namespace {
-
-constexpr const char* kGlobalNote =
-    "Global options (--server HOST:PORT, --local, --workers N, --timeout S) may also be given after the subcommand; "
-    "see `surfacer --help`.\n";
-
-// Variables CLI11 writes into for one `run` or `submit` subcommand.
-struct JobFlags {
-  JobOptions job;
-  IsosurfaceOptions iso;
-  std::optional<std::string> bounds;
-  CLI::App* isosurface = nullptr;
-};
-
-struct OutputFlags {
-  std::optional<std::string> dir;
-  std::vector<std::string> formats;
-};
-
-void add_output_flags(CLI::App* app, OutputFlags& flags) {
-  app->add_option("-o,--output", flags.dir, "directory for frame_NNNN.<ext> files and stats.csv (created)")
-      ->type_name("DIR");
-  app->add_option("--format", flags.formats,
-                  "files per frame, comma-separated: drc,ply,obj (default: the frame's encoding: .drc, or .ply with "
-                  "--raw)")
-      ->delimiter(',')
-      ->check(CLI::IsMember({"drc", "ply", "obj"}))
-      ->type_name("LIST");
-}
-
-void add_job_common_flags(CLI::App* app, JobOptions& job) {
-  app->add_option("--name", job.name, "free text shown by `surfacer list` (default: the first scene's file name)");
-  app->add_flag("--raw", job.raw, "lossless frames: binary PLY with double-precision positions instead of Draco");
-  app->add_flag("--normals", job.normals, "per-vertex normals (from the field gradient) in every frame");
-  app->add_option("--quantization-bits", job.quantization_bits,
-                  "Draco position quantization, 1..30 bits (server default 14)")
-      ->check(CLI::Range(1, 30))
-      ->type_name("B");
-}
-
-CLI::App* add_isosurface(CLI::App* parent, JobFlags& flags, OutputFlags* output, const std::string& example) {
-  CLI::App* iso = parent->add_subcommand("isosurface", "Polygonize the surface f = 0 of one or more scenes");
-  iso->add_option("--scene", flags.iso.scenes,
-                  "scene file (protobuf JSON of surfacer.v1.Scene); repeat for a sequence, one frame per scene")
-      ->required()
-      ->type_name("FILE");
-  CLI::Option* cells =
-      iso->add_option("--cells", flags.iso.cells, "cells along the longest axis of the bounds (default 128)")
-          ->check(CLI::PositiveNumber)
-          ->type_name("N");
-  iso->add_option("--cell-size", flags.iso.cell_size, "edge of a cubic cell, in scene units")
-      ->check(CLI::PositiveNumber)
-      ->excludes(cells)
-      ->type_name("H");
-  iso->add_option("--bounds", flags.bounds,
-                  "region to polygonize: x0,y0,z0,x1,y1,z1 (default: the scenes' own bounds, padded by two cells)")
-      ->type_name("BOX");
-  iso->add_option("--method", flags.iso.method, "polygonizer: cubes (Marching Cubes; the default)")
-      ->check(CLI::IsMember({"cubes"}))
-      ->type_name("NAME");
-  add_job_common_flags(iso, flags.job);
-  if (output != nullptr) add_output_flags(iso, *output);
-  iso->footer(std::string("Example:\n  ") + example + "\n\n" + kGlobalNote);
-  flags.isosurface = iso;
-  return iso;
-}
-
-std::array<double, 6> parse_bounds(const std::string& text) {
-  std::array<double, 6> values{};
-  std::size_t count = 0;
-  std::size_t pos = 0;
-  while (true) {
-    std::size_t comma = text.find(',', pos);
-    std::string item = text.substr(pos, comma == std::string::npos ? std::string::npos : comma - pos);
-    double value = 0;
-    auto [end, ec] = std::from_chars(item.data(), item.data() + item.size(), value);
-    if (item.empty() || ec != std::errc() || end != item.data() + item.size() || count == 6) {
-      throw CliError(ExitCode::kUsage, "--bounds \"" + text +
-                                           "\" must be six comma-separated numbers x0,y0,z0,x1,y1,z1, e.g. "
-                                           "--bounds=-1,-1,-1,1,1,1");
-    }
-    values[count++] = value;
-    if (comma == std::string::npos) break;
-    pos = comma + 1;
-  }
-  if (count != 6) {
-    throw CliError(ExitCode::kUsage, "--bounds \"" + text + "\" has " + std::to_string(count) +
-                                         " numbers; it needs six: x0,y0,z0,x1,y1,z1");
-  }
-  const char* axes = "xyz";
-  for (int i = 0; i < 3; ++i) {
-    if (!(values[i] < values[i + 3])) {
-      throw CliError(ExitCode::kUsage, std::string("--bounds: the minimum ") + axes[i] + " (" +
-                                           std::to_string(values[i]) + ") must be below the maximum " + axes[i] + " (" +
-                                           std::to_string(values[i + 3]) + ")");
-    }
-  }
-  return values;
-}
 
 std::vector<FileFormat> parse_formats(const std::vector<std::string>& names) {
   std::vector<FileFormat> formats;
@@ -119,28 +21,6 @@ std::vector<FileFormat> parse_formats(const std::vector<std::string>& names) {
     if (std::find(formats.begin(), formats.end(), f) == formats.end()) formats.push_back(f);
   }
   return formats;
-}
-
-JobOptions finish_job(JobFlags& flags, const std::string& command) {
-  JobOptions job = flags.job;
-  const bool has_type = flags.isosurface->parsed();
-  if (job.spec && has_type) {
-    throw CliError(ExitCode::kUsage, command + ": give either --spec FILE or a job type (isosurface), not both");
-  }
-  if (!job.spec && !has_type) {
-    throw CliError(ExitCode::kUsage, command + " needs a job: `surfacer " + command +
-                                         " isosurface --scene FILE ...` or `surfacer " + command + " --spec job.json`");
-  }
-  if (job.raw && job.quantization_bits) {
-    throw CliError(ExitCode::kUsage,
-                   "--quantization-bits applies to Draco frames; --raw frames are lossless PLY: drop one of them");
-  }
-  if (has_type) {
-    IsosurfaceOptions iso = flags.iso;
-    if (flags.bounds) iso.bounds = parse_bounds(*flags.bounds);
-    job.isosurface = iso;
-  }
-  return job;
 }
 
 FrameOutputOptions finish_output(const OutputFlags& flags, const std::string& command) {
@@ -154,8 +34,9 @@ FrameOutputOptions finish_output(const OutputFlags& flags, const std::string& co
 
 std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* const* argv, std::ostream& out,
                                                       std::ostream& err, const char* env_server) {
-  CLI::App app("surfacer: polygonize implicit scenes on a Surfacer server and fetch the meshes frame by frame",
-               "surfacer");
+  CLI::App app(
+      "surfacer: turn implicit scenes and particle simulations into meshes on a Surfacer server, frame by frame",
+      "surfacer");
   app.fallthrough();  // global options may follow the subcommand
   app.require_subcommand(1);
   app.footer(std::string("Examples:\n"
@@ -198,12 +79,14 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
   run->require_subcommand(0, 1);
   run->footer(std::string("Examples:\n"
                           "  surfacer run isosurface --scene examples/scenes/torus.json --cells 96 -o out/\n"
+                          "  surfacer run particles --input 'sim/fluid_{:04d}.bgeo' --r-inner 0.01 -o out/\n"
+                          "  surfacer run optimize --scene examples/scenes/csg_block.json --iterations 100 -o out/\n"
+                          "  surfacer run active morph --from a.json --to b.json --grid-spacing 0.02 -o out/\n"
                           "  surfacer run --spec job.json -o out/ --format drc,ply\n"
+                          "Inputs (particle frames, meshes, velocity grids) are uploaded before the job is queued.\n"
                           "Ctrl-C cancels the job on the server and exits with code 5.\n\n") +
               kGlobalNote + "\n" + kExitCodesHelp);
-  add_isosurface(run, run_flags, &run_output,
-                 "surfacer run isosurface --scene a.json --scene b.json --cells 64 --bounds=-2,-2,-2,2,2,2 -o out/ "
-                 "--format drc,ply");
+  add_job_types(run, "run", run_flags, &run_output);
 
   // submit
   JobFlags submit_flags;
@@ -216,8 +99,7 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
                              "  ID=$(surfacer --server localhost:50051 submit isosurface --scene a.json --cells 64)\n"
                              "  surfacer --server localhost:50051 watch $ID -o out/\n\n") +
                  kGlobalNote);
-  add_isosurface(submit, submit_flags, nullptr,
-                 "surfacer --server localhost:50051 submit isosurface --scene a.json --scene b.json --cells 64");
+  add_job_types(submit, "submit", submit_flags, nullptr);
 
   // watch
   WatchCommand watch_cmd;
@@ -298,7 +180,17 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
     out << app.help("", CLI::AppFormatMode::All);
     return ExitCode::kSuccess;
   } catch (const CLI::ParseError& e) {
-    err << "surfacer: error: " << e.what() << "\nRun `surfacer --help` or `surfacer COMMAND --help` for usage.\n";
+    std::string message = e.what();
+    for (const JobFlags* flags : {&run_flags, &submit_flags}) {
+      if (flags->active_app->parsed() && !flags->coat_app->parsed() && !flags->morph_app->parsed() &&
+          !flags->advect_app->parsed()) {
+        message =
+            "active needs a mode: coat, morph or advect, e.g. `surfacer run active morph --from a.json --to "
+            "b.json --grid-spacing 0.02 -o out/` (" +
+            message + ")";
+      }
+    }
+    err << "surfacer: error: " << message << "\nRun `surfacer --help` or `surfacer COMMAND --help` for usage.\n";
     return ExitCode::kUsage;
   } catch (const CliError& e) {
     err << "surfacer: error: " << e.what() << "\n";

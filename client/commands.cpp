@@ -7,6 +7,7 @@
 #include <cctype>
 #include <cstdio>
 #include <iomanip>
+#include <map>
 #include <mutex>
 #include <ostream>
 #include <sstream>
@@ -17,6 +18,8 @@
 #include "client/interrupt.h"
 #include "client/job_spec.h"
 #include "client/progress.h"
+#include "client/summary.h"
+#include "client/upload.h"
 #include "client/watch.h"
 
 namespace surfacer::client {
@@ -68,12 +71,39 @@ std::string summary(const WatchResult& result, const FrameWriter& writer, std::c
          seconds_text(start) + ")";
 }
 
-// The exit code of a watched job's terminal state; prints the summary.
+// The job kind a spec submits ("isosurface", ...), as the server names it in Job.kind.
+std::string kind_of(const v1::JobSpec& spec) {
+  switch (spec.kind_case()) {
+    case v1::JobSpec::kIsosurface:
+      return "isosurface";
+    case v1::JobSpec::kParticles:
+      return "particles";
+    case v1::JobSpec::kOptimize:
+      return "optimize";
+    case v1::JobSpec::kActive:
+      return "active";
+    default:
+      return "";
+  }
+}
+
+// The exit code of a watched job's terminal state; prints the summary (and, for particles jobs, the table of
+// frames; `uploaded` holds the particle counts this client uploaded, by frame).
 ExitCode finish_watch(const WatchResult& result, const FrameWriter& writer, ProgressDisplay& progress,
-                      std::chrono::steady_clock::time_point start, bool cancelled_here) {
+                      std::chrono::steady_clock::time_point start, bool cancelled_here,
+                      const std::map<int, std::int64_t>& uploaded = {}) {
   progress.clear();
   progress.line(summary(result, writer, start));
+  if (writer.wrote_iterations()) {
+    progress.line("per-iteration figures in " + (writer.dir() / "iterations.csv").string());
+  }
   const v1::Job& job = result.job;
+  if (job.kind() == "particles" && writer.frames_written() > 0) {
+    const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    std::string table = particles_summary_table(writer.stats(), uploaded, wall);
+    if (!table.empty() && table.back() == '\n') table.pop_back();
+    progress.line(table);
+  }
   switch (job.state()) {
     case v1::JOB_STATE_SUCCEEDED:
       return ExitCode::kSuccess;
@@ -120,8 +150,10 @@ std::string submit_job(Connection& connection, const v1::JobSpec& spec, v1::Job*
 
 ExitCode run_run(const ConnectOptions& connect, const RunCommand& command, std::ostream& err, bool tty) {
   const auto start = std::chrono::steady_clock::now();
-  const v1::JobSpec spec = build_job_spec(command.job);  // usage errors before connecting
+  PreparedJob prepared = prepare_job(command.job);  // usage errors before connecting
+  v1::JobSpec& spec = prepared.spec;
   FrameWriter writer(command.output);
+  writer.set_job_kind(kind_of(spec));
   auto connection = Connection::open(connect);
   ProgressDisplay progress(err, tty);
 
@@ -139,6 +171,10 @@ ExitCode run_run(const ConnectOptions& connect, const RunCommand& command, std::
     }
     if (watcher != nullptr) watcher->stop();
   });
+
+  // Inputs are read and uploaded one at a time; a bad file stops here, before any job is queued.
+  const UploadSummary uploaded = upload_inputs(*connection, spec, prepared.uploads, progress, &interrupted);
+  if (interrupted) throw CliError(ExitCode::kCancelled, "interrupted before the job was submitted");
 
   v1::Job job;
   const std::string id = submit_job(*connection, spec, &job);
@@ -178,14 +214,22 @@ ExitCode run_run(const ConnectOptions& connect, const RunCommand& command, std::
     std::lock_guard lock(mutex);
     watcher = nullptr;
   }
-  return finish_watch(result, writer, progress, start, interrupted);
+  return finish_watch(result, writer, progress, start, interrupted, uploaded.particles);
 }
 
-ExitCode run_submit(const ConnectOptions& connect, const SubmitCommand& command, std::ostream& out, std::ostream& err) {
-  const v1::JobSpec spec = build_job_spec(command.job);
+ExitCode run_submit(const ConnectOptions& connect, const SubmitCommand& command, std::ostream& out, std::ostream& err,
+                    bool tty) {
+  PreparedJob prepared = prepare_job(command.job);
   auto connection = Connection::open(connect);
   warn_local(*connection, err);
-  out << submit_job(*connection, spec, nullptr) << "\n" << std::flush;
+  if (!prepared.uploads.empty()) {
+    std::atomic<bool> interrupted{false};
+    InterruptHandler interrupts([&](int) { interrupted = true; });
+    ProgressDisplay progress(err, tty);
+    upload_inputs(*connection, prepared.spec, prepared.uploads, progress, &interrupted);
+    if (interrupted) throw CliError(ExitCode::kCancelled, "interrupted before the job was submitted");
+  }
+  out << submit_job(*connection, prepared.spec, nullptr) << "\n" << std::flush;
   return ExitCode::kSuccess;
 }
 
@@ -294,7 +338,7 @@ ExitCode run_invocation(const Invocation& invocation, std::ostream& out, std::os
         if constexpr (std::is_same_v<T, RunCommand>) {
           return run_run(connect, command, err, tty);
         } else if constexpr (std::is_same_v<T, SubmitCommand>) {
-          return run_submit(connect, command, out, err);
+          return run_submit(connect, command, out, err, tty);
         } else if constexpr (std::is_same_v<T, WatchCommand>) {
           return run_watch(connect, command, err, tty);
         } else if constexpr (std::is_same_v<T, StatusCommand>) {

@@ -21,8 +21,10 @@ std::string hex32(std::uint32_t v) {
 
 }  // namespace
 
-std::uint32_t crc32_of(std::string_view bytes) {
-  uLong crc = crc32(0L, Z_NULL, 0);
+std::uint32_t crc32_of(std::string_view bytes) { return crc32_update(0, bytes); }
+
+std::uint32_t crc32_update(std::uint32_t previous, std::string_view bytes) {
+  uLong crc = previous;
   // zlib takes uInt lengths: feed large buffers in pieces.
   const auto* data = reinterpret_cast<const Bytef*>(bytes.data());
   std::size_t left = bytes.size();

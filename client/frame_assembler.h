@@ -16,6 +16,8 @@ inline constexpr std::size_t kMaxChunkBytes = std::size_t{1} << 20;
 
 // CRC-32 with zlib's polynomial (the protocol's `crc32` fields).
 std::uint32_t crc32_of(std::string_view bytes);
+// The CRC-32 of the concatenation A + `bytes`, given `previous` = crc32_of(A) (0 for nothing).
+std::uint32_t crc32_update(std::uint32_t previous, std::string_view bytes);
 
 struct ReceivedFrame {
   int index = 0;

@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <cstring>
 #include <optional>
+#include <set>
 
 #include "client/exit_codes.h"
 #include "core/errors.h"
@@ -37,6 +38,24 @@ std::string format_double(const char* fmt, double v) {
 
 [[noreturn]] void write_failed(const std::filesystem::path& path, int error) {
   throw CliError(ExitCode::kUsage, "cannot write " + path.string() + ": " + std::strerror(error));
+}
+
+std::vector<std::string> metric_keys(const std::map<int, v1::FrameStats>& stats) {
+  std::set<std::string> keys;
+  for (const auto& [index, s] : stats) {
+    for (const auto& [key, value] : s.metrics()) keys.insert(key);
+  }
+  return {keys.begin(), keys.end()};
+}
+
+std::string metric_cells(const v1::FrameStats& s, const std::vector<std::string>& keys) {
+  std::string cells;
+  for (const auto& key : keys) {
+    cells += ',';
+    const auto it = s.metrics().find(key);
+    if (it != s.metrics().end()) cells += format_double("%.9g", it->second);
+  }
+  return cells;
 }
 
 }  // namespace
@@ -77,6 +96,7 @@ std::string frame_file_name(int index, FileFormat format) {
 }
 
 std::string stats_csv(const std::map<int, v1::FrameStats>& stats) {
+  const std::vector<std::string> keys = metric_keys(stats);
   std::vector<std::string> stages;
   for (const auto& [index, s] : stats) {
     for (const auto& t : s.timings()) {
@@ -85,7 +105,13 @@ std::string stats_csv(const std::map<int, v1::FrameStats>& stats) {
   }
   std::string csv = "frame,vertices,triangles,closed,manifold,euler,components,min_valence,min_angle,area,volume";
   for (const auto& stage : stages) csv += "," + stage + "_s";
-  csv += ",total_s\n";
+  csv += ",total_s";
+  // A metric named like a fixed column (active jobs report "volume", "area", "components") is told apart.
+  const std::string header = csv + ",";
+  for (const auto& key : keys) {
+    csv += header.find("," + key + ",") == std::string::npos && key != "frame" ? "," + key : ",metric_" + key;
+  }
+  csv += '\n';
   for (const auto& [index, s] : stats) {
     const v1::MeshCheck& c = s.check();
     csv += std::to_string(index) + "," + std::to_string(s.vertices()) + "," + std::to_string(s.triangles()) + "," +
@@ -106,7 +132,20 @@ std::string stats_csv(const std::map<int, v1::FrameStats>& stats) {
     }
     csv += ',';
     csv += format_double("%.6f", total);
+    csv += metric_cells(s, keys);
     csv += '\n';
+  }
+  return csv;
+}
+
+std::string iterations_csv(const std::map<int, v1::FrameStats>& stats) {
+  const std::vector<std::string> keys = metric_keys(stats);
+  std::string csv = "frame,iteration,triangles";
+  for (const auto& key : keys) csv += "," + key;
+  csv += '\n';
+  for (const auto& [index, s] : stats) {
+    csv += std::to_string(index) + "," + std::to_string(s.iteration()) + "," + std::to_string(s.triangles()) +
+           metric_cells(s, keys) + '\n';
   }
   return csv;
 }
@@ -172,6 +211,8 @@ std::vector<std::filesystem::path> FrameWriter::write(const ReceivedFrame& frame
   }
   stats_[frame.index] = frame.stats;
   write_file_atomically(options_.dir / "stats.csv", stats_csv(stats_));
+  if (kind_ == "optimize" || frame.stats.iteration() != 0) iterations_ = true;
+  if (iterations_) write_file_atomically(options_.dir / "iterations.csv", iterations_csv(stats_));
   return written;
 }
 

@@ -1,5 +1,6 @@
 // Writes received frames to the output directory: frame_NNNN.{drc,ply,obj} (each file atomically: temporary file
-// in the same directory, then rename) and stats.csv (one row per frame, rewritten atomically after every frame).
+// in the same directory, then rename), stats.csv (one row per frame, rewritten atomically after every frame) and,
+// for optimize jobs, iterations.csv (one row per snapshot).
 #pragma once
 
 #include <filesystem>
@@ -23,8 +24,14 @@ std::string frame_file_name(int index, FileFormat format);
 
 // stats.csv text: header, then one row per frame in index order: frame, vertices, triangles, closed, manifold
 // (edge && vertex manifold), euler, components, min_valence, min_angle (degrees), area, volume, one `<stage>_s`
-// column per stage seen (seconds; empty when a frame lacks it), total_s.
+// column per stage seen (seconds; empty when a frame lacks it), total_s, then one column per FrameStats.metrics
+// key seen in any frame (sorted by key; empty when a frame lacks it), named by the key, or "metric_<key>" when the
+// key is also the name of a column before it (e.g. an active job's "volume").
 std::string stats_csv(const std::map<int, v1::FrameStats>& stats);
+
+// iterations.csv text (optimize jobs: one row per snapshot, in frame order): frame, iteration, triangles, then one
+// column per metrics key seen in any frame (sorted: e_d, e_n, max_distance, min_angle_degrees, rms_distance, ...).
+std::string iterations_csv(const std::map<int, v1::FrameStats>& stats);
 
 class FrameWriter {
  public:
@@ -37,12 +44,21 @@ class FrameWriter {
   // written. Returns the files written.
   std::vector<std::filesystem::path> write(const ReceivedFrame& frame);
 
+  // The job's kind ("optimize", ...): an optimize job also gets iterations.csv (as does any job whose frames carry
+  // an iteration number), rewritten after every frame.
+  void set_job_kind(const std::string& kind) { kind_ = kind; }
+
   const std::filesystem::path& dir() const { return options_.dir; }
   int frames_written() const { return static_cast<int>(stats_.size()); }
+  // Stats of every frame written, by index.
+  const std::map<int, v1::FrameStats>& stats() const { return stats_; }
+  bool wrote_iterations() const { return iterations_; }
 
  private:
   FrameOutputOptions options_;
   std::map<int, v1::FrameStats> stats_;
+  std::string kind_;
+  bool iterations_ = false;
 };
 
 }  // namespace surfacer::client

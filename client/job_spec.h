@@ -1,10 +1,14 @@
 // Building a surfacer.v1.JobSpec from the CLI's job options. Scene and spec files are protobuf JSON, parsed with
-// google::protobuf::util::JsonStringToMessage (unknown fields are errors, so typos do not pass silently).
+// google::protobuf::util::JsonStringToMessage (unknown fields are errors, so typos do not pass silently). Inputs
+// too large for the spec (particle frames, start meshes, velocity grids) become pending uploads: read and uploaded
+// one at a time after connecting, their upload ids then filled into the spec (client/upload.h).
 #pragma once
 
 #include <filesystem>
+#include <vector>
 
 #include "client/options.h"
+#include "client/upload.h"
 #include "surfacer/v1/surfacer.pb.h"
 
 namespace surfacer::client {
@@ -16,9 +20,18 @@ v1::Scene read_scene_file(const std::filesystem::path& path);
 // Reads a whole JobSpec (any job type). Throws CliError(kUsage) naming the file.
 v1::JobSpec read_job_spec_file(const std::filesystem::path& path);
 
-// The spec to submit: `options.spec` read from its file, or built from `options.isosurface` (cells default 128),
-// then the output overrides (name, raw, normals, quantization bits) applied. Range checks of values are the
-// server's (it answers INVALID_ARGUMENT naming the field).
-v1::JobSpec build_job_spec(const JobOptions& options);
+// A spec ready to submit once its uploads are done.
+struct PreparedJob {
+  v1::JobSpec spec;
+  std::vector<PendingUpload> uploads;  // in order; empty for isosurface, morph, Enright advect and --spec
+};
+
+// The job of `options`: `options.spec` read from its file, or built from the one job type set, then the output
+// overrides (name, raw, normals, quantization bits) applied. Scene files are read and sequence patterns expanded
+// here, and every input file is checked to exist (and a velocity grid's size against its dimensions), so usage
+// errors come before connecting; the input files themselves are read by the pending uploads. Range checks of
+// values beyond the flags' own are the server's (it answers INVALID_ARGUMENT naming the field).
+// Throws CliError(kUsage).
+PreparedJob prepare_job(const JobOptions& options);
 
 }  // namespace surfacer::client

@@ -37,9 +37,17 @@ std::string frame_summary(const ReceivedFrame& frame, int frames_total) {
     text += "open (" + std::to_string(s.check().boundary_edges()) + " boundary edges)";
   }
   if (!(s.check().edge_manifold() && s.check().vertex_manifold())) text += ", non-manifold";
+  // Job-specific figures worth a glance: the optimize snapshot's iteration and errors, particles, volume.
+  char buf[64];
+  if (s.iteration() != 0) text += ", iteration " + std::to_string(s.iteration());
+  for (const char* key : {"particles", "e_d", "e_n", "volume"}) {
+    const auto it = s.metrics().find(key);
+    if (it == s.metrics().end()) continue;
+    std::snprintf(buf, sizeof buf, ", %s %.4g", key, it->second);
+    text += buf;
+  }
   double seconds = 0;
   for (const auto& t : s.timings()) seconds += t.seconds();
-  char buf[32];
   std::snprintf(buf, sizeof buf, ", %.2f s", seconds);
   return text + buf;
 }

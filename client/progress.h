@@ -47,7 +47,8 @@ class ProgressDisplay {
   std::chrono::steady_clock::time_point last_draw_{};
 };
 
-// "frame 3/10: 124512 triangles, closed, 0.21 s"
+// "frame 3/10: 124512 triangles, closed, 0.21 s"; with the iteration and a few metrics when the frame has them:
+// "frame 2: 8312 triangles, closed, iteration 10, e_d 1.2e-07, e_n 0.0031, 0.05 s".
 std::string frame_summary(const ReceivedFrame& frame, int frames_total);
 // "RUNNING" for JOB_STATE_RUNNING.
 std::string state_name(v1::JobState state);

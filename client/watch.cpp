@@ -81,6 +81,7 @@ WatchResult JobWatcher::run() {
         case v1::JobEvent::kState: {
           const v1::Job& job = event.state();
           if (job.frames_total() > 0) frames_total = job.frames_total();
+          if (!job.kind().empty()) writer_.set_job_kind(job.kind());
           progress_.on_state(job);
           if (is_terminal(job.state())) terminal = job;
           break;
@@ -148,7 +149,9 @@ WatchResult JobWatcher::run() {
   }
 
   if (result.job.state() == v1::JOB_STATE_SUCCEEDED) {
-    const int total = std::max(frames_total, result.job.frames_total());
+    // The terminal state's count is authoritative: open-ended jobs (optimize snapshots, active frames) announce an
+    // upper bound while running and end with the frames they emitted.
+    const int total = result.job.frames_total();
     std::string missing;
     int count = 0;
     for (int i = from_frame_; i < total; ++i) {

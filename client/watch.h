@@ -38,8 +38,9 @@ class JobWatcher {
              ReconnectPolicy policy = {});
 
   // Returns once the job reached a terminal state and the stream ended. Throws CliError: kIntegrity (a frame
-  // failed its checks, a protocol violation, or the job SUCCEEDED with frames missing), kUnreachable (reconnecting
-  // failed), kCancelled (stop() was called), or rpc_error() for other stream errors (e.g. NOT_FOUND).
+  // failed its checks, a protocol violation, or the job SUCCEEDED with frames missing: fewer than the terminal
+  // state's frames_total, which for open-ended jobs may be below the bound announced while running), kUnreachable
+  // (reconnecting failed), kCancelled (stop() was called), or rpc_error() for other stream errors (e.g. NOT_FOUND).
   WatchResult run();
   // Thread-safe: ends the stream now; run() throws CliError(kCancelled).
   void stop();

@@ -113,7 +113,7 @@ TEST(CliOptions, UsageErrorsExitTwo) {
       {"run", "isosurface", "--scene", "a", "--format", "stl", "-o", "d"},
       {"run", "isosurface", "--scene", "a", "--quantization-bits", "31", "-o", "d"},
       {"run", "isosurface", "--scene", "a", "--raw", "--quantization-bits", "10", "-o", "d"},
-      {"run", "isosurface", "--scene", "a", "--method", "tiles", "-o", "d"},
+      {"run", "isosurface", "--scene", "a", "--method", "hexes", "-o", "d"},
       {"--server", "h:1", "--local", "health"},
       {"watch", "-o", "d"},
       {"list", "--state", "sleeping"},

@@ -259,7 +259,7 @@ TEST(JobSpec, BuildsIsosurfaceFromSceneFiles) {
       IsosurfaceOptions{{dir / "ball.json", dir / "ball.json"}, {}, {}, {{-1, -1, -1, 1, 1, 1}}, "cubes"};
   options.raw = true;
   options.normals = true;
-  v1::JobSpec spec = build_job_spec(options);
+  v1::JobSpec spec = prepare_job(options).spec;
   ASSERT_TRUE(spec.has_isosurface());
   EXPECT_EQ(spec.isosurface().scenes_size(), 2);
   EXPECT_DOUBLE_EQ(spec.isosurface().scenes(0).root().sphere().radius(), 0.5);
@@ -274,7 +274,7 @@ TEST(JobSpec, BuildsIsosurfaceFromSceneFiles) {
   options.name = "named";
   options.raw = false;
   options.quantization_bits = 11;
-  spec = build_job_spec(options);
+  spec = prepare_job(options).spec;
   EXPECT_DOUBLE_EQ(spec.isosurface().cell_size(), 0.1);
   EXPECT_EQ(spec.name(), "named");
   EXPECT_EQ(spec.output().quantization_bits(), 11);
@@ -287,12 +287,12 @@ TEST(JobSpec, WholeSpecFromJsonWithOverrides) {
              "isosurface": {"scenes": [{"root": {"torus": {"majorRadius": 1, "minorRadius": 0.25}}}], "cells": 40}})";
   JobOptions options;
   options.spec = dir / "job.json";
-  v1::JobSpec spec = build_job_spec(options);
+  v1::JobSpec spec = prepare_job(options).spec;
   EXPECT_EQ(spec.name(), "from file");
   EXPECT_EQ(spec.isosurface().cells(), 40);
   EXPECT_EQ(spec.output().quantization_bits(), 9);
   options.raw = true;
-  EXPECT_EQ(build_job_spec(options).output().encoding(), v1::MESH_ENCODING_PLY);
+  EXPECT_EQ(prepare_job(options).spec.output().encoding(), v1::MESH_ENCODING_PLY);
   fs::remove_all(dir);
 }
 

@@ -196,6 +196,20 @@ TEST_F(WatchTest, SucceededWithMissingFramesIsAnIntegrityError) {
   EXPECT_NE(message_.find("1, 2"), std::string::npos) << message_;
 }
 
+// Optimize snapshots and active frames: the job announces an upper bound and ends with what it emitted.
+TEST_F(WatchTest, OpenEndedJobMayEndWithFewerFramesThanItsBound) {
+  start([](int, const v1::WatchJobRequest&, Writer* w) {
+    send_state(w, v1::JOB_STATE_RUNNING, 50);
+    send_frame(w, 0);
+    send_frame(w, 1);
+    send_state(w, v1::JOB_STATE_SUCCEEDED, 2);
+    return grpc::Status::OK;
+  });
+  const WatchResult result = watch();
+  EXPECT_EQ(result.job.state(), v1::JOB_STATE_SUCCEEDED);
+  EXPECT_EQ(result.frames_written, 2);
+}
+
 TEST_F(WatchTest, FrameBeforeFromFrameIsAProtocolError) {
   start([](int, const v1::WatchJobRequest&, Writer* w) {
     send_state(w, v1::JOB_STATE_RUNNING);

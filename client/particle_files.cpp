@@ -1,0 +1,215 @@
+#include "client/particle_files.h"
+
+#include <algorithm>
+#include <bit>
+#include <charconv>
+#include <cmath>
+#include <limits>
+#include <optional>
+#include <set>
+
+#include "client/exit_codes.h"
+#include "core/errors.h"
+#include "core/particle_io.h"
+
+namespace surfacer::client {
+namespace {
+
+namespace fs = std::filesystem;
+
+// The literal text before and after the placeholder of a file-name pattern ("{{" / "}}" unescaped).
+struct PatternParts {
+  std::string prefix;
+  std::string suffix;
+  int placeholders = 0;
+};
+
+PatternParts split_pattern(const std::string& text) {
+  PatternParts parts;
+  std::string* out = &parts.prefix;
+  for (std::size_t i = 0; i < text.size(); ++i) {
+    const char c = text[i];
+    if ((c == '{' || c == '}') && i + 1 < text.size() && text[i + 1] == c) {
+      *out += c;
+      ++i;
+    } else if (c == '{') {
+      const std::size_t close = text.find('}', i);
+      if (close == std::string::npos) break;  // malformed: expand_sequence() says so
+      ++parts.placeholders;
+      out = &parts.suffix;
+      i = close;
+    } else {
+      *out += c;
+    }
+  }
+  return parts;
+}
+
+CliError usage(const std::string& message) { return CliError(ExitCode::kUsage, message); }
+
+std::vector<fs::path> expand(const std::string& pattern, int start, int end, const std::string& where) {
+  try {
+    return expand_sequence(pattern, start, end);
+  } catch (const Error& e) {
+    throw usage(where + ": " + e.what());
+  }
+}
+
+// Frame numbers of the files in the pattern's directory that the pattern names exactly.
+std::vector<int> frames_present(const std::string& pattern, const std::string& where) {
+  const fs::path path(pattern);
+  const fs::path dir = path.has_parent_path() ? path.parent_path() : fs::path(".");
+  if (split_pattern(dir.string()).placeholders != 0) {
+    throw usage(where + ": the placeholder is in a directory name; give --start and --end");
+  }
+  const PatternParts parts = split_pattern(path.filename().string());
+  if (parts.placeholders != 1) {
+    expand(pattern, 0, 0, where);  // names the problem with the placeholder
+    throw usage(where + ": needs exactly one placeholder such as {} or {:04d}");
+  }
+  std::error_code ec;
+  fs::directory_iterator it(dir, ec);
+  if (ec) throw usage(where + ": cannot list " + dir.string() + ": " + ec.message());
+  std::set<int> frames;
+  for (const fs::directory_entry& entry : it) {
+    const std::string name = entry.path().filename().string();
+    if (name.size() <= parts.prefix.size() + parts.suffix.size() || name.rfind(parts.prefix, 0) != 0 ||
+        name.compare(name.size() - parts.suffix.size(), parts.suffix.size(), parts.suffix) != 0) {
+      continue;
+    }
+    const std::string middle =
+        name.substr(parts.prefix.size(), name.size() - parts.prefix.size() - parts.suffix.size());
+    int number = 0;
+    auto [end, ec2] = std::from_chars(middle.data(), middle.data() + middle.size(), number);
+    if (ec2 != std::errc() || end != middle.data() + middle.size()) continue;
+    // The pattern must produce exactly this name (e.g. {:04d} does not name fluid_7.ply).
+    if (expand(pattern, number, number, where).front().filename() != entry.path().filename()) continue;
+    frames.insert(number);
+  }
+  return {frames.begin(), frames.end()};
+}
+
+void require_exists(const fs::path& file, const std::string& where) {
+  std::error_code ec;
+  if (!fs::is_regular_file(file, ec)) {
+    throw usage(where + ": " + file.string() + (fs::exists(file, ec) ? " is not a regular file" : " does not exist"));
+  }
+}
+
+void put_float(std::string& out, double value) {
+  const std::uint32_t bits = std::bit_cast<std::uint32_t>(static_cast<float>(value));
+  const char bytes[4] = {static_cast<char>(bits & 0xff), static_cast<char>((bits >> 8) & 0xff),
+                         static_cast<char>((bits >> 16) & 0xff), static_cast<char>((bits >> 24) & 0xff)};
+  out.append(bytes, 4);
+}
+
+bool fits_float(double v) { return std::isfinite(v) && std::abs(v) <= std::numeric_limits<float>::max(); }
+
+}  // namespace
+
+bool is_sequence_pattern(const std::string& input) { return split_pattern(input).placeholders > 0; }
+
+std::vector<fs::path> expand_particle_inputs(const ParticleInputOptions& options, const std::string& flag) {
+  if (options.inputs.empty()) throw usage(flag + " is required: a particle file or a pattern such as fluid_{}.bgeo");
+  if (options.start && options.end && *options.end < *options.start) {
+    throw usage("--end (" + std::to_string(*options.end) + ") must not be below --start (" +
+                std::to_string(*options.start) + ")");
+  }
+  bool any_pattern = false;
+  std::vector<fs::path> files;
+  for (const std::string& input : options.inputs) {
+    const std::string where = flag + " " + input;
+    if (!is_sequence_pattern(input)) {
+      require_exists(input, where);
+      files.emplace_back(input);
+      continue;
+    }
+    any_pattern = true;
+    int start = 0;
+    int end = 0;
+    if (options.start && options.end) {
+      start = *options.start;
+      end = *options.end;
+    } else {
+      const std::vector<int> present = frames_present(input, where);
+      if (present.empty()) {
+        throw usage(where + ": no file in " +
+                    (fs::path(input).has_parent_path() ? fs::path(input).parent_path().string() : std::string(".")) +
+                    " matches the pattern");
+      }
+      start = options.start.value_or(present.front());
+      end = options.end.value_or(present.back());
+      if (end < start) {
+        throw usage(where + ": no frame in the range " + std::to_string(start) + ".." + std::to_string(end) +
+                    " (files present: " + std::to_string(present.front()) + ".." + std::to_string(present.back()) +
+                    ")");
+      }
+    }
+    const std::vector<fs::path> sequence = expand(input, start, end, where);
+    std::size_t missing = 0;
+    std::string first_missing;
+    for (const fs::path& file : sequence) {
+      std::error_code ec;
+      if (!fs::is_regular_file(file, ec)) {
+        if (missing++ == 0) first_missing = file.string();
+      }
+    }
+    if (missing > 0) {
+      throw usage(where + ": " + std::to_string(missing) + " of the " + std::to_string(sequence.size()) + " frames " +
+                  std::to_string(start) + ".." + std::to_string(end) + " are missing, the first " + first_missing +
+                  " (set --start/--end to the frames present)");
+    }
+    files.insert(files.end(), sequence.begin(), sequence.end());
+  }
+  if ((options.start || options.end) && !any_pattern) {
+    throw usage("--start/--end select frames of a sequence pattern (" + flag +
+                " fluid_{:04d}.ply); no input is a pattern");
+  }
+  return files;
+}
+
+ParticleRecords read_particle_records(const fs::path& path) {
+  ParticleFrame frame;
+  try {
+    frame = read_particles(path);
+  } catch (const Error& e) {
+    std::string message = e.what();
+    if (message.find(path.string()) == std::string::npos && message.find(path.filename().string()) != 0) {
+      message = path.string() + ": " + message;
+    }
+    throw usage(message);
+  }
+  const std::string name = path.string();
+  if (frame.positions.empty()) throw usage(name + ": no particles; every frame needs at least one");
+  const bool with_radius = !frame.radii.empty();
+  if (with_radius && frame.radii.size() != frame.positions.size()) {
+    throw usage(name + ": " + std::to_string(frame.radii.size()) + " radii for " +
+                std::to_string(frame.positions.size()) + " particles; give one per particle or none");
+  }
+  ParticleRecords records;
+  records.with_radius = with_radius;
+  records.count = static_cast<std::int64_t>(frame.positions.size());
+  records.bytes.reserve(frame.positions.size() * (with_radius ? 16 : 12));
+  for (std::size_t i = 0; i < frame.positions.size(); ++i) {
+    const Vec3& p = frame.positions[i];
+    if (!fits_float(p.x()) || !fits_float(p.y()) || !fits_float(p.z())) {
+      throw usage(name + ": particle " + std::to_string(i) +
+                  " has a coordinate that is not finite or does not fit "
+                  "in float32");
+    }
+    put_float(records.bytes, p.x());
+    put_float(records.bytes, p.y());
+    put_float(records.bytes, p.z());
+    if (with_radius) {
+      const double r = frame.radii[i];
+      if (!fits_float(r) || r < 0) {
+        throw usage(name + ": particle " + std::to_string(i) + " has radius " + std::to_string(r) +
+                    "; radii must be finite and >= 0");
+      }
+      put_float(records.bytes, r);
+    }
+  }
+  return records;
+}
+
+}  // namespace surfacer::client

@@ -1,0 +1,38 @@
+// Particle files named on the command line (core/particle_io.h reads them): inputs and sequence patterns expanded
+// to the job's frames, and each frame packed as the protocol's upload records (little-endian float32 x y z, or
+// x y z r with radii).
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "client/options.h"
+
+namespace surfacer::client {
+
+// True when `input` holds a sequence placeholder ("{}" or "{:04d}"; "{{" and "}}" are literal braces).
+bool is_sequence_pattern(const std::string& input);
+
+// The frame files of `options`, in order: each input is a file or a pattern; a pattern covers frames
+// [--start, --end], and a bound that is not given is taken from the files present in the pattern's directory
+// (the smallest / largest frame number found). Checks that every file exists. Throws CliError(kUsage) naming the
+// flag and the input: a pattern that matches no file, a missing file (a gap in a sequence), end < start,
+// --start/--end without any pattern. `flag` names the option in messages ("--input").
+std::vector<std::filesystem::path> expand_particle_inputs(const ParticleInputOptions& options,
+                                                          const std::string& flag = "--input");
+
+// One frame as upload records.
+struct ParticleRecords {
+  std::string bytes;  // float32 LE records: x y z (or x y z r when with_radius)
+  bool with_radius = false;
+  std::int64_t count = 0;
+};
+
+// Reads a particle file (any format of core/particle_io.h) and packs it. Throws CliError(kUsage) whose message
+// starts with the file name and names the line or byte offset of the problem; also for an empty frame, a radius
+// count that differs from the particle count, a negative radius, or a value that does not fit in float32.
+ParticleRecords read_particle_records(const std::filesystem::path& path);
+
+}  // namespace surfacer::client

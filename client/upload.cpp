@@ -1,0 +1,174 @@
+#include "client/upload.h"
+
+#include <grpcpp/client_context.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+
+#include "client/connection.h"
+#include "client/exit_codes.h"
+#include "client/progress.h"
+
+namespace surfacer::client {
+namespace {
+
+std::string hex32(std::uint32_t v) {
+  char buf[16];
+  std::snprintf(buf, sizeof buf, "0x%08x", v);
+  return buf;
+}
+
+std::string size_text(std::uint64_t bytes) {
+  char buf[32];
+  if (bytes < 1024) {
+    std::snprintf(buf, sizeof buf, "%llu B", static_cast<unsigned long long>(bytes));
+  } else if (bytes < (std::uint64_t{1} << 20)) {
+    std::snprintf(buf, sizeof buf, "%.1f KiB", static_cast<double>(bytes) / 1024.0);
+  } else {
+    std::snprintf(buf, sizeof buf, "%.1f MiB", static_cast<double>(bytes) / (1024.0 * 1024.0));
+  }
+  return buf;
+}
+
+// Sends one upload whose pieces come from `next(buffer, max)` (returns the bytes it put in `buffer`; called until
+// `total` bytes were produced).
+UploadResult send_upload(v1::Surfacer::Stub& stub, const std::string& name, std::uint64_t total,
+                         const std::function<std::string_view(std::size_t max)>& next, const UploadSettings& settings) {
+  if (settings.chunk_bytes == 0 || settings.chunk_bytes > kMaxChunkBytes) {
+    throw CliError(ExitCode::kInternal, "upload chunk size " + std::to_string(settings.chunk_bytes) +
+                                            " is outside 1.." + std::to_string(kMaxChunkBytes));
+  }
+  grpc::ClientContext context;
+  if (settings.deadline != std::chrono::system_clock::time_point::max()) context.set_deadline(settings.deadline);
+  v1::UploadResponse response;
+  auto writer = stub.Upload(&context, &response);
+
+  std::uint64_t sent = 0;
+  std::uint32_t crc = 0;
+  bool first = true;
+  bool stopped = false;
+  bool broken = false;
+  // The first chunk goes out even for an empty upload: it carries the name.
+  while (first || sent < total) {
+    if (settings.stop != nullptr && settings.stop->load()) {
+      stopped = true;
+      context.TryCancel();
+      break;
+    }
+    const std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(settings.chunk_bytes, total - sent));
+    const std::string_view piece = want == 0 ? std::string_view() : next(want);
+    if (piece.size() != want) {
+      throw CliError(ExitCode::kInternal, "upload " + name + ": a source gave " + std::to_string(piece.size()) +
+                                              " bytes where " + std::to_string(want) + " were expected");
+    }
+    v1::UploadChunk chunk;
+    if (first) {
+      chunk.set_name(name);
+      chunk.set_total_bytes(total);
+    }
+    chunk.set_data(piece.data(), piece.size());
+    chunk.set_crc32(crc32_of(piece));
+    if (!writer->Write(chunk)) {
+      broken = true;  // the server ended the call; Finish() says why
+      break;
+    }
+    crc = crc32_update(crc, piece);
+    sent += piece.size();
+    first = false;
+  }
+  if (!broken && !stopped) writer->WritesDone();
+  const grpc::Status status = writer->Finish();
+  if (stopped) throw CliError(ExitCode::kCancelled, "interrupted while uploading " + name);
+  if (!status.ok()) throw rpc_error("uploading " + name, status);
+  if (broken) throw CliError(ExitCode::kIntegrity, "uploading " + name + ": the server closed the stream early");
+  if (response.upload_id().empty()) {
+    throw CliError(ExitCode::kIntegrity, "uploading " + name + ": the server answered without an upload id");
+  }
+  if (response.bytes() != total || response.crc32() != crc) {
+    throw CliError(ExitCode::kIntegrity, "uploading " + name + ": sent " + std::to_string(total) +
+                                             " bytes with CRC-32 " + hex32(crc) + " but the server stored " +
+                                             std::to_string(response.bytes()) + " bytes with CRC-32 " +
+                                             hex32(response.crc32()));
+  }
+  return UploadResult{response.upload_id(), response.bytes(), response.crc32()};
+}
+
+}  // namespace
+
+UploadResult upload_bytes(v1::Surfacer::Stub& stub, const std::string& name, std::string_view bytes,
+                          const UploadSettings& settings) {
+  std::size_t pos = 0;
+  return send_upload(
+      stub, name, bytes.size(),
+      [&](std::size_t max) {
+        const std::string_view piece = bytes.substr(pos, max);
+        pos += piece.size();
+        return piece;
+      },
+      settings);
+}
+
+UploadResult upload_file(v1::Surfacer::Stub& stub, const std::string& name, const std::filesystem::path& path,
+                         const UploadSettings& settings) {
+  std::ifstream in(path, std::ios::binary);
+  std::error_code ec;
+  const std::uintmax_t size = std::filesystem::file_size(path, ec);
+  if (!in || ec) {
+    throw CliError(ExitCode::kUsage, "cannot read " + path.string() + ": " +
+                                         (ec ? ec.message() : std::generic_category().message(errno)));
+  }
+  std::string buffer;
+  std::uint64_t offset = 0;
+  return send_upload(
+      stub, name, size,
+      [&](std::size_t max) {
+        buffer.resize(max);
+        in.read(buffer.data(), static_cast<std::streamsize>(max));
+        if (static_cast<std::size_t>(in.gcount()) != max) {
+          throw CliError(ExitCode::kUsage, path.string() + ": byte " + std::to_string(offset + in.gcount()) +
+                                               ": the file ended early (it was " + std::to_string(size) +
+                                               " bytes when the upload started; was it changed meanwhile?)");
+        }
+        offset += max;
+        return std::string_view(buffer);
+      },
+      settings);
+}
+
+std::chrono::system_clock::time_point upload_deadline(const Connection& connection, std::uint64_t bytes) {
+  return connection.unary_deadline() + std::chrono::seconds(1 + bytes / (std::uint64_t{1} << 20));
+}
+
+UploadSummary upload_inputs(Connection& connection, v1::JobSpec& spec, const std::vector<PendingUpload>& uploads,
+                            ProgressDisplay& progress, const std::atomic<bool>* stop) {
+  UploadSummary summary;
+  const int total = static_cast<int>(uploads.size());
+  for (const PendingUpload& pending : uploads) {
+    if (stop != nullptr && stop->load()) {
+      throw CliError(ExitCode::kCancelled, "interrupted before the job was submitted (while uploading inputs)");
+    }
+    // Read one input, upload it, drop it: only one input is in memory at a time.
+    UploadData data = pending.read(spec);
+    const std::uint64_t size = data.file ? data.file_bytes : data.bytes.size();
+    UploadSettings settings;
+    settings.deadline = upload_deadline(connection, size);
+    settings.stop = stop;
+    const UploadResult result = data.file ? upload_file(connection.stub(), data.name, *data.file, settings)
+                                          : upload_bytes(connection.stub(), data.name, data.bytes, settings);
+    pending.set_id(spec, result.upload_id);
+    ++summary.uploads;
+    summary.bytes += result.bytes;
+    if (data.particles && pending.frame >= 0) summary.particles[pending.frame] = *data.particles;
+    std::string line = "uploaded " + std::to_string(summary.uploads) + "/" + std::to_string(total) + ": " +
+                       pending.description + " (" + (data.detail.empty() ? "" : data.detail + ", ") +
+                       size_text(result.bytes) + ") as " + result.upload_id;
+    progress.line(line);
+  }
+  return summary;
+}
+
+}  // namespace surfacer::client
