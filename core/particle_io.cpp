@@ -26,11 +26,21 @@ namespace particle_io_detail {
 }
 
 std::string line_at(std::size_t line) { return "line " + std::to_string(line); }
+
+std::string quote(std::string_view token) {
+  std::string q;
+  q.reserve(42);
+  q += '\'';
+  q.append(token.substr(0, 40));
+  q += '\'';
+  return q;
+}
 std::string byte_at(std::size_t offset) { return "byte " + std::to_string(offset); }
 
 std::size_t line_of(std::string_view text, std::size_t offset) {
   offset = std::min(offset, text.size());
-  return 1 + static_cast<std::size_t>(std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(offset), '\n'));
+  return 1 +
+         static_cast<std::size_t>(std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(offset), '\n'));
 }
 
 bool parse_number(std::string_view token, double& value) {
@@ -175,7 +185,7 @@ std::string_view TextCursor::expect(const std::string& what) {
 double TextCursor::number(const std::string& what) {
   const std::string_view t = expect(what);
   double v = 0.0;
-  if (!parse_number(t, v)) fail(name, where(), "'" + std::string(t.substr(0, 40)) + "' is not a number (" + what + ")");
+  if (!parse_number(t, v)) fail(name, where(), quote(t) + " is not a number (" + what + ")");
   return v;
 }
 
@@ -184,7 +194,7 @@ std::int64_t TextCursor::count(const std::string& what) {
   std::int64_t v = 0;
   const auto r = std::from_chars(t.data(), t.data() + t.size(), v);
   if (r.ec != std::errc() || r.ptr != t.data() + t.size() || v < 0) {
-    fail(name, where(), "'" + std::string(t.substr(0, 40)) + "' is not a valid " + what);
+    fail(name, where(), quote(t) + " is not a valid " + what);
   }
   return v;
 }
@@ -269,7 +279,8 @@ std::string gunzip(std::string_view bytes, const std::string& name) {
     const std::string message = zs.msg != nullptr ? zs.msg : "";
     inflateEnd(&zs);
     if (status == Z_BUF_ERROR) fail(name, byte_at(consumed) + " of the gzip data", "truncated gzip stream");
-    fail(name, byte_at(consumed) + " of the gzip data", "corrupt gzip stream" + (message.empty() ? "" : ": " + message));
+    fail(name, byte_at(consumed) + " of the gzip data",
+         "corrupt gzip stream" + (message.empty() ? "" : ": " + message));
   }
   inflateEnd(&zs);
   out.resize(produced);
@@ -316,15 +327,13 @@ ParticleFrame parse_xyz(std::string_view text, const std::string& name) {
         }
         if (cx < 0 || cy < 0 || cz < 0) {
           fail(name, line_at(line_no),
-               "'" + std::string(tokens[0].substr(0, 40)) +
-                   "' is not a number, and as a header line the columns do not name x, y and z");
+               quote(tokens[0]) + " is not a number, and as a header line the columns do not name x, y and z");
         }
         columns = tokens.size();
         continue;
       }
       if (tokens.size() != 3 && tokens.size() != 4) {
-        fail(name, line_at(line_no),
-             "expected 3 or 4 values (x y z [radius]), got " + std::to_string(tokens.size()));
+        fail(name, line_at(line_no), "expected 3 or 4 values (x y z [radius]), got " + std::to_string(tokens.size()));
       }
       columns = tokens.size();
       cr = columns == 4 ? 3 : -1;
@@ -336,8 +345,8 @@ ParticleFrame parse_xyz(std::string_view text, const std::string& name) {
     auto value = [&](int c) {
       double v = 0.0;
       if (!parse_number(tokens[static_cast<std::size_t>(c)], v)) {
-        fail(name, line_at(line_no), "'" + std::string(tokens[static_cast<std::size_t>(c)].substr(0, 40)) +
-                                         "' is not a number (column " + std::to_string(c + 1) + ")");
+        fail(name, line_at(line_no),
+             quote(tokens[static_cast<std::size_t>(c)]) + " is not a number (column " + std::to_string(c + 1) + ")");
       }
       if (!std::isfinite(v)) fail(name, line_at(line_no), "non-finite value in column " + std::to_string(c + 1));
       return v;
@@ -352,8 +361,9 @@ ParticleFrame parse_xyz(std::string_view text, const std::string& name) {
 
 ParticleFrame parse_bin(std::string_view bytes, const std::string& name) {
   if (bytes.size() % 12 != 0) {
-    fail(name, byte_at(bytes.size() - bytes.size() % 12),
-         std::to_string(bytes.size() % 12) + " trailing bytes: a .bin file holds float32 x y z triples (12 bytes each)");
+    fail(
+        name, byte_at(bytes.size() - bytes.size() % 12),
+        std::to_string(bytes.size() % 12) + " trailing bytes: a .bin file holds float32 x y z triples (12 bytes each)");
   }
   ParticleFrame frame;
   frame.positions.resize(bytes.size() / 12);
@@ -421,12 +431,19 @@ ParticleFrame parse_bgeo(std::string_view bytes, const std::string& name) {
   if (in.take(1, "header (version)")[0] != 'V') fail(name, byte_at(4), "expected 'V' after the magic");
   const std::size_t version_at = in.pos();
   const std::int32_t version = in.i32("header (version)");
-  if (version != 5) fail(name, byte_at(version_at), "BGEO version " + std::to_string(version) + " (only 5 is supported)");
+  if (version != 5)
+    fail(name, byte_at(version_at), "BGEO version " + std::to_string(version) + " (only 5 is supported)");
   const std::size_t counts_at = in.pos();
   std::int32_t counts[9];
-  static const char* const kCountNames[9] = {"points",          "primitives",       "point groups",
-                                             "primitive groups", "point attributes", "vertex attributes",
-                                             "primitive attributes", "detail attributes", ""};
+  static const char* const kCountNames[9] = {"points",
+                                             "primitives",
+                                             "point groups",
+                                             "primitive groups",
+                                             "point attributes",
+                                             "vertex attributes",
+                                             "primitive attributes",
+                                             "detail attributes",
+                                             ""};
   for (int c = 0; c < 8; ++c) {
     counts[c] = in.i32("header (counts)");
     if (counts[c] < 0) {
@@ -499,8 +516,9 @@ ParticleFormat particle_format_from_path(const std::filesystem::path& path) {
   if (ext == ".vtu") return ParticleFormat::kVtu;
   if (ext == ".bin") return ParticleFormat::kBin;
   if (ext == ".bgeo" || ext == ".bhclassic") return ParticleFormat::kBgeo;
-  throw InvalidInput("file", path.string() + ": unknown particle file extension '" + ext +
-                                 "'; use .xyz, .txt, .csv, .ply, .vtk, .vtu, .bin, .bgeo or .bhclassic (optionally .gz)");
+  throw InvalidInput("file",
+                     path.string() + ": unknown particle file extension '" + ext +
+                         "'; use .xyz, .txt, .csv, .ply, .vtk, .vtu, .bin, .bgeo or .bhclassic (optionally .gz)");
 }
 
 ParticleFrame parse_particles(std::string_view bytes, ParticleFormat format, const std::string& name_for_errors) {
@@ -592,8 +610,10 @@ std::vector<std::filesystem::path> expand_sequence(const std::string& pattern, i
     }
   }
   if (placeholders != 1) {
-    throw InvalidInput("pattern", "pattern '" + pattern + "' must contain exactly one frame placeholder ({} or {:04d}), "
-                                                          "found " + std::to_string(placeholders));
+    throw InvalidInput("pattern", "pattern '" + pattern +
+                                      "' must contain exactly one frame placeholder ({} or {:04d}), "
+                                      "found " +
+                                      std::to_string(placeholders));
   }
   std::vector<std::filesystem::path> paths;
   paths.reserve(static_cast<std::size_t>(end - start) + 1);
@@ -602,11 +622,10 @@ std::vector<std::filesystem::path> expand_sequence(const std::string& pattern, i
     std::string number;
     const std::size_t len = digits.size() + (f < 0 ? 1 : 0);
     const std::size_t pad = static_cast<std::size_t>(width) > len ? static_cast<std::size_t>(width) - len : 0;
-    if (fill == '0') {
-      number = (f < 0 ? "-" : "") + std::string(pad, '0') + digits;
-    } else {
-      number = std::string(pad, ' ') + (f < 0 ? "-" : "") + digits;
-    }
+    if (fill != '0') number.append(pad, ' ');
+    if (f < 0) number += '-';
+    if (fill == '0') number.append(pad, '0');
+    number += digits;
     paths.emplace_back(prefix + number + suffix);
   }
   return paths;

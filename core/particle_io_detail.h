@@ -12,8 +12,9 @@ namespace surfacer::particle_io_detail {
 
 // Throws InvalidInput("file", "<name>: <where>: <what>").
 [[noreturn]] void fail(const std::string& name, const std::string& where, const std::string& what);
-std::string line_at(std::size_t line);    // "line N"
-std::string byte_at(std::size_t offset);  // "byte N"
+std::string line_at(std::size_t line);      // "line N"
+std::string byte_at(std::size_t offset);    // "byte N"
+std::string quote(std::string_view token);  // 'token' (at most 40 characters of it)
 // 1-based line number of a byte offset.
 std::size_t line_of(std::string_view text, std::size_t offset);
 
@@ -35,7 +36,7 @@ struct TextCursor {
   std::size_t pos = 0;
   std::size_t line = 1;
   std::size_t token_line = 1;  // line of the last token returned (errors at the end of the input name it)
-  bool report_bytes = false;  // errors name "byte <pos>" instead of "line <line>" (text mixed with binary data)
+  bool report_bytes = false;   // errors name "byte <pos>" instead of "line <line>" (text mixed with binary data)
 
   std::string where() const { return report_bytes ? byte_at(pos) : line_at(line); }
   void skip_space();

@@ -49,7 +49,8 @@ ParticleFrame parse_ply_points(std::string_view bytes, const std::string& name) 
     if (t[0] == "end_header") break;
     if (t[0] == "comment" || t[0] == "obj_info") continue;
     if (t[0] == "format") {
-      if (t.size() != 3) fail(name, line_at(line_no), "expected 'format <ascii|binary_little_endian|binary_big_endian> 1.0'");
+      if (t.size() != 3)
+        fail(name, line_at(line_no), "expected 'format <ascii|binary_little_endian|binary_big_endian> 1.0'");
       if (t[1] == "ascii") {
         encoding = Encoding::kAscii;
       } else if (t[1] == "binary_little_endian") {
@@ -186,8 +187,8 @@ ParticleFrame parse_ply_points(std::string_view bytes, const std::string& name) 
       if (record > 0 && static_cast<std::uint64_t>(el.count) > (bytes.size() - pos) / record) {
         const std::size_t whole = (bytes.size() - pos) / record;
         pos += whole * record;
-        fail(name, byte_at(pos), "truncated element '" + el.name + "' " + std::to_string(whole) + " of " +
-                                     std::to_string(el.count));
+        fail(name, byte_at(pos),
+             "truncated element '" + el.name + "' " + std::to_string(whole) + " of " + std::to_string(el.count));
       }
       pos += record * static_cast<std::size_t>(el.count);
     } else {

@@ -51,7 +51,8 @@ class LegacyReader {
       if (key == "DATASET") {
         const std::string type = upper(c_.expect("dataset type"));
         if (type != "POLYDATA" && type != "UNSTRUCTURED_GRID") {
-          fail(name_, where(at), "DATASET " + type.substr(0, 40) + " is not supported; use POLYDATA or UNSTRUCTURED_GRID");
+          fail(name_, where(at),
+               "DATASET " + type.substr(0, 40) + " is not supported; use POLYDATA or UNSTRUCTURED_GRID");
         }
       } else if (key == "POINTS") {
         if (have_points) fail(name_, where(at), "second POINTS section");
@@ -136,7 +137,8 @@ class LegacyReader {
             if (have_points) return finish(frame, points);  // e.g. string arrays after the points: nothing we need
             fail(name_, where(c_.pos), "unsupported FIELD array type '" + std::string(type_name.substr(0, 40)) + "'");
           }
-          const bool radius = components == 1 && is_radius_name(array) && (point_data || !have_points || tuples == points);
+          const bool radius =
+              components == 1 && is_radius_name(array) && (point_data || !have_points || tuples == points);
           read_values(tuples, components, *scalar_from_name(type_name), "FIELD array " + array,
                       radius ? &values : nullptr);
           if (radius) frame.radii = values;
@@ -154,14 +156,13 @@ class LegacyReader {
   }
 
  private:
-  std::string where(std::size_t offset) const {
-    return binary_ ? byte_at(offset) : line_at(line_of(c_.text, offset));
-  }
+  std::string where(std::size_t offset) const { return binary_ ? byte_at(offset) : line_at(line_of(c_.text, offset)); }
 
   ParticleFrame finish(ParticleFrame& frame, std::int64_t points) const {
     if (!frame.radii.empty() && frame.radii.size() != static_cast<std::size_t>(points)) {
       fail(name_, where(c_.pos),
-           "radius array has " + std::to_string(frame.radii.size()) + " values for " + std::to_string(points) + " points");
+           "radius array has " + std::to_string(frame.radii.size()) + " values for " + std::to_string(points) +
+               " points");
     }
     return std::move(frame);
   }
@@ -208,7 +209,8 @@ class LegacyReader {
     }
     if (out != nullptr) {
       out->resize(static_cast<std::size_t>(count));
-      for (std::size_t i = 0; i < out->size(); ++i) (*out)[i] = read_scalar(c_.text.data() + c_.pos + i * size, type, true);
+      for (std::size_t i = 0; i < out->size(); ++i)
+        (*out)[i] = read_scalar(c_.text.data() + c_.pos + i * size, type, true);
     }
     c_.pos += static_cast<std::size_t>(count) * size;
   }
@@ -243,7 +245,7 @@ class XmlReader {
     ParticleFrame frame;
     std::vector<std::string_view> stack;
     std::int64_t piece_points = -1;  // -1 outside a <Piece>
-    std::size_t piece_first = 0;  // index of the piece's first point in frame.positions
+    std::size_t piece_first = 0;     // index of the piece's first point in frame.positions
     bool piece_radius = false;
     bool saw_file = false, any_radius = false, any_piece_without_radius = false;
     std::size_t pos = 0;
@@ -258,8 +260,9 @@ class XmlReader {
         stack.pop_back();
         if (tag->name == "Piece") {
           if (frame.positions.size() - piece_first != static_cast<std::size_t>(piece_points)) {
-            fail(name_, where(tag->begin), "piece declares " + std::to_string(piece_points) +
-                                               " points but has " + std::to_string(frame.positions.size() - piece_first));
+            fail(name_, where(tag->begin),
+                 "piece declares " + std::to_string(piece_points) + " points but has " +
+                     std::to_string(frame.positions.size() - piece_first));
           }
           (piece_radius ? any_radius : any_piece_without_radius) = true;
           piece_points = -1;
@@ -270,19 +273,22 @@ class XmlReader {
         saw_file = true;
         const std::string type(tag->attribute("type").value_or(""));
         if (type != "UnstructuredGrid" && type != "PolyData") {
-          fail(name_, where(tag->begin), "VTKFile type '" + type.substr(0, 40) +
-                                             "' is not supported; use UnstructuredGrid or PolyData (.vtu/.vtp)");
+          fail(name_, where(tag->begin),
+               "VTKFile type '" + type.substr(0, 40) +
+                   "' is not supported; use UnstructuredGrid or PolyData (.vtu/.vtp)");
         }
         const std::string order(tag->attribute("byte_order").value_or("LittleEndian"));
         if (order != "LittleEndian" && order != "BigEndian") fail(name_, where(tag->begin), "bad byte_order");
         big_endian_ = order == "BigEndian";
         const std::string header(tag->attribute("header_type").value_or("UInt32"));
-        if (header != "UInt32" && header != "UInt64") fail(name_, where(tag->begin), "bad header_type '" + header + "'");
+        if (header != "UInt32" && header != "UInt64")
+          fail(name_, where(tag->begin), "bad header_type '" + header + "'");
         header_size_ = header == "UInt64" ? 8 : 4;
         if (const auto compressor = tag->attribute("compressor"); compressor && !compressor->empty()) {
-          fail(name_, where(tag->begin), "compressed VTU (compressor=\"" + std::string(compressor->substr(0, 60)) +
-                                             "\") is not supported; write the file uncompressed (e.g. "
-                                             "vtkXMLWriter::SetCompressorTypeToNone, meshio compression=None)");
+          fail(name_, where(tag->begin),
+               "compressed VTU (compressor=\"" + std::string(compressor->substr(0, 60)) +
+                   "\") is not supported; write the file uncompressed (e.g. "
+                   "vtkXMLWriter::SetCompressorTypeToNone, meshio compression=None)");
         }
       } else if (tag->name == "Piece") {
         if (!saw_file) fail(name_, where(tag->begin), "<Piece> outside <VTKFile>");
@@ -313,8 +319,8 @@ class XmlReader {
         if (nc == static_cast<double>(components)) {  // (a multi-component "radius" is not a radius: skipped)
           const std::size_t close = text_.find("</DataArray>", tag->end);
           if (close == std::string_view::npos) fail(name_, where(tag->begin), "DataArray is not closed");
-          std::vector<double> values = decode(*tag, text_.substr(tag->end, close - tag->end), tag->end,
-                                              piece_points * components);
+          std::vector<double> values =
+              decode(*tag, text_.substr(tag->end, close - tag->end), tag->end, piece_points * components);
           if (points) {
             for (std::size_t i = 0; i + 2 < values.size(); i += 3) {
               const Vec3 p(values[i], values[i + 1], values[i + 2]);
@@ -364,7 +370,9 @@ class XmlReader {
         tag.closing = true;
         ++i;
       }
-      auto is_name = [](char c) { return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == ':' || c == '-' || c == '.'; };
+      auto is_name = [](char c) {
+        return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == ':' || c == '-' || c == '.';
+      };
       auto skip_ws = [&] {
         while (i < text_.size() && std::isspace(static_cast<unsigned char>(text_[i]))) ++i;
       };
@@ -403,7 +411,8 @@ class XmlReader {
     }
   }
 
-  std::vector<double> decode(const Tag& tag, std::string_view content, std::size_t content_at, std::int64_t count) const {
+  std::vector<double> decode(const Tag& tag, std::string_view content, std::size_t content_at,
+                             std::int64_t count) const {
     const std::string type_name(tag.attribute("type").value_or(""));
     const std::optional<Scalar> type = scalar_from_name(type_name);
     if (!type) fail(name_, where(tag.begin), "unsupported DataArray type '" + type_name.substr(0, 40) + "'");
@@ -416,8 +425,8 @@ class XmlReader {
       for (std::int64_t i = 0; i < count; ++i) {
         const std::optional<std::string_view> t = c.next();
         if (!t) {
-          fail(name_, where(content_at + last), "DataArray has " + std::to_string(i) + " values, expected " +
-                                                    std::to_string(count));
+          fail(name_, where(content_at + last),
+               "DataArray has " + std::to_string(i) + " values, expected " + std::to_string(count));
         }
         last = c.pos;
         double v = 0.0;
@@ -426,12 +435,14 @@ class XmlReader {
         }
         values.push_back(v);
       }
-      if (c.next()) fail(name_, where(content_at + c.pos), "DataArray has more than " + std::to_string(count) + " values");
+      if (c.next())
+        fail(name_, where(content_at + c.pos), "DataArray has more than " + std::to_string(count) + " values");
       return values;
     }
     if (format == "appended") {
-      fail(name_, where(tag.begin), "appended DataArray data is not supported; write the file with inline data "
-                                    "(vtkXMLWriter::SetDataModeToBinary or SetDataModeToAscii)");
+      fail(name_, where(tag.begin),
+           "appended DataArray data is not supported; write the file with inline data "
+           "(vtkXMLWriter::SetDataModeToBinary or SetDataModeToAscii)");
     }
     if (format != "binary") fail(name_, where(tag.begin), "unknown DataArray format '" + format.substr(0, 40) + "'");
     const std::string bytes = base64(content, content_at);
@@ -440,12 +451,14 @@ class XmlReader {
     const std::size_t size = scalar_size(*type);
     const double expected = static_cast<double>(count) * static_cast<double>(size);
     if (declared != expected) {
-      fail(name_, where(content_at), "binary DataArray header says " + std::to_string(static_cast<std::uint64_t>(declared)) +
-                                         " bytes, expected " + std::to_string(static_cast<std::uint64_t>(expected)));
+      fail(name_, where(content_at),
+           "binary DataArray header says " + std::to_string(static_cast<std::uint64_t>(declared)) +
+               " bytes, expected " + std::to_string(static_cast<std::uint64_t>(expected)));
     }
     if (static_cast<double>(bytes.size() - header_size_) < expected) {
-      fail(name_, where(content_at), "binary DataArray holds " + std::to_string(bytes.size() - header_size_) +
-                                         " bytes, expected " + std::to_string(static_cast<std::uint64_t>(expected)));
+      fail(name_, where(content_at),
+           "binary DataArray holds " + std::to_string(bytes.size() - header_size_) + " bytes, expected " +
+               std::to_string(static_cast<std::uint64_t>(expected)));
     }
     values.resize(static_cast<std::size_t>(count));
     for (std::size_t i = 0; i < values.size(); ++i) {

@@ -63,7 +63,8 @@ std::string write_xyz(const ParticleFrame& f, const std::string& sep) {
 std::string write_ply(const ParticleFrame& f, const std::string& format) {
   const bool ascii = format == "ascii";
   const bool big = format == "binary_big_endian";
-  std::string s = "ply\nformat " + format + " 1.0\ncomment test\nelement face 2\nproperty list uchar int vertex_indices\n";
+  std::string s =
+      "ply\nformat " + format + " 1.0\ncomment test\nelement face 2\nproperty list uchar int vertex_indices\n";
   s += "element vertex " + std::to_string(f.positions.size()) + "\n";
   s += "property double x\nproperty float y\nproperty uchar red\nproperty double z\n";
   s += "property list uchar short tags\n";
@@ -234,22 +235,27 @@ std::string vtu_array(const std::vector<double>& values, const std::string& name
 }
 
 std::string write_vtu(const ParticleFrame& f, const VtuStyle& st) {
-  std::string s = "<?xml version=\"1.0\"?>\n<!-- written by the test -->\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"" +
-                  std::string(st.big_endian ? "BigEndian" : "LittleEndian") + "\" header_type=\"" + st.header + "\"" +
-                  (st.compressor.empty() ? "" : " compressor=\"" + st.compressor + "\"") + ">\n<UnstructuredGrid>\n";
+  std::string s =
+      "<?xml version=\"1.0\"?>\n<!-- written by the test -->\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" "
+      "byte_order=\"" +
+      std::string(st.big_endian ? "BigEndian" : "LittleEndian") + "\" header_type=\"" + st.header + "\"" +
+      (st.compressor.empty() ? "" : " compressor=\"" + st.compressor + "\"") + ">\n<UnstructuredGrid>\n";
   const std::size_t n = f.positions.size();
   for (int piece = 0; piece < st.pieces; ++piece) {
     const std::size_t begin = n * piece / st.pieces, end = n * (piece + 1) / st.pieces;
-    s += "<Piece NumberOfPoints=\"" + std::to_string(end - begin) + "\" NumberOfCells=\"0\">\n<PointData Scalars=\"radius\">\n";
+    s += "<Piece NumberOfPoints=\"" + std::to_string(end - begin) +
+         "\" NumberOfCells=\"0\">\n<PointData Scalars=\"radius\">\n";
     s += vtu_array(std::vector<double>(end - begin, 2.0), "density", 1, st);
     if (!f.radii.empty()) {
       s += vtu_array(std::vector<double>(f.radii.begin() + begin, f.radii.begin() + end), "radius", 1, st);
     }
     s += "</PointData>\n<Points>\n";
     std::vector<double> xyz;
-    for (std::size_t i = begin; i < end; ++i) xyz.insert(xyz.end(), {f.positions[i].x(), f.positions[i].y(), f.positions[i].z()});
+    for (std::size_t i = begin; i < end; ++i)
+      xyz.insert(xyz.end(), {f.positions[i].x(), f.positions[i].y(), f.positions[i].z()});
     s += vtu_array(xyz, "Points", 3, st);
-    s += "</Points>\n<Cells>\n<DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\"></DataArray>\n</Cells>\n</Piece>\n";
+    s += "</Points>\n<Cells>\n<DataArray type=\"Int64\" Name=\"connectivity\" "
+         "format=\"ascii\"></DataArray>\n</Cells>\n</Piece>\n";
   }
   return s + "</UnstructuredGrid>\n</VTKFile>\n";
 }
@@ -468,7 +474,7 @@ TEST(ParticleIo, ReadFilesByExtensionIncludingGzip) {
     EXPECT_NE(std::string(e.what()).find(".bgeo"), std::string::npos);
   }
   try {
-    read_particles(dir.write("x", "") .parent_path() / "missing.xyz");
+    read_particles(dir.write("x", "").parent_path() / "missing.xyz");
     ADD_FAILURE();
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("missing.xyz: cannot open"), std::string::npos) << e.what();
@@ -483,9 +489,10 @@ TEST(ParticleIo, TextErrorsNameTheLine) {
   expect_error("# c\n1 2\n", ParticleFormat::kXyz, "bad.xyz", {"line 2", "expected 3 or 4 values"});
   expect_error("1 2 3\n1 nan 3\n", ParticleFormat::kXyz, "bad.xyz", {"line 2", "non-finite"});
   expect_error("a,b,c\n1,2,3\n", ParticleFormat::kXyz, "bad.csv", {"line 1", "x, y and z"});
-  expect_error("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
-               "end_header\n1 2 3\n4 5\n",
-               ParticleFormat::kPly, "bad.ply", {"line 9", "unexpected end of file"});
+  expect_error(
+      "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
+      "end_header\n1 2 3\n4 5\n",
+      ParticleFormat::kPly, "bad.ply", {"line 9", "unexpected end of file"});
   expect_error("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n1 2\n",
                ParticleFormat::kPly, "bad.ply", {"lacks an x, y or z"});
   expect_error("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nwhat\n", ParticleFormat::kPly, "bad.ply",
@@ -494,9 +501,10 @@ TEST(ParticleIo, TextErrorsNameTheLine) {
                ParticleFormat::kVtk, "bad.vtk", {"line 7", "'q' is not a number"});
   expect_error("# vtk DataFile Version 3.0\nt\nASCII\nDATASET STRUCTURED_POINTS\n", ParticleFormat::kVtk, "bad.vtk",
                {"line 4", "not supported"});
-  expect_error("<VTKFile type=\"UnstructuredGrid\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"2\">\n<Points>\n"
-               "<DataArray type=\"Float32\" NumberOfComponents=\"3\" format=\"ascii\">\n1 2 3 4 5\n</DataArray>\n",
-               ParticleFormat::kVtu, "bad.vtu", {"line 6", "has 5 values, expected 6"});
+  expect_error(
+      "<VTKFile type=\"UnstructuredGrid\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"2\">\n<Points>\n"
+      "<DataArray type=\"Float32\" NumberOfComponents=\"3\" format=\"ascii\">\n1 2 3 4 5\n</DataArray>\n",
+      ParticleFormat::kVtu, "bad.vtu", {"line 6", "has 5 values, expected 6"});
 }
 
 TEST(ParticleIo, BinaryErrorsNameTheByteOffset) {
@@ -506,7 +514,8 @@ TEST(ParticleIo, BinaryErrorsNameTheByteOffset) {
   const std::size_t dictionary_end = bgeo.size() - 10 * 36 - std::string("beginExtra").size();
   expect_error(std::string_view(bgeo).substr(0, dictionary_end + 3 * 36 + 5), ParticleFormat::kBgeo, "cut.bgeo",
                {"byte " + std::to_string(dictionary_end + 3 * 36), "truncated point 3 of 10", "5 left"});
-  expect_error(std::string_view(bgeo).substr(0, 20), ParticleFormat::kBgeo, "cut.bgeo", {"byte 17", "truncated header"});
+  expect_error(std::string_view(bgeo).substr(0, 20), ParticleFormat::kBgeo, "cut.bgeo",
+               {"byte 17", "truncated header"});
   expect_error(std::string("\x7fNSJ", 4) + std::string(60, '\0'), ParticleFormat::kBgeo, "new.bgeo",
                {"byte 0", "classic"});
   // The same cut inside gzip data: offsets are into the inflated bytes.
@@ -514,8 +523,7 @@ TEST(ParticleIo, BinaryErrorsNameTheByteOffset) {
   expect_error(cut_gz, ParticleFormat::kBgeo, "cut.bgeo.gz", {"byte " + std::to_string(dictionary_end + 3 * 36)});
   // A gzip stream cut short.
   const std::string gz = gzip(bgeo);
-  expect_error(std::string_view(gz).substr(0, gz.size() / 2), ParticleFormat::kBgeo, "half.bgeo.gz",
-               {"gzip"});
+  expect_error(std::string_view(gz).substr(0, gz.size() / 2), ParticleFormat::kBgeo, "half.bgeo.gz", {"gzip"});
   // Raw float triples.
   expect_error(std::string(25, '\0'), ParticleFormat::kBin, "odd.bin", {"byte 24", "1 trailing bytes"});
   // Binary PLY cut inside vertex 4 of 10 (after 2 faces of 13 and 17 bytes; 24 or 28 bytes per vertex).
@@ -567,9 +575,10 @@ TEST(ParticleIo, HostileCountsDoNotAllocate) {
   std::string bgeo = "BgeoV";
   for (const std::int32_t v : {5, 0x7fffffff, 0, 0, 0, 0, 0, 0, 0}) put<std::int32_t>(bgeo, v, true);
   expect_error(bgeo, ParticleFormat::kBgeo, "huge.bgeo", {"truncated point 0 of 2147483647"});
-  expect_error("ply\nformat binary_little_endian 1.0\nelement vertex 4000000000000\nproperty float x\nproperty float y\n"
-               "property float z\nend_header\n",
-               ParticleFormat::kPly, "huge.ply", {"truncated element 'vertex' 0"});
+  expect_error(
+      "ply\nformat binary_little_endian 1.0\nelement vertex 4000000000000\nproperty float x\nproperty float y\n"
+      "property float z\nend_header\n",
+      ParticleFormat::kPly, "huge.ply", {"truncated element 'vertex' 0"});
   expect_error("# vtk DataFile Version 3.0\nt\nBINARY\nDATASET POLYDATA\nPOINTS 999999999999 float\n",
                ParticleFormat::kVtk, "huge.vtk", {"truncated POINTS"});
 }
