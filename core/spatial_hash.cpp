@@ -132,10 +132,10 @@ std::size_t SpatialHash::memory_bytes() const {
 std::optional<SpatialHash::Neighbor> SpatialHash::nearest(const Vec3& q, double max_distance) const {
   if (points_.empty() || !(max_distance >= 0.0)) return std::nullopt;
   // Radius beyond which every point is inside the search box: the distance to the farthest corner of the grid.
-  const Eigen::Array3d far = (q.array() - origin_.array())
-                                 .abs()
-                                 .max((q.array() - origin_.array() - Eigen::Array3d(dims_[0], dims_[1], dims_[2]) * cell_)
-                                          .abs());
+  const Eigen::Array3d far =
+      (q.array() - origin_.array())
+          .abs()
+          .max((q.array() - origin_.array() - Eigen::Array3d(dims_[0], dims_[1], dims_[2]) * cell_).abs());
   const double all = far.matrix().norm() * (1.0 + 1e-12) + cell_;
   double r = std::min({max_distance, cell_, all});
   while (true) {
@@ -170,10 +170,12 @@ double SpatialHash::bounded_distance(const Vec3& q, double max_distance, double 
     }
     return !(found && best2 < stop2);
   };
-  // The cell holding q first: inside a dense cloud it usually holds a point closer than stop_below.
-  if (for_each_range(q.array(), q.array(), scan)) {
-    for_each_range(q.array() - max_distance, q.array() + max_distance, scan);
+  // First the box of the stop ball: if any point is closer than stop_below it is in there, and inside a dense cloud
+  // that small box (a few cells) usually decides. Otherwise the whole box (the small one is scanned again).
+  if (stop_below > 0.0 && stop_below < max_distance) {
+    if (!for_each_range(q.array() - stop_below, q.array() + stop_below, scan)) return std::sqrt(best2);
   }
+  for_each_range(q.array() - max_distance, q.array() + max_distance, scan);
   return found ? std::sqrt(best2) : std::numeric_limits<double>::infinity();
 }
 

@@ -33,7 +33,8 @@ std::optional<SpatialHash::Neighbor> brute_nearest(const std::vector<Vec3>& p, c
   std::optional<SpatialHash::Neighbor> best;
   for (std::size_t i = 0; i < p.size(); ++i) {
     const double d = (p[i] - q).norm();
-    if (d <= max_distance && (!best || d < best->distance)) best = SpatialHash::Neighbor{static_cast<std::uint32_t>(i), d};
+    if (d <= max_distance && (!best || d < best->distance))
+      best = SpatialHash::Neighbor{static_cast<std::uint32_t>(i), d};
   }
   return best;
 }
@@ -77,7 +78,9 @@ void check_against_brute_force(const std::vector<Vec3>& points, double cell, dou
   }
 }
 
-TEST(SpatialHash, DenseLayoutMatchesBruteForce) { check_against_brute_force(random_points(3000, 1.0, 1), 0.1, 1.5, true); }
+TEST(SpatialHash, DenseLayoutMatchesBruteForce) {
+  check_against_brute_force(random_points(3000, 1.0, 1), 0.1, 1.5, true);
+}
 
 TEST(SpatialHash, SparseLayoutMatchesBruteForce) {
   const std::vector<Vec3> points = clump_and_spray(2);
