@@ -1,0 +1,582 @@
+#include "core/particle_surfacer.h"
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <random>
+#include <set>
+#include <string>
+
+#include "core/errors.h"
+#include "core/mesh_checks.h"
+#include "core/particle_surfacer_smoothing.h"
+#include "tests/support/test_meshes.h"
+
+namespace surfacer {
+namespace {
+
+namespace ps = particle_smoothing;
+
+// Particles of a jittered cubic lattice (spacing `spacing`, jitter +-spacing/6 per axis) inside a ball: dense enough
+// that r_outer = 2 * r_inner >= spacing leaves no interior voids, irregular enough to be a fair test.
+std::vector<Vec3> blob(const Vec3& center, double radius, double spacing, std::uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> jitter(-spacing / 6, spacing / 6);
+  std::vector<Vec3> p;
+  const int n = static_cast<int>(radius / spacing);
+  for (int k = -n; k <= n; ++k) {
+    for (int j = -n; j <= n; ++j) {
+      for (int i = -n; i <= n; ++i) {
+        const Vec3 q = Vec3(i, j, k) * spacing;
+        if (q.norm() <= radius) p.push_back(center + q + Vec3(jitter(rng), jitter(rng), jitter(rng)));
+      }
+    }
+  }
+  return p;
+}
+
+std::vector<Vec3> three_blobs() {
+  std::vector<Vec3> p = blob(Vec3(0, 0, 0), 1.5, 0.3, 1);
+  for (const Vec3& q : blob(Vec3(6, 0, 0), 1.0, 0.3, 2)) p.push_back(q);
+  for (const Vec3& q : blob(Vec3(0, 7, 1), 1.2, 0.3, 3)) p.push_back(q);
+  return p;
+}
+
+// Brute-force distance from x to the nearest particle.
+double nearest_distance(const std::vector<Vec3>& particles, const Vec3& x) {
+  double best = std::numeric_limits<double>::infinity();
+  for (const Vec3& p : particles) best = std::min(best, (p - x).norm());
+  return best;
+}
+
+ParticleSurfacingOptions options(double r_inner) {
+  ParticleSurfacingOptions o;
+  o.r_inner = r_inner;
+  return o;
+}
+
+// RMS deviation from the mean height of the vertices above the top layer (z > top) within `margin` of the centre
+// column of an n x n lattice of spacing d.
+double top_face_rms(const Mesh& mesh, int n, double d, double top, double inset) {
+  const double c = (n - 1) * d / 2.0;
+  double sum = 0.0, sum2 = 0.0;
+  int count = 0;
+  for (const Vec3& v : mesh.vertices) {
+    if (v.z() > top && std::abs(v.x() - c) < c - inset && std::abs(v.y() - c) < c - inset) {
+      sum += v.z();
+      sum2 += v.z() * v.z();
+      ++count;
+    }
+  }
+  EXPECT_GT(count, 100);
+  const double mean = sum / count;
+  return std::sqrt(std::max(0.0, sum2 / count - mean * mean));
+}
+
+std::vector<Vec3> square_lattice_slab(int n, int layers, double d) {
+  std::vector<Vec3> p;
+  for (int k = 0; k < layers; ++k) {
+    for (int j = 0; j < n; ++j) {
+      for (int i = 0; i < n; ++i) p.emplace_back(i * d, j * d, k * d);
+    }
+  }
+  return p;
+}
+
+// --- Checkable facts (docs/ALGORITHMS.md §1) ------------------------------------------------------------------------
+
+TEST(ParticleSurfacer, EveryVertexFaithfulAfterTheConstrainedSweeps) {
+  const std::vector<Vec3> particles = three_blobs();
+  ParticleSurfacingOptions o = options(0.25);
+  o.polish_sweeps = 0;  // the output is then the mesh right after step 5
+  ParticleSurfacingStats stats;
+  const Mesh mesh = surface_particles(particles, {}, o, {}, &stats);
+  ASSERT_GT(mesh.vertices.size(), 1000u);
+  // Tolerance: 1e-9 relative (projection lands exactly on the sphere up to rounding).
+  const double tol = 1e-9 * 0.5;
+  for (const Vec3& v : mesh.vertices) {
+    const double d = nearest_distance(particles, v);
+    ASSERT_GE(d, 0.25 - tol);
+    ASSERT_LE(d, 0.5 + tol);
+  }
+  EXPECT_EQ(stats.faithful_after_constrained, 1.0);
+  EXPECT_LE(stats.max_violation_after_constrained, tol);
+  EXPECT_EQ(stats.r_outer, 0.5);
+  EXPECT_EQ(stats.vertices, mesh.vertices.size());
+
+  // With the default polish, the reported fraction matches a brute-force count of the output.
+  o.polish_sweeps = 5;
+  const Mesh polished = surface_particles(particles, {}, o, {}, &stats);
+  std::size_t faithful = 0;
+  double worst = 0.0;
+  for (const Vec3& v : polished.vertices) {
+    const double d = nearest_distance(particles, v);
+    const double violation = std::max({0.25 - d, d - 0.5, 0.0});
+    faithful += violation <= tol;
+    worst = std::max(worst, violation);
+  }
+  EXPECT_DOUBLE_EQ(stats.faithful_after_polish, static_cast<double>(faithful) / polished.vertices.size());
+  EXPECT_NEAR(stats.max_violation_after_polish, worst, 1e-12);
+  EXPECT_GT(stats.max_polish_displacement, 0.0);
+  EXPECT_LT(stats.max_polish_displacement, 0.25);  // polish does not move the surface far (thesis §3.8)
+}
+
+TEST(ParticleSurfacer, SquareLatticeWithOuterRadiusPerEquation35GivesAPlanarTopFace) {
+  // Lattice spacing d = 1, r_inner = d (the thesis' "average inter-particle spacing" choice). Eq. 3.5 asks
+  // r_outer^2 >= r_inner^2 + d^2/2 = 1.5; the default r_outer = 2 r_inner satisfies it with room. r_outer = 1.05
+  // violates it: no plane fits between the spheres, the surface must follow them.
+  const int n = 14;
+  const std::vector<Vec3> particles = square_lattice_slab(n, 3, 1.0);
+  ParticleSurfacingOptions o = options(1.0);
+  o.polish_sweeps = 0;
+  const double flat = top_face_rms(surface_particles(particles, {}, o), n, 1.0, 2.0, 2.5);
+  o.r_outer = 1.05;
+  const double bumpy = top_face_rms(surface_particles(particles, {}, o), n, 1.0, 2.0, 2.5);
+  EXPECT_LT(flat, 0.01 * 1.0);  // < 1% of r_inner
+  EXPECT_GT(bumpy, 2.0 * flat);
+  EXPECT_GT(bumpy, 0.015);
+  // The default polish keeps it planar.
+  o.r_outer.reset();
+  o.polish_sweeps = 5;
+  EXPECT_LT(top_face_rms(surface_particles(particles, {}, o), n, 1.0, 2.0, 2.5), 0.01);
+}
+
+TEST(ParticleSurfacer, FreeFloatingBlobsGiveClosedOrientedManifolds) {
+  ParticleSurfacingStats stats;
+  const Mesh mesh = surface_particles(three_blobs(), {}, options(0.25), {}, &stats);
+  const MeshReport r = check_mesh(mesh);
+  EXPECT_TRUE(r.closed);
+  EXPECT_TRUE(r.edge_manifold);
+  EXPECT_TRUE(r.vertex_manifold);
+  EXPECT_TRUE(r.oriented);
+  EXPECT_EQ(r.components, 3);
+  EXPECT_EQ(r.euler_characteristic, 6);  // three spheres
+  EXPECT_EQ(r.degenerate_triangles, 0);
+  EXPECT_GT(r.volume, 0.0);
+  EXPECT_EQ(stats.triangles, mesh.triangles.size());
+}
+
+TEST(ParticleSurfacer, IsolatedParticleGivesASmallClosedSphere) {
+  const Vec3 c(1, -2, 3);
+  const std::vector<Vec3> particles{c};
+  ParticleSurfacingOptions o = options(1.0);
+  o.polish_sweeps = 0;
+  const Mesh mesh = surface_particles(particles, {}, o);
+  const MeshReport r = check_mesh(mesh);
+  EXPECT_TRUE(r.closed && r.edge_manifold && r.vertex_manifold && r.oriented);
+  EXPECT_EQ(r.components, 1);
+  EXPECT_EQ(r.euler_characteristic, 2);
+  double lo = 1e9, hi = 0.0;
+  for (const Vec3& v : mesh.vertices) {
+    lo = std::min(lo, (v - c).norm());
+    hi = std::max(hi, (v - c).norm());
+  }
+  EXPECT_GE(lo, 1.0 - 1e-9);
+  EXPECT_LE(hi, 2.0 + 1e-9);
+  EXPECT_LT(hi - lo, 0.1);  // round: every vertex within 10% of r_inner of one radius
+  // Volume of a sphere of that radius, within the faceting error.
+  const double radius = 0.5 * (lo + hi);
+  EXPECT_NEAR(r.volume, 4.0 / 3.0 * M_PI * radius * radius * radius, 0.03 * r.volume);
+}
+
+TEST(ParticleSurfacer, InitialMarchingTilesMeshHasMinimumValenceFive) {
+  ParticleSurfacingStats stats;
+  const Mesh initial = initial_particle_surface(three_blobs(), {}, options(0.25), {}, &stats);
+  const MeshReport r = check_mesh(initial);
+  EXPECT_GE(r.min_valence, 5);
+  EXPECT_EQ(stats.initial_min_valence, r.min_valence);
+  EXPECT_TRUE(r.closed && r.oriented);
+  EXPECT_EQ(r.components, 3);
+  // ... and its vertices lie on the r_outer iso-surface up to the linear interpolation error, at most half a lattice
+  // edge where the distance field has a crease between two particles (h = 0.8 r_inner = 0.2).
+  const std::vector<Vec3> particles = three_blobs();
+  for (const Vec3& v : initial.vertices) ASSERT_NEAR(nearest_distance(particles, v), 0.5, 0.5 * 0.2);
+  // The full pipeline reports the same initial mesh.
+  ParticleSurfacingStats full;
+  (void)surface_particles(particles, {}, options(0.25), {}, &full);
+  EXPECT_EQ(full.initial_vertices, initial.vertices.size());
+  EXPECT_EQ(full.initial_min_valence, r.min_valence);
+}
+
+TEST(ParticleSurfacer, ContainerBoxKeepsEveryVertexInside) {
+  // Fluid resting in the corner of a tank: particles reach the walls, so the r_outer surface pokes through them.
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> jitter(-0.05, 0.05);
+  std::vector<Vec3> particles;
+  for (int k = 0; k < 4; ++k) {
+    for (int j = 0; j < 8; ++j) {
+      for (int i = 0; i < 8; ++i)
+        particles.emplace_back(0.1 + 0.3 * i + jitter(rng), 0.1 + 0.3 * j + jitter(rng), 0.1 + 0.3 * k + jitter(rng));
+    }
+  }
+  ParticleSurfacingOptions o = options(0.25);
+  o.container_box = Aabb{Vec3(0, 0, 0), Vec3(2, 2, 2)};
+  o.erosion = 0.2;  // erosion moves vertices too; the container still wins
+  const Mesh mesh = surface_particles(particles, {}, o);
+  int on_floor = 0;
+  for (const Vec3& v : mesh.vertices) {
+    ASSERT_TRUE(o.container_box->contains(v)) << v.transpose();
+    on_floor += v.z() == 0.0;
+  }
+  EXPECT_GT(on_floor, 50);  // the fluid lies flat on the floor
+  const MeshReport r = check_mesh(mesh);
+  EXPECT_TRUE(r.closed && r.edge_manifold && r.oriented);
+}
+
+TEST(ParticleSurfacer, ContainerSolidSnapsVerticesInside) {
+  const std::vector<Vec3> particles = blob(Vec3(0, 0, 0), 1.5, 0.3, 9);
+  ParticleSurfacingOptions o = options(0.25);
+  const auto solid = std::make_shared<testing::SphereField>(Vec3(0.8, 0, 0), 1.6);  // cuts off the +x side
+  o.container_solid = solid;
+  const Mesh mesh = surface_particles(particles, {}, o);
+  int on_wall = 0;
+  for (const Vec3& v : mesh.vertices) {
+    const double f = solid->value(v);
+    ASSERT_LE(f, 1e-12) << v.transpose();
+    on_wall += f > -1e-6;
+  }
+  EXPECT_GT(on_wall, 20);
+}
+
+// --- Solver ---------------------------------------------------------------------------------------------------------
+
+Mesh noisy_sphere(int subdivisions, double noise, std::uint32_t seed) {
+  Mesh m = testing::icosphere(subdivisions, 1.0);
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-noise, noise);
+  for (Vec3& v : m.vertices) v *= 1.0 + u(rng);
+  return m;
+}
+
+TEST(ParticleSmoothing, BilaplacianIsSymmetricPositiveSemidefiniteWithTwoRingSupport) {
+  const Mesh m = noisy_sphere(3, 0.05, 1);
+  const ps::Graph ring = ps::one_ring(m.vertices.size(), m.triangles);
+  const ps::SparseMatrix b = ps::bilaplacian(m.vertices, m.triangles, ring, 2);
+  const std::size_t n = m.vertices.size();
+  // Dense copy for the checks.
+  std::vector<std::vector<double>> dense(n, std::vector<double>(n, 0.0));
+  for (std::size_t i = 0; i < n; ++i) {
+    dense[i][i] = b.diagonal[i];
+    for (std::uint32_t e = b.graph.offsets[i]; e < b.graph.offsets[i + 1]; ++e) dense[i][b.graph.cols[e]] = b.values[e];
+  }
+  double scale = 0.0;
+  for (std::size_t i = 0; i < n; ++i) scale = std::max(scale, b.diagonal[i]);
+  for (std::size_t i = 0; i < n; ++i) {
+    double row_sum = 0.0;
+    for (std::size_t j = 0; j < n; ++j) {
+      EXPECT_NEAR(dense[i][j], dense[j][i], 1e-6 * scale);
+      row_sum += dense[i][j];
+    }
+    EXPECT_NEAR(row_sum, 0.0, 1e-5 * scale);  // W 1 = 0, so B 1 = 0
+    // Support: within two rings of i.
+    std::set<std::uint32_t> two;
+    for (std::uint32_t e = ring.offsets[i]; e < ring.offsets[i + 1]; ++e) {
+      const std::uint32_t k = ring.cols[e];
+      two.insert(k);
+      for (std::uint32_t f = ring.offsets[k]; f < ring.offsets[k + 1]; ++f) two.insert(ring.cols[f]);
+    }
+    for (std::uint32_t e = b.graph.offsets[i]; e < b.graph.offsets[i + 1]; ++e) EXPECT_TRUE(two.count(b.graph.cols[e]));
+  }
+  std::mt19937 rng(3);
+  std::normal_distribution<double> g;
+  for (int trial = 0; trial < 20; ++trial) {
+    std::vector<Vec3> x(n);
+    for (Vec3& v : x) v = Vec3(g(rng), g(rng), g(rng));
+    EXPECT_GE(ps::energy(b, x), -1e-6 * scale);
+  }
+  EXPECT_EQ(b.nonzeros(), b.values.size() + n);
+}
+
+TEST(ParticleSmoothing, DegenerateTrianglesKeepTheMatrixFinite) {
+  Mesh m = testing::icosphere(2, 1.0);
+  // Collapse one triangle onto a line and another onto a point.
+  const Triangle t = m.triangles[0];
+  m.vertices[t[2]] = 0.5 * (m.vertices[t[0]] + m.vertices[t[1]]);
+  const Triangle u = m.triangles[100];
+  m.vertices[u[1]] = m.vertices[u[0]];
+  m.vertices[u[2]] = m.vertices[u[0]];
+  const ps::Graph ring = ps::one_ring(m.vertices.size(), m.triangles);
+  const ps::SparseMatrix b = ps::bilaplacian(m.vertices, m.triangles, ring, 1);
+  for (const double d : b.diagonal) EXPECT_TRUE(std::isfinite(d));
+  for (const float v : b.values) EXPECT_TRUE(std::isfinite(v));
+  std::vector<Vec3> x = m.vertices;
+  const ps::SweepPlan plan = ps::plan_sweeps(b.graph, 1);
+  for (int s = 0; s < 5; ++s) ps::bilaplacian_sweep(x, b, plan, 1);
+  for (const Vec3& v : x) EXPECT_TRUE(v.allFinite());
+}
+
+// The parallel order (block interiors first, then seams) converges like plain Gauss-Seidel in index order.
+TEST(ParticleSmoothing, BlockOrderedGaussSeidelConvergesLikeSequential) {
+  const Mesh m = noisy_sphere(4, 0.1, 2);
+  const ps::Graph ring = ps::one_ring(m.vertices.size(), m.triangles);
+  const ps::SparseMatrix b = ps::bilaplacian(m.vertices, m.triangles, ring, 2);
+  const ps::SweepPlan sequential = ps::plan_sweeps(b.graph, 1);
+  const ps::SweepPlan blocked = ps::plan_sweeps(b.graph, 8);
+  ASSERT_TRUE(sequential.seams.empty());
+  ASSERT_FALSE(blocked.seams.empty());
+  EXPECT_EQ(blocked.interior.size() + blocked.seams.size(), m.vertices.size());
+  std::vector<Vec3> xs = m.vertices, xb = m.vertices;
+  double es = ps::energy(b, xs), eb = ps::energy(b, xb);
+  const double e0 = es;
+  for (int s = 0; s < 10; ++s) {
+    ps::bilaplacian_sweep(xs, b, sequential, 1);
+    ps::bilaplacian_sweep(xb, b, blocked, 2);
+    const double es_next = ps::energy(b, xs), eb_next = ps::energy(b, xb);
+    EXPECT_LE(es_next, es * (1 + 1e-9));  // Gauss-Seidel never increases a PSD quadratic
+    EXPECT_LE(eb_next, eb * (1 + 1e-9));
+    es = es_next;
+    eb = eb_next;
+  }
+  EXPECT_LT(es, 0.2 * e0);
+  EXPECT_LT(eb, 0.2 * e0);
+  EXPECT_NEAR(eb / es, 1.0, 0.2);
+  // The same holds for the uniform Laplacian sweeps.
+  const ps::SweepPlan ring_blocked = ps::plan_sweeps(ring, 8);
+  std::vector<Vec3> ls = m.vertices, lb = m.vertices;
+  for (int s = 0; s < 5; ++s) {
+    ps::laplacian_sweep(ls, ring, 0.6, ps::plan_sweeps(ring, 1), 1);
+    ps::laplacian_sweep(lb, ring, 0.6, ring_blocked, 2);
+  }
+  double diff = 0.0;
+  for (std::size_t i = 0; i < ls.size(); ++i) diff = std::max(diff, (ls[i] - lb[i]).norm());
+  EXPECT_LT(diff, 0.05);
+}
+
+TEST(ParticleSurfacer, ResultIsIdenticalForAnyThreadCount) {
+  const std::vector<Vec3> particles = three_blobs();
+  ParticleSurfacingOptions o = options(0.25);
+  o.threads = 1;
+  const Mesh one = surface_particles(particles, {}, o);
+  for (const int threads : {2, 3}) {
+    o.threads = threads;
+    const Mesh other = surface_particles(particles, {}, o);
+    EXPECT_EQ(other.triangles, one.triangles);
+    EXPECT_EQ(other.vertices, one.vertices);
+  }
+}
+
+// --- Options and inputs ----------------------------------------------------------------------------------------------
+
+TEST(ParticleSurfacer, PerParticleRadiiScaleTheBand) {
+  std::vector<Vec3> particles = blob(Vec3(0, 0, 0), 1.0, 0.3, 4);
+  std::vector<double> radii(particles.size(), 0.2);
+  for (const Vec3& q : blob(Vec3(5, 0, 0), 1.5, 0.6, 5)) {
+    particles.push_back(q);
+    radii.push_back(0.4);
+  }
+  ParticleSurfacingOptions o;  // r_inner from the radii (mean); r_outer = 2 r_inner -> ratio 2
+  o.polish_sweeps = 0;
+  const Mesh mesh = surface_particles(particles, radii, o);
+  EXPECT_EQ(check_mesh(mesh).components, 2);
+  for (const Vec3& v : mesh.vertices) {
+    double inner = 1e9, outer = 1e9;
+    for (std::size_t i = 0; i < particles.size(); ++i) {
+      const double d = (particles[i] - v).norm();
+      inner = std::min(inner, d - radii[i]);
+      outer = std::min(outer, d - 2 * radii[i]);
+    }
+    ASSERT_GE(inner, -1e-9);
+    ASSERT_LE(outer, 1e-9);
+  }
+  // Equal radii reproduce the uniform-radius surface.
+  const std::vector<Vec3> blobs = three_blobs();
+  ParticleSurfacingOptions u = options(0.25);
+  const Mesh uniform = surface_particles(blobs, {}, u);
+  u.r_inner.reset();
+  const Mesh weighted = surface_particles(blobs, std::vector<double>(blobs.size(), 0.25), u);
+  ASSERT_EQ(weighted.triangles, uniform.triangles);
+  double diff = 0.0;
+  for (std::size_t i = 0; i < uniform.vertices.size(); ++i)
+    diff = std::max(diff, (uniform.vertices[i] - weighted.vertices[i]).norm());
+  EXPECT_LT(diff, 1e-9);
+}
+
+TEST(ParticleSurfacer, DropsSmallComponentsWhenAsked) {
+  std::vector<Vec3> particles = blob(Vec3(0, 0, 0), 1.5, 0.3, 6);
+  const std::size_t in_blob = particles.size();
+  for (int i = 0; i < 5; ++i) particles.emplace_back(5.0 + 3.0 * i, 4.0, 0.0);  // spray, far apart
+  particles.emplace_back(5.0, 4.0, 0.4);                                        // a pair: its r_outer balls overlap
+  ParticleSurfacingOptions o = options(0.25);
+  ParticleSurfacingStats stats;
+  EXPECT_EQ(check_mesh(surface_particles(particles, {}, o, {}, &stats)).components, 6);
+  EXPECT_EQ(stats.components_dropped, 0u);
+  o.min_particles_per_component = 3;
+  const Mesh kept = surface_particles(particles, {}, o, {}, &stats);
+  EXPECT_EQ(check_mesh(kept).components, 1);
+  EXPECT_EQ(stats.components_dropped, 5u);  // four singles and the pair
+  EXPECT_EQ(stats.particles_used, in_blob);
+  o.min_particles_per_component = 2;
+  (void)surface_particles(particles, {}, o, {}, &stats);
+  EXPECT_EQ(stats.components_dropped, 4u);
+}
+
+TEST(ParticleSurfacer, DerivesInnerRadiusFromNearestNeighbourSpacing) {
+  std::vector<Vec3> particles = square_lattice_slab(8, 4, 0.7);
+  for (int i = 0; i < 5; ++i) particles.emplace_back(100.0 + 50.0 * i, 0, 0);  // stray spray is left out of the mean
+  ParticleSurfacingOptions o;
+  o.derive_r_inner = true;
+  o.bilaplacian_sweeps = 2;
+  ParticleSurfacingStats stats;
+  (void)surface_particles(particles, {}, o, {}, &stats);
+  EXPECT_NEAR(stats.r_inner, 0.7, 1e-12);
+  EXPECT_NEAR(stats.r_outer, 1.4, 1e-12);
+  EXPECT_NEAR(stats.spacing, 0.8 * 0.7, 1e-12);
+}
+
+TEST(ParticleSurfacer, ErosionMovesTheSurfaceInward) {
+  const std::vector<Vec3> particles = blob(Vec3(0, 0, 0), 1.5, 0.3, 7);
+  ParticleSurfacingOptions o = options(0.25);
+  const Mesh plain = surface_particles(particles, {}, o);
+  o.erosion = 0.4;
+  ParticleSurfacingStats stats;
+  const Mesh eroded = surface_particles(particles, {}, o, {}, &stats);
+  ASSERT_EQ(eroded.triangles, plain.triangles);
+  double mean_shift = 0.0;
+  for (std::size_t i = 0; i < plain.vertices.size(); ++i) mean_shift += (plain.vertices[i] - eroded.vertices[i]).norm();
+  mean_shift /= static_cast<double>(plain.vertices.size());
+  EXPECT_NEAR(mean_shift, 0.4 * 0.25, 1e-9);  // every vertex moves epsilon * r_inner
+  EXPECT_LT(check_mesh(eroded).volume, check_mesh(plain).volume);
+  EXPECT_GE(stats.max_polish_displacement, 0.1);
+}
+
+TEST(ParticleSurfacer, NormalsOnRequest) {
+  ParticleSurfacingOptions o = options(0.25);
+  o.normals = true;
+  const Vec3 c(0, 0, 0);
+  const Mesh mesh = surface_particles(std::vector<Vec3>{c}, {}, o);
+  ASSERT_EQ(mesh.normals.size(), mesh.vertices.size());
+  for (std::size_t i = 0; i < mesh.vertices.size(); ++i) {
+    EXPECT_NEAR(mesh.normals[i].norm(), 1.0, 1e-12);
+    EXPECT_GT(mesh.normals[i].dot((mesh.vertices[i] - c).normalized()), 0.99);  // outward
+  }
+}
+
+TEST(ParticleSurfacer, StatefulSurfacerMatchesOneShotAcrossFrames) {
+  ParticleSurfacer surfacer(options(0.25));
+  const std::vector<Vec3> a = three_blobs();
+  const std::vector<Vec3> b = blob(Vec3(1, 1, 1), 1.0, 0.3, 8);
+  (void)surfacer.surface(a);
+  const Mesh second = surfacer.surface(b);
+  const Mesh fresh = surface_particles(b, {}, options(0.25));
+  EXPECT_EQ(second.vertices, fresh.vertices);
+  EXPECT_EQ(second.triangles, fresh.triangles);
+  EXPECT_EQ(surfacer.options().r_inner, 0.25);
+}
+
+TEST(ParticleSurfacer, EmptyInputGivesEmptyMesh) {
+  ParticleSurfacingStats stats;
+  EXPECT_TRUE(surface_particles({}, {}, options(1.0), {}, &stats).empty());
+  EXPECT_EQ(stats.particles, 0u);
+}
+
+void expect_invalid(const ParticleSurfacingOptions& o, const std::string& field, std::span<const Vec3> particles = {},
+                    std::span<const double> radii = {}) {
+  try {
+    const std::vector<Vec3> one{Vec3::Zero(), Vec3::Ones()};
+    (void)surface_particles(particles.empty() ? std::span<const Vec3>(one) : particles, radii, o);
+    ADD_FAILURE() << "no error for " << field;
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::kInvalidInput) << e.what();
+    EXPECT_EQ(e.field(), field) << e.what();
+  }
+}
+
+TEST(ParticleSurfacer, RejectsBadOptionsAndInputsWithTheFieldName) {
+  ParticleSurfacingOptions o;
+  expect_invalid(o, "r_inner");  // neither r_inner, derive_r_inner nor radii
+  o = options(-1.0);
+  expect_invalid(o, "r_inner");
+  o = options(1.0);
+  o.r_outer = 0.5;
+  try {
+    (void)ParticleSurfacer(o);
+    ADD_FAILURE();
+  } catch (const Error& e) {
+    EXPECT_EQ(e.field(), "r_outer");
+    EXPECT_NE(std::string(e.what()).find("must exceed r_inner"), std::string::npos) << e.what();
+  }
+  o = options(1.0);
+  o.spacing_factor = 0.0;
+  expect_invalid(o, "spacing_factor");
+  o = options(1.0);
+  o.bilaplacian_sweeps = -1;
+  expect_invalid(o, "bilaplacian_sweeps");
+  o = options(1.0);
+  o.relaxation = 1.5;
+  expect_invalid(o, "relaxation");
+  o = options(1.0);
+  o.erosion = -0.1;
+  expect_invalid(o, "erosion");
+  o = options(1.0);
+  o.container_box = Aabb{Vec3(1, 1, 1), Vec3(0, 2, 2)};
+  expect_invalid(o, "container_box");
+  o = options(1.0);
+  o.threads = -2;
+  expect_invalid(o, "threads");
+  o = options(1.0);
+  const std::vector<Vec3> bad{Vec3(0, std::nan(""), 0)};
+  expect_invalid(o, "particles", bad);
+  const std::vector<Vec3> two{Vec3::Zero(), Vec3::Ones()};
+  const std::vector<double> one_radius{1.0};
+  expect_invalid(o, "radii", two, one_radius);
+  const std::vector<double> negative{1.0, -1.0};
+  expect_invalid(o, "radii", two, negative);
+  ParticleSurfacingOptions derive;
+  derive.derive_r_inner = true;
+  const std::vector<Vec3> single{Vec3::Zero()};
+  expect_invalid(derive, "r_inner", single);
+}
+
+// --- Cancellation and progress ------------------------------------------------------------------------------------
+
+TEST(ParticleSurfacer, ReportsEveryStageInOrder) {
+  std::vector<std::string> stages;
+  RunControl control;
+  control.progress = [&](std::string_view stage, double) {
+    if (stages.empty() || stages.back() != stage) stages.emplace_back(stage);
+  };
+  ParticleSurfacingOptions o = options(0.25);
+  o.erosion = 0.1;
+  o.threads = 1;
+  (void)surface_particles(three_blobs(), {}, o, control);
+  const std::vector<std::string> expected{"distance_field", "polygonize", "laplacian", "build_b",
+                                          "bilaplacian",    "polish",     "erosion"};
+  EXPECT_EQ(stages, expected);
+}
+
+TEST(ParticleSurfacer, CancelTakesEffectWithinASweep) {
+  const std::vector<Vec3> particles = blob(Vec3(0, 0, 0), 3.0, 0.3, 10);
+  for (const std::string when : {"polygonize", "laplacian", "bilaplacian", "polish"}) {
+    CancelToken token;
+    RunControl control;
+    control.cancel = &token;
+    std::chrono::steady_clock::time_point cancelled_at;
+    control.progress = [&](std::string_view stage, double) {
+      if (stage == when && !token.cancelled()) {
+        cancelled_at = std::chrono::steady_clock::now();
+        token.cancel();
+      }
+    };
+    try {
+      (void)surface_particles(particles, {}, options(0.25), control);
+      ADD_FAILURE() << "not cancelled at " << when;
+    } catch (const Error& e) {
+      EXPECT_EQ(e.kind(), ErrorKind::kCancelled) << when;
+      const double ms =
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - cancelled_at).count();
+      EXPECT_LT(ms, 200.0) << when;
+    }
+  }
+  CancelToken token;
+  token.cancel();
+  RunControl control;
+  control.cancel = &token;
+  EXPECT_THROW((void)surface_particles(particles, {}, options(0.25), control), Error);
+}
+
+}  // namespace
+}  // namespace surfacer
