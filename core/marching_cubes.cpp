@@ -572,6 +572,7 @@ Mesh marching_cubes(const Field& field, const MarchingCubesOptions& options, con
   const Grid grid(options);
   FieldSource source{grid, field};
   if (options.sparse) source.lipschitz = field.lipschitz_bound();
+  if (source.lipschitz && !(*source.lipschitz >= 0.0 && std::isfinite(*source.lipschitz))) source.lipschitz.reset();
   return run(grid, source, options, control);
 }
 

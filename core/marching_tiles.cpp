@@ -652,6 +652,9 @@ void validate(const MarchingTilesOptions& o) {
                        "seed_radius must be > 0 when seeds are given: the distance from a seed beyond "
                        "which the field is outside (> 0)");
   }
+  if (o.search != TileSearch::kAuto && o.search != TileSearch::kLipschitz && o.search != TileSearch::kSignScan) {
+    throw InvalidInput("search", "search is not a known TileSearch value; use kAuto, kLipschitz or kSignScan");
+  }
   for (std::size_t i = 0; i < o.seeds.size(); ++i) {
     if (!o.seeds[i].allFinite()) {
       throw InvalidInput("seeds[" + std::to_string(i) + "]", "seeds[" + std::to_string(i) + "] is not finite");
@@ -744,6 +747,19 @@ std::vector<std::uint64_t> seed_blocks(const Lattice& lat, const MarchingTilesOp
   std::vector<std::uint64_t> keys(set.begin(), set.end());
   std::sort(keys.begin(), keys.end());
   return keys;
+}
+
+// Number of blocks whose reachable box meets `region`.
+double blocks_in(const Lattice& lat, const Aabb& region) {
+  const double block_world = 4.0 * kBlock * lat.unit;
+  double n = 1.0;
+  for (int a = 0; a < 3; ++a) {
+    const double lo = std::max(0.0, std::floor((region.min[a] - lat.origin[a]) / block_world) - 1.0);
+    const double hi =
+        std::min(static_cast<double>(lat.blocks[a] - 1), std::floor((region.max[a] - lat.origin[a]) / block_world));
+    n *= std::max(0.0, hi - lo + 1.0);
+  }
+  return n;
 }
 
 // kd-descent over the block grid with the Lipschitz ball test.
@@ -917,18 +933,28 @@ Mesh marching_tiles(const Field& field, const MarchingTilesOptions& options, con
   control.report("polygonize", 0.0);
   control.check();
 
-  const std::optional<double> lipschitz = field.lipschitz_bound();
+  std::optional<double> lipschitz = field.lipschitz_bound();
+  if (lipschitz && !(*lipschitz >= 0.0 && std::isfinite(*lipschitz))) lipschitz.reset();  // unusable: no bound
+  if (options.search == TileSearch::kLipschitz && !lipschitz) {
+    throw InvalidInput("search",
+                       "search is kLipschitz but the field has no (finite, >= 0) lipschitz_bound(); use "
+                       "kAuto or kSignScan");
+  }
   std::int64_t scan_evaluations = 0;
   std::vector<std::uint64_t> frontier;
   if (!options.seeds.empty()) {
     frontier = seed_blocks(lat, options, control);
   } else if (const std::optional<Aabb> region = search_region(field, options)) {
-    if (lipschitz) {
+    bool scanned = false;
+    if (lipschitz && options.search != TileSearch::kSignScan) {
       lipschitz_scan(lat, field, *lipschitz, *region, {0, 0, 0}, lat.blocks, frontier, scan_evaluations, control);
       std::sort(frontier.begin(), frontier.end());
-    } else {
-      frontier = sign_scan(lat, field, *region, threads, scan_evaluations, control);
+      // kAuto: a bound that keeps more than 1/8 of the region's blocks excludes too little to pay for visiting them
+      // all (a loose bound, or a surface filling the region); the sign scan costs 1/64 of the region's points.
+      scanned = options.search == TileSearch::kLipschitz ||
+                static_cast<double>(frontier.size()) <= blocks_in(lat, *region) / 8.0;
     }
+    if (!scanned) frontier = sign_scan(lat, field, *region, threads, scan_evaluations, control);
   }
   control.report("polygonize", 0.05);
 

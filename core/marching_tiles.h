@@ -14,6 +14,14 @@ namespace surfacer {
 
 class Field;
 
+// How Marching Tiles finds the lattice blocks that may hold the surface when no seeds are given.
+enum class TileSearch {
+  kAuto,       // kLipschitz when field.lipschitz_bound() has a value and it excludes at least 7/8 of the region's
+               // blocks, else kSignScan
+  kLipschitz,  // complete: skips only what the bound excludes (needs a bound; a loose one costs volume work)
+  kSignScan,   // sign changes between corners of a ~3.5-spacing grid, then flood fill (may miss tiny components)
+};
+
 struct MarchingTilesOptions {
   // Region to polygonize. Lattice points outside it are not evaluated: a surface leaving the region is cut open there.
   Aabb bounds;
@@ -27,6 +35,10 @@ struct MarchingTilesOptions {
   // plus Lipschitz bounds where the field provides them), so time and memory grow with surface area.
   std::span<const Vec3> seeds;
   double seed_radius = 0.0;
+  // Without seeds: how the blocks near the surface are found. kSignScan suits fields whose Lipschitz bound is much
+  // larger than their typical slope (blob sums: the bound adds every kernel's steepest slope), for which kLipschitz
+  // cannot exclude much and visits every block inside field.bounds().
+  TileSearch search = TileSearch::kAuto;
 };
 
 // Mesh of {f = 0} of a normalized field (negative inside): welded (one vertex per crossed lattice edge), oriented
@@ -39,8 +51,8 @@ struct MarchingTilesOptions {
 // * Sample density: a lattice of spacing s has 1.53 / s^3 samples per unit volume and ~5.2 / s^2 vertices per unit
 //   area (Marching Cubes with cell h: 1 / h^3 and ~1.5 / h^2). s = 1.152 h gives the cube grid's sample density;
 //   the output then still has ~2.6x the vertices of Marching Cubes.
-// * Which lattice blocks are visited: with seeds, those within seed_radius of a seed; otherwise, when
-//   field.lipschitz_bound() is set, every block a Lipschitz ball test cannot exclude (complete); otherwise blocks
+// * Which lattice blocks are visited: with seeds, those within seed_radius of a seed; otherwise (`search`), with
+//   the Lipschitz bound, every block a Lipschitz ball test cannot exclude (complete); with the sign scan, blocks
 //   where the field's sign changes between corners of a 2-cell (~3.5 s) grid over bounds clipped to field.bounds() -- a
 //   component that changes no such corner's sign can be missed, and this scan costs ~volume / (42 s^3) evaluations
 //   (1/64 of the lattice points). In all modes a flood fill adds every block the surface continues into, so
@@ -52,7 +64,8 @@ struct MarchingTilesOptions {
 //   from its inside to its outside end.
 // * control.check() runs at least every cell layer of a block (at most ~600 evaluations) and every scan row;
 //   control.report("polygonize", fraction) is non-decreasing, 0 first and 1 last.
-// * Errors: InvalidInput fields "bounds", "spacing", "threads", "seed_radius", "seeds[i]"; ResourceLimit "spacing".
+// * Errors: InvalidInput fields "bounds", "spacing", "threads", "seed_radius", "seeds[i]", "search" (kLipschitz for a
+//   field without a bound); ResourceLimit "spacing".
 Mesh marching_tiles(const Field& field, const MarchingTilesOptions& options, const RunControl& control = {});
 
 }  // namespace surfacer
