@@ -749,19 +749,6 @@ std::vector<std::uint64_t> seed_blocks(const Lattice& lat, const MarchingTilesOp
   return keys;
 }
 
-// Number of blocks whose reachable box meets `region`.
-double blocks_in(const Lattice& lat, const Aabb& region) {
-  const double block_world = 4.0 * kBlock * lat.unit;
-  double n = 1.0;
-  for (int a = 0; a < 3; ++a) {
-    const double lo = std::max(0.0, std::floor((region.min[a] - lat.origin[a]) / block_world) - 1.0);
-    const double hi =
-        std::min(static_cast<double>(lat.blocks[a] - 1), std::floor((region.max[a] - lat.origin[a]) / block_world));
-    n *= std::max(0.0, hi - lo + 1.0);
-  }
-  return n;
-}
-
 // kd-descent over the block grid with the Lipschitz ball test.
 void lipschitz_scan(const Lattice& lat, const Field& field, double lipschitz, const Aabb& region,
                     const std::array<std::int64_t, 3>& lo, const std::array<std::int64_t, 3>& hi,
@@ -945,16 +932,12 @@ Mesh marching_tiles(const Field& field, const MarchingTilesOptions& options, con
   if (!options.seeds.empty()) {
     frontier = seed_blocks(lat, options, control);
   } else if (const std::optional<Aabb> region = search_region(field, options)) {
-    bool scanned = false;
     if (lipschitz && options.search != TileSearch::kSignScan) {
       lipschitz_scan(lat, field, *lipschitz, *region, {0, 0, 0}, lat.blocks, frontier, scan_evaluations, control);
       std::sort(frontier.begin(), frontier.end());
-      // kAuto: a bound that keeps more than 1/8 of the region's blocks excludes too little to pay for visiting them
-      // all (a loose bound, or a surface filling the region); the sign scan costs 1/64 of the region's points.
-      scanned = options.search == TileSearch::kLipschitz ||
-                static_cast<double>(frontier.size()) <= blocks_in(lat, *region) / 8.0;
+    } else {
+      frontier = sign_scan(lat, field, *region, threads, scan_evaluations, control);
     }
-    if (!scanned) frontier = sign_scan(lat, field, *region, threads, scan_evaluations, control);
   }
   control.report("polygonize", 0.05);
 

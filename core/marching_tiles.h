@@ -16,8 +16,7 @@ class Field;
 
 // How Marching Tiles finds the lattice blocks that may hold the surface when no seeds are given.
 enum class TileSearch {
-  kAuto,       // kLipschitz when field.lipschitz_bound() has a value and it excludes at least 7/8 of the region's
-               // blocks, else kSignScan
+  kAuto,       // kLipschitz when field.lipschitz_bound() has a value, else kSignScan
   kLipschitz,  // complete: skips only what the bound excludes (needs a bound; a loose one costs volume work)
   kSignScan,   // sign changes between corners of a ~3.5-spacing grid, then flood fill (may miss tiny components)
 };
@@ -35,9 +34,9 @@ struct MarchingTilesOptions {
   // plus Lipschitz bounds where the field provides them), so time and memory grow with surface area.
   std::span<const Vec3> seeds;
   double seed_radius = 0.0;
-  // Without seeds: how the blocks near the surface are found. kSignScan suits fields whose Lipschitz bound is much
-  // larger than their typical slope (blob sums: the bound adds every kernel's steepest slope), for which kLipschitz
-  // cannot exclude much and visits every block inside field.bounds().
+  // Without seeds: how the blocks near the surface are found. A bound much larger than the field's typical slope
+  // (blob sums add every kernel's steepest slope) excludes little at coarse spacings, so kLipschitz then visits most
+  // blocks inside field.bounds(); kSignScan is cheaper there but can miss components smaller than ~3.5 spacings.
   TileSearch search = TileSearch::kAuto;
 };
 
