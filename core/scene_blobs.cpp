@@ -55,8 +55,8 @@ class Blobs final : public Field {
   // Per skeleton, with u = r / R: Wyvill |d/dr| = 6 |s| u (1 - u^2)^2 / R <= (96 / (25 sqrt 5)) |s| / R (maximum at
   // u = 1/sqrt 5); Blinn |d/dr| = 2 |s| b e^b u e^(-b u^2) / R <= |s| sqrt(2 b) e^(b - 1/2) / R (at u = 1/sqrt(2b)).
   // The distance to a point or segment is 1-Lipschitz, so these bound each kernel's gradient. Wyvill sums only see
-  // the skeletons whose support holds p: with the grid, the largest per-cell sum; otherwise (and for Blinn) the sum
-  // over all skeletons.
+  // the skeletons whose support holds p: with the grid, the largest per-cell sum; otherwise the largest sum over a
+  // skeleton and those overlapping it. Blinn kernels have no compact support: the sum over all skeletons.
   std::optional<double> lipschitz_bound() const override { return lipschitz_; }
 
   std::optional<Aabb> bounds() const override {
@@ -141,6 +141,21 @@ class Blobs final : public Field {
   void compute_lipschitz() {
     double total = 0.0;
     for (const Skeleton& s : skeletons_) total += kernel_slope(s);
+    if (options_.kernel == BlobKernel::kWyvill && cell_start_.empty()) {
+      // The skeletons contributing at p all have p in their support boxes, so they all overlap the box of any one of
+      // them: the largest (own slope + slopes of the skeletons whose boxes overlap its box) bounds the sum.
+      double worst = 0.0;
+      for (const Skeleton& a : skeletons_) {
+        double sum = 0.0;
+        for (const Skeleton& b : skeletons_) {
+          const bool overlap = (a.support.min.array() <= b.support.max.array()).all() &&
+                               (b.support.min.array() <= a.support.max.array()).all();
+          if (overlap) sum += kernel_slope(b);
+        }
+        worst = std::max(worst, sum);
+      }
+      total = worst;
+    }
     if (!cell_start_.empty()) {
       double worst = 0.0;
       for (std::size_t c = 0; c + 1 < cell_start_.size(); ++c) {

@@ -576,6 +576,8 @@ TEST(MarchingTiles, LipschitzBoundsHold) {
   BlobOptions blinn;
   blinn.kernel = BlobKernel::kBlinn;
   blinn.blobbiness = 2.0;
+  std::vector<PointSkeleton> row;  // spread out: each support box overlaps only its neighbours'
+  for (int i = 0; i < 10; ++i) row.push_back({Vec3(-0.9 + 0.2 * i, 0.1, 0), 0.15, 1.0});
   std::vector<PointSkeleton> many;
   for (int i = 0; i < 100; ++i) many.push_back({Vec3(0.01 * i, 0.3 * std::sin(i), 0.2 * std::cos(i)), 0.2, 1.0});
   SampledGridDesc desc;
@@ -603,6 +605,7 @@ TEST(MarchingTiles, LipschitzBoundsHold) {
       make_blobs(points, segments, BlobOptions{}),
       make_blobs(points, segments, blinn),
       make_blobs(many, {}, BlobOptions{}),
+      make_blobs(row, {}, BlobOptions{}),
       make_sampled_grid(desc, gv),
       make_csg(CsgOp::kUnion, {make_sphere(Vec3::Zero(), 0.3), make_gyroid(0.5, 0.1)}),
       make_csg(CsgOp::kDifference, {make_box(Vec3::Zero(), Vec3::Constant(0.3)), make_sphere(Vec3::Zero(), 0.35)},
