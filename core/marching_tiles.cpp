@@ -95,10 +95,9 @@ struct RingTet {
 // Per tetrahedron-local edge, relative to the tetrahedron's home cell: what the marcher needs without looking at
 // the a15 tables again.
 struct EdgeInfo {
-  std::int32_t slot = 0;       // (pad-index offset of the edge's home cell) * kEdgeCount + class
-  std::int32_t ring_slot = 0;  // (in-layer pad-index offset of the home cell) * kEdgeCount + class
-  std::int32_t ring_dk = 0;    // z offset of the home cell (0 or 1)                 // (pad-index offset of the edge's
-                               // home cell) * kEdgeCount + class
+  std::int32_t slot = 0;                 // (pad-index offset of the edge's home cell) * kEdgeCount + class
+  std::int32_t ring_slot = 0;            // (in-layer pad-index offset of the home cell) * kEdgeCount + class
+  std::int32_t ring_dk = 0;              // z offset of the home cell (0 or 1)
   std::array<std::int8_t, 3> owner{};    // interior owner cell (first ring tetrahedron's home) minus this home
   std::array<std::uint16_t, 2> value{};  // pad-value offsets (8 * pad-index offset + point) of ends a, b
   std::array<std::array<std::uint8_t, 3>, 2> lattice{};  // lattice coordinates of ends a, b minus 4 * home
@@ -128,6 +127,8 @@ struct Tables {
           const int l = 4 * s.offset[a] + a15::kPoints[s.point][a];
           pos[v][a] = l;
           reach[t][a] = std::max(reach[t][a], l);
+          // The culling boxes assume every tetrahedron stays within [4 home, 4 home + kReach].
+          if (l > kReach) throw Internal("a15 table: a tetrahedron reaches beyond kReach lattice units");
         }
       }
       for (int c = 1; c < 15; ++c) cases[t][c] = make_case(pos, c);
@@ -287,6 +288,7 @@ struct alignas(64) Scratch {
   std::array<std::vector<std::uint32_t>, 2> ring_touched;
   std::vector<std::uint32_t> slots = std::vector<std::uint32_t>(kSlots, kNone);  // merge: owner slot -> vertex
   std::vector<Vec3> foreign_positions;  // of the block's foreign vertices, by foreign index
+  BlockOutput work;                     // the block being marched
 };
 
 constexpr int pad_index(int i, int j, int k) { return (k * kPad + j) * kPad + i; }
@@ -312,7 +314,21 @@ class BlockMesher {
     prepare(s);
     cull(s);
     evaluate(s);
-    march(s, out);
+    // March into the worker's reused buffers (no regrowth after the first blocks), then copy out at exact size.
+    BlockOutput& work = s.work;
+    work.vertices.clear();
+    work.normals.clear();
+    work.vertex_slots.clear();
+    work.triangles.clear();
+    work.foreign.clear();
+    work.neighbours = 0;
+    march(s, work);
+    out.vertices.assign(work.vertices.begin(), work.vertices.end());
+    out.normals.assign(work.normals.begin(), work.normals.end());
+    out.vertex_slots.assign(work.vertex_slots.begin(), work.vertex_slots.end());
+    out.triangles.assign(work.triangles.begin(), work.triangles.end());
+    out.foreign.assign(work.foreign.begin(), work.foreign.end());
+    out.neighbours = work.neighbours;
     for (auto& touched : s.ring_touched) {
       for (std::uint32_t slot : touched) s.ring[slot] = kNone;
       touched.clear();
@@ -349,7 +365,7 @@ class BlockMesher {
     s.inside.fill(0);
   }
 
-  // Marks the cells of sub-blocks the Lipschitz test cannot exclude (all cells without a bound).
+  // Marks the cells the Lipschitz test cannot exclude (every cell without a bound).
   void cull(Scratch& s) {
     if (!lipschitz_) {
       s.active.fill(1);
