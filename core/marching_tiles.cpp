@@ -192,6 +192,7 @@ struct Tables {
       ends = {{in[0], out[0]}, {in[0], out[1]}, {in[1], out[1]}, {in[1], out[0]}};
     }
     std::vector<Vec3> mid;
+    mid.reserve(ends.size());
     for (auto [a, b] : ends) mid.push_back(0.5 * (pos[a] + pos[b]));
     Vec3 in_c = Vec3::Zero(), out_c = Vec3::Zero();
     for (int i : in) in_c += pos[i] / static_cast<double>(in.size());
@@ -705,7 +706,7 @@ Lattice make_lattice(const MarchingTilesOptions& o) {
 void block_range_lattice(const std::array<std::int64_t, 3>& lo, const std::array<std::int64_t, 3>& hi,
                          std::array<std::int64_t, 3>& llo, std::array<std::int64_t, 3>& lhi) {
   for (int a = 0; a < 3; ++a) {
-    llo[a] = 4 * kBlock * lo[a];
+    llo[a] = std::int64_t{4} * kBlock * lo[a];
     lhi[a] = 4 * (kBlock * hi[a] - 1) + kReach;
   }
 }
@@ -796,7 +797,7 @@ void lipschitz_scan(const Lattice& lat, const Field& field, double lipschitz, co
 // signs. Rows of corners are evaluated in parallel (one z-layer per item).
 std::vector<std::uint64_t> sign_scan(const Lattice& lat, const Field& field, const Aabb& region, int threads,
                                      std::int64_t& evaluations, const RunControl& control) {
-  const std::int64_t step = 4 * kSub;  // lattice units between corners
+  const std::int64_t step = std::int64_t{4} * kSub;  // lattice units between corners
   std::array<std::int64_t, 3> lo, n;
   for (int a = 0; a < 3; ++a) {
     lo[a] = std::max<std::int64_t>(0, static_cast<std::int64_t>(std::floor((region.min[a] - lat.origin[a]) /
