@@ -163,10 +163,9 @@ UploadSummary upload_inputs(Connection& connection, v1::JobSpec& spec, const std
     ++summary.uploads;
     summary.bytes += result.bytes;
     if (data.particles && pending.frame >= 0) summary.particles[pending.frame] = *data.particles;
-    std::string line = "uploaded " + std::to_string(summary.uploads) + "/" + std::to_string(total) + ": " +
-                       pending.description + " (" + (data.detail.empty() ? "" : data.detail + ", ") +
-                       size_text(result.bytes) + ") as " + result.upload_id;
-    progress.line(line);
+    progress.line("uploaded " + std::to_string(summary.uploads) + "/" + std::to_string(total) + ": " +
+                  pending.description + ": " + (data.detail.empty() ? "" : data.detail + ", ") +
+                  size_text(result.bytes) + " -> " + result.upload_id);
   }
   return summary;
 }
