@@ -139,9 +139,11 @@ void add_particles(CLI::App* parent, const std::string& verb, JobFlags& flags, O
        "--format ply",
        "surfacer run particles --input drop.xyz --derive-r-inner --container-box 0,0,0,1,1,1 -o out/"},
       {"surfacer --server localhost:50051 submit particles --input 'sim/fluid_{}.bgeo' --r-inner 0.01"},
-      "Frames are uploaded one at a time (float32) before the job is queued; a bad file stops the command (exit 2)\n"
-      "naming the file and the line or byte. frame_NNNN = the N-th input file. A table of particles, triangles and\n"
-      "seconds per frame is printed at the end.\n");
+      std::string("Frames are uploaded one at a time (float32) before the job is queued; a bad file stops the command\n"
+                  "(exit 2) naming the file and the line or byte. frame_NNNN = the N-th input file. ") +
+          (verb == "run" ? "A table of particles,\ntriangles and seconds per frame is printed at the end.\n"
+                         : "The job id is printed\nonce every frame is uploaded; `surfacer watch ID -o DIR` fetches "
+                           "the meshes and prints the table.\n"));
   flags.particles_app = app;
 }
 
@@ -204,8 +206,10 @@ void add_optimize(CLI::App* parent, const std::string& verb, JobFlags& flags, Ou
                 "--snapshot-every 10 -o out/",
                 "surfacer run optimize --scene cube.json --start-mesh sphere.ply --flows d,n --modified-flows -o out/"},
                {"surfacer --server localhost:50051 submit optimize --scene csg_block.json --start-mesh start.drc"},
-               "Each snapshot's iteration and figures (e_d, e_n, max_distance, rms_distance, min_angle_degrees, ...)\n"
-               "go to DIR/iterations.csv, one row per snapshot; the last frame is the result.\n");
+               std::string(verb == "run" ? "" : "With `surfacer watch ID -o DIR`: ") +
+                   "each snapshot's iteration and figures (e_d, e_n, max_distance, rms_distance,\n"
+                   "min_angle_degrees, ...) go to DIR/iterations.csv, one row per snapshot; the last frame is the "
+                   "result.\n");
   flags.optimize_app = app;
 }
 
