@@ -160,19 +160,27 @@ double SpatialHash::bounded_distance(const Vec3& q, double max_distance, double 
   double best2 = max_distance * max_distance;
   bool found = false;
   const double stop2 = stop_below * stop_below;
+  const double qx = q.x(), qy = q.y(), qz = q.z();
   auto scan = [&](std::uint32_t begin, std::uint32_t end) {
+    double b2 = best2;  // locals, so the loop keeps them in registers
+    bool hit = false;
     for (std::uint32_t s = begin; s < end; ++s) {
-      const double d2 = (points_[s] - q).squaredNorm();
-      if (d2 <= best2) {
-        best2 = d2;
-        found = true;
+      const double dx = points_[s].x() - qx, dy = points_[s].y() - qy, dz = points_[s].z() - qz;
+      const double d2 = dx * dx + dy * dy + dz * dz;
+      if (d2 <= b2) {
+        b2 = d2;
+        hit = true;
       }
     }
+    best2 = b2;
+    found = found || hit;
     return !(found && best2 < stop2);
   };
-  // First the box of the stop ball: if any point is closer than stop_below it is in there, and inside a dense cloud
-  // that small box (a few cells) usually decides. Otherwise the whole box (the small one is scanned again).
+  // First the cell holding q, then the box of the stop ball: if any point is closer than stop_below it is in there,
+  // and inside a dense cloud one cell or that small box usually decides. Otherwise the whole box (the smaller ones
+  // are scanned again).
   if (stop_below > 0.0 && stop_below < max_distance) {
+    if (!for_each_range(q.array(), q.array(), scan)) return std::sqrt(best2);
     if (!for_each_range(q.array() - stop_below, q.array() + stop_below, scan)) return std::sqrt(best2);
   }
   for_each_range(q.array() - max_distance, q.array() + max_distance, scan);
