@@ -39,7 +39,6 @@ constexpr double kBandTolerance = 1e-12;     // relative slack before a projecti
 constexpr double kFaithfulTolerance = 1e-9;  // relative slack of the faithfulness statistics
 constexpr int kMaxProjectionRounds = 8;
 constexpr int kMaxNewtonSteps = 16;
-constexpr std::uint32_t kNoHint = 0xffffffffu;
 
 void validate_options(const ParticleSurfacingOptions& o) {
   if (o.r_inner && !(std::isfinite(*o.r_inner) && *o.r_inner > 0.0)) {
@@ -171,94 +170,17 @@ struct Particles {
     out.index = hash.order()[out.index];
   }
 
-  // Uniform radii: the nearest particle closer than r_inner * (1 - tol), if any (exact: the box holds the ball).
-  std::optional<Hit> inside_inner(const Vec3& x) const {
-    const double limit = r_inner * (1.0 - kBandTolerance);
-    double best2 = limit * limit;
-    std::uint32_t best = 0;
-    bool found = false;
-    const std::span<const Vec3> pts = hash.sorted_points();
-    hash.for_each_range(x.array() - r_inner, x.array() + r_inner, [&](std::uint32_t begin, std::uint32_t end) {
-      for (std::uint32_t s = begin; s < end; ++s) {
-        const double d2 = (pts[s] - x).squaredNorm();
-        if (d2 < best2) {
-          best2 = d2;
-          best = s;
-          found = true;
-        }
-      }
-    });
-    if (!found) return std::nullopt;
-    const double d = std::sqrt(best2);
-    return Hit{hash.order()[best], d, d};
-  }
-
-  // Uniform radii: whether some particle lies within r_outer * (1 + tol); if not, `nearest` receives the exact nearest
-  // particle. `hint` (a particle index or kNoHint) is tried first and receives the particle found.
-  bool within_outer(const Vec3& x, std::uint32_t& hint, Hit& nearest_out) const {
-    const double limit = r_outer * (1.0 + kBandTolerance);
-    if (hint == kNoHint) {
-      nearest_out = nearest(x);
-      hint = nearest_out.index;
-      return nearest_out.distance <= limit;
-    }
-    const double hint_distance = (positions[hint] - x).norm();
-    if (hint_distance <= limit) return true;
-    // The nearest particle is no farther than the hint: one exact scan of that ball.
-    const double r = hint_distance;
-    double best2 = r * r;
-    std::uint32_t best = kNoHint;
-    const std::span<const Vec3> pts = hash.sorted_points();
-    hash.for_each_range(x.array() - r, x.array() + r, [&](std::uint32_t begin, std::uint32_t end) {
-      for (std::uint32_t s = begin; s < end; ++s) {
-        const double d2 = (pts[s] - x).squaredNorm();
-        if (d2 < best2) {
-          best2 = d2;
-          best = s;
-        }
-      }
-    });
-    if (best == kNoHint) {
-      nearest_out = Hit{hint, hint_distance, hint_distance};
-    } else {
-      const double d = std::sqrt(best2);
-      nearest_out = Hit{hash.order()[best], d, d};
-      hint = nearest_out.index;
-    }
-    return nearest_out.distance <= limit;
-  }
-
-  // Distance outside the faithful band (0 when faithful), exact.
-  double violation(const Vec3& x, std::uint32_t& hint) const {
-    if (!weighted) {
-      if (const std::optional<Hit> in = inside_inner(x)) return r_inner - in->distance;
-      Hit out;
-      if (within_outer(x, hint, out)) return 0.0;
-      return std::max(0.0, out.distance - r_outer);
-    }
+  // Weighted radii: distance outside the faithful band (0 when faithful), exact.
+  double violation(const Vec3& x) const {
     Hit in, out;
     nearest_weighted(x, in, out);
     return std::max({-in.value, out.value, 0.0});
   }
   bool faithful(double violation) const { return violation <= kFaithfulTolerance * (weighted ? max_outer : r_outer); }
 
-  // Moves x into the faithful band (see the header); returns false when rounds ran out. `hint` as for within_outer.
-  bool project(Vec3& x, std::uint32_t& hint) const {
+  // Weighted radii: moves x into the faithful band (see the header); returns false when rounds ran out.
+  bool project(Vec3& x) const {
     for (int round = 0; round < kMaxProjectionRounds; ++round) {
-      if (!weighted) {
-        if (const std::optional<Hit> in = inside_inner(x)) {
-          const Vec3& p = positions[in->index];
-          x = p + r_inner * (in->distance > 0.0 ? Vec3((x - p) / in->distance) : Vec3::UnitZ());
-          hint = in->index;
-          continue;  // the push may land inside another particle's inner ball
-        }
-        Hit out;
-        if (within_outer(x, hint, out)) return true;
-        // Outside every r_outer ball: toward the nearest particle, which stays the nearest along the way.
-        const Vec3& p = positions[out.index];
-        x = p + (x - p) * (r_outer / out.distance);
-        return true;
-      }
       Hit in, out;
       nearest_weighted(x, in, out);
       if (in.value < -kBandTolerance * inner[in.index]) {
@@ -330,19 +252,25 @@ class NeighbourCache {
     auto collect = [&](double radius) {
       const double keep = radius + 2.0 * delta_;
       P.hash.for_each_range(x.array() - keep, x.array() + keep, [&](std::uint32_t begin, std::uint32_t end) {
+        double b = best;  // locals, so the loop keeps them in registers
+        std::uint32_t b_slot = best_slot;
+        int count = n_found;
         for (std::uint32_t s = begin; s < end; ++s) {
           const double d = (pts[s] - x).norm();
-          if (d < best) {
-            best = d;
-            best_slot = s;
+          if (d < b) {
+            b = d;
+            b_slot = s;
           }
-          if (d > best + 2.0 * delta_) continue;
-          if (n_found < static_cast<int>(found.size())) {
-            found[static_cast<std::size_t>(n_found++)] = {d, s};
+          if (d > b + 2.0 * delta_) continue;
+          if (count < static_cast<int>(found.size())) {
+            found[static_cast<std::size_t>(count++)] = {d, s};
           } else {
             overflow = true;
           }
         }
+        best = b;
+        best_slot = b_slot;
+        n_found = count;
       });
     };
     collect(bound);
@@ -826,7 +754,6 @@ Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const d
   container.box = o.container_box;
   container.solid = o.container_solid.get();
   container.inside_margin = 1e-9 * r_inner;
-  std::vector<std::uint32_t> hints(P.weighted ? n : 0, kNoHint);
   cache.reset(P.weighted ? 0 : n, 0.15 * r_inner);
   auto constrain = [&](bool to_particles) {
     if (!to_particles && !container.active()) return;
@@ -834,7 +761,7 @@ Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const d
       for (std::size_t i = begin; i < end; ++i) {
         if (to_particles) {
           if (P.weighted) {
-            P.project(x[i], hints[i]);
+            P.project(x[i]);
           } else {
             project_uniform(P, cache, i, x[i]);
           }
@@ -851,7 +778,7 @@ Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const d
       std::size_t good = 0;
       double worst = 0.0;
       for (std::size_t i = begin; i < end; ++i) {
-        const double v = P.weighted ? P.violation(x[i], hints[i]) : violation_uniform(P, cache, i, x[i]);
+        const double v = P.weighted ? P.violation(x[i]) : violation_uniform(P, cache, i, x[i]);
         good += P.faithful(v);
         worst = std::max(worst, v);
       }
