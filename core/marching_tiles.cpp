@@ -289,7 +289,9 @@ struct alignas(64) Scratch {
   std::array<std::vector<std::uint32_t>, 2> ring_touched;
   std::vector<std::uint32_t> slots = std::vector<std::uint32_t>(kSlots, kNone);  // merge: owner slot -> vertex
   std::vector<Vec3> foreign_positions;  // of the block's foreign vertices, by foreign index
-  BlockOutput work;                     // the block being marched
+  struct Sizes {
+    std::size_t vertices = 0, triangles = 0, foreign = 0;
+  } last;  // output sizes of the worker's previous block
 };
 
 constexpr int pad_index(int i, int j, int k) { return (k * kPad + j) * kPad + i; }
@@ -315,21 +317,15 @@ class BlockMesher {
     prepare(s);
     cull(s);
     evaluate(s);
-    // March into the worker's reused buffers (no regrowth after the first blocks), then copy out at exact size.
-    BlockOutput& work = s.work;
-    work.vertices.clear();
-    work.normals.clear();
-    work.vertex_slots.clear();
-    work.triangles.clear();
-    work.foreign.clear();
-    work.neighbours = 0;
-    march(s, work);
-    out.vertices.assign(work.vertices.begin(), work.vertices.end());
-    out.normals.assign(work.normals.begin(), work.normals.end());
-    out.vertex_slots.assign(work.vertex_slots.begin(), work.vertex_slots.end());
-    out.triangles.assign(work.triangles.begin(), work.triangles.end());
-    out.foreign.assign(work.foreign.begin(), work.foreign.end());
-    out.neighbours = work.neighbours;
+    // Reserve what the worker's previous block needed (plus a margin), so the vectors rarely regrow.
+    Scratch::Sizes& last = s.last;
+    out.vertices.reserve(last.vertices + last.vertices / 4 + 16);
+    if (options_.normals) out.normals.reserve(last.vertices + last.vertices / 4 + 16);
+    out.vertex_slots.reserve(last.vertices + last.vertices / 4 + 16);
+    out.triangles.reserve(last.triangles + last.triangles / 4 + 32);
+    out.foreign.reserve(last.foreign + last.foreign / 4 + 16);
+    march(s, out);
+    last = {out.vertices.size(), out.triangles.size(), out.foreign.size()};
     for (auto& touched : s.ring_touched) {
       for (std::uint32_t slot : touched) s.ring[slot] = kNone;
       touched.clear();
