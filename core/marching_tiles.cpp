@@ -742,6 +742,7 @@ std::vector<std::uint64_t> seed_blocks(const Lattice& lat, const MarchingTilesOp
     }
     if (empty) continue;
     for (std::int64_t bz = lo[2]; bz <= hi[2]; ++bz) {
+      if (hi[2] > lo[2]) control.check();  // a large seed_radius covers many blocks
       for (std::int64_t by = lo[1]; by <= hi[1]; ++by) {
         for (std::int64_t bx = lo[0]; bx <= hi[0]; ++bx) {
           std::array<std::int64_t, 3> llo, lhi;
