@@ -306,12 +306,20 @@ class Cleaner {
     fan.insert(fan.end(), vertex_tris_[b].begin(), vertex_tris_[b].end());
     std::sort(fan.begin(), fan.end());
     fan.erase(std::unique(fan.begin(), fan.end()), fan.end());
+    bool a_on_boundary = false, b_on_boundary = false;
     for (std::int32_t f : fan) {
       for (int e = 0; e < 3; ++e) {
-        const auto it = edges_.find(edge_key(tris_[f][e], tris_[f][(e + 1) % 3]));
+        const std::uint32_t u = tris_[f][e], w = tris_[f][(e + 1) % 3];
+        const auto it = edges_.find(edge_key(u, w));
         if (it == edges_.end() || it->second[0] == kMany) return false;
+        if (it->second[1] == kNone) {
+          a_on_boundary = a_on_boundary || u == a || w == a;
+          b_on_boundary = b_on_boundary || u == b || w == b;
+        }
       }
     }
+    // An interior edge between two boundary vertices: collapsing it would pinch the boundary.
+    if (a_on_boundary && b_on_boundary) return false;
     for (std::uint32_t y : nb) {
       if (y != a && h_.midpoints.count(edge_key(a, y)) != 0) return false;
     }

@@ -692,6 +692,28 @@ TEST(MeshOptimizer, FlowsAloneKeepTheConnectivity) {
   EXPECT_EQ(triangles_against_field(out, *ref.field), 0);
 }
 
+// A start mesh cut open by the polygonization bounds: the boundary is kept (no T-flow, flips or collapses there) and
+// the mesh stays manifold and oriented.
+TEST(MeshOptimizer, OpenStartMeshKeepsItsBoundary) {
+  const FieldPtr box = make_box(Vec3::Zero(), Vec3(0.8, 0.8, 0.8));
+  MarchingCubesOptions mc;
+  mc.bounds = Aabb{Vec3(-1.0013, -1.0013, -1.0013), Vec3(0.9987, 0.9987, 0.4987)};  // cuts the top off
+  mc.cells = {24, 24, 18};
+  const Mesh start = marching_cubes(*box, mc);
+  const MeshReport before = check_mesh(start);
+  ASSERT_GT(before.boundary_edges, 0);
+  MeshOptimizerOptions o;
+  o.modified_flows = true;
+  o.max_iterations = 40;
+  const Mesh out = optimize_mesh(*box, start, o);
+  const MeshReport after = check_mesh(out);
+  EXPECT_TRUE(after.edge_manifold);
+  EXPECT_TRUE(after.vertex_manifold);
+  EXPECT_TRUE(after.oriented);
+  EXPECT_EQ(after.boundary_edges, before.boundary_edges);
+  EXPECT_EQ(triangles_against_field(out, *box), 0);
+}
+
 // A start mesh that is already exact stays put: the icosphere's vertices lie on the sphere, so the D-flow does
 // nothing, and only the T-flow slides vertices along the surface (E_d stays at round-off).
 TEST(MeshOptimizer, ExactStartStaysOnTheSurface) {
