@@ -27,8 +27,8 @@ CLI::Validator number_check(bool allow_zero) {
       allow_zero ? ">= 0" : "> 0");
 }
 
-const CLI::Validator kPositive = number_check(false);
-const CLI::Validator kNonNegative = number_check(true);
+const CLI::Validator positive = number_check(false);
+const CLI::Validator non_negative = number_check(true);
 
 std::string number_text(double v) {
   char buf[32];
@@ -69,11 +69,11 @@ void add_isosurface(CLI::App* parent, const std::string& verb, JobFlags& flags, 
       ->type_name("FILE");
   CLI::Option* cells =
       iso->add_option("--cells", flags.iso.cells, "cells along the longest axis of the bounds (default 128)")
-          ->check(kPositive)
+          ->check(positive)
           ->type_name("N");
   iso->add_option("--cell-size", flags.iso.cell_size,
                   "edge of a cubic cell (cubes) or mean sample spacing (tiles), in scene units")
-      ->check(kPositive)
+      ->check(positive)
       ->excludes(cells)
       ->type_name("H");
   iso->add_option("--bounds", flags.iso_bounds,
@@ -101,25 +101,25 @@ void add_particles(CLI::App* parent, const std::string& verb, JobFlags& flags, O
   CLI::Option* r_inner =
       app->add_option("--r-inner", p.r_inner,
                       "inner radius: every vertex stays at least this far from every particle (scene units)")
-          ->check(kPositive)
+          ->check(positive)
           ->type_name("R");
   app->add_flag("--derive-r-inner", p.derive_r_inner, "derive r_inner from the mean nearest-neighbour spacing")
       ->excludes(r_inner);
   app->add_option("--r-outer", p.r_outer,
                   "outer radius: every vertex stays within this distance of some particle (default 2 x r_inner; "
                   "flat on a lattice of spacing d when r_outer^2 >= r_inner^2 + d^2/2)")
-      ->check(kPositive)
+      ->check(positive)
       ->type_name("R");
   app->add_option("--spacing-factor", p.spacing_factor, "sample spacing of the initial tiling / r_inner (default 0.8)")
-      ->check(kPositive)
+      ->check(positive)
       ->type_name("F");
   app->add_option("--sweeps", flags.sweeps, "Gauss-Seidel sweeps: Laplacian,Bilaplacian,polish (default 5,25,5)")
       ->type_name("L,B,P");
   app->add_option("--relaxation", p.relaxation, "under-relaxation of the Laplacian sweeps (default 0.6)")
-      ->check(kPositive)
+      ->check(positive)
       ->type_name("W");
   app->add_option("--erosion", p.erosion, "move vertices inward by EPS x r_inner at the end (default off)")
-      ->check(kNonNegative)
+      ->check(non_negative)
       ->type_name("EPS");
   app->add_option("--container-box", flags.container_box,
                   "keep the surface inside this box: x0,y0,z0,x1,y1,z1 (vertices outside are snapped to it)")
@@ -129,7 +129,7 @@ void add_particles(CLI::App* parent, const std::string& verb, JobFlags& flags, O
       ->type_name("FILE");
   app->add_option("--min-particles", p.min_particles,
                   "drop surface components around fewer particles than this (stray spray; default 0: keep all)")
-      ->check(kNonNegative)
+      ->check(non_negative)
       ->type_name("N");
   add_job_common_flags(app, flags.job);
   if (output != nullptr) add_output_flags(app, *output);
@@ -159,7 +159,7 @@ void add_optimize(CLI::App* parent, const std::string& verb, JobFlags& flags, Ou
           ->type_name("FILE");
   app->add_option("--start-cells", o.start_cells,
                   "or polygonize the scene on the server: cells along the longest axis (default 64)")
-      ->check(kPositive)
+      ->check(positive)
       ->excludes(mesh)
       ->type_name("N");
   app->add_option("--start-method", o.start_method, "polygonizer of the start mesh: cubes (default) or tiles")
@@ -170,34 +170,34 @@ void add_optimize(CLI::App* parent, const std::string& verb, JobFlags& flags, Ou
                   "region of the start polygonization: x0,y0,z0,x1,y1,z1 (default: the scene's bounds, padded)")
       ->excludes(mesh)
       ->type_name("BOX");
-  app->add_option("--iterations", o.iterations, "stop after N iterations")->check(kPositive)->type_name("N");
+  app->add_option("--iterations", o.iterations, "stop after N iterations")->check(positive)->type_name("N");
   app->add_option("--tolerance", o.tolerance, "stop when E_d and E_n change by less than T (relative)")
-      ->check(kPositive)
+      ->check(positive)
       ->type_name("T");
   app->add_option("--snapshot-every", o.snapshot_every,
                   "stream a snapshot frame every K iterations (default: only the result)")
-      ->check(kPositive)
+      ->check(positive)
       ->type_name("K");
   app->add_option("--flows", flags.flows,
                   "flows to run, comma-separated: d (distance), n (normal), t (tangential); "
                   "default d,n,t")
       ->type_name("LIST");
-  app->add_option("--c-d", o.c_d, "D-flow coefficient")->check(kPositive)->type_name("X");
-  app->add_option("--c-n", o.c_n, "N-flow coefficient")->check(kPositive)->type_name("X");
-  app->add_option("--c-t", o.c_t, "T-flow coefficient")->check(kPositive)->type_name("X");
+  app->add_option("--c-d", o.c_d, "D-flow coefficient")->check(positive)->type_name("X");
+  app->add_option("--c-n", o.c_n, "N-flow coefficient")->check(positive)->type_name("X");
+  app->add_option("--c-t", o.c_t, "T-flow coefficient")->check(positive)->type_name("X");
   app->add_option("--step-bound", o.step_bound, "D-flow step bound c in |C_D F_D| <= c sqrt(A(P))")
-      ->check(kPositive)
+      ->check(positive)
       ->type_name("C");
   app->add_flag("--modified-flows", o.modified_flows, "local-energy gradient descent (paper section 3.1)");
   app->add_option("--t-flow-iterations", o.t_flow_iterations,
                   "run the T-flow for exactly N iterations (default: off once E_d stabilises)")
-      ->check(kNonNegative)
+      ->check(non_negative)
       ->type_name("N");
   app->add_option("--subdivide", o.subdivide, "adaptive 1-to-4 subdivision where delta(T) exceeds THRESHOLD")
-      ->check(kPositive)
+      ->check(positive)
       ->type_name("THRESHOLD");
   app->add_option("--triangle-budget", o.triangle_budget, "stop subdividing at N triangles")
-      ->check(kPositive)
+      ->check(positive)
       ->type_name("N");
   add_job_common_flags(app, flags.job);
   if (output != nullptr) add_output_flags(app, *output);
@@ -217,15 +217,15 @@ void add_active_common(CLI::App* app, JobFlags& flags, OutputFlags* output) {
   ActiveOptions& a = flags.active;
   app->add_option("--grid-spacing", a.grid_spacing, "spacing h of the potential's grid, in scene units")
       ->required()
-      ->check(kPositive)
+      ->check(positive)
       ->type_name("H");
   app->add_option("--bounds", flags.active_bounds, "domain hint x0,y0,z0,x1,y1,z1 (the grid is sparse and unbounded)")
       ->type_name("BOX");
-  app->add_option("--alpha", a.alpha, "tracking strength")->check(kNonNegative)->type_name("X");
-  app->add_option("--beta", a.beta, "surface tension")->check(kNonNegative)->type_name("X");
-  app->add_option("--gamma", a.gamma, "area preservation")->check(kNonNegative)->type_name("X");
-  app->add_option("--delta", a.delta, "volume preservation")->check(kNonNegative)->type_name("X");
-  app->add_option("--cfl", a.cfl, "CFL factor of the time step")->check(kPositive)->type_name("X");
+  app->add_option("--alpha", a.alpha, "tracking strength")->check(non_negative)->type_name("X");
+  app->add_option("--beta", a.beta, "surface tension")->check(non_negative)->type_name("X");
+  app->add_option("--gamma", a.gamma, "area preservation")->check(non_negative)->type_name("X");
+  app->add_option("--delta", a.delta, "volume preservation")->check(non_negative)->type_name("X");
+  app->add_option("--cfl", a.cfl, "CFL factor of the time step")->check(positive)->type_name("X");
   app->add_option("--polygonizer", a.polygonizer, "polygonizer of each frame: tiles (default) or cubes")
       ->check(CLI::IsMember({"tiles", "cubes"}))
       ->type_name("NAME");
@@ -255,14 +255,12 @@ void add_active(CLI::App* parent, const std::string& verb, JobFlags& flags, Outp
   add_particle_inputs(coat, flags.coat.input);
   coat->add_option("--kernel-radius", flags.coat.kernel_radius, "R of the Wyvill kernel (1 - r^2/R^2)^3")
       ->required()
-      ->check(kPositive)
+      ->check(positive)
       ->type_name("R");
   coat->add_option("--iso", flags.coat.iso, "iso value T of the summed kernel field (default 0.5)")
-      ->check(kPositive)
+      ->check(positive)
       ->type_name("T");
-  coat->add_option("--substeps", flags.coat.substeps, "evolution sub-steps per frame")
-      ->check(kPositive)
-      ->type_name("N");
+  coat->add_option("--substeps", flags.coat.substeps, "evolution sub-steps per frame")->check(positive)->type_name("N");
   add_active_common(coat, flags, output);
   coat->footer("Example:\n  " + coat_example +
                "\nParticle frames are uploaded one at a time before the job is queued (as for `particles`).\n\n" +
@@ -272,11 +270,11 @@ void add_active(CLI::App* parent, const std::string& verb, JobFlags& flags, Outp
   morph->add_option("--from", flags.morph.from, "start scene file (JSON)")->required()->type_name("A.json");
   morph->add_option("--to", flags.morph.to, "target scene file (JSON)")->required()->type_name("B.json");
   morph->add_option("--tolerance", flags.morph.tolerance, "stop when max |df/dt| falls below X")
-      ->check(kPositive)
+      ->check(positive)
       ->type_name("X");
-  morph->add_option("--max-frames", flags.morph.max_frames, "stop after N frames")->check(kPositive)->type_name("N");
+  morph->add_option("--max-frames", flags.morph.max_frames, "stop after N frames")->check(positive)->type_name("N");
   morph->add_option("--frame-time", flags.morph.frame_time, "simulated time between output frames")
-      ->check(kPositive)
+      ->check(positive)
       ->type_name("DT");
   add_active_common(morph, flags, output);
   morph->footer("Example:\n  " + morph_example + "\n\n" + kGlobalNote);
@@ -286,7 +284,7 @@ void add_active(CLI::App* parent, const std::string& verb, JobFlags& flags, Outp
   CLI::Option* enright =
       advect->add_flag("--enright", flags.enright, "the Enright/LeVeque deformation field (analytic)");
   CLI::Option* period = advect->add_option("--period", flags.advect.enright_period, "Enright period T (default 3)")
-                            ->check(kPositive)
+                            ->check(positive)
                             ->needs(enright)
                             ->type_name("T");
   CLI::Option* grid = advect
@@ -306,9 +304,9 @@ void add_active(CLI::App* parent, const std::string& verb, JobFlags& flags, Outp
       ->type_name("nx,ny,nz");
   advect->add_option("--frame-interval", flags.advect.frame_interval, "simulated time between frames")
       ->required()
-      ->check(kPositive)
+      ->check(positive)
       ->type_name("DT");
-  advect->add_option("--frames", flags.advect.frames, "number of frames")->required()->check(kPositive)->type_name("N");
+  advect->add_option("--frames", flags.advect.frames, "number of frames")->required()->check(positive)->type_name("N");
   add_active_common(advect, flags, output);
   advect->footer("Examples:\n  " + advect_example + "\n  " + prefix +
                  "advect --scene s.json --velocity-grid wind.raw --velocity-origin=-1,-1,-1 "

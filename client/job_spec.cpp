@@ -79,7 +79,7 @@ void add_particle_frames(PreparedJob& job, const std::vector<std::filesystem::pa
                          v1::ParticleFrame* (*frame_of)(v1::JobSpec&, int)) {
   for (std::size_t i = 0; i < files.size(); ++i) {
     const int index = static_cast<int>(i);
-    const std::filesystem::path file = files[i];
+    const std::filesystem::path& file = files[i];
     PendingUpload upload;
     upload.description = "particle frame " + std::to_string(index) + " (" + file.string() + ")";
     upload.frame = index;
