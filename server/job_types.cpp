@@ -8,10 +8,14 @@ std::unique_ptr<JobRunner> make_job_runner(const v1::JobSpec& spec, const JobCon
   switch (spec.kind_case()) {
     case v1::JobSpec::kIsosurface:
       return make_isosurface_runner(spec, context);
+    case v1::JobSpec::kParticles:
+      return make_particles_runner(spec, context);
+    case v1::JobSpec::kOptimize:
+      return make_optimize_runner(spec, context);
     case v1::JobSpec::KIND_NOT_SET:
       break;
   }
-  throw InvalidInput("spec.kind", "spec has no job kind; set one of: isosurface");
+  throw InvalidInput("spec.kind", "spec has no job kind; set one of: isosurface, particles, optimize, active");
 }
 
 }  // namespace surfacer::server

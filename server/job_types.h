@@ -21,5 +21,8 @@ struct JobContext {
 std::unique_ptr<JobRunner> make_job_runner(const v1::JobSpec& spec, const JobContext& context);
 
 std::unique_ptr<JobRunner> make_isosurface_runner(const v1::JobSpec& spec, const JobContext& context);
+std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const JobContext& context);
+std::unique_ptr<JobRunner> make_optimize_runner(const v1::JobSpec& spec, const JobContext& context);
+std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const JobContext& context);
 
 }  // namespace surfacer::server

@@ -1,0 +1,199 @@
+// The particles and optimize jobs through a real server on a loopback port.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "core/mesh_checks.h"
+#include "core/mesh_codec.h"
+#include "tests/server/test_client.h"
+
+namespace surfacer::testing {
+namespace {
+
+std::string upload(v1::Surfacer::Stub& stub, const std::string& bytes, v1::UploadResponse* response_out = nullptr) {
+  grpc::ClientContext context;
+  v1::UploadResponse response;
+  auto writer = stub.Upload(&context, &response);
+  for (std::size_t offset = 0; offset < bytes.size() || offset == 0; offset += 1 << 20) {
+    v1::UploadChunk chunk;
+    if (offset == 0) chunk.set_total_bytes(bytes.size());
+    chunk.set_data(bytes.substr(offset, 1 << 20));
+    EXPECT_TRUE(writer->Write(chunk));
+    if (bytes.empty()) break;
+  }
+  writer->WritesDone();
+  const auto status = writer->Finish();
+  EXPECT_TRUE(status.ok()) << status.error_message();
+  if (response_out) *response_out = response;
+  return response.upload_id();
+}
+
+std::string as_float32(const std::vector<Vec3>& points) {
+  std::string bytes(points.size() * 3 * sizeof(float), '\0');
+  auto* f = reinterpret_cast<float*>(bytes.data());
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    f[3 * i] = static_cast<float>(points[i].x());
+    f[3 * i + 1] = static_cast<float>(points[i].y());
+    f[3 * i + 2] = static_cast<float>(points[i].z());
+  }
+  return bytes;
+}
+
+// A jittered ball of particles of spacing d, centred at c.
+std::vector<Vec3> particle_ball(const Vec3& c, double radius, double d, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> jitter(-0.15 * d, 0.15 * d);
+  std::vector<Vec3> points;
+  const int n = static_cast<int>(std::ceil(radius / d));
+  for (int i = -n; i <= n; ++i)
+    for (int j = -n; j <= n; ++j)
+      for (int k = -n; k <= n; ++k) {
+        const Vec3 p = Vec3(i, j, k) * d;
+        if (p.norm() <= radius) points.push_back(c + p + Vec3(jitter(rng), jitter(rng), jitter(rng)));
+      }
+  return points;
+}
+
+double nearest_distance(const std::vector<Vec3>& points, const Vec3& x) {
+  double best = 1e300;
+  for (const auto& p : points) best = std::min(best, (p - x).squaredNorm());
+  return std::sqrt(best);
+}
+
+TEST(ParticlesJob, EachFrameIsAClosedSurfaceFaithfulToItsParticles) {
+  LoopbackServer s;
+  const double d = 0.05, r_inner = 0.05, r_outer = 0.1;
+  std::vector<std::vector<Vec3>> frames = {particle_ball(Vec3(0, 0, 0), 0.3, d, 1),
+                                           particle_ball(Vec3(0.2, 0, 0), 0.25, d, 2),
+                                           particle_ball(Vec3(0, 0.1, 0), 0.35, d, 3)};
+  v1::JobSpec spec;
+  auto* job = spec.mutable_particles();
+  for (const auto& f : frames) job->add_frames()->set_upload_id(upload(*s.stub, as_float32(f)));
+  job->set_r_inner(r_inner);
+  job->set_r_outer(r_outer);
+  spec.mutable_output()->set_quantization_bits(16);
+  std::string id;
+  ASSERT_TRUE(submit(*s.stub, spec, &id).ok());
+  const auto result = watch_job(*s.stub, id);
+  ASSERT_EQ(result.states.back(), v1::JOB_STATE_SUCCEEDED) << result.final_job.error().message();
+  ASSERT_EQ(result.frames.size(), 3u);
+  for (int i = 0; i < 3; ++i) {
+    SCOPED_TRACE(i);
+    const auto& frame = result.frames.at(i);
+    const Mesh mesh = decode_draco(frame.bytes);
+    const auto report = check_mesh(mesh);
+    EXPECT_TRUE(report.closed);
+    EXPECT_TRUE(report.edge_manifold);
+    EXPECT_TRUE(report.oriented);
+    EXPECT_EQ(report.components, 1);
+    const auto& metrics = frame.header.stats().metrics();
+    EXPECT_EQ(metrics.at("particles"), static_cast<double>(frames[i].size()));
+    EXPECT_GE(metrics.at("initial_min_valence"), 5.0);
+    EXPECT_GT(metrics.at("faithful_fraction"), 0.999);
+    // Polish (unconstrained) may move vertices slightly out of [r_inner, r_outer]: by no more than the reported
+    // violation (plus quantization), and that by less than a fifth of r_inner.
+    const double violation = metrics.at("max_violation_final");
+    EXPECT_LT(violation, 0.2 * r_inner);
+    const double tolerance = violation + 1e-4;
+    for (const auto& v : mesh.vertices) {
+      const double dist = nearest_distance(frames[i], v);
+      EXPECT_GT(dist, r_inner - tolerance);
+      EXPECT_LT(dist, r_outer + tolerance);
+    }
+    std::vector<std::string> stages;
+    for (const auto& t : frame.header.stats().timings()) stages.push_back(t.stage());
+    EXPECT_NE(std::find(stages.begin(), stages.end(), "bilaplacian"), stages.end());
+  }
+}
+
+TEST(ParticlesJob, BadParticlesAndOptionsNameTheField) {
+  server::ServerOptions options = LoopbackServer::default_options();
+  options.limits.max_particles = 100;
+  LoopbackServer s(options);
+  auto expect = [&](const v1::JobSpec& spec, grpc::StatusCode code, const std::string& mention) {
+    const auto status = submit(*s.stub, spec, nullptr);
+    EXPECT_EQ(status.error_code(), code) << status.error_message();
+    EXPECT_NE(status.error_message().find(mention), std::string::npos) << status.error_message();
+  };
+  v1::JobSpec spec;
+  auto* frame = spec.mutable_particles()->add_frames();
+  for (float v : {0.f, 0.f, 0.f, 0.1f, 0.f, std::nanf("")}) frame->add_positions(v);
+  spec.mutable_particles()->set_r_inner(0.05);
+  expect(spec, grpc::StatusCode::INVALID_ARGUMENT, "spec.particles.frames[0]");
+
+  frame->clear_positions();
+  for (float v : {0.f, 0.f, 0.f, 0.1f, 0.f, 0.f}) frame->add_positions(v);
+  spec.mutable_particles()->set_r_outer(0.01);  // below r_inner
+  expect(spec, grpc::StatusCode::INVALID_ARGUMENT, "r_outer");
+
+  spec.mutable_particles()->clear_r_outer();
+  spec.mutable_particles()->clear_r_inner();  // neither r_inner nor derive_r_inner
+  expect(spec, grpc::StatusCode::INVALID_ARGUMENT, "r_inner");
+
+  spec.mutable_particles()->set_r_inner(0.05);
+  frame->clear_positions();
+  for (int i = 0; i < 3 * 101; ++i) frame->add_positions(static_cast<float>(i));
+  expect(spec, grpc::StatusCode::RESOURCE_EXHAUSTED, "--max-particles");
+
+  frame->clear_positions();
+  frame->set_upload_id(upload(*s.stub, std::string(10, 'x')));  // not whole float32 records
+  expect(spec, grpc::StatusCode::INVALID_ARGUMENT, "upload_id");
+}
+
+TEST(OptimizeJob, SphereToCubeSnapshotsConvergeAndStayManifold) {
+  LoopbackServer s;
+  v1::JobSpec spec;
+  auto* job = spec.mutable_optimize();
+  *job->mutable_scene() = scene_from_json(R"({"root": {"box": {"half_size": {"x": 1, "y": 1, "z": 1}}}})");
+  // Start from a sphere: upload its Marching Cubes mesh as PLY.
+  {
+    v1::JobSpec sphere = isosurface_spec({scene_from_json(R"({"root": {"sphere": {"radius": 1.2}}})")}, 24);
+    sphere.mutable_isosurface()->set_method(v1::POLYGONIZER_CUBES);
+    sphere.mutable_output()->set_encoding(v1::MESH_ENCODING_PLY);
+    std::string sphere_id;
+    ASSERT_TRUE(submit(*s.stub, sphere, &sphere_id).ok());
+    job->set_mesh_upload_id(upload(*s.stub, watch_job(*s.stub, sphere_id).frames.at(0).bytes));
+  }
+  job->set_max_iterations(60);
+  job->set_snapshot_every(20);
+  std::string id;
+  const auto status = submit(*s.stub, spec, &id);
+  ASSERT_TRUE(status.ok()) << status.error_message();
+  const auto result = watch_job(*s.stub, id);
+  ASSERT_EQ(result.states.back(), v1::JOB_STATE_SUCCEEDED) << result.final_job.error().message();
+  ASSERT_GE(result.frames.size(), 4u);  // iterations 0, 20, 40, 60
+  EXPECT_EQ(result.final_job.frames_total(), static_cast<int>(result.frames.size()));
+  const auto& first = result.frames.at(0).header.stats();
+  const auto& last = result.frames.at(static_cast<int>(result.frames.size()) - 1).header.stats();
+  EXPECT_EQ(first.iteration(), 0);
+  EXPECT_EQ(last.iteration(), 60);
+  EXPECT_LT(last.metrics().at("e_d"), first.metrics().at("e_d") / 100.0);
+  EXPECT_LT(last.metrics().at("e_n"), first.metrics().at("e_n"));
+  for (const auto& [index, frame] : result.frames) {
+    const auto report = check_mesh(decode_draco(frame.bytes));
+    EXPECT_TRUE(report.closed && report.edge_manifold && report.oriented) << "snapshot " << index;
+  }
+}
+
+TEST(OptimizeJob, PolygonizedStartAndBadUploadErrors) {
+  LoopbackServer s;
+  v1::JobSpec spec;
+  auto* job = spec.mutable_optimize();
+  *job->mutable_scene() = scene_from_json(R"({"root": {"box": {"half_size": {"x": 1, "y": 0.5, "z": 0.5}}}})");
+  job->mutable_polygonize()->set_cells(20);
+  job->set_max_iterations(10);
+  std::string id;
+  ASSERT_TRUE(submit(*s.stub, spec, &id).ok());
+  const auto result = watch_job(*s.stub, id);
+  ASSERT_EQ(result.frames.size(), 1u);
+  EXPECT_TRUE(check_mesh(decode_draco(result.frames.at(0).bytes)).closed);
+
+  job->set_mesh_upload_id(upload(*s.stub, "ply\nthis is not a mesh\n"));
+  const auto status = submit(*s.stub, spec, nullptr);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(status.error_message().find("spec.optimize.mesh_upload_id"), std::string::npos) << status.error_message();
+}
+
+}  // namespace
+}  // namespace surfacer::testing
