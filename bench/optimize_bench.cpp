@@ -441,10 +441,10 @@ void resolution_worth(bool quick) {
       print_errors(std::string(name) + " (" + std::to_string(static_cast<int>(sec)) + " s)", rows.back().second);
     }
     const Errors& opt = rows[rows.size() - 2].second;
-    // "a / b lower", or "exact" when the optimized figure is at round-off level.
+    // How many times lower the optimized figure is (">10^4x" when it is at round-off level).
     auto lower = [](double mc, double optimized) {
       char buf[32];
-      if (optimized <= 1e-9 * mc) return std::string("   exact");
+      if (optimized <= 1e-4 * mc) return std::string(" >10^4x");
       std::snprintf(buf, sizeof buf, "%7.1fx", mc / optimized);
       return std::string(buf);
     };

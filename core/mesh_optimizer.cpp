@@ -130,16 +130,14 @@ Vec3 unit_gradient(const Field& field, const Vec3& x) {
   return len > 0.0 && std::isfinite(len) ? Vec3(g / len) : Vec3::Zero();
 }
 
-// Smallest angle of a triangle in degrees, or nullopt when degenerate.
-double min_angle_of(const Vec3& a, const Vec3& b, const Vec3& c) {
+// Smallest angle of a non-degenerate triangle in degrees: the one opposite the shortest edge. `cross` = |(b-a)x(c-a)|.
+double min_angle_of(const Vec3& a, const Vec3& b, const Vec3& c, double cross) {
   const std::array<Vec3, 3> p{a, b, c};
-  double best = 180.0;
-  for (int k = 0; k < 3; ++k) {
-    const Vec3 u = p[(k + 1) % 3] - p[k];
-    const Vec3 w = p[(k + 2) % 3] - p[k];
-    best = std::min(best, std::atan2(u.cross(w).norm(), u.dot(w)) * 180.0 / kPi);
-  }
-  return best;
+  std::array<double, 3> opposite;  // squared length of the edge opposite corner k
+  for (int k = 0; k < 3; ++k) opposite[k] = (p[(k + 2) % 3] - p[(k + 1) % 3]).squaredNorm();
+  const int k = static_cast<int>(std::min_element(opposite.begin(), opposite.end()) - opposite.begin());
+  const double dot = (p[(k + 1) % 3] - p[k]).dot(p[(k + 2) % 3] - p[k]);
+  return std::atan2(cross, dot) * 180.0 / kPi;
 }
 
 void validate(const MeshOptimizerOptions& o, const Mesh& start) {
@@ -276,7 +274,7 @@ struct MeshOptimizer::State {
         if (len <= degenerate_cross()) continue;
         acc.en += area[t] * (n / len - out.m[t]).squaredNorm();
         acc.area += area[t];
-        acc.min_angle = std::min(acc.min_angle, min_angle_of(p[tri[0]], p[tri[1]], p[tri[2]]));
+        acc.min_angle = std::min(acc.min_angle, min_angle_of(p[tri[0]], p[tri[1]], p[tri[2]], len));
       }
       tp[begin / kChunk] = acc;
     });
@@ -359,10 +357,13 @@ struct MeshOptimizer::State {
       return len <= degenerate_cross() ? -2.0 : n.dot(m) / len;
     };
     const std::vector<Vec3>& m_new = m_to != nullptr ? *m_to : m_from;
-    std::vector<double> floor_score(nt);
-    for_chunks(nt, threads, control, [&](std::size_t b, std::size_t e) {
-      for (std::size_t t = b; t < e; ++t) floor_score[t] = std::min(kMinCos, score(from, t, m_from[t]));
-    });
+    // floor(t) = min(kMinCos, score before); computed only for triangles that score below kMinCos after the move.
+    constexpr double kUnset = 3.0;
+    std::vector<double> floor_score(nt, kUnset);
+    auto floor_of = [&](std::size_t t) {
+      if (floor_score[t] == kUnset) floor_score[t] = std::min(kMinCos, score(from, t, m_from[t]));
+      return floor_score[t];
+    };
     const std::vector<Vec3> proposed = to;
     std::vector<std::uint8_t> halvings(nv, 0);
     std::vector<std::vector<std::uint32_t>> bad(chunks_of(nt));
@@ -372,7 +373,8 @@ struct MeshOptimizer::State {
         auto& list = bad[b / kChunk];
         list.clear();
         for (std::size_t t = b; t < e; ++t) {
-          if (score(to, t, m_new[t]) < floor_score[t]) list.push_back(static_cast<std::uint32_t>(t));
+          const double now = score(to, t, m_new[t]);
+          if (now < kMinCos && now < floor_of(t)) list.push_back(static_cast<std::uint32_t>(t));
         }
       });
       std::vector<std::uint32_t> moved;
@@ -660,7 +662,8 @@ struct MeshOptimizer::State {
       optimizer_detail::CleanupOptions co;
       co.min_cos = kMinCos;
       co.degenerate_cross = degenerate_cross();
-      cleanup = optimizer_detail::repair_connectivity(p, tris, new_h, m_final, field, co, control);
+      cleanup = optimizer_detail::repair_connectivity(p, tris, new_h, m_final, topo.vt_offset, topo.vt, field, co,
+                                                      control);
     }
     const bool reconnected = cleanup.flips + cleanup.collapses > 0;
     Topology new_topo;

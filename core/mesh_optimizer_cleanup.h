@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstdint>
+#include <span>
 #include <vector>
 
 #include "core/mesh.h"
@@ -29,7 +30,8 @@ struct CleanupCounts {
   std::int64_t collapses = 0;
 };
 
-// Passes over the triangles (in order, until a pass changes nothing; at most max_passes):
+// Passes over the candidate triangles (caps, needles, deviating triangles; in index order) and those changed by the
+// previous pass, until a pass changes nothing (at most max_passes):
 // * Cap (u, v, x) with its largest angle at x: flip (u, v) with the triangle (v, u, y) across it into (u, y, x),
 //   (y, v, x) when x != y, the edge (x, y) does not exist and has no registered midpoint, both new triangles are
 //   non-degenerate and face along the field (n·m(C) >= min_cos), and the pair's largest angle drops.
@@ -40,13 +42,17 @@ struct CleanupCounts {
 // * Needle (a, b, c) with |ab| < needle_ratio · min(|ac|, |bc|): collapse (a, b) into a, placed at the midpoint or
 //   else at a or b (the first that works), when (a, b) has two triangles, a and b share exactly the two opposite
 //   vertices (link condition: the mesh stays manifold), every changed triangle stays non-degenerate and its score
-//   n·m(C) does not fall below min(min_cos, its score before), and no new edge has a registered midpoint. The
-//   collapsed vertex b stays in `positions`, unreferenced; midpoint records that name it are dropped.
+//   n·m(C) does not fall below min(min_cos, its score before), no new edge has a registered midpoint, and a and b
+//   are not both on the boundary. The collapsed vertex b stays in `positions`, unreferenced; midpoint records that
+//   name it are dropped.
 // Only edges with at most two triangles are touched. A green pair with a changed child is dissolved (its children
 // become plain triangles). Orientation, closedness and manifoldness are kept.
 // `field_normals` holds m(C_T) for every triangle on entry and is kept in step (same order, recomputed where changed).
+// (vt_offset, vt): the vertex -> triangle adjacency of `triangles` on entry (compressed rows, vt_offset has
+// positions.size() + 1 entries). Calls control.check() once per pass.
 CleanupCounts repair_connectivity(std::vector<Vec3>& positions, std::vector<Triangle>& triangles,
-                                RedGreenHierarchy& hierarchy, std::vector<Vec3>& field_normals, const Field& field,
-                                const CleanupOptions& options, const RunControl& control);
+                                  RedGreenHierarchy& hierarchy, std::vector<Vec3>& field_normals,
+                                  std::span<const std::uint32_t> vt_offset, std::span<const std::uint32_t> vt,
+                                  const Field& field, const CleanupOptions& options, const RunControl& control);
 
 }  // namespace surfacer::optimizer_detail
