@@ -17,6 +17,7 @@ namespace {
 using namespace e2e;
 
 constexpr const char* kSphere = R"({"name": "sphere", "root": {"sphere": {"radius": 0.5}}})";
+constexpr const char* kCube = R"({"name": "cube", "root": {"box": {"half_size": {"x": 0.5, "y": 0.5, "z": 0.5}}}})";
 
 // A jittered cubic lattice of spacing `d` filling a ball: "x y z" lines.
 std::string particle_ball(Vec3 center, double radius, double d, unsigned seed) {
@@ -39,6 +40,12 @@ std::string particle_ball(Vec3 center, double radius, double d, unsigned seed) {
   return text;
 }
 
+Vec3 centroid(const Mesh& mesh) {
+  Vec3 c = Vec3::Zero();
+  for (const Vec3& v : mesh.vertices) c += v;
+  return c / static_cast<double>(std::max<std::size_t>(1, mesh.vertices.size()));
+}
+
 MeshReport expect_closed(const fs::path& file) {
   const Mesh mesh = read_mesh(file);
   EXPECT_FALSE(mesh.triangles.empty()) << file;
@@ -48,6 +55,28 @@ MeshReport expect_closed(const fs::path& file) {
   return report;
 }
 
+std::vector<std::vector<std::string>> csv_rows(const std::string& text) {
+  std::vector<std::vector<std::string>> rows;
+  std::istringstream lines(text);
+  for (std::string line; std::getline(lines, line);) {
+    std::vector<std::string> cells;
+    std::size_t pos = 0;
+    while (true) {
+      const std::size_t comma = line.find(',', pos);
+      cells.push_back(line.substr(pos, comma == std::string::npos ? std::string::npos : comma - pos));
+      if (comma == std::string::npos) break;
+      pos = comma + 1;
+    }
+    rows.push_back(cells);
+  }
+  return rows;
+}
+
+int column(const std::vector<std::string>& header, const std::string& name) {
+  const auto it = std::find(header.begin(), header.end(), name);
+  return it == header.end() ? -1 : static_cast<int>(it - header.begin());
+}
+
 class CliJobsEndToEnd : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
@@ -55,6 +84,7 @@ class CliJobsEndToEnd : public ::testing::Test {
     fs::remove_all(root_);
     fs::create_directories(root_);
     write_file(root_ / "sphere.json", kSphere);
+    write_file(root_ / "cube.json", kCube);
     server_ = new ServerProcess(root_ / "server", 2);
     ASSERT_FALSE(server_->address().empty()) << "surfacer-server did not start:\n" << server_->log();
   }
@@ -103,7 +133,48 @@ TEST_F(CliJobsEndToEnd, IsosurfaceTilesGivesAClosedMeshWithoutLowValence) {
   r = cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--method", "cubes", "--cells", "32", "-o",
            (dir_ / "cubes").string(), "--format", "ply"});
   ASSERT_EQ(r.code, 0) << r;
-  EXPECT_LT(expect_closed(dir_ / "cubes" / "frame_0000.ply").min_valence, 5);  // Marching Cubes' valence-3/4
+  EXPECT_LT(expect_closed(dir_ / "cubes" / "frame_0000.ply").min_valence,
+            5);  // Marching Cubes' valence-3/4
+}
+
+TEST_F(CliJobsEndToEnd, ParticlesBlobGivesAClosedMeshAndASummaryTable) {
+  const std::string blob = particle_ball(Vec3(0, 0, 0), 0.4, 0.05, 1);
+  write_file(dir_ / "blob.xyz", blob);
+  const auto particles = std::count(blob.begin(), blob.end(), '\n') - 1;
+  Result r = cli({"run", "particles", "--input", (dir_ / "blob.xyz").string(), "--r-inner", "0.03", "-o",
+                  (dir_ / "out").string(), "--format", "ply"});
+  ASSERT_EQ(r.code, 0) << r;
+  const Mesh mesh = read_mesh(dir_ / "out" / "frame_0000.ply");
+  expect_closed(dir_ / "out" / "frame_0000.ply");
+  // Faithful: every vertex lies near the blob's boundary (radius 0.4 plus r_inner..r_outer).
+  for (const Vec3& v : mesh.vertices) {
+    ASSERT_GT(v.norm(), 0.4 - 0.05) << v.transpose();
+    ASSERT_LT(v.norm(), 0.4 + 0.06 + 0.02) << v.transpose();
+  }
+  EXPECT_NE(r.err.find("uploaded 1/1: particle frame 0"), std::string::npos) << r;
+  EXPECT_NE(r.err.find("frame  particles  triangles  seconds"), std::string::npos) << r;
+  EXPECT_NE(r.err.find(std::to_string(particles)), std::string::npos) << r;
+  EXPECT_NE(r.err.find("1 frame, "), std::string::npos) << r;
+}
+
+TEST_F(CliJobsEndToEnd, ParticleSequenceByPatternWritesFramesInOrder) {
+  for (int i = 0; i < 3; ++i) {
+    char name[32];
+    std::snprintf(name, sizeof name, "fluid_%04d.xyz", i + 7);
+    write_file(dir_ / name, particle_ball(Vec3(i, 0, 0), 0.25, 0.05, 10 + i));
+  }
+  Result r = cli({"run", "particles", "--input", (dir_ / "fluid_{:04d}.xyz").string(), "--r-inner", "0.03", "-o",
+                  (dir_ / "seq").string(), "--format", "ply"});
+  ASSERT_EQ(r.code, 0) << r;
+  for (int i = 0; i < 3; ++i) {
+    const fs::path frame = dir_ / "seq" / ("frame_000" + std::to_string(i) + ".ply");
+    ASSERT_TRUE(fs::exists(frame)) << frame << "\n" << r;
+    expect_closed(frame);
+    EXPECT_NEAR(centroid(read_mesh(frame)).x(), i, 0.05) << "frame " << i << " is not the " << i << "-th file";
+  }
+  EXPECT_FALSE(fs::exists(dir_ / "seq" / "frame_0003.ply"));
+  EXPECT_EQ(csv_rows(read_file(dir_ / "seq" / "stats.csv")).size(), 4u);
+  EXPECT_NE(r.err.find("3 frames, "), std::string::npos) << r;
 }
 
 TEST_F(CliJobsEndToEnd, BadParticleFileExitsTwoNamingFileAndLineAndQueuesNoJob) {
@@ -119,6 +190,76 @@ TEST_F(CliJobsEndToEnd, BadParticleFileExitsTwoNamingFileAndLineAndQueuesNoJob) 
   ASSERT_EQ(list.code, 0) << list;
   EXPECT_EQ(list.out.find("must-not-exist"), std::string::npos) << list;
   EXPECT_FALSE(fs::exists(dir_ / "bad" / "frame_0000.drc"));
+}
+
+TEST_F(CliJobsEndToEnd, OptimizeWritesSnapshotsAndIterationsCsvWithFallingError) {
+  Result r = cli({"run", "optimize", "--scene", (root_ / "cube.json").string(), "--start-cells", "24", "--iterations",
+                  "20", "--snapshot-every", "5", "-o", (dir_ / "opt").string(), "--format", "ply"});
+  ASSERT_EQ(r.code, 0) << r;
+  const auto rows = csv_rows(read_file(dir_ / "opt" / "iterations.csv"));
+  ASSERT_GE(rows.size(), 3u) << read_file(dir_ / "opt" / "iterations.csv");
+  const auto& header = rows[0];
+  ASSERT_EQ(header[0], "frame");
+  ASSERT_EQ(header[1], "iteration");
+  ASSERT_EQ(header[2], "triangles");
+  const int e_d = column(header, "e_d");
+  ASSERT_GE(e_d, 0) << "no e_d column";
+  EXPECT_GE(column(header, "max_distance"), 0);
+  EXPECT_TRUE(std::is_sorted(header.begin() + 3, header.end()));
+  int last_iteration = -1;
+  for (std::size_t i = 1; i < rows.size(); ++i) {
+    EXPECT_EQ(rows[i][0], std::to_string(i - 1));
+    const int iteration = std::stoi(rows[i][1]);
+    EXPECT_GT(iteration, last_iteration) << "row " << i;
+    last_iteration = iteration;
+    const fs::path frame = dir_ / "opt" / ("frame_000" + std::to_string(i - 1) + ".ply");
+    ASSERT_TRUE(fs::exists(frame)) << frame;
+  }
+  EXPECT_EQ(last_iteration, 20);
+  // The start (snapshot 0, Marching Cubes of the cube) has its vertices on the faces but chamfered edges: the flows
+  // first pull vertices onto the edges, then E_d falls from snapshot to snapshot while E_n falls throughout.
+  const int e_n = column(header, "e_n");
+  for (std::size_t i = 3; i < rows.size(); ++i) {
+    EXPECT_LT(std::stod(rows[i][e_d]), std::stod(rows[i - 1][e_d])) << "E_d did not fall at row " << i;
+  }
+  EXPECT_LT(std::stod(rows.back()[e_n]), std::stod(rows[1][e_n]) / 10) << "E_n did not fall 10x";
+  expect_closed(dir_ / "opt" / ("frame_000" + std::to_string(rows.size() - 2) + ".ply"));
+  EXPECT_NE(r.err.find("iterations.csv"), std::string::npos) << r;
+}
+
+TEST_F(CliJobsEndToEnd, OptimizeFromAnUploadedStartMesh) {
+  Result start = cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--method", "cubes", "--cells",
+                      "20", "--raw", "-o", (dir_ / "start").string()});
+  ASSERT_EQ(start.code, 0) << start;
+  Result r = cli({"run", "optimize", "--scene", (root_ / "cube.json").string(), "--start-mesh",
+                  (dir_ / "start" / "frame_0000.ply").string(), "--iterations", "10", "-o", (dir_ / "opt").string(),
+                  "--format", "ply"});
+  ASSERT_EQ(r.code, 0) << r;
+  EXPECT_NE(r.err.find("uploaded 1/1: start mesh"), std::string::npos) << r;
+  const auto rows = csv_rows(read_file(dir_ / "opt" / "iterations.csv"));
+  ASSERT_GE(rows.size(), 2u);
+  const fs::path last = dir_ / "opt" / ("frame_000" + std::to_string(rows.size() - 2) + ".ply");
+  expect_closed(last);
+  // Pulled from the sphere (radius 0.5) toward the cube (corners at 0.87 from the centre).
+  double max_norm = 0;
+  for (const Vec3& v : read_mesh(last).vertices) max_norm = std::max(max_norm, v.norm());
+  EXPECT_GT(max_norm, 0.55);
+}
+
+// submit prints only the job id (uploads are reported on stderr); watch writes the frames and the summary table.
+TEST_F(CliJobsEndToEnd, SubmitParticlesThenWatch) {
+  write_file(dir_ / "drop.xyz", particle_ball(Vec3(0, 0, 0), 0.25, 0.05, 7));
+  Result s = cli({"submit", "particles", "--input", (dir_ / "drop.xyz").string(), "--r-inner", "0.03"});
+  ASSERT_EQ(s.code, 0) << s;
+  std::string id = s.out;
+  while (!id.empty() && std::isspace(static_cast<unsigned char>(id.back()))) id.pop_back();
+  ASSERT_EQ(id.rfind("j-", 0), 0u) << s;
+  ASSERT_EQ(id.find('\n'), std::string::npos) << "submit prints only the job id: " << s;
+  EXPECT_NE(s.err.find("uploaded 1/1: particle frame 0"), std::string::npos) << s;
+  Result w = cli({"watch", id, "-o", (dir_ / "w").string()});
+  ASSERT_EQ(w.code, 0) << w;
+  expect_closed(dir_ / "w" / "frame_0000.drc");
+  EXPECT_NE(w.err.find("frame  particles  triangles  seconds"), std::string::npos) << w;
 }
 
 }  // namespace
