@@ -57,15 +57,24 @@ double now_ms() {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
 
+double cpu_ms() {
+  timespec t{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+  return static_cast<double>(t.tv_sec) * 1e3 + static_cast<double>(t.tv_nsec) * 1e-6;
+}
+
 // Best (smallest) wall time of `reps` runs (ms): the machine is shared, and the minimum is the run least disturbed
-// by other processes.
-double time_ms(int reps, const std::function<void()>& run) {
-  double best = HUGE_VAL;
+// by other processes. `cpu` (if given) receives the smallest process CPU time (all threads) of a run: the work done,
+// much less sensitive than wall time to other processes taking a core.
+double time_ms(int reps, const std::function<void()>& run, double* cpu = nullptr) {
+  double best = HUGE_VAL, best_cpu = HUGE_VAL;
   for (int i = 0; i < reps; ++i) {
-    const double t0 = now_ms();
+    const double t0 = now_ms(), c0 = cpu_ms();
     run();
     best = std::min(best, now_ms() - t0);
+    best_cpu = std::min(best_cpu, cpu_ms() - c0);
   }
+  if (cpu != nullptr) *cpu = best_cpu;
   return best;
 }
 
@@ -151,6 +160,7 @@ std::string histogram(const MeshReport& r) {
 
 struct RunResult {
   double ms = 0;
+  double cpu = 0;  // ms of CPU time, all threads
   std::int64_t evals = 0;
   MeshReport report;
   std::size_t triangles = 0;
@@ -163,7 +173,8 @@ RunResult run_cubes(const Named& f, double h, bool sparse, int threads, int reps
   o.sparse = sparse;
   o.threads = threads;
   RunResult r;
-  r.ms = time_ms(reps, [&] { marching_cubes(*f.field, o); });
+  r.ms = time_ms(
+      reps, [&] { marching_cubes(*f.field, o); }, &r.cpu);
   CountingField counter(*f.field);
   const Mesh m = marching_cubes(counter, o);
   r.evals = counter.calls();
@@ -178,7 +189,8 @@ RunResult run_tiles(const Named& f, double h, int threads, int reps) {
   o.spacing = h;
   o.threads = threads;
   RunResult r;
-  r.ms = time_ms(reps, [&] { marching_tiles(*f.field, o); });
+  r.ms = time_ms(
+      reps, [&] { marching_tiles(*f.field, o); }, &r.cpu);
   CountingField counter(*f.field);
   const Mesh m = marching_tiles(counter, o);
   r.evals = counter.calls();
@@ -188,16 +200,16 @@ RunResult run_tiles(const Named& f, double h, int threads, int reps) {
 }
 
 void print_row(const char* field, const char* method, const RunResult& r) {
-  std::printf("%-17s %-22s %9.1f %11lld %9.1f %10zu %5d %6.2f %s\n", field, method, r.ms,
-              static_cast<long long>(r.evals), 1e6 * r.ms / static_cast<double>(std::max<std::int64_t>(1, r.evals)),
+  std::printf("%-17s %-16s %8.1f %8.1f %10lld %8.1f %9zu %5d %6.2f %s\n", field, method, r.ms, r.cpu,
+              static_cast<long long>(r.evals), 1e6 * r.cpu / static_cast<double>(std::max<std::int64_t>(1, r.evals)),
               r.triangles, r.report.min_valence, r.report.min_angle_degrees, histogram(r.report).c_str());
 }
 
 void section_compare(double h, int reps) {
   std::printf(
       "\n== 1/3. Tiles vs cubes at the same sample spacing h = %.4f (cube cell = mean tile edge), 2 threads ==\n", h);
-  std::printf("%-17s %-22s %9s %11s %9s %10s %5s %6s %s\n", "field", "method", "ms", "evals", "ns/eval", "triangles",
-              "minV", "minAng", "valence %: 3    4    5    6    7    8   9+");
+  std::printf("%-17s %-16s %8s %8s %10s %8s %9s %5s %6s %s\n", "field", "method", "wall ms", "cpu ms", "evals",
+              "cpu ns/ev", "triangles", "minV", "minAng", "valence %: 3    4    5    6    7    8   9+");
   for (const Named& f : fields()) {
     const RunResult dense = run_cubes(f, h, false, 2, reps);
     const RunResult sparse = run_cubes(f, h, true, 2, reps);
@@ -209,11 +221,11 @@ void section_compare(double h, int reps) {
     print_row(f.name, "cubes sparse", sparse);
     print_row(f.name, "tiles", tiles);
     print_row(f.name, "tiles s=1.152h", tiles_eq);
-    const auto per = [](const RunResult& r) { return r.ms / static_cast<double>(r.evals); };
+    const auto per = [](const RunResult& r) { return r.cpu / static_cast<double>(r.evals); };
     std::printf(
-        "%-17s ratios tiles/cubes: time %.2f (dense) %.2f (sparse); evals %.3f (dense) %.2f (sparse); "
-        "time per eval %.2f (dense) %.2f (sparse); triangles %.2f\n",
-        f.name, tiles.ms / dense.ms, tiles.ms / sparse.ms,
+        "%-17s tiles/cubes: cpu time %.2f (dense) %.2f (sparse); evals %.3f (dense) %.2f (sparse); "
+        "cpu time per eval %.2f (dense) %.2f (sparse); triangles %.2f\n",
+        f.name, tiles.cpu / dense.cpu, tiles.cpu / sparse.cpu,
         static_cast<double>(tiles.evals) / static_cast<double>(dense.evals),
         static_cast<double>(tiles.evals) / static_cast<double>(sparse.evals), per(tiles) / per(dense),
         per(tiles) / per(sparse), static_cast<double>(tiles.triangles) / static_cast<double>(dense.triangles));
@@ -261,12 +273,6 @@ void section_dense_throughput(int cells, int reps) {
     }
   }
   std::printf("(anchor: VTK vtkFlyingEdges3D on 256^3 samples ~90 ms = ~190 M cells/s on this machine)\n");
-}
-
-double cpu_ms() {
-  timespec t{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
-  return static_cast<double>(t.tv_sec) * 1e3 + static_cast<double>(t.tv_nsec) * 1e-6;
 }
 
 // Both cores: tiles with 1 and 2 threads on every field. "CPU/wall" is process CPU time over wall time of the best
@@ -317,8 +323,8 @@ int memory_run(const char* method, int field, double h) {
 void section_scaling(int field, double h0, int levels, int reps) {
   const Named f = fields()[static_cast<std::size_t>(field)];
   std::printf("\n== 5. Sparse scaling on '%s': spacing halved per row, 2 threads ==\n", f.name);
-  std::printf("%-8s %-9s %9s %12s %11s %10s %9s | %7s %7s %7s %7s\n", "method", "spacing", "ms", "evals", "triangles",
-              "peak MB", "mesh MB", "x time", "x evals", "x tris", "x mem");
+  std::printf("%-8s %-8s %8s %8s %10s %9s %8s %8s | %6s %6s %6s %6s %6s\n", "method", "spacing", "wall ms", "cpu ms",
+              "evals", "triangles", "peak MB", "mesh MB", "x wall", "x cpu", "x evals", "x tris", "x mem");
   for (const char* method : {"tiles", "cubes-sp", "cubes"}) {
     RunResult prev;
     double prev_mb = 0;
@@ -330,10 +336,10 @@ void section_scaling(int field, double h0, int levels, int reps) {
       const double mb = peak_growth_mb(method, field, h);
       const double mesh_mb =
           (static_cast<double>(r.triangles) * 12.0 + static_cast<double>(r.triangles) / 2 * 24.0) / 1e6;
-      std::printf("%-8s %-9.5f %9.1f %12lld %11zu %10.1f %9.1f", method, h, r.ms, static_cast<long long>(r.evals),
-                  r.triangles, mb, mesh_mb);
+      std::printf("%-8s %-8.4f %8.1f %8.1f %10lld %9zu %8.1f %8.1f", method, h, r.ms, r.cpu,
+                  static_cast<long long>(r.evals), r.triangles, mb, mesh_mb);
       if (level > 0) {
-        std::printf(" | %7.2f %7.2f %7.2f %7.2f", r.ms / prev.ms,
+        std::printf(" | %6.2f %6.2f %7.2f %6.2f %6.2f", r.ms / prev.ms, r.cpu / prev.cpu,
                     static_cast<double>(r.evals) / static_cast<double>(prev.evals),
                     static_cast<double>(r.triangles) / static_cast<double>(prev.triangles), mb / prev_mb);
       }
