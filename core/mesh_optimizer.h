@@ -56,11 +56,14 @@
 // parent, which is split red instead (Bank–Sherman–Weiser red–green refinement), so angles do not degrade. The
 // refined mesh stays closed and manifold when the start mesh is. With `triangle_budget` the round is cut to the
 // triangles with the largest δ that fit (halving the request until the closed result fits); never beyond it. New
-// vertices start at edge midpoints; the flows take them to the surface in the following iterations.
+// vertices start at edge midpoints; the flows take them to the surface in the following iterations. Children are
+// coplanar with their parent, so a child whose centroid lies on another face than its parent's centroid could face
+// against ∇f there (not seen on the test shapes); the guard then keeps it from getting worse.
 //
 // Vertex indices: the start mesh's vertices keep their indices (new ones are appended; collapsed ones stay,
-// unreferenced). Work per iteration: about 2 V + 2 F gradient evaluations (3 V + 3 F with subdivision rounds), all
-// sweeps parallel over `threads` with results independent of the thread count.
+// unreferenced). Work per iteration: V + 2 F field gradient evaluations (2 V + 2 F while the T-flow is on; a
+// subdivision round adds 3 F + the new mesh's V + F), all sweeps parallel over `threads` (Jacobi: results are the
+// same whatever the thread count).
 #pragma once
 
 #include <cstdint>
@@ -118,7 +121,7 @@ struct OptimizerIterationStats {
   double rms_distance = 0.0;  // root mean square over used vertices of |f| / |∇f| (scene units)
   double min_angle_degrees = 0.0;  // smallest triangle angle (degenerate triangles skipped)
   std::int64_t triangles = 0;
-  std::int64_t vertices = 0;
+  std::int64_t vertices = 0;     // used by some triangle
   bool t_flow_on = false;         // the T-flow was applied in this iteration
   std::int64_t limited_moves = 0;  // vertex moves shortened or dropped by the flip guard in this iteration
   std::int64_t triangles_added = 0;  // by adaptive subdivision in this iteration
@@ -127,6 +130,7 @@ struct OptimizerIterationStats {
 };
 
 // Stateful optimizer: keeps the mesh, its adjacency, the schedule and the red–green hierarchy across iterations.
+// Keeps a reference to `field`, which must outlive it (Field is thread-safe for concurrent const calls).
 // Throws InvalidInput from the constructor for bad options ("c_d", "step_bound", ...) or a bad start mesh ("start":
 // no triangles, an index out of range, a repeated index in a triangle, a non-finite vertex).
 class MeshOptimizer {
