@@ -65,6 +65,9 @@ class OptimizeRunner final : public JobRunner {
       m["t_flow_on"] = stats.t_flow_on ? 1.0 : 0.0;
       m["limited_moves"] = static_cast<double>(stats.limited_moves);
       m["triangles_added"] = static_cast<double>(stats.triangles_added);
+      m["flips"] = static_cast<double>(stats.flips);
+      m["collapses"] = static_cast<double>(stats.collapses);
+      m["vertices_used"] = static_cast<double>(stats.vertices);
       sink.emit(frame++, std::move(out));
       last_emitted = stats.iteration;
     };
