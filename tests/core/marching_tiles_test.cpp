@@ -6,8 +6,10 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <mutex>
 #include <numbers>
 #include <random>
+#include <set>
 #include <thread>
 #include <vector>
 
@@ -283,6 +285,36 @@ TEST(MarchingTiles, DeterministicAcrossThreadCounts) {
       EXPECT_EQ(many.triangles, one.triangles) << threads;
     }
   }
+}
+
+// threads = 2 puts both threads to work on blocks (evaluations come from two distinct threads).
+TEST(MarchingTiles, TwoThreadsBothEvaluate) {
+  class ThreadRecorder final : public Field {
+   public:
+    double value(const Vec3& p) const override {
+      thread_local bool seen = false;
+      if (!seen) {
+        seen = true;
+        std::lock_guard lock(mutex_);
+        ids_.insert(std::this_thread::get_id());
+      }
+      return p.norm() - 0.8;
+    }
+    double value_and_gradient(const Vec3& p, Vec3& g) const override {
+      g = p.normalized();
+      return value(p);
+    }
+    std::optional<Aabb> bounds() const override { return std::nullopt; }
+    std::optional<double> lipschitz_bound() const override { return 1.0; }
+    std::size_t threads() const { return ids_.size(); }
+
+   private:
+    mutable std::mutex mutex_;
+    mutable std::set<std::thread::id> ids_;
+  } field;
+  const Mesh mesh = marching_tiles(field, tile_options(1.0, 0.01, 2));
+  EXPECT_GT(mesh.triangles.size(), 100000u);
+  EXPECT_GE(field.threads(), 2u);
 }
 
 TEST(MarchingTiles, NormalsAreUnitAndOutward) {
