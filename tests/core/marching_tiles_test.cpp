@@ -292,9 +292,9 @@ TEST(MarchingTiles, TwoThreadsBothEvaluate) {
   class ThreadRecorder final : public Field {
    public:
     double value(const Vec3& p) const override {
-      thread_local bool seen = false;
-      if (!seen) {
-        seen = true;
+      thread_local std::uint64_t recorded_for = 0;  // the recorder this thread last registered with
+      if (recorded_for != serial_) {
+        recorded_for = serial_;
         std::lock_guard lock(mutex_);
         ids_.insert(std::this_thread::get_id());
       }
@@ -309,6 +309,11 @@ TEST(MarchingTiles, TwoThreadsBothEvaluate) {
     std::size_t threads() const { return ids_.size(); }
 
    private:
+    static std::uint64_t next_serial() {
+      static std::atomic<std::uint64_t> next{1};
+      return next.fetch_add(1);
+    }
+    const std::uint64_t serial_ = next_serial();
     mutable std::mutex mutex_;
     mutable std::set<std::thread::id> ids_;
   } field;
