@@ -118,10 +118,13 @@ struct Particles {
   Aabb box;
   SpatialHash hash;
 
-  void index() {
+  // `reach`: the largest query radius (the field's r_outer + band).
+  void index(double reach) {
     box = bounding_box(positions);
-    // Uniform radii: cells of r_inner make the hot query (any particle closer than r_inner?) scan few particles.
+    // Dense data: cells of r_inner (uniform radii) keep the scans short. Scattered data (the hash falls back to its
+    // sparse layout, one table lookup per cell): cells of the query reach, so a query looks up at most 27 cells.
     hash.build(positions, weighted ? max_outer : r_inner);
+    if (!hash.dense()) hash.build(positions, std::max(reach, weighted ? max_outer : r_inner));
     if (weighted) {
       slot_inner.resize(positions.size());
       slot_outer.resize(positions.size());
@@ -439,7 +442,10 @@ struct Container {
 
 // --- Frame setup ------------------------------------------------------------------------------------------------
 
-// Mean nearest-neighbour distance, leaving out particles whose neighbour is farther than 4x the median.
+// Mean nearest-neighbour distance over a deterministic sample of at most 65536 particles, leaving out particles whose
+// neighbour is farther than 4x the median (stray spray). Neighbours are searched within 4 cells of a hash whose cells
+// hold a few particles each; only when most of the sample finds none there (very sparse input) is an unbounded search
+// run, on at most 4096 of them.
 double derive_r_inner(std::span<const Vec3> points, int threads, const RunControl& control) {
   if (points.size() < 2) {
     throw InvalidInput("r_inner", "cannot derive r_inner from " + std::to_string(points.size()) +
@@ -460,32 +466,45 @@ double derive_r_inner(std::span<const Vec3> points, int threads, const RunContro
   }
   const std::span<const Vec3> pts = hash.sorted_points();
   const double all = extent.norm() + cell;
-  std::vector<double> nn(points.size());
-  for_chunks(points.size(), threads, [&](std::size_t begin, std::size_t end) {
-    control.check();
-    for (std::size_t s = begin; s < end; ++s) {
-      double r = cell;
-      while (true) {
-        double best2 = r * r;
-        bool found = false;
-        hash.for_each_range(pts[s].array() - r, pts[s].array() + r, [&](std::uint32_t b, std::uint32_t e) {
-          for (std::uint32_t t = b; t < e; ++t) {
-            if (t == s) continue;
-            const double d2 = (pts[t] - pts[s]).squaredNorm();
-            if (d2 <= best2) {
-              best2 = d2;
-              found = true;
-            }
+  // Nearest other point of slot s within r (or up to `all` when r is infinite); infinity when none.
+  auto nearest_other = [&](std::uint32_t s, double r) {
+    const bool widen = std::isinf(r);
+    if (widen) r = cell;
+    while (true) {
+      double best2 = r * r;
+      bool found = false;
+      hash.for_each_range(pts[s].array() - r, pts[s].array() + r, [&](std::uint32_t b, std::uint32_t e) {
+        for (std::uint32_t t = b; t < e; ++t) {
+          const double d2 = (pts[t] - pts[s]).squaredNorm();
+          if (t != s && d2 <= best2) {
+            best2 = d2;
+            found = true;
           }
-        });
-        if (found || r > all) {
-          nn[s] = found ? std::sqrt(best2) : kInf;
-          break;
         }
-        r *= 2.0;
-      }
+      });
+      if (found) return std::sqrt(best2);
+      if (!widen || r > all) return kInf;
+      r *= 2.0;
     }
+  };
+  const std::size_t stride = std::max<std::size_t>(1, points.size() / 65536);
+  std::vector<double> nn((points.size() + stride - 1) / stride);
+  for_chunks(nn.size(), threads, [&](std::size_t begin, std::size_t end) {
+    control.check();
+    for (std::size_t k = begin; k < end; ++k) nn[k] = nearest_other(static_cast<std::uint32_t>(k * stride), 4.0 * cell);
   });
+  const std::size_t found =
+      static_cast<std::size_t>(std::count_if(nn.begin(), nn.end(), [](double d) { return d < kInf; }));
+  if (2 * found < nn.size()) {
+    const std::size_t step = std::max<std::size_t>(1, nn.size() / 4096);
+    std::vector<double> wide((nn.size() + step - 1) / step);
+    for_chunks(wide.size(), threads, [&](std::size_t begin, std::size_t end) {
+      control.check();
+      for (std::size_t k = begin; k < end; ++k)
+        wide[k] = nearest_other(static_cast<std::uint32_t>(k * step * stride), kInf);
+    });
+    nn = std::move(wide);
+  }
   std::vector<double> sorted = nn;
   const auto mid = sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() / 2);
   std::nth_element(sorted.begin(), mid, sorted.end());
@@ -508,9 +527,14 @@ double derive_r_inner(std::span<const Vec3> points, int threads, const RunContro
 }
 
 // Union-find over particles whose r_outer balls overlap; returns the kept flags and the number of dropped clusters.
+// Its own spatial hash with cells of the largest reach (2 max r_outer), so a query touches at most 27 cells even for
+// scattered spray.
 std::vector<char> filter_components(const Particles& all, int min_size, std::size_t& dropped,
                                     const RunControl& control) {
   const std::size_t n = all.positions.size();
+  const SpatialHash hash(all.positions, 2.0 * all.max_outer);
+  std::vector<double> outer(all.weighted ? n : 0);
+  for (std::size_t s = 0; s < outer.size(); ++s) outer[s] = all.outer[hash.order()[s]];
   std::vector<std::uint32_t> parent(n);
   std::iota(parent.begin(), parent.end(), 0u);
   auto find = [&](std::uint32_t i) {
@@ -520,15 +544,15 @@ std::vector<char> filter_components(const Particles& all, int min_size, std::siz
     }
     return i;
   };
-  const std::span<const Vec3> pts = all.hash.sorted_points();
-  const std::span<const std::uint32_t> order = all.hash.order();
+  const std::span<const Vec3> pts = hash.sorted_points();
+  const std::span<const std::uint32_t> order = hash.order();
   for (std::uint32_t s = 0; s < n; ++s) {
     if ((s & 4095) == 0) control.check();
-    const double ro = all.weighted ? all.slot_outer[s] : all.r_outer;
+    const double ro = all.weighted ? outer[s] : all.r_outer;
     const double reach = ro + all.max_outer;
-    all.hash.for_each_range(pts[s].array() - reach, pts[s].array() + reach, [&](std::uint32_t b, std::uint32_t e) {
+    hash.for_each_range(pts[s].array() - reach, pts[s].array() + reach, [&](std::uint32_t b, std::uint32_t e) {
       for (std::uint32_t t = std::max(b, s + 1); t < e; ++t) {
-        const double limit = ro + (all.weighted ? all.slot_outer[t] : all.r_outer);
+        const double limit = ro + (all.weighted ? outer[t] : all.r_outer);
         if ((pts[t] - pts[s]).squaredNorm() > limit * limit) continue;
         const std::uint32_t a = find(s), c = find(t);
         if (a != c) parent[std::max(a, c)] = std::min(a, c);
@@ -681,7 +705,8 @@ Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const d
     P.max_inner = r_inner;
     P.max_outer = r_outer;
   }
-  P.index();
+  const double field_band = 1.25 * h;  // see "Initial surface" below
+  P.index(P.max_outer + field_band);
 
   if (o.min_particles_per_component > 1) {
     const std::vector<char> keep =
@@ -702,7 +727,7 @@ Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const d
         P.inner.resize(k);
         P.outer.resize(k);
       }
-      if (k > 0) P.index();
+      if (k > 0) P.index(P.max_outer + field_band);
     }
   }
   stats.particles_used = P.positions.size();
@@ -717,7 +742,7 @@ Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const d
   // Initial surface: Marching Tiles of f = d - r_outer. Every lattice edge is shorter than 1.07 h (A15 edges are
   // 2, sqrt 5 and sqrt 6 lattice units, mean 2.30), so a band of 1.25 h keeps crossed edges exact.
   t0 = Clock::now();
-  const ParticleField field(P, 1.25 * h);
+  const ParticleField field(P, field_band);
   MarchingTilesOptions mt;
   const double pad = P.max_outer + 2.0 * h;
   mt.bounds = Aabb{P.box.min.array() - pad, P.box.max.array() + pad};
