@@ -9,8 +9,8 @@
 //               r_inner derived (mean nearest-neighbour distance, ~0.78 d), r_outer = 2 r_inner. The target
 //               (<= 2.5 s including all smoothing, <= 1.5 GB) is for this set.
 //   block_fine  the same particles with r_inner = 0.5 d (SPH "radius = half the spacing"): ~4x the triangles.
-//   sheet       a wavy sheet two particles thick, 400 x 400 x 2 = 320,000 particles, r_inner = d.
-//   droplets    4,000 droplets of 4..80 particles (~170,000) scattered in a 400 d box, r_inner = 0.6 d.
+//   sheet       a wavy sheet two particles thick, 250 x 250 x 2 = 125,000 particles, r_inner = d.
+//   droplets    1,000 droplets of 8..64 particles (~36,000) scattered in a 400 d box, r_inner = 0.8 d.
 //   spray       a 40^3 block plus 100,000 single particles scattered over a 1000 d box (~164,000), r_inner = 0.6 d,
 //               min_particles_per_component = 5 (the spray is dropped before surfacing).
 #include <sys/resource.h>
@@ -51,7 +51,14 @@ DataSet jittered_block(int n, double jitter, std::uint32_t seed) {
   s.particles.reserve(static_cast<std::size_t>(n) * n * n);
   for (int k = 0; k < n; ++k) {
     for (int j = 0; j < n; ++j) {
-      for (int i = 0; i < n; ++i) s.particles.emplace_back(i + u(rng), j + u(rng), k + u(rng));
+      for (int i = 0; i < n; ++i) {
+        // One statement each: the generator's call order must not depend on argument evaluation order
+        // (bench/openvdb_particles.cpp regenerates the same block).
+        const double x = i + u(rng);
+        const double y = j + u(rng);
+        const double z = k + u(rng);
+        s.particles.emplace_back(x, y, z);
+      }
     }
   }
   return s;
@@ -60,8 +67,8 @@ DataSet jittered_block(int n, double jitter, std::uint32_t seed) {
 std::string note_of(const std::string& name) {
   if (name == "block") return "80^3 lattice, jitter +-0.25, r_inner derived";
   if (name == "block_fine") return "80^3 lattice, jitter +-0.25, r_inner 0.5";
-  if (name == "sheet") return "400 x 400 x 2 wavy sheet, r_inner 1";
-  if (name == "droplets") return "4000 droplets of 4..80 particles in a 400^3 box, r_inner 0.6";
+  if (name == "sheet") return "250 x 250 x 2 wavy sheet, r_inner 1";
+  if (name == "droplets") return "1000 droplets of 8..64 particles in a 400^3 box, r_inner 0.8";
   if (name == "spray") return "40^3 block + 100k single particles over 1000^3, r_inner 0.6, min 5 per component";
   return "";
 }
@@ -79,8 +86,8 @@ DataSet make_set(const std::string& name) {
     std::mt19937 rng(2);
     std::uniform_real_distribution<double> u(-0.1, 0.1);
     for (int layer = 0; layer < 2; ++layer) {
-      for (int j = 0; j < 400; ++j) {
-        for (int i = 0; i < 400; ++i) {
+      for (int j = 0; j < 250; ++j) {
+        for (int i = 0; i < 250; ++i) {
           const double z = layer + 6.0 * std::sin(i / 40.0) * std::cos(j / 55.0);
           s.particles.emplace_back(i + u(rng), j + u(rng), z + u(rng));
         }
@@ -90,8 +97,8 @@ DataSet make_set(const std::string& name) {
   } else if (name == "droplets") {
     std::mt19937 rng(3);
     std::uniform_real_distribution<double> box(0.0, 400.0), u(-1.0, 1.0);
-    std::uniform_int_distribution<int> size(4, 80);
-    for (int d = 0; d < 4000; ++d) {
+    std::uniform_int_distribution<int> size(8, 64);
+    for (int d = 0; d < 1000; ++d) {
       const Vec3 c(box(rng), box(rng), box(rng));
       const int count = size(rng);
       const double radius = 0.62 * std::cbrt(static_cast<double>(count));
@@ -102,7 +109,7 @@ DataSet make_set(const std::string& name) {
         ++p;
       }
     }
-    s.options.r_inner = 0.6;
+    s.options.r_inner = 0.8;
   } else if (name == "spray") {
     s = jittered_block(40, 0.2, 4);
     std::mt19937 rng(5);
@@ -204,6 +211,7 @@ int main(int argc, char** argv) {
   std::printf("particles_bench: %u hardware threads, threads=%d, load average %.2f, %d repetitions per set\n",
               std::thread::hardware_concurrency(), threads, load[0], repeat);
   std::printf("(wall = best of the repetitions; cpu = user+sys of the last; peak RSS of the child process)\n\n");
+  std::fflush(stdout);
   bool all_ok = true;
   for (const std::string& name : sets) {
     int pipefd[2];
@@ -260,6 +268,7 @@ int main(int argc, char** argv) {
         "polish (max violation %.3g)\n",
         evaluations, 100.0 * seam, 100.0 * faithful, 100.0 * faithful_polish, violation);
     std::printf("  peak RSS %.0f MB\n\n", peak_mb);
+    std::fflush(stdout);
   }
   return all_ok ? 0 : 1;
 }
