@@ -101,6 +101,7 @@ Mesh polygonize(const Field& field, const PolygonizeSettings& settings, int thre
     options.cells = settings.cells;
     options.normals = settings.normals;
     options.threads = threads;
+    options.sparse = true;  // same mesh as dense; skips samples the field's Lipschitz bound rules out
     return marching_cubes(field, options, control);
   }
   MarchingTilesOptions options;
