@@ -22,7 +22,8 @@ fi
 cmake --build "$BUILD_DIR" --target particles_bench -j"$(nproc)"
 
 echo "== Surfacer particle surfacing"
-OUT="$("$BUILD_DIR/bench/particles_bench" --sets "$SETS" --repeat "$REPEAT" "$@" | tee /dev/stderr)"
+OUT="$("$BUILD_DIR/bench/particles_bench" --sets "$SETS" --repeat "$REPEAT" "$@")"
+echo "$OUT"
 
 if [[ -f /usr/include/openvdb/openvdb.h ]]; then
   echo "== OpenVDB (libopenvdb-dev found): ParticlesToLevelSet + LevelSetFilter + VolumeToMesh on the same block"
@@ -33,7 +34,7 @@ if [[ -f /usr/include/openvdb/openvdb.h ]]; then
       g++ -std=c++17 -O2 -DNDEBUG "$ROOT/bench/openvdb_particles.cpp" -o "$VDB_BIN" -lopenvdb -ltbb -lHalf -lpthread
   fi
   # Same resolution as our block run: r_inner, r_outer and spacing as particles_bench derived them.
-  BLOCK_LINE="$(grep -A1 '^block ' <<<"$OUT" | grep 'r_inner' || true)"
+  BLOCK_LINE="$(grep -A1 '^block ' <<<"$OUT" | grep -E '^  particles .*r_outer' || true)"
   if [[ -z "$BLOCK_LINE" ]]; then
     echo "(no block set in this run: skipping the OpenVDB comparison)"
     exit 0
