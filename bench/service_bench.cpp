@@ -107,6 +107,7 @@ int main(int argc, char** argv) {
     auto* iso = spec.mutable_isosurface();
     for (int i = 0; i < n; ++i) *iso->add_scenes() = scene;
     iso->set_cells(cells);  // cubic bounds: exactly `cells` per axis
+    iso->set_method(v1::POLYGONIZER_CUBES);  // the same polygonizer as the core-only baseline
     auto* min = iso->mutable_bounds()->mutable_min();
     auto* max = iso->mutable_bounds()->mutable_max();
     min->set_x(bounds.min.x());
@@ -124,6 +125,7 @@ int main(int argc, char** argv) {
   grid.bounds = bounds;
   grid.cells = {cells, cells, cells};
   grid.threads = hw;
+  grid.sparse = true;  // as the service runs it
 
   Mesh mesh;
   const double core = median_time(repeat, [&] { mesh = marching_cubes(*field, grid); });
