@@ -70,8 +70,8 @@ struct ParticleSurfacingOptions {
   // Inner radius (scene units, > 0): typically the simulation's particle radius. Required unless derive_r_inner or
   // per-particle radii are given.
   std::optional<double> r_inner;
-  // r_inner := mean distance from a particle to its nearest neighbour (particles whose nearest neighbour is farther
-  // than 4x the median are left out of the mean as stray spray). Needs >= 2 particles.
+  // r_inner := mean distance from a particle to its nearest neighbour (over a fixed sample of at most 65536 particles;
+  // those whose nearest neighbour is farther than 4x the median are left out as stray spray). Needs >= 2 particles.
   bool derive_r_inner = false;
   // Outer radius, > r_inner; default 2 * r_inner. A planar face over a square lattice of spacing d needs
   // r_outer^2 >= r_inner^2 + d^2 / 2 (thesis eq. 3.5; triangular lattice: + d^2 / 3, eq. 3.6).
@@ -96,8 +96,8 @@ struct ParticleSurfacingStats {
   std::size_t particles_used = 0;      // after min_particles_per_component
   std::size_t components_dropped = 0;  // particle clusters dropped
   std::size_t seeds = 0;               // particles passed to Marching Tiles as seeds
-  // Seconds per stage. distance_field: spatial hash, radius derivation, component filter and seed selection; the
-  // per-sample distance queries run inside polygonize (lazily, where Marching Tiles visits).
+  // Seconds per stage. distance_field: spatial hash, radius derivation and component filter; the per-sample distance
+  // queries run inside polygonize (lazily, where Marching Tiles visits).
   double seconds_distance_field = 0.0, seconds_polygonize = 0.0, seconds_laplacian = 0.0, seconds_build_b = 0.0,
          seconds_bilaplacian = 0.0, seconds_polish = 0.0, seconds_erosion = 0.0, seconds_total = 0.0;
   std::int64_t field_evaluations = 0;  // distance samples taken by Marching Tiles
