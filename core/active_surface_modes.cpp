@@ -1,0 +1,175 @@
+// Velocity fields, particle targets and the one-shot coat / morph / advect helpers of core/active_surface.h.
+#include <cmath>
+#include <string>
+
+#include "core/active_surface.h"
+#include "core/errors.h"
+
+namespace surfacer {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+ActiveFrame make_frame(const ActiveSurface& surface, const ActiveFrameStats& stats, const RunControl& control) {
+  ActiveFrame frame;
+  frame.mesh = surface.polygonize(control);
+  frame.stats = stats;
+  return frame;
+}
+
+}  // namespace
+
+Vec3 enright_velocity(const Vec3& p, double t, double period) {
+  const double sx = std::sin(kPi * p.x()), sy = std::sin(kPi * p.y()), sz = std::sin(kPi * p.z());
+  const double s2x = std::sin(2.0 * kPi * p.x()), s2y = std::sin(2.0 * kPi * p.y()), s2z = std::sin(2.0 * kPi * p.z());
+  const double c = std::cos(kPi * t / period);
+  return Vec3(2.0 * sx * sx * s2y * s2z * c, -s2x * sy * sy * s2z * c, -s2x * s2y * sz * sz * c);
+}
+
+void VelocityGrid::validate() const {
+  if (!spacing.allFinite() || !(spacing.array() > 0.0).all()) {
+    throw InvalidInput("spacing", "velocity grid spacing must be finite and > 0 on every axis");
+  }
+  if (!origin.allFinite()) throw InvalidInput("origin", "velocity grid origin must be finite");
+  if (nx < 2 || ny < 2 || nz < 2) {
+    throw InvalidInput("nx", "velocity grid needs >= 2 points per axis (nx, ny, nz = " + std::to_string(nx) + ", " +
+                                 std::to_string(ny) + ", " + std::to_string(nz) + ")");
+  }
+  const std::size_t expected = std::size_t{3} * nx * ny * nz;
+  if (values.size() != expected) {
+    throw InvalidInput("values", "velocity grid has " + std::to_string(values.size()) + " floats; expected 3 * nx * ny * nz = " +
+                                     std::to_string(expected) + " (u, v, w per point, x fastest)");
+  }
+}
+
+Vec3 VelocityGrid::operator()(const Vec3& p) const {
+  const int n[3] = {nx, ny, nz};
+  int i0[3];
+  double t[3];
+  for (int a = 0; a < 3; ++a) {
+    double u = (p[a] - origin[a]) / spacing[a];
+    if (!(u > 0.0)) u = 0.0;  // also NaN
+    if (u > n[a] - 1) u = n[a] - 1;
+    i0[a] = std::min(static_cast<int>(u), n[a] - 2);
+    t[a] = u - i0[a];
+  }
+  Vec3 r = Vec3::Zero();
+  for (int k = 0; k < 8; ++k) {
+    double w = 1.0;
+    std::size_t idx = 0;
+    for (int a = 2; a >= 0; --a) {
+      const int bit = (k >> a) & 1;
+      w *= bit ? t[a] : 1.0 - t[a];
+      idx = idx * n[a] + (i0[a] + bit);
+    }
+    const float* v = values.data() + 3 * idx;
+    r += w * Vec3(v[0], v[1], v[2]);
+  }
+  return r;
+}
+
+VelocityFn make_velocity_fn(std::shared_ptr<const VelocityGrid> grid) {
+  if (!grid) throw InvalidInput("velocity", "velocity grid is null");
+  grid->validate();
+  return [grid](const Vec3& p, double) { return (*grid)(p); };
+}
+
+FieldPtr make_particle_target(std::span<const Vec3> particles, const ParticleTargetOptions& options) {
+  if (particles.empty()) throw InvalidInput("particles", "the particle frame is empty; give at least one particle");
+  if (!(options.radius > 0.0) || !std::isfinite(options.radius)) {
+    throw InvalidInput("radius", "kernel radius must be finite and > 0");
+  }
+  if (!(options.iso > 0.0) || !std::isfinite(options.iso)) {
+    throw InvalidInput("iso", "iso must be finite and > 0; the default is 0.5");
+  }
+  std::vector<PointSkeleton> points(particles.size());
+  for (std::size_t i = 0; i < particles.size(); ++i) {
+    if (!particles[i].allFinite()) {
+      throw InvalidInput("particles[" + std::to_string(i) + "]", "particle " + std::to_string(i) + " is not finite");
+    }
+    points[i].center = particles[i];
+    points[i].radius = options.radius;
+    points[i].strength = 1.0;
+  }
+  BlobOptions blob;
+  blob.kernel = options.kernel;
+  blob.iso = options.iso;
+  return make_blobs(points, {}, blob);
+}
+
+int coat_particles(std::span<const std::vector<Vec3>> frames, const CoatOptions& coat,
+                   const ActiveSurfaceOptions& options, const ActiveFrameSink& sink, const RunControl& control) {
+  if (frames.empty()) throw InvalidInput("frames", "no particle frames; give at least one");
+  if (!(coat.frame_duration > 0.0) || !std::isfinite(coat.frame_duration)) {
+    throw InvalidInput("frame_duration", "frame_duration must be finite and > 0; the default is 1");
+  }
+  if (!(options.alpha > 0.0)) {
+    throw InvalidInput("alpha", "coating needs alpha > 0 (the tracking speed per unit of kernel potential)");
+  }
+  FieldPtr target = make_particle_target(frames[0], coat.kernel);
+  ActiveSurface surface(*target, options, control);
+  surface.set_target(target);
+  int emitted = 0;
+  {
+    ActiveFrameStats stats = surface.stats();
+    sink(make_frame(surface, stats, control));
+    ++emitted;
+  }
+  for (std::size_t i = 1; i < frames.size(); ++i) {
+    control.check();
+    try {
+      surface.set_target(make_particle_target(frames[i], coat.kernel));
+    } catch (const Error& e) {
+      throw Error(e.kind(), "frames[" + std::to_string(i) + "]." + e.field(),
+                  "frames[" + std::to_string(i) + "]: " + e.what());
+    }
+    const ActiveFrameStats stats = surface.advance(coat.frame_duration, control);
+    sink(make_frame(surface, stats, control));
+    ++emitted;
+    control.report("coat", static_cast<double>(i) / static_cast<double>(frames.size() - 1));
+  }
+  return emitted;
+}
+
+int morph_shapes(const Field& from, FieldPtr to, const MorphOptions& morph, const ActiveSurfaceOptions& options,
+                 const ActiveFrameSink& sink, const RunControl& control) {
+  if (!to) throw InvalidInput("to", "the target shape is null");
+  if (!(morph.frame_duration > 0.0) || !std::isfinite(morph.frame_duration)) {
+    throw InvalidInput("frame_duration", "frame_duration must be finite and > 0");
+  }
+  if (morph.max_frames < 1) throw InvalidInput("max_frames", "max_frames must be >= 1");
+  if (!(morph.tolerance >= 0.0)) throw InvalidInput("tolerance", "tolerance must be >= 0");
+  if (!(options.alpha > 0.0)) throw InvalidInput("alpha", "a morph needs alpha > 0 (the tracking speed)");
+  ActiveSurface surface(from, options, control);
+  surface.set_target(std::move(to));
+  sink(make_frame(surface, surface.stats(), control));
+  int emitted = 1;
+  for (int i = 1; i < morph.max_frames; ++i) {
+    const ActiveFrameStats stats = surface.advance(morph.frame_duration, control);
+    sink(make_frame(surface, stats, control));
+    ++emitted;
+    control.report("morph", static_cast<double>(i) / (morph.max_frames - 1));
+    if (stats.max_dfdt < morph.tolerance) break;
+  }
+  return emitted;
+}
+
+int advect_shape(const Field& shape, VelocityFn velocity, const AdvectOptions& advect,
+                 const ActiveSurfaceOptions& options, const ActiveFrameSink& sink, const RunControl& control) {
+  if (!velocity) throw InvalidInput("velocity", "no velocity field given");
+  if (!(advect.frame_interval > 0.0) || !std::isfinite(advect.frame_interval)) {
+    throw InvalidInput("frame_interval", "frame_interval must be finite and > 0");
+  }
+  if (advect.frames < 1) throw InvalidInput("frames", "frames must be >= 1");
+  ActiveSurface surface(shape, options, control);
+  surface.set_velocity(std::move(velocity));
+  sink(make_frame(surface, surface.stats(), control));
+  for (int i = 0; i < advect.frames; ++i) {
+    const ActiveFrameStats stats = surface.advance(advect.frame_interval, control);
+    sink(make_frame(surface, stats, control));
+    control.report("advect", static_cast<double>(i + 1) / advect.frames);
+  }
+  return advect.frames + 1;
+}
+
+}  // namespace surfacer

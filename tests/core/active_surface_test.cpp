@@ -1,0 +1,429 @@
+#include "core/active_surface.h"
+
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <thread>
+
+#include "core/errors.h"
+#include "core/marching_cubes.h"
+#include "core/mesh_checks.h"
+#include "tests/support/test_meshes.h"
+
+namespace surfacer {
+namespace {
+
+using testing::BoxField;
+using testing::SphereField;
+using testing::TwoSpheresField;
+
+constexpr double kPi = 3.14159265358979323846;
+
+double sphere_radius_from_volume(double volume) { return std::cbrt(3.0 * volume / (4.0 * kPi)); }
+
+void expect_closed_manifold(const Mesh& mesh) {
+  const MeshReport r = check_mesh(mesh);
+  EXPECT_TRUE(r.closed);
+  EXPECT_TRUE(r.edge_manifold);
+  EXPECT_TRUE(r.oriented);
+  EXPECT_GT(r.volume, 0.0);
+}
+
+ActiveSurfaceOptions base_options(double h) {
+  ActiveSurfaceOptions o;
+  o.h = h;
+  o.threads = 2;
+  return o;
+}
+
+// ALGORITHMS §4 checkable fact: under pure tension a sphere follows r^2 = r0^2 - 4 beta t (dr/dt = -2 beta / r),
+// here at 64^3 over [-1, 1]^3.
+TEST(ActiveSurface, SphereUnderTensionFollowsRadiusLaw) {
+  ActiveSurfaceOptions o = base_options(2.0 / 64.0);
+  o.beta = 0.01;
+  o.cfl = 0.9;
+  const SphereField sphere(Vec3(0.013, -0.021, 0.007), 0.5);
+  ActiveSurface surface(sphere, o);
+  const ActiveFrameStats s0 = surface.stats();
+  EXPECT_EQ(s0.components, 1);
+  const double r0sq = std::pow(sphere_radius_from_volume(s0.volume), 2);
+  EXPECT_NEAR(std::sqrt(r0sq), 0.5, 0.01);
+  for (int frame = 1; frame <= 3; ++frame) {
+    const ActiveFrameStats s = surface.advance(0.8);
+    const double rsq = std::pow(sphere_radius_from_volume(s.volume), 2);
+    const double expected = r0sq - 4.0 * o.beta * s.time;
+    EXPECT_NEAR(rsq, expected, 0.02 * expected) << "t = " << s.time;
+    EXPECT_GT(s.substeps, 1);
+    EXPECT_GT(s.dt, 0.0);
+    EXPECT_LE(s.min_dt, o.h * o.h / (6.0 * o.beta) * 0.9 + 1e-12);  // 3-D diffusion bound times cfl
+    EXPECT_EQ(s.components, 1);
+  }
+  // The total change of r^2 tracks 4 beta t within 2% of itself (a stricter reading than the pointwise bound).
+  const ActiveFrameStats last = surface.stats();
+  const double drop = r0sq - std::pow(sphere_radius_from_volume(last.volume), 2);
+  EXPECT_NEAR(drop, 4.0 * o.beta * last.time, 0.02 * 4.0 * o.beta * last.time);
+  expect_closed_manifold(surface.polygonize());
+}
+
+// Tracking a target sphere (a signed distance, so s = -alpha d) from a smaller off-centre sphere converges onto it.
+TEST(ActiveSurface, TrackingConvergesToTargetSphere) {
+  const double h = 1.0 / 32.0;
+  ActiveSurfaceOptions o = base_options(h);
+  o.alpha = 2.0;
+  const SphereField start(Vec3(-0.05, 0.02, 0.0), 0.35);
+  const Vec3 center(0.06, -0.03, 0.02);
+  const double radius = 0.55;
+  ActiveSurface surface(start, o);
+  surface.set_target(std::make_shared<SphereField>(center, radius));
+  double speed = 1.0;
+  for (int frame = 0; frame < 12 && speed > 1e-3; ++frame) speed = surface.advance(0.5).max_speed;
+  EXPECT_LT(speed, 1e-3);
+  const Mesh mesh = surface.polygonize();
+  expect_closed_manifold(mesh);
+  EXPECT_LT(testing::max_distance_to_sphere(mesh, center, radius), 0.5 * h);
+}
+
+// Metamorphosis: a blob of six point skeletons in a row (one component) becomes two separate spheres.
+TEST(ActiveSurface, MorphSixPointBlobIntoTwoSpheres) {
+  const double h = 1.0 / 40.0;
+  std::vector<PointSkeleton> points;
+  for (int i = 0; i < 6; ++i) points.push_back({Vec3(-0.5 + 0.2 * i, 0.0, 0.0), 0.35, 1.0});
+  const FieldPtr blob = make_blobs(points, {}, BlobOptions{});
+  const Vec3 c0(-0.45, 0.0, 0.0), c1(0.45, 0.0, 0.0);
+  const double r = 0.3;
+  auto target = std::make_shared<TwoSpheresField>(c0, r, c1, r);
+
+  ActiveSurfaceOptions o = base_options(h);
+  o.alpha = 4.0;
+  MorphOptions morph;
+  morph.frame_duration = 0.25;
+  morph.max_frames = 40;
+  morph.tolerance = 0.02;
+  std::vector<ActiveFrameStats> stats;
+  Mesh last;
+  const int frames = morph_shapes(*blob, target, morph, o, [&](ActiveFrame&& f) {
+    stats.push_back(f.stats);
+    last = std::move(f.mesh);
+  });
+  ASSERT_EQ(frames, static_cast<int>(stats.size()));
+  EXPECT_EQ(stats.front().components, 1);
+  EXPECT_LT(frames, morph.max_frames) << "the morph did not settle";
+  EXPECT_EQ(stats.back().components, 2);
+  EXPECT_LT(stats.back().max_dfdt, morph.tolerance);
+  const MeshReport report = check_mesh(last);
+  EXPECT_EQ(report.components, 2);
+  EXPECT_TRUE(report.closed);
+  // Volume against the target's own Marching Cubes volume on the same grid, and against the exact spheres.
+  MarchingCubesOptions mc;
+  mc.bounds = Aabb{Vec3(-0.9, -0.45, -0.45), Vec3(0.9, 0.45, 0.45)};
+  mc.cells = {72, 36, 36};
+  const double target_mc = check_mesh(marching_cubes(*target, mc)).volume;
+  const double exact = 2.0 * 4.0 / 3.0 * kPi * r * r * r;
+  EXPECT_NEAR(stats.back().volume, target_mc, 0.01 * target_mc);
+  EXPECT_NEAR(stats.back().volume, exact, 0.02 * exact);
+  EXPECT_LT(testing::max_distance_to_sphere(last, c0, r), 1.5 * h + std::abs(c0.x() - c1.x()));
+}
+
+// Volume control (delta) holds the volume while strong tension rounds a box.
+TEST(ActiveSurface, VolumeControlHoldsVolumeUnderTension) {
+  const double h = 1.0 / 24.0;
+  ActiveSurfaceOptions o = base_options(h);
+  o.beta = 0.03;
+  o.delta = 30.0;
+  o.cfl = 0.9;
+  const BoxField box(Vec3(0.01, 0.0, -0.01), Vec3(0.55, 0.3, 0.3));
+  ActiveSurface surface(box, o);
+  const ActiveFrameStats s0 = surface.stats();
+  double last_area = s0.area;
+  for (int frame = 0; frame < 4; ++frame) {
+    const ActiveFrameStats s = surface.advance(0.2);
+    EXPECT_NEAR(s.volume, s0.volume, 0.01 * s0.volume) << "frame " << frame;
+    last_area = s.area;
+  }
+  // Tension did act: the box rounded off and lost area at constant volume.
+  EXPECT_LT(last_area, 0.97 * s0.area);
+  // Without volume control the same tension visibly shrinks it (so the test above can fail).
+  o.delta = 0.0;
+  ActiveSurface free_surface(box, o);
+  const ActiveFrameStats f = free_surface.advance(0.8);
+  EXPECT_LT(f.volume, 0.95 * s0.volume);
+}
+
+// Cost per step ∝ surface area: halving h roughly quadruples the active set (not x8).
+TEST(ActiveSurface, ActiveNodesScaleWithArea) {
+  const SphereField sphere(Vec3(0.01, 0.02, 0.03), 0.5);
+  ActiveSurfaceOptions coarse = base_options(1.0 / 24.0);
+  ActiveSurfaceOptions fine = base_options(1.0 / 48.0);
+  coarse.beta = fine.beta = 0.001;
+  ActiveSurface a(sphere, coarse), b(sphere, fine);
+  const ActiveFrameStats sa = a.advance_substeps(2), sb = b.advance_substeps(2);
+  const double ratio = static_cast<double>(sb.active_nodes) / static_cast<double>(sa.active_nodes);
+  EXPECT_GT(ratio, 3.0);
+  EXPECT_LT(ratio, 5.0);
+  const double block_ratio = static_cast<double>(sb.allocated_blocks) / static_cast<double>(sa.allocated_blocks);
+  EXPECT_LT(block_ratio, 5.5);
+  EXPECT_LT(sb.memory_bytes, 6 * sa.memory_bytes);
+}
+
+// The grid is unbounded: far from the origin, or inside a huge domain, the same surface costs the same.
+TEST(ActiveSurface, UnboundedDomainCostsNothingAwayFromTheSurface) {
+  ActiveSurfaceOptions o = base_options(1.0 / 16.0);
+  const ActiveSurface near(SphereField(Vec3(0.0, 0.0, 0.0), 0.5), o);
+  const ActiveSurface far(SphereField(Vec3(4000.0, -2500.0, 1200.0), 0.5), o);
+  const ActiveFrameStats sn = near.stats(), sf = far.stats();
+  EXPECT_NEAR(static_cast<double>(sf.allocated_blocks), static_cast<double>(sn.allocated_blocks),
+              0.35 * static_cast<double>(sn.allocated_blocks));
+  EXPECT_NEAR(sf.volume, sn.volume, 0.01 * sn.volume);
+  o.domain = Aabb{Vec3::Constant(-500.0), Vec3::Constant(500.0)};
+  const ActiveSurface boxed(SphereField(Vec3(0.0, 0.0, 0.0), 0.5), o);
+  EXPECT_LT(boxed.stats().allocated_blocks, 2 * sn.allocated_blocks);
+}
+
+// Advection sign convention: a uniform velocity translates the surface by u t (inside f > 0, df/dt = -u . grad f).
+TEST(ActiveSurface, UniformVelocityTranslatesTheSurface) {
+  const double h = 1.0 / 32.0;
+  ActiveSurfaceOptions o = base_options(h);
+  const Vec3 c0(-0.3, 0.1, 0.0), u(0.5, -0.25, 0.125);
+  ActiveSurface surface(SphereField(c0, 0.3), o);
+  const double v0 = surface.stats().volume;
+  surface.set_velocity([&](const Vec3&, double) { return u; });
+  const ActiveFrameStats s = surface.advance(0.8);
+  const Mesh mesh = surface.polygonize();
+  Vec3 centroid = Vec3::Zero();
+  for (const Vec3& v : mesh.vertices) centroid += v;
+  centroid /= static_cast<double>(mesh.vertices.size());
+  EXPECT_LT((centroid - (c0 + 0.8 * u)).norm(), 0.2 * h);
+  EXPECT_NEAR(s.volume, v0, 0.01 * v0);
+  EXPECT_LT(testing::max_distance_to_sphere(mesh, c0 + 0.8 * u, 0.3), 0.3 * h);
+  EXPECT_NEAR(s.max_speed, u.norm(), 1e-6);
+}
+
+// Coating: two particle clusters drift apart; the skin's component count follows the particles' own surface.
+TEST(ActiveSurface, CoatingFollowsAParticleBlobSplittingInTwo) {
+  const int frames = 10;
+  std::vector<std::vector<Vec3>> sequence(frames);
+  for (int k = 0; k < frames; ++k) {
+    const double offset = 0.12 + 0.045 * k;
+    for (int side = -1; side <= 1; side += 2) {
+      for (int i = -1; i <= 1; ++i)
+        for (int j = -1; j <= 1; ++j)
+          for (int l = -1; l <= 1; ++l) {
+            sequence[k].push_back(Vec3(side * offset + 0.08 * i, 0.08 * j, 0.08 * l));
+          }
+    }
+  }
+  CoatOptions coat;
+  coat.kernel.radius = 0.2;
+  coat.kernel.iso = 0.5;
+  coat.frame_duration = 0.25;
+  ActiveSurfaceOptions o = base_options(1.0 / 40.0);
+  o.alpha = 1.0;
+  o.beta = 0.0005;
+  std::vector<int> skin, direct;
+  coat_particles(sequence, coat, o, [&](ActiveFrame&& f) {
+    skin.push_back(f.stats.components);
+    EXPECT_TRUE(check_mesh(f.mesh).closed);
+  });
+  ASSERT_EQ(static_cast<int>(skin.size()), frames);
+  for (int k = 0; k < frames; ++k) {
+    const FieldPtr target = make_particle_target(sequence[k], coat.kernel);
+    MarchingCubesOptions mc;
+    mc.bounds = *target->bounds();
+    mc.cells = {96, 32, 32};
+    direct.push_back(check_mesh(marching_cubes(*target, mc)).components);
+  }
+  EXPECT_EQ(direct.front(), 1);
+  EXPECT_EQ(direct.back(), 2);
+  EXPECT_EQ(skin.front(), 1);
+  EXPECT_EQ(skin.back(), 2);
+  int skin_split = -1, direct_split = -1;
+  for (int k = 0; k < frames; ++k) {
+    EXPECT_TRUE(skin[k] == 1 || skin[k] == 2) << "frame " << k;
+    if (k > 0) {
+      EXPECT_GE(skin[k], skin[k - 1]) << "frame " << k;
+    }
+    if (skin_split < 0 && skin[k] == 2) skin_split = k;
+    if (direct_split < 0 && direct[k] == 2) direct_split = k;
+  }
+  EXPECT_LE(std::abs(skin_split - direct_split), 1);
+}
+
+TEST(ActiveSurface, CancelReturnsPromptly) {
+  ActiveSurfaceOptions o = base_options(1.0 / 80.0);
+  o.beta = 0.001;
+  ActiveSurface surface(SphereField(Vec3::Zero(), 0.7), o);
+  CancelToken token;
+  RunControl control;
+  control.cancel = &token;
+  std::atomic<bool> started{false};
+  std::thread canceller([&] {
+    while (!started.load()) std::this_thread::yield();
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    token.cancel();
+  });
+  started = true;
+  const auto t0 = std::chrono::steady_clock::now();
+  try {
+    surface.advance(1000.0, control);
+    ADD_FAILURE() << "advance did not throw";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::kCancelled);
+  }
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  canceller.join();
+  EXPECT_LT(seconds, 0.1 + 0.5);
+  // The surface is still usable: the state of the last completed sub-step.
+  EXPECT_EQ(surface.stats().components, 1);
+}
+
+TEST(ActiveSurface, DeterministicWhateverTheThreadCount) {
+  auto run = [](int threads) {
+    ActiveSurfaceOptions o = base_options(1.0 / 24.0);
+    o.threads = threads;
+    o.alpha = 2.0;
+    o.beta = 0.002;
+    ActiveSurface surface(BoxField(Vec3::Zero(), Vec3(0.4, 0.3, 0.3)), o);
+    surface.set_target(std::make_shared<SphereField>(Vec3(0.05, 0.0, 0.0), 0.45));
+    surface.advance(0.3);
+    return surface.polygonize();
+  };
+  const Mesh a = run(1), b = run(3);
+  ASSERT_EQ(a.vertices.size(), b.vertices.size());
+  ASSERT_EQ(a.triangles.size(), b.triangles.size());
+  for (std::size_t i = 0; i < a.vertices.size(); ++i) ASSERT_EQ(a.vertices[i], b.vertices[i]);
+  for (std::size_t i = 0; i < a.triangles.size(); ++i) ASSERT_EQ(a.triangles[i], b.triangles[i]);
+}
+
+TEST(ActiveSurface, PolygonizationIsClosedWithNormals) {
+  ActiveSurfaceOptions o = base_options(1.0 / 32.0);
+  o.normals = true;
+  const ActiveSurface surface(TwoSpheresField(Vec3(-0.3, 0, 0), 0.25, Vec3(0.3, 0, 0), 0.25), o);
+  const Mesh mesh = surface.polygonize(ActivePolygonizer::kCubes);
+  expect_closed_manifold(mesh);
+  EXPECT_EQ(check_mesh(mesh).components, 2);
+  ASSERT_EQ(mesh.normals.size(), mesh.vertices.size());
+  for (std::size_t i = 0; i < mesh.vertices.size(); ++i) {
+    const Vec3& p = mesh.vertices[i];
+    const Vec3 c = p.x() < 0 ? Vec3(-0.3, 0, 0) : Vec3(0.3, 0, 0);
+    EXPECT_GT(mesh.normals[i].dot((p - c).normalized()), 0.95);
+  }
+  // The potential is positive inside, negative outside, and +-1 away from the surface.
+  EXPECT_GT(surface.potential(Vec3(-0.3, 0, 0)), 0.99);
+  EXPECT_LT(surface.potential(Vec3(0, 0.5, 0)), -0.99);
+  EXPECT_NEAR(surface.potential(Vec3(0.3, 0.25, 0)), 0.0, 0.1);
+}
+
+TEST(ActiveSurface, MarchingTilesPolygonizer) {
+  ActiveSurfaceOptions o = base_options(1.0 / 32.0);
+  const ActiveSurface surface(SphereField(Vec3(0.01, 0.0, 0.0), 0.4), o);
+  const Mesh mesh = surface.polygonize(ActivePolygonizer::kTiles);
+  const MeshReport r = check_mesh(mesh);
+  EXPECT_TRUE(r.closed);
+  EXPECT_TRUE(r.oriented);
+  EXPECT_EQ(r.components, 1);
+  EXPECT_GE(r.min_valence, 5);
+  EXPECT_LT(testing::max_distance_to_sphere(mesh, Vec3(0.01, 0.0, 0.0), 0.4), 0.25 / 32.0);
+}
+
+TEST(ActiveSurface, EnrightVelocityIsDivergenceFreeAndReverses) {
+  const double T = 3.0, e = 1e-5;
+  for (const Vec3& p : {Vec3(0.35, 0.35, 0.35), Vec3(0.1, 0.7, 0.4), Vec3(0.9, 0.2, 0.6)}) {
+    double div = 0.0;
+    for (int a = 0; a < 3; ++a) {
+      Vec3 d = Vec3::Zero();
+      d[a] = e;
+      div += (enright_velocity(p + d, 0.4, T)[a] - enright_velocity(p - d, 0.4, T)[a]) / (2 * e);
+    }
+    EXPECT_NEAR(div, 0.0, 1e-6);
+    EXPECT_LT((enright_velocity(p, 0.7, T) + enright_velocity(p, T - 0.7, T)).norm(), 1e-12);
+  }
+  EXPECT_NEAR(enright_velocity(Vec3(0.5, 0.25, 0.25), 0.0, T).x(), 2.0, 1e-12);
+}
+
+TEST(ActiveSurface, VelocityGridIsTrilinear) {
+  auto grid = std::make_shared<VelocityGrid>();
+  grid->origin = Vec3(-1, -1, -1);
+  grid->spacing = Vec3(0.5, 0.25, 1.0);
+  grid->nx = 5;
+  grid->ny = 9;
+  grid->nz = 3;
+  auto linear = [](const Vec3& p) { return Vec3(1 + 2 * p.x() - p.y(), 0.5 * p.z(), p.x() + p.y() + p.z()); };
+  for (int k = 0; k < grid->nz; ++k)
+    for (int j = 0; j < grid->ny; ++j)
+      for (int i = 0; i < grid->nx; ++i) {
+        const Vec3 v = linear(grid->origin + Vec3(i * 0.5, j * 0.25, k * 1.0));
+        for (int a = 0; a < 3; ++a) grid->values.push_back(static_cast<float>(v[a]));
+      }
+  const VelocityFn u = make_velocity_fn(grid);
+  for (const Vec3& p : {Vec3(0.1, 0.3, -0.2), Vec3(-0.9, 0.99, 0.7), Vec3(0.77, -0.6, 0.05)}) {
+    EXPECT_LT((u(p, 0.0) - linear(p)).norm(), 1e-5);
+  }
+  EXPECT_LT((u(Vec3(5, 0, 0), 0.0) - linear(Vec3(1, 0, 0))).norm(), 1e-5);  // clamped outside
+  grid->values.pop_back();
+  try {
+    make_velocity_fn(grid);
+    ADD_FAILURE();
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::kInvalidInput);
+    EXPECT_EQ(e.field(), "values");
+  }
+}
+
+TEST(ActiveSurface, ValidatesOptionsAndInputs) {
+  const SphereField sphere(Vec3::Zero(), 0.5);
+  auto expect_invalid = [&](const ActiveSurfaceOptions& o, const std::string& field) {
+    try {
+      ActiveSurface s(sphere, o);
+      ADD_FAILURE() << field;
+    } catch (const Error& e) {
+      EXPECT_EQ(e.kind(), ErrorKind::kInvalidInput);
+      EXPECT_EQ(e.field(), field);
+    }
+  };
+  ActiveSurfaceOptions o = base_options(0.05);
+  o.h = -1.0;
+  expect_invalid(o, "h");
+  o = base_options(0.05);
+  o.band_width = 1.0;
+  expect_invalid(o, "band_width");
+  o = base_options(0.05);
+  o.beta = -0.1;
+  expect_invalid(o, "beta");
+  o = base_options(0.05);
+  o.cfl = 1.5;
+  expect_invalid(o, "cfl");
+  o = base_options(0.05);
+  o.domain = Aabb{Vec3::Constant(2.0), Vec3::Constant(3.0)};
+  expect_invalid(o, "initial_shape");
+  // An unbounded shape needs a domain.
+  try {
+    ActiveSurface s(testing::PlaneField(Vec3(0, 0, 1), 0.0), base_options(0.05));
+    ADD_FAILURE();
+  } catch (const Error& e) {
+    EXPECT_EQ(e.field(), "domain");
+  }
+  // With one, the half-space is closed off half a cell outside the domain's nodes: about [-0.525, 0.525]^2 x
+  // [-0.525, 0] (the wall's ramp rounds the box's edges a little).
+  o = base_options(0.05);
+  o.domain = Aabb{Vec3::Constant(-0.5), Vec3::Constant(0.5)};
+  const ActiveSurface halfspace(testing::PlaneField(Vec3(0, 0, 1), 0.0), o);
+  EXPECT_NEAR(halfspace.stats().volume, 1.05 * 1.05 * 0.525, 0.02);
+  EXPECT_TRUE(check_mesh(halfspace.polygonize()).closed);
+  ActiveSurface s(sphere, base_options(0.05));
+  EXPECT_THROW(s.advance(-1.0), Error);
+  o = base_options(0.05);
+  o.max_blocks = 10;
+  try {
+    ActiveSurface t(sphere, o);
+    ADD_FAILURE();
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::kResourceLimit);
+    EXPECT_EQ(e.field(), "max_blocks");
+  }
+  EXPECT_THROW(make_particle_target({}, ParticleTargetOptions{}), Error);
+}
+
+}  // namespace
+}  // namespace surfacer
