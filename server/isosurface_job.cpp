@@ -52,12 +52,7 @@ std::unique_ptr<JobRunner> make_isosurface_runner(const v1::JobSpec& spec, const
   if (job.scenes_size() == 0) {
     throw InvalidInput(path + ".scenes", path + ".scenes is empty; give at least one scene (one frame per scene)");
   }
-  if (job.scenes_size() > context.limits.max_frames) {
-    throw ResourceLimit("max_frames", path + ".scenes has " + std::to_string(job.scenes_size()) +
-                                          " scenes, over the server's limit of " +
-                                          std::to_string(context.limits.max_frames) +
-                                          " frames per job; split the job or raise --max-frames");
-  }
+  check_frame_count(job.scenes_size(), path + ".scenes", context.limits);
   std::vector<FieldPtr> fields;
   fields.reserve(job.scenes_size());
   for (int i = 0; i < job.scenes_size(); ++i) {

@@ -4,6 +4,14 @@
 
 namespace surfacer::server {
 
+void check_frame_count(std::int64_t count, const std::string& field_path, const Limits& limits) {
+  if (count > limits.max_frames) {
+    throw ResourceLimit("max_frames", field_path + " asks for " + std::to_string(count) +
+                                          " frames, over the server's limit of " + std::to_string(limits.max_frames) +
+                                          " per job; split the job or start the server with a larger --max-frames");
+  }
+}
+
 std::unique_ptr<JobRunner> make_job_runner(const v1::JobSpec& spec, const JobContext& context) {
   switch (spec.kind_case()) {
     case v1::JobSpec::kIsosurface:

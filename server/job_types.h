@@ -17,6 +17,9 @@ struct JobContext {
   int worker_threads = 1;
 };
 
+// Throws ResourceLimit naming --max-frames when `count` frames (requested at `field_path`) exceed the limit.
+void check_frame_count(std::int64_t count, const std::string& field_path, const Limits& limits);
+
 // Dispatches on spec.kind. Throws surfacer::Error naming the offending field ("spec.isosurface.cells").
 std::unique_ptr<JobRunner> make_job_runner(const v1::JobSpec& spec, const JobContext& context);
 

@@ -86,12 +86,7 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
   if (job.frames_size() == 0) {
     throw InvalidInput(path + ".frames", path + ".frames is empty; give at least one particle frame");
   }
-  if (job.frames_size() > context.limits.max_frames) {
-    throw ResourceLimit("max_frames", path + ".frames has " + std::to_string(job.frames_size()) +
-                                          " frames, over the server's limit of " +
-                                          std::to_string(context.limits.max_frames) +
-                                          " per job; split the job or raise --max-frames");
-  }
+  check_frame_count(job.frames_size(), path + ".frames", context.limits);
   ParticleSurfacingOptions options;
   if (job.has_r_inner()) options.r_inner = job.r_inner();
   options.derive_r_inner = job.derive_r_inner();
