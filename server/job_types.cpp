@@ -20,6 +20,8 @@ std::unique_ptr<JobRunner> make_job_runner(const v1::JobSpec& spec, const JobCon
       return make_particles_runner(spec, context);
     case v1::JobSpec::kOptimize:
       return make_optimize_runner(spec, context);
+    case v1::JobSpec::kActive:
+      return make_active_runner(spec, context);
     case v1::JobSpec::KIND_NOT_SET:
       break;
   }

@@ -1,0 +1,246 @@
+// Job `active`: a narrow-band potential evolved to track a target (Desbrun-Cani 1998). One task (each frame
+// evolves from the previous one); modes coat (particle sequence), morph (scene A -> B) and advect (velocity field).
+#include <cmath>
+#include <cstring>
+
+#include "core/active_surface.h"
+#include "core/errors.h"
+#include "server/frames.h"
+#include "server/job_types.h"
+#include "server/particle_input.h"
+#include "server/scene_translate.h"
+#include "server/uploads.h"
+
+namespace surfacer::server {
+namespace {
+
+constexpr double kDefaultTracking = 1.0;   // alpha for coat and morph when not given
+constexpr double kDefaultEnrightPeriod = 3.0;
+
+// Runs a core call and prefixes an InvalidInput it throws with `path`.
+template <class F>
+auto with_path(const std::string& path, F&& f) {
+  try {
+    return f();
+  } catch (const Error& e) {
+    if (e.kind() != ErrorKind::kInvalidInput) throw;
+    throw InvalidInput(path + "." + e.field(), path + "." + e.what());
+  }
+}
+
+Aabb union_of(const Aabb& a, const Aabb& b) { return {a.min.cwiseMin(b.min), a.max.cwiseMax(b.max)}; }
+
+class ActiveRunner final : public JobRunner {
+ public:
+  ActiveRunner(v1::ActiveJob job, const UploadStore& uploads, ActiveSurfaceOptions options, FrameEncoding encoding,
+               const Limits& limits, int frames_expected)
+      : job_(std::move(job)),
+        uploads_(uploads),
+        options_(options),
+        encoding_(encoding),
+        limits_(limits),
+        frames_expected_(frames_expected) {}
+
+  std::string kind() const override { return "active"; }
+  int task_count() const override { return 1; }
+  int frame_count() const override { return frames_expected_; }
+
+  void run_task(int, FrameSink& sink, const RunControl& control) override {
+    int index = 0;
+    auto last = std::chrono::steady_clock::now();
+    const ActiveFrameSink emit = [&](ActiveFrame&& frame) {
+      const auto now = std::chrono::steady_clock::now();
+      StageTimer timer;
+      timer.add("evolve", std::chrono::duration<double>(now - last).count());
+      FrameOutput out = make_frame(frame.mesh, encoding_, limits_.max_triangles, timer);
+      auto& m = *out.stats.mutable_metrics();
+      const ActiveFrameStats& s = frame.stats;
+      m["time"] = s.time;
+      m["volume"] = s.volume;
+      m["area"] = s.area;
+      m["active_nodes"] = static_cast<double>(s.active_nodes);
+      m["allocated_blocks"] = static_cast<double>(s.allocated_blocks);
+      m["substeps"] = s.substeps;
+      m["dt"] = s.dt;
+      m["max_dfdt"] = s.max_dfdt;
+      m["components"] = s.components;
+      m["reinitializations"] = s.reinitializations;
+      sink.emit(index++, std::move(out));
+      control.report("evolve", static_cast<double>(index) / std::max(1, frames_expected_));
+      last = std::chrono::steady_clock::now();
+    };
+    const std::string path = "spec.active";
+    switch (job_.mode_case()) {
+      case v1::ActiveJob::kCoat: {
+        const auto& coat = job_.coat();
+        std::vector<std::vector<Vec3>> frames;
+        frames.reserve(coat.frames_size());
+        for (int i = 0; i < coat.frames_size(); ++i) {
+          frames.push_back(load_particle_frame(coat.frames(i), path + ".coat.frames[" + std::to_string(i) + "]",
+                                               uploads_, limits_.max_particles)
+                               .positions);
+        }
+        CoatOptions options;
+        options.kernel.radius = coat.kernel_radius();
+        if (coat.has_iso()) options.kernel.iso = coat.iso();
+        coat_particles(frames, options, options_, emit, control);
+        break;
+      }
+      case v1::ActiveJob::kMorph: {
+        const auto& morph = job_.morph();
+        const FieldPtr from = field_from_scene(morph.from(), path + ".morph.from", uploads_);
+        const FieldPtr to = field_from_scene(morph.to(), path + ".morph.to", uploads_);
+        MorphOptions options;
+        if (morph.has_tolerance()) options.tolerance = morph.tolerance();
+        if (morph.has_max_frames()) options.max_frames = morph.max_frames();
+        if (morph.has_frame_time()) options.frame_duration = morph.frame_time();
+        morph_shapes(*from, to, options, options_, emit, control);
+        break;
+      }
+      case v1::ActiveJob::kAdvect: {
+        const auto& advect = job_.advect();
+        const FieldPtr shape = field_from_scene(advect.shape(), path + ".advect.shape", uploads_);
+        AdvectOptions options;
+        options.frame_interval = advect.frame_interval();
+        options.frames = advect.frames();
+        advect_shape(*shape, velocity(advect, path + ".advect"), options, options_, emit, control);
+        break;
+      }
+      case v1::ActiveJob::MODE_NOT_SET:
+        break;
+    }
+  }
+
+  VelocityFn velocity(const v1::ActiveAdvect& advect, const std::string& path) const {
+    if (advect.has_grid()) return make_velocity_fn(velocity_grid(advect.grid(), path + ".grid", uploads_));
+    const double period = advect.enright().has_period() ? advect.enright().period() : kDefaultEnrightPeriod;
+    return [period](const Vec3& p, double t) { return enright_velocity(p, t, period); };
+  }
+
+  static std::shared_ptr<const VelocityGrid> velocity_grid(const v1::VelocityGrid& g, const std::string& path,
+                                                           const UploadStore& uploads) {
+    auto grid = std::make_shared<VelocityGrid>();
+    grid->origin = to_vec3(g.origin());
+    grid->spacing = to_vec3(g.spacing());
+    grid->nx = g.nx();
+    grid->ny = g.ny();
+    grid->nz = g.nz();
+    const auto blob = uploads.get(g.upload_id(), path + ".upload_id");
+    if (blob->bytes.size() % sizeof(float) != 0) {
+      throw InvalidInput(path + ".upload_id", path + ".upload_id: the upload is not a whole number of float32 values");
+    }
+    grid->values.resize(blob->bytes.size() / sizeof(float));
+    std::memcpy(grid->values.data(), blob->bytes.data(), grid->values.size() * sizeof(float));
+    with_path(path, [&] {
+      grid->validate();
+      return 0;
+    });
+    return grid;
+  }
+
+ private:
+  v1::ActiveJob job_;
+  const UploadStore& uploads_;
+  ActiveSurfaceOptions options_;
+  FrameEncoding encoding_;
+  Limits limits_;
+  int frames_expected_;
+};
+
+}  // namespace
+
+std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const JobContext& context) {
+  const auto& job = spec.active();
+  const std::string path = "spec.active";
+  ActiveSurfaceOptions options;
+  options.h = job.grid_spacing();
+  if (!(options.h > 0.0) || !std::isfinite(options.h)) {
+    throw InvalidInput(path + ".grid_spacing", path + ".grid_spacing (" + std::to_string(options.h) +
+                                                   ") must be a finite number > 0 (the potential's grid spacing h)");
+  }
+  if (job.has_bounds()) options.domain = to_aabb(job.bounds(), path + ".bounds");
+  const bool tracking = job.mode_case() != v1::ActiveJob::kAdvect;
+  options.alpha = job.has_alpha() ? job.alpha() : (tracking ? kDefaultTracking : 0.0);
+  if (job.has_beta()) options.beta = job.beta();
+  if (job.has_gamma()) options.gamma = job.gamma();
+  if (job.has_delta()) options.delta = job.delta();
+  if (job.has_cfl()) options.cfl = job.cfl();
+  options.polygonizer =
+      job.polygonizer() == v1::POLYGONIZER_CUBES ? ActivePolygonizer::kCubes : ActivePolygonizer::kTiles;
+  options.normals = spec.output().normals();
+
+  // Validate the mode now and find the region the surface can occupy (the frames' quantization box).
+  std::optional<Aabb> region = options.domain;
+  int frames_expected = 1;
+  auto add_region = [&](const std::optional<Aabb>& b, double pad) {
+    if (!b || options.domain) return;
+    Aabb padded{b->min.array() - pad, b->max.array() + pad};
+    region = region ? union_of(*region, padded) : padded;
+  };
+  switch (job.mode_case()) {
+    case v1::ActiveJob::kCoat: {
+      const auto& coat = job.coat();
+      if (coat.frames_size() == 0) {
+        throw InvalidInput(path + ".coat.frames", path + ".coat.frames is empty; give the particle sequence");
+      }
+      if (!(coat.kernel_radius() > 0.0) || !std::isfinite(coat.kernel_radius())) {
+        throw InvalidInput(path + ".coat.kernel_radius", path + ".coat.kernel_radius (" +
+                                                             std::to_string(coat.kernel_radius()) +
+                                                             ") must be > 0 (the Wyvill kernel's support R)");
+      }
+      for (int i = 0; i < coat.frames_size(); ++i) {
+        const auto summary = summarize_particle_frame(coat.frames(i), path + ".coat.frames[" + std::to_string(i) + "]",
+                                                      context.uploads, context.limits.max_particles);
+        add_region(summary.bounds, coat.kernel_radius() + 4 * options.h);
+      }
+      check_frame_count(coat.frames_size(), path + ".coat.frames", context.limits);
+      frames_expected = coat.frames_size();
+      break;
+    }
+    case v1::ActiveJob::kMorph: {
+      const auto& morph = job.morph();
+      const FieldPtr from = field_from_scene(morph.from(), path + ".morph.from", context.uploads);
+      const FieldPtr to = field_from_scene(morph.to(), path + ".morph.to", context.uploads);
+      if (!options.domain && (!from->bounds() || !to->bounds())) {
+        throw InvalidInput(path + ".bounds", path + ": a morph between unbounded scenes needs " + path + ".bounds");
+      }
+      add_region(from->bounds(), 4 * options.h);
+      add_region(to->bounds(), 4 * options.h);
+      if (morph.has_max_frames()) check_frame_count(morph.max_frames(), path + ".morph.max_frames", context.limits);
+      frames_expected = morph.has_max_frames() ? morph.max_frames() + 1 : 101;
+      break;
+    }
+    case v1::ActiveJob::kAdvect: {
+      const auto& advect = job.advect();
+      const FieldPtr shape = field_from_scene(advect.shape(), path + ".advect.shape", context.uploads);
+      if (!(advect.frame_interval() > 0.0) || advect.frames() < 1) {
+        throw InvalidInput(path + ".advect", path + ".advect needs frame_interval > 0 and frames >= 1 (got " +
+                                                 std::to_string(advect.frame_interval()) + ", " +
+                                                 std::to_string(advect.frames()) + ")");
+      }
+      check_frame_count(advect.frames(), path + ".advect.frames", context.limits);
+      add_region(shape->bounds(), 4 * options.h);
+      if (advect.has_grid()) {
+        const auto grid = ActiveRunner::velocity_grid(advect.grid(), path + ".advect.grid", context.uploads);
+        const Vec3 far = grid->origin + grid->spacing.cwiseProduct(Vec3(grid->nx - 1, grid->ny - 1, grid->nz - 1));
+        add_region(Aabb{grid->origin, far}, 4 * options.h);
+      } else {
+        if (advect.enright().has_period() && !(advect.enright().period() > 0.0)) {
+          throw InvalidInput(path + ".advect.enright.period", path + ".advect.enright.period must be > 0");
+        }
+        add_region(Aabb{Vec3::Zero(), Vec3::Ones()}, 4 * options.h);  // the Enright field lives in the unit cube
+      }
+      frames_expected = advect.frames() + 1;
+      break;
+    }
+    case v1::ActiveJob::MODE_NOT_SET:
+      throw InvalidInput(path + ".mode", path + " has no mode; set one of coat, morph, advect");
+  }
+  if (!region) {
+    throw InvalidInput(path + ".bounds", path + ": the shape is unbounded; give " + path + ".bounds");
+  }
+  const FrameEncoding encoding = resolve_output(spec.output(), *region, "spec.output");
+  return std::make_unique<ActiveRunner>(job, context.uploads, options, encoding, context.limits, frames_expected);
+}
+
+}  // namespace surfacer::server
