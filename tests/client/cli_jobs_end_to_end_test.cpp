@@ -18,6 +18,7 @@ using namespace e2e;
 
 constexpr const char* kSphere = R"({"name": "sphere", "root": {"sphere": {"radius": 0.5}}})";
 constexpr const char* kCube = R"({"name": "cube", "root": {"box": {"half_size": {"x": 0.5, "y": 0.5, "z": 0.5}}}})";
+constexpr const char* kSmallBox = R"({"name": "box", "root": {"box": {"half_size": {"x": 0.4, "y": 0.3, "z": 0.3}}}})";
 
 // A jittered cubic lattice of spacing `d` filling a ball: "x y z" lines.
 std::string particle_ball(Vec3 center, double radius, double d, unsigned seed) {
@@ -85,6 +86,7 @@ class CliJobsEndToEnd : public ::testing::Test {
     fs::create_directories(root_);
     write_file(root_ / "sphere.json", kSphere);
     write_file(root_ / "cube.json", kCube);
+    write_file(root_ / "box.json", kSmallBox);
     server_ = new ServerProcess(root_ / "server", 2);
     ASSERT_FALSE(server_->address().empty()) << "surfacer-server did not start:\n" << server_->log();
   }
@@ -244,6 +246,94 @@ TEST_F(CliJobsEndToEnd, OptimizeFromAnUploadedStartMesh) {
   double max_norm = 0;
   for (const Vec3& v : read_mesh(last).vertices) max_norm = std::max(max_norm, v.norm());
   EXPECT_GT(max_norm, 0.55);
+}
+
+TEST_F(CliJobsEndToEnd, ActiveMorphWritesClosedFramesWithMetrics) {
+  Result r = cli({"run", "active", "morph", "--from", (root_ / "sphere.json").string(), "--to",
+                  (root_ / "box.json").string(), "--grid-spacing", "0.05", "--max-frames", "4",
+                  "--bounds=-1,-1,-1,1,1,1", "-o", (dir_ / "morph").string(), "--format", "ply"});
+  ASSERT_EQ(r.code, 0) << r;
+  ASSERT_TRUE(fs::exists(dir_ / "morph" / "frame_0000.ply")) << r;
+  const auto rows = csv_rows(read_file(dir_ / "morph" / "stats.csv"));
+  ASSERT_GE(rows.size(), 3u);
+  ASSERT_LE(rows.size(), 5u);  // --max-frames 4
+  EXPECT_GE(column(rows[0], "active_nodes"), 0) << read_file(dir_ / "morph" / "stats.csv");
+  // The engine's "volume" metric sits beside the mesh check's volume column, so it is named metric_volume; it falls
+  // from the sphere's (0.52) toward the box's (0.29).
+  const int volume = column(rows[0], "metric_volume");
+  ASSERT_GE(volume, 0) << read_file(dir_ / "morph" / "stats.csv");
+  EXPECT_LT(std::stod(rows.back()[volume]), std::stod(rows[1][volume]));
+  EXPECT_GT(std::stod(rows.back()[volume]), 0.29);
+  for (std::size_t i = 1; i < rows.size(); ++i) {
+    expect_closed(dir_ / "morph" / ("frame_000" + std::to_string(i - 1) + ".ply"));
+  }
+}
+
+TEST_F(CliJobsEndToEnd, ActiveCoatFollowsAParticleSequence) {
+  for (int i = 0; i < 2; ++i) {
+    write_file(dir_ / ("coat_" + std::to_string(i) + ".xyz"), particle_ball(Vec3(0.02 * i, 0, 0), 0.3, 0.05, 20 + i));
+  }
+  Result r = cli({"run", "active", "coat", "--input", (dir_ / "coat_{}.xyz").string(), "--kernel-radius", "0.1",
+                  "--grid-spacing", "0.03", "-o", (dir_ / "coat").string(), "--format", "ply"});
+  ASSERT_EQ(r.code, 0) << r;
+  EXPECT_NE(r.err.find("uploaded 2/2: particle frame 1"), std::string::npos) << r;
+  for (int i = 0; i < 2; ++i) {
+    const fs::path frame = dir_ / "coat" / ("frame_000" + std::to_string(i) + ".ply");
+    expect_closed(frame);
+    EXPECT_NEAR(centroid(read_mesh(frame)).x(), 0.02 * i, 0.02) << frame;
+  }
+}
+
+TEST_F(CliJobsEndToEnd, ActiveAdvectEnrightWritesEveryFrame) {
+  write_file(dir_ / "enright.json",
+             R"({"root": {"sphere": {"center": {"x": 0.35, "y": 0.35, "z": 0.35}, "radius": 0.15}}})");
+  Result r = cli({"run", "active", "advect", "--scene", (dir_ / "enright.json").string(), "--enright", "--period", "3",
+                  "--frame-interval", "0.1", "--frames", "2", "--grid-spacing", "0.03", "-o",
+                  (dir_ / "advect").string(), "--format", "ply"});
+  ASSERT_EQ(r.code, 0) << r;
+  const auto rows = csv_rows(read_file(dir_ / "advect" / "stats.csv"));
+  ASSERT_GE(rows.size(), 3u) << r;  // the start and 2 frames at least
+  for (std::size_t i = 1; i < rows.size(); ++i) {
+    expect_closed(dir_ / "advect" / ("frame_000" + std::to_string(i - 1) + ".ply"));
+  }
+}
+
+// An uploaded velocity grid: a uniform wind (0.2, 0, 0) carries the ball 0.05 per frame of 0.25.
+TEST_F(CliJobsEndToEnd, ActiveAdvectByAnUploadedVelocityGrid) {
+  std::string grid;
+  const float wind[3] = {0.2f, 0.0f, 0.0f};
+  for (int node = 0; node < 11 * 11 * 11; ++node) grid.append(reinterpret_cast<const char*>(wind), sizeof wind);
+  write_file(dir_ / "wind.raw", grid);
+  write_file(dir_ / "ball.json", R"({"root": {"sphere": {"radius": 0.3}}})");
+  Result r = cli({"run",
+                  "active",
+                  "advect",
+                  "--scene",
+                  (dir_ / "ball.json").string(),
+                  "--velocity-grid",
+                  (dir_ / "wind.raw").string(),
+                  "--velocity-origin=-1,-1,-1",
+                  "--velocity-spacing",
+                  "0.2,0.2,0.2",
+                  "--velocity-dims",
+                  "11,11,11",
+                  "--frame-interval",
+                  "0.25",
+                  "--frames",
+                  "2",
+                  "--grid-spacing",
+                  "0.04",
+                  "-o",
+                  (dir_ / "wind").string(),
+                  "--format",
+                  "ply"});
+  ASSERT_EQ(r.code, 0) << r;
+  EXPECT_NE(r.err.find("uploaded 1/1: velocity grid"), std::string::npos) << r;
+  const double x0 = centroid(read_mesh(dir_ / "wind" / "frame_0000.ply")).x();
+  const fs::path last = dir_ / "wind" / "frame_0002.ply";
+  ASSERT_TRUE(fs::exists(last)) << r;
+  expect_closed(last);
+  EXPECT_NEAR(centroid(read_mesh(last)).x() - x0, 0.1, 0.02);
 }
 
 // submit prints only the job id (uploads are reported on stderr); watch writes the frames and the summary table.
