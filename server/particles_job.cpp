@@ -1,5 +1,6 @@
 // Job `particles`: particle frames -> one smooth, watertight mesh per frame (Williams 2008), frames in parallel.
 #include <cmath>
+#include <limits>
 
 #include "core/errors.h"
 #include "core/particle_surfacer.h"
@@ -11,8 +12,27 @@
 namespace surfacer::server {
 namespace {
 
-// Quantization box padding when r_inner is derived per frame (unknown at submit): a fraction of the largest side.
-constexpr double kDerivedPadFraction = 0.1;
+// When r_inner is derived per frame (unknown at submit), it is estimated from this many particles of frame 0, and the
+// quantization box is padded by kDerivedPadSafety times the r_outer that estimate implies.
+constexpr std::size_t kSpacingSamples = 128;
+constexpr double kDerivedPadSafety = 3.0;
+
+// Mean distance from a sample of particles to their nearest neighbour (brute force over all particles).
+double estimate_spacing(const std::vector<Vec3>& points) {
+  if (points.size() < 2) return 0.0;
+  const std::size_t step = std::max<std::size_t>(1, points.size() / kSpacingSamples);
+  double sum = 0.0;
+  int count = 0;
+  for (std::size_t i = 0; i < points.size(); i += step) {
+    double best = std::numeric_limits<double>::infinity();
+    for (std::size_t j = 0; j < points.size(); ++j) {
+      if (j != i) best = std::min(best, (points[j] - points[i]).squaredNorm());
+    }
+    sum += std::sqrt(best);
+    ++count;
+  }
+  return sum / count;
+}
 
 class ParticlesRunner final : public JobRunner {
  public:
@@ -134,7 +154,10 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
   } else if (options.r_inner) {
     pad = options.r_outer.value_or(2.0 * *options.r_inner);
   } else {
-    pad = kDerivedPadFraction * std::max(box.size().maxCoeff(), 1e-6);
+    const ParticleData first =
+        load_particle_frame(job.frames(0), path + ".frames[0]", context.uploads, context.limits.max_particles);
+    const double spacing = estimate_spacing(first.positions);
+    pad = kDerivedPadSafety * ratio * std::max(spacing, 1e-6 * std::max(box.size().maxCoeff(), 1.0));
   }
   box.min.array() -= 1.5 * pad;
   box.max.array() += 1.5 * pad;

@@ -107,6 +107,28 @@ TEST(ParticlesJob, EachFrameIsAClosedSurfaceFaithfulToItsParticles) {
   }
 }
 
+TEST(ParticlesJob, DerivedRadiusKeepsTheSurfaceInsideTheQuantizationBox) {
+  LoopbackServer s;
+  // A plain cubic lattice ball: the derived r_inner is the lattice spacing, and the surface reaches r_outer beyond
+  // the outermost particles, which the job's quantization box must hold.
+  std::vector<Vec3> ball;
+  for (int i = -5; i <= 5; ++i)
+    for (int j = -5; j <= 5; ++j)
+      for (int k = -5; k <= 5; ++k) {
+        const Vec3 p = Vec3(i, j, k) * 0.05;
+        if (p.norm() <= 0.25) ball.push_back(p);
+      }
+  v1::JobSpec spec;
+  spec.mutable_particles()->add_frames()->set_upload_id(upload(*s.stub, as_float32(ball)));
+  spec.mutable_particles()->set_derive_r_inner(true);
+  std::string id;
+  ASSERT_TRUE(submit(*s.stub, spec, &id).ok());
+  const auto result = watch_job(*s.stub, id);
+  ASSERT_EQ(result.states.back(), v1::JOB_STATE_SUCCEEDED) << result.final_job.error().message();
+  EXPECT_NEAR(result.frames.at(0).header.stats().metrics().at("r_inner"), 0.05, 0.005);
+  EXPECT_TRUE(check_mesh(decode_draco(result.frames.at(0).bytes)).closed);
+}
+
 TEST(ParticlesJob, BadParticlesAndOptionsNameTheField) {
   server::ServerOptions options = LoopbackServer::default_options();
   options.limits.max_particles = 100;
