@@ -24,7 +24,7 @@
 // * Time-dependent velocities: the step is chosen from |u| at the step's start, at most twice the previous step, and
 //   rejected (recomputed with a smaller dt) when |u| at the second stage breaks the CFL limit of 1.
 // * Reinitialization every reinit_interval sub-steps: d_tau = -S(d0) (|grad d| - 1) in grid units, Godunov with
-//   second-order ENO differences, pseudo-time step 1/2, ceil(2 w) + 2 iterations over all allocated blocks. The
+//   second-order ENO differences, pseudo-time step 1/2, ceil(2 (w - 1)) + 2 iterations over all allocated blocks. The
 //   surface must not move, and every rescaling of the nodes at a crossed edge moves the linearly interpolated
 //   crossing (the two ends see slightly different gradients); repeated reinitializations let that creep pile up
 //   (measured: a static sphere grew by several % over tens of reinitializations with Russo & Smereka's fix, and
@@ -90,7 +90,8 @@ void validate(const ActiveSurfaceOptions& o) {
     }
   }
   if (!(o.band_width >= 2.0) || !(o.band_width <= 8.0)) {
-    throw InvalidInput("band_width", "band_width (" + num(o.band_width) + ") must be in [2, 8] grid spacings; the default is 3");
+    throw InvalidInput("band_width",
+                       "band_width (" + num(o.band_width) + ") must be in [2, 8] grid spacings; the default is 3");
   }
   const std::pair<const char*, double> coeffs[] = {
       {"alpha", o.alpha}, {"beta", o.beta}, {"gamma", o.gamma}, {"delta", o.delta}};
@@ -144,7 +145,8 @@ void ActiveSurface::Impl::update_topology(const RunControl& control) {
   // Band flags of the current blocks.
   std::vector<char> is_band(nb, 0);
   parallel_for(nb, threads, [&](int b) {
-    constexpr int G = 1, S = apron_side<G>();
+    constexpr int G = 1;
+    constexpr std::ptrdiff_t S = apron_side<G>();
     float* ap = scratch(0, S * S * S);
     grid.gather<G>(b, kChanF, ap);
     unsigned char bits[8 * 8 * 8];
@@ -182,6 +184,9 @@ void ActiveSurface::Impl::update_topology(const RunControl& control) {
           }
           const int nbk = grid.insert(n, fill);
           for (int ch = 0; ch < kChanCount; ++ch) apply_wall(nbk, ch);
+          if (velocity_cache >= 0) {
+            for (int a = 0; a < 3; ++a) std::fill_n(grid.data(nbk, velocity_cache + a), kBlockNodes, kNaN);
+          }
         }
   }
 
@@ -211,10 +216,11 @@ void ActiveSurface::Impl::update_topology(const RunControl& control) {
   active.resize(count);
   band.assign(count, 0);
   parallel_for(count, threads, [&](int b) {
-    constexpr int G = 2, S = apron_side<G>();
+    constexpr int G = 2;
+    constexpr std::ptrdiff_t S = apron_side<G>();
     float* ap = scratch(0, S * S * S);
     grid.gather<G>(b, kChanF, ap);
-    constexpr int R = 10;  // band bits for local coordinates [-1, 9)
+    constexpr std::ptrdiff_t R = 10;  // band bits for local coordinates [-1, 9)
     unsigned char bits[R * R * R];
     active_detail::band_bits<S>(ap, bits);
     std::vector<std::uint16_t>& list = active[b];
@@ -228,7 +234,8 @@ void ActiveSurface::Impl::update_topology(const RunControl& control) {
           any_band |= *q != 0;
           if (*q | q[1] | q[-1] | q[R] | q[-R] | q[R * R] | q[-R * R]) {
             // Nodes outside the domain hold the wall's ramp and are never updated.
-            if (!has_domain || node_in_domain(c, x, y, z)) list.push_back(static_cast<std::uint16_t>(local_index(x, y, z)));
+            if (!has_domain || node_in_domain(c, x, y, z))
+              list.push_back(static_cast<std::uint16_t>(local_index(x, y, z)));
           }
         }
     band[b] = any_band;
@@ -245,15 +252,14 @@ void ActiveSurface::Impl::reinitialize(const RunControl& control) {
   const int nb = grid.block_count();
   const float ramp_f = static_cast<float>(ramp);
   // Frozen potential in B; subcell distance estimates of the interface nodes in Speed (NaN elsewhere).
+  parallel_for(nb, threads, [&](int b) { std::copy_n(grid.data(b, kChanF), kBlockNodes, grid.data(b, kChanB)); });
   parallel_for(nb, threads, [&](int b) {
-    std::copy_n(grid.data(b, kChanF), kBlockNodes, grid.data(b, kChanB));
-  });
-  parallel_for(nb, threads, [&](int b) {
-    constexpr int G = 2, S = apron_side<G>();
+    constexpr int G = 2;
+    constexpr std::ptrdiff_t S = apron_side<G>();
     float* ap = scratch(0, S * S * S);
     grid.gather<G>(b, kChanB, ap);
     float* out = grid.data(b, kChanSpeed);
-    const int st[3] = {1, S, S * S};
+    const std::ptrdiff_t st[3] = {1, S, S * S};
     constexpr int R = 10;  // classification of local coordinates [-1, 9): 0 off, 1 interface kept, 2 rescaled
     unsigned char cls[R * R * R];
     float dval[R * R * R];
@@ -307,26 +313,33 @@ void ActiveSurface::Impl::reinitialize(const RunControl& control) {
         }
   });
   const double dtau = 0.5;
-  const int iterations = static_cast<int>(std::ceil(2.0 * ramp)) + 2;
+  // Kept nodes reach a node beyond the interface; the rest of the ramp (ramp - 1 nodes) needs 2 (ramp - 1)
+  // pseudo-time steps of 1/2 to be swept, plus two to settle.
+  const int iterations = static_cast<int>(std::ceil(2.0 * (ramp - 1.0))) + 2;
   for (int it = 0; it < iterations; ++it) {
     control.check();
     parallel_for(nb, threads, [&](int b) {
-      constexpr int G = 2, S = apron_side<G>();
+      constexpr int G = 2;
+      constexpr std::ptrdiff_t S = apron_side<G>();
       float* ap = scratch(0, S * S * S);
       grid.gather<G>(b, kChanF, ap);
       const float* f0 = grid.data(b, kChanB);
       const float* dsub = grid.data(b, kChanSpeed);
       float* out = grid.data(b, kChanA);
       const sparse::BlockCoord& c = grid.coord(b);
-      const int st[3] = {1, S, S * S};
-      const auto minmod = [](double a, double b) {
-        return a * b <= 0.0 ? 0.0 : (std::abs(a) < std::abs(b) ? a : b);
-      };
+      const std::ptrdiff_t st[3] = {1, S, S * S};
+      const auto minmod = [](double a, double b) { return a * b <= 0.0 ? 0.0 : (std::abs(a) < std::abs(b) ? a : b); };
       for (int z = 0; z < 8; ++z)
         for (int y = 0; y < 8; ++y)
           for (int x = 0; x < 8; ++x) {
             const int i = local_index(x, y, z);
             const float* p = ap + apron_at<G>(x, y, z);
+            // Saturated with saturated 6-neighbours of the same value: Godunov leaves it saturated.
+            if ((p[0] == 1.0f || p[0] == -1.0f) && p[1] == p[0] && p[-1] == p[0] && p[S] == p[0] && p[-S] == p[0] &&
+                p[S * S] == p[0] && p[-S * S] == p[0] && std::isnan(dsub[i])) {
+              out[i] = has_domain ? std::min(p[0], wall_potential(c, x, y, z)) : p[0];
+              continue;
+            }
             const double d = -ramp * p[0];
             const double sgn = f0[i] > 0.0f ? -1.0 : 1.0;  // sign of d0
             double next;
@@ -338,7 +351,7 @@ void ActiveSurface::Impl::reinitialize(const RunControl& control) {
               // next reinitialization.
               double g2 = 0.0;
               for (int a = 0; a < 3; ++a) {
-                const int t = st[a];
+                const std::ptrdiff_t t = st[a];
                 const double m2 = -ramp * p[-2 * t], m1 = -ramp * p[-t], p1 = -ramp * p[t], p2 = -ramp * p[2 * t];
                 const double c0 = p1 - 2.0 * d + m1;
                 const double bm = (d - m1) + 0.5 * minmod(d - 2.0 * m1 + m2, c0);  // backward
@@ -423,8 +436,9 @@ void ActiveSurface::Impl::init(const Field& shape, const RunControl& control) {
     dims[a] = hi[a] - lo[a] + 1;
     candidates *= dims[a];
     if (candidates > (std::int64_t{1} << 24)) {
-      throw ResourceLimit("domain", "the initial shape's box holds more than 2^24 blocks of 8^3 nodes to scan; coarsen "
-                                    "h or give a tighter domain");
+      throw ResourceLimit("domain",
+                          "the initial shape's box holds more than 2^24 blocks of 8^3 nodes to scan; coarsen "
+                          "h or give a tighter domain");
     }
   }
 
@@ -526,7 +540,7 @@ void ActiveSurface::Impl::init(const Field& shape, const RunControl& control) {
 
 double ActiveSurface::Impl::step(double dt_limit, const RunControl& control) {
   control.check();
-  const bool advect = static_cast<bool>(velocity);
+  const bool advect = advecting();
   const int nb = grid.block_count();
   const double cfl = opt.cfl ? *opt.cfl : 1.0;
 
@@ -590,7 +604,8 @@ double ActiveSurface::Impl::step(double dt_limit, const RunControl& control) {
         bool need = false;
         for (const std::uint16_t i : active[b]) need |= std::isnan(s[i]);
         if (!need) return;
-        constexpr int G = 1, S = apron_side<G>();
+        constexpr int G = 1;
+        constexpr std::ptrdiff_t S = apron_side<G>();
         float* ap = scratch(0, S * S * S);
         grid.gather<G>(b, kChanSpeed, ap, &nan_fill);
         for (const std::uint16_t i : active[b]) {
@@ -620,7 +635,8 @@ double ActiveSurface::Impl::step(double dt_limit, const RunControl& control) {
       bool need = false;
       for (const std::uint16_t i : active[b]) need |= std::isnan(s[i]);
       if (!need) return;
-      constexpr int G = 1, S = apron_side<G>();
+      constexpr int G = 1;
+      constexpr std::ptrdiff_t S = apron_side<G>();
       float* ap = scratch(0, S * S * S);
       grid.gather<G>(b, kChanF, ap);
       const sparse::BlockCoord& c = grid.coord(b);
@@ -644,22 +660,38 @@ double ActiveSurface::Impl::step(double dt_limit, const RunControl& control) {
   std::vector<double> block_max_rate(nb, 0.0), block_max_speed(nb, 0.0);
   const float inv_h_f = static_cast<float>(inv_h);
   auto rate_block = [&](int b, int in_ch, double t_stage, float* rate, double* max_speed) {
-    float* ap = scratch(1, active_detail::kApronSide * active_detail::kApronSide * active_detail::kApronSide);
+    constexpr std::size_t kApron = active_detail::kApronSide;
+    float* ap = scratch(1, kApron * kApron * kApron);
     grid.gather<3>(b, in_ch, ap);
     if (advect) {
-      float* u = scratch(2, 3 * kBlockNodes);
+      float* u = scratch(2, std::size_t{3} * kBlockNodes);
       std::fill_n(u, 3 * kBlockNodes, 0.0f);
       const sparse::BlockCoord& c = grid.coord(b);
       double ms = 0.0;
-      for (const std::uint16_t i : active[b]) {
-        const Vec3 v = velocity(node_position(c, i & 7, (i >> 3) & 7, i >> 6), t_stage);
-        u[i] = static_cast<float>(v.x());
-        u[kBlockNodes + i] = static_cast<float>(v.y());
-        u[2 * kBlockNodes + i] = static_cast<float>(v.z());
-        ms = std::max(ms, v.norm());
+      if (separable.spatial) {
+        const double scale = separable.time_scale ? separable.time_scale(t_stage) : 1.0;
+        float* cache[3] = {grid.data(b, velocity_cache), grid.data(b, velocity_cache + 1),
+                           grid.data(b, velocity_cache + 2)};
+        for (const std::uint16_t i : active[b]) {
+          if (std::isnan(cache[0][i])) {
+            const Vec3 v = separable.spatial(node_position(c, i & 7, (i >> 3) & 7, i >> 6));
+            for (int a = 0; a < 3; ++a) cache[a][i] = static_cast<float>(v[a]);
+          }
+          const Vec3 v = scale * Vec3(cache[0][i], cache[1][i], cache[2][i]);
+          for (int a = 0; a < 3; ++a) u[a * kBlockNodes + i] = static_cast<float>(v[a]);
+          ms = std::max(ms, v.norm());
+        }
+      } else {
+        for (const std::uint16_t i : active[b]) {
+          const Vec3 v = velocity(node_position(c, i & 7, (i >> 3) & 7, i >> 6), t_stage);
+          u[i] = static_cast<float>(v.x());
+          u[kBlockNodes + i] = static_cast<float>(v.y());
+          u[2 * kBlockNodes + i] = static_cast<float>(v.z());
+          ms = std::max(ms, v.norm());
+        }
       }
       if (max_speed != nullptr) *max_speed = ms;
-      active_detail::advect_rate_block(ap, u, u + kBlockNodes, u + 2 * kBlockNodes, inv_h_f, rate);
+      active_detail::advect_rate_block(ap, u, u + kBlockNodes, u + std::ptrdiff_t{2} * kBlockNodes, inv_h_f, rate);
     } else {
       const float* speed = grid.data(b, kChanSpeed);
       float* s = scratch(2, kBlockNodes);
@@ -805,8 +837,7 @@ ActiveFrameStats ActiveSurface::Impl::make_stats() const {
 // ------------------------------------------------------------------------------------------------------------------
 // Public class.
 
-ActiveSurface::ActiveSurface(const Field& initial_shape, const ActiveSurfaceOptions& options,
-                             const RunControl& control)
+ActiveSurface::ActiveSurface(const Field& initial_shape, const ActiveSurfaceOptions& options, const RunControl& control)
     : impl_(std::make_unique<Impl>()) {
   impl_->opt = options;
   impl_->init(initial_shape, control);
@@ -817,7 +848,30 @@ ActiveSurface::ActiveSurface(ActiveSurface&&) noexcept = default;
 ActiveSurface& ActiveSurface::operator=(ActiveSurface&&) noexcept = default;
 
 void ActiveSurface::set_target(FieldPtr target) { impl_->target = std::move(target); }
-void ActiveSurface::set_velocity(VelocityFn velocity) { impl_->velocity = std::move(velocity); }
+void ActiveSurface::Impl::clear_velocity_cache() {
+  if (velocity_cache < 0) {
+    velocity_cache = grid.channels();
+    grid.add_channels(3, kNaN);
+    return;
+  }
+  for (int b = 0; b < grid.block_count(); ++b) {
+    for (int a = 0; a < 3; ++a) std::fill_n(grid.data(b, velocity_cache + a), kBlockNodes, kNaN);
+  }
+}
+
+void ActiveSurface::set_velocity(VelocityFn velocity) {
+  impl_->separable = {};
+  impl_->velocity = std::move(velocity);
+  impl_->last_dt = 0.0;
+}
+
+void ActiveSurface::set_velocity(SeparableVelocity velocity) {
+  if (!velocity.spatial) throw InvalidInput("velocity", "a separable velocity needs its spatial part u(x)");
+  impl_->velocity = {};
+  impl_->separable = std::move(velocity);
+  impl_->clear_velocity_cache();
+  impl_->last_dt = 0.0;
+}
 
 void ActiveSurface::set_reference_measures(double area, double volume) {
   if (!(area > 0.0) || !std::isfinite(area)) throw InvalidInput("area", "reference area must be finite and > 0");
@@ -898,9 +952,7 @@ ActiveFrameStats ActiveSurface::stats() const {
   return s;
 }
 
-Mesh ActiveSurface::polygonize(const RunControl& control) const {
-  return polygonize(impl_->opt.polygonizer, control);
-}
+Mesh ActiveSurface::polygonize(const RunControl& control) const { return polygonize(impl_->opt.polygonizer, control); }
 
 Mesh ActiveSurface::polygonize(ActivePolygonizer polygonizer, const RunControl& control) const {
   if (polygonizer == ActivePolygonizer::kTiles) return impl_->tiles_mesh(impl_->opt.normals, control);

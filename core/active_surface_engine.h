@@ -14,10 +14,10 @@ namespace surfacer {
 
 // Channels of every block.
 enum ActiveChannel : int {
-  kChanF = 0,       // the potential f
-  kChanA = 1,       // Runge-Kutta stage / reinitialization scratch
-  kChanB = 2,       // Runge-Kutta stage / frozen potential during reinitialization
-  kChanSpeed = 3,   // extended normal speed (NaN: not assigned) / reinitialization distance estimates
+  kChanF = 0,      // the potential f
+  kChanA = 1,      // Runge-Kutta stage / reinitialization scratch
+  kChanB = 2,      // Runge-Kutta stage / frozen potential during reinitialization
+  kChanSpeed = 3,  // extended normal speed (NaN: not assigned) / reinitialization distance estimates
   kChanCount = 4,
 };
 
@@ -45,7 +45,11 @@ struct ActiveSurface::Impl {
   std::vector<std::vector<float>> edge_speed;      // per block (band blocks): speed per (node, axis), NaN: none
 
   FieldPtr target;
-  VelocityFn velocity;
+  VelocityFn velocity;          // general advection velocity, called per active node per stage
+  SeparableVelocity separable;  // or u = time_scale(t) spatial(x), spatial cached per node
+  int velocity_cache = -1;      // first of the 3 channels caching spatial(x) (NaN: not evaluated), or -1
+  bool advecting() const { return static_cast<bool>(velocity) || static_cast<bool>(separable.spatial); }
+  void clear_velocity_cache();
   double time = 0.0;
   double area0 = 0.0, volume0 = 0.0;
   int steps_since_reinit = 0;
@@ -123,7 +127,8 @@ struct ActiveSurface::Impl {
     float* f = grid.data(block, channel);
     for (int z = 0; z < 8; ++z)
       for (int y = 0; y < 8; ++y)
-        for (int x = 0; x < 8; ++x) f[sparse::local_index(x, y, z)] = std::min(f[sparse::local_index(x, y, z)], wall_potential(c, x, y, z));
+        for (int x = 0; x < 8; ++x)
+          f[sparse::local_index(x, y, z)] = std::min(f[sparse::local_index(x, y, z)], wall_potential(c, x, y, z));
   }
 
   // Whether block `b` has a band block among the offsets {0, 1}^3 (it then may own crossed cubes).

@@ -3,6 +3,7 @@
 // Rows of 8 nodes are processed as 8-float vectors (GCC/Clang vector extensions). On x86-64 Linux with GCC the
 // kernels are compiled twice, for AVX2 and for the baseline, and picked at load time (target_clones); both run the
 // same IEEE operations in the same order (no FMA contraction), so results do not depend on the CPU.
+#include <cstddef>
 #include <cstring>
 
 #include "core/active_surface_schemes.h"
@@ -47,7 +48,7 @@ SURFACER_ALWAYS_INLINE void weno5v(const v8f& v1, const v8f& v2, const v8f& v3, 
 }
 
 // Left- and right-biased derivatives (grid units) of the 8 nodes of a row starting at f, along stride st.
-SURFACER_ALWAYS_INLINE void weno_row(const float* f, int st, v8f& dm, v8f& dp) {
+SURFACER_ALWAYS_INLINE void weno_row(const float* f, std::ptrdiff_t st, v8f& dm, v8f& dp) {
   const v8f fm3 = SURFACER_LOAD8(f - 3 * st), fm2 = SURFACER_LOAD8(f - 2 * st), fm1 = SURFACER_LOAD8(f - st);
   const v8f f0 = SURFACER_LOAD8(f);
   const v8f fp1 = SURFACER_LOAD8(f + st), fp2 = SURFACER_LOAD8(f + 2 * st), fp3 = SURFACER_LOAD8(f + 3 * st);
@@ -56,21 +57,23 @@ SURFACER_ALWAYS_INLINE void weno_row(const float* f, int st, v8f& dm, v8f& dp) {
   weno5v(d5, d4, d3, d2, d1, dp);
 }
 
-constexpr int kS = kApronSide;
+constexpr std::ptrdiff_t kS = kApronSide;
 
-const float* row_start(const float* ap, int y, int z) { return ap + 3 + kS * ((y + 3) + kS * (z + 3)); }
+const float* row_start(const float* ap, std::ptrdiff_t y, std::ptrdiff_t z) {
+  return ap + 3 + kS * ((y + 3) + kS * (z + 3));
+}
 
 }  // namespace
 
 SURFACER_KERNEL_CLONES void normal_rate_block(const float* ap, const float* speed, float inv_h, float* rate) {
-  const int strides[3] = {1, kS, kS * kS};
+  const std::ptrdiff_t strides[3] = {1, kS, kS * kS};
   const v8f zero = {0, 0, 0, 0, 0, 0, 0, 0}, one = {1, 1, 1, 1, 1, 1, 1, 1};
-  for (int r = 0; r < 64; ++r) {
+  for (std::ptrdiff_t r = 0; r < 64; ++r) {
     const float* row = row_start(ap, r & 7, r >> 3);
     const v8f s = SURFACER_LOAD8(speed + 8 * r);
     const v8f sigma = s > 0.0f ? one : -one;
     v8f g2 = zero;
-    for (const int st : strides) {
+    for (const std::ptrdiff_t st : strides) {
       v8f dm, dp;
       weno_row(row, st, dm, dp);
       const v8f sdm = sigma * dm, sdp = sigma * dp;
@@ -88,9 +91,9 @@ SURFACER_KERNEL_CLONES void normal_rate_block(const float* ap, const float* spee
 
 SURFACER_KERNEL_CLONES void advect_rate_block(const float* ap, const float* ux, const float* uy, const float* uz,
                                               float inv_h, float* rate) {
-  const int strides[3] = {1, kS, kS * kS};
+  const std::ptrdiff_t strides[3] = {1, kS, kS * kS};
   const float* u[3] = {ux, uy, uz};
-  for (int r = 0; r < 64; ++r) {
+  for (std::ptrdiff_t r = 0; r < 64; ++r) {
     const float* row = row_start(ap, r & 7, r >> 3);
     v8f acc = {0, 0, 0, 0, 0, 0, 0, 0};
     for (int a = 0; a < 3; ++a) {

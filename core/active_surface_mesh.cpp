@@ -139,10 +139,10 @@ double ActiveSurface::Impl::trilinear(const Vec3& p, Vec3* gradient) const {
     const auto bdiv = [](std::int64_t v) { return static_cast<int>(v >= 0 ? v / 8 : -((-v + 7) / 8)); };
     const int bx = bdiv(g[0]), by = bdiv(g[1]), bz = bdiv(g[2]);
     const int b = grid.find(bx, by, bz);
-    c[k] = b >= 0 ? grid.data(b, kChanF)[local_index(static_cast<int>(g[0] - 8LL * bx),
-                                                     static_cast<int>(g[1] - 8LL * by),
-                                                     static_cast<int>(g[2] - 8LL * bz))]
-                  : missing_sign(g[0], g[1], g[2]);
+    c[k] = b >= 0
+               ? grid.data(b, kChanF)[local_index(static_cast<int>(g[0] - 8LL * bx), static_cast<int>(g[1] - 8LL * by),
+                                                  static_cast<int>(g[2] - 8LL * bz))]
+               : missing_sign(g[0], g[1], g[2]);
   }
   const Vec3 t = u - fl;
   double v = 0.0;
@@ -172,7 +172,7 @@ ActiveMeasures ActiveSurface::Impl::measure(std::vector<std::vector<float>>* edg
     edges->resize(nb);
     for (int b = 0; b < nb; ++b) {
       if (band[b]) {
-        (*edges)[b].assign(3 * kBlockNodes, kNaN);
+        (*edges)[b].assign(std::size_t{3} * kBlockNodes, kNaN);
       } else {
         (*edges)[b].clear();
       }
@@ -189,7 +189,8 @@ ActiveMeasures ActiveSurface::Impl::measure(std::vector<std::vector<float>>* edg
     const bool cubes = owns_cubes(b);
     const bool sample = edges != nullptr && band[b];
     if (!cubes && !sample) return;
-    constexpr int G = 2, S = apron_side<G>();
+    constexpr int G = 2;
+    constexpr std::ptrdiff_t S = apron_side<G>();
     float* ap = mesh_scratch(S * S * S);
     grid.gather<G>(b, kChanF, ap);
     const sparse::BlockCoord& bc = grid.coord(b);
@@ -203,7 +204,7 @@ ActiveMeasures ActiveSurface::Impl::measure(std::vector<std::vector<float>>* edg
     BlockMeasure& part = parts[b];
     if (sample) {
       std::vector<float>& out = (*edges)[b];
-      const int st[3] = {1, S, S * S};
+      const std::ptrdiff_t st[3] = {1, S, S * S};
       for (int z = 0; z < 8; ++z)
         for (int y = 0; y < 8; ++y)
           for (int x = 0; x < 8; ++x) {
@@ -254,7 +255,7 @@ ActiveMeasures ActiveSurface::Impl::measure(std::vector<std::vector<float>>* edg
               return pos[e];
             };
             for (int k = 0; k < mc::kTriangleCount[cs]; ++k) {
-              const Vec3 a = edge_pos(mc::kTriangles[cs][3 * k]) - ref;
+              const Vec3 a = edge_pos(mc::kTriangles[cs][3 * k + 0]) - ref;
               const Vec3 bb = edge_pos(mc::kTriangles[cs][3 * k + 1]) - ref;
               const Vec3 cc = edge_pos(mc::kTriangles[cs][3 * k + 2]) - ref;
               part.area += 0.5 * (bb - a).cross(cc - a).norm();
@@ -285,13 +286,14 @@ Mesh ActiveSurface::Impl::cubes_mesh(bool normals, const RunControl& control) co
   parallel_for(nb, threads, [&](int b) {
     if ((b & 31) == 0) control.check();
     if (!band[b]) return;
-    constexpr int G = 2, S = apron_side<G>();
+    constexpr int G = 2;
+    constexpr std::ptrdiff_t S = apron_side<G>();
     float* ap = mesh_scratch(S * S * S);
     grid.gather<G>(b, kChanF, ap);
     const sparse::BlockCoord& bc = grid.coord(b);
     std::vector<std::int32_t>& map = ids[b];
-    map.assign(3 * kBlockNodes, -1);
-    const int st[3] = {1, S, S * S};
+    map.assign(std::size_t{3} * kBlockNodes, -1);
+    const std::ptrdiff_t st[3] = {1, S, S * S};
     for (int z = 0; z < 8; ++z)
       for (int y = 0; y < 8; ++y)
         for (int x = 0; x < 8; ++x) {
@@ -306,9 +308,7 @@ Mesh ActiveSurface::Impl::cubes_mesh(bool normals, const RunControl& control) co
             verts[b].push_back(origin + h * q);
             if (normals) {
               // -grad f by central differences at both ends, interpolated.
-              auto grad = [&](const float* c) {
-                return Vec3(c[1] - c[-1], c[S] - c[-S], c[S * S] - c[-S * S]);
-              };
+              auto grad = [&](const float* c) { return Vec3(c[1] - c[-1], c[S] - c[-S], c[S * S] - c[-S * S]); };
               Vec3 n = -((1.0 - t) * grad(p) + t * grad(p + st[a]));
               const double len = n.norm();
               if (len > 0.0) {
@@ -332,9 +332,10 @@ Mesh ActiveSurface::Impl::cubes_mesh(bool normals, const RunControl& control) co
   parallel_for(nb, threads, [&](int b) {
     if ((b & 31) == 0) control.check();
     if (!owns_cubes(b)) return;
-    constexpr int G = 1, S = apron_side<G>();
+    constexpr int G = 1;
+    constexpr std::ptrdiff_t S = apron_side<G>();
     (void)S;
-    float* ap = mesh_scratch(apron_side<G>() * apron_side<G>() * apron_side<G>());
+    float* ap = mesh_scratch(std::size_t{apron_side<G>()} * apron_side<G>() * apron_side<G>());
     grid.gather<G>(b, kChanF, ap);
     for (int z = 0; z < 8; ++z)
       for (int y = 0; y < 8; ++y)
@@ -383,11 +384,12 @@ Mesh ActiveSurface::Impl::tiles_mesh(bool normals, const RunControl& control) co
   std::vector<Vec3> block_seed(nb, Vec3::Constant(std::numeric_limits<double>::quiet_NaN()));
   parallel_for(nb, threads, [&](int b) {
     if (!band[b]) return;
-    constexpr int G = 1, S = apron_side<G>();
+    constexpr int G = 1;
+    constexpr std::ptrdiff_t S = apron_side<G>();
     float* ap = mesh_scratch(S * S * S);
     grid.gather<G>(b, kChanF, ap);
     const sparse::BlockCoord& bc = grid.coord(b);
-    const int st[3] = {1, S, S * S};
+    const std::ptrdiff_t st[3] = {1, S, S * S};
     Vec3 sum = Vec3::Zero();
     int n = 0;
     for (int z = 0; z < 8; ++z)

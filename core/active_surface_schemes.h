@@ -47,8 +47,8 @@ inline void band_bits(const float* __restrict ap, unsigned char* __restrict band
       unsigned char* out = band + R * ((y - 1) + R * (z - 1)) - 1;
       for (int x = 1; x < S - 1; ++x) {
         const unsigned char m = c[x];
-        const unsigned char diff = (c[x + 1] ^ m) | (c[x - 1] ^ m) | (c[x + S] ^ m) | (c[x - S] ^ m) |
-                                   (c[x + S * S] ^ m) | (c[x - S * S] ^ m);
+        const unsigned char diff =
+            (c[x + 1] ^ m) | (c[x - 1] ^ m) | (c[x + S] ^ m) | (c[x - S] ^ m) | (c[x + S * S] ^ m) | (c[x - S * S] ^ m);
         const float a = v[x] < 0.0f ? -v[x] : v[x];
         out[x] = static_cast<unsigned char>(diff | (a < 1.0f));
       }

@@ -49,6 +49,10 @@ class SparseBlockGrid {
   const float* data(int block, int channel) const {
     return data_[channel].data() + static_cast<std::size_t>(block) * kBlockNodes;
   }
+  // Appends n channels to every block, filled with `fill` (later insertions fill them like the others).
+  void add_channels(int n, float fill) {
+    for (int k = 0; k < n; ++k) data_.emplace_back(coords_.size() * kBlockNodes, fill);
+  }
   // Swaps two channels of every block in O(1).
   void swap_channels(int a, int b) { data_[a].swap(data_[b]); }
 

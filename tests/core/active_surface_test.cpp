@@ -88,8 +88,8 @@ TEST(ActiveSurface, TrackingConvergesToTargetSphere) {
 // Metamorphosis: a blob of six point skeletons in a row (one component) becomes two separate spheres.
 TEST(ActiveSurface, MorphSixPointBlobIntoTwoSpheres) {
   const double h = 1.0 / 40.0;
-  std::vector<PointSkeleton> points;
-  for (int i = 0; i < 6; ++i) points.push_back({Vec3(-0.5 + 0.2 * i, 0.0, 0.0), 0.35, 1.0});
+  std::vector<PointSkeleton> points(6);
+  for (int i = 0; i < 6; ++i) points[i] = {Vec3(-0.5 + 0.2 * i, 0.0, 0.0), 0.35, 1.0};
   const FieldPtr blob = make_blobs(points, {}, BlobOptions{});
   const Vec3 c0(-0.45, 0.0, 0.0), c1(0.45, 0.0, 0.0);
   const double r = 0.3;
@@ -188,7 +188,7 @@ TEST(ActiveSurface, UniformVelocityTranslatesTheSurface) {
   const Vec3 c0(-0.3, 0.1, 0.0), u(0.5, -0.25, 0.125);
   ActiveSurface surface(SphereField(c0, 0.3), o);
   const double v0 = surface.stats().volume;
-  surface.set_velocity([&](const Vec3&, double) { return u; });
+  surface.set_velocity([&](const Vec3&, double) -> Vec3 { return u; });
   const ActiveFrameStats s = surface.advance(0.8);
   const Mesh mesh = surface.polygonize();
   Vec3 centroid = Vec3::Zero();
@@ -342,6 +342,29 @@ TEST(ActiveSurface, EnrightVelocityIsDivergenceFreeAndReverses) {
   EXPECT_NEAR(enright_velocity(Vec3(0.5, 0.25, 0.25), 0.0, T).x(), 2.0, 1e-12);
 }
 
+// The separable form of a velocity (spatial part cached per node) moves the surface as the general form does.
+TEST(ActiveSurface, SeparableVelocityMatchesTheGeneralForm) {
+  auto run = [](bool separable) {
+    ActiveSurfaceOptions o = base_options(1.0 / 40.0);
+    o.domain = Aabb{Vec3::Zero(), Vec3::Ones()};
+    ActiveSurface surface(SphereField(Vec3(0.35, 0.35, 0.35), 0.15), o);
+    if (separable) {
+      surface.set_velocity(enright_separable_velocity(3.0));
+    } else {
+      surface.set_velocity([](const Vec3& p, double t) { return enright_velocity(p, t, 3.0); });
+    }
+    const ActiveFrameStats s = surface.advance(0.4);
+    return std::make_pair(s, surface.polygonize(ActivePolygonizer::kCubes));
+  };
+  const auto [sg, mg] = run(false);
+  const auto [ss, ms] = run(true);
+  EXPECT_EQ(sg.substeps, ss.substeps);
+  EXPECT_NEAR(ss.volume, sg.volume, 1e-4 * sg.volume);
+  EXPECT_LT(testing::max_nearest_vertex_distance(ms, mg), 0.01 / 40.0);
+  ActiveSurface s(SphereField(Vec3::Zero(), 0.3), base_options(0.05));
+  EXPECT_THROW(s.set_velocity(SeparableVelocity{}), Error);
+}
+
 TEST(ActiveSurface, VelocityGridIsTrilinear) {
   auto grid = std::make_shared<VelocityGrid>();
   grid->origin = Vec3(-1, -1, -1);
@@ -361,6 +384,9 @@ TEST(ActiveSurface, VelocityGridIsTrilinear) {
     EXPECT_LT((u(p, 0.0) - linear(p)).norm(), 1e-5);
   }
   EXPECT_LT((u(Vec3(5, 0, 0), 0.0) - linear(Vec3(1, 0, 0))).norm(), 1e-5);  // clamped outside
+  const SeparableVelocity steady = make_separable_velocity(grid);
+  EXPECT_FALSE(steady.time_scale);
+  EXPECT_LT((steady.spatial(Vec3(0.1, 0.3, -0.2)) - linear(Vec3(0.1, 0.3, -0.2))).norm(), 1e-5);
   grid->values.pop_back();
   try {
     make_velocity_fn(grid);

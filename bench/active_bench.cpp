@@ -1,0 +1,350 @@
+// Active implicit surfaces (core/active_surface.h): the Enright deformation test and coating a particle sequence.
+//
+//   active_bench                 Enright at 100^3 and the 200-frame coating sequence
+//   active_bench --full          Enright also at 128^3 and 200^3
+//   active_bench --enright N     Enright at N^3 only (repeatable)
+//   active_bench --coat-only     only the coating sequence
+//   active_bench --general-only  Enright with the general velocity only (VelocityFn called per node and stage, as
+//                                OpenVDB's field functor is); by default the separable (cached u(x)) form runs too
+//   options: --threads T (default 2), --particles N (default 10000), --frames F (default 200),
+//            --alpha A (tracking alpha = A * kernel radius, default 1)
+//
+// Enright (Enright, Fedkiw, Ferziger & Mitchell 2002, §5.3): sphere r = 0.15 at (0.35, 0.35, 0.35) in the unit cube,
+// period T = 3, no volume control. Reported: volume change at T/2 and T (Marching Cubes volume of the potential on
+// its grid, against the initial one), wall and CPU seconds, and cost per active node per sub-step (wall and CPU, over
+// the sum of active nodes of every sub-step, reinitializations and polygonizations included). Anchor on this machine:
+// OpenVDB LevelSetAdvection (HJ-WENO5, TVD-RK2) -36.1% at 100^3 (-25.3% at 128^3, -7.35% at 200^3), ~0.5 us per
+// active voxel per step.
+//
+// Coating: a generated sequence of particles (a ball that stretches into two lobes and turns, with per-frame jitter
+// like a particle simulation's noise) coated with the Wyvill kernel field; one skin per frame. Reported: ms per frame
+// and flicker = mean distance of each frame's vertices to the previous frame's surface over the particles' mean
+// displacement, for the active skin and for polygonizing each frame's target directly (the popping baseline).
+#include <sys/resource.h>
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "core/active_surface.h"
+#include "core/marching_tiles.h"
+#include "core/spatial_hash.h"
+
+namespace {
+
+using namespace surfacer;
+
+double cpu_seconds() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return u.ru_utime.tv_sec + u.ru_stime.tv_sec + 1e-6 * (u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
+double wall_seconds() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+class Sphere final : public Field {
+ public:
+  Sphere(const Vec3& c, double r) : c_(c), r_(r) {}
+  double value(const Vec3& p) const override { return (p - c_).norm() - r_; }
+  double value_and_gradient(const Vec3& p, Vec3& g) const override {
+    const Vec3 d = p - c_;
+    const double n = d.norm();
+    g = n > 0.0 ? Vec3(d / n) : Vec3(1, 0, 0);
+    return n - r_;
+  }
+  std::optional<Aabb> bounds() const override { return Aabb{c_.array() - r_, c_.array() + r_}; }
+
+ private:
+  Vec3 c_;
+  double r_;
+};
+
+void enright(int n, int threads, bool separable) {
+  const double period = 3.0;
+  ActiveSurfaceOptions o;
+  o.h = 1.0 / n;
+  o.domain = Aabb{Vec3::Zero(), Vec3::Ones()};
+  o.threads = threads;
+  const Sphere sphere(Vec3(0.35, 0.35, 0.35), 0.15);
+  const double w0 = wall_seconds(), c0 = cpu_seconds();
+  ActiveSurface surface(sphere, o);
+  if (separable) {
+    surface.set_velocity(enright_separable_velocity(period));  // u(x) cached per node, cos(pi t / T) per stage
+  } else {
+    surface.set_velocity([period](const Vec3& p, double t) { return enright_velocity(p, t, period); });
+  }
+  const ActiveFrameStats s0 = surface.stats();
+  const double exact = 4.0 / 3.0 * 3.14159265358979323846 * 0.15 * 0.15 * 0.15;
+  std::printf(
+      "\nEnright %d^3, %s velocity (h = %.5f, band_width %.0f, reinit every %d, %d threads): V0 %.6f (exact "
+      "%.6f), %lld active nodes\n",
+      n, separable ? "separable (cached)" : "general (per node and stage)", o.h, o.band_width, o.reinit_interval,
+      threads, s0.volume, exact, static_cast<long long>(s0.active_nodes));
+  std::printf("  %6s %9s %6s %10s %10s %6s %5s %9s %9s %10s %10s\n", "t", "dV", "steps", "active", "peak act.",
+              "reinit", "comp", "wall s", "cpu s", "us/n-s wall", "us/n-s cpu");
+  const int frames = 8;
+  double node_steps = 0.0, peak = 0.0;
+  int steps = 0;
+  double dv_half = 0.0, dv_end = 0.0;
+  for (int f = 1; f <= frames; ++f) {
+    const ActiveFrameStats s = surface.advance(period / frames);
+    node_steps += static_cast<double>(s.active_node_steps);
+    steps += s.substeps;
+    peak = std::max(peak, static_cast<double>(s.active_nodes));
+    const double dv = 100.0 * (s.volume - s0.volume) / s0.volume;
+    if (f == frames / 2) dv_half = dv;
+    if (f == frames) dv_end = dv;
+    const double w = wall_seconds() - w0, c = cpu_seconds() - c0;
+    std::printf("  %6.3f %8.2f%% %6d %10lld %10.0f %6d %5d %9.2f %9.2f %10.3f %10.3f\n", s.time, dv, s.substeps,
+                static_cast<long long>(s.active_nodes), peak, s.reinitializations, s.components, w, c,
+                1e6 * w / node_steps, 1e6 * c / node_steps);
+    std::fflush(stdout);
+  }
+  const double w = wall_seconds() - w0, c = cpu_seconds() - c0;
+  std::printf(
+      "  => %d^3 %s: dV(T/2) %.2f%%  dV(T) %.2f%%  %d steps  %.1f s wall (%.1f s cpu)  %.3f us per active "
+      "node-step wall (%.3f cpu, %.3f cpu per thread)\n",
+      n, separable ? "separable" : "general", dv_half, dv_end, steps, w, c, 1e6 * w / node_steps, 1e6 * c / node_steps,
+      1e6 * c / node_steps / threads);
+}
+
+// --- Coating ---------------------------------------------------------------------------------------------------------
+
+struct Sequence {
+  std::vector<std::vector<Vec3>> frames;
+  double spacing = 0.0;  // mean particle spacing
+};
+
+// A ball of particles that turns about z while stretching into two lobes along its (turning) x axis; every frame
+// adds fresh jitter of 0.15 spacing, as a simulation's particle noise would.
+Sequence make_sequence(int particles, int frames) {
+  Sequence seq;
+  std::mt19937_64 rng(12345);
+  std::uniform_real_distribution<double> uni(-1.0, 1.0);
+  std::normal_distribution<double> gauss(0.0, 1.0);
+  const double radius = 0.3;
+  std::vector<Vec3> base;
+  while (static_cast<int>(base.size()) < particles) {
+    const Vec3 p(uni(rng), uni(rng), uni(rng));
+    if (p.squaredNorm() <= 1.0) base.push_back(radius * p);
+  }
+  seq.spacing = std::cbrt(4.0 / 3.0 * 3.14159265358979323846 * radius * radius * radius / particles);
+  const double jitter = 0.15 * seq.spacing;
+  seq.frames.resize(frames);
+  for (int k = 0; k < frames; ++k) {
+    const double t = static_cast<double>(k) / std::max(1, frames - 1);
+    const double split = 0.35 * (0.5 - 0.5 * std::cos(3.14159265358979323846 * t));  // 0 -> 0.35
+    const Eigen::Matrix3d rot = Eigen::AngleAxisd(1.5 * t, Vec3::UnitZ()).toRotationMatrix();
+    auto& out = seq.frames[k];
+    out.reserve(particles);
+    for (const Vec3& b : base) {
+      Vec3 q = b;
+      q.x() += (b.x() >= 0.0 ? split : -split);  // two lobes drifting apart
+      q.y() *= 1.0 - 0.3 * split;
+      out.push_back(rot * q + jitter * Vec3(gauss(rng), gauss(rng), gauss(rng)));
+    }
+  }
+  return seq;
+}
+
+// Mean distance from the vertices of `mesh` to the triangles of `prev` (exact point-triangle distances over the
+// triangles near each vertex).
+double mean_distance_to_mesh(const Mesh& mesh, const Mesh& prev, double reach) {
+  if (mesh.vertices.empty() || prev.triangles.empty()) return 0.0;
+  std::vector<Vec3> centroids;
+  centroids.reserve(prev.triangles.size());
+  double max_edge = 0.0;
+  for (const Triangle& t : prev.triangles) {
+    const Vec3 &a = prev.vertices[t[0]], &b = prev.vertices[t[1]], &c = prev.vertices[t[2]];
+    centroids.push_back((a + b + c) / 3.0);
+    max_edge = std::max({max_edge, (a - b).norm(), (b - c).norm(), (c - a).norm()});
+  }
+  const SpatialHash hash(centroids, reach);
+  auto point_triangle = [](const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
+    // Ericson, Real-Time Collision Detection §5.1.5.
+    const Vec3 ab = b - a, ac = c - a, ap = p - a;
+    const double d1 = ab.dot(ap), d2 = ac.dot(ap);
+    if (d1 <= 0 && d2 <= 0) return (p - a).norm();
+    const Vec3 bp = p - b;
+    const double d3 = ab.dot(bp), d4 = ac.dot(bp);
+    if (d3 >= 0 && d4 <= d3) return (p - b).norm();
+    const double vc = d1 * d4 - d3 * d2;
+    if (vc <= 0 && d1 >= 0 && d3 <= 0) return (p - (a + d1 / (d1 - d3) * ab)).norm();
+    const Vec3 cp = p - c;
+    const double d5 = ab.dot(cp), d6 = ac.dot(cp);
+    if (d6 >= 0 && d5 <= d6) return (p - c).norm();
+    const double vb = d5 * d2 - d1 * d6;
+    if (vb <= 0 && d2 >= 0 && d6 <= 0) return (p - (a + d2 / (d2 - d6) * ac)).norm();
+    const double va = d3 * d6 - d5 * d4;
+    if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
+      return (p - (b + (d4 - d3) / ((d4 - d3) + (d5 - d6)) * (c - b))).norm();
+    }
+    const double denom = 1.0 / (va + vb + vc);
+    return (p - (a + ab * (vb * denom) + ac * (vc * denom))).norm();
+  };
+  double sum = 0.0;
+  for (const Vec3& p : mesh.vertices) {
+    double best = std::numeric_limits<double>::infinity();
+    hash.for_each_within(p, reach + max_edge, [&](std::uint32_t i, const Vec3&, double) {
+      const Triangle& t = prev.triangles[i];
+      best = std::min(best, point_triangle(p, prev.vertices[t[0]], prev.vertices[t[1]], prev.vertices[t[2]]));
+    });
+    if (!std::isfinite(best)) best = hash.nearest(p)->distance;
+    sum += best;
+  }
+  return sum / static_cast<double>(mesh.vertices.size());
+}
+
+void coat(int particles, int frames, int threads, double alpha_scale) {
+  const Sequence seq = make_sequence(particles, frames);
+  ParticleTargetOptions kernel;
+  kernel.radius = 2.5 * seq.spacing;
+  kernel.iso = 0.5;
+  CoatOptions coat;
+  coat.kernel = kernel;
+  coat.frame_duration = 1.0;
+  ActiveSurfaceOptions o;
+  o.h = kernel.radius / 3.0;
+  o.threads = threads;
+  // Tracking: g = iso - sum K has |grad g| of a few / R at the skin, so alpha = alpha_scale R relaxes a gap at a
+  // rate of a few per frame; a little tension (features of radius R are smoothed by ~beta / (alpha |grad g| R)).
+  o.alpha = alpha_scale * kernel.radius;
+  o.beta = 0.02 * kernel.radius * kernel.radius;
+  double mean_particle_motion = 0.0;
+  for (int k = 1; k < frames; ++k) {
+    double s = 0.0;
+    for (int i = 0; i < particles; ++i) s += (seq.frames[k][i] - seq.frames[k - 1][i]).norm();
+    mean_particle_motion += s / particles;
+  }
+  mean_particle_motion /= std::max(1, frames - 1);
+  std::printf(
+      "\nCoating %d frames of %d particles (spacing %.4f, R %.4f, h %.4f, alpha %.4g, beta %.3g, %d threads); "
+      "mean particle motion per frame %.5f\n",
+      frames, particles, seq.spacing, kernel.radius, o.h, o.alpha, o.beta, threads, mean_particle_motion);
+
+  // Active skin.
+  Mesh prev;
+  double skin_motion = 0.0, skin_lag = 0.0;
+  int skin_pairs = 0, frame_index = 0;
+  std::vector<std::vector<Vec3>> skin_vertices(frames);
+  std::int64_t node_steps = 0, vertices = 0;
+  int substeps = 0;
+  double measure_wall = 0.0, measure_cpu = 0.0;  // the flicker measure inside the sink, not part of the skin's cost
+  double w0 = wall_seconds(), c0 = cpu_seconds();
+  coat_particles(seq.frames, coat, o, [&](ActiveFrame&& f) {
+    const double mw = wall_seconds(), mc = cpu_seconds();
+    if (!prev.vertices.empty()) {
+      skin_motion += mean_distance_to_mesh(f.mesh, prev, 3.0 * o.h);
+      ++skin_pairs;
+    }
+    skin_vertices[frame_index++] = f.mesh.vertices;  // for the tracking lag, measured against the direct surface
+    measure_wall += wall_seconds() - mw;
+    measure_cpu += cpu_seconds() - mc;
+    node_steps += f.stats.active_node_steps;
+    substeps += f.stats.substeps;
+    vertices += static_cast<std::int64_t>(f.mesh.vertices.size());
+    prev = std::move(f.mesh);
+  });
+  const double skin_wall = wall_seconds() - w0 - measure_wall, skin_cpu = cpu_seconds() - c0 - measure_cpu;
+  // Direct polygonization of each frame's target (Marching Tiles at the same spacing).
+  prev = Mesh{};
+  double direct_motion = 0.0;
+  int direct_pairs = 0;
+  double direct_time_wall = 0.0, direct_time_cpu = 0.0;
+  for (int k = 0; k < frames; ++k) {
+    const double a = wall_seconds(), ac = cpu_seconds();
+    const FieldPtr target = make_particle_target(seq.frames[k], kernel);
+    MarchingTilesOptions mt;
+    mt.bounds = *target->bounds();
+    mt.spacing = o.h;
+    mt.threads = threads;
+    mt.seeds = seq.frames[k];
+    mt.seed_radius = kernel.radius;
+    Mesh mesh = marching_tiles(*target, mt);
+    direct_time_wall += wall_seconds() - a;
+    direct_time_cpu += cpu_seconds() - ac;
+    if (!prev.vertices.empty()) {
+      direct_motion += mean_distance_to_mesh(mesh, prev, 3.0 * o.h);
+      ++direct_pairs;
+    }
+    Mesh skin;
+    skin.vertices = std::move(skin_vertices[k]);
+    skin_lag += mean_distance_to_mesh(skin, mesh, 3.0 * o.h);
+    prev = std::move(mesh);
+  }
+  const double skin_flicker = skin_motion / std::max(1, skin_pairs) / mean_particle_motion;
+  const double direct_flicker = direct_motion / std::max(1, direct_pairs) / mean_particle_motion;
+  std::printf(
+      "  active skin : %7.1f ms/frame wall (%.1f cpu), %.1f sub-steps/frame, %.0f active nodes/sub-step, "
+      "%.0f vertices/frame, mean distance to the frame's target surface %.2f h, flicker %.3f\n",
+      1e3 * skin_wall / frames, 1e3 * skin_cpu / frames, static_cast<double>(substeps) / frames,
+      static_cast<double>(node_steps) / std::max(1, substeps), static_cast<double>(vertices) / frames,
+      skin_lag / frames / o.h, skin_flicker);
+  std::printf("  direct tiles: %7.1f ms/frame wall (%.1f cpu), flicker %.3f\n", 1e3 * direct_time_wall / frames,
+              1e3 * direct_time_cpu / frames, direct_flicker);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  int threads = 2, particles = 10000, frames = 200;
+  double alpha_scale = 1.0;
+  bool full = false, coat_only = false, general_only = false;
+  std::vector<int> sizes;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto next = [&]() -> int {
+      if (i + 1 >= argc) {
+        std::fprintf(stderr, "%s needs a value\n", a.c_str());
+        std::exit(2);
+      }
+      return std::atoi(argv[++i]);
+    };
+    if (a == "--full") {
+      full = true;
+    } else if (a == "--coat-only") {
+      coat_only = true;
+    } else if (a == "--general-only") {
+      general_only = true;
+    } else if (a == "--enright") {
+      sizes.push_back(next());
+    } else if (a == "--threads") {
+      threads = next();
+    } else if (a == "--particles") {
+      particles = next();
+    } else if (a == "--frames") {
+      frames = next();
+    } else if (a == "--alpha") {
+      if (i + 1 >= argc) return 2;
+      alpha_scale = std::atof(argv[++i]);
+    } else {
+      std::fprintf(stderr, "unknown option %s (see the comment at the top of bench/active_bench.cpp)\n", a.c_str());
+      return 2;
+    }
+  }
+  const bool enright_only = !sizes.empty();
+  if (sizes.empty() && !coat_only) {
+    sizes.push_back(100);
+    if (full) {
+      sizes.push_back(128);
+      sizes.push_back(200);
+    }
+  }
+  std::printf(
+      "Anchor (OpenVDB LevelSetAdvection, HJ-WENO5 + TVD-RK2, this machine): dV(T) -36.1%% at 100^3, -25.3%% at "
+      "128^3, -7.35%% at 200^3; ~0.5 us per active voxel per step\n");
+  for (const int n : sizes) {
+    enright(n, threads, false);
+    if (!general_only) enright(n, threads, true);
+  }
+  if (!enright_only) coat(particles, frames, threads, alpha_scale);
+  return 0;
+}
