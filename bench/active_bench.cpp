@@ -7,7 +7,8 @@
 //   active_bench --general-only  Enright with the general velocity only (VelocityFn called per node and stage, as
 //                                OpenVDB's field functor is); by default the separable (cached u(x)) form runs too
 //   options: --threads T (default 2), --particles N (default 10000), --frames F (default 200),
-//            --alpha A (tracking alpha = A * kernel radius, default 1)
+//            --alpha A (tracking alpha = A * kernel radius, default 0.3), --beta B (tension beta = B * radius^2,
+//            default 0.02), --dropout D (fraction of the particles absent from each frame, default 0.1)
 //
 // Enright (Enright, Fedkiw, Ferziger & Mitchell 2002, §5.3): sphere r = 0.15 at (0.35, 0.35, 0.35) in the unit cube,
 // period T = 3, no volume control. Reported: volume change at T/2 and T (Marching Cubes volume of the potential on
@@ -17,9 +18,12 @@
 // active voxel per step.
 //
 // Coating: a generated sequence of particles (a ball that stretches into two lobes and turns, with per-frame jitter
-// like a particle simulation's noise) coated with the Wyvill kernel field; one skin per frame. Reported: ms per frame
-// and flicker = mean distance of each frame's vertices to the previous frame's surface over the particles' mean
-// displacement, for the active skin and for polygonizing each frame's target directly (the popping baseline).
+// of 0.15 spacing like a simulation's noise, and a changing particle set: 10% absent from each frame) coated with the
+// Wyvill kernel field, one skin per frame (coat_particles), against polygonizing each frame's target directly with
+// Marching Tiles (the popping baseline). Reported: ms per frame; flicker = mean distance of each frame's vertices to
+// the previous frame's surface over the particles' mean displacement (the brief's measure), and the same motion over
+// that of the clean sequence's surface (no jitter, no dropout: 1 means no flicker); the skin's distance to its
+// frame's target and to the clean surface.
 #include <sys/resource.h>
 
 #include <Eigen/Geometry>
@@ -120,12 +124,14 @@ void enright(int n, int threads, bool separable) {
 
 struct Sequence {
   std::vector<std::vector<Vec3>> frames;
-  double spacing = 0.0;  // mean particle spacing
+  std::vector<std::vector<std::uint32_t>> ids;  // particle id of every frame entry
+  double spacing = 0.0;                         // mean particle spacing
 };
 
 // A ball of particles that turns about z while stretching into two lobes along its (turning) x axis; every frame
-// adds fresh jitter of 0.15 spacing, as a simulation's particle noise would.
-Sequence make_sequence(int particles, int frames) {
+// adds fresh jitter of 0.15 spacing, as a simulation's particle noise would, and omits a random `dropout` fraction of
+// the particles (the particle set changes from frame to frame, as with emission, deletion or level-of-detail).
+Sequence make_sequence(int particles, int frames, double dropout, double jitter_spacings) {
   Sequence seq;
   std::mt19937_64 rng(12345);
   std::uniform_real_distribution<double> uni(-1.0, 1.0);
@@ -137,19 +143,25 @@ Sequence make_sequence(int particles, int frames) {
     if (p.squaredNorm() <= 1.0) base.push_back(radius * p);
   }
   seq.spacing = std::cbrt(4.0 / 3.0 * 3.14159265358979323846 * radius * radius * radius / particles);
-  const double jitter = 0.15 * seq.spacing;
+  const double jitter = jitter_spacings * seq.spacing;
   seq.frames.resize(frames);
+  seq.ids.resize(frames);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
   for (int k = 0; k < frames; ++k) {
     const double t = static_cast<double>(k) / std::max(1, frames - 1);
     const double split = 0.35 * (0.5 - 0.5 * std::cos(3.14159265358979323846 * t));  // 0 -> 0.35
     const Eigen::Matrix3d rot = Eigen::AngleAxisd(1.5 * t, Vec3::UnitZ()).toRotationMatrix();
     auto& out = seq.frames[k];
     out.reserve(particles);
-    for (const Vec3& b : base) {
+    for (std::uint32_t i = 0; i < base.size(); ++i) {
+      const Vec3& b = base[i];
+      const Vec3 noise(gauss(rng), gauss(rng), gauss(rng));
+      if (unit(rng) < dropout) continue;
+      seq.ids[k].push_back(i);
       Vec3 q = b;
       q.x() += (b.x() >= 0.0 ? split : -split);  // two lobes drifting apart
       q.y() *= 1.0 - 0.3 * split;
-      out.push_back(rot * q + jitter * Vec3(gauss(rng), gauss(rng), gauss(rng)));
+      out.push_back(rot * q + jitter * noise);
     }
   }
   return seq;
@@ -203,8 +215,9 @@ double mean_distance_to_mesh(const Mesh& mesh, const Mesh& prev, double reach) {
   return sum / static_cast<double>(mesh.vertices.size());
 }
 
-void coat(int particles, int frames, int threads, double alpha_scale) {
-  const Sequence seq = make_sequence(particles, frames);
+void coat(int particles, int frames, int threads, double alpha_scale, double beta_scale, double dropout) {
+  const Sequence seq = make_sequence(particles, frames, dropout, 0.15);
+  const Sequence clean = make_sequence(particles, frames, 0.0, 0.0);  // the motion without noise: the reference
   ParticleTargetOptions kernel;
   kernel.radius = 2.5 * seq.spacing;
   kernel.iso = 0.5;
@@ -214,21 +227,33 @@ void coat(int particles, int frames, int threads, double alpha_scale) {
   ActiveSurfaceOptions o;
   o.h = kernel.radius / 3.0;
   o.threads = threads;
-  // Tracking: g = iso - sum K has |grad g| of a few / R at the skin, so alpha = alpha_scale R relaxes a gap at a
-  // rate of a few per frame; a little tension (features of radius R are smoothed by ~beta / (alpha |grad g| R)).
+  // Tracking: g = iso - sum K has |grad g| of a few / R at the skin, so alpha = alpha_scale R relaxes a gap at a rate
+  // of about 3 alpha_scale per frame: 0.3 follows the motion within a fraction of h while filtering the frame-to-frame
+  // noise (1 tracks tighter and flickers more); a little tension (features of radius R are smoothed by about
+  // beta / (alpha |grad g| R)).
   o.alpha = alpha_scale * kernel.radius;
-  o.beta = 0.02 * kernel.radius * kernel.radius;
+  o.beta = beta_scale * kernel.radius * kernel.radius;
+  // Mean displacement between consecutive frames of the particles present in both.
   double mean_particle_motion = 0.0;
   for (int k = 1; k < frames; ++k) {
     double s = 0.0;
-    for (int i = 0; i < particles; ++i) s += (seq.frames[k][i] - seq.frames[k - 1][i]).norm();
-    mean_particle_motion += s / particles;
+    int n = 0;
+    std::size_t j = 0;
+    for (std::size_t i = 0; i < seq.ids[k].size(); ++i) {
+      while (j < seq.ids[k - 1].size() && seq.ids[k - 1][j] < seq.ids[k][i]) ++j;
+      if (j < seq.ids[k - 1].size() && seq.ids[k - 1][j] == seq.ids[k][i]) {
+        s += (seq.frames[k][i] - seq.frames[k - 1][j]).norm();
+        ++n;
+      }
+    }
+    mean_particle_motion += s / std::max(1, n);
   }
   mean_particle_motion /= std::max(1, frames - 1);
   std::printf(
-      "\nCoating %d frames of %d particles (spacing %.4f, R %.4f, h %.4f, alpha %.4g, beta %.3g, %d threads); "
-      "mean particle motion per frame %.5f\n",
-      frames, particles, seq.spacing, kernel.radius, o.h, o.alpha, o.beta, threads, mean_particle_motion);
+      "\nCoating %d frames of %d particles, %.0f%% absent per frame (spacing %.4f, R %.4f, h %.4f, alpha %.4g, "
+      "beta %.3g, %d threads); mean particle motion per frame %.5f\n",
+      frames, particles, 100.0 * dropout, seq.spacing, kernel.radius, o.h, o.alpha, o.beta, threads,
+      mean_particle_motion);
 
   // Active skin.
   Mesh prev;
@@ -254,49 +279,66 @@ void coat(int particles, int frames, int threads, double alpha_scale) {
     prev = std::move(f.mesh);
   });
   const double skin_wall = wall_seconds() - w0 - measure_wall, skin_cpu = cpu_seconds() - c0 - measure_cpu;
-  // Direct polygonization of each frame's target (Marching Tiles at the same spacing).
-  prev = Mesh{};
-  double direct_motion = 0.0;
-  int direct_pairs = 0;
-  double direct_time_wall = 0.0, direct_time_cpu = 0.0;
-  for (int k = 0; k < frames; ++k) {
-    const double a = wall_seconds(), ac = cpu_seconds();
-    const FieldPtr target = make_particle_target(seq.frames[k], kernel);
+  // Direct polygonization of each frame's target (Marching Tiles at the same spacing), and of the clean sequence.
+  auto tiles = [&](const std::vector<Vec3>& points) {
+    const FieldPtr target = make_particle_target(points, kernel);
     MarchingTilesOptions mt;
     mt.bounds = *target->bounds();
     mt.spacing = o.h;
     mt.threads = threads;
-    mt.seeds = seq.frames[k];
+    mt.seeds = points;
     mt.seed_radius = kernel.radius;
-    Mesh mesh = marching_tiles(*target, mt);
+    return marching_tiles(*target, mt);
+  };
+  prev = Mesh{};
+  Mesh prev_clean;
+  double direct_motion = 0.0, clean_motion = 0.0, skin_to_clean = 0.0;
+  int direct_pairs = 0;
+  double direct_time_wall = 0.0, direct_time_cpu = 0.0;
+  for (int k = 0; k < frames; ++k) {
+    const double a = wall_seconds(), ac = cpu_seconds();
+    Mesh mesh = tiles(seq.frames[k]);
     direct_time_wall += wall_seconds() - a;
     direct_time_cpu += cpu_seconds() - ac;
+    Mesh clean_mesh = tiles(clean.frames[k]);
     if (!prev.vertices.empty()) {
       direct_motion += mean_distance_to_mesh(mesh, prev, 3.0 * o.h);
+      clean_motion += mean_distance_to_mesh(clean_mesh, prev_clean, 3.0 * o.h);
       ++direct_pairs;
     }
     Mesh skin;
     skin.vertices = std::move(skin_vertices[k]);
     skin_lag += mean_distance_to_mesh(skin, mesh, 3.0 * o.h);
+    skin_to_clean += mean_distance_to_mesh(skin, clean_mesh, 3.0 * o.h);
     prev = std::move(mesh);
+    prev_clean = std::move(clean_mesh);
   }
+  const double pairs = std::max(1, direct_pairs);
   const double skin_flicker = skin_motion / std::max(1, skin_pairs) / mean_particle_motion;
-  const double direct_flicker = direct_motion / std::max(1, direct_pairs) / mean_particle_motion;
+  const double direct_flicker = direct_motion / pairs / mean_particle_motion;
+  const double clean_per_frame = clean_motion / pairs;
   std::printf(
       "  active skin : %7.1f ms/frame wall (%.1f cpu), %.1f sub-steps/frame, %.0f active nodes/sub-step, "
-      "%.0f vertices/frame, mean distance to the frame's target surface %.2f h, flicker %.3f\n",
+      "%.0f vertices/frame\n",
       1e3 * skin_wall / frames, 1e3 * skin_cpu / frames, static_cast<double>(substeps) / frames,
-      static_cast<double>(node_steps) / std::max(1, substeps), static_cast<double>(vertices) / frames,
-      skin_lag / frames / o.h, skin_flicker);
-  std::printf("  direct tiles: %7.1f ms/frame wall (%.1f cpu), flicker %.3f\n", 1e3 * direct_time_wall / frames,
-              1e3 * direct_time_cpu / frames, direct_flicker);
+      static_cast<double>(node_steps) / std::max(1, substeps), static_cast<double>(vertices) / frames);
+  std::printf("  direct tiles: %7.1f ms/frame wall (%.1f cpu)\n", 1e3 * direct_time_wall / frames,
+              1e3 * direct_time_cpu / frames);
+  std::printf(
+      "  flicker = mean vertex motion to the previous frame's surface / mean particle motion (%.5f):\n"
+      "    active skin %.3f, direct tiles %.3f, clean sequence (no jitter, no dropout) %.3f\n",
+      mean_particle_motion, skin_flicker, direct_flicker, clean_per_frame / mean_particle_motion);
+  std::printf("  motion per frame over the clean surface's: active skin %.2f, direct tiles %.2f (1 = no flicker)\n",
+              skin_motion / std::max(1, skin_pairs) / clean_per_frame, direct_motion / pairs / clean_per_frame);
+  std::printf("  mean distance of the skin to the frame's own target surface %.2f h, to the clean surface %.2f h\n",
+              skin_lag / frames / o.h, skin_to_clean / frames / o.h);
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
   int threads = 2, particles = 10000, frames = 200;
-  double alpha_scale = 1.0;
+  double alpha_scale = 0.3, beta_scale = 0.02, dropout = 0.1;
   bool full = false, coat_only = false, general_only = false;
   std::vector<int> sizes;
   for (int i = 1; i < argc; ++i) {
@@ -322,9 +364,9 @@ int main(int argc, char** argv) {
       particles = next();
     } else if (a == "--frames") {
       frames = next();
-    } else if (a == "--alpha") {
+    } else if (a == "--alpha" || a == "--beta" || a == "--dropout") {
       if (i + 1 >= argc) return 2;
-      alpha_scale = std::atof(argv[++i]);
+      (a == "--alpha" ? alpha_scale : a == "--beta" ? beta_scale : dropout) = std::atof(argv[++i]);
     } else {
       std::fprintf(stderr, "unknown option %s (see the comment at the top of bench/active_bench.cpp)\n", a.c_str());
       return 2;
@@ -345,6 +387,6 @@ int main(int argc, char** argv) {
     enright(n, threads, false);
     if (!general_only) enright(n, threads, true);
   }
-  if (!enright_only) coat(particles, frames, threads, alpha_scale);
+  if (!enright_only) coat(particles, frames, threads, alpha_scale, beta_scale, dropout);
   return 0;
 }

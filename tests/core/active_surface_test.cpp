@@ -188,7 +188,7 @@ TEST(ActiveSurface, UniformVelocityTranslatesTheSurface) {
   const Vec3 c0(-0.3, 0.1, 0.0), u(0.5, -0.25, 0.125);
   ActiveSurface surface(SphereField(c0, 0.3), o);
   const double v0 = surface.stats().volume;
-  surface.set_velocity([&](const Vec3&, double) -> Vec3 { return u; });
+  surface.set_velocity([u](const Vec3&, double) { return Vec3(u); });
   const ActiveFrameStats s = surface.advance(0.8);
   const Mesh mesh = surface.polygonize();
   Vec3 centroid = Vec3::Zero();
