@@ -37,6 +37,7 @@
 #include <cmath>
 #include <limits>
 #include <string>
+#include <unordered_set>
 
 #include "core/active_surface_engine.h"
 #include "core/active_surface_schemes.h"
@@ -160,6 +161,13 @@ void ActiveSurface::Impl::update_topology(const RunControl& control) {
   std::int64_t block_hi[3];
   const int wall_blocks = static_cast<int>(std::ceil((ramp + 1.0) / 8.0));  // blocks holding the wall's outer ramp
   for (int a = 0; a < 3; ++a) block_hi[a] = has_domain ? dom_hi[a] / 8 + wall_blocks : sparse::kCoordLimit - 1;
+  // Collect first, so that exceeding max_blocks leaves the state untouched.
+  struct NewBlock {
+    sparse::BlockCoord coord;
+    float fill;
+  };
+  std::vector<NewBlock> fresh;
+  std::unordered_set<std::uint64_t> pending;
   for (int b = 0; b < nb; ++b) {
     if (!is_band[b]) continue;
     const sparse::BlockCoord c = grid.coord(b);
@@ -173,21 +181,23 @@ void ActiveSurface::Impl::update_topology(const RunControl& control) {
             if (n[a] < lo || n[a] > block_hi[a]) inside = false;
           }
           if (!inside || grid.find(n[0], n[1], n[2]) >= 0) continue;
+          if (!pending.insert(sparse::pack_coord(n[0], n[1], n[2])).second) continue;
           // Parent node nearest to the new block.
           const int px = dx < 0 ? 0 : (dx > 0 ? 7 : 3), py = dy < 0 ? 0 : (dy > 0 ? 7 : 3),
                     pz = dz < 0 ? 0 : (dz > 0 ? 7 : 3);
-          const float fill = grid.data(b, kChanF)[local_index(px, py, pz)] > 0.0f ? 1.0f : -1.0f;
-          if (grid.block_count() >= opt.max_blocks) {
-            throw ResourceLimit("max_blocks", "the narrow band needs more than max_blocks (" +
-                                                  std::to_string(opt.max_blocks) +
-                                                  ") blocks of 8^3 nodes; raise max_blocks or coarsen h");
-          }
-          const int nbk = grid.insert(n, fill);
-          for (int ch = 0; ch < kChanCount; ++ch) apply_wall(nbk, ch);
-          if (velocity_cache >= 0) {
-            for (int a = 0; a < 3; ++a) std::fill_n(grid.data(nbk, velocity_cache + a), kBlockNodes, kNaN);
-          }
+          fresh.push_back({n, grid.data(b, kChanF)[local_index(px, py, pz)] > 0.0f ? 1.0f : -1.0f});
         }
+  }
+  if (grid.block_count() + static_cast<std::int64_t>(fresh.size()) > opt.max_blocks) {
+    throw ResourceLimit("max_blocks", "the narrow band needs more than max_blocks (" + std::to_string(opt.max_blocks) +
+                                          ") blocks of 8^3 nodes; raise max_blocks or coarsen h");
+  }
+  for (const NewBlock& nbk_new : fresh) {
+    const int nbk = grid.insert(nbk_new.coord, nbk_new.fill);
+    for (int ch = 0; ch < kChanCount; ++ch) apply_wall(nbk, ch);
+    if (velocity_cache >= 0) {
+      for (int a = 0; a < 3; ++a) std::fill_n(grid.data(nbk, velocity_cache + a), kBlockNodes, kNaN);
+    }
   }
 
   // Release old blocks with no band block in their neighbourhood.

@@ -448,6 +448,22 @@ TEST(ActiveSurface, ValidatesOptionsAndInputs) {
     EXPECT_EQ(e.kind(), ErrorKind::kResourceLimit);
     EXPECT_EQ(e.field(), "max_blocks");
   }
+  // Growing past max_blocks while advancing throws and leaves the last completed state usable.
+  o = base_options(1.0 / 16.0);
+  const ActiveSurface probe(SphereField(Vec3::Zero(), 0.3), o);
+  o.max_blocks = probe.stats().allocated_blocks + 4;
+  o.alpha = 4.0;
+  ActiveSurface growing(SphereField(Vec3::Zero(), 0.3), o);
+  growing.set_target(std::make_shared<SphereField>(Vec3::Zero(), 1.5));
+  try {
+    growing.advance(2.0);
+    ADD_FAILURE() << "no ResourceLimit";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::kResourceLimit);
+    EXPECT_EQ(e.field(), "max_blocks");
+  }
+  EXPECT_EQ(growing.stats().components, 1);
+  EXPECT_TRUE(check_mesh(growing.polygonize()).closed);
   EXPECT_THROW(make_particle_target({}, ParticleTargetOptions{}), Error);
 }
 
