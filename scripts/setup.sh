@@ -8,7 +8,7 @@ PACKAGES=(
   build-essential cmake ninja-build ccache pkg-config python3 python3-yaml
   libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   libeigen3-dev libopenmesh-dev libdraco-dev draco
-  libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev zlib1g-dev
+  libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev zlib1g-dev libsqlite3-dev
 )
 missing=()
 for p in "${PACKAGES[@]}"; do

@@ -6,8 +6,10 @@
 #include <algorithm>
 
 #include "core/errors.h"
+#include "server/auth.h"
 #include "server/log.h"
 #include "server/status_map.h"
+#include "server/store.h"
 #include "server/uploads.h"
 #include "server/worker_pool.h"
 
@@ -25,20 +27,119 @@ bool is_terminal(v1::JobState s) {
 
 }  // namespace
 
-Job::Job(std::string id, std::string name, std::unique_ptr<JobRunner> runner)
-    : id_(std::move(id)),
-      name_(std::move(name)),
-      runner_(std::move(runner)),
-      tasks_total_(runner_->task_count()),
-      frames_total_(runner_->frame_count()) {
+Job::Job(JobInit init)
+    : id_(std::move(init.id)),
+      name_(std::move(init.name)),
+      owner_(std::move(init.owner)),
+      runner_(std::move(init.runner)),
+      kind_(runner_ ? runner_->kind() : init.kind),
+      store_(init.store),
+      usage_(init.usage),
+      max_stored_bytes_(init.max_stored_bytes),
+      upload_ids_(std::move(init.upload_ids)),
+      hooks_(init.hooks),
+      tasks_total_(runner_ ? runner_->task_count() : 0),
+      frames_total_(runner_ ? runner_->frame_count() : 0) {
   created_ = TimeUtil::GetCurrentTime();
   progress_.set_frames_total(frames_total_);
+}
+
+namespace {
+JobInit plain_init(std::string id, std::string name, std::unique_ptr<JobRunner> runner) {
+  JobInit init;
+  init.id = std::move(id);
+  init.name = std::move(name);
+  init.runner = std::move(runner);
+  return init;
+}
+}  // namespace
+
+Job::Job(std::string id, std::string name, std::unique_ptr<JobRunner> runner)
+    : Job(plain_init(std::move(id), std::move(name), std::move(runner))) {}
+
+std::int64_t Job::stored_bytes() const {
+  std::lock_guard lock(mutex_);
+  return stored_bytes_;
+}
+
+std::vector<int> Job::restore(const StoredJob& stored) {
+  std::set<int> done(stored.tasks_done.begin(), stored.tasks_done.end());
+  std::vector<int> todo;
+  {
+    std::lock_guard lock(mutex_);
+    const v1::Job& snap = stored.snapshot;
+    created_ = snap.created();
+    started_ = snap.started();
+    for (const auto& header : stored.frames) {
+      if (!frame_indices_.insert(header.frame_index()).second) continue;
+      auto record = std::make_shared<FrameRecord>();
+      record->header = header;
+      stored_bytes_ += static_cast<std::int64_t>(header.total_bytes());
+      frames_.push_back(std::move(record));
+    }
+    frames_done_ = static_cast<int>(frames_.size());
+    frames_total_ = std::max({frames_total_, frames_done_, snap.frames_total()});
+    progress_.set_frames_done(frames_done_);
+    progress_.set_frames_total(frames_total_);
+    if (is_terminal(snap.state())) {
+      state_ = snap.state();
+      error_ = snap.error();
+      finished_ = snap.finished();
+      progress_ = snap.progress();
+      frames_total_ = snap.frames_total();
+      const auto age = std::chrono::seconds(std::max<std::int64_t>(
+          0, TimeUtil::TimestampToSeconds(TimeUtil::GetCurrentTime()) - TimeUtil::TimestampToSeconds(finished_)));
+      finished_steady_ = std::chrono::steady_clock::now() - age;
+    } else {
+      for (int t = 0; t < tasks_total_; ++t) {
+        if (done.count(t)) {
+          ++tasks_done_;
+          ++tasks_settled_;
+        } else {
+          todo.push_back(t);
+        }
+      }
+      progress_.set_fraction(static_cast<double>(tasks_done_) / std::max(1, tasks_total_));
+      // Every task had finished before the restart, but not the job's own record.
+      if (todo.empty()) settle_locked();
+    }
+    bump_state_locked();
+  }
+  if (usage_) usage_->add(owner_, stored_bytes());
+  if (todo.empty() && !is_terminal(stored.snapshot.state())) persist();
+  return todo;
+}
+
+void Job::fail_restore(int grpc_code, const std::string& message) {
+  {
+    std::lock_guard lock(mutex_);
+    if (is_terminal(state_)) return;
+    error_.set_code(grpc_code);
+    error_.set_message("cannot resume after a server restart: " + message);
+    finish_locked(v1::JOB_STATE_FAILED);
+  }
+  persist();
+  notify();
+}
+
+void Job::persist() const {
+  if (!store_) return;
+  try {
+    store_->update_job(snapshot());
+  } catch (const std::exception& e) {
+    log_event(LogLevel::kError, "store_write_failed", {{"job", id_}, {"error", e.what()}});
+  }
+}
+
+void Job::finished_hooks() {
+  persist();
+  if (hooks_ && hooks_->on_finished) hooks_->on_finished(*this, state());
 }
 
 void Job::snapshot_locked(v1::Job& job) const {
   job.set_id(id_);
   job.set_name(name_);
-  job.set_kind(runner_->kind());
+  job.set_kind(kind_);
   job.set_state(state_);
   job.set_frames_total(frames_total_);
   job.set_frames_done(frames_done_);
@@ -79,7 +180,7 @@ bool Job::next_event(WatchCursor& cursor, v1::JobEvent& event) const {
   if (cursor.done) return false;
   // 1. The rest of the frame in flight, so that a frame's chunks stay contiguous. Frame records are immutable.
   if (cursor.current) {
-    const std::string& bytes = cursor.current->bytes;
+    const std::string& bytes = *cursor.current_bytes;
     const std::size_t offset = static_cast<std::size_t>(cursor.next_chunk) * kChunkBytes;
     const std::size_t size = std::min(kChunkBytes, bytes.size() - offset);
     auto* chunk = event.mutable_chunk();
@@ -90,10 +191,13 @@ bool Job::next_event(WatchCursor& cursor, v1::JobEvent& event) const {
     ++cursor.next_chunk;
     const bool last = cursor.next_chunk >= cursor.current->header.num_chunks();
     chunk->set_last(last);
-    if (last) cursor.current.reset();
+    if (last) {
+      cursor.current.reset();
+      cursor.current_bytes.reset();
+    }
     return true;
   }
-  std::lock_guard lock(mutex_);
+  std::unique_lock lock(mutex_);
   const bool term = is_terminal(state_);
   // 2. A changed state (the terminal one waits until every frame has gone out).
   if (cursor.state_version_sent != state_version_ && !term) {
@@ -107,8 +211,14 @@ bool Job::next_event(WatchCursor& cursor, v1::JobEvent& event) const {
     if (cursor.skip_frames || record->header.frame_index() < cursor.from_frame) continue;
     *event.mutable_frame() = record->header;
     if (record->header.num_chunks() > 0) {
-      cursor.current = std::move(record);
       cursor.next_chunk = 0;
+      if (record->bytes) {
+        cursor.current_bytes = record->bytes;
+      } else {
+        lock.unlock();  // read from the store without holding the job
+        cursor.current_bytes = std::make_shared<const std::string>(store_->read_frame(id_, record->header));
+      }
+      cursor.current = std::move(record);
     }
     return true;
   }
@@ -159,23 +269,49 @@ bool Job::task_started() {
     started_ = TimeUtil::GetCurrentTime();
     bump_state_locked();
   }
-  log_event(LogLevel::kInfo, "job_started", {{"job", id_}, {"kind", runner_->kind()}});
+  log_event(LogLevel::kInfo, "job_started", {{"job", id_}, {"kind", kind_}});
+  persist();
   notify();
   return true;
 }
 
 void Job::emit(int frame_index, FrameOutput output) {
+  {
+    std::lock_guard lock(mutex_);
+    // A job resumed after a restart recomputes an evolving task from its start: frames already stored stay.
+    if (frame_indices_.count(frame_index)) return;
+  }
   auto record = std::make_shared<FrameRecord>();
-  record->bytes = std::move(output.bytes);
+  auto bytes = std::make_shared<std::string>(std::move(output.bytes));
   auto& h = record->header;
   h.set_frame_index(frame_index);
   h.set_encoding(output.encoding);
-  h.set_total_bytes(record->bytes.size());
-  h.set_num_chunks(static_cast<int>((record->bytes.size() + kChunkBytes - 1) / kChunkBytes));
-  h.set_crc32(crc32_of(record->bytes.data(), record->bytes.size()));
+  h.set_total_bytes(bytes->size());
+  h.set_num_chunks(static_cast<int>((bytes->size() + kChunkBytes - 1) / kChunkBytes));
+  h.set_crc32(crc32_of(bytes->data(), bytes->size()));
   *h.mutable_stats() = std::move(output.stats);
+  const auto size = static_cast<std::int64_t>(bytes->size());
+  if (usage_ && !usage_->try_add(owner_, size, max_stored_bytes_)) {
+    throw ResourceLimit("quota.bytes", "frame " + std::to_string(frame_index) + " (" + std::to_string(size) +
+                                           " bytes) would take tenant '" + owner_ + "' past its stored-bytes quota (" +
+                                           std::to_string(max_stored_bytes_) +
+                                           " bytes); wait for older jobs to expire or raise bytes= for its token in "
+                                           "the server's --tokens-file");
+  }
+  if (store_) {
+    try {
+      store_->put_frame(id_, h, *bytes);
+    } catch (...) {
+      if (usage_) usage_->release(owner_, size);
+      throw;
+    }
+  } else {
+    record->bytes = std::move(bytes);
+  }
   {
     std::lock_guard lock(mutex_);
+    frame_indices_.insert(frame_index);
+    stored_bytes_ += size;
     ++frames_done_;
     frames_total_ = std::max(frames_total_, frames_done_);
     frames_.push_back(std::move(record));
@@ -184,10 +320,18 @@ void Job::emit(int frame_index, FrameOutput output) {
     ++progress_version_;
     bump_state_locked();
   }
+  if (hooks_ && hooks_->on_frame) hooks_->on_frame(*this, h);
   notify();
 }
 
-void Job::task_succeeded() {
+void Job::task_succeeded(int task) {
+  if (store_) {
+    try {
+      store_->put_task_done(id_, task);
+    } catch (const std::exception& e) {
+      log_event(LogLevel::kError, "store_write_failed", {{"job", id_}, {"error", e.what()}});
+    }
+  }
   bool finished = false;
   {
     std::lock_guard lock(mutex_);
@@ -198,7 +342,10 @@ void Job::task_succeeded() {
     ++progress_version_;
     finished = settle_locked();
   }
-  if (finished) log_event(LogLevel::kInfo, "job_finished", {{"job", id_}, {"state", v1::JobState_Name(state())}});
+  if (finished) {
+    log_event(LogLevel::kInfo, "job_finished", {{"job", id_}, {"state", v1::JobState_Name(state())}});
+    finished_hooks();
+  }
   notify();
 }
 
@@ -223,6 +370,7 @@ void Job::task_failed(int task, int grpc_code, const std::string& message) {
     log_event(LogLevel::kWarn, "job_finished",
               {{"job", id_}, {"state", v1::JobState_Name(state())}, {"task", std::to_string(task)},
                {"error", message}});
+    finished_hooks();
   }
   notify();
 }
@@ -234,7 +382,10 @@ void Job::task_skipped() {
     ++tasks_settled_;
     finished = settle_locked();
   }
-  if (finished) notify();
+  if (finished) {
+    finished_hooks();
+    notify();
+  }
 }
 
 bool Job::settle_locked() {
@@ -279,6 +430,7 @@ bool Job::cancel(const std::string& reason) {
   }
   cancel_.cancel();
   log_event(LogLevel::kInfo, "job_cancel", {{"job", id_}, {"reason", reason}});
+  if (finished) finished_hooks();
   notify();
   return finished;
 }
@@ -302,7 +454,9 @@ void Scheduler::submit(std::shared_ptr<Job> job) {
     }
     jobs_.emplace(job->id(), job);
     order_.push_back(job->id());
-    pending_.push_back({job, 0});
+    std::vector<int> all(tasks);
+    for (int i = 0; i < tasks; ++i) all[i] = i;
+    pending_.push_back({job, std::move(all), 0});
   }
   log_event(LogLevel::kInfo, "job_submitted",
             {{"job", job->id()},
@@ -310,6 +464,20 @@ void Scheduler::submit(std::shared_ptr<Job> job) {
              {"tasks", std::to_string(tasks)},
              {"frames", std::to_string(job->runner().frame_count())}});
   for (int i = 0; i < tasks; ++i) pool_.post([this] { run_next_task(); });
+}
+
+void Scheduler::resume(std::shared_ptr<Job> job, std::vector<int> tasks) {
+  const int n = static_cast<int>(tasks.size());
+  {
+    std::lock_guard lock(mutex_);
+    jobs_.emplace(job->id(), job);
+    order_.push_back(job->id());
+    if (n > 0) pending_.push_back({job, std::move(tasks), 0});
+  }
+  if (n > 0) {
+    log_event(LogLevel::kInfo, "job_resumed", {{"job", job->id()}, {"kind", job->kind()}, {"tasks", std::to_string(n)}});
+  }
+  for (int i = 0; i < n; ++i) pool_.post([this] { run_next_task(); });
 }
 
 void Scheduler::run_next_task() {
@@ -321,11 +489,10 @@ void Scheduler::run_next_task() {
     while (!pending_.empty()) {
       Pending p = std::move(pending_.front());
       pending_.pop_front();
-      const int tasks = p.job->runner().task_count();
-      if (p.job->terminal() || p.next_task >= tasks) continue;
+      if (p.job->terminal() || p.next >= p.tasks.size()) continue;
       job = p.job;
-      task = p.next_task++;
-      if (p.next_task < tasks) pending_.push_back(std::move(p));
+      task = p.tasks[p.next++];
+      if (p.next < p.tasks.size()) pending_.push_back(std::move(p));
       break;
     }
   }
@@ -341,7 +508,7 @@ void Scheduler::run_next_task() {
   };
   try {
     job->runner().run_task(task, *job, control);
-    job->task_succeeded();
+    job->task_succeeded(task);
   } catch (...) {
     const grpc::Status status = status_from_exception(std::current_exception());
     job->task_failed(task, status.error_code(), status.error_message());
@@ -385,18 +552,35 @@ void Scheduler::cancel_all(const std::string& reason) {
   for (const auto& job : list()) job->cancel(reason);
 }
 
-void Scheduler::forget_finished(std::chrono::seconds age) {
+int Scheduler::active_jobs(const std::string& owner) const {
+  int n = 0;
+  for (const auto& job : list()) {
+    if (job->owner() == owner && !job->terminal()) ++n;
+  }
+  return n;
+}
+
+std::vector<std::shared_ptr<Job>> Scheduler::forget_finished(std::chrono::seconds age) {
   const auto cutoff = std::chrono::steady_clock::now() - age;
+  std::vector<std::shared_ptr<Job>> gone;
   std::lock_guard lock(mutex_);
   std::erase_if(order_, [&](const std::string& id) {
     auto it = jobs_.find(id);
     if (it == jobs_.end()) return true;
     if (it->second->terminal() && it->second->finished_at() < cutoff) {
+      gone.push_back(it->second);
       jobs_.erase(it);
       return true;
     }
     return false;
   });
+  return gone;
+}
+
+void Scheduler::forget(const std::string& id) {
+  std::lock_guard lock(mutex_);
+  jobs_.erase(id);
+  std::erase(order_, id);
 }
 
 }  // namespace surfacer::server

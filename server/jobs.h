@@ -12,12 +12,24 @@
 #include <string>
 #include <vector>
 
+#include <set>
+
 #include "core/run_control.h"
 #include "surfacer/v1/surfacer.pb.h"
 
 namespace surfacer::server {
 
 class WorkerPool;
+class Store;
+class Usage;
+struct StoredJob;
+class Job;
+
+// Observers of job life (metrics). Called outside the job's lock; must be cheap and thread-safe.
+struct JobHooks {
+  std::function<void(const Job&, const v1::FrameHeader&)> on_frame;
+  std::function<void(const Job&, v1::JobState)> on_finished;
+};
 
 // What a job type computes for one frame.
 struct FrameOutput {
@@ -56,7 +68,8 @@ class JobListener {
 
 struct FrameRecord {
   v1::FrameHeader header;
-  std::string bytes;
+  // The frame's bytes when held in memory; null when they live in the durable store (read when streamed).
+  std::shared_ptr<const std::string> bytes;
 };
 
 // Maximum payload of one FrameChunk event.
@@ -70,15 +83,35 @@ struct WatchCursor {
   std::uint64_t progress_version_sent = 0;
   std::size_t next_frame = 0;  // index into the completion-ordered frame list
   std::shared_ptr<const FrameRecord> current;
+  std::shared_ptr<const std::string> current_bytes;
   int next_chunk = 0;
   bool done = false;  // the terminal state has been produced
 };
 
+struct JobInit {
+  std::string id;
+  std::string name;
+  std::string owner;  // tenant ("" without authentication)
+  std::unique_ptr<JobRunner> runner;  // null only for a finished job restored from the store
+  std::string kind;                   // used when runner is null
+  Store* store = nullptr;             // durable store, or null (memory only)
+  Usage* usage = nullptr;             // stored-bytes accounting per tenant, or null
+  std::int64_t max_stored_bytes = 0;  // the owner's quota (0 = unlimited)
+  std::vector<std::string> upload_ids;
+  const JobHooks* hooks = nullptr;
+};
+
 class Job : public FrameSink {
  public:
+  explicit Job(JobInit init);
   Job(std::string id, std::string name, std::unique_ptr<JobRunner> runner);
 
   const std::string& id() const { return id_; }
+  const std::string& owner() const { return owner_; }
+  const std::string& kind() const { return kind_; }
+  const std::vector<std::string>& upload_ids() const { return upload_ids_; }
+  // Bytes of this job's frames (in memory or in the store).
+  std::int64_t stored_bytes() const;
   JobRunner& runner() { return *runner_; }
   const CancelToken& cancel_token() const { return cancel_; }
 
@@ -94,10 +127,18 @@ class Job : public FrameSink {
   // Returns false when there is nothing to send yet.
   bool next_event(WatchCursor& cursor, v1::JobEvent& event) const;
 
+  // Takes the persisted state of a job found in the store at start-up: its frames, finished tasks and, for a
+  // finished job, its final state. Returns the tasks still to run (none for a finished job).
+  std::vector<int> restore(const StoredJob& stored);
+  // Fails a job that cannot be resumed (its runner could not be rebuilt after a restart).
+  void fail_restore(int grpc_code, const std::string& message);
+  // Writes the current snapshot to the store (no-op without one); failures are logged.
+  void persist() const;
+
   // --- Transitions, called by the scheduler ----------------------------------------------------------------
   // A task starts; returns false when the job is already finished (cancelled or failed).
   bool task_started();
-  void task_succeeded();
+  void task_succeeded(int task);
   void task_failed(int task, int grpc_code, const std::string& message);
   void task_skipped();
   // FrameSink: a finished frame (stored, then streamed to watchers).
@@ -115,10 +156,18 @@ class Job : public FrameSink {
   // Returns true when it did.
   bool settle_locked();
   void notify();
+  void finished_hooks();
 
   const std::string id_;
   const std::string name_;
+  const std::string owner_;
   std::unique_ptr<JobRunner> runner_;
+  const std::string kind_;
+  Store* const store_;
+  Usage* const usage_;
+  const std::int64_t max_stored_bytes_;
+  const std::vector<std::string> upload_ids_;
+  const JobHooks* const hooks_;
   const int tasks_total_;
   int frames_total_;
   CancelToken cancel_;
@@ -137,6 +186,8 @@ class Job : public FrameSink {
   bool cancel_requested_ = false;
   std::string cancel_reason_;
   std::vector<std::shared_ptr<const FrameRecord>> frames_;  // in completion order
+  std::set<int> frame_indices_;
+  std::int64_t stored_bytes_ = 0;
   google::protobuf::Timestamp created_, started_, finished_;
   std::chrono::steady_clock::time_point finished_steady_{};
   std::vector<std::weak_ptr<JobListener>> listeners_;
@@ -149,14 +200,20 @@ class Scheduler {
 
   // Throws surfacer::Error(kResourceLimit) when max_queued_jobs jobs are already waiting.
   void submit(std::shared_ptr<Job> job);
+  // A job restored from the store: runs `tasks` (finished jobs: none; they are only kept for watching).
+  void resume(std::shared_ptr<Job> job, std::vector<int> tasks);
   std::shared_ptr<Job> find(const std::string& id) const;
   std::vector<std::shared_ptr<Job>> list() const;
   int queued_jobs() const;
   // Jobs not yet finished.
   int active_jobs() const;
   void cancel_all(const std::string& reason);
-  // Forgets finished jobs older than `age`.
-  void forget_finished(std::chrono::seconds age);
+  // Jobs of `owner` not yet finished.
+  int active_jobs(const std::string& owner) const;
+  // Forgets finished jobs older than `age`; returns them.
+  std::vector<std::shared_ptr<Job>> forget_finished(std::chrono::seconds age);
+  // Forgets one finished job.
+  void forget(const std::string& id);
 
  private:
   void run_next_task();
@@ -168,7 +225,8 @@ class Scheduler {
   std::vector<std::string> order_;  // submission order, for list()
   struct Pending {
     std::shared_ptr<Job> job;
-    int next_task = 0;
+    std::vector<int> tasks;
+    std::size_t next = 0;
   };
   std::deque<Pending> pending_;  // jobs with tasks not yet started, round-robin
 };

@@ -39,6 +39,36 @@ int main(int argc, char** argv) {
   app.add_option("--max-upload-bytes", options.limits.max_upload_bytes, "largest single upload, in bytes")
       ->capture_default_str();
   app.add_option("--max-frames", options.limits.max_frames, "most frames in one job")->capture_default_str();
+  bool memory_only = false;
+  double retain_hours = 24.0 * 7;
+  app.add_option("--data-dir", options.data_dir,
+                 "durable store: SQLite database + frame/upload files in this directory; unfinished jobs resume "
+                 "after a restart (default: none, memory only)");
+  app.add_flag("--memory-only", memory_only, "keep jobs in memory only (lost on restart)")->excludes("--data-dir");
+  app.add_option("--retain-hours", retain_hours,
+                 "keep finished jobs (and unused uploads) this long, then delete them")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  app.add_option("--retain-bytes", options.retain_bytes,
+                 "when frames + uploads exceed this many bytes, delete the oldest finished jobs, then the oldest "
+                 "unused uploads (0 = no limit)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--tls-cert", options.tls_cert_file, "server certificate chain (PEM); enables TLS with --tls-key")
+      ->check(CLI::ExistingFile);
+  app.add_option("--tls-key", options.tls_key_file, "server private key (PEM)")->check(CLI::ExistingFile);
+  app.add_option("--tls-client-ca", options.tls_client_ca_file,
+                 "CA bundle (PEM) for client certificates: mutual TLS, clients without a valid certificate are "
+                 "refused")
+      ->check(CLI::ExistingFile);
+  app.add_flag("--allow-insecure", options.allow_insecure,
+               "allow plain text on a non-loopback --listen address (e.g. behind a TLS-terminating mesh)");
+  app.add_option("--tokens-file", options.tokens_file,
+                 "bearer tokens, one per line: `TOKEN TENANT [running=N] [bytes=N]`; every RPC then needs "
+                 "`authorization: Bearer TOKEN`, and each tenant sees only its own jobs")
+      ->check(CLI::ExistingFile);
+  app.add_option("--metrics-listen", options.metrics_listen,
+                 "serve Prometheus text metrics at http://HOST:PORT/metrics (default: off)");
   app.add_option("--drain-seconds", drain_seconds,
                  "on SIGTERM/SIGINT, let running jobs finish this long before cancelling them (a second signal "
                  "cancels at once)")
@@ -46,6 +76,11 @@ int main(int argc, char** argv) {
   app.add_flag("-v,--verbose", verbose, "debug logs");
   CLI11_PARSE(app, argc, argv);
   if (verbose) surfacer::server::set_log_level(LogLevel::kDebug);
+  options.keep_finished = std::chrono::seconds(static_cast<long long>(retain_hours * 3600.0));
+  if (options.data_dir.empty() && !memory_only) {
+    surfacer::server::log_event(LogLevel::kWarn, "memory_only",
+                                {{"note", "jobs are lost on restart; give --data-dir for a durable store"}});
+  }
 
   // Signals are taken by one thread with sigwait; every other thread blocks them.
   sigset_t signals;

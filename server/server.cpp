@@ -4,54 +4,252 @@
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
 
+#include <algorithm>
 #include <condition_variable>
+#include <fstream>
+#include <set>
+#include <sstream>
 #include <stdexcept>
 #include <thread>
 
+#include "server/auth.h"
+#include "server/job_types.h"
 #include "server/jobs.h"
 #include "server/log.h"
 #include "server/service.h"
+#include "server/status_map.h"
+#include "server/store.h"
 #include "server/uploads.h"
 #include "server/worker_pool.h"
 
 namespace surfacer::server {
+namespace {
+
+std::string read_file(const std::string& path, const char* flag) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error(std::string(flag) + " " + path + ": cannot be read");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+// Host part of "host:port", "[v6]:port".
+std::string host_of(const std::string& listen) {
+  if (!listen.empty() && listen[0] == '[') return listen.substr(1, listen.find(']') - 1);
+  const auto colon = listen.rfind(':');
+  return colon == std::string::npos ? listen : listen.substr(0, colon);
+}
+
+bool is_loopback(const std::string& listen) {
+  const std::string host = host_of(listen);
+  return host == "localhost" || host == "::1" || host.rfind("127.", 0) == 0 || host.rfind("unix:", 0) == 0 ||
+         listen.rfind("unix:", 0) == 0;
+}
+
+std::shared_ptr<grpc::ServerCredentials> server_credentials(const ServerOptions& o) {
+  if (o.tls_cert_file.empty() != o.tls_key_file.empty()) {
+    throw std::runtime_error("--tls-cert and --tls-key go together; give both (PEM files) or neither");
+  }
+  if (o.tls_cert_file.empty()) {
+    if (!o.tls_client_ca_file.empty()) {
+      throw std::runtime_error("--tls-client-ca needs --tls-cert and --tls-key (mutual TLS is TLS first)");
+    }
+    if (!is_loopback(o.listen) && !o.allow_insecure) {
+      throw std::runtime_error("refusing plain text on " + o.listen +
+                               ": give --tls-cert and --tls-key, listen on a loopback address, or pass "
+                               "--allow-insecure (e.g. behind a proxy or mesh that provides TLS)");
+    }
+    return grpc::InsecureServerCredentials();
+  }
+  grpc::SslServerCredentialsOptions ssl(o.tls_client_ca_file.empty()
+                                            ? GRPC_SSL_DONT_REQUEST_CLIENT_CERTIFICATE
+                                            : GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY);
+  ssl.pem_key_cert_pairs.push_back(
+      {read_file(o.tls_key_file, "--tls-key"), read_file(o.tls_cert_file, "--tls-cert")});
+  if (!o.tls_client_ca_file.empty()) ssl.pem_root_certs = read_file(o.tls_client_ca_file, "--tls-client-ca");
+  return grpc::SslServerCredentials(ssl);
+}
+
+}  // namespace
 
 struct SurfacerServer::Impl {
   explicit Impl(const ServerOptions& options)
       : threads(options.workers > 0 ? options.workers
                                     : std::max(1, static_cast<int>(std::thread::hardware_concurrency()))),
         pool(threads),
+        store(options.data_dir.empty() ? nullptr : Store::open(options.data_dir)),
+        auth(options.tokens_file.empty() ? nullptr : TokenAuth::load(options.tokens_file)),
+        uploads(store.get()),
         scheduler(pool, options.max_queued_jobs),
         service(state) {
     state.options = options;
     state.worker_threads = threads;
     state.scheduler = &scheduler;
     state.uploads = &uploads;
+    state.store = store.get();
+    state.auth = auth.get();
+    state.usage = &usage;
+    state.hooks = &hooks;
   }
+
+  // Brings back what the store holds: uploads, finished jobs (for watching) and unfinished ones (resumed).
+  void restore();
+  void retention();
+  void janitor_loop();
 
   int threads;
   WorkerPool pool;
+  std::unique_ptr<Store> store;
+  std::unique_ptr<TokenAuth> auth;
+  Usage usage;
+  JobHooks hooks;
   UploadStore uploads;
   Scheduler scheduler;
   ServiceState state;
   SurfacerService service;
   std::unique_ptr<grpc::Server> grpc_server;
   int port = 0;
+  std::mutex retention_mutex;
 
   std::mutex mutex;
   std::condition_variable cv;
   bool shutting_down = false;
   bool done = false;
+  std::thread janitor;
 };
 
+void SurfacerServer::Impl::restore() {
+  if (!store) return;
+  uploads.restore();
+  for (const UploadInfo& u : uploads.list()) usage.add(u.owner, u.bytes);
+  int resumed = 0, kept = 0;
+  for (StoredJob& stored : store->load_jobs()) {
+    const Tenant* tenant = nullptr;
+    if (auth) tenant = auth->tenant(stored.owner);
+    const bool finished = stored.snapshot.state() == v1::JOB_STATE_SUCCEEDED ||
+                          stored.snapshot.state() == v1::JOB_STATE_FAILED ||
+                          stored.snapshot.state() == v1::JOB_STATE_CANCELLED;
+    JobInit init;
+    init.id = stored.id;
+    init.name = stored.spec.name();
+    init.owner = stored.owner;
+    init.kind = stored.snapshot.kind();
+    init.store = store.get();
+    init.usage = &usage;
+    init.max_stored_bytes = tenant ? tenant->max_stored_bytes : 0;
+    init.upload_ids = stored.upload_ids;
+    init.hooks = &hooks;
+    grpc::Status failure;
+    if (!finished) {
+      try {
+        JobContext context{state.options.limits, uploads, threads};
+        init.runner = make_job_runner(stored.spec, context);
+      } catch (...) {
+        failure = status_from_exception(std::current_exception());
+      }
+    }
+    auto job = std::make_shared<Job>(std::move(init));
+    std::vector<int> tasks = job->restore(stored);
+    if (!failure.ok()) {
+      job->fail_restore(failure.error_code(), failure.error_message());
+      tasks.clear();
+    }
+    if (job->terminal()) {
+      ++kept;
+    } else {
+      ++resumed;
+    }
+    scheduler.resume(job, std::move(tasks));
+  }
+  log_event(LogLevel::kInfo, "store_opened",
+            {{"data_dir", store->dir().string()},
+             {"jobs_resumed", std::to_string(resumed)},
+             {"jobs_finished", std::to_string(kept)},
+             {"uploads", std::to_string(uploads.list().size())}});
+}
+
+void SurfacerServer::Impl::retention() {
+  std::lock_guard guard(retention_mutex);
+  const ServerOptions& o = state.options;
+  auto drop_job = [&](const std::shared_ptr<Job>& job) {
+    const std::int64_t bytes = job->stored_bytes();
+    usage.release(job->owner(), bytes);
+    if (store) store->delete_job(job->id());
+    log_event(LogLevel::kInfo, "retention_job", {{"job", job->id()}, {"bytes", std::to_string(bytes)}});
+  };
+  for (const auto& job : scheduler.forget_finished(o.keep_finished)) drop_job(job);
+
+  // Uploads that no unfinished job uses, oldest first.
+  auto unused_uploads = [&] {
+    std::set<std::string> used;
+    for (const auto& job : scheduler.list()) {
+      if (!job->terminal()) used.insert(job->upload_ids().begin(), job->upload_ids().end());
+    }
+    std::vector<UploadInfo> out;
+    for (auto& u : uploads.list()) {
+      if (!used.count(u.id)) out.push_back(std::move(u));
+    }
+    std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.created < b.created; });
+    return out;
+  };
+  auto drop_upload = [&](const UploadInfo& u) {
+    usage.release(u.owner, uploads.remove(u.id));
+    log_event(LogLevel::kInfo, "retention_upload", {{"upload", u.id}, {"bytes", std::to_string(u.bytes)}});
+  };
+  const auto cutoff = std::chrono::system_clock::now() - o.keep_finished;
+  for (const auto& u : unused_uploads()) {
+    if (u.created < cutoff) drop_upload(u);
+  }
+  if (o.retain_bytes <= 0) return;
+  auto total = [&] {
+    std::int64_t t = uploads.total_bytes();
+    for (const auto& job : scheduler.list()) t += job->stored_bytes();
+    return t;
+  };
+  std::int64_t bytes = total();
+  if (bytes <= o.retain_bytes) return;
+  std::vector<std::shared_ptr<Job>> finished;
+  for (const auto& job : scheduler.list()) {
+    if (job->terminal()) finished.push_back(job);
+  }
+  std::sort(finished.begin(), finished.end(),
+            [](const auto& a, const auto& b) { return a->finished_at() < b->finished_at(); });
+  for (const auto& job : finished) {
+    if (bytes <= o.retain_bytes) break;
+    bytes -= job->stored_bytes();
+    scheduler.forget(job->id());
+    drop_job(job);
+  }
+  for (const auto& u : unused_uploads()) {
+    if (bytes <= o.retain_bytes) break;
+    bytes -= u.bytes;
+    drop_upload(u);
+  }
+}
+
+void SurfacerServer::Impl::janitor_loop() {
+  std::unique_lock lock(mutex);
+  while (!shutting_down) {
+    cv.wait_for(lock, state.options.retention_interval, [&] { return shutting_down; });
+    if (shutting_down) break;
+    lock.unlock();
+    try {
+      retention();
+    } catch (const std::exception& e) {
+      log_event(LogLevel::kError, "retention_failed", {{"error", e.what()}});
+    }
+    lock.lock();
+  }
+}
+
 std::unique_ptr<SurfacerServer> SurfacerServer::start(const ServerOptions& options) {
+  auto credentials = options.listen.empty() ? nullptr : server_credentials(options);
   auto impl = std::make_unique<Impl>(options);
+  impl->restore();
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
-  if (!options.listen.empty()) {
-    builder.AddListeningPort(options.listen, grpc::InsecureServerCredentials(), &impl->port);
-  }
+  if (!options.listen.empty()) builder.AddListeningPort(options.listen, credentials, &impl->port);
   builder.RegisterService(&impl->service);
   impl->grpc_server = builder.BuildAndStart();
   if (!impl->grpc_server || (!options.listen.empty() && impl->port == 0)) {
@@ -61,10 +259,14 @@ std::unique_ptr<SurfacerServer> SurfacerServer::start(const ServerOptions& optio
   if (auto* health = impl->grpc_server->GetHealthCheckService()) {
     health->SetServingStatus(true);
   }
+  impl->janitor = std::thread([p = impl.get()] { p->janitor_loop(); });
   log_event(LogLevel::kInfo, "server_started",
             {{"listen", options.listen.empty() ? "in-process" : options.listen},
              {"port", std::to_string(impl->port)},
-             {"workers", std::to_string(impl->threads)}});
+             {"workers", std::to_string(impl->threads)},
+             {"tls", options.tls_cert_file.empty() ? "off" : (options.tls_client_ca_file.empty() ? "on" : "mutual")},
+             {"auth", impl->auth ? std::to_string(impl->auth->size()) + " tokens" : "off"},
+             {"data_dir", options.data_dir.empty() ? "memory-only" : options.data_dir}});
   return std::unique_ptr<SurfacerServer>(new SurfacerServer(std::move(impl)));
 }
 
@@ -73,6 +275,10 @@ SurfacerServer::SurfacerServer(std::unique_ptr<Impl> impl) : impl_(std::move(imp
 SurfacerServer::~SurfacerServer() { shutdown(ShutdownMode::kCancel, std::chrono::milliseconds(0)); }
 
 int SurfacerServer::port() const { return impl_->port; }
+
+int SurfacerServer::metrics_port() const { return 0; }
+
+void SurfacerServer::run_retention() { impl_->retention(); }
 
 std::shared_ptr<grpc::Channel> SurfacerServer::in_process_channel() {
   return impl_->grpc_server->InProcessChannel(grpc::ChannelArguments());
@@ -87,6 +293,8 @@ void SurfacerServer::shutdown(ShutdownMode mode, std::chrono::milliseconds deadl
     }
     impl_->shutting_down = true;
   }
+  impl_->cv.notify_all();
+  if (impl_->janitor.joinable()) impl_->janitor.join();
   Impl& s = *impl_;
   s.state.accepting.store(false);
   if (auto* health = s.grpc_server->GetHealthCheckService()) health->SetServingStatus(false);

@@ -29,8 +29,29 @@ struct ServerOptions {
   int workers = 0;           // worker threads; 0 = hardware threads
   int max_queued_jobs = 64;  // jobs waiting for a worker beyond this answer RESOURCE_EXHAUSTED
   Limits limits;
-  // Finished jobs (and their frames) are kept this long after finishing, for WatchJob/GetJob.
-  std::chrono::seconds keep_finished = std::chrono::hours(24);
+  // Finished jobs (and their frames) are kept this long after finishing, for WatchJob/GetJob (--retain-hours);
+  // uploads no unfinished job uses are kept this long after arriving.
+  std::chrono::seconds keep_finished = std::chrono::hours(24 * 7);
+  // Beyond this many stored bytes (frames + uploads), the oldest finished jobs, then the oldest unused uploads,
+  // are removed (--retain-bytes; 0 = no byte limit).
+  std::int64_t retain_bytes = 0;
+  // How often retention runs.
+  std::chrono::milliseconds retention_interval = std::chrono::seconds(60);
+
+  // Durable store (--data-dir): SQLite + files. Empty: memory only (jobs are lost on restart).
+  std::string data_dir;
+
+  // Security. TLS when both files are given; mutual TLS (client certificates required and verified) when
+  // tls_client_ca_file is given too. Plain text is refused on a non-loopback address unless allow_insecure.
+  std::string tls_cert_file;
+  std::string tls_key_file;
+  std::string tls_client_ca_file;
+  bool allow_insecure = false;
+  // Bearer tokens (lines `TOKEN TENANT [running=N] [bytes=N]`). Empty: no authentication (one shared tenant).
+  std::string tokens_file;
+
+  // Prometheus text metrics over HTTP at /metrics (--metrics-listen HOST:PORT). Empty: off.
+  std::string metrics_listen;
 };
 
 enum class ShutdownMode {
@@ -50,6 +71,10 @@ class SurfacerServer {
 
   // Port actually bound (0 when in-process only).
   int port() const;
+  // Port of the metrics endpoint (0 when off).
+  int metrics_port() const;
+  // Runs retention now (tests; it also runs every retention_interval).
+  void run_retention();
   // A channel to this server that does not touch the network.
   std::shared_ptr<grpc::Channel> in_process_channel();
   // Stops accepting new jobs (health turns NOT_SERVING), then drains or cancels, then stops the gRPC server.

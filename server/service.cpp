@@ -6,9 +6,23 @@
 #include "server/job_types.h"
 #include "server/log.h"
 #include "server/status_map.h"
+#include "server/store.h"
+#include "server/upload_assembler.h"
 
 namespace surfacer::server {
 namespace {
+
+// A reactor that only reports an error.
+class FailedWrite final : public grpc::ServerWriteReactor<v1::JobEvent> {
+ public:
+  explicit FailedWrite(const grpc::Status& status) { Finish(status); }
+  void OnDone() override { delete this; }
+};
+class FailedRead final : public grpc::ServerReadReactor<v1::UploadChunk> {
+ public:
+  explicit FailedRead(const grpc::Status& status) { Finish(status); }
+  void OnDone() override { delete this; }
+};
 
 grpc::Status not_found(const std::string& id) {
   return {grpc::StatusCode::NOT_FOUND,
@@ -70,7 +84,16 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::JobEvent>,
       Finish(grpc::Status(grpc::StatusCode::CANCELLED, "watch cancelled"));
       return;
     }
-    if (!job_->next_event(cursor_, event_)) {
+    bool more = false;
+    try {
+      more = job_->next_event(cursor_, event_);
+    } catch (const std::exception& e) {
+      finished_ = true;
+      lock.unlock();
+      Finish(grpc::Status(grpc::StatusCode::DATA_LOSS, e.what()));
+      return;
+    }
+    if (!more) {
       if (cursor_.done) {
         finished_ = true;
         lock.unlock();
@@ -93,11 +116,11 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::JobEvent>,
   bool broken_ = false;
 };
 
-// Reassembles a client-streamed upload, checking sizes and checksums as chunks arrive.
+// Reassembles a client-streamed upload (UploadAssembler), then stores it under the caller's tenant.
 class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
  public:
-  UploadReactor(ServiceState& state, v1::UploadResponse* response)
-      : state_(state), response_(response), blob_(std::make_shared<UploadBlob>()) {
+  UploadReactor(ServiceState& state, const Tenant& tenant, v1::UploadResponse* response)
+      : state_(state), tenant_(tenant), response_(response), assembler_(limit(state, tenant), hint(state, tenant)) {
     StartRead(&chunk_);
   }
 
@@ -106,69 +129,93 @@ class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
       complete();
       return;
     }
-    if (chunks_ == 0) {
-      blob_->name = chunk_.name();
-      expected_ = chunk_.total_bytes();
-      if (expected_ > static_cast<std::uint64_t>(state_.options.limits.max_upload_bytes)) {
-        fail_limit(expected_);
-        return;
-      }
-      if (expected_ > 0) blob_->bytes.reserve(expected_);
-    }
-    const std::string& data = chunk_.data();
-    if (chunk_.has_crc32() && crc32_of(data.data(), data.size()) != chunk_.crc32()) {
-      Finish(grpc::Status(grpc::StatusCode::DATA_LOSS, "chunk " + std::to_string(chunks_) +
-                                                            ": crc32 does not match its data; resend the upload"));
+    if (const grpc::Status status = assembler_.add(chunk_); !status.ok()) {
+      Finish(status);
       return;
     }
-    if (blob_->bytes.size() + data.size() > static_cast<std::uint64_t>(state_.options.limits.max_upload_bytes)) {
-      fail_limit(blob_->bytes.size() + data.size());
-      return;
-    }
-    crc_ = crc32_of(data.data(), data.size(), crc_);
-    blob_->bytes += data;
-    ++chunks_;
     StartRead(&chunk_);
   }
 
   void OnDone() override { delete this; }
 
  private:
-  void fail_limit(std::uint64_t bytes) {
-    Finish(grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
-                        "upload of " + std::to_string(bytes) + " bytes exceeds the server's limit of " +
-                            std::to_string(state_.options.limits.max_upload_bytes) +
-                            " bytes; start the server with a larger --max-upload-bytes"));
+  // The smaller of --max-upload-bytes and what the tenant's stored-bytes quota has left.
+  static std::int64_t limit(const ServiceState& state, const Tenant& tenant) {
+    std::int64_t max = state.options.limits.max_upload_bytes;
+    if (tenant.max_stored_bytes > 0 && state.usage) {
+      max = std::min(max, std::max<std::int64_t>(0, tenant.max_stored_bytes - state.usage->bytes(tenant.name)));
+    }
+    return max;
+  }
+  static std::string hint(const ServiceState& state, const Tenant& tenant) {
+    if (tenant.max_stored_bytes > 0 && state.usage &&
+        tenant.max_stored_bytes - state.usage->bytes(tenant.name) < state.options.limits.max_upload_bytes) {
+      return "tenant '" + tenant.name + "' has " + std::to_string(state.usage->bytes(tenant.name)) + " of its " +
+             std::to_string(tenant.max_stored_bytes) +
+             " quota bytes stored (quota.bytes); wait for older jobs to expire or raise bytes= for its token";
+    }
+    return "start the server with a larger --max-upload-bytes";
   }
 
   void complete() {
-    if (expected_ != 0 && expected_ != blob_->bytes.size()) {
-      Finish(grpc::Status(grpc::StatusCode::DATA_LOSS, "total_bytes: the first chunk announced " +
-                                                           std::to_string(expected_) + " bytes but " +
-                                                           std::to_string(blob_->bytes.size()) + " arrived"));
+    if (const grpc::Status status = assembler_.finish(); !status.ok()) {
+      Finish(status);
       return;
     }
-    blob_->crc32 = crc_;
-    response_->set_bytes(blob_->bytes.size());
-    response_->set_crc32(crc_);
-    const std::string name = blob_->name;
-    const auto size = blob_->bytes.size();
-    response_->set_upload_id(state_.uploads->add(std::move(blob_)));
-    log_event(LogLevel::kInfo, "upload",
-              {{"upload", response_->upload_id()}, {"name", name}, {"bytes", std::to_string(size)}});
-    Finish(grpc::Status::OK);
+    std::shared_ptr<UploadBlob> blob = assembler_.take();
+    const auto size = static_cast<std::int64_t>(blob->bytes.size());
+    if (state_.usage && !state_.usage->try_add(tenant_.name, size, tenant_.max_stored_bytes)) {
+      Finish(grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED, "upload: " + hint(state_, tenant_)));
+      return;
+    }
+    try {
+      response_->set_bytes(blob->bytes.size());
+      response_->set_crc32(blob->crc32);
+      const std::string name = blob->name;
+      response_->set_upload_id(state_.uploads->add(std::move(blob), tenant_.name));
+      log_event(LogLevel::kInfo, "upload",
+                {{"upload", response_->upload_id()},
+                 {"tenant", tenant_.name},
+                 {"name", name},
+                 {"bytes", std::to_string(size)}});
+      Finish(grpc::Status::OK);
+    } catch (...) {
+      if (state_.usage) state_.usage->release(tenant_.name, size);
+      Finish(status_from_exception(std::current_exception()));
+    }
   }
 
   ServiceState& state_;
+  const Tenant tenant_;
   v1::UploadResponse* response_;
-  std::shared_ptr<UploadBlob> blob_;
+  UploadAssembler assembler_;
   v1::UploadChunk chunk_;
-  std::uint64_t expected_ = 0;
-  std::uint32_t crc_ = 0;
-  int chunks_ = 0;
 };
 
+// The job `id` if it exists and belongs to `tenant` (another tenant's job is reported as missing).
+std::shared_ptr<Job> find_owned(const ServiceState& state, const std::string& id, const Tenant& tenant) {
+  auto job = state.scheduler->find(id);
+  return job && job->owner() == tenant.name ? job : nullptr;
+}
+
 }  // namespace
+
+const Tenant* authenticate(const ServiceState& state, const grpc::CallbackServerContext& context,
+                           grpc::Status& status) {
+  if (!state.auth) return &state.open_tenant;
+  const auto& metadata = context.client_metadata();
+  auto it = metadata.find("authorization");
+  const Tenant* tenant =
+      it == metadata.end() ? nullptr : state.auth->authenticate(std::string_view(it->second.data(), it->second.size()));
+  if (!tenant) {
+    status = grpc::Status(grpc::StatusCode::UNAUTHENTICATED,
+                          it == metadata.end()
+                              ? "this server requires a bearer token: send metadata `authorization: Bearer TOKEN` "
+                                "(surfacer --token TOKEN, or $SURFACER_TOKEN)"
+                              : "the bearer token is not known to this server; check the token");
+  }
+  return tenant;
+}
 
 grpc::ServerUnaryReactor* SurfacerService::SubmitJob(grpc::CallbackServerContext* context,
                                                      const v1::SubmitJobRequest* request,
@@ -178,12 +225,48 @@ grpc::ServerUnaryReactor* SurfacerService::SubmitJob(grpc::CallbackServerContext
     reactor->Finish(grpc::Status(grpc::StatusCode::UNAVAILABLE, "server is shutting down; submit to another server"));
     return reactor;
   }
+  grpc::Status auth_status;
+  const Tenant* tenant = authenticate(state_, *context, auth_status);
+  if (!tenant) {
+    reactor->Finish(auth_status);
+    return reactor;
+  }
+  std::shared_ptr<Job> job;
   try {
-    state_.scheduler->forget_finished(state_.options.keep_finished);
+    // Another tenant's uploads do not exist for this one.
+    std::vector<std::string> uploads;
+    for (const auto& [path, id] : Store::referenced_upload_fields(request->spec(), "spec")) {
+      if (!state_.uploads->owned_by(id, tenant->name)) {
+        throw InvalidInput(path, path + ": no upload with id '" + id +
+                                     "'; upload the data first with Surfacer.Upload and use the id it returns");
+      }
+      uploads.push_back(id);
+    }
+    if (tenant->max_running_jobs > 0 && state_.scheduler->active_jobs(tenant->name) >= tenant->max_running_jobs) {
+      throw ResourceLimit("quota.running", "tenant '" + tenant->name + "' already has " +
+                                               std::to_string(tenant->max_running_jobs) +
+                                               " queued or running jobs (its quota); wait for one to finish, or raise "
+                                               "running= for its token in the server's --tokens-file");
+    }
     JobContext job_context{state_.options.limits, *state_.uploads, state_.worker_threads};
-    auto runner = make_job_runner(request->spec(), job_context);
-    auto job = std::make_shared<Job>(random_id("j-"), request->spec().name(), std::move(runner));
-    state_.scheduler->submit(job);
+    JobInit init;
+    init.id = random_id("j-");
+    init.name = request->spec().name();
+    init.owner = tenant->name;
+    init.runner = make_job_runner(request->spec(), job_context);
+    init.store = state_.store;
+    init.usage = state_.usage;
+    init.max_stored_bytes = tenant->max_stored_bytes;
+    init.upload_ids = std::move(uploads);
+    init.hooks = state_.hooks;
+    job = std::make_shared<Job>(std::move(init));
+    if (state_.store) state_.store->put_job(job->id(), tenant->name, request->spec(), job->snapshot());
+    try {
+      state_.scheduler->submit(job);
+    } catch (...) {
+      if (state_.store) state_.store->delete_job(job->id());
+      throw;
+    }
     response->set_job_id(job->id());
     *response->mutable_job() = job->snapshot();
     reactor->Finish(grpc::Status::OK);
@@ -196,26 +279,24 @@ grpc::ServerUnaryReactor* SurfacerService::SubmitJob(grpc::CallbackServerContext
   return reactor;
 }
 
-grpc::ServerReadReactor<v1::UploadChunk>* SurfacerService::Upload(grpc::CallbackServerContext*,
+grpc::ServerReadReactor<v1::UploadChunk>* SurfacerService::Upload(grpc::CallbackServerContext* context,
                                                                   v1::UploadResponse* response) {
-  return new UploadReactor(state_, response);
+  grpc::Status auth_status;
+  const Tenant* tenant = authenticate(state_, *context, auth_status);
+  if (!tenant) return new FailedRead(auth_status);
+  return new UploadReactor(state_, *tenant, response);
 }
 
-grpc::ServerWriteReactor<v1::JobEvent>* SurfacerService::WatchJob(grpc::CallbackServerContext*,
+grpc::ServerWriteReactor<v1::JobEvent>* SurfacerService::WatchJob(grpc::CallbackServerContext* context,
                                                                   const v1::WatchJobRequest* request) {
-  auto job = state_.scheduler->find(request->job_id());
-  if (!job || request->from_frame() < 0) {
-    // A reactor that only reports the error.
-    class Failed final : public grpc::ServerWriteReactor<v1::JobEvent> {
-     public:
-      explicit Failed(const grpc::Status& status) { Finish(status); }
-      void OnDone() override { delete this; }
-    };
-    if (job) {
-      return new Failed(grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
-                                     "from_frame (" + std::to_string(request->from_frame()) + ") must be >= 0"));
-    }
-    return new Failed(invalid_job_id(request->job_id()));
+  grpc::Status auth_status;
+  const Tenant* tenant = authenticate(state_, *context, auth_status);
+  if (!tenant) return new FailedWrite(auth_status);
+  auto job = find_owned(state_, request->job_id(), *tenant);
+  if (!job) return new FailedWrite(invalid_job_id(request->job_id()));
+  if (request->from_frame() < 0) {
+    return new FailedWrite(grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
+                                        "from_frame (" + std::to_string(request->from_frame()) + ") must be >= 0"));
   }
   return WatchReactor::start(std::move(job), *request);
 }
@@ -223,7 +304,13 @@ grpc::ServerWriteReactor<v1::JobEvent>* SurfacerService::WatchJob(grpc::Callback
 grpc::ServerUnaryReactor* SurfacerService::GetJob(grpc::CallbackServerContext* context,
                                                   const v1::GetJobRequest* request, v1::Job* response) {
   auto* reactor = context->DefaultReactor();
-  if (auto job = state_.scheduler->find(request->job_id())) {
+  grpc::Status auth_status;
+  const Tenant* tenant = authenticate(state_, *context, auth_status);
+  if (!tenant) {
+    reactor->Finish(auth_status);
+    return reactor;
+  }
+  if (auto job = find_owned(state_, request->job_id(), *tenant)) {
     *response = job->snapshot();
     reactor->Finish(grpc::Status::OK);
   } else {
@@ -236,7 +323,14 @@ grpc::ServerUnaryReactor* SurfacerService::ListJobs(grpc::CallbackServerContext*
                                                     const v1::ListJobsRequest* request,
                                                     v1::ListJobsResponse* response) {
   auto* reactor = context->DefaultReactor();
+  grpc::Status auth_status;
+  const Tenant* tenant = authenticate(state_, *context, auth_status);
+  if (!tenant) {
+    reactor->Finish(auth_status);
+    return reactor;
+  }
   for (const auto& job : state_.scheduler->list()) {
+    if (job->owner() != tenant->name) continue;
     v1::Job snapshot = job->snapshot();
     bool keep = request->states_size() == 0;
     for (int s : request->states()) keep = keep || s == snapshot.state();
@@ -249,7 +343,13 @@ grpc::ServerUnaryReactor* SurfacerService::ListJobs(grpc::CallbackServerContext*
 grpc::ServerUnaryReactor* SurfacerService::CancelJob(grpc::CallbackServerContext* context,
                                                      const v1::CancelJobRequest* request, v1::Job* response) {
   auto* reactor = context->DefaultReactor();
-  if (auto job = state_.scheduler->find(request->job_id())) {
+  grpc::Status auth_status;
+  const Tenant* tenant = authenticate(state_, *context, auth_status);
+  if (!tenant) {
+    reactor->Finish(auth_status);
+    return reactor;
+  }
+  if (auto job = find_owned(state_, request->job_id(), *tenant)) {
     job->cancel("cancelled by client");
     *response = job->snapshot();
     reactor->Finish(grpc::Status::OK);

@@ -4,6 +4,7 @@
 
 #include <atomic>
 
+#include "server/auth.h"
 #include "server/jobs.h"
 #include "server/server.h"
 #include "server/uploads.h"
@@ -11,13 +12,24 @@
 
 namespace surfacer::server {
 
+class Store;
+
 struct ServiceState {
   ServerOptions options;
   int worker_threads = 1;
   Scheduler* scheduler = nullptr;
   UploadStore* uploads = nullptr;
+  Store* store = nullptr;         // null: memory only
+  const TokenAuth* auth = nullptr;  // null: no authentication, every caller is `open_tenant`
+  Tenant open_tenant;
+  Usage* usage = nullptr;
+  const JobHooks* hooks = nullptr;
   std::atomic<bool> accepting{true};
 };
+
+// The caller's tenant, or UNAUTHENTICATED.
+const Tenant* authenticate(const ServiceState& state, const grpc::CallbackServerContext& context,
+                           grpc::Status& status);
 
 class SurfacerService final : public v1::Surfacer::CallbackService {
  public:

@@ -5,6 +5,7 @@
 #include <random>
 
 #include "core/errors.h"
+#include "server/store.h"
 
 namespace surfacer::server {
 
@@ -34,22 +35,74 @@ std::uint32_t crc32_of(const void* data, std::size_t size, std::uint32_t seed) {
   return static_cast<std::uint32_t>(crc);
 }
 
-std::string UploadStore::add(std::shared_ptr<const UploadBlob> blob) {
-  std::string id = random_id("u-");
+UploadStore::UploadStore(Store* store) : store_(store) {}
+
+void UploadStore::restore() {
+  if (!store_) return;
   std::lock_guard lock(mutex_);
-  total_bytes_ += static_cast<std::int64_t>(blob->bytes.size());
-  blobs_.emplace(id, std::move(blob));
+  for (const StoredUpload& u : store_->list_uploads()) {
+    Entry e;
+    e.info = {u.id, u.owner, u.bytes, std::chrono::system_clock::from_time_t(static_cast<std::time_t>(u.created_unix))};
+    total_bytes_ += u.bytes;
+    entries_.emplace(u.id, std::move(e));
+  }
+}
+
+std::string UploadStore::add(std::shared_ptr<const UploadBlob> blob, const std::string& owner) {
+  std::string id = random_id("u-");
+  if (store_) store_->put_upload(id, owner, *blob);
+  Entry e;
+  e.info = {id, owner, static_cast<std::int64_t>(blob->bytes.size()), std::chrono::system_clock::now()};
+  e.blob = std::move(blob);
+  std::lock_guard lock(mutex_);
+  total_bytes_ += e.info.bytes;
+  entries_.emplace(id, std::move(e));
   return id;
 }
 
 std::shared_ptr<const UploadBlob> UploadStore::get(const std::string& id, const std::string& field) const {
-  std::lock_guard lock(mutex_);
-  auto it = blobs_.find(id);
-  if (it == blobs_.end()) {
+  std::shared_ptr<const UploadBlob> blob;
+  {
+    std::lock_guard lock(mutex_);
+    auto it = entries_.find(id);
+    if (it != entries_.end()) {
+      if (!it->second.blob && store_) it->second.blob = store_->load_upload(id);
+      blob = it->second.blob;
+    }
+  }
+  if (!blob) {
     throw InvalidInput(field, field + ": no upload with id '" + id +
                                   "'; upload the data first with Surfacer.Upload and use the id it returns");
   }
-  return it->second;
+  return blob;
+}
+
+bool UploadStore::owned_by(const std::string& id, const std::string& owner) const {
+  std::lock_guard lock(mutex_);
+  auto it = entries_.find(id);
+  return it != entries_.end() && it->second.info.owner == owner;
+}
+
+std::vector<UploadInfo> UploadStore::list() const {
+  std::lock_guard lock(mutex_);
+  std::vector<UploadInfo> out;
+  out.reserve(entries_.size());
+  for (const auto& [id, e] : entries_) out.push_back(e.info);
+  return out;
+}
+
+std::int64_t UploadStore::remove(const std::string& id) {
+  std::int64_t bytes = 0;
+  {
+    std::lock_guard lock(mutex_);
+    auto it = entries_.find(id);
+    if (it == entries_.end()) return 0;
+    bytes = it->second.info.bytes;
+    total_bytes_ -= bytes;
+    entries_.erase(it);
+  }
+  if (store_) store_->delete_upload(id);
+  return bytes;
 }
 
 std::int64_t UploadStore::total_bytes() const {

@@ -1,13 +1,18 @@
-// Uploaded inputs (sampled grids, particles, meshes), kept in memory and named by id.
+// Uploaded inputs (sampled grids, particles, meshes), named by id and owned by the tenant that sent them. Kept in
+// memory, and in the durable store when there is one (then loaded back on demand after a restart).
 #pragma once
 
+#include <chrono>
 #include <cstdint>
 #include <memory>
 #include <mutex>
 #include <string>
 #include <unordered_map>
+#include <vector>
 
 namespace surfacer::server {
+
+class Store;
 
 struct UploadBlob {
   std::string name;
@@ -15,17 +20,37 @@ struct UploadBlob {
   std::uint32_t crc32 = 0;
 };
 
+struct UploadInfo {
+  std::string id;
+  std::string owner;
+  std::int64_t bytes = 0;
+  std::chrono::system_clock::time_point created;
+};
+
 class UploadStore {
  public:
-  // Returns the new id.
-  std::string add(std::shared_ptr<const UploadBlob> blob);
+  explicit UploadStore(Store* store = nullptr);
+  // Registers what the durable store holds (at start-up; the bytes are read when first used).
+  void restore();
+  // Returns the new id. Throws surfacer::ResourceLimit("data_dir") when the store cannot write it.
+  std::string add(std::shared_ptr<const UploadBlob> blob, const std::string& owner = "");
   // Throws surfacer::Error(kInvalidInput) naming `field` when the id is unknown.
   std::shared_ptr<const UploadBlob> get(const std::string& id, const std::string& field) const;
+  // Whether `id` exists and belongs to `owner`.
+  bool owned_by(const std::string& id, const std::string& owner) const;
+  std::vector<UploadInfo> list() const;
+  // Forgets an upload (and deletes it from the store); returns its size (0 if unknown).
+  std::int64_t remove(const std::string& id);
   std::int64_t total_bytes() const;
 
  private:
+  struct Entry {
+    UploadInfo info;
+    mutable std::shared_ptr<const UploadBlob> blob;  // null until loaded from the store
+  };
+  Store* const store_;
   mutable std::mutex mutex_;
-  std::unordered_map<std::string, std::shared_ptr<const UploadBlob>> blobs_;
+  std::unordered_map<std::string, Entry> entries_;
   std::int64_t total_bytes_ = 0;
 };
 

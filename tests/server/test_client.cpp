@@ -16,9 +16,10 @@ std::uint32_t crc(const std::string& s) {
 
 }  // namespace
 
-WatchResult watch_job(v1::Surfacer::Stub& stub, const std::string& job_id, int from_frame) {
+WatchResult watch_job(v1::Surfacer::Stub& stub, const std::string& job_id, int from_frame, const std::string& token) {
   WatchResult result;
   grpc::ClientContext context;
+  if (!token.empty()) context.AddMetadata("authorization", "Bearer " + token);
   v1::WatchJobRequest request;
   request.set_job_id(job_id);
   request.set_from_frame(from_frame);
@@ -106,8 +107,9 @@ v1::JobSpec isosurface_spec(const std::vector<v1::Scene>& scenes, int cells) {
   return spec;
 }
 
-grpc::Status submit(v1::Surfacer::Stub& stub, const v1::JobSpec& spec, std::string* job_id) {
+grpc::Status submit(v1::Surfacer::Stub& stub, const v1::JobSpec& spec, std::string* job_id, const std::string& token) {
   grpc::ClientContext context;
+  if (!token.empty()) context.AddMetadata("authorization", "Bearer " + token);
   v1::SubmitJobRequest request;
   *request.mutable_spec() = spec;
   v1::SubmitJobResponse response;

@@ -31,7 +31,9 @@ struct WatchResult {
 };
 
 // Watches `job_id` to the end, reassembling frames and verifying chunk indices, sizes and CRC-32s.
-WatchResult watch_job(v1::Surfacer::Stub& stub, const std::string& job_id, int from_frame = 0);
+// `token`: sent as `authorization: Bearer TOKEN` when not empty.
+WatchResult watch_job(v1::Surfacer::Stub& stub, const std::string& job_id, int from_frame = 0,
+                      const std::string& token = "");
 
 // A server listening on 127.0.0.1:<free port>, with a stub connected through that real port.
 struct LoopbackServer {
@@ -48,6 +50,7 @@ v1::Scene scene_from_json(const std::string& json);
 v1::Scene scene_from_file(const std::string& path);
 v1::JobSpec isosurface_spec(const std::vector<v1::Scene>& scenes, int cells);
 
-grpc::Status submit(v1::Surfacer::Stub& stub, const v1::JobSpec& spec, std::string* job_id);
+grpc::Status submit(v1::Surfacer::Stub& stub, const v1::JobSpec& spec, std::string* job_id,
+                    const std::string& token = "");
 
 }  // namespace surfacer::testing

@@ -1,0 +1,75 @@
+#include "server/upload_assembler.h"
+
+#include <algorithm>
+#include <string>
+
+namespace surfacer::server {
+namespace {
+constexpr std::size_t kMaxUploadName = 1024;
+}
+
+UploadAssembler::UploadAssembler(std::int64_t max_bytes, std::string limit_hint)
+    : max_bytes_(std::max<std::int64_t>(0, max_bytes)), limit_hint_(std::move(limit_hint)) {}
+
+grpc::Status UploadAssembler::fail(grpc::Status status) {
+  error_ = status;
+  blob_.reset();
+  return status;
+}
+
+grpc::Status UploadAssembler::over_limit(std::uint64_t bytes) const {
+  return {grpc::StatusCode::RESOURCE_EXHAUSTED, "upload of " + std::to_string(bytes) +
+                                                    " bytes exceeds the limit of " + std::to_string(max_bytes_) +
+                                                    " bytes; " + limit_hint_};
+}
+
+grpc::Status UploadAssembler::add(const v1::UploadChunk& chunk) {
+  if (!error_.ok()) return error_;
+  if (finished_ || !blob_) {
+    return fail({grpc::StatusCode::FAILED_PRECONDITION, "chunk after the end of the upload"});
+  }
+  if (chunks_ == 0) {
+    if (chunk.name().size() > kMaxUploadName) {
+      return fail({grpc::StatusCode::INVALID_ARGUMENT, "name: longer than " + std::to_string(kMaxUploadName) +
+                                                           " bytes; send a short file name (it is only a label)"});
+    }
+    blob_->name = chunk.name();
+    expected_ = chunk.total_bytes();
+    if (expected_ > static_cast<std::uint64_t>(max_bytes_)) return fail(over_limit(expected_));
+    if (expected_ > 0) blob_->bytes.reserve(expected_);
+  }
+  const std::string& data = chunk.data();
+  if (chunk.has_crc32() && crc32_of(data.data(), data.size()) != chunk.crc32()) {
+    return fail({grpc::StatusCode::DATA_LOSS,
+                 "chunk " + std::to_string(chunks_) + ": crc32 does not match its data; resend the upload"});
+  }
+  const std::uint64_t total = blob_->bytes.size() + data.size();
+  if (total > static_cast<std::uint64_t>(max_bytes_)) return fail(over_limit(total));
+  if (expected_ != 0 && total > expected_) {
+    return fail({grpc::StatusCode::DATA_LOSS, "total_bytes: the first chunk announced " + std::to_string(expected_) +
+                                                  " bytes but more arrived"});
+  }
+  crc_ = crc32_of(data.data(), data.size(), crc_);
+  blob_->bytes += data;
+  ++chunks_;
+  return grpc::Status::OK;
+}
+
+grpc::Status UploadAssembler::finish() {
+  if (!error_.ok()) return error_;
+  if (finished_ || !blob_) return fail({grpc::StatusCode::FAILED_PRECONDITION, "upload already finished"});
+  if (expected_ != 0 && expected_ != blob_->bytes.size()) {
+    return fail({grpc::StatusCode::DATA_LOSS, "total_bytes: the first chunk announced " + std::to_string(expected_) +
+                                                  " bytes but " + std::to_string(blob_->bytes.size()) + " arrived"});
+  }
+  blob_->crc32 = crc_;
+  finished_ = true;
+  return grpc::Status::OK;
+}
+
+std::shared_ptr<UploadBlob> UploadAssembler::take() {
+  if (!finished_ || !error_.ok()) return nullptr;
+  return std::move(blob_);
+}
+
+}  // namespace surfacer::server

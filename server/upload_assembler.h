@@ -1,0 +1,46 @@
+// Reassembles one client-streamed upload from its chunks, checking sizes and checksums as they arrive. Pure logic
+// (no I/O, no gRPC threads), so the Upload reactor, the tests and the fuzzers drive the same code.
+#pragma once
+
+#include <grpcpp/support/status.h>
+
+#include <cstdint>
+#include <memory>
+
+#include "server/uploads.h"
+#include "surfacer/v1/surfacer.pb.h"
+
+namespace surfacer::server {
+
+class UploadAssembler {
+ public:
+  // max_bytes: the server's --max-upload-bytes (or a tenant's remaining quota, whichever is smaller);
+  // limit_hint: what to say about raising it.
+  explicit UploadAssembler(std::int64_t max_bytes, std::string limit_hint = "start the server with a larger "
+                                                                            "--max-upload-bytes");
+
+  // Adds the next chunk. A non-OK status ends the upload (RESOURCE_EXHAUSTED past the limit, DATA_LOSS on a bad
+  // checksum, INVALID_ARGUMENT on a malformed chunk); later calls return the same status.
+  grpc::Status add(const v1::UploadChunk& chunk);
+  // The client closed the stream: checks the announced total. OK -> take() returns the blob.
+  grpc::Status finish();
+  std::shared_ptr<UploadBlob> take();
+
+  std::uint64_t bytes() const { return blob_ ? blob_->bytes.size() : 0; }
+  int chunks() const { return chunks_; }
+
+ private:
+  grpc::Status fail(grpc::Status status);
+  grpc::Status over_limit(std::uint64_t bytes) const;
+
+  const std::int64_t max_bytes_;
+  const std::string limit_hint_;
+  std::shared_ptr<UploadBlob> blob_ = std::make_shared<UploadBlob>();
+  grpc::Status error_;
+  std::uint64_t expected_ = 0;
+  std::uint32_t crc_ = 0;
+  int chunks_ = 0;
+  bool finished_ = false;
+};
+
+}  // namespace surfacer::server

@@ -1,0 +1,300 @@
+// The durable store: jobs survive a restart (clean, and kill -9), unfinished ones resume from their last finished
+// frame, a re-attaching watcher gets every frame from k on, retention deletes by age and bytes, and a write the disk
+// refuses fails the job clearly without damaging the store.
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <fcntl.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <thread>
+
+#include "server/store.h"
+#include "server/uploads.h"
+#include "tests/server/test_client.h"
+
+namespace surfacer::testing {
+namespace {
+
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+
+fs::path fresh_dir(const std::string& name) {
+  const fs::path dir = fs::temp_directory_path() / ("surfacer-durable-" + name + "-" + std::to_string(getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+// A sequence of `n` spheres of growing radius.
+v1::JobSpec sphere_sequence(int n, int cells, v1::MeshEncoding encoding = v1::MESH_ENCODING_DRACO) {
+  std::vector<v1::Scene> scenes;
+  for (int i = 0; i < n; ++i) {
+    scenes.push_back(scene_from_json(R"({"root": {"sphere": {"radius": )" + std::to_string(0.6 + 0.04 * i) + "}}}"));
+  }
+  auto spec = isosurface_spec(scenes, cells);
+  spec.mutable_isosurface()->mutable_bounds()->mutable_min()->set_x(-1.2);
+  spec.mutable_isosurface()->mutable_bounds()->mutable_min()->set_y(-1.2);
+  spec.mutable_isosurface()->mutable_bounds()->mutable_min()->set_z(-1.2);
+  spec.mutable_isosurface()->mutable_bounds()->mutable_max()->set_x(1.2);
+  spec.mutable_isosurface()->mutable_bounds()->mutable_max()->set_y(1.2);
+  spec.mutable_isosurface()->mutable_bounds()->mutable_max()->set_z(1.2);
+  spec.mutable_output()->set_encoding(encoding);
+  return spec;
+}
+
+server::ServerOptions durable_options(const fs::path& dir, int workers = 2) {
+  auto o = LoopbackServer::default_options();
+  o.data_dir = dir.string();
+  o.workers = workers;
+  return o;
+}
+
+v1::Job get_job(v1::Surfacer::Stub& stub, const std::string& id, grpc::Status* status = nullptr) {
+  grpc::ClientContext ctx;
+  v1::GetJobRequest req;
+  req.set_job_id(id);
+  v1::Job job;
+  const auto s = stub.GetJob(&ctx, req, &job);
+  if (status) *status = s;
+  return job;
+}
+
+// surfacer-server as a child process, optionally with a file-size limit (a full disk, as write() sees it).
+struct ServerProcess {
+  pid_t pid = -1;
+  int port = 0;
+  fs::path log;
+
+  ServerProcess(const fs::path& dir, const std::vector<std::string>& extra, rlim_t fsize_limit = RLIM_INFINITY) {
+    static int counter = 0;
+    const fs::path port_file = dir / ("port" + std::to_string(++counter));
+    log = dir / ("server" + std::to_string(counter) + ".log");
+    std::vector<std::string> args = {SURFACER_BINARY_DIR "/server/surfacer-server", "--listen", "127.0.0.1:0",
+                                     "--port-file", port_file.string(), "--workers", "1"};
+    args.insert(args.end(), extra.begin(), extra.end());
+    pid = fork();
+    if (pid == 0) {
+      const int fd = ::open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+      dup2(fd, 2);
+      if (fsize_limit != RLIM_INFINITY) {
+        signal(SIGXFSZ, SIG_IGN);  // writes past the limit fail with EFBIG instead of killing the process
+        rlimit lim{fsize_limit, fsize_limit};
+        setrlimit(RLIMIT_FSIZE, &lim);
+      }
+      std::vector<char*> argv;
+      for (auto& a : args) argv.push_back(a.data());
+      argv.push_back(nullptr);
+      execv(argv[0], argv.data());
+      _exit(127);
+    }
+    const auto until = std::chrono::steady_clock::now() + 30s;
+    while (std::chrono::steady_clock::now() < until) {
+      std::ifstream in(port_file);
+      if (in >> port && port > 0) break;
+      std::this_thread::sleep_for(20ms);
+    }
+  }
+  std::unique_ptr<v1::Surfacer::Stub> stub() const {
+    return v1::Surfacer::NewStub(
+        grpc::CreateChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials()));
+  }
+  void kill9() {
+    if (pid > 0) {
+      kill(pid, SIGKILL);
+      waitpid(pid, nullptr, 0);
+      pid = -1;
+    }
+  }
+  ~ServerProcess() { kill9(); }
+};
+
+TEST(DurableStore, FinishedJobsSurviveARestartAndReattachFromFrameK) {
+  const fs::path dir = fresh_dir("restart");
+  std::string id;
+  std::map<int, std::string> first;
+  {
+    LoopbackServer s(durable_options(dir));
+    ASSERT_TRUE(submit(*s.stub, sphere_sequence(5, 32), &id).ok());
+    const auto r = watch_job(*s.stub, id);
+    ASSERT_EQ(r.final_job.state(), v1::JOB_STATE_SUCCEEDED);
+    ASSERT_EQ(r.frames.size(), 5u);
+    for (const auto& [i, f] : r.frames) first[i] = f.bytes;
+  }
+  ASSERT_TRUE(fs::exists(dir / "surfacer.db"));
+  LoopbackServer s(durable_options(dir));
+  const v1::Job job = get_job(*s.stub, id);
+  EXPECT_EQ(job.state(), v1::JOB_STATE_SUCCEEDED);
+  EXPECT_EQ(job.frames_done(), 5);
+  const auto r = watch_job(*s.stub, id, 2);
+  EXPECT_TRUE(r.integrity_error.empty()) << r.integrity_error;
+  ASSERT_EQ(r.frames.size(), 3u);
+  for (int i = 2; i < 5; ++i) EXPECT_EQ(r.frames.at(i).bytes, first[i]) << "frame " << i;
+  EXPECT_EQ(r.final_job.state(), v1::JOB_STATE_SUCCEEDED);
+}
+
+TEST(DurableStore, KillNineMidJobResumesFromTheLastFinishedFrame) {
+  const fs::path dir = fresh_dir("kill9");
+  const fs::path data = dir / "data";
+  const int frames = 8;
+  std::string id;
+  int done_before_kill = 0;
+  {
+    ServerProcess p(dir, {"--data-dir", data.string()});
+    ASSERT_GT(p.port, 0) << slurp(p.log);
+    auto stub = p.stub();
+    ASSERT_TRUE(submit(*stub, sphere_sequence(frames, 150), &id).ok());
+    const auto until = std::chrono::steady_clock::now() + 60s;
+    while (std::chrono::steady_clock::now() < until) {
+      done_before_kill = get_job(*stub, id).frames_done();
+      if (done_before_kill >= 2) break;
+      std::this_thread::sleep_for(10ms);
+    }
+    p.kill9();
+    ASSERT_GE(done_before_kill, 2) << slurp(p.log);
+    ASSERT_LT(done_before_kill, frames) << "the job finished before the kill: make frames slower";
+  }
+  ServerProcess p(dir, {"--data-dir", data.string()});
+  ASSERT_GT(p.port, 0) << slurp(p.log);
+  auto stub = p.stub();
+  const auto r = watch_job(*stub, id, 0);
+  EXPECT_EQ(r.final_job.state(), v1::JOB_STATE_SUCCEEDED) << r.final_job.error().message() << slurp(p.log);
+  EXPECT_TRUE(r.integrity_error.empty()) << r.integrity_error;
+  ASSERT_EQ(static_cast<int>(r.frames.size()), frames);
+  for (int i = 0; i < frames; ++i) EXPECT_TRUE(r.frames.count(i)) << "frame " << i << " lost";
+  // Only the unfinished frames were computed again.
+  const std::string log = slurp(p.log);
+  const auto at = log.find("event=job_resumed");
+  ASSERT_NE(at, std::string::npos) << log;
+  const auto tasks_at = log.find("tasks=", at);
+  const int resumed_tasks = std::stoi(log.substr(tasks_at + 6));
+  EXPECT_LE(resumed_tasks, frames - done_before_kill);
+  // A watcher re-attaching from frame k gets exactly the frames >= k.
+  const auto tail = watch_job(*stub, id, 5);
+  EXPECT_EQ(tail.frames.size(), 3u);
+  EXPECT_EQ(tail.frames.begin()->first, 5);
+}
+
+TEST(DurableStore, AFullDiskFailsTheJobClearlyAndLeavesTheStoreUsable) {
+  const fs::path dir = fresh_dir("full");
+  const fs::path data = dir / "data";
+  std::string ok_id, id;
+  {
+    // Raw PLY frames of ~1 MB each against a 3 MB file-size limit: the database and the first small job fit,
+    // the big frames do not.
+    ServerProcess p(dir, {"--data-dir", data.string()}, 3u << 20);
+    ASSERT_GT(p.port, 0) << slurp(p.log);
+    auto stub = p.stub();
+    ASSERT_TRUE(submit(*stub, sphere_sequence(1, 24), &ok_id).ok());
+    EXPECT_EQ(watch_job(*stub, ok_id).final_job.state(), v1::JOB_STATE_SUCCEEDED);
+    ASSERT_TRUE(submit(*stub, sphere_sequence(3, 200, v1::MESH_ENCODING_PLY), &id).ok());
+    const auto r = watch_job(*stub, id);
+    EXPECT_EQ(r.final_job.state(), v1::JOB_STATE_FAILED);
+    EXPECT_EQ(r.final_job.error().code(), static_cast<int>(grpc::StatusCode::RESOURCE_EXHAUSTED));
+    EXPECT_NE(r.final_job.error().message().find("data-dir"), std::string::npos) << r.final_job.error().message();
+    // The server keeps serving.
+    std::string again;
+    ASSERT_TRUE(submit(*stub, sphere_sequence(1, 24), &again).ok());
+    EXPECT_EQ(watch_job(*stub, again).final_job.state(), v1::JOB_STATE_SUCCEEDED);
+    p.kill9();
+  }
+  // No temporary or orphan file is left, and everything recorded is readable after a restart.
+  ServerProcess p(dir, {"--data-dir", data.string()});
+  ASSERT_GT(p.port, 0) << slurp(p.log);
+  auto stub = p.stub();
+  const auto ok = watch_job(*stub, ok_id);
+  EXPECT_EQ(ok.final_job.state(), v1::JOB_STATE_SUCCEEDED);
+  EXPECT_EQ(ok.frames.size(), 1u);
+  EXPECT_TRUE(ok.integrity_error.empty());
+  const auto failed = watch_job(*stub, id);
+  EXPECT_EQ(failed.final_job.state(), v1::JOB_STATE_FAILED);
+  EXPECT_TRUE(failed.integrity_error.empty());
+  for (const auto& f : fs::recursive_directory_iterator(data / "frames")) {
+    EXPECT_EQ(f.path().extension() == ".tmp", false) << f.path();
+  }
+}
+
+TEST(DurableStore, RetentionRemovesTheOldestFinishedJobsByBytesThenByAge) {
+  const fs::path dir = fresh_dir("retention");
+  auto o = durable_options(dir);
+  o.retention_interval = std::chrono::hours(1);  // run by hand below
+  std::vector<std::string> ids;
+  std::int64_t per_job = 0;
+  {
+    LoopbackServer s(o);
+    for (int i = 0; i < 3; ++i) {
+      std::string id;
+      ASSERT_TRUE(submit(*s.stub, sphere_sequence(2, 40), &id).ok());
+      const auto r = watch_job(*s.stub, id);
+      ASSERT_EQ(r.final_job.state(), v1::JOB_STATE_SUCCEEDED);
+      std::int64_t bytes = 0;
+      for (const auto& [k, f] : r.frames) bytes += static_cast<std::int64_t>(f.bytes.size());
+      per_job = std::max(per_job, bytes);
+      ids.push_back(id);
+      std::this_thread::sleep_for(1100ms);  // distinct finish seconds, so "oldest" is well defined after restart
+    }
+  }
+  // Room for about two jobs: the oldest goes, with its rows and files.
+  o.retain_bytes = per_job * 5 / 2;
+  {
+    LoopbackServer s(o);
+    s.server->run_retention();
+    grpc::Status status;
+    get_job(*s.stub, ids[0], &status);
+    EXPECT_EQ(status.error_code(), grpc::StatusCode::NOT_FOUND);
+    EXPECT_FALSE(fs::exists(dir / "frames" / ids[0]));
+    for (int i = 1; i < 3; ++i) {
+      EXPECT_EQ(get_job(*s.stub, ids[i], &status).state(), v1::JOB_STATE_SUCCEEDED) << status.error_message();
+      EXPECT_TRUE(fs::exists(dir / "frames" / ids[i]));
+    }
+  }
+  // By age: everything finished more than a second ago goes.
+  o.retain_bytes = 0;
+  o.keep_finished = std::chrono::seconds(1);
+  LoopbackServer s(o);
+  std::this_thread::sleep_for(1100ms);
+  s.server->run_retention();
+  for (const auto& id : ids) {
+    grpc::Status status;
+    get_job(*s.stub, id, &status);
+    EXPECT_EQ(status.error_code(), grpc::StatusCode::NOT_FOUND) << id;
+  }
+  EXPECT_TRUE(fs::is_empty(dir / "frames"));
+}
+
+TEST(DurableStore, OnlyServerGeneratedIdsBecomePaths) {
+  EXPECT_TRUE(server::Store::valid_id("j-0123456789abcdef"));
+  EXPECT_TRUE(server::Store::valid_id("u-0123456789abcdef"));
+  for (const char* bad : {"../../etc/passwd", "j-0123456789abcde/", "j-../../../../x", "u-0123456789ABCDEF", "",
+                          "j-0123456789abcdef0", "x-0123456789abcdef"}) {
+    EXPECT_FALSE(server::Store::valid_id(bad)) << bad;
+  }
+  // A request naming a path gets NOT_FOUND and touches nothing on disk.
+  const fs::path dir = fresh_dir("paths");
+  LoopbackServer s(durable_options(dir));
+  grpc::Status status;
+  get_job(*s.stub, "../../../../etc/passwd", &status);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::NOT_FOUND);
+  auto spec = sphere_sequence(1, 16);
+  auto* grid = spec.mutable_isosurface()->mutable_scenes(0)->mutable_root()->mutable_grid();
+  grid->set_upload_id("../../../etc/passwd");
+  std::string id;
+  status = submit(*s.stub, spec, &id);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(status.error_message().find("no upload"), std::string::npos) << status.error_message();
+}
+
+}  // namespace
+}  // namespace surfacer::testing
