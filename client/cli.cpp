@@ -10,6 +10,8 @@
 
 #include "client/cli_jobs.h"
 #include "client/commands.h"
+#include "client/security.h"
+#include "client/server_list.h"
 
 namespace surfacer::client {
 namespace {
@@ -33,7 +35,8 @@ FrameOutputOptions finish_output(const OutputFlags& flags, const std::string& co
 }  // namespace
 
 std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* const* argv, std::ostream& out,
-                                                      std::ostream& err, const char* env_server) {
+                                                      std::ostream& err, const char* env_server,
+                                                      const char* env_token) {
   CLI::App app(
       "surfacer: turn implicit scenes and particle simulations into meshes on a Surfacer server, frame by frame",
       "surfacer");
@@ -45,15 +48,23 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
                          "  ID=$(surfacer --server localhost:50051 submit isosurface --scene a.json --scene b.json)\n"
                          "  surfacer --server localhost:50051 watch $ID -o out/\n"
                          "\n"
+                         "  surfacer --server a:50051,b:50051,c:50051 run isosurface --scene s1.json --scene s2.json "
+                         "-o out/\n"
+                         "  surfacer --server surfacer.example.com:443 --tls --token-file ~/.surfacer-token list\n"
+                         "\n"
                          "Environment:\n"
                          "  SURFACER_SERVER  host:port used when neither --server nor --local is given\n"
+                         "  SURFACER_TOKEN   bearer token used when neither --token nor --token-file is given\n"
                          "\n") +
              kExitCodesHelp);
 
   ConnectOptions connect;
   std::optional<std::string> server;
   CLI::Option* server_opt =
-      app.add_option("--server", server, "host:port of a Surfacer server (default: $SURFACER_SERVER, else --local)")
+      app.add_option("--server", server,
+                     "host:port of a Surfacer server (default: $SURFACER_SERVER, else --local); for `run`, a "
+                     "comma-separated list a:1,b:2,c:3 or dns:///NAME:PORT with several addresses splits frame "
+                     "sequences across the servers")
           ->type_name("HOST:PORT");
   bool local = false;
   app.add_flag("--local", local,
@@ -64,9 +75,35 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
                  "worker threads of the in-process server (0: one per core; ignored with --server)")
       ->check(CLI::NonNegativeNumber)
       ->type_name("N");
-  app.add_option("--timeout", connect.timeout_seconds, "seconds to wait for the server connection (default 10)")
+  app.add_option("--timeout", connect.timeout_seconds,
+                 "seconds to wait for the server connection (default 10); with several servers, also how long a "
+                 "lost server may take to come back before its frames go to the others")
       ->check(CLI::PositiveNumber)
       ->type_name("S");
+  app.add_flag("-v,--verbose", connect.verbose,
+               "more lines: with several servers, which server produced each frame and every sub-job");
+
+  SecurityFlags security;
+  CLI::Option* token_opt =
+      app.add_option("--token", security.token,
+                     "bearer token sent with every call as \"authorization: Bearer TOKEN\" (default: "
+                     "$SURFACER_TOKEN)")
+          ->type_name("TOKEN");
+  app.add_option("--token-file", security.token_file, "read the bearer token from FILE (one line)")
+      ->excludes(token_opt)
+      ->type_name("FILE");
+  app.add_flag("--tls", security.tls, "connect with TLS, checking the server's certificate against the system roots");
+  app.add_option("--tls-ca", security.tls_ca, "connect with TLS, trusting the CA certificate(s) in FILE (PEM)")
+      ->type_name("FILE");
+  app.add_option("--tls-cert", security.tls_cert, "client certificate (PEM) for servers that require mutual TLS")
+      ->type_name("FILE");
+  app.add_option("--tls-key", security.tls_key, "private key (PEM) of --tls-cert")->type_name("FILE");
+  app.add_option("--tls-server-name", security.tls_server_name,
+                 "name to check the server's certificate against instead of the host in --server (for IP "
+                 "addresses and tests)")
+      ->type_name("NAME");
+  app.add_flag("--allow-insecure", security.allow_insecure,
+               "allow sending the token without TLS to a host that is not loopback (trusted networks only)");
 
   // run
   JobFlags run_flags;
@@ -154,6 +191,15 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
     } else if (env_server != nullptr && *env_server != '\0') {
       connect.server = std::string(env_server);
     }
+    if (connect.server && (is_server_list(*connect.server) || is_dns_name(*connect.server))) {
+      if (is_server_list(*connect.server)) parse_server_list(*connect.server);  // syntax errors now
+      if (is_server_list(*connect.server) && !run->parsed()) {
+        throw CliError(ExitCode::kUsage,
+                       "a list of servers (--server " + *connect.server +
+                           ") is for `run`, which splits a job across them; give one HOST:PORT for this command");
+      }
+    }
+    connect.security = load_security(security, env_token, connect.server.has_value());
 
     Invocation invocation{connect, HealthCommand{}};
     if (run->parsed()) {
@@ -199,7 +245,8 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
 }
 
 int run_cli(int argc, const char* const* argv) {
-  auto parsed = parse_command_line(argc, argv, std::cout, std::cerr, std::getenv("SURFACER_SERVER"));
+  auto parsed = parse_command_line(argc, argv, std::cout, std::cerr, std::getenv("SURFACER_SERVER"),
+                                   std::getenv("SURFACER_TOKEN"));
   if (const ExitCode* code = std::get_if<ExitCode>(&parsed)) return to_int(*code);
   ExitCode code = ExitCode::kInternal;
   try {

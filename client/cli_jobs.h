@@ -14,8 +14,9 @@
 namespace surfacer::client {
 
 inline constexpr const char* kGlobalNote =
-    "Global options (--server HOST:PORT, --local, --workers N, --timeout S) may also be given after the subcommand; "
-    "see `surfacer --help`.\n";
+    "Global options (--server HOST:PORT[,HOST:PORT...], --local, --workers N, --timeout S, -v, --token/--token-file, "
+    "--tls, --tls-ca/--tls-cert/--tls-key/--tls-server-name, --allow-insecure) may also be given after the "
+    "subcommand; see `surfacer --help`.\n";
 
 // Output flags of `run` and `watch`: -o DIR, --format LIST.
 struct OutputFlags {

@@ -3,6 +3,7 @@
 #include <grpcpp/client_context.h>
 
 #include <algorithm>
+#include <cmath>
 #include <atomic>
 #include <cctype>
 #include <cstdio>
@@ -18,6 +19,9 @@
 #include "client/interrupt.h"
 #include "client/job_spec.h"
 #include "client/progress.h"
+#include "client/scale_out.h"
+#include "client/security.h"
+#include "client/server_list.h"
 #include "client/summary.h"
 #include "client/upload.h"
 #include "client/watch.h"
@@ -148,11 +152,12 @@ std::string submit_job(Connection& connection, const v1::JobSpec& spec, v1::Job*
   return response.job_id();
 }
 
-ExitCode run_run(const ConnectOptions& connect, const RunCommand& command, std::ostream& err, bool tty) {
+// `run` against one server (or the in-process one).
+ExitCode run_single(const ConnectOptions& connect, PreparedJob prepared, const FrameOutputOptions& output,
+                    std::ostream& err, bool tty, ReconnectPolicy policy = {}) {
   const auto start = std::chrono::steady_clock::now();
-  PreparedJob prepared = prepare_job(command.job);  // usage errors before connecting
   v1::JobSpec& spec = prepared.spec;
-  FrameWriter writer(command.output);
+  FrameWriter writer(output);
   writer.set_job_kind(kind_of(spec));
   auto connection = Connection::open(connect);
   ProgressDisplay progress(err, tty);
@@ -192,7 +197,7 @@ ExitCode run_run(const ConnectOptions& connect, const RunCommand& command, std::
   }
   progress.line("submitted job " + id + frames + " to " + connection->describe());
 
-  JobWatcher job_watcher(*connection, id, 0, writer, progress);
+  JobWatcher job_watcher(*connection, id, 0, writer, progress, policy);
   {
     std::lock_guard lock(mutex);
     watcher = &job_watcher;
@@ -215,6 +220,54 @@ ExitCode run_run(const ConnectOptions& connect, const RunCommand& command, std::
     watcher = nullptr;
   }
   return finish_watch(result, writer, progress, start, interrupted, uploaded.particles);
+}
+
+// A job that is not a frame sequence, with several servers: the whole job on the first server that answers,
+// resubmitted from scratch to the next one when that server becomes unreachable (connection lost for --timeout).
+ExitCode run_failover(const ConnectOptions& connect, const std::vector<std::string>& servers,
+                      const PreparedJob& prepared, const FrameOutputOptions& output, std::ostream& err, bool tty) {
+  const std::string dns_name = connect.server ? dns_host(*connect.server) : "";
+  for (const std::string& server : servers) check_token_transport(server, connect.security);
+  ReconnectPolicy policy;
+  policy.budget = std::chrono::milliseconds(static_cast<long long>(std::llround(connect.timeout_seconds * 1000)));
+  std::string failures;
+  for (std::size_t i = 0; i < servers.size(); ++i) {
+    ConnectOptions one = connect;
+    one.server = servers[i];
+    if (!dns_name.empty() && one.security.tls && !one.security.server_name) one.security.server_name = dns_name;
+    try {
+      return run_single(one, prepared, output, err, tty, policy);
+    } catch (const CliError& e) {
+      if (e.code() != ExitCode::kUnreachable) throw;
+      failures += "\n  " + servers[i] + ": " + e.what();
+      if (i + 1 < servers.size()) {
+        err << "server " << servers[i] << " is unreachable, leaving it out: " << e.what()
+            << "\nresubmitting the whole job to " << servers[i + 1] << " (from scratch)\n"
+            << std::flush;
+      }
+    }
+  }
+  throw CliError(ExitCode::kUnreachable, "every server is unreachable:" + failures);
+}
+
+ExitCode run_run(const ConnectOptions& connect, const RunCommand& command, std::ostream& err, bool tty) {
+  PreparedJob prepared = prepare_job(command.job);  // usage errors before connecting
+  if (connect.server && (is_server_list(*connect.server) || is_dns_name(*connect.server))) {
+    const std::vector<std::string> servers =
+        is_server_list(*connect.server) ? parse_server_list(*connect.server) : resolve_dns_name(*connect.server);
+    if (servers.size() > 1) {
+      if (sequence_frames(prepared.spec) > 0) {
+        return run_scale_out(connect, servers, std::move(prepared), command.output, err, tty);
+      }
+      return run_failover(connect, servers, prepared, command.output, err, tty);
+    }
+    if (is_server_list(*connect.server)) {  // a list of one
+      ConnectOptions one = connect;
+      one.server = servers.front();
+      return run_single(one, std::move(prepared), command.output, err, tty);
+    }
+  }
+  return run_single(connect, std::move(prepared), command.output, err, tty);
 }
 
 ExitCode run_submit(const ConnectOptions& connect, const SubmitCommand& command, std::ostream& out, std::ostream& err,

@@ -6,10 +6,29 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "client/health.h"
+#include "client/security.h"
 #include "server/log.h"
 #include "server/server.h"
 
 namespace surfacer::client {
+namespace {
+
+// Why a channel that never connected failed, as gRPC tells it on a call that does not wait for the connection
+// (e.g. "failed to connect to all addresses; last error: ... CERTIFICATE_VERIFY_FAILED"); empty when unknown.
+std::string connect_failure_reason(const std::shared_ptr<grpc::Channel>& channel) {
+  try {
+    check_health(channel, "", std::chrono::system_clock::now() + std::chrono::seconds(2));
+  } catch (const CliError& e) {
+    std::string text = e.what();
+    const std::string prefix = "health check: ";
+    if (text.rfind(prefix, 0) == 0) text = text.substr(prefix.size());
+    return text;
+  }
+  return "";
+}
+
+}  // namespace
 
 std::unique_ptr<Connection> Connection::open(const ConnectOptions& options) {
   std::unique_ptr<Connection> connection(new Connection());
@@ -26,17 +45,30 @@ std::unique_ptr<Connection> Connection::open(const ConnectOptions& options) {
     }
     connection->channel_ = connection->local_server_->in_process_channel();
   } else {
+    const std::string& target = *options.server;
+    check_token_transport(target, options.security);
     grpc::ChannelArguments args;
     // Frames are cut into <= 1 MiB chunks and no message exceeds 4 MiB (surfacer.proto), so the defaults hold.
-    connection->channel_ = grpc::CreateCustomChannel(*options.server, grpc::InsecureChannelCredentials(), args);
+    add_channel_arguments(options.security, args);
+    connection->channel_ = grpc::experimental::CreateCustomChannelWithInterceptors(
+        target, channel_credentials(options.security), args, auth_interceptors(options.security));
     auto deadline = std::chrono::system_clock::now() +
                     std::chrono::milliseconds(static_cast<long long>(std::llround(options.timeout_seconds * 1000)));
     if (!connection->channel_->WaitForConnected(deadline)) {
-      throw CliError(ExitCode::kUnreachable,
-                     "cannot reach a Surfacer server at " + *options.server + " within " +
-                         std::to_string(static_cast<int>(std::ceil(options.timeout_seconds))) +
-                         " s (is surfacer-server running there? check --server or $SURFACER_SERVER, or raise "
-                         "--timeout)");
+      std::string message = "cannot reach a Surfacer server at " + target + " within " +
+                            std::to_string(static_cast<int>(std::ceil(options.timeout_seconds))) + " s";
+      const std::string reason = connect_failure_reason(connection->channel_);
+      if (!reason.empty()) message += ": " + reason;
+      if (options.security.tls) {
+        message +=
+            "; with TLS, check --tls-ca (the CA that signed the server's certificate), --tls-server-name (a name "
+            "the certificate carries) and, when the server requires client certificates, --tls-cert/--tls-key";
+      } else {
+        message +=
+            "; is surfacer-server running there? Check --server or $SURFACER_SERVER, or raise --timeout (a server "
+            "with TLS needs --tls or --tls-ca FILE)";
+      }
+      throw CliError(ExitCode::kUnreachable, message);
     }
   }
   connection->stub_ = v1::Surfacer::NewStub(connection->channel_);
@@ -50,7 +82,8 @@ Connection::~Connection() {
 }
 
 std::string Connection::describe() const {
-  return local() ? std::string("the in-process server") : "the server at " + *options_.server;
+  if (local()) return "the in-process server";
+  return "the server at " + *options_.server + (options_.security.tls ? " (TLS)" : "");
 }
 
 bool Connection::wait_connected(std::chrono::system_clock::time_point deadline) {
@@ -114,6 +147,15 @@ CliError rpc_error(const std::string& context, const grpc::Status& status) {
   }
   std::string message = context + ": " + status_code_name(status.error_code());
   if (!status.error_message().empty()) message += ": " + status.error_message();
+  if (status.error_code() == grpc::StatusCode::UNAUTHENTICATED) {
+    message +=
+        " (the server wants a valid bearer token: pass --token TOKEN or --token-file FILE, or set "
+        "$SURFACER_TOKEN, with a token from the server's --tokens-file)";
+  } else if (status.error_code() == grpc::StatusCode::PERMISSION_DENIED) {
+    message +=
+        " (the server does not allow this for the token or client certificate given: check --token, "
+        "--token-file, $SURFACER_TOKEN or --tls-cert)";
+  }
   return CliError(code, message);
 }
 

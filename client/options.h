@@ -12,12 +12,29 @@
 
 namespace surfacer::client {
 
+// How to talk to a remote server: TLS and the bearer token, already read from their files by
+// parse_command_line() (so a bad file is a usage error before anything else happens).
+struct SecurityOptions {
+  std::optional<std::string> token;  // --token, --token-file or $SURFACER_TOKEN: sent as "authorization: Bearer ..."
+  std::string token_source;          // "--token", "--token-file FILE" or "$SURFACER_TOKEN", for messages
+  bool tls = false;                  // --tls, or implied by --tls-ca / --tls-cert
+  std::string ca_pem;                // --tls-ca contents; empty: the system's root certificates
+  std::string cert_pem;              // --tls-cert contents (mutual TLS), with key_pem
+  std::string key_pem;               // --tls-key contents
+  std::optional<std::string> server_name;  // --tls-server-name: the name the server's certificate must carry
+  bool allow_insecure = false;             // --allow-insecure: a token may go in plaintext to a non-loopback host
+};
+
 // Where the server is. Exactly one of `server` / in-process is used: an explicit --server wins, then
-// $SURFACER_SERVER, else an in-process server (--local, or the default).
+// $SURFACER_SERVER, else an in-process server (--local, or the default). `server` may also be a comma-separated
+// list or a dns:/// name with several addresses (scale-out, client/server_list.h); Connection::open() takes one
+// target.
 struct ConnectOptions {
-  std::optional<std::string> server;  // host:port
+  std::optional<std::string> server;  // host:port (or a list, see above)
   int workers = 0;                    // in-process server's worker threads; 0 = hardware threads
   double timeout_seconds = 10.0;      // how long to wait for the connection (and for unary calls to start)
+  SecurityOptions security;
+  bool verbose = false;  // -v: which server produced each frame, sub-jobs (scale-out)
 
   bool local() const { return !server.has_value(); }
 };

@@ -18,8 +18,19 @@ JobWatcher::JobWatcher(Connection& connection, std::string job_id, int from_fram
     : connection_(connection),
       job_id_(std::move(job_id)),
       from_frame_(from_frame),
-      writer_(writer),
+      writer_(&writer),
+      on_frame_([&writer](const ReceivedFrame& frame) { writer.write(frame); }),
       progress_(progress),
+      policy_(policy) {}
+
+JobWatcher::JobWatcher(Connection& connection, std::string job_id, int from_frame, FrameHandler on_frame,
+                       ProgressDisplay& progress, ReconnectPolicy policy, bool quiet)
+    : connection_(connection),
+      job_id_(std::move(job_id)),
+      from_frame_(from_frame),
+      on_frame_(std::move(on_frame)),
+      progress_(progress),
+      quiet_(quiet),
       policy_(policy) {}
 
 void JobWatcher::stop() {
@@ -45,11 +56,11 @@ void JobWatcher::handle_frame(const ReceivedFrame& frame, int requested_from, in
                                              std::to_string(frames_total) + " frames");
   }
   if (received_.count(frame.index) != 0) return;  // resent after a reconnect: already written
-  writer_.write(frame);
+  on_frame_(frame);
   received_.insert(frame.index);
   ++result.frames_written;
   result.triangles += frame.stats.triangles();
-  progress_.on_frame(frame);
+  if (!quiet_) progress_.on_frame(frame);
 }
 
 WatchResult JobWatcher::run() {
@@ -81,14 +92,14 @@ WatchResult JobWatcher::run() {
         case v1::JobEvent::kState: {
           const v1::Job& job = event.state();
           if (job.frames_total() > 0) frames_total = job.frames_total();
-          if (!job.kind().empty()) writer_.set_job_kind(job.kind());
-          progress_.on_state(job);
+          if (!job.kind().empty() && writer_ != nullptr) writer_->set_job_kind(job.kind());
+          if (!quiet_) progress_.on_state(job);
           if (is_terminal(job.state())) terminal = job;
           break;
         }
         case v1::JobEvent::kProgress:
           if (event.progress().frames_total() > 0) frames_total = event.progress().frames_total();
-          progress_.on_progress(event.progress());
+          if (!quiet_) progress_.on_progress(event.progress());
           break;
         case v1::JobEvent::kFrame:
           if (auto frame = assembler.on_header(event.frame())) {
@@ -125,18 +136,22 @@ WatchResult JobWatcher::run() {
     }
     assembler.reset();
     const auto deadline = last_success + policy_.budget;
-    const std::string resume = "surfacer watch " + job_id_ + " --from-frame " + std::to_string(next_missing()) +
-                               " -o " + writer_.dir().string();
+    // With a FrameHandler the caller decides what happens to the job (scale-out hands its frames to another server).
+    const std::string resume =
+        writer_ == nullptr ? std::string()
+                           : "; resume with: surfacer watch " + job_id_ + " --from-frame " +
+                                 std::to_string(next_missing()) + " -o " + writer_->dir().string();
     if (std::chrono::steady_clock::now() >= deadline) {
       throw CliError(ExitCode::kUnreachable,
                      "lost the connection to " + connection_.describe() + " while watching job " + job_id_ +
                          (status.ok() ? std::string(" (stream ended early)")
                                       : ": " + status_code_name(status.error_code()) + ": " + status.error_message()) +
-                         "; resume with: " + resume);
+                         resume);
     }
     const auto delay = std::min(policy_.max_delay, policy_.first_delay * (1 << std::min(attempt, 10)));
     ++attempt;
-    progress_.line("connection lost (" +
+    progress_.line((quiet_ ? "job " + job_id_ + " on " + connection_.describe() + ": " : std::string()) +
+                   "connection lost (" +
                    (status.ok() ? std::string("stream ended early") : status_code_name(status.error_code())) +
                    "); reconnecting from frame " + std::to_string(next_missing()) + " ...");
     std::this_thread::sleep_for(delay);
@@ -144,7 +159,7 @@ WatchResult JobWatcher::run() {
     if (!connection_.wait_connected(std::chrono::system_clock::now() +
                                     std::chrono::duration_cast<std::chrono::milliseconds>(remaining))) {
       throw CliError(ExitCode::kUnreachable, "lost the connection to " + connection_.describe() +
-                                                 " while watching job " + job_id_ + "; resume with: " + resume);
+                                                 " while watching job " + job_id_ + resume);
     }
   }
 

@@ -5,6 +5,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <mutex>
 #include <set>
 #include <string>
@@ -32,10 +33,17 @@ struct ReconnectPolicy {
   std::chrono::milliseconds max_delay{2'000};  // ... up to this
 };
 
+// Where a watcher puts each verified frame (FrameWriter::write by default).
+using FrameHandler = std::function<void(const ReceivedFrame& frame)>;
+
 class JobWatcher {
  public:
   JobWatcher(Connection& connection, std::string job_id, int from_frame, FrameWriter& writer, ProgressDisplay& progress,
              ReconnectPolicy policy = {});
+  // Frames go to `on_frame` (in any order, each once; it may throw CliError to end the watch). With `quiet`, the
+  // job's state, progress and frame lines are not shown (the reconnect lines still are): scale-out sub-jobs.
+  JobWatcher(Connection& connection, std::string job_id, int from_frame, FrameHandler on_frame,
+             ProgressDisplay& progress, ReconnectPolicy policy, bool quiet);
 
   // Returns once the job reached a terminal state and the stream ended. Throws CliError: kIntegrity (a frame
   // failed its checks, a protocol violation, or the job SUCCEEDED with frames missing: fewer than the terminal
@@ -52,8 +60,10 @@ class JobWatcher {
   Connection& connection_;
   std::string job_id_;
   int from_frame_;
-  FrameWriter& writer_;
+  FrameWriter* writer_ = nullptr;  // null with a FrameHandler
+  FrameHandler on_frame_;
   ProgressDisplay& progress_;
+  bool quiet_ = false;
   ReconnectPolicy policy_;
   std::set<int> received_;
 

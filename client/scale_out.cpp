@@ -1,0 +1,673 @@
+#include "client/scale_out.h"
+
+#include <google/protobuf/descriptor.h>
+#include <google/protobuf/reflection.h>
+#include <grpcpp/client_context.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <condition_variable>
+#include <cstring>
+#include <deque>
+#include <limits>
+#include <mutex>
+#include <set>
+#include <thread>
+
+#include "client/connection.h"
+#include "client/frame_writer.h"
+#include "client/health.h"
+#include "client/interrupt.h"
+#include "client/progress.h"
+#include "client/security.h"
+#include "client/server_list.h"
+#include "client/summary.h"
+#include "client/upload.h"
+#include "client/watch.h"
+#include "core/errors.h"
+#include "server/scene_translate.h"
+#include "server/uploads.h"
+
+namespace surfacer::client {
+namespace {
+
+// The server's defaults for a job without bounds (server/isosurface_job.cpp, server/polygonize.cpp and
+// surfacer.proto): 128 cells along the longest axis, bounds padded by two cells.
+constexpr int kDefaultCells = 128;
+constexpr double kPadCells = 2.0;
+// The server's particles quantization box (server/particles_job.cpp): a derived r_inner is estimated from this
+// many particles of frame 0, and the box is padded by kDerivedPadSafety times the r_outer that estimate implies.
+constexpr std::size_t kSpacingSamples = 128;
+constexpr double kDerivedPadSafety = 3.0;
+
+// Mean distance from a sample of particles to their nearest neighbour, as the server estimates it.
+double estimate_spacing(const std::vector<Vec3>& points) {
+  if (points.size() < 2) return 0.0;
+  const std::size_t step = std::max<std::size_t>(1, points.size() / kSpacingSamples);
+  double sum = 0.0;
+  int count = 0;
+  for (std::size_t i = 0; i < points.size(); i += step) {
+    double best = std::numeric_limits<double>::infinity();
+    for (std::size_t j = 0; j < points.size(); ++j) {
+      if (j != i) best = std::min(best, (points[j] - points[i]).squaredNorm());
+    }
+    sum += std::sqrt(best);
+    ++count;
+  }
+  return sum / count;
+}
+
+void set_bounds(v1::Bounds* out, const Aabb& box) {
+  out->mutable_min()->set_x(box.min.x());
+  out->mutable_min()->set_y(box.min.y());
+  out->mutable_min()->set_z(box.min.z());
+  out->mutable_max()->set_x(box.max.x());
+  out->mutable_max()->set_y(box.max.y());
+  out->mutable_max()->set_z(box.max.z());
+}
+
+void pin_isosurface(v1::IsosurfaceJob& job) {
+  if (job.has_bounds()) return;  // the server derives the cell size from the given bounds, alike in every sub-job
+  std::optional<double> cell_size;
+  int cells = kDefaultCells;
+  if (job.resolution_case() == v1::IsosurfaceJob::kCellSize) {
+    if (!(job.cell_size() > 0.0) || !std::isfinite(job.cell_size())) return;  // the server says what is wrong
+    cell_size = job.cell_size();
+  } else if (job.resolution_case() == v1::IsosurfaceJob::kCells) {
+    if (job.cells() < 1) return;
+    cells = job.cells();
+  }
+  const server::UploadStore no_uploads;  // scale-out refuses jobs that refer to uploads (find_upload_reference)
+  Aabb box;
+  for (int i = 0; i < job.scenes_size(); ++i) {
+    const std::string path = "spec.isosurface.scenes[" + std::to_string(i) + "]";
+    std::optional<Aabb> b;
+    try {
+      b = server::field_from_scene(job.scenes(i), path, no_uploads)->bounds();
+    } catch (const Error& e) {
+      throw CliError(ExitCode::kJobFailed,
+                     std::string("the job is invalid (checked before splitting it across the servers): "
+                                 "INVALID_ARGUMENT: ") +
+                         e.what());
+    }
+    if (!b) {
+      throw CliError(ExitCode::kJobFailed,
+                     "the job is invalid: INVALID_ARGUMENT: spec.isosurface: scene " + std::to_string(i) +
+                         " is unbounded (a plane or gyroid not intersected with a bounded solid); give --bounds");
+    }
+    if (i == 0) {
+      box = *b;
+    } else {
+      box.min = box.min.cwiseMin(b->min);
+      box.max = box.max.cwiseMax(b->max);
+    }
+  }
+  if (!box.min.allFinite() || !box.max.allFinite() || !box.valid()) return;  // the server explains
+  const double h = cell_size ? *cell_size : box.size().maxCoeff() / cells;
+  box.min.array() -= kPadCells * h;
+  box.max.array() += kPadCells * h;
+  set_bounds(job.mutable_bounds(), box);
+  job.set_cell_size(h);
+}
+
+void pin_particles(v1::JobSpec& spec, const std::vector<ParticleFrameBox>& frames, const std::vector<Vec3>& first) {
+  const v1::ParticlesJob& job = spec.particles();
+  if (spec.output().has_quantization_bounds() || frames.empty()) return;
+  Aabb box = frames[0].bounds;
+  double max_radius = 0.0;
+  for (std::size_t i = 0; i < frames.size(); ++i) {
+    if (i > 0) box = Aabb{box.min.cwiseMin(frames[i].bounds.min), box.max.cwiseMax(frames[i].bounds.max)};
+    max_radius = std::max(max_radius, frames[i].max_radius);
+  }
+  const std::optional<double> r_inner = job.has_r_inner() ? std::optional<double>(job.r_inner()) : std::nullopt;
+  const std::optional<double> r_outer = job.has_r_outer() ? std::optional<double>(job.r_outer()) : std::nullopt;
+  const double ratio = r_outer && r_inner ? *r_outer / *r_inner : 2.0;
+  double pad = 0.0;
+  if (max_radius > 0.0) {
+    pad = ratio * max_radius;
+  } else if (r_inner) {
+    pad = r_outer.value_or(2.0 * *r_inner);
+  } else if (job.derive_r_inner()) {
+    const double spacing = estimate_spacing(first);
+    pad = kDerivedPadSafety * ratio * std::max(spacing, 1e-6 * std::max(box.size().maxCoeff(), 1.0));
+  } else {
+    return;  // no radius at all: the server rejects the job
+  }
+  box.min.array() -= 1.5 * pad;
+  box.max.array() += 1.5 * pad;
+  if (job.container().has_box()) {
+    Aabb container;
+    try {
+      container = server::to_aabb(job.container().box(), "spec.particles.container.box");
+    } catch (const Error&) {
+      return;  // the server explains
+    }
+    box.min = box.min.cwiseMax(container.min);
+    box.max = box.max.cwiseMin(container.max);
+  }
+  if (!box.min.allFinite() || !box.max.allFinite()) return;
+  set_bounds(spec.mutable_output()->mutable_quantization_bounds(), box);
+}
+
+std::optional<std::string> find_upload_in(const google::protobuf::Message& message, const std::string& path) {
+  const google::protobuf::Reflection* reflection = message.GetReflection();
+  std::vector<const google::protobuf::FieldDescriptor*> fields;
+  reflection->ListFields(message, &fields);
+  for (const auto* field : fields) {
+    const std::string name = path + "." + field->name();
+    if (field->cpp_type() == google::protobuf::FieldDescriptor::CPPTYPE_STRING && !field->is_repeated() &&
+        (field->name() == "upload_id" || field->name() == "mesh_upload_id")) {
+      const std::string id = reflection->GetString(message, field);
+      if (!id.empty()) return name + " = " + id;
+    } else if (field->cpp_type() == google::protobuf::FieldDescriptor::CPPTYPE_MESSAGE) {
+      if (field->is_repeated()) {
+        for (int i = 0; i < reflection->FieldSize(message, field); ++i) {
+          auto found =
+              find_upload_in(reflection->GetRepeatedMessage(message, field, i), name + "[" + std::to_string(i) + "]");
+          if (found) return found;
+        }
+      } else if (auto found = find_upload_in(reflection->GetMessage(message, field), name)) {
+        return found;
+      }
+    }
+  }
+  return std::nullopt;
+}
+
+std::string seconds_text(std::chrono::steady_clock::time_point start) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.1f s",
+                std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+  return buf;
+}
+
+std::string job_error_text(const v1::Job& job) {
+  if (job.error().code() == 0 && job.error().message().empty()) return "no reason given";
+  std::string text = status_code_name(static_cast<grpc::StatusCode>(job.error().code()));
+  if (!job.error().message().empty()) text += ": " + job.error().message();
+  return text;
+}
+
+// A server that has stopped taking work: unreachable, or answering health with something else than SERVING.
+bool server_going_away(Connection& connection) {
+  try {
+    return check_health(connection.channel_ptr(), "", std::chrono::system_clock::now() + std::chrono::seconds(2)) !=
+           HealthStatus::kServing;
+  } catch (const CliError&) {
+    return true;
+  }
+}
+
+bool cancel_sub_job(Connection& connection, const std::string& job_id) {
+  v1::CancelJobRequest request;
+  request.set_job_id(job_id);
+  grpc::ClientContext context;
+  context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(3));
+  v1::Job job;
+  return connection.stub().CancelJob(&context, request, &job).ok();
+}
+
+struct ServerSlot {
+  std::string address;
+  ConnectOptions connect;
+  // Guarded by ScaleOut::mutex_.
+  bool dead = false;
+  std::string death;
+  int frames = 0;    // frames this server produced that were written
+  int sub_jobs = 0;  // sub-jobs submitted
+  JobWatcher* watcher = nullptr;
+};
+
+class ScaleOut {
+ public:
+  ScaleOut(const ConnectOptions& connect, const std::vector<std::string>& servers, PreparedJob prepared,
+           const FrameOutputOptions& output, ProgressDisplay& progress)
+      : prepared_(std::move(prepared)), writer_(output), progress_(progress), verbose_(connect.verbose) {
+    const v1::JobSpec& spec = prepared_.spec;
+    writer_.set_job_kind(spec.has_isosurface() ? "isosurface" : "particles");
+    frames_total_ = sequence_frames(spec);
+    const std::string dns_name = connect.server ? dns_host(*connect.server) : "";
+    for (const std::string& address : servers) {
+      auto slot = std::make_unique<ServerSlot>();
+      slot->address = address;
+      slot->connect = connect;
+      slot->connect.server = address;
+      // Addresses resolved from a dns:/// name: the certificate carries the name, not the address.
+      if (!dns_name.empty() && slot->connect.security.tls && !slot->connect.security.server_name) {
+        slot->connect.security.server_name = dns_name;
+      }
+      slots_.push_back(std::move(slot));
+    }
+    const auto batches = make_batches(frames_total_, static_cast<int>(servers.size()));
+    batch_size_ = batches.empty() ? 0 : static_cast<int>(batches.front().size());
+    queue_.assign(batches.begin(), batches.end());
+    remaining_ = frames_total_;
+  }
+
+  ExitCode run(std::chrono::steady_clock::time_point start) {
+    std::string names;
+    for (const auto& slot : slots_) names += (names.empty() ? "" : ", ") + slot->address;
+    progress_.line("splitting " + std::to_string(frames_total_) + " frames into " + std::to_string(queue_.size()) +
+                   " batches of up to " + std::to_string(batch_size_) + " across " + std::to_string(slots_.size()) +
+                   " servers: " + names);
+    {
+      InterruptHandler interrupts([this](int count) {
+        if (count == 1) progress_.line("interrupted: cancelling the sub-jobs on every server (Ctrl-C again to stop "
+                                       "waiting)");
+        stop(CliError(ExitCode::kCancelled, "interrupted: the sub-jobs on every server were cancelled"));
+      });
+      std::vector<std::thread> threads;
+      for (auto& slot : slots_) threads.emplace_back([this, &slot] { worker(*slot); });
+      for (auto& t : threads) t.join();
+    }
+    std::lock_guard lock(mutex_);
+    progress_.clear();
+    if (error_) throw *error_;
+    if (remaining_ > 0) {
+      std::string deaths;
+      for (const auto& slot : slots_) deaths += "\n  " + slot->address + ": " + slot->death;
+      throw CliError(ExitCode::kUnreachable,
+                     "every server is unreachable; " + std::to_string(remaining_) + " of " +
+                         std::to_string(frames_total_) + " frames were not produced (the others are in " +
+                         writer_.dir().string() + "):" + deaths);
+    }
+    print_summary(start);
+    return ExitCode::kSuccess;
+  }
+
+ private:
+  // Ends the run with `error` (the first one wins): queued batches are dropped, the watchers stopped; each worker
+  // then cancels its sub-job.
+  void stop(const CliError& error) {
+    std::lock_guard lock(mutex_);
+    if (!error_) error_ = error;
+    stopping_ = true;
+    stop_flag_ = true;
+    for (auto& slot : slots_) {
+      if (slot->watcher != nullptr) slot->watcher->stop();
+    }
+    ready_.notify_all();
+  }
+
+  bool take(std::vector<int>& batch) {
+    std::unique_lock lock(mutex_);
+    ready_.wait(lock, [this] { return stopping_ || !queue_.empty() || remaining_ == 0; });
+    if (stopping_ || queue_.empty()) return false;
+    batch = std::move(queue_.front());
+    queue_.pop_front();
+    return true;
+  }
+
+  void server_died(ServerSlot& slot, const std::string& reason, const std::vector<int>& batch) {
+    std::lock_guard lock(mutex_);
+    slot.dead = true;
+    slot.death = reason;
+    std::vector<int> unwritten;
+    for (int g : batch) {
+      if (written_.count(g) == 0) unwritten.push_back(g);
+    }
+    std::string text = "server " + slot.address + " is unreachable, leaving it out: " + reason;
+    if (!unwritten.empty() && !stopping_) {
+      queue_.push_front(unwritten);  // first in line, so the output fills in order
+      ++retried_batches_;
+      retried_frames_ += static_cast<int>(unwritten.size());
+      text += "; its " + frames_text(unwritten) + (unwritten.size() == 1 ? " goes" : " go") + " back to the queue";
+      ready_.notify_all();
+    }
+    progress_.line(text);
+  }
+
+  // Writes one frame of a sub-job under its global index (once, whoever sends it).
+  void write_frame(ServerSlot& slot, const std::vector<int>& batch, const std::string& job_id,
+                   const ReceivedFrame& frame) {
+    if (frame.index < 0 || frame.index >= static_cast<int>(batch.size())) {
+      throw CliError(ExitCode::kIntegrity, "job " + job_id + " on " + slot.address + " sent frame " +
+                                               std::to_string(frame.index) + " but has only " +
+                                               std::to_string(batch.size()));
+    }
+    ReceivedFrame global = frame;
+    global.index = batch[static_cast<std::size_t>(frame.index)];
+    std::lock_guard lock(mutex_);
+    if (written_.count(global.index) != 0) return;
+    writer_.write(global);
+    written_.insert(global.index);
+    triangles_ += global.stats.triangles();
+    ++slot.frames;
+    --remaining_;
+    std::string line = frame_summary(global, frames_total_);
+    if (verbose_) line += " [" + slot.address + ", job " + job_id + "]";
+    progress_.line(line);
+    if (remaining_ == 0) ready_.notify_all();
+  }
+
+  // Uploads the batch's inputs to `connection` and returns the sub-job's spec.
+  v1::JobSpec prepare_batch(Connection& connection, const std::vector<int>& batch) {
+    if (prepared_.uploads.empty()) return sub_job_spec(prepared_.spec, batch);
+    v1::JobSpec scratch = prepared_.spec;  // uploads record their ids (and with_radius) at global indices
+    for (int g : batch) {
+      for (const PendingUpload& pending : prepared_.uploads) {
+        if (pending.frame != g) continue;
+        UploadData data = pending.read(scratch);
+        const std::uint64_t size = data.file ? data.file_bytes : data.bytes.size();
+        UploadSettings settings;
+        settings.deadline = upload_deadline(connection, size);
+        settings.stop = &stop_flag_;
+        const UploadResult result = data.file ? upload_file(connection.stub(), data.name, *data.file, settings)
+                                              : upload_bytes(connection.stub(), data.name, data.bytes, settings);
+        pending.set_id(scratch, result.upload_id);
+        std::lock_guard lock(mutex_);
+        if (data.particles) particles_[g] = *data.particles;
+      }
+    }
+    return sub_job_spec(scratch, batch);
+  }
+
+  std::string submit(Connection& connection, ServerSlot& slot, const v1::JobSpec& spec,
+                     const std::vector<int>& batch) {
+    v1::SubmitJobRequest request;
+    *request.mutable_spec() = spec;
+    grpc::ClientContext context;
+    context.set_deadline(connection.unary_deadline());
+    v1::SubmitJobResponse response;
+    const grpc::Status status = connection.stub().SubmitJob(&context, request, &response);
+    if (!status.ok()) {
+      CliError error = rpc_error(slot.address + " rejected the sub-job of " + frames_text(batch), status);
+      if (error.code() == ExitCode::kUnreachable) throw error;
+      throw CliError(ExitCode::kJobFailed, globalize_indices(error.what(), batch));
+    }
+    return response.job_id();
+  }
+
+  void run_batch(Connection& connection, ServerSlot& slot, const std::vector<int>& batch, std::string& job_id) {
+    const v1::JobSpec spec = prepare_batch(connection, batch);
+    job_id = submit(connection, slot, spec, batch);
+    {
+      std::lock_guard lock(mutex_);
+      ++slot.sub_jobs;
+      if (stopping_) return;  // the caller cancels it
+    }
+    if (verbose_) progress_.line(frames_text(batch) + " -> job " + job_id + " on " + slot.address);
+    ReconnectPolicy policy;
+    policy.budget = std::chrono::milliseconds(static_cast<long long>(std::llround(slot.connect.timeout_seconds * 1000)));
+    const std::string id = job_id;
+    JobWatcher watcher(
+        connection, job_id, 0, [&](const ReceivedFrame& frame) { write_frame(slot, batch, id, frame); }, progress_,
+        policy, /*quiet=*/true);
+    {
+      std::lock_guard lock(mutex_);
+      if (stopping_) return;
+      slot.watcher = &watcher;
+    }
+    WatchResult result;
+    try {
+      result = watcher.run();
+    } catch (...) {
+      std::lock_guard lock(mutex_);
+      slot.watcher = nullptr;
+      throw;
+    }
+    {
+      std::lock_guard lock(mutex_);
+      slot.watcher = nullptr;
+    }
+    switch (result.job.state()) {
+      case v1::JOB_STATE_SUCCEEDED:
+        return;
+      case v1::JOB_STATE_CANCELLED:
+        if (server_going_away(connection)) {
+          throw CliError(ExitCode::kUnreachable, "it cancelled job " + job_id + " (" +
+                                                     job_error_text(result.job) + ") and is shutting down");
+        }
+        throw CliError(ExitCode::kCancelled, "job " + job_id + " (" + frames_text(batch) + ") on " + slot.address +
+                                                 " was cancelled elsewhere: " + job_error_text(result.job));
+      default:
+        throw CliError(ExitCode::kJobFailed,
+                       "job " + job_id + " (" + frames_text(batch) + ") failed on " + slot.address + ": " +
+                           globalize_indices(job_error_text(result.job), batch));
+    }
+  }
+
+  void worker(ServerSlot& slot) {
+    std::unique_ptr<Connection> connection;
+    try {
+      connection = Connection::open(slot.connect);
+    } catch (const CliError& e) {
+      if (e.code() == ExitCode::kUnreachable) {
+        server_died(slot, e.what(), {});
+      } else {
+        stop(e);
+      }
+      return;
+    }
+    std::vector<int> batch;
+    while (take(batch)) {
+      std::string job_id;
+      try {
+        run_batch(*connection, slot, batch, job_id);
+        bool stopping = false;
+        {
+          std::lock_guard lock(mutex_);
+          stopping = stopping_;
+        }
+        if (stopping && !job_id.empty()) cancel_sub_job(*connection, job_id);
+      } catch (const CliError& e) {
+        bool stopping = false;
+        {
+          std::lock_guard lock(mutex_);
+          stopping = stopping_;
+        }
+        if (stopping) {  // another worker failed, or Ctrl-C: do not leave this sub-job running
+          if (!job_id.empty()) cancel_sub_job(*connection, job_id);
+          return;
+        }
+        if (e.code() == ExitCode::kUnreachable) {
+          if (!job_id.empty()) cancel_sub_job(*connection, job_id);  // in case it is only our link that broke
+          server_died(slot, e.what(), batch);
+          return;
+        }
+        if (!job_id.empty()) cancel_sub_job(*connection, job_id);
+        stop(e);
+        return;
+      }
+    }
+  }
+
+  void print_summary(std::chrono::steady_clock::time_point start) {
+    progress_.line("wrote " + std::to_string(frames_total_) + " frames to " + writer_.dir().string() +
+                   (writer_.dir().string().back() == '/' ? "" : "/") + " (" + std::to_string(triangles_) +
+                   " triangles, " + seconds_text(start) + ") from " + std::to_string(slots_.size()) + " servers:");
+    for (const auto& slot : slots_) {
+      std::string line = "  " + slot->address + ": " + std::to_string(slot->frames) + " frame" +
+                         (slot->frames == 1 ? "" : "s") + " in " + std::to_string(slot->sub_jobs) + " sub-job" +
+                         (slot->sub_jobs == 1 ? "" : "s");
+      if (slot->dead) line += " (unreachable since then)";
+      progress_.line(line);
+    }
+    progress_.line("retries: " + std::to_string(retried_batches_) + " batch" + (retried_batches_ == 1 ? "" : "es") +
+                   " (" + std::to_string(retried_frames_) + " frame" + (retried_frames_ == 1 ? "" : "s") +
+                   ") moved to another server");
+    if (prepared_.spec.has_particles()) {
+      const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      std::string table = particles_summary_table(writer_.stats(), particles_, wall);
+      if (!table.empty() && table.back() == '\n') table.pop_back();
+      progress_.line(table);
+    }
+  }
+
+  PreparedJob prepared_;
+  FrameWriter writer_;
+  ProgressDisplay& progress_;
+  bool verbose_ = false;
+  int frames_total_ = 0;
+  int batch_size_ = 0;
+  std::vector<std::unique_ptr<ServerSlot>> slots_;
+  std::atomic<bool> stop_flag_{false};  // for uploads in progress
+
+  std::mutex mutex_;
+  std::condition_variable ready_;
+  std::deque<std::vector<int>> queue_;
+  std::set<int> written_;
+  int remaining_ = 0;
+  bool stopping_ = false;
+  std::optional<CliError> error_;
+  std::int64_t triangles_ = 0;
+  int retried_batches_ = 0;
+  int retried_frames_ = 0;
+  std::map<int, std::int64_t> particles_;
+};
+
+}  // namespace
+
+int sequence_frames(const v1::JobSpec& spec) {
+  int frames = 0;
+  if (spec.has_isosurface()) frames = spec.isosurface().scenes_size();
+  if (spec.has_particles()) frames = spec.particles().frames_size();
+  return frames >= 2 ? frames : 0;
+}
+
+std::vector<std::vector<int>> make_batches(int frames, int servers) {
+  std::vector<std::vector<int>> batches;
+  if (frames <= 0) return batches;
+  const int per = std::max(1, (frames + 4 * std::max(servers, 1) - 1) / (4 * std::max(servers, 1)));
+  for (int first = 0; first < frames; first += per) {
+    std::vector<int> batch;
+    for (int g = first; g < std::min(frames, first + per); ++g) batch.push_back(g);
+    batches.push_back(std::move(batch));
+  }
+  return batches;
+}
+
+v1::JobSpec sub_job_spec(const v1::JobSpec& whole, const std::vector<int>& frames) {
+  v1::JobSpec sub = whole;
+  if (whole.has_isosurface()) {
+    sub.mutable_isosurface()->clear_scenes();
+    for (int g : frames) *sub.mutable_isosurface()->add_scenes() = whole.isosurface().scenes(g);
+  } else if (whole.has_particles()) {
+    sub.mutable_particles()->clear_frames();
+    for (int g : frames) *sub.mutable_particles()->add_frames() = whole.particles().frames(g);
+  }
+  sub.set_name(whole.name() + (whole.name().empty() ? "" : " ") + "[" + frames_text(frames) + "]");
+  return sub;
+}
+
+std::string frames_text(const std::vector<int>& frames) {
+  if (frames.empty()) return "no frames";
+  if (frames.size() == 1) return "frame " + std::to_string(frames.front());
+  bool contiguous = true;
+  for (std::size_t i = 1; i < frames.size(); ++i) contiguous = contiguous && frames[i] == frames[i - 1] + 1;
+  if (contiguous) return "frames " + std::to_string(frames.front()) + "-" + std::to_string(frames.back());
+  std::string text = "frames ";
+  for (std::size_t i = 0; i < frames.size(); ++i) text += (i > 0 ? ", " : "") + std::to_string(frames[i]);
+  return text;
+}
+
+std::string globalize_indices(const std::string& message, const std::vector<int>& frames) {
+  std::string out;
+  std::size_t pos = 0;
+  while (pos < message.size()) {
+    std::size_t best = std::string::npos;
+    std::size_t key_size = 0;
+    for (const char* key : {"scenes[", "frames["}) {
+      const std::size_t at = message.find(key, pos);
+      if (at < best) {
+        best = at;
+        key_size = std::strlen(key);
+      }
+    }
+    if (best == std::string::npos) {
+      out += message.substr(pos);
+      break;
+    }
+    std::size_t digits = best + key_size;
+    std::size_t end = digits;
+    while (end < message.size() && std::isdigit(static_cast<unsigned char>(message[end]))) ++end;
+    out += message.substr(pos, digits - pos);
+    if (end > digits && end < message.size() && message[end] == ']' && end - digits < 9) {
+      const int local = std::stoi(message.substr(digits, end - digits));
+      out += local < static_cast<int>(frames.size()) ? std::to_string(frames[static_cast<std::size_t>(local)])
+                                                      : message.substr(digits, end - digits);
+    } else {
+      out += message.substr(digits, end - digits);
+    }
+    pos = end;
+  }
+  return out;
+}
+
+std::optional<std::string> find_upload_reference(const v1::JobSpec& spec) { return find_upload_in(spec, "spec"); }
+
+void pin_whole_job_geometry(v1::JobSpec& spec, const std::vector<ParticleFrameBox>& particle_frames,
+                            const std::vector<Vec3>& first_frame) {
+  if (spec.has_isosurface()) pin_isosurface(*spec.mutable_isosurface());
+  if (spec.has_particles()) pin_particles(spec, particle_frames, first_frame);
+}
+
+namespace {
+
+// Reads every particle frame once (the files are read again, batch by batch, when uploaded) to pin the whole
+// sequence's quantization box.
+void pin_particles_from_inputs(PreparedJob& prepared) {
+  v1::JobSpec scratch = prepared.spec;
+  const int frames = scratch.particles().frames_size();
+  std::vector<ParticleFrameBox> boxes(static_cast<std::size_t>(frames));
+  std::vector<Vec3> first;
+  for (int g = 0; g < frames; ++g) {
+    ParticleFrameBox& box = boxes[static_cast<std::size_t>(g)];
+    box.bounds.min = Vec3::Constant(std::numeric_limits<double>::infinity());
+    box.bounds.max = -box.bounds.min;
+    auto visit = [&](double x, double y, double z, double r) {
+      const Vec3 p(x, y, z);
+      box.bounds.min = box.bounds.min.cwiseMin(p);
+      box.bounds.max = box.bounds.max.cwiseMax(p);
+      box.max_radius = std::max(box.max_radius, r);
+      if (g == 0) first.push_back(p);
+    };
+    const PendingUpload* pending = nullptr;
+    for (const PendingUpload& p : prepared.uploads) {
+      if (p.frame == g) pending = &p;
+    }
+    if (pending != nullptr) {
+      const UploadData data = pending->read(scratch);
+      const bool with_radius = scratch.particles().frames(g).with_radius();
+      const std::size_t record = (with_radius ? 4 : 3) * sizeof(float);
+      for (std::size_t at = 0; at + record <= data.bytes.size(); at += record) {
+        float v[4] = {0, 0, 0, 0};
+        std::memcpy(v, data.bytes.data() + at, record);
+        visit(v[0], v[1], v[2], v[3]);
+      }
+    } else {
+      const v1::ParticleFrame& frame = scratch.particles().frames(g);
+      const bool with_radius = frame.radii_size() > 0;
+      for (int i = 0; i + 2 < frame.positions_size(); i += 3) {
+        visit(frame.positions(i), frame.positions(i + 1), frame.positions(i + 2),
+              with_radius && i / 3 < frame.radii_size() ? frame.radii(i / 3) : 0.0);
+      }
+    }
+  }
+  pin_whole_job_geometry(prepared.spec, boxes, first);
+}
+
+}  // namespace
+
+ExitCode run_scale_out(const ConnectOptions& connect, const std::vector<std::string>& servers, PreparedJob prepared,
+                       const FrameOutputOptions& output, std::ostream& err, bool tty) {
+  const auto start = std::chrono::steady_clock::now();
+  if (const auto reference = find_upload_reference(prepared.spec)) {
+    throw CliError(ExitCode::kUsage,
+                   "the job refers to an upload (" + *reference +
+                       ") that exists on one server only, so it cannot be split across servers; give the input as a "
+                       "file (the CLI uploads it to each server) or run against one --server");
+  }
+  for (const std::string& server : servers) check_token_transport(server, connect.security);
+  if (prepared.spec.has_particles()) {
+    pin_particles_from_inputs(prepared);
+  } else {
+    pin_whole_job_geometry(prepared.spec, {}, {});
+  }
+  ProgressDisplay progress(err, tty);
+  ScaleOut scale_out(connect, servers, std::move(prepared), output, progress);
+  return scale_out.run(start);
+}
+
+}  // namespace surfacer::client
