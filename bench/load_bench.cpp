@@ -708,10 +708,8 @@ int main(int argc, char** argv) {
   auto* data_dir = app.add_option("--data-dir", settings.data_dir,
                                   "Embedded server's durable store (SQLite + files; created if missing). Default: "
                                   "memory only");
-  app.add_option("--server", settings.server, "HOST:PORT of a running server instead of the embedded one")
-      ->excludes(workers)
-      ->excludes(queued)
-      ->excludes(data_dir);
+  auto* remote =
+      app.add_option("--server", settings.server, "HOST:PORT of a running server instead of the embedded one");
   app.add_option("--seed", settings.seed, "Seed of the job mix (client i uses a stream derived from it)");
   app.add_option("--job-timeout", settings.job_timeout, "A job not finished this many seconds after submit fails")
       ->check(CLI::Range(1.0, 86400.0));
@@ -720,6 +718,16 @@ int main(int argc, char** argv) {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e) == 0 ? 0 : 2;
+  }
+  if (remote->count() > 0) {
+    for (const CLI::Option* embedded_only : {workers, queued, data_dir}) {
+      if (embedded_only->count() == 0) continue;
+      std::fprintf(stderr,
+                   "load_bench: %s configures the embedded server and cannot be combined with --server; drop it, or "
+                   "give it to the remote surfacer-server instead\n",
+                   embedded_only->get_name().c_str());
+      return 2;
+    }
   }
 
   std::unique_ptr<server::SurfacerServer> embedded;
