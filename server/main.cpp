@@ -69,6 +69,9 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
   app.add_option("--metrics-listen", options.metrics_listen,
                  "serve Prometheus text metrics at http://HOST:PORT/metrics (default: off)");
+  app.add_option("--health-listen", options.health_listen,
+                 "also serve grpc.health.v1 alone, in plain text, on HOST:PORT (for Kubernetes gRPC probes, which "
+                 "cannot use TLS; it carries no job data)");
   app.add_option("--drain-seconds", drain_seconds,
                  "on SIGTERM/SIGINT, let running jobs finish this long before cancelling them (a second signal "
                  "cancels at once)")

@@ -4,7 +4,10 @@
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
 
+#include <google/protobuf/util/time_util.h>
+
 #include <algorithm>
+#include <cctype>
 #include <condition_variable>
 #include <fstream>
 #include <set>
@@ -16,6 +19,8 @@
 #include "server/job_types.h"
 #include "server/jobs.h"
 #include "server/log.h"
+#include "server/metrics_http.h"
+#include "server/server_metrics.h"
 #include "server/service.h"
 #include "server/status_map.h"
 #include "server/store.h"
@@ -24,6 +29,8 @@
 
 namespace surfacer::server {
 namespace {
+
+using google::protobuf::util::TimeUtil;
 
 std::string read_file(const std::string& path, const char* flag) {
   std::ifstream in(path, std::ios::binary);
@@ -81,6 +88,7 @@ struct SurfacerServer::Impl {
         auth(options.tokens_file.empty() ? nullptr : TokenAuth::load(options.tokens_file)),
         uploads(store.get()),
         scheduler(pool, options.max_queued_jobs),
+        metrics(registry),
         service(state) {
     state.options = options;
     state.worker_threads = threads;
@@ -90,7 +98,11 @@ struct SurfacerServer::Impl {
     state.auth = auth.get();
     state.usage = &usage;
     state.hooks = &hooks;
+    state.metrics = &metrics;
+    register_metrics();
   }
+
+  void register_metrics();
 
   // Brings back what the store holds: uploads, finished jobs (for watching) and unfinished ones (resumed).
   void restore();
@@ -105,10 +117,22 @@ struct SurfacerServer::Impl {
   JobHooks hooks;
   UploadStore uploads;
   Scheduler scheduler;
+  MetricsRegistry registry;
+  ServerMetrics metrics;
+  std::unique_ptr<MetricsHttpServer> metrics_http;
   ServiceState state;
   SurfacerService service;
   std::unique_ptr<grpc::Server> grpc_server;
+  std::unique_ptr<grpc::Server> health_server;  // --health-listen: grpc.health.v1 only, plain text
   int port = 0;
+  int health_port = 0;
+
+  void set_serving(bool serving) {
+    for (auto* server : {grpc_server.get(), health_server.get()}) {
+      if (!server) continue;
+      if (auto* health = server->GetHealthCheckService()) health->SetServingStatus(serving);
+    }
+  }
   std::mutex retention_mutex;
 
   std::mutex mutex;
@@ -117,6 +141,52 @@ struct SurfacerServer::Impl {
   bool done = false;
   std::thread janitor;
 };
+
+void SurfacerServer::Impl::register_metrics() {
+  hooks.on_frame = [this](const Job& job, const v1::FrameHeader& header) {
+    metrics.frames.with({job.kind()}).inc();
+    metrics.frame_bytes.inc(static_cast<double>(header.total_bytes()));
+    for (const auto& t : header.stats().timings()) metrics.stage_seconds.with({job.kind(), t.stage()}).observe(t.seconds());
+    const v1::Job snap = job.snapshot();
+    if (snap.has_started()) {
+      const double since = TimeUtil::DurationToNanoseconds(TimeUtil::GetCurrentTime() - snap.started()) * 1e-9;
+      metrics.frame_seconds.with({job.kind()}).observe(std::max(0.0, since));
+    }
+  };
+  hooks.on_finished = [this](const Job& job, v1::JobState s) {
+    std::string state = v1::JobState_Name(s);
+    if (state.rfind("JOB_STATE_", 0) == 0) state = state.substr(10);
+    for (auto& c : state) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    metrics.jobs_finished.with({job.kind(), state}).inc();
+  };
+  registry.gauge_callback_family("surfacer_jobs", "Jobs known to this server, by state", {"state"}, [this] {
+    std::map<std::string, double> counts = {{"queued", 0}, {"running", 0}, {"succeeded", 0}, {"failed", 0},
+                                            {"cancelled", 0}};
+    for (const auto& job : scheduler.list()) {
+      switch (job->state()) {
+        case v1::JOB_STATE_QUEUED: counts["queued"] += 1; break;
+        case v1::JOB_STATE_RUNNING: counts["running"] += 1; break;
+        case v1::JOB_STATE_SUCCEEDED: counts["succeeded"] += 1; break;
+        case v1::JOB_STATE_FAILED: counts["failed"] += 1; break;
+        case v1::JOB_STATE_CANCELLED: counts["cancelled"] += 1; break;
+        default: break;
+      }
+    }
+    std::vector<LabelledValue> out;
+    for (const auto& [k, v] : counts) out.push_back({{k}, v});
+    return out;
+  });
+  registry.gauge_callback("surfacer_queue_depth", "Jobs waiting for a worker",
+                          [this] { return static_cast<double>(scheduler.queued_jobs()); });
+  registry.gauge_callback("surfacer_workers", "Worker threads", [this] { return static_cast<double>(threads); });
+  registry.gauge_callback("surfacer_serving", "1 while accepting jobs, 0 while draining or stopped",
+                          [this] { return state.accepting.load() ? 1.0 : 0.0; });
+  registry.gauge_callback("surfacer_stored_bytes", "Bytes of frames and uploads held (store or memory)", [this] {
+    double total = static_cast<double>(uploads.total_bytes());
+    for (const auto& job : scheduler.list()) total += static_cast<double>(job->stored_bytes());
+    return total;
+  });
+}
 
 void SurfacerServer::Impl::restore() {
   if (!store) return;
@@ -256,9 +326,17 @@ std::unique_ptr<SurfacerServer> SurfacerServer::start(const ServerOptions& optio
     throw std::runtime_error("cannot listen on " + options.listen +
                              " (address in use or not valid?); choose another with --listen");
   }
-  if (auto* health = impl->grpc_server->GetHealthCheckService()) {
-    health->SetServingStatus(true);
+  if (!options.health_listen.empty()) {
+    grpc::ServerBuilder health_builder;
+    health_builder.AddListeningPort(options.health_listen, grpc::InsecureServerCredentials(), &impl->health_port);
+    impl->health_server = health_builder.BuildAndStart();
+    if (!impl->health_server || impl->health_port == 0) {
+      impl->grpc_server->Shutdown();
+      throw std::runtime_error("cannot listen on " + options.health_listen + " (--health-listen)");
+    }
   }
+  impl->set_serving(true);
+  if (!options.metrics_listen.empty()) impl->metrics_http = MetricsHttpServer::start(impl->registry, options.metrics_listen);
   impl->janitor = std::thread([p = impl.get()] { p->janitor_loop(); });
   log_event(LogLevel::kInfo, "server_started",
             {{"listen", options.listen.empty() ? "in-process" : options.listen},
@@ -276,7 +354,11 @@ SurfacerServer::~SurfacerServer() { shutdown(ShutdownMode::kCancel, std::chrono:
 
 int SurfacerServer::port() const { return impl_->port; }
 
-int SurfacerServer::metrics_port() const { return 0; }
+int SurfacerServer::health_port() const { return impl_->health_port; }
+
+int SurfacerServer::metrics_port() const { return impl_->metrics_http ? impl_->metrics_http->port() : 0; }
+
+std::string SurfacerServer::metrics_text() const { return impl_->registry.render(); }
 
 void SurfacerServer::run_retention() { impl_->retention(); }
 
@@ -297,7 +379,7 @@ void SurfacerServer::shutdown(ShutdownMode mode, std::chrono::milliseconds deadl
   if (impl_->janitor.joinable()) impl_->janitor.join();
   Impl& s = *impl_;
   s.state.accepting.store(false);
-  if (auto* health = s.grpc_server->GetHealthCheckService()) health->SetServingStatus(false);
+  s.set_serving(false);
   log_event(LogLevel::kInfo, "server_stopping",
             {{"mode", mode == ShutdownMode::kDrain ? "drain" : "cancel"},
              {"active_jobs", std::to_string(s.scheduler.active_jobs())}});
@@ -315,7 +397,9 @@ void SurfacerServer::shutdown(ShutdownMode mode, std::chrono::milliseconds deadl
   }
   // Watch streams of finished jobs end by themselves; give them a moment, then cancel what is left.
   s.grpc_server->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(2));
+  if (s.health_server) s.health_server->Shutdown(std::chrono::system_clock::now());
   s.pool.stop();
+  if (s.metrics_http) s.metrics_http->stop();
   log_event(LogLevel::kInfo, "server_stopped");
   {
     std::lock_guard lock(s.mutex);

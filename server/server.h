@@ -52,6 +52,9 @@ struct ServerOptions {
 
   // Prometheus text metrics over HTTP at /metrics (--metrics-listen HOST:PORT). Empty: off.
   std::string metrics_listen;
+  // A second, plain-text gRPC port serving only grpc.health.v1 (same status as the main port) for probes that
+  // cannot speak TLS, such as Kubernetes' native gRPC probes (--health-listen HOST:PORT). Empty: off.
+  std::string health_listen;
 };
 
 enum class ShutdownMode {
@@ -71,8 +74,12 @@ class SurfacerServer {
 
   // Port actually bound (0 when in-process only).
   int port() const;
+  // Port of the plain-text health listener (0 when off).
+  int health_port() const;
   // Port of the metrics endpoint (0 when off).
   int metrics_port() const;
+  // The metrics in Prometheus text format (what /metrics serves).
+  std::string metrics_text() const;
   // Runs retention now (tests; it also runs every retention_interval).
   void run_retention();
   // A channel to this server that does not touch the network.

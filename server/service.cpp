@@ -6,6 +6,7 @@
 #include "server/job_types.h"
 #include "server/log.h"
 #include "server/status_map.h"
+#include "server/server_metrics.h"
 #include "server/store.h"
 #include "server/upload_assembler.h"
 
@@ -40,8 +41,10 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::JobEvent>,
                            public JobListener,
                            public std::enable_shared_from_this<WatchReactor> {
  public:
-  static WatchReactor* start(std::shared_ptr<Job> job, const v1::WatchJobRequest& request) {
+  static WatchReactor* start(std::shared_ptr<Job> job, const v1::WatchJobRequest& request, ServerMetrics* metrics) {
     auto reactor = std::shared_ptr<WatchReactor>(new WatchReactor(std::move(job), request));
+    reactor->metrics_ = metrics;
+    if (metrics) metrics->watchers.inc();
     reactor->self_ = reactor;
     reactor->job_->add_listener(reactor);
     reactor->pump();
@@ -65,6 +68,7 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::JobEvent>,
     pump();
   }
   void OnDone() override {
+    if (metrics_) metrics_->watchers.dec();
     auto keep = std::move(self_);  // may destroy this when the last notification has returned
   }
 
@@ -102,12 +106,14 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::JobEvent>,
       return;
     }
     writing_ = true;
+    if (metrics_ && event_.has_chunk()) metrics_->bytes_out.inc(static_cast<double>(event_.chunk().data().size()));
     lock.unlock();
     StartWrite(&event_);
   }
 
   std::shared_ptr<Job> job_;
   std::shared_ptr<WatchReactor> self_;
+  ServerMetrics* metrics_ = nullptr;
   std::mutex mutex_;
   WatchCursor cursor_;
   v1::JobEvent event_;  // stable while a write is in flight
@@ -173,6 +179,7 @@ class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
       response_->set_crc32(blob->crc32);
       const std::string name = blob->name;
       response_->set_upload_id(state_.uploads->add(std::move(blob), tenant_.name));
+      if (state_.metrics) state_.metrics->bytes_in.inc(static_cast<double>(size));
       log_event(LogLevel::kInfo, "upload",
                 {{"upload", response_->upload_id()},
                  {"tenant", tenant_.name},
@@ -191,6 +198,18 @@ class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
   UploadAssembler assembler_;
   v1::UploadChunk chunk_;
 };
+
+std::string status_code_label(grpc::StatusCode code) {
+  switch (code) {
+    case grpc::StatusCode::INVALID_ARGUMENT: return "INVALID_ARGUMENT";
+    case grpc::StatusCode::RESOURCE_EXHAUSTED: return "RESOURCE_EXHAUSTED";
+    case grpc::StatusCode::UNAUTHENTICATED: return "UNAUTHENTICATED";
+    case grpc::StatusCode::UNAVAILABLE: return "UNAVAILABLE";
+    case grpc::StatusCode::NOT_FOUND: return "NOT_FOUND";
+    case grpc::StatusCode::INTERNAL: return "INTERNAL";
+    default: return std::to_string(static_cast<int>(code));
+  }
+}
 
 // The job `id` if it exists and belongs to `tenant` (another tenant's job is reported as missing).
 std::shared_ptr<Job> find_owned(const ServiceState& state, const std::string& id, const Tenant& tenant) {
@@ -267,11 +286,13 @@ grpc::ServerUnaryReactor* SurfacerService::SubmitJob(grpc::CallbackServerContext
       if (state_.store) state_.store->delete_job(job->id());
       throw;
     }
+    if (state_.metrics) state_.metrics->jobs_submitted.with({job->kind()}).inc();
     response->set_job_id(job->id());
     *response->mutable_job() = job->snapshot();
     reactor->Finish(grpc::Status::OK);
   } catch (...) {
     const grpc::Status status = status_from_exception(std::current_exception());
+    if (state_.metrics) state_.metrics->jobs_rejected.with({status_code_label(status.error_code())}).inc();
     log_event(LogLevel::kInfo, "job_rejected",
               {{"code", std::to_string(status.error_code())}, {"error", status.error_message()}});
     reactor->Finish(status);
@@ -298,7 +319,7 @@ grpc::ServerWriteReactor<v1::JobEvent>* SurfacerService::WatchJob(grpc::Callback
     return new FailedWrite(grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
                                         "from_frame (" + std::to_string(request->from_frame()) + ") must be >= 0"));
   }
-  return WatchReactor::start(std::move(job), *request);
+  return WatchReactor::start(std::move(job), *request, state_.metrics);
 }
 
 grpc::ServerUnaryReactor* SurfacerService::GetJob(grpc::CallbackServerContext* context,

@@ -13,6 +13,7 @@
 namespace surfacer::server {
 
 class Store;
+struct ServerMetrics;
 
 struct ServiceState {
   ServerOptions options;
@@ -24,6 +25,7 @@ struct ServiceState {
   Tenant open_tenant;
   Usage* usage = nullptr;
   const JobHooks* hooks = nullptr;
+  ServerMetrics* metrics = nullptr;
   std::atomic<bool> accepting{true};
 };
 
