@@ -70,9 +70,12 @@ std::string escape(std::string_view text, bool quote) {
 
 const char* type_name(MetricType type) {
   switch (type) {
-    case MetricType::kCounter: return "counter";
-    case MetricType::kGauge: return "gauge";
-    case MetricType::kHistogram: return "histogram";
+    case MetricType::kCounter:
+      return "counter";
+    case MetricType::kGauge:
+      return "gauge";
+    case MetricType::kHistogram:
+      return "histogram";
   }
   return "untyped";
 }
@@ -133,11 +136,10 @@ class CallbackGaugeFamily final : public detail::FamilyBase {
       if (i > 0 && values[i].label_values == values[i - 1].label_values) {
         std::string tuple;
         for (const std::string& value : values[i].label_values) tuple += (tuple.empty() ? "" : ",") + value;
-        throw std::invalid_argument("metric " + quoted(name()) + ": the callback returned the label values {" +
-                                    tuple + "} more than once; return each tuple once");
+        throw std::invalid_argument("metric " + quoted(name()) + ": the callback returned the label values {" + tuple +
+                                    "} more than once; return each tuple once");
       }
-      append_sample(out, name(), "", label_names(), values[i].label_values, "",
-                    format_metric_value(values[i].value));
+      append_sample(out, name(), "", label_names(), values[i].label_values, "", format_metric_value(values[i].value));
     }
   }
 
@@ -243,10 +245,10 @@ Histogram::Histogram(std::shared_ptr<const std::vector<double>> bounds)
 
 void Histogram::observe(double value) {
   const std::vector<double>& bounds = *bounds_;
-  const std::size_t bucket = std::isnan(value)
-                                 ? bounds.size()
-                                 : static_cast<std::size_t>(std::lower_bound(bounds.begin(), bounds.end(), value) -
-                                                            bounds.begin());
+  const std::size_t bucket =
+      std::isnan(value)
+          ? bounds.size()
+          : static_cast<std::size_t>(std::lower_bound(bounds.begin(), bounds.end(), value) - bounds.begin());
   counts_[bucket].fetch_add(1, std::memory_order_relaxed);
   sum_.fetch_add(value, std::memory_order_relaxed);
 }
@@ -274,8 +276,8 @@ std::vector<double> byte_buckets() { return exponential_buckets(1024.0, 4.0, 11)
 std::vector<double> exponential_buckets(double start, double factor, int count) {
   if (!(start > 0.0) || !(factor > 1.0) || count < 1) {
     throw std::invalid_argument("exponential_buckets: need start > 0, factor > 1 and count >= 1 (got start " +
-                                format_metric_value(start) + ", factor " + format_metric_value(factor) +
-                                ", count " + std::to_string(count) + ")");
+                                format_metric_value(start) + ", factor " + format_metric_value(factor) + ", count " +
+                                std::to_string(count) + ")");
   }
   std::vector<double> bounds;
   bounds.reserve(static_cast<std::size_t>(count));
@@ -318,8 +320,7 @@ void detail::FamilyBase::check_arity(std::size_t values) const {
     std::string names;
     for (const std::string& label : label_names_) names += (names.empty() ? "" : ",") + label;
     throw std::invalid_argument("metric " + quoted(name_) + ": got " + std::to_string(values) +
-                                " label values, expected " + std::to_string(label_names_.size()) + " {" + names +
-                                "}");
+                                " label values, expected " + std::to_string(label_names_.size()) + " {" + names + "}");
   }
 }
 
@@ -352,8 +353,7 @@ Metric& MetricFamily<Metric>::with_span(std::span<const std::string_view> label_
     } else {
       metric = std::make_unique<Metric>();
     }
-    it = children_.emplace(std::vector<std::string>(label_values.begin(), label_values.end()), std::move(metric))
-             .first;
+    it = children_.emplace(std::vector<std::string>(label_values.begin(), label_values.end()), std::move(metric)).first;
   }
   return *it->second;
 }
@@ -429,11 +429,11 @@ HistogramFamily& MetricsRegistry::histogram(const std::string& name, const std::
   return family;
 }
 
-void MetricsRegistry::gauge_callback(const std::string& name, const std::string& help,
-                                     std::function<double()> sample) {
+void MetricsRegistry::gauge_callback(const std::string& name, const std::string& help, std::function<double()> sample) {
   if (!sample) throw std::invalid_argument("metric " + quoted(name) + ": the callback is empty");
-  add<CallbackGaugeFamily>(name, help, MetricType::kGauge, {},
-                           [sample = std::move(sample)] { return std::vector<LabelledValue>{{{}, sample()}}; });
+  add<CallbackGaugeFamily>(name, help, MetricType::kGauge, {}, [sample = std::move(sample)] {
+    return std::vector<LabelledValue>{{{}, sample()}};
+  });
 }
 
 void MetricsRegistry::gauge_callback_family(const std::string& name, const std::string& help,

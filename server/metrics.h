@@ -77,8 +77,8 @@ class Histogram {
   }
 
   struct Snapshot {
-    std::vector<double> bounds;              // finite upper bounds
-    std::vector<std::uint64_t> cumulative;   // bounds.size() + 1 entries, the last one is +Inf == count
+    std::vector<double> bounds;             // finite upper bounds
+    std::vector<std::uint64_t> cumulative;  // bounds.size() + 1 entries, the last one is +Inf == count
     double sum = 0.0;
     std::uint64_t count = 0;
   };
@@ -239,7 +239,7 @@ class MetricsRegistry {
 
   mutable std::mutex mutex_;
   std::vector<std::unique_ptr<detail::FamilyBase>> families_;  // registration order
-  std::vector<std::string> series_names_;                     // every sample name in use
+  std::vector<std::string> series_names_;                      // every sample name in use
 };
 
 // --- Text-format building blocks (exposed for tests and for other exporters) ------------------------------------

@@ -75,9 +75,9 @@ HostPort parse_address(std::string_view address) {
     throw std::runtime_error("metrics endpoint address " + quoted +
                              " has no host; use 0.0.0.0 (all interfaces) or 127.0.0.1 (this machine only)");
   }
-  if (port.empty() || port.size() > 5 || !std::all_of(port.begin(), port.end(), [](char c) {
-        return c >= '0' && c <= '9';
-      }) || std::stoi(std::string(port)) > 65535) {
+  if (port.empty() || port.size() > 5 ||
+      !std::all_of(port.begin(), port.end(), [](char c) { return c >= '0' && c <= '9'; }) ||
+      std::stoi(std::string(port)) > 65535) {
     throw std::runtime_error("metrics endpoint address " + quoted + ": port " + quote(port) +
                              " must be a number from 0 to 65535 (0 picks a free port)");
   }
@@ -155,8 +155,8 @@ struct Connection {
 
 }  // namespace
 
-std::unique_ptr<MetricsHttpServer> MetricsHttpServer::start(const MetricsRegistry& registry,
-                                                            std::string_view address, MetricsHttpOptions options) {
+std::unique_ptr<MetricsHttpServer> MetricsHttpServer::start(const MetricsRegistry& registry, std::string_view address,
+                                                            MetricsHttpOptions options) {
   if (options.max_request_bytes < 64) {
     throw std::runtime_error("metrics endpoint: max_request_bytes (" + std::to_string(options.max_request_bytes) +
                              ") must be at least 64; the default is 8192");
@@ -348,8 +348,7 @@ void MetricsHttpServer::run() {
     } else if (c.in.size() > options_.max_request_bytes || end != std::string::npos) {
       start_writing(c,
                     error_response(431, "Request Header Fields Too Large",
-                                   "the request head exceeds " + std::to_string(options_.max_request_bytes) +
-                                       " bytes"),
+                                   "the request head exceeds " + std::to_string(options_.max_request_bytes) + " bytes"),
                     now);
     } else if (eof) {
       if (c.in.empty()) {
@@ -470,7 +469,9 @@ void MetricsHttpServer::run() {
               on_writable(c, now);
             }
             break;
-          case Connection::Phase::kLingering: on_linger_readable(c); break;
+          case Connection::Phase::kLingering:
+            on_linger_readable(c);
+            break;
         }
       }
       std::erase_if(connections, [](const Connection& c) { return c.fd < 0; });

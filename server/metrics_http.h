@@ -70,7 +70,7 @@ class MetricsHttpServer {
   const MetricsRegistry& registry_;
   const MetricsHttpOptions options_;
   int listen_fd_ = -1;
-  int wake_read_fd_ = -1;   // a pipe: stop() writes a byte to interrupt poll()
+  int wake_read_fd_ = -1;  // a pipe: stop() writes a byte to interrupt poll()
   int wake_write_fd_ = -1;
   int port_ = 0;
   std::string address_;
