@@ -159,6 +159,13 @@ class ServerProcess {
   // "127.0.0.1:PORT", or empty when the server did not start.
   const std::string& address() const { return address_; }
   std::string log() const { return read_file(dir_ / "server.err"); }
+  // SIGKILL and wait (a crash: no drain, connections reset).
+  void kill_now() {
+    if (!child_) return;
+    child_->signal(SIGKILL);
+    code_ = child_->wait(10s);
+    child_.reset();
+  }
   // SIGTERM and wait: the exit code (0 for a clean drain), or -1 when it did not exit within 10 s.
   int stop() {
     if (!child_) return code_;
