@@ -195,8 +195,9 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
       if (is_server_list(*connect.server)) parse_server_list(*connect.server);  // syntax errors now
       if (is_server_list(*connect.server) && !run->parsed()) {
         throw CliError(ExitCode::kUsage,
-                       "a list of servers (--server " + *connect.server +
-                           ") is for `run`, which splits a job across them; give one HOST:PORT for this command");
+                       "a list of servers (" + *connect.server +
+                           ") is for `run`, which splits a job across them; give one --server HOST:PORT for this "
+                           "command");
       }
     }
     connect.security = load_security(security, env_token, connect.server.has_value());

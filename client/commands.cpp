@@ -3,9 +3,9 @@
 #include <grpcpp/client_context.h>
 
 #include <algorithm>
-#include <cmath>
 #include <atomic>
 #include <cctype>
+#include <cmath>
 #include <cstdio>
 #include <iomanip>
 #include <map>

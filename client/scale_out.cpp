@@ -253,8 +253,10 @@ class ScaleOut {
                    " servers: " + names);
     {
       InterruptHandler interrupts([this](int count) {
-        if (count == 1) progress_.line("interrupted: cancelling the sub-jobs on every server (Ctrl-C again to stop "
-                                       "waiting)");
+        if (count == 1)
+          progress_.line(
+              "interrupted: cancelling the sub-jobs on every server (Ctrl-C again to stop "
+              "waiting)");
         stop(CliError(ExitCode::kCancelled, "interrupted: the sub-jobs on every server were cancelled"));
       });
       std::vector<std::thread> threads;
@@ -267,10 +269,10 @@ class ScaleOut {
     if (remaining_ > 0) {
       std::string deaths;
       for (const auto& slot : slots_) deaths += "\n  " + slot->address + ": " + slot->death;
-      throw CliError(ExitCode::kUnreachable,
-                     "every server is unreachable; " + std::to_string(remaining_) + " of " +
-                         std::to_string(frames_total_) + " frames were not produced (the others are in " +
-                         writer_.dir().string() + "):" + deaths);
+      throw CliError(ExitCode::kUnreachable, "every server is unreachable; " + std::to_string(remaining_) + " of " +
+                                                 std::to_string(frames_total_) +
+                                                 " frames were not produced (the others are in " +
+                                                 writer_.dir().string() + "):" + deaths);
     }
     print_summary(start);
     return ExitCode::kSuccess;
@@ -363,8 +365,7 @@ class ScaleOut {
     return sub_job_spec(scratch, batch);
   }
 
-  std::string submit(Connection& connection, ServerSlot& slot, const v1::JobSpec& spec,
-                     const std::vector<int>& batch) {
+  std::string submit(Connection& connection, ServerSlot& slot, const v1::JobSpec& spec, const std::vector<int>& batch) {
     v1::SubmitJobRequest request;
     *request.mutable_spec() = spec;
     grpc::ClientContext context;
@@ -389,7 +390,8 @@ class ScaleOut {
     }
     if (verbose_) progress_.line(frames_text(batch) + " -> job " + job_id + " on " + slot.address);
     ReconnectPolicy policy;
-    policy.budget = std::chrono::milliseconds(static_cast<long long>(std::llround(slot.connect.timeout_seconds * 1000)));
+    policy.budget =
+        std::chrono::milliseconds(static_cast<long long>(std::llround(slot.connect.timeout_seconds * 1000)));
     const std::string id = job_id;
     JobWatcher watcher(
         connection, job_id, 0, [&](const ReceivedFrame& frame) { write_frame(slot, batch, id, frame); }, progress_,
@@ -416,15 +418,15 @@ class ScaleOut {
         return;
       case v1::JOB_STATE_CANCELLED:
         if (server_going_away(connection)) {
-          throw CliError(ExitCode::kUnreachable, "it cancelled job " + job_id + " (" +
-                                                     job_error_text(result.job) + ") and is shutting down");
+          throw CliError(ExitCode::kUnreachable,
+                         "it cancelled job " + job_id + " (" + job_error_text(result.job) + ") and is shutting down");
         }
         throw CliError(ExitCode::kCancelled, "job " + job_id + " (" + frames_text(batch) + ") on " + slot.address +
                                                  " was cancelled elsewhere: " + job_error_text(result.job));
       default:
-        throw CliError(ExitCode::kJobFailed,
-                       "job " + job_id + " (" + frames_text(batch) + ") failed on " + slot.address + ": " +
-                           globalize_indices(job_error_text(result.job), batch));
+        throw CliError(ExitCode::kJobFailed, "job " + job_id + " (" + frames_text(batch) + ") failed on " +
+                                                 slot.address + ": " +
+                                                 globalize_indices(job_error_text(result.job), batch));
     }
   }
 
@@ -468,6 +470,10 @@ class ScaleOut {
         }
         if (!job_id.empty()) cancel_sub_job(*connection, job_id);
         stop(e);
+        return;
+      } catch (const std::exception& e) {  // a bug: end the run cleanly rather than the process
+        if (!job_id.empty()) cancel_sub_job(*connection, job_id);
+        stop(CliError(ExitCode::kInternal, std::string("internal error on ") + slot.address + ": " + e.what()));
         return;
       }
     }
@@ -586,7 +592,7 @@ std::string globalize_indices(const std::string& message, const std::vector<int>
     if (end > digits && end < message.size() && message[end] == ']' && end - digits < 9) {
       const int local = std::stoi(message.substr(digits, end - digits));
       out += local < static_cast<int>(frames.size()) ? std::to_string(frames[static_cast<std::size_t>(local)])
-                                                      : message.substr(digits, end - digits);
+                                                     : message.substr(digits, end - digits);
     } else {
       out += message.substr(digits, end - digits);
     }

@@ -52,8 +52,8 @@ std::optional<std::string> find_upload_reference(const v1::JobSpec& spec);
 
 // Particle frame summaries for pin_whole_job_geometry (what the server computes at submit time).
 struct ParticleFrameBox {
-  Aabb bounds;             // of the positions (as float32, widened to double)
-  double max_radius = 0;   // 0 without radii
+  Aabb bounds;            // of the positions (as float32, widened to double)
+  double max_radius = 0;  // 0 without radii
 };
 
 // Fixes in `spec` what the server would otherwise derive from the whole sequence, so each sub-job polygonizes on

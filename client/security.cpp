@@ -44,8 +44,9 @@ void check_token(const std::string& token, const std::string& source) {
   for (char c : token) {
     const auto u = static_cast<unsigned char>(c);
     if (u <= 0x20 || u >= 0x7f) {
-      throw usage(source + ": the token may only hold printable ASCII characters without spaces (one token, as "
-                           "listed in the server's --tokens-file)");
+      throw usage(source +
+                  ": the token may only hold printable ASCII characters without spaces (one token, as "
+                  "listed in the server's --tokens-file)");
     }
   }
 }
@@ -62,8 +63,7 @@ class AuthInterceptor final : public grpc::experimental::Interceptor {
  public:
   explicit AuthInterceptor(std::string value) : value_(std::move(value)) {}
   void Intercept(grpc::experimental::InterceptorBatchMethods* methods) override {
-    if (methods->QueryInterceptionHookPoint(
-            grpc::experimental::InterceptionHookPoints::PRE_SEND_INITIAL_METADATA)) {
+    if (methods->QueryInterceptionHookPoint(grpc::experimental::InterceptionHookPoints::PRE_SEND_INITIAL_METADATA)) {
       methods->GetSendInitialMetadata()->insert({"authorization", value_});
     }
     methods->Proceed();
@@ -111,14 +111,14 @@ SecurityOptions load_security(const SecurityFlags& flags, const char* env_token,
   if (flags.token && flags.token_file) throw usage("give either --token or --token-file, not both");
   const bool tls_flags = flags.tls || flags.tls_ca || flags.tls_cert || flags.tls_key || flags.tls_server_name;
   if (!remote) {
-    const char* flag = flags.token        ? "--token"
-                       : flags.token_file ? "--token-file"
-                       : flags.tls_ca     ? "--tls-ca"
-                       : flags.tls_cert   ? "--tls-cert"
-                       : flags.tls_key    ? "--tls-key"
+    const char* flag = flags.token             ? "--token"
+                       : flags.token_file      ? "--token-file"
+                       : flags.tls_ca          ? "--tls-ca"
+                       : flags.tls_cert        ? "--tls-cert"
+                       : flags.tls_key         ? "--tls-key"
                        : flags.tls_server_name ? "--tls-server-name"
-                       : flags.tls        ? "--tls"
-                                          : nullptr;
+                       : flags.tls             ? "--tls"
+                                               : nullptr;
     if (flag != nullptr) {
       throw usage(std::string(flag) +
                   " applies to a remote server; give --server HOST:PORT (or set $SURFACER_SERVER). The in-process "
@@ -203,7 +203,8 @@ std::string authorization_value(const std::string& token) { return "Bearer " + t
 std::vector<std::unique_ptr<grpc::experimental::ClientInterceptorFactoryInterface>> auth_interceptors(
     const SecurityOptions& security) {
   std::vector<std::unique_ptr<grpc::experimental::ClientInterceptorFactoryInterface>> factories;
-  if (security.token) factories.push_back(std::make_unique<AuthInterceptorFactory>(authorization_value(*security.token)));
+  if (security.token)
+    factories.push_back(std::make_unique<AuthInterceptorFactory>(authorization_value(*security.token)));
   return factories;
 }
 

@@ -82,8 +82,9 @@ std::vector<std::string> resolve_dns_name(const std::string& server) {
   std::string host;
   std::string port;
   if (!is_dns_name(server) || !split_host_port(server.substr(std::string(kDnsPrefix).size()), &host, &port)) {
-    throw CliError(ExitCode::kUsage, "--server \"" + server + "\" needs a port: dns:///NAME:PORT, e.g. "
-                                                             "dns:///surfacer.default.svc.cluster.local:50051");
+    throw CliError(ExitCode::kUsage, "--server \"" + server +
+                                         "\" needs a port: dns:///NAME:PORT, e.g. "
+                                         "dns:///surfacer.default.svc.cluster.local:50051");
   }
   addrinfo hints{};
   hints.ai_family = AF_UNSPEC;
@@ -91,8 +92,8 @@ std::vector<std::string> resolve_dns_name(const std::string& server) {
   addrinfo* found = nullptr;
   const int rc = ::getaddrinfo(host.c_str(), port.c_str(), &hints, &found);
   if (rc != 0) {
-    throw CliError(ExitCode::kUnreachable, "cannot resolve " + host + " (from --server " + server +
-                                               "): " + ::gai_strerror(rc));
+    throw CliError(ExitCode::kUnreachable,
+                   "cannot resolve " + host + " (from --server " + server + "): " + ::gai_strerror(rc));
   }
   std::vector<std::string> targets;
   for (const addrinfo* a = found; a != nullptr; a = a->ai_next) {
@@ -111,8 +112,8 @@ std::vector<std::string> resolve_dns_name(const std::string& server) {
   }
   ::freeaddrinfo(found);
   if (targets.empty()) {
-    throw CliError(ExitCode::kUnreachable, "cannot resolve " + host + " (from --server " + server +
-                                               "): no IPv4 or IPv6 address");
+    throw CliError(ExitCode::kUnreachable,
+                   "cannot resolve " + host + " (from --server " + server + "): no IPv4 or IPv6 address");
   }
   return targets;
 }

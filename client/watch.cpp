@@ -137,10 +137,10 @@ WatchResult JobWatcher::run() {
     assembler.reset();
     const auto deadline = last_success + policy_.budget;
     // With a FrameHandler the caller decides what happens to the job (scale-out hands its frames to another server).
-    const std::string resume =
-        writer_ == nullptr ? std::string()
-                           : "; resume with: surfacer watch " + job_id_ + " --from-frame " +
-                                 std::to_string(next_missing()) + " -o " + writer_->dir().string();
+    const std::string resume = writer_ == nullptr
+                                   ? std::string()
+                                   : "; resume with: surfacer watch " + job_id_ + " --from-frame " +
+                                         std::to_string(next_missing()) + " -o " + writer_->dir().string();
     if (std::chrono::steady_clock::now() >= deadline) {
       throw CliError(ExitCode::kUnreachable,
                      "lost the connection to " + connection_.describe() + " while watching job " + job_id_ +
@@ -158,8 +158,8 @@ WatchResult JobWatcher::run() {
     const auto remaining = deadline - std::chrono::steady_clock::now();
     if (!connection_.wait_connected(std::chrono::system_clock::now() +
                                     std::chrono::duration_cast<std::chrono::milliseconds>(remaining))) {
-      throw CliError(ExitCode::kUnreachable, "lost the connection to " + connection_.describe() +
-                                                 " while watching job " + job_id_ + resume);
+      throw CliError(ExitCode::kUnreachable,
+                     "lost the connection to " + connection_.describe() + " while watching job " + job_id_ + resume);
     }
   }
 

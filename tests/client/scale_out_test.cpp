@@ -290,8 +290,8 @@ class ScaleOutEndToEnd : public ::testing::Test {
       std::snprintf(name, sizeof name, "frame_%04d.drc", i);
       const fs::path drc = out / name;
       const fs::path ply = dir_ / (std::string("decoded_") + name + ".ply");
-      const std::string command = "/usr/bin/draco_decoder -i '" + drc.string() + "' -o '" + ply.string() +
-                                  "' >/dev/null 2>&1";
+      const std::string command =
+          "/usr/bin/draco_decoder -i '" + drc.string() + "' -o '" + ply.string() + "' >/dev/null 2>&1";
       ASSERT_EQ(std::system(command.c_str()), 0) << command;
       const Mesh mesh = read_mesh(ply);
       EXPECT_FALSE(mesh.triangles.empty()) << name;
@@ -318,8 +318,9 @@ class ScaleOutEndToEnd : public ::testing::Test {
 TEST_F(ScaleOutEndToEnd, AServerKilledDuringItsFirstBatchLosesNothing) {
   start_servers(3);
   constexpr int kFrames = 12;
-  std::vector<std::string> args = {"--server", server_list(), "--timeout", "2", "-v", "run", "isosurface",
-                                   "--cells", "64", "-o", (dir_ / "out").string()};
+  std::vector<std::string> args = {
+      "--server", server_list(),          "--timeout", "2", "-v", "run", "isosurface", "--cells", "64",
+      "-o",       (dir_ / "out").string()};
   const auto scene_args = scenes(kFrames);
   args.insert(args.end(), scene_args.begin(), scene_args.end());
   auto run = spawn(args, "run");
@@ -344,7 +345,7 @@ TEST_F(ScaleOutEndToEnd, AServerKilledDuringItsFirstBatchLosesNothing) {
   EXPECT_EQ(reported.size(), static_cast<std::size_t>(kFrames)) << r;
 
   std::vector<std::string> ref_args = {"--server", servers_[1]->address(), "run", "isosurface", "--cells", "64",
-                                       "-o", (dir_ / "ref").string()};
+                                       "-o",       (dir_ / "ref").string()};
   ref_args.insert(ref_args.end(), scene_args.begin(), scene_args.end());
   const Result ref = cli(ref_args, "ref");
   ASSERT_EQ(ref.code, 0) << ref;
@@ -364,8 +365,8 @@ TEST_F(ScaleOutEndToEnd, ParticleSequenceSplitAcrossServersMatchesOneServer) {
       for (int j = -6; j <= 6; ++j) {
         for (int i = -6; i <= 6; ++i) {
           if (i * i + j * j + k * k > 30) continue;
-          std::snprintf(line, sizeof line, "%.6f %.6f %.6f\n", 0.1 * i + 0.05 * f + jitter(rng),
-                        0.1 * j + jitter(rng), 0.1 * k + jitter(rng));
+          std::snprintf(line, sizeof line, "%.6f %.6f %.6f\n", 0.1 * i + 0.05 * f + jitter(rng), 0.1 * j + jitter(rng),
+                        0.1 * k + jitter(rng));
           text += line;
         }
       }
@@ -394,8 +395,8 @@ TEST_F(ScaleOutEndToEnd, ParticleSequenceSplitAcrossServersMatchesOneServer) {
 
 TEST_F(ScaleOutEndToEnd, EveryServerDeadExitsThree) {
   start_servers(2);
-  std::vector<std::string> args = {"--server", server_list(), "--timeout", "1", "run", "isosurface", "--cells",
-                                   "64", "-o", (dir_ / "out").string()};
+  std::vector<std::string> args = {"--server",   server_list(), "--timeout", "1",  "run",
+                                   "isosurface", "--cells",     "64",        "-o", (dir_ / "out").string()};
   const auto scene_args = scenes(8);
   args.insert(args.end(), scene_args.begin(), scene_args.end());
   auto run = spawn(args, "run");
@@ -409,8 +410,8 @@ TEST_F(ScaleOutEndToEnd, EveryServerDeadExitsThree) {
 
   // Nothing listening at all: exit 3 as well.
   const std::string nowhere = "127.0.0.1:" + std::to_string(free_port()) + ",127.0.0.1:" + std::to_string(free_port());
-  std::vector<std::string> none = {"--server", nowhere, "--timeout", "1", "run", "isosurface", "-o",
-                                   (dir_ / "none").string()};
+  std::vector<std::string> none = {"--server", nowhere,      "--timeout", "1",
+                                   "run",      "isosurface", "-o",        (dir_ / "none").string()};
   none.insert(none.end(), scene_args.begin(), scene_args.end());
   const Result n = cli(none, "none");
   EXPECT_EQ(n.code, 3) << n;
@@ -419,8 +420,9 @@ TEST_F(ScaleOutEndToEnd, EveryServerDeadExitsThree) {
 TEST_F(ScaleOutEndToEnd, ABadSceneFailsTheRunAndCancelsTheOtherSubJobs) {
   start_servers(3);
   // Heavy frames, so the sub-jobs of the good scenes are still running when the bad one is rejected.
-  std::vector<std::string> args = {"--server", server_list(), "run", "isosurface", "--cells", "160", "--bounds=-1.6,-1.6,-0.8,1.6,1.6,0.8",
-                                   "-o", (dir_ / "out").string()};
+  std::vector<std::string> args = {
+      "--server", server_list(),          "run", "isosurface", "--cells", "160", "--bounds=-1.6,-1.6,-0.8,1.6,1.6,0.8",
+      "-o",       (dir_ / "out").string()};
   const auto scene_args = scenes(9, /*bad=*/2);
   args.insert(args.end(), scene_args.begin(), scene_args.end());
   const auto t0 = std::chrono::steady_clock::now();
@@ -433,8 +435,8 @@ TEST_F(ScaleOutEndToEnd, ABadSceneFailsTheRunAndCancelsTheOtherSubJobs) {
   EXPECT_GE(expect_nothing_left_running(), 1) << "no sub-job was cancelled";
 
   // Without --bounds the client checks the scenes itself before submitting anything.
-  std::vector<std::string> unbounded = {"--server", server_list(), "run", "isosurface", "--cells", "32", "-o",
-                                        (dir_ / "out2").string()};
+  std::vector<std::string> unbounded = {"--server", server_list(), "run", "isosurface",
+                                        "--cells",  "32",          "-o",  (dir_ / "out2").string()};
   unbounded.insert(unbounded.end(), scene_args.begin(), scene_args.end());
   const Result u = cli(unbounded, "unbounded");
   EXPECT_EQ(u.code, 4) << u;
@@ -443,8 +445,8 @@ TEST_F(ScaleOutEndToEnd, ABadSceneFailsTheRunAndCancelsTheOtherSubJobs) {
 
 TEST_F(ScaleOutEndToEnd, CtrlCCancelsEverySubJob) {
   start_servers(2);
-  std::vector<std::string> args = {"--server", server_list(), "run", "isosurface", "--cells", "160", "-o",
-                                   (dir_ / "out").string()};
+  std::vector<std::string> args = {"--server", server_list(), "run", "isosurface",
+                                   "--cells",  "160",         "-o",  (dir_ / "out").string()};
   const auto scene_args = scenes(16);
   args.insert(args.end(), scene_args.begin(), scene_args.end());
   auto run = spawn(args, "run");
@@ -460,8 +462,8 @@ TEST_F(ScaleOutEndToEnd, AJobThatIsNotASequenceFailsOverToTheNextServer) {
   start_servers(1);
   const std::string list = "127.0.0.1:" + std::to_string(free_port()) + "," + servers_[0]->address();
   const auto scene_args = scenes(1);
-  std::vector<std::string> args = {"--server", list, "--timeout", "1", "run", "isosurface", "--cells", "32", "-o",
-                                   (dir_ / "out").string()};
+  std::vector<std::string> args = {"--server",   list,      "--timeout", "1",  "run",
+                                   "isosurface", "--cells", "32",        "-o", (dir_ / "out").string()};
   args.insert(args.end(), scene_args.begin(), scene_args.end());
   const Result r = cli(args, "run");
   ASSERT_EQ(r.code, 0) << r;

@@ -1,6 +1,8 @@
 // TLS and bearer tokens on the client side: the flags and their files, the plaintext-token refusal, and the
 // `surfacer` binary and Connection against test-local gRPC servers with SslServerCredentials (server-only and
 // mutual TLS), the default health service and a tiny Surfacer service that checks the authorization metadata.
+#include "client/security.h"
+
 #include <grpcpp/health_check_service_interface.h>
 #include <grpcpp/security/server_credentials.h>
 #include <grpcpp/server.h>
@@ -13,7 +15,6 @@
 #include "client/cli.h"
 #include "client/connection.h"
 #include "client/health.h"
-#include "client/security.h"
 #include "tests/client/cli_process.h"
 #include "tests/support/test_certs.h"
 
@@ -145,17 +146,17 @@ TEST(TestCerts, MakesACaAServerCertForLocalhostAndAClientCertAndCachesPerDirecto
   EXPECT_EQ(read_file(dir / "client.pem"), a.client_cert_pem);
   // The server certificate carries both names a test connects by.
   const std::string text_file = (dir / "server.txt").string();
-  ASSERT_EQ(std::system(("openssl x509 -in '" + (dir / "server.pem").string() + "' -noout -text > '" + text_file +
-                         "' 2>&1")
-                            .c_str()),
-            0);
+  ASSERT_EQ(
+      std::system(
+          ("openssl x509 -in '" + (dir / "server.pem").string() + "' -noout -text > '" + text_file + "' 2>&1").c_str()),
+      0);
   const std::string text = read_file(text_file);
   EXPECT_NE(text.find("DNS:localhost"), std::string::npos) << text;
   EXPECT_NE(text.find("IP Address:127.0.0.1"), std::string::npos) << text;
   // Both leaf certificates verify against the CA.
   for (const char* leaf : {"server.pem", "client.pem"}) {
-    const std::string command = "openssl verify -CAfile '" + (dir / "ca.pem").string() + "' '" +
-                                (dir / leaf).string() + "' >/dev/null 2>&1";
+    const std::string command =
+        "openssl verify -CAfile '" + (dir / "ca.pem").string() + "' '" + (dir / leaf).string() + "' >/dev/null 2>&1";
     EXPECT_EQ(std::system(command.c_str()), 0) << leaf;
   }
   // Cached per directory; another directory gets another CA.
@@ -308,8 +309,8 @@ TEST_F(SecurityTest, HealthOverTlsWithTheRightCaByIpByNameAndWithANameOverride) 
 
 TEST_F(SecurityTest, WrongCaOrPlaintextAgainstTlsExitsThreeWithAMessage) {
   TestServer server(tls_server(*certs_, false));
-  Result r = cli({"--server", server.address(), "--tls-ca", (other_->dir / "ca.pem").string(), "--timeout", "1",
-                  "health"});
+  Result r =
+      cli({"--server", server.address(), "--tls-ca", (other_->dir / "ca.pem").string(), "--timeout", "1", "health"});
   EXPECT_EQ(r.code, 3) << r;
   EXPECT_NE(r.err.find("surfacer: error: cannot reach a Surfacer server at " + server.address()), std::string::npos)
       << r;
@@ -325,13 +326,13 @@ TEST_F(SecurityTest, MutualTlsServerRejectsAClientWithoutACertificateAndAcceptsO
   EXPECT_EQ(without.code, 3) << without;
   EXPECT_EQ(without.out.find("SERVING"), std::string::npos) << without;
   // A client certificate from another CA is rejected too.
-  Result foreign = cli({"--server", server.address(), "--tls-ca", ca(), "--tls-cert",
-                        (other_->dir / "client.pem").string(), "--tls-key", (other_->dir / "client.key").string(),
-                        "--timeout", "1", "health"});
+  Result foreign =
+      cli({"--server", server.address(), "--tls-ca", ca(), "--tls-cert", (other_->dir / "client.pem").string(),
+           "--tls-key", (other_->dir / "client.key").string(), "--timeout", "1", "health"});
   EXPECT_EQ(foreign.code, 3) << foreign;
-  Result with = cli({"--server", server.address(), "--tls-ca", ca(), "--tls-cert",
-                     (certs_->dir / "client.pem").string(), "--tls-key", (certs_->dir / "client.key").string(),
-                     "health"});
+  Result with =
+      cli({"--server", server.address(), "--tls-ca", ca(), "--tls-cert", (certs_->dir / "client.pem").string(),
+           "--tls-key", (certs_->dir / "client.key").string(), "health"});
   EXPECT_EQ(with.code, 0) << with;
   EXPECT_EQ(with.out, "SERVING\n") << with;
 }

@@ -69,9 +69,26 @@ void make_signed(const fs::path& dir, const std::string& name, const std::string
 TestCerts generate(const fs::path& dir) {
   fs::create_directories(dir);
   const std::string tag = std::to_string(::getpid()) + "-" + random_serial();
-  openssl(dir, {"req", "-x509", "-new", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes",
-                "-keyout", "ca.key", "-out", "ca.pem", "-days", "30", "-sha256", "-subj",
-                "/CN=Surfacer Test CA " + tag, "-addext", "basicConstraints=critical,CA:TRUE", "-addext",
+  openssl(dir, {"req",
+                "-x509",
+                "-new",
+                "-newkey",
+                "ec",
+                "-pkeyopt",
+                "ec_paramgen_curve:prime256v1",
+                "-nodes",
+                "-keyout",
+                "ca.key",
+                "-out",
+                "ca.pem",
+                "-days",
+                "30",
+                "-sha256",
+                "-subj",
+                "/CN=Surfacer Test CA " + tag,
+                "-addext",
+                "basicConstraints=critical,CA:TRUE",
+                "-addext",
                 "keyUsage=critical,keyCertSign,cRLSign"});
   make_signed(dir, "server", "/CN=localhost",
               "basicConstraints=CA:FALSE\n"
