@@ -119,7 +119,6 @@ struct SurfacerServer::Impl {
   Scheduler scheduler;
   MetricsRegistry registry;
   ServerMetrics metrics;
-  std::unique_ptr<MetricsHttpServer> metrics_http;
   ServiceState state;
   SurfacerService service;
   std::unique_ptr<grpc::Server> grpc_server;
@@ -140,6 +139,8 @@ struct SurfacerServer::Impl {
   bool shutting_down = false;
   bool done = false;
   std::thread janitor;
+  // Last: destroyed first, so its scrapes never see a half-destroyed server.
+  std::unique_ptr<MetricsHttpServer> metrics_http;
 };
 
 void SurfacerServer::Impl::register_metrics() {
