@@ -47,7 +47,6 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
                          "  surfacer --server localhost:50051 run --spec job.json -o out/ --format ply,obj\n"
                          "  ID=$(surfacer --server localhost:50051 submit isosurface --scene a.json --scene b.json)\n"
                          "  surfacer --server localhost:50051 watch $ID -o out/\n"
-                         "\n"
                          "  surfacer --server a:50051,b:50051,c:50051 run isosurface --scene s1.json --scene s2.json "
                          "-o out/\n"
                          "  surfacer --server surfacer.example.com:443 --tls --token-file ~/.surfacer-token list\n"
@@ -114,15 +113,20 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
   add_job_common_flags(run, run_flags.job);
   add_output_flags(run, run_output);
   run->require_subcommand(0, 1);
-  run->footer(std::string("Examples:\n"
-                          "  surfacer run isosurface --scene examples/scenes/torus.json --cells 96 -o out/\n"
-                          "  surfacer run particles --input 'sim/fluid_{:04d}.bgeo' --r-inner 0.01 -o out/\n"
-                          "  surfacer run optimize --scene examples/scenes/csg_block.json --iterations 100 -o out/\n"
-                          "  surfacer run active morph --from a.json --to b.json --grid-spacing 0.02 -o out/\n"
-                          "  surfacer run --spec job.json -o out/ --format drc,ply\n"
-                          "Inputs (particle frames, meshes, velocity grids) are uploaded before the job is queued.\n"
-                          "Ctrl-C cancels the job on the server and exits with code 5.\n\n") +
-              kGlobalNote + "\n" + kExitCodesHelp);
+  run->footer(
+      std::string("Examples:\n"
+                  "  surfacer run isosurface --scene examples/scenes/torus.json --cells 96 -o out/\n"
+                  "  surfacer run particles --input 'sim/fluid_{:04d}.bgeo' --r-inner 0.01 -o out/\n"
+                  "  surfacer run optimize --scene examples/scenes/csg_block.json --iterations 100 -o out/\n"
+                  "  surfacer run active morph --from a.json --to b.json --grid-spacing 0.02 -o out/\n"
+                  "  surfacer run --spec job.json -o out/ --format drc,ply\n"
+                  "Inputs (particle frames, meshes, velocity grids) are uploaded before the job is queued.\n"
+                  "Ctrl-C cancels the job on the server and exits with code 5.\n"
+                  "With several servers (--server a:1,b:2,c:3 or dns:///NAME:PORT), a frame sequence (isosurface "
+                  "scenes,\nparticle frames) is split into small batches across them; a server that dies "
+                  "hands its frames to\nthe others. Other jobs run on the first server that answers and move "
+                  "to the next one if it dies.\n\n") +
+      kGlobalNote + "\n" + kExitCodesHelp);
   add_job_types(run, "run", run_flags, &run_output);
 
   // submit
