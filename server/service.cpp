@@ -236,6 +236,17 @@ const Tenant* authenticate(const ServiceState& state, const grpc::CallbackServer
   return tenant;
 }
 
+namespace {
+// The caller's tenant; otherwise finishes the call with UNAUTHENTICATED and returns null.
+const Tenant* tenant_or_finish(const ServiceState& state, const grpc::CallbackServerContext& context,
+                               grpc::ServerUnaryReactor* reactor) {
+  grpc::Status status;
+  const Tenant* tenant = authenticate(state, context, status);
+  if (!tenant) reactor->Finish(status);
+  return tenant;
+}
+}  // namespace
+
 grpc::ServerUnaryReactor* SurfacerService::SubmitJob(grpc::CallbackServerContext* context,
                                                      const v1::SubmitJobRequest* request,
                                                      v1::SubmitJobResponse* response) {
@@ -244,12 +255,8 @@ grpc::ServerUnaryReactor* SurfacerService::SubmitJob(grpc::CallbackServerContext
     reactor->Finish(grpc::Status(grpc::StatusCode::UNAVAILABLE, "server is shutting down; submit to another server"));
     return reactor;
   }
-  grpc::Status auth_status;
-  const Tenant* tenant = authenticate(state_, *context, auth_status);
-  if (!tenant) {
-    reactor->Finish(auth_status);
-    return reactor;
-  }
+  const Tenant* tenant = tenant_or_finish(state_, *context, reactor);
+  if (!tenant) return reactor;
   std::shared_ptr<Job> job;
   try {
     // Another tenant's uploads do not exist for this one.
@@ -325,12 +332,8 @@ grpc::ServerWriteReactor<v1::JobEvent>* SurfacerService::WatchJob(grpc::Callback
 grpc::ServerUnaryReactor* SurfacerService::GetJob(grpc::CallbackServerContext* context,
                                                   const v1::GetJobRequest* request, v1::Job* response) {
   auto* reactor = context->DefaultReactor();
-  grpc::Status auth_status;
-  const Tenant* tenant = authenticate(state_, *context, auth_status);
-  if (!tenant) {
-    reactor->Finish(auth_status);
-    return reactor;
-  }
+  const Tenant* tenant = tenant_or_finish(state_, *context, reactor);
+  if (!tenant) return reactor;
   if (auto job = find_owned(state_, request->job_id(), *tenant)) {
     *response = job->snapshot();
     reactor->Finish(grpc::Status::OK);
@@ -344,12 +347,8 @@ grpc::ServerUnaryReactor* SurfacerService::ListJobs(grpc::CallbackServerContext*
                                                     const v1::ListJobsRequest* request,
                                                     v1::ListJobsResponse* response) {
   auto* reactor = context->DefaultReactor();
-  grpc::Status auth_status;
-  const Tenant* tenant = authenticate(state_, *context, auth_status);
-  if (!tenant) {
-    reactor->Finish(auth_status);
-    return reactor;
-  }
+  const Tenant* tenant = tenant_or_finish(state_, *context, reactor);
+  if (!tenant) return reactor;
   for (const auto& job : state_.scheduler->list()) {
     if (job->owner() != tenant->name) continue;
     v1::Job snapshot = job->snapshot();
@@ -364,12 +363,8 @@ grpc::ServerUnaryReactor* SurfacerService::ListJobs(grpc::CallbackServerContext*
 grpc::ServerUnaryReactor* SurfacerService::CancelJob(grpc::CallbackServerContext* context,
                                                      const v1::CancelJobRequest* request, v1::Job* response) {
   auto* reactor = context->DefaultReactor();
-  grpc::Status auth_status;
-  const Tenant* tenant = authenticate(state_, *context, auth_status);
-  if (!tenant) {
-    reactor->Finish(auth_status);
-    return reactor;
-  }
+  const Tenant* tenant = tenant_or_finish(state_, *context, reactor);
+  if (!tenant) return reactor;
   if (auto job = find_owned(state_, request->job_id(), *tenant)) {
     job->cancel("cancelled by client");
     *response = job->snapshot();
