@@ -2,6 +2,7 @@
 
 #include <fcntl.h>
 #include <sqlite3.h>
+#include <sys/file.h>
 #include <unistd.h>
 
 #include <google/protobuf/descriptor.h>
@@ -137,6 +138,7 @@ Store::Store(fs::path dir) : dir_(std::move(dir)) {}
 
 Store::~Store() {
   if (db_) sqlite3_close(db_);
+  if (lock_fd_ >= 0) ::close(lock_fd_);  // releases the flock
 }
 
 std::unique_ptr<Store> Store::open(const fs::path& dir) {
@@ -148,6 +150,23 @@ std::unique_ptr<Store> Store::open(const fs::path& dir) {
                              "; choose a writable directory with --data-dir");
   }
   auto store = std::unique_ptr<Store>(new Store(fs::absolute(dir)));
+  const fs::path lock_path = store->dir_ / "LOCK";
+  store->lock_fd_ = ::open(lock_path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (store->lock_fd_ < 0) {
+    throw std::runtime_error("data dir " + dir.string() + ": cannot create " + lock_path.string() + ": " +
+                             std::strerror(errno) + "; choose a writable directory with --data-dir");
+  }
+  if (::flock(store->lock_fd_, LOCK_EX | LOCK_NB) != 0) {
+    std::string holder(32, '\0');
+    const ssize_t n = ::pread(store->lock_fd_, holder.data(), holder.size(), 0);
+    holder.resize(n > 0 ? static_cast<std::size_t>(n) : 0);
+    while (!holder.empty() && (holder.back() == '\n' || holder.back() == '\0')) holder.pop_back();
+    throw std::runtime_error("data dir " + dir.string() + " is in use by another surfacer-server" +
+                             (holder.empty() ? "" : " (pid " + holder + ")") +
+                             "; give each server its own --data-dir");
+  }
+  const std::string pid = std::to_string(::getpid()) + "\n";
+  if (::ftruncate(store->lock_fd_, 0) == 0) (void)!::pwrite(store->lock_fd_, pid.data(), pid.size(), 0);
   const fs::path db_path = store->dir_ / "surfacer.db";
   if (sqlite3_open_v2(db_path.c_str(), &store->db_, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_FULLMUTEX,
                       nullptr) != SQLITE_OK) {

@@ -47,7 +47,8 @@ struct StoredUpload {
 class Store {
  public:
   // Opens (creating if needed) `dir`/surfacer.db and the data folders; removes leftovers of interrupted writes.
-  // Throws std::runtime_error naming the path when the directory or the database cannot be used.
+  // Throws std::runtime_error naming the path when the directory or the database cannot be used, or when another
+  // server holds the directory (each server needs its own; two would resume the same jobs).
   static std::unique_ptr<Store> open(const std::filesystem::path& dir);
   ~Store();
 
@@ -97,6 +98,7 @@ class Store {
   void remove_orphans();
 
   std::filesystem::path dir_;
+  int lock_fd_ = -1;  // flock'ed DIR/LOCK: one server per data directory
   sqlite3* db_ = nullptr;
   mutable std::mutex mutex_;
 };

@@ -274,6 +274,22 @@ TEST(DurableStore, RetentionRemovesTheOldestFinishedJobsByBytesThenByAge) {
   EXPECT_TRUE(fs::is_empty(dir / "frames"));
 }
 
+TEST(DurableStore, OneServerPerDataDirectory) {
+  const fs::path dir = fresh_dir("lock");
+  LoopbackServer s(durable_options(dir));
+  try {
+    server::SurfacerServer::start(durable_options(dir));
+    ADD_FAILURE() << "a second server opened the same data directory";
+  } catch (const std::exception& e) {
+    EXPECT_NE(std::string(e.what()).find("in use by another surfacer-server (pid " + std::to_string(getpid())),
+              std::string::npos)
+        << e.what();
+  }
+  s.server->shutdown(server::ShutdownMode::kCancel, 0ms);
+  s.server.reset();
+  EXPECT_NO_THROW(server::SurfacerServer::start(durable_options(dir))) << "the lock goes with the server";
+}
+
 TEST(DurableStore, OnlyServerGeneratedIdsBecomePaths) {
   EXPECT_TRUE(server::Store::valid_id("j-0123456789abcdef"));
   EXPECT_TRUE(server::Store::valid_id("u-0123456789abcdef"));
