@@ -26,6 +26,7 @@
 #include "client/upload.h"
 #include "client/watch.h"
 #include "core/errors.h"
+#include "core/particle_surfacer.h"
 #include "server/scene_translate.h"
 #include "server/uploads.h"
 
@@ -36,27 +37,6 @@ namespace {
 // surfacer.proto): 128 cells along the longest axis, bounds padded by two cells.
 constexpr int kDefaultCells = 128;
 constexpr double kPadCells = 2.0;
-// The server's particles quantization box (server/particles_job.cpp): a derived r_inner is estimated from this
-// many particles of frame 0, and the box is padded by kDerivedPadSafety times the r_outer that estimate implies.
-constexpr std::size_t kSpacingSamples = 128;
-constexpr double kDerivedPadSafety = 3.0;
-
-// Mean distance from a sample of particles to their nearest neighbour, as the server estimates it.
-double estimate_spacing(const std::vector<Vec3>& points) {
-  if (points.size() < 2) return 0.0;
-  const std::size_t step = std::max<std::size_t>(1, points.size() / kSpacingSamples);
-  double sum = 0.0;
-  int count = 0;
-  for (std::size_t i = 0; i < points.size(); i += step) {
-    double best = std::numeric_limits<double>::infinity();
-    for (std::size_t j = 0; j < points.size(); ++j) {
-      if (j != i) best = std::min(best, (points[j] - points[i]).squaredNorm());
-    }
-    sum += std::sqrt(best);
-    ++count;
-  }
-  return sum / count;
-}
 
 void set_bounds(v1::Bounds* out, const Aabb& box) {
   out->mutable_min()->set_x(box.min.x());
@@ -122,30 +102,17 @@ void pin_particles(v1::JobSpec& spec, const std::vector<ParticleFrameBox>& frame
   }
   const std::optional<double> r_inner = job.has_r_inner() ? std::optional<double>(job.r_inner()) : std::nullopt;
   const std::optional<double> r_outer = job.has_r_outer() ? std::optional<double>(job.r_outer()) : std::nullopt;
-  const double ratio = r_outer && r_inner ? *r_outer / *r_inner : 2.0;
-  double pad = 0.0;
-  if (max_radius > 0.0) {
-    pad = ratio * max_radius;
-  } else if (r_inner) {
-    pad = r_outer.value_or(2.0 * *r_inner);
-  } else if (job.derive_r_inner()) {
-    const double spacing = estimate_spacing(first);
-    pad = kDerivedPadSafety * ratio * std::max(spacing, 1e-6 * std::max(box.size().maxCoeff(), 1.0));
-  } else {
-    return;  // no radius at all: the server rejects the job
-  }
-  box.min.array() -= 1.5 * pad;
-  box.max.array() += 1.5 * pad;
+  if (max_radius == 0.0 && !r_inner && !job.derive_r_inner()) return;  // no radius at all: the server rejects the job
+  std::optional<Aabb> container;
   if (job.container().has_box()) {
-    Aabb container;
     try {
       container = server::to_aabb(job.container().box(), "spec.particles.container.box");
     } catch (const Error&) {
       return;  // the server explains
     }
-    box.min = box.min.cwiseMax(container.min);
-    box.max = box.max.cwiseMin(container.max);
   }
+  // The server's own formula (core/particle_surfacer.h), so that every sub-job is quantized alike.
+  box = particle_sequence_box(box, max_radius, r_inner, r_outer, [&] { return first; }, container);
   if (!box.min.allFinite() || !box.max.allFinite()) return;
   set_bounds(spec.mutable_output()->mutable_quantization_bounds(), box);
 }

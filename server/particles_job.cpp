@@ -12,28 +12,6 @@
 namespace surfacer::server {
 namespace {
 
-// When r_inner is derived per frame (unknown at submit), it is estimated from this many particles of frame 0, and the
-// quantization box is padded by kDerivedPadSafety times the r_outer that estimate implies.
-constexpr std::size_t kSpacingSamples = 128;
-constexpr double kDerivedPadSafety = 3.0;
-
-// Mean distance from a sample of particles to their nearest neighbour (brute force over all particles).
-double estimate_spacing(const std::vector<Vec3>& points) {
-  if (points.size() < 2) return 0.0;
-  const std::size_t step = std::max<std::size_t>(1, points.size() / kSpacingSamples);
-  double sum = 0.0;
-  int count = 0;
-  for (std::size_t i = 0; i < points.size(); i += step) {
-    double best = std::numeric_limits<double>::infinity();
-    for (std::size_t j = 0; j < points.size(); ++j) {
-      if (j != i) best = std::min(best, (points[j] - points[i]).squaredNorm());
-    }
-    sum += std::sqrt(best);
-    ++count;
-  }
-  return sum / count;
-}
-
 class ParticlesRunner final : public JobRunner {
  public:
   ParticlesRunner(std::vector<v1::ParticleFrame> frames, const UploadStore& uploads, ParticleSurfacingOptions options,
@@ -147,24 +125,13 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
                                                 "particle radius) or set derive_r_inner");
     }
   }
-  const double ratio = options.r_outer && options.r_inner ? *options.r_outer / *options.r_inner : 2.0;
-  double pad = 0.0;
-  if (max_radius > 0.0) {
-    pad = ratio * max_radius;
-  } else if (options.r_inner) {
-    pad = options.r_outer.value_or(2.0 * *options.r_inner);
-  } else {
-    const ParticleData first =
-        load_particle_frame(job.frames(0), path + ".frames[0]", context.uploads, context.limits.max_particles);
-    const double spacing = estimate_spacing(first.positions);
-    pad = kDerivedPadSafety * ratio * std::max(spacing, 1e-6 * std::max(box.size().maxCoeff(), 1.0));
-  }
-  box.min.array() -= 1.5 * pad;
-  box.max.array() += 1.5 * pad;
-  if (options.container_box) {
-    box.min = box.min.cwiseMax(options.container_box->min);
-    box.max = box.max.cwiseMin(options.container_box->max);
-  }
+  box = particle_sequence_box(
+      box, max_radius, options.r_inner, options.r_outer,
+      [&] {
+        return load_particle_frame(job.frames(0), path + ".frames[0]", context.uploads, context.limits.max_particles)
+            .positions;
+      },
+      options.container_box);
   const FrameEncoding encoding = resolve_output(spec.output(), box, "spec.output");
   return std::make_unique<ParticlesRunner>(std::move(frames), context.uploads, std::move(options), encoding,
                                            context.limits, context.worker_threads);
