@@ -91,6 +91,13 @@ std::vector<int> Job::restore(const StoredJob& stored) {
           0, TimeUtil::TimestampToSeconds(TimeUtil::GetCurrentTime()) - TimeUtil::TimestampToSeconds(finished_)));
       finished_steady_ = std::chrono::steady_clock::now() - age;
     } else {
+      for (const auto& c : stored.checkpoints) {
+        if (!runner_ || done.count(c.task)) continue;
+        runner_->resume_from(c.task, c.next_frame, c.state);
+        log_event(LogLevel::kInfo, "job_checkpoint",
+                  {{"job", id_}, {"task", std::to_string(c.task)}, {"next_frame", std::to_string(c.next_frame)},
+                   {"bytes", std::to_string(c.state.size())}});
+      }
       for (int t = 0; t < tasks_total_; ++t) {
         if (done.count(t)) {
           ++tasks_done_;
@@ -322,6 +329,11 @@ void Job::emit(int frame_index, FrameOutput output) {
   }
   if (hooks_ && hooks_->on_frame) hooks_->on_frame(*this, h);
   notify();
+}
+
+void Job::checkpoint(int task, int next_frame, std::string state) {
+  if (!store_) return;
+  store_->put_checkpoint(id_, task, next_frame, state);
 }
 
 void Job::task_succeeded(int task) {

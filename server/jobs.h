@@ -43,6 +43,10 @@ class FrameSink {
  public:
   virtual ~FrameSink() = default;
   virtual void emit(int frame_index, FrameOutput output) = 0;
+  // An evolving task's resumable state after it emitted every frame before `next_frame`: with a durable store it
+  // is kept (replacing the task's previous one), and after a restart the runner gets it back through
+  // JobRunner::resume_from() instead of starting over. Without a store it is dropped. Throws like emit().
+  virtual void checkpoint(int /*task*/, int /*next_frame*/, std::string /*state*/) {}
 };
 
 // A validated, ready-to-run job of one type, cut into independent tasks. Tasks run on worker threads, in parallel
@@ -57,6 +61,9 @@ class JobRunner {
   // Frames expected; for open-ended jobs an upper bound (the final count is what was emitted).
   virtual int frame_count() const = 0;
   virtual void run_task(int index, FrameSink& sink, const RunControl& control) = 0;
+  // Called before run_task after a server restart with the task's last checkpoint (see FrameSink::checkpoint).
+  // A runner that cannot use it ignores it and starts the task over (frames already stored are not sent again).
+  virtual void resume_from(int /*task*/, int /*next_frame*/, std::string /*state*/) {}
 };
 
 // Something to wake when a job changes (a WatchJob stream). Called from worker or gRPC threads; must not block.
@@ -143,6 +150,7 @@ class Job : public FrameSink {
   void task_skipped();
   // FrameSink: a finished frame (stored, then streamed to watchers).
   void emit(int frame_index, FrameOutput output) override;
+  void checkpoint(int task, int next_frame, std::string state) override;
   // fraction: of the current task.
   void set_progress(int frame_index, std::string_view stage, double fraction);
   // Requests cancellation; returns true when this call finished the job (nothing was running).

@@ -10,6 +10,8 @@
 
 #include <cerrno>
 #include <cstring>
+#include <fstream>
+#include <iterator>
 #include <set>
 #include <stdexcept>
 
@@ -186,6 +188,9 @@ std::unique_ptr<Store> Store::open(const fs::path& dir) {
         " PRIMARY KEY(job_id, frame_index));"
         "CREATE TABLE IF NOT EXISTS tasks_done(job_id TEXT NOT NULL REFERENCES jobs(id) ON DELETE CASCADE,"
         " task INTEGER NOT NULL, PRIMARY KEY(job_id, task));"
+        "CREATE TABLE IF NOT EXISTS checkpoints(job_id TEXT NOT NULL REFERENCES jobs(id) ON DELETE CASCADE,"
+        " task INTEGER NOT NULL, next_frame INTEGER NOT NULL, bytes INTEGER NOT NULL, crc32 INTEGER NOT NULL,"
+        " PRIMARY KEY(job_id, task));"
         "CREATE TABLE IF NOT EXISTS uploads(id TEXT PRIMARY KEY, owner TEXT NOT NULL, name TEXT NOT NULL,"
         " bytes INTEGER NOT NULL, crc32 INTEGER NOT NULL, created INTEGER NOT NULL);");
   } catch (const std::exception& e) {
@@ -207,6 +212,11 @@ void Store::exec(const char* sql) const {
 fs::path Store::frame_path(const std::string& job_id, int index) const {
   if (!valid_id(job_id) || index < 0) throw Internal("store: bad frame key " + job_id);
   return dir_ / "frames" / job_id / (std::to_string(index) + ".frame");
+}
+
+fs::path Store::checkpoint_path(const std::string& job_id, int task) const {
+  if (!valid_id(job_id) || task < 0) throw Internal("store: bad checkpoint key " + job_id);
+  return dir_ / "frames" / job_id / ("task" + std::to_string(task) + ".checkpoint");
 }
 
 fs::path Store::upload_path(const std::string& id) const {
@@ -251,6 +261,10 @@ void Store::remove_orphans() {
   {
     Stmt s(db_, "SELECT job_id, frame_index FROM frames");
     while (s.step()) frame_files.insert(s.text(0) + "/" + std::to_string(s.integer(1)) + ".frame");
+  }
+  {
+    Stmt s(db_, "SELECT job_id, task FROM checkpoints");
+    while (s.step()) frame_files.insert(s.text(0) + "/task" + std::to_string(s.integer(1)) + ".checkpoint");
   }
   {
     Stmt s(db_, "SELECT id FROM uploads");
@@ -337,6 +351,20 @@ void Store::put_task_done(const std::string& job_id, int task) {
   s.run();
 }
 
+void Store::put_checkpoint(const std::string& job_id, int task, int next_frame, const std::string& state) {
+  const fs::path path = checkpoint_path(job_id, task);
+  std::error_code ec;
+  fs::create_directories(path.parent_path(), ec);
+  if (ec) throw_io("creating", path.parent_path(), ec.value());
+  // The file is replaced by rename; the row says which frame it continues from and what the bytes must be.
+  write_file_atomic(path, state);
+  std::lock_guard lock(mutex_);
+  Stmt s(db_, "INSERT OR REPLACE INTO checkpoints(job_id, task, next_frame, bytes, crc32) VALUES(?,?,?,?,?)");
+  s.bind(1, job_id).bind(2, static_cast<std::int64_t>(task)).bind(3, static_cast<std::int64_t>(next_frame));
+  s.bind(4, static_cast<std::int64_t>(state.size())).bind(5, static_cast<std::int64_t>(crc32_of(state.data(), state.size())));
+  s.run();
+}
+
 void Store::delete_job(const std::string& id) {
   if (!valid_id(id)) return;
   {
@@ -344,6 +372,7 @@ void Store::delete_job(const std::string& id) {
     Transaction tx(db_);
     Stmt(db_, "DELETE FROM frames WHERE job_id = ?").bind(1, id).run();
     Stmt(db_, "DELETE FROM tasks_done WHERE job_id = ?").bind(1, id).run();
+    Stmt(db_, "DELETE FROM checkpoints WHERE job_id = ?").bind(1, id).run();
     Stmt(db_, "DELETE FROM jobs WHERE id = ?").bind(1, id).run();
     tx.commit();
   }
@@ -380,6 +409,24 @@ std::vector<StoredJob> Store::load_jobs() const {
     while (s.step()) {
       auto it = at.find(s.text(0));
       if (it != at.end()) jobs[it->second].tasks_done.push_back(static_cast<int>(s.integer(1)));
+    }
+  }
+  {
+    Stmt s(db_, "SELECT job_id, task, next_frame, bytes, crc32 FROM checkpoints");
+    while (s.step()) {
+      auto it = at.find(s.text(0));
+      if (it == at.end()) continue;
+      StoredJob::Checkpoint c;
+      c.task = static_cast<int>(s.integer(1));
+      c.next_frame = static_cast<int>(s.integer(2));
+      // A checkpoint that does not read back whole is ignored: the task then starts over.
+      std::ifstream in(checkpoint_path(it->first, c.task), std::ios::binary);
+      c.state.assign(std::istreambuf_iterator<char>(in), {});
+      if (static_cast<std::int64_t>(c.state.size()) != s.integer(3) ||
+          crc32_of(c.state.data(), c.state.size()) != static_cast<std::uint32_t>(s.integer(4))) {
+        continue;
+      }
+      jobs[it->second].checkpoints.push_back(std::move(c));
     }
   }
   return jobs;

@@ -33,6 +33,12 @@ struct StoredJob {
   v1::Job snapshot;  // last persisted state (terminal ones are final)
   std::vector<v1::FrameHeader> frames;  // in completion order
   std::vector<int> tasks_done;
+  struct Checkpoint {
+    int task = 0;
+    int next_frame = 0;
+    std::string state;
+  };
+  std::vector<Checkpoint> checkpoints;  // the latest of each evolving task
   std::vector<std::string> upload_ids;  // uploads the spec refers to
 };
 
@@ -65,6 +71,8 @@ class Store {
   // (retention) or damaged.
   std::string read_frame(const std::string& job_id, const v1::FrameHeader& header) const;
   void put_task_done(const std::string& job_id, int task);
+  // Replaces the task's resumable state (FrameSink::checkpoint), atomically.
+  void put_checkpoint(const std::string& job_id, int task, int next_frame, const std::string& state);
   void delete_job(const std::string& id);
   std::vector<StoredJob> load_jobs() const;
 
@@ -94,6 +102,7 @@ class Store {
   void exec(const char* sql) const;
   void write_file_atomic(const std::filesystem::path& path, const std::string& bytes) const;
   std::filesystem::path frame_path(const std::string& job_id, int index) const;
+  std::filesystem::path checkpoint_path(const std::string& job_id, int task) const;
   std::filesystem::path upload_path(const std::string& id) const;
   void remove_orphans();
 
