@@ -4,11 +4,14 @@
 Usage: scripts/check_deploy.py [--self-test] DEPLOY_DIR [SERVER_BIN [CLI_BIN]]
 
 Parses every YAML file under DEPLOY_DIR (Kubernetes manifests, the compose file) and deploy/Dockerfile, and checks
-what a broken deployment would get wrong: the kinds (Deployment, headless Service, HPA, PodDisruptionBudget, Indexed
-Job, Kustomization); native gRPC liveness/readiness probes on a port that serves plain-text health; container ports;
-one image name everywhere; resource requests; selectors that match the pod labels; the HPA's target; the Job's
-completion mode, JOB_COMPLETION_INDEX and JOB_COMPLETIONS; grace periods longer than the drain; files passed to flags
-mounted from volumes; the Dockerfile's stages. With SERVER_BIN (and CLI_BIN), every server flag in the manifests (and
+what a broken deployment would get wrong: the kinds (Deployment, StatefulSet, headless Service, HPA,
+PodDisruptionBudget, Indexed Job, Kustomization); native gRPC liveness/readiness probes on a port that serves
+plain-text health; container ports; one image name everywhere; resource requests; selectors that match the pod labels;
+the HPA's target; the StatefulSet's serviceName, podManagementPolicy and volumeClaimTemplates (the --data-dir on one);
+the Job's completion mode, JOB_COMPLETION_INDEX and JOB_COMPLETIONS; grace periods longer than the drain; files passed to flags
+mounted from volumes; the Dockerfile's stages. Services, HPA, PDB and StatefulSet are checked against the workloads
+of each kustomization they are built into (deploy/k8s: the Deployment; deploy/k8s/durable: the StatefulSet, the HPA
+after the overlay's patches), as `kubectl kustomize` would render them (resources and strategic-merge patches). With SERVER_BIN (and CLI_BIN), every server flag in the manifests (and
 every CLI flag) must be one that `--help` lists.
 
 --self-test then breaks the manifests in memory, one way at a time (a dropped probe, a broken selector, ...), and
@@ -18,6 +21,7 @@ from __future__ import annotations
 
 import copy
 import json
+import os
 import re
 import shlex
 import subprocess
@@ -58,7 +62,7 @@ class Model:
     dockerfile: str | None = None
     entry_script: str | None = None
     cmake: str | None = None  # the repository's top CMakeLists.txt
-    k8s_files: list[str] = field(default_factory=list)  # YAML files directly in k8s/
+    yaml_files: list[str] = field(default_factory=list)  # every YAML file, relative to the deploy directory
 
 
 @dataclass
@@ -80,8 +84,7 @@ def load(deploy: Path) -> tuple[Model, list[str]]:
         except yaml.YAMLError as e:
             errors.append(f"{rel}: not valid YAML: {e}")
             continue
-        if path.parent == deploy / "k8s":
-            model.k8s_files.append(path.name)
+        model.yaml_files.append(rel)
         for i, body in enumerate(bodies):
             if not isinstance(body, dict):
                 errors.append(f"{rel}: document {i} is a {type(body).__name__}, not a mapping")
@@ -202,6 +205,28 @@ def pod_labels(doc: Doc) -> dict:
     return ((((doc.body.get("spec") or {}).get("template") or {}).get("metadata")) or {}).get("labels") or {}
 
 
+def pod_volumes(doc: Doc) -> dict:
+    """Volumes by name, a StatefulSet's volumeClaimTemplates included (as {"volumeClaimTemplate": template})."""
+    volumes = {v.get("name"): v for v in pod_spec(doc).get("volumes") or []}
+    if doc.body.get("kind") == "StatefulSet":
+        for t in (doc.body.get("spec") or {}).get("volumeClaimTemplates") or []:
+            name = (t.get("metadata") or {}).get("name")
+            volumes.setdefault(name, {"name": name, "volumeClaimTemplate": t})
+    return volumes
+
+
+def merge_patch(target: dict, patch: dict) -> None:
+    """Strategic merge as far as these manifests need it: maps merge, lists and scalars replace."""
+    for k, v in patch.items():
+        if isinstance(v, dict) and isinstance(target.get(k), dict):
+            merge_patch(target[k], v)
+        else:
+            target[k] = copy.deepcopy(v)
+
+
+WORKLOAD_KINDS = ("Deployment", "StatefulSet")
+
+
 def mounted(path: str, container: dict, volumes: dict) -> tuple[dict, dict] | None:
     """The (volumeMount, volume) that holds path, the deepest mount first."""
     best = None
@@ -224,22 +249,30 @@ class Checker:
         return [d for d in self.m.docs if d.body.get("kind") == kind]
 
     def run(self) -> list[str]:
-        for kind in ("Deployment", "Service", "HorizontalPodAutoscaler", "PodDisruptionBudget", "Job",
+        for kind in ("Deployment", "StatefulSet", "Service", "HorizontalPodAutoscaler", "PodDisruptionBudget", "Job",
                      "Kustomization"):
             if not self.of_kind(kind):
                 self.errors.append(f"deploy/: no {kind} manifest")
-        deployments = self.of_kind("Deployment")
         for d in self.m.docs:
             if d.body.get("kind") != "Kustomization" and not (d.body.get("metadata") or {}).get("name"):
                 self.err(d.where, "metadata.name is missing")
-        for d in deployments:
-            self.deployment(d)
-        self.services(deployments)
-        self.hpa(deployments)
-        self.pdb(deployments)
+        for d in self.m.docs:
+            if d.body.get("kind") in WORKLOAD_KINDS:
+                self.deployment(d)
+        self.kustomization()
+        for kdir, objects in self.renders().items():
+            workloads = [d for d in objects if d.body.get("kind") in WORKLOAD_KINDS]
+            if not workloads:
+                self.err(f"{kdir}/kustomization.yaml", "builds no Deployment or StatefulSet")
+                continue
+            self.services(kdir, objects, workloads)
+            self.hpa(objects, workloads)
+            self.pdb(objects, workloads)
+            for d in workloads:
+                if d.body.get("kind") == "StatefulSet":
+                    self.statefulset_service(d, objects)
         for j in self.of_kind("Job"):
             self.job(j)
-        self.kustomization()
         self.images()
         self.compose()
         self.dockerfile()
@@ -347,7 +380,7 @@ class Checker:
         if "memory" not in (res.get("limits") or {}):
             self.err(where, "resources.limits.memory is missing")
         self.security(where, pod, server)
-        volumes = {v.get("name"): v for v in pod.get("volumes") or []}
+        volumes = pod_volumes(d)
         for flag in ("--tls-cert", "--tls-key", "--tls-client-ca", "--tokens-file", "--data-dir"):
             if args.get(flag):
                 self.file_flag(where, flag, args[flag], server, volumes, writable=(flag == "--data-dir"))
@@ -359,6 +392,56 @@ class Checker:
                             "bytes), or the kubelet evicts the pod before retention runs")
         if named.get("grpc") is None:
             self.err(where, "no container port named grpc (the Services' targetPort)")
+        if d.body.get("kind") == "StatefulSet":
+            self.statefulset(d, where, args, data)
+        elif data and "volumeClaimTemplate" in data[1]:
+            self.err(where, "a Deployment has no volumeClaimTemplates")
+
+    def statefulset(self, d: Doc, where: str, args: dict, data: tuple[dict, dict] | None) -> None:
+        spec = d.body.get("spec") or {}
+        if spec.get("podManagementPolicy") != "Parallel":
+            self.err(d.where, f"podManagementPolicy is {spec.get('podManagementPolicy', 'OrderedReady')!r}, expected "
+                              "Parallel: with OrderedReady, a scale-up waits for each pod's store restore in turn and "
+                              "one pod that never turns ready blocks every higher ordinal")
+        templates = spec.get("volumeClaimTemplates") or []
+        if not templates:
+            self.err(d.where, "no volumeClaimTemplates: the pods' job stores would not survive their deletion "
+                              "(use the Deployment of deploy/k8s for that)")
+        plain = {v.get("name") for v in pod_spec(d).get("volumes") or []}
+        for t in templates:
+            name = (t.get("metadata") or {}).get("name")
+            tspec = t.get("spec") or {}
+            if name in plain:
+                self.err(d.where, f"volume {name} is both a pod volume and a volumeClaimTemplate")
+            if not quantity_bytes(((tspec.get("resources") or {}).get("requests") or {}).get("storage")):
+                self.err(d.where, f"volumeClaimTemplate {name}: resources.requests.storage is missing")
+            modes = tspec.get("accessModes") or []
+            if not modes or not set(modes) <= {"ReadWriteOnce", "ReadWriteOncePod"}:
+                self.err(d.where, f"volumeClaimTemplate {name}: accessModes {modes}, expected [ReadWriteOnce] (one "
+                                  "pod per store; SQLite must not be shared)")
+        if "--data-dir" not in args:
+            return
+        if data is None or "volumeClaimTemplate" not in data[1]:
+            on = f"on volume {data[0].get('name')}" if data else "on no volume"
+            self.err(where, f"--data-dir {args['--data-dir']} is not on a volumeClaimTemplate (it is {on}): the store "
+                            "would not come back with the pod")
+            return
+        size = quantity_bytes(((data[1]["volumeClaimTemplate"].get("spec") or {}).get("resources") or {})
+                              .get("requests", {}).get("storage"))
+        retain = args.get("--retain-bytes")
+        if size and retain and retain.isdigit() and int(retain) >= size:
+            self.err(where, f"--retain-bytes ({retain}) must stay below the data claim's storage request ({size:.0f} "
+                            "bytes), or the volume fills up before retention runs")
+
+    def statefulset_service(self, d: Doc, objects: list[Doc]) -> None:
+        name = (d.body.get("spec") or {}).get("serviceName")
+        headless = [s for s in objects if s.body.get("kind") == "Service"
+                    and (s.body.get("spec") or {}).get("clusterIP") == "None"
+                    and selects((s.body.get("spec") or {}).get("selector"), pod_labels(d))]
+        names = sorted((s.body.get("metadata") or {}).get("name") for s in headless)
+        if name not in names:
+            self.err(d.where, f"serviceName {name!r} is not a headless Service selecting its pods ({names}): the pods "
+                              "get no stable DNS names")
 
     def security(self, where: str, pod: dict, container: dict) -> None:
         psc, csc = pod.get("securityContext") or {}, container.get("securityContext") or {}
@@ -393,15 +476,17 @@ class Checker:
                 self.err(where, f"{flag} {path}: Secret {secret} is described in no YAML file under deploy/ "
                                 "(keep a template such as k8s/secrets.example.yaml)")
 
-    def services(self, deployments: list[Doc]) -> None:
+    def services(self, kdir: str, objects: list[Doc], workloads: list[Doc]) -> None:
         job_labels = [pod_labels(j) for j in self.of_kind("Job")]
         headless = 0
-        for s in self.of_kind("Service"):
+        kinds = "/".join(sorted({d.body.get("kind") for d in workloads}))
+        services = [s for s in objects if s.body.get("kind") == "Service"]
+        for s in services:
             spec = s.body.get("spec") or {}
             selector = spec.get("selector")
-            targets = [d for d in deployments if selects(selector, pod_labels(d))]
+            targets = [d for d in workloads if selects(selector, pod_labels(d))]
             if not targets:
-                self.err(s.where, f"selector {selector} matches no Deployment's pod labels")
+                self.err(s.where, f"selector {selector} matches no {kinds}'s pod labels")
                 continue
             if any(selects(selector, labels) for labels in job_labels):
                 self.err(s.where, f"selector {selector} also matches the Job's pods: clients would reach them")
@@ -421,35 +506,37 @@ class Checker:
                     self.err(s.where, "publishNotReadyAddresses: true would hand draining pods to clients")
                 if not any(p.get("targetPort") == "grpc" or p.get("port") == 50051 for p in spec.get("ports") or []):
                     self.err(s.where, "the headless Service has no gRPC port")
-        if self.of_kind("Service") and not headless:
-            self.errors.append("deploy/: no headless Service (clusterIP: None) for client-side round-robin")
+        if services and not headless:
+            self.errors.append(f"{kdir}/kustomization.yaml: builds no headless Service (clusterIP: None) for "
+                               "client-side round-robin")
 
-    def hpa(self, deployments: list[Doc]) -> None:
-        names = {(d.body.get("metadata") or {}).get("name") for d in deployments}
-        for h in self.of_kind("HorizontalPodAutoscaler"):
+    def hpa(self, objects: list[Doc], workloads: list[Doc]) -> None:
+        names = {(d.body.get("kind"), (d.body.get("metadata") or {}).get("name")) for d in workloads}
+        for h in (o for o in objects if o.body.get("kind") == "HorizontalPodAutoscaler"):
             spec = h.body.get("spec") or {}
             if h.body.get("apiVersion") != "autoscaling/v2":
                 self.err(h.where, f"apiVersion {h.body.get('apiVersion')}, expected autoscaling/v2")
             ref = spec.get("scaleTargetRef") or {}
-            if ref.get("kind") != "Deployment" or ref.get("name") not in names:
-                self.err(h.where, f"scaleTargetRef {ref.get('kind')}/{ref.get('name')} names no Deployment "
-                                  f"({sorted(names)})")
+            if (ref.get("kind"), ref.get("name")) not in names or ref.get("apiVersion") != "apps/v1":
+                self.err(h.where, f"scaleTargetRef {ref.get('apiVersion')} {ref.get('kind')}/{ref.get('name')} names "
+                                  f"no workload built with it ({', '.join(f'apps/v1 {k}/{n}' for k, n in sorted(names))})")
             if not any((m.get("resource") or {}).get("name") == "cpu" for m in spec.get("metrics") or []):
                 self.err(h.where, "no CPU resource metric")
             lo, hi = spec.get("minReplicas", 1), spec.get("maxReplicas")
             if not isinstance(hi, int) or lo > hi:
                 self.err(h.where, f"minReplicas {lo} / maxReplicas {hi} are not a range")
 
-    def pdb(self, deployments: list[Doc]) -> None:
+    def pdb(self, objects: list[Doc], workloads: list[Doc]) -> None:
         hpa_min = min([(h.body.get("spec") or {}).get("minReplicas", 1)
-                       for h in self.of_kind("HorizontalPodAutoscaler")] or [1])
-        for p in self.of_kind("PodDisruptionBudget"):
+                       for h in objects if h.body.get("kind") == "HorizontalPodAutoscaler"] or [1])
+        for p in (o for o in objects if o.body.get("kind") == "PodDisruptionBudget"):
             spec = p.body.get("spec") or {}
             if p.body.get("apiVersion") != "policy/v1":
                 self.err(p.where, f"apiVersion {p.body.get('apiVersion')}, expected policy/v1")
             selector = (spec.get("selector") or {}).get("matchLabels")
-            if not any(selects(selector, pod_labels(d)) for d in deployments):
-                self.err(p.where, f"selector {selector} matches no Deployment's pod labels")
+            if not any(selects(selector, pod_labels(d)) for d in workloads):
+                self.err(p.where, f"selector {selector} matches no "
+                                  f"{'/'.join(sorted({d.body.get('kind') for d in workloads}))}'s pod labels")
             if "minAvailable" not in spec and "maxUnavailable" not in spec:
                 self.err(p.where, "needs minAvailable or maxUnavailable")
             if isinstance(spec.get("minAvailable"), int) and spec["minAvailable"] >= hpa_min:
@@ -508,22 +595,80 @@ class Checker:
         if value.get("INPUT_PATTERN"):
             self.file_flag(where, "INPUT_PATTERN", value["INPUT_PATTERN"], c, volumes, writable=False)
 
+    def kustomization_dirs(self) -> dict[str, Doc]:
+        return {str(Path(k.path).parent): k for k in self.of_kind("Kustomization")}
+
     def kustomization(self) -> None:
-        for k in self.of_kind("Kustomization"):
+        kdirs = self.kustomization_dirs()
+        paths = {d.path for d in self.m.docs}
+        for kdir, k in kdirs.items():
             listed = [str(r) for r in k.body.get("resources") or []]
-            base = Path(k.path).parent
+            base = Path(kdir)
             for r in listed:
-                if str(base / r) not in {d.path for d in self.m.docs} and (base / r).suffix in (".yaml", ".yml"):
-                    self.err(k.where, f"resource {r} is not a manifest under deploy/{base}")
-            for f in self.m.k8s_files:
-                if str(base) == "k8s" and f not in listed and f != "kustomization.yaml" and ".example." not in f:
-                    self.err(k.where, f"{f} is not listed in resources")
-                if ".example." in f and f in listed:
-                    self.err(k.where, f"{f} holds placeholders and must not be applied")
+                target = os.path.normpath(base / r)
+                if (base / r).suffix in (".yaml", ".yml"):
+                    if target not in paths:
+                        self.err(k.where, f"resource {r} is not a manifest under deploy/{base}")
+                elif target not in kdirs:
+                    self.err(k.where, f"resource {r} is neither a manifest nor a directory with a kustomization.yaml")
+            for f in self.m.yaml_files:
+                if str(Path(f).parent) != kdir:
+                    continue
+                name = Path(f).name
+                if name not in listed and name != "kustomization.yaml" and ".example." not in name:
+                    self.err(k.where, f"{name} is not listed in resources")
+                if ".example." in name and name in listed:
+                    self.err(k.where, f"{name} holds placeholders and must not be applied")
             for image in k.body.get("images") or []:
                 if image.get("name") != IMAGE_REPO:
                     self.err(k.where, f"images[].name {image.get('name')!r} is not the manifests' image "
                                       f"{IMAGE_REPO!r}")
+
+    def renders(self) -> dict[str, list[Doc]]:
+        """The objects each top-level kustomization builds (those no other kustomization lists as a resource)."""
+        kdirs = self.kustomization_dirs()
+        used = {os.path.normpath(Path(kdir) / str(r)) for kdir, k in kdirs.items() for r in k.body.get("resources") or []}
+        return {kdir: self.render(kdir, kdirs, [kdir]) for kdir in sorted(kdirs) if kdir not in used}
+
+    def render(self, kdir: str, kdirs: dict[str, Doc], stack: list[str]) -> list[Doc]:
+        k = kdirs[kdir]
+        objects: list[Doc] = []
+        for r in k.body.get("resources") or []:
+            target = os.path.normpath(Path(kdir) / str(r))
+            if target in kdirs:
+                if target in stack or any(s.startswith(target + "/") for s in stack):
+                    self.err(k.where, f"resource {r}: {target} contains or is this kustomization (kustomize "
+                                      "rejects the cycle)")
+                    continue
+                objects += self.render(target, kdirs, stack + [target])
+            else:
+                objects += [Doc(f"{d.path} (kustomize {stack[0]})", d.index, copy.deepcopy(d.body))
+                            for d in self.m.docs if d.path == target]
+        for i, entry in enumerate(k.body.get("patches") or []):
+            where = f"{k.where}: patches[{i}]"
+            try:
+                if "patch" in entry:
+                    patch = yaml.safe_load(entry["patch"])
+                else:
+                    patch = next((d.body for d in self.m.docs if d.path == os.path.normpath(
+                        Path(kdir) / str(entry.get("path")))), None)
+            except yaml.YAMLError as e:
+                self.err(where, f"not valid YAML: {e}")
+                continue
+            if not isinstance(patch, dict):
+                self.err(where, "check_deploy evaluates strategic-merge patches (one object) only")
+                continue
+            kind, name = patch.get("kind"), (patch.get("metadata") or {}).get("name")
+            hits = [d for d in objects if d.body.get("kind") == kind
+                    and (d.body.get("metadata") or {}).get("name") == name]
+            if not hits:
+                self.err(where, f"patches {kind} {name}, which the kustomization does not build")
+            for d in hits:
+                if patch.get("$patch") == "delete":
+                    objects.remove(d)
+                else:
+                    merge_patch(d.body, {key: v for key, v in patch.items() if key != "$patch"})
+        return objects
 
     def images(self) -> None:
         version = project_version(self.m.cmake)
@@ -678,7 +823,7 @@ class Checker:
         elif not users[-1].split(":")[0].isdigit():
             self.err(where, f"USER {users[-1]}: use a numeric uid so runAsNonRoot can verify it")
         exposed = {int(p.split("/")[0]) for l in final if l.upper().startswith("EXPOSE") for p in l.split()[1:]}
-        for d in self.of_kind("Deployment"):
+        for d in self.of_kind("Deployment") + self.of_kind("StatefulSet"):
             for c in pod_spec(d).get("containers") or []:
                 for p in c.get("ports") or []:
                     if p.get("containerPort") not in exposed:
@@ -727,6 +872,17 @@ def find_doc(model: Model, kind: str, pred=lambda d: True) -> Doc:
 
 def server_container(model: Model) -> dict:
     return pod_spec(find_doc(model, "Deployment"))["containers"][0]
+
+
+def sts_container(model: Model) -> dict:
+    return pod_spec(find_doc(model, "StatefulSet"))["containers"][0]
+
+
+def durable_patch(model: Model, kind: str) -> dict:
+    """The kustomization entry that patches a `kind` (the durable overlay's HPA retarget)."""
+    k = find_doc(model, "Kustomization", lambda d: any(f"kind: {kind}" in str(p.get("patch"))
+                                                       for p in d.body.get("patches") or []))
+    return next(p for p in k.body["patches"] if f"kind: {kind}" in str(p.get("patch")))
 
 
 def compose_first(model: Model) -> dict:
@@ -789,6 +945,47 @@ MUTATIONS = [
          find_doc(m, "Deployment"))))),
     ("entry script ignores JOB_COMPLETION_INDEX", "does not read JOB_COMPLETION_INDEX",
      lambda m: setattr(m, "entry_script", (m.entry_script or "").replace("JOB_COMPLETION_INDEX", "POD_INDEX"))),
+    ("StatefulSet readiness probe dropped", "StatefulSet surfacer container surfacer: no readinessProbe",
+     lambda m: sts_container(m).pop("readinessProbe")),
+    ("StatefulSet probe on the TLS port", "cannot speak TLS",
+     lambda m: sts_container(m)["livenessProbe"].update(grpc={"port": 50051})),
+    ("StatefulSet CPU request dropped", "StatefulSet surfacer container surfacer: resources.requests.cpu is missing",
+     lambda m: sts_container(m)["resources"]["requests"].pop("cpu")),
+    ("StatefulSet metrics port dropped", "StatefulSet surfacer container surfacer: --metrics-listen port 9464",
+     lambda m: sts_container(m).update(ports=[p for p in sts_container(m)["ports"] if p["name"] != "metrics"])),
+    ("StatefulSet runs as root", "StatefulSet surfacer container surfacer: runs as uid 0",
+     lambda m: pod_spec(find_doc(m, "StatefulSet"))["securityContext"].update(runAsUser=0)),
+    ("StatefulSet selector differs from its pod labels", "StatefulSet surfacer: spec.selector.matchLabels",
+     lambda m: find_doc(m, "StatefulSet").body["spec"]["selector"]["matchLabels"].update(extra="x")),
+    ("StatefulSet pod labels no longer match the PDB", "(kustomize k8s/durable): PodDisruptionBudget surfacer: selector",
+     lambda m: [labels.update({"app.kubernetes.io/component": "store"}) for labels in (
+         find_doc(m, "StatefulSet").body["spec"]["selector"]["matchLabels"], pod_labels(find_doc(m, "StatefulSet")))]),
+    ("StatefulSet PVC not mounted", "is not on a volumeClaimTemplate",
+     lambda m: sts_container(m).update(volumeMounts=[v for v in sts_container(m)["volumeMounts"]
+                                                     if v["name"] != "data"] + [{"name": "tmp",
+                                                                                 "mountPath": "/var/lib/surfacer"}])),
+    ("StatefulSet store back on an emptyDir", "no volumeClaimTemplates",
+     lambda m: [find_doc(m, "StatefulSet").body["spec"].pop("volumeClaimTemplates"),
+                pod_spec(find_doc(m, "StatefulSet"))["volumes"].append({"name": "data", "emptyDir": {}})]),
+    ("StatefulSet claim shared (ReadWriteMany)", "expected [ReadWriteOnce]",
+     lambda m: find_doc(m, "StatefulSet").body["spec"]["volumeClaimTemplates"][0]["spec"].update(
+         accessModes=["ReadWriteMany"])),
+    ("StatefulSet claim smaller than --retain-bytes", "below the data claim's storage request",
+     lambda m: find_doc(m, "StatefulSet").body["spec"]["volumeClaimTemplates"][0]["spec"]["resources"]["requests"]
+     .update(storage="4Gi")),
+    ("StatefulSet OrderedReady", "expected Parallel",
+     lambda m: find_doc(m, "StatefulSet").body["spec"].update(podManagementPolicy="OrderedReady")),
+    ("StatefulSet serviceName not the headless Service", "serviceName 'surfacer' is not a headless Service",
+     lambda m: find_doc(m, "StatefulSet").body["spec"].update(serviceName="surfacer")),
+    ("durable HPA left pointing at the Deployment kind",
+     "(kustomize k8s/durable): HorizontalPodAutoscaler surfacer: scaleTargetRef apps/v1 Deployment/surfacer",
+     lambda m: durable_patch(m, "HorizontalPodAutoscaler").update(
+         patch=durable_patch(m, "HorizontalPodAutoscaler")["patch"].replace("kind: StatefulSet", "kind: Deployment"))),
+    ("durable overlay drops the HPA patch", "scaleTargetRef apps/v1 Deployment/surfacer names no workload",
+     lambda m: find_doc(m, "Kustomization", lambda d: "patches" in d.body).body.pop("patches")),
+    ("durable overlay forgets statefulset.yaml", "statefulset.yaml is not listed in resources",
+     lambda m: find_doc(m, "Kustomization", lambda d: "patches" in d.body).body["resources"].remove(
+         "statefulset.yaml")),
     ("compose replicas share one data dir", "SQLite must not be shared",
      lambda m: [s.update(entrypoint=["surfacer-server", "--data-dir", "/var/lib/surfacer/shared"])
                 for s in m.compose["services"].values()]),
