@@ -8,11 +8,12 @@ what a broken deployment would get wrong: the kinds (Deployment, StatefulSet, he
 PodDisruptionBudget, Indexed Job, Kustomization); native gRPC liveness/readiness probes on a port that serves
 plain-text health; container ports; one image name everywhere; resource requests; selectors that match the pod labels;
 the HPA's target; the StatefulSet's serviceName, podManagementPolicy and volumeClaimTemplates (the --data-dir on one);
-the Job's completion mode, JOB_COMPLETION_INDEX and JOB_COMPLETIONS; grace periods longer than the drain; files passed to flags
-mounted from volumes; the Dockerfile's stages. Services, HPA, PDB and StatefulSet are checked against the workloads
-of each kustomization they are built into (deploy/k8s: the Deployment; deploy/k8s/durable: the StatefulSet, the HPA
-after the overlay's patches), as `kubectl kustomize` would render them (resources and strategic-merge patches). With SERVER_BIN (and CLI_BIN), every server flag in the manifests (and
-every CLI flag) must be one that `--help` lists.
+the Job's completion mode, JOB_COMPLETION_INDEX and JOB_COMPLETIONS; grace periods longer than the drain; files
+passed to flags mounted from volumes; the Dockerfile's stages. Services, HPA, PDB and StatefulSet are checked against
+the workloads of each kustomization they are built into (deploy/k8s: the Deployment; deploy/k8s/durable: the
+StatefulSet, and the HPA after the overlay's patches), as `kubectl kustomize` would render them (resources and
+strategic-merge patches). With SERVER_BIN (and CLI_BIN), every server flag in the manifests (and every CLI flag) must
+be one that `--help` lists.
 
 --self-test then breaks the manifests in memory, one way at a time (a dropped probe, a broken selector, ...), and
 fails unless each break is reported. Exit status: 0 all good, 1 a check or the self-test failed, 2 usage.
@@ -394,8 +395,6 @@ class Checker:
             self.err(where, "no container port named grpc (the Services' targetPort)")
         if d.body.get("kind") == "StatefulSet":
             self.statefulset(d, where, args, data)
-        elif data and "volumeClaimTemplate" in data[1]:
-            self.err(where, "a Deployment has no volumeClaimTemplates")
 
     def statefulset(self, d: Doc, where: str, args: dict, data: tuple[dict, dict] | None) -> None:
         spec = d.body.get("spec") or {}
@@ -519,7 +518,8 @@ class Checker:
             ref = spec.get("scaleTargetRef") or {}
             if (ref.get("kind"), ref.get("name")) not in names or ref.get("apiVersion") != "apps/v1":
                 self.err(h.where, f"scaleTargetRef {ref.get('apiVersion')} {ref.get('kind')}/{ref.get('name')} names "
-                                  f"no workload built with it ({', '.join(f'apps/v1 {k}/{n}' for k, n in sorted(names))})")
+                                  "no workload built with it "
+                                  f"({', '.join(f'apps/v1 {k}/{n}' for k, n in sorted(names))})")
             if not any((m.get("resource") or {}).get("name") == "cpu" for m in spec.get("metrics") or []):
                 self.err(h.where, "no CPU resource metric")
             lo, hi = spec.get("minReplicas", 1), spec.get("maxReplicas")
@@ -627,7 +627,8 @@ class Checker:
     def renders(self) -> dict[str, list[Doc]]:
         """The objects each top-level kustomization builds (those no other kustomization lists as a resource)."""
         kdirs = self.kustomization_dirs()
-        used = {os.path.normpath(Path(kdir) / str(r)) for kdir, k in kdirs.items() for r in k.body.get("resources") or []}
+        used = {os.path.normpath(Path(kdir) / str(r))
+                for kdir, k in kdirs.items() for r in k.body.get("resources") or []}
         return {kdir: self.render(kdir, kdirs, [kdir]) for kdir in sorted(kdirs) if kdir not in used}
 
     def render(self, kdir: str, kdirs: dict[str, Doc], stack: list[str]) -> list[Doc]:
@@ -957,7 +958,8 @@ MUTATIONS = [
      lambda m: pod_spec(find_doc(m, "StatefulSet"))["securityContext"].update(runAsUser=0)),
     ("StatefulSet selector differs from its pod labels", "StatefulSet surfacer: spec.selector.matchLabels",
      lambda m: find_doc(m, "StatefulSet").body["spec"]["selector"]["matchLabels"].update(extra="x")),
-    ("StatefulSet pod labels no longer match the PDB", "(kustomize k8s/durable): PodDisruptionBudget surfacer: selector",
+    ("StatefulSet pod labels no longer match the PDB",
+     "(kustomize k8s/durable): PodDisruptionBudget surfacer: selector",
      lambda m: [labels.update({"app.kubernetes.io/component": "store"}) for labels in (
          find_doc(m, "StatefulSet").body["spec"]["selector"]["matchLabels"], pod_labels(find_doc(m, "StatefulSet")))]),
     ("StatefulSet PVC not mounted", "is not on a volumeClaimTemplate",
