@@ -2,6 +2,7 @@
 
 #include <zlib.h>
 
+#include <algorithm>
 #include <cstdio>
 
 #include "client/exit_codes.h"
@@ -50,7 +51,8 @@ std::optional<ReceivedFrame> FrameAssembler::on_header(const v1::FrameHeader& he
   Pending& pending = pending_[index];
   pending.header = header;
   if (header.num_chunks() == 0) return finish(index, pending);
-  pending.bytes.reserve(static_cast<std::size_t>(header.total_bytes()));
+  // total_bytes comes from the server: reserve at most one chunk's worth; the buffer grows as chunks arrive.
+  pending.bytes.reserve(static_cast<std::size_t>(std::min<std::uint64_t>(header.total_bytes(), kMaxChunkBytes)));
   return std::nullopt;
 }
 

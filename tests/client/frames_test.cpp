@@ -4,6 +4,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <sstream>
 
 #include "client/exit_codes.h"
@@ -147,6 +148,23 @@ TEST(FrameAssembler, EveryMismatchIsAnIntegrityError) {
   v1::FrameChunk orphan;
   orphan.set_frame_index(3);
   EXPECT_EQ(error_code_of([&] { a.on_chunk(orphan); }), ExitCode::kIntegrity);
+}
+
+// Found by fuzz/fuzz_frame_assembler: the header's total_bytes (up to num_chunks MiB, ~2^51 bytes) was reserved up
+// front, so one hostile FrameHeader made the client throw std::bad_alloc (or allocate gigabytes).
+TEST(FrameAssembler, HugeAnnouncedFrameReservesNothingUpFront) {
+  FrameAssembler a;
+  v1::FrameHeader header;
+  header.set_frame_index(0);
+  header.set_num_chunks(std::numeric_limits<std::int32_t>::max());
+  header.set_total_bytes(std::uint64_t{std::numeric_limits<std::int32_t>::max()} * kMaxChunkBytes);
+  EXPECT_NO_THROW(EXPECT_FALSE(a.on_header(header)));
+  v1::FrameChunk chunk;
+  chunk.set_frame_index(0);
+  chunk.set_data("abc");
+  chunk.set_crc32(crc32_of(chunk.data()));
+  chunk.set_last(true);  // but the header announced 2^31-1 chunks
+  EXPECT_EQ(error_code_of([&] { a.on_chunk(chunk); }), ExitCode::kIntegrity);
 }
 
 TEST(FrameAssembler, ResetDropsPartialFrames) {
