@@ -166,6 +166,17 @@ std::string encode_draco(const Mesh& mesh, const DracoOptions& options) {
   return std::string(buffer.data(), buffer.size());
 }
 
+namespace {
+
+// Integer or floating-point components. Draco converts DT_BOOL values by loading the stored bytes as `bool`,
+// which is undefined behaviour for bytes other than 0 and 1; a position or normal is never boolean anyway.
+bool numeric_attribute(const draco::PointAttribute& attribute) {
+  const draco::DataType type = attribute.data_type();
+  return type >= draco::DT_INT8 && type <= draco::DT_FLOAT64;
+}
+
+}  // namespace
+
 Mesh decode_draco(std::string_view bytes) {
   draco::DecoderBuffer buffer;
   buffer.Init(bytes.data(), bytes.size());
@@ -182,6 +193,10 @@ Mesh decode_draco(std::string_view bytes) {
     if (position == nullptr || position->num_components() < 3) {
       throw InvalidInput("frame", "Draco mesh has no 3D POSITION attribute");
     }
+    if (!numeric_attribute(*position)) {
+      throw InvalidInput("frame", "Draco POSITION attribute is not numeric (data type " +
+                                      std::to_string(static_cast<int>(position->data_type())) + ")");
+    }
   }
   mesh.vertices.resize(np);
   std::array<float, 3> value{};
@@ -194,6 +209,10 @@ Mesh decode_draco(std::string_view bytes) {
   }
   const draco::PointAttribute* normal = in->GetNamedAttribute(draco::GeometryAttribute::NORMAL);
   if (normal != nullptr && normal->num_components() >= 3 && np > 0) {
+    if (!numeric_attribute(*normal)) {
+      throw InvalidInput("frame", "Draco NORMAL attribute is not numeric (data type " +
+                                      std::to_string(static_cast<int>(normal->data_type())) + ")");
+    }
     mesh.normals.resize(np);
     for (std::size_t p = 0; p < np; ++p) {
       if (!normal->ConvertValue<float, 3>(normal->mapped_index(draco::PointIndex(static_cast<std::uint32_t>(p))),

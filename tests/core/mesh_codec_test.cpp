@@ -137,6 +137,24 @@ TEST(MeshCodec, GarbageIsInvalidInput) {
   EXPECT_THROW(decode_draco(valid.substr(0, 10)), Error);
 }
 
+// Found by fuzz/fuzz_mesh (fuzz/corpus/mesh/crash-draco-bool-attribute): a Draco mesh whose NORMAL (or POSITION)
+// attribute has Draco's DT_BOOL type holding bytes other than 0/1. Converting it loaded those bytes as `bool`
+// (undefined behaviour) and produced a mesh; it must be rejected.
+TEST(MeshCodec, BooleanAttributeIsInvalidInput) {
+  const unsigned char kFile[] = {0x44, 0x52, 0x41, 0x43, 0x4f, 0x02, 0x02, 0x01, 0x00, 0x01, 0x04, 0x01, 0x03,
+                                 0x03, 0x04, 0x03, 0x05, 0x01, 0x02, 0x00, 0x09, 0x03, 0x00, 0x00, 0x01, 0x0b,
+                                 0x03, 0x05, 0x09, 0x03, 0x00, 0x00, 0x01, 0x00, 0x00, 0x01, 0x09, 0x09, 0x09,
+                                 0x09, 0x03, 0x00, 0x00, 0x01, 0x09};
+  try {
+    decode_draco(std::string(reinterpret_cast<const char*>(kFile), sizeof kFile));
+    ADD_FAILURE() << "a boolean attribute was decoded";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::kInvalidInput);
+    EXPECT_EQ(e.field(), "frame");
+    EXPECT_NE(std::string(e.what()).find("attribute is not numeric"), std::string::npos) << e.what();
+  }
+}
+
 TEST(MeshCodec, NormalsRoundTripApproximately) {
   const Mesh m = mc_sphere(true);
   ASSERT_EQ(m.normals.size(), m.vertices.size());
