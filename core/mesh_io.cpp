@@ -222,7 +222,13 @@ int find_property(const PlyElement& element, std::initializer_list<std::string_v
 class PlyBuilder {
  public:
   PlyBuilder(const PlyHeader& header, const std::string& name) : name_(name) {
+    int vertex_elements = 0, face_elements = 0;
     for (const PlyElement& e : header.elements) {
+      // The layout is taken from one vertex and one face element: values of a second one would be read with it.
+      if ((e.name == "vertex" && ++vertex_elements > 1) || (e.name == "face" && ++face_elements > 1)) {
+        fail(name, line_at(e.header_line),
+             "a second '" + e.name + "' element; a PLY mesh has one vertex element and at most one face element");
+      }
       if (e.name == "vertex") {
         vertex_count_ = e.count;
         layout_.x = find_property(e, {"x"});
