@@ -182,12 +182,13 @@ class Blobs final : public Field {
     std::nth_element(radii.begin(), radii.begin() + radii.size() / 2, radii.end());
     double cell = radii[radii.size() / 2];
     const Vec3 extent = box.size();
+    // In double: per-axis counts can exceed int64 (skeletons far apart) and their product overflow.
     auto count_cells = [&](double c) {
-      std::int64_t n = 1;
-      for (int i = 0; i < 3; ++i) n *= static_cast<std::int64_t>(std::floor(extent[i] / c)) + 1;
+      double n = 1.0;
+      for (int i = 0; i < 3; ++i) n *= std::floor(extent[i] / c) + 1.0;
       return n;
     };
-    while (count_cells(cell) > kMaxGridCells) cell *= 1.25;
+    while (count_cells(cell) > static_cast<double>(kMaxGridCells)) cell *= 1.25;
     grid_origin_ = box.min;
     inv_cell_ = 1.0 / cell;
     for (int i = 0; i < 3; ++i) dims_[i] = static_cast<std::int64_t>(std::floor(extent[i] / cell)) + 1;
@@ -241,6 +242,15 @@ Skeleton make_skeleton(const Vec3& a, const Vec3& b, double radius, double stren
   return s;
 }
 
+// Kernels use 1 / R^2: below ~1.5e-154 it is infinite and every value NaN.
+void require_radius_in_range(const std::string& field, double radius) {
+  constexpr double kMinRadius = 1e-150;
+  if (radius < kMinRadius) {
+    throw InvalidInput(field, field + " (" + scene_detail::format_number(radius) +
+                                  ") is too small; give a radius of at least 1e-150");
+  }
+}
+
 }  // namespace
 
 FieldPtr make_blobs(std::span<const PointSkeleton> points, std::span<const SegmentSkeleton> segments,
@@ -263,6 +273,7 @@ FieldPtr make_blobs(std::span<const PointSkeleton> points, std::span<const Segme
     const std::string f = "points[" + std::to_string(i) + "]";
     require_finite(f + ".center", points[i].center);
     require_positive(f + ".radius", points[i].radius);
+    require_radius_in_range(f + ".radius", points[i].radius);
     require_finite(f + ".strength", points[i].strength);
     skeletons.push_back(make_skeleton(points[i].center, points[i].center, points[i].radius, points[i].strength));
   }
@@ -271,8 +282,17 @@ FieldPtr make_blobs(std::span<const PointSkeleton> points, std::span<const Segme
     require_finite(f + ".a", segments[i].a);
     require_finite(f + ".b", segments[i].b);
     require_positive(f + ".radius", segments[i].radius);
+    require_radius_in_range(f + ".radius", segments[i].radius);
     require_finite(f + ".strength", segments[i].strength);
     skeletons.push_back(make_skeleton(segments[i].a, segments[i].b, segments[i].radius, segments[i].strength));
+  }
+  // The supports' box must have a finite size (the acceleration grid divides it into cells).
+  Aabb box = skeletons[0].support;
+  for (const Skeleton& s : skeletons) box = merge(box, s.support);
+  if (!box.size().allFinite()) {
+    const std::string field = points.empty() ? "segments" : "points";
+    throw InvalidInput(field, field + ": the skeletons and their radii span more than the largest double; keep "
+                                      "coordinates and radii within +-1e300");
   }
   return std::make_shared<Blobs>(std::move(skeletons), options);
 }

@@ -652,6 +652,27 @@ TEST(SceneTest, PrimitiveValidation) {
   }
 }
 
+// Found by fuzzing scene JSON (fuzz/corpus/scene_json/crash-blobs-*): with more than 64 Wyvill skeletons the
+// acceleration grid counted its cells in int64 from the skeletons' extent: skeletons far apart overflowed it
+// (undefined behaviour; a huge or negative cell count), and radii whose square underflows gave a zero cell size.
+TEST(SceneTest, ManyBlobsFarApartBuildAndEvaluate) {
+  std::vector<PointSkeleton> points;
+  for (int i = 0; i < 70; ++i) points.push_back({Vec3::Constant(i * 1e7), 1.0, 1.0});
+  const FieldPtr f = make_blobs(points, {}, BlobOptions{});
+  for (const PointSkeleton& p : points) EXPECT_NEAR(f->value(p.center), 0.5 - 1.0, 1e-12);  // iso - strength
+  EXPECT_NEAR(f->value(Vec3::Constant(5e6)), 0.5, 1e-12);  // between skeletons: no potential
+  ASSERT_TRUE(f->bounds());
+  EXPECT_TRUE(f->bounds()->contains(points.back().center));
+
+  std::vector<PointSkeleton> tiny(70, PointSkeleton{Vec3::Zero(), 1e-200, 1.0});
+  expect_invalid([&] { make_blobs(tiny, {}, BlobOptions{}); }, "points[0].radius");
+  std::vector<PointSkeleton> huge;
+  for (int i = 0; i < 70; ++i) huge.push_back({Vec3((i % 2 ? 1 : -1) * 1e308, 0, 0), 1e308, 1.0});
+  expect_invalid([&] { make_blobs(huge, {}, BlobOptions{}); }, "points");
+  const SegmentSkeleton wide{Vec3(-1e308, 0, 0), Vec3(1e308, 0, 0), 1.0, 1.0};
+  expect_invalid([&] { make_blobs({}, std::span(&wide, 1), BlobOptions{}); }, "segments");
+}
+
 TEST(SceneTest, CompositeValidation) {
   const FieldPtr s = make_sphere(Vec3::Zero(), 1.0);
   expect_invalid([&] { make_csg(CsgOp::kUnion, {s}); }, "children");
@@ -690,6 +711,11 @@ TEST(SceneTest, CompositeValidation) {
   SampledGridDesc d2 = desc;
   d2.spacing = Vec3(1, 0, 1);
   expect_invalid([&] { make_sampled_grid(d2, values); }, "spacing.y");
+  // Found by fuzzing scene JSON (fuzz/corpus/scene_json/crash-grid-denormal-spacing): 1/spacing overflowed to
+  // infinity and evaluation turned NaN into a cell index (undefined behaviour).
+  SampledGridDesc d3 = desc;
+  d3.spacing = Vec3(1, 1, std::numeric_limits<double>::denorm_min());
+  expect_invalid([&] { make_sampled_grid(d3, values); }, "spacing.z");
   values[5] = std::numeric_limits<float>::quiet_NaN();
   try {
     make_sampled_grid(desc, values);
