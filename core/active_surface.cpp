@@ -392,7 +392,7 @@ void ActiveSurface::Impl::reinitialize(const RunControl& control) {
 // ------------------------------------------------------------------------------------------------------------------
 // Construction from a normalized field.
 
-void ActiveSurface::Impl::init(const Field& shape, const RunControl& control) {
+void ActiveSurface::Impl::configure() {
   validate(opt);
   threads = resolve_threads(opt.threads);
   h = opt.h;
@@ -405,6 +405,10 @@ void ActiveSurface::Impl::init(const Field& shape, const RunControl& control) {
       dom_hi[a] = static_cast<std::int64_t>(std::floor((opt.domain->max[a] - opt.domain->min[a]) / h + 1e-9));
     }
   }
+}
+
+void ActiveSurface::Impl::init(const Field& shape, const RunControl& control) {
+  configure();
   const std::optional<Aabb> sb = shape.bounds();
   if (!sb && !has_domain) {
     throw InvalidInput("domain", "the initial shape is unbounded (it has no bounds); set options.domain to confine it");
@@ -823,6 +827,7 @@ double ActiveSurface::Impl::step(double dt_limit, const RunControl& control) {
     break;
   }
   last_dt = dt;
+  restored = false;
   last_node_steps = active_count();
   grid.swap_channels(kChanF, kChanA);
   time += dt;
@@ -872,7 +877,7 @@ void ActiveSurface::Impl::clear_velocity_cache() {
 void ActiveSurface::set_velocity(VelocityFn velocity) {
   impl_->separable = {};
   impl_->velocity = std::move(velocity);
-  impl_->last_dt = 0.0;
+  if (!impl_->restored) impl_->last_dt = 0.0;
 }
 
 void ActiveSurface::set_velocity(SeparableVelocity velocity) {
@@ -880,7 +885,7 @@ void ActiveSurface::set_velocity(SeparableVelocity velocity) {
   impl_->velocity = {};
   impl_->separable = std::move(velocity);
   impl_->clear_velocity_cache();
-  impl_->last_dt = 0.0;
+  if (!impl_->restored) impl_->last_dt = 0.0;
 }
 
 void ActiveSurface::set_reference_measures(double area, double volume) {

@@ -55,6 +55,8 @@
 #include <memory>
 #include <optional>
 #include <span>
+#include <string>
+#include <string_view>
 #include <vector>
 
 #include "core/mesh.h"
@@ -174,9 +176,24 @@ class ActiveSurface {
   double potential(const Vec3& p) const;
   const ActiveSurfaceOptions& options() const;
 
+  // Checkpoint (core/active_surface_state.cpp): a versioned binary blob (magic "SACT", version 1, FNV-1a checksum)
+  // of the state the next advance() depends on: the allocated blocks in order with their potential channel (f only;
+  // the ramp's saturated nodes as bits), the simulated time, the reference area and volume, the sub-steps since the
+  // last reinitialization and the last sub-step's figures (dt, which bounds the next advecting step). Derived
+  // channels (stage scratch, extended speeds, the velocity cache) are recomputed. The target and the velocity are
+  // not saved: set them again after from_state(). Grid geometry (h, band_width, domain) is saved for validation.
+  std::string save_state() const;
+  // The surface saved by save_state(); with the saved run's options, target and velocity, advance() continues
+  // bit-identically to the uninterrupted run. Throws InvalidInput("state") for a truncated, corrupted or foreign
+  // blob, or one whose grid does not match `options` (h, band_width, domain); InvalidInput for bad options;
+  // ResourceLimit("max_blocks").
+  static ActiveSurface from_state(std::string_view state, const ActiveSurfaceOptions& options,
+                                  const RunControl& control = {});
+
   struct Impl;  // working state (core/active_surface_engine.h)
 
  private:
+  explicit ActiveSurface(std::unique_ptr<Impl> impl);
   std::unique_ptr<Impl> impl_;
 };
 
@@ -225,16 +242,32 @@ FieldPtr make_particle_target(std::span<const Vec3> particles, const ParticleTar
 struct ActiveFrame {
   Mesh mesh;
   ActiveFrameStats stats;
+  int index = 0;  // in the run: 0 is the initial surface (a resumed run starts at its checkpoint's next frame)
 };
 using ActiveFrameSink = std::function<void(ActiveFrame&& frame)>;
+
+// Checkpoints of the mode helpers, so that a run killed after frame k - 1 resumes with frame k instead of starting
+// over. The state is a blob (magic "SAMD", version 1: the mode, the next frame and ActiveSurface::save_state()).
+struct ActiveCheckpoints {
+  // Called right after frame next_frame - 1 was handed to the sink, every `every` frames (>= 1) and not after the
+  // last frame; `state` resumes the run at next_frame.
+  std::function<void(int next_frame, std::string state)> save;
+  int every = 1;
+  // When set (not owned; must outlive the call): a state passed to `save` by a run of the same mode with the same
+  // inputs and options. The run then continues at its next frame with the same frames as the uninterrupted run
+  // (bit-identical: the engine is deterministic). An unreadable state throws InvalidInput("resume_state") before
+  // any frame is emitted.
+  const std::string* resume_state = nullptr;
+};
 
 struct CoatOptions {
   ParticleTargetOptions kernel;
   double frame_duration = 1.0;  // simulated time between particle frames, > 0
+  ActiveCheckpoints checkpoints;
 };
 // One skin per particle frame: the skin starts on the target of frame 0 and follows the targets of the next frames
 // (set_target between frames, advance(frame_duration)). options.alpha must be > 0. frames[i] must be non-empty.
-// Returns the number of frames emitted.
+// Returns the number of frames emitted (by this call, when resumed).
 int coat_particles(std::span<const std::vector<Vec3>> frames, const CoatOptions& coat,
                    const ActiveSurfaceOptions& options, const ActiveFrameSink& sink, const RunControl& control = {});
 
@@ -244,18 +277,21 @@ struct MorphOptions {
   // Stop after the first frame whose max |df/dt| over the active nodes falls below this (units of f per time;
   // with the ramp profile the surface speed is band_width * h times that); >= 0.
   double tolerance = 1e-2;
+  ActiveCheckpoints checkpoints;
 };
 // Shape A -> shape B: the potential starts from A and tracks B (options.alpha > 0). Emits one frame per
 // frame_duration (the first is A itself, time 0) until the tolerance or the frame budget is reached.
-// Returns the number of frames emitted.
+// Returns the number of frames emitted (by this call, when resumed).
 int morph_shapes(const Field& from, FieldPtr to, const MorphOptions& morph, const ActiveSurfaceOptions& options,
                  const ActiveFrameSink& sink, const RunControl& control = {});
 
 struct AdvectOptions {
   double frame_interval = 0.1;  // simulated time between output frames, > 0
   int frames = 10;              // frames after the initial one, >= 1
+  ActiveCheckpoints checkpoints;
 };
-// Shape carried by u: emits the initial frame and `frames` more, frame_interval apart. Returns frames emitted.
+// Shape carried by u: emits the initial frame and `frames` more, frame_interval apart. Returns frames emitted (by
+// this call, when resumed).
 int advect_shape(const Field& shape, VelocityFn velocity, const AdvectOptions& advect,
                  const ActiveSurfaceOptions& options, const ActiveFrameSink& sink, const RunControl& control = {});
 int advect_shape(const Field& shape, SeparableVelocity velocity, const AdvectOptions& advect,

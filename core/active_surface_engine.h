@@ -62,7 +62,13 @@ struct ActiveSurface::Impl {
   double last_max_speed = 0.0;
   ActiveMeasures last_measures;
 
+  // Restored from a checkpoint and not stepped since: set_velocity() then keeps last_dt (the saved run's velocity
+  // is assumed), so the next step is bounded as in the uninterrupted run.
+  bool restored = false;
+
   // --- engine (active_surface.cpp) ---
+  // Validates opt and derives the grid geometry (h, ramp, origin, domain) from it.
+  void configure();
   void init(const Field& shape, const RunControl& control);
   void update_topology(const RunControl& control);
   void reinitialize(const RunControl& control);

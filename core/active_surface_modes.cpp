@@ -1,6 +1,9 @@
 // Velocity fields, particle targets and the one-shot coat / morph / advect helpers of core/active_surface.h.
 #include <cmath>
+#include <cstring>
+#include <optional>
 #include <string>
+#include <string_view>
 
 #include "core/active_surface.h"
 #include "core/errors.h"
@@ -10,11 +13,71 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 
-ActiveFrame make_frame(const ActiveSurface& surface, const ActiveFrameStats& stats, const RunControl& control) {
+ActiveFrame make_frame(const ActiveSurface& surface, const ActiveFrameStats& stats, int index,
+                       const RunControl& control) {
   ActiveFrame frame;
   frame.mesh = surface.polygonize(control);
   frame.stats = stats;
+  frame.index = index;
   return frame;
+}
+
+// --- Mode checkpoints: "SAMD" u32 version, u8 mode, i32 next frame, then ActiveSurface::save_state() ------------
+enum class Mode : std::uint8_t { kCoat = 1, kMorph = 2, kAdvect = 3 };
+constexpr char kModeMagic[4] = {'S', 'A', 'M', 'D'};
+constexpr std::uint32_t kModeVersion = 1;
+constexpr std::size_t kModeHeader = sizeof(kModeMagic) + sizeof(std::uint32_t) + 1 + sizeof(std::int32_t);
+
+void validate_checkpoints(const ActiveCheckpoints& c) {
+  if (c.every < 1) {
+    throw InvalidInput("checkpoints.every", "checkpoints.every (" + std::to_string(c.every) + ") must be >= 1");
+  }
+}
+
+// After frame next_frame - 1 (not the last one) was emitted.
+void checkpoint(const ActiveCheckpoints& c, Mode mode, int next_frame, const ActiveSurface& surface) {
+  if (!c.save || next_frame % c.every != 0) return;
+  std::string state(kModeHeader, '\0');
+  std::memcpy(state.data(), kModeMagic, sizeof(kModeMagic));
+  std::memcpy(state.data() + 4, &kModeVersion, sizeof(kModeVersion));
+  state[8] = static_cast<char>(mode);
+  const std::int32_t next = next_frame;
+  std::memcpy(state.data() + 9, &next, sizeof(next));
+  state += surface.save_state();
+  c.save(next_frame, std::move(state));
+}
+
+struct Resumed {
+  ActiveSurface surface;
+  int next_frame;
+};
+
+// The surface of c.resume_state, for a run of `mode` whose frames are 0 .. last_frame.
+Resumed resume(const ActiveCheckpoints& c, Mode mode, int last_frame, const ActiveSurfaceOptions& options,
+               const RunControl& control) {
+  const std::string& state = *c.resume_state;
+  auto bad = [](const std::string& why) {
+    throw InvalidInput("resume_state", "resume_state is not a checkpoint of this run (" + why + "); start over");
+  };
+  if (state.size() < kModeHeader || std::memcmp(state.data(), kModeMagic, sizeof(kModeMagic)) != 0) {
+    bad("not an active-surface mode checkpoint");
+  }
+  std::uint32_t version;
+  std::memcpy(&version, state.data() + 4, sizeof(version));
+  if (version != kModeVersion) bad("version " + std::to_string(version));
+  if (static_cast<Mode>(state[8]) != mode) bad("saved by another mode");
+  std::int32_t next;
+  std::memcpy(&next, state.data() + 9, sizeof(next));
+  if (next < 1 || next > last_frame) {
+    bad("next frame " + std::to_string(next) + " is outside 1.." + std::to_string(last_frame));
+  }
+  try {
+    return {ActiveSurface::from_state(std::string_view(state).substr(kModeHeader), options, control), next};
+  } catch (const Error& e) {
+    if (e.kind() != ErrorKind::kInvalidInput || e.field() != "state") throw;
+    bad(e.what());
+  }
+  throw Internal("unreachable");  // bad() throws
 }
 
 }  // namespace
@@ -126,27 +189,36 @@ int coat_particles(std::span<const std::vector<Vec3>> frames, const CoatOptions&
   if (!(options.alpha > 0.0)) {
     throw InvalidInput("alpha", "coating needs alpha > 0 (the tracking speed per unit of kernel potential)");
   }
-  FieldPtr target = make_particle_target(frames[0], coat.kernel);
-  ActiveSurface surface(*target, options, control);
-  surface.set_target(target);
+  validate_checkpoints(coat.checkpoints);
+  const int last = static_cast<int>(frames.size()) - 1;
+  std::optional<ActiveSurface> surface;
   int emitted = 0;
-  {
-    ActiveFrameStats stats = surface.stats();
-    sink(make_frame(surface, stats, control));
-    ++emitted;
+  int next = 1;
+  if (coat.checkpoints.resume_state != nullptr) {
+    Resumed r = resume(coat.checkpoints, Mode::kCoat, last, options, control);
+    surface.emplace(std::move(r.surface));
+    next = r.next_frame;
+  } else {
+    FieldPtr target = make_particle_target(frames[0], coat.kernel);
+    surface.emplace(*target, options, control);
+    surface->set_target(target);
+    sink(make_frame(*surface, surface->stats(), 0, control));
+    emitted = 1;
+    if (last > 0) checkpoint(coat.checkpoints, Mode::kCoat, 1, *surface);
   }
-  for (std::size_t i = 1; i < frames.size(); ++i) {
+  for (int i = next; i <= last; ++i) {
     control.check();
     try {
-      surface.set_target(make_particle_target(frames[i], coat.kernel));
+      surface->set_target(make_particle_target(frames[i], coat.kernel));
     } catch (const Error& e) {
       throw Error(e.kind(), "frames[" + std::to_string(i) + "]." + e.field(),
                   "frames[" + std::to_string(i) + "]: " + e.what());
     }
-    const ActiveFrameStats stats = surface.advance(coat.frame_duration, control);
-    sink(make_frame(surface, stats, control));
+    const ActiveFrameStats stats = surface->advance(coat.frame_duration, control);
+    sink(make_frame(*surface, stats, i, control));
     ++emitted;
-    control.report("coat", static_cast<double>(i) / static_cast<double>(frames.size() - 1));
+    if (i < last) checkpoint(coat.checkpoints, Mode::kCoat, i + 1, *surface);
+    control.report("coat", static_cast<double>(i) / static_cast<double>(last));
   }
   return emitted;
 }
@@ -160,16 +232,31 @@ int morph_shapes(const Field& from, FieldPtr to, const MorphOptions& morph, cons
   if (morph.max_frames < 1) throw InvalidInput("max_frames", "max_frames must be >= 1");
   if (!(morph.tolerance >= 0.0)) throw InvalidInput("tolerance", "tolerance must be >= 0");
   if (!(options.alpha > 0.0)) throw InvalidInput("alpha", "a morph needs alpha > 0 (the tracking speed)");
-  ActiveSurface surface(from, options, control);
-  surface.set_target(std::move(to));
-  sink(make_frame(surface, surface.stats(), control));
-  int emitted = 1;
-  for (int i = 1; i < morph.max_frames; ++i) {
-    const ActiveFrameStats stats = surface.advance(morph.frame_duration, control);
-    sink(make_frame(surface, stats, control));
+  validate_checkpoints(morph.checkpoints);
+  const int last = morph.max_frames - 1;
+  std::optional<ActiveSurface> surface;
+  int emitted = 0;
+  int next = 1;
+  if (morph.checkpoints.resume_state != nullptr) {
+    if (last < 1) throw InvalidInput("resume_state", "a one-frame morph has no frame to resume at; start over");
+    Resumed r = resume(morph.checkpoints, Mode::kMorph, last, options, control);
+    surface.emplace(std::move(r.surface));
+    next = r.next_frame;
+    surface->set_target(std::move(to));
+  } else {
+    surface.emplace(from, options, control);
+    surface->set_target(std::move(to));
+    sink(make_frame(*surface, surface->stats(), 0, control));
+    emitted = 1;
+    if (last > 0) checkpoint(morph.checkpoints, Mode::kMorph, 1, *surface);
+  }
+  for (int i = next; i <= last; ++i) {
+    const ActiveFrameStats stats = surface->advance(morph.frame_duration, control);
+    sink(make_frame(*surface, stats, i, control));
     ++emitted;
-    control.report("morph", static_cast<double>(i) / (morph.max_frames - 1));
+    control.report("morph", static_cast<double>(i) / last);
     if (stats.max_dfdt < morph.tolerance) break;
+    if (i < last) checkpoint(morph.checkpoints, Mode::kMorph, i + 1, *surface);
   }
   return emitted;
 }
@@ -183,15 +270,30 @@ int advect_impl(const Field& shape, Velocity velocity, const AdvectOptions& adve
     throw InvalidInput("frame_interval", "frame_interval must be finite and > 0");
   }
   if (advect.frames < 1) throw InvalidInput("frames", "frames must be >= 1");
-  ActiveSurface surface(shape, options, control);
-  surface.set_velocity(std::move(velocity));
-  sink(make_frame(surface, surface.stats(), control));
-  for (int i = 0; i < advect.frames; ++i) {
-    const ActiveFrameStats stats = surface.advance(advect.frame_interval, control);
-    sink(make_frame(surface, stats, control));
-    control.report("advect", static_cast<double>(i + 1) / advect.frames);
+  validate_checkpoints(advect.checkpoints);
+  std::optional<ActiveSurface> surface;
+  int emitted = 0;
+  int next = 1;
+  if (advect.checkpoints.resume_state != nullptr) {
+    Resumed r = resume(advect.checkpoints, Mode::kAdvect, advect.frames, options, control);
+    surface.emplace(std::move(r.surface));
+    next = r.next_frame;
+    surface->set_velocity(std::move(velocity));  // keeps the restored step bound
+  } else {
+    surface.emplace(shape, options, control);
+    surface->set_velocity(std::move(velocity));
+    sink(make_frame(*surface, surface->stats(), 0, control));
+    emitted = 1;
+    checkpoint(advect.checkpoints, Mode::kAdvect, 1, *surface);
   }
-  return advect.frames + 1;
+  for (int i = next; i <= advect.frames; ++i) {
+    const ActiveFrameStats stats = surface->advance(advect.frame_interval, control);
+    sink(make_frame(*surface, stats, i, control));
+    ++emitted;
+    if (i < advect.frames) checkpoint(advect.checkpoints, Mode::kAdvect, i + 1, *surface);
+    control.report("advect", static_cast<double>(i) / advect.frames);
+  }
+  return emitted;
 }
 
 }  // namespace

@@ -10,7 +10,10 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <cstring>
 #include <string>
+#include <string_view>
+#include <type_traits>
 #include <utility>
 
 #include "core/errors.h"
@@ -34,6 +37,60 @@ constexpr int kMinTIterations = 10;
 constexpr int kStableWindow = 5;
 constexpr double kStableDrop = 0.05;
 constexpr double kPi = 3.14159265358979323846;
+
+// --- Checkpoint blobs ---------------------------------------------------------------------------------------------
+constexpr char kStateMagic[4] = {'S', 'O', 'P', 'T'};
+constexpr std::uint32_t kStateVersion = 1;
+
+std::uint64_t fnv1a(std::string_view bytes) {
+  std::uint64_t h = 1469598103934665603ULL;
+  for (const char c : bytes) {
+    h ^= static_cast<unsigned char>(c);
+    h *= 1099511628211ULL;
+  }
+  return h;
+}
+
+struct BlobWriter {
+  std::string out;
+  template <class T>
+  void put(const T& v) {
+    static_assert(std::is_trivially_copyable_v<T>);
+    out.append(reinterpret_cast<const char*>(&v), sizeof(T));
+  }
+  template <class T>
+  void put_array(const std::vector<T>& v) {
+    put<std::uint64_t>(v.size());
+    out.append(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(T));
+  }
+};
+
+[[noreturn]] void bad_state(const std::string& why) {
+  throw InvalidInput("state", "optimizer checkpoint is not valid (" + why + "); start the optimization over");
+}
+
+struct BlobReader {
+  std::string_view in;
+  std::size_t at = 0;
+  template <class T>
+  T get() {
+    static_assert(std::is_trivially_copyable_v<T>);
+    if (in.size() - at < sizeof(T)) bad_state("truncated at byte " + std::to_string(at));
+    T v;
+    std::memcpy(&v, in.data() + at, sizeof(T));
+    at += sizeof(T);
+    return v;
+  }
+  template <class T>
+  std::vector<T> get_array() {
+    const auto n = get<std::uint64_t>();
+    if (n > (in.size() - at) / sizeof(T)) bad_state("an array of " + std::to_string(n) + " items is truncated");
+    std::vector<T> v(n);
+    std::memcpy(static_cast<void*>(v.data()), in.data() + at, n * sizeof(T));
+    at += n * sizeof(T);
+    return v;
+  }
+};
 
 int chunks_of(std::size_t n) { return static_cast<int>((n + kChunk - 1) / kChunk); }
 
@@ -719,6 +776,123 @@ MeshOptimizer::MeshOptimizer(const Field& field, Mesh start, const MeshOptimizer
   s.e_n_history.push_back(s.stats.e_n);
   s.t_active = options.t_flow && (!options.t_flow_iterations || *options.t_flow_iterations > 0);
   s.stats.t_flow_on = false;
+}
+
+MeshOptimizer::MeshOptimizer(std::unique_ptr<State> state) : state_(std::move(state)) {}
+
+std::string MeshOptimizer::save_state() const {
+  const State& s = *state_;
+  BlobWriter w;
+  w.out.append(kStateMagic, sizeof(kStateMagic));
+  w.put(kStateVersion);
+  w.put_array(s.mesh.vertices);
+  w.put_array(s.mesh.triangles);
+  w.put(s.length_scale);
+  const OptimizerIterationStats& st = s.stats;
+  w.put<std::int32_t>(st.iteration);
+  for (const double v : {st.e_d, st.e_n, st.max_distance, st.rms_distance, st.min_angle_degrees}) w.put(v);
+  for (const std::int64_t v : {st.triangles, st.vertices, st.limited_moves, st.triangles_added, st.flips, st.collapses}) {
+    w.put(v);
+  }
+  w.put<std::uint8_t>(st.t_flow_on ? 1 : 0);
+  w.put_array(s.e_d_history);
+  w.put_array(s.e_n_history);
+  w.put<std::int32_t>(s.last_disruption);
+  w.put<std::uint8_t>(s.t_active ? 1 : 0);
+  w.put<std::int32_t>(s.t_done);
+  w.put<std::uint8_t>(s.converged ? 1 : 0);
+  w.put_array(s.hierarchy.green_group);
+  w.put_array(s.hierarchy.green_parents);
+  // The midpoint map in key order, so equal states give equal blobs.
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> midpoints(s.hierarchy.midpoints.begin(),
+                                                                  s.hierarchy.midpoints.end());
+  std::sort(midpoints.begin(), midpoints.end());
+  w.put<std::uint64_t>(midpoints.size());
+  for (const auto& [key, v] : midpoints) {
+    w.put(key);
+    w.put(v);
+  }
+  w.put(fnv1a(w.out));
+  return std::move(w.out);
+}
+
+MeshOptimizer MeshOptimizer::from_state(const Field& field, std::string_view state,
+                                        const MeshOptimizerOptions& options) {
+  if (state.size() < sizeof(kStateMagic) + sizeof(std::uint32_t) + sizeof(std::uint64_t) ||
+      std::memcmp(state.data(), kStateMagic, sizeof(kStateMagic)) != 0) {
+    bad_state("not an optimizer checkpoint");
+  }
+  const std::string_view body = state.substr(0, state.size() - sizeof(std::uint64_t));
+  std::uint64_t sum;
+  std::memcpy(&sum, state.data() + body.size(), sizeof(sum));
+  if (sum != fnv1a(body)) bad_state("checksum mismatch");
+  BlobReader r{body, sizeof(kStateMagic)};
+  if (const auto version = r.get<std::uint32_t>(); version != kStateVersion) {
+    bad_state("version " + std::to_string(version) + ", this server reads version " + std::to_string(kStateVersion));
+  }
+  Mesh mesh;
+  mesh.vertices = r.get_array<Vec3>();
+  mesh.triangles = r.get_array<Triangle>();
+  try {
+    validate(options, mesh);  // also checks the mesh (indices, finite positions)
+  } catch (const Error& e) {
+    if (e.field() == "start") bad_state(e.what());
+    throw;
+  }
+  auto st = std::make_unique<State>(field, std::move(mesh), options);
+  State& s = *st;
+  s.length_scale = r.get<double>();
+  if (!(s.length_scale > 0.0) || !std::isfinite(s.length_scale)) bad_state("length scale");
+  OptimizerIterationStats& stats = s.stats;
+  stats.iteration = r.get<std::int32_t>();
+  for (double* v : {&stats.e_d, &stats.e_n, &stats.max_distance, &stats.rms_distance, &stats.min_angle_degrees}) {
+    *v = r.get<double>();
+  }
+  for (std::int64_t* v : {&stats.triangles, &stats.vertices, &stats.limited_moves, &stats.triangles_added,
+                          &stats.flips, &stats.collapses}) {
+    *v = r.get<std::int64_t>();
+  }
+  stats.t_flow_on = r.get<std::uint8_t>() != 0;
+  s.e_d_history = r.get_array<double>();
+  s.e_n_history = r.get_array<double>();
+  if (stats.iteration < 0 || s.e_d_history.size() != static_cast<std::size_t>(stats.iteration) + 1 ||
+      s.e_n_history.size() != s.e_d_history.size()) {
+    bad_state("the error history does not match the iteration count");
+  }
+  s.last_disruption = r.get<std::int32_t>();
+  s.t_active = r.get<std::uint8_t>() != 0;
+  s.t_done = r.get<std::int32_t>();
+  s.converged = r.get<std::uint8_t>() != 0;
+  if (s.last_disruption < 0 || s.last_disruption > stats.iteration || s.t_done < 0 || s.t_done > stats.iteration) {
+    bad_state("schedule counters out of range");
+  }
+  optimizer_detail::RedGreenHierarchy& h = s.hierarchy;
+  h.green_group = r.get_array<std::int32_t>();
+  h.green_parents = r.get_array<Triangle>();
+  const std::size_t nv = s.mesh.vertices.size();
+  if (h.green_group.size() != s.mesh.triangles.size()) bad_state("hierarchy size");
+  for (const std::int32_t g : h.green_group) {
+    if (g < -1 || g >= static_cast<std::int64_t>(h.green_parents.size())) bad_state("green group out of range");
+  }
+  for (const Triangle& t : h.green_parents) {
+    for (const std::uint32_t v : t) {
+      if (v >= nv) bad_state("green parent vertex out of range");
+    }
+  }
+  const auto midpoints = r.get<std::uint64_t>();
+  if (midpoints > (body.size() - r.at) / (sizeof(std::uint64_t) + sizeof(std::uint32_t))) bad_state("midpoints");
+  for (std::uint64_t i = 0; i < midpoints; ++i) {
+    const auto key = r.get<std::uint64_t>();
+    const auto v = r.get<std::uint32_t>();
+    if (v >= nv) bad_state("midpoint vertex out of range");
+    h.midpoints.emplace(key, v);
+  }
+  if (r.at != body.size()) bad_state(std::to_string(body.size() - r.at) + " trailing bytes");
+  s.topo.build(nv, s.mesh.triangles, s.threads, {});
+  // f, grad f and the centroid normals: the same evaluations the saved step committed.
+  State::Evaluated e = s.evaluate(s.mesh.vertices, s.mesh.triangles, s.topo, nullptr, {});
+  s.commit_evaluation(std::move(e));
+  return MeshOptimizer(std::move(st));
 }
 
 MeshOptimizer::~MeshOptimizer() = default;

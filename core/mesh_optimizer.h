@@ -70,6 +70,8 @@
 #include <functional>
 #include <memory>
 #include <optional>
+#include <string>
+#include <string_view>
 
 #include "core/mesh.h"
 #include "core/run_control.h"
@@ -152,8 +154,21 @@ class MeshOptimizer {
   bool done() const;
   bool t_flow_on() const;  // whether the next step applies the T-flow
 
+  // Checkpoint: a versioned binary blob (magic "SOPT", version 1, FNV-1a checksum) holding everything the next
+  // step() depends on: the exact mesh (double positions, triangles), the iteration stats, the schedule (T-flow phase
+  // and count, E_d / E_n history, last disruption, convergence), the length scale and the red-green hierarchy (so
+  // green pairs still merge back on a later subdivision round). The field values and normals are recomputed on
+  // load. About 24 bytes per vertex + 16 per triangle (+ the hierarchy's midpoints after subdivision).
+  std::string save_state() const;
+  // The optimizer saved by save_state(), ready to continue: step() then gives bit-identical results to the
+  // uninterrupted run, provided `field` and `options` are the saved run's (they are not part of the blob).
+  // Throws InvalidInput("state") for a blob that is truncated, corrupted, of another version or inconsistent (an
+  // index out of range, a non-finite position), and the constructor's InvalidInput for bad options.
+  static MeshOptimizer from_state(const Field& field, std::string_view state, const MeshOptimizerOptions& options);
+
  private:
   struct State;
+  explicit MeshOptimizer(std::unique_ptr<State> state);
   std::unique_ptr<State> state_;
 };
 

@@ -45,8 +45,28 @@ class ActiveRunner final : public JobRunner {
   int task_count() const override { return 1; }
   int frame_count() const override { return frames_expected_; }
 
+  void resume_from(int, int, std::string state) override { resume_state_ = std::move(state); }
+
   void run_task(int, FrameSink& sink, const RunControl& control) override {
-    int index = 0;
+    // After a restart: continue from the last checkpoint (the mode's blob carries its next frame); a blob this build
+    // cannot read starts over, and Job::emit drops the frames already stored.
+    std::string resume = std::move(resume_state_);
+    resume_state_.clear();
+    if (!resume.empty()) {
+      try {
+        run_mode(sink, control, &resume);
+        return;
+      } catch (const Error& e) {
+        if (e.kind() != ErrorKind::kInvalidInput || e.field() != "resume_state") throw;
+      }
+    }
+    run_mode(sink, control, nullptr);
+  }
+
+  void run_mode(FrameSink& sink, const RunControl& control, const std::string* resume) {
+    ActiveCheckpoints checkpoints;
+    checkpoints.resume_state = resume;
+    checkpoints.save = [&sink](int next_frame, std::string state) { sink.checkpoint(0, next_frame, std::move(state)); };
     auto last = std::chrono::steady_clock::now();
     const ActiveFrameSink emit = [&](ActiveFrame&& frame) {
       const auto now = std::chrono::steady_clock::now();
@@ -65,8 +85,8 @@ class ActiveRunner final : public JobRunner {
       m["max_dfdt"] = s.max_dfdt;
       m["components"] = s.components;
       m["reinitializations"] = s.reinitializations;
-      sink.emit(index++, std::move(out));
-      control.report("evolve", static_cast<double>(index) / std::max(1, frames_expected_));
+      sink.emit(frame.index, std::move(out));
+      control.report("evolve", static_cast<double>(frame.index + 1) / std::max(1, frames_expected_));
       last = std::chrono::steady_clock::now();
     };
     const std::string path = "spec.active";
@@ -83,6 +103,7 @@ class ActiveRunner final : public JobRunner {
         CoatOptions options;
         options.kernel.radius = coat.kernel_radius();
         if (coat.has_iso()) options.kernel.iso = coat.iso();
+        options.checkpoints = checkpoints;
         coat_particles(frames, options, options_, emit, control);
         break;
       }
@@ -94,6 +115,7 @@ class ActiveRunner final : public JobRunner {
         if (morph.has_tolerance()) options.tolerance = morph.tolerance();
         if (morph.has_max_frames()) options.max_frames = morph.max_frames();
         if (morph.has_frame_time()) options.frame_duration = morph.frame_time();
+        options.checkpoints = checkpoints;
         morph_shapes(*from, to, options, options_, emit, control);
         break;
       }
@@ -103,6 +125,7 @@ class ActiveRunner final : public JobRunner {
         AdvectOptions options;
         options.frame_interval = advect.frame_interval();
         options.frames = advect.frames();
+        options.checkpoints = checkpoints;
         advect_shape(*shape, velocity(advect, path + ".advect"), options, options_, emit, control);
         break;
       }
@@ -145,6 +168,7 @@ class ActiveRunner final : public JobRunner {
   FrameEncoding encoding_;
   Limits limits_;
   int frames_expected_;
+  std::string resume_state_;
 };
 
 }  // namespace

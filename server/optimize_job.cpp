@@ -41,17 +41,38 @@ class OptimizeRunner final : public JobRunner {
     return options_.snapshot_every > 0 ? options_.max_iterations / options_.snapshot_every + 2 : 1;
   }
 
+  void resume_from(int, int next_frame, std::string state) override {
+    resume_frame_ = next_frame;
+    resume_state_ = std::move(state);
+  }
+
   void run_task(int, FrameSink& sink, const RunControl& control) override {
-    StageTimer start_timer;
-    Mesh start = start_ ? std::move(*start_)
-                        : start_timer.run("polygonize",
-                                          [&] { return polygonize(*field_, start_settings_, threads_, control); });
-    start_.reset();
     MeshOptimizerOptions options = options_;
     options.threads = threads_;
-    MeshOptimizer optimizer(*field_, std::move(start), options);
-    int frame = 0;
-    int last_emitted = -1;
+    StageTimer start_timer;
+    // After a restart: continue from the last checkpoint (written after frame resume_frame_ - 1); a blob this
+    // server cannot read (another version, corrupted) starts over, and Job::emit drops the frames already stored.
+    std::optional<MeshOptimizer> resumed;
+    if (!resume_state_.empty()) {
+      try {
+        resumed.emplace(MeshOptimizer::from_state(*field_, resume_state_, options));
+      } catch (const Error&) {
+        resumed.reset();
+      }
+      resume_state_.clear();
+    }
+    if (!resumed) {
+      Mesh start = start_ ? std::move(*start_)
+                          : start_timer.run("polygonize",
+                                            [&] { return polygonize(*field_, start_settings_, threads_, control); });
+      resumed.emplace(*field_, std::move(start), options);
+      resume_frame_ = 0;
+    }
+    start_.reset();
+    MeshOptimizer& optimizer = *resumed;
+    int frame = resume_frame_;
+    // A checkpoint is taken right after a frame, so its state is the emitted snapshot's.
+    int last_emitted = frame > 0 ? optimizer.stats().iteration : -1;
     auto emit = [&](StageTimer& timer) {
       const auto& stats = optimizer.stats();
       FrameOutput out = make_frame(optimizer.mesh(), encoding_, max_triangles_, timer);
@@ -70,8 +91,10 @@ class OptimizeRunner final : public JobRunner {
       m["vertices_used"] = static_cast<double>(stats.vertices);
       sink.emit(frame++, std::move(out));
       last_emitted = stats.iteration;
+      // The mesh only (no encoding), far smaller and cheaper than the frame; needless after the last frame.
+      if (!optimizer.done()) sink.checkpoint(0, frame, optimizer.save_state());
     };
-    if (options.snapshot_every > 0) emit(start_timer);
+    if (options.snapshot_every > 0 && frame == 0) emit(start_timer);
     StageTimer timer;
     double optimize_seconds = 0.0;
     while (!optimizer.done()) {
@@ -101,6 +124,8 @@ class OptimizeRunner final : public JobRunner {
   FrameEncoding encoding_;
   std::int64_t max_triangles_;
   int threads_;
+  int resume_frame_ = 0;
+  std::string resume_state_;
 };
 
 }  // namespace

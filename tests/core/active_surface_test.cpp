@@ -5,6 +5,8 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <map>
+#include <string>
 #include <thread>
 
 #include "core/errors.h"
@@ -294,6 +296,120 @@ TEST(ActiveSurface, DeterministicWhateverTheThreadCount) {
   ASSERT_EQ(a.triangles.size(), b.triangles.size());
   for (std::size_t i = 0; i < a.vertices.size(); ++i) ASSERT_EQ(a.vertices[i], b.vertices[i]);
   for (std::size_t i = 0; i < a.triangles.size(); ++i) ASSERT_EQ(a.triangles[i], b.triangles[i]);
+}
+
+// Checkpoints of the mode helpers: a run resumed from the state saved after frame k emits frames k + 1 .. exactly as
+// the uninterrupted run (the engine is deterministic), and only those.
+struct RecordedRun {
+  std::vector<int> indices;
+  std::vector<Mesh> meshes;
+  std::vector<ActiveFrameStats> stats;
+  std::map<int, std::string> states;  // next frame -> state
+};
+
+void expect_same_frames(const RecordedRun& straight, const RecordedRun& resumed, int from) {
+  ASSERT_EQ(resumed.indices.size() + from, straight.indices.size());
+  for (std::size_t i = 0; i < resumed.indices.size(); ++i) {
+    const std::size_t j = i + from;
+    EXPECT_EQ(resumed.indices[i], straight.indices[j]);
+    EXPECT_EQ(resumed.stats[i].time, straight.stats[j].time) << j;
+    EXPECT_EQ(resumed.stats[i].volume, straight.stats[j].volume) << j;
+    EXPECT_EQ(resumed.stats[i].substeps, straight.stats[j].substeps) << j;
+    EXPECT_EQ(resumed.meshes[i].triangles, straight.meshes[j].triangles) << j;
+    ASSERT_EQ(resumed.meshes[i].vertices.size(), straight.meshes[j].vertices.size()) << j;
+    for (std::size_t v = 0; v < resumed.meshes[i].vertices.size(); ++v) {
+      ASSERT_EQ(resumed.meshes[i].vertices[v], straight.meshes[j].vertices[v]) << j;
+    }
+  }
+}
+
+TEST(ActiveSurface, AdvectResumedFromACheckpointMatchesTheUninterruptedRun) {
+  ActiveSurfaceOptions o = base_options(1.0 / 32.0);
+  o.domain = Aabb{Vec3::Zero(), Vec3::Ones()};
+  o.reinit_interval = 3;  // so the resumed frames cross reinitializations at a saved phase
+  const auto shape = std::make_shared<SphereField>(Vec3(0.35, 0.35, 0.35), 0.15);
+  const VelocityFn velocity = [](const Vec3& p, double t) { return enright_velocity(p, t, 1.0); };
+  auto run = [&](const std::string* resume, RecordedRun& out) {
+    AdvectOptions a;
+    a.frame_interval = 0.05;
+    a.frames = 5;
+    a.checkpoints.resume_state = resume;
+    a.checkpoints.save = [&](int next, std::string state) { out.states[next] = std::move(state); };
+    return advect_shape(*shape, velocity, a, o, [&](ActiveFrame&& f) {
+      out.indices.push_back(f.index);
+      out.meshes.push_back(std::move(f.mesh));
+      out.stats.push_back(f.stats);
+    });
+  };
+  RecordedRun straight, resumed;
+  EXPECT_EQ(run(nullptr, straight), 6);
+  EXPECT_EQ(straight.indices, (std::vector<int>{0, 1, 2, 3, 4, 5}));
+  // After every frame but the last.
+  ASSERT_EQ(straight.states.size(), 5u);
+  EXPECT_EQ(straight.states.begin()->first, 1);
+  EXPECT_EQ(run(&straight.states.at(3), resumed), 3);
+  expect_same_frames(straight, resumed, 3);
+  // The resumed run's own checkpoints are the uninterrupted run's.
+  EXPECT_EQ(resumed.states.at(4), straight.states.at(4));
+
+  // A damaged or foreign state throws InvalidInput("resume_state") before any frame.
+  const std::string& good = straight.states.at(2);
+  auto refused = [&](const std::string& blob) {
+    RecordedRun r;
+    try {
+      run(&blob, r);
+    } catch (const Error& e) {
+      return e.kind() == ErrorKind::kInvalidInput && e.field() == "resume_state" && r.indices.empty();
+    }
+    return false;
+  };
+  for (const std::size_t n : {std::size_t{0}, std::size_t{10}, std::size_t{40}, good.size() / 2, good.size() - 1}) {
+    EXPECT_TRUE(refused(good.substr(0, n))) << n;
+  }
+  for (const std::size_t at : {std::size_t{30}, std::size_t{100}, good.size() / 2, good.size() - 2}) {
+    std::string bad = good;
+    bad[at] = static_cast<char>(bad[at] ^ 0x10);
+    EXPECT_TRUE(refused(bad)) << at;
+  }
+  ActiveSurfaceOptions other = o;
+  other.h = 1.0 / 30.0;
+  EXPECT_THROW(ActiveSurface::from_state(std::string_view(good).substr(13), other), Error);
+}
+
+TEST(ActiveSurface, MorphResumedFromACheckpointMatchesTheUninterruptedRun) {
+  const double h = 1.0 / 24.0;
+  ActiveSurfaceOptions o = base_options(h);
+  o.alpha = 4.0;
+  o.beta = 0.001;
+  o.delta = 0.5;  // the reference volume must survive the checkpoint
+  const auto from = std::make_shared<BoxField>(Vec3::Zero(), Vec3(0.4, 0.3, 0.3));
+  const auto to = std::make_shared<SphereField>(Vec3(0.05, 0.0, 0.0), 0.4);
+  auto run = [&](const std::string* resume, RecordedRun& out) {
+    MorphOptions m;
+    m.frame_duration = 0.1;
+    m.max_frames = 6;
+    m.tolerance = 0.0;
+    m.checkpoints.resume_state = resume;
+    m.checkpoints.every = 2;
+    m.checkpoints.save = [&](int next, std::string state) { out.states[next] = std::move(state); };
+    return morph_shapes(*from, to, m, o, [&](ActiveFrame&& f) {
+      out.indices.push_back(f.index);
+      out.meshes.push_back(std::move(f.mesh));
+      out.stats.push_back(f.stats);
+    });
+  };
+  RecordedRun straight, resumed;
+  EXPECT_EQ(run(nullptr, straight), 6);
+  ASSERT_EQ(straight.states.size(), 2u);  // every 2 frames: next frames 2 and 4
+  EXPECT_EQ(straight.states.count(4), 1u);
+  EXPECT_EQ(run(&straight.states.at(4), resumed), 2);
+  expect_same_frames(straight, resumed, 4);
+  // A coat or advect state is not a morph's.
+  RecordedRun wrong;
+  std::string foreign = straight.states.at(2);
+  foreign[8] = 3;  // the mode byte: advect
+  EXPECT_THROW(run(&foreign, wrong), Error);
+  EXPECT_TRUE(wrong.indices.empty());
 }
 
 TEST(ActiveSurface, PolygonizationIsClosedWithNormals) {

@@ -520,6 +520,82 @@ TEST(MeshOptimizer, DeterministicAcrossThreadCounts) {
   for (std::size_t v = 0; v < one.vertices.size(); ++v) ASSERT_EQ(one.vertices[v], two.vertices[v]) << v;
 }
 
+// Checkpoint: an optimizer restored from save_state() continues bit-identically (subdivision and the repair on, so
+// the red-green hierarchy and the schedule matter), and a damaged blob is refused cleanly.
+TEST(MeshOptimizer, SavedStateContinuesExactlyLikeTheUninterruptedRun) {
+  const Reference ref = csg_block(20);
+  MeshOptimizerOptions o;
+  o.max_iterations = 24;
+  o.subdivision_threshold = 0.02 * ref.h * ref.h;
+  o.subdivision_interval = 4;
+  o.tolerance = 1e-3;
+  o.normals = true;
+  o.threads = 2;
+  MeshOptimizer straight(*ref.field, ref.start, o);
+  std::string state;
+  std::vector<OptimizerIterationStats> expected;
+  while (!straight.done()) {
+    straight.step();
+    if (straight.stats().iteration == 9) state = straight.save_state();  // mid T-flow phase, after a subdivision
+    if (straight.stats().iteration > 9) expected.push_back(straight.stats());
+  }
+  ASSERT_FALSE(state.empty());
+  EXPECT_LT(state.size(), 40 * straight.mesh().vertices.size() + 24 * straight.mesh().triangles.size() + 4096);
+
+  MeshOptimizer resumed = MeshOptimizer::from_state(*ref.field, state, o);
+  EXPECT_EQ(resumed.stats().iteration, 9);
+  EXPECT_EQ(resumed.save_state(), state);  // the whole saved state round-trips
+  std::vector<OptimizerIterationStats> got;
+  while (!resumed.done()) got.push_back(resumed.step());
+  ASSERT_EQ(got.size(), expected.size());
+  for (std::size_t i = 0; i < got.size(); ++i) {
+    EXPECT_EQ(got[i].iteration, expected[i].iteration);
+    EXPECT_EQ(got[i].e_d, expected[i].e_d) << got[i].iteration;
+    EXPECT_EQ(got[i].e_n, expected[i].e_n) << got[i].iteration;
+    EXPECT_EQ(got[i].t_flow_on, expected[i].t_flow_on) << got[i].iteration;
+    EXPECT_EQ(got[i].triangles_added, expected[i].triangles_added) << got[i].iteration;
+  }
+  const Mesh& a = straight.mesh();
+  const Mesh& b = resumed.mesh();
+  EXPECT_EQ(a.triangles, b.triangles);
+  ASSERT_EQ(a.vertices.size(), b.vertices.size());
+  for (std::size_t v = 0; v < a.vertices.size(); ++v) ASSERT_EQ(a.vertices[v], b.vertices[v]) << v;
+  EXPECT_EQ(a.normals.size(), b.normals.size());
+
+  // Damaged blobs: every truncation and a flipped byte anywhere throw InvalidInput("state"), never crash.
+  auto refused = [&](const std::string& blob) {
+    try {
+      MeshOptimizer::from_state(*ref.field, blob, o);
+    } catch (const Error& e) {
+      return e.kind() == ErrorKind::kInvalidInput && e.field() == "state";
+    }
+    return false;
+  };
+  for (const std::size_t n : {std::size_t{0}, std::size_t{3}, std::size_t{8}, std::size_t{20}, state.size() / 2,
+                              state.size() - 1}) {
+    EXPECT_TRUE(refused(state.substr(0, n))) << n;
+  }
+  for (const std::size_t at : {std::size_t{5}, std::size_t{12}, state.size() / 3, state.size() - 3}) {
+    std::string bad = state;
+    bad[at] = static_cast<char>(bad[at] ^ 0x40);
+    EXPECT_TRUE(refused(bad)) << at;
+  }
+  EXPECT_TRUE(refused(state + "x"));
+  // Bad options are still reported as options.
+  MeshOptimizerOptions bad_options = o;
+  bad_options.c_d = 2.0;
+  EXPECT_THROW(
+      {
+        try {
+          MeshOptimizer::from_state(*ref.field, state, bad_options);
+        } catch (const Error& e) {
+          EXPECT_EQ(e.field(), "c_d");
+          throw;
+        }
+      },
+      Error);
+}
+
 TEST(MeshOptimizer, ExplicitTFlowIterationsAndTolerance) {
   const Reference ref = sphere_to_cube(16);
   MeshOptimizerOptions o;
