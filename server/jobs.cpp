@@ -269,7 +269,7 @@ void Job::notify() {
 bool Job::task_started() {
   {
     std::lock_guard lock(mutex_);
-    if (is_terminal(state_) || cancel_requested_) return false;
+    if (is_terminal(state_) || cancel_requested_ || suspended_) return false;
     ++running_;
     if (state_ != v1::JOB_STATE_QUEUED) return true;
     state_ = v1::JOB_STATE_RUNNING;
@@ -336,6 +336,16 @@ void Job::checkpoint(int task, int next_frame, std::string state) {
   store_->put_checkpoint(id_, task, next_frame, state);
 }
 
+void Job::suspend() {
+  {
+    std::lock_guard lock(mutex_);
+    if (is_terminal(state_)) return;
+    suspended_ = true;
+  }
+  cancel_.cancel();
+  log_event(LogLevel::kInfo, "job_suspended", {{"job", id_}, {"note", "resumes when a server opens this data dir"}});
+}
+
 void Job::task_succeeded(int task) {
   if (store_) {
     try {
@@ -366,6 +376,7 @@ void Job::task_failed(int task, int grpc_code, const std::string& message) {
   {
     std::lock_guard lock(mutex_);
     --running_;
+    if (suspended_) return;  // stopped for a restart: the next server runs this task again
     ++tasks_settled_;
     if (grpc_code == kGrpcCancelled && cancel_requested_) {
       finished = settle_locked();
@@ -391,6 +402,7 @@ void Job::task_skipped() {
   bool finished = false;
   {
     std::lock_guard lock(mutex_);
+    if (suspended_) return;
     ++tasks_settled_;
     finished = settle_locked();
   }
@@ -562,6 +574,10 @@ int Scheduler::active_jobs() const {
 
 void Scheduler::cancel_all(const std::string& reason) {
   for (const auto& job : list()) job->cancel(reason);
+}
+
+void Scheduler::suspend_all() {
+  for (const auto& job : list()) job->suspend();
 }
 
 int Scheduler::active_jobs(const std::string& owner) const {

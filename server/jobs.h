@@ -155,6 +155,9 @@ class Job : public FrameSink {
   void set_progress(int frame_index, std::string_view stage, double fraction);
   // Requests cancellation; returns true when this call finished the job (nothing was running).
   bool cancel(const std::string& reason);
+  // The server is stopping with a durable store: running tasks stop (as on cancel) but the job keeps its state, so
+  // the next server on the same data directory resumes it. No transition is recorded after this.
+  void suspend();
 
  private:
   void snapshot_locked(v1::Job& job) const;
@@ -192,6 +195,7 @@ class Job : public FrameSink {
   int tasks_done_ = 0;
   int tasks_settled_ = 0;  // succeeded, failed or skipped
   bool cancel_requested_ = false;
+  bool suspended_ = false;
   std::string cancel_reason_;
   std::vector<std::shared_ptr<const FrameRecord>> frames_;  // in completion order
   std::set<int> frame_indices_;
@@ -216,6 +220,8 @@ class Scheduler {
   // Jobs not yet finished.
   int active_jobs() const;
   void cancel_all(const std::string& reason);
+  // Suspends every unfinished job (see Job::suspend).
+  void suspend_all();
   // Jobs of `owner` not yet finished.
   int active_jobs(const std::string& owner) const;
   // Forgets finished jobs older than `age`; returns them.

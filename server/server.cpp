@@ -390,11 +390,17 @@ void SurfacerServer::shutdown(ShutdownMode mode, std::chrono::milliseconds deadl
       std::this_thread::sleep_for(std::chrono::milliseconds(20));
     }
   }
-  s.scheduler.cancel_all("server shutting down");
-  // Running frames see the cancel token within a fraction of a second.
-  const auto cancel_until = std::chrono::steady_clock::now() + std::chrono::seconds(5);
-  while (s.scheduler.active_jobs() > 0 && std::chrono::steady_clock::now() < cancel_until) {
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  if (s.store) {
+    // Durable: what is left stays in the store as it is, and the next server on this data dir resumes it (a
+    // redeploy loses no work). Running tasks stop at their cancel token; the pool joins them below.
+    s.scheduler.suspend_all();
+  } else {
+    s.scheduler.cancel_all("server shutting down");
+    // Running frames see the cancel token within a fraction of a second.
+    const auto cancel_until = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+    while (s.scheduler.active_jobs() > 0 && std::chrono::steady_clock::now() < cancel_until) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
   }
   // Watch streams of finished jobs end by themselves; give them a moment, then cancel what is left.
   s.grpc_server->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(2));

@@ -187,6 +187,28 @@ TEST(DurableStore, KillNineMidJobResumesFromTheLastFinishedFrame) {
   EXPECT_EQ(tail.frames.begin()->first, 5);
 }
 
+TEST(DurableStore, AServerStoppingPastItsDrainDeadlineLeavesUnfinishedJobsToTheNext) {
+  const fs::path dir = fresh_dir("suspend");
+  const int frames = 8;
+  std::string id;
+  int done_before = 0;
+  {
+    LoopbackServer s(durable_options(dir, 1));
+    ASSERT_TRUE(submit(*s.stub, sphere_sequence(frames, 150), &id).ok());
+    const auto until = std::chrono::steady_clock::now() + 60s;
+    while (std::chrono::steady_clock::now() < until && (done_before = get_job(*s.stub, id).frames_done()) < 1) {
+      std::this_thread::sleep_for(5ms);
+    }
+    s.server->shutdown(server::ShutdownMode::kDrain, 0ms);  // a redeploy whose drain deadline has passed
+  }
+  ASSERT_GE(done_before, 1);
+  LoopbackServer s(durable_options(dir));
+  const auto r = watch_job(*s.stub, id);
+  EXPECT_EQ(r.final_job.state(), v1::JOB_STATE_SUCCEEDED) << r.final_job.error().message();
+  EXPECT_EQ(static_cast<int>(r.frames.size()), frames);
+  EXPECT_TRUE(r.integrity_error.empty()) << r.integrity_error;
+}
+
 TEST(DurableStore, AFullDiskFailsTheJobClearlyAndLeavesTheStoreUsable) {
   const fs::path dir = fresh_dir("full");
   const fs::path data = dir / "data";
