@@ -1,5 +1,6 @@
 // Job `active`: a narrow-band potential evolved to track a target (Desbrun-Cani 1998). One task (each frame
 // evolves from the previous one); modes coat (particle sequence), morph (scene A -> B) and advect (velocity field).
+#include <chrono>
 #include <cmath>
 #include <cstring>
 
@@ -29,6 +30,27 @@ auto with_path(const std::string& path, F&& f) {
 }
 
 Aabb union_of(const Aabb& a, const Aabb& b) { return {a.min.cwiseMin(b.min), a.max.cwiseMax(b.max)}; }
+
+// Keeps checkpoints under ~10% of the task's time: one is taken only when the work since the previous one took at
+// least 10 times what that one cost (serializing plus the store's write and fsync). With snapshots or frames seconds
+// apart that is every one; an optimization snapshotting every iteration of a large mesh checkpoints less often.
+class CheckpointPacer {
+ public:
+  bool due() const { return Clock::now() - last_end_ >= kWorkPerCost * last_cost_; }
+  template <class F>
+  void take(F&& checkpoint) {
+    const auto t0 = Clock::now();
+    checkpoint();
+    last_end_ = Clock::now();
+    last_cost_ = last_end_ - t0;
+  }
+
+ private:
+  using Clock = std::chrono::steady_clock;
+  static constexpr int kWorkPerCost = 10;
+  Clock::time_point last_end_ = Clock::now();
+  Clock::duration last_cost_{0};
+};
 
 class ActiveRunner final : public JobRunner {
  public:
@@ -66,7 +88,10 @@ class ActiveRunner final : public JobRunner {
   void run_mode(FrameSink& sink, const RunControl& control, const std::string* resume) {
     ActiveCheckpoints checkpoints;
     checkpoints.resume_state = resume;
-    checkpoints.save = [&sink](int next_frame, std::string state) { sink.checkpoint(0, next_frame, std::move(state)); };
+    CheckpointPacer pacer;
+    checkpoints.save = [&](int next_frame, std::string state) {
+      if (pacer.due()) pacer.take([&] { sink.checkpoint(0, next_frame, std::move(state)); });
+    };
     auto last = std::chrono::steady_clock::now();
     const ActiveFrameSink emit = [&](ActiveFrame&& frame) {
       const auto now = std::chrono::steady_clock::now();

@@ -1,5 +1,6 @@
 // Job `optimize`: a start mesh evolved toward f = 0 with the field's normals (Ohtake-Belyaev-Pasko 2002). One task;
 // a snapshot frame every `snapshot_every` iterations (frame k = k-th snapshot), the result last.
+#include <chrono>
 #include <cmath>
 
 #include "core/errors.h"
@@ -22,6 +23,27 @@ MeshFormat sniff_mesh_format(const std::string& bytes) {
   if (bytes.rfind("DRACO", 0) == 0) return MeshFormat::kDraco;
   return MeshFormat::kObj;
 }
+
+// Keeps checkpoints under ~10% of the task's time: one is taken only when the work since the previous one took at
+// least 10 times what that one cost (serializing plus the store's write and fsync). With snapshots or frames seconds
+// apart that is every one; an optimization snapshotting every iteration of a large mesh checkpoints less often.
+class CheckpointPacer {
+ public:
+  bool due() const { return Clock::now() - last_end_ >= kWorkPerCost * last_cost_; }
+  template <class F>
+  void take(F&& checkpoint) {
+    const auto t0 = Clock::now();
+    checkpoint();
+    last_end_ = Clock::now();
+    last_cost_ = last_end_ - t0;
+  }
+
+ private:
+  using Clock = std::chrono::steady_clock;
+  static constexpr int kWorkPerCost = 10;
+  Clock::time_point last_end_ = Clock::now();
+  Clock::duration last_cost_{0};
+};
 
 class OptimizeRunner final : public JobRunner {
  public:
@@ -71,6 +93,7 @@ class OptimizeRunner final : public JobRunner {
     start_.reset();
     MeshOptimizer& optimizer = *resumed;
     int frame = resume_frame_;
+    CheckpointPacer pacer;
     // A checkpoint is taken right after a frame, so its state is the emitted snapshot's.
     int last_emitted = frame > 0 ? optimizer.stats().iteration : -1;
     auto emit = [&](StageTimer& timer) {
@@ -91,8 +114,8 @@ class OptimizeRunner final : public JobRunner {
       m["vertices_used"] = static_cast<double>(stats.vertices);
       sink.emit(frame++, std::move(out));
       last_emitted = stats.iteration;
-      // The mesh only (no encoding), far smaller and cheaper than the frame; needless after the last frame.
-      if (!optimizer.done()) sink.checkpoint(0, frame, optimizer.save_state());
+      // Needless after the last frame.
+      if (!optimizer.done() && pacer.due()) pacer.take([&] { sink.checkpoint(0, frame, optimizer.save_state()); });
     };
     if (options.snapshot_every > 0 && frame == 0) emit(start_timer);
     StageTimer timer;

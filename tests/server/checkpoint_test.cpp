@@ -79,15 +79,21 @@ v1::JobSpec advect_spec(double h, int frames, double interval) {
   return spec;
 }
 
-// Runs `spec` straight, then resumes a fresh runner from the checkpoint taken before frame `k` and checks the frames.
+// Runs `spec` straight, then resumes a fresh runner from a checkpoint taken in the middle and checks the frames.
+// (The runners pace checkpoints to ~10% of the run time, so under load one may be skipped: the test takes the
+// checkpoint nearest to frame `k`.)
 void expect_resume_matches(const v1::JobSpec& spec, int k) {
   Runners r;
   RecordingSink straight;
   r.make(spec)->run_task(0, straight, {});
-  ASSERT_GT(static_cast<int>(straight.frames.size()), k + 1);
-  ASSERT_EQ(straight.checkpoints.count(k), 1u) << "no checkpoint before frame " << k;
+  ASSERT_FALSE(straight.checkpoints.empty());
   // No checkpoint after the last frame (nothing left to resume).
   EXPECT_LT(straight.checkpoints.rbegin()->first, static_cast<int>(straight.frames.size()));
+  auto nearest = straight.checkpoints.lower_bound(k);
+  if (nearest == straight.checkpoints.end()) --nearest;
+  k = nearest->first;
+  ASSERT_GE(k, 1);
+  ASSERT_GT(static_cast<int>(straight.frames.size()), k);
 
   auto runner = r.make(spec);
   runner->resume_from(0, k, straight.checkpoints.at(k));
@@ -102,7 +108,11 @@ void expect_resume_matches(const v1::JobSpec& spec, int k) {
     EXPECT_EQ(bytes, straight.frames.at(index)) << "frame " << index << " differs from the uninterrupted run";
   }
   // The resumed run keeps checkpointing, with the same states.
-  for (const auto& [next, state] : resumed.checkpoints) EXPECT_EQ(state, straight.checkpoints.at(next)) << next;
+  for (const auto& [next, state] : resumed.checkpoints) {
+    if (straight.checkpoints.count(next)) {
+      EXPECT_EQ(state, straight.checkpoints.at(next)) << next;
+    }
+  }
 
   // A damaged checkpoint starts over: every frame again, the same frames.
   auto fallback = r.make(spec);
@@ -231,8 +241,8 @@ TEST(Checkpoint, KilledServerResumesAnActiveJobFromItsLastCheckpoint) {
   const auto next_at = log.find("next_frame=", at);
   ASSERT_NE(next_at, std::string::npos) << log;
   const int next = std::stoi(log.substr(next_at + 11));
-  EXPECT_GE(next, 2);
-  EXPECT_LE(next, done_before_kill + 1);
+  EXPECT_GE(next, 1);  // the checkpoint after frame 0 at least (the runners pace them to ~10% of the run time)
+  EXPECT_LE(next, done_before_kill + 1);  // a frame may finish between the last poll and the kill
   // ... and its frames continue the evolution: simulated times are frame_interval apart all along.
   for (int i = 0; i <= frames; ++i) {
     EXPECT_NEAR(r.frames.at(i).header.stats().metrics().at("time"), 0.15 * i, 1e-9) << i;
