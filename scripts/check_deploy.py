@@ -849,10 +849,14 @@ class Checker:
         needed, stack = set(), []
         for line in text.splitlines():
             line = line.split("#")[0].strip()
-            m = re.match(r"if\s*\(\s*(\w+)\s*\)", line, re.I)
+            m = re.match(r"if\s*\(\s*(\w+(?:\s+(?:OR|AND)\s+\w+)*)\s*\)", line, re.I)
             if m:
-                name = m.group(1)
-                enabled = name in on or (name not in off and defaults.get(name, True))
+                # Options joined by OR / AND (evaluated left to right, as CMake does without parentheses).
+                words = m.group(1).split()
+                is_on = lambda n: n in on or (n not in off and defaults.get(n, True))
+                enabled = is_on(words[0])
+                for op, name in zip(words[1::2], words[2::2]):
+                    enabled = (enabled or is_on(name)) if op.upper() == "OR" else (enabled and is_on(name))
                 stack.append(enabled)
                 continue
             if re.match(r"if\s*\(", line, re.I):
