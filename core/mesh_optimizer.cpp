@@ -51,6 +51,11 @@ std::uint64_t fnv1a(std::string_view bytes) {
   return h;
 }
 
+struct GreenChild {  // a checkpoint's entry of RedGreenHierarchy::green_group
+  std::uint32_t triangle;
+  std::int32_t group;
+};
+
 struct BlobWriter {
   std::string out;
   template <class T>
@@ -801,7 +806,12 @@ std::string MeshOptimizer::save_state() const {
   w.put<std::uint8_t>(s.t_active ? 1 : 0);
   w.put<std::int32_t>(s.t_done);
   w.put<std::uint8_t>(s.converged ? 1 : 0);
-  w.put_array(s.hierarchy.green_group);
+  // Green children only (most triangles are not): (triangle, group) pairs.
+  std::vector<GreenChild> green;
+  for (std::size_t t = 0; t < s.hierarchy.green_group.size(); ++t) {
+    if (s.hierarchy.green_group[t] >= 0) green.push_back({static_cast<std::uint32_t>(t), s.hierarchy.green_group[t]});
+  }
+  w.put_array(green);
   w.put_array(s.hierarchy.green_parents);
   // The midpoint map in key order, so equal states give equal blobs.
   std::vector<std::pair<std::uint64_t, std::uint32_t>> midpoints(s.hierarchy.midpoints.begin(),
@@ -867,12 +877,16 @@ MeshOptimizer MeshOptimizer::from_state(const Field& field, std::string_view sta
     bad_state("schedule counters out of range");
   }
   optimizer_detail::RedGreenHierarchy& h = s.hierarchy;
-  h.green_group = r.get_array<std::int32_t>();
+  const auto green = r.get_array<GreenChild>();
   h.green_parents = r.get_array<Triangle>();
   const std::size_t nv = s.mesh.vertices.size();
-  if (h.green_group.size() != s.mesh.triangles.size()) bad_state("hierarchy size");
-  for (const std::int32_t g : h.green_group) {
-    if (g < -1 || g >= static_cast<std::int64_t>(h.green_parents.size())) bad_state("green group out of range");
+  h.green_group.assign(s.mesh.triangles.size(), -1);
+  for (const GreenChild& c : green) {
+    if (c.triangle >= h.green_group.size() || c.group < 0 ||
+        c.group >= static_cast<std::int64_t>(h.green_parents.size())) {
+      bad_state("green child out of range");
+    }
+    h.green_group[c.triangle] = c.group;
   }
   for (const Triangle& t : h.green_parents) {
     for (const std::uint32_t v : t) {

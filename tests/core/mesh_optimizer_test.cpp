@@ -534,12 +534,15 @@ TEST(MeshOptimizer, SavedStateContinuesExactlyLikeTheUninterruptedRun) {
   MeshOptimizer straight(*ref.field, ref.start, o);
   std::string state;
   std::vector<OptimizerIterationStats> expected;
+  std::int64_t added_before = 0;
   while (!straight.done()) {
     straight.step();
+    if (straight.stats().iteration <= 9) added_before += straight.stats().triangles_added;
     if (straight.stats().iteration == 9) state = straight.save_state();  // mid T-flow phase, after a subdivision
     if (straight.stats().iteration > 9) expected.push_back(straight.stats());
   }
   ASSERT_FALSE(state.empty());
+  EXPECT_GT(added_before, 0) << "the saved state should hold a red-green hierarchy";
   EXPECT_LT(state.size(), 40 * straight.mesh().vertices.size() + 24 * straight.mesh().triangles.size() + 4096);
 
   MeshOptimizer resumed = MeshOptimizer::from_state(*ref.field, state, o);
