@@ -412,6 +412,34 @@ TEST(ActiveSurface, MorphResumedFromACheckpointMatchesTheUninterruptedRun) {
   EXPECT_TRUE(wrong.indices.empty());
 }
 
+TEST(ActiveSurface, CoatResumedFromACheckpointMatchesTheUninterruptedRun) {
+  std::vector<std::vector<Vec3>> sequence(4);
+  for (int k = 0; k < 4; ++k) {
+    for (int i = -1; i <= 1; ++i)
+      for (int j = -1; j <= 1; ++j) sequence[k].push_back(Vec3(0.08 * i + 0.03 * k, 0.08 * j, 0.0));
+  }
+  CoatOptions coat;
+  coat.kernel.radius = 0.2;
+  coat.frame_duration = 0.2;
+  ActiveSurfaceOptions o = base_options(1.0 / 24.0);
+  o.alpha = 1.0;
+  auto run = [&](const std::string* resume, RecordedRun& out) {
+    CoatOptions c = coat;
+    c.checkpoints.resume_state = resume;
+    c.checkpoints.save = [&](int next, std::string state) { out.states[next] = std::move(state); };
+    return coat_particles(sequence, c, o, [&](ActiveFrame&& f) {
+      out.indices.push_back(f.index);
+      out.meshes.push_back(std::move(f.mesh));
+      out.stats.push_back(f.stats);
+    });
+  };
+  RecordedRun straight, resumed;
+  EXPECT_EQ(run(nullptr, straight), 4);
+  ASSERT_EQ(straight.states.size(), 3u);
+  EXPECT_EQ(run(&straight.states.at(2), resumed), 2);
+  expect_same_frames(straight, resumed, 2);
+}
+
 TEST(ActiveSurface, PolygonizationIsClosedWithNormals) {
   ActiveSurfaceOptions o = base_options(1.0 / 32.0);
   o.normals = true;
