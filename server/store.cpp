@@ -214,9 +214,9 @@ fs::path Store::frame_path(const std::string& job_id, int index) const {
   return dir_ / "frames" / job_id / (std::to_string(index) + ".frame");
 }
 
-fs::path Store::checkpoint_path(const std::string& job_id, int task) const {
-  if (!valid_id(job_id) || task < 0) throw Internal("store: bad checkpoint key " + job_id);
-  return dir_ / "frames" / job_id / ("task" + std::to_string(task) + ".checkpoint");
+fs::path Store::checkpoint_path(const std::string& job_id, int task, int next_frame) const {
+  if (!valid_id(job_id) || task < 0 || next_frame < 0) throw Internal("store: bad checkpoint key " + job_id);
+  return dir_ / "frames" / job_id / ("task" + std::to_string(task) + "." + std::to_string(next_frame) + ".checkpoint");
 }
 
 fs::path Store::upload_path(const std::string& id) const {
@@ -263,8 +263,11 @@ void Store::remove_orphans() {
     while (s.step()) frame_files.insert(s.text(0) + "/" + std::to_string(s.integer(1)) + ".frame");
   }
   {
-    Stmt s(db_, "SELECT job_id, task FROM checkpoints");
-    while (s.step()) frame_files.insert(s.text(0) + "/task" + std::to_string(s.integer(1)) + ".checkpoint");
+    Stmt s(db_, "SELECT job_id, task, next_frame FROM checkpoints");
+    while (s.step()) {
+      frame_files.insert(s.text(0) + "/task" + std::to_string(s.integer(1)) + "." + std::to_string(s.integer(2)) +
+                         ".checkpoint");
+    }
   }
   {
     Stmt s(db_, "SELECT id FROM uploads");
@@ -352,17 +355,33 @@ void Store::put_task_done(const std::string& job_id, int task) {
 }
 
 void Store::put_checkpoint(const std::string& job_id, int task, int next_frame, const std::string& state) {
-  const fs::path path = checkpoint_path(job_id, task);
+  // A new file per checkpoint (named by its frame), then the row switches to it, then the old file goes: a crash
+  // anywhere leaves the row naming a complete file.
+  const fs::path path = checkpoint_path(job_id, task, next_frame);
   std::error_code ec;
   fs::create_directories(path.parent_path(), ec);
   if (ec) throw_io("creating", path.parent_path(), ec.value());
-  // The file is replaced by rename; the row says which frame it continues from and what the bytes must be.
   write_file_atomic(path, state);
-  std::lock_guard lock(mutex_);
-  Stmt s(db_, "INSERT OR REPLACE INTO checkpoints(job_id, task, next_frame, bytes, crc32) VALUES(?,?,?,?,?)");
-  s.bind(1, job_id).bind(2, static_cast<std::int64_t>(task)).bind(3, static_cast<std::int64_t>(next_frame));
-  s.bind(4, static_cast<std::int64_t>(state.size())).bind(5, static_cast<std::int64_t>(crc32_of(state.data(), state.size())));
-  s.run();
+  std::int64_t previous = -1;
+  try {
+    std::lock_guard lock(mutex_);
+    Transaction tx(db_);
+    {
+      Stmt q(db_, "SELECT next_frame FROM checkpoints WHERE job_id = ? AND task = ?");
+      q.bind(1, job_id).bind(2, static_cast<std::int64_t>(task));
+      if (q.step()) previous = q.integer(0);
+    }
+    Stmt s(db_, "INSERT OR REPLACE INTO checkpoints(job_id, task, next_frame, bytes, crc32) VALUES(?,?,?,?,?)");
+    s.bind(1, job_id).bind(2, static_cast<std::int64_t>(task)).bind(3, static_cast<std::int64_t>(next_frame));
+    s.bind(4, static_cast<std::int64_t>(state.size()));
+    s.bind(5, static_cast<std::int64_t>(crc32_of(state.data(), state.size())));
+    s.run();
+    tx.commit();
+  } catch (...) {
+    fs::remove(path, ec);
+    throw;
+  }
+  if (previous >= 0 && previous != next_frame) fs::remove(checkpoint_path(job_id, task, static_cast<int>(previous)), ec);
 }
 
 void Store::delete_job(const std::string& id) {
@@ -420,7 +439,7 @@ std::vector<StoredJob> Store::load_jobs() const {
       c.task = static_cast<int>(s.integer(1));
       c.next_frame = static_cast<int>(s.integer(2));
       // A checkpoint that does not read back whole is ignored: the task then starts over.
-      std::ifstream in(checkpoint_path(it->first, c.task), std::ios::binary);
+      std::ifstream in(checkpoint_path(it->first, c.task, c.next_frame), std::ios::binary);
       c.state.assign(std::istreambuf_iterator<char>(in), {});
       if (static_cast<std::int64_t>(c.state.size()) != s.integer(3) ||
           crc32_of(c.state.data(), c.state.size()) != static_cast<std::uint32_t>(s.integer(4))) {

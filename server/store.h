@@ -102,7 +102,7 @@ class Store {
   void exec(const char* sql) const;
   void write_file_atomic(const std::filesystem::path& path, const std::string& bytes) const;
   std::filesystem::path frame_path(const std::string& job_id, int index) const;
-  std::filesystem::path checkpoint_path(const std::string& job_id, int task) const;
+  std::filesystem::path checkpoint_path(const std::string& job_id, int task, int next_frame) const;
   std::filesystem::path upload_path(const std::string& id) const;
   void remove_orphans();
 
