@@ -8,6 +8,7 @@
 #include <cerrno>
 #include <charconv>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <limits>
@@ -218,6 +219,13 @@ int find_property(const PlyElement& element, std::initializer_list<std::string_v
   return -1;
 }
 
+// A face's vertex index as read (any double: it may be far outside the int64 range, or NaN).
+std::string index_text(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.17g", v);
+  return buf;
+}
+
 // Builds the mesh while the element readers feed values.
 class PlyBuilder {
  public:
@@ -230,6 +238,11 @@ class PlyBuilder {
              "a second '" + e.name + "' element; a PLY mesh has one vertex element and at most one face element");
       }
       if (e.name == "vertex") {
+        // Mesh indices are 32-bit (faces may come first and name any index below the declared count).
+        if (e.count > std::numeric_limits<std::uint32_t>::max()) {
+          fail(name, line_at(e.header_line),
+               "the vertex element declares " + std::to_string(e.count) + " vertices; at most 4294967295 are supported");
+        }
         vertex_count_ = e.count;
         layout_.x = find_property(e, {"x"});
         layout_.y = find_property(e, {"y"});
@@ -285,9 +298,8 @@ class PlyBuilder {
     for (double v : indices) {
       if (!(v >= 0.0) || v >= static_cast<double>(vertex_count_)) {
         fail(name_, where,
-             "face " + std::to_string(face_number) + " uses vertex index " +
-                 std::to_string(static_cast<std::int64_t>(v)) + " but there are " + std::to_string(vertex_count_) +
-                 " vertices");
+             "face " + std::to_string(face_number) + " uses vertex index " + index_text(v) + " but there are " +
+                 std::to_string(vertex_count_) + " vertices");
       }
     }
     const auto a = static_cast<std::uint32_t>(indices[0]);

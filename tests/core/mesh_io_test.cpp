@@ -165,7 +165,7 @@ TEST(MeshIo, PlyErrorsNameFileAndLine) {
   expect_parse_error("solid stl\n", MeshFormat::kPly, "bad.ply", "line 1");
   expect_parse_error("ply\nformat ascii 1.0\nelement vertex 1\n", MeshFormat::kPly, "bad.ply", "header");
   expect_parse_error(
-      "ply\nformat binary_little_endian 1.0\nelement vertex 99999999999\nproperty float x\n"
+      "ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\nproperty float x\n"
       "property float y\nproperty float z\nend_header\n",
       MeshFormat::kPly, "huge.ply", "unexpected end of file");
 }
@@ -184,6 +184,23 @@ TEST(MeshIo, PlyWithTwoVertexOrFaceElementsIsAnError) {
     expect_parse_error(head + vertex3 + face + face + "end_header\n" + std::string(40, '\0'), MeshFormat::kPly,
                        "two.ply", "line 9: a second 'face' element");
   }
+}
+
+// Found by fuzz/fuzz_mesh (fuzz/corpus/mesh/crash-ply-huge-face-index, crash-ply-face-before-huge-vertex-count):
+// the error message for an out-of-range face index converted the index to int64 (undefined for 1.4e52 or NaN),
+// and with faces before a vertex element declaring more than 2^32 vertices an index passed the range check
+// and was converted to a 32-bit index (undefined, and a wrong triangle).
+TEST(MeshIo, PlyHugeFaceIndicesAndVertexCounts) {
+  const std::string head =
+      "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+      "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n";
+  expect_parse_error(head + "3 0 1 14444444444444444444444444444444444444444444444444444\n", MeshFormat::kPly,
+                     "big.ply", "face 0 uses vertex index 1.4444444444444444e+52 but there are 3 vertices");
+  expect_parse_error(
+      "ply\nformat ascii 1.0\nelement face 1\nproperty list uchar int vertex_indices\n"
+      "element vertex 5000000000\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+      "3 0 1 4999999999\n0 0 0\n",
+      MeshFormat::kPly, "many.ply", "line 5: the vertex element declares 5000000000 vertices");
 }
 
 TEST(MeshIo, BinaryPlyIndexOutOfRange) {
