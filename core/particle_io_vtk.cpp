@@ -304,7 +304,9 @@ class XmlReader {
         break;  // raw bytes follow; every array we need was inline (appended ones were rejected below)
       } else if (tag->name == "DataArray" && !stack.empty() &&
                  (stack.back() == "Points" ||
-                  (stack.back() == "PointData" && is_radius_name(tag->attribute("Name").value_or(""))))) {
+                  // The piece's first radius (or pscale) array; a second one is other data, not more radii.
+                  (stack.back() == "PointData" && !piece_radius &&
+                   is_radius_name(tag->attribute("Name").value_or(""))))) {
         if (piece_points < 0) fail(name_, where(tag->begin), "DataArray outside a <Piece>");
         const bool points = stack.back() == "Points";
         const std::int64_t components = points ? 3 : 1;

@@ -439,6 +439,22 @@ TEST(ParticleIo, VtuRoundTripAsciiAndBase64) {
   }
 }
 
+// Found by fuzz/fuzz_particles (fuzz/corpus/particles/crash-vtu-two-radius-arrays): a piece with two PointData
+// arrays named radius/pscale had both appended to the radii (2 N radii for N particles).
+TEST(ParticleIo, VtuTakesThePiecesFirstRadiusArray) {
+  const ParticleFrame f = sample_frame(true, 12);
+  VtuStyle st;
+  std::vector<double> xyz;
+  for (const Vec3& p : f.positions) xyz.insert(xyz.end(), {p.x(), p.y(), p.z()});
+  std::string s = "<VTKFile type=\"UnstructuredGrid\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"12\">\n"
+                  "<PointData>\n";
+  s += vtu_array(f.radii, "radius", 1, st);
+  s += vtu_array(std::vector<double>(12, 9.0), "pscale", 1, st);
+  s += "</PointData>\n<Points>\n" + vtu_array(xyz, "Points", 3, st) + "</Points>\n</Piece>\n";
+  s += "</UnstructuredGrid>\n</VTKFile>\n";
+  expect_same(parse_particles(s, ParticleFormat::kVtu, "two.vtu"), f);
+}
+
 TEST(ParticleIo, BinRoundTrip) {
   const ParticleFrame f = sample_frame(false);
   expect_same(parse_particles(write_bin(f), ParticleFormat::kBin, "p.bin"), f);
