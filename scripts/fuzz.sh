@@ -43,8 +43,7 @@ build_start=$SECONDS
 cmake --build "$BUILD_DIR" -j"${FUZZ_JOBS:-$(nproc)}" --target "${targets[@]/#/fuzz_}"
 echo "fuzz.sh: built ${#targets[@]} targets in $((SECONDS - build_start)) s"
 
-export ASAN_OPTIONS="${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=1:symbolize=1}"
-export UBSAN_OPTIONS="${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}"
+export UBSAN_OPTIONS="${UBSAN_OPTIONS:-print_stacktrace=1}"
 failed=()
 for t in "${targets[@]}"; do
   corpus="$BUILD_DIR/corpus/$t"
@@ -61,11 +60,11 @@ for t in "${targets[@]}"; do
   grep -E "^#[0-9]+[[:space:]]+DONE|^Done [0-9]+ runs|stat::number_of_executed_units|stat::average_exec_per_sec" "$log" || true
   if [ "$status" -ne 0 ]; then
     failed+=("$t")
-    echo "fuzz.sh: fuzz_$t FAILED (exit $status); last lines of $log:" >&2
-    grep -vE "^ +#[0-9]+ 0x" "$log" | tail -n 30 >&2
-    echo "fuzz.sh: stack:" >&2
+    echo "fuzz.sh: fuzz_$t FAILED (exit $status); from $log:" >&2
+    grep -E "ERROR:|SUMMARY:|runtime error|fuzz property violated|deadly signal|out-of-memory|timeout after|leak" \
+      "$log" | head -n 10 >&2 || true
     grep -E "^ +#[0-9]+ 0x" "$log" | head -n 25 >&2 || true
-    inputs="$(grep -oE "(Test unit written to|artifact_prefix.*Test unit written to) [^ ]+" "$log" | awk '{print $NF}')"
+    inputs="$(grep -oE "Test unit written to [^ ]+" "$log" | awk '{print $NF}' | sort -u | tr '\n' ' ')"
     echo "fuzz.sh: offending input: ${inputs:-see $log}" >&2
     echo "fuzz.sh: reproduce: $BUILD_DIR/fuzz/fuzz_$t ${inputs:-<input>}" >&2
   fi
