@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -178,8 +179,15 @@ FieldPtr make_sampled_grid(const SampledGridDesc& desc, std::span<const float> v
                                        ") must be >= 2; a grid needs at least two samples per axis");
     }
   }
-  const std::uint64_t expected =
-      static_cast<std::uint64_t>(n[0]) * static_cast<std::uint64_t>(n[1]) * static_cast<std::uint64_t>(n[2]);
+  // nx * ny < 2^62 fits; the third factor can wrap around 2^64 (e.g. 2^30 * 16 * 2^30 == 0), which would let a grid
+  // with no values through the count check below.
+  const std::uint64_t nxy = static_cast<std::uint64_t>(n[0]) * static_cast<std::uint64_t>(n[1]);
+  if (nxy > std::numeric_limits<std::uint64_t>::max() / static_cast<std::uint64_t>(n[2])) {
+    throw InvalidInput("nx", "nx * ny * nz (" + std::to_string(n[0]) + " * " + std::to_string(n[1]) + " * " +
+                                 std::to_string(n[2]) + ") exceeds 2^64 samples; give the grid's real dimensions, "
+                                 "one value per grid point");
+  }
+  const std::uint64_t expected = nxy * static_cast<std::uint64_t>(n[2]);
   if (values.size() != expected) {
     throw InvalidInput("values", "values has " + std::to_string(values.size()) + " numbers but nx*ny*nz = " +
                                      std::to_string(expected) + "; give one value per grid point, x fastest");

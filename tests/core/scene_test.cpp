@@ -713,6 +713,12 @@ TEST(SceneTest, CompositeValidation) {
   expect_invalid([&] { make_sampled_grid(d2, values); }, "spacing.y");
   // Found by fuzzing scene JSON (fuzz/corpus/scene_json/crash-grid-denormal-spacing): 1/spacing overflowed to
   // infinity and evaluation turned NaN into a cell index (undefined behaviour).
+  // Found by fuzzing (fuzz/corpus/scene_json/crash-grid-dims-wrap): 2^30 * 16 * 2^30 wrapped to 0 in 64 bits, so a
+  // grid with no values passed the count check and evaluation read outside them.
+  SampledGridDesc wrap = desc;
+  wrap.nx = wrap.nz = 1 << 30;
+  wrap.ny = 16;
+  expect_invalid([&] { make_sampled_grid(wrap, {}); }, "nx");
   SampledGridDesc d3 = desc;
   d3.spacing = Vec3(1, 1, std::numeric_limits<double>::denorm_min());
   expect_invalid([&] { make_sampled_grid(d3, values); }, "spacing.z");
