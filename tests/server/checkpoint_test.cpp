@@ -132,57 +132,6 @@ TEST(Checkpoint, ActiveAdvectResumesAfterAFrameWithTheSameFrames) {
 
 // --- The real server, killed -------------------------------------------------------------------------------------
 
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
-// surfacer-server as a child process (as in durable_test.cpp).
-struct ServerProcess {
-  pid_t pid = -1;
-  int port = 0;
-  fs::path log;
-
-  ServerProcess(const fs::path& dir, const std::vector<std::string>& extra) {
-    static int counter = 0;
-    const fs::path port_file = dir / ("port" + std::to_string(++counter));
-    log = dir / ("server" + std::to_string(counter) + ".log");
-    std::vector<std::string> args = {SURFACER_BINARY_DIR "/server/surfacer-server", "--listen", "127.0.0.1:0",
-                                     "--port-file", port_file.string(), "--workers", "1"};
-    args.insert(args.end(), extra.begin(), extra.end());
-    pid = fork();
-    if (pid == 0) {
-      const int fd = ::open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-      dup2(fd, 2);
-      std::vector<char*> argv;
-      for (auto& a : args) argv.push_back(a.data());
-      argv.push_back(nullptr);
-      execv(argv[0], argv.data());
-      _exit(127);
-    }
-    const auto until = std::chrono::steady_clock::now() + 30s;
-    while (std::chrono::steady_clock::now() < until) {
-      std::ifstream in(port_file);
-      if (in >> port && port > 0) break;
-      std::this_thread::sleep_for(20ms);
-    }
-  }
-  std::unique_ptr<v1::Surfacer::Stub> stub() const {
-    return v1::Surfacer::NewStub(
-        grpc::CreateChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials()));
-  }
-  void kill9() {
-    if (pid > 0) {
-      kill(pid, SIGKILL);
-      waitpid(pid, nullptr, 0);
-      pid = -1;
-    }
-  }
-  ~ServerProcess() { kill9(); }
-};
-
 int frames_done(v1::Surfacer::Stub& stub, const std::string& id) {
   grpc::ClientContext ctx;
   v1::GetJobRequest req;

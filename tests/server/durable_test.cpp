@@ -31,13 +31,6 @@ fs::path fresh_dir(const std::string& name) {
   return dir;
 }
 
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
 // A sequence of `n` spheres of growing radius.
 v1::JobSpec sphere_sequence(int n, int cells, v1::MeshEncoding encoding = v1::MESH_ENCODING_DRACO) {
   std::vector<v1::Scene> scenes;
@@ -71,55 +64,6 @@ v1::Job get_job(v1::Surfacer::Stub& stub, const std::string& id, grpc::Status* s
   if (status) *status = s;
   return job;
 }
-
-// surfacer-server as a child process, optionally with a file-size limit (a full disk, as write() sees it).
-struct ServerProcess {
-  pid_t pid = -1;
-  int port = 0;
-  fs::path log;
-
-  ServerProcess(const fs::path& dir, const std::vector<std::string>& extra, rlim_t fsize_limit = RLIM_INFINITY) {
-    static int counter = 0;
-    const fs::path port_file = dir / ("port" + std::to_string(++counter));
-    log = dir / ("server" + std::to_string(counter) + ".log");
-    std::vector<std::string> args = {SURFACER_BINARY_DIR "/server/surfacer-server", "--listen", "127.0.0.1:0",
-                                     "--port-file", port_file.string(), "--workers", "1"};
-    args.insert(args.end(), extra.begin(), extra.end());
-    pid = fork();
-    if (pid == 0) {
-      const int fd = ::open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-      dup2(fd, 2);
-      if (fsize_limit != RLIM_INFINITY) {
-        signal(SIGXFSZ, SIG_IGN);  // writes past the limit fail with EFBIG instead of killing the process
-        rlimit lim{fsize_limit, fsize_limit};
-        setrlimit(RLIMIT_FSIZE, &lim);
-      }
-      std::vector<char*> argv;
-      for (auto& a : args) argv.push_back(a.data());
-      argv.push_back(nullptr);
-      execv(argv[0], argv.data());
-      _exit(127);
-    }
-    const auto until = std::chrono::steady_clock::now() + 30s;
-    while (std::chrono::steady_clock::now() < until) {
-      std::ifstream in(port_file);
-      if (in >> port && port > 0) break;
-      std::this_thread::sleep_for(20ms);
-    }
-  }
-  std::unique_ptr<v1::Surfacer::Stub> stub() const {
-    return v1::Surfacer::NewStub(
-        grpc::CreateChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials()));
-  }
-  void kill9() {
-    if (pid > 0) {
-      kill(pid, SIGKILL);
-      waitpid(pid, nullptr, 0);
-      pid = -1;
-    }
-  }
-  ~ServerProcess() { kill9(); }
-};
 
 TEST(DurableStore, FinishedJobsSurviveARestartAndReattachFromFrameK) {
   const fs::path dir = fresh_dir("restart");

@@ -19,11 +19,11 @@ namespace {
 
 using namespace std::chrono_literals;
 
-struct ServerProcess {
+struct SigtermServer {
   pid_t pid = -1;
   int port = 0;
 
-  explicit ServerProcess(const std::filesystem::path& dir) {
+  explicit SigtermServer(const std::filesystem::path& dir) {
     const std::string port_file = (dir / "port").string();
     std::vector<std::string> args = {SURFACER_BINARY_DIR "/server/surfacer-server", "--listen", "127.0.0.1:0",
                                      "--port-file", port_file, "--workers", "2"};
@@ -52,7 +52,7 @@ struct ServerProcess {
     }
     return -1;
   }
-  ~ServerProcess() {
+  ~SigtermServer() {
     if (pid > 0) {
       kill(pid, SIGKILL);
       waitpid(pid, nullptr, 0);
@@ -63,7 +63,7 @@ struct ServerProcess {
 TEST(ServerBinary, ServesOnARealPortAndExitsZeroOnSigterm) {
   const auto dir = std::filesystem::temp_directory_path() / ("surfacer-bin-" + std::to_string(getpid()));
   std::filesystem::create_directories(dir);
-  ServerProcess process(dir);
+  SigtermServer process(dir);
   ASSERT_GT(process.port, 0);
   auto channel = grpc::CreateChannel("127.0.0.1:" + std::to_string(process.port), grpc::InsecureChannelCredentials());
   auto stub = v1::Surfacer::NewStub(channel);
