@@ -31,27 +31,6 @@ auto with_path(const std::string& path, F&& f) {
 
 Aabb union_of(const Aabb& a, const Aabb& b) { return {a.min.cwiseMin(b.min), a.max.cwiseMax(b.max)}; }
 
-// Keeps checkpoints under ~10% of the task's time: one is taken only when the work since the previous one took at
-// least 10 times what that one cost (serializing plus the store's write and fsync). With snapshots or frames seconds
-// apart that is every one; an optimization snapshotting every iteration of a large mesh checkpoints less often.
-class CheckpointPacer {
- public:
-  bool due() const { return Clock::now() - last_end_ >= kWorkPerCost * last_cost_; }
-  template <class F>
-  void take(F&& checkpoint) {
-    const auto t0 = Clock::now();
-    checkpoint();
-    last_end_ = Clock::now();
-    last_cost_ = last_end_ - t0;
-  }
-
- private:
-  using Clock = std::chrono::steady_clock;
-  static constexpr int kWorkPerCost = 10;
-  Clock::time_point last_end_ = Clock::now();
-  Clock::duration last_cost_{0};
-};
-
 class ActiveRunner final : public JobRunner {
  public:
   ActiveRunner(v1::ActiveJob job, const UploadStore& uploads, ActiveSurfaceOptions options, FrameEncoding encoding,
