@@ -6,6 +6,7 @@
 namespace surfacer::server {
 namespace {
 constexpr std::size_t kMaxUploadName = 1024;
+constexpr std::uint64_t kReserveAtMost = std::uint64_t{4} << 20;
 }
 
 UploadAssembler::UploadAssembler(std::int64_t max_bytes, std::string limit_hint)
@@ -36,7 +37,9 @@ grpc::Status UploadAssembler::add(const v1::UploadChunk& chunk) {
     blob_->name = chunk.name();
     expected_ = chunk.total_bytes();
     if (expected_ > static_cast<std::uint64_t>(max_bytes_)) return fail(over_limit(expected_));
-    if (expected_ > 0) blob_->bytes.reserve(expected_);
+    // The announced size is the client's word: reserve no more than a few chunks up front (the string grows as
+    // data arrives), so a tiny first chunk announcing gigabytes costs nothing.
+    if (expected_ > 0) blob_->bytes.reserve(std::min<std::uint64_t>(expected_, kReserveAtMost));
   }
   const std::string& data = chunk.data();
   if (chunk.has_crc32() && crc32_of(data.data(), data.size()) != chunk.crc32()) {

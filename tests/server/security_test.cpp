@@ -204,6 +204,14 @@ TEST(UploadAssembler, ChecksSizesChecksumsAndOrder) {
   EXPECT_TRUE(d.add(c).ok());
   EXPECT_EQ(d.finish().error_code(), grpc::StatusCode::DATA_LOSS);  // 5 of 10 bytes
 
+  // A first chunk announcing a huge upload allocates nothing like it up front.
+  server::UploadAssembler big(std::int64_t{1} << 40);
+  c.Clear();
+  c.set_total_bytes(std::uint64_t{1} << 40);
+  c.set_data("x");
+  EXPECT_TRUE(big.add(c).ok());
+  EXPECT_EQ(big.bytes(), 1u);
+
   server::UploadAssembler e(100);
   c.Clear();
   c.set_data("hello");
