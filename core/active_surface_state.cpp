@@ -19,6 +19,7 @@
 #include "core/active_surface.h"
 #include "core/active_surface_engine.h"
 #include "core/errors.h"
+#include "core/state_blob.h"
 
 namespace surfacer {
 namespace {
@@ -27,45 +28,9 @@ constexpr char kMagic[4] = {'S', 'A', 'C', 'T'};
 constexpr std::uint32_t kVersion = 1;
 constexpr int kMaskBytes = sparse::kBlockNodes / 8;
 
-std::uint64_t fnv1a(std::string_view bytes) {
-  std::uint64_t h = 1469598103934665603ULL;
-  for (const char c : bytes) {
-    h ^= static_cast<unsigned char>(c);
-    h *= 1099511628211ULL;
-  }
-  return h;
-}
-
 [[noreturn]] void bad_state(const std::string& why) {
   throw InvalidInput("state", "active surface checkpoint is not valid (" + why + "); start the run over");
 }
-
-struct Writer {
-  std::string out;
-  template <class T>
-  void put(const T& v) {
-    static_assert(std::is_trivially_copyable_v<T>);
-    out.append(reinterpret_cast<const char*>(&v), sizeof(T));
-  }
-};
-
-struct Reader {
-  std::string_view in;
-  std::size_t at = 0;
-  const char* take(std::size_t n) {
-    if (in.size() - at < n) bad_state("truncated at byte " + std::to_string(at));
-    const char* p = in.data() + at;
-    at += n;
-    return p;
-  }
-  template <class T>
-  T get() {
-    static_assert(std::is_trivially_copyable_v<T>);
-    T v;
-    std::memcpy(&v, take(sizeof(T)), sizeof(T));
-    return v;
-  }
-};
 
 }  // namespace
 
@@ -74,10 +39,8 @@ ActiveSurface::ActiveSurface(std::unique_ptr<Impl> impl) : impl_(std::move(impl)
 std::string ActiveSurface::save_state() const {
   const Impl& m = *impl_;
   const int nb = m.grid.block_count();
-  Writer w;
+  state_blob::Writer w(kMagic, kVersion);
   w.out.reserve(256 + static_cast<std::size_t>(nb) * (12 + 2 * kMaskBytes + 1024));
-  w.out.append(kMagic, sizeof(kMagic));
-  w.put(kVersion);
   w.put(m.h);
   w.put(m.ramp);
   w.put<std::uint8_t>(m.has_domain ? 1 : 0);
@@ -106,8 +69,7 @@ std::string ActiveSurface::save_state() const {
       if (f[i] != 1.0f && f[i] != -1.0f) w.put(f[i]);
     }
   }
-  w.put(fnv1a(w.out));
-  return std::move(w.out);
+  return w.finish();
 }
 
 ActiveSurface ActiveSurface::from_state(std::string_view state, const ActiveSurfaceOptions& options,
@@ -117,16 +79,8 @@ ActiveSurface ActiveSurface::from_state(std::string_view state, const ActiveSurf
   m.opt = options;
   m.configure();  // validates the options
 
-  if (state.size() < sizeof(kMagic) + sizeof(kVersion) + sizeof(std::uint64_t) ||
-      std::memcmp(state.data(), kMagic, sizeof(kMagic)) != 0) {
-    bad_state("not an active surface checkpoint");
-  }
-  const std::string_view body = state.substr(0, state.size() - sizeof(std::uint64_t));
-  std::uint64_t sum;
-  std::memcpy(&sum, state.data() + body.size(), sizeof(sum));
-  if (sum != fnv1a(body)) bad_state("checksum mismatch");
-  Reader r{body, sizeof(kMagic)};
-  if (const auto version = r.get<std::uint32_t>(); version != kVersion) {
+  state_blob::Reader r(state, kMagic, "not an active surface checkpoint", bad_state);
+  if (const auto version = r.version(); version != kVersion) {
     bad_state("version " + std::to_string(version) + ", this build reads version " + std::to_string(kVersion));
   }
   const double h = r.get<double>(), ramp = r.get<double>();
@@ -151,7 +105,7 @@ ActiveSurface ActiveSurface::from_state(std::string_view state, const ActiveSurf
   lm.crossings = r.get<std::int64_t>();
 
   const auto nb = r.get<std::uint64_t>();
-  if (nb == 0 || nb > (body.size() - r.at) / (3 * sizeof(std::int32_t) + 2 * kMaskBytes)) {
+  if (nb == 0 || nb > r.remaining() / (3 * sizeof(std::int32_t) + 2 * kMaskBytes)) {
     bad_state("block count " + std::to_string(nb));
   }
   if (static_cast<std::int64_t>(nb) > m.opt.max_blocks) {
@@ -185,7 +139,7 @@ ActiveSurface ActiveSurface::from_state(std::string_view state, const ActiveSurf
     std::copy_n(f, sparse::kBlockNodes, m.grid.data(b, kChanA));
     std::copy_n(f, sparse::kBlockNodes, m.grid.data(b, kChanB));
   }
-  if (r.at != body.size()) bad_state(std::to_string(body.size() - r.at) + " trailing bytes");
+  if (r.remaining() != 0) bad_state(std::to_string(r.remaining()) + " trailing bytes");
   m.grid.rebuild_neighbors();
   // The saved state followed a topology update, so this finds the same blocks and only rebuilds the active lists.
   m.update_topology(control);

@@ -17,6 +17,7 @@
 #include <utility>
 
 #include "core/errors.h"
+#include "core/state_blob.h"
 #include "core/mesh_optimizer_cleanup.h"
 #include "core/mesh_optimizer_refine.h"
 #include "core/parallel.h"
@@ -42,60 +43,14 @@ constexpr double kPi = 3.14159265358979323846;
 constexpr char kStateMagic[4] = {'S', 'O', 'P', 'T'};
 constexpr std::uint32_t kStateVersion = 1;
 
-std::uint64_t fnv1a(std::string_view bytes) {
-  std::uint64_t h = 1469598103934665603ULL;
-  for (const char c : bytes) {
-    h ^= static_cast<unsigned char>(c);
-    h *= 1099511628211ULL;
-  }
-  return h;
-}
-
 struct GreenChild {  // a checkpoint's entry of RedGreenHierarchy::green_group
   std::uint32_t triangle;
   std::int32_t group;
 };
 
-struct BlobWriter {
-  std::string out;
-  template <class T>
-  void put(const T& v) {
-    static_assert(std::is_trivially_copyable_v<T>);
-    out.append(reinterpret_cast<const char*>(&v), sizeof(T));
-  }
-  template <class T>
-  void put_array(const std::vector<T>& v) {
-    put<std::uint64_t>(v.size());
-    out.append(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(T));
-  }
-};
-
 [[noreturn]] void bad_state(const std::string& why) {
   throw InvalidInput("state", "optimizer checkpoint is not valid (" + why + "); start the optimization over");
 }
-
-struct BlobReader {
-  std::string_view in;
-  std::size_t at = 0;
-  template <class T>
-  T get() {
-    static_assert(std::is_trivially_copyable_v<T>);
-    if (in.size() - at < sizeof(T)) bad_state("truncated at byte " + std::to_string(at));
-    T v;
-    std::memcpy(&v, in.data() + at, sizeof(T));
-    at += sizeof(T);
-    return v;
-  }
-  template <class T>
-  std::vector<T> get_array() {
-    const auto n = get<std::uint64_t>();
-    if (n > (in.size() - at) / sizeof(T)) bad_state("an array of " + std::to_string(n) + " items is truncated");
-    std::vector<T> v(n);
-    std::memcpy(static_cast<void*>(v.data()), in.data() + at, n * sizeof(T));
-    at += n * sizeof(T);
-    return v;
-  }
-};
 
 int chunks_of(std::size_t n) { return static_cast<int>((n + kChunk - 1) / kChunk); }
 
@@ -787,9 +742,7 @@ MeshOptimizer::MeshOptimizer(std::unique_ptr<State> state) : state_(std::move(st
 
 std::string MeshOptimizer::save_state() const {
   const State& s = *state_;
-  BlobWriter w;
-  w.out.append(kStateMagic, sizeof(kStateMagic));
-  w.put(kStateVersion);
+  state_blob::Writer w(kStateMagic, kStateVersion);
   w.put_array(s.mesh.vertices);
   w.put_array(s.mesh.triangles);
   w.put(s.length_scale);
@@ -822,22 +775,13 @@ std::string MeshOptimizer::save_state() const {
     w.put(key);
     w.put(v);
   }
-  w.put(fnv1a(w.out));
-  return std::move(w.out);
+  return w.finish();
 }
 
 MeshOptimizer MeshOptimizer::from_state(const Field& field, std::string_view state,
                                         const MeshOptimizerOptions& options) {
-  if (state.size() < sizeof(kStateMagic) + sizeof(std::uint32_t) + sizeof(std::uint64_t) ||
-      std::memcmp(state.data(), kStateMagic, sizeof(kStateMagic)) != 0) {
-    bad_state("not an optimizer checkpoint");
-  }
-  const std::string_view body = state.substr(0, state.size() - sizeof(std::uint64_t));
-  std::uint64_t sum;
-  std::memcpy(&sum, state.data() + body.size(), sizeof(sum));
-  if (sum != fnv1a(body)) bad_state("checksum mismatch");
-  BlobReader r{body, sizeof(kStateMagic)};
-  if (const auto version = r.get<std::uint32_t>(); version != kStateVersion) {
+  state_blob::Reader r(state, kStateMagic, "not an optimizer checkpoint", bad_state);
+  if (const auto version = r.version(); version != kStateVersion) {
     bad_state("version " + std::to_string(version) + ", this server reads version " + std::to_string(kStateVersion));
   }
   Mesh mesh;
@@ -894,14 +838,14 @@ MeshOptimizer MeshOptimizer::from_state(const Field& field, std::string_view sta
     }
   }
   const auto midpoints = r.get<std::uint64_t>();
-  if (midpoints > (body.size() - r.at) / (sizeof(std::uint64_t) + sizeof(std::uint32_t))) bad_state("midpoints");
+  if (midpoints > r.remaining() / (sizeof(std::uint64_t) + sizeof(std::uint32_t))) bad_state("midpoints");
   for (std::uint64_t i = 0; i < midpoints; ++i) {
     const auto key = r.get<std::uint64_t>();
     const auto v = r.get<std::uint32_t>();
     if (v >= nv) bad_state("midpoint vertex out of range");
     h.midpoints.emplace(key, v);
   }
-  if (r.at != body.size()) bad_state(std::to_string(body.size() - r.at) + " trailing bytes");
+  if (r.remaining() != 0) bad_state(std::to_string(r.remaining()) + " trailing bytes");
   s.topo.build(nv, s.mesh.triangles, s.threads, {});
   // f, grad f and the centroid normals: the same evaluations the saved step committed.
   State::Evaluated e = s.evaluate(s.mesh.vertices, s.mesh.triangles, s.topo, nullptr, {});
