@@ -49,30 +49,16 @@ void warn_local(const Connection& connection, std::ostream& err) {
   }
 }
 
-std::string seconds_text(std::chrono::steady_clock::time_point start) {
-  const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.1f s", s);
-  return buf;
-}
-
 std::string dir_text(const std::filesystem::path& dir) {
   std::string text = dir.string();
   if (!text.empty() && text.back() != '/') text += '/';
   return text;
 }
 
-std::string job_error_text(const v1::Job& job) {
-  if (job.error().code() == 0 && job.error().message().empty()) return "";
-  std::string text = status_code_name(static_cast<grpc::StatusCode>(job.error().code()));
-  if (!job.error().message().empty()) text += ": " + job.error().message();
-  return text;
-}
-
 std::string summary(const WatchResult& result, const FrameWriter& writer, std::chrono::steady_clock::time_point start) {
   return "wrote " + std::to_string(result.frames_written) + " frame" + (result.frames_written == 1 ? "" : "s") +
          " to " + dir_text(writer.dir()) + " (" + std::to_string(result.triangles) + " triangles, " +
-         seconds_text(start) + ")";
+         elapsed_text(start) + ")";
 }
 
 // The job kind a spec submits ("isosurface", ...), as the server names it in Job.kind.

@@ -142,18 +142,10 @@ std::optional<std::string> find_upload_in(const google::protobuf::Message& messa
   return std::nullopt;
 }
 
-std::string seconds_text(std::chrono::steady_clock::time_point start) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.1f s",
-                std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
-  return buf;
-}
-
-std::string job_error_text(const v1::Job& job) {
-  if (job.error().code() == 0 && job.error().message().empty()) return "no reason given";
-  std::string text = status_code_name(static_cast<grpc::StatusCode>(job.error().code()));
-  if (!job.error().message().empty()) text += ": " + job.error().message();
-  return text;
+// A job's error for a log line ("no reason given" when it has none).
+std::string reason_text(const v1::Job& job) {
+  std::string text = job_error_text(job);
+  return text.empty() ? "no reason given" : text;
 }
 
 // A server that has stopped taking work: unreachable, or answering health with something else than SERVING.
@@ -386,14 +378,14 @@ class ScaleOut {
       case v1::JOB_STATE_CANCELLED:
         if (server_going_away(connection)) {
           throw CliError(ExitCode::kUnreachable,
-                         "it cancelled job " + job_id + " (" + job_error_text(result.job) + ") and is shutting down");
+                         "it cancelled job " + job_id + " (" + reason_text(result.job) + ") and is shutting down");
         }
         throw CliError(ExitCode::kCancelled, "job " + job_id + " (" + frames_text(batch) + ") on " + slot.address +
-                                                 " was cancelled elsewhere: " + job_error_text(result.job));
+                                                 " was cancelled elsewhere: " + reason_text(result.job));
       default:
         throw CliError(ExitCode::kJobFailed, "job " + job_id + " (" + frames_text(batch) + ") failed on " +
                                                  slot.address + ": " +
-                                                 globalize_indices(job_error_text(result.job), batch));
+                                                 globalize_indices(reason_text(result.job), batch));
     }
   }
 
@@ -449,7 +441,7 @@ class ScaleOut {
   void print_summary(std::chrono::steady_clock::time_point start) {
     progress_.line("wrote " + std::to_string(frames_total_) + " frames to " + writer_.dir().string() +
                    (writer_.dir().string().back() == '/' ? "" : "/") + " (" + std::to_string(triangles_) +
-                   " triangles, " + seconds_text(start) + ") from " + std::to_string(slots_.size()) + " servers:");
+                   " triangles, " + elapsed_text(start) + ") from " + std::to_string(slots_.size()) + " servers:");
     for (const auto& slot : slots_) {
       std::string line = "  " + slot->address + ": " + std::to_string(slot->frames) + " frame" +
                          (slot->frames == 1 ? "" : "s") + " in " + std::to_string(slot->sub_jobs) + " sub-job" +

@@ -6,6 +6,8 @@
 #include <cstdio>
 #include <vector>
 
+#include "client/connection.h"
+
 namespace surfacer::client {
 namespace {
 
@@ -71,6 +73,20 @@ std::string particles_summary_table(const std::map<int, v1::FrameStats>& stats,
     text += line;
   }
   text += '\n';
+  return text;
+}
+
+std::string elapsed_text(std::chrono::steady_clock::time_point start) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.1f s",
+                std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+  return buf;
+}
+
+std::string job_error_text(const v1::Job& job) {
+  if (job.error().code() == 0 && job.error().message().empty()) return "";
+  std::string text = status_code_name(static_cast<grpc::StatusCode>(job.error().code()));
+  if (!job.error().message().empty()) text += ": " + job.error().message();
   return text;
 }
 

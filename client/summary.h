@@ -1,7 +1,7 @@
-// The table printed at the end of a particles job: one row per frame (particles, triangles, seconds) and a total
-// row with the mean seconds per frame.
+// What the CLI prints at the end of a run: the particles table, elapsed time, a job's error.
 #pragma once
 
+#include <chrono>
 #include <cstdint>
 #include <map>
 #include <string>
@@ -15,5 +15,10 @@ namespace surfacer::client {
 // timings summed (time on the server). `wall_seconds` > 0 adds the elapsed time of the whole command.
 std::string particles_summary_table(const std::map<int, v1::FrameStats>& stats,
                                     const std::map<int, std::int64_t>& uploaded, double wall_seconds);
+
+// "12.3 s" since `start`.
+std::string elapsed_text(std::chrono::steady_clock::time_point start);
+// "CODE: message" of a job's error; "" when it has none.
+std::string job_error_text(const v1::Job& job);
 
 }  // namespace surfacer::client
