@@ -1,4 +1,4 @@
-// Mesh optimizer (core/mesh_optimizer.h, issue 5): cost per iteration, iterations to converge, and how much grid
+// Mesh optimizer (core/optimize/mesh_optimizer.h, issue 5): cost per iteration, iterations to converge, and how much grid
 // resolution the optimizer is worth against plain Marching Cubes. Prints tables (no Google Benchmark registration).
 //   build-opt/bench/optimize_bench            all three sections (about a minute on 2 cores)
 //   build-opt/bench/optimize_bench --quick    skips the 256^3 Marching Cubes rows
@@ -21,10 +21,10 @@
 #include <string>
 #include <vector>
 
-#include "core/marching_cubes.h"
-#include "core/mesh_optimizer.h"
-#include "core/parallel.h"
-#include "core/scene.h"
+#include "core/polygonize/marching_cubes.h"
+#include "core/optimize/mesh_optimizer.h"
+#include "core/util/parallel.h"
+#include "core/scene/scene.h"
 
 namespace surfacer {
 namespace {

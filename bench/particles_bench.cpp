@@ -30,9 +30,9 @@
 #include <thread>
 #include <vector>
 
-#include "core/mesh_checks.h"
-#include "core/mesh_io.h"
-#include "core/particle_surfacer.h"
+#include "core/mesh/mesh_checks.h"
+#include "core/mesh/mesh_io.h"
+#include "core/particles/particle_surfacer.h"
 
 namespace {
 

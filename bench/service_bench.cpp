@@ -21,10 +21,10 @@
 #include <thread>
 #include <vector>
 
-#include "core/marching_cubes.h"
-#include "core/mesh_checks.h"
-#include "core/mesh_codec.h"
-#include "core/scene.h"
+#include "core/polygonize/marching_cubes.h"
+#include "core/mesh/mesh_checks.h"
+#include "core/mesh/mesh_codec.h"
+#include "core/scene/scene.h"
 #include "server/scene_translate.h"
 #include "server/server.h"
 #include "server/uploads.h"

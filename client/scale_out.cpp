@@ -25,8 +25,8 @@
 #include "client/summary.h"
 #include "client/upload.h"
 #include "client/watch.h"
-#include "core/errors.h"
-#include "core/particle_surfacer.h"
+#include "core/util/errors.h"
+#include "core/particles/particle_surfacer.h"
 #include "server/scene_translate.h"
 #include "server/uploads.h"
 
@@ -111,7 +111,7 @@ void pin_particles(v1::JobSpec& spec, const std::vector<ParticleFrameBox>& frame
       return;  // the server explains
     }
   }
-  // The server's own formula (core/particle_surfacer.h), so that every sub-job is quantized alike.
+  // The server's own formula (core/particles/particle_surfacer.h), so that every sub-job is quantized alike.
   box = particle_sequence_box(box, max_radius, r_inner, r_outer, [&] { return first; }, container);
   if (!box.min.allFinite() || !box.max.allFinite()) return;
   set_bounds(spec.mutable_output()->mutable_quantization_bounds(), box);

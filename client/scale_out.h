@@ -23,7 +23,7 @@
 #include "client/exit_codes.h"
 #include "client/job_spec.h"
 #include "client/options.h"
-#include "core/mesh.h"
+#include "core/mesh/mesh.h"
 #include "surfacer/v1/surfacer.pb.h"
 
 namespace surfacer::client {

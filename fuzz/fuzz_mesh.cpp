@@ -7,9 +7,9 @@
 #include <cstdint>
 #include <string>
 
-#include "core/errors.h"
-#include "core/mesh_codec.h"
-#include "core/mesh_io.h"
+#include "core/util/errors.h"
+#include "core/mesh/mesh_codec.h"
+#include "core/mesh/mesh_io.h"
 #include "fuzz/fuzz_input.h"
 
 namespace surfacer::fuzz {

@@ -12,8 +12,8 @@
 #include <memory>
 #include <string>
 
-#include "core/errors.h"
-#include "core/particle_io.h"
+#include "core/util/errors.h"
+#include "core/particles/particle_io.h"
 #include "fuzz/fuzz_input.h"
 #include "server/particle_input.h"
 #include "server/uploads.h"

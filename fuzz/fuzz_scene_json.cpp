@@ -15,8 +15,8 @@
 #include <string>
 #include <vector>
 
-#include "core/errors.h"
-#include "core/scene.h"
+#include "core/util/errors.h"
+#include "core/scene/scene.h"
 #include "fuzz/fuzz_input.h"
 #include "server/scene_translate.h"
 #include "server/uploads.h"

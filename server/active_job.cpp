@@ -4,8 +4,8 @@
 #include <cmath>
 #include <cstring>
 
-#include "core/active_surface.h"
-#include "core/errors.h"
+#include "core/active/active_surface.h"
+#include "core/util/errors.h"
 #include "server/frames.h"
 #include "server/job_types.h"
 #include "server/particle_input.h"

@@ -3,9 +3,9 @@
 #include <chrono>
 #include <future>
 
-#include "core/errors.h"
-#include "core/mesh_codec.h"
-#include "core/mesh_io.h"
+#include "core/util/errors.h"
+#include "core/mesh/mesh_codec.h"
+#include "core/mesh/mesh_io.h"
 #include "server/scene_translate.h"
 
 namespace surfacer::server {

@@ -6,8 +6,8 @@
 #include <utility>
 #include <vector>
 
-#include "core/mesh.h"
-#include "core/mesh_checks.h"
+#include "core/mesh/mesh.h"
+#include "core/mesh/mesh_checks.h"
 #include "server/jobs.h"
 
 namespace surfacer::server {

@@ -1,8 +1,8 @@
 // Job `isosurface`: scene(s) + bounds + resolution -> one polygonized frame per scene.
 #include <cmath>
 
-#include "core/errors.h"
-#include "core/scene.h"
+#include "core/util/errors.h"
+#include "core/scene/scene.h"
 #include "server/frames.h"
 #include "server/job_types.h"
 #include "server/polygonize.h"

@@ -1,6 +1,6 @@
 #include "server/job_types.h"
 
-#include "core/errors.h"
+#include "core/util/errors.h"
 
 namespace surfacer::server {
 

@@ -5,7 +5,7 @@
 
 #include <algorithm>
 
-#include "core/errors.h"
+#include "core/util/errors.h"
 #include "server/auth.h"
 #include "server/log.h"
 #include "server/status_map.h"

@@ -14,7 +14,7 @@
 
 #include <set>
 
-#include "core/run_control.h"
+#include "core/util/run_control.h"
 #include "surfacer/v1/surfacer.pb.h"
 
 namespace surfacer::server {

@@ -3,9 +3,9 @@
 #include <chrono>
 #include <cmath>
 
-#include "core/errors.h"
-#include "core/mesh_io.h"
-#include "core/mesh_optimizer.h"
+#include "core/util/errors.h"
+#include "core/mesh/mesh_io.h"
+#include "core/optimize/mesh_optimizer.h"
 #include "server/frames.h"
 #include "server/job_types.h"
 #include "server/polygonize.h"

@@ -4,7 +4,7 @@
 #include <cstring>
 #include <limits>
 
-#include "core/errors.h"
+#include "core/util/errors.h"
 #include "server/uploads.h"
 #include "surfacer/v1/surfacer.pb.h"
 

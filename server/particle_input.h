@@ -5,7 +5,7 @@
 #include <string>
 #include <vector>
 
-#include "core/mesh.h"
+#include "core/mesh/mesh.h"
 
 namespace surfacer::v1 {
 class ParticleFrame;

@@ -2,8 +2,8 @@
 #include <cmath>
 #include <limits>
 
-#include "core/errors.h"
-#include "core/particle_surfacer.h"
+#include "core/util/errors.h"
+#include "core/particles/particle_surfacer.h"
 #include "server/frames.h"
 #include "server/job_types.h"
 #include "server/particle_input.h"

@@ -2,9 +2,9 @@
 
 #include <cmath>
 
-#include "core/errors.h"
-#include "core/marching_cubes.h"
-#include "core/marching_tiles.h"
+#include "core/util/errors.h"
+#include "core/polygonize/marching_cubes.h"
+#include "core/polygonize/marching_tiles.h"
 #include "server/scene_translate.h"
 
 namespace surfacer::server {

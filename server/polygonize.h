@@ -7,8 +7,8 @@
 #include <string>
 #include <vector>
 
-#include "core/run_control.h"
-#include "core/scene.h"
+#include "core/util/run_control.h"
+#include "core/scene/scene.h"
 #include "server/server.h"
 #include "surfacer/v1/surfacer.pb.h"
 

@@ -5,7 +5,7 @@
 #include <cmath>
 #include <cstring>
 
-#include "core/errors.h"
+#include "core/util/errors.h"
 #include "server/uploads.h"
 #include "surfacer/v1/scene.pb.h"
 

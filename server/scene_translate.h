@@ -3,7 +3,7 @@
 
 #include <string>
 
-#include "core/scene.h"
+#include "core/scene/scene.h"
 
 namespace surfacer::v1 {
 class Scene;

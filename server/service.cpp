@@ -2,7 +2,7 @@
 
 #include <mutex>
 
-#include "core/errors.h"
+#include "core/util/errors.h"
 #include "server/job_types.h"
 #include "server/log.h"
 #include "server/status_map.h"

@@ -4,7 +4,7 @@
 
 #include <new>
 
-#include "core/errors.h"
+#include "core/util/errors.h"
 
 namespace surfacer::server {
 

@@ -15,7 +15,7 @@
 #include <set>
 #include <stdexcept>
 
-#include "core/errors.h"
+#include "core/util/errors.h"
 #include "server/uploads.h"
 
 namespace surfacer::server {

@@ -4,7 +4,7 @@
 
 #include <random>
 
-#include "core/errors.h"
+#include "core/util/errors.h"
 #include "server/store.h"
 
 namespace surfacer::server {

@@ -9,8 +9,8 @@
 #include <sstream>
 #include <thread>
 
-#include "core/mesh_checks.h"
-#include "core/mesh_io.h"
+#include "core/mesh/mesh_checks.h"
+#include "core/mesh/mesh_io.h"
 #include "tests/client/cli_process.h"
 
 namespace surfacer::client {

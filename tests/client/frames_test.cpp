@@ -12,7 +12,7 @@
 #include "client/frame_writer.h"
 #include "client/health.h"
 #include "client/job_spec.h"
-#include "core/mesh_io.h"
+#include "core/mesh/mesh_io.h"
 
 namespace surfacer::client {
 namespace {

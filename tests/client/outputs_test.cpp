@@ -9,7 +9,7 @@
 #include "client/frame_writer.h"
 #include "client/progress.h"
 #include "client/summary.h"
-#include "core/mesh_io.h"
+#include "core/mesh/mesh_io.h"
 
 namespace surfacer::client {
 namespace {

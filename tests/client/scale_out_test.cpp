@@ -14,8 +14,8 @@
 
 #include "client/cli.h"
 #include "client/server_list.h"
-#include "core/mesh_checks.h"
-#include "core/mesh_io.h"
+#include "core/mesh/mesh_checks.h"
+#include "core/mesh/mesh_io.h"
 #include "tests/client/cli_process.h"
 
 namespace surfacer::client {

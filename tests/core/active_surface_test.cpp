@@ -1,4 +1,4 @@
-#include "core/active_surface.h"
+#include "core/active/active_surface.h"
 
 #include <gtest/gtest.h>
 
@@ -9,9 +9,9 @@
 #include <string>
 #include <thread>
 
-#include "core/errors.h"
-#include "core/marching_cubes.h"
-#include "core/mesh_checks.h"
+#include "core/util/errors.h"
+#include "core/polygonize/marching_cubes.h"
+#include "core/mesh/mesh_checks.h"
 #include "tests/support/test_meshes.h"
 
 namespace surfacer {

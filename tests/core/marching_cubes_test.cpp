@@ -1,4 +1,4 @@
-#include "core/marching_cubes.h"
+#include "core/polygonize/marching_cubes.h"
 
 #include <gtest/gtest.h>
 
@@ -9,8 +9,8 @@
 #include <random>
 #include <thread>
 
-#include "core/errors.h"
-#include "core/mesh_checks.h"
+#include "core/util/errors.h"
+#include "core/mesh/mesh_checks.h"
 #include "tests/support/test_meshes.h"
 
 namespace surfacer {
@@ -245,7 +245,7 @@ TEST(MarchingCubes, RandomSignsGiveClosedOrientedManifolds) {
 }
 
 // Every sign pattern of two face-adjacent cubes (all three axes), and every 5th of four cubes around a z-edge,
-// padded by outside samples: closed, manifold and oriented. (core/mc_tables.py checks the face-sharing property the
+// padded by outside samples: closed, manifold and oriented. (core/polygonize/mc_tables.py checks the face-sharing property the
 // manifoldness rests on for all case pairs; this checks the compiled table and the marcher.)
 TEST(MarchingCubes, ExhaustiveSmallConfigurations) {
   struct Shape {

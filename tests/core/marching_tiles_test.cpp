@@ -1,4 +1,4 @@
-#include "core/marching_tiles.h"
+#include "core/polygonize/marching_tiles.h"
 
 #include <gtest/gtest.h>
 
@@ -13,11 +13,11 @@
 #include <thread>
 #include <vector>
 
-#include "core/a15_table.h"
-#include "core/errors.h"
-#include "core/marching_cubes.h"
-#include "core/mesh_checks.h"
-#include "core/scene.h"
+#include "core/polygonize/a15_table.h"
+#include "core/util/errors.h"
+#include "core/polygonize/marching_cubes.h"
+#include "core/mesh/mesh_checks.h"
+#include "core/scene/scene.h"
 #include "tests/support/test_meshes.h"
 
 namespace surfacer {

@@ -1,11 +1,11 @@
-#include "core/mesh_checks.h"
+#include "core/mesh/mesh_checks.h"
 
 #include <gtest/gtest.h>
 
 #include <chrono>
 #include <cmath>
 
-#include "core/errors.h"
+#include "core/util/errors.h"
 #include "tests/support/test_meshes.h"
 
 namespace surfacer {

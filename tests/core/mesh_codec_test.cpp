@@ -1,12 +1,12 @@
-#include "core/mesh_codec.h"
+#include "core/mesh/mesh_codec.h"
 
 #include <gtest/gtest.h>
 
 #include <random>
 
-#include "core/errors.h"
-#include "core/marching_cubes.h"
-#include "core/mesh_checks.h"
+#include "core/util/errors.h"
+#include "core/polygonize/marching_cubes.h"
+#include "core/mesh/mesh_checks.h"
 #include "tests/support/test_meshes.h"
 
 namespace surfacer {

@@ -1,4 +1,4 @@
-#include "core/mesh_io.h"
+#include "core/mesh/mesh_io.h"
 
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -9,9 +9,9 @@
 #include <fstream>
 #include <random>
 
-#include "core/errors.h"
-#include "core/mesh_checks.h"
-#include "core/mesh_codec.h"
+#include "core/util/errors.h"
+#include "core/mesh/mesh_checks.h"
+#include "core/mesh/mesh_codec.h"
 #include "tests/support/test_meshes.h"
 
 namespace surfacer {

@@ -1,4 +1,4 @@
-#include "core/mesh_optimizer.h"
+#include "core/optimize/mesh_optimizer.h"
 
 #include <gtest/gtest.h>
 
@@ -14,11 +14,11 @@
 #include <set>
 #include <thread>
 
-#include "core/errors.h"
-#include "core/marching_cubes.h"
-#include "core/mesh_checks.h"
-#include "core/mesh_optimizer_refine.h"
-#include "core/scene.h"
+#include "core/util/errors.h"
+#include "core/polygonize/marching_cubes.h"
+#include "core/mesh/mesh_checks.h"
+#include "core/optimize/refine.h"
+#include "core/scene/scene.h"
 #include "tests/support/test_meshes.h"
 
 namespace surfacer {

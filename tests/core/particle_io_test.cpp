@@ -1,4 +1,4 @@
-#include "core/particle_io.h"
+#include "core/particles/particle_io.h"
 
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -10,7 +10,7 @@
 #include <fstream>
 #include <random>
 
-#include "core/errors.h"
+#include "core/util/errors.h"
 
 namespace surfacer {
 namespace {

@@ -1,4 +1,4 @@
-#include "core/particle_surfacer.h"
+#include "core/particles/particle_surfacer.h"
 
 #include <gtest/gtest.h>
 
@@ -11,9 +11,9 @@
 #include <set>
 #include <string>
 
-#include "core/errors.h"
-#include "core/mesh_checks.h"
-#include "core/particle_surfacer_smoothing.h"
+#include "core/util/errors.h"
+#include "core/mesh/mesh_checks.h"
+#include "core/particles/smoothing.h"
 #include "tests/support/test_meshes.h"
 
 namespace surfacer {

@@ -1,6 +1,6 @@
-// Tests for core/scene.h: known values and signs, exact gradients against central differences, bounds that contain
+// Tests for core/scene/scene.h: known values and signs, exact gradients against central differences, bounds that contain
 // the solid, exact distances under rigid/uniform-scale transforms, and argument validation.
-#include "core/scene.h"
+#include "core/scene/scene.h"
 
 #include <gtest/gtest.h>
 
@@ -13,7 +13,7 @@
 #include <string>
 #include <vector>
 
-#include "core/errors.h"
+#include "core/util/errors.h"
 
 namespace surfacer {
 namespace {

@@ -1,4 +1,4 @@
-#include "core/spatial_hash.h"
+#include "core/particles/spatial_hash.h"
 
 #include <gtest/gtest.h>
 
@@ -7,7 +7,7 @@
 #include <limits>
 #include <random>
 
-#include "core/errors.h"
+#include "core/util/errors.h"
 
 namespace surfacer {
 namespace {

@@ -1,8 +1,8 @@
 // The active job through a real server on a loopback port.
 #include <gtest/gtest.h>
 
-#include "core/mesh_checks.h"
-#include "core/mesh_codec.h"
+#include "core/mesh/mesh_checks.h"
+#include "core/mesh/mesh_codec.h"
 #include "tests/server/test_client.h"
 
 namespace surfacer::testing {

@@ -3,8 +3,8 @@
 
 #include <filesystem>
 
-#include "core/mesh_checks.h"
-#include "core/mesh_codec.h"
+#include "core/mesh/mesh_checks.h"
+#include "core/mesh/mesh_codec.h"
 #include "tests/server/test_client.h"
 
 namespace surfacer::testing {

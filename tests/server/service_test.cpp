@@ -7,9 +7,9 @@
 #include <limits>
 #include <thread>
 
-#include "core/mesh_checks.h"
-#include "core/mesh_codec.h"
-#include "core/mesh_io.h"
+#include "core/mesh/mesh_checks.h"
+#include "core/mesh/mesh_codec.h"
+#include "core/mesh/mesh_io.h"
 #include "tests/server/test_client.h"
 
 namespace surfacer::testing {

@@ -1,13 +1,13 @@
 // Analytic test inputs shared by the test binaries: small meshes with known topology, exact signed-distance fields
-// (implemented here against core/scene.h's Field interface so tests do not depend on core/scene.cpp), and distance
+// (implemented here against core/scene/scene.h's Field interface so tests do not depend on core/scene/scene.cpp), and distance
 // helpers for asserting geometric bounds.
 #pragma once
 
 #include <algorithm>
 #include <optional>
 
-#include "core/mesh.h"
-#include "core/scene.h"
+#include "core/mesh/mesh.h"
+#include "core/scene/scene.h"
 
 namespace surfacer::testing {
 

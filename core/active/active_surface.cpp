@@ -1,0 +1,979 @@
+// Active implicit surface engine (core/active/active_surface.h; docs/ALGORITHMS.md §4). Choices beyond the paper:
+//
+// * Clamped distance profile. The paper thresholds an arbitrary potential at +-1. Here f is kept close to
+//   clamp(-d / (w h), -1, 1) (w = band_width): a linear ramp w nodes wide on each side of the surface, so the
+//   one-sided WENO stencils of the nodes next to the surface see a smooth function and |grad f| = 1 / (w h) is
+//   known. The ramp is restored by reinitialization (below); in normal-speed modes the speed extension moves the
+//   whole band with the surface, so the profile barely drifts.
+// * Band and activity (paper §4.5). A node is in the band when |f| < 1 or when a 6-neighbour has the other sign (a
+//   steep interface without an unsaturated node must still move). Active nodes = band plus its 6-neighbours, the
+//   "woken" nodes, which may enter (-1, 1) as the surface approaches; a node whose value is clamped back to +-1 with
+//   no band neighbour drops out. Blocks of 8^3 nodes exist around every band block (its 26 neighbours), so the
+//   3-node WENO aprons of active nodes always read stored values; the surface moves less than one node per
+//   sub-step (CFL), so the allocation, redone after every sub-step, keeps up. A new block takes the sign of its
+//   parent band block's node nearest to it: blocks are missing only where f is saturated, so their sign is uniform.
+// * Speed extension (paper §4.3) goes beyond the voxels next to the surface: nodes with no crossed incident edge take
+//   the mean speed of already-assigned 6-neighbours, one layer per pass, so the whole band moves
+//   with the surface speed (Adalsteinsson & Sethian 1999 in spirit) and df/dt vanishes when the surface is at rest.
+//   Evaluating the target at far band nodes instead would fight the clamp and keep max |df/dt| from ever falling.
+// * Tension is part of the extended speed: kappa is evaluated at the two nodes of each crossed edge and interpolated
+//   to the sample point, so only nodes next to the surface (whose stencils are clear of the clamp) matter.
+// * Space and time: HJ-WENO5 with WENO-Z weights, TVD-RK3 in every mode (the speed is frozen over a sub-step in
+//   normal-speed modes: one polygonization and one target evaluation per crossing per sub-step). The stage kernels
+//   run densely over the 512 nodes of each block with an active node (vectorized), keeping only active results.
+// * Time-dependent velocities: the step is chosen from |u| at the step's start, at most twice the previous step, and
+//   rejected (recomputed with a smaller dt) when |u| at the second stage breaks the CFL limit of 1.
+// * Reinitialization every reinit_interval sub-steps: d_tau = -S(d0) (|grad d| - 1) in grid units, Godunov with
+//   second-order ENO differences, pseudo-time step 1/2, ceil(2 (w - 1)) + 2 iterations over all allocated blocks. The
+//   surface must not move, and every rescaling of the nodes at a crossed edge moves the linearly interpolated
+//   crossing (the two ends see slightly different gradients); repeated reinitializations let that creep pile up
+//   (measured: a static sphere grew by several % over tens of reinitializations with Russo & Smereka's fix, and
+//   the thin sheets of the Enright test gained or lost tens of %). So the interface nodes (a 6-neighbour of the other
+//   sign) and their 6-neighbours keep their values while the interface gradient is within kInterfaceSlack of the
+//   ramp's; only where it is not are the interface nodes rescaled, d <- d0 / |grad d0| (Russo & Smereka 2000 with
+//   per-axis differences chosen to avoid kinks: central where both sides agree, else across the crossing, else the
+//   larger one-sided difference), relaxed toward with d <- d - dtau (S |d| - D).
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <string>
+#include <unordered_set>
+
+#include "core/active/engine.h"
+#include "core/active/schemes.h"
+#include "core/util/errors.h"
+#include "core/util/parallel.h"
+
+namespace surfacer {
+namespace {
+
+using sparse::kBlockNodes;
+using sparse::local_index;
+using sparse::neighbor_slot;
+
+constexpr double kInterfaceSlack = 0.5;
+constexpr double kInf = std::numeric_limits<double>::infinity();
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+template <int G>
+constexpr int apron_side() {
+  return 8 + 2 * G;
+}
+template <int G>
+constexpr int apron_at(int x, int y, int z) {
+  return (x + G) + apron_side<G>() * ((y + G) + apron_side<G>() * (z + G));
+}
+
+// Per-thread scratch arrays for aprons.
+float* scratch(int slot, std::size_t size) {
+  thread_local std::vector<float> buffers[4];
+  if (buffers[slot].size() < size) buffers[slot].resize(size);
+  return buffers[slot].data();
+}
+
+std::string num(double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%g", v);
+  return buf;
+}
+
+void validate(const ActiveSurfaceOptions& o) {
+  if (!(o.h > 0.0) || !std::isfinite(o.h)) throw InvalidInput("h", "h (" + num(o.h) + ") must be a finite spacing > 0");
+  if (o.domain) {
+    const Aabb& d = *o.domain;
+    if (!d.min.allFinite() || !d.max.allFinite() || !d.valid()) {
+      throw InvalidInput("domain", "domain must be a finite box with min < max on every axis");
+    }
+    for (int a = 0; a < 3; ++a) {
+      if ((d.max[a] - d.min[a]) / o.h > double(sparse::kCoordLimit) * 8.0) {
+        throw ResourceLimit("domain", "domain spans more than 2^23 nodes per axis; coarsen h or shrink the domain");
+      }
+    }
+  }
+  if (!(o.band_width >= 2.0) || !(o.band_width <= 8.0)) {
+    throw InvalidInput("band_width",
+                       "band_width (" + num(o.band_width) + ") must be in [2, 8] grid spacings; the default is 3");
+  }
+  const std::pair<const char*, double> coeffs[] = {
+      {"alpha", o.alpha}, {"beta", o.beta}, {"gamma", o.gamma}, {"delta", o.delta}};
+  for (const auto& [name, v] : coeffs) {
+    if (!(v >= 0.0) || !std::isfinite(v)) {
+      throw InvalidInput(name, std::string(name) + " (" + num(v) + ") must be finite and >= 0");
+    }
+  }
+  if (o.cfl && !(*o.cfl > 0.0 && *o.cfl <= 1.0)) {
+    throw InvalidInput("cfl", "cfl (" + num(*o.cfl) + ") must be in (0, 1]; the default is 0.5");
+  }
+  if (o.substeps_per_frame < 1) throw InvalidInput("substeps_per_frame", "substeps_per_frame must be >= 1");
+  if (o.max_substeps_per_frame < 1) throw InvalidInput("max_substeps_per_frame", "max_substeps_per_frame must be >= 1");
+  if (o.reinit_interval < 1) throw InvalidInput("reinit_interval", "reinit_interval must be >= 1; the default is 16");
+  if (!(o.max_curvature > 0.0) || !std::isfinite(o.max_curvature)) {
+    throw InvalidInput("max_curvature", "max_curvature must be > 0 (in units of 1/h); the default is 1");
+  }
+  if (o.threads < 0) throw InvalidInput("threads", "threads must be >= 0 (0: all hardware threads)");
+  if (o.max_blocks < 1) throw InvalidInput("max_blocks", "max_blocks must be >= 1");
+  if (o.polygonizer != ActivePolygonizer::kCubes && o.polygonizer != ActivePolygonizer::kTiles) {
+    throw InvalidInput("polygonizer", "polygonizer must be kTiles or kCubes");
+  }
+}
+
+}  // namespace
+
+// ------------------------------------------------------------------------------------------------------------------
+// Topology: band flags, block allocation and release, active lists.
+
+bool ActiveSurface::Impl::owns_cubes(int b) const {
+  for (int dz = 0; dz <= 1; ++dz)
+    for (int dy = 0; dy <= 1; ++dy)
+      for (int dx = 0; dx <= 1; ++dx) {
+        const int n = grid.neighbor(b, neighbor_slot(dx, dy, dz));
+        if (n >= 0 && band[n]) return true;
+      }
+  return false;
+}
+
+std::int64_t ActiveSurface::Impl::active_count() const {
+  std::int64_t n = 0;
+  for (const auto& a : active) n += static_cast<std::int64_t>(a.size());
+  return n;
+}
+
+void ActiveSurface::Impl::update_topology(const RunControl& control) {
+  control.check();
+  if (!grid.neighbors_valid()) grid.rebuild_neighbors();
+  const int nb = grid.block_count();
+
+  // Band flags of the current blocks.
+  std::vector<char> is_band(nb, 0);
+  parallel_for(nb, threads, [&](int b) {
+    constexpr int G = 1;
+    constexpr std::ptrdiff_t S = apron_side<G>();
+    float* ap = scratch(0, S * S * S);
+    grid.gather<G>(b, kChanF, ap);
+    unsigned char bits[8 * 8 * 8];
+    active_detail::band_bits<S>(ap, bits);
+    unsigned char any = 0;
+    for (int i = 0; i < 512; ++i) any |= bits[i];
+    is_band[b] = any != 0;
+  });
+
+  // Allocate the 26 neighbours of every band block (in block order, so the result is deterministic).
+  std::int64_t block_hi[3];
+  const int wall_blocks = static_cast<int>(std::ceil((ramp + 1.0) / 8.0));  // blocks holding the wall's outer ramp
+  for (int a = 0; a < 3; ++a) block_hi[a] = has_domain ? dom_hi[a] / 8 + wall_blocks : sparse::kCoordLimit - 1;
+  // Collect first, so that exceeding max_blocks leaves the state untouched.
+  struct NewBlock {
+    sparse::BlockCoord coord;
+    float fill;
+  };
+  std::vector<NewBlock> fresh;
+  std::unordered_set<std::uint64_t> pending;
+  for (int b = 0; b < nb; ++b) {
+    if (!is_band[b]) continue;
+    const sparse::BlockCoord c = grid.coord(b);
+    for (int dz = -1; dz <= 1; ++dz)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          const sparse::BlockCoord n{c[0] + dx, c[1] + dy, c[2] + dz};
+          bool inside = true;
+          for (int a = 0; a < 3; ++a) {
+            const std::int64_t lo = has_domain ? -wall_blocks : -sparse::kCoordLimit;
+            if (n[a] < lo || n[a] > block_hi[a]) inside = false;
+          }
+          if (!inside || grid.find(n[0], n[1], n[2]) >= 0) continue;
+          if (!pending.insert(sparse::pack_coord(n[0], n[1], n[2])).second) continue;
+          // Parent node nearest to the new block.
+          const int px = dx < 0 ? 0 : (dx > 0 ? 7 : 3), py = dy < 0 ? 0 : (dy > 0 ? 7 : 3),
+                    pz = dz < 0 ? 0 : (dz > 0 ? 7 : 3);
+          fresh.push_back({n, grid.data(b, kChanF)[local_index(px, py, pz)] > 0.0f ? 1.0f : -1.0f});
+        }
+  }
+  if (grid.block_count() + static_cast<std::int64_t>(fresh.size()) > opt.max_blocks) {
+    throw ResourceLimit("max_blocks", "the narrow band needs more than max_blocks (" + std::to_string(opt.max_blocks) +
+                                          ") blocks of 8^3 nodes; raise max_blocks or coarsen h");
+  }
+  for (const NewBlock& nbk_new : fresh) {
+    const int nbk = grid.insert(nbk_new.coord, nbk_new.fill);
+    for (int ch = 0; ch < kChanCount; ++ch) apply_wall(nbk, ch);
+    if (velocity_cache >= 0) {
+      for (int a = 0; a < 3; ++a) std::fill_n(grid.data(nbk, velocity_cache + a), kBlockNodes, kNaN);
+    }
+  }
+
+  // Release old blocks with no band block in their neighbourhood.
+  std::vector<char> remove(grid.block_count(), 0);
+  bool any_removed = false;
+  for (int b = 0; b < nb; ++b) {
+    if (is_band[b]) continue;
+    const sparse::BlockCoord c = grid.coord(b);
+    bool keep = false;
+    for (int dz = -1; dz <= 1 && !keep; ++dz)
+      for (int dy = -1; dy <= 1 && !keep; ++dy)
+        for (int dx = -1; dx <= 1 && !keep; ++dx) {
+          const int n = grid.find(c[0] + dx, c[1] + dy, c[2] + dz);
+          if (n >= 0 && n < nb && is_band[n]) keep = true;
+        }
+    if (!keep) {
+      remove[b] = 1;
+      any_removed = true;
+    }
+  }
+  if (any_removed) grid.remove_blocks(remove);
+  if (!grid.neighbors_valid()) grid.rebuild_neighbors();
+
+  // Band bits on a 10^3 region, dilated into the active lists; interface gradient error.
+  const int count = grid.block_count();
+  active.resize(count);
+  band.assign(count, 0);
+  parallel_for(count, threads, [&](int b) {
+    constexpr int G = 2;
+    constexpr std::ptrdiff_t S = apron_side<G>();
+    float* ap = scratch(0, S * S * S);
+    grid.gather<G>(b, kChanF, ap);
+    constexpr std::ptrdiff_t R = 10;  // band bits for local coordinates [-1, 9)
+    unsigned char bits[R * R * R];
+    active_detail::band_bits<S>(ap, bits);
+    std::vector<std::uint16_t>& list = active[b];
+    list.clear();
+    bool any_band = false;
+    const sparse::BlockCoord& c = grid.coord(b);
+    for (int z = 0; z < 8; ++z)
+      for (int y = 0; y < 8; ++y)
+        for (int x = 0; x < 8; ++x) {
+          const unsigned char* q = bits + (x + 1) + R * ((y + 1) + R * (z + 1));
+          any_band |= *q != 0;
+          if (*q | q[1] | q[-1] | q[R] | q[-R] | q[R * R] | q[-R * R]) {
+            // Nodes outside the domain hold the wall's ramp and are never updated.
+            if (!has_domain || node_in_domain(c, x, y, z))
+              list.push_back(static_cast<std::uint16_t>(local_index(x, y, z)));
+          }
+        }
+    band[b] = any_band;
+  });
+  max_block_x = -sparse::kCoordLimit;
+  for (int b = 0; b < count; ++b) max_block_x = std::max(max_block_x, grid.coord(b)[0]);
+}
+
+// ------------------------------------------------------------------------------------------------------------------
+// Reinitialization (Russo & Smereka 2000), in grid units d = -ramp f.
+
+void ActiveSurface::Impl::reinitialize(const RunControl& control) {
+  control.check();
+  const int nb = grid.block_count();
+  const float ramp_f = static_cast<float>(ramp);
+  // Frozen potential in B; subcell distance estimates of the interface nodes in Speed (NaN elsewhere).
+  parallel_for(nb, threads, [&](int b) { std::copy_n(grid.data(b, kChanF), kBlockNodes, grid.data(b, kChanB)); });
+  parallel_for(nb, threads, [&](int b) {
+    constexpr int G = 2;
+    constexpr std::ptrdiff_t S = apron_side<G>();
+    float* ap = scratch(0, S * S * S);
+    grid.gather<G>(b, kChanB, ap);
+    float* out = grid.data(b, kChanSpeed);
+    const std::ptrdiff_t st[3] = {1, S, S * S};
+    constexpr int R = 10;  // classification of local coordinates [-1, 9): 0 off, 1 interface kept, 2 rescaled
+    unsigned char cls[R * R * R];
+    float dval[R * R * R];
+    for (int z = -1; z < 9; ++z)
+      for (int y = -1; y < 9; ++y)
+        for (int x = -1; x < 9; ++x) {
+          const float* p = ap + apron_at<G>(x, y, z);
+          const int r = (x + 1) + R * ((y + 1) + R * (z + 1));
+          const bool in = *p > 0.0f;
+          bool iface = false;
+          double g2 = 0.0;
+          const double d0 = -ramp * p[0];
+          for (int a = 0; a < 3; ++a) {
+            const double dp = -ramp * p[st[a]], dm = -ramp * p[-st[a]];
+            const bool cross_p = (p[st[a]] > 0.0f) != in, cross_m = (p[-st[a]] > 0.0f) != in;
+            iface |= cross_p || cross_m;
+            const double fwd = dp - d0, bwd = d0 - dm;
+            double g;
+            const double af = std::abs(fwd), ab = std::abs(bwd);
+            if (fwd * bwd > 0.0 && std::max(af, ab) <= 2.0 * std::min(af, ab)) {
+              g = 0.5 * (af + ab);  // smooth along this axis: central difference
+            } else if (cross_p != cross_m) {
+              g = cross_p ? af : ab;  // a kink beyond the node: the difference across the crossing
+            } else {
+              g = std::max(af, ab);  // a kink, or a sheet thinner than two cells: Russo & Smereka
+            }
+            g2 += g * g;
+          }
+          double g = std::sqrt(std::max(g2, 1e-12));
+          const bool keep = std::abs(g - 1.0) < kInterfaceSlack;
+          cls[r] = iface ? (keep ? 1 : 2) : 0;
+          dval[r] = static_cast<float>(keep ? d0 : d0 / g);
+        }
+    for (int z = 0; z < 8; ++z)
+      for (int y = 0; y < 8; ++y)
+        for (int x = 0; x < 8; ++x) {
+          const int r = (x + 1) + R * ((y + 1) + R * (z + 1));
+          float v = kNaN;
+          if (cls[r] != 0) {
+            v = dval[r];
+          } else {
+            const int nbr[6] = {r + 1, r - 1, r + R, r - R, r + R * R, r - R * R};
+            bool any_kept = false, any_rescaled = false;
+            for (const int q : nbr) {
+              any_kept |= cls[q] == 1;
+              any_rescaled |= cls[q] == 2;
+            }
+            if (any_kept && !any_rescaled) v = dval[r];  // next to a kept interface: keep too
+          }
+          out[local_index(x, y, z)] = v;
+        }
+  });
+  const double dtau = 0.5;
+  // Kept nodes reach a node beyond the interface; the rest of the ramp (ramp - 1 nodes) needs 2 (ramp - 1)
+  // pseudo-time steps of 1/2 to be swept, plus two to settle.
+  const int iterations = static_cast<int>(std::ceil(2.0 * (ramp - 1.0))) + 2;
+  for (int it = 0; it < iterations; ++it) {
+    control.check();
+    parallel_for(nb, threads, [&](int b) {
+      constexpr int G = 2;
+      constexpr std::ptrdiff_t S = apron_side<G>();
+      float* ap = scratch(0, S * S * S);
+      grid.gather<G>(b, kChanF, ap);
+      const float* f0 = grid.data(b, kChanB);
+      const float* dsub = grid.data(b, kChanSpeed);
+      float* out = grid.data(b, kChanA);
+      const sparse::BlockCoord& c = grid.coord(b);
+      const std::ptrdiff_t st[3] = {1, S, S * S};
+      const auto minmod = [](double a, double b) { return a * b <= 0.0 ? 0.0 : (std::abs(a) < std::abs(b) ? a : b); };
+      for (int z = 0; z < 8; ++z)
+        for (int y = 0; y < 8; ++y)
+          for (int x = 0; x < 8; ++x) {
+            const int i = local_index(x, y, z);
+            const float* p = ap + apron_at<G>(x, y, z);
+            // Saturated with saturated 6-neighbours of the same value: Godunov leaves it saturated.
+            if ((p[0] == 1.0f || p[0] == -1.0f) && p[1] == p[0] && p[-1] == p[0] && p[S] == p[0] && p[-S] == p[0] &&
+                p[S * S] == p[0] && p[-S * S] == p[0] && std::isnan(dsub[i])) {
+              out[i] = has_domain ? std::min(p[0], wall_potential(c, x, y, z)) : p[0];
+              continue;
+            }
+            const double d = -ramp * p[0];
+            const double sgn = f0[i] > 0.0f ? -1.0 : 1.0;  // sign of d0
+            double next;
+            if (!std::isnan(dsub[i])) {
+              next = d - dtau * (sgn * std::abs(d) - dsub[i]);
+            } else {
+              // Godunov with second-order ENO one-sided differences (Osher & Fedkiw 2003, §3.3): first-order
+              // values off the interface would feed a bias back into the interface nodes' gradients at the
+              // next reinitialization.
+              double g2 = 0.0;
+              for (int a = 0; a < 3; ++a) {
+                const std::ptrdiff_t t = st[a];
+                const double m2 = -ramp * p[-2 * t], m1 = -ramp * p[-t], p1 = -ramp * p[t], p2 = -ramp * p[2 * t];
+                const double c0 = p1 - 2.0 * d + m1;
+                const double bm = (d - m1) + 0.5 * minmod(d - 2.0 * m1 + m2, c0);  // backward
+                const double fp = (p1 - d) - 0.5 * minmod(c0, p2 - 2.0 * p1 + d);  // forward
+                if (sgn > 0.0) {
+                  g2 += std::max(std::max(bm, 0.0) * std::max(bm, 0.0), std::min(fp, 0.0) * std::min(fp, 0.0));
+                } else {
+                  g2 += std::max(std::min(bm, 0.0) * std::min(bm, 0.0), std::max(fp, 0.0) * std::max(fp, 0.0));
+                }
+              }
+              next = d - dtau * sgn * (std::sqrt(g2) - 1.0);
+              // A node off the interface keeps its side (a steep profile could otherwise push it across zero and
+              // create or close a gap the surface never had).
+              if (next * sgn < 1e-3) next = 1e-3 * sgn;
+            }
+            float fv = static_cast<float>(-next / ramp_f);
+            fv = std::clamp(fv, -1.0f, 1.0f);
+            if (has_domain) fv = std::min(fv, wall_potential(c, x, y, z));
+            out[i] = fv;
+          }
+    });
+    grid.swap_channels(kChanF, kChanA);
+  }
+  steps_since_reinit = 0;
+  update_topology(control);
+}
+
+// ------------------------------------------------------------------------------------------------------------------
+// Construction from a normalized field.
+
+void ActiveSurface::Impl::configure() {
+  validate(opt);
+  threads = resolve_threads(opt.threads);
+  h = opt.h;
+  inv_h = 1.0 / h;
+  ramp = opt.band_width;
+  has_domain = opt.domain.has_value();
+  if (has_domain) {
+    origin = opt.domain->min;
+    for (int a = 0; a < 3; ++a) {
+      dom_hi[a] = static_cast<std::int64_t>(std::floor((opt.domain->max[a] - opt.domain->min[a]) / h + 1e-9));
+    }
+  }
+}
+
+void ActiveSurface::Impl::init(const Field& shape, const RunControl& control) {
+  configure();
+  const std::optional<Aabb> sb = shape.bounds();
+  if (!sb && !has_domain) {
+    throw InvalidInput("domain", "the initial shape is unbounded (it has no bounds); set options.domain to confine it");
+  }
+  Aabb region;
+  if (sb) {
+    const double pad = (ramp + 2.0) * h;
+    region = Aabb{sb->min.array() - pad, sb->max.array() + pad};
+    if (!region.min.allFinite() || !region.max.allFinite()) {
+      if (!has_domain) {
+        throw InvalidInput("domain", "the initial shape's bounds are not finite; set options.domain to confine it");
+      }
+      region = *opt.domain;
+    }
+    if (has_domain) {
+      region.min = region.min.cwiseMax(opt.domain->min);
+      region.max = region.max.cwiseMin(opt.domain->max);
+    }
+  } else {
+    region = *opt.domain;
+  }
+  if (!region.valid()) {
+    throw InvalidInput("initial_shape", "the initial shape lies outside the domain; move it or enlarge the domain");
+  }
+  const int wall_blocks = static_cast<int>(std::ceil((ramp + 1.0) / 8.0));  // blocks holding the wall's outer ramp
+  std::int64_t lo[3], hi[3], dims[3];
+  std::int64_t candidates = 1;
+  for (int a = 0; a < 3; ++a) {
+    // One block of margin: a solid touching the domain closes in the wall blocks just outside it.
+    lo[a] = static_cast<std::int64_t>(std::floor((region.min[a] - origin[a]) * inv_h / 8.0)) - 1;
+    hi[a] = static_cast<std::int64_t>(std::floor((region.max[a] - origin[a]) * inv_h / 8.0)) + 1;
+    if (has_domain) {
+      lo[a] = std::max<std::int64_t>(lo[a], -wall_blocks);
+      hi[a] = std::min<std::int64_t>(hi[a], dom_hi[a] / 8 + wall_blocks);
+    }
+    if (lo[a] < -sparse::kCoordLimit || hi[a] >= sparse::kCoordLimit) {
+      throw ResourceLimit("h", "the initial shape spans more than 2^23 nodes per axis; coarsen h");
+    }
+    dims[a] = hi[a] - lo[a] + 1;
+    candidates *= dims[a];
+    if (candidates > (std::int64_t{1} << 24)) {
+      throw ResourceLimit("domain",
+                          "the initial shape's box holds more than 2^24 blocks of 8^3 nodes to scan; coarsen "
+                          "h or give a tighter domain");
+    }
+  }
+
+  // Pass 1: blocks whose 9^3 nodes (the block and the first node of its + neighbours) see both signs.
+  auto sample = [&](const sparse::BlockCoord& c, int x, int y, int z) -> double {
+    if (!node_in_domain(c, x, y, z)) return kInf;  // beyond the wall: outside
+    return shape.value(node_position(c, x, y, z));
+  };
+  std::vector<char> surface(candidates, 0);
+  parallel_for(static_cast<int>(candidates), threads, [&](int i) {
+    if ((i & 63) == 0) control.check();
+    const sparse::BlockCoord c{static_cast<int>(lo[0] + i % dims[0]), static_cast<int>(lo[1] + (i / dims[0]) % dims[1]),
+                               static_cast<int>(lo[2] + i / (dims[0] * dims[1]))};
+    bool any_in = false, any_out = false;
+    for (int z = 0; z <= 8; ++z)
+      for (int y = 0; y <= 8; ++y)
+        for (int x = 0; x <= 8; ++x) {
+          (sample(c, x, y, z) < 0.0 ? any_in : any_out) = true;
+          if (any_in && any_out) {
+            surface[i] = 1;
+            return;
+          }
+        }
+  });
+  control.check();
+  for (std::int64_t i = 0; i < candidates; ++i) {
+    if (!surface[i]) continue;
+    const sparse::BlockCoord c{static_cast<int>(lo[0] + i % dims[0]), static_cast<int>(lo[1] + (i / dims[0]) % dims[1]),
+                               static_cast<int>(lo[2] + i / (dims[0] * dims[1]))};
+    for (int dz = -1; dz <= 1; ++dz)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          const sparse::BlockCoord n{c[0] + dx, c[1] + dy, c[2] + dz};
+          if (has_domain) {
+            bool inside = true;
+            for (int a = 0; a < 3; ++a) inside &= n[a] >= -wall_blocks && n[a] <= dom_hi[a] / 8 + wall_blocks;
+            if (!inside) continue;
+          }
+          if (grid.find(n[0], n[1], n[2]) >= 0) continue;
+          if (grid.block_count() >= opt.max_blocks) {
+            throw ResourceLimit("max_blocks", "the initial surface needs more than max_blocks (" +
+                                                  std::to_string(opt.max_blocks) +
+                                                  ") blocks of 8^3 nodes; raise max_blocks or coarsen h");
+          }
+          grid.insert(n, -1.0f);
+        }
+  }
+  if (grid.block_count() == 0) {
+    throw InvalidInput("initial_shape",
+                       "the initial shape has no surface inside the domain (every sample has the same sign)");
+  }
+  grid.rebuild_neighbors();
+
+  // Pass 2: f = clamp(-value / (|grad value| w h)) on the allocated blocks.
+  const double scale = 1.0 / (ramp * h);
+  parallel_for(grid.block_count(), threads, [&](int b) {
+    if ((b & 15) == 0) control.check();
+    const sparse::BlockCoord& c = grid.coord(b);
+    float* f = grid.data(b, kChanF);
+    for (int z = 0; z < 8; ++z)
+      for (int y = 0; y < 8; ++y)
+        for (int x = 0; x < 8; ++x) {
+          float v = wall_potential(c, x, y, z);  // nodes outside the domain hold the wall's ramp
+          if (node_in_domain(c, x, y, z)) {
+            const float wall = v;
+            Vec3 g;
+            const double val = shape.value_and_gradient(node_position(c, x, y, z), g);
+            const double gn = g.norm();
+            double fv;
+            if (gn > 1e-12 && std::isfinite(gn)) {
+              fv = -val / gn * scale;
+            } else {
+              fv = val < 0.0 ? 1.0 : -1.0;
+            }
+            if (std::isnan(fv)) fv = -1.0;
+            v = static_cast<float>(std::clamp(fv, -1.0, 1.0));
+            // A value of exactly 0 is outside (as in Marching Cubes); keep the inside strictly positive.
+            if (val < 0.0 && v <= 0.0f) v = std::numeric_limits<float>::min();
+            if (val >= 0.0 && v > 0.0f) v = 0.0f;
+            v = std::min(v, wall);
+          }
+          f[local_index(x, y, z)] = v;
+        }
+    std::copy_n(f, kBlockNodes, grid.data(b, kChanA));
+    std::copy_n(f, kBlockNodes, grid.data(b, kChanB));
+  });
+  update_topology(control);
+  reinitialize(control);
+  if (active_count() == 0) {
+    throw InvalidInput("initial_shape", "the initial shape has no surface inside the domain");
+  }
+  last_measures = measure(nullptr, control);
+  area0 = last_measures.area;
+  volume0 = last_measures.volume;
+}
+
+// ------------------------------------------------------------------------------------------------------------------
+// One sub-step.
+
+double ActiveSurface::Impl::step(double dt_limit, const RunControl& control) {
+  control.check();
+  const bool advect = advecting();
+  const int nb = grid.block_count();
+  const double cfl = opt.cfl ? *opt.cfl : 1.0;
+
+  double gterm = 0.0;
+  if (!advect) {
+    // (1) sample the speed at the surface, (2) extend it over the active nodes.
+    last_measures = measure(&edge_speed, control);
+    if (opt.gamma > 0.0 && area0 > 0.0) gterm += opt.gamma * (area0 - last_measures.area) / area0;
+    if (opt.delta > 0.0 && volume0 > 0.0) gterm += opt.delta * (volume0 - last_measures.volume) / volume0;
+
+    // Level 0: mean over the crossed incident edges.
+    const float gterm_f = static_cast<float>(gterm);
+    parallel_for(nb, threads, [&](int b) {
+      float* s = grid.data(b, kChanSpeed);
+      std::fill_n(s, kBlockNodes, kNaN);
+      for (const std::uint16_t i : active[b]) {
+        const int x = i & 7, y = (i >> 3) & 7, z = i >> 6;
+        const int lc[3] = {x, y, z};
+        const int st[3] = {1, 8, 64};
+        double sum = 0.0;
+        int n = 0;
+        for (int a = 0; a < 3; ++a) {
+          // Edge (node, a) owned by this block.
+          if (!edge_speed[b].empty()) {
+            const float e = edge_speed[b][i * 3 + a];
+            if (!std::isnan(e)) {
+              sum += e;
+              ++n;
+            }
+          }
+          // Edge (node - e_a, a).
+          int owner = b, j = i - st[a];
+          if (lc[a] == 0) {
+            const int off[3] = {a == 0 ? -1 : 0, a == 1 ? -1 : 0, a == 2 ? -1 : 0};
+            owner = grid.neighbor(b, neighbor_slot(off[0], off[1], off[2]));
+            j = i + 7 * st[a];
+          }
+          if (owner >= 0 && !edge_speed[owner].empty()) {
+            const float e = edge_speed[owner][j * 3 + a];
+            if (!std::isnan(e)) {
+              sum += e;
+              ++n;
+            }
+          }
+        }
+        if (n > 0) s[i] = static_cast<float>(sum / n) + gterm_f;
+      }
+    });
+    // Outer layers: mean of assigned 6-neighbours, one layer per pass (Jacobi).
+    // Active nodes lie within about ramp + 2 nodes of the surface, which along a diagonal is up to sqrt(3) times as
+    // many 6-neighbour hops; the passes stop early once nothing changes.
+    const int layers = static_cast<int>(std::ceil((ramp + 2.0) * std::sqrt(3.0))) + 1;
+    const float nan_fill = kNaN;
+    for (int layer = 0; layer < layers; ++layer) {
+      control.check();
+      std::vector<char> changed(nb, 0);
+      parallel_for(nb, threads, [&](int b) {
+        const float* s = grid.data(b, kChanSpeed);
+        float* out = grid.data(b, kChanA);
+        std::copy_n(s, kBlockNodes, out);
+        bool need = false;
+        for (const std::uint16_t i : active[b]) need |= std::isnan(s[i]);
+        if (!need) return;
+        constexpr int G = 1;
+        constexpr std::ptrdiff_t S = apron_side<G>();
+        float* ap = scratch(0, S * S * S);
+        grid.gather<G>(b, kChanSpeed, ap, &nan_fill);
+        for (const std::uint16_t i : active[b]) {
+          if (!std::isnan(s[i])) continue;
+          const float* p = ap + apron_at<G>(i & 7, (i >> 3) & 7, i >> 6);
+          const float nbv[6] = {p[1], p[-1], p[S], p[-S], p[S * S], p[-S * S]};
+          double sum = 0.0;
+          int n = 0;
+          for (const float v : nbv) {
+            if (!std::isnan(v)) {
+              sum += v;
+              ++n;
+            }
+          }
+          if (n > 0) {
+            out[i] = static_cast<float>(sum / n);
+            changed[b] = 1;
+          }
+        }
+      });
+      grid.swap_channels(kChanSpeed, kChanA);
+      if (std::find(changed.begin(), changed.end(), 1) == changed.end()) break;
+    }
+    // Fallback: the speed at the node itself.
+    parallel_for(nb, threads, [&](int b) {
+      float* s = grid.data(b, kChanSpeed);
+      bool need = false;
+      for (const std::uint16_t i : active[b]) need |= std::isnan(s[i]);
+      if (!need) return;
+      constexpr int G = 1;
+      constexpr std::ptrdiff_t S = apron_side<G>();
+      float* ap = scratch(0, S * S * S);
+      grid.gather<G>(b, kChanF, ap);
+      const sparse::BlockCoord& c = grid.coord(b);
+      for (const std::uint16_t i : active[b]) {
+        if (!std::isnan(s[i])) continue;
+        const int x = i & 7, y = (i >> 3) & 7, z = i >> 6;
+        double v = gterm;
+        if (target && opt.alpha > 0.0) v += -opt.alpha * target->value(node_position(c, x, y, z));
+        if (opt.beta > 0.0) {
+          const double kmax = opt.max_curvature * inv_h;
+          const double k = active_detail::curvature(ap + apron_at<G>(x, y, z), 1, S, S * S, inv_h);
+          v -= opt.beta * std::clamp(k, -kmax, kmax);
+        }
+        s[i] = static_cast<float>(v);
+      }
+    });
+  }
+
+  // Runge-Kutta stages. rate_block computes L(in) = df/dt for the 512 nodes of a block (dense, vectorized WENO);
+  // only active nodes keep it. Stage outputs equal f at inactive nodes.
+  std::vector<double> block_max_rate(nb, 0.0), block_max_speed(nb, 0.0);
+  const float inv_h_f = static_cast<float>(inv_h);
+  auto rate_block = [&](int b, int in_ch, double t_stage, float* rate, double* max_speed) {
+    constexpr std::size_t kApron = active_detail::kApronSide;
+    float* ap = scratch(1, kApron * kApron * kApron);
+    grid.gather<3>(b, in_ch, ap);
+    if (advect) {
+      float* u = scratch(2, std::size_t{3} * kBlockNodes);
+      std::fill_n(u, 3 * kBlockNodes, 0.0f);
+      const sparse::BlockCoord& c = grid.coord(b);
+      double ms = 0.0;
+      if (separable.spatial) {
+        const double scale = separable.time_scale ? separable.time_scale(t_stage) : 1.0;
+        float* cache[3] = {grid.data(b, velocity_cache), grid.data(b, velocity_cache + 1),
+                           grid.data(b, velocity_cache + 2)};
+        for (const std::uint16_t i : active[b]) {
+          if (std::isnan(cache[0][i])) {
+            const Vec3 v = separable.spatial(node_position(c, i & 7, (i >> 3) & 7, i >> 6));
+            for (int a = 0; a < 3; ++a) cache[a][i] = static_cast<float>(v[a]);
+          }
+          const Vec3 v = scale * Vec3(cache[0][i], cache[1][i], cache[2][i]);
+          for (int a = 0; a < 3; ++a) u[a * kBlockNodes + i] = static_cast<float>(v[a]);
+          ms = std::max(ms, v.norm());
+        }
+      } else {
+        for (const std::uint16_t i : active[b]) {
+          const Vec3 v = velocity(node_position(c, i & 7, (i >> 3) & 7, i >> 6), t_stage);
+          u[i] = static_cast<float>(v.x());
+          u[kBlockNodes + i] = static_cast<float>(v.y());
+          u[2 * kBlockNodes + i] = static_cast<float>(v.z());
+          ms = std::max(ms, v.norm());
+        }
+      }
+      if (max_speed != nullptr) *max_speed = ms;
+      active_detail::advect_rate_block(ap, u, u + kBlockNodes, u + std::ptrdiff_t{2} * kBlockNodes, inv_h_f, rate);
+    } else {
+      const float* speed = grid.data(b, kChanSpeed);
+      float* s = scratch(2, kBlockNodes);
+      double ms = 0.0;
+      for (int i = 0; i < kBlockNodes; ++i) s[i] = 0.0f;
+      for (const std::uint16_t i : active[b]) {
+        s[i] = speed[i];
+        ms = std::max(ms, static_cast<double>(std::abs(speed[i])));
+      }
+      if (max_speed != nullptr) *max_speed = ms;
+      active_detail::normal_rate_block(ap, s, inv_h_f, rate);
+    }
+  };
+
+  // Stage 1: L(f) (into A in normal-speed modes; into Speed when advecting, where Speed is free, so that a rejected
+  // step can restart from it), with the maxima for the time step.
+  const int rate_ch = advect ? kChanSpeed : kChanA;
+  control.check();
+  parallel_for(nb, threads, [&](int b) {
+    const float* f = grid.data(b, kChanF);
+    float* out = grid.data(b, rate_ch);
+    std::copy_n(f, kBlockNodes, out);
+    if (active[b].empty()) return;
+    float* rate = scratch(3, kBlockNodes);
+    rate_block(b, kChanF, time, rate, &block_max_speed[b]);
+    double mr = 0.0;
+    for (const std::uint16_t i : active[b]) {
+      out[i] = rate[i];
+      mr = std::max(mr, static_cast<double>(std::abs(rate[i])));
+    }
+    block_max_rate[b] = mr;
+  });
+  double vmax = 0.0, rmax = 0.0;
+  for (int b = 0; b < nb; ++b) {
+    vmax = std::max(vmax, block_max_speed[b]);
+    rmax = std::max(rmax, block_max_rate[b]);
+  }
+  last_max_speed = vmax;
+  last_max_dfdt = rmax;
+  double dt_stable = kInf;
+  if (vmax > 0.0) dt_stable = cfl * h / vmax;
+  if (!advect) {
+    if (opt.beta > 0.0) dt_stable = std::min(dt_stable, cfl * h * h / (6.0 * opt.beta));
+    // The controllers are stiff too: tracking relaxes the distance to the target at the rate alpha |grad g|, volume
+    // control the volume at delta A / V0, area control the area at about gamma mean|kappa| A / A0; an explicit
+    // step must stay below the inverse rates.
+    const ActiveMeasures& m = last_measures;
+    if (target && opt.alpha > 0.0 && m.max_target_gradient > 0.0) {
+      dt_stable = std::min(dt_stable, cfl / (opt.alpha * m.max_target_gradient));
+    }
+    if (opt.delta > 0.0 && volume0 > 0.0 && m.area > 0.0) {
+      dt_stable = std::min(dt_stable, cfl * volume0 / (opt.delta * m.area));
+    }
+    if (opt.gamma > 0.0 && area0 > 0.0 && m.area > 0.0 && m.mean_abs_curvature > 0.0) {
+      dt_stable = std::min(dt_stable, cfl * area0 / (opt.gamma * m.mean_abs_curvature * m.area));
+    }
+  }
+  // A time-dependent velocity may grow within the step: at most double the previous step, and the stages below
+  // reject the step when the velocity they see breaks the CFL bound.
+  if (advect && last_dt > 0.0) dt_stable = std::min(dt_stable, 2.0 * last_dt);
+  double dt = std::min(dt_limit, dt_stable);
+  if (!std::isfinite(dt)) dt = cfl * h;  // nothing moves: any step leaves f unchanged
+
+  for (int attempt = 0;; ++attempt) {
+    const float dt_f = static_cast<float>(dt);
+    if (advect) {
+      parallel_for(nb, threads, [&](int b) {
+        const float* f = grid.data(b, kChanF);
+        const float* rate = grid.data(b, kChanSpeed);
+        float* out = grid.data(b, kChanA);
+        std::copy_n(f, kBlockNodes, out);
+        for (const std::uint16_t i : active[b]) out[i] = f[i] + dt_f * rate[i];
+      });
+    } else {
+      parallel_for(nb, threads, [&](int b) {
+        const float* f = grid.data(b, kChanF);
+        float* out = grid.data(b, kChanA);
+        for (const std::uint16_t i : active[b]) out[i] = f[i] + dt_f * out[i];
+      });
+    }
+    // Stage 2: B = 3/4 f + 1/4 (A + dt L(A)).
+    control.check();
+    std::fill(block_max_speed.begin(), block_max_speed.end(), 0.0);
+    parallel_for(nb, threads, [&](int b) {
+      const float* f = grid.data(b, kChanF);
+      const float* in = grid.data(b, kChanA);
+      float* out = grid.data(b, kChanB);
+      std::copy_n(f, kBlockNodes, out);
+      if (active[b].empty()) return;
+      float* rate = scratch(3, kBlockNodes);
+      rate_block(b, kChanA, time + dt, rate, &block_max_speed[b]);
+      for (const std::uint16_t i : active[b]) out[i] = 0.75f * f[i] + 0.25f * (in[i] + dt_f * rate[i]);
+    });
+    if (advect) {
+      const double v2 = *std::max_element(block_max_speed.begin(), block_max_speed.end());
+      if (v2 * dt > h && attempt < 8) {  // beyond the CFL limit of 1 at t + dt: retry with the larger speed
+        dt = std::min(dt, cfl * h / v2);
+        continue;
+      }
+    }
+    // Stage 3: A = 1/3 f + 2/3 (B + dt L(B)), clamped; then A becomes f.
+    control.check();
+    parallel_for(nb, threads, [&](int b) {
+      const float* f = grid.data(b, kChanF);
+      const float* in = grid.data(b, kChanB);
+      float* out = grid.data(b, kChanA);
+      std::copy_n(f, kBlockNodes, out);
+      if (active[b].empty()) return;
+      float* rate = scratch(3, kBlockNodes);
+      rate_block(b, kChanB, time + 0.5 * dt, rate, nullptr);
+      const sparse::BlockCoord& c = grid.coord(b);
+      for (const std::uint16_t i : active[b]) {
+        float v = f[i] * (1.0f / 3.0f) + (2.0f / 3.0f) * (in[i] + dt_f * rate[i]);
+        v = std::clamp(v, -1.0f, 1.0f);
+        if (has_domain) v = std::min(v, wall_potential(c, i & 7, (i >> 3) & 7, i >> 6));
+        out[i] = v;
+      }
+    });
+    break;
+  }
+  last_dt = dt;
+  restored = false;
+  last_node_steps = active_count();
+  grid.swap_channels(kChanF, kChanA);
+  time += dt;
+
+  update_topology(control);
+  ++steps_since_reinit;
+  if (steps_since_reinit >= opt.reinit_interval) reinitialize(control);
+  return dt;
+}
+
+ActiveFrameStats ActiveSurface::Impl::make_stats() const {
+  ActiveFrameStats s;
+  s.time = time;
+  s.active_nodes = active_count();
+  s.allocated_blocks = grid.block_count();
+  s.max_dfdt = last_max_dfdt;
+  s.max_speed = last_max_speed;
+  s.memory_bytes = grid.memory_bytes();
+  return s;
+}
+
+// ------------------------------------------------------------------------------------------------------------------
+// Public class.
+
+ActiveSurface::ActiveSurface(const Field& initial_shape, const ActiveSurfaceOptions& options, const RunControl& control)
+    : impl_(std::make_unique<Impl>()) {
+  impl_->opt = options;
+  impl_->init(initial_shape, control);
+}
+
+ActiveSurface::~ActiveSurface() = default;
+ActiveSurface::ActiveSurface(ActiveSurface&&) noexcept = default;
+ActiveSurface& ActiveSurface::operator=(ActiveSurface&&) noexcept = default;
+
+void ActiveSurface::set_target(FieldPtr target) { impl_->target = std::move(target); }
+void ActiveSurface::Impl::clear_velocity_cache() {
+  if (velocity_cache < 0) {
+    velocity_cache = grid.channels();
+    grid.add_channels(3, kNaN);
+    return;
+  }
+  for (int b = 0; b < grid.block_count(); ++b) {
+    for (int a = 0; a < 3; ++a) std::fill_n(grid.data(b, velocity_cache + a), kBlockNodes, kNaN);
+  }
+}
+
+void ActiveSurface::set_velocity(VelocityFn velocity) {
+  impl_->separable = {};
+  impl_->velocity = std::move(velocity);
+  if (!impl_->restored) impl_->last_dt = 0.0;
+}
+
+void ActiveSurface::set_velocity(SeparableVelocity velocity) {
+  if (!velocity.spatial) throw InvalidInput("velocity", "a separable velocity needs its spatial part u(x)");
+  impl_->velocity = {};
+  impl_->separable = std::move(velocity);
+  impl_->clear_velocity_cache();
+  if (!impl_->restored) impl_->last_dt = 0.0;
+}
+
+void ActiveSurface::set_reference_measures(double area, double volume) {
+  if (!(area > 0.0) || !std::isfinite(area)) throw InvalidInput("area", "reference area must be finite and > 0");
+  if (!(volume > 0.0) || !std::isfinite(volume)) {
+    throw InvalidInput("volume", "reference volume must be finite and > 0");
+  }
+  impl_->area0 = area;
+  impl_->volume0 = volume;
+}
+
+double ActiveSurface::time() const { return impl_->time; }
+const ActiveSurfaceOptions& ActiveSurface::options() const { return impl_->opt; }
+
+ActiveFrameStats ActiveSurface::advance(double duration, const RunControl& control) {
+  Impl& m = *impl_;
+  if (!(duration > 0.0) || !std::isfinite(duration)) {
+    throw InvalidInput("duration", "duration (" + num(duration) + ") must be finite and > 0");
+  }
+  const double t_end = m.time + duration;
+  const double eps = 1e-12 * std::max(1.0, std::abs(t_end));
+  const double fixed = m.opt.cfl ? kInf : duration / m.opt.substeps_per_frame;
+  int substeps = 0, reinits = 0;
+  std::int64_t node_steps = 0;
+  double min_dt = kInf;
+  while (t_end - m.time > eps) {
+    if (substeps >= m.opt.max_substeps_per_frame) {
+      throw ResourceLimit("max_substeps_per_frame",
+                          "the frame needs more than max_substeps_per_frame (" +
+                              std::to_string(m.opt.max_substeps_per_frame) +
+                              ") sub-steps at the CFL limit; raise the limit, shorten the frame or lower the speeds");
+    }
+    const double remaining = t_end - m.time;
+    const int before = m.steps_since_reinit;
+    const double dt = m.step(std::min(remaining, fixed), control);
+    node_steps += m.last_node_steps;
+    if (m.steps_since_reinit <= before) ++reinits;
+    ++substeps;
+    if (dt < remaining - eps || substeps == 1) min_dt = std::min(min_dt, dt);
+  }
+  m.time = t_end;
+  ActiveFrameStats s = m.make_stats();
+  s.substeps = substeps;
+  s.dt = duration / substeps;
+  s.min_dt = min_dt;
+  s.active_node_steps = node_steps;
+  s.reinitializations = reinits;
+  m.finish_stats(s, control);
+  return s;
+}
+
+ActiveFrameStats ActiveSurface::advance_substeps(int substeps, const RunControl& control) {
+  Impl& m = *impl_;
+  if (substeps < 1) throw InvalidInput("substeps", "substeps must be >= 1");
+  const double t0 = m.time;
+  int reinits = 0;
+  std::int64_t node_steps = 0;
+  double min_dt = kInf;
+  for (int i = 0; i < substeps; ++i) {
+    const int before = m.steps_since_reinit;
+    min_dt = std::min(min_dt, m.step(kInf, control));
+    node_steps += m.last_node_steps;
+    if (m.steps_since_reinit <= before) ++reinits;
+  }
+  ActiveFrameStats s = m.make_stats();
+  s.substeps = substeps;
+  s.dt = (m.time - t0) / substeps;
+  s.min_dt = min_dt;
+  s.active_node_steps = node_steps;
+  s.reinitializations = reinits;
+  m.finish_stats(s, control);
+  return s;
+}
+
+ActiveFrameStats ActiveSurface::stats() const {
+  const Impl& m = *impl_;
+  ActiveFrameStats s = m.make_stats();
+  m.finish_stats(s, {});
+  return s;
+}
+
+Mesh ActiveSurface::polygonize(const RunControl& control) const { return polygonize(impl_->opt.polygonizer, control); }
+
+Mesh ActiveSurface::polygonize(ActivePolygonizer polygonizer, const RunControl& control) const {
+  if (polygonizer == ActivePolygonizer::kTiles) return impl_->tiles_mesh(impl_->opt.normals, control);
+  return impl_->cubes_mesh(impl_->opt.normals, control);
+}
+
+double ActiveSurface::potential(const Vec3& p) const { return impl_->trilinear(p, nullptr); }
+
+}  // namespace surfacer

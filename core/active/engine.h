@@ -1,0 +1,145 @@
+// Working state of ActiveSurface (core/active/active_surface.h). Internal to core: shared by core/active/active_surface.cpp (the
+// engine) and core/active/surface_mesh.cpp (polygonization and measures).
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+#include "core/active/active_surface.h"
+#include "core/active/sparse_grid.h"
+
+namespace surfacer {
+
+// Channels of every block.
+enum ActiveChannel : int {
+  kChanF = 0,      // the potential f
+  kChanA = 1,      // Runge-Kutta stage / reinitialization scratch
+  kChanB = 2,      // Runge-Kutta stage / frozen potential during reinitialization
+  kChanSpeed = 3,  // extended normal speed (NaN: not assigned) / reinitialization distance estimates
+  kChanCount = 4,
+};
+
+struct ActiveMeasures {
+  double area = 0.0;
+  double volume = 0.0;
+  std::int64_t crossings = 0;  // crossed grid edges (surface sample points)
+  // Filled when sampling speeds: max |grad g| of the target at the sample points, and the mean |kappa| there.
+  double max_target_gradient = 0.0;
+  double mean_abs_curvature = 0.0;
+};
+
+struct ActiveSurface::Impl {
+  ActiveSurfaceOptions opt;
+  int threads = 1;
+  double h = 0.0, inv_h = 0.0;
+  double ramp = 3.0;  // band_width: f = clamp(-d / (ramp h))
+  Vec3 origin = Vec3::Zero();
+  bool has_domain = false;
+  std::int64_t dom_hi[3] = {0, 0, 0};  // last node index inside the domain per axis (the first is 0)
+
+  sparse::SparseBlockGrid grid{kChanCount};
+  std::vector<std::vector<std::uint16_t>> active;  // per block: local indices of active nodes, ascending
+  std::vector<char> band;                          // per block: holds a band node (|f| < 1 or at a sign change)
+  std::vector<std::vector<float>> edge_speed;      // per block (band blocks): speed per (node, axis), NaN: none
+
+  FieldPtr target;
+  VelocityFn velocity;          // general advection velocity, called per active node per stage
+  SeparableVelocity separable;  // or u = time_scale(t) spatial(x), spatial cached per node
+  int velocity_cache = -1;      // first of the 3 channels caching spatial(x) (NaN: not evaluated), or -1
+  bool advecting() const { return static_cast<bool>(velocity) || static_cast<bool>(separable.spatial); }
+  void clear_velocity_cache();
+  double time = 0.0;
+  double area0 = 0.0, volume0 = 0.0;
+  int steps_since_reinit = 0;
+  bool reinit_due = false;
+
+  // Last sub-step.
+  double last_dt = 0.0;
+  std::int64_t last_node_steps = 0;  // active nodes updated
+  double last_max_dfdt = 0.0;
+  double last_max_speed = 0.0;
+  ActiveMeasures last_measures;
+
+  // Restored from a checkpoint and not stepped since: set_velocity() then keeps last_dt (the saved run's velocity
+  // is assumed), so the next step is bounded as in the uninterrupted run.
+  bool restored = false;
+
+  // --- engine (active_surface.cpp) ---
+  // Validates opt and derives the grid geometry (h, ramp, origin, domain) from it.
+  void configure();
+  void init(const Field& shape, const RunControl& control);
+  void update_topology(const RunControl& control);
+  void reinitialize(const RunControl& control);
+  // One sub-step of at most dt_limit (infinity: the CFL step). Returns the dt taken.
+  double step(double dt_limit, const RunControl& control);
+
+  // --- measures and meshes (active_surface_mesh.cpp) ---
+  // Area and volume of the Marching Cubes surface on the grid. When `edges` is given, also fills it (per block) with
+  // the tracking and tension speed at every crossed edge owned by the block (the surface sample points), evaluating
+  // the target once per crossing.
+  ActiveMeasures measure(std::vector<std::vector<float>>* edges, const RunControl& control) const;
+  // Measures, components and memory of the current surface into s.
+  void finish_stats(ActiveFrameStats& s, const RunControl& control) const;
+  Mesh cubes_mesh(bool normals, const RunControl& control) const;
+  Mesh tiles_mesh(bool normals, const RunControl& control) const;
+  ActiveFrameStats make_stats() const;
+
+  // Trilinear f at p (and its gradient); nodes of missing blocks take the sign of their saturated region.
+  double trilinear(const Vec3& p, Vec3* gradient) const;
+  double missing_sign(std::int64_t gx, std::int64_t gy, std::int64_t gz) const;
+  int max_block_x = 0;  // largest block x coordinate (updated with the topology)
+
+  // --- helpers ---
+  Vec3 node_position(const sparse::BlockCoord& b, int x, int y, int z) const {
+    return origin + h * Vec3(8.0 * b[0] + x, 8.0 * b[1] + y, 8.0 * b[2] + z);
+  }
+  bool node_in_domain(const sparse::BlockCoord& b, int x, int y, int z) const {
+    if (!has_domain) return true;
+    const std::int64_t g[3] = {8LL * b[0] + x, 8LL * b[1] + y, 8LL * b[2] + z};
+    for (int a = 0; a < 3; ++a) {
+      if (g[a] < 0 || g[a] > dom_hi[a]) return false;
+    }
+    return true;
+  }
+  // The domain wall as a potential: clamp(-d_wall / (ramp h)) with d_wall the signed distance (grid units) to the box
+  // of nodes inside the domain grown by half a cell; +1 without a domain. The potential is min(f, wall) everywhere,
+  // so the solid is cut off at the box with a regular ramp (not a jump, which reinitialization would erode).
+  float wall_potential(const sparse::BlockCoord& b, int x, int y, int z) const {
+    if (!has_domain) return 1.0f;
+    const std::int64_t g[3] = {8LL * b[0] + x, 8LL * b[1] + y, 8LL * b[2] + z};
+    double out2 = 0.0, inside = -1e300;
+    for (int a = 0; a < 3; ++a) {
+      const double q = std::max(-0.5 - static_cast<double>(g[a]), static_cast<double>(g[a] - dom_hi[a]) - 0.5);
+      if (q > 0.0) out2 += q * q;
+      inside = std::max(inside, q);
+    }
+    const double d = out2 > 0.0 ? std::sqrt(out2) : inside;
+    return static_cast<float>(std::clamp(-d / ramp, -1.0, 1.0));
+  }
+  // Whether block b holds nodes whose wall potential is below 1.
+  bool near_wall(const sparse::BlockCoord& b) const {
+    if (!has_domain) return false;
+    const double reach = ramp + 1.0;
+    for (int a = 0; a < 3; ++a) {
+      if (8.0 * b[a] - reach < 0.0 || 8.0 * b[a] + 7.0 + reach > static_cast<double>(dom_hi[a])) return true;
+    }
+    return false;
+  }
+  void apply_wall(int block, int channel) {
+    const sparse::BlockCoord& c = grid.coord(block);
+    if (!near_wall(c)) return;
+    float* f = grid.data(block, channel);
+    for (int z = 0; z < 8; ++z)
+      for (int y = 0; y < 8; ++y)
+        for (int x = 0; x < 8; ++x)
+          f[sparse::local_index(x, y, z)] = std::min(f[sparse::local_index(x, y, z)], wall_potential(c, x, y, z));
+  }
+
+  // Whether block `b` has a band block among the offsets {0, 1}^3 (it then may own crossed cubes).
+  bool owns_cubes(int b) const;
+  std::int64_t active_count() const;
+};
+
+}  // namespace surfacer

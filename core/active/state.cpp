@@ -1,0 +1,151 @@
+// Checkpoints of an active surface (core/active/active_surface.h: ActiveSurface::save_state / from_state).
+//
+// Layout (little-endian host order; a checkpoint is read back by the same build on the same machine class):
+//   "SACT" u32 version
+//   grid: f64 h, f64 band_width, u8 has_domain, f64 origin[3], i64 dom_hi[3]
+//   run:  f64 time, area0, volume0, last_dt, last_max_dfdt, last_max_speed; i32 steps_since_reinit;
+//         i64 last_node_steps; measures f64 area, volume, max_target_gradient, mean_abs_curvature, i64 crossings
+//   u64 blocks; per block i32 coord[3]; then per block: 64 bytes "f == +1" bits, 64 bytes "f == -1" bits and the
+//   other nodes' f as f32 in node order (most of a block outside the ramp is saturated, so this is about half the
+//   raw 2 KB per block on the test shapes)
+//   u64 FNV-1a of everything before it
+#include <cmath>
+#include <cstring>
+#include <string>
+#include <string_view>
+#include <type_traits>
+#include <vector>
+
+#include "core/active/active_surface.h"
+#include "core/active/engine.h"
+#include "core/util/errors.h"
+#include "core/util/state_blob.h"
+
+namespace surfacer {
+namespace {
+
+constexpr char kMagic[4] = {'S', 'A', 'C', 'T'};
+constexpr std::uint32_t kVersion = 1;
+constexpr int kMaskBytes = sparse::kBlockNodes / 8;
+
+[[noreturn]] void bad_state(const std::string& why) {
+  throw InvalidInput("state", "active surface checkpoint is not valid (" + why + "); start the run over");
+}
+
+}  // namespace
+
+ActiveSurface::ActiveSurface(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+
+std::string ActiveSurface::save_state() const {
+  const Impl& m = *impl_;
+  const int nb = m.grid.block_count();
+  state_blob::Writer w(kMagic, kVersion);
+  w.out.reserve(256 + static_cast<std::size_t>(nb) * (12 + 2 * kMaskBytes + 1024));
+  w.put(m.h);
+  w.put(m.ramp);
+  w.put<std::uint8_t>(m.has_domain ? 1 : 0);
+  for (int a = 0; a < 3; ++a) w.put(m.origin[a]);
+  for (int a = 0; a < 3; ++a) w.put(m.dom_hi[a]);
+  for (const double v : {m.time, m.area0, m.volume0, m.last_dt, m.last_max_dfdt, m.last_max_speed}) w.put(v);
+  w.put<std::int32_t>(m.steps_since_reinit);
+  w.put(m.last_node_steps);
+  const ActiveMeasures& lm = m.last_measures;
+  for (const double v : {lm.area, lm.volume, lm.max_target_gradient, lm.mean_abs_curvature}) w.put(v);
+  w.put(lm.crossings);
+  w.put<std::uint64_t>(static_cast<std::uint64_t>(nb));
+  for (int b = 0; b < nb; ++b) {
+    for (const int c : m.grid.coord(b)) w.put<std::int32_t>(c);
+  }
+  for (int b = 0; b < nb; ++b) {
+    const float* f = m.grid.data(b, kChanF);
+    unsigned char plus[kMaskBytes] = {}, minus[kMaskBytes] = {};
+    for (int i = 0; i < sparse::kBlockNodes; ++i) {
+      if (f[i] == 1.0f) plus[i >> 3] |= static_cast<unsigned char>(1u << (i & 7));
+      if (f[i] == -1.0f) minus[i >> 3] |= static_cast<unsigned char>(1u << (i & 7));
+    }
+    w.out.append(reinterpret_cast<const char*>(plus), kMaskBytes);
+    w.out.append(reinterpret_cast<const char*>(minus), kMaskBytes);
+    for (int i = 0; i < sparse::kBlockNodes; ++i) {
+      if (f[i] != 1.0f && f[i] != -1.0f) w.put(f[i]);
+    }
+  }
+  return w.finish();
+}
+
+ActiveSurface ActiveSurface::from_state(std::string_view state, const ActiveSurfaceOptions& options,
+                                        const RunControl& control) {
+  auto impl = std::make_unique<Impl>();
+  Impl& m = *impl;
+  m.opt = options;
+  m.configure();  // validates the options
+
+  state_blob::Reader r(state, kMagic, "not an active surface checkpoint", bad_state);
+  if (const auto version = r.version(); version != kVersion) {
+    bad_state("version " + std::to_string(version) + ", this build reads version " + std::to_string(kVersion));
+  }
+  const double h = r.get<double>(), ramp = r.get<double>();
+  const bool has_domain = r.get<std::uint8_t>() != 0;
+  Vec3 origin;
+  for (int a = 0; a < 3; ++a) origin[a] = r.get<double>();
+  std::int64_t dom_hi[3];
+  for (auto& d : dom_hi) d = r.get<std::int64_t>();
+  if (h != m.h || ramp != m.ramp || has_domain != m.has_domain || origin != m.origin ||
+      (has_domain && (dom_hi[0] != m.dom_hi[0] || dom_hi[1] != m.dom_hi[1] || dom_hi[2] != m.dom_hi[2]))) {
+    bad_state("saved with another grid (h, band_width or domain differ from the options)");
+  }
+  for (double* v : {&m.time, &m.area0, &m.volume0, &m.last_dt, &m.last_max_dfdt, &m.last_max_speed}) {
+    *v = r.get<double>();
+    if (!std::isfinite(*v)) bad_state("a non-finite run figure");
+  }
+  m.steps_since_reinit = r.get<std::int32_t>();
+  if (m.steps_since_reinit < 0 || m.last_dt < 0.0) bad_state("run figures out of range");
+  m.last_node_steps = r.get<std::int64_t>();
+  ActiveMeasures& lm = m.last_measures;
+  for (double* v : {&lm.area, &lm.volume, &lm.max_target_gradient, &lm.mean_abs_curvature}) *v = r.get<double>();
+  lm.crossings = r.get<std::int64_t>();
+
+  const auto nb = r.get<std::uint64_t>();
+  if (nb == 0 || nb > r.remaining() / (3 * sizeof(std::int32_t) + 2 * kMaskBytes)) {
+    bad_state("block count " + std::to_string(nb));
+  }
+  if (static_cast<std::int64_t>(nb) > m.opt.max_blocks) {
+    throw ResourceLimit("max_blocks", "the checkpoint holds " + std::to_string(nb) + " blocks, more than max_blocks (" +
+                                          std::to_string(m.opt.max_blocks) + "); raise max_blocks");
+  }
+  for (std::uint64_t b = 0; b < nb; ++b) {
+    sparse::BlockCoord c;
+    for (auto& x : c) {
+      x = r.get<std::int32_t>();
+      if (x < -sparse::kCoordLimit || x >= sparse::kCoordLimit) bad_state("block coordinate out of range");
+    }
+    if (m.grid.find(c[0], c[1], c[2]) >= 0) bad_state("a repeated block");
+    m.grid.insert(c, 0.0f);
+  }
+  for (int b = 0; b < static_cast<int>(nb); ++b) {
+    if ((b & 255) == 0) control.check();
+    const auto* plus = reinterpret_cast<const unsigned char*>(r.take(kMaskBytes));
+    const auto* minus = reinterpret_cast<const unsigned char*>(r.take(kMaskBytes));
+    float* f = m.grid.data(b, kChanF);
+    for (int i = 0; i < sparse::kBlockNodes; ++i) {
+      const bool p = (plus[i >> 3] >> (i & 7)) & 1u, n = (minus[i >> 3] >> (i & 7)) & 1u;
+      if (p && n) bad_state("a node both +1 and -1");
+      if (p || n) {
+        f[i] = p ? 1.0f : -1.0f;
+      } else {
+        f[i] = r.get<float>();
+        if (!(f[i] > -1.0f && f[i] < 1.0f)) bad_state("a potential value outside (-1, 1)");
+      }
+    }
+    std::copy_n(f, sparse::kBlockNodes, m.grid.data(b, kChanA));
+    std::copy_n(f, sparse::kBlockNodes, m.grid.data(b, kChanB));
+  }
+  if (r.remaining() != 0) bad_state(std::to_string(r.remaining()) + " trailing bytes");
+  m.grid.rebuild_neighbors();
+  // The saved state followed a topology update, so this finds the same blocks and only rebuilds the active lists.
+  m.update_topology(control);
+  if (m.active_count() == 0) bad_state("no surface");
+  m.restored = true;
+  return ActiveSurface(std::move(impl));
+}
+
+}  // namespace surfacer

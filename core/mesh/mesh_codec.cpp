@@ -1,0 +1,239 @@
+// Draco encoding with explicit position quantization (so every frame of a job shares one quantization grid).
+#include "core/mesh/mesh_codec.h"
+
+#include <draco/compression/decode.h>
+#include <draco/compression/encode.h>
+#include <draco/core/decoder_buffer.h>
+#include <draco/core/encoder_buffer.h>
+#include <draco/mesh/mesh.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <memory>
+#include <optional>
+
+#include "core/util/errors.h"
+
+namespace surfacer {
+namespace {
+
+std::string format_point(const Vec3& p) {
+  char buf[128];
+  std::snprintf(buf, sizeof(buf), "(%.9g, %.9g, %.9g)", p.x(), p.y(), p.z());
+  return buf;
+}
+
+void validate(const Mesh& mesh, const DracoOptions& options) {
+  if (options.quantization_bits < 1 || options.quantization_bits > 30) {
+    throw InvalidInput("quantization_bits", "quantization_bits (" + std::to_string(options.quantization_bits) +
+                                                ") must be in 1..30; 14 is a good default");
+  }
+  if (options.speed < 0 || options.speed > 10) {
+    throw InvalidInput("speed", "speed (" + std::to_string(options.speed) +
+                                    ") must be in 0..10 (0: smallest output, 10: fastest); the default is 7");
+  }
+  const bool encode_normals = options.normals && !mesh.normals.empty();
+  if (encode_normals && (options.normal_bits < 2 || options.normal_bits > 30)) {
+    throw InvalidInput("normal_bits", "normal_bits (" + std::to_string(options.normal_bits) +
+                                          ") must be in 2..30; 10 is a good default");
+  }
+  if (!mesh.normals.empty() && mesh.normals.size() != mesh.vertices.size()) {
+    throw InvalidInput("normals", "mesh has " + std::to_string(mesh.normals.size()) + " normals for " +
+                                      std::to_string(mesh.vertices.size()) +
+                                      " vertices; give one normal per vertex or none");
+  }
+  if (options.quantization_bounds) {
+    const Aabb& box = *options.quantization_bounds;
+    if (!box.valid() || !box.min.allFinite() || !box.max.allFinite()) {
+      throw InvalidInput("quantization_bounds",
+                         "quantization_bounds must be finite with min < max on every axis; got min " +
+                             format_point(box.min) + " max " + format_point(box.max));
+    }
+  }
+  for (std::size_t v = 0; v < mesh.vertices.size(); ++v) {
+    if (!mesh.vertices[v].allFinite()) {
+      throw InvalidInput("vertices",
+                         "vertex " + std::to_string(v) + " is not finite: " + format_point(mesh.vertices[v]));
+    }
+  }
+  const std::size_t nv = mesh.vertices.size();
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+    for (std::uint32_t i : mesh.triangles[t]) {
+      if (i >= nv) {
+        throw InvalidInput("triangles", "triangle " + std::to_string(t) + " uses vertex " + std::to_string(i) +
+                                            " but the mesh has " + std::to_string(nv) + " vertices");
+      }
+    }
+  }
+}
+
+// The quantization box as Draco sees it: origin and one range for all axes (the box's longest side).
+struct QuantizationBox {
+  Vec3 origin;
+  double range;
+};
+
+QuantizationBox quantization_box(const Mesh& mesh, const DracoOptions& options) {
+  if (options.quantization_bounds) {
+    const Aabb& box = *options.quantization_bounds;
+    const double range = box.size().maxCoeff();
+    // Vertices may touch the box (marching cubes puts them exactly on its faces); allow rounding slack only.
+    const double tolerance = 1e-9 * range;
+    for (std::size_t v = 0; v < mesh.vertices.size(); ++v) {
+      const Vec3& p = mesh.vertices[v];
+      if ((p.array() < box.min.array() - tolerance).any() || (p.array() > box.max.array() + tolerance).any()) {
+        throw InvalidInput("quantization_bounds", "vertex " + std::to_string(v) + " at " + format_point(p) +
+                                                      " lies outside quantization_bounds min " + format_point(box.min) +
+                                                      " max " + format_point(box.max) +
+                                                      "; use a box that contains every frame (e.g. the job's bounds)");
+      }
+    }
+    return {box.min, range};
+  }
+  Vec3 lo = Vec3::Zero(), hi = Vec3::Zero();
+  if (!mesh.vertices.empty()) {
+    lo = hi = mesh.vertices[0];
+    for (const Vec3& p : mesh.vertices) {
+      lo = lo.cwiseMin(p);
+      hi = hi.cwiseMax(p);
+    }
+  }
+  double range = (hi - lo).maxCoeff();
+  if (!(range > 0.0)) range = std::max(1.0, lo.cwiseAbs().maxCoeff()) * 1e-6;  // all vertices coincide
+  return {lo, range};
+}
+
+// `clamp`: box to clamp values into (vertices within the tolerance outside the quantization box).
+int add_float3_attribute(draco::Mesh& out, draco::GeometryAttribute::Type type, const std::vector<Vec3>& values,
+                         const std::optional<Aabb>& clamp) {
+  auto attribute = std::make_unique<draco::PointAttribute>();
+  attribute->Init(type, 3, draco::DT_FLOAT32, false, values.size());
+  std::vector<float> data(values.size() * 3);
+  for (std::size_t v = 0; v < values.size(); ++v) {
+    Vec3 p = values[v];
+    if (clamp) p = p.cwiseMax(clamp->min).cwiseMin(clamp->max);
+    for (int c = 0; c < 3; ++c) data[3 * v + c] = static_cast<float>(p[c]);
+  }
+  if (!data.empty()) attribute->buffer()->Write(0, data.data(), data.size() * sizeof(float));
+  return out.AddAttribute(std::move(attribute));
+}
+
+}  // namespace
+
+double draco_max_error(const Aabb& box, int quantization_bits) {
+  const double range = box.size().maxCoeff();
+  const double step = range / (std::ldexp(1.0, quantization_bits) - 1.0);
+  // Draco quantizes and dequantizes in float32: allow a few float ulps of the coordinates' magnitude.
+  const double magnitude = std::max(box.min.cwiseAbs().maxCoeff(), box.max.cwiseAbs().maxCoeff()) + range;
+  return 0.5 * step * std::sqrt(3.0) + 8.0 * std::numeric_limits<float>::epsilon() * magnitude;
+}
+
+std::string encode_draco(const Mesh& mesh, const DracoOptions& options) {
+  validate(mesh, options);
+  const QuantizationBox q = quantization_box(mesh, options);
+  const bool encode_normals = options.normals && !mesh.normals.empty();
+
+  draco::Mesh out;
+  if (!mesh.triangles.empty()) {
+    out.set_num_points(static_cast<draco::PointIndex::ValueType>(mesh.vertices.size()));
+    add_float3_attribute(out, draco::GeometryAttribute::POSITION, mesh.vertices, options.quantization_bounds);
+    if (encode_normals) add_float3_attribute(out, draco::GeometryAttribute::NORMAL, mesh.normals, std::nullopt);
+  }
+  // else: an empty frame. Draco's decoder rejects a mesh whose attributes have no values, so an empty mesh is
+  // written without points or attributes (sequential coder; edgebreaker refuses meshes without faces).
+  out.SetNumFaces(mesh.triangles.size());
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+    const Triangle& tri = mesh.triangles[t];
+    draco::Mesh::Face face;
+    for (int c = 0; c < 3; ++c) face[c] = draco::PointIndex(tri[c]);
+    out.SetFace(draco::FaceIndex(static_cast<std::uint32_t>(t)), face);
+  }
+
+  draco::Encoder encoder;
+  const float origin[3] = {static_cast<float>(q.origin.x()), static_cast<float>(q.origin.y()),
+                           static_cast<float>(q.origin.z())};
+  encoder.SetAttributeExplicitQuantization(draco::GeometryAttribute::POSITION, options.quantization_bits, 3, origin,
+                                           static_cast<float>(q.range));
+  if (encode_normals) encoder.SetAttributeQuantization(draco::GeometryAttribute::NORMAL, options.normal_bits);
+  encoder.SetSpeedOptions(options.speed, options.speed);
+  if (mesh.triangles.empty()) encoder.SetEncodingMethod(draco::MESH_SEQUENTIAL_ENCODING);
+
+  draco::EncoderBuffer buffer;
+  const draco::Status status = encoder.EncodeMeshToBuffer(out, &buffer);
+  if (!status.ok()) throw Internal("Draco encoder failed: " + status.error_msg_string());
+  return std::string(buffer.data(), buffer.size());
+}
+
+namespace {
+
+// Integer or floating-point components. Draco converts DT_BOOL values by loading the stored bytes as `bool`,
+// which is undefined behaviour for bytes other than 0 and 1; a position or normal is never boolean anyway.
+bool numeric_attribute(const draco::PointAttribute& attribute) {
+  const draco::DataType type = attribute.data_type();
+  return type >= draco::DT_INT8 && type <= draco::DT_FLOAT64;
+}
+
+}  // namespace
+
+Mesh decode_draco(std::string_view bytes) {
+  draco::DecoderBuffer buffer;
+  buffer.Init(bytes.data(), bytes.size());
+  draco::Decoder decoder;
+  auto decoded = decoder.DecodeMeshFromBuffer(&buffer);
+  if (!decoded.ok()) {
+    throw InvalidInput("frame", "not a Draco triangle mesh (" + decoded.status().error_msg_string() + ")");
+  }
+  const std::unique_ptr<draco::Mesh> in = std::move(decoded).value();
+  Mesh mesh;
+  const std::size_t np = in->num_points();
+  const draco::PointAttribute* position = in->GetNamedAttribute(draco::GeometryAttribute::POSITION);
+  if (np > 0 || in->num_faces() > 0) {
+    if (position == nullptr || position->num_components() < 3) {
+      throw InvalidInput("frame", "Draco mesh has no 3D POSITION attribute");
+    }
+    if (!numeric_attribute(*position)) {
+      throw InvalidInput("frame", "Draco POSITION attribute is not numeric (data type " +
+                                      std::to_string(static_cast<int>(position->data_type())) + ")");
+    }
+  }
+  mesh.vertices.resize(np);
+  std::array<float, 3> value{};
+  for (std::size_t p = 0; p < np; ++p) {
+    if (!position->ConvertValue<float, 3>(position->mapped_index(draco::PointIndex(static_cast<std::uint32_t>(p))),
+                                          value.data())) {
+      throw InvalidInput("frame", "Draco POSITION attribute is unreadable at point " + std::to_string(p));
+    }
+    mesh.vertices[p] = Vec3(value[0], value[1], value[2]);
+  }
+  const draco::PointAttribute* normal = in->GetNamedAttribute(draco::GeometryAttribute::NORMAL);
+  if (normal != nullptr && normal->num_components() >= 3 && np > 0) {
+    if (!numeric_attribute(*normal)) {
+      throw InvalidInput("frame", "Draco NORMAL attribute is not numeric (data type " +
+                                      std::to_string(static_cast<int>(normal->data_type())) + ")");
+    }
+    mesh.normals.resize(np);
+    for (std::size_t p = 0; p < np; ++p) {
+      if (!normal->ConvertValue<float, 3>(normal->mapped_index(draco::PointIndex(static_cast<std::uint32_t>(p))),
+                                          value.data())) {
+        throw InvalidInput("frame", "Draco NORMAL attribute is unreadable at point " + std::to_string(p));
+      }
+      Vec3 n(value[0], value[1], value[2]);
+      const double len = n.norm();
+      mesh.normals[p] = len > 0.0 ? Vec3(n / len) : n;
+    }
+  }
+  mesh.triangles.resize(in->num_faces());
+  for (std::uint32_t f = 0; f < in->num_faces(); ++f) {
+    const draco::Mesh::Face& face = in->face(draco::FaceIndex(f));
+    for (int c = 0; c < 3; ++c) {
+      const std::uint32_t v = face[c].value();
+      if (v >= np) throw InvalidInput("frame", "Draco face " + std::to_string(f) + " references a missing point");
+      mesh.triangles[f][c] = v;
+    }
+  }
+  return mesh;
+}
+
+}  // namespace surfacer

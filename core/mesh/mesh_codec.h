@@ -1,0 +1,38 @@
+// Draco frame encoding (the lossless alternative is write_ply(mesh, true) in core/mesh/mesh_io.h).
+#pragma once
+
+#include <optional>
+#include <string>
+#include <string_view>
+
+#include "core/mesh/mesh.h"
+
+namespace surfacer {
+
+struct DracoOptions {
+  int quantization_bits = 14;  // 1..30
+  // Quantization box shared by every frame of a job (no cracks or jitter between frames). When absent the mesh's
+  // own bounding box is used. Vertices outside the box are an InvalidInput error.
+  std::optional<Aabb> quantization_bounds;
+  int speed = 8;         // Draco encoder/decoder speed 0..10 (8: faster and smaller than 7 on polygonized surfaces)
+  bool normals = true;   // encode mesh.normals when present
+  int normal_bits = 10;  // 2..30 (octahedral normal quantization), checked only when normals are encoded
+};
+
+// Throws InvalidInput for bad options or vertices outside the quantization box, Internal on encoder failure.
+// Vertices up to 1e-9 * (box's longest side) outside quantization_bounds are clamped onto it; farther ones are
+// InvalidInput("quantization_bounds"). Draco reorders vertices and drops unreferenced ones: compare decoded meshes
+// by geometry, not indices. A mesh without triangles is written without points and decodes as an empty Mesh.
+// Cost: Draco's edgebreaker takes ~0.3-0.5 us per triangle at speeds 0-9; speed 10 (sequential) is ~7x faster but
+// ~6x larger.
+std::string encode_draco(const Mesh& mesh, const DracoOptions& options);
+// Throws InvalidInput("frame") if the bytes are not a Draco triangle mesh (fuzzed with truncated and bit-flipped
+// frames).
+Mesh decode_draco(std::string_view bytes);
+
+// Largest position error quantization can introduce: half a quantization step along the box's longest side
+// times sqrt(3) (Draco uses one range, the longest side, for all axes: step = side / (2^bits - 1)), plus a few
+// float32 ulps of the box's coordinates because Draco quantizes in float32.
+double draco_max_error(const Aabb& box, int quantization_bits);
+
+}  // namespace surfacer

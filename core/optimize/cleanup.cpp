@@ -1,0 +1,391 @@
+// Cap flips, normal-improving flips and needle collapses (core/optimize/cleanup.h).
+//
+// Sequential: the changes are few and local, and each one changes what its neighbours see. Nothing global is built:
+// triangles are found through the vertex -> triangle adjacency given on entry, copied into a per-vertex overlay only
+// for the vertices whose fans change, and only the candidates (caps, needles, deviating triangles) and the triangles
+// changed in a pass are visited.
+#include "core/optimize/cleanup.h"
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <unordered_map>
+#include <unordered_set>
+
+#include "core/scene/scene.h"
+
+namespace surfacer::optimizer_detail {
+namespace {
+
+std::uint64_t edge_key(std::uint32_t a, std::uint32_t b) {
+  if (a > b) std::swap(a, b);
+  return (static_cast<std::uint64_t>(a) << 32) | b;
+}
+
+bool contains(const Triangle& t, std::uint32_t v) { return t[0] == v || t[1] == v || t[2] == v; }
+
+class Cleaner {
+ public:
+  Cleaner(std::vector<Vec3>& p, std::vector<Triangle>& tris, RedGreenHierarchy& h, std::vector<Vec3>& m,
+          std::span<const std::uint32_t> vt_offset, std::span<const std::uint32_t> vt, const Field& field,
+          const CleanupOptions& o)
+      : p_(p), tris_(tris), h_(h), m_(m), vt_offset_(vt_offset), vt_(vt), field_(field), o_(o) {
+    cap_cos_ = std::cos(o.cap_angle_degrees * 3.14159265358979323846 / 180.0);
+  }
+
+  CleanupCounts run(const RunControl& control) {
+    std::vector<std::int32_t> candidates;
+    for (std::size_t t = 0; t < tris_.size(); ++t) {
+      if (problem(static_cast<std::int32_t>(t))) candidates.push_back(static_cast<std::int32_t>(t));
+    }
+    CleanupCounts counts;
+    if (candidates.empty()) return counts;
+    deleted_.assign(tris_.size(), 0);
+    for (int pass = 0; pass < o_.max_passes && !candidates.empty(); ++pass) {
+      control.check();
+      touched_.clear();
+      for (std::int32_t t : candidates) {
+        if (deleted_[t]) continue;
+        if (try_flip(t) || try_deviation_flip(t)) {
+          ++counts.flips;
+        } else if (try_collapse(t)) {
+          ++counts.collapses;
+        }
+      }
+      if (touched_.empty()) break;
+      // Next pass: this pass's candidates that are still a problem (their neighbourhood may have changed) and the
+      // triangles it changed.
+      std::vector<std::int32_t> next;
+      for (std::int32_t t : candidates) {
+        if (!deleted_[t] && problem(t)) next.push_back(t);
+      }
+      for (std::int32_t t : touched_) {
+        if (!deleted_[t] && problem(t)) next.push_back(t);
+      }
+      std::sort(next.begin(), next.end());
+      next.erase(std::unique(next.begin(), next.end()), next.end());
+      candidates = std::move(next);
+    }
+    finish();
+    return counts;
+  }
+
+ private:
+  // --- Geometry ----------------------------------------------------------------------------------------------
+  // Cosine of the largest angle of t (opposite its longest edge) and the corner it sits at; 1 when degenerate.
+  double largest_cos(const Triangle& t, int& corner) const {
+    std::array<double, 3> e2;  // e2[k]: squared length of the edge opposite corner k
+    for (int k = 0; k < 3; ++k) e2[k] = (p_[t[(k + 2) % 3]] - p_[t[(k + 1) % 3]]).squaredNorm();
+    corner = static_cast<int>(std::max_element(e2.begin(), e2.end()) - e2.begin());
+    const double a2 = e2[(corner + 1) % 3], b2 = e2[(corner + 2) % 3];
+    const double den = 2.0 * std::sqrt(a2 * b2);
+    return den > 0.0 ? (a2 + b2 - e2[corner]) / den : 1.0;
+  }
+  double largest_cos(const Triangle& t) const {
+    int corner;
+    return largest_cos(t, corner);
+  }
+  // Index k of the needle edge (t[k], t[k+1]) of t, or -1.
+  int needle_edge(const Triangle& t) const {
+    std::array<double, 3> len2;
+    for (int k = 0; k < 3; ++k) len2[k] = (p_[t[(k + 1) % 3]] - p_[t[k]]).squaredNorm();
+    const int k = static_cast<int>(std::min_element(len2.begin(), len2.end()) - len2.begin());
+    const double r2 = o_.needle_ratio * o_.needle_ratio;
+    return len2[k] < r2 * std::min(len2[(k + 1) % 3], len2[(k + 2) % 3]) ? k : -1;
+  }
+  // |n_T - m_T|² with the field normal at T's centroid (2 for a degenerate triangle).
+  double deviation(std::int32_t t) const {
+    const Triangle& tri = tris_[t];
+    const Vec3 n = (p_[tri[1]] - p_[tri[0]]).cross(p_[tri[2]] - p_[tri[0]]);
+    const double len = n.norm();
+    return len <= o_.degenerate_cross ? 2.0 : (n / len - m_[t]).squaredNorm();
+  }
+  bool problem(std::int32_t t) const {
+    return largest_cos(tris_[t]) < cap_cos_ || needle_edge(tris_[t]) >= 0 || deviation(t) > o_.flip_deviation;
+  }
+  Vec3 field_normal(const Triangle& t) const {
+    Vec3 g;
+    field_.value_and_gradient((p_[t[0]] + p_[t[1]] + p_[t[2]]) / 3.0, g);
+    const double len = g.norm();
+    return len > 0.0 ? Vec3(g / len) : Vec3::Zero();
+  }
+  // n·m(centroid), or -2 for a degenerate triangle.
+  double score(const Triangle& t) const {
+    const Vec3 n = (p_[t[1]] - p_[t[0]]).cross(p_[t[2]] - p_[t[0]]);
+    const double len = n.norm();
+    return len <= o_.degenerate_cross ? -2.0 : n.dot(field_normal(t)) / len;
+  }
+  double energy(const Triangle& t, const Vec3& m) const {  // A |n - m|²
+    const Vec3 n = (p_[t[1]] - p_[t[0]]).cross(p_[t[2]] - p_[t[0]]);
+    const double len = n.norm();
+    return len <= o_.degenerate_cross ? 0.0 : 0.5 * len * (n / len - m).squaredNorm();
+  }
+
+  // --- Adjacency -----------------------------------------------------------------------------------------------
+  // The live triangles around v (copied from the entry adjacency on first use).
+  std::vector<std::int32_t>& fan(std::uint32_t v) {
+    auto [it, inserted] = fans_.try_emplace(v);
+    if (inserted) {
+      for (std::uint32_t i = vt_offset_[v]; i < vt_offset_[v + 1]; ++i) it->second.push_back(static_cast<std::int32_t>(vt_[i]));
+    }
+    return it->second;
+  }
+  // Number of triangles on edge (u, w) (up to 3) and the first two of them.
+  int edge_triangles(std::uint32_t u, std::uint32_t w, std::int32_t& t0, std::int32_t& t1) {
+    int count = 0;
+    for (std::int32_t t : fan(u)) {
+      if (!contains(tris_[t], w)) continue;
+      (count == 0 ? t0 : t1) = t;
+      if (++count > 2) break;
+    }
+    return count;
+  }
+  bool edge_exists(std::uint32_t u, std::uint32_t w) {
+    std::int32_t t0, t1;
+    return edge_triangles(u, w, t0, t1) > 0;
+  }
+  std::vector<std::uint32_t> neighbours(std::uint32_t v) {
+    std::vector<std::uint32_t> out;
+    for (std::int32_t t : fan(v)) {
+      for (std::uint32_t w : tris_[t]) {
+        if (w != v) out.push_back(w);
+      }
+    }
+    std::sort(out.begin(), out.end());
+    out.erase(std::unique(out.begin(), out.end()), out.end());
+    return out;
+  }
+  static void erase_value(std::vector<std::int32_t>& list, std::int32_t value) {
+    list.erase(std::remove(list.begin(), list.end(), value), list.end());
+  }
+
+  // A green pair with a changed child is dissolved (both children become plain triangles).
+  void dissolve(std::int32_t t) {
+    const std::int32_t g = h_.green_group[t];
+    if (g < 0) return;
+    if (group_children_.empty()) {
+      group_children_.assign(h_.green_parents.size(), {-1, -1});
+      for (std::size_t i = 0; i < tris_.size(); ++i) {
+        const std::int32_t gi = h_.green_group[i];
+        if (gi >= 0) group_children_[gi][group_children_[gi][0] < 0 ? 0 : 1] = static_cast<std::int32_t>(i);
+      }
+    }
+    for (std::int32_t c : group_children_[g]) {
+      if (c >= 0) h_.green_group[c] = -1;
+    }
+  }
+
+  // --- Flips ---------------------------------------------------------------------------------------------------
+  // For t = (x, u, v) rotated so that k is x's corner: the triangle t2 = (v, u, y) across (u, v), if (u, v) has
+  // exactly these two triangles, they are oriented consistently, and the flipped edge (x, y) is new and carries no
+  // midpoint record.
+  bool flippable(std::int32_t t, int k, std::int32_t& t2, std::uint32_t& y) {
+    const std::uint32_t x = tris_[t][k], u = tris_[t][(k + 1) % 3], v = tris_[t][(k + 2) % 3];
+    std::int32_t s0 = -1, s1 = -1;
+    if (edge_triangles(u, v, s0, s1) != 2) return false;
+    t2 = s0 == t ? s1 : s0;
+    int j = 0;
+    while (j < 3 && !(tris_[t2][j] == v && tris_[t2][(j + 1) % 3] == u)) ++j;
+    if (j == 3) return false;
+    y = tris_[t2][(j + 2) % 3];
+    return y != x && !edge_exists(x, y) && h_.midpoints.count(edge_key(x, y)) == 0;
+  }
+
+  // Replaces t = (x, u, v) and t2 = (v, u, y) by (u, y, x) and (y, v, x).
+  void apply_flip(std::int32_t t, std::int32_t t2, int k, std::uint32_t y) {
+    const std::uint32_t x = tris_[t][k], u = tris_[t][(k + 1) % 3], v = tris_[t][(k + 2) % 3];
+    dissolve(t);
+    dissolve(t2);
+    tris_[t] = Triangle{u, y, x};
+    tris_[t2] = Triangle{y, v, x};
+    m_[t] = field_normal(tris_[t]);
+    m_[t2] = field_normal(tris_[t2]);
+    erase_value(fan(u), t2);
+    erase_value(fan(v), t);
+    fan(x).push_back(t2);
+    fan(y).push_back(t);
+    touched_.push_back(t);
+    touched_.push_back(t2);
+  }
+
+  // Cap: flip the edge opposite its largest angle when the pair's largest angle drops.
+  bool try_flip(std::int32_t t) {
+    int k;
+    const double old_cos = largest_cos(tris_[t], k);
+    if (!(old_cos < cap_cos_)) return false;
+    std::int32_t t2;
+    std::uint32_t y;
+    if (!flippable(t, k, t2, y)) return false;
+    const std::uint32_t x = tris_[t][k], u = tris_[t][(k + 1) % 3], v = tris_[t][(k + 2) % 3];
+    const Triangle a{u, y, x}, b{y, v, x};
+    if (!(std::min(largest_cos(a), largest_cos(b)) > std::min(old_cos, largest_cos(tris_[t2])))) return false;
+    if (score(a) < o_.min_cos || score(b) < o_.min_cos) return false;
+    apply_flip(t, t2, k, y);
+    return true;
+  }
+
+  // Deviating triangle: flip the edge that lowers A |n - m|² of the pair the most (by at least 1 %), when the new
+  // triangles face along the field and are no caps.
+  bool try_deviation_flip(std::int32_t t) {
+    if (deviation(t) <= o_.flip_deviation) return false;
+    double best_gain = 0.0;
+    int best = -1;
+    std::int32_t best_t2 = -1;
+    std::uint32_t best_y = 0;
+    for (int k = 0; k < 3; ++k) {
+      std::int32_t t2;
+      std::uint32_t y;
+      if (!flippable(t, k, t2, y)) continue;
+      const std::uint32_t x = tris_[t][k], u = tris_[t][(k + 1) % 3], v = tris_[t][(k + 2) % 3];
+      const Triangle a{u, y, x}, b{y, v, x};
+      if (!(std::min(largest_cos(a), largest_cos(b)) > cap_cos_)) continue;
+      const double before = energy(tris_[t], m_[t]) + energy(tris_[t2], m_[t2]);
+      const double gain = before - energy(a, field_normal(a)) - energy(b, field_normal(b));
+      if (!(gain > 0.01 * before) || gain <= best_gain) continue;
+      if (score(a) < o_.min_cos || score(b) < o_.min_cos) continue;
+      best_gain = gain;
+      best = k;
+      best_t2 = t2;
+      best_y = y;
+    }
+    if (best < 0) return false;
+    apply_flip(t, best_t2, best, best_y);
+    return true;
+  }
+
+  // --- Collapses -----------------------------------------------------------------------------------------------
+  bool try_collapse(std::int32_t t) {
+    const int k = needle_edge(tris_[t]);
+    if (k < 0) return false;
+    const std::uint32_t a = tris_[t][k], b = tris_[t][(k + 1) % 3], c = tris_[t][(k + 2) % 3];
+    std::int32_t s0 = -1, s1 = -1;
+    if (edge_triangles(a, b, s0, s1) != 2) return false;
+    const std::int32_t t2 = s0 == t ? s1 : s0;
+    std::uint32_t d = c;
+    for (std::uint32_t w : tris_[t2]) {
+      if (w != a && w != b) d = w;
+    }
+    if (d == c) return false;
+    // Link condition: a and b share exactly the two opposite vertices.
+    const std::vector<std::uint32_t> na = neighbours(a), nb = neighbours(b);
+    std::vector<std::uint32_t> common;
+    std::set_intersection(na.begin(), na.end(), nb.begin(), nb.end(), std::back_inserter(common));
+    if (common.size() != 2 || !((common[0] == c && common[1] == d) || (common[0] == d && common[1] == c))) {
+      return false;
+    }
+    // Every edge at a and b has one or two triangles; not both on the boundary (an interior edge between two
+    // boundary vertices: collapsing it would pinch the boundary); no new edge (a, y) carries a midpoint record.
+    bool a_on_boundary = false, b_on_boundary = false;
+    for (const auto& [v, others] : {std::pair{a, &na}, std::pair{b, &nb}}) {
+      for (std::uint32_t w : *others) {
+        std::int32_t e0, e1;
+        const int count = edge_triangles(v, w, e0, e1);
+        if (count > 2) return false;
+        if (count == 1) (v == a ? a_on_boundary : b_on_boundary) = true;
+      }
+    }
+    if (a_on_boundary && b_on_boundary) return false;
+    for (std::uint32_t y : nb) {
+      if (y != a && h_.midpoints.count(edge_key(a, y)) != 0) return false;
+    }
+    std::vector<std::int32_t> around = fan(a);
+    around.insert(around.end(), fan(b).begin(), fan(b).end());
+    std::sort(around.begin(), around.end());
+    around.erase(std::unique(around.begin(), around.end()), around.end());
+    std::vector<std::int32_t> changed;
+    std::vector<double> floor;
+    for (std::int32_t f : around) {
+      if (f == t || f == t2) continue;
+      changed.push_back(f);
+      floor.push_back(std::min(o_.min_cos, score(tris_[f])));
+    }
+    auto renamed = [&](std::int32_t f) {
+      Triangle r = tris_[f];
+      for (std::uint32_t& w : r) {
+        if (w == b) w = a;
+      }
+      return r;
+    };
+    // Place a at the midpoint, else at a, else at b: the first where every changed triangle passes the guard test.
+    const Vec3 pa = p_[a];
+    bool ok = false;
+    for (const Vec3& x : {Vec3(0.5 * (p_[a] + p_[b])), Vec3(p_[a]), Vec3(p_[b])}) {
+      p_[a] = x;
+      ok = true;
+      for (std::size_t i = 0; i < changed.size() && ok; ++i) {
+        const double s = score(renamed(changed[i]));
+        ok = s > -2.0 && s >= floor[i];
+      }
+      if (ok) break;
+    }
+    if (!ok) {
+      p_[a] = pa;
+      return false;
+    }
+    for (std::int32_t f : around) dissolve(f);
+    deleted_[t] = deleted_[t2] = 1;
+    for (std::int32_t f : changed) {
+      tris_[f] = renamed(f);
+      m_[f] = field_normal(tris_[f]);
+      touched_.push_back(f);
+    }
+    fan(a) = changed;
+    fan(b).clear();
+    erase_value(fan(c), t);
+    erase_value(fan(d), t2);
+    dead_.insert(b);
+    return true;
+  }
+
+  // Drops deleted triangles (keeping order) and the midpoint records that name a collapsed vertex.
+  void finish() {
+    if (dead_.empty()) return;
+    std::size_t out = 0;
+    for (std::size_t t = 0; t < tris_.size(); ++t) {
+      if (deleted_[t]) continue;
+      tris_[out] = tris_[t];
+      m_[out] = m_[t];
+      h_.green_group[out] = h_.green_group[t];
+      ++out;
+    }
+    tris_.resize(out);
+    m_.resize(out);
+    h_.green_group.resize(out);
+    for (auto it = h_.midpoints.begin(); it != h_.midpoints.end();) {
+      const auto lo = static_cast<std::uint32_t>(it->first >> 32);
+      const auto hi = static_cast<std::uint32_t>(it->first & 0xffffffffu);
+      if (dead_.count(lo) || dead_.count(hi) || dead_.count(it->second)) {
+        it = h_.midpoints.erase(it);
+      } else {
+        ++it;
+      }
+    }
+  }
+
+  std::vector<Vec3>& p_;
+  std::vector<Triangle>& tris_;
+  RedGreenHierarchy& h_;
+  std::vector<Vec3>& m_;
+  std::span<const std::uint32_t> vt_offset_, vt_;
+  const Field& field_;
+  const CleanupOptions& o_;
+  double cap_cos_ = -1.0;
+  std::unordered_map<std::uint32_t, std::vector<std::int32_t>> fans_;
+  std::vector<std::uint8_t> deleted_;
+  std::vector<std::int32_t> touched_;
+  std::unordered_set<std::uint32_t> dead_;
+  std::vector<std::array<std::int32_t, 2>> group_children_;
+};
+
+}  // namespace
+
+CleanupCounts repair_connectivity(std::vector<Vec3>& positions, std::vector<Triangle>& triangles,
+                                  RedGreenHierarchy& hierarchy, std::vector<Vec3>& field_normals,
+                                  std::span<const std::uint32_t> vt_offset, std::span<const std::uint32_t> vt,
+                                  const Field& field, const CleanupOptions& options, const RunControl& control) {
+  Cleaner cleaner(positions, triangles, hierarchy, field_normals, vt_offset, vt, field, options);
+  return cleaner.run(control);
+}
+
+}  // namespace surfacer::optimizer_detail

@@ -1,0 +1,37 @@
+// Red–green refinement of a triangle mesh (Bank, Sherman, Weiser 1983), the subdivision step of the mesh optimizer
+// (Ohtake–Belyaev–Pasko 2002 §3.2; core/optimize/mesh_optimizer.h). Internal to core: not part of the public API.
+#pragma once
+
+#include <cstdint>
+#include <unordered_map>
+#include <vector>
+
+#include "core/mesh/mesh.h"
+#include "core/util/run_control.h"
+
+namespace surfacer::optimizer_detail {
+
+// Kept across refinement rounds so green (bisected) triangles are never refined again: a green pair that must be
+// refined is merged back into its parent, which is split 1-to-4 instead.
+struct RedGreenHierarchy {
+  std::vector<std::int32_t> green_group;  // per triangle: index into green_parents, or -1 (not a green child)
+  std::vector<Triangle> green_parents;    // the triangle each green pair was bisected from
+  std::unordered_map<std::uint64_t, std::uint32_t> midpoints;  // edge (sorted vertex pair) -> its midpoint vertex
+
+  void reset(std::size_t triangles) {
+    green_group.assign(triangles, -1);
+    green_parents.clear();
+    midpoints.clear();
+  }
+};
+
+// Splits every triangle with requested[t] != 0 into four at its edge midpoints (red) and closes the neighbourhood:
+// a triangle with >= 2 split edges is split red too, one with exactly one split edge is bisected (green); a green
+// child that would be split makes its pair merge back into the parent, split red. Repeats until conforming (no
+// triangle edge carries a midpoint used across it). New vertices (edge midpoints, at the midpoint of the current
+// positions) are appended to `vertices`; a conforming closed manifold mesh stays closed, manifold and oriented.
+// `requested` has one entry per triangle of `triangles`. Calls control.check() once per pass.
+void refine_red_green(std::vector<Vec3>& vertices, std::vector<Triangle>& triangles, RedGreenHierarchy& hierarchy,
+                      const std::vector<std::uint8_t>& requested, const RunControl& control);
+
+}  // namespace surfacer::optimizer_detail

@@ -1,0 +1,59 @@
+// Particle files for the particle surfacer (issue 4): positions and optional per-particle radii of one frame.
+//
+// Formats, chosen by extension (case-insensitive; a trailing ".gz" is ignored, and gzip data is recognised by its
+// magic bytes 1f 8b whatever the extension, then inflated before parsing):
+//   .xyz .txt .csv  text, one particle per line: "x y z" or "x y z r", separated by whitespace and/or commas;
+//                   '#' starts a comment; an optional first line of column names (e.g. "x,y,z,radius,id") selects
+//                   the x, y, z and radius (or pscale) columns by name.
+//   .ply            point cloud (ascii, binary_little_endian, binary_big_endian): element "vertex" with properties
+//                   x, y, z of any scalar type and an optional radius or pscale; other properties/elements skipped.
+//   .vtk            VTK legacy, DATASET POLYDATA or UNSTRUCTURED_GRID, ASCII or BINARY (big-endian): the POINTS
+//                   (any numeric type); radii from a POINT_DATA SCALARS or FIELD array named radius or pscale.
+//   .vtu            VTK XML UnstructuredGrid/PolyData: <Points><DataArray> of every <Piece>, format "ascii" or inline
+//                   "binary" (base64 with a UInt32 or UInt64 byte-count header, little- or big-endian), Float32 or
+//                   Float64; radii from a PointData DataArray named radius or pscale. Appended data and compressed
+//                   files are rejected with an error saying so.
+//   .bin            raw little-endian float32 x y z triples, no header.
+//   .bgeo .bhclassic  Houdini classic binary geometry (magic "Bgeo", version 5; as written by Partio and
+//                   SPlisHSPlasH): the point positions, radii from a float point attribute named pscale or radius.
+//
+// Every problem (unreadable file, unknown extension, bad syntax, wrong counts, truncation, non-finite coordinates,
+// unsupported variant) throws surfacer::Error(kInvalidInput, "file") whose message starts with the file name and names
+// the line (text) or byte offset (binary; offsets of gzip data are into the inflated bytes), e.g.
+//   "fluid_0003.bgeo: byte 131: truncated point 2 of 1000 (needs 28 bytes, 5 left)".
+// Headers are never trusted: reservations are capped by the bytes present, so hostile files cannot exhaust memory.
+// Inflated gzip data larger than 16 GiB throws ResourceLimit("file").
+#pragma once
+
+#include <filesystem>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "core/mesh/mesh.h"
+
+namespace surfacer {
+
+struct ParticleFrame {
+  std::vector<Vec3> positions;
+  std::vector<double> radii;  // empty, or one per position (as stored; not validated here)
+};
+
+enum class ParticleFormat { kXyz, kPly, kVtk, kVtu, kBin, kBgeo };
+
+// Format from the file name's extension (see above); throws InvalidInput("file") naming the supported extensions.
+ParticleFormat particle_format_from_path(const std::filesystem::path& path);
+
+ParticleFrame read_particles(const std::filesystem::path& path);
+// The same from bytes in memory (gzip accepted); `name_for_errors` prefixes every message.
+ParticleFrame parse_particles(std::string_view bytes, ParticleFormat format, const std::string& name_for_errors);
+
+// Frame file names from a pattern with one placeholder "{}" (the frame number as is) or "{:Nd}" / "{:0Nd}"
+// (zero-padded to N digits; N in 1..18), for frames start..end inclusive, e.g.
+//   expand_sequence("fluid_{:04d}.ply", 0, 2) -> fluid_0000.ply, fluid_0001.ply, fluid_0002.ply
+// Negative frame numbers keep their sign ("-007" for {:04d}). "{{" and "}}" are literal braces. Files are not checked.
+// Throws InvalidInput("pattern") without exactly one placeholder or with a malformed one, InvalidInput("end") when
+// end < start, ResourceLimit("end") for more than 10^6 frames.
+std::vector<std::filesystem::path> expand_sequence(const std::string& pattern, int start, int end);
+
+}  // namespace surfacer

@@ -1,0 +1,531 @@
+// VTK legacy (.vtk) and VTK XML (.vtu) point positions for core/particles/particle_io.h.
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "core/particles/particle_io_detail.h"
+
+namespace surfacer::particle_io_detail {
+namespace {
+
+std::string upper(std::string_view s) {
+  std::string out(s);
+  for (char& c : out) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+  return out;
+}
+
+// --- Legacy ----------------------------------------------------------------------------------------------------------
+
+class LegacyReader {
+ public:
+  LegacyReader(std::string_view bytes, const std::string& name) : c_{bytes, name}, name_(name) {}
+
+  ParticleFrame read() {
+    const std::string_view first = c_.rest_of_line();
+    if (first.rfind("# vtk DataFile Version", 0) != 0) {
+      fail(name_, line_at(1), "not a VTK legacy file (the first line must start with '# vtk DataFile Version')");
+    }
+    c_.rest_of_line();  // title
+    const std::size_t mode_line = c_.line;
+    const std::string mode = upper(c_.expect("ASCII or BINARY"));
+    if (mode == "BINARY") {
+      binary_ = true;
+    } else if (mode != "ASCII") {
+      fail(name_, line_at(mode_line), "expected ASCII or BINARY on line 3, got '" + mode.substr(0, 40) + "'");
+    }
+    c_.report_bytes = binary_;
+    ParticleFrame frame;
+    bool have_points = false;
+    bool point_data = false;  // inside POINT_DATA (else CELL_DATA or before either)
+    std::int64_t attribute_count = 0;
+    std::int64_t points = 0;
+    std::vector<double> values;
+    while (true) {
+      const std::optional<std::string_view> token = c_.next();
+      if (!token) break;
+      const std::size_t at = c_.pos - token->size();
+      const std::string key = upper(*token);
+      if (key == "DATASET") {
+        const std::string type = upper(c_.expect("dataset type"));
+        if (type != "POLYDATA" && type != "UNSTRUCTURED_GRID") {
+          fail(name_, where(at),
+               "DATASET " + type.substr(0, 40) + " is not supported; use POLYDATA or UNSTRUCTURED_GRID");
+        }
+      } else if (key == "POINTS") {
+        if (have_points) fail(name_, where(at), "second POINTS section");
+        points = c_.count("number of points");
+        const Scalar type = scalar(c_.expect("point type"));
+        read_values(points, 3, type, "POINTS", &values);
+        frame.positions.resize(static_cast<std::size_t>(points));
+        for (std::size_t i = 0; i < frame.positions.size(); ++i) {
+          frame.positions[i] = Vec3(values[3 * i], values[3 * i + 1], values[3 * i + 2]);
+          if (!frame.positions[i].allFinite()) fail(name_, where(at), "point " + std::to_string(i) + " is not finite");
+        }
+        have_points = true;
+      } else if (key == "VERTICES" || key == "LINES" || key == "POLYGONS" || key == "TRIANGLE_STRIPS" ||
+                 key == "CELLS") {
+        const std::int64_t n = c_.count("cell count");
+        const std::int64_t size = c_.count("cell list size");
+        const std::size_t save_pos = c_.pos, save_line = c_.line;
+        const std::optional<std::string_view> next = c_.next();
+        if (next && upper(*next) == "OFFSETS") {  // VTK 5.1: OFFSETS <type> n values, CONNECTIVITY <type> size values
+          read_values(n, 1, scalar(c_.expect("offsets type")), "OFFSETS", nullptr);
+          if (upper(c_.expect("CONNECTIVITY")) != "CONNECTIVITY") fail(name_, where(c_.pos), "expected CONNECTIVITY");
+          read_values(size, 1, scalar(c_.expect("connectivity type")), "CONNECTIVITY", nullptr);
+        } else {
+          c_.pos = save_pos;
+          c_.line = save_line;
+          read_values(size, 1, Scalar::kI32, key, nullptr);
+        }
+      } else if (key == "CELL_TYPES") {
+        read_values(c_.count("cell count"), 1, Scalar::kI32, "CELL_TYPES", nullptr);
+      } else if (key == "POINT_DATA" || key == "CELL_DATA") {
+        point_data = key == "POINT_DATA";
+        attribute_count = c_.count("attribute count");
+      } else if (key == "SCALARS") {
+        const std::string array(c_.expect("scalars name"));
+        const Scalar type = scalar(c_.expect("scalars type"));
+        std::int64_t components = 1;
+        const std::string_view rest = c_.rest_of_line();
+        if (rest.find_first_not_of(" \t") != std::string_view::npos) {
+          double v = 0.0;
+          const std::size_t b = rest.find_first_not_of(" \t");
+          const std::size_t e = rest.find_first_of(" \t", b);
+          if (!parse_number(rest.substr(b, e == std::string_view::npos ? e : e - b), v) || v < 1 || v > 4 ||
+              v != std::floor(v)) {
+            fail(name_, where(c_.pos), "bad number of components in SCALARS " + array);
+          }
+          components = static_cast<std::int64_t>(v);
+        }
+        if (upper(c_.expect("LOOKUP_TABLE")) != "LOOKUP_TABLE") fail(name_, where(c_.pos), "expected LOOKUP_TABLE");
+        c_.expect("lookup table name");
+        const bool radius = point_data && components == 1 && is_radius_name(array);
+        read_values(attribute_count, components, type, "SCALARS " + array, radius ? &values : nullptr);
+        if (radius) frame.radii = values;
+      } else if (key == "LOOKUP_TABLE") {
+        c_.expect("lookup table name");
+        read_values(c_.count("lookup table size"), 4, binary_ ? Scalar::kU8 : Scalar::kF64, "LOOKUP_TABLE", nullptr);
+      } else if (key == "COLOR_SCALARS") {
+        c_.expect("color scalars name");
+        const std::int64_t n = c_.count("number of color components");
+        read_values(attribute_count, n, binary_ ? Scalar::kU8 : Scalar::kF64, "COLOR_SCALARS", nullptr);
+      } else if (key == "VECTORS" || key == "NORMALS" || key == "TENSORS" || key == "TENSORS6") {
+        c_.expect("array name");
+        const std::int64_t n = key == "TENSORS" ? 9 : key == "TENSORS6" ? 6 : 3;
+        read_values(attribute_count, n, scalar(c_.expect("array type")), key, nullptr);
+      } else if (key == "TEXTURE_COORDINATES") {
+        c_.expect("array name");
+        const std::int64_t dim = c_.count("texture dimension");
+        read_values(attribute_count, dim, scalar(c_.expect("array type")), key, nullptr);
+      } else if (key == "FIELD") {
+        c_.expect("field name");
+        const std::int64_t arrays = c_.count("number of arrays");
+        for (std::int64_t a = 0; a < arrays; ++a) {
+          const std::string array(c_.expect("array name"));
+          if (upper(array) == "METADATA") {
+            skip_metadata();
+            --a;
+            continue;
+          }
+          const std::int64_t components = c_.count("number of components");
+          const std::int64_t tuples = c_.count("number of tuples");
+          const std::string_view type_name = c_.expect("array type");
+          if (!scalar_from_name(type_name)) {
+            if (have_points) return finish(frame, points);  // e.g. string arrays after the points: nothing we need
+            fail(name_, where(c_.pos), "unsupported FIELD array type '" + std::string(type_name.substr(0, 40)) + "'");
+          }
+          const bool radius =
+              components == 1 && is_radius_name(array) && (point_data || !have_points || tuples == points);
+          read_values(tuples, components, *scalar_from_name(type_name), "FIELD array " + array,
+                      radius ? &values : nullptr);
+          if (radius) frame.radii = values;
+        }
+      } else if (key == "METADATA") {
+        skip_metadata();
+      } else if (have_points) {
+        break;  // sections we do not know cannot hold anything we need
+      } else {
+        fail(name_, where(at), "unexpected keyword '" + std::string(token->substr(0, 40)) + "' before POINTS");
+      }
+    }
+    if (!have_points) fail(name_, where(c_.pos), "no POINTS section");
+    return finish(frame, points);
+  }
+
+ private:
+  std::string where(std::size_t offset) const { return binary_ ? byte_at(offset) : line_at(line_of(c_.text, offset)); }
+
+  ParticleFrame finish(ParticleFrame& frame, std::int64_t points) const {
+    if (!frame.radii.empty() && frame.radii.size() != static_cast<std::size_t>(points)) {
+      fail(name_, where(c_.pos),
+           "radius array has " + std::to_string(frame.radii.size()) + " values for " + std::to_string(points) +
+               " points");
+    }
+    return std::move(frame);
+  }
+
+  Scalar scalar(std::string_view type) const {
+    const std::optional<Scalar> s = scalar_from_name(type);
+    if (!s) fail(name_, where(c_.pos), "unsupported data type '" + std::string(type.substr(0, 40)) + "'");
+    return *s;
+  }
+
+  void skip_metadata() {
+    c_.rest_of_line();
+    while (c_.pos < c_.text.size()) {
+      const std::string_view l = c_.rest_of_line();
+      if (l.find_first_not_of(" \t") == std::string_view::npos) break;
+    }
+  }
+
+  // Reads tuples * components values of `type` (ASCII tokens, or big-endian binary starting after the current line);
+  // stores them in *out when out != nullptr.
+  void read_values(std::int64_t tuples, std::int64_t components, Scalar type, const std::string& what,
+                   std::vector<double>* out) {
+    if (tuples < 0 || components < 0 ||
+        (components > 0 && tuples > std::numeric_limits<std::int64_t>::max() / components)) {
+      fail(name_, where(c_.pos), "bad size of " + what);
+    }
+    const std::int64_t count = tuples * components;
+    if (out != nullptr) out->clear();
+    if (!binary_) {
+      if (out != nullptr) out->reserve(capped_reserve(count, c_.text.size() - c_.pos, 2));
+      for (std::int64_t i = 0; i < count; ++i) {
+        const double v = c_.number(what + " value " + std::to_string(i) + " of " + std::to_string(count));
+        if (out != nullptr) out->push_back(v);
+      }
+      return;
+    }
+    c_.skip_line();
+    const std::size_t size = scalar_size(type);
+    const std::size_t left = c_.text.size() - c_.pos;
+    if (static_cast<std::uint64_t>(count) > left / size) {
+      fail(name_, byte_at(c_.pos),
+           "truncated " + what + " (needs " + std::to_string(count) + " x " + std::to_string(size) + " bytes, " +
+               std::to_string(left) + " left)");
+    }
+    if (out != nullptr) {
+      out->resize(static_cast<std::size_t>(count));
+      for (std::size_t i = 0; i < out->size(); ++i)
+        (*out)[i] = read_scalar(c_.text.data() + c_.pos + i * size, type, true);
+    }
+    c_.pos += static_cast<std::size_t>(count) * size;
+  }
+
+  TextCursor c_;
+  const std::string& name_;
+  bool binary_ = false;
+};
+
+// --- XML (.vtu) --------------------------------------------------------------------------------------------------
+
+struct Tag {
+  std::string_view name;
+  bool closing = false;
+  bool self_closing = false;
+  std::vector<std::pair<std::string_view, std::string_view>> attributes;
+  std::size_t begin = 0, end = 0;  // '<' and one past '>'
+
+  std::optional<std::string_view> attribute(std::string_view key) const {
+    for (const auto& [k, v] : attributes) {
+      if (k == key) return v;
+    }
+    return std::nullopt;
+  }
+};
+
+class XmlReader {
+ public:
+  XmlReader(std::string_view text, const std::string& name) : text_(text), name_(name) {}
+
+  ParticleFrame read() {
+    ParticleFrame frame;
+    std::vector<std::string_view> stack;
+    std::int64_t piece_points = -1;  // -1 outside a <Piece>
+    std::size_t piece_first = 0;     // index of the piece's first point in frame.positions
+    bool piece_radius = false;
+    bool saw_file = false, any_radius = false, any_piece_without_radius = false;
+    std::size_t pos = 0;
+    while (true) {
+      const std::optional<Tag> tag = next_tag(pos);
+      if (!tag) break;
+      pos = tag->end;
+      if (tag->closing) {
+        if (stack.empty() || stack.back() != tag->name) {
+          fail(name_, where(tag->begin), "unexpected </" + std::string(tag->name.substr(0, 40)) + ">");
+        }
+        stack.pop_back();
+        if (tag->name == "Piece") {
+          if (frame.positions.size() - piece_first != static_cast<std::size_t>(piece_points)) {
+            fail(name_, where(tag->begin),
+                 "piece declares " + std::to_string(piece_points) + " points but has " +
+                     std::to_string(frame.positions.size() - piece_first));
+          }
+          (piece_radius ? any_radius : any_piece_without_radius) = true;
+          piece_points = -1;
+        }
+        continue;
+      }
+      if (tag->name == "VTKFile") {
+        saw_file = true;
+        const std::string type(tag->attribute("type").value_or(""));
+        if (type != "UnstructuredGrid" && type != "PolyData") {
+          fail(name_, where(tag->begin),
+               "VTKFile type '" + type.substr(0, 40) +
+                   "' is not supported; use UnstructuredGrid or PolyData (.vtu/.vtp)");
+        }
+        const std::string order(tag->attribute("byte_order").value_or("LittleEndian"));
+        if (order != "LittleEndian" && order != "BigEndian") fail(name_, where(tag->begin), "bad byte_order");
+        big_endian_ = order == "BigEndian";
+        const std::string header(tag->attribute("header_type").value_or("UInt32"));
+        if (header != "UInt32" && header != "UInt64")
+          fail(name_, where(tag->begin), "bad header_type '" + header + "'");
+        header_size_ = header == "UInt64" ? 8 : 4;
+        if (const auto compressor = tag->attribute("compressor"); compressor && !compressor->empty()) {
+          fail(name_, where(tag->begin),
+               "compressed VTU (compressor=\"" + std::string(compressor->substr(0, 60)) +
+                   "\") is not supported; write the file uncompressed (e.g. "
+                   "vtkXMLWriter::SetCompressorTypeToNone, meshio compression=None)");
+        }
+      } else if (tag->name == "Piece") {
+        if (!saw_file) fail(name_, where(tag->begin), "<Piece> outside <VTKFile>");
+        double n = -1.0;
+        const std::string_view np = tag->attribute("NumberOfPoints").value_or("");
+        if (!parse_number(np, n) || n < 0 || n != std::floor(n) || n > 4.0e9) {
+          fail(name_, where(tag->begin), "Piece has no valid NumberOfPoints");
+        }
+        piece_points = static_cast<std::int64_t>(n);
+        piece_first = frame.positions.size();
+        piece_radius = false;
+      } else if (tag->name == "AppendedData") {
+        break;  // raw bytes follow; every array we need was inline (appended ones were rejected below)
+      } else if (tag->name == "DataArray" && !stack.empty() &&
+                 (stack.back() == "Points" ||
+                  // The piece's first radius (or pscale) array; a second one is other data, not more radii.
+                  (stack.back() == "PointData" && !piece_radius &&
+                   is_radius_name(tag->attribute("Name").value_or(""))))) {
+        if (piece_points < 0) fail(name_, where(tag->begin), "DataArray outside a <Piece>");
+        const bool points = stack.back() == "Points";
+        const std::int64_t components = points ? 3 : 1;
+        double nc = 1.0;
+        if (const auto a = tag->attribute("NumberOfComponents")) {
+          if (!parse_number(*a, nc)) nc = -1.0;
+        }
+        if (nc != static_cast<double>(components) && points) {
+          fail(name_, where(tag->begin), "Points DataArray must have NumberOfComponents=\"3\"");
+        }
+        if (tag->self_closing) fail(name_, where(tag->begin), "empty DataArray");
+        if (nc == static_cast<double>(components)) {  // (a multi-component "radius" is not a radius: skipped)
+          const std::size_t close = text_.find("</DataArray>", tag->end);
+          if (close == std::string_view::npos) fail(name_, where(tag->begin), "DataArray is not closed");
+          std::vector<double> values =
+              decode(*tag, text_.substr(tag->end, close - tag->end), tag->end, piece_points * components);
+          if (points) {
+            for (std::size_t i = 0; i + 2 < values.size(); i += 3) {
+              const Vec3 p(values[i], values[i + 1], values[i + 2]);
+              check_finite(p, name_, where(tag->end) + " (point " + std::to_string(i / 3) + ")");
+              frame.positions.push_back(p);
+            }
+          } else {
+            frame.radii.insert(frame.radii.end(), values.begin(), values.end());
+            piece_radius = true;
+          }
+          pos = close;
+        }
+      }
+      if (!tag->self_closing) stack.push_back(tag->name);
+    }
+    if (!saw_file) fail(name_, line_at(1), "not a VTK XML file (no <VTKFile> element)");
+    if (piece_points >= 0) fail(name_, where(text_.size()), "file ends inside a <Piece>");
+    if (any_radius && any_piece_without_radius) {
+      fail(name_, where(text_.size()), "some pieces have a radius array and some do not");
+    }
+    return frame;
+  }
+
+ private:
+  std::string where(std::size_t offset) const { return line_at(line_of(text_, offset)); }
+
+  std::optional<Tag> next_tag(std::size_t pos) const {
+    while (true) {
+      const std::size_t lt = text_.find('<', pos);
+      if (lt == std::string_view::npos) return std::nullopt;
+      if (text_.substr(lt, 4) == "<!--") {
+        const std::size_t e = text_.find("-->", lt + 4);
+        if (e == std::string_view::npos) fail(name_, where(lt), "unterminated comment");
+        pos = e + 3;
+        continue;
+      }
+      if (text_.substr(lt, 2) == "<?" || text_.substr(lt, 2) == "<!") {
+        const std::size_t e = text_.find('>', lt);
+        if (e == std::string_view::npos) fail(name_, where(lt), "unterminated declaration");
+        pos = e + 1;
+        continue;
+      }
+      Tag tag;
+      tag.begin = lt;
+      std::size_t i = lt + 1;
+      if (i < text_.size() && text_[i] == '/') {
+        tag.closing = true;
+        ++i;
+      }
+      auto is_name = [](char c) {
+        return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == ':' || c == '-' || c == '.';
+      };
+      auto skip_ws = [&] {
+        while (i < text_.size() && std::isspace(static_cast<unsigned char>(text_[i]))) ++i;
+      };
+      const std::size_t name_begin = i;
+      while (i < text_.size() && is_name(text_[i])) ++i;
+      tag.name = text_.substr(name_begin, i - name_begin);
+      if (tag.name.empty()) fail(name_, where(lt), "malformed tag");
+      while (true) {
+        skip_ws();
+        if (i >= text_.size()) fail(name_, where(lt), "unterminated tag <" + std::string(tag.name.substr(0, 40)));
+        if (text_[i] == '>') {
+          ++i;
+          break;
+        }
+        if (text_[i] == '/' && i + 1 < text_.size() && text_[i + 1] == '>') {
+          tag.self_closing = true;
+          i += 2;
+          break;
+        }
+        const std::size_t key_begin = i;
+        while (i < text_.size() && is_name(text_[i])) ++i;
+        const std::string_view key = text_.substr(key_begin, i - key_begin);
+        skip_ws();
+        if (key.empty() || i >= text_.size() || text_[i] != '=') fail(name_, where(i), "malformed attribute");
+        ++i;
+        skip_ws();
+        if (i >= text_.size() || (text_[i] != '"' && text_[i] != '\'')) fail(name_, where(i), "unquoted attribute");
+        const char quote = text_[i++];
+        const std::size_t value_end = text_.find(quote, i);
+        if (value_end == std::string_view::npos) fail(name_, where(i), "unterminated attribute value");
+        tag.attributes.emplace_back(key, text_.substr(i, value_end - i));
+        i = value_end + 1;
+      }
+      tag.end = i;
+      return tag;
+    }
+  }
+
+  std::vector<double> decode(const Tag& tag, std::string_view content, std::size_t content_at,
+                             std::int64_t count) const {
+    const std::string type_name(tag.attribute("type").value_or(""));
+    const std::optional<Scalar> type = scalar_from_name(type_name);
+    if (!type) fail(name_, where(tag.begin), "unsupported DataArray type '" + type_name.substr(0, 40) + "'");
+    const std::string format(tag.attribute("format").value_or("ascii"));
+    std::vector<double> values;
+    if (format == "ascii") {
+      TextCursor c{content, name_};
+      values.reserve(capped_reserve(count, content.size(), 2));
+      std::size_t last = 0;  // end of the last value read
+      for (std::int64_t i = 0; i < count; ++i) {
+        const std::optional<std::string_view> t = c.next();
+        if (!t) {
+          fail(name_, where(content_at + last),
+               "DataArray has " + std::to_string(i) + " values, expected " + std::to_string(count));
+        }
+        last = c.pos;
+        double v = 0.0;
+        if (!parse_number(*t, v)) {
+          fail(name_, where(content_at + c.pos), "'" + std::string(t->substr(0, 40)) + "' is not a number");
+        }
+        values.push_back(v);
+      }
+      if (c.next())
+        fail(name_, where(content_at + c.pos), "DataArray has more than " + std::to_string(count) + " values");
+      return values;
+    }
+    if (format == "appended") {
+      fail(name_, where(tag.begin),
+           "appended DataArray data is not supported; write the file with inline data "
+           "(vtkXMLWriter::SetDataModeToBinary or SetDataModeToAscii)");
+    }
+    if (format != "binary") fail(name_, where(tag.begin), "unknown DataArray format '" + format.substr(0, 40) + "'");
+    const std::string bytes = base64(content, content_at);
+    if (bytes.size() < header_size_) fail(name_, where(content_at), "binary DataArray shorter than its header");
+    const double declared = read_scalar(bytes.data(), header_size_ == 8 ? Scalar::kU64 : Scalar::kU32, big_endian_);
+    const std::size_t size = scalar_size(*type);
+    const double expected = static_cast<double>(count) * static_cast<double>(size);
+    if (declared != expected) {
+      fail(name_, where(content_at),
+           "binary DataArray header says " + std::to_string(static_cast<std::uint64_t>(declared)) +
+               " bytes, expected " + std::to_string(static_cast<std::uint64_t>(expected)));
+    }
+    if (static_cast<double>(bytes.size() - header_size_) < expected) {
+      fail(name_, where(content_at),
+           "binary DataArray holds " + std::to_string(bytes.size() - header_size_) + " bytes, expected " +
+               std::to_string(static_cast<std::uint64_t>(expected)));
+    }
+    values.resize(static_cast<std::size_t>(count));
+    for (std::size_t i = 0; i < values.size(); ++i) {
+      values[i] = read_scalar(bytes.data() + header_size_ + i * size, *type, big_endian_);
+    }
+    return values;
+  }
+
+  // Base64 decoded in groups of four characters; padding ends a group, so independently encoded blocks (header and
+  // data written separately, as VTK does) decode as well as one stream.
+  std::string base64(std::string_view content, std::size_t content_at) const {
+    std::string out;
+    out.reserve(content.size() / 4 * 3 + 3);
+    int group[4];
+    int n = 0, pad = 0;
+    for (std::size_t i = 0; i < content.size(); ++i) {
+      const char c = content[i];
+      if (std::isspace(static_cast<unsigned char>(c))) continue;
+      int v;
+      if (c >= 'A' && c <= 'Z') {
+        v = c - 'A';
+      } else if (c >= 'a' && c <= 'z') {
+        v = c - 'a' + 26;
+      } else if (c >= '0' && c <= '9') {
+        v = c - '0' + 52;
+      } else if (c == '+') {
+        v = 62;
+      } else if (c == '/') {
+        v = 63;
+      } else if (c == '=' && n >= 2) {
+        v = 0;
+        ++pad;
+      } else {
+        fail(name_, where(content_at + i), "invalid base64 character in binary DataArray");
+      }
+      if (pad > 0 && c != '=') fail(name_, where(content_at + i), "base64 data after padding inside a group");
+      group[n++] = v;
+      if (n == 4) {
+        const unsigned bits = (static_cast<unsigned>(group[0]) << 18) | (static_cast<unsigned>(group[1]) << 12) |
+                              (static_cast<unsigned>(group[2]) << 6) | static_cast<unsigned>(group[3]);
+        out.push_back(static_cast<char>((bits >> 16) & 0xff));
+        if (pad < 2) out.push_back(static_cast<char>((bits >> 8) & 0xff));
+        if (pad < 1) out.push_back(static_cast<char>(bits & 0xff));
+        n = 0;
+        pad = 0;
+      }
+    }
+    if (n != 0) fail(name_, where(content_at + content.size()), "base64 data ends inside a group of four");
+    return out;
+  }
+
+  std::string_view text_;
+  const std::string& name_;
+  bool big_endian_ = false;
+  std::size_t header_size_ = 4;
+};
+
+}  // namespace
+
+ParticleFrame parse_vtk_points(std::string_view bytes, const std::string& name) {
+  return LegacyReader(bytes, name).read();
+}
+
+ParticleFrame parse_vtu_points(std::string_view bytes, const std::string& name) {
+  return XmlReader(bytes, name).read();
+}
+
+}  // namespace surfacer::particle_io_detail

@@ -1,0 +1,951 @@
+// Particle surfacing pipeline (core/particles/particle_surfacer.h). Smoothing matrices and sweeps live in
+// particle_surfacer_smoothing.cpp; this file holds the particle side: radii, the distance field given to Marching
+// Tiles, constraint projection, and the stage driver.
+#include "core/particles/particle_surfacer.h"
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <mutex>
+#include <numeric>
+#include <string>
+
+#include "core/util/errors.h"
+#include "core/polygonize/marching_tiles.h"
+#include "core/util/parallel.h"
+#include "core/particles/smoothing.h"
+#include "core/particles/spatial_hash.h"
+
+namespace surfacer {
+namespace {
+
+namespace ps = particle_smoothing;
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+std::string num(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.6g", v);
+  return buf;
+}
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+constexpr double kBandTolerance = 1e-12;     // relative slack before a projection moves a vertex
+constexpr double kFaithfulTolerance = 1e-9;  // relative slack of the faithfulness statistics
+constexpr int kMaxProjectionRounds = 8;
+constexpr int kMaxNewtonSteps = 16;
+
+void validate_options(const ParticleSurfacingOptions& o) {
+  if (o.r_inner && !(std::isfinite(*o.r_inner) && *o.r_inner > 0.0)) {
+    throw InvalidInput("r_inner", "r_inner (" + num(*o.r_inner) + ") must be a finite number > 0 (scene units)");
+  }
+  if (o.r_outer && !(std::isfinite(*o.r_outer) && *o.r_outer > 0.0)) {
+    throw InvalidInput("r_outer", "r_outer (" + num(*o.r_outer) + ") must be a finite number > 0 (scene units)");
+  }
+  if (o.r_inner && o.r_outer && !(*o.r_outer > *o.r_inner)) {
+    throw InvalidInput("r_outer", "r_outer (" + num(*o.r_outer) + ") must exceed r_inner (" + num(*o.r_inner) +
+                                      "); the default is 2 x r_inner");
+  }
+  if (!(std::isfinite(o.spacing_factor) && o.spacing_factor > 0.0 && o.spacing_factor <= 10.0)) {
+    throw InvalidInput("spacing_factor", "spacing_factor (" + num(o.spacing_factor) +
+                                             ") must be in (0, 10]; the thesis uses 0.8 (samples 0.8 r_inner apart)");
+  }
+  const std::pair<const char*, int> sweeps[] = {{"laplacian_sweeps", o.laplacian_sweeps},
+                                                {"bilaplacian_sweeps", o.bilaplacian_sweeps},
+                                                {"polish_sweeps", o.polish_sweeps}};
+  for (const auto& [name, value] : sweeps) {
+    if (value < 0 || value > 100000) {
+      throw InvalidInput(name, std::string(name) + " (" + std::to_string(value) + ") must be in 0..100000");
+    }
+  }
+  if (!(std::isfinite(o.relaxation) && o.relaxation > 0.0 && o.relaxation <= 1.0)) {
+    throw InvalidInput("relaxation", "relaxation (" + num(o.relaxation) + ") must be in (0, 1]; the thesis uses 0.6");
+  }
+  if (o.erosion && !(std::isfinite(*o.erosion) && *o.erosion >= 0.0 && *o.erosion <= 10.0)) {
+    throw InvalidInput("erosion", "erosion (" + num(*o.erosion) +
+                                      ") must be in [0, 10] (units of r_inner; the thesis shows 0.5); leave it unset "
+                                      "to switch erosion off");
+  }
+  if (o.container_box &&
+      !(o.container_box->min.allFinite() && o.container_box->max.allFinite() && o.container_box->valid())) {
+    throw InvalidInput("container_box", "container_box must have finite min < max on every axis");
+  }
+  if (o.min_particles_per_component < 0) {
+    throw InvalidInput("min_particles_per_component", "min_particles_per_component (" +
+                                                          std::to_string(o.min_particles_per_component) +
+                                                          ") must be >= 0 (0 keeps every particle)");
+  }
+  if (o.threads < 0) {
+    throw InvalidInput("threads",
+                       "threads (" + std::to_string(o.threads) + ") must be >= 0; 0 uses every hardware thread");
+  }
+}
+
+// Parallel loop over [0, n) in contiguous chunks.
+template <class Body>
+void for_chunks(std::size_t n, int threads, Body&& body) {
+  const int chunks = static_cast<int>(std::min<std::size_t>(std::max(1, 4 * threads), n / 1024 + 1));
+  parallel_for(chunks, threads, [&](int c) {
+    body(n * static_cast<std::size_t>(c) / static_cast<std::size_t>(chunks),
+         n * static_cast<std::size_t>(c + 1) / static_cast<std::size_t>(chunks));
+  });
+}
+
+Aabb bounding_box(std::span<const Vec3> points) {
+  Aabb box{points[0], points[0]};
+  for (const Vec3& p : points) {
+    box.min = box.min.cwiseMin(p);
+    box.max = box.max.cwiseMax(p);
+  }
+  return box;
+}
+
+// --- Particles ------------------------------------------------------------------------------------------------------
+
+// The particles in use, a spatial hash over them (cell = the largest r_outer) and their radii.
+struct Particles {
+  std::vector<Vec3> positions;
+  std::vector<double> inner, outer;            // per particle; empty when uniform
+  std::vector<double> slot_inner, slot_outer;  // the same in hash slot order (weighted search)
+  bool weighted = false;
+  double r_inner = 0.0, r_outer = 0.0;  // uniform radii, or (weighted) the reference r_inner and ratio * it
+  double max_inner = 0.0, max_outer = 0.0;
+  Aabb box;
+  SpatialHash hash;
+
+  // `reach`: the largest query radius (the field's r_outer + band).
+  void index(double reach) {
+    box = bounding_box(positions);
+    // Dense data: cells of r_inner (uniform radii) keep the scans short. Scattered data (the hash falls back to its
+    // sparse layout, one table lookup per cell): cells of the query reach, so a query looks up at most 27 cells.
+    hash.build(positions, weighted ? max_outer : r_inner);
+    if (!hash.dense()) hash.build(positions, std::max(reach, weighted ? max_outer : r_inner));
+    if (weighted) {
+      slot_inner.resize(positions.size());
+      slot_outer.resize(positions.size());
+      for (std::size_t s = 0; s < positions.size(); ++s) {
+        slot_inner[s] = inner[hash.order()[s]];
+        slot_outer[s] = outer[hash.order()[s]];
+      }
+    }
+  }
+
+  double all_radius(const Vec3& x) const {
+    return (x - 0.5 * (box.min + box.max)).norm() + 0.5 * (box.max - box.min).norm() + max_outer;
+  }
+
+  struct Hit {
+    std::uint32_t index = 0;
+    double distance = kInf;
+    double value = kInf;  // distance - the particle's radius of the query
+  };
+
+  // Exact nearest particle (uniform radii). Particles must be non-empty.
+  Hit nearest(const Vec3& x) const {
+    std::optional<SpatialHash::Neighbor> n = hash.nearest(x, r_outer);
+    if (!n) n = hash.nearest(x);
+    return Hit{n->index, n->distance, n->distance};
+  }
+
+  // Exact minimisers of |x - p_i| - inner_i and |x - p_i| - outer_i (weighted radii).
+  void nearest_weighted(const Vec3& x, Hit& in, Hit& out) const {
+    double r = max_outer;
+    const std::span<const Vec3> pts = hash.sorted_points();
+    while (true) {
+      in = out = Hit{};
+      hash.for_each_range(x.array() - r, x.array() + r, [&](std::uint32_t begin, std::uint32_t end) {
+        for (std::uint32_t s = begin; s < end; ++s) {
+          const double d = (pts[s] - x).norm();
+          if (d - slot_inner[s] < in.value) in = Hit{s, d, d - slot_inner[s]};
+          if (d - slot_outer[s] < out.value) out = Hit{s, d, d - slot_outer[s]};
+        }
+      });
+      // Particles outside the box are farther than r, so their values exceed r - max radius.
+      if ((in.value + max_inner <= r && out.value + max_outer <= r) || r > all_radius(x)) break;
+      r *= 2.0;
+    }
+    in.index = hash.order()[in.index];
+    out.index = hash.order()[out.index];
+  }
+
+  // Weighted radii: distance outside the faithful band (0 when faithful), exact.
+  double violation(const Vec3& x) const {
+    Hit in, out;
+    nearest_weighted(x, in, out);
+    return std::max({-in.value, out.value, 0.0});
+  }
+  bool faithful(double violation) const { return violation <= kFaithfulTolerance * (weighted ? max_outer : r_outer); }
+
+  // Weighted radii: moves x into the faithful band (see the header); returns false when rounds ran out.
+  bool project(Vec3& x) const {
+    for (int round = 0; round < kMaxProjectionRounds; ++round) {
+      Hit in, out;
+      nearest_weighted(x, in, out);
+      if (in.value < -kBandTolerance * inner[in.index]) {
+        const Vec3& p = positions[in.index];
+        x = p + inner[in.index] * (in.distance > 0.0 ? Vec3((x - p) / in.distance) : Vec3::UnitZ());
+        continue;
+      }
+      if (out.value > kBandTolerance * outer[out.index]) {
+        const Vec3& p = positions[out.index];
+        x = p + (x - p) * (outer[out.index] / out.distance);
+        continue;  // may land inside the inner ball of a larger particle
+      }
+      return true;
+    }
+    return false;
+  }
+};
+
+// Exact nearest-particle queries for vertices that move a little between queries (uniform radii). At an anchor a
+// whose nearest particle is d0 away, a vertex keeps the list of every particle within d0 + 2 delta of a. For x with
+// |x - a| <= delta the nearest particle is in that list: it is at most d0 + delta from x, every other particle is
+// farther than d0 + delta. So a query is a short scan of the list until the vertex has moved delta; then the list is
+// rebuilt from the spatial hash (or, when it would exceed kCapacity, the query is answered from the hash alone).
+class NeighbourCache {
+ public:
+  static constexpr int kCapacity = 16;
+
+  void reset(std::size_t n, double delta) {
+    checked_.resize(n);
+    slack_.assign(n, 0.0);
+    anchor_.resize(n);
+    count_.assign(n, kInvalid);
+    slots_.resize(n * kCapacity);
+    delta_ = delta;
+    refreshes_.store(0);
+  }
+
+  struct Nearest {
+    const Vec3* p;
+    double distance;
+  };
+
+  Nearest nearest(const Particles& P, std::size_t i, const Vec3& x) {
+    const std::span<const Vec3> pts = P.hash.sorted_points();
+    std::uint32_t* list = slots_.data() + i * kCapacity;
+    if (count_[i] != kInvalid && (x - anchor_[i]).squaredNorm() <= delta_ * delta_) {
+      double best2 = kInf;
+      std::uint32_t best = list[0];
+      for (int k = 0; k < count_[i]; ++k) {
+        const double d2 = (pts[list[k]] - x).squaredNorm();
+        if (d2 < best2) {
+          best2 = d2;
+          best = list[k];
+        }
+      }
+      return {&pts[best], std::sqrt(best2)};
+    }
+    refreshes_.fetch_add(1, std::memory_order_relaxed);
+    // Radius of the scan: a known particle bounds the nearest distance.
+    double bound = P.r_outer;
+    if (count_[i] != kInvalid) {
+      for (int k = 0; k < count_[i]; ++k) bound = std::min(bound, (pts[list[k]] - x).norm());
+    }
+    std::array<std::pair<double, std::uint32_t>, 64> found;
+    int n_found = 0;
+    bool overflow = false;
+    double best = kInf;
+    std::uint32_t best_slot = 0;
+    auto collect = [&](double radius) {
+      const double keep = radius + 2.0 * delta_;
+      P.hash.for_each_range(x.array() - keep, x.array() + keep, [&](std::uint32_t begin, std::uint32_t end) {
+        double b = best;  // locals, so the loop keeps them in registers
+        std::uint32_t b_slot = best_slot;
+        int count = n_found;
+        for (std::uint32_t s = begin; s < end; ++s) {
+          const double d = (pts[s] - x).norm();
+          if (d < b) {
+            b = d;
+            b_slot = s;
+          }
+          if (d > b + 2.0 * delta_) continue;
+          if (count < static_cast<int>(found.size())) {
+            found[static_cast<std::size_t>(count++)] = {d, s};
+          } else {
+            overflow = true;
+          }
+        }
+        best = b;
+        best_slot = b_slot;
+        n_found = count;
+      });
+    };
+    collect(bound);
+    if (best == kInf || best > bound) {
+      // The nearest is farther than assumed (or beyond the box: far outside): scan again around its distance.
+      const double d0 = best == kInf ? P.nearest(x).distance : best;
+      n_found = 0;
+      overflow = false;
+      collect(d0);
+    }
+    int kept = 0;
+    for (int k = 0; k < n_found; ++k) kept += found[static_cast<std::size_t>(k)].first <= best + 2.0 * delta_;
+    if (overflow || kept > kCapacity) {
+      count_[i] = kInvalid;
+    } else {
+      int k2 = 0;
+      for (int k = 0; k < n_found; ++k) {
+        if (found[static_cast<std::size_t>(k)].first <= best + 2.0 * delta_)
+          list[k2++] = found[static_cast<std::size_t>(k)].second;
+      }
+      std::sort(list, list + k2);
+      count_[i] = static_cast<std::uint8_t>(k2);
+      anchor_[i] = x;
+    }
+    return {&pts[best_slot], best};
+  }
+
+  std::int64_t refreshes() const { return refreshes_.load(); }
+
+  // The nearest-particle distance is 1-Lipschitz: a vertex last seen at c with r_inner + m <= d(c) <= r_outer - m is
+  // faithful anywhere within m of c, with no query at all.
+  bool certainly_faithful(std::size_t i, const Vec3& x) const {
+    return (x - checked_[i]).squaredNorm() < slack_[i] * slack_[i];
+  }
+  void record(std::size_t i, const Vec3& x, double slack) {
+    checked_[i] = x;
+    slack_[i] = std::max(0.0, slack);
+  }
+
+ private:
+  static constexpr std::uint8_t kInvalid = 0xff;
+  std::vector<Vec3> checked_;
+  std::vector<double> slack_;
+  std::vector<Vec3> anchor_;
+  std::vector<std::uint8_t> count_;
+  std::vector<std::uint32_t> slots_;
+  double delta_ = 0.0;
+  std::atomic<std::int64_t> refreshes_{0};
+};
+
+// Uniform radii: the projection of Particles::project, with nearest queries from the cache.
+void project_uniform(const Particles& P, NeighbourCache& cache, std::size_t i, Vec3& x) {
+  if (cache.certainly_faithful(i, x)) return;
+  for (int round = 0; round < kMaxProjectionRounds; ++round) {
+    const NeighbourCache::Nearest n = cache.nearest(P, i, x);
+    if (n.distance < P.r_inner * (1.0 - kBandTolerance)) {
+      x = *n.p + P.r_inner * (n.distance > 0.0 ? Vec3((x - *n.p) / n.distance) : Vec3::UnitZ());
+      continue;  // the push may land inside another particle's inner ball
+    }
+    if (n.distance > P.r_outer * (1.0 + kBandTolerance)) {
+      // Toward the nearest particle, which stays the nearest along the way.
+      x = *n.p + (x - *n.p) * (P.r_outer / n.distance);
+      cache.record(i, x, 0.0);
+    } else {
+      cache.record(i, x, std::min(n.distance - P.r_inner, P.r_outer - n.distance));
+    }
+    return;
+  }
+  cache.record(i, x, 0.0);
+}
+
+double violation_uniform(const Particles& P, NeighbourCache& cache, std::size_t i, const Vec3& x) {
+  if (cache.certainly_faithful(i, x)) return 0.0;
+  const double d = cache.nearest(P, i, x).distance;
+  return std::max({P.r_inner - d, d - P.r_outer, 0.0});
+}
+
+// f(x) = min_i (|x - p_i| - r_outer_i) for Marching Tiles. Exact where |f| <= band; elsewhere a value of the same
+// sign and no larger magnitude (a deep-inside sample stops at the first particle closer than r_outer - band, a far
+// outside one returns band). With band above the longest lattice edge, every crossed edge has exact end values, and
+// polygonizers that skip regions by |f(c)| > L r stay correct (the bound only gets more conservative).
+class ParticleField final : public Field {
+ public:
+  ParticleField(const Particles& particles, double band) : p_(particles), band_(band) {}
+
+  double value(const Vec3& x) const override {
+    count();
+    if (!p_.weighted) {
+      const double d = p_.hash.bounded_distance(x, p_.r_outer + band_, p_.r_outer - band_);
+      return std::isinf(d) ? band_ : d - p_.r_outer;
+    }
+    double best = band_;
+    const std::span<const Vec3> pts = p_.hash.sorted_points();
+    const double r = p_.max_outer + band_;
+    p_.hash.for_each_range(x.array() - r, x.array() + r, [&](std::uint32_t begin, std::uint32_t end) {
+      for (std::uint32_t s = begin; s < end; ++s) best = std::min(best, (pts[s] - x).norm() - p_.slot_outer[s]);
+      return best >= -band_;
+    });
+    return best;
+  }
+
+  double value_and_gradient(const Vec3& x, Vec3& gradient) const override {
+    count();
+    Particles::Hit hit;
+    if (p_.weighted) {
+      Particles::Hit in;
+      p_.nearest_weighted(x, in, hit);
+    } else {
+      hit = p_.nearest(x);
+      hit.value = hit.distance - p_.r_outer;
+    }
+    const Vec3 d = x - p_.positions[hit.index];
+    gradient = hit.distance > 0.0 ? Vec3(d / hit.distance) : Vec3::UnitZ();
+    return hit.value;
+  }
+
+  std::optional<Aabb> bounds() const override {
+    return Aabb{p_.box.min.array() - p_.max_outer, p_.box.max.array() + p_.max_outer};
+  }
+
+  std::int64_t evaluations() const {
+    std::int64_t n = 0;
+    for (const Counter& c : counters_) n += c.n.load(std::memory_order_relaxed);
+    return n;
+  }
+
+ private:
+  struct alignas(64) Counter {
+    std::atomic<std::int64_t> n{0};
+  };
+  void count() const {
+    static std::atomic<unsigned> next{0};
+    thread_local const unsigned slot = next.fetch_add(1, std::memory_order_relaxed) % kCounters;
+    counters_[slot].n.fetch_add(1, std::memory_order_relaxed);
+  }
+  static constexpr unsigned kCounters = 16;
+
+  const Particles& p_;
+  double band_;
+  mutable std::array<Counter, kCounters> counters_;
+};
+
+// --- Container ------------------------------------------------------------------------------------------------------
+
+struct Container {
+  std::optional<Aabb> box;
+  const Field* solid = nullptr;
+  double inside_margin = 0.0;
+
+  bool active() const { return box.has_value() || solid != nullptr; }
+
+  void project(Vec3& x) const {
+    if (box) x = x.cwiseMax(box->min).cwiseMin(box->max);
+    if (solid == nullptr) return;
+    Vec3 g;
+    double f = solid->value_and_gradient(x, g);
+    for (int step = 0; step < kMaxNewtonSteps && f > 0.0; ++step) {
+      const double g2 = g.squaredNorm();
+      if (!(g2 > 0.0) || !std::isfinite(g2)) break;
+      x -= ((f + inside_margin) / g2) * g;
+      f = solid->value_and_gradient(x, g);
+    }
+    if (box) x = x.cwiseMax(box->min).cwiseMin(box->max);
+  }
+};
+
+// --- Frame setup ------------------------------------------------------------------------------------------------
+
+// Mean nearest-neighbour distance over a deterministic sample of at most 65536 particles, leaving out particles whose
+// neighbour is farther than 4x the median (stray spray). Neighbours are searched within 4 cells of a hash whose cells
+// hold a few particles each; only when most of the sample finds none there (very sparse input) is an unbounded search
+// run, on at most 4096 of them.
+double derive_r_inner(std::span<const Vec3> points, int threads, const RunControl& control) {
+  if (points.size() < 2) {
+    throw InvalidInput("r_inner", "cannot derive r_inner from " + std::to_string(points.size()) +
+                                      " particle(s); set r_inner (e.g. the simulation's particle radius)");
+  }
+  const Aabb box = bounding_box(points);
+  const Vec3 extent = box.max - box.min;
+  const double floor_extent = std::max(extent.maxCoeff() * 1e-3, 1e-300);
+  double volume = 1.0;
+  for (int a = 0; a < 3; ++a) volume *= std::max(extent[a], floor_extent);
+  double cell = std::cbrt(volume / static_cast<double>(points.size()));
+  SpatialHash hash;
+  for (int attempt = 0; attempt < 4; ++attempt) {
+    hash.build(points, cell);
+    const double occupancy = static_cast<double>(points.size()) / static_cast<double>(hash.occupied_cells());
+    if (occupancy <= 16.0) break;
+    cell /= std::cbrt(occupancy / 4.0);
+  }
+  const std::span<const Vec3> pts = hash.sorted_points();
+  const double all = extent.norm() + cell;
+  // Nearest other point of slot s within r (or up to `all` when r is infinite); infinity when none.
+  auto nearest_other = [&](std::uint32_t s, double r) {
+    const bool widen = std::isinf(r);
+    if (widen) r = cell;
+    while (true) {
+      double best2 = r * r;
+      bool found = false;
+      hash.for_each_range(pts[s].array() - r, pts[s].array() + r, [&](std::uint32_t b, std::uint32_t e) {
+        for (std::uint32_t t = b; t < e; ++t) {
+          const double d2 = (pts[t] - pts[s]).squaredNorm();
+          if (t != s && d2 <= best2) {
+            best2 = d2;
+            found = true;
+          }
+        }
+      });
+      if (found) return std::sqrt(best2);
+      if (!widen || r > all) return kInf;
+      r *= 2.0;
+    }
+  };
+  const std::size_t stride = std::max<std::size_t>(1, points.size() / 65536);
+  std::vector<double> nn((points.size() + stride - 1) / stride);
+  for_chunks(nn.size(), threads, [&](std::size_t begin, std::size_t end) {
+    control.check();
+    for (std::size_t k = begin; k < end; ++k) nn[k] = nearest_other(static_cast<std::uint32_t>(k * stride), 4.0 * cell);
+  });
+  const std::size_t found =
+      static_cast<std::size_t>(std::count_if(nn.begin(), nn.end(), [](double d) { return d < kInf; }));
+  if (2 * found < nn.size()) {
+    const std::size_t step = std::max<std::size_t>(1, nn.size() / 4096);
+    std::vector<double> wide((nn.size() + step - 1) / step);
+    for_chunks(wide.size(), threads, [&](std::size_t begin, std::size_t end) {
+      control.check();
+      for (std::size_t k = begin; k < end; ++k)
+        wide[k] = nearest_other(static_cast<std::uint32_t>(k * step * stride), kInf);
+    });
+    nn = std::move(wide);
+  }
+  std::vector<double> sorted = nn;
+  const auto mid = sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() / 2);
+  std::nth_element(sorted.begin(), mid, sorted.end());
+  const double limit = 4.0 * *mid;
+  double sum = 0.0;
+  std::size_t count = 0;
+  for (const double d : nn) {
+    if (d <= limit) {
+      sum += d;
+      ++count;
+    }
+  }
+  const double mean = count > 0 ? sum / static_cast<double>(count) : 0.0;
+  if (!(mean > 0.0)) {
+    throw InvalidInput("r_inner",
+                       "cannot derive r_inner: the particles' nearest-neighbour distances are all 0 "
+                       "(duplicate positions); set r_inner");
+  }
+  return mean;
+}
+
+// Union-find over particles whose r_outer balls overlap; returns the kept flags and the number of dropped clusters.
+// Its own spatial hash with cells of the largest reach (2 max r_outer), so a query touches at most 27 cells even for
+// scattered spray.
+std::vector<char> filter_components(const Particles& all, int min_size, std::size_t& dropped,
+                                    const RunControl& control) {
+  const std::size_t n = all.positions.size();
+  const SpatialHash hash(all.positions, 2.0 * all.max_outer);
+  std::vector<double> outer(all.weighted ? n : 0);
+  for (std::size_t s = 0; s < outer.size(); ++s) outer[s] = all.outer[hash.order()[s]];
+  std::vector<std::uint32_t> parent(n);
+  std::iota(parent.begin(), parent.end(), 0u);
+  auto find = [&](std::uint32_t i) {
+    while (parent[i] != i) {
+      parent[i] = parent[parent[i]];
+      i = parent[i];
+    }
+    return i;
+  };
+  const std::span<const Vec3> pts = hash.sorted_points();
+  const std::span<const std::uint32_t> order = hash.order();
+  for (std::uint32_t s = 0; s < n; ++s) {
+    if ((s & 4095) == 0) control.check();
+    const double ro = all.weighted ? outer[s] : all.r_outer;
+    const double reach = ro + all.max_outer;
+    hash.for_each_range(pts[s].array() - reach, pts[s].array() + reach, [&](std::uint32_t b, std::uint32_t e) {
+      for (std::uint32_t t = std::max(b, s + 1); t < e; ++t) {
+        const double limit = ro + (all.weighted ? outer[t] : all.r_outer);
+        if ((pts[t] - pts[s]).squaredNorm() > limit * limit) continue;
+        const std::uint32_t a = find(s), c = find(t);
+        if (a != c) parent[std::max(a, c)] = std::min(a, c);
+      }
+    });
+  }
+  std::vector<std::uint32_t> size(n, 0);
+  for (std::uint32_t s = 0; s < n; ++s) ++size[find(s)];
+  std::vector<char> keep(n, 0);
+  dropped = 0;
+  for (std::uint32_t s = 0; s < n; ++s) {
+    const std::uint32_t root = find(s);
+    keep[order[s]] = size[root] >= static_cast<std::uint32_t>(min_size);
+    if (root == s && size[root] < static_cast<std::uint32_t>(min_size)) ++dropped;
+  }
+  return keep;
+}
+
+// Renumbers vertices along a Morton curve (cells of `cell`): neighbours in space become neighbours in memory, and
+// contiguous index blocks become compact patches (few seam vertices in the parallel sweeps).
+void morton_reorder(Mesh& mesh, double cell) {
+  const std::size_t n = mesh.vertices.size();
+  if (n == 0) return;
+  const Aabb box = bounding_box(mesh.vertices);
+  auto spread = [](std::uint64_t v) {
+    v &= 0x1fffff;
+    v = (v | v << 32) & 0x1f00000000ffffull;
+    v = (v | v << 16) & 0x1f0000ff0000ffull;
+    v = (v | v << 8) & 0x100f00f00f00f00full;
+    v = (v | v << 4) & 0x10c30c30c30c30c3ull;
+    v = (v | v << 2) & 0x1249249249249249ull;
+    return v;
+  };
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> keys(n);
+  const double inv = 1.0 / cell;
+  for (std::size_t i = 0; i < n; ++i) {
+    std::uint64_t code = 0;
+    for (int a = 0; a < 3; ++a) {
+      const double q = std::clamp((mesh.vertices[i][a] - box.min[a]) * inv, 0.0, 2097151.0);
+      code |= spread(static_cast<std::uint64_t>(q)) << a;
+    }
+    keys[i] = {code, static_cast<std::uint32_t>(i)};
+  }
+  std::sort(keys.begin(), keys.end());
+  std::vector<std::uint32_t> new_of_old(n);
+  std::vector<Vec3> vertices(n);
+  std::vector<Vec3> normals(mesh.normals.empty() ? 0 : n);
+  for (std::size_t k = 0; k < n; ++k) {
+    new_of_old[keys[k].second] = static_cast<std::uint32_t>(k);
+    vertices[k] = mesh.vertices[keys[k].second];
+    if (!normals.empty()) normals[k] = mesh.normals[keys[k].second];
+  }
+  for (Triangle& t : mesh.triangles) {
+    for (std::uint32_t& v : t) v = new_of_old[v];
+  }
+  mesh.vertices = std::move(vertices);
+  mesh.normals = std::move(normals);
+}
+
+int min_valence(const ps::Graph& ring) {
+  int m = 0;
+  for (std::size_t i = 0; i < ring.rows(); ++i) {
+    const int d = static_cast<int>(ring.degree(i));
+    if (d > 0 && (m == 0 || d < m)) m = d;
+  }
+  return m;
+}
+
+}  // namespace
+
+// --- The surfacer ---------------------------------------------------------------------------------------------------
+
+struct ParticleSurfacer::State {
+  ParticleSurfacingOptions options;
+  Particles particles;
+  NeighbourCache cache;
+
+  Mesh run(std::span<const Vec3> input, std::span<const double> radii, const RunControl& control,
+           ParticleSurfacingStats* stats_out, bool initial_only);
+};
+
+Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const double> radii, const RunControl& control,
+                                  ParticleSurfacingStats* stats_out, bool initial_only) {
+  const ParticleSurfacingOptions& o = options;
+  const int threads = resolve_threads(o.threads);
+  ParticleSurfacingStats stats;
+  const Clock::time_point t_start = Clock::now();
+  stats.particles = input.size();
+
+  control.check();
+  // Inputs.
+  for (std::size_t i = 0; i < input.size(); ++i) {
+    if (!input[i].allFinite()) {
+      throw InvalidInput("particles", "particle " + std::to_string(i) + " has a non-finite coordinate; remove it");
+    }
+  }
+  if (!radii.empty() && radii.size() != input.size()) {
+    throw InvalidInput("radii", "radii has " + std::to_string(radii.size()) + " values for " +
+                                    std::to_string(input.size()) + " particles; give one per particle or none");
+  }
+  for (std::size_t i = 0; i < radii.size(); ++i) {
+    if (!(std::isfinite(radii[i]) && radii[i] > 0.0)) {
+      throw InvalidInput("radii", "radius " + std::to_string(i) + " (" + num(radii[i]) + ") must be finite and > 0");
+    }
+  }
+  if (radii.empty() && !o.r_inner && !o.derive_r_inner) {
+    throw InvalidInput("r_inner",
+                       "r_inner is required: set it (e.g. the simulation's particle radius), ask for "
+                       "derive_r_inner, or give per-particle radii");
+  }
+  if (input.empty()) {
+    if (stats_out != nullptr) *stats_out = stats;
+    return {};
+  }
+
+  // Radii.
+  control.report("distance_field", 0.0);
+  Clock::time_point t0 = Clock::now();
+  Particles& P = particles;
+  P.weighted = !radii.empty();
+  double r_inner = 0.0;
+  if (P.weighted) {
+    r_inner =
+        o.r_inner ? *o.r_inner : std::accumulate(radii.begin(), radii.end(), 0.0) / static_cast<double>(radii.size());
+  } else {
+    r_inner = o.r_inner ? *o.r_inner : derive_r_inner(input, threads, control);
+  }
+  const double r_outer = o.r_outer ? *o.r_outer : 2.0 * r_inner;
+  if (!(r_outer > r_inner)) {
+    throw InvalidInput("r_outer", "r_outer (" + num(r_outer) + ") must exceed r_inner (" + num(r_inner) +
+                                      (o.r_inner ? ")" : ", derived)") + "; the default is 2 x r_inner");
+  }
+  const double ratio = r_outer / r_inner;
+  const double h = o.spacing_factor * r_inner;
+  stats.r_inner = r_inner;
+  stats.r_outer = r_outer;
+  stats.spacing = h;
+  P.r_inner = r_inner;
+  P.r_outer = r_outer;
+  P.positions.assign(input.begin(), input.end());
+  P.inner.clear();
+  P.outer.clear();
+  if (P.weighted) {
+    P.inner.assign(radii.begin(), radii.end());
+    P.outer.resize(radii.size());
+    for (std::size_t i = 0; i < radii.size(); ++i) P.outer[i] = ratio * radii[i];
+    P.max_inner = *std::max_element(P.inner.begin(), P.inner.end());
+    P.max_outer = ratio * P.max_inner;
+  } else {
+    P.max_inner = r_inner;
+    P.max_outer = r_outer;
+  }
+  const double field_band = 1.25 * h;  // see "Initial surface" below
+  P.index(P.max_outer + field_band);
+
+  if (o.min_particles_per_component > 1) {
+    const std::vector<char> keep =
+        filter_components(P, o.min_particles_per_component, stats.components_dropped, control);
+    if (stats.components_dropped > 0) {
+      std::size_t k = 0;
+      for (std::size_t i = 0; i < P.positions.size(); ++i) {
+        if (!keep[i]) continue;
+        P.positions[k] = P.positions[i];
+        if (P.weighted) {
+          P.inner[k] = P.inner[i];
+          P.outer[k] = P.outer[i];
+        }
+        ++k;
+      }
+      P.positions.resize(k);
+      if (P.weighted) {
+        P.inner.resize(k);
+        P.outer.resize(k);
+      }
+      if (k > 0) P.index(P.max_outer + field_band);
+    }
+  }
+  stats.particles_used = P.positions.size();
+  stats.seconds_distance_field = seconds_since(t0);
+  control.report("distance_field", 1.0);
+  if (P.positions.empty()) {
+    stats.seconds_total = seconds_since(t_start);
+    if (stats_out != nullptr) *stats_out = stats;
+    return {};
+  }
+
+  // Initial surface: Marching Tiles of f = d - r_outer. Every lattice edge is shorter than 1.07 h (A15 edges are
+  // 2, sqrt 5 and sqrt 6 lattice units, mean 2.30), so a band of 1.25 h keeps crossed edges exact.
+  t0 = Clock::now();
+  const ParticleField field(P, field_band);
+  MarchingTilesOptions mt;
+  const double pad = P.max_outer + 2.0 * h;
+  mt.bounds = Aabb{P.box.min.array() - pad, P.box.max.array() + pad};
+  mt.spacing = h;
+  mt.threads = threads;
+  mt.seeds = P.positions;
+  mt.seed_radius = P.max_outer + h;
+  stats.seeds = mt.seeds.size();
+  Mesh mesh = marching_tiles(field, mt, control);
+  stats.seconds_polygonize = seconds_since(t0);
+  stats.field_evaluations = field.evaluations();
+  stats.initial_vertices = mesh.vertices.size();
+  stats.initial_triangles = mesh.triangles.size();
+
+  if (initial_only) {
+    stats.initial_min_valence = min_valence(ps::one_ring(mesh.vertices.size(), mesh.triangles));
+    stats.vertices = mesh.vertices.size();
+    stats.triangles = mesh.triangles.size();
+    stats.seconds_total = seconds_since(t_start);
+    if (stats_out != nullptr) *stats_out = stats;
+    return mesh;
+  }
+
+  // Smoothing.
+  t0 = Clock::now();
+  morton_reorder(mesh, h);
+  mesh.normals.clear();
+  std::vector<Vec3>& x = mesh.vertices;
+  const std::size_t n = x.size();
+  const ps::Graph ring = ps::one_ring(n, mesh.triangles);
+  stats.initial_min_valence = min_valence(ring);
+  const std::size_t blocks = ps::default_block_count(n);
+  Container container;
+  container.box = o.container_box;
+  container.solid = o.container_solid.get();
+  container.inside_margin = 1e-9 * r_inner;
+  cache.reset(P.weighted ? 0 : n, 0.15 * r_inner);
+  auto constrain = [&](bool to_particles) {
+    if (!to_particles && !container.active()) return;
+    for_chunks(n, threads, [&](std::size_t begin, std::size_t end) {
+      for (std::size_t i = begin; i < end; ++i) {
+        if (to_particles) {
+          if (P.weighted) {
+            P.project(x[i]);
+          } else {
+            project_uniform(P, cache, i, x[i]);
+          }
+        }
+        if (container.active()) container.project(x[i]);
+      }
+    });
+  };
+  auto measure = [&](double& fraction, double& max_violation) {
+    std::mutex mutex;
+    std::size_t good_total = 0;
+    double worst_total = 0.0;
+    for_chunks(n, threads, [&](std::size_t begin, std::size_t end) {
+      std::size_t good = 0;
+      double worst = 0.0;
+      for (std::size_t i = begin; i < end; ++i) {
+        const double v = P.weighted ? P.violation(x[i]) : violation_uniform(P, cache, i, x[i]);
+        good += P.faithful(v);
+        worst = std::max(worst, v);
+      }
+      const std::lock_guard lock(mutex);
+      good_total += good;
+      worst_total = std::max(worst_total, worst);
+    });
+    fraction = n > 0 ? static_cast<double>(good_total) / static_cast<double>(n) : 1.0;
+    max_violation = worst_total;
+  };
+  constrain(true);  // the Marching Tiles vertices are faithful up to interpolation error; snap them exactly
+  const ps::SweepPlan ring_plan = ps::plan_sweeps(ring, blocks);
+  for (int s = 0; s < o.laplacian_sweeps; ++s) {
+    control.check();
+    ps::laplacian_sweep(x, ring, o.relaxation, ring_plan, threads);
+    constrain(true);
+    control.report("laplacian", (s + 1.0) / o.laplacian_sweeps);
+  }
+  stats.seconds_laplacian = seconds_since(t0);
+
+  t0 = Clock::now();
+  const ps::SparseMatrix b = ps::bilaplacian(x, mesh.triangles, ring, threads, control);
+  const ps::SweepPlan b_plan = ps::plan_sweeps(b.graph, blocks);
+  stats.b_nonzeros = b.nonzeros();
+  stats.seam_fraction = n > 0 ? static_cast<double>(b_plan.seams.size()) / static_cast<double>(n) : 0.0;
+  stats.seconds_build_b = seconds_since(t0);
+  control.report("build_b", 1.0);
+
+  t0 = Clock::now();
+  for (int s = 0; s < o.bilaplacian_sweeps; ++s) {
+    control.check();
+    ps::bilaplacian_sweep(x, b, b_plan, threads);
+    constrain(true);
+    control.report("bilaplacian", (s + 1.0) / o.bilaplacian_sweeps);
+  }
+  stats.seconds_bilaplacian = seconds_since(t0);
+  measure(stats.faithful_after_constrained, stats.max_violation_after_constrained);
+
+  t0 = Clock::now();
+  const std::vector<Vec3> before_polish = x;
+  for (int s = 0; s < o.polish_sweeps; ++s) {
+    control.check();
+    ps::bilaplacian_sweep(x, b, b_plan, threads);
+    constrain(false);
+    control.report("polish", (s + 1.0) / o.polish_sweeps);
+  }
+  stats.seconds_polish = seconds_since(t0);
+
+  if (o.erosion && *o.erosion > 0.0) {
+    t0 = Clock::now();
+    control.check();
+    const std::vector<Vec3> normals = ps::vertex_normals(x, mesh.triangles);
+    const double depth = *o.erosion * r_inner;
+    for (std::size_t i = 0; i < n; ++i) x[i] -= depth * normals[i];
+    constrain(false);
+    stats.seconds_erosion = seconds_since(t0);
+    control.report("erosion", 1.0);
+  }
+  for (std::size_t i = 0; i < n; ++i) {
+    stats.max_polish_displacement = std::max(stats.max_polish_displacement, (x[i] - before_polish[i]).norm());
+  }
+  measure(stats.faithful_after_polish, stats.max_violation_after_polish);
+  if (o.normals) mesh.normals = ps::vertex_normals(x, mesh.triangles);
+  stats.vertices = n;
+  stats.triangles = mesh.triangles.size();
+  stats.neighbour_refreshes = cache.refreshes();
+  stats.seconds_total = seconds_since(t_start);
+  if (stats_out != nullptr) *stats_out = stats;
+  return mesh;
+}
+
+ParticleSurfacer::ParticleSurfacer(const ParticleSurfacingOptions& options) : state_(std::make_unique<State>()) {
+  validate_options(options);
+  state_->options = options;
+}
+ParticleSurfacer::~ParticleSurfacer() = default;
+ParticleSurfacer::ParticleSurfacer(ParticleSurfacer&&) noexcept = default;
+ParticleSurfacer& ParticleSurfacer::operator=(ParticleSurfacer&&) noexcept = default;
+
+const ParticleSurfacingOptions& ParticleSurfacer::options() const { return state_->options; }
+
+Mesh ParticleSurfacer::surface(std::span<const Vec3> particles, std::span<const double> radii,
+                               const RunControl& control, ParticleSurfacingStats* stats) {
+  return state_->run(particles, radii, control, stats, false);
+}
+
+Mesh ParticleSurfacer::initial_surface(std::span<const Vec3> particles, std::span<const double> radii,
+                                       const RunControl& control, ParticleSurfacingStats* stats) {
+  return state_->run(particles, radii, control, stats, true);
+}
+
+Mesh surface_particles(std::span<const Vec3> particles, std::span<const double> radii,
+                       const ParticleSurfacingOptions& options, const RunControl& control,
+                       ParticleSurfacingStats* stats) {
+  return ParticleSurfacer(options).surface(particles, radii, control, stats);
+}
+
+Mesh initial_particle_surface(std::span<const Vec3> particles, std::span<const double> radii,
+                              const ParticleSurfacingOptions& options, const RunControl& control,
+                              ParticleSurfacingStats* stats) {
+  return ParticleSurfacer(options).initial_surface(particles, radii, control, stats);
+}
+
+double estimate_particle_spacing(std::span<const Vec3> points) {
+  constexpr std::size_t kSamples = 128;
+  if (points.size() < 2) return 0.0;
+  const std::size_t step = std::max<std::size_t>(1, points.size() / kSamples);
+  double sum = 0.0;
+  int count = 0;
+  for (std::size_t i = 0; i < points.size(); i += step) {
+    double best = std::numeric_limits<double>::infinity();
+    for (std::size_t j = 0; j < points.size(); ++j) {
+      if (j != i) best = std::min(best, (points[j] - points[i]).squaredNorm());
+    }
+    sum += std::sqrt(best);
+    ++count;
+  }
+  return sum / count;
+}
+
+Aabb particle_sequence_box(const Aabb& particle_bounds, double max_radius, std::optional<double> r_inner,
+                           std::optional<double> r_outer, const std::function<std::vector<Vec3>()>& first_frame,
+                           const std::optional<Aabb>& container) {
+  constexpr double kDerivedPadSafety = 3.0;
+  Aabb box = particle_bounds;
+  const double ratio = r_outer && r_inner ? *r_outer / *r_inner : 2.0;
+  double pad = 0.0;
+  if (max_radius > 0.0) {
+    pad = ratio * max_radius;
+  } else if (r_inner) {
+    pad = r_outer.value_or(2.0 * *r_inner);
+  } else {
+    const double spacing = estimate_particle_spacing(first_frame());
+    pad = kDerivedPadSafety * ratio * std::max(spacing, 1e-6 * std::max(box.size().maxCoeff(), 1.0));
+  }
+  box.min.array() -= 1.5 * pad;
+  box.max.array() += 1.5 * pad;
+  if (container) {
+    box.min = box.min.cwiseMax(container->min);
+    box.max = box.max.cwiseMin(container->max);
+  }
+  return box;
+}
+
+}  // namespace surfacer

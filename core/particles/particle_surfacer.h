@@ -1,0 +1,167 @@
+// Particle surfacing (Williams 2008, "Fluid surface reconstruction from particles", ch. 3; docs/ALGORITHMS.md §1):
+// a surface as smooth as possible while every vertex x stays faithful to the particles,
+//     r_inner <= min_i |x - p_i| <= r_outer                                          (thesis eq. 3.4)
+// i.e. outside the union of r_inner balls and inside the union of r_outer balls.
+//
+// Pipeline (thesis Fig. 3.2), one frame:
+//  1. Spatial hash over the particles (core/particles/spatial_hash.h); the field f(x) = d(x) - r_outer, d = distance to the
+//     nearest particle, is sampled lazily, only where Marching Tiles visits: blocks within r_outer + one sample of a
+//     particle (seeds = particles). Never a dense global grid.
+//  2. Initial mesh: Marching Tiles (core/polygonize/marching_tiles.h) of f = 0, mean sample spacing h = spacing_factor * r_inner
+//     (thesis: 0.8 r_inner). Closed, oriented, minimum valence >= 5.
+//  3. laplacian_sweeps Gauss-Seidel sweeps on x^T A x (A = uniform graph Laplacian): each vertex moves toward its
+//     1-ring centroid by `relaxation` (thesis 0.6); constraints after each sweep.
+//  4. B = W^T D^-1 W (eq. 3.2) built once, as CSR (2-ring support): W = cotangent Laplacian
+//     (W_ij = -(cot a_ij + cot b_ij) / 2, W_ii = -sum_j W_ij), D = diag(area of the triangles incident to i).
+//  5. bilaplacian_sweeps Gauss-Seidel sweeps x_i <- -(sum_{j != i} B_ij x_j) / B_ii (no relaxation: the thesis
+//     under-relaxes only step 3), constraints after each sweep.
+//  6. polish_sweeps of the same without the particle constraints (the container is still enforced, so the output
+//     never leaves it).
+//  7. Optional erosion x <- x - erosion * r_inner * n(x) (area-weighted vertex normal), then the container again.
+//
+// Constraint projection (after every constrained sweep): the nearest particle p (exact, spatial hash); |x - p| <
+// r_inner pushes x out along (x - p) to r_inner (repeated, at most 8 times, while the push lands inside another
+// particle's r_inner ball); |x - p| > r_outer pulls x toward p to r_outer (p stays the nearest on that segment).
+// Then the container: coordinates clamped into container_box; a vertex with container_solid(x) > 0 is moved by
+// Newton steps x -= f grad f / |grad f|^2 (at most 16) until f(x) <= 0, the last step aiming 1e-9 r_inner inside.
+// Container snapping wins over faithfulness: vertices held at a wall may be outside [r_inner, r_outer].
+// Nearest-particle queries are exact: each vertex keeps the particles within d0 + 0.3 r_inner of where it last
+// looked (d0 = its nearest distance there) and scans only those until it has moved 0.15 r_inner.
+//
+// What to expect (measured in tests/core/particle_surfacer_test.cpp and bench/particles_bench.cpp):
+//  * Marching Tiles puts a vertex on every crossed lattice edge: about 5 vertices per h^2 of surface.
+//  * Constraints hold on vertices only (as in the thesis), so on a flat face vertices can slide off the cusps between
+//    outer spheres rather than the whole face sinking below them. Square lattice of spacing d = r_inner: with
+//    r_outer = 2 r_inner the top face's RMS height deviation is ~0.7% of r_inner after step 5; close to the eq. 3.5
+//    bound (r_outer = 1.22..1.5 r_inner) it stays ~1.1-1.4%; below it (1.05 r_inner) ~3%.
+//  * The unconstrained polish moves vertices by up to ~0.2 r_inner (at sharp features), leaving ~86-92% within the
+//    band; both are reported in the stats.
+//
+// Per-particle radii (radii non-empty): particle i gets r_inner_i = radii[i] and r_outer_i = k * radii[i], where
+// k = r_outer / r_inner of the options (default 2) and the reference r_inner is options.r_inner when set, else the mean
+// radius (it sets the sample spacing and the erosion depth; derive_r_inner is ignored). The field is
+// min_i(|x - p_i| - r_outer_i) (its zero set is the union of the r_outer_i balls), and faithfulness means
+// min_i(|x - p_i| - r_inner_i) >= 0 >= min_i(|x - p_i| - r_outer_i); projection uses the particle attaining each
+// minimum. The spatial hash cell is the largest r_outer_i, so widely varying radii cost speed, not correctness.
+//
+// Parallelism: vertices are renumbered along a Morton curve and cut into contiguous blocks (a count that depends only
+// on the vertex count); a sweep first updates, in parallel, every block's interior vertices (whose matrix row reads
+// only its own block), then the remaining "seam" vertices serially. That is exactly Gauss-Seidel in a fixed vertex
+// order, so convergence is Gauss-Seidel's and the result is byte-identical whatever `threads`. Constraint
+// projection, B's assembly and Marching Tiles run in parallel too.
+//
+// Cancellation: control.check() at least once per sweep, per assembly chunk and inside Marching Tiles; progress is
+// reported per stage: "distance_field", "polygonize", "laplacian", "build_b", "bilaplacian", "polish", "erosion".
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <span>
+#include <vector>
+
+#include "core/mesh/mesh.h"
+#include "core/util/run_control.h"
+#include "core/scene/scene.h"
+
+namespace surfacer {
+
+struct ParticleSurfacingOptions {
+  // Inner radius (scene units, > 0): typically the simulation's particle radius. Required unless derive_r_inner or
+  // per-particle radii are given.
+  std::optional<double> r_inner;
+  // r_inner := mean distance from a particle to its nearest neighbour (over a fixed sample of at most 65536 particles;
+  // those whose nearest neighbour is farther than 4x the median are left out as stray spray). Needs >= 2 particles.
+  bool derive_r_inner = false;
+  // Outer radius, > r_inner; default 2 * r_inner. A planar face over a square lattice of spacing d needs
+  // r_outer^2 >= r_inner^2 + d^2 / 2 (thesis eq. 3.5; triangular lattice: + d^2 / 3, eq. 3.6).
+  std::optional<double> r_outer;
+  double spacing_factor = 0.8;  // Marching Tiles mean sample spacing / r_inner, in (0, 10]
+  int laplacian_sweeps = 5;     // >= 0 each
+  int bilaplacian_sweeps = 25;
+  int polish_sweeps = 5;
+  double relaxation = 0.6;              // Laplacian under-relaxation, in (0, 1]
+  std::optional<double> erosion;        // epsilon >= 0 in units of r_inner (thesis §3.9); off by default
+  std::optional<Aabb> container_box;    // the surface is kept inside (valid box)
+  FieldPtr container_solid;             // the surface is kept where container_solid <= 0 (negative inside)
+  int min_particles_per_component = 0;  // drop particle clusters (r_outer balls chained by overlap) smaller than this
+  bool normals = false;                 // output per-vertex unit normals (area-weighted, outward)
+  int threads = 0;                      // 0: hardware threads
+};
+
+struct ParticleSurfacingStats {
+  // Resolved parameters.
+  double r_inner = 0.0, r_outer = 0.0, spacing = 0.0;
+  std::size_t particles = 0;           // given
+  std::size_t particles_used = 0;      // after min_particles_per_component
+  std::size_t components_dropped = 0;  // particle clusters dropped
+  std::size_t seeds = 0;               // particles passed to Marching Tiles as seeds
+  // Seconds per stage. distance_field: spatial hash, radius derivation and component filter; the per-sample distance
+  // queries run inside polygonize (lazily, where Marching Tiles visits).
+  double seconds_distance_field = 0.0, seconds_polygonize = 0.0, seconds_laplacian = 0.0, seconds_build_b = 0.0,
+         seconds_bilaplacian = 0.0, seconds_polish = 0.0, seconds_erosion = 0.0, seconds_total = 0.0;
+  std::int64_t field_evaluations = 0;  // distance samples taken by Marching Tiles
+  // The initial (Marching Tiles) mesh.
+  std::size_t initial_vertices = 0, initial_triangles = 0;
+  int initial_min_valence = 0;
+  // Faithfulness: fraction of vertices with r_inner <= d <= r_outer (relative tolerance 1e-9) and the largest distance
+  // outside that band (scene units), after the constrained sweeps (step 5) and at the end (after polish/erosion).
+  double faithful_after_constrained = 0.0, faithful_after_polish = 0.0;
+  double max_violation_after_constrained = 0.0, max_violation_after_polish = 0.0;
+  double max_polish_displacement = 0.0;  // largest vertex move during polish + erosion
+  double seam_fraction = 0.0;            // vertices updated serially in the parallel Gauss-Seidel (see header)
+  std::size_t b_nonzeros = 0;            // stored entries of B (off-diagonal + diagonal)
+  std::int64_t neighbour_refreshes = 0;  // constraint queries that rebuilt a vertex's candidate list (uniform radii)
+  std::size_t vertices = 0, triangles = 0;
+};
+
+// Keeps validated options and scratch buffers (spatial hash, matrices) between frames; not thread-safe: use one per
+// worker. Throws InvalidInput from the constructor for bad options (message names the option and the fix).
+class ParticleSurfacer {
+ public:
+  explicit ParticleSurfacer(const ParticleSurfacingOptions& options);
+  ~ParticleSurfacer();
+  ParticleSurfacer(ParticleSurfacer&&) noexcept;
+  ParticleSurfacer& operator=(ParticleSurfacer&&) noexcept;
+
+  // The whole pipeline for one frame. `radii` is empty or one radius per particle (finite, > 0).
+  // An empty particle set (or one emptied by min_particles_per_component) gives an empty mesh.
+  // Throws InvalidInput ("particles", "radii", "r_inner" when it cannot be derived), ResourceLimit (from Marching
+  // Tiles / the spatial hash for extreme extents), Cancelled.
+  Mesh surface(std::span<const Vec3> particles, std::span<const double> radii = {}, const RunControl& control = {},
+               ParticleSurfacingStats* stats = nullptr);
+
+  // Steps 1-2 only: the Marching Tiles mesh of d = r_outer before any smoothing or constraint (min valence >= 5).
+  Mesh initial_surface(std::span<const Vec3> particles, std::span<const double> radii = {},
+                       const RunControl& control = {}, ParticleSurfacingStats* stats = nullptr);
+
+  const ParticleSurfacingOptions& options() const;
+
+ private:
+  struct State;
+  std::unique_ptr<State> state_;
+};
+
+// One-shot forms.
+Mesh surface_particles(std::span<const Vec3> particles, std::span<const double> radii,
+                       const ParticleSurfacingOptions& options, const RunControl& control = {},
+                       ParticleSurfacingStats* stats = nullptr);
+Mesh initial_particle_surface(std::span<const Vec3> particles, std::span<const double> radii,
+                              const ParticleSurfacingOptions& options, const RunControl& control = {},
+                              ParticleSurfacingStats* stats = nullptr);
+
+// Mean distance from a sample of up to 128 particles to their nearest neighbour (brute force over all particles).
+double estimate_particle_spacing(std::span<const Vec3> points);
+
+// The box every surfaced frame of a particle sequence fits in (a Draco quantization box shared by all frames, so
+// that every frame uses one grid): the union of the particles' bounds, padded by 1.5 times how far the surface can
+// reach. That reach is r_outer / r_inner times the largest particle radius; or r_outer (default 2 r_inner); or,
+// when r_inner is derived per frame, 3 times the r_outer implied by the particle spacing of the first frame
+// (`first_frame` is called only then). Clipped to `container` when given. The server and the scale-out client
+// both use it, so a sequence split across servers is quantized exactly as on one server.
+Aabb particle_sequence_box(const Aabb& particle_bounds, double max_radius, std::optional<double> r_inner,
+                           std::optional<double> r_outer, const std::function<std::vector<Vec3>()>& first_frame,
+                           const std::optional<Aabb>& container);
+
+}  // namespace surfacer

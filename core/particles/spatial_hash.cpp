@@ -1,0 +1,194 @@
+#include "core/particles/spatial_hash.h"
+
+#include <algorithm>
+#include <bit>
+#include <numeric>
+#include <string>
+
+#include "core/util/errors.h"
+
+namespace surfacer {
+
+void SpatialHash::build(std::span<const Vec3> points, double cell_size) {
+  if (!(cell_size > 0.0) || !std::isfinite(cell_size)) {
+    throw InvalidInput("cell_size", "cell_size (" + std::to_string(cell_size) + ") must be finite and > 0");
+  }
+  if (points.size() >= kEmpty) {
+    throw InvalidInput("points", "at most 2^32 - 2 points are supported, got " + std::to_string(points.size()));
+  }
+  points_.clear();
+  order_.clear();
+  cell_start_.clear();
+  cells_.clear();
+  table_.clear();
+  occupied_cells_ = 0;
+  dense_ = true;
+  cell_ = cell_size;
+  inv_cell_ = 1.0 / cell_size;
+  dims_[0] = dims_[1] = dims_[2] = 0;
+  origin_ = Vec3::Zero();
+  if (points.empty()) return;
+
+  Eigen::Array3d lo = points[0].array(), hi = points[0].array();
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    const Vec3& p = points[i];
+    if (!p.allFinite()) {
+      throw InvalidInput("points", "point " + std::to_string(i) + " has a non-finite coordinate; remove it");
+    }
+    lo = lo.min(p.array());
+    hi = hi.max(p.array());
+  }
+  origin_ = lo.matrix();
+  double total = 1.0;
+  for (int a = 0; a < 3; ++a) {
+    const double cells = std::floor((hi[a] - lo[a]) * inv_cell_) + 1.0;
+    if (cells > static_cast<double>(1 << 30)) {
+      throw ResourceLimit("cell_size", "the points span " + std::to_string(cells) + " cells of size " +
+                                           std::to_string(cell_size) + " along one axis (max 2^30); use larger cells");
+    }
+    dims_[a] = static_cast<int>(cells);
+    total *= cells;
+  }
+  // Cell coordinates of a point, clamped: the top face of the box rounds into the last cell.
+  auto cell_of = [&](const Vec3& p, int c[3]) {
+    for (int a = 0; a < 3; ++a) {
+      const int v = static_cast<int>((p[a] - origin_[a]) * inv_cell_);
+      c[a] = std::clamp(v, 0, dims_[a] - 1);
+    }
+  };
+
+  const std::size_t n = points.size();
+  points_.resize(n);
+  order_.resize(n);
+  dense_ = total <= 8.0 * static_cast<double>(n) + 4096.0;
+  if (dense_) {
+    // Counting sort by linear cell index (x fastest), stable in input order.
+    const std::size_t cells = static_cast<std::size_t>(total);
+    std::vector<std::uint32_t> cell_of_point(n);
+    cell_start_.assign(cells + 1, 0);
+    for (std::size_t i = 0; i < n; ++i) {
+      int c[3];
+      cell_of(points[i], c);
+      const std::size_t id = (static_cast<std::size_t>(c[2]) * dims_[1] + c[1]) * dims_[0] + c[0];
+      cell_of_point[i] = static_cast<std::uint32_t>(id);
+      ++cell_start_[id + 1];
+    }
+    for (std::size_t c = 0; c < cells; ++c) {
+      occupied_cells_ += cell_start_[c + 1] != 0;
+      cell_start_[c + 1] += cell_start_[c];
+    }
+    std::vector<std::uint32_t> fill(cell_start_.begin(), cell_start_.end() - 1);
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::uint32_t s = fill[cell_of_point[i]]++;
+      points_[s] = points[i];
+      order_[s] = static_cast<std::uint32_t>(i);
+    }
+    return;
+  }
+
+  // Sparse: sort by (k, j, i, input index), then one Cell per run and a hash table over the runs.
+  struct Keyed {
+    std::int32_t k, j, i;
+    std::uint32_t index;
+  };
+  std::vector<Keyed> keyed(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    int c[3];
+    cell_of(points[i], c);
+    keyed[i] = {c[2], c[1], c[0], static_cast<std::uint32_t>(i)};
+  }
+  std::sort(keyed.begin(), keyed.end(), [](const Keyed& a, const Keyed& b) {
+    if (a.k != b.k) return a.k < b.k;
+    if (a.j != b.j) return a.j < b.j;
+    if (a.i != b.i) return a.i < b.i;
+    return a.index < b.index;
+  });
+  for (std::size_t s = 0; s < n; ++s) {
+    const Keyed& e = keyed[s];
+    points_[s] = points[e.index];
+    order_[s] = e.index;
+    if (s == 0 || e.i != keyed[s - 1].i || e.j != keyed[s - 1].j || e.k != keyed[s - 1].k) {
+      cells_.push_back({e.i, e.j, e.k, static_cast<std::uint32_t>(s), static_cast<std::uint32_t>(s)});
+    }
+    cells_.back().end = static_cast<std::uint32_t>(s + 1);
+  }
+  occupied_cells_ = cells_.size();
+  const std::size_t capacity = std::bit_ceil(std::max<std::size_t>(16, 2 * cells_.size()));
+  table_.assign(capacity, kEmpty);
+  mask_ = capacity - 1;
+  for (std::size_t c = 0; c < cells_.size(); ++c) {
+    std::uint64_t s = hash(cells_[c].i, cells_[c].j, cells_[c].k) & mask_;
+    while (table_[s] != kEmpty) s = (s + 1) & mask_;
+    table_[s] = static_cast<std::uint32_t>(c);
+  }
+}
+
+std::size_t SpatialHash::memory_bytes() const {
+  return points_.capacity() * sizeof(Vec3) + order_.capacity() * sizeof(std::uint32_t) +
+         cell_start_.capacity() * sizeof(std::uint32_t) + cells_.capacity() * sizeof(Cell) +
+         table_.capacity() * sizeof(std::uint32_t);
+}
+
+std::optional<SpatialHash::Neighbor> SpatialHash::nearest(const Vec3& q, double max_distance) const {
+  if (points_.empty() || !(max_distance >= 0.0)) return std::nullopt;
+  // Radius beyond which every point is inside the search box: the distance to the farthest corner of the grid.
+  const Eigen::Array3d far =
+      (q.array() - origin_.array())
+          .abs()
+          .max((q.array() - origin_.array() - Eigen::Array3d(dims_[0], dims_[1], dims_[2]) * cell_).abs());
+  const double all = far.matrix().norm() * (1.0 + 1e-12) + cell_;
+  double r = std::min({max_distance, cell_, all});
+  while (true) {
+    double best2 = r * r;
+    std::uint32_t best = kEmpty;
+    for_each_range(q.array() - r, q.array() + r, [&](std::uint32_t begin, std::uint32_t end) {
+      for (std::uint32_t s = begin; s < end; ++s) {
+        const double d2 = (points_[s] - q).squaredNorm();
+        if (d2 < best2 || (d2 == best2 && best == kEmpty)) {
+          best2 = d2;
+          best = s;
+        }
+      }
+    });
+    if (best != kEmpty) return Neighbor{order_[best], std::sqrt(best2)};
+    if (r >= max_distance || r >= all) return std::nullopt;
+    r = std::min({2.0 * r, max_distance, all});
+  }
+}
+
+double SpatialHash::bounded_distance(const Vec3& q, double max_distance, double stop_below) const {
+  double best2 = max_distance * max_distance;
+  bool found = false;
+  const double stop2 = stop_below * stop_below;
+  const double qx = q.x(), qy = q.y(), qz = q.z();
+  auto scan = [&](std::uint32_t begin, std::uint32_t end) {
+    double b2 = best2;  // locals, so the loop keeps them in registers
+    bool hit = false;
+    for (std::uint32_t s = begin; s < end; ++s) {
+      const double dx = points_[s].x() - qx, dy = points_[s].y() - qy, dz = points_[s].z() - qz;
+      const double d2 = dx * dx + dy * dy + dz * dz;
+      if (d2 <= b2) {
+        b2 = d2;
+        hit = true;
+      }
+    }
+    best2 = b2;
+    found = found || hit;
+    return !(found && best2 < stop2);
+  };
+  // First the cell holding q, then the box of the stop ball: if any point is closer than stop_below it is in there,
+  // and inside a dense cloud one cell or that small box usually decides. Otherwise the whole box (the smaller ones
+  // are scanned again).
+  if (stop_below > 0.0 && stop_below < max_distance) {
+    if (!for_each_range(q.array(), q.array(), scan)) return std::sqrt(best2);
+    if (!for_each_range(q.array() - stop_below, q.array() + stop_below, scan)) return std::sqrt(best2);
+  }
+  for_each_range(q.array() - max_distance, q.array() + max_distance, scan);
+  return found ? std::sqrt(best2) : std::numeric_limits<double>::infinity();
+}
+
+void SpatialHash::within(const Vec3& q, double radius, std::vector<std::uint32_t>& out) const {
+  for_each_within(q, radius, [&](std::uint32_t index, const Vec3&, double) { out.push_back(index); });
+}
+
+}  // namespace surfacer

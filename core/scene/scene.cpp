@@ -1,0 +1,589 @@
+// Primitives, CSG and affine transforms (core/scene/scene.h). Blobs: scene_blobs.cpp; sampled grids: scene_grid.cpp.
+//
+// Each primitive is written once as a template over its scalar type; value() runs it with double and
+// value_and_gradient() with the forward-mode Dual of core/scene/dual.h, so both share one formula and the gradient is
+// exact. Interior nodes (CSG, transforms) combine their children's values and gradients with the chain rule.
+#include "core/scene/scene.h"
+
+#include <Eigen/LU>
+#include <Eigen/SVD>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <numbers>
+#include <string>
+#include <utility>
+
+#include "core/scene/dual.h"
+#include "core/util/errors.h"
+#include "core/util/checks.h"
+
+namespace surfacer {
+namespace {
+
+using scene_detail::format_number;
+using scene_detail::merge;
+using scene_detail::require_finite;
+using scene_detail::require_positive;
+
+// --- A tiny 3-vector over the scalar type ------------------------------------------------------------------
+template <class T>
+struct V3 {
+  T x, y, z;
+};
+
+template <class T>
+SURFACER_FORCE_INLINE V3<T> operator-(const V3<T>& a, const Vec3& b) {
+  return {a.x - b.x(), a.y - b.y(), a.z - b.z()};
+}
+template <class T>
+SURFACER_FORCE_INLINE V3<T> operator-(const V3<T>& a, const V3<T>& b) {
+  return {a.x - b.x, a.y - b.y, a.z - b.z};
+}
+template <class T>
+SURFACER_FORCE_INLINE V3<T> scaled(const Vec3& v, const T& s) {  // v * s
+  return {s * v.x(), s * v.y(), s * v.z()};
+}
+template <class T>
+SURFACER_FORCE_INLINE T dot(const V3<T>& a, const Vec3& b) {
+  return a.x * b.x() + a.y * b.y() + a.z * b.z();
+}
+template <class T>
+SURFACER_FORCE_INLINE T length(const V3<T>& a) {
+  return tsqrt(a.x * a.x + a.y * a.y + a.z * a.z);
+}
+template <class T>
+SURFACER_FORCE_INLINE T length2(const T& a, const T& b) {
+  return tsqrt(a * a + b * b);
+}
+
+// Signed distance of a box-like shape from per-axis offsets q_i = |p_i| - half_i (any number of axes): inside,
+// the largest offset (a face plane); outside, the length of the positive offsets. Branching (rather than
+// length(max(q,0)) + min(max q, 0)) keeps the gradient right on the surface itself.
+template <class T, std::size_t N>
+SURFACER_FORCE_INLINE T box_like(const std::array<T, N>& q) {
+  bool outside = false;
+  for (const T& qi : q) outside = outside || value_of(qi) > 0.0;
+  if (!outside) {
+    T m = q[0];
+    for (std::size_t i = 1; i < N; ++i) m = tmax(m, q[i]);
+    return m;
+  }
+  T s(0.0);
+  for (const T& qi : q) {
+    if (value_of(qi) > 0.0) s = s + qi * qi;
+  }
+  return tsqrt(s);
+}
+
+// Shared plumbing: Derived provides `template <class T> T eval(const V3<T>& p) const`.
+template <class Derived>
+class TemplatedField : public Field {
+ public:
+  double value(const Vec3& p) const final {
+    return static_cast<const Derived*>(this)->eval(V3<double>{p.x(), p.y(), p.z()});
+  }
+  double value_and_gradient(const Vec3& p, Vec3& gradient) const final {
+    const V3<Dual> q{Dual::variable(p.x(), 0), Dual::variable(p.y(), 1), Dual::variable(p.z(), 2)};
+    const Dual r = static_cast<const Derived*>(this)->eval(q);
+    gradient = Vec3(r.d[0], r.d[1], r.d[2]);
+    return r.v;
+  }
+};
+
+// Box of a disk of radius r centred at c, perpendicular to the unit vector u.
+Aabb disk_box(const Vec3& c, const Vec3& u, double r) {
+  Vec3 e;
+  for (int i = 0; i < 3; ++i) e[i] = r * std::sqrt(std::max(0.0, 1.0 - u[i] * u[i]));
+  return Aabb{c - e, c + e};
+}
+
+// --- Primitives ----------------------------------------------------------------------------------------------
+class Sphere final : public TemplatedField<Sphere> {
+ public:
+  std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
+  Sphere(const Vec3& c, double r) : c_(c), r_(r) {}
+  template <class T>
+  T eval(const V3<T>& p) const {
+    return length(p - c_) - r_;
+  }
+  std::optional<Aabb> bounds() const override { return Aabb{c_.array() - r_, c_.array() + r_}; }
+
+ private:
+  Vec3 c_;
+  double r_;
+};
+
+// Rounded box with outer half extents h and edge radius r (r = 0: sharp box). Quilez, "sdRoundBox".
+class RoundedBox final : public TemplatedField<RoundedBox> {
+ public:
+  std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
+  RoundedBox(const Vec3& c, const Vec3& h, double r) : c_(c), h_(h), r_(r) {}
+  template <class T>
+  T eval(const V3<T>& p) const {
+    const V3<T> d = p - c_;
+    return box_like(std::array<T, 3>{tabs(d.x) - (h_.x() - r_), tabs(d.y) - (h_.y() - r_), tabs(d.z) - (h_.z() - r_)}) -
+           r_;
+  }
+  std::optional<Aabb> bounds() const override { return Aabb{c_ - h_, c_ + h_}; }
+
+ private:
+  Vec3 c_, h_;
+  double r_;
+};
+
+// Capped cylinder: a 2-D box in (radial distance, axial offset from the middle).
+class Cylinder final : public TemplatedField<Cylinder> {
+ public:
+  std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
+  Cylinder(const Vec3& a, const Vec3& b, double r)
+      : a_(a), b_(b), m_((a + b) * 0.5), u_((b - a).normalized()), half_(0.5 * (b - a).norm()), r_(r) {}
+  template <class T>
+  T eval(const V3<T>& p) const {
+    const V3<T> w = p - m_;
+    const T y = dot(w, u_);
+    const T radial = length(w - scaled(u_, y));
+    return box_like(std::array<T, 2>{radial - r_, tabs(y) - half_});
+  }
+  std::optional<Aabb> bounds() const override { return merge(disk_box(a_, u_, r_), disk_box(b_, u_, r_)); }
+
+ private:
+  Vec3 a_, b_, m_, u_;
+  double half_, r_;
+};
+
+// Capped truncated cone. In the half-plane (r = radial distance >= 0, y = axial coordinate from a) the solid is
+// the trapezoid (0,0) (ra,0) (rb,L) (0,L), whose mirror image across r = 0 makes it convex; so the exact signed
+// distance is the largest edge-line distance inside and the distance to the nearest of the three edges
+// (bottom cap, side, top cap) outside. Equivalent to Quilez's sdCappedCone but linear near each face, which keeps
+// the gradient defined on the surface.
+class Cone final : public TemplatedField<Cone> {
+ public:
+  std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
+  Cone(const Vec3& a, const Vec3& b, double ra, double rb)
+      : a_(a), b_(b), u_((b - a).normalized()), len_((b - a).norm()), ra_(ra), rb_(rb) {
+    const double side = std::hypot(len_, ra_ - rb_);
+    nr_ = len_ / side;  // outward side normal (r, y components)
+    ny_ = (ra_ - rb_) / side;
+    er_ = rb_ - ra_;  // side edge direction (ra,0) -> (rb,L)
+    ey_ = len_;
+    inv_ee_ = 1.0 / (er_ * er_ + ey_ * ey_);
+  }
+  template <class T>
+  T eval(const V3<T>& p) const {
+    const V3<T> w = p - a_;
+    const T y = dot(w, u_);
+    const T r = length(w - scaled(u_, y));
+    const T d_bottom = -y;
+    const T d_top = y - len_;
+    const T d_side = (r - ra_) * nr_ + y * ny_;
+    if (value_of(d_bottom) <= 0.0 && value_of(d_top) <= 0.0 && value_of(d_side) <= 0.0) {
+      return tmax(tmax(d_bottom, d_top), d_side);
+    }
+    const T bottom = value_of(r) <= ra_ ? tabs(y) : length2(r - ra_, y);
+    const T top = value_of(r) <= rb_ ? tabs(d_top) : length2(r - rb_, d_top);
+    const double t = ((value_of(r) - ra_) * er_ + value_of(y) * ey_) * inv_ee_;
+    const T side = t <= 0.0 ? length2(r - ra_, y) : (t >= 1.0 ? length2(r - rb_, d_top) : tabs(d_side));
+    return tmin(tmin(bottom, top), side);
+  }
+  std::optional<Aabb> bounds() const override { return merge(disk_box(a_, u_, ra_), disk_box(b_, u_, rb_)); }
+
+ private:
+  Vec3 a_, b_, u_;
+  double len_, ra_, rb_;
+  double nr_ = 0, ny_ = 0, er_ = 0, ey_ = 0, inv_ee_ = 0;
+};
+
+class Torus final : public TemplatedField<Torus> {
+ public:
+  std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
+  Torus(const Vec3& c, const Vec3& axis, double major, double minor)
+      : c_(c), n_(axis.normalized()), major_(major), minor_(minor) {}
+  template <class T>
+  T eval(const V3<T>& p) const {
+    const V3<T> w = p - c_;
+    const T h = dot(w, n_);
+    const T rho = length(w - scaled(n_, h));
+    return length2(rho - major_, h) - minor_;
+  }
+  std::optional<Aabb> bounds() const override {
+    Aabb box = disk_box(c_, n_, major_);
+    box.min.array() -= minor_;
+    box.max.array() += minor_;
+    return box;
+  }
+
+ private:
+  Vec3 c_, n_;
+  double major_, minor_;
+};
+
+class Plane final : public TemplatedField<Plane> {
+ public:
+  std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
+  Plane(const Vec3& normal, double offset) : n_(normal.normalized()), offset_(offset / normal.norm()) {}
+  template <class T>
+  T eval(const V3<T>& p) const {
+    return dot(p, n_) - offset_;
+  }
+  std::optional<Aabb> bounds() const override { return std::nullopt; }
+
+ private:
+  Vec3 n_;
+  double offset_;
+};
+
+class Capsule final : public TemplatedField<Capsule> {
+ public:
+  std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
+  Capsule(const Vec3& a, const Vec3& b, double r) : a_(a), b_(b), ba_(b - a), r_(r) {
+    const double baba = ba_.squaredNorm();
+    inv_baba_ = baba > 0.0 ? 1.0 / baba : 0.0;
+  }
+  template <class T>
+  T eval(const V3<T>& p) const {
+    const V3<T> w = p - a_;
+    const T t = tclamp(dot(w, ba_) * inv_baba_, 0.0, 1.0);
+    return length(w - scaled(ba_, t)) - r_;
+  }
+  std::optional<Aabb> bounds() const override {
+    return Aabb{a_.cwiseMin(b_).array() - r_, a_.cwiseMax(b_).array() + r_};
+  }
+
+ private:
+  Vec3 a_, b_, ba_;
+  double r_, inv_baba_;
+};
+
+// Gyroid sheet |g|/k - thickness/2, g = sin(kx)cos(ky) + sin(ky)cos(kz) + sin(kz)cos(kx), k = 2 pi / period.
+// |g|/k is a first-order distance estimate to the minimal surface g = 0 (|grad g| <= ~1.2 k), not exact.
+class Gyroid final : public TemplatedField<Gyroid> {
+ public:
+  // |grad g|^2 / k^2 = sum over the three cyclic terms of (cos x cos y - sin x sin z)^2 <= (cos^2 y + sin^2 z)
+  // (Cauchy-Schwarz), and those sum to 3: |grad (|g| / k)| <= sqrt(3).
+  std::optional<double> lipschitz_bound() const override { return std::sqrt(3.0); }
+  Gyroid(double period, double thickness) : k_(2.0 * std::numbers::pi / period), half_thickness_(0.5 * thickness) {}
+  template <class T>
+  T eval(const V3<T>& p) const {
+    using std::cos;
+    using std::sin;
+    const T x = p.x * k_, y = p.y * k_, z = p.z * k_;
+    const T g = sin(x) * cos(y) + sin(y) * cos(z) + sin(z) * cos(x);
+    return tabs(g) * (1.0 / k_) - half_thickness_;
+  }
+  std::optional<Aabb> bounds() const override { return std::nullopt; }
+
+ private:
+  double k_, half_thickness_;
+};
+
+// --- CSG -----------------------------------------------------------------------------------------------------
+class Csg final : public Field {
+ public:
+  Csg(CsgOp op, std::vector<FieldPtr> children, const CsgOptions& options)
+      : op_(op), blend_(options.blend), k_(options.radius), children_(std::move(children)) {}
+
+  double value(const Vec3& p) const override {
+    double v = children_[0]->value(p);
+    for (std::size_t i = 1; i < children_.size(); ++i) v = combine(v, children_[i]->value(p));
+    return v;
+  }
+
+  double value_and_gradient(const Vec3& p, Vec3& gradient) const override {
+    Vec3 g;
+    double v = children_[0]->value_and_gradient(p, g);
+    Dual acc(v, g.x(), g.y(), g.z());
+    for (std::size_t i = 1; i < children_.size(); ++i) {
+      v = children_[i]->value_and_gradient(p, g);
+      acc = combine(acc, Dual(v, g.x(), g.y(), g.z()));
+    }
+    gradient = Vec3(acc.d[0], acc.d[1], acc.d[2]);
+    return acc.v;
+  }
+
+  // Min/max and the polynomial smooth blend have gradients that are convex combinations of the children's
+  // ((1 - h/2) grad a + (h/2) grad b for the smooth one): the largest child bound. The R-function's gradient is
+  // (1 -+ a/r) grad a + (1 -+ b/r) grad b with r = sqrt(a^2 + b^2), whose weights sum to at most 2 + sqrt(2);
+  // children are folded left to right, so the factor applies per fold.
+  std::optional<double> lipschitz_bound() const override {
+    std::optional<double> acc;
+    for (const FieldPtr& c : children_) {
+      const std::optional<double> l = c->lipschitz_bound();
+      if (!l) return std::nullopt;
+      if (!acc) {
+        acc = *l;
+      } else {
+        acc = std::max(*acc, *l) * (blend_ == CsgBlend::kRFunction ? 2.0 + std::numbers::sqrt2 : 1.0);
+      }
+    }
+    return acc;
+  }
+
+  std::optional<Aabb> bounds() const override {
+    switch (op_) {
+      case CsgOp::kUnion: {
+        // R-function union has exactly the union's solid; the polynomial smooth union lies below min(a, b) by at
+        // most k/4 per fold, so (for distance-like children) its solid is within (n-1)k/4 of the union.
+        std::optional<Aabb> box;
+        for (const FieldPtr& c : children_) {
+          const std::optional<Aabb> b = c->bounds();
+          if (!b) return std::nullopt;
+          box = box ? merge(*box, *b) : *b;
+        }
+        if (blend_ == CsgBlend::kSmooth) {
+          const double pad = std::max(k_, 0.25 * k_ * static_cast<double>(children_.size() - 1));
+          box->min.array() -= pad;
+          box->max.array() += pad;
+        }
+        return box;
+      }
+      case CsgOp::kIntersection: {
+        // Every blend here is >= max(a, b), so the solid lies in each child's solid. If the boxes do not overlap
+        // the solid is empty and the returned box is degenerate (min == max on some axis; Aabb::valid() false).
+        std::optional<Aabb> box;
+        for (const FieldPtr& c : children_) {
+          const std::optional<Aabb> b = c->bounds();
+          if (!b) continue;
+          box = box ? Aabb{box->min.cwiseMax(b->min), box->max.cwiseMin(b->max)} : *b;
+        }
+        if (box) box->max = box->max.cwiseMax(box->min);
+        return box;
+      }
+      case CsgOp::kDifference:
+        return children_[0]->bounds();  // the result is >= the first child everywhere
+    }
+    return std::nullopt;
+  }
+
+ private:
+  template <class T>
+  T combine(const T& a, const T& b) const {
+    switch (op_) {
+      case CsgOp::kUnion:
+        return join(a, b);
+      case CsgOp::kIntersection:
+        return meet(a, b);
+      case CsgOp::kDifference:
+        return meet(a, -b);
+    }
+    return a;
+  }
+
+  template <class T>
+  T join(const T& a, const T& b) const {
+    switch (blend_) {
+      case CsgBlend::kMinMax:
+        return tmin(a, b);
+      case CsgBlend::kRFunction:
+        // sqrt(0) has derivative 0 (dual.h), so at a = b = 0 the gradient is grad a + grad b.
+        return a + b - tsqrt(a * a + b * b);
+      case CsgBlend::kSmooth: {
+        const T h = tmax(T(k_) - tabs(a - b), T(0.0)) * (1.0 / k_);
+        return tmin(a, b) - h * h * (0.25 * k_);
+      }
+    }
+    return a;
+  }
+
+  template <class T>
+  T meet(const T& a, const T& b) const {
+    switch (blend_) {
+      case CsgBlend::kMinMax:
+        return tmax(a, b);
+      case CsgBlend::kRFunction:
+        return a + b + tsqrt(a * a + b * b);
+      case CsgBlend::kSmooth: {
+        const T h = tmax(T(k_) - tabs(a - b), T(0.0)) * (1.0 / k_);
+        return tmax(a, b) + h * h * (0.25 * k_);
+      }
+    }
+    return a;
+  }
+
+  CsgOp op_;
+  CsgBlend blend_;
+  double k_;
+  std::vector<FieldPtr> children_;
+};
+
+// --- Transform -----------------------------------------------------------------------------------------------
+class Transform final : public Field {
+ public:
+  Transform(FieldPtr child, const Eigen::Matrix3d& a, const Vec3& t, double factor)
+      : child_(std::move(child)), a_(a), inv_(a.inverse()), inv_t_(inv_.transpose()), t_(t), factor_(factor) {
+    inv_norm_ = Eigen::JacobiSVD<Eigen::Matrix3d>(inv_).singularValues()(0);  // spectral norm of A^-1
+  }
+
+  // value(p) = factor child(A^-1 (p - t)): the child's bound times factor times |A^-1| (spectral norm).
+  std::optional<double> lipschitz_bound() const override {
+    const std::optional<double> l = child_->lipschitz_bound();
+    if (!l) return std::nullopt;
+    return *l * factor_ * inv_norm_;
+  }
+
+  double value(const Vec3& p) const override { return factor_ * child_->value(inv_ * (p - t_)); }
+
+  double value_and_gradient(const Vec3& p, Vec3& gradient) const override {
+    Vec3 g;
+    const double v = child_->value_and_gradient(inv_ * (p - t_), g);
+    gradient = factor_ * (inv_t_ * g);
+    return factor_ * v;
+  }
+
+  std::optional<Aabb> bounds() const override {
+    const std::optional<Aabb> b = child_->bounds();
+    if (!b) return std::nullopt;
+    Aabb out{Vec3::Constant(HUGE_VAL), Vec3::Constant(-HUGE_VAL)};
+    for (int corner = 0; corner < 8; ++corner) {
+      const Vec3 c((corner & 1) ? b->max.x() : b->min.x(), (corner & 2) ? b->max.y() : b->min.y(),
+                   (corner & 4) ? b->max.z() : b->min.z());
+      const Vec3 w = a_ * c + t_;
+      out.min = out.min.cwiseMin(w);
+      out.max = out.max.cwiseMax(w);
+    }
+    return out;
+  }
+
+ private:
+  FieldPtr child_;
+  Eigen::Matrix3d a_, inv_, inv_t_;
+  Vec3 t_;
+  double factor_;  // s when A = s R, else 1
+  double inv_norm_ = 1.0;
+};
+
+void require_distinct(const Vec3& a, const Vec3& b, const std::string& what) {
+  if ((b - a).norm() <= 1e-12 * std::max(1.0, std::max(a.norm(), b.norm()))) {
+    throw InvalidInput("b", "b equals a; the " + what + " needs two distinct end points a and b");
+  }
+}
+
+void require_nonzero_direction(const std::string& field, const Vec3& v) {
+  require_finite(field, v);
+  if (!(v.norm() > 0.0)) throw InvalidInput(field, field + " is the zero vector; give a nonzero direction");
+}
+
+}  // namespace
+
+// --- Builders ------------------------------------------------------------------------------------------------
+FieldPtr make_sphere(const Vec3& center, double radius) {
+  require_finite("center", center);
+  require_positive("radius", radius);
+  return std::make_shared<Sphere>(center, radius);
+}
+
+FieldPtr make_box(const Vec3& center, const Vec3& half_size) {
+  require_finite("center", center);
+  require_positive("half_size", half_size, "give half the box's extent along each axis");
+  return std::make_shared<RoundedBox>(center, half_size, 0.0);
+}
+
+FieldPtr make_rounded_box(const Vec3& center, const Vec3& half_size, double radius) {
+  require_finite("center", center);
+  require_positive("half_size", half_size, "give half the box's extent along each axis");
+  require_positive("radius", radius);
+  const double limit = half_size.minCoeff();
+  if (radius > limit) {
+    throw InvalidInput("radius", "radius (" + format_number(radius) + ") must be <= the smallest half_size (" +
+                                     format_number(limit) + "); reduce the edge radius");
+  }
+  return std::make_shared<RoundedBox>(center, half_size, radius);
+}
+
+FieldPtr make_cylinder(const Vec3& a, const Vec3& b, double radius) {
+  require_finite("a", a);
+  require_finite("b", b);
+  require_positive("radius", radius);
+  require_distinct(a, b, "cylinder");
+  return std::make_shared<Cylinder>(a, b, radius);
+}
+
+FieldPtr make_cone(const Vec3& a, const Vec3& b, double radius_a, double radius_b) {
+  require_finite("a", a);
+  require_finite("b", b);
+  require_finite("radius_a", radius_a);
+  require_finite("radius_b", radius_b);
+  if (radius_a < 0.0) {
+    throw InvalidInput("radius_a", "radius_a (" + format_number(radius_a) + ") must be >= 0");
+  }
+  if (radius_b < 0.0) {
+    throw InvalidInput("radius_b", "radius_b (" + format_number(radius_b) + ") must be >= 0");
+  }
+  if (radius_a == 0.0 && radius_b == 0.0) {
+    throw InvalidInput("radius_a", "radius_a and radius_b are both 0; give at least one positive radius");
+  }
+  require_distinct(a, b, "cone");
+  return std::make_shared<Cone>(a, b, radius_a, radius_b);
+}
+
+FieldPtr make_torus(const Vec3& center, const Vec3& axis, double major_radius, double minor_radius) {
+  require_finite("center", center);
+  require_nonzero_direction("axis", axis);
+  require_positive("major_radius", major_radius);
+  require_positive("minor_radius", minor_radius);
+  if (minor_radius >= major_radius) {
+    throw InvalidInput("minor_radius", "minor_radius (" + format_number(minor_radius) + ") must be < major_radius (" +
+                                           format_number(major_radius) + "); the tube would cross the axis");
+  }
+  return std::make_shared<Torus>(center, axis, major_radius, minor_radius);
+}
+
+FieldPtr make_plane(const Vec3& normal, double offset) {
+  require_nonzero_direction("normal", normal);
+  require_finite("offset", offset);
+  return std::make_shared<Plane>(normal, offset);
+}
+
+FieldPtr make_capsule(const Vec3& a, const Vec3& b, double radius) {
+  require_finite("a", a);
+  require_finite("b", b);
+  require_positive("radius", radius);
+  return std::make_shared<Capsule>(a, b, radius);
+}
+
+FieldPtr make_gyroid(double period, double thickness) {
+  require_positive("period", period, "give the length of one gyroid cell");
+  require_positive("thickness", thickness, "give the sheet thickness");
+  return std::make_shared<Gyroid>(period, thickness);
+}
+
+FieldPtr make_csg(CsgOp op, std::vector<FieldPtr> children, const CsgOptions& options) {
+  if (children.size() < 2) {
+    throw InvalidInput(
+        "children", "children has " + std::to_string(children.size()) + " node(s); a CSG operation needs at least two");
+  }
+  for (std::size_t i = 0; i < children.size(); ++i) {
+    if (!children[i]) {
+      const std::string field = "children[" + std::to_string(i) + "]";
+      throw InvalidInput(field, field + " is empty; give a node");
+    }
+  }
+  if (options.blend == CsgBlend::kSmooth) {
+    require_positive("radius", options.radius, "BLEND_SMOOTH needs a blend radius");
+  }
+  return std::make_shared<Csg>(op, std::move(children), options);
+}
+
+FieldPtr make_transform(FieldPtr child, const Eigen::Matrix3d& linear, const Vec3& translation) {
+  if (!child) throw InvalidInput("child", "child is empty; give the node to transform");
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) {
+      require_finite("linear(" + std::to_string(r) + "," + std::to_string(c) + ")", linear(r, c));
+    }
+  }
+  require_finite("translation", translation);
+  // Singular (or numerically so) relative to the matrix's own scale.
+  const double norm = linear.norm();
+  if (!(norm > 0.0) || std::abs(linear.determinant()) <= 1e-12 * norm * norm * norm) {
+    throw InvalidInput("linear", "linear matrix is singular (determinant " + format_number(linear.determinant()) +
+                                     "); give an invertible matrix (nonzero scale on every axis)");
+  }
+  // A = s R exactly when A^T A = s^2 I; then distances scale by s.
+  const Eigen::Matrix3d ata = linear.transpose() * linear;
+  const double s2 = ata.trace() / 3.0;
+  const double deviation = (ata - s2 * Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
+  const double factor = deviation <= 1e-9 * s2 ? std::sqrt(s2) : 1.0;
+  return std::make_shared<Transform>(std::move(child), linear, translation, factor);
+}
+
+}  // namespace surfacer

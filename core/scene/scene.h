@@ -1,0 +1,105 @@
+// Implicit scenes: fields built from primitives, skeletal blobs, CSG operations, affine transforms and sampled grids.
+//
+// Sign convention (docs/ALGORITHMS.md, "Notation"): every Field here is normalized to
+//     value < 0 inside, value == 0 on the surface, value > 0 outside.
+// Signed-distance nodes are already so; potential nodes (blobs, potential grids: inside where potential > iso) are
+// converted as (iso - potential). No algorithm has to guess. Gradients are exact (forward-mode dual numbers or
+// analytic derivatives), never finite differences; where a field is not differentiable (CSG seams, trilinear cell
+// faces) a one-sided gradient is returned.
+//
+// Builders validate their arguments and throw surfacer::Error(kInvalidInput) with the argument name as `field`
+// (e.g. "radius") and a message saying how to fix it; callers that know the path in a larger document prefix it.
+#pragma once
+
+#include <memory>
+#include <optional>
+#include <span>
+#include <vector>
+
+#include "core/mesh/mesh.h"
+
+namespace surfacer {
+
+class Field {
+ public:
+  virtual ~Field() = default;
+  // Normalized value at p (negative inside).
+  virtual double value(const Vec3& p) const = 0;
+  // Value and exact gradient at p.
+  virtual double value_and_gradient(const Vec3& p, Vec3& gradient) const = 0;
+  // A box containing the whole solid {value <= 0}, if the solid is bounded; nullopt for unbounded fields
+  // (plane, gyroid, complement-like differences keep their first child's bounds).
+  virtual std::optional<Aabb> bounds() const = 0;
+  // A constant L with |value(p) - value(q)| <= L |p - q| for all p, q, if one is known; nullopt otherwise (the
+  // default). Polygonizers use it to skip regions that cannot hold the surface (|value(c)| > L r: no zero within r
+  // of c), so it must never be too small; a loose bound only costs speed. Signed distances give 1; CSG and
+  // transforms combine their children's bounds; sampled grids and blobs compute one from their data.
+  virtual std::optional<double> lipschitz_bound() const { return std::nullopt; }
+};
+
+using FieldPtr = std::shared_ptr<const Field>;
+
+// --- Primitives (signed distances, exact or a bound where noted) -----------------------------------------------
+FieldPtr make_sphere(const Vec3& center, double radius);
+FieldPtr make_box(const Vec3& center, const Vec3& half_size);
+FieldPtr make_rounded_box(const Vec3& center, const Vec3& half_size, double radius);
+FieldPtr make_cylinder(const Vec3& a, const Vec3& b, double radius);                 // capped
+FieldPtr make_cone(const Vec3& a, const Vec3& b, double radius_a, double radius_b);  // capped, truncated
+FieldPtr make_torus(const Vec3& center, const Vec3& axis, double major_radius, double minor_radius);
+FieldPtr make_plane(const Vec3& normal, double offset);  // solid: dot(normal, x) <= offset (normal need not be unit)
+FieldPtr make_capsule(const Vec3& a, const Vec3& b, double radius);
+FieldPtr make_gyroid(double period, double thickness);  // unbounded sheet, see scene.proto
+
+// --- Skeletal blobs (potentials, summed; inside where sum > iso) -----------------------------------------------
+enum class BlobKernel { kWyvill, kBlinn };
+struct PointSkeleton {
+  Vec3 center = Vec3::Zero();
+  double radius = 1.0;
+  double strength = 1.0;
+};
+struct SegmentSkeleton {
+  Vec3 a = Vec3::Zero();
+  Vec3 b = Vec3::Zero();
+  double radius = 1.0;
+  double strength = 1.0;
+};
+struct BlobOptions {
+  BlobKernel kernel = BlobKernel::kWyvill;
+  double iso = 0.5;
+  double blobbiness = 1.0;  // Blinn only
+};
+FieldPtr make_blobs(std::span<const PointSkeleton> points, std::span<const SegmentSkeleton> segments,
+                    const BlobOptions& options);
+
+// --- CSG ----------------------------------------------------------------------------------------------------
+enum class CsgOp { kUnion, kIntersection, kDifference };  // difference: first minus all others
+enum class CsgBlend {
+  kMinMax,     // min/max
+  kRFunction,  // Rvachev R0: union f1+f2-sqrt(f1^2+f2^2) in the negative-inside convention, etc.
+  kSmooth,     // polynomial smooth min/max with blend radius
+};
+struct CsgOptions {
+  CsgBlend blend = CsgBlend::kMinMax;
+  double radius = 0.0;  // kSmooth only, > 0
+};
+// Requires at least two children.
+FieldPtr make_csg(CsgOp op, std::vector<FieldPtr> children, const CsgOptions& options = {});
+
+// --- Transforms ---------------------------------------------------------------------------------------------
+// x_world = A x_local + t. The child is evaluated at A^-1 (x - t). With A = s R (uniform scale s, rotation R) the
+// value is multiplied by s so distances stay exact; a general A keeps the sign and zero set (not exact distances).
+FieldPtr make_transform(FieldPtr child, const Eigen::Matrix3d& linear, const Vec3& translation);
+
+// --- Sampled grid -------------------------------------------------------------------------------------------
+struct SampledGridDesc {
+  Vec3 origin = Vec3::Zero();
+  Vec3 spacing = Vec3::Ones();
+  int nx = 0, ny = 0, nz = 0;  // >= 2 each
+  bool potential = false;      // true: inside where value > iso
+  double iso = 0.0;
+};
+// values: nx*ny*nz floats, x fastest. Trilinear inside the grid; outside it the value at the nearest grid point
+// plus the distance to the grid box (so the solid never leaks out of the sampled region). Copies the values.
+FieldPtr make_sampled_grid(const SampledGridDesc& desc, std::span<const float> values);
+
+}  // namespace surfacer
