@@ -25,9 +25,9 @@
 #include "core/mesh/mesh_checks.h"
 #include "core/mesh/mesh_codec.h"
 #include "core/scene/scene.h"
-#include "server/scene_translate.h"
 #include "server/server.h"
-#include "server/uploads.h"
+#include "wire/scene.h"
+#include "wire/uploads.h"
 #include "surfacer/v1/surfacer.grpc.pb.h"
 
 namespace {
@@ -118,8 +118,8 @@ int main(int argc, char** argv) {
     max->set_z(bounds.max.z());
     return spec;
   };
-  server::UploadStore uploads;
-  const FieldPtr field = server::field_from_scene(scene, "scene", uploads);
+  const wire::MemoryUploads uploads;
+  const FieldPtr field = wire::field_from_scene(scene, "scene", uploads);
   const int hw = std::max(1u, std::thread::hardware_concurrency());
   MarchingCubesOptions grid;
   grid.bounds = bounds;

@@ -5,6 +5,12 @@
 #include <cmath>
 
 #include "client/exit_codes.h"
+#include "core/active/active_surface.h"
+#include "core/mesh/mesh_codec.h"
+#include "core/optimize/mesh_optimizer.h"
+#include "core/particles/particle_surfacer.h"
+#include "core/polygonize/polygonize.h"
+#include "core/util/format.h"
 
 namespace surfacer::client {
 namespace {
@@ -30,11 +36,17 @@ CLI::Validator number_check(bool allow_zero) {
 const CLI::Validator positive = number_check(false);
 const CLI::Validator non_negative = number_check(true);
 
-std::string number_text(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%g", v);
-  return buf;
-}
+std::string number_text(double v) { return format_number(v); }
+
+// Defaults shown in --help are the engines' own (core options structs); the CLI never sends a default itself.
+const PolygonizeOptions kIsosurfaceDefaults;
+const PolygonizeOptions kStartDefaults = default_start_polygonize();
+const ParticleSurfacingOptions kParticleDefaults;
+const MeshOptimizerOptions kOptimizerDefaults;
+const ActiveSurfaceOptions kActiveDefaults;
+const DracoOptions kDracoDefaults;
+
+std::string default_text(double v) { return " (default " + format_number(v) + ")"; }
 
 // "Example:" footer: `run_example` for run, `submit_example` for submit.
 void set_examples(CLI::App* app, const std::string& verb, const std::vector<std::string>& run_examples,
@@ -68,7 +80,8 @@ void add_isosurface(CLI::App* parent, const std::string& verb, JobFlags& flags, 
       ->required()
       ->type_name("FILE");
   CLI::Option* cells =
-      iso->add_option("--cells", flags.iso.cells, "cells along the longest axis of the bounds (default 128)")
+      iso->add_option("--cells", flags.iso.cells,
+                      "cells along the longest axis of the bounds" + default_text(kIsosurfaceDefaults.cells))
           ->check(positive)
           ->type_name("N");
   iso->add_option("--cell-size", flags.iso.cell_size,
@@ -77,11 +90,12 @@ void add_isosurface(CLI::App* parent, const std::string& verb, JobFlags& flags, 
       ->excludes(cells)
       ->type_name("H");
   iso->add_option("--bounds", flags.iso_bounds,
-                  "region to polygonize: x0,y0,z0,x1,y1,z1 (default: the scenes' own bounds, padded by two cells)")
+                  "region to polygonize: x0,y0,z0,x1,y1,z1 (default: the scenes' own bounds, padded by " +
+                      format_number(PolygonizeOptions::kPadCells) + " cells)")
       ->type_name("BOX");
   iso->add_option("--method", flags.iso.method,
-                  "polygonizer: tiles (Marching Tiles, every vertex of valence >= 5; the server's default) or cubes "
-                  "(Marching Cubes)")
+                  "polygonizer: tiles (Marching Tiles, every vertex of valence >= 5) or cubes (Marching Cubes); default " +
+                      std::string(polygonizer_name(kIsosurfaceDefaults.method)))
       ->check(CLI::IsMember({"cubes", "tiles"}))
       ->type_name("NAME");
   add_job_common_flags(iso, flags.job);
@@ -106,16 +120,21 @@ void add_particles(CLI::App* parent, const std::string& verb, JobFlags& flags, O
   app->add_flag("--derive-r-inner", p.derive_r_inner, "derive r_inner from the mean nearest-neighbour spacing")
       ->excludes(r_inner);
   app->add_option("--r-outer", p.r_outer,
-                  "outer radius: every vertex stays within this distance of some particle (default 2 x r_inner; "
-                  "flat on a lattice of spacing d when r_outer^2 >= r_inner^2 + d^2/2)")
+                  "outer radius: every vertex stays within this distance of some particle (default " +
+                      format_number(ParticleSurfacingOptions::kDefaultOuterRatio) +
+                      " x r_inner; flat on a lattice of spacing d when r_outer^2 >= r_inner^2 + d^2/2)")
       ->check(positive)
       ->type_name("R");
-  app->add_option("--spacing-factor", p.spacing_factor, "sample spacing of the initial tiling / r_inner (default 0.8)")
+  app->add_option("--spacing-factor", p.spacing_factor, "sample spacing of the initial tiling / r_inner" +
+                      default_text(kParticleDefaults.spacing_factor))
       ->check(positive)
       ->type_name("F");
-  app->add_option("--sweeps", flags.sweeps, "Gauss-Seidel sweeps: Laplacian,Bilaplacian,polish (default 5,25,5)")
+  app->add_option("--sweeps", flags.sweeps, "Gauss-Seidel sweeps: Laplacian,Bilaplacian,polish (default " +
+                      std::to_string(kParticleDefaults.laplacian_sweeps) + "," +
+                      std::to_string(kParticleDefaults.bilaplacian_sweeps) + "," +
+                      std::to_string(kParticleDefaults.polish_sweeps) + ")")
       ->type_name("L,B,P");
-  app->add_option("--relaxation", p.relaxation, "under-relaxation of the Laplacian sweeps (default 0.6)")
+  app->add_option("--relaxation", p.relaxation, "under-relaxation of the Laplacian sweeps" + default_text(kParticleDefaults.relaxation))
       ->check(positive)
       ->type_name("W");
   app->add_option("--erosion", p.erosion, "move vertices inward by EPS x r_inner at the end (default off)")
@@ -128,7 +147,8 @@ void add_particles(CLI::App* parent, const std::string& verb, JobFlags& flags, O
                   "keep the surface inside this implicit solid (scene JSON, negative inside)")
       ->type_name("FILE");
   app->add_option("--min-particles", p.min_particles,
-                  "drop surface components around fewer particles than this (stray spray; default 0: keep all)")
+                  "drop surface components around fewer particles than this (stray spray; default " +
+                      std::to_string(kParticleDefaults.min_particles_per_component) + ": keep all)")
       ->check(non_negative)
       ->type_name("N");
   add_job_common_flags(app, flags.job);
@@ -158,11 +178,13 @@ void add_optimize(CLI::App* parent, const std::string& verb, JobFlags& flags, Ou
       app->add_option("--start-mesh", o.start_mesh, "start mesh file (.ply, .obj or .drc), uploaded as is")
           ->type_name("FILE");
   app->add_option("--start-cells", o.start_cells,
-                  "or polygonize the scene on the server: cells along the longest axis (default 64)")
+                  "or polygonize the scene on the server: cells along the longest axis" +
+                      default_text(kStartDefaults.cells))
       ->check(positive)
       ->excludes(mesh)
       ->type_name("N");
-  app->add_option("--start-method", o.start_method, "polygonizer of the start mesh: cubes (default) or tiles")
+  app->add_option("--start-method", o.start_method, "polygonizer of the start mesh: cubes or tiles (default " +
+                      std::string(polygonizer_name(kStartDefaults.method)) + ")")
       ->check(CLI::IsMember({"cubes", "tiles"}))
       ->excludes(mesh)
       ->type_name("NAME");
@@ -170,7 +192,8 @@ void add_optimize(CLI::App* parent, const std::string& verb, JobFlags& flags, Ou
                   "region of the start polygonization: x0,y0,z0,x1,y1,z1 (default: the scene's bounds, padded)")
       ->excludes(mesh)
       ->type_name("BOX");
-  app->add_option("--iterations", o.iterations, "stop after N iterations")->check(positive)->type_name("N");
+  app->add_option("--iterations", o.iterations,
+                  "stop after N iterations" + default_text(kOptimizerDefaults.max_iterations))->check(positive)->type_name("N");
   app->add_option("--tolerance", o.tolerance, "stop when E_d and E_n change by less than T (relative)")
       ->check(positive)
       ->type_name("T");
@@ -182,10 +205,11 @@ void add_optimize(CLI::App* parent, const std::string& verb, JobFlags& flags, Ou
                   "flows to run, comma-separated: d (distance), n (normal), t (tangential); "
                   "default d,n,t")
       ->type_name("LIST");
-  app->add_option("--c-d", o.c_d, "D-flow coefficient")->check(positive)->type_name("X");
-  app->add_option("--c-n", o.c_n, "N-flow coefficient")->check(positive)->type_name("X");
-  app->add_option("--c-t", o.c_t, "T-flow coefficient")->check(positive)->type_name("X");
-  app->add_option("--step-bound", o.step_bound, "D-flow step bound c in |C_D F_D| <= c sqrt(A(P))")
+  app->add_option("--c-d", o.c_d, "D-flow coefficient" + default_text(kOptimizerDefaults.c_d))->check(positive)->type_name("X");
+  app->add_option("--c-n", o.c_n, "N-flow coefficient" + default_text(kOptimizerDefaults.c_n))->check(positive)->type_name("X");
+  app->add_option("--c-t", o.c_t, "T-flow coefficient" + default_text(kOptimizerDefaults.c_t))->check(positive)->type_name("X");
+  app->add_option("--step-bound", o.step_bound, "D-flow step bound c in |C_D F_D| <= c sqrt(A(P))" +
+                      default_text(kOptimizerDefaults.step_bound))
       ->check(positive)
       ->type_name("C");
   app->add_flag("--modified-flows", o.modified_flows, "local-energy gradient descent (paper section 3.1)");
@@ -221,12 +245,15 @@ void add_active_common(CLI::App* app, JobFlags& flags, OutputFlags* output) {
       ->type_name("H");
   app->add_option("--bounds", flags.active_bounds, "domain hint x0,y0,z0,x1,y1,z1 (the grid is sparse and unbounded)")
       ->type_name("BOX");
-  app->add_option("--alpha", a.alpha, "tracking strength")->check(non_negative)->type_name("X");
+  app->add_option("--alpha", a.alpha,
+                  "tracking strength (default " + format_number(ActiveSurfaceOptions::kTrackingAlpha) +
+                      " for coat and morph, " + format_number(kActiveDefaults.alpha) + " for advect)")->check(non_negative)->type_name("X");
   app->add_option("--beta", a.beta, "surface tension")->check(non_negative)->type_name("X");
   app->add_option("--gamma", a.gamma, "area preservation")->check(non_negative)->type_name("X");
   app->add_option("--delta", a.delta, "volume preservation")->check(non_negative)->type_name("X");
-  app->add_option("--cfl", a.cfl, "CFL factor of the time step")->check(positive)->type_name("X");
-  app->add_option("--polygonizer", a.polygonizer, "polygonizer of each frame: tiles (default) or cubes")
+  app->add_option("--cfl", a.cfl, "CFL factor of the time step" + default_text(*kActiveDefaults.cfl))->check(positive)->type_name("X");
+  app->add_option("--polygonizer", a.polygonizer, "polygonizer of each frame: tiles or cubes (default " +
+                      std::string(polygonizer_name(kActiveDefaults.polygonizer)) + ")")
       ->check(CLI::IsMember({"tiles", "cubes"}))
       ->type_name("NAME");
   add_job_common_flags(app, flags.job);
@@ -257,10 +284,11 @@ void add_active(CLI::App* parent, const std::string& verb, JobFlags& flags, Outp
       ->required()
       ->check(positive)
       ->type_name("R");
-  coat->add_option("--iso", flags.coat.iso, "iso value T of the summed kernel field (default 0.5)")
+  coat->add_option("--iso", flags.coat.iso, "iso value T of the summed kernel field" + default_text(ParticleTargetOptions{}.iso))
       ->check(positive)
       ->type_name("T");
-  coat->add_option("--substeps", flags.coat.substeps, "evolution sub-steps per frame")->check(positive)->type_name("N");
+  coat->add_option("--substeps", flags.coat.substeps,
+                   "evolve each frame in exactly N sub-steps instead of CFL-sized ones (excludes --cfl)")->check(positive)->type_name("N");
   add_active_common(coat, flags, output);
   coat->footer("Example:\n  " + coat_example +
                "\nParticle frames are uploaded one at a time before the job is queued (as for `particles`).\n\n" +
@@ -269,11 +297,13 @@ void add_active(CLI::App* parent, const std::string& verb, JobFlags& flags, Outp
   CLI::App* morph = active->add_subcommand("morph", "Morph scene A into scene B, one frame per output step");
   morph->add_option("--from", flags.morph.from, "start scene file (JSON)")->required()->type_name("A.json");
   morph->add_option("--to", flags.morph.to, "target scene file (JSON)")->required()->type_name("B.json");
-  morph->add_option("--tolerance", flags.morph.tolerance, "stop when max |df/dt| falls below X")
+  morph->add_option("--tolerance", flags.morph.tolerance,
+                    "stop when max |df/dt| falls below X" + default_text(MorphOptions{}.tolerance))
       ->check(positive)
       ->type_name("X");
-  morph->add_option("--max-frames", flags.morph.max_frames, "stop after N frames")->check(positive)->type_name("N");
-  morph->add_option("--frame-time", flags.morph.frame_time, "simulated time between output frames")
+  morph->add_option("--max-frames", flags.morph.max_frames,
+                    "stop after N frames" + default_text(MorphOptions{}.max_frames))->check(positive)->type_name("N");
+  morph->add_option("--frame-time", flags.morph.frame_time, "simulated time between output frames" + default_text(MorphOptions{}.frame_duration))
       ->check(positive)
       ->type_name("DT");
   add_active_common(morph, flags, output);
@@ -283,7 +313,7 @@ void add_active(CLI::App* parent, const std::string& verb, JobFlags& flags, Outp
   advect->add_option("--scene", flags.advect.scene, "the shape: scene file (JSON)")->required()->type_name("FILE");
   CLI::Option* enright =
       advect->add_flag("--enright", flags.enright, "the Enright/LeVeque deformation field (analytic)");
-  CLI::Option* period = advect->add_option("--period", flags.advect.enright_period, "Enright period T (default 3)")
+  CLI::Option* period = advect->add_option("--period", flags.advect.enright_period, "Enright period T" + default_text(kEnrightPeriod))
                             ->check(positive)
                             ->needs(enright)
                             ->type_name("T");
@@ -344,7 +374,7 @@ void add_job_common_flags(CLI::App* app, JobOptions& job) {
   app->add_flag("--raw", job.raw, "lossless frames: binary PLY with double-precision positions instead of Draco");
   app->add_flag("--normals", job.normals, "per-vertex normals in every frame");
   app->add_option("--quantization-bits", job.quantization_bits,
-                  "Draco position quantization, 1..30 bits (server default 14)")
+                  "Draco position quantization, 1..30 bits" + default_text(kDracoDefaults.quantization_bits))
       ->check(CLI::Range(1, 30))
       ->type_name("B");
 }

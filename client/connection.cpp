@@ -8,8 +8,7 @@
 
 #include "client/health.h"
 #include "client/security.h"
-#include "server/log.h"
-#include "server/server.h"
+#include "server/in_process.h"
 
 namespace surfacer::client {
 namespace {
@@ -34,16 +33,12 @@ std::unique_ptr<Connection> Connection::open(const ConnectOptions& options) {
   std::unique_ptr<Connection> connection(new Connection());
   connection->options_ = options;
   if (options.local()) {
-    server::set_log_level(server::LogLevel::kWarn);  // the CLI prints its own progress
-    server::ServerOptions server_options;
-    server_options.listen = "";
-    server_options.workers = options.workers;
     try {
-      connection->local_server_ = server::SurfacerServer::start(server_options);
+      connection->local_server_ = server::InProcessServer::start(options.workers);
     } catch (const std::exception& e) {
       throw CliError(ExitCode::kUnreachable, std::string("cannot start the in-process server: ") + e.what());
     }
-    connection->channel_ = connection->local_server_->in_process_channel();
+    connection->channel_ = connection->local_server_->channel();
   } else {
     const std::string& target = *options.server;
     check_token_transport(target, options.security);
@@ -78,7 +73,7 @@ std::unique_ptr<Connection> Connection::open(const ConnectOptions& options) {
 Connection::~Connection() {
   stub_.reset();
   channel_.reset();
-  if (local_server_) local_server_->shutdown(server::ShutdownMode::kCancel, std::chrono::seconds(5));
+  local_server_.reset();
 }
 
 std::string Connection::describe() const {
@@ -94,47 +89,6 @@ std::chrono::system_clock::time_point Connection::unary_deadline() const {
   return std::chrono::system_clock::now() +
          std::chrono::milliseconds(static_cast<long long>(std::llround(options_.timeout_seconds * 1000))) +
          std::chrono::seconds(20);
-}
-
-std::string status_code_name(grpc::StatusCode code) {
-  switch (code) {
-    case grpc::StatusCode::OK:
-      return "OK";
-    case grpc::StatusCode::CANCELLED:
-      return "CANCELLED";
-    case grpc::StatusCode::UNKNOWN:
-      return "UNKNOWN";
-    case grpc::StatusCode::INVALID_ARGUMENT:
-      return "INVALID_ARGUMENT";
-    case grpc::StatusCode::DEADLINE_EXCEEDED:
-      return "DEADLINE_EXCEEDED";
-    case grpc::StatusCode::NOT_FOUND:
-      return "NOT_FOUND";
-    case grpc::StatusCode::ALREADY_EXISTS:
-      return "ALREADY_EXISTS";
-    case grpc::StatusCode::PERMISSION_DENIED:
-      return "PERMISSION_DENIED";
-    case grpc::StatusCode::RESOURCE_EXHAUSTED:
-      return "RESOURCE_EXHAUSTED";
-    case grpc::StatusCode::FAILED_PRECONDITION:
-      return "FAILED_PRECONDITION";
-    case grpc::StatusCode::ABORTED:
-      return "ABORTED";
-    case grpc::StatusCode::OUT_OF_RANGE:
-      return "OUT_OF_RANGE";
-    case grpc::StatusCode::UNIMPLEMENTED:
-      return "UNIMPLEMENTED";
-    case grpc::StatusCode::INTERNAL:
-      return "INTERNAL";
-    case grpc::StatusCode::UNAVAILABLE:
-      return "UNAVAILABLE";
-    case grpc::StatusCode::DATA_LOSS:
-      return "DATA_LOSS";
-    case grpc::StatusCode::UNAUTHENTICATED:
-      return "UNAUTHENTICATED";
-    default:
-      return "code " + std::to_string(static_cast<int>(code));
-  }
 }
 
 CliError rpc_error(const std::string& context, const grpc::Status& status) {

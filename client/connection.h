@@ -1,5 +1,5 @@
 // A connection to a Surfacer server: a channel to host:port, or an in-process server that lives as long as the
-// Connection (surfacer::server::SurfacerServer with no listening port).
+// Connection (server/in_process.h).
 #pragma once
 
 #include <grpcpp/channel.h>
@@ -13,9 +13,10 @@
 #include "client/exit_codes.h"
 #include "client/options.h"
 #include "surfacer/v1/surfacer.grpc.pb.h"
+#include "wire/status.h"
 
 namespace surfacer::server {
-class SurfacerServer;
+class InProcessServer;
 }
 
 namespace surfacer::client {
@@ -45,13 +46,15 @@ class Connection {
   Connection() = default;
 
   ConnectOptions options_;
-  std::unique_ptr<server::SurfacerServer> local_server_;
+  std::unique_ptr<server::InProcessServer> local_server_;
   std::shared_ptr<grpc::Channel> channel_;
   std::unique_ptr<v1::Surfacer::Stub> stub_;
 };
 
 // "INVALID_ARGUMENT", "UNAVAILABLE", ... for a grpc::StatusCode.
-std::string status_code_name(grpc::StatusCode code);
+inline std::string status_code_name(grpc::StatusCode code) {
+  return std::string(wire::status_code_name(static_cast<int>(code)));
+}
 // "<context>: CODE: message" as a CliError: UNAVAILABLE and DEADLINE_EXCEEDED -> kUnreachable, CANCELLED ->
 // kCancelled, everything else -> kJobFailed.
 CliError rpc_error(const std::string& context, const grpc::Status& status);

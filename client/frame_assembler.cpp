@@ -1,42 +1,20 @@
 #include "client/frame_assembler.h"
 
-#include <zlib.h>
-
 #include <algorithm>
 #include <cstdio>
 
 #include "client/exit_codes.h"
+#include "core/util/crc32.h"
+#include "core/util/format.h"
 
 namespace surfacer::client {
 namespace {
-
-std::string hex32(std::uint32_t v) {
-  char buf[16];
-  std::snprintf(buf, sizeof buf, "0x%08x", v);
-  return buf;
-}
 
 [[noreturn]] void integrity(int frame, const std::string& what) {
   throw CliError(ExitCode::kIntegrity, "frame " + std::to_string(frame) + ": " + what);
 }
 
 }  // namespace
-
-std::uint32_t crc32_of(std::string_view bytes) { return crc32_update(0, bytes); }
-
-std::uint32_t crc32_update(std::uint32_t previous, std::string_view bytes) {
-  uLong crc = previous;
-  // zlib takes uInt lengths: feed large buffers in pieces.
-  const auto* data = reinterpret_cast<const Bytef*>(bytes.data());
-  std::size_t left = bytes.size();
-  while (left > 0) {
-    const uInt n = static_cast<uInt>(std::min<std::size_t>(left, 1u << 30));
-    crc = crc32(crc, data, n);
-    data += n;
-    left -= n;
-  }
-  return static_cast<std::uint32_t>(crc);
-}
 
 std::optional<ReceivedFrame> FrameAssembler::on_header(const v1::FrameHeader& header) {
   const int index = header.frame_index();

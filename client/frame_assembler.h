@@ -9,15 +9,11 @@
 #include <string_view>
 
 #include "surfacer/v1/surfacer.pb.h"
+#include "wire/protocol.h"
 
 namespace surfacer::client {
 
-inline constexpr std::size_t kMaxChunkBytes = std::size_t{1} << 20;
-
-// CRC-32 with zlib's polynomial (the protocol's `crc32` fields).
-std::uint32_t crc32_of(std::string_view bytes);
-// The CRC-32 of the concatenation A + `bytes`, given `previous` = crc32_of(A) (0 for nothing).
-std::uint32_t crc32_update(std::uint32_t previous, std::string_view bytes);
+using wire::kMaxChunkBytes;
 
 struct ReceivedFrame {
   int index = 0;

@@ -104,11 +104,8 @@ void build_isosurface(const IsosurfaceOptions& iso, v1::JobSpec& spec) {
   v1::IsosurfaceJob* job = spec.mutable_isosurface();
   for (const auto& path : iso.scenes) *job->add_scenes() = read_scene_file(path);
   if (iso.bounds) set_bounds(job->mutable_bounds(), *iso.bounds);
-  if (iso.cell_size) {
-    job->set_cell_size(*iso.cell_size);
-  } else {
-    job->set_cells(iso.cells.value_or(128));
-  }
+  if (iso.cell_size) job->set_cell_size(*iso.cell_size);
+  if (iso.cells) job->set_cells(*iso.cells);
   if (iso.method) job->set_method(polygonizer(*iso.method, "--method"));
   spec.set_name(first_and_more(iso.scenes, ""));
 }

@@ -25,96 +25,56 @@
 #include "client/summary.h"
 #include "client/upload.h"
 #include "client/watch.h"
+#include "core/polygonize/polygonize.h"
 #include "core/util/errors.h"
-#include "core/particles/particle_surfacer.h"
-#include "server/scene_translate.h"
-#include "server/uploads.h"
+#include "wire/job_options.h"
+#include "wire/particle_frames.h"
+#include "wire/scene.h"
+#include "wire/uploads.h"
 
 namespace surfacer::client {
 namespace {
 
-// The server's defaults for a job without bounds (server/isosurface_job.cpp, server/polygonize.cpp and
-// surfacer.proto): 128 cells along the longest axis, bounds padded by two cells.
-constexpr int kDefaultCells = 128;
-constexpr double kPadCells = 2.0;
-
-void set_bounds(v1::Bounds* out, const Aabb& box) {
-  out->mutable_min()->set_x(box.min.x());
-  out->mutable_min()->set_y(box.min.y());
-  out->mutable_min()->set_z(box.min.z());
-  out->mutable_max()->set_x(box.max.x());
-  out->mutable_max()->set_y(box.max.y());
-  out->mutable_max()->set_z(box.max.z());
+// A job the client refuses before splitting it: the server's own validation (wire/, core/), run here.
+CliError invalid_job(const Error& e) {
+  return CliError(ExitCode::kJobFailed,
+                  std::string("the job is invalid (checked before splitting it across the servers): INVALID_ARGUMENT: ") +
+                      e.what());
 }
 
-void pin_isosurface(v1::IsosurfaceJob& job) {
+// The grid the server would derive for the whole sequence (wire/job_options.h, core/polygonize/polygonize.h), fixed
+// in the spec as bounds and cell size, so that every sub-job polygonizes on it.
+void pin_isosurface(v1::JobSpec& spec) {
+  v1::IsosurfaceJob& job = *spec.mutable_isosurface();
   if (job.has_bounds()) return;  // the server derives the cell size from the given bounds, alike in every sub-job
-  std::optional<double> cell_size;
-  int cells = kDefaultCells;
-  if (job.resolution_case() == v1::IsosurfaceJob::kCellSize) {
-    if (!(job.cell_size() > 0.0) || !std::isfinite(job.cell_size())) return;  // the server says what is wrong
-    cell_size = job.cell_size();
-  } else if (job.resolution_case() == v1::IsosurfaceJob::kCells) {
-    if (job.cells() < 1) return;
-    cells = job.cells();
+  const wire::MemoryUploads no_uploads;  // scale-out refuses jobs that refer to uploads (find_upload_reference)
+  try {
+    std::vector<FieldPtr> fields;
+    for (int i = 0; i < job.scenes_size(); ++i) {
+      fields.push_back(
+          wire::field_from_scene(job.scenes(i), "spec.isosurface.scenes[" + std::to_string(i) + "]", no_uploads));
+    }
+    const PolygonizeOptions options = wire::isosurface_options(job, spec.output().normals(), "spec.isosurface");
+    const PolygonizeGrid grid = with_path("spec.isosurface", [&] { return resolve_grid(fields, options); });
+    wire::set_bounds(*job.mutable_bounds(), grid.bounds);
+    job.set_cell_size(grid.h);
+  } catch (const Error& e) {
+    if (e.kind() != ErrorKind::kInvalidInput) throw;
+    throw invalid_job(e);
   }
-  const server::UploadStore no_uploads;  // scale-out refuses jobs that refer to uploads (find_upload_reference)
-  Aabb box;
-  for (int i = 0; i < job.scenes_size(); ++i) {
-    const std::string path = "spec.isosurface.scenes[" + std::to_string(i) + "]";
-    std::optional<Aabb> b;
-    try {
-      b = server::field_from_scene(job.scenes(i), path, no_uploads)->bounds();
-    } catch (const Error& e) {
-      throw CliError(ExitCode::kJobFailed,
-                     std::string("the job is invalid (checked before splitting it across the servers): "
-                                 "INVALID_ARGUMENT: ") +
-                         e.what());
-    }
-    if (!b) {
-      throw CliError(ExitCode::kJobFailed,
-                     "the job is invalid: INVALID_ARGUMENT: spec.isosurface: scene " + std::to_string(i) +
-                         " is unbounded (a plane or gyroid not intersected with a bounded solid); give --bounds");
-    }
-    if (i == 0) {
-      box = *b;
-    } else {
-      box.min = box.min.cwiseMin(b->min);
-      box.max = box.max.cwiseMax(b->max);
-    }
-  }
-  if (!box.min.allFinite() || !box.max.allFinite() || !box.valid()) return;  // the server explains
-  const double h = cell_size ? *cell_size : box.size().maxCoeff() / cells;
-  box.min.array() -= kPadCells * h;
-  box.max.array() += kPadCells * h;
-  set_bounds(job.mutable_bounds(), box);
-  job.set_cell_size(h);
 }
 
-void pin_particles(v1::JobSpec& spec, const std::vector<ParticleFrameBox>& frames, const std::vector<Vec3>& first) {
-  const v1::ParticlesJob& job = spec.particles();
+// The quantization box the server would derive for the whole sequence (wire/particle_frames.h).
+void pin_particles(v1::JobSpec& spec, const std::vector<wire::ParticleSummary>& frames,
+                   const std::vector<Vec3>& first) {
   if (spec.output().has_quantization_bounds() || frames.empty()) return;
-  Aabb box = frames[0].bounds;
-  double max_radius = 0.0;
-  for (std::size_t i = 0; i < frames.size(); ++i) {
-    if (i > 0) box = Aabb{box.min.cwiseMin(frames[i].bounds.min), box.max.cwiseMax(frames[i].bounds.max)};
-    max_radius = std::max(max_radius, frames[i].max_radius);
+  try {
+    const Aabb box = wire::particles_job_box(spec.particles(), frames, [&] { return first; });
+    wire::set_bounds(*spec.mutable_output()->mutable_quantization_bounds(), box);
+  } catch (const Error& e) {
+    if (e.kind() != ErrorKind::kInvalidInput) throw;
+    throw invalid_job(e);
   }
-  const std::optional<double> r_inner = job.has_r_inner() ? std::optional<double>(job.r_inner()) : std::nullopt;
-  const std::optional<double> r_outer = job.has_r_outer() ? std::optional<double>(job.r_outer()) : std::nullopt;
-  if (max_radius == 0.0 && !r_inner && !job.derive_r_inner()) return;  // no radius at all: the server rejects the job
-  std::optional<Aabb> container;
-  if (job.container().has_box()) {
-    try {
-      container = server::to_aabb(job.container().box(), "spec.particles.container.box");
-    } catch (const Error&) {
-      return;  // the server explains
-    }
-  }
-  // The server's own formula (core/particles/particle_surfacer.h), so that every sub-job is quantized alike.
-  box = particle_sequence_box(box, max_radius, r_inner, r_outer, [&] { return first; }, container);
-  if (!box.min.allFinite() || !box.max.allFinite()) return;
-  set_bounds(spec.mutable_output()->mutable_quantization_bounds(), box);
 }
 
 std::optional<std::string> find_upload_in(const google::protobuf::Message& message, const std::string& path) {
@@ -562,9 +522,9 @@ std::string globalize_indices(const std::string& message, const std::vector<int>
 
 std::optional<std::string> find_upload_reference(const v1::JobSpec& spec) { return find_upload_in(spec, "spec"); }
 
-void pin_whole_job_geometry(v1::JobSpec& spec, const std::vector<ParticleFrameBox>& particle_frames,
+void pin_whole_job_geometry(v1::JobSpec& spec, const std::vector<wire::ParticleSummary>& particle_frames,
                             const std::vector<Vec3>& first_frame) {
-  if (spec.has_isosurface()) pin_isosurface(*spec.mutable_isosurface());
+  if (spec.has_isosurface()) pin_isosurface(spec);
   if (spec.has_particles()) pin_particles(spec, particle_frames, first_frame);
 }
 
@@ -575,17 +535,17 @@ namespace {
 void pin_particles_from_inputs(PreparedJob& prepared) {
   v1::JobSpec scratch = prepared.spec;
   const int frames = scratch.particles().frames_size();
-  std::vector<ParticleFrameBox> boxes(static_cast<std::size_t>(frames));
+  std::vector<wire::ParticleSummary> boxes(static_cast<std::size_t>(frames));
   std::vector<Vec3> first;
   for (int g = 0; g < frames; ++g) {
-    ParticleFrameBox& box = boxes[static_cast<std::size_t>(g)];
+    wire::ParticleSummary& box = boxes[static_cast<std::size_t>(g)];
     box.bounds.min = Vec3::Constant(std::numeric_limits<double>::infinity());
     box.bounds.max = -box.bounds.min;
     auto visit = [&](double x, double y, double z, double r) {
       const Vec3 p(x, y, z);
-      box.bounds.min = box.bounds.min.cwiseMin(p);
-      box.bounds.max = box.bounds.max.cwiseMax(p);
+      box.bounds.merge(p);
       box.max_radius = std::max(box.max_radius, r);
+      ++box.count;
       if (g == 0) first.push_back(p);
     };
     const PendingUpload* pending = nullptr;

@@ -25,6 +25,7 @@
 #include "client/options.h"
 #include "core/mesh/mesh.h"
 #include "surfacer/v1/surfacer.pb.h"
+#include "wire/particle_frames.h"
 
 namespace surfacer::client {
 
@@ -50,21 +51,14 @@ std::string globalize_indices(const std::string& message, const std::vector<int>
 // on one server, so such a job cannot be split. nullopt when there is none.
 std::optional<std::string> find_upload_reference(const v1::JobSpec& spec);
 
-// Particle frame summaries for pin_whole_job_geometry (what the server computes at submit time).
-struct ParticleFrameBox {
-  Aabb bounds;            // of the positions (as float32, widened to double)
-  double max_radius = 0;  // 0 without radii
-};
-
 // Fixes in `spec` what the server would otherwise derive from the whole sequence, so each sub-job polygonizes on
 // the same grid and quantizes on the same box:
-// - isosurface without bounds: bounds = the union of the scenes' bounds padded by two cells, and the cell size
-//   that the cell count implies for that union (exactly the server's defaults, surfacer.proto IsosurfaceJob);
-//   throws CliError(kJobFailed) with the server's INVALID_ARGUMENT message when a scene is invalid or unbounded;
-// - particles without output.quantization_bounds: the union of `particle_frames` padded as the server pads it
-//   (server/particles_job.cpp), with frame 0's positions (`first_frame`) for a derived r_inner.
-// Values the server would reject are left for the server to report.
-void pin_whole_job_geometry(v1::JobSpec& spec, const std::vector<ParticleFrameBox>& particle_frames,
+// - isosurface without bounds: the grid the server would resolve for the whole sequence (bounds and cell size);
+// - particles without output.quantization_bounds: the box the server would derive from `particle_frames`, with
+//   frame 0's positions (`first_frame`) for a derived r_inner.
+// Both use the server's own translation (wire/), so a job the server would refuse throws CliError(kJobFailed) with
+// the server's INVALID_ARGUMENT message.
+void pin_whole_job_geometry(v1::JobSpec& spec, const std::vector<wire::ParticleSummary>& particle_frames,
                             const std::vector<Vec3>& first_frame);
 
 // The whole `run` of a sequence job across `servers` (already resolved "HOST:PORT" targets, at least two).

@@ -10,6 +10,7 @@
 #include <sstream>
 
 #include "client/exit_codes.h"
+#include "core/util/format.h"
 
 namespace surfacer::client {
 namespace {
@@ -49,14 +50,6 @@ void check_token(const std::string& token, const std::string& source) {
                   "listed in the server's --tokens-file)");
     }
   }
-}
-
-std::string trim(const std::string& text) {
-  std::size_t b = 0;
-  std::size_t e = text.size();
-  while (b < e && std::isspace(static_cast<unsigned char>(text[b]))) ++b;
-  while (e > b && std::isspace(static_cast<unsigned char>(text[e - 1]))) --e;
-  return text.substr(b, e - b);
 }
 
 class AuthInterceptor final : public grpc::experimental::Interceptor {
@@ -132,11 +125,11 @@ SecurityOptions load_security(const SecurityFlags& flags, const char* env_token,
     s.token_source = "--token";
   } else if (flags.token_file) {
     s.token_source = "--token-file " + flags.token_file->string();
-    const std::string text = trim(read_flag_file("--token-file", *flags.token_file));
+    const std::string text(trim(read_flag_file("--token-file", *flags.token_file)));
     if (text.empty()) throw usage(s.token_source + ": the file is empty; it should hold the token on one line");
     s.token = text;
   } else if (env_token != nullptr && *env_token != '\0') {
-    s.token = trim(env_token);
+    s.token = std::string(trim(env_token));
     s.token_source = "$SURFACER_TOKEN";
   }
   if (s.token) check_token(*s.token, s.token_source);

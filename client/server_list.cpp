@@ -8,19 +8,12 @@
 #include <cctype>
 
 #include "client/exit_codes.h"
+#include "core/util/format.h"
 
 namespace surfacer::client {
 namespace {
 
 constexpr const char* kDnsPrefix = "dns:///";
-
-std::string trim(const std::string& text) {
-  std::size_t b = 0;
-  std::size_t e = text.size();
-  while (b < e && std::isspace(static_cast<unsigned char>(text[b]))) ++b;
-  while (e > b && std::isspace(static_cast<unsigned char>(text[e - 1]))) --e;
-  return text.substr(b, e - b);
-}
 
 // Splits "host:port" / "[v6]:port"; false without a port.
 bool split_host_port(const std::string& text, std::string* host, std::string* port) {
@@ -51,7 +44,7 @@ std::vector<std::string> parse_server_list(const std::string& server) {
   std::size_t pos = 0;
   while (true) {
     const std::size_t comma = server.find(',', pos);
-    const std::string entry = trim(server.substr(pos, comma == std::string::npos ? std::string::npos : comma - pos));
+    const std::string entry(trim(server.substr(pos, comma == std::string::npos ? std::string::npos : comma - pos)));
     std::string host;
     std::string port;
     if (entry.empty()) {

@@ -12,15 +12,11 @@
 #include "client/connection.h"
 #include "client/exit_codes.h"
 #include "client/progress.h"
+#include "core/util/crc32.h"
+#include "core/util/format.h"
 
 namespace surfacer::client {
 namespace {
-
-std::string hex32(std::uint32_t v) {
-  char buf[16];
-  std::snprintf(buf, sizeof buf, "0x%08x", v);
-  return buf;
-}
 
 std::string size_text(std::uint64_t bytes) {
   char buf[32];
@@ -76,7 +72,7 @@ UploadResult send_upload(v1::Surfacer::Stub& stub, const std::string& name, std:
       broken = true;  // the server ended the call; Finish() says why
       break;
     }
-    crc = crc32_update(crc, piece);
+    crc = crc32_of(piece, crc);
     sent += piece.size();
     first = false;
   }

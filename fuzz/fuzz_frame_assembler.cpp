@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "core/util/crc32.h"
 #include "client/exit_codes.h"
 #include "client/frame_assembler.h"
 #include "fuzz/fuzz_input.h"
@@ -43,7 +44,7 @@ class Harness {
     require(it != announced_.end(), "a frame came out that no accepted header announced");
     const v1::FrameHeader& h = it->second;
     require(frame->bytes.size() == h.total_bytes(), "frame size differs from FrameHeader.total_bytes");
-    require(client::crc32_of(frame->bytes) == h.crc32(), "frame CRC-32 differs from FrameHeader.crc32");
+    require(crc32_of(frame->bytes) == h.crc32(), "frame CRC-32 differs from FrameHeader.crc32");
     require(frame->encoding == v1::MESH_ENCODING_DRACO || frame->encoding == v1::MESH_ENCODING_PLY,
             "frame with an unknown encoding");
     last_ = frame;
@@ -81,7 +82,7 @@ void well_formed_frame(FuzzInput& in, Harness& h) {
     chunk.set_last(c + 1 == chunks);
     const std::size_t begin = std::min(payload.size(), step * c);
     chunk.set_data(payload.substr(begin, std::min(step, payload.size() - begin)));
-    chunk.set_crc32(client::crc32_of(chunk.data()));
+    chunk.set_crc32(crc32_of(chunk.data()));
     parts.push_back(chunk);
   }
   v1::FrameHeader header;
@@ -89,7 +90,7 @@ void well_formed_frame(FuzzInput& in, Harness& h) {
   header.set_encoding(encoding);
   header.set_total_bytes(payload.size());
   header.set_num_chunks(chunks);
-  header.set_crc32(client::crc32_of(payload));
+  header.set_crc32(crc32_of(payload));
   header.mutable_stats()->set_vertices(static_cast<std::int64_t>(payload.size()));
 
   bool corrupted = encoding == 3 || index < 0;
@@ -149,7 +150,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
           chunk.set_chunk_index(in.flag() ? static_cast<int>(in.u32()) : in.u8() % 4);
           chunk.set_last(in.flag());
           chunk.set_data(in.bytes(in.u8()));
-          chunk.set_crc32(in.flag() ? client::crc32_of(chunk.data()) : in.u32());
+          chunk.set_crc32(in.flag() ? crc32_of(chunk.data()) : in.u32());
           h.chunk(chunk);
           break;
         }
@@ -163,7 +164,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
           static v1::FrameChunk oversized = [] {
             v1::FrameChunk c;
             c.set_data(std::string(client::kMaxChunkBytes + 1, 'x'));
-            c.set_crc32(client::crc32_of(c.data()));
+            c.set_crc32(crc32_of(c.data()));
             return c;
           }();  // built once: copying 1 MiB per operation would dominate the run time
           oversized.set_frame_index(fuzz::index_from(in));

@@ -1,9 +1,9 @@
 // Fuzz target: particle frames, every reader in core/particle_io (from memory; gzip is detected by its magic bytes
-// in every format) and the server's decoding of uploaded and inline frames (server/particle_input).
+// in every format) and the server's decoding of uploaded and inline frames (wire/particle_frames).
 // Input: one selector byte, then the file or upload bytes:
 //   0 xyz/csv text, 1 PLY, 2 VTK legacy, 3 VTU, 4 raw float32, 5 BGEO (core::parse_particles)
 //   6 upload of float32 x y z records, 7 of x y z r records (with_radius), 8 a serialized v1::ParticleFrame with
-//   inline positions/radii (server::summarize_particle_frame + load_particle_frame)
+//   inline positions/radii (wire::summarize_particle_frame + load_particle_frame)
 // Expected failures are surfacer::Error; anything else escaping, a crash, UB or a violated property is a bug.
 #include <google/protobuf/stubs/logging.h>
 
@@ -15,8 +15,8 @@
 #include "core/util/errors.h"
 #include "core/particles/particle_io.h"
 #include "fuzz/fuzz_input.h"
-#include "server/particle_input.h"
-#include "server/uploads.h"
+#include "wire/particle_frames.h"
+#include "wire/uploads.h"
 #include "surfacer/v1/surfacer.pb.h"
 
 namespace surfacer::fuzz {
@@ -29,9 +29,9 @@ void check_frame(const ParticleFrame& frame) {
   for (const Vec3& p : frame.positions) require(p.allFinite(), "reader returned a non-finite position");
 }
 
-void decode_server_frame(const v1::ParticleFrame& frame, const server::UploadStore& uploads) {
-  const server::ParticleSummary summary = server::summarize_particle_frame(frame, "frame", uploads, kMaxParticles);
-  const server::ParticleData data = server::load_particle_frame(frame, "frame", uploads, kMaxParticles);
+void decode_server_frame(const v1::ParticleFrame& frame, const wire::UploadLookup& uploads) {
+  const wire::ParticleSummary summary = wire::summarize_particle_frame(frame, "frame", uploads, kMaxParticles);
+  const wire::ParticleData data = wire::load_particle_frame(frame, "frame", uploads, kMaxParticles);
   require(summary.count > 0 && summary.count <= kMaxParticles, "particle count out of range");
   require(static_cast<std::int64_t>(data.positions.size()) == summary.count, "load and summarize disagree on count");
   require(data.radii.empty() || data.radii.size() == data.positions.size(), "radii count != particle count");
@@ -59,12 +59,13 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
                                                     ParticleFormat::kVtu, ParticleFormat::kBin, ParticleFormat::kBgeo};
       fuzz::check_frame(parse_particles(bytes, kFormats[selector], "fuzz"));
     } else if (selector <= 7) {
-      server::UploadStore uploads;
-      auto blob = std::make_shared<server::UploadBlob>();
+      wire::MemoryUploads uploads;
+      auto blob = std::make_shared<wire::UploadBlob>();
       blob->name = "fuzz.bin";
       blob->bytes = std::string(bytes);
       v1::ParticleFrame frame;
-      frame.set_upload_id(uploads.add(blob));
+      uploads.put("u-0000000000000001", blob);
+      frame.set_upload_id("u-0000000000000001");
       frame.set_with_radius(selector == 7);
       fuzz::decode_server_frame(frame, uploads);
     } else {
@@ -72,7 +73,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
       [[maybe_unused]] static auto* const previous_handler = google::protobuf::SetLogHandler(nullptr);
       v1::ParticleFrame frame;
       if (!frame.ParseFromArray(bytes.data(), static_cast<int>(bytes.size()))) return 0;
-      const server::UploadStore uploads;  // empty: an upload_id must be rejected as unknown
+      const wire::MemoryUploads uploads;  // empty: an upload_id must be rejected as unknown
       fuzz::decode_server_frame(frame, uploads);
     }
   } catch (const Error& e) {

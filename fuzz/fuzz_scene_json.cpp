@@ -1,5 +1,5 @@
 // Fuzz target: scene JSON, the way `surfacer run --scene FILE` reads it (client/job_spec.cpp: protobuf JSON with
-// unknown fields rejected) -> server/scene_translate (validation, the one proto -> core translation) -> core Field ->
+// unknown fields rejected) -> wire/scene (validation, the one proto -> core translation) -> core Field ->
 // value, gradient, bounds and Lipschitz bound at a few points.
 // An input starting with a 0 byte is instead a binary v1.Scene, as a SubmitJob request carries it: mutations then
 // reach every double bit pattern (denormals, 1e308) that JSON digits rarely hit.
@@ -18,8 +18,8 @@
 #include "core/util/errors.h"
 #include "core/scene/scene.h"
 #include "fuzz/fuzz_input.h"
-#include "server/scene_translate.h"
-#include "server/uploads.h"
+#include "wire/scene.h"
+#include "wire/uploads.h"
 #include "surfacer/v1/scene.pb.h"
 
 namespace surfacer::fuzz {
@@ -89,11 +89,11 @@ void probe(const Field& field) {
 // Uploaded grids: scenes name them "u-grid" (3x3x3 float32 samples of a sphere's distance) or "u-odd" (7 bytes,
 // not whole floats); the real store ids are random, so the names are swapped for them before translation.
 struct Uploads {
-  server::UploadStore store;
+  wire::MemoryUploads store;
   std::string grid_id, odd_id;
 
   Uploads() {
-    auto grid = std::make_shared<server::UploadBlob>();
+    auto grid = std::make_shared<wire::UploadBlob>();
     for (int k = 0; k < 3; ++k) {
       for (int j = 0; j < 3; ++j) {
         for (int i = 0; i < 3; ++i) {
@@ -102,10 +102,12 @@ struct Uploads {
         }
       }
     }
-    grid_id = store.add(grid);
-    auto odd = std::make_shared<server::UploadBlob>();
+    grid_id = "u-00000000000000a1";
+    store.put(grid_id, grid);
+    auto odd = std::make_shared<wire::UploadBlob>();
     odd->bytes = "1234567";
-    odd_id = store.add(odd);
+    odd_id = "u-00000000000000a2";
+    store.put(odd_id, odd);
   }
 
   void rename(v1::Node& node) const {
@@ -151,7 +153,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   if (scene.has_root()) uploads.rename(*scene.mutable_root());
   FieldPtr field;
   try {
-    field = server::field_from_scene(scene, "scene", uploads.store);
+    field = wire::field_from_scene(scene, "scene", uploads.store);
   } catch (const Error& e) {
     fuzz::require(e.what()[0] != '\0', "an Error without a message");
     return 0;

@@ -11,6 +11,7 @@
 #include "fuzz/fuzz_input.h"
 #include "server/upload_assembler.h"
 #include "server/uploads.h"
+#include "core/util/crc32.h"
 
 namespace surfacer::fuzz {
 namespace {
@@ -48,7 +49,7 @@ class Harness {
       ++model_.chunks;
       require(model_.bytes.size() <= static_cast<std::uint64_t>(max_bytes_), "accepted more than max_bytes");
       require(model_.expected == 0 || model_.bytes.size() <= model_.expected, "accepted more than total_bytes");
-      require(!chunk.has_crc32() || chunk.crc32() == server::crc32_of(chunk.data().data(), chunk.data().size()),
+      require(!chunk.has_crc32() || chunk.crc32() == crc32_of(chunk.data().data(), chunk.data().size()),
               "a chunk with a wrong crc32 was accepted");
       require(assembler_.bytes() == model_.bytes.size(), "bytes() differs from the accepted data");
       require(assembler_.chunks() == model_.chunks, "chunks() differs from the accepted chunks");
@@ -72,7 +73,7 @@ class Harness {
     if (!blob) return;
     require(model_.finished && !model_.failed, "take() returned a blob of an unfinished or failed upload");
     require(blob->bytes == model_.bytes, "the blob differs from the accepted chunks");
-    require(blob->crc32 == server::crc32_of(model_.bytes.data(), model_.bytes.size()), "the blob's crc32 is wrong");
+    require(blob->crc32 == crc32_of(model_.bytes.data(), model_.bytes.size()), "the blob's crc32 is wrong");
     taken_ = true;
   }
 
@@ -116,7 +117,7 @@ void well_formed_upload(FuzzInput& in, Harness& h) {
     }
     const std::size_t begin = std::min(payload.size(), step * c);
     chunk.set_data(payload.substr(begin, std::min(step, payload.size() - begin)));
-    if (with_crc) chunk.set_crc32(server::crc32_of(chunk.data().data(), chunk.data().size()));
+    if (with_crc) chunk.set_crc32(crc32_of(chunk.data().data(), chunk.data().size()));
     if (c == victim && corruption == 4) {
       chunk.set_crc32(chunk.crc32() ^ 4u);
       corrupted = true;
@@ -149,7 +150,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
         chunk.set_data(in.bytes(in.u8()));
         switch (in.u8() % 3) {
           case 0: break;
-          case 1: chunk.set_crc32(server::crc32_of(chunk.data().data(), chunk.data().size())); break;
+          case 1: chunk.set_crc32(crc32_of(chunk.data().data(), chunk.data().size())); break;
           default: chunk.set_crc32(in.u32()); break;
         }
         h.add(chunk);

@@ -16,8 +16,9 @@
 #include <thread>
 
 #include "server/auth.h"
-#include "server/job_types.h"
-#include "server/jobs.h"
+#include "server/runners/runner.h"
+#include "server/job.h"
+#include "server/scheduler.h"
 #include "server/log.h"
 #include "server/metrics_http.h"
 #include "server/server_metrics.h"

@@ -3,12 +3,13 @@
 #include <mutex>
 
 #include "core/util/errors.h"
-#include "server/job_types.h"
+#include "server/runners/runner.h"
 #include "server/log.h"
 #include "server/status_map.h"
 #include "server/server_metrics.h"
 #include "server/store.h"
 #include "server/upload_assembler.h"
+#include "wire/status.h"
 
 namespace surfacer::server {
 namespace {
@@ -199,18 +200,6 @@ class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
   v1::UploadChunk chunk_;
 };
 
-std::string status_code_label(grpc::StatusCode code) {
-  switch (code) {
-    case grpc::StatusCode::INVALID_ARGUMENT: return "INVALID_ARGUMENT";
-    case grpc::StatusCode::RESOURCE_EXHAUSTED: return "RESOURCE_EXHAUSTED";
-    case grpc::StatusCode::UNAUTHENTICATED: return "UNAUTHENTICATED";
-    case grpc::StatusCode::UNAVAILABLE: return "UNAVAILABLE";
-    case grpc::StatusCode::NOT_FOUND: return "NOT_FOUND";
-    case grpc::StatusCode::INTERNAL: return "INTERNAL";
-    default: return std::to_string(static_cast<int>(code));
-  }
-}
-
 // The job `id` if it exists and belongs to `tenant` (another tenant's job is reported as missing).
 std::shared_ptr<Job> find_owned(const ServiceState& state, const std::string& id, const Tenant& tenant) {
   auto job = state.scheduler->find(id);
@@ -299,7 +288,7 @@ grpc::ServerUnaryReactor* SurfacerService::SubmitJob(grpc::CallbackServerContext
     reactor->Finish(grpc::Status::OK);
   } catch (...) {
     const grpc::Status status = status_from_exception(std::current_exception());
-    if (state_.metrics) state_.metrics->jobs_rejected.with({status_code_label(status.error_code())}).inc();
+    if (state_.metrics) state_.metrics->jobs_rejected.with({std::string(wire::status_code_name(status.error_code()))}).inc();
     log_event(LogLevel::kInfo, "job_rejected",
               {{"code", std::to_string(status.error_code())}, {"error", status.error_message()}});
     reactor->Finish(status);

@@ -5,8 +5,9 @@
 #include <atomic>
 
 #include "server/auth.h"
-#include "server/jobs.h"
-#include "server/server.h"
+#include "server/job.h"
+#include "server/scheduler.h"
+#include "server/options.h"
 #include "server/uploads.h"
 #include "surfacer/v1/surfacer.grpc.pb.h"
 

@@ -15,6 +15,7 @@
 #include <set>
 #include <stdexcept>
 
+#include "core/util/crc32.h"
 #include "core/util/errors.h"
 #include "server/uploads.h"
 

@@ -21,9 +21,13 @@
 
 struct sqlite3;
 
+namespace surfacer::wire {
+struct UploadBlob;
+}
+
 namespace surfacer::server {
 
-struct UploadBlob;
+using wire::UploadBlob;
 
 // A job as found in the store when the server starts.
 struct StoredJob {

@@ -1,5 +1,7 @@
 #include "server/upload_assembler.h"
 
+#include "core/util/crc32.h"
+
 #include <algorithm>
 #include <string>
 

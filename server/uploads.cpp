@@ -1,7 +1,5 @@
 #include "server/uploads.h"
 
-#include <zlib.h>
-
 #include <random>
 
 #include "core/util/errors.h"
@@ -21,18 +19,6 @@ std::string random_id(const char* prefix) {
   std::string id = prefix;
   for (int i = 15; i >= 0; --i) id += kHex[(value >> (4 * i)) & 0xF];
   return id;
-}
-
-std::uint32_t crc32_of(const void* data, std::size_t size, std::uint32_t seed) {
-  uLong crc = seed;
-  const auto* p = static_cast<const Bytef*>(data);
-  while (size > 0) {
-    const uInt n = size > (1u << 30) ? (1u << 30) : static_cast<uInt>(size);
-    crc = ::crc32(crc, p, n);
-    p += n;
-    size -= n;
-  }
-  return static_cast<std::uint32_t>(crc);
 }
 
 UploadStore::UploadStore(Store* store) : store_(store) {}
@@ -70,10 +56,7 @@ std::shared_ptr<const UploadBlob> UploadStore::get(const std::string& id, const 
       blob = it->second.blob;
     }
   }
-  if (!blob) {
-    throw InvalidInput(field, field + ": no upload with id '" + id +
-                                  "'; upload the data first with Surfacer.Upload and use the id it returns");
-  }
+  if (!blob) throw wire::unknown_upload(id, field);
   return blob;
 }
 

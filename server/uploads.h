@@ -10,15 +10,13 @@
 #include <unordered_map>
 #include <vector>
 
+#include "wire/uploads.h"
+
 namespace surfacer::server {
 
 class Store;
 
-struct UploadBlob {
-  std::string name;
-  std::string bytes;
-  std::uint32_t crc32 = 0;
-};
+using wire::UploadBlob;
 
 struct UploadInfo {
   std::string id;
@@ -27,7 +25,7 @@ struct UploadInfo {
   std::chrono::system_clock::time_point created;
 };
 
-class UploadStore {
+class UploadStore final : public wire::UploadLookup {
  public:
   explicit UploadStore(Store* store = nullptr);
   // Registers what the durable store holds (at start-up; the bytes are read when first used).
@@ -35,7 +33,7 @@ class UploadStore {
   // Returns the new id. Throws surfacer::ResourceLimit("data_dir") when the store cannot write it.
   std::string add(std::shared_ptr<const UploadBlob> blob, const std::string& owner = "");
   // Throws surfacer::Error(kInvalidInput) naming `field` when the id is unknown.
-  std::shared_ptr<const UploadBlob> get(const std::string& id, const std::string& field) const;
+  std::shared_ptr<const UploadBlob> get(const std::string& id, const std::string& field) const override;
   // Whether `id` exists and belongs to `owner`.
   bool owned_by(const std::string& id, const std::string& owner) const;
   std::vector<UploadInfo> list() const;
@@ -56,7 +54,5 @@ class UploadStore {
 
 // "u-" / "j-" + 16 random hex digits.
 std::string random_id(const char* prefix);
-// zlib CRC-32 of bytes.
-std::uint32_t crc32_of(const void* data, std::size_t size, std::uint32_t seed = 0);
 
 }  // namespace surfacer::server

@@ -42,6 +42,7 @@
 #include "core/active/engine.h"
 #include "core/active/schemes.h"
 #include "core/util/errors.h"
+#include "core/util/format.h"
 #include "core/util/parallel.h"
 
 namespace surfacer {
@@ -71,14 +72,12 @@ float* scratch(int slot, std::size_t size) {
   return buffers[slot].data();
 }
 
-std::string num(double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, "%g", v);
-  return buf;
-}
+
+}  // namespace
 
 void validate(const ActiveSurfaceOptions& o) {
-  if (!(o.h > 0.0) || !std::isfinite(o.h)) throw InvalidInput("h", "h (" + num(o.h) + ") must be a finite spacing > 0");
+  const ActiveSurfaceOptions defaults;
+  if (!(o.h > 0.0) || !std::isfinite(o.h)) throw InvalidInput("h", "h (" + format_number(o.h) + ") must be a finite spacing > 0");
   if (o.domain) {
     const Aabb& d = *o.domain;
     if (!d.min.allFinite() || !d.max.allFinite() || !d.valid()) {
@@ -92,32 +91,32 @@ void validate(const ActiveSurfaceOptions& o) {
   }
   if (!(o.band_width >= 2.0) || !(o.band_width <= 8.0)) {
     throw InvalidInput("band_width",
-                       "band_width (" + num(o.band_width) + ") must be in [2, 8] grid spacings; the default is 3");
+                       "band_width (" + format_number(o.band_width) + ") must be in [2, 8] grid spacings; the default is " +
+                                                  format_number(defaults.band_width));
   }
   const std::pair<const char*, double> coeffs[] = {
       {"alpha", o.alpha}, {"beta", o.beta}, {"gamma", o.gamma}, {"delta", o.delta}};
   for (const auto& [name, v] : coeffs) {
     if (!(v >= 0.0) || !std::isfinite(v)) {
-      throw InvalidInput(name, std::string(name) + " (" + num(v) + ") must be finite and >= 0");
+      throw InvalidInput(name, std::string(name) + " (" + format_number(v) + ") must be finite and >= 0");
     }
   }
   if (o.cfl && !(*o.cfl > 0.0 && *o.cfl <= 1.0)) {
-    throw InvalidInput("cfl", "cfl (" + num(*o.cfl) + ") must be in (0, 1]; the default is 0.5");
+    throw InvalidInput("cfl", "cfl (" + format_number(*o.cfl) + ") must be in (0, 1]; the default is " +
+                                  format_number(*defaults.cfl));
   }
   if (o.substeps_per_frame < 1) throw InvalidInput("substeps_per_frame", "substeps_per_frame must be >= 1");
   if (o.max_substeps_per_frame < 1) throw InvalidInput("max_substeps_per_frame", "max_substeps_per_frame must be >= 1");
-  if (o.reinit_interval < 1) throw InvalidInput("reinit_interval", "reinit_interval must be >= 1; the default is 16");
+  if (o.reinit_interval < 1) throw InvalidInput("reinit_interval", "reinit_interval must be >= 1; the default is " + std::to_string(defaults.reinit_interval));
   if (!(o.max_curvature > 0.0) || !std::isfinite(o.max_curvature)) {
-    throw InvalidInput("max_curvature", "max_curvature must be > 0 (in units of 1/h); the default is 1");
+    throw InvalidInput("max_curvature", "max_curvature must be > 0 (in units of 1/h); the default is " + format_number(defaults.max_curvature));
   }
   if (o.threads < 0) throw InvalidInput("threads", "threads must be >= 0 (0: all hardware threads)");
   if (o.max_blocks < 1) throw InvalidInput("max_blocks", "max_blocks must be >= 1");
-  if (o.polygonizer != ActivePolygonizer::kCubes && o.polygonizer != ActivePolygonizer::kTiles) {
-    throw InvalidInput("polygonizer", "polygonizer must be kTiles or kCubes");
+  if (o.polygonizer != Polygonizer::kCubes && o.polygonizer != Polygonizer::kTiles) {
+    throw InvalidInput("polygonizer", "polygonizer must be tiles or cubes");
   }
 }
-
-}  // namespace
 
 // ------------------------------------------------------------------------------------------------------------------
 // Topology: band flags, block allocation and release, active lists.
@@ -903,7 +902,7 @@ const ActiveSurfaceOptions& ActiveSurface::options() const { return impl_->opt; 
 ActiveFrameStats ActiveSurface::advance(double duration, const RunControl& control) {
   Impl& m = *impl_;
   if (!(duration > 0.0) || !std::isfinite(duration)) {
-    throw InvalidInput("duration", "duration (" + num(duration) + ") must be finite and > 0");
+    throw InvalidInput("duration", "duration (" + format_number(duration) + ") must be finite and > 0");
   }
   const double t_end = m.time + duration;
   const double eps = 1e-12 * std::max(1.0, std::abs(t_end));
@@ -969,8 +968,8 @@ ActiveFrameStats ActiveSurface::stats() const {
 
 Mesh ActiveSurface::polygonize(const RunControl& control) const { return polygonize(impl_->opt.polygonizer, control); }
 
-Mesh ActiveSurface::polygonize(ActivePolygonizer polygonizer, const RunControl& control) const {
-  if (polygonizer == ActivePolygonizer::kTiles) return impl_->tiles_mesh(impl_->opt.normals, control);
+Mesh ActiveSurface::polygonize(Polygonizer polygonizer, const RunControl& control) const {
+  if (polygonizer == Polygonizer::kTiles) return impl_->tiles_mesh(impl_->opt.normals, control);
   return impl_->cubes_mesh(impl_->opt.normals, control);
 }
 

@@ -60,15 +60,11 @@
 #include <vector>
 
 #include "core/mesh/mesh.h"
+#include "core/polygonize/polygonize.h"
 #include "core/util/run_control.h"
 #include "core/scene/scene.h"
 
 namespace surfacer {
-
-enum class ActivePolygonizer {
-  kTiles,  // Marching Tiles (core/polygonize/marching_tiles.h) of the trilinear potential: valence >= 5
-  kCubes,  // Marching Cubes on the potential's own grid (one vertex per crossed grid edge)
-};
 
 struct ActiveSurfaceOptions {
   // Grid spacing, > 0, in scene units.
@@ -83,7 +79,8 @@ struct ActiveSurfaceOptions {
   // to the surface reach the clamp only at their far end (measured: w = 5 changes the Enright volume by < 1%).
   double band_width = 3.0;
   // Motion strategy (see above), each finite and >= 0.
-  double alpha = 0.0;  // tracking (needs set_target)
+  double alpha = 0.0;  // tracking (needs set_target); the tracking modes (coat, morph) default to kTrackingAlpha
+  static constexpr double kTrackingAlpha = 1.0;
   double beta = 0.0;   // surface tension
   double gamma = 0.0;  // area preservation
   double delta = 0.0;  // volume preservation
@@ -98,12 +95,16 @@ struct ActiveSurfaceOptions {
   int reinit_interval = 16;
   // Clamp of |kappa| (curvature the grid can carry), in units of 1/h; > 0.
   double max_curvature = 1.0;
-  ActivePolygonizer polygonizer = ActivePolygonizer::kTiles;
+  Polygonizer polygonizer = Polygonizer::kTiles;
   bool normals = false;  // per-vertex unit normals in polygonize()
   int threads = 0;       // 0: hardware threads
   // Allocated blocks (8^3 nodes, about 8.5 KB each) above this throw ResourceLimit("max_blocks").
   std::int64_t max_blocks = std::int64_t{1} << 16;
 };
+
+// Throws InvalidInput naming the option ("h", "band_width", "alpha", "cfl", ...) with the fix, ResourceLimit("domain")
+// for a domain of more than 2^23 nodes per axis.
+void validate(const ActiveSurfaceOptions& options);
 
 struct ActiveFrameStats {
   double time = 0.0;    // simulated time at the end of the frame
@@ -166,7 +167,7 @@ class ActiveSurface {
   // The surface f = 0: Marching Tiles of the trilinear potential or Marching Cubes on the grid (options.polygonizer),
   // closed, oriented outward, welded. Deterministic.
   Mesh polygonize(const RunControl& control = {}) const;
-  Mesh polygonize(ActivePolygonizer polygonizer, const RunControl& control = {}) const;
+  Mesh polygonize(Polygonizer polygonizer, const RunControl& control = {}) const;
 
   // Statistics of the current state without advancing (substeps = 0).
   ActiveFrameStats stats() const;
@@ -205,6 +206,8 @@ class ActiveSurface {
 //   w = -sin(2 pi x) sin(2 pi y) sin^2(pi z) cos(pi t / T)
 // The standard test: sphere of radius 0.15 at (0.35, 0.35, 0.35), T = 3; at t = T the exact solution is the sphere.
 Vec3 enright_velocity(const Vec3& p, double t, double period);
+// The standard test's period T.
+inline constexpr double kEnrightPeriod = 3.0;
 // The same field as spatial part and time scale cos(pi t / T) (identical values, evaluated once per node).
 SeparableVelocity enright_separable_velocity(double period);
 

@@ -1,25 +1,13 @@
-// Plain geometry types shared by every engine. No gRPC, no protobuf.
+// The indexed triangle mesh every engine produces. No gRPC, no protobuf.
 #pragma once
-
-#include <Eigen/Core>
 
 #include <array>
 #include <cstdint>
 #include <vector>
 
+#include "core/util/geometry.h"
+
 namespace surfacer {
-
-using Vec3 = Eigen::Vector3d;
-
-// Axis-aligned box; valid when min < max on every axis.
-struct Aabb {
-  Vec3 min = Vec3::Zero();
-  Vec3 max = Vec3::Zero();
-
-  Vec3 size() const { return max - min; }
-  bool valid() const { return (max.array() > min.array()).all(); }
-  bool contains(const Vec3& p) const { return (p.array() >= min.array()).all() && (p.array() <= max.array()).all(); }
-};
 
 using Triangle = std::array<std::uint32_t, 3>;
 

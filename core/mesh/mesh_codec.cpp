@@ -14,6 +14,7 @@
 #include <memory>
 #include <optional>
 
+#include "core/util/checks.h"
 #include "core/util/errors.h"
 
 namespace surfacer {
@@ -25,32 +26,29 @@ std::string format_point(const Vec3& p) {
   return buf;
 }
 
+}  // namespace
+
+void validate(const DracoOptions& options) {
+  const DracoOptions defaults;
+  require_count("quantization_bits", options.quantization_bits, 1, 30,
+                "the default " + std::to_string(defaults.quantization_bits) +
+                    " keeps errors below 1e-4 of the quantization box");
+  require_count("speed", options.speed, 0, 10,
+                "0: smallest output, 10: fastest; the default is " + std::to_string(defaults.speed));
+  if (options.normals) {
+    require_count("normal_bits", options.normal_bits, 2, 30, "the default is " + std::to_string(defaults.normal_bits));
+  }
+  if (options.quantization_bounds) require_box("quantization_bounds", *options.quantization_bounds);
+}
+
+namespace {
+
 void validate(const Mesh& mesh, const DracoOptions& options) {
-  if (options.quantization_bits < 1 || options.quantization_bits > 30) {
-    throw InvalidInput("quantization_bits", "quantization_bits (" + std::to_string(options.quantization_bits) +
-                                                ") must be in 1..30; 14 is a good default");
-  }
-  if (options.speed < 0 || options.speed > 10) {
-    throw InvalidInput("speed", "speed (" + std::to_string(options.speed) +
-                                    ") must be in 0..10 (0: smallest output, 10: fastest); the default is 7");
-  }
-  const bool encode_normals = options.normals && !mesh.normals.empty();
-  if (encode_normals && (options.normal_bits < 2 || options.normal_bits > 30)) {
-    throw InvalidInput("normal_bits", "normal_bits (" + std::to_string(options.normal_bits) +
-                                          ") must be in 2..30; 10 is a good default");
-  }
+  validate(options);
   if (!mesh.normals.empty() && mesh.normals.size() != mesh.vertices.size()) {
     throw InvalidInput("normals", "mesh has " + std::to_string(mesh.normals.size()) + " normals for " +
                                       std::to_string(mesh.vertices.size()) +
                                       " vertices; give one normal per vertex or none");
-  }
-  if (options.quantization_bounds) {
-    const Aabb& box = *options.quantization_bounds;
-    if (!box.valid() || !box.min.allFinite() || !box.max.allFinite()) {
-      throw InvalidInput("quantization_bounds",
-                         "quantization_bounds must be finite with min < max on every axis; got min " +
-                             format_point(box.min) + " max " + format_point(box.max));
-    }
   }
   for (std::size_t v = 0; v < mesh.vertices.size(); ++v) {
     if (!mesh.vertices[v].allFinite()) {

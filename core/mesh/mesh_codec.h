@@ -19,6 +19,9 @@ struct DracoOptions {
   int normal_bits = 10;  // 2..30 (octahedral normal quantization), checked only when normals are encoded
 };
 
+// Throws InvalidInput naming the option ("quantization_bits", "speed", "normal_bits", "quantization_bounds").
+void validate(const DracoOptions& options);
+
 // Throws InvalidInput for bad options or vertices outside the quantization box, Internal on encoder failure.
 // Vertices up to 1e-9 * (box's longest side) outside quantization_bounds are clamped onto it; farther ones are
 // InvalidInput("quantization_bounds"). Draco reorders vertices and drops unreferenced ones: compare decoded meshes

@@ -16,6 +16,7 @@
 #include <type_traits>
 #include <utility>
 
+#include "core/util/checks.h"
 #include "core/util/errors.h"
 #include "core/util/state_blob.h"
 #include "core/optimize/cleanup.h"
@@ -157,37 +158,37 @@ double min_angle_of(const Vec3& a, const Vec3& b, const Vec3& c, double cross) {
   return std::atan2(cross, dot) * 180.0 / kPi;
 }
 
-void validate(const MeshOptimizerOptions& o, const Mesh& start) {
-  auto unit_interval = [](const char* name, double v, const std::string& hint) {
-    if (!(v > 0.0 && v <= 1.0)) {
-      throw InvalidInput(name, std::string(name) + " (" + std::to_string(v) + ") must be in (0, 1]; " + hint);
-    }
-  };
-  unit_interval("c_d", o.c_d, "the default 1 takes the full Newton step onto f = 0");
-  unit_interval("c_n", o.c_n, "the default 1 takes the full projection onto the centroid tangent planes");
-  unit_interval("c_t", o.c_t, "the paper uses 0.1 (the default)");
-  unit_interval("step_bound", o.step_bound, "the paper uses 0.1..0.25; the default is 0.2");
-  if (o.max_iterations < 0) {
-    throw InvalidInput("max_iterations",
-                       "max_iterations (" + std::to_string(o.max_iterations) + ") must be >= 0; the default is 200");
-  }
+}  // namespace
+
+void validate(const MeshOptimizerOptions& o) {
+  const MeshOptimizerOptions defaults;
+  require_range_open_low("c_d", o.c_d, 0.0, 1.0,
+                         "the default " + format_number(defaults.c_d) + " takes the full Newton step onto f = 0");
+  require_range_open_low("c_n", o.c_n, 0.0, 1.0,
+                         "the default " + format_number(defaults.c_n) +
+                             " takes the full projection onto the centroid tangent planes");
+  require_range_open_low("c_t", o.c_t, 0.0, 1.0, "the paper uses 0.1; the default is " + format_number(defaults.c_t));
+  require_range_open_low("step_bound", o.step_bound, 0.0, 1.0,
+                         "the paper uses 0.1..0.25; the default is " + format_number(defaults.step_bound));
+  require_count("max_iterations", o.max_iterations, 0, kMaxIterations,
+                "the default is " + std::to_string(defaults.max_iterations));
   if (o.t_flow_iterations && *o.t_flow_iterations < 0) {
     throw InvalidInput("t_flow_iterations", "t_flow_iterations (" + std::to_string(*o.t_flow_iterations) +
                                                 ") must be >= 0; leave it unset to switch the T-flow off when E_d "
                                                 "stabilises");
   }
   if (o.tolerance && !(*o.tolerance > 0.0 && *o.tolerance < 1.0)) {
-    throw InvalidInput("tolerance", "tolerance (" + std::to_string(*o.tolerance) +
+    throw InvalidInput("tolerance", "tolerance (" + format_number(*o.tolerance) +
                                         ") must be in (0, 1): a relative change of E_d and E_n, e.g. 1e-3");
   }
   if (o.subdivision_threshold && !(*o.subdivision_threshold > 0.0 && std::isfinite(*o.subdivision_threshold))) {
     throw InvalidInput("subdivision_threshold",
-                       "subdivision_threshold (" + std::to_string(*o.subdivision_threshold) +
+                       "subdivision_threshold (" + format_number(*o.subdivision_threshold) +
                            ") must be a finite number > 0 (scene units², e.g. 0.004 h² for grid spacing h)");
   }
   if (o.subdivision_interval < 1) {
     throw InvalidInput("subdivision_interval", "subdivision_interval (" + std::to_string(o.subdivision_interval) +
-                                                   ") must be >= 1; the default is 10");
+                                                   ") must be >= 1; the default is " + std::to_string(defaults.subdivision_interval));
   }
   if (o.triangle_budget && *o.triangle_budget <= 0) {
     throw InvalidInput("triangle_budget", "triangle_budget (" + std::to_string(*o.triangle_budget) +
@@ -204,6 +205,9 @@ void validate(const MeshOptimizerOptions& o, const Mesh& start) {
     throw InvalidInput("d_flow", "every flow is off and subdivision is off, so nothing would change; enable d_flow "
                                  "and n_flow (the defaults)");
   }
+}
+
+void validate_start_mesh(const Mesh& start) {
   if (start.triangles.empty()) {
     throw InvalidInput("start", "start mesh has no triangles; polygonize the field first (Marching Cubes or Tiles)");
   }
@@ -231,7 +235,6 @@ void validate(const MeshOptimizerOptions& o, const Mesh& start) {
   }
 }
 
-}  // namespace
 
 struct MeshOptimizer::State {
   const Field& field;
@@ -715,7 +718,8 @@ struct MeshOptimizer::State {
 };
 
 MeshOptimizer::MeshOptimizer(const Field& field, Mesh start, const MeshOptimizerOptions& options) {
-  validate(options, start);
+  validate(options);
+  validate_start_mesh(start);
   state_ = std::make_unique<State>(field, std::move(start), options);
   State& s = *state_;
   s.topo.build(s.mesh.vertices.size(), s.mesh.triangles, s.threads, {});
@@ -788,7 +792,8 @@ MeshOptimizer MeshOptimizer::from_state(const Field& field, std::string_view sta
   mesh.vertices = r.get_array<Vec3>();
   mesh.triangles = r.get_array<Triangle>();
   try {
-    validate(options, mesh);  // also checks the mesh (indices, finite positions)
+    validate(options);
+    validate_start_mesh(mesh);  // indices, finite positions
   } catch (const Error& e) {
     if (e.field() == "start") bad_state(e.what());
     throw;

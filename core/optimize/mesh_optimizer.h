@@ -74,11 +74,24 @@
 #include <string_view>
 
 #include "core/mesh/mesh.h"
+#include "core/polygonize/polygonize.h"
 #include "core/util/run_control.h"
 
 namespace surfacer {
 
 class Field;
+
+// The start mesh when none is given: Marching Cubes at 64 cells along the longest axis, the paper's setting (its
+// chamfered edges are what the flows restore).
+inline PolygonizeOptions default_start_polygonize() {
+  PolygonizeOptions options;
+  options.method = Polygonizer::kCubes;
+  options.cells = 64;
+  return options;
+}
+
+// Iterations a run may ask for (a bound on the work and on the frames a snapshot schedule can produce).
+inline constexpr int kMaxIterations = 1'000'000;
 
 struct MeshOptimizerOptions {
   bool d_flow = true;  // distance flow (vertices onto f = 0)
@@ -94,7 +107,7 @@ struct MeshOptimizerOptions {
   bool modified_flows = false;
   // T-flow for exactly this many iterations (>= 0); when not given it is switched off once E_d stabilises (above).
   std::optional<int> t_flow_iterations;
-  int max_iterations = 200;  // >= 0
+  int max_iterations = 200;  // 0..kMaxIterations
   // Stop early when, more than 5 iterations after the T-flow went off and after the last subdivision, neither E_d nor
   // E_n improved by more than this fraction on the best of the previous 5 iterations (E_n need not fall
   // monotonically), or both are at round-off level (E_d <= 1e-24 L², E_n <= 1e-24); in (0, 1), e.g. 1e-3.
@@ -133,6 +146,12 @@ struct OptimizerIterationStats {
 
 // Stateful optimizer: keeps the mesh, its adjacency, the schedule and the red–green hierarchy across iterations.
 // Keeps a reference to `field`, which must outlive it (Field is thread-safe for concurrent const calls).
+// Throws InvalidInput naming the option ("c_d", "step_bound", "max_iterations", ...) with the fix.
+void validate(const MeshOptimizerOptions& options);
+// Throws InvalidInput("start") for a start mesh the optimizer cannot take: no triangles, an index out of range, a
+// repeated index in a triangle, a non-finite vertex; ResourceLimit("start") beyond 2^31 vertices.
+void validate_start_mesh(const Mesh& start);
+
 // Throws InvalidInput from the constructor for bad options ("c_d", "step_bound", ...) or a bad start mesh ("start":
 // no triangles, an index out of range, a repeated index in a triangle, a non-finite vertex).
 class MeshOptimizer {

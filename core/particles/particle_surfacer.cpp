@@ -15,6 +15,7 @@
 #include <string>
 
 #include "core/util/errors.h"
+#include "core/util/format.h"
 #include "core/polygonize/marching_tiles.h"
 #include "core/util/parallel.h"
 #include "core/particles/smoothing.h"
@@ -28,63 +29,12 @@ using Clock = std::chrono::steady_clock;
 
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
-std::string num(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.6g", v);
-  return buf;
-}
-
 constexpr double kInf = std::numeric_limits<double>::infinity();
 constexpr double kBandTolerance = 1e-12;     // relative slack before a projection moves a vertex
 constexpr double kFaithfulTolerance = 1e-9;  // relative slack of the faithfulness statistics
 constexpr int kMaxProjectionRounds = 8;
 constexpr int kMaxNewtonSteps = 16;
 
-void validate_options(const ParticleSurfacingOptions& o) {
-  if (o.r_inner && !(std::isfinite(*o.r_inner) && *o.r_inner > 0.0)) {
-    throw InvalidInput("r_inner", "r_inner (" + num(*o.r_inner) + ") must be a finite number > 0 (scene units)");
-  }
-  if (o.r_outer && !(std::isfinite(*o.r_outer) && *o.r_outer > 0.0)) {
-    throw InvalidInput("r_outer", "r_outer (" + num(*o.r_outer) + ") must be a finite number > 0 (scene units)");
-  }
-  if (o.r_inner && o.r_outer && !(*o.r_outer > *o.r_inner)) {
-    throw InvalidInput("r_outer", "r_outer (" + num(*o.r_outer) + ") must exceed r_inner (" + num(*o.r_inner) +
-                                      "); the default is 2 x r_inner");
-  }
-  if (!(std::isfinite(o.spacing_factor) && o.spacing_factor > 0.0 && o.spacing_factor <= 10.0)) {
-    throw InvalidInput("spacing_factor", "spacing_factor (" + num(o.spacing_factor) +
-                                             ") must be in (0, 10]; the thesis uses 0.8 (samples 0.8 r_inner apart)");
-  }
-  const std::pair<const char*, int> sweeps[] = {{"laplacian_sweeps", o.laplacian_sweeps},
-                                                {"bilaplacian_sweeps", o.bilaplacian_sweeps},
-                                                {"polish_sweeps", o.polish_sweeps}};
-  for (const auto& [name, value] : sweeps) {
-    if (value < 0 || value > 100000) {
-      throw InvalidInput(name, std::string(name) + " (" + std::to_string(value) + ") must be in 0..100000");
-    }
-  }
-  if (!(std::isfinite(o.relaxation) && o.relaxation > 0.0 && o.relaxation <= 1.0)) {
-    throw InvalidInput("relaxation", "relaxation (" + num(o.relaxation) + ") must be in (0, 1]; the thesis uses 0.6");
-  }
-  if (o.erosion && !(std::isfinite(*o.erosion) && *o.erosion >= 0.0 && *o.erosion <= 10.0)) {
-    throw InvalidInput("erosion", "erosion (" + num(*o.erosion) +
-                                      ") must be in [0, 10] (units of r_inner; the thesis shows 0.5); leave it unset "
-                                      "to switch erosion off");
-  }
-  if (o.container_box &&
-      !(o.container_box->min.allFinite() && o.container_box->max.allFinite() && o.container_box->valid())) {
-    throw InvalidInput("container_box", "container_box must have finite min < max on every axis");
-  }
-  if (o.min_particles_per_component < 0) {
-    throw InvalidInput("min_particles_per_component", "min_particles_per_component (" +
-                                                          std::to_string(o.min_particles_per_component) +
-                                                          ") must be >= 0 (0 keeps every particle)");
-  }
-  if (o.threads < 0) {
-    throw InvalidInput("threads",
-                       "threads (" + std::to_string(o.threads) + ") must be >= 0; 0 uses every hardware thread");
-  }
-}
 
 // Parallel loop over [0, n) in contiguous chunks.
 template <class Body>
@@ -623,6 +573,55 @@ int min_valence(const ps::Graph& ring) {
 
 }  // namespace
 
+void validate(const ParticleSurfacingOptions& o) {
+  const ParticleSurfacingOptions defaults;
+  if (o.r_inner && !(std::isfinite(*o.r_inner) && *o.r_inner > 0.0)) {
+    throw InvalidInput("r_inner", "r_inner (" + format_number(*o.r_inner) + ") must be a finite number > 0 (scene units)");
+  }
+  if (o.r_outer && !(std::isfinite(*o.r_outer) && *o.r_outer > 0.0)) {
+    throw InvalidInput("r_outer", "r_outer (" + format_number(*o.r_outer) + ") must be a finite number > 0 (scene units)");
+  }
+  if (o.r_inner && o.r_outer && !(*o.r_outer > *o.r_inner)) {
+    throw InvalidInput("r_outer", "r_outer (" + format_number(*o.r_outer) + ") must exceed r_inner (" + format_number(*o.r_inner) +
+                                      "); the default is " + format_number(ParticleSurfacingOptions::kDefaultOuterRatio) + " x r_inner");
+  }
+  if (!(std::isfinite(o.spacing_factor) && o.spacing_factor > 0.0 && o.spacing_factor <= 10.0)) {
+    throw InvalidInput("spacing_factor", "spacing_factor (" + format_number(o.spacing_factor) +
+                                             ") must be in (0, 10]; the thesis uses 0.8 (samples 0.8 r_inner apart), the default is " +
+                                             format_number(defaults.spacing_factor));
+  }
+  const std::pair<const char*, int> sweeps[] = {{"laplacian_sweeps", o.laplacian_sweeps},
+                                                {"bilaplacian_sweeps", o.bilaplacian_sweeps},
+                                                {"polish_sweeps", o.polish_sweeps}};
+  for (const auto& [name, value] : sweeps) {
+    if (value < 0 || value > 100000) {
+      throw InvalidInput(name, std::string(name) + " (" + std::to_string(value) + ") must be in 0..100000");
+    }
+  }
+  if (!(std::isfinite(o.relaxation) && o.relaxation > 0.0 && o.relaxation <= 1.0)) {
+    throw InvalidInput("relaxation", "relaxation (" + format_number(o.relaxation) + ") must be in (0, 1]; the thesis uses 0.6, the default is " +
+                                         format_number(defaults.relaxation));
+  }
+  if (o.erosion && !(std::isfinite(*o.erosion) && *o.erosion >= 0.0 && *o.erosion <= 10.0)) {
+    throw InvalidInput("erosion", "erosion (" + format_number(*o.erosion) +
+                                      ") must be in [0, 10] (units of r_inner; the thesis shows 0.5); leave it unset "
+                                      "to switch erosion off");
+  }
+  if (o.container_box &&
+      !(o.container_box->min.allFinite() && o.container_box->max.allFinite() && o.container_box->valid())) {
+    throw InvalidInput("container_box", "container_box must have finite min < max on every axis");
+  }
+  if (o.min_particles_per_component < 0) {
+    throw InvalidInput("min_particles_per_component", "min_particles_per_component (" +
+                                                          std::to_string(o.min_particles_per_component) +
+                                                          ") must be >= 0 (0 keeps every particle)");
+  }
+  if (o.threads < 0) {
+    throw InvalidInput("threads",
+                       "threads (" + std::to_string(o.threads) + ") must be >= 0; 0 uses every hardware thread");
+  }
+}
+
 // --- The surfacer ---------------------------------------------------------------------------------------------------
 
 struct ParticleSurfacer::State {
@@ -655,7 +654,7 @@ Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const d
   }
   for (std::size_t i = 0; i < radii.size(); ++i) {
     if (!(std::isfinite(radii[i]) && radii[i] > 0.0)) {
-      throw InvalidInput("radii", "radius " + std::to_string(i) + " (" + num(radii[i]) + ") must be finite and > 0");
+      throw InvalidInput("radii", "radius " + std::to_string(i) + " (" + format_number(radii[i]) + ") must be finite and > 0");
     }
   }
   if (radii.empty() && !o.r_inner && !o.derive_r_inner) {
@@ -680,9 +679,9 @@ Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const d
   } else {
     r_inner = o.r_inner ? *o.r_inner : derive_r_inner(input, threads, control);
   }
-  const double r_outer = o.r_outer ? *o.r_outer : 2.0 * r_inner;
+  const double r_outer = o.r_outer ? *o.r_outer : ParticleSurfacingOptions::kDefaultOuterRatio * r_inner;
   if (!(r_outer > r_inner)) {
-    throw InvalidInput("r_outer", "r_outer (" + num(r_outer) + ") must exceed r_inner (" + num(r_inner) +
+    throw InvalidInput("r_outer", "r_outer (" + format_number(r_outer) + ") must exceed r_inner (" + format_number(r_inner) +
                                       (o.r_inner ? ")" : ", derived)") + "; the default is 2 x r_inner");
   }
   const double ratio = r_outer / r_inner;
@@ -876,7 +875,7 @@ Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const d
 }
 
 ParticleSurfacer::ParticleSurfacer(const ParticleSurfacingOptions& options) : state_(std::make_unique<State>()) {
-  validate_options(options);
+  validate(options);
   state_->options = options;
 }
 ParticleSurfacer::~ParticleSurfacer() = default;
@@ -929,12 +928,12 @@ Aabb particle_sequence_box(const Aabb& particle_bounds, double max_radius, std::
                            const std::optional<Aabb>& container) {
   constexpr double kDerivedPadSafety = 3.0;
   Aabb box = particle_bounds;
-  const double ratio = r_outer && r_inner ? *r_outer / *r_inner : 2.0;
+  const double ratio = r_outer && r_inner ? *r_outer / *r_inner : ParticleSurfacingOptions::kDefaultOuterRatio;
   double pad = 0.0;
   if (max_radius > 0.0) {
     pad = ratio * max_radius;
   } else if (r_inner) {
-    pad = r_outer.value_or(2.0 * *r_inner);
+    pad = r_outer.value_or(ParticleSurfacingOptions::kDefaultOuterRatio * *r_inner);
   } else {
     const double spacing = estimate_particle_spacing(first_frame());
     pad = kDerivedPadSafety * ratio * std::max(spacing, 1e-6 * std::max(box.size().maxCoeff(), 1.0));

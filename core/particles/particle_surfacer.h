@@ -74,9 +74,10 @@ struct ParticleSurfacingOptions {
   // r_inner := mean distance from a particle to its nearest neighbour (over a fixed sample of at most 65536 particles;
   // those whose nearest neighbour is farther than 4x the median are left out as stray spray). Needs >= 2 particles.
   bool derive_r_inner = false;
-  // Outer radius, > r_inner; default 2 * r_inner. A planar face over a square lattice of spacing d needs
+  // Outer radius, > r_inner; default kDefaultOuterRatio * r_inner. A planar face over a square lattice of spacing d needs
   // r_outer^2 >= r_inner^2 + d^2 / 2 (thesis eq. 3.5; triangular lattice: + d^2 / 3, eq. 3.6).
   std::optional<double> r_outer;
+  static constexpr double kDefaultOuterRatio = 2.0;
   double spacing_factor = 0.8;  // Marching Tiles mean sample spacing / r_inner, in (0, 10]
   int laplacian_sweeps = 5;     // >= 0 each
   int bilaplacian_sweeps = 25;
@@ -115,6 +116,9 @@ struct ParticleSurfacingStats {
   std::int64_t neighbour_refreshes = 0;  // constraint queries that rebuilt a vertex's candidate list (uniform radii)
   std::size_t vertices = 0, triangles = 0;
 };
+
+// Throws InvalidInput naming the option ("r_inner", "r_outer", "spacing_factor", "laplacian_sweeps", ...) with the fix.
+void validate(const ParticleSurfacingOptions& options);
 
 // Keeps validated options and scratch buffers (spatial hash, matrices) between frames; not thread-safe: use one per
 // worker. Throws InvalidInput from the constructor for bad options (message names the option and the fix).

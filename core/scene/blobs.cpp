@@ -19,9 +19,6 @@
 namespace surfacer {
 namespace {
 
-using scene_detail::merge;
-using scene_detail::require_finite;
-using scene_detail::require_positive;
 
 constexpr std::size_t kGridThreshold = 64;
 constexpr std::int64_t kMaxGridCells = std::int64_t{1} << 21;
@@ -63,7 +60,7 @@ class Blobs final : public Field {
     if (options_.kernel == BlobKernel::kWyvill) {
       // Outside every support the sum is 0 < iso.
       Aabb box = skeletons_[0].support;
-      for (const Skeleton& s : skeletons_) box = merge(box, s.support);
+      for (const Skeleton& s : skeletons_) box.merge(s.support);
       return box;
     }
     // Blinn: let S = sum of the positive strengths. Where every positive skeleton i has
@@ -80,7 +77,7 @@ class Blobs final : public Field {
       const double rho = factor / std::sqrt(s.inv_r2);
       const Vec3 b = s.a + s.ba;
       const Aabb sb{s.a.cwiseMin(b).array() - rho, s.a.cwiseMax(b).array() + rho};
-      box = box ? merge(*box, sb) : sb;
+      box = box ? merged(*box, sb) : sb;
     }
     return box;
   }
@@ -176,7 +173,7 @@ class Blobs final : public Field {
     std::vector<double> radii;
     radii.reserve(skeletons_.size());
     for (const Skeleton& s : skeletons_) {
-      box = merge(box, s.support);
+      box.merge(s.support);
       radii.push_back(1.0 / std::sqrt(s.inv_r2));
     }
     std::nth_element(radii.begin(), radii.begin() + radii.size() / 2, radii.end());
@@ -246,7 +243,7 @@ Skeleton make_skeleton(const Vec3& a, const Vec3& b, double radius, double stren
 void require_radius_in_range(const std::string& field, double radius) {
   constexpr double kMinRadius = 1e-150;
   if (radius < kMinRadius) {
-    throw InvalidInput(field, field + " (" + scene_detail::format_number(radius) +
+    throw InvalidInput(field, field + " (" + format_number(radius) +
                                   ") is too small; give a radius of at least 1e-150");
   }
 }
@@ -288,7 +285,7 @@ FieldPtr make_blobs(std::span<const PointSkeleton> points, std::span<const Segme
   }
   // The supports' box must have a finite size (the acceleration grid divides it into cells).
   Aabb box = skeletons[0].support;
-  for (const Skeleton& s : skeletons) box = merge(box, s.support);
+  for (const Skeleton& s : skeletons) box.merge(s.support);
   if (!box.size().allFinite()) {
     const std::string field = points.empty() ? "segments" : "points";
     throw InvalidInput(field, field + ": the skeletons and their radii span more than the largest double; keep "

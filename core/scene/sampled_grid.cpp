@@ -18,8 +18,6 @@
 namespace surfacer {
 namespace {
 
-using scene_detail::require_finite;
-using scene_detail::require_positive;
 
 class SampledGrid final : public Field {
  public:
@@ -166,7 +164,7 @@ FieldPtr make_sampled_grid(const SampledGridDesc& desc, std::span<const float> v
   for (int i = 0; i < 3; ++i) {
     if (desc.spacing[i] < kMinSpacing) {
       throw InvalidInput(kSpacingAxes[i], std::string(kSpacingAxes[i]) + " (" +
-                                              scene_detail::format_number(desc.spacing[i]) +
+                                              format_number(desc.spacing[i]) +
                                               ") is too small; give a spacing of at least 1e-300");
     }
   }

@@ -21,10 +21,6 @@
 namespace surfacer {
 namespace {
 
-using scene_detail::format_number;
-using scene_detail::merge;
-using scene_detail::require_finite;
-using scene_detail::require_positive;
 
 // --- A tiny 3-vector over the scalar type ------------------------------------------------------------------
 template <class T>
@@ -145,7 +141,7 @@ class Cylinder final : public TemplatedField<Cylinder> {
     const T radial = length(w - scaled(u_, y));
     return box_like(std::array<T, 2>{radial - r_, tabs(y) - half_});
   }
-  std::optional<Aabb> bounds() const override { return merge(disk_box(a_, u_, r_), disk_box(b_, u_, r_)); }
+  std::optional<Aabb> bounds() const override { return merged(disk_box(a_, u_, r_), disk_box(b_, u_, r_)); }
 
  private:
   Vec3 a_, b_, m_, u_;
@@ -186,7 +182,7 @@ class Cone final : public TemplatedField<Cone> {
     const T side = t <= 0.0 ? length2(r - ra_, y) : (t >= 1.0 ? length2(r - rb_, d_top) : tabs(d_side));
     return tmin(tmin(bottom, top), side);
   }
-  std::optional<Aabb> bounds() const override { return merge(disk_box(a_, u_, ra_), disk_box(b_, u_, rb_)); }
+  std::optional<Aabb> bounds() const override { return merged(disk_box(a_, u_, ra_), disk_box(b_, u_, rb_)); }
 
  private:
   Vec3 a_, b_, u_;
@@ -328,7 +324,7 @@ class Csg final : public Field {
         for (const FieldPtr& c : children_) {
           const std::optional<Aabb> b = c->bounds();
           if (!b) return std::nullopt;
-          box = box ? merge(*box, *b) : *b;
+          box = box ? merged(*box, *b) : *b;
         }
         if (blend_ == CsgBlend::kSmooth) {
           const double pad = std::max(k_, 0.25 * k_ * static_cast<double>(children_.size() - 1));

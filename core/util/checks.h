@@ -1,21 +1,24 @@
-// Argument checks shared by the scene builders (core/scene*.cpp). Internal: not part of the public interface.
-// Each check throws surfacer::InvalidInput(field, "<field> <what is wrong>; <how to fix>").
+// Argument checks for options and builder arguments across core. Each throws
+// surfacer::InvalidInput(field, "<field> (<value>) <what is wrong>; <hint>"), the value printed by format_number.
 #pragma once
 
 #include <cmath>
-#include <cstdio>
+#include <cstdint>
 #include <string>
 
 #include "core/util/errors.h"
-#include "core/mesh/mesh.h"
+#include "core/util/format.h"
+#include "core/util/geometry.h"
 
-namespace surfacer::scene_detail {
+namespace surfacer {
 
-inline std::string format_number(double v) {
-  char buf[40];
-  std::snprintf(buf, sizeof buf, "%.10g", v);
-  return buf;
+namespace checks_detail {
+inline std::string with_hint(std::string message, const std::string& hint) {
+  if (!hint.empty()) message += "; " + hint;
+  return message;
 }
+inline constexpr const char* kAxes[3] = {".x", ".y", ".z"};
+}  // namespace checks_detail
 
 inline void require_finite(const std::string& field, double v) {
   if (std::isnan(v)) throw InvalidInput(field, field + " is NaN; give a finite number");
@@ -23,23 +26,62 @@ inline void require_finite(const std::string& field, double v) {
 }
 
 inline void require_finite(const std::string& field, const Vec3& v) {
-  static const char* const kAxes[3] = {".x", ".y", ".z"};
-  for (int i = 0; i < 3; ++i) require_finite(field + kAxes[i], v[i]);
+  for (int i = 0; i < 3; ++i) require_finite(field + checks_detail::kAxes[i], v[i]);
 }
 
 inline void require_positive(const std::string& field, double v, const std::string& hint = "") {
   require_finite(field, v);
   if (!(v > 0.0)) {
-    throw InvalidInput(field, field + " (" + format_number(v) + ") must be > 0" + (hint.empty() ? "" : "; " + hint));
+    throw InvalidInput(field, checks_detail::with_hint(field + " (" + format_number(v) + ") must be > 0", hint));
   }
 }
 
 inline void require_positive(const std::string& field, const Vec3& v, const std::string& hint = "") {
-  static const char* const kAxes[3] = {".x", ".y", ".z"};
-  for (int i = 0; i < 3; ++i) require_positive(field + kAxes[i], v[i], hint);
+  for (int i = 0; i < 3; ++i) require_positive(field + checks_detail::kAxes[i], v[i], hint);
 }
 
-// Smallest box containing both.
-inline Aabb merge(const Aabb& a, const Aabb& b) { return Aabb{a.min.cwiseMin(b.min), a.max.cwiseMax(b.max)}; }
+// lo <= v <= hi (finite).
+inline void require_range(const std::string& field, double v, double lo, double hi, const std::string& hint = "") {
+  require_finite(field, v);
+  if (!(v >= lo && v <= hi)) {
+    throw InvalidInput(field, checks_detail::with_hint(field + " (" + format_number(v) + ") must be in [" +
+                                                           format_number(lo) + ", " + format_number(hi) + "]",
+                                                       hint));
+  }
+}
 
-}  // namespace surfacer::scene_detail
+// lo < v <= hi (finite).
+inline void require_range_open_low(const std::string& field, double v, double lo, double hi,
+                                   const std::string& hint = "") {
+  require_finite(field, v);
+  if (!(v > lo && v <= hi)) {
+    throw InvalidInput(field, checks_detail::with_hint(field + " (" + format_number(v) + ") must be in (" +
+                                                           format_number(lo) + ", " + format_number(hi) + "]",
+                                                       hint));
+  }
+}
+
+// lo <= v <= hi for counts and indices.
+inline void require_count(const std::string& field, std::int64_t v, std::int64_t lo, std::int64_t hi,
+                          const std::string& hint = "") {
+  if (v < lo || v > hi) {
+    throw InvalidInput(field, checks_detail::with_hint(field + " (" + std::to_string(v) + ") must be in " +
+                                                           std::to_string(lo) + ".." + std::to_string(hi),
+                                                       hint));
+  }
+}
+
+// Finite corners with min < max on every axis.
+inline void require_box(const std::string& field, const Aabb& box) {
+  require_finite(field + ".min", box.min);
+  require_finite(field + ".max", box.max);
+  for (int i = 0; i < 3; ++i) {
+    if (!(box.min[i] < box.max[i])) {
+      const std::string axis = checks_detail::kAxes[i];
+      throw InvalidInput(field, field + ".min" + axis + " (" + format_number(box.min[i]) + ") must be < " + field +
+                                    ".max" + axis + " (" + format_number(box.max[i]) + ")");
+    }
+  }
+}
+
+}  // namespace surfacer

@@ -1,8 +1,10 @@
-// The error family of core (STYLE.md 7). server/status_map.cpp maps each kind to one grpc::StatusCode.
+// The error family of core: every failure is one of four kinds. server/status_map.cpp maps each kind to one
+// grpc::StatusCode.
 #pragma once
 
 #include <stdexcept>
 #include <string>
+#include <string_view>
 
 namespace surfacer {
 
@@ -39,5 +41,30 @@ inline Error Cancelled(const std::string& message = "cancelled") {
   return Error(ErrorKind::kCancelled, "", message);
 }
 inline Error Internal(const std::string& message) { return Error(ErrorKind::kInternal, "", message); }
+
+// `error` placed at `path` in a larger document: the field becomes "path.field" and the message
+// "path.<message>" when the message starts with the field's name (the convention above), else "path: <message>".
+inline Error at_path(const Error& error, const std::string& path) {
+  const std::string& field = error.field();
+  const std::string_view message = error.what();
+  const bool names_field =
+      !field.empty() && message.starts_with(field) &&
+      (message.size() == field.size() || std::string_view(" .[").find(message[field.size()]) != std::string_view::npos);
+  return Error(error.kind(), field.empty() ? path : path + "." + field,
+               path + (names_field ? "." : ": ") + std::string(message));
+}
+
+// Runs f() and returns its result; an InvalidInput it throws is rethrown placed at `path` (at_path above), so a
+// builder's "radius (-1) must be > 0" reaches the user as "spec.scenes[0].root.sphere.radius (-1) must be > 0".
+// Other errors pass unchanged.
+template <class F>
+decltype(auto) with_path(const std::string& path, F&& f) {
+  try {
+    return f();
+  } catch (const Error& e) {
+    if (e.kind() != ErrorKind::kInvalidInput) throw;
+    throw at_path(e, path);
+  }
+}
 
 }  // namespace surfacer

@@ -7,6 +7,7 @@
 #include <limits>
 #include <sstream>
 
+#include "core/util/crc32.h"
 #include "client/exit_codes.h"
 #include "client/frame_assembler.h"
 #include "client/frame_writer.h"
@@ -281,7 +282,8 @@ TEST(JobSpec, BuildsIsosurfaceFromSceneFiles) {
   ASSERT_TRUE(spec.has_isosurface());
   EXPECT_EQ(spec.isosurface().scenes_size(), 2);
   EXPECT_DOUBLE_EQ(spec.isosurface().scenes(0).root().sphere().radius(), 0.5);
-  EXPECT_EQ(spec.isosurface().cells(), 128);
+  // No --cells: the CLI sends no resolution, so the server applies its own default.
+  EXPECT_EQ(spec.isosurface().resolution_case(), v1::IsosurfaceJob::RESOLUTION_NOT_SET);
   EXPECT_DOUBLE_EQ(spec.isosurface().bounds().max().z(), 1.0);
   EXPECT_EQ(spec.isosurface().method(), v1::POLYGONIZER_CUBES);
   EXPECT_EQ(spec.output().encoding(), v1::MESH_ENCODING_PLY);

@@ -1,6 +1,7 @@
 // The chunked uploader: against a recording fake service on a loopback port (chunk sizes, name/total_bytes on the
 // first chunk only, a CRC-32 on every chunk, the answer checked) and against the real in-process server (the
 // server's byte count and CRC-32 match; uploaded particle frames and grids are accepted by job specs).
+#include "core/util/crc32.h"
 #include "client/upload.h"
 
 #include <grpcpp/security/server_credentials.h>

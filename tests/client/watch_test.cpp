@@ -1,5 +1,6 @@
 // JobWatcher against a scripted fake Surfacer service on a loopback port: reconnect after UNAVAILABLE from the
 // smallest missing frame with duplicates skipped, integrity errors, missing frames, server errors.
+#include "core/util/crc32.h"
 #include "client/watch.h"
 
 #include <grpcpp/security/server_credentials.h>

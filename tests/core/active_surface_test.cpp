@@ -444,7 +444,7 @@ TEST(ActiveSurface, PolygonizationIsClosedWithNormals) {
   ActiveSurfaceOptions o = base_options(1.0 / 32.0);
   o.normals = true;
   const ActiveSurface surface(TwoSpheresField(Vec3(-0.3, 0, 0), 0.25, Vec3(0.3, 0, 0), 0.25), o);
-  const Mesh mesh = surface.polygonize(ActivePolygonizer::kCubes);
+  const Mesh mesh = surface.polygonize(Polygonizer::kCubes);
   expect_closed_manifold(mesh);
   EXPECT_EQ(check_mesh(mesh).components, 2);
   ASSERT_EQ(mesh.normals.size(), mesh.vertices.size());
@@ -462,7 +462,7 @@ TEST(ActiveSurface, PolygonizationIsClosedWithNormals) {
 TEST(ActiveSurface, MarchingTilesPolygonizer) {
   ActiveSurfaceOptions o = base_options(1.0 / 32.0);
   const ActiveSurface surface(SphereField(Vec3(0.01, 0.0, 0.0), 0.4), o);
-  const Mesh mesh = surface.polygonize(ActivePolygonizer::kTiles);
+  const Mesh mesh = surface.polygonize(Polygonizer::kTiles);
   const MeshReport r = check_mesh(mesh);
   EXPECT_TRUE(r.closed);
   EXPECT_TRUE(r.oriented);
@@ -498,7 +498,7 @@ TEST(ActiveSurface, SeparableVelocityMatchesTheGeneralForm) {
       surface.set_velocity([](const Vec3& p, double t) { return enright_velocity(p, t, 3.0); });
     }
     const ActiveFrameStats s = surface.advance(0.4);
-    return std::make_pair(s, surface.polygonize(ActivePolygonizer::kCubes));
+    return std::make_pair(s, surface.polygonize(Polygonizer::kCubes));
   };
   const auto [sg, mg] = run(false);
   const auto [ss, ms] = run(true);

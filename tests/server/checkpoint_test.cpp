@@ -15,7 +15,7 @@
 #include <sstream>
 #include <thread>
 
-#include "server/job_types.h"
+#include "server/runners/runner.h"
 #include "server/uploads.h"
 #include "tests/server/test_client.h"
 

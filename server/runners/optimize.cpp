@@ -1,22 +1,25 @@
 // Job `optimize`: a start mesh evolved toward f = 0 with the field's normals (Ohtake-Belyaev-Pasko 2002). One task;
 // a snapshot frame every `snapshot_every` iterations (frame k = k-th snapshot), the result last.
 #include <chrono>
-#include <cmath>
 
-#include "core/util/errors.h"
 #include "core/mesh/mesh_io.h"
 #include "core/optimize/mesh_optimizer.h"
-#include "server/frames.h"
-#include "server/job_types.h"
-#include "server/polygonize.h"
-#include "server/scene_translate.h"
-#include "server/uploads.h"
+#include "core/util/errors.h"
+#include "server/runners/frames.h"
+#include "server/runners/runner.h"
+#include "wire/job_options.h"
+#include "wire/scene.h"
+#include "wire/uploads.h"
 
 namespace surfacer::server {
 namespace {
 
-constexpr int kDefaultStartCells = 64;
 constexpr double kBoxPadFraction = 0.05;  // of the diagonal: room for vertices moving onto the true surface
+
+// Frames a run can emit: a snapshot every snapshot_every iterations (iteration 0 included) plus the final mesh.
+std::int64_t optimize_frame_count(const MeshOptimizerOptions& options) {
+  return options.snapshot_every > 0 ? std::int64_t{options.max_iterations} / options.snapshot_every + 2 : 1;
+}
 
 MeshFormat sniff_mesh_format(const std::string& bytes) {
   if (bytes.rfind("ply", 0) == 0) return MeshFormat::kPly;
@@ -26,11 +29,11 @@ MeshFormat sniff_mesh_format(const std::string& bytes) {
 
 class OptimizeRunner final : public JobRunner {
  public:
-  OptimizeRunner(FieldPtr field, std::optional<Mesh> start, PolygonizeSettings start_settings,
+  OptimizeRunner(FieldPtr field, std::optional<Mesh> start, PolygonizeGrid start_grid,
                  MeshOptimizerOptions options, FrameEncoding encoding, std::int64_t max_triangles, int threads)
       : field_(std::move(field)),
         start_(std::move(start)),
-        start_settings_(start_settings),
+        start_grid_(start_grid),
         options_(options),
         encoding_(encoding),
         max_triangles_(max_triangles),
@@ -38,9 +41,7 @@ class OptimizeRunner final : public JobRunner {
 
   std::string kind() const override { return "optimize"; }
   int task_count() const override { return 1; }
-  int frame_count() const override {
-    return options_.snapshot_every > 0 ? options_.max_iterations / options_.snapshot_every + 2 : 1;
-  }
+  int frame_count() const override { return static_cast<int>(optimize_frame_count(options_)); }
 
   void resume_from(int, int next_frame, std::string state) override {
     resume_frame_ = next_frame;
@@ -65,7 +66,11 @@ class OptimizeRunner final : public JobRunner {
     if (!resumed) {
       Mesh start = start_ ? std::move(*start_)
                           : start_timer.run("polygonize",
-                                            [&] { return polygonize(*field_, start_settings_, threads_, control); });
+                                            [&] {
+                                              PolygonizeGrid grid = start_grid_;
+                                              grid.threads = threads_;
+                                              return polygonize(*field_, grid, control);
+                                            });
       resumed.emplace(*field_, std::move(start), options);
       resume_frame_ = 0;
     }
@@ -121,7 +126,7 @@ class OptimizeRunner final : public JobRunner {
  private:
   FieldPtr field_;
   std::optional<Mesh> start_;
-  PolygonizeSettings start_settings_;
+  PolygonizeGrid start_grid_;
   MeshOptimizerOptions options_;
   FrameEncoding encoding_;
   std::int64_t max_triangles_;
@@ -138,32 +143,9 @@ std::unique_ptr<JobRunner> make_optimize_runner(const v1::JobSpec& spec, const J
   if (!job.has_scene()) {
     throw InvalidInput(path + ".scene", path + ".scene is missing; give the field the mesh should fit");
   }
-  FieldPtr field = field_from_scene(job.scene(), path + ".scene", context.uploads);
-
-  MeshOptimizerOptions options;
-  if (job.has_d_flow()) options.d_flow = job.d_flow();
-  if (job.has_n_flow()) options.n_flow = job.n_flow();
-  if (job.has_t_flow()) options.t_flow = job.t_flow();
-  if (job.has_c_d()) options.c_d = job.c_d();
-  if (job.has_c_n()) options.c_n = job.c_n();
-  if (job.has_c_t()) options.c_t = job.c_t();
-  if (job.has_step_bound()) options.step_bound = job.step_bound();
-  options.modified_flows = job.modified_flows();
-  if (job.has_t_flow_iterations()) options.t_flow_iterations = job.t_flow_iterations();
-  if (job.has_max_iterations()) options.max_iterations = job.max_iterations();
-  if (job.has_tolerance()) options.tolerance = job.tolerance();
-  if (job.has_subdivision_threshold()) options.subdivision_threshold = job.subdivision_threshold();
-  if (job.has_triangle_budget()) options.triangle_budget = job.triangle_budget();
-  if (job.has_snapshot_every()) options.snapshot_every = job.snapshot_every();
-  options.normals = spec.output().normals();
-  if (options.snapshot_every < 0) {
-    throw InvalidInput(path + ".snapshot_every", path + ".snapshot_every (" + std::to_string(options.snapshot_every) +
-                                                     ") must be >= 0 (0: only the final mesh)");
-  }
-  if (options.max_iterations < 0 || options.max_iterations > 1'000'000) {
-    throw InvalidInput(path + ".max_iterations", path + ".max_iterations (" + std::to_string(options.max_iterations) +
-                                                     ") must be in 0..1000000 (default 200)");
-  }
+  FieldPtr field = wire::field_from_scene(job.scene(), path + ".scene", context.uploads);
+  const MeshOptimizerOptions options = wire::optimizer_options(job, spec.output().normals(), path);
+  check_frame_count(optimize_frame_count(options), path + ".snapshot_every", context.limits);
   if (options.triangle_budget && *options.triangle_budget > context.limits.max_triangles) {
     throw ResourceLimit("max_triangles", path + ".triangle_budget (" + std::to_string(*options.triangle_budget) +
                                              ") is over the server's limit of " +
@@ -173,59 +155,34 @@ std::unique_ptr<JobRunner> make_optimize_runner(const v1::JobSpec& spec, const J
 
   // The start mesh: uploaded (parsed now, so a bad file fails the submit) or polygonized by the job.
   std::optional<Mesh> start;
-  PolygonizeSettings settings;
+  PolygonizeGrid grid;
   Aabb box;
   if (job.start_case() == v1::OptimizeJob::kMeshUploadId) {
     const auto blob = context.uploads.get(job.mesh_upload_id(), path + ".mesh_upload_id");
     try {
       start = parse_mesh(blob->bytes, sniff_mesh_format(blob->bytes), "upload " + job.mesh_upload_id());
+      validate_start_mesh(*start);
     } catch (const Error& e) {
       if (e.kind() != ErrorKind::kInvalidInput) throw;
       throw InvalidInput(path + ".mesh_upload_id", path + ".mesh_upload_id: " + e.what());
-    }
-    if (start->triangles.empty()) {
-      throw InvalidInput(path + ".mesh_upload_id", path + ".mesh_upload_id: the start mesh has no triangles");
     }
     if (static_cast<std::int64_t>(start->triangles.size()) > context.limits.max_triangles) {
       throw ResourceLimit("max_triangles", path + ".mesh_upload_id: the start mesh has " +
                                                std::to_string(start->triangles.size()) +
                                                " triangles, over the server's limit; raise --max-triangles");
     }
-    box.min = box.max = start->vertices.front();
-    for (const auto& v : start->vertices) {
-      box.min = box.min.cwiseMin(v);
-      box.max = box.max.cwiseMax(v);
-    }
-    if (const auto b = field->bounds()) {
-      box.min = box.min.cwiseMin(b->min);
-      box.max = box.max.cwiseMax(b->max);
-    }
+    box = Aabb::of(start->vertices);
+    if (const auto b = field->bounds()) box.merge(*b);
   } else {
-    const v1::Polygonize& p = job.polygonize();
-    Resolution resolution;
-    if (p.resolution_case() == v1::Polygonize::kCells) resolution.cells = p.cells();
-    if (p.resolution_case() == v1::Polygonize::kCellSize) resolution.cell_size = p.cell_size();
-    // Optimization starts from Marching Cubes unless asked otherwise (the paper's setting).
-    const v1::Polygonizer method = p.method() == v1::POLYGONIZER_UNSPECIFIED ? v1::POLYGONIZER_CUBES : p.method();
-    settings = resolve_polygonize({field}, p.has_bounds() ? &p.bounds() : nullptr, resolution, kDefaultStartCells,
-                                  method, false, context.limits, path + ".polygonize");
-    box = settings.bounds;
+    const PolygonizeOptions start_options = wire::start_polygonize_options(job.polygonize(), path + ".polygonize");
+    const FieldPtr fields[] = {field};
+    grid = with_path(path + ".polygonize", [&] { return resolve_grid(fields, start_options); });
+    check_grid_cells(grid, path + ".polygonize", context.limits);
+    box = grid.bounds;
   }
-  const double pad = kBoxPadFraction * box.size().norm();
-  box.min.array() -= pad;
-  box.max.array() += pad;
-  const FrameEncoding encoding = resolve_output(spec.output(), box, "spec.output");
-  try {
-    // Validates the options (the constructor throws InvalidInput naming the option).
-    Mesh probe;
-    probe.vertices = {Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(0, 1, 0)};
-    probe.triangles = {{0, 1, 2}};
-    MeshOptimizer validate(*field, std::move(probe), options);
-  } catch (const Error& e) {
-    if (e.kind() != ErrorKind::kInvalidInput) throw;
-    throw InvalidInput(path + "." + e.field(), path + "." + e.what());
-  }
-  return std::make_unique<OptimizeRunner>(std::move(field), std::move(start), settings, options, encoding,
+  box = box.padded(kBoxPadFraction * box.size().norm());
+  const FrameEncoding encoding = wire::frame_encoding(spec.output(), box, "spec.output");
+  return std::make_unique<OptimizeRunner>(std::move(field), std::move(start), grid, options, encoding,
                                           context.limits.max_triangles, context.worker_threads);
 }
 

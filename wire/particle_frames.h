@@ -1,4 +1,4 @@
-// Particle frames of a request (inline or uploaded float32 records) -> positions and radii, validated.
+// Particle frames of a request (inline, or uploaded float32 records) -> positions and radii, validated.
 #pragma once
 
 #include <cstdint>
@@ -9,11 +9,11 @@
 
 namespace surfacer::v1 {
 class ParticleFrame;
-}
+}  // namespace surfacer::v1
 
-namespace surfacer::server {
+namespace surfacer::wire {
 
-class UploadStore;
+class UploadLookup;
 
 struct ParticleData {
   std::vector<Vec3> positions;
@@ -22,8 +22,8 @@ struct ParticleData {
 
 struct ParticleSummary {
   std::int64_t count = 0;
-  Aabb bounds;           // of the positions
-  double max_radius = 0;  // 0 when the frame has no radii
+  Aabb bounds;             // of the positions
+  double max_radius = 0;   // 0 when the frame has no radii
 };
 
 // Validates a frame and summarizes it without keeping the positions (used at submit time for the job's bounds).
@@ -31,10 +31,10 @@ struct ParticleSummary {
 // not a whole number of records, a radii count mismatch, a radius <= 0, no particles), ResourceLimit naming
 // --max-particles.
 ParticleSummary summarize_particle_frame(const v1::ParticleFrame& frame, const std::string& path,
-                                         const UploadStore& uploads, std::int64_t max_particles);
+                                         const UploadLookup& uploads, std::int64_t max_particles);
 
 // Decodes a frame (same checks).
-ParticleData load_particle_frame(const v1::ParticleFrame& frame, const std::string& path, const UploadStore& uploads,
+ParticleData load_particle_frame(const v1::ParticleFrame& frame, const std::string& path, const UploadLookup& uploads,
                                  std::int64_t max_particles);
 
-}  // namespace surfacer::server
+}  // namespace surfacer::wire

@@ -1,4 +1,5 @@
-// proto Scene -> core Field: the one translation from the wire schema to core's scene builders.
+// proto Scene -> core Field: the one translation from the wire schema to core's scene builders, and the small
+// geometry messages (Vec3, Bounds) both ways.
 #pragma once
 
 #include <string>
@@ -11,17 +12,22 @@ class Bounds;
 class Vec3;
 }  // namespace surfacer::v1
 
-namespace surfacer::server {
+namespace surfacer::wire {
 
-class UploadStore;
+class UploadLookup;
+
+// Nodes nested deeper than this are refused (the CSG and transform nodes recurse).
+inline constexpr int kMaxSceneDepth = 200;
 
 // Builds the field of `scene`. `path` names the scene in the request (e.g. "spec.isosurface.scenes[0]") and
 // prefixes every error: "spec.isosurface.scenes[0].root.sphere.radius (-1) must be > 0".
 // Throws surfacer::Error(kInvalidInput).
-FieldPtr field_from_scene(const v1::Scene& scene, const std::string& path, const UploadStore& uploads);
+FieldPtr field_from_scene(const v1::Scene& scene, const std::string& path, const UploadLookup& uploads);
 
 Vec3 to_vec3(const v1::Vec3& v);
 // Throws InvalidInput naming `path` when a coordinate is not finite or min >= max on some axis.
 Aabb to_aabb(const v1::Bounds& bounds, const std::string& path);
+void set_vec3(v1::Vec3& out, const Vec3& v);
+void set_bounds(v1::Bounds& out, const Aabb& box);
 
-}  // namespace surfacer::server
+}  // namespace surfacer::wire

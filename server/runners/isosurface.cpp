@@ -1,24 +1,20 @@
 // Job `isosurface`: scene(s) + bounds + resolution -> one polygonized frame per scene.
-#include <cmath>
-
+#include "core/polygonize/polygonize.h"
 #include "core/util/errors.h"
-#include "core/scene/scene.h"
-#include "server/frames.h"
-#include "server/job_types.h"
-#include "server/polygonize.h"
-#include "server/scene_translate.h"
+#include "server/runners/frames.h"
+#include "server/runners/runner.h"
+#include "wire/job_options.h"
+#include "wire/scene.h"
 
 namespace surfacer::server {
 namespace {
 
-constexpr int kDefaultCells = 128;
-
 class IsosurfaceRunner final : public JobRunner {
  public:
-  IsosurfaceRunner(std::vector<FieldPtr> fields, PolygonizeSettings settings, FrameEncoding encoding,
+  IsosurfaceRunner(std::vector<FieldPtr> fields, PolygonizeGrid grid, FrameEncoding encoding,
                    std::int64_t max_triangles, int worker_threads)
       : fields_(std::move(fields)),
-        settings_(settings),
+        grid_(grid),
         encoding_(encoding),
         max_triangles_(max_triangles),
         worker_threads_(worker_threads) {}
@@ -29,16 +25,17 @@ class IsosurfaceRunner final : public JobRunner {
 
   void run_task(int index, FrameSink& sink, const RunControl& control) override {
     // A single frame gets every core; a sequence runs its frames in parallel, one thread each.
-    const int threads = fields_.size() == 1 ? worker_threads_ : 1;
+    PolygonizeGrid grid = grid_;
+    grid.threads = fields_.size() == 1 ? worker_threads_ : 1;
     StageTimer timer;
-    const Mesh mesh = timer.run("polygonize", [&] { return polygonize(*fields_[index], settings_, threads, control); });
+    const Mesh mesh = timer.run("polygonize", [&] { return polygonize(*fields_[index], grid, control); });
     control.check();
     sink.emit(index, make_frame(mesh, encoding_, max_triangles_, timer));
   }
 
  private:
   std::vector<FieldPtr> fields_;
-  PolygonizeSettings settings_;
+  PolygonizeGrid grid_;
   FrameEncoding encoding_;
   std::int64_t max_triangles_;
   int worker_threads_;
@@ -56,16 +53,14 @@ std::unique_ptr<JobRunner> make_isosurface_runner(const v1::JobSpec& spec, const
   std::vector<FieldPtr> fields;
   fields.reserve(job.scenes_size());
   for (int i = 0; i < job.scenes_size(); ++i) {
-    fields.push_back(field_from_scene(job.scenes(i), path + ".scenes[" + std::to_string(i) + "]", context.uploads));
+    fields.push_back(
+        wire::field_from_scene(job.scenes(i), path + ".scenes[" + std::to_string(i) + "]", context.uploads));
   }
-  Resolution resolution;
-  if (job.resolution_case() == v1::IsosurfaceJob::kCells) resolution.cells = job.cells();
-  if (job.resolution_case() == v1::IsosurfaceJob::kCellSize) resolution.cell_size = job.cell_size();
-  const PolygonizeSettings settings =
-      resolve_polygonize(fields, job.has_bounds() ? &job.bounds() : nullptr, resolution, kDefaultCells, job.method(),
-                         spec.output().normals(), context.limits, path);
-  const FrameEncoding encoding = resolve_output(spec.output(), settings.bounds, "spec.output");
-  return std::make_unique<IsosurfaceRunner>(std::move(fields), settings, encoding, context.limits.max_triangles,
+  const PolygonizeOptions options = wire::isosurface_options(job, spec.output().normals(), path);
+  const PolygonizeGrid grid = with_path(path, [&] { return resolve_grid(fields, options); });
+  check_grid_cells(grid, path, context.limits);
+  const FrameEncoding encoding = wire::frame_encoding(spec.output(), grid.bounds, "spec.output");
+  return std::make_unique<IsosurfaceRunner>(std::move(fields), grid, encoding, context.limits.max_triangles,
                                             context.worker_threads);
 }
 

@@ -1,5 +1,5 @@
-// Jobs: state, finished frames and the watchers that stream them; the store that names them; and the scheduler
-// that runs their tasks on the worker pool, round-robin across jobs.
+// A job: its state, its finished frames and the watchers that stream them. The scheduler (server/scheduler.h) runs
+// its tasks; a job runner (server/runners/runner.h) computes them.
 #pragma once
 
 #include <chrono>
@@ -15,11 +15,11 @@
 #include <set>
 
 #include "core/util/run_control.h"
+#include "server/runners/runner.h"
 #include "surfacer/v1/surfacer.pb.h"
 
 namespace surfacer::server {
 
-class WorkerPool;
 class Store;
 class Usage;
 struct StoredJob;
@@ -29,41 +29,6 @@ class Job;
 struct JobHooks {
   std::function<void(const Job&, const v1::FrameHeader&)> on_frame;
   std::function<void(const Job&, v1::JobState)> on_finished;
-};
-
-// What a job type computes for one frame.
-struct FrameOutput {
-  std::string bytes;
-  v1::MeshEncoding encoding = v1::MESH_ENCODING_DRACO;
-  v1::FrameStats stats;
-};
-
-// Receives the frames a task produces. Thread-safe.
-class FrameSink {
- public:
-  virtual ~FrameSink() = default;
-  virtual void emit(int frame_index, FrameOutput output) = 0;
-  // An evolving task's resumable state after it emitted every frame before `next_frame`: with a durable store it
-  // is kept (replacing the task's previous one), and after a restart the runner gets it back through
-  // JobRunner::resume_from() instead of starting over. Without a store it is dropped. Throws like emit().
-  virtual void checkpoint(int /*task*/, int /*next_frame*/, std::string /*state*/) {}
-};
-
-// A validated, ready-to-run job of one type, cut into independent tasks. Tasks run on worker threads, in parallel
-// for distinct indices; each emits its frames through the sink (a sequence of scenes or particle frames: task i
-// emits frame i; an evolving job — optimization snapshots, active-surface frames — is one task emitting many).
-// run_task throws surfacer::Error (or std::bad_alloc) on failure.
-class JobRunner {
- public:
-  virtual ~JobRunner() = default;
-  virtual std::string kind() const = 0;
-  virtual int task_count() const = 0;
-  // Frames expected; for open-ended jobs an upper bound (the final count is what was emitted).
-  virtual int frame_count() const = 0;
-  virtual void run_task(int index, FrameSink& sink, const RunControl& control) = 0;
-  // Called before run_task after a server restart with the task's last checkpoint (see FrameSink::checkpoint).
-  // A runner that cannot use it ignores it and starts the task over (frames already stored are not sent again).
-  virtual void resume_from(int /*task*/, int /*next_frame*/, std::string /*state*/) {}
 };
 
 // Something to wake when a job changes (a WatchJob stream). Called from worker or gRPC threads; must not block.
@@ -79,8 +44,6 @@ struct FrameRecord {
   std::shared_ptr<const std::string> bytes;
 };
 
-// Maximum payload of one FrameChunk event.
-inline constexpr std::size_t kChunkBytes = std::size_t{1} << 20;
 
 // Where a WatchJob stream is in a job's event sequence.
 struct WatchCursor {
@@ -203,46 +166,6 @@ class Job : public FrameSink {
   google::protobuf::Timestamp created_, started_, finished_;
   std::chrono::steady_clock::time_point finished_steady_{};
   std::vector<std::weak_ptr<JobListener>> listeners_;
-};
-
-// Owns the jobs and runs their tasks on the pool, round-robin across running jobs.
-class Scheduler {
- public:
-  Scheduler(WorkerPool& pool, int max_queued_jobs);
-
-  // Throws surfacer::Error(kResourceLimit) when max_queued_jobs jobs are already waiting.
-  void submit(std::shared_ptr<Job> job);
-  // A job restored from the store: runs `tasks` (finished jobs: none; they are only kept for watching).
-  void resume(std::shared_ptr<Job> job, std::vector<int> tasks);
-  std::shared_ptr<Job> find(const std::string& id) const;
-  std::vector<std::shared_ptr<Job>> list() const;
-  int queued_jobs() const;
-  // Jobs not yet finished.
-  int active_jobs() const;
-  void cancel_all(const std::string& reason);
-  // Suspends every unfinished job (see Job::suspend).
-  void suspend_all();
-  // Jobs of `owner` not yet finished.
-  int active_jobs(const std::string& owner) const;
-  // Forgets finished jobs older than `age`; returns them.
-  std::vector<std::shared_ptr<Job>> forget_finished(std::chrono::seconds age);
-  // Forgets one finished job.
-  void forget(const std::string& id);
-
- private:
-  void run_next_task();
-
-  WorkerPool& pool_;
-  const int max_queued_jobs_;
-  mutable std::mutex mutex_;
-  std::map<std::string, std::shared_ptr<Job>> jobs_;
-  std::vector<std::string> order_;  // submission order, for list()
-  struct Pending {
-    std::shared_ptr<Job> job;
-    std::vector<int> tasks;
-    std::size_t next = 0;
-  };
-  std::deque<Pending> pending_;  // jobs with tasks not yet started, round-robin
 };
 
 }  // namespace surfacer::server

@@ -1,4 +1,4 @@
-#include "server/frames.h"
+#include "server/runners/frames.h"
 
 #include <chrono>
 #include <future>
@@ -6,37 +6,11 @@
 #include "core/util/errors.h"
 #include "core/mesh/mesh_codec.h"
 #include "core/mesh/mesh_io.h"
-#include "server/scene_translate.h"
 
 namespace surfacer::server {
 
 double StageTimer::now() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
-}
-
-FrameEncoding resolve_output(const v1::OutputOptions& options, const Aabb& job_bounds, const std::string& path) {
-  FrameEncoding out;
-  out.encoding = options.encoding() == v1::MESH_ENCODING_PLY ? v1::MESH_ENCODING_PLY : v1::MESH_ENCODING_DRACO;
-  if (options.has_quantization_bits()) {
-    out.quantization_bits = options.quantization_bits();
-    if (out.quantization_bits < 1 || out.quantization_bits > 30) {
-      throw InvalidInput(path + ".quantization_bits",
-                         path + ".quantization_bits (" + std::to_string(out.quantization_bits) +
-                             ") must be in 1..30; the default 14 keeps errors below 1e-4 of the bounds");
-    }
-  }
-  if (options.has_draco_speed()) {
-    out.draco_speed = options.draco_speed();
-    if (out.draco_speed < 0 || out.draco_speed > 10) {
-      throw InvalidInput(path + ".draco_speed", path + ".draco_speed (" + std::to_string(out.draco_speed) +
-                                                    ") must be in 0..10 (default 8)");
-    }
-  }
-  out.quantization_bounds = options.has_quantization_bounds()
-                                ? to_aabb(options.quantization_bounds(), path + ".quantization_bounds")
-                                : job_bounds;
-  out.normals = options.normals();
-  return out;
 }
 
 void fill_mesh_check(const MeshReport& r, v1::MeshCheck& out) {
@@ -78,16 +52,8 @@ FrameOutput make_frame(const Mesh& mesh, const FrameEncoding& encoding, std::int
     return r;
   });
   timer.run("encode", [&] {
-    if (encoding.encoding == v1::MESH_ENCODING_PLY) {
-      out.bytes = write_ply(mesh, /*double_precision=*/true);
-    } else {
-      DracoOptions draco;
-      draco.quantization_bits = encoding.quantization_bits;
-      draco.quantization_bounds = encoding.quantization_bounds;
-      draco.speed = encoding.draco_speed;
-      draco.normals = encoding.normals;
-      out.bytes = encode_draco(mesh, draco);
-    }
+    out.bytes = encoding.encoding == v1::MESH_ENCODING_PLY ? write_ply(mesh, /*double_precision=*/true)
+                                                           : encode_draco(mesh, encoding.draco);
   });
   const MeshReport report = report_future.get();
   out.stats.set_vertices(static_cast<std::int64_t>(mesh.vertices.size()));

@@ -1,5 +1,6 @@
-#include "server/job_types.h"
+#include "server/runners/runner.h"
 
+#include "core/polygonize/polygonize.h"
 #include "core/util/errors.h"
 
 namespace surfacer::server {
@@ -9,6 +10,17 @@ void check_frame_count(std::int64_t count, const std::string& field_path, const 
     throw ResourceLimit("max_frames", field_path + " asks for " + std::to_string(count) +
                                           " frames, over the server's limit of " + std::to_string(limits.max_frames) +
                                           " per job; split the job or start the server with a larger --max-frames");
+  }
+}
+
+void check_grid_cells(const PolygonizeGrid& grid, const std::string& path, const Limits& limits) {
+  if (grid.cell_count > static_cast<double>(limits.max_grid_cells)) {
+    throw ResourceLimit("max_grid_cells", path + ": the grid has " + std::to_string(grid.cells[0]) + " x " +
+                                              std::to_string(grid.cells[1]) + " x " + std::to_string(grid.cells[2]) +
+                                              " cells, over the server's limit of " +
+                                              std::to_string(limits.max_grid_cells) +
+                                              "; use fewer cells or start the server with a larger "
+                                              "--max-grid-cells");
   }
 }
 

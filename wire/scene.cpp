@@ -1,40 +1,29 @@
-#include "server/scene_translate.h"
+#include "wire/scene.h"
 
 #include <Eigen/Geometry>
 
 #include <cmath>
 #include <cstring>
 
+#include "core/util/checks.h"
 #include "core/util/errors.h"
-#include "server/uploads.h"
+#include "wire/uploads.h"
 #include "surfacer/v1/scene.pb.h"
 
-namespace surfacer::server {
+namespace surfacer::wire {
 namespace {
 
 using NodeProto = v1::Node;
 
 double or_default(double value, double fallback) { return value == 0.0 ? fallback : value; }
 
-// Runs a core builder and prefixes any InvalidInput it throws with the node's path in the request.
-template <class Build>
-FieldPtr at_path(const std::string& path, Build&& build) {
-  try {
-    return build();
-  } catch (const Error& e) {
-    if (e.kind() != ErrorKind::kInvalidInput) throw;
-    const std::string field = e.field().empty() ? path : path + "." + e.field();
-    throw InvalidInput(field, path + ": " + e.what());
-  }
-}
-
 class Translator {
  public:
-  explicit Translator(const UploadStore& uploads) : uploads_(uploads) {}
+  explicit Translator(const UploadLookup& uploads) : uploads_(uploads) {}
 
   FieldPtr node(const NodeProto& n, const std::string& path) {
-    if (++depth_ > kMaxDepth) {
-      throw InvalidInput(path, path + ": scene is nested deeper than " + std::to_string(kMaxDepth) +
+    if (++depth_ > kMaxSceneDepth) {
+      throw InvalidInput(path, path + ": scene is nested deeper than " + std::to_string(kMaxSceneDepth) +
                                    " levels; flatten unions into one node with many children");
     }
     FieldPtr result = dispatch(n, path);
@@ -43,31 +32,29 @@ class Translator {
   }
 
  private:
-  static constexpr int kMaxDepth = 200;
-
   FieldPtr dispatch(const NodeProto& n, const std::string& path) {
     switch (n.kind_case()) {
       case NodeProto::kSphere: {
         const auto& s = n.sphere();
-        return at_path(path + ".sphere", [&] { return make_sphere(to_vec3(s.center()), s.radius()); });
+        return with_path(path + ".sphere", [&] { return make_sphere(to_vec3(s.center()), s.radius()); });
       }
       case NodeProto::kBox: {
         const auto& b = n.box();
-        return at_path(path + ".box", [&] { return make_box(to_vec3(b.center()), to_vec3(b.half_size())); });
+        return with_path(path + ".box", [&] { return make_box(to_vec3(b.center()), to_vec3(b.half_size())); });
       }
       case NodeProto::kRoundedBox: {
         const auto& b = n.rounded_box();
-        return at_path(path + ".rounded_box",
+        return with_path(path + ".rounded_box",
                        [&] { return make_rounded_box(to_vec3(b.center()), to_vec3(b.half_size()), b.radius()); });
       }
       case NodeProto::kCylinder: {
         const auto& c = n.cylinder();
-        return at_path(path + ".cylinder",
+        return with_path(path + ".cylinder",
                        [&] { return make_cylinder(to_vec3(c.a()), to_vec3(c.b()), c.radius()); });
       }
       case NodeProto::kCone: {
         const auto& c = n.cone();
-        return at_path(path + ".cone", [&] {
+        return with_path(path + ".cone", [&] {
           return make_cone(to_vec3(c.a()), to_vec3(c.b()), c.radius_a(), c.radius_b());
         });
       }
@@ -75,22 +62,22 @@ class Translator {
         const auto& t = n.torus();
         Vec3 axis = to_vec3(t.axis());
         if (axis.isZero()) axis = Vec3::UnitZ();
-        return at_path(path + ".torus", [&] {
+        return with_path(path + ".torus", [&] {
           return make_torus(to_vec3(t.center()), axis, t.major_radius(), t.minor_radius());
         });
       }
       case NodeProto::kPlane: {
         const auto& p = n.plane();
-        return at_path(path + ".plane", [&] { return make_plane(to_vec3(p.normal()), p.offset()); });
+        return with_path(path + ".plane", [&] { return make_plane(to_vec3(p.normal()), p.offset()); });
       }
       case NodeProto::kCapsule: {
         const auto& c = n.capsule();
-        return at_path(path + ".capsule",
+        return with_path(path + ".capsule",
                        [&] { return make_capsule(to_vec3(c.a()), to_vec3(c.b()), c.radius()); });
       }
       case NodeProto::kGyroid: {
         const auto& g = n.gyroid();
-        return at_path(path + ".gyroid", [&] { return make_gyroid(g.period(), g.thickness()); });
+        return with_path(path + ".gyroid", [&] { return make_gyroid(g.period(), g.thickness()); });
       }
       case NodeProto::kBlobs:
         return blobs(n.blobs(), path + ".blobs");
@@ -126,7 +113,7 @@ class Translator {
     options.kernel = b.kernel() == v1::KERNEL_BLINN ? BlobKernel::kBlinn : BlobKernel::kWyvill;
     options.iso = or_default(b.iso(), 0.5);
     options.blobbiness = or_default(b.blobbiness(), 1.0);
-    return at_path(path, [&] { return make_blobs(points, segments, options); });
+    return with_path(path, [&] { return make_blobs(points, segments, options); });
   }
 
   FieldPtr csg(CsgOp op, const v1::Csg& c, const std::string& path) {
@@ -142,7 +129,7 @@ class Translator {
       default: options.blend = CsgBlend::kMinMax; break;
     }
     options.radius = c.radius();
-    return at_path(path, [&] { return make_csg(op, std::move(children), options); });
+    return with_path(path, [&] { return make_csg(op, std::move(children), options); });
   }
 
   FieldPtr transform(const v1::Transform& t, const std::string& path) {
@@ -172,21 +159,13 @@ class Translator {
         }
         rotation = Eigen::AngleAxisd(t.rotate_degrees() * M_PI / 180.0, axis.normalized()).toRotationMatrix();
       }
-      if (!(scale > 0.0) || !std::isfinite(scale)) {
-        throw InvalidInput(path + ".scale", path + ".scale (" + std::to_string(scale) +
-                                                ") must be a finite number > 0 (0 or absent means 1)");
-      }
+      with_path(path, [&] { require_positive("scale", scale, "0 or absent means 1"); });
       linear = scale * rotation;
       translation = to_vec3(t.translate());
     }
-    try {
-      return make_transform(child, linear, translation);
-    } catch (const Error& e) {
-      if (e.kind() != ErrorKind::kInvalidInput) throw;
-      // The builder names its arguments `linear` / `translation`; the request calls them matrix / scale.
-      const std::string field = t.matrix_size() > 0 ? "matrix" : "scale";
-      throw InvalidInput(path + "." + field, path + "." + field + ": " + e.what());
-    }
+    // The builder names its arguments `linear` / `translation`; the request calls them matrix / scale.
+    return with_path(path + "." + (t.matrix_size() > 0 ? "matrix" : "scale"),
+                     [&] { return make_transform(child, linear, translation); });
   }
 
   FieldPtr grid(const v1::SampledGrid& g, const std::string& path) {
@@ -210,14 +189,14 @@ class Translator {
       }
       std::vector<float> values(blob->bytes.size() / sizeof(float));
       std::memcpy(values.data(), blob->bytes.data(), values.size() * sizeof(float));
-      return at_path(path, [&] { return make_sampled_grid(desc, values); });
+      return with_path(path, [&] { return make_sampled_grid(desc, values); });
     }
-    return at_path(path, [&] {
+    return with_path(path, [&] {
       return make_sampled_grid(desc, std::span<const float>(g.values().data(), g.values_size()));
     });
   }
 
-  const UploadStore& uploads_;
+  const UploadLookup& uploads_;
   int depth_ = 0;
 };
 
@@ -226,22 +205,23 @@ class Translator {
 Vec3 to_vec3(const v1::Vec3& v) { return {v.x(), v.y(), v.z()}; }
 
 Aabb to_aabb(const v1::Bounds& bounds, const std::string& path) {
-  Aabb box{to_vec3(bounds.min()), to_vec3(bounds.max())};
-  if (!box.min.allFinite() || !box.max.allFinite()) {
-    throw InvalidInput(path, path + " has a coordinate that is not a finite number");
-  }
-  static const char* kAxis[] = {"x", "y", "z"};
-  for (int i = 0; i < 3; ++i) {
-    if (!(box.min[i] < box.max[i])) {
-      throw InvalidInput(path + ".max." + kAxis[i], path + ".min." + kAxis[i] + " (" + std::to_string(box.min[i]) +
-                                                         ") must be < " + path + ".max." + kAxis[i] + " (" +
-                                                         std::to_string(box.max[i]) + ")");
-    }
-  }
+  const Aabb box{to_vec3(bounds.min()), to_vec3(bounds.max())};
+  require_box(path, box);
   return box;
 }
 
-FieldPtr field_from_scene(const v1::Scene& scene, const std::string& path, const UploadStore& uploads) {
+void set_vec3(v1::Vec3& out, const Vec3& v) {
+  out.set_x(v.x());
+  out.set_y(v.y());
+  out.set_z(v.z());
+}
+
+void set_bounds(v1::Bounds& out, const Aabb& box) {
+  set_vec3(*out.mutable_min(), box.min);
+  set_vec3(*out.mutable_max(), box.max);
+}
+
+FieldPtr field_from_scene(const v1::Scene& scene, const std::string& path, const UploadLookup& uploads) {
   if (!scene.has_root()) {
     throw InvalidInput(path + ".root", path + ".root is missing; a scene needs a root node, e.g. "
                                               "{\"root\": {\"sphere\": {\"radius\": 1}}}");
@@ -250,4 +230,5 @@ FieldPtr field_from_scene(const v1::Scene& scene, const std::string& path, const
   return translator.node(scene.root(), path + ".root");
 }
 
-}  // namespace surfacer::server
+}  // namespace surfacer::wire
+

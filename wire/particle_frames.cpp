@@ -1,14 +1,15 @@
-#include "server/particle_input.h"
+#include "wire/particle_frames.h"
 
 #include <cmath>
 #include <cstring>
 #include <limits>
 
 #include "core/util/errors.h"
-#include "server/uploads.h"
+#include "core/util/format.h"
+#include "wire/uploads.h"
 #include "surfacer/v1/surfacer.pb.h"
 
-namespace surfacer::server {
+namespace surfacer::wire {
 namespace {
 
 void check_count(std::size_t count, const std::string& path, std::int64_t max_particles) {
@@ -25,7 +26,7 @@ void check_count(std::size_t count, const std::string& path, std::int64_t max_pa
 // Calls begin(count, has_radius) once, then visit(i, x, y, z, r) for every particle (r = 0 without radii), after
 // checking every value.
 template <class Begin, class Visit>
-void for_each_particle(const v1::ParticleFrame& frame, const std::string& path, const UploadStore& uploads,
+void for_each_particle(const v1::ParticleFrame& frame, const std::string& path, const UploadLookup& uploads,
                        std::int64_t max_particles, Begin&& begin, Visit&& visit) {
   auto check = [&](std::size_t i, double x, double y, double z, double r, bool has_radius) {
     if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) {
@@ -33,7 +34,7 @@ void for_each_particle(const v1::ParticleFrame& frame, const std::string& path, 
     }
     if (has_radius && !(r > 0.0 && std::isfinite(r))) {
       throw InvalidInput(path + ".radii", path + ": particle " + std::to_string(i) + " has radius " +
-                                              std::to_string(r) + "; radii must be finite and > 0");
+                                              format_number(r) + "; radii must be finite and > 0");
     }
   };
   if (!frame.upload_id().empty()) {
@@ -84,7 +85,7 @@ void for_each_particle(const v1::ParticleFrame& frame, const std::string& path, 
 }  // namespace
 
 ParticleSummary summarize_particle_frame(const v1::ParticleFrame& frame, const std::string& path,
-                                         const UploadStore& uploads, std::int64_t max_particles) {
+                                         const UploadLookup& uploads, std::int64_t max_particles) {
   ParticleSummary summary;
   summary.bounds.min = Vec3::Constant(std::numeric_limits<double>::infinity());
   summary.bounds.max = -summary.bounds.min;
@@ -100,7 +101,7 @@ ParticleSummary summarize_particle_frame(const v1::ParticleFrame& frame, const s
   return summary;
 }
 
-ParticleData load_particle_frame(const v1::ParticleFrame& frame, const std::string& path, const UploadStore& uploads,
+ParticleData load_particle_frame(const v1::ParticleFrame& frame, const std::string& path, const UploadLookup& uploads,
                                  std::int64_t max_particles) {
   ParticleData data;
   for_each_particle(
@@ -116,4 +117,4 @@ ParticleData load_particle_frame(const v1::ParticleFrame& frame, const std::stri
   return data;
 }
 
-}  // namespace surfacer::server
+}  // namespace surfacer::wire

@@ -1,20 +1,18 @@
 // Job `particles`: particle frames -> one smooth, watertight mesh per frame (Williams 2008), frames in parallel.
-#include <cmath>
-#include <limits>
-
-#include "core/util/errors.h"
 #include "core/particles/particle_surfacer.h"
-#include "server/frames.h"
-#include "server/job_types.h"
-#include "server/particle_input.h"
-#include "server/scene_translate.h"
+#include "core/util/errors.h"
+#include "server/runners/frames.h"
+#include "server/runners/runner.h"
+#include "wire/job_options.h"
+#include "wire/job_options.h"
+#include "wire/particle_frames.h"
 
 namespace surfacer::server {
 namespace {
 
 class ParticlesRunner final : public JobRunner {
  public:
-  ParticlesRunner(std::vector<v1::ParticleFrame> frames, const UploadStore& uploads, ParticleSurfacingOptions options,
+  ParticlesRunner(std::vector<v1::ParticleFrame> frames, const wire::UploadLookup& uploads, ParticleSurfacingOptions options,
                   FrameEncoding encoding, const Limits& limits, int worker_threads)
       : frames_(std::move(frames)),
         uploads_(uploads),
@@ -30,8 +28,8 @@ class ParticlesRunner final : public JobRunner {
   void run_task(int index, FrameSink& sink, const RunControl& control) override {
     const std::string path = "spec.particles.frames[" + std::to_string(index) + "]";
     StageTimer timer;
-    const ParticleData data = timer.run(
-        "decode", [&] { return load_particle_frame(frames_[index], path, uploads_, limits_.max_particles); });
+    const wire::ParticleData data = timer.run(
+        "decode", [&] { return wire::load_particle_frame(frames_[index], path, uploads_, limits_.max_particles); });
     ParticleSurfacingOptions options = options_;
     // A single frame gets every core; a sequence runs its frames in parallel, one thread each.
     options.threads = frames_.size() == 1 ? worker_threads_ : 1;
@@ -64,17 +62,12 @@ class ParticlesRunner final : public JobRunner {
 
  private:
   std::vector<v1::ParticleFrame> frames_;
-  const UploadStore& uploads_;
+  const wire::UploadLookup& uploads_;
   ParticleSurfacingOptions options_;
   FrameEncoding encoding_;
   Limits limits_;
   int worker_threads_;
 };
-
-template <class T>
-void positive_count(const std::string& field, const T& value) {
-  if (value < 0) throw InvalidInput(field, field + " (" + std::to_string(value) + ") must be >= 0");
-}
 
 }  // namespace
 
@@ -85,54 +78,24 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
     throw InvalidInput(path + ".frames", path + ".frames is empty; give at least one particle frame");
   }
   check_frame_count(job.frames_size(), path + ".frames", context.limits);
-  ParticleSurfacingOptions options;
-  if (job.has_r_inner()) options.r_inner = job.r_inner();
-  options.derive_r_inner = job.derive_r_inner();
-  if (job.has_r_outer()) options.r_outer = job.r_outer();
-  if (job.has_spacing_factor()) options.spacing_factor = job.spacing_factor();
-  if (job.has_laplacian_sweeps()) options.laplacian_sweeps = job.laplacian_sweeps();
-  if (job.has_bilaplacian_sweeps()) options.bilaplacian_sweeps = job.bilaplacian_sweeps();
-  if (job.has_polish_sweeps()) options.polish_sweeps = job.polish_sweeps();
-  if (job.has_relaxation()) options.relaxation = job.relaxation();
-  if (job.has_erosion()) options.erosion = job.erosion();
-  if (job.container().has_box()) options.container_box = to_aabb(job.container().box(), path + ".container.box");
-  if (job.container().has_solid()) {
-    options.container_solid = field_from_scene(job.container().solid(), path + ".container.solid", context.uploads);
-  }
-  positive_count(path + ".min_particles_per_component", job.min_particles_per_component());
-  options.min_particles_per_component = job.min_particles_per_component();
-  options.normals = spec.output().normals();
-  try {
-    ParticleSurfacer validate(options);  // the constructor checks every option
-  } catch (const Error& e) {
-    if (e.kind() != ErrorKind::kInvalidInput) throw;
-    throw InvalidInput(path + "." + e.field(), path + "." + e.what());
-  }
+  ParticleSurfacingOptions options =
+      wire::particle_options(job, spec.output().normals(), context.uploads, path);
 
   // Every frame is checked now (so bad data fails the submit, not a frame later), and the quantization box is the
-  // union of the frames' particles, padded by how far the surface can reach: r_outer (or the largest particle's).
+  // union of the frames' particles, padded by how far the surface can reach.
   std::vector<v1::ParticleFrame> frames(job.frames().begin(), job.frames().end());
-  Aabb box;
-  double max_radius = 0.0;
+  std::vector<wire::ParticleSummary> summaries;
+  summaries.reserve(frames.size());
   for (int i = 0; i < job.frames_size(); ++i) {
-    const auto summary = summarize_particle_frame(job.frames(i), path + ".frames[" + std::to_string(i) + "]",
-                                                  context.uploads, context.limits.max_particles);
-    box = i == 0 ? summary.bounds : Aabb{box.min.cwiseMin(summary.bounds.min), box.max.cwiseMax(summary.bounds.max)};
-    max_radius = std::max(max_radius, summary.max_radius);
-    if (summary.max_radius == 0.0 && !options.r_inner && !options.derive_r_inner) {
-      throw InvalidInput(path + ".r_inner", path + ".r_inner is required: frame " + std::to_string(i) +
-                                                " has no per-particle radii; give r_inner (e.g. the simulation's "
-                                                "particle radius) or set derive_r_inner");
-    }
+    summaries.push_back(wire::summarize_particle_frame(job.frames(i), path + ".frames[" + std::to_string(i) + "]",
+                                                       context.uploads, context.limits.max_particles));
   }
-  box = particle_sequence_box(
-      box, max_radius, options.r_inner, options.r_outer,
-      [&] {
-        return load_particle_frame(job.frames(0), path + ".frames[0]", context.uploads, context.limits.max_particles)
-            .positions;
-      },
-      options.container_box);
-  const FrameEncoding encoding = resolve_output(spec.output(), box, "spec.output");
+  const Aabb box = wire::particles_job_box(job, summaries, [&] {
+    return wire::load_particle_frame(job.frames(0), path + ".frames[0]", context.uploads,
+                                     context.limits.max_particles)
+        .positions;
+  });
+  const FrameEncoding encoding = wire::frame_encoding(spec.output(), box, "spec.output");
   return std::make_unique<ParticlesRunner>(std::move(frames), context.uploads, std::move(options), encoding,
                                            context.limits, context.worker_threads);
 }

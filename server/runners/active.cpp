@@ -1,39 +1,24 @@
 // Job `active`: a narrow-band potential evolved to track a target (Desbrun-Cani 1998). One task (each frame
 // evolves from the previous one); modes coat (particle sequence), morph (scene A -> B) and advect (velocity field).
 #include <chrono>
-#include <cmath>
 #include <cstring>
 
 #include "core/active/active_surface.h"
+#include "core/util/checks.h"
 #include "core/util/errors.h"
-#include "server/frames.h"
-#include "server/job_types.h"
-#include "server/particle_input.h"
-#include "server/scene_translate.h"
-#include "server/uploads.h"
+#include "server/runners/frames.h"
+#include "server/runners/runner.h"
+#include "wire/job_options.h"
+#include "wire/particle_frames.h"
+#include "wire/scene.h"
+#include "wire/uploads.h"
 
 namespace surfacer::server {
 namespace {
 
-constexpr double kDefaultTracking = 1.0;   // alpha for coat and morph when not given
-constexpr double kDefaultEnrightPeriod = 3.0;
-
-// Runs a core call and prefixes an InvalidInput it throws with `path`.
-template <class F>
-auto with_path(const std::string& path, F&& f) {
-  try {
-    return f();
-  } catch (const Error& e) {
-    if (e.kind() != ErrorKind::kInvalidInput) throw;
-    throw InvalidInput(path + "." + e.field(), path + "." + e.what());
-  }
-}
-
-Aabb union_of(const Aabb& a, const Aabb& b) { return {a.min.cwiseMin(b.min), a.max.cwiseMax(b.max)}; }
-
 class ActiveRunner final : public JobRunner {
  public:
-  ActiveRunner(v1::ActiveJob job, const UploadStore& uploads, ActiveSurfaceOptions options, FrameEncoding encoding,
+  ActiveRunner(v1::ActiveJob job, const wire::UploadLookup& uploads, ActiveSurfaceOptions options, FrameEncoding encoding,
                const Limits& limits, int frames_expected)
       : job_(std::move(job)),
         uploads_(uploads),
@@ -100,7 +85,7 @@ class ActiveRunner final : public JobRunner {
         std::vector<std::vector<Vec3>> frames;
         frames.reserve(coat.frames_size());
         for (int i = 0; i < coat.frames_size(); ++i) {
-          frames.push_back(load_particle_frame(coat.frames(i), path + ".coat.frames[" + std::to_string(i) + "]",
+          frames.push_back(wire::load_particle_frame(coat.frames(i), path + ".coat.frames[" + std::to_string(i) + "]",
                                                uploads_, limits_.max_particles)
                                .positions);
         }
@@ -113,8 +98,8 @@ class ActiveRunner final : public JobRunner {
       }
       case v1::ActiveJob::kMorph: {
         const auto& morph = job_.morph();
-        const FieldPtr from = field_from_scene(morph.from(), path + ".morph.from", uploads_);
-        const FieldPtr to = field_from_scene(morph.to(), path + ".morph.to", uploads_);
+        const FieldPtr from = wire::field_from_scene(morph.from(), path + ".morph.from", uploads_);
+        const FieldPtr to = wire::field_from_scene(morph.to(), path + ".morph.to", uploads_);
         MorphOptions options;
         if (morph.has_tolerance()) options.tolerance = morph.tolerance();
         if (morph.has_max_frames()) options.max_frames = morph.max_frames();
@@ -125,7 +110,7 @@ class ActiveRunner final : public JobRunner {
       }
       case v1::ActiveJob::kAdvect: {
         const auto& advect = job_.advect();
-        const FieldPtr shape = field_from_scene(advect.shape(), path + ".advect.shape", uploads_);
+        const FieldPtr shape = wire::field_from_scene(advect.shape(), path + ".advect.shape", uploads_);
         AdvectOptions options;
         options.frame_interval = advect.frame_interval();
         options.frames = advect.frames();
@@ -140,15 +125,15 @@ class ActiveRunner final : public JobRunner {
 
   VelocityFn velocity(const v1::ActiveAdvect& advect, const std::string& path) const {
     if (advect.has_grid()) return make_velocity_fn(velocity_grid(advect.grid(), path + ".grid", uploads_));
-    const double period = advect.enright().has_period() ? advect.enright().period() : kDefaultEnrightPeriod;
+    const double period = advect.enright().has_period() ? advect.enright().period() : kEnrightPeriod;
     return [period](const Vec3& p, double t) { return enright_velocity(p, t, period); };
   }
 
   static std::shared_ptr<const VelocityGrid> velocity_grid(const v1::VelocityGrid& g, const std::string& path,
-                                                           const UploadStore& uploads) {
+                                                           const wire::UploadLookup& uploads) {
     auto grid = std::make_shared<VelocityGrid>();
-    grid->origin = to_vec3(g.origin());
-    grid->spacing = to_vec3(g.spacing());
+    grid->origin = wire::to_vec3(g.origin());
+    grid->spacing = wire::to_vec3(g.spacing());
     grid->nx = g.nx();
     grid->ny = g.ny();
     grid->nz = g.nz();
@@ -158,16 +143,13 @@ class ActiveRunner final : public JobRunner {
     }
     grid->values.resize(blob->bytes.size() / sizeof(float));
     std::memcpy(grid->values.data(), blob->bytes.data(), grid->values.size() * sizeof(float));
-    with_path(path, [&] {
-      grid->validate();
-      return 0;
-    });
+    with_path(path, [&] { grid->validate(); });
     return grid;
   }
 
  private:
   v1::ActiveJob job_;
-  const UploadStore& uploads_;
+  const wire::UploadLookup& uploads_;
   ActiveSurfaceOptions options_;
   FrameEncoding encoding_;
   Limits limits_;
@@ -180,30 +162,14 @@ class ActiveRunner final : public JobRunner {
 std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const JobContext& context) {
   const auto& job = spec.active();
   const std::string path = "spec.active";
-  ActiveSurfaceOptions options;
-  options.h = job.grid_spacing();
-  if (!(options.h > 0.0) || !std::isfinite(options.h)) {
-    throw InvalidInput(path + ".grid_spacing", path + ".grid_spacing (" + std::to_string(options.h) +
-                                                   ") must be a finite number > 0 (the potential's grid spacing h)");
-  }
-  if (job.has_bounds()) options.domain = to_aabb(job.bounds(), path + ".bounds");
-  const bool tracking = job.mode_case() != v1::ActiveJob::kAdvect;
-  options.alpha = job.has_alpha() ? job.alpha() : (tracking ? kDefaultTracking : 0.0);
-  if (job.has_beta()) options.beta = job.beta();
-  if (job.has_gamma()) options.gamma = job.gamma();
-  if (job.has_delta()) options.delta = job.delta();
-  if (job.has_cfl()) options.cfl = job.cfl();
-  options.polygonizer =
-      job.polygonizer() == v1::POLYGONIZER_CUBES ? ActivePolygonizer::kCubes : ActivePolygonizer::kTiles;
-  options.normals = spec.output().normals();
+  const ActiveSurfaceOptions options = wire::active_options(job, spec.output().normals(), path);
 
   // Validate the mode now and find the region the surface can occupy (the frames' quantization box).
   std::optional<Aabb> region = options.domain;
   int frames_expected = 1;
   auto add_region = [&](const std::optional<Aabb>& b, double pad) {
     if (!b || options.domain) return;
-    Aabb padded{b->min.array() - pad, b->max.array() + pad};
-    region = region ? union_of(*region, padded) : padded;
+    region = region ? merged(*region, b->padded(pad)) : b->padded(pad);
   };
   switch (job.mode_case()) {
     case v1::ActiveJob::kCoat: {
@@ -211,13 +177,10 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
       if (coat.frames_size() == 0) {
         throw InvalidInput(path + ".coat.frames", path + ".coat.frames is empty; give the particle sequence");
       }
-      if (!(coat.kernel_radius() > 0.0) || !std::isfinite(coat.kernel_radius())) {
-        throw InvalidInput(path + ".coat.kernel_radius", path + ".coat.kernel_radius (" +
-                                                             std::to_string(coat.kernel_radius()) +
-                                                             ") must be > 0 (the Wyvill kernel's support R)");
-      }
+      with_path(path + ".coat",
+                [&] { require_positive("kernel_radius", coat.kernel_radius(), "the Wyvill kernel's support R"); });
       for (int i = 0; i < coat.frames_size(); ++i) {
-        const auto summary = summarize_particle_frame(coat.frames(i), path + ".coat.frames[" + std::to_string(i) + "]",
+        const auto summary = wire::summarize_particle_frame(coat.frames(i), path + ".coat.frames[" + std::to_string(i) + "]",
                                                       context.uploads, context.limits.max_particles);
         add_region(summary.bounds, coat.kernel_radius() + 4 * options.h);
       }
@@ -227,20 +190,20 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
     }
     case v1::ActiveJob::kMorph: {
       const auto& morph = job.morph();
-      const FieldPtr from = field_from_scene(morph.from(), path + ".morph.from", context.uploads);
-      const FieldPtr to = field_from_scene(morph.to(), path + ".morph.to", context.uploads);
+      const FieldPtr from = wire::field_from_scene(morph.from(), path + ".morph.from", context.uploads);
+      const FieldPtr to = wire::field_from_scene(morph.to(), path + ".morph.to", context.uploads);
       if (!options.domain && (!from->bounds() || !to->bounds())) {
         throw InvalidInput(path + ".bounds", path + ": a morph between unbounded scenes needs " + path + ".bounds");
       }
       add_region(from->bounds(), 4 * options.h);
       add_region(to->bounds(), 4 * options.h);
       if (morph.has_max_frames()) check_frame_count(morph.max_frames(), path + ".morph.max_frames", context.limits);
-      frames_expected = morph.has_max_frames() ? morph.max_frames() + 1 : 101;
+      frames_expected = (morph.has_max_frames() ? morph.max_frames() : MorphOptions{}.max_frames) + 1;
       break;
     }
     case v1::ActiveJob::kAdvect: {
       const auto& advect = job.advect();
-      const FieldPtr shape = field_from_scene(advect.shape(), path + ".advect.shape", context.uploads);
+      const FieldPtr shape = wire::field_from_scene(advect.shape(), path + ".advect.shape", context.uploads);
       if (!(advect.frame_interval() > 0.0) || advect.frames() < 1) {
         throw InvalidInput(path + ".advect", path + ".advect needs frame_interval > 0 and frames >= 1 (got " +
                                                  std::to_string(advect.frame_interval()) + ", " +
@@ -267,7 +230,7 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
   if (!region) {
     throw InvalidInput(path + ".bounds", path + ": the shape is unbounded; give " + path + ".bounds");
   }
-  const FrameEncoding encoding = resolve_output(spec.output(), *region, "spec.output");
+  const FrameEncoding encoding = wire::frame_encoding(spec.output(), *region, "spec.output");
   return std::make_unique<ActiveRunner>(job, context.uploads, options, encoding, context.limits, frames_expected);
 }
 

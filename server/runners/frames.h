@@ -1,4 +1,4 @@
-// Shared by every job type: a finished mesh becomes a frame (checks, stats, encoding).
+// Shared by every job runner: a finished mesh becomes a frame (checks, stats, encoding).
 #pragma once
 
 #include <chrono>
@@ -8,22 +8,12 @@
 
 #include "core/mesh/mesh.h"
 #include "core/mesh/mesh_checks.h"
-#include "server/jobs.h"
+#include "server/runners/runner.h"
+#include "wire/output.h"
 
 namespace surfacer::server {
 
-// Output settings of a job, resolved from v1::OutputOptions with defaults and validated.
-struct FrameEncoding {
-  v1::MeshEncoding encoding = v1::MESH_ENCODING_DRACO;
-  int quantization_bits = 14;
-  Aabb quantization_bounds;  // fixed for the whole job
-  int draco_speed = 8;
-  bool normals = false;
-};
-
-// Resolves `options` (path: where it sits in the request, for errors); `job_bounds` is the default quantization
-// box. Throws InvalidInput naming the field.
-FrameEncoding resolve_output(const v1::OutputOptions& options, const Aabb& job_bounds, const std::string& path);
+using wire::FrameEncoding;
 
 // Times stages of a frame: `timings.run("polygonize", [&]{...})`.
 class StageTimer {

@@ -1,0 +1,46 @@
+// Numbers and bytes in messages, one way everywhere: an error that echoes a value the user gave shows it exactly
+// (a tolerance of 1e-9 reads 1e-09, never 0.000000).
+#pragma once
+
+#include <array>
+#include <charconv>
+#include <cstdint>
+#include <string>
+#include <string_view>
+
+namespace surfacer {
+
+// The shortest text that reads back as exactly `v` ("0.25", "1e-09", "-3", "inf", "nan").
+inline std::string format_number(double v) {
+  std::array<char, 32> buf;
+  const auto result = std::to_chars(buf.data(), buf.data() + buf.size(), v);
+  return std::string(buf.data(), result.ptr);
+}
+
+// "0x" and 8 lower-case hex digits (CRC-32 values).
+inline std::string hex32(std::uint32_t v) {
+  static constexpr char kDigits[] = "0123456789abcdef";
+  std::string out = "0x00000000";
+  for (int i = 0; i < 8; ++i) out[9 - i] = kDigits[(v >> (4 * i)) & 0xF];
+  return out;
+}
+
+// 'text', cut to at most `max_chars` characters of it (so a hostile token cannot make a message huge).
+inline std::string quote(std::string_view text, std::size_t max_chars = 40) {
+  std::string out;
+  out.reserve(std::min(text.size(), max_chars) + 2);
+  out += '\'';
+  out.append(text.substr(0, max_chars));
+  out += '\'';
+  return out;
+}
+
+// `text` without leading and trailing white space.
+inline std::string_view trim(std::string_view text) {
+  constexpr std::string_view kSpace = " \t\r\n\f\v";
+  const std::size_t begin = text.find_first_not_of(kSpace);
+  if (begin == std::string_view::npos) return {};
+  return text.substr(begin, text.find_last_not_of(kSpace) - begin + 1);
+}
+
+}  // namespace surfacer

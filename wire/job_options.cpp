@@ -1,0 +1,147 @@
+#include "wire/job_options.h"
+
+#include "core/util/checks.h"
+#include "core/util/errors.h"
+#include "wire/scene.h"
+
+namespace surfacer::wire {
+
+Polygonizer to_polygonizer(int value, Polygonizer unspecified, const std::string& field) {
+  switch (value) {
+    case v1::POLYGONIZER_UNSPECIFIED: return unspecified;
+    case v1::POLYGONIZER_TILES: return Polygonizer::kTiles;
+    case v1::POLYGONIZER_CUBES: return Polygonizer::kCubes;
+    default: break;
+  }
+  throw InvalidInput(field, field + " (" + std::to_string(value) +
+                                ") is not a polygonizer; use POLYGONIZER_TILES or POLYGONIZER_CUBES");
+}
+
+v1::Polygonizer to_wire(Polygonizer polygonizer) {
+  return polygonizer == Polygonizer::kCubes ? v1::POLYGONIZER_CUBES : v1::POLYGONIZER_TILES;
+}
+
+namespace {
+
+// Bounds, resolution and method of a polygonization request (IsosurfaceJob and Polygonize share the fields).
+template <class Request>
+PolygonizeOptions polygonize_request(const Request& request, PolygonizeOptions options, const std::string& path) {
+  options.method = to_polygonizer(request.method(), options.method, path + ".method");
+  if (request.has_bounds()) options.bounds = to_aabb(request.bounds(), path + ".bounds");
+  if (request.resolution_case() == Request::kCells) options.cells = request.cells();
+  if (request.resolution_case() == Request::kCellSize) options.cell_size = request.cell_size();
+  with_path(path, [&] { validate(options); });
+  return options;
+}
+
+}  // namespace
+
+PolygonizeOptions isosurface_options(const v1::IsosurfaceJob& job, bool normals, const std::string& path) {
+  PolygonizeOptions options;
+  options.normals = normals;
+  return polygonize_request(job, options, path);
+}
+
+PolygonizeOptions start_polygonize_options(const v1::Polygonize& start, const std::string& path) {
+  return polygonize_request(start, default_start_polygonize(), path);
+}
+
+ParticleSurfacingOptions particle_options(const v1::ParticlesJob& job, bool normals, const UploadLookup& uploads,
+                                          const std::string& path) {
+  ParticleSurfacingOptions options;
+  if (job.has_r_inner()) options.r_inner = job.r_inner();
+  options.derive_r_inner = job.derive_r_inner();
+  if (job.has_r_outer()) options.r_outer = job.r_outer();
+  if (job.has_spacing_factor()) options.spacing_factor = job.spacing_factor();
+  if (job.has_laplacian_sweeps()) options.laplacian_sweeps = job.laplacian_sweeps();
+  if (job.has_bilaplacian_sweeps()) options.bilaplacian_sweeps = job.bilaplacian_sweeps();
+  if (job.has_polish_sweeps()) options.polish_sweeps = job.polish_sweeps();
+  if (job.has_relaxation()) options.relaxation = job.relaxation();
+  if (job.has_erosion()) options.erosion = job.erosion();
+  if (job.container().has_box()) options.container_box = to_aabb(job.container().box(), path + ".container.box");
+  if (job.container().has_solid()) {
+    options.container_solid = field_from_scene(job.container().solid(), path + ".container.solid", uploads);
+  }
+  options.min_particles_per_component = job.min_particles_per_component();
+  options.normals = normals;
+  with_path(path, [&] { validate(options); });
+  return options;
+}
+
+Aabb particles_job_box(const v1::ParticlesJob& job, std::span<const ParticleSummary> frames,
+                       const std::function<std::vector<Vec3>()>& first_frame) {
+  const std::string path = "spec.particles";
+  Aabb box;
+  double max_radius = 0.0;
+  for (std::size_t i = 0; i < frames.size(); ++i) {
+    box = i == 0 ? frames[i].bounds : merged(box, frames[i].bounds);
+    max_radius = std::max(max_radius, frames[i].max_radius);
+    if (frames[i].max_radius == 0.0 && !job.has_r_inner() && !job.derive_r_inner()) {
+      throw InvalidInput(path + ".r_inner", path + ".r_inner is required: frame " + std::to_string(i) +
+                                                " has no per-particle radii; give r_inner (e.g. the simulation's "
+                                                "particle radius) or set derive_r_inner");
+    }
+  }
+  const std::optional<double> r_inner = job.has_r_inner() ? std::optional<double>(job.r_inner()) : std::nullopt;
+  const std::optional<double> r_outer = job.has_r_outer() ? std::optional<double>(job.r_outer()) : std::nullopt;
+  std::optional<Aabb> container;
+  if (job.container().has_box()) container = to_aabb(job.container().box(), path + ".container.box");
+  return particle_sequence_box(box, max_radius, r_inner, r_outer, first_frame, container);
+}
+
+MeshOptimizerOptions optimizer_options(const v1::OptimizeJob& job, bool normals, const std::string& path) {
+  MeshOptimizerOptions options;
+  if (job.has_d_flow()) options.d_flow = job.d_flow();
+  if (job.has_n_flow()) options.n_flow = job.n_flow();
+  if (job.has_t_flow()) options.t_flow = job.t_flow();
+  if (job.has_c_d()) options.c_d = job.c_d();
+  if (job.has_c_n()) options.c_n = job.c_n();
+  if (job.has_c_t()) options.c_t = job.c_t();
+  if (job.has_step_bound()) options.step_bound = job.step_bound();
+  options.modified_flows = job.modified_flows();
+  if (job.has_t_flow_iterations()) options.t_flow_iterations = job.t_flow_iterations();
+  if (job.has_max_iterations()) options.max_iterations = job.max_iterations();
+  if (job.has_tolerance()) options.tolerance = job.tolerance();
+  if (job.has_subdivision_threshold()) options.subdivision_threshold = job.subdivision_threshold();
+  if (job.has_triangle_budget()) options.triangle_budget = job.triangle_budget();
+  if (job.has_snapshot_every()) options.snapshot_every = job.snapshot_every();
+  options.normals = normals;
+  with_path(path, [&] { validate(options); });
+  return options;
+}
+
+ActiveSurfaceOptions active_options(const v1::ActiveJob& job, bool normals, const std::string& path) {
+  ActiveSurfaceOptions options;
+  // The request calls the engine's h grid_spacing, and has no default for it.
+  with_path(path, [&] { require_positive("grid_spacing", job.grid_spacing(), "the potential's grid spacing h"); });
+  options.h = job.grid_spacing();
+  if (job.has_bounds()) options.domain = to_aabb(job.bounds(), path + ".bounds");
+  const bool tracking = job.mode_case() == v1::ActiveJob::kCoat || job.mode_case() == v1::ActiveJob::kMorph;
+  if (job.has_alpha()) {
+    options.alpha = job.alpha();
+  } else if (tracking) {
+    options.alpha = ActiveSurfaceOptions::kTrackingAlpha;
+  }
+  if (job.has_beta()) options.beta = job.beta();
+  if (job.has_gamma()) options.gamma = job.gamma();
+  if (job.has_delta()) options.delta = job.delta();
+  if (job.has_cfl()) options.cfl = job.cfl();
+  if (job.coat().has_substeps_per_frame()) {
+    // A fixed number of sub-steps per frame instead of the CFL-sized ones (each still no longer than the stability
+    // bound allows).
+    if (job.has_cfl()) {
+      throw InvalidInput(path + ".cfl", path + ".cfl and " + path +
+                                            ".coat.substeps_per_frame are both set; give one (cfl sizes each sub-step, "
+                                            "substeps_per_frame fixes their number)");
+    }
+    options.cfl.reset();
+    options.substeps_per_frame = job.coat().substeps_per_frame();
+    with_path(path + ".coat", [&] { require_count("substeps_per_frame", options.substeps_per_frame, 1, 100000); });
+  }
+  options.polygonizer = to_polygonizer(job.polygonizer(), options.polygonizer, path + ".polygonizer");
+  options.normals = normals;
+  with_path(path, [&] { validate(options); });
+  return options;
+}
+
+}  // namespace surfacer::wire

@@ -1,0 +1,48 @@
+// Each job message -> its engine's options, one function per job. Only the fields a request sets override the
+// defaults of core's options structs (the defaults live there, once); every result is checked by the engine's own
+// validate(), its errors placed at the request path ("spec.particles.r_outer (0.004) must exceed r_inner ...").
+// Unknown enum values are refused, naming the field. What depends on the server (limits, frame counts) is checked
+// by the server's job runners.
+#pragma once
+
+#include <functional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "core/active/active_surface.h"
+#include "core/optimize/mesh_optimizer.h"
+#include "core/particles/particle_surfacer.h"
+#include "core/polygonize/polygonize.h"
+#include "surfacer/v1/surfacer.pb.h"
+#include "wire/particle_frames.h"
+
+namespace surfacer::wire {
+
+class UploadLookup;
+
+// v1::Polygonizer -> core; POLYGONIZER_UNSPECIFIED gives `unspecified`. Throws InvalidInput(field) for other values.
+Polygonizer to_polygonizer(int value, Polygonizer unspecified, const std::string& field);
+v1::Polygonizer to_wire(Polygonizer polygonizer);
+
+// IsosurfaceJob (path "spec.isosurface"): method, bounds, cells or cell_size.
+PolygonizeOptions isosurface_options(const v1::IsosurfaceJob& job, bool normals, const std::string& path);
+// OptimizeJob.polygonize: the start mesh the job makes itself (defaults: default_start_polygonize()).
+PolygonizeOptions start_polygonize_options(const v1::Polygonize& start, const std::string& path);
+// ParticlesJob: radii, sweeps, relaxation, erosion, container (its solid is a scene: uploads are looked up).
+ParticleSurfacingOptions particle_options(const v1::ParticlesJob& job, bool normals, const UploadLookup& uploads,
+                                          const std::string& path);
+// The quantization box of a particles job (core particle_sequence_box over the union of the frames' summaries, with
+// the job's radii and container box). `first_frame` gives frame 0's positions, needed only when r_inner is derived.
+// Throws InvalidInput("spec.particles.r_inner") when a frame has no radii and the job gives neither r_inner nor
+// derive_r_inner.
+Aabb particles_job_box(const v1::ParticlesJob& job, std::span<const ParticleSummary> frames,
+                       const std::function<std::vector<Vec3>()>& first_frame);
+
+// OptimizeJob: flows, coefficients, schedule, subdivision, snapshots.
+MeshOptimizerOptions optimizer_options(const v1::OptimizeJob& job, bool normals, const std::string& path);
+// ActiveJob: grid spacing, domain, motion coefficients (alpha defaults to kTrackingAlpha in coat and morph), cfl,
+// polygonizer.
+ActiveSurfaceOptions active_options(const v1::ActiveJob& job, bool normals, const std::string& path);
+
+}  // namespace surfacer::wire
