@@ -18,6 +18,8 @@
 
 #include "core/util/errors.h"
 #include "core/mesh/mesh_codec.h"
+#include "core/mesh/ply.h"
+#include "core/util/text.h"
 
 namespace surfacer {
 namespace {
@@ -27,197 +29,14 @@ namespace {
 }
 
 std::string line_at(std::size_t line) { return "line " + std::to_string(line); }
-std::string byte_at(std::size_t offset) { return "byte " + std::to_string(offset); }
-
-bool is_space(char c) { return c == ' ' || c == '\t' || c == '\r' || c == '\f' || c == '\v'; }
-
-// Splits a line into whitespace-separated tokens (reusing `out`).
-void tokenize(std::string_view line, std::vector<std::string_view>& out) {
-  out.clear();
-  std::size_t i = 0;
-  while (i < line.size()) {
-    while (i < line.size() && is_space(line[i])) ++i;
-    const std::size_t start = i;
-    while (i < line.size() && !is_space(line[i])) ++i;
-    if (i > start) out.push_back(line.substr(start, i - start));
-  }
-}
-
-bool parse_double(std::string_view token, double& value) {
-  const char* begin = token.data();
-  const char* end = token.data() + token.size();
-  if (begin != end && *begin == '+') ++begin;
-  const auto result = std::from_chars(begin, end, value);
-  return result.ec == std::errc() && result.ptr == end;
-}
-
-bool parse_int(std::string_view token, std::int64_t& value) {
-  const char* begin = token.data();
-  const char* end = token.data() + token.size();
-  if (begin != end && *begin == '+') ++begin;
-  const auto result = std::from_chars(begin, end, value);
-  return result.ec == std::errc() && result.ptr == end;
-}
-
-// Lines of a text buffer, numbered from 1, without their line terminator.
-class LineReader {
- public:
-  explicit LineReader(std::string_view data) : data_(data) {}
-  bool next(std::string_view& line) {
-    if (pos_ >= data_.size()) return false;
-    const std::size_t end = data_.find('\n', pos_);
-    const std::size_t stop = end == std::string_view::npos ? data_.size() : end;
-    line = data_.substr(pos_, stop - pos_);
-    if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
-    pos_ = end == std::string_view::npos ? data_.size() : end + 1;
-    ++line_;
-    return true;
-  }
-  std::size_t line() const { return line_; }
-  std::size_t pos() const { return pos_; }
-
- private:
-  std::string_view data_;
-  std::size_t pos_ = 0;
-  std::size_t line_ = 0;
-};
 
 // --- PLY ----------------------------------------------------------------------------------------------------------
-
-enum class PlyType { kInt8, kUint8, kInt16, kUint16, kInt32, kUint32, kFloat32, kFloat64 };
-
-std::optional<PlyType> ply_type(std::string_view name) {
-  if (name == "char" || name == "int8") return PlyType::kInt8;
-  if (name == "uchar" || name == "uint8") return PlyType::kUint8;
-  if (name == "short" || name == "int16") return PlyType::kInt16;
-  if (name == "ushort" || name == "uint16") return PlyType::kUint16;
-  if (name == "int" || name == "int32") return PlyType::kInt32;
-  if (name == "uint" || name == "uint32") return PlyType::kUint32;
-  if (name == "float" || name == "float32") return PlyType::kFloat32;
-  if (name == "double" || name == "float64") return PlyType::kFloat64;
-  return std::nullopt;
-}
-
-std::size_t ply_size(PlyType type) {
-  switch (type) {
-    case PlyType::kInt8:
-    case PlyType::kUint8:
-      return 1;
-    case PlyType::kInt16:
-    case PlyType::kUint16:
-      return 2;
-    case PlyType::kInt32:
-    case PlyType::kUint32:
-    case PlyType::kFloat32:
-      return 4;
-    case PlyType::kFloat64:
-      return 8;
-  }
-  return 1;
-}
-
-bool ply_integral(PlyType type) { return type != PlyType::kFloat32 && type != PlyType::kFloat64; }
-
-struct PlyProperty {
-  std::string name;
-  PlyType type = PlyType::kFloat32;  // item type for lists
-  bool list = false;
-  PlyType count_type = PlyType::kUint8;
-};
-
-struct PlyElement {
-  std::string name;
-  std::uint64_t count = 0;
-  std::vector<PlyProperty> properties;
-  std::size_t header_line = 0;
-};
-
-enum class PlyFormat { kAscii, kBinaryLittle, kBinaryBig };
-
-struct PlyHeader {
-  PlyFormat format = PlyFormat::kAscii;
-  std::vector<PlyElement> elements;
-  std::size_t data_offset = 0;
-  std::size_t data_line = 0;  // line number of the first data line (ASCII)
-};
-
-PlyHeader parse_ply_header(std::string_view bytes, const std::string& name) {
-  PlyHeader header;
-  LineReader lines(bytes);
-  std::string_view line;
-  std::vector<std::string_view> tok;
-  if (!lines.next(line) || line != "ply") fail(name, line_at(1), "not a PLY file (the first line must be 'ply')");
-  bool have_format = false;
-  while (true) {
-    if (!lines.next(line)) fail(name, line_at(lines.line() + 1), "unexpected end of file in the PLY header");
-    tokenize(line, tok);
-    const std::string where = line_at(lines.line());
-    if (tok.empty() || tok[0] == "comment" || tok[0] == "obj_info") continue;
-    if (tok[0] == "end_header") break;
-    if (tok[0] == "format") {
-      if (tok.size() < 2) fail(name, where, "format line needs a format name");
-      if (tok[1] == "ascii") {
-        header.format = PlyFormat::kAscii;
-      } else if (tok[1] == "binary_little_endian") {
-        header.format = PlyFormat::kBinaryLittle;
-      } else if (tok[1] == "binary_big_endian") {
-        header.format = PlyFormat::kBinaryBig;
-      } else {
-        fail(name, where, "unknown PLY format '" + std::string(tok[1]) + "'");
-      }
-      have_format = true;
-    } else if (tok[0] == "element") {
-      std::int64_t count = 0;
-      if (tok.size() != 3 || !parse_int(tok[2], count) || count < 0) {
-        fail(name, where, "expected 'element <name> <count>'");
-      }
-      header.elements.push_back({std::string(tok[1]), static_cast<std::uint64_t>(count), {}, lines.line()});
-    } else if (tok[0] == "property") {
-      if (header.elements.empty()) fail(name, where, "property before any element");
-      PlyProperty property;
-      if (tok.size() == 5 && tok[1] == "list") {
-        const auto count_type = ply_type(tok[2]);
-        const auto item_type = ply_type(tok[3]);
-        if (!count_type || !item_type || !ply_integral(*count_type)) {
-          fail(name, where, "bad list property types '" + std::string(tok[2]) + " " + std::string(tok[3]) + "'");
-        }
-        property.list = true;
-        property.count_type = *count_type;
-        property.type = *item_type;
-        property.name = std::string(tok[4]);
-      } else if (tok.size() == 3) {
-        const auto type = ply_type(tok[1]);
-        if (!type) fail(name, where, "unknown property type '" + std::string(tok[1]) + "'");
-        property.type = *type;
-        property.name = std::string(tok[2]);
-      } else {
-        fail(name, where, "expected 'property <type> <name>' or 'property list <count type> <type> <name>'");
-      }
-      header.elements.back().properties.push_back(std::move(property));
-    } else {
-      fail(name, where, "unexpected header keyword '" + std::string(tok[0]) + "'");
-    }
-  }
-  if (!have_format) fail(name, line_at(lines.line()), "the PLY header has no format line");
-  header.data_offset = lines.pos();
-  header.data_line = lines.line() + 1;
-  return header;
-}
 
 // What the mesh needs from the vertex and face elements.
 struct PlyLayout {
   int x = -1, y = -1, z = -1, nx = -1, ny = -1, nz = -1;  // property indices in the vertex element
   int indices = -1;                                       // list property index in the face element
 };
-
-int find_property(const PlyElement& element, std::initializer_list<std::string_view> names) {
-  for (std::string_view wanted : names) {
-    for (std::size_t p = 0; p < element.properties.size(); ++p) {
-      if (element.properties[p].name == wanted) return static_cast<int>(p);
-    }
-  }
-  return -1;
-}
 
 // A face's vertex index as read (any double: it may be far outside the int64 range, or NaN).
 std::string index_text(double v) {
@@ -226,12 +45,12 @@ std::string index_text(double v) {
   return buf;
 }
 
-// Builds the mesh while the element readers feed values.
-class PlyBuilder {
+// Builds the mesh from the vertex and face elements (other elements are read past).
+class PlyBuilder final : public ply::ElementReader {
  public:
-  PlyBuilder(const PlyHeader& header, const std::string& name) : name_(name) {
+  PlyBuilder(const ply::Header& header, const std::string& name) : name_(name) {
     int vertex_elements = 0, face_elements = 0;
-    for (const PlyElement& e : header.elements) {
+    for (const ply::Element& e : header.elements) {
       // The layout is taken from one vertex and one face element: values of a second one would be read with it.
       if ((e.name == "vertex" && ++vertex_elements > 1) || (e.name == "face" && ++face_elements > 1)) {
         fail(name, line_at(e.header_line),
@@ -244,12 +63,12 @@ class PlyBuilder {
                "the vertex element declares " + std::to_string(e.count) + " vertices; at most 4294967295 are supported");
         }
         vertex_count_ = e.count;
-        layout_.x = find_property(e, {"x"});
-        layout_.y = find_property(e, {"y"});
-        layout_.z = find_property(e, {"z"});
-        layout_.nx = find_property(e, {"nx"});
-        layout_.ny = find_property(e, {"ny"});
-        layout_.nz = find_property(e, {"nz"});
+        layout_.x = e.find({"x"});
+        layout_.y = e.find({"y"});
+        layout_.z = e.find({"z"});
+        layout_.nx = e.find({"nx"});
+        layout_.ny = e.find({"ny"});
+        layout_.nz = e.find({"nz"});
         for (int p : {layout_.x, layout_.y, layout_.z}) {
           if (p < 0) fail(name, line_at(e.header_line), "the vertex element needs properties x, y and z");
           if (e.properties[p].list) fail(name, line_at(e.header_line), "vertex coordinates cannot be lists");
@@ -257,7 +76,7 @@ class PlyBuilder {
         has_normals_ = layout_.nx >= 0 && layout_.ny >= 0 && layout_.nz >= 0 && !e.properties[layout_.nx].list &&
                        !e.properties[layout_.ny].list && !e.properties[layout_.nz].list;
       } else if (e.name == "face") {
-        layout_.indices = find_property(e, {"vertex_indices", "vertex_index"});
+        layout_.indices = e.find({"vertex_indices", "vertex_index"});
         if (layout_.indices < 0) {
           for (std::size_t p = 0; p < e.properties.size() && layout_.indices < 0; ++p) {
             if (e.properties[p].list) layout_.indices = static_cast<int>(p);
@@ -266,14 +85,14 @@ class PlyBuilder {
         if (layout_.indices < 0 || !e.properties[layout_.indices].list) {
           fail(name, line_at(e.header_line), "the face element needs a list property vertex_indices");
         }
-        if (!ply_integral(e.properties[layout_.indices].type)) {
+        if (!ply::integral(e.properties[layout_.indices].type)) {
           fail(name, line_at(e.header_line), "face vertex_indices must have an integer type");
         }
       }
     }
   }
 
-  void reserve(const PlyElement& e, std::size_t cap) {
+  void begin(const ply::Element& e, std::size_t cap) override {
     if (e.name == "vertex") {
       mesh_.vertices.reserve(std::min<std::uint64_t>(e.count, cap));
       if (has_normals_) mesh_.normals.reserve(std::min<std::uint64_t>(e.count, cap));
@@ -282,14 +101,23 @@ class PlyBuilder {
     }
   }
 
-  // values[p] for scalar properties; for the vertex element.
-  void vertex(const double* values) {
+  int list_property(const ply::Element& e) const override { return e.name == "face" ? layout_.indices : -1; }
+
+  void item(const ply::Element& e, const ply::Item& item) override {
+    if (e.name == "vertex") vertex(item.scalars);
+    if (e.name == "face") face(item.list, item.index, item.where.text());
+  }
+
+  Mesh take() { return std::move(mesh_); }
+
+ private:
+  void vertex(std::span<const double> values) {
     mesh_.vertices.emplace_back(values[layout_.x], values[layout_.y], values[layout_.z]);
     if (has_normals_) mesh_.normals.emplace_back(values[layout_.nx], values[layout_.ny], values[layout_.nz]);
   }
 
-  // One face's vertex indices (already checked integral); `where` locates it for messages.
-  void face(const std::vector<double>& indices, std::uint64_t face_number, const std::string& where) {
+  // One face's vertex indices (whole numbers); `where` locates it for messages.
+  void face(std::span<const double> indices, std::uint64_t face_number, const std::string& where) {
     if (indices.size() < 3) {
       fail(name_, where,
            "face " + std::to_string(face_number) + " has " + std::to_string(indices.size()) +
@@ -309,10 +137,6 @@ class PlyBuilder {
     }
   }
 
-  const PlyLayout& layout() const { return layout_; }
-  Mesh take() { return std::move(mesh_); }
-
- private:
   const std::string& name_;
   PlyLayout layout_;
   bool has_normals_ = false;
@@ -320,180 +144,10 @@ class PlyBuilder {
   Mesh mesh_;
 };
 
-std::string element_item(const PlyElement& e, std::uint64_t i) {
-  return (e.name == "vertex" || e.name == "face" ? e.name : "element '" + e.name + "' item") + " " + std::to_string(i);
-}
-
-void read_ply_ascii(std::string_view bytes, const PlyHeader& header, PlyBuilder& builder, const std::string& name) {
-  LineReader lines(bytes.substr(header.data_offset));
-  const std::size_t line_base = header.data_line - 1;
-  std::string_view line;
-  std::vector<std::string_view> tok;
-  std::vector<double> scalars;
-  std::vector<double> indices;
-  for (const PlyElement& e : header.elements) {
-    const bool is_vertex = e.name == "vertex";
-    const bool is_face = e.name == "face";
-    builder.reserve(e, (bytes.size() - header.data_offset) / 2 + 1);
-    scalars.assign(e.properties.size(), 0.0);
-    for (std::uint64_t i = 0; i < e.count; ++i) {
-      do {
-        if (!lines.next(line)) {
-          fail(name, line_at(line_base + lines.line() + 1),
-               "unexpected end of file: expected " + element_item(e, i) + " of " + std::to_string(e.count));
-        }
-        tokenize(line, tok);
-      } while (tok.empty());
-      const std::string where = line_at(line_base + lines.line());
-      std::size_t t = 0;
-      for (std::size_t p = 0; p < e.properties.size(); ++p) {
-        const PlyProperty& property = e.properties[p];
-        if (!property.list) {
-          if (t >= tok.size()) {
-            fail(name, where,
-                 "expected " + std::to_string(e.properties.size()) + " numbers for " + element_item(e, i) + ", found " +
-                     std::to_string(tok.size()));
-          }
-          if (!parse_double(tok[t], scalars[p])) {
-            fail(name, where, "bad number '" + std::string(tok[t]) + "' for " + element_item(e, i));
-          }
-          ++t;
-          continue;
-        }
-        std::int64_t count = 0;
-        if (t >= tok.size() || !parse_int(tok[t], count) || count < 0) {
-          fail(name, where, "expected a list length for property " + property.name + " of " + element_item(e, i));
-        }
-        ++t;
-        if (static_cast<std::uint64_t>(count) > tok.size() - t) {
-          fail(name, where,
-               "list " + property.name + " of " + element_item(e, i) + " announces " + std::to_string(count) +
-                   " values but the line has " + std::to_string(tok.size() - t));
-        }
-        const bool wanted = is_face && static_cast<int>(p) == builder.layout().indices;
-        if (wanted) indices.clear();
-        for (std::int64_t k = 0; k < count; ++k, ++t) {
-          double value = 0.0;
-          if (!parse_double(tok[t], value) || (wanted && value != std::floor(value))) {
-            fail(name, where,
-                 "bad value '" + std::string(tok[t]) + "' in list " + property.name + " of " + element_item(e, i));
-          }
-          if (wanted) indices.push_back(value);
-        }
-      }
-      if (t != tok.size()) {
-        fail(name, where,
-             "found " + std::to_string(tok.size()) + " values for " + element_item(e, i) + ", expected " +
-                 std::to_string(t));
-      }
-      if (is_vertex) builder.vertex(scalars.data());
-      if (is_face) builder.face(indices, i, where);
-    }
-  }
-}
-
-class BinaryReader {
- public:
-  BinaryReader(std::string_view bytes, std::size_t pos, bool big_endian, const std::string& name)
-      : bytes_(bytes), pos_(pos), swap_(big_endian != (std::endian::native == std::endian::big)), name_(name) {}
-
-  std::size_t pos() const { return pos_; }
-  std::size_t remaining() const { return bytes_.size() - pos_; }
-
-  double read(PlyType type, const PlyElement& e, std::uint64_t i) {
-    const std::size_t size = ply_size(type);
-    if (size > remaining()) {
-      fail(name_, byte_at(pos_), "unexpected end of file in " + element_item(e, i) + " of " + std::to_string(e.count));
-    }
-    unsigned char raw[8];
-    std::memcpy(raw, bytes_.data() + pos_, size);
-    pos_ += size;
-    if (swap_) std::reverse(raw, raw + size);
-    switch (type) {
-      case PlyType::kInt8:
-        return static_cast<double>(static_cast<std::int8_t>(raw[0]));
-      case PlyType::kUint8:
-        return static_cast<double>(raw[0]);
-      case PlyType::kInt16:
-        return static_cast<double>(load<std::int16_t>(raw));
-      case PlyType::kUint16:
-        return static_cast<double>(load<std::uint16_t>(raw));
-      case PlyType::kInt32:
-        return static_cast<double>(load<std::int32_t>(raw));
-      case PlyType::kUint32:
-        return static_cast<double>(load<std::uint32_t>(raw));
-      case PlyType::kFloat32:
-        return static_cast<double>(load<float>(raw));
-      case PlyType::kFloat64:
-        return load<double>(raw);
-    }
-    return 0.0;
-  }
-
- private:
-  template <class T>
-  static T load(const unsigned char* raw) {
-    T value;
-    std::memcpy(&value, raw, sizeof(T));
-    return value;
-  }
-
-  std::string_view bytes_;
-  std::size_t pos_;
-  bool swap_;
-  const std::string& name_;
-};
-
-void read_ply_binary(std::string_view bytes, const PlyHeader& header, PlyBuilder& builder, const std::string& name) {
-  BinaryReader in(bytes, header.data_offset, header.format == PlyFormat::kBinaryBig, name);
-  std::vector<double> scalars;
-  std::vector<double> indices;
-  for (const PlyElement& e : header.elements) {
-    const bool is_vertex = e.name == "vertex";
-    const bool is_face = e.name == "face";
-    std::size_t min_bytes = 0;
-    for (const PlyProperty& p : e.properties) min_bytes += p.list ? ply_size(p.count_type) : ply_size(p.type);
-    builder.reserve(e, in.remaining() / std::max<std::size_t>(min_bytes, 1) + 1);
-    scalars.assign(e.properties.size(), 0.0);
-    for (std::uint64_t i = 0; i < e.count; ++i) {
-      const std::size_t item_start = in.pos();
-      if (min_bytes == 0 && i > 0) break;  // an element without properties: nothing to read
-      for (std::size_t p = 0; p < e.properties.size(); ++p) {
-        const PlyProperty& property = e.properties[p];
-        if (!property.list) {
-          scalars[p] = in.read(property.type, e, i);
-          continue;
-        }
-        const std::size_t count_at = in.pos();
-        const double count = in.read(property.count_type, e, i);
-        if (count < 0) fail(name, byte_at(count_at), "negative list length in " + element_item(e, i));
-        const auto n = static_cast<std::uint64_t>(count);
-        if (n > in.remaining() / ply_size(property.type)) {
-          fail(name, byte_at(count_at),
-               "unexpected end of file in " + element_item(e, i) + " of " + std::to_string(e.count) + " (list of " +
-                   std::to_string(n) + ")");
-        }
-        const bool wanted = is_face && static_cast<int>(p) == builder.layout().indices;
-        if (wanted) indices.resize(n);
-        for (std::uint64_t k = 0; k < n; ++k) {
-          const double value = in.read(property.type, e, i);
-          if (wanted) indices[k] = value;
-        }
-      }
-      if (is_vertex) builder.vertex(scalars.data());
-      if (is_face) builder.face(indices, i, byte_at(item_start));
-    }
-  }
-}
-
 Mesh parse_ply(std::string_view bytes, const std::string& name) {
-  const PlyHeader header = parse_ply_header(bytes, name);
+  const ply::Header header = ply::parse_header(bytes, name);
   PlyBuilder builder(header, name);
-  if (header.format == PlyFormat::kAscii) {
-    read_ply_ascii(bytes, header, builder, name);
-  } else {
-    read_ply_binary(bytes, header, builder, name);
-  }
+  ply::read_data(bytes, header, builder, name);
   return builder.take();
 }
 

@@ -27,28 +27,12 @@ namespace particle_io_detail {
 
 std::string line_at(std::size_t line) { return "line " + std::to_string(line); }
 
-std::string quote(std::string_view token) {
-  std::string q;
-  q.reserve(42);
-  q += '\'';
-  q.append(token.substr(0, 40));
-  q += '\'';
-  return q;
-}
 std::string byte_at(std::size_t offset) { return "byte " + std::to_string(offset); }
 
 std::size_t line_of(std::string_view text, std::size_t offset) {
   offset = std::min(offset, text.size());
   return 1 +
          static_cast<std::size_t>(std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(offset), '\n'));
-}
-
-bool parse_number(std::string_view token, double& value) {
-  const char* begin = token.data();
-  const char* end = token.data() + token.size();
-  if (begin != end && *begin == '+') ++begin;
-  const auto result = std::from_chars(begin, end, value);
-  return result.ec == std::errc() && result.ptr == end;
 }
 
 std::string lower(std::string_view s) {
@@ -185,7 +169,7 @@ std::string_view TextCursor::expect(const std::string& what) {
 double TextCursor::number(const std::string& what) {
   const std::string_view t = expect(what);
   double v = 0.0;
-  if (!parse_number(t, v)) fail(name, where(), quote(t) + " is not a number (" + what + ")");
+  if (!parse_double(t, v)) fail(name, where(), quote(t) + " is not a number (" + what + ")");
   return v;
 }
 
@@ -314,7 +298,7 @@ ParticleFrame parse_xyz(std::string_view text, const std::string& name) {
     if (tokens.empty()) continue;
     if (columns == 0) {
       double probe = 0.0;
-      if (!parse_number(tokens[0], probe)) {
+      if (!parse_double(tokens[0], probe)) {
         // A header of column names.
         cx = cy = cz = cr = -1;
         for (std::size_t c = 0; c < tokens.size(); ++c) {
@@ -344,7 +328,7 @@ ParticleFrame parse_xyz(std::string_view text, const std::string& name) {
     }
     auto value = [&](int c) {
       double v = 0.0;
-      if (!parse_number(tokens[static_cast<std::size_t>(c)], v)) {
+      if (!parse_double(tokens[static_cast<std::size_t>(c)], v)) {
         fail(name, line_at(line_no),
              quote(tokens[static_cast<std::size_t>(c)]) + " is not a number (column " + std::to_string(c + 1) + ")");
       }

@@ -1,4 +1,4 @@
-// Particle files for the particle surfacer (issue 4): positions and optional per-particle radii of one frame.
+// Particle files for the particle surfacer: positions and optional per-particle radii of one frame.
 //
 // Formats, chosen by extension (case-insensitive; a trailing ".gz" is ignored, and gzip data is recognised by its
 // magic bytes 1f 8b whatever the extension, then inflated before parsing):

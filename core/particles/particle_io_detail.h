@@ -7,6 +7,8 @@
 #include <string_view>
 
 #include "core/particles/particle_io.h"
+#include "core/util/format.h"
+#include "core/util/text.h"
 
 namespace surfacer::particle_io_detail {
 
@@ -14,11 +16,9 @@ namespace surfacer::particle_io_detail {
 [[noreturn]] void fail(const std::string& name, const std::string& where, const std::string& what);
 std::string line_at(std::size_t line);      // "line N"
 std::string byte_at(std::size_t offset);    // "byte N"
-std::string quote(std::string_view token);  // 'token' (at most 40 characters of it)
 // 1-based line number of a byte offset.
 std::size_t line_of(std::string_view text, std::size_t offset);
 
-bool parse_number(std::string_view token, double& value);  // whole token, optional leading '+'
 std::string lower(std::string_view s);
 bool is_radius_name(std::string_view name);  // "radius" or "pscale", any case
 

@@ -94,7 +94,7 @@ class LegacyReader {
           double v = 0.0;
           const std::size_t b = rest.find_first_not_of(" \t");
           const std::size_t e = rest.find_first_of(" \t", b);
-          if (!parse_number(rest.substr(b, e == std::string_view::npos ? e : e - b), v) || v < 1 || v > 4 ||
+          if (!parse_double(rest.substr(b, e == std::string_view::npos ? e : e - b), v) || v < 1 || v > 4 ||
               v != std::floor(v)) {
             fail(name_, where(c_.pos), "bad number of components in SCALARS " + array);
           }
@@ -294,7 +294,7 @@ class XmlReader {
         if (!saw_file) fail(name_, where(tag->begin), "<Piece> outside <VTKFile>");
         double n = -1.0;
         const std::string_view np = tag->attribute("NumberOfPoints").value_or("");
-        if (!parse_number(np, n) || n < 0 || n != std::floor(n) || n > 4.0e9) {
+        if (!parse_double(np, n) || n < 0 || n != std::floor(n) || n > 4.0e9) {
           fail(name_, where(tag->begin), "Piece has no valid NumberOfPoints");
         }
         piece_points = static_cast<std::int64_t>(n);
@@ -312,7 +312,7 @@ class XmlReader {
         const std::int64_t components = points ? 3 : 1;
         double nc = 1.0;
         if (const auto a = tag->attribute("NumberOfComponents")) {
-          if (!parse_number(*a, nc)) nc = -1.0;
+          if (!parse_double(*a, nc)) nc = -1.0;
         }
         if (nc != static_cast<double>(components) && points) {
           fail(name_, where(tag->begin), "Points DataArray must have NumberOfComponents=\"3\"");
@@ -432,7 +432,7 @@ class XmlReader {
         }
         last = c.pos;
         double v = 0.0;
-        if (!parse_number(*t, v)) {
+        if (!parse_double(*t, v)) {
           fail(name_, where(content_at + c.pos), "'" + std::string(t->substr(0, 40)) + "' is not a number");
         }
         values.push_back(v);

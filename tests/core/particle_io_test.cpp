@@ -508,7 +508,7 @@ TEST(ParticleIo, TextErrorsNameTheLine) {
   expect_error(
       "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
       "end_header\n1 2 3\n4 5\n",
-      ParticleFormat::kPly, "bad.ply", {"line 9", "unexpected end of file"});
+      ParticleFormat::kPly, "bad.ply", {"line 9", "expected 3 numbers for vertex 1"});
   expect_error("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n1 2\n",
                ParticleFormat::kPly, "bad.ply", {"lacks an x, y or z"});
   expect_error("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nwhat\n", ParticleFormat::kPly, "bad.ply",
@@ -542,11 +542,12 @@ TEST(ParticleIo, BinaryErrorsNameTheByteOffset) {
   expect_error(std::string_view(gz).substr(0, gz.size() / 2), ParticleFormat::kBgeo, "half.bgeo.gz", {"gzip"});
   // Raw float triples.
   expect_error(std::string(25, '\0'), ParticleFormat::kBin, "odd.bin", {"byte 24", "1 trailing bytes"});
-  // Binary PLY cut inside vertex 4 of 10 (after 2 faces of 13 and 17 bytes; 24 or 28 bytes per vertex).
+  // Binary PLY cut inside vertex 4 of 10 (after 2 faces of 13 and 17 bytes; 24 or 28 bytes per vertex): the error
+  // names the first byte of the vertex that does not fit.
   const std::string ply = write_ply(f, "binary_little_endian");
   const std::size_t data = ply.find("end_header\n") + 11;
   expect_error(std::string_view(ply).substr(0, data + 30 + 4 * 28 + 9), ParticleFormat::kPly, "cut.ply",
-               {"byte " + std::to_string(data + 30 + 4 * 28 + 8), "truncated element 'vertex' 4 of 10"});
+               {"byte " + std::to_string(data + 30 + 4 * 28), "unexpected end of file in vertex 4 of 10"});
   // Binary VTK cut inside the points.
   const std::string vtk = write_vtk(f, true, "POLYDATA");
   const std::size_t points = vtk.find(" float\n") + 7;
@@ -594,7 +595,7 @@ TEST(ParticleIo, HostileCountsDoNotAllocate) {
   expect_error(
       "ply\nformat binary_little_endian 1.0\nelement vertex 4000000000000\nproperty float x\nproperty float y\n"
       "property float z\nend_header\n",
-      ParticleFormat::kPly, "huge.ply", {"truncated element 'vertex' 0"});
+      ParticleFormat::kPly, "huge.ply", {"unexpected end of file in vertex 0 of 4000000000000"});
   expect_error("# vtk DataFile Version 3.0\nt\nBINARY\nDATASET POLYDATA\nPOINTS 999999999999 float\n",
                ParticleFormat::kVtk, "huge.vtk", {"truncated POINTS"});
 }
