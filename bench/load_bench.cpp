@@ -1,4 +1,4 @@
-// Load test (issue 7, part 6): N concurrent clients submit, watch, re-attach to and cancel small jobs on a real
+// Load test: N concurrent clients submit, watch, re-attach to and cancel small jobs on a real
 // server over TCP for a fixed time, verify every frame they receive, and print throughput and latency.
 //
 // Each client thread loops until --seconds have passed (its job in flight is then finished, not abandoned):

@@ -1,4 +1,4 @@
-// Mesh optimizer (core/optimize/mesh_optimizer.h, issue 5): cost per iteration, iterations to converge, and how much grid
+// Mesh optimizer (core/optimize/mesh_optimizer.h): cost per iteration, iterations to converge, and how much grid
 // resolution the optimizer is worth against plain Marching Cubes. Prints tables (no Google Benchmark registration).
 //   build-opt/bench/optimize_bench            all three sections (about a minute on 2 cores)
 //   build-opt/bench/optimize_bench --quick    skips the 256^3 Marching Cubes rows

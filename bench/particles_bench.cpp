@@ -1,4 +1,4 @@
-// Particle surfacing benchmark (issue 4): generates data sets in-process, surfaces each with surface_particles and
+// Particle surfacing benchmark: generates data sets in-process, surfaces each with surface_particles and
 // prints particles/s, time per stage and peak memory. Each data set runs in its own child process, so its peak RSS
 // (wait4 ru_maxrss) is its own and not the largest of everything before it.
 //

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Particle surfacing benchmark (issue 4). Builds bench/particles_bench in its own build directory and runs it on the
+# Particle surfacing benchmark. Builds bench/particles_bench in its own build directory and runs it on the
 # generated data sets (block, sheet, droplets, spray; add block_fine with SETS=...). When OpenVDB's development
 # package is installed (Debian: apt-get install libopenvdb-dev; an optional, bench-only dependency), the script also
 # compiles bench/openvdb_particles.cpp with g++ and runs ParticlesToLevelSet + LevelSetFilter + VolumeToMesh on the same

@@ -20,7 +20,7 @@ int main(int argc, char** argv) {
   double drain_seconds = 30.0;
   bool verbose = false;
 
-  CLI::App app{"surfacer-server: turns implicit scenes (and, later, particles) into triangle meshes and streams them "
+  CLI::App app{"surfacer-server: turns implicit scenes and particle simulations into triangle meshes and streams them "
                "back frame by frame, Draco-compressed (gRPC service surfacer.v1.Surfacer, plus grpc.health.v1 and "
                "server reflection).\n\nExample:\n  surfacer-server --listen 0.0.0.0:50051 --workers 2\n"};
   app.add_option("--listen", options.listen, "host:port to listen on (port 0 picks a free port)")
