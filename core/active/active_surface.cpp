@@ -48,6 +48,8 @@
 namespace surfacer {
 namespace {
 
+using sparse::apron_at;
+using sparse::apron_side;
 using sparse::kBlockNodes;
 using sparse::local_index;
 using sparse::neighbor_slot;
@@ -56,14 +58,6 @@ constexpr double kInterfaceSlack = 0.5;
 constexpr double kInf = std::numeric_limits<double>::infinity();
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
-template <int G>
-constexpr int apron_side() {
-  return 8 + 2 * G;
-}
-template <int G>
-constexpr int apron_at(int x, int y, int z) {
-  return (x + G) + apron_side<G>() * ((y + G) + apron_side<G>() * (z + G));
-}
 
 // Per-thread scratch arrays for aprons.
 float* scratch(int slot, std::size_t size) {
@@ -121,7 +115,7 @@ void validate(const ActiveSurfaceOptions& o) {
 // ------------------------------------------------------------------------------------------------------------------
 // Topology: band flags, block allocation and release, active lists.
 
-bool ActiveSurface::Impl::owns_cubes(int b) const {
+bool active_detail::Engine::owns_cubes(int b) const {
   for (int dz = 0; dz <= 1; ++dz)
     for (int dy = 0; dy <= 1; ++dy)
       for (int dx = 0; dx <= 1; ++dx) {
@@ -131,13 +125,13 @@ bool ActiveSurface::Impl::owns_cubes(int b) const {
   return false;
 }
 
-std::int64_t ActiveSurface::Impl::active_count() const {
+std::int64_t active_detail::Engine::active_count() const {
   std::int64_t n = 0;
   for (const auto& a : active) n += static_cast<std::int64_t>(a.size());
   return n;
 }
 
-void ActiveSurface::Impl::update_topology(const RunControl& control) {
+void active_detail::Engine::update_topology(const RunControl& control) {
   control.check();
   if (!grid.neighbors_valid()) grid.rebuild_neighbors();
   const int nb = grid.block_count();
@@ -256,7 +250,7 @@ void ActiveSurface::Impl::update_topology(const RunControl& control) {
 // ------------------------------------------------------------------------------------------------------------------
 // Reinitialization (Russo & Smereka 2000), in grid units d = -ramp f.
 
-void ActiveSurface::Impl::reinitialize(const RunControl& control) {
+void active_detail::Engine::reinitialize(const RunControl& control) {
   control.check();
   const int nb = grid.block_count();
   const float ramp_f = static_cast<float>(ramp);
@@ -391,7 +385,7 @@ void ActiveSurface::Impl::reinitialize(const RunControl& control) {
 // ------------------------------------------------------------------------------------------------------------------
 // Construction from a normalized field.
 
-void ActiveSurface::Impl::configure() {
+void active_detail::Engine::configure() {
   validate(opt);
   threads = resolve_threads(opt.threads);
   h = opt.h;
@@ -406,7 +400,7 @@ void ActiveSurface::Impl::configure() {
   }
 }
 
-void ActiveSurface::Impl::init(const Field& shape, const RunControl& control) {
+void active_detail::Engine::init(const Field& shape, const RunControl& control) {
   configure();
   const std::optional<Aabb> sb = shape.bounds();
   if (!sb && !has_domain) {
@@ -551,199 +545,171 @@ void ActiveSurface::Impl::init(const Field& shape, const RunControl& control) {
 // ------------------------------------------------------------------------------------------------------------------
 // One sub-step.
 
-double ActiveSurface::Impl::step(double dt_limit, const RunControl& control) {
-  control.check();
-  const bool advect = advecting();
-  const int nb = grid.block_count();
-  const double cfl = opt.cfl ? *opt.cfl : 1.0;
-
+// The normal speed over the active nodes (normal-speed modes): sampled where the surface crosses grid edges
+// (tracking and tension at the crossings, plus the area and volume terms), then extended outward layer by layer.
+void active_detail::Engine::extend_speed(const RunControl& control) {
+  last_measures = measure(&edge_speed, control);
   double gterm = 0.0;
-  if (!advect) {
-    // (1) sample the speed at the surface, (2) extend it over the active nodes.
-    last_measures = measure(&edge_speed, control);
-    if (opt.gamma > 0.0 && area0 > 0.0) gterm += opt.gamma * (area0 - last_measures.area) / area0;
-    if (opt.delta > 0.0 && volume0 > 0.0) gterm += opt.delta * (volume0 - last_measures.volume) / volume0;
-
-    // Level 0: mean over the crossed incident edges.
-    const float gterm_f = static_cast<float>(gterm);
-    parallel_for(nb, threads, [&](int b) {
-      float* s = grid.data(b, kChanSpeed);
-      std::fill_n(s, kBlockNodes, kNaN);
-      for (const std::uint16_t i : active[b]) {
-        const int x = i & 7, y = (i >> 3) & 7, z = i >> 6;
-        const int lc[3] = {x, y, z};
-        const int st[3] = {1, 8, 64};
-        double sum = 0.0;
-        int n = 0;
-        for (int a = 0; a < 3; ++a) {
-          // Edge (node, a) owned by this block.
-          if (!edge_speed[b].empty()) {
-            const float e = edge_speed[b][i * 3 + a];
-            if (!std::isnan(e)) {
-              sum += e;
-              ++n;
-            }
-          }
-          // Edge (node - e_a, a).
-          int owner = b, j = i - st[a];
-          if (lc[a] == 0) {
-            const int off[3] = {a == 0 ? -1 : 0, a == 1 ? -1 : 0, a == 2 ? -1 : 0};
-            owner = grid.neighbor(b, neighbor_slot(off[0], off[1], off[2]));
-            j = i + 7 * st[a];
-          }
-          if (owner >= 0 && !edge_speed[owner].empty()) {
-            const float e = edge_speed[owner][j * 3 + a];
-            if (!std::isnan(e)) {
-              sum += e;
-              ++n;
-            }
+  if (opt.gamma > 0.0 && area0 > 0.0) gterm += opt.gamma * (area0 - last_measures.area) / area0;
+  if (opt.delta > 0.0 && volume0 > 0.0) gterm += opt.delta * (volume0 - last_measures.volume) / volume0;
+  const int nb = grid.block_count();
+  // Level 0: mean over the crossed incident edges.
+  const float gterm_f = static_cast<float>(gterm);
+  parallel_for(nb, threads, [&](int b) {
+    float* s = grid.data(b, kChanSpeed);
+    std::fill_n(s, kBlockNodes, kNaN);
+    for (const std::uint16_t i : active[b]) {
+      const int x = i & 7, y = (i >> 3) & 7, z = i >> 6;
+      const int lc[3] = {x, y, z};
+      const int st[3] = {1, 8, 64};
+      double sum = 0.0;
+      int n = 0;
+      for (int a = 0; a < 3; ++a) {
+        // Edge (node, a) owned by this block.
+        if (!edge_speed[b].empty()) {
+          const float e = edge_speed[b][i * 3 + a];
+          if (!std::isnan(e)) {
+            sum += e;
+            ++n;
           }
         }
-        if (n > 0) s[i] = static_cast<float>(sum / n) + gterm_f;
+        // Edge (node - e_a, a).
+        int owner = b, j = i - st[a];
+        if (lc[a] == 0) {
+          const int off[3] = {a == 0 ? -1 : 0, a == 1 ? -1 : 0, a == 2 ? -1 : 0};
+          owner = grid.neighbor(b, neighbor_slot(off[0], off[1], off[2]));
+          j = i + 7 * st[a];
+        }
+        if (owner >= 0 && !edge_speed[owner].empty()) {
+          const float e = edge_speed[owner][j * 3 + a];
+          if (!std::isnan(e)) {
+            sum += e;
+            ++n;
+          }
+        }
       }
-    });
-    // Outer layers: mean of assigned 6-neighbours, one layer per pass (Jacobi).
-    // Active nodes lie within about ramp + 2 nodes of the surface, which along a diagonal is up to sqrt(3) times as
-    // many 6-neighbour hops; the passes stop early once nothing changes.
-    const int layers = static_cast<int>(std::ceil((ramp + 2.0) * std::sqrt(3.0))) + 1;
-    const float nan_fill = kNaN;
-    for (int layer = 0; layer < layers; ++layer) {
-      control.check();
-      std::vector<char> changed(nb, 0);
-      parallel_for(nb, threads, [&](int b) {
-        const float* s = grid.data(b, kChanSpeed);
-        float* out = grid.data(b, kChanA);
-        std::copy_n(s, kBlockNodes, out);
-        bool need = false;
-        for (const std::uint16_t i : active[b]) need |= std::isnan(s[i]);
-        if (!need) return;
-        constexpr int G = 1;
-        constexpr std::ptrdiff_t S = apron_side<G>();
-        float* ap = scratch(0, S * S * S);
-        grid.gather<G>(b, kChanSpeed, ap, &nan_fill);
-        for (const std::uint16_t i : active[b]) {
-          if (!std::isnan(s[i])) continue;
-          const float* p = ap + apron_at<G>(i & 7, (i >> 3) & 7, i >> 6);
-          const float nbv[6] = {p[1], p[-1], p[S], p[-S], p[S * S], p[-S * S]};
-          double sum = 0.0;
-          int n = 0;
-          for (const float v : nbv) {
-            if (!std::isnan(v)) {
-              sum += v;
-              ++n;
-            }
-          }
-          if (n > 0) {
-            out[i] = static_cast<float>(sum / n);
-            changed[b] = 1;
-          }
-        }
-      });
-      grid.swap_channels(kChanSpeed, kChanA);
-      if (std::find(changed.begin(), changed.end(), 1) == changed.end()) break;
+      if (n > 0) s[i] = static_cast<float>(sum / n) + gterm_f;
     }
-    // Fallback: the speed at the node itself.
+  });
+  // Outer layers: mean of assigned 6-neighbours, one layer per pass (Jacobi).
+  // Active nodes lie within about ramp + 2 nodes of the surface, which along a diagonal is up to sqrt(3) times as
+  // many 6-neighbour hops; the passes stop early once nothing changes.
+  const int layers = static_cast<int>(std::ceil((ramp + 2.0) * std::sqrt(3.0))) + 1;
+  const float nan_fill = kNaN;
+  for (int layer = 0; layer < layers; ++layer) {
+    control.check();
+    std::vector<char> changed(nb, 0);
     parallel_for(nb, threads, [&](int b) {
-      float* s = grid.data(b, kChanSpeed);
+      const float* s = grid.data(b, kChanSpeed);
+      float* out = grid.data(b, kChanA);
+      std::copy_n(s, kBlockNodes, out);
       bool need = false;
       for (const std::uint16_t i : active[b]) need |= std::isnan(s[i]);
       if (!need) return;
       constexpr int G = 1;
       constexpr std::ptrdiff_t S = apron_side<G>();
       float* ap = scratch(0, S * S * S);
-      grid.gather<G>(b, kChanF, ap);
-      const sparse::BlockCoord& c = grid.coord(b);
+      grid.gather<G>(b, kChanSpeed, ap, &nan_fill);
       for (const std::uint16_t i : active[b]) {
         if (!std::isnan(s[i])) continue;
-        const int x = i & 7, y = (i >> 3) & 7, z = i >> 6;
-        double v = gterm;
-        if (target && opt.alpha > 0.0) v += -opt.alpha * target->value(node_position(c, x, y, z));
-        if (opt.beta > 0.0) {
-          const double kmax = opt.max_curvature * inv_h;
-          const double k = active_detail::curvature(ap + apron_at<G>(x, y, z), 1, S, S * S, inv_h);
-          v -= opt.beta * std::clamp(k, -kmax, kmax);
+        const float* p = ap + apron_at<G>(i & 7, (i >> 3) & 7, i >> 6);
+        const float nbv[6] = {p[1], p[-1], p[S], p[-S], p[S * S], p[-S * S]};
+        double sum = 0.0;
+        int n = 0;
+        for (const float v : nbv) {
+          if (!std::isnan(v)) {
+            sum += v;
+            ++n;
+          }
         }
-        s[i] = static_cast<float>(v);
+        if (n > 0) {
+          out[i] = static_cast<float>(sum / n);
+          changed[b] = 1;
+        }
       }
     });
+    grid.swap_channels(kChanSpeed, kChanA);
+    if (std::find(changed.begin(), changed.end(), 1) == changed.end()) break;
   }
-
-  // Runge-Kutta stages. rate_block computes L(in) = df/dt for the 512 nodes of a block (dense, vectorized WENO);
-  // only active nodes keep it. Stage outputs equal f at inactive nodes.
-  std::vector<double> block_max_rate(nb, 0.0), block_max_speed(nb, 0.0);
-  const float inv_h_f = static_cast<float>(inv_h);
-  auto rate_block = [&](int b, int in_ch, double t_stage, float* rate, double* max_speed) {
-    constexpr std::size_t kApron = active_detail::kApronSide;
-    float* ap = scratch(1, kApron * kApron * kApron);
-    grid.gather<3>(b, in_ch, ap);
-    if (advect) {
-      float* u = scratch(2, std::size_t{3} * kBlockNodes);
-      std::fill_n(u, 3 * kBlockNodes, 0.0f);
-      const sparse::BlockCoord& c = grid.coord(b);
-      double ms = 0.0;
-      if (separable.spatial) {
-        const double scale = separable.time_scale ? separable.time_scale(t_stage) : 1.0;
-        float* cache[3] = {grid.data(b, velocity_cache), grid.data(b, velocity_cache + 1),
-                           grid.data(b, velocity_cache + 2)};
-        for (const std::uint16_t i : active[b]) {
-          if (std::isnan(cache[0][i])) {
-            const Vec3 v = separable.spatial(node_position(c, i & 7, (i >> 3) & 7, i >> 6));
-            for (int a = 0; a < 3; ++a) cache[a][i] = static_cast<float>(v[a]);
-          }
-          const Vec3 v = scale * Vec3(cache[0][i], cache[1][i], cache[2][i]);
-          for (int a = 0; a < 3; ++a) u[a * kBlockNodes + i] = static_cast<float>(v[a]);
-          ms = std::max(ms, v.norm());
-        }
-      } else {
-        for (const std::uint16_t i : active[b]) {
-          const Vec3 v = velocity(node_position(c, i & 7, (i >> 3) & 7, i >> 6), t_stage);
-          u[i] = static_cast<float>(v.x());
-          u[kBlockNodes + i] = static_cast<float>(v.y());
-          u[2 * kBlockNodes + i] = static_cast<float>(v.z());
-          ms = std::max(ms, v.norm());
-        }
-      }
-      if (max_speed != nullptr) *max_speed = ms;
-      active_detail::advect_rate_block(ap, u, u + kBlockNodes, u + std::ptrdiff_t{2} * kBlockNodes, inv_h_f, rate);
-    } else {
-      const float* speed = grid.data(b, kChanSpeed);
-      float* s = scratch(2, kBlockNodes);
-      double ms = 0.0;
-      for (int i = 0; i < kBlockNodes; ++i) s[i] = 0.0f;
-      for (const std::uint16_t i : active[b]) {
-        s[i] = speed[i];
-        ms = std::max(ms, static_cast<double>(std::abs(speed[i])));
-      }
-      if (max_speed != nullptr) *max_speed = ms;
-      active_detail::normal_rate_block(ap, s, inv_h_f, rate);
-    }
-  };
-
-  // Stage 1: L(f) (into A in normal-speed modes; into Speed when advecting, where Speed is free, so that a rejected
-  // step can restart from it), with the maxima for the time step.
-  const int rate_ch = advect ? kChanSpeed : kChanA;
-  control.check();
+  // Fallback: the speed at the node itself.
   parallel_for(nb, threads, [&](int b) {
-    const float* f = grid.data(b, kChanF);
-    float* out = grid.data(b, rate_ch);
-    std::copy_n(f, kBlockNodes, out);
-    if (active[b].empty()) return;
-    float* rate = scratch(3, kBlockNodes);
-    rate_block(b, kChanF, time, rate, &block_max_speed[b]);
-    double mr = 0.0;
+    float* s = grid.data(b, kChanSpeed);
+    bool need = false;
+    for (const std::uint16_t i : active[b]) need |= std::isnan(s[i]);
+    if (!need) return;
+    constexpr int G = 1;
+    constexpr std::ptrdiff_t S = apron_side<G>();
+    float* ap = scratch(0, S * S * S);
+    grid.gather<G>(b, kChanF, ap);
+    const sparse::BlockCoord& c = grid.coord(b);
     for (const std::uint16_t i : active[b]) {
-      out[i] = rate[i];
-      mr = std::max(mr, static_cast<double>(std::abs(rate[i])));
+      if (!std::isnan(s[i])) continue;
+      const int x = i & 7, y = (i >> 3) & 7, z = i >> 6;
+      double v = gterm;
+      if (target && opt.alpha > 0.0) v += -opt.alpha * target->value(node_position(c, x, y, z));
+      if (opt.beta > 0.0) {
+        const double kmax = opt.max_curvature * inv_h;
+        const double k = active_detail::curvature(ap + apron_at<G>(x, y, z), 1, S, S * S, inv_h);
+        v -= opt.beta * std::clamp(k, -kmax, kmax);
+      }
+      s[i] = static_cast<float>(v);
     }
-    block_max_rate[b] = mr;
   });
-  double vmax = 0.0, rmax = 0.0;
-  for (int b = 0; b < nb; ++b) {
-    vmax = std::max(vmax, block_max_speed[b]);
-    rmax = std::max(rmax, block_max_rate[b]);
+}
+
+void active_detail::Engine::stage_rate(int b, int in_ch, double t_stage, float* rate, double* max_speed) {
+  const bool advect = advecting();
+  const float inv_h_f = static_cast<float>(inv_h);
+  constexpr std::size_t kApron = active_detail::kApronSide;
+  float* ap = scratch(1, kApron * kApron * kApron);
+  grid.gather<3>(b, in_ch, ap);
+  if (advect) {
+    float* u = scratch(2, std::size_t{3} * kBlockNodes);
+    std::fill_n(u, 3 * kBlockNodes, 0.0f);
+    const sparse::BlockCoord& c = grid.coord(b);
+    double ms = 0.0;
+    if (separable.spatial) {
+      const double scale = separable.time_scale ? separable.time_scale(t_stage) : 1.0;
+      float* cache[3] = {grid.data(b, velocity_cache), grid.data(b, velocity_cache + 1),
+                         grid.data(b, velocity_cache + 2)};
+      for (const std::uint16_t i : active[b]) {
+        if (std::isnan(cache[0][i])) {
+          const Vec3 v = separable.spatial(node_position(c, i & 7, (i >> 3) & 7, i >> 6));
+          for (int a = 0; a < 3; ++a) cache[a][i] = static_cast<float>(v[a]);
+        }
+        const Vec3 v = scale * Vec3(cache[0][i], cache[1][i], cache[2][i]);
+        for (int a = 0; a < 3; ++a) u[a * kBlockNodes + i] = static_cast<float>(v[a]);
+        ms = std::max(ms, v.norm());
+      }
+    } else {
+      for (const std::uint16_t i : active[b]) {
+        const Vec3 v = velocity(node_position(c, i & 7, (i >> 3) & 7, i >> 6), t_stage);
+        u[i] = static_cast<float>(v.x());
+        u[kBlockNodes + i] = static_cast<float>(v.y());
+        u[2 * kBlockNodes + i] = static_cast<float>(v.z());
+        ms = std::max(ms, v.norm());
+      }
+    }
+    if (max_speed != nullptr) *max_speed = ms;
+    active_detail::advect_rate_block(ap, u, u + kBlockNodes, u + std::ptrdiff_t{2} * kBlockNodes, inv_h_f, rate);
+  } else {
+    const float* speed = grid.data(b, kChanSpeed);
+    float* s = scratch(2, kBlockNodes);
+    double ms = 0.0;
+    for (int i = 0; i < kBlockNodes; ++i) s[i] = 0.0f;
+    for (const std::uint16_t i : active[b]) {
+      s[i] = speed[i];
+      ms = std::max(ms, static_cast<double>(std::abs(speed[i])));
+    }
+    if (max_speed != nullptr) *max_speed = ms;
+    active_detail::normal_rate_block(ap, s, inv_h_f, rate);
   }
-  last_max_speed = vmax;
-  last_max_dfdt = rmax;
+}
+
+// The largest stable sub-step for the maxima of the current rates (speed vmax), within the controllers' own bounds.
+double active_detail::Engine::stable_dt(double vmax) const {
+  const bool advect = advecting();
+  const double cfl = opt.cfl ? *opt.cfl : 1.0;
   double dt_stable = kInf;
   if (vmax > 0.0) dt_stable = cfl * h / vmax;
   if (!advect) {
@@ -765,9 +731,17 @@ double ActiveSurface::Impl::step(double dt_limit, const RunControl& control) {
   // A time-dependent velocity may grow within the step: at most double the previous step, and the stages below
   // reject the step when the velocity they see breaks the CFL bound.
   if (advect && last_dt > 0.0) dt_stable = std::min(dt_stable, 2.0 * last_dt);
-  double dt = std::min(dt_limit, dt_stable);
-  if (!std::isfinite(dt)) dt = cfl * h;  // nothing moves: any step leaves f unchanged
+  return dt_stable;
+}
 
+// TVD-RK3 from the stage-1 rates (kChanA, or kChanSpeed when advecting), into kChanA: Shu-Osher's three stages, the
+// result clamped to [-1, 1] and cut by the domain wall. An advecting step whose stage-2 velocity breaks the CFL bound
+// is retried shorter (at most 8 times). Returns the dt taken.
+double active_detail::Engine::runge_kutta(double dt, const RunControl& control) {
+  const bool advect = advecting();
+  const int nb = grid.block_count();
+  const double cfl = opt.cfl ? *opt.cfl : 1.0;
+  std::vector<double> block_max_speed(nb, 0.0);
   for (int attempt = 0;; ++attempt) {
     const float dt_f = static_cast<float>(dt);
     if (advect) {
@@ -795,7 +769,7 @@ double ActiveSurface::Impl::step(double dt_limit, const RunControl& control) {
       std::copy_n(f, kBlockNodes, out);
       if (active[b].empty()) return;
       float* rate = scratch(3, kBlockNodes);
-      rate_block(b, kChanA, time + dt, rate, &block_max_speed[b]);
+      stage_rate(b, kChanA, time + dt, rate, &block_max_speed[b]);
       for (const std::uint16_t i : active[b]) out[i] = 0.75f * f[i] + 0.25f * (in[i] + dt_f * rate[i]);
     });
     if (advect) {
@@ -814,7 +788,7 @@ double ActiveSurface::Impl::step(double dt_limit, const RunControl& control) {
       std::copy_n(f, kBlockNodes, out);
       if (active[b].empty()) return;
       float* rate = scratch(3, kBlockNodes);
-      rate_block(b, kChanB, time + 0.5 * dt, rate, nullptr);
+      stage_rate(b, kChanB, time + 0.5 * dt, rate, nullptr);
       const sparse::BlockCoord& c = grid.coord(b);
       for (const std::uint16_t i : active[b]) {
         float v = f[i] * (1.0f / 3.0f) + (2.0f / 3.0f) * (in[i] + dt_f * rate[i]);
@@ -825,6 +799,48 @@ double ActiveSurface::Impl::step(double dt_limit, const RunControl& control) {
     });
     break;
   }
+  return dt;
+}
+
+double active_detail::Engine::step(double dt_limit, const RunControl& control) {
+  control.check();
+  const bool advect = advecting();
+  const int nb = grid.block_count();
+  const double cfl = opt.cfl ? *opt.cfl : 1.0;
+  if (!advect) extend_speed(control);
+
+  // Runge-Kutta stages. stage_rate computes L(in) = df/dt for the 512 nodes of a block (dense, vectorized WENO);
+  // only active nodes keep it. Stage outputs equal f at inactive nodes.
+  std::vector<double> block_max_rate(nb, 0.0), block_max_speed(nb, 0.0);
+  // Stage 1: L(f) (into A in normal-speed modes; into Speed when advecting, where Speed is free, so that a rejected
+  // step can restart from it), with the maxima for the time step.
+  const int rate_ch = advect ? kChanSpeed : kChanA;
+  control.check();
+  parallel_for(nb, threads, [&](int b) {
+    const float* f = grid.data(b, kChanF);
+    float* out = grid.data(b, rate_ch);
+    std::copy_n(f, kBlockNodes, out);
+    if (active[b].empty()) return;
+    float* rate = scratch(3, kBlockNodes);
+    stage_rate(b, kChanF, time, rate, &block_max_speed[b]);
+    double mr = 0.0;
+    for (const std::uint16_t i : active[b]) {
+      out[i] = rate[i];
+      mr = std::max(mr, static_cast<double>(std::abs(rate[i])));
+    }
+    block_max_rate[b] = mr;
+  });
+  double vmax = 0.0, rmax = 0.0;
+  for (int b = 0; b < nb; ++b) {
+    vmax = std::max(vmax, block_max_speed[b]);
+    rmax = std::max(rmax, block_max_rate[b]);
+  }
+  last_max_speed = vmax;
+  last_max_dfdt = rmax;
+  double dt = std::min(dt_limit, stable_dt(vmax));
+  if (!std::isfinite(dt)) dt = cfl * h;  // nothing moves: any step leaves f unchanged
+
+  dt = runge_kutta(dt, control);
   last_dt = dt;
   restored = false;
   last_node_steps = active_count();
@@ -837,7 +853,7 @@ double ActiveSurface::Impl::step(double dt_limit, const RunControl& control) {
   return dt;
 }
 
-ActiveFrameStats ActiveSurface::Impl::make_stats() const {
+ActiveFrameStats active_detail::Engine::make_stats() const {
   ActiveFrameStats s;
   s.time = time;
   s.active_nodes = active_count();
@@ -852,7 +868,7 @@ ActiveFrameStats ActiveSurface::Impl::make_stats() const {
 // Public class.
 
 ActiveSurface::ActiveSurface(const Field& initial_shape, const ActiveSurfaceOptions& options, const RunControl& control)
-    : impl_(std::make_unique<Impl>()) {
+    : impl_(std::make_unique<active_detail::Engine>()) {
   impl_->opt = options;
   impl_->init(initial_shape, control);
 }
@@ -862,7 +878,7 @@ ActiveSurface::ActiveSurface(ActiveSurface&&) noexcept = default;
 ActiveSurface& ActiveSurface::operator=(ActiveSurface&&) noexcept = default;
 
 void ActiveSurface::set_target(FieldPtr target) { impl_->target = std::move(target); }
-void ActiveSurface::Impl::clear_velocity_cache() {
+void active_detail::Engine::clear_velocity_cache() {
   if (velocity_cache < 0) {
     velocity_cache = grid.channels();
     grid.add_channels(3, kNaN);
@@ -900,7 +916,7 @@ double ActiveSurface::time() const { return impl_->time; }
 const ActiveSurfaceOptions& ActiveSurface::options() const { return impl_->opt; }
 
 ActiveFrameStats ActiveSurface::advance(double duration, const RunControl& control) {
-  Impl& m = *impl_;
+  active_detail::Engine& m = *impl_;
   if (!(duration > 0.0) || !std::isfinite(duration)) {
     throw InvalidInput("duration", "duration (" + format_number(duration) + ") must be finite and > 0");
   }
@@ -937,7 +953,7 @@ ActiveFrameStats ActiveSurface::advance(double duration, const RunControl& contr
 }
 
 ActiveFrameStats ActiveSurface::advance_substeps(int substeps, const RunControl& control) {
-  Impl& m = *impl_;
+  active_detail::Engine& m = *impl_;
   if (substeps < 1) throw InvalidInput("substeps", "substeps must be >= 1");
   const double t0 = m.time;
   int reinits = 0;
@@ -960,7 +976,7 @@ ActiveFrameStats ActiveSurface::advance_substeps(int substeps, const RunControl&
 }
 
 ActiveFrameStats ActiveSurface::stats() const {
-  const Impl& m = *impl_;
+  const active_detail::Engine& m = *impl_;
   ActiveFrameStats s = m.make_stats();
   m.finish_stats(s, {});
   return s;

@@ -133,6 +133,10 @@ struct SeparableVelocity {
   std::function<double(double time)> time_scale;
 };
 
+namespace active_detail {
+struct Engine;  // core/active/engine.h
+}
+
 class ActiveSurface {
  public:
   // Converts the normalized initial shape (negative inside) into the clamped potential: samples it on the nodes of
@@ -191,11 +195,9 @@ class ActiveSurface {
   static ActiveSurface from_state(std::string_view state, const ActiveSurfaceOptions& options,
                                   const RunControl& control = {});
 
-  struct Impl;  // working state (core/active/engine.h)
-
  private:
-  explicit ActiveSurface(std::unique_ptr<Impl> impl);
-  std::unique_ptr<Impl> impl_;
+  explicit ActiveSurface(std::unique_ptr<active_detail::Engine> impl);
+  std::unique_ptr<active_detail::Engine> impl_;
 };
 
 // --- Velocity fields --------------------------------------------------------------------------------------------

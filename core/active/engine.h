@@ -1,5 +1,6 @@
-// Working state of ActiveSurface (core/active/active_surface.h). Internal to core: shared by core/active/active_surface.cpp (the
-// engine) and core/active/surface_mesh.cpp (polygonization and measures).
+// The engine behind ActiveSurface (core/active/active_surface.h): its working state and steps. Internal to core/active:
+// shared by active_surface.cpp (topology, reinitialization, stepping), surface_mesh.cpp (polygonization and
+// measures) and state.cpp (checkpoints); ActiveSurface holds one privately.
 #pragma once
 
 #include <algorithm>
@@ -30,7 +31,9 @@ struct ActiveMeasures {
   double mean_abs_curvature = 0.0;
 };
 
-struct ActiveSurface::Impl {
+namespace active_detail {
+
+struct Engine {
   ActiveSurfaceOptions opt;
   int threads = 1;
   double h = 0.0, inv_h = 0.0;
@@ -74,8 +77,14 @@ struct ActiveSurface::Impl {
   void reinitialize(const RunControl& control);
   // One sub-step of at most dt_limit (infinity: the CFL step). Returns the dt taken.
   double step(double dt_limit, const RunControl& control);
+  // The stages of step(): the extended normal speed (kChanSpeed; normal-speed modes), the rate df/dt of one block
+  // from channel in_ch at time t_stage (with the block's largest speed), and the stable sub-step for speed vmax.
+  void extend_speed(const RunControl& control);
+  void stage_rate(int b, int in_ch, double t_stage, float* rate, double* max_speed);
+  double stable_dt(double vmax) const;
+  double runge_kutta(double dt, const RunControl& control);
 
-  // --- measures and meshes (active_surface_mesh.cpp) ---
+  // --- measures and meshes (surface_mesh.cpp) ---
   // Area and volume of the Marching Cubes surface on the grid. When `edges` is given, also fills it (per block) with
   // the tracking and tension speed at every crossed edge owned by the block (the surface sample points), evaluating
   // the target once per crossing.
@@ -142,4 +151,5 @@ struct ActiveSurface::Impl {
   std::int64_t active_count() const;
 };
 
+}  // namespace active_detail
 }  // namespace surfacer

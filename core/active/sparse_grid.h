@@ -37,6 +37,17 @@ inline std::uint64_t pack_coord(int x, int y, int z) {
 // Index of the neighbour offset (dx, dy, dz) in {-1, 0, 1}^3 within a 27-entry table; 13 is the block itself.
 inline constexpr int neighbor_slot(int dx, int dy, int dz) { return (dx + 1) + 3 * (dy + 1) + 9 * (dz + 1); }
 
+// The side S = 8 + 2G of an apron gathered with G ghost nodes (SparseBlockGrid::gather), and the index in it of a
+// block's local node (x, y, z) (x, y, z in [-G, 8 + G)).
+template <int G>
+constexpr int apron_side() {
+  return 8 + 2 * G;
+}
+template <int G>
+constexpr int apron_at(int x, int y, int z) {
+  return (x + G) + apron_side<G>() * ((y + G) + apron_side<G>() * (z + G));
+}
+
 class SparseBlockGrid {
  public:
   explicit SparseBlockGrid(int channels) : data_(channels) {}

@@ -34,10 +34,10 @@ constexpr int kMaskBytes = sparse::kBlockNodes / 8;
 
 }  // namespace
 
-ActiveSurface::ActiveSurface(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+ActiveSurface::ActiveSurface(std::unique_ptr<active_detail::Engine> impl) : impl_(std::move(impl)) {}
 
 std::string ActiveSurface::save_state() const {
-  const Impl& m = *impl_;
+  const active_detail::Engine& m = *impl_;
   const int nb = m.grid.block_count();
   state_blob::Writer w(kMagic, kVersion);
   w.out.reserve(256 + static_cast<std::size_t>(nb) * (12 + 2 * kMaskBytes + 1024));
@@ -74,8 +74,8 @@ std::string ActiveSurface::save_state() const {
 
 ActiveSurface ActiveSurface::from_state(std::string_view state, const ActiveSurfaceOptions& options,
                                         const RunControl& control) {
-  auto impl = std::make_unique<Impl>();
-  Impl& m = *impl;
+  auto impl = std::make_unique<active_detail::Engine>();
+  active_detail::Engine& m = *impl;
   m.opt = options;
   m.configure();  // validates the options
 

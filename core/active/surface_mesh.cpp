@@ -27,20 +27,14 @@
 namespace surfacer {
 namespace {
 
+using sparse::apron_at;
+using sparse::apron_side;
 using sparse::kBlockNodes;
 using sparse::local_index;
 using sparse::neighbor_slot;
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
-template <int G>
-constexpr int apron_side() {
-  return 8 + 2 * G;
-}
-template <int G>
-constexpr int apron_at(int x, int y, int z) {
-  return (x + G) + apron_side<G>() * ((y + G) + apron_side<G>() * (z + G));
-}
 
 float* mesh_scratch(std::size_t size) {
   thread_local std::vector<float> buffer;
@@ -89,7 +83,7 @@ int count_components(const Mesh& mesh) {
 // The trilinear potential as a normalized Field (negative inside) for Marching Tiles.
 class PotentialField final : public Field {
  public:
-  PotentialField(const ActiveSurface::Impl& impl, const Aabb& box) : impl_(impl), box_(box) {}
+  PotentialField(const active_detail::Engine& impl, const Aabb& box) : impl_(impl), box_(box) {}
   double value(const Vec3& p) const override {
     Vec3 g;
     return value_and_gradient(p, g);
@@ -98,7 +92,7 @@ class PotentialField final : public Field {
   std::optional<Aabb> bounds() const override { return box_; }
 
  private:
-  const ActiveSurface::Impl& impl_;
+  const active_detail::Engine& impl_;
   Aabb box_;
 };
 
@@ -114,7 +108,7 @@ double PotentialField::value_and_gradient(const Vec3& p, Vec3& gradient) const {
 // Sign (+1 inside, -1 outside) of the saturated region around node g of a missing block: the value of the first
 // allocated node along +x (blocks are allocated around the whole band, so that node is saturated with the region's
 // sign); outside when no block follows.
-double ActiveSurface::Impl::missing_sign(std::int64_t gx, std::int64_t gy, std::int64_t gz) const {
+double active_detail::Engine::missing_sign(std::int64_t gx, std::int64_t gy, std::int64_t gz) const {
   const auto bdiv = [](std::int64_t v) { return static_cast<int>(v >= 0 ? v / 8 : -((-v + 7) / 8)); };
   const int by = bdiv(gy), bz = bdiv(gz);
   const int ly = static_cast<int>(gy - 8LL * by), lz = static_cast<int>(gz - 8LL * bz);
@@ -125,7 +119,7 @@ double ActiveSurface::Impl::missing_sign(std::int64_t gx, std::int64_t gy, std::
   return -1.0;
 }
 
-double ActiveSurface::Impl::trilinear(const Vec3& p, Vec3* gradient) const {
+double active_detail::Engine::trilinear(const Vec3& p, Vec3* gradient) const {
   const Vec3 u = (p - origin) * inv_h;
   if (!u.allFinite()) {
     if (gradient != nullptr) *gradient = Vec3::Zero();
@@ -165,7 +159,7 @@ double ActiveSurface::Impl::trilinear(const Vec3& p, Vec3* gradient) const {
 
 // ------------------------------------------------------------------------------------------------------------------
 
-ActiveMeasures ActiveSurface::Impl::measure(std::vector<std::vector<float>>* edges, const RunControl& control) const {
+ActiveMeasures active_detail::Engine::measure(std::vector<std::vector<float>>* edges, const RunControl& control) const {
   control.check();
   const int nb = grid.block_count();
   if (edges != nullptr) {
@@ -277,7 +271,7 @@ ActiveMeasures ActiveSurface::Impl::measure(std::vector<std::vector<float>>* edg
   return m;
 }
 
-Mesh ActiveSurface::Impl::cubes_mesh(bool normals, const RunControl& control) const {
+Mesh active_detail::Engine::cubes_mesh(bool normals, const RunControl& control) const {
   control.check();
   const int nb = grid.block_count();
   // Pass 1: vertices of the crossed edges owned by each band block.
@@ -377,7 +371,7 @@ Mesh ActiveSurface::Impl::cubes_mesh(bool normals, const RunControl& control) co
   return mesh;
 }
 
-Mesh ActiveSurface::Impl::tiles_mesh(bool normals, const RunControl& control) const {
+Mesh active_detail::Engine::tiles_mesh(bool normals, const RunControl& control) const {
   control.check();
   const int nb = grid.block_count();
   // One seed per band block with crossings: the mean of its crossings.
@@ -429,7 +423,7 @@ Mesh ActiveSurface::Impl::tiles_mesh(bool normals, const RunControl& control) co
   return marching_tiles(field, o, control);
 }
 
-void ActiveSurface::Impl::finish_stats(ActiveFrameStats& s, const RunControl& control) const {
+void active_detail::Engine::finish_stats(ActiveFrameStats& s, const RunControl& control) const {
   const ActiveMeasures m = measure(nullptr, control);
   s.area = m.area;
   s.volume = m.volume;

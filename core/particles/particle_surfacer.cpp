@@ -631,18 +631,166 @@ struct ParticleSurfacer::State {
 
   Mesh run(std::span<const Vec3> input, std::span<const double> radii, const RunControl& control,
            ParticleSurfacingStats* stats_out, bool initial_only);
+
+  // The stages, in order (each named as in the stats and the progress reports).
+  void check_inputs(std::span<const Vec3> input, std::span<const double> radii) const;
+  // "distance_field": resolves the radii, hashes the particles and drops small components.
+  void distance_field(std::span<const Vec3> input, std::span<const double> radii, int threads,
+                      const RunControl& control, ParticleSurfacingStats& stats);
+  // "polygonize": the Marching Tiles mesh of f = d - r_outer.
+  Mesh polygonize(int threads, const RunControl& control, ParticleSurfacingStats& stats) const;
+  // "laplacian" .. "erosion": the constrained smoothing of the polygonized mesh.
+  void smooth(Mesh& mesh, int threads, const RunControl& control, ParticleSurfacingStats& stats);
 };
 
-Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const double> radii, const RunControl& control,
-                                  ParticleSurfacingStats* stats_out, bool initial_only) {
-  const ParticleSurfacingOptions& o = options;
-  const int threads = resolve_threads(o.threads);
-  ParticleSurfacingStats stats;
-  const Clock::time_point t_start = Clock::now();
-  stats.particles = input.size();
+namespace {
 
-  control.check();
-  // Inputs.
+// A band of 1.25 h keeps every crossed lattice edge of the initial surface exact: every lattice edge is shorter
+// than 1.07 h (A15 edges are 2, sqrt 5 and sqrt 6 lattice units, mean 2.30).
+constexpr double kFieldBandSpacings = 1.25;
+
+// The smoothing stages over one mesh (thesis Fig. 3.2, steps 3-7): the constraint projection and the faithfulness
+// measure they share, and one function per stage.
+class Smoother {
+ public:
+  Smoother(Mesh& mesh, const ParticleSurfacingOptions& options, const Particles& particles, NeighbourCache& cache,
+           int threads)
+      : mesh_(mesh),
+        x_(mesh.vertices),
+        n_(x_.size()),
+        o_(options),
+        P_(particles),
+        cache_(cache),
+        threads_(threads),
+        ring_(ps::one_ring(n_, mesh.triangles)),
+        blocks_(ps::default_block_count(n_)) {
+    container_.box = o_.container_box;
+    container_.solid = o_.container_solid.get();
+    container_.inside_margin = 1e-9 * P_.r_inner;
+    cache_.reset(P_.weighted ? 0 : n_, 0.15 * P_.r_inner);
+  }
+
+  const ps::Graph& ring() const { return ring_; }
+
+  // Steps 3 (after snapping the Marching Tiles vertices, faithful up to interpolation error, exactly).
+  void laplacian(const RunControl& control) {
+    constrain(true);
+    const ps::SweepPlan plan = ps::plan_sweeps(ring_, blocks_);
+    for (int s = 0; s < o_.laplacian_sweeps; ++s) {
+      control.check();
+      ps::laplacian_sweep(x_, ring_, o_.relaxation, plan, threads_);
+      constrain(true);
+      control.report("laplacian", (s + 1.0) / o_.laplacian_sweeps);
+    }
+  }
+
+  // Step 4: B = W^T D^-1 W and its sweep plan.
+  void build_b(const RunControl& control, ParticleSurfacingStats& stats) {
+    b_ = ps::bilaplacian(x_, mesh_.triangles, ring_, threads_, control);
+    b_plan_ = ps::plan_sweeps(b_.graph, blocks_);
+    stats.b_nonzeros = b_.nonzeros();
+    stats.seam_fraction = n_ > 0 ? static_cast<double>(b_plan_.seams.size()) / static_cast<double>(n_) : 0.0;
+    control.report("build_b", 1.0);
+  }
+
+  // Step 5, then the faithfulness after it.
+  void bilaplacian(const RunControl& control, ParticleSurfacingStats& stats) {
+    for (int s = 0; s < o_.bilaplacian_sweeps; ++s) {
+      control.check();
+      ps::bilaplacian_sweep(x_, b_, b_plan_, threads_);
+      constrain(true);
+      control.report("bilaplacian", (s + 1.0) / o_.bilaplacian_sweeps);
+    }
+    measure(stats.faithful_after_constrained, stats.max_violation_after_constrained);
+  }
+
+  // Step 6 (the container is still enforced).
+  void polish(const RunControl& control) {
+    before_polish_ = x_;
+    for (int s = 0; s < o_.polish_sweeps; ++s) {
+      control.check();
+      ps::bilaplacian_sweep(x_, b_, b_plan_, threads_);
+      constrain(false);
+      control.report("polish", (s + 1.0) / o_.polish_sweeps);
+    }
+  }
+
+  // Step 7, when asked for.
+  void erosion(const RunControl& control) {
+    control.check();
+    const std::vector<Vec3> normals = ps::vertex_normals(x_, mesh_.triangles);
+    const double depth = *o_.erosion * P_.r_inner;
+    for (std::size_t i = 0; i < n_; ++i) x_[i] -= depth * normals[i];
+    constrain(false);
+    control.report("erosion", 1.0);
+  }
+
+  // The figures of the final surface: how far polish and erosion moved vertices, and the faithfulness.
+  void finish(ParticleSurfacingStats& stats) {
+    for (std::size_t i = 0; i < n_; ++i) {
+      stats.max_polish_displacement = std::max(stats.max_polish_displacement, (x_[i] - before_polish_[i]).norm());
+    }
+    measure(stats.faithful_after_polish, stats.max_violation_after_polish);
+    stats.neighbour_refreshes = cache_.refreshes();
+  }
+
+ private:
+  // The particle band (when `to_particles`) and the container, on every vertex.
+  void constrain(bool to_particles) {
+    if (!to_particles && !container_.active()) return;
+    for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
+      for (std::size_t i = begin; i < end; ++i) {
+        if (to_particles) {
+          if (P_.weighted) {
+            P_.project(x_[i]);
+          } else {
+            project_uniform(P_, cache_, i, x_[i]);
+          }
+        }
+        if (container_.active()) container_.project(x_[i]);
+      }
+    });
+  }
+
+  // The fraction of vertices inside the band and the largest distance outside it.
+  void measure(double& fraction, double& max_violation) {
+    std::mutex mutex;
+    std::size_t good_total = 0;
+    double worst_total = 0.0;
+    for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
+      std::size_t good = 0;
+      double worst = 0.0;
+      for (std::size_t i = begin; i < end; ++i) {
+        const double v = P_.weighted ? P_.violation(x_[i]) : violation_uniform(P_, cache_, i, x_[i]);
+        good += P_.faithful(v);
+        worst = std::max(worst, v);
+      }
+      const std::lock_guard lock(mutex);
+      good_total += good;
+      worst_total = std::max(worst_total, worst);
+    });
+    fraction = n_ > 0 ? static_cast<double>(good_total) / static_cast<double>(n_) : 1.0;
+    max_violation = worst_total;
+  }
+
+  Mesh& mesh_;
+  std::vector<Vec3>& x_;
+  const std::size_t n_;
+  const ParticleSurfacingOptions& o_;
+  const Particles& P_;
+  NeighbourCache& cache_;
+  const int threads_;
+  const ps::Graph ring_;
+  const std::size_t blocks_;
+  Container container_;
+  ps::SparseMatrix b_;
+  ps::SweepPlan b_plan_;
+  std::vector<Vec3> before_polish_;
+};
+
+}  // namespace
+
+void ParticleSurfacer::State::check_inputs(std::span<const Vec3> input, std::span<const double> radii) const {
   for (std::size_t i = 0; i < input.size(); ++i) {
     if (!input[i].allFinite()) {
       throw InvalidInput("particles", "particle " + std::to_string(i) + " has a non-finite coordinate; remove it");
@@ -654,22 +802,21 @@ Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const d
   }
   for (std::size_t i = 0; i < radii.size(); ++i) {
     if (!(std::isfinite(radii[i]) && radii[i] > 0.0)) {
-      throw InvalidInput("radii", "radius " + std::to_string(i) + " (" + format_number(radii[i]) + ") must be finite and > 0");
+      throw InvalidInput("radii",
+                         "radius " + std::to_string(i) + " (" + format_number(radii[i]) + ") must be finite and > 0");
     }
   }
-  if (radii.empty() && !o.r_inner && !o.derive_r_inner) {
+  if (radii.empty() && !options.r_inner && !options.derive_r_inner) {
     throw InvalidInput("r_inner",
                        "r_inner is required: set it (e.g. the simulation's particle radius), ask for "
                        "derive_r_inner, or give per-particle radii");
   }
-  if (input.empty()) {
-    if (stats_out != nullptr) *stats_out = stats;
-    return {};
-  }
+}
 
-  // Radii.
+void ParticleSurfacer::State::distance_field(std::span<const Vec3> input, std::span<const double> radii, int threads,
+                                             const RunControl& control, ParticleSurfacingStats& stats) {
+  const ParticleSurfacingOptions& o = options;
   control.report("distance_field", 0.0);
-  Clock::time_point t0 = Clock::now();
   Particles& P = particles;
   P.weighted = !radii.empty();
   double r_inner = 0.0;
@@ -681,8 +828,10 @@ Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const d
   }
   const double r_outer = o.r_outer ? *o.r_outer : ParticleSurfacingOptions::kDefaultOuterRatio * r_inner;
   if (!(r_outer > r_inner)) {
-    throw InvalidInput("r_outer", "r_outer (" + format_number(r_outer) + ") must exceed r_inner (" + format_number(r_inner) +
-                                      (o.r_inner ? ")" : ", derived)") + "; the default is 2 x r_inner");
+    throw InvalidInput("r_outer", "r_outer (" + format_number(r_outer) + ") must exceed r_inner (" +
+                                      format_number(r_inner) + (o.r_inner ? ")" : ", derived)") +
+                                      "; the default is " +
+                                      format_number(ParticleSurfacingOptions::kDefaultOuterRatio) + " x r_inner");
   }
   const double ratio = r_outer / r_inner;
   const double h = o.spacing_factor * r_inner;
@@ -704,7 +853,7 @@ Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const d
     P.max_inner = r_inner;
     P.max_outer = r_outer;
   }
-  const double field_band = 1.25 * h;  // see "Initial surface" below
+  const double field_band = kFieldBandSpacings * h;
   P.index(P.max_outer + field_band);
 
   if (o.min_particles_per_component > 1) {
@@ -730,148 +879,88 @@ Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const d
     }
   }
   stats.particles_used = P.positions.size();
-  stats.seconds_distance_field = seconds_since(t0);
   control.report("distance_field", 1.0);
-  if (P.positions.empty()) {
-    stats.seconds_total = seconds_since(t_start);
-    if (stats_out != nullptr) *stats_out = stats;
-    return {};
-  }
+}
 
-  // Initial surface: Marching Tiles of f = d - r_outer. Every lattice edge is shorter than 1.07 h (A15 edges are
-  // 2, sqrt 5 and sqrt 6 lattice units, mean 2.30), so a band of 1.25 h keeps crossed edges exact.
-  t0 = Clock::now();
-  const ParticleField field(P, field_band);
+Mesh ParticleSurfacer::State::polygonize(int threads, const RunControl& control, ParticleSurfacingStats& stats) const {
+  const Particles& P = particles;
+  const double h = stats.spacing;
+  const ParticleField field(P, kFieldBandSpacings * h);
   MarchingTilesOptions mt;
-  const double pad = P.max_outer + 2.0 * h;
-  mt.bounds = Aabb{P.box.min.array() - pad, P.box.max.array() + pad};
+  mt.bounds = P.box.padded(P.max_outer + 2.0 * h);
   mt.spacing = h;
   mt.threads = threads;
   mt.seeds = P.positions;
   mt.seed_radius = P.max_outer + h;
   stats.seeds = mt.seeds.size();
   Mesh mesh = marching_tiles(field, mt, control);
-  stats.seconds_polygonize = seconds_since(t0);
   stats.field_evaluations = field.evaluations();
   stats.initial_vertices = mesh.vertices.size();
   stats.initial_triangles = mesh.triangles.size();
+  return mesh;
+}
 
-  if (initial_only) {
-    stats.initial_min_valence = min_valence(ps::one_ring(mesh.vertices.size(), mesh.triangles));
+void ParticleSurfacer::State::smooth(Mesh& mesh, int threads, const RunControl& control,
+                                     ParticleSurfacingStats& stats) {
+  const ParticleSurfacingOptions& o = options;
+  Clock::time_point t0 = Clock::now();
+  morton_reorder(mesh, stats.spacing);
+  mesh.normals.clear();
+  Smoother smoother(mesh, o, particles, cache, threads);
+  stats.initial_min_valence = min_valence(smoother.ring());
+  smoother.laplacian(control);
+  stats.seconds_laplacian = seconds_since(t0);
+  t0 = Clock::now();
+  smoother.build_b(control, stats);
+  stats.seconds_build_b = seconds_since(t0);
+  t0 = Clock::now();
+  smoother.bilaplacian(control, stats);
+  stats.seconds_bilaplacian = seconds_since(t0);
+  t0 = Clock::now();
+  smoother.polish(control);
+  stats.seconds_polish = seconds_since(t0);
+  if (o.erosion && *o.erosion > 0.0) {
+    t0 = Clock::now();
+    smoother.erosion(control);
+    stats.seconds_erosion = seconds_since(t0);
+  }
+  smoother.finish(stats);
+  if (o.normals) mesh.normals = ps::vertex_normals(mesh.vertices, mesh.triangles);
+}
+
+Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const double> radii, const RunControl& control,
+                                  ParticleSurfacingStats* stats_out, bool initial_only) {
+  const int threads = resolve_threads(options.threads);
+  ParticleSurfacingStats stats;
+  const Clock::time_point t_start = Clock::now();
+  stats.particles = input.size();
+  auto finish = [&](Mesh mesh) {
     stats.vertices = mesh.vertices.size();
     stats.triangles = mesh.triangles.size();
     stats.seconds_total = seconds_since(t_start);
     if (stats_out != nullptr) *stats_out = stats;
     return mesh;
-  }
-
-  // Smoothing.
-  t0 = Clock::now();
-  morton_reorder(mesh, h);
-  mesh.normals.clear();
-  std::vector<Vec3>& x = mesh.vertices;
-  const std::size_t n = x.size();
-  const ps::Graph ring = ps::one_ring(n, mesh.triangles);
-  stats.initial_min_valence = min_valence(ring);
-  const std::size_t blocks = ps::default_block_count(n);
-  Container container;
-  container.box = o.container_box;
-  container.solid = o.container_solid.get();
-  container.inside_margin = 1e-9 * r_inner;
-  cache.reset(P.weighted ? 0 : n, 0.15 * r_inner);
-  auto constrain = [&](bool to_particles) {
-    if (!to_particles && !container.active()) return;
-    for_chunks(n, threads, [&](std::size_t begin, std::size_t end) {
-      for (std::size_t i = begin; i < end; ++i) {
-        if (to_particles) {
-          if (P.weighted) {
-            P.project(x[i]);
-          } else {
-            project_uniform(P, cache, i, x[i]);
-          }
-        }
-        if (container.active()) container.project(x[i]);
-      }
-    });
   };
-  auto measure = [&](double& fraction, double& max_violation) {
-    std::mutex mutex;
-    std::size_t good_total = 0;
-    double worst_total = 0.0;
-    for_chunks(n, threads, [&](std::size_t begin, std::size_t end) {
-      std::size_t good = 0;
-      double worst = 0.0;
-      for (std::size_t i = begin; i < end; ++i) {
-        const double v = P.weighted ? P.violation(x[i]) : violation_uniform(P, cache, i, x[i]);
-        good += P.faithful(v);
-        worst = std::max(worst, v);
-      }
-      const std::lock_guard lock(mutex);
-      good_total += good;
-      worst_total = std::max(worst_total, worst);
-    });
-    fraction = n > 0 ? static_cast<double>(good_total) / static_cast<double>(n) : 1.0;
-    max_violation = worst_total;
-  };
-  constrain(true);  // the Marching Tiles vertices are faithful up to interpolation error; snap them exactly
-  const ps::SweepPlan ring_plan = ps::plan_sweeps(ring, blocks);
-  for (int s = 0; s < o.laplacian_sweeps; ++s) {
-    control.check();
-    ps::laplacian_sweep(x, ring, o.relaxation, ring_plan, threads);
-    constrain(true);
-    control.report("laplacian", (s + 1.0) / o.laplacian_sweeps);
-  }
-  stats.seconds_laplacian = seconds_since(t0);
+
+  control.check();
+  check_inputs(input, radii);
+  if (input.empty()) return finish({});
+
+  Clock::time_point t0 = Clock::now();
+  distance_field(input, radii, threads, control, stats);
+  stats.seconds_distance_field = seconds_since(t0);
+  if (particles.positions.empty()) return finish({});
 
   t0 = Clock::now();
-  const ps::SparseMatrix b = ps::bilaplacian(x, mesh.triangles, ring, threads, control);
-  const ps::SweepPlan b_plan = ps::plan_sweeps(b.graph, blocks);
-  stats.b_nonzeros = b.nonzeros();
-  stats.seam_fraction = n > 0 ? static_cast<double>(b_plan.seams.size()) / static_cast<double>(n) : 0.0;
-  stats.seconds_build_b = seconds_since(t0);
-  control.report("build_b", 1.0);
+  Mesh mesh = polygonize(threads, control, stats);
+  stats.seconds_polygonize = seconds_since(t0);
+  if (initial_only) {
+    stats.initial_min_valence = min_valence(ps::one_ring(mesh.vertices.size(), mesh.triangles));
+    return finish(std::move(mesh));
+  }
 
-  t0 = Clock::now();
-  for (int s = 0; s < o.bilaplacian_sweeps; ++s) {
-    control.check();
-    ps::bilaplacian_sweep(x, b, b_plan, threads);
-    constrain(true);
-    control.report("bilaplacian", (s + 1.0) / o.bilaplacian_sweeps);
-  }
-  stats.seconds_bilaplacian = seconds_since(t0);
-  measure(stats.faithful_after_constrained, stats.max_violation_after_constrained);
-
-  t0 = Clock::now();
-  const std::vector<Vec3> before_polish = x;
-  for (int s = 0; s < o.polish_sweeps; ++s) {
-    control.check();
-    ps::bilaplacian_sweep(x, b, b_plan, threads);
-    constrain(false);
-    control.report("polish", (s + 1.0) / o.polish_sweeps);
-  }
-  stats.seconds_polish = seconds_since(t0);
-
-  if (o.erosion && *o.erosion > 0.0) {
-    t0 = Clock::now();
-    control.check();
-    const std::vector<Vec3> normals = ps::vertex_normals(x, mesh.triangles);
-    const double depth = *o.erosion * r_inner;
-    for (std::size_t i = 0; i < n; ++i) x[i] -= depth * normals[i];
-    constrain(false);
-    stats.seconds_erosion = seconds_since(t0);
-    control.report("erosion", 1.0);
-  }
-  for (std::size_t i = 0; i < n; ++i) {
-    stats.max_polish_displacement = std::max(stats.max_polish_displacement, (x[i] - before_polish[i]).norm());
-  }
-  measure(stats.faithful_after_polish, stats.max_violation_after_polish);
-  if (o.normals) mesh.normals = ps::vertex_normals(x, mesh.triangles);
-  stats.vertices = n;
-  stats.triangles = mesh.triangles.size();
-  stats.neighbour_refreshes = cache.refreshes();
-  stats.seconds_total = seconds_since(t_start);
-  if (stats_out != nullptr) *stats_out = stats;
-  return mesh;
+  smooth(mesh, threads, control, stats);
+  return finish(std::move(mesh));
 }
 
 ParticleSurfacer::ParticleSurfacer(const ParticleSurfacingOptions& options) : state_(std::make_unique<State>()) {
