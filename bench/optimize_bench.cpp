@@ -147,15 +147,12 @@ Shape rotated_box() {
   const Eigen::Matrix3d r = Eigen::AngleAxisd(0.5, Vec3(1, 2, 3).normalized()).toRotationMatrix();
   s.field = make_transform(make_box(Vec3::Zero(), half), r, Vec3::Zero());
   s.start_field = s.field;
-  Vec3 lo = Vec3::Constant(1e9), hi = Vec3::Constant(-1e9);
+  s.solid = Aabb::empty();
   for (int c = 0; c < 8; ++c) {
-    const Vec3 corner = r * Vec3((c & 1) ? half.x() : -half.x(), (c & 2) ? half.y() : -half.y(),
-                                 (c & 4) ? half.z() : -half.z());
-    lo = lo.cwiseMin(corner);
-    hi = hi.cwiseMax(corner);
+    s.solid.merge(Vec3(r * Vec3((c & 1) ? half.x() : -half.x(), (c & 2) ? half.y() : -half.y(),
+                                (c & 4) ? half.z() : -half.z())));
   }
-  s.solid = Aabb{lo, hi};
-  const double extent = (hi - lo).maxCoeff() * 0.55;
+  const double extent = s.solid.size().maxCoeff() * 0.55;
   s.grid = Aabb{Vec3::Constant(-extent - 0.0013), Vec3::Constant(extent - 0.0013)};
   s.curves = box_edges(half, r);
   return s;

@@ -539,8 +539,7 @@ void pin_particles_from_inputs(PreparedJob& prepared) {
   std::vector<Vec3> first;
   for (int g = 0; g < frames; ++g) {
     wire::ParticleSummary& box = boxes[static_cast<std::size_t>(g)];
-    box.bounds.min = Vec3::Constant(std::numeric_limits<double>::infinity());
-    box.bounds.max = -box.bounds.min;
+    box.bounds = Aabb::empty();
     auto visit = [&](double x, double y, double z, double r) {
       const Vec3 p(x, y, z);
       box.bounds.merge(p);

@@ -87,15 +87,12 @@ void for_each_particle(const v1::ParticleFrame& frame, const std::string& path, 
 ParticleSummary summarize_particle_frame(const v1::ParticleFrame& frame, const std::string& path,
                                          const UploadLookup& uploads, std::int64_t max_particles) {
   ParticleSummary summary;
-  summary.bounds.min = Vec3::Constant(std::numeric_limits<double>::infinity());
-  summary.bounds.max = -summary.bounds.min;
+  summary.bounds = Aabb::empty();
   for_each_particle(
       frame, path, uploads, max_particles,
       [&](std::size_t count, bool) { summary.count = static_cast<std::int64_t>(count); },
       [&](std::size_t, double x, double y, double z, double r) {
-        const Vec3 p(x, y, z);
-        summary.bounds.min = summary.bounds.min.cwiseMin(p);
-        summary.bounds.max = summary.bounds.max.cwiseMax(p);
+        summary.bounds.merge(Vec3(x, y, z));
         summary.max_radius = std::max(summary.max_radius, r);
       });
   return summary;

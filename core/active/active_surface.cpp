@@ -416,10 +416,7 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
       }
       region = *opt.domain;
     }
-    if (has_domain) {
-      region.min = region.min.cwiseMax(opt.domain->min);
-      region.max = region.max.cwiseMin(opt.domain->max);
-    }
+    if (has_domain) region.intersect(*opt.domain);
   } else {
     region = *opt.domain;
   }

@@ -401,13 +401,10 @@ Mesh active_detail::Engine::tiles_mesh(bool normals, const RunControl& control) 
     if (n > 0) block_seed[b] = sum / n;
   });
   std::vector<Vec3> seeds;
-  Aabb box{Vec3::Constant(std::numeric_limits<double>::infinity()),
-           Vec3::Constant(-std::numeric_limits<double>::infinity())};
+  Aabb box = Aabb::empty();
   for (int b = 0; b < nb; ++b) {
     const sparse::BlockCoord& bc = grid.coord(b);
-    const Vec3 lo = node_position(bc, 0, 0, 0), hi = node_position(bc, 8, 8, 8);
-    box.min = box.min.cwiseMin(lo);
-    box.max = box.max.cwiseMax(hi);
+    box.merge(Aabb{node_position(bc, 0, 0, 0), node_position(bc, 8, 8, 8)});
     if (!std::isnan(block_seed[b][0])) seeds.push_back(block_seed[b]);
   }
   if (seeds.empty()) return {};

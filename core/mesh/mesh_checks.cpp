@@ -59,12 +59,7 @@ MeshReport check_mesh(const Mesh& mesh) {
   }
 
   // --- Geometry per triangle -----------------------------------------------------------------------------------
-  Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
-  for (const Vec3& p : mesh.vertices) {
-    lo = lo.cwiseMin(p);
-    hi = hi.cwiseMax(p);
-  }
-  const double diag2 = nv > 0 ? (hi - lo).squaredNorm() : 0.0;
+  const double diag2 = nv > 0 ? Aabb::of(mesh.vertices).size().squaredNorm() : 0.0;
   const double min_area = 1e-14 * diag2;
   double max_cos = -2.0, min_cos = 2.0;  // of all angles: smallest angle <-> largest cosine
   double area = 0.0, volume = 0.0;

@@ -20,12 +20,6 @@
 namespace surfacer {
 namespace {
 
-std::string format_point(const Vec3& p) {
-  char buf[128];
-  std::snprintf(buf, sizeof(buf), "(%.9g, %.9g, %.9g)", p.x(), p.y(), p.z());
-  return buf;
-}
-
 }  // namespace
 
 void validate(const DracoOptions& options) {
@@ -90,15 +84,9 @@ QuantizationBox quantization_box(const Mesh& mesh, const DracoOptions& options) 
     }
     return {box.min, range};
   }
-  Vec3 lo = Vec3::Zero(), hi = Vec3::Zero();
-  if (!mesh.vertices.empty()) {
-    lo = hi = mesh.vertices[0];
-    for (const Vec3& p : mesh.vertices) {
-      lo = lo.cwiseMin(p);
-      hi = hi.cwiseMax(p);
-    }
-  }
-  double range = (hi - lo).maxCoeff();
+  const Aabb own = Aabb::of(mesh.vertices);
+  const Vec3& lo = own.min;
+  double range = own.size().maxCoeff();
   if (!(range > 0.0)) range = std::max(1.0, lo.cwiseAbs().maxCoeff()) * 1e-6;  // all vertices coincide
   return {lo, range};
 }

@@ -723,15 +723,11 @@ MeshOptimizer::MeshOptimizer(const Field& field, Mesh start, const MeshOptimizer
   state_ = std::make_unique<State>(field, std::move(start), options);
   State& s = *state_;
   s.topo.build(s.mesh.vertices.size(), s.mesh.triangles, s.threads, {});
-  Aabb box{Vec3::Constant(std::numeric_limits<double>::infinity()),
-           Vec3::Constant(-std::numeric_limits<double>::infinity())};
+  Aabb box = Aabb::empty();
   for (const Triangle& t : s.mesh.triangles) {
-    for (std::uint32_t v : t) {
-      box.min = box.min.cwiseMin(s.mesh.vertices[v]);
-      box.max = box.max.cwiseMax(s.mesh.vertices[v]);
-    }
+    for (std::uint32_t v : t) box.merge(s.mesh.vertices[v]);
   }
-  s.length_scale = std::max((box.max - box.min).norm(), std::numeric_limits<double>::min());
+  s.length_scale = std::max(box.size().norm(), std::numeric_limits<double>::min());
   s.hierarchy.reset(s.mesh.triangles.size());
   State::Evaluated e = s.evaluate(s.mesh.vertices, s.mesh.triangles, s.topo, nullptr, {});
   s.stats = e.stats;

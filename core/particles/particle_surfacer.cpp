@@ -46,15 +46,6 @@ void for_chunks(std::size_t n, int threads, Body&& body) {
   });
 }
 
-Aabb bounding_box(std::span<const Vec3> points) {
-  Aabb box{points[0], points[0]};
-  for (const Vec3& p : points) {
-    box.min = box.min.cwiseMin(p);
-    box.max = box.max.cwiseMax(p);
-  }
-  return box;
-}
-
 // --- Particles ------------------------------------------------------------------------------------------------------
 
 // The particles in use, a spatial hash over them (cell = the largest r_outer) and their radii.
@@ -70,7 +61,7 @@ struct Particles {
 
   // `reach`: the largest query radius (the field's r_outer + band).
   void index(double reach) {
-    box = bounding_box(positions);
+    box = Aabb::of(positions);
     // Dense data: cells of r_inner (uniform radii) keep the scans short. Scattered data (the hash falls back to its
     // sparse layout, one table lookup per cell): cells of the query reach, so a query looks up at most 27 cells.
     hash.build(positions, weighted ? max_outer : r_inner);
@@ -401,7 +392,7 @@ double derive_r_inner(std::span<const Vec3> points, int threads, const RunContro
     throw InvalidInput("r_inner", "cannot derive r_inner from " + std::to_string(points.size()) +
                                       " particle(s); set r_inner (e.g. the simulation's particle radius)");
   }
-  const Aabb box = bounding_box(points);
+  const Aabb box = Aabb::of(points);
   const Vec3 extent = box.max - box.min;
   const double floor_extent = std::max(extent.maxCoeff() * 1e-3, 1e-300);
   double volume = 1.0;
@@ -526,7 +517,7 @@ std::vector<char> filter_components(const Particles& all, int min_size, std::siz
 void morton_reorder(Mesh& mesh, double cell) {
   const std::size_t n = mesh.vertices.size();
   if (n == 0) return;
-  const Aabb box = bounding_box(mesh.vertices);
+  const Aabb box = Aabb::of(mesh.vertices);
   auto spread = [](std::uint64_t v) {
     v &= 0x1fffff;
     v = (v | v << 32) & 0x1f00000000ffffull;
@@ -1027,12 +1018,8 @@ Aabb particle_sequence_box(const Aabb& particle_bounds, double max_radius, std::
     const double spacing = estimate_particle_spacing(first_frame());
     pad = kDerivedPadSafety * ratio * std::max(spacing, 1e-6 * std::max(box.size().maxCoeff(), 1.0));
   }
-  box.min.array() -= 1.5 * pad;
-  box.max.array() += 1.5 * pad;
-  if (container) {
-    box.min = box.min.cwiseMax(container->min);
-    box.max = box.max.cwiseMin(container->max);
-  }
+  box = box.padded(1.5 * pad);
+  if (container) box.intersect(*container);
   return box;
 }
 

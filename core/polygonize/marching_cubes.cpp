@@ -84,10 +84,8 @@ struct Grid {
 void validate(const MarchingCubesOptions& options) {
   const Aabb& b = options.bounds;
   if (!b.valid() || !b.min.allFinite() || !b.max.allFinite()) {
-    throw InvalidInput("bounds", "bounds.min must be < bounds.max on every axis and both finite; got min (" +
-                                     std::to_string(b.min.x()) + ", " + std::to_string(b.min.y()) + ", " +
-                                     std::to_string(b.min.z()) + ") max (" + std::to_string(b.max.x()) + ", " +
-                                     std::to_string(b.max.y()) + ", " + std::to_string(b.max.z()) + ")");
+    throw InvalidInput("bounds", "bounds.min must be < bounds.max on every axis and both finite; got min " +
+                                     format_point(b.min) + " max " + format_point(b.max));
   }
   static const char* const kAxis[3] = {"x", "y", "z"};
   for (int a = 0; a < 3; ++a) {

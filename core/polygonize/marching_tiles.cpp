@@ -644,13 +644,11 @@ class Progress {
 void validate(const MarchingTilesOptions& o) {
   const Aabb& b = o.bounds;
   if (!b.min.allFinite() || !b.max.allFinite() || !b.valid()) {
-    throw InvalidInput("bounds", "bounds.min must be < bounds.max on every axis and both finite; got min (" +
-                                     std::to_string(b.min.x()) + ", " + std::to_string(b.min.y()) + ", " +
-                                     std::to_string(b.min.z()) + ") max (" + std::to_string(b.max.x()) + ", " +
-                                     std::to_string(b.max.y()) + ", " + std::to_string(b.max.z()) + ")");
+    throw InvalidInput("bounds", "bounds.min must be < bounds.max on every axis and both finite; got min " +
+                                     format_point(b.min) + " max " + format_point(b.max));
   }
   if (!std::isfinite(o.spacing) || !(o.spacing > 0.0)) {
-    throw InvalidInput("spacing", "spacing (" + std::to_string(o.spacing) +
+    throw InvalidInput("spacing", "spacing (" + format_number(o.spacing) +
                                       ") must be a finite number > 0: the mean distance between lattice samples");
   }
   if (o.threads < 0) {
@@ -658,7 +656,7 @@ void validate(const MarchingTilesOptions& o) {
                        "threads (" + std::to_string(o.threads) + ") must be >= 0; 0 uses every hardware thread");
   }
   if (!std::isfinite(o.seed_radius) || o.seed_radius < 0.0) {
-    throw InvalidInput("seed_radius", "seed_radius (" + std::to_string(o.seed_radius) + ") must be finite and >= 0");
+    throw InvalidInput("seed_radius", "seed_radius (" + format_number(o.seed_radius) + ") must be finite and >= 0");
   }
   if (!o.seeds.empty() && !(o.seed_radius > 0.0)) {
     throw InvalidInput("seed_radius",

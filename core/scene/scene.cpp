@@ -340,7 +340,7 @@ class Csg final : public Field {
         for (const FieldPtr& c : children_) {
           const std::optional<Aabb> b = c->bounds();
           if (!b) continue;
-          box = box ? Aabb{box->min.cwiseMax(b->min), box->max.cwiseMin(b->max)} : *b;
+          box = box ? box->intersect(*b) : *b;
         }
         if (box) box->max = box->max.cwiseMax(box->min);
         return box;
@@ -429,13 +429,11 @@ class Transform final : public Field {
   std::optional<Aabb> bounds() const override {
     const std::optional<Aabb> b = child_->bounds();
     if (!b) return std::nullopt;
-    Aabb out{Vec3::Constant(HUGE_VAL), Vec3::Constant(-HUGE_VAL)};
+    Aabb out = Aabb::empty();
     for (int corner = 0; corner < 8; ++corner) {
       const Vec3 c((corner & 1) ? b->max.x() : b->min.x(), (corner & 2) ? b->max.y() : b->min.y(),
                    (corner & 4) ? b->max.z() : b->min.z());
-      const Vec3 w = a_ * c + t_;
-      out.min = out.min.cwiseMin(w);
-      out.max = out.max.cwiseMax(w);
+      out.merge(Vec3(a_ * c + t_));
     }
     return out;
   }

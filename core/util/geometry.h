@@ -4,6 +4,10 @@
 #include <Eigen/Core>
 
 #include <iterator>
+#include <limits>
+#include <string>
+
+#include "core/util/format.h"
 
 namespace surfacer {
 
@@ -29,6 +33,17 @@ struct Aabb {
     max = max.cwiseMax(p);
     return *this;
   }
+  // Shrinks the box to its overlap with `other` (invalid when they do not overlap); returns *this.
+  Aabb& intersect(const Aabb& other) {
+    min = min.cwiseMax(other.min);
+    max = max.cwiseMin(other.max);
+    return *this;
+  }
+  // The box that holds nothing (min = +inf, max = -inf): merging anything into it gives that thing's box.
+  static Aabb empty() {
+    const double inf = std::numeric_limits<double>::infinity();
+    return {Vec3::Constant(inf), Vec3::Constant(-inf)};
+  }
   // The box grown by `pad` on every side.
   Aabb padded(double pad) const { return {min.array() - pad, max.array() + pad}; }
 
@@ -42,6 +57,18 @@ struct Aabb {
     return box;
   }
 };
+
+// "(x, y, z)" with format_number.
+inline std::string format_point(const Vec3& p) {
+  std::string out(1, '(');  // appended: GCC 12 warns falsely (-Wrestrict) on "literal" + std::string temporaries
+  out += format_number(p.x());
+  out += ", ";
+  out += format_number(p.y());
+  out += ", ";
+  out += format_number(p.z());
+  out += ')';
+  return out;
+}
 
 // The smallest box holding both.
 inline Aabb merged(Aabb a, const Aabb& b) { return a.merge(b); }

@@ -206,7 +206,7 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
       const FieldPtr shape = wire::field_from_scene(advect.shape(), path + ".advect.shape", context.uploads);
       if (!(advect.frame_interval() > 0.0) || advect.frames() < 1) {
         throw InvalidInput(path + ".advect", path + ".advect needs frame_interval > 0 and frames >= 1 (got " +
-                                                 std::to_string(advect.frame_interval()) + ", " +
+                                                 format_number(advect.frame_interval()) + ", " +
                                                  std::to_string(advect.frames()) + ")");
       }
       check_frame_count(advect.frames(), path + ".advect.frames", context.limits);
