@@ -17,7 +17,7 @@
 
 #include "core/util/crc32.h"
 #include "core/util/errors.h"
-#include "server/uploads.h"
+#include "wire/uploads.h"
 
 namespace surfacer::server {
 namespace {
