@@ -35,7 +35,7 @@
 // * Time step: dt = cfl * min(h / V, h^2 / (6 D), 1 / (alpha max|grad g|), V0 / (delta A), A0 / (gamma kbar A))
 //   with V = max |s| (or max |u|) over the active nodes, D = beta (the coefficient of the second derivatives in
 //   -beta kappa |grad f|; the 3-D explicit bound, ALGORITHMS §4 CHOICE) and the last three the relaxation rates of
-//   the tracking, volume and area controllers (kbar = mean |kappa| at the sample points); a time-dependent velocity
+//   the tracking, volume and area controllers (kbar = mean |kappa| at the sample points); an advecting step
 //   also caps dt at twice the previous step and rejects a step whose second stage sees |u| dt > h. Several sub-steps
 //   per output frame; the last one is shortened to land on the frame time.
 // * Reinitialization every reinit_interval sub-steps to the clamped distance profile (PDE, second-order ENO

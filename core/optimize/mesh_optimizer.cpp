@@ -508,7 +508,7 @@ struct MeshOptimizer::State {
   }
 
   // Modified N-flow (§3.1): five steps P -= (1/deg) ∇E(P), ∇φ(T) = ½ (n_T - m_T) × (Q2 - Q1), m frozen, each step
-  // clamped to step_bound sqrt(A(P)) / deg; the neighbours stay at p (Jacobi).
+  // clamped to c_n step_bound sqrt(A(P)) / deg; the neighbours stay at p (Jacobi).
   void modified_n_sweep(const std::vector<Vec3>& p, std::vector<Vec3>& q, const std::vector<Triangle>& tris,
                         const std::vector<Vec3>& m, const RunControl& control) const {
     q = p;

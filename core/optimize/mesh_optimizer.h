@@ -23,7 +23,7 @@
 //                         across it). Combined with the D-flow as N ∘ D.
 // Schedule (§2.4): N ∘ D ∘ T first; the T-flow rounds sharp edges off (Fig. 10), so it is switched off after
 // `t_flow_iterations` iterations, or, when that is not given, once E_d has stabilised (CHOICE):
-//   iteration k >= 10 and E_d(k) > 0.95 · E_d(k - 5) (less than 5 % decrease over the last 5 iterations), or E_d(k)
+//   after >= 10 T-flow iterations (and k >= 5), E_d(k) > 0.95 · E_d(k - 5) (less than 5 % decrease over the last 5 iterations), or E_d(k)
 //   <= 1e-20 · L² (L = start bounding-box diagonal), or k >= max_iterations / 2 (half the run is left for N ∘ D).
 // Then N ∘ D (or modified N ∘ D) until `max_iterations` or `tolerance`.
 //

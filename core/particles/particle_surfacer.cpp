@@ -1,5 +1,5 @@
 // Particle surfacing pipeline (core/particles/particle_surfacer.h). Smoothing matrices and sweeps live in
-// particle_surfacer_smoothing.cpp; this file holds the particle side: radii, the distance field given to Marching
+// smoothing.cpp; this file holds the particle side: radii, the distance field given to Marching
 // Tiles, constraint projection, and the stage driver.
 #include "core/particles/particle_surfacer.h"
 

@@ -23,7 +23,7 @@
 // r_inner pushes x out along (x - p) to r_inner (repeated, at most 8 times, while the push lands inside another
 // particle's r_inner ball); |x - p| > r_outer pulls x toward p to r_outer (p stays the nearest on that segment).
 // Then the container: coordinates clamped into container_box; a vertex with container_solid(x) > 0 is moved by
-// Newton steps x -= f grad f / |grad f|^2 (at most 16) until f(x) <= 0, the last step aiming 1e-9 r_inner inside.
+// Newton steps x -= (f + m) grad f / |grad f|^2 (at most 16; m = 1e-9 r_inner, so it lands just inside) until f <= 0.
 // Container snapping wins over faithfulness: vertices held at a wall may be outside [r_inner, r_outer].
 // Nearest-particle queries are exact: each vertex keeps the particles within d0 + 0.3 r_inner of where it last
 // looked (d0 = its nearest distance there) and scans only those until it has moved 0.15 r_inner.

@@ -1,4 +1,4 @@
-// Primitives, CSG and affine transforms (core/scene/scene.h). Blobs: scene_blobs.cpp; sampled grids: scene_grid.cpp.
+// Primitives, CSG and affine transforms (core/scene/scene.h). Blobs: blobs.cpp; sampled grids: sampled_grid.cpp.
 //
 // Each primitive is written once as a template over its scalar type; value() runs it with double and
 // value_and_gradient() with the forward-mode Dual of core/scene/dual.h, so both share one formula and the gradient is
