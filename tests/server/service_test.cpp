@@ -27,16 +27,6 @@ v1::JobSpec slow_spec() {
   return isosurface_spec({scene}, 1000);
 }
 
-v1::Job get_job(v1::Surfacer::Stub& stub, const std::string& id, grpc::Status* status = nullptr) {
-  grpc::ClientContext context;
-  v1::GetJobRequest request;
-  request.set_job_id(id);
-  v1::Job job;
-  auto s = stub.GetJob(&context, request, &job);
-  if (status) *status = s;
-  return job;
-}
-
 void wait_for_state(v1::Surfacer::Stub& stub, const std::string& id, v1::JobState state) {
   const auto until = std::chrono::steady_clock::now() + 30s;
   while (get_job(stub, id).state() != state && std::chrono::steady_clock::now() < until) {
