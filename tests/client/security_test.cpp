@@ -15,15 +15,16 @@
 #include "client/cli.h"
 #include "client/connection.h"
 #include "client/health.h"
-#include "tests/client/cli_process.h"
+#include "tests/support/files.h"
+#include "tests/support/process.h"
 #include "tests/support/test_certs.h"
 
 namespace surfacer::client {
 namespace {
 
-using namespace e2e;
-using surfacer::testing::make_test_certs;
-using surfacer::testing::TestCerts;
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+using namespace surfacer::testing;
 
 constexpr const char* kToken = "tok-3f9a.c0ffee_42";
 
@@ -92,9 +93,7 @@ std::shared_ptr<grpc::ServerCredentials> tls_server(const TestCerts& certs, bool
 class SecurityTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    root_ = fs::temp_directory_path() / ("surfacer_security_" + std::to_string(::getpid()));
-    fs::remove_all(root_);
-    fs::create_directories(root_);
+    root_ = fresh_temp_dir("security");
     certs_ = new TestCerts(make_test_certs(root_ / "pki"));
     other_ = new TestCerts(make_test_certs(root_ / "other-pki"));
   }
@@ -104,20 +103,12 @@ class SecurityTest : public ::testing::Test {
     certs_ = other_ = nullptr;
     fs::remove_all(root_);
   }
-  void SetUp() override {
-    dir_ = root_ / ::testing::UnitTest::GetInstance()->current_test_info()->name();
-    fs::create_directories(dir_);
-  }
+  void SetUp() override { dir_ = current_test_dir(root_); }
 
-  Result cli(std::vector<std::string> args, std::chrono::seconds timeout = 30s) {
-    args.insert(args.begin(), kCli.string());
+  ProcessResult cli(std::vector<std::string> args, std::chrono::seconds timeout = 30s) {
+    args.insert(args.begin(), cli_binary().string());
     const std::string tag = "cli" + std::to_string(counter_++);
-    Child child(args, dir_ / (tag + ".out"), dir_ / (tag + ".err"), false);
-    Result r;
-    r.code = child.wait(timeout);
-    r.out = read_file(dir_ / (tag + ".out"));
-    r.err = read_file(dir_ / (tag + ".err"));
-    return r;
+    return run_process(args, dir_ / (tag + ".out"), dir_ / (tag + ".err"), timeout);
   }
 
   static std::string ca() { return (certs_->dir / "ca.pem").string(); }
@@ -134,8 +125,7 @@ TestCerts* SecurityTest::certs_ = nullptr;
 TestCerts* SecurityTest::other_ = nullptr;
 
 TEST(TestCerts, MakesACaAServerCertForLocalhostAndAClientCertAndCachesPerDirectory) {
-  const fs::path dir = fs::temp_directory_path() / ("surfacer_certs_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
+  const fs::path dir = fresh_temp_dir("certs");
   const TestCerts a = make_test_certs(dir);
   for (const char* name : {"ca.pem", "server.pem", "server.key", "client.pem", "client.key"}) {
     EXPECT_TRUE(fs::exists(dir / name)) << name;
@@ -284,7 +274,7 @@ TEST_F(SecurityTest, FlagsReadTheirFilesAndBadFilesExitTwoNamingFlagAndFile) {
 TEST_F(SecurityTest, HealthOverTlsWithTheRightCaByIpByNameAndWithANameOverride) {
   TestServer server(tls_server(*certs_, false));
   ASSERT_GT(server.port(), 0);
-  Result r = cli({"--server", server.address(), "--tls-ca", ca(), "health"});
+  ProcessResult r = cli({"--server", server.address(), "--tls-ca", ca(), "health"});
   EXPECT_EQ(r.code, 0) << r;
   EXPECT_EQ(r.out, "SERVING\n") << r;
   r = cli({"--server", "localhost:" + std::to_string(server.port()), "--tls-ca", ca(), "health"});
@@ -309,7 +299,7 @@ TEST_F(SecurityTest, HealthOverTlsWithTheRightCaByIpByNameAndWithANameOverride) 
 
 TEST_F(SecurityTest, WrongCaOrPlaintextAgainstTlsExitsThreeWithAMessage) {
   TestServer server(tls_server(*certs_, false));
-  Result r =
+  ProcessResult r =
       cli({"--server", server.address(), "--tls-ca", (other_->dir / "ca.pem").string(), "--timeout", "1", "health"});
   EXPECT_EQ(r.code, 3) << r;
   EXPECT_NE(r.err.find("surfacer: error: cannot reach a Surfacer server at " + server.address()), std::string::npos)
@@ -322,15 +312,15 @@ TEST_F(SecurityTest, WrongCaOrPlaintextAgainstTlsExitsThreeWithAMessage) {
 
 TEST_F(SecurityTest, MutualTlsServerRejectsAClientWithoutACertificateAndAcceptsOneWithIt) {
   TestServer server(tls_server(*certs_, true));
-  Result without = cli({"--server", server.address(), "--tls-ca", ca(), "--timeout", "1", "health"});
+  ProcessResult without = cli({"--server", server.address(), "--tls-ca", ca(), "--timeout", "1", "health"});
   EXPECT_EQ(without.code, 3) << without;
   EXPECT_EQ(without.out.find("SERVING"), std::string::npos) << without;
   // A client certificate from another CA is rejected too.
-  Result foreign =
+  ProcessResult foreign =
       cli({"--server", server.address(), "--tls-ca", ca(), "--tls-cert", (other_->dir / "client.pem").string(),
            "--tls-key", (other_->dir / "client.key").string(), "--timeout", "1", "health"});
   EXPECT_EQ(foreign.code, 3) << foreign;
-  Result with =
+  ProcessResult with =
       cli({"--server", server.address(), "--tls-ca", ca(), "--tls-cert", (certs_->dir / "client.pem").string(),
            "--tls-key", (certs_->dir / "client.key").string(), "health"});
   EXPECT_EQ(with.code, 0) << with;
@@ -339,7 +329,7 @@ TEST_F(SecurityTest, MutualTlsServerRejectsAClientWithoutACertificateAndAcceptsO
 
 TEST_F(SecurityTest, EveryCallCarriesTheBearerTokenOverTls) {
   TestServer server(tls_server(*certs_, false));
-  Result r = cli({"--server", server.address(), "--tls-ca", ca(), "--token", kToken, "list"});
+  ProcessResult r = cli({"--server", server.address(), "--tls-ca", ca(), "--token", kToken, "list"});
   EXPECT_EQ(r.code, 0) << r;
   write_file(dir_ / "token", std::string(kToken) + "\n");
   r = cli({"--server", server.address(), "--tls-ca", ca(), "--token-file", (dir_ / "token").string(), "list"});
@@ -364,7 +354,7 @@ TEST_F(SecurityTest, EveryCallCarriesTheBearerTokenOverTls) {
 
 TEST_F(SecurityTest, TokenInPlaintextGoesToLoopbackButNotElsewhere) {
   TestServer server(grpc::InsecureServerCredentials());
-  Result r = cli({"--server", server.address(), "--token", kToken, "list"});
+  ProcessResult r = cli({"--server", server.address(), "--token", kToken, "list"});
   EXPECT_EQ(r.code, 0) << r;
   ASSERT_FALSE(server.service().seen().empty());
   EXPECT_EQ(server.service().seen().back(), std::string("Bearer ") + kToken);
