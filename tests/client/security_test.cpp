@@ -5,8 +5,6 @@
 
 #include <grpcpp/health_check_service_interface.h>
 #include <grpcpp/security/server_credentials.h>
-#include <grpcpp/server.h>
-#include <grpcpp/server_builder.h>
 #include <gtest/gtest.h>
 
 #include <mutex>
@@ -15,7 +13,9 @@
 #include "client/cli.h"
 #include "client/connection.h"
 #include "client/health.h"
+#include "tests/support/cli_parse.h"
 #include "tests/support/files.h"
+#include "tests/support/loopback_grpc.h"
 #include "tests/support/process.h"
 #include "tests/support/test_certs.h"
 
@@ -63,22 +63,15 @@ class TestServer {
  public:
   explicit TestServer(std::shared_ptr<grpc::ServerCredentials> credentials) {
     grpc::EnableDefaultHealthCheckService(true);
-    grpc::ServerBuilder builder;
-    builder.AddListeningPort("127.0.0.1:0", std::move(credentials), &port_);
-    builder.RegisterService(&service_);
-    server_ = builder.BuildAndStart();
+    server_ = std::make_unique<LoopbackGrpcServer>(std::vector<grpc::Service*>{&service_}, std::move(credentials));
   }
-  ~TestServer() {
-    if (server_) server_->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(1));
-  }
-  std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
-  int port() const { return port_; }
+  std::string address() const { return server_->address(); }
+  int port() const { return server_->port(); }
   TokenCheckingService& service() { return service_; }
 
  private:
   TokenCheckingService service_;
-  int port_ = 0;
-  std::unique_ptr<grpc::Server> server_;
+  std::unique_ptr<LoopbackGrpcServer> server_;
 };
 
 std::shared_ptr<grpc::ServerCredentials> tls_server(const TestCerts& certs, bool require_client_cert) {
@@ -189,26 +182,11 @@ TEST(Security, TokenInPlaintextOnlyToLoopbackUnlessAllowed) {
   EXPECT_NO_THROW(check_token_transport("10.1.2.3:50051", no_token));
 }
 
-struct Parsed {
-  std::variant<Invocation, ExitCode> result;
-  std::string err;
-};
-
-Parsed parse(std::vector<std::string> args, const char* env_token = nullptr) {
-  args.insert(args.begin(), "surfacer");
-  std::vector<const char*> argv;
-  for (const auto& a : args) argv.push_back(a.c_str());
-  std::ostringstream out, err;
-  Parsed p{parse_command_line(static_cast<int>(argv.size()), argv.data(), out, err, nullptr, env_token), ""};
-  p.err = err.str();
-  return p;
-}
-
 TEST_F(SecurityTest, FlagsReadTheirFilesAndBadFilesExitTwoNamingFlagAndFile) {
   write_file(dir_ / "token", "  file-token-1\n");
-  auto p = parse({"--server", "h:1", "--token-file", (dir_ / "token").string(), "--tls-ca", ca(), "--tls-cert",
-                  (certs_->dir / "client.pem").string(), "--tls-key", (certs_->dir / "client.key").string(),
-                  "--tls-server-name", "localhost", "list"});
+  auto p = parse_cli({"--server", "h:1", "--token-file", (dir_ / "token").string(), "--tls-ca", ca(), "--tls-cert",
+                      (certs_->dir / "client.pem").string(), "--tls-key", (certs_->dir / "client.key").string(),
+                      "--tls-server-name", "localhost", "list"});
   ASSERT_TRUE(std::holds_alternative<Invocation>(p.result)) << p.err;
   const SecurityOptions& s = std::get<Invocation>(p.result).connect.security;
   EXPECT_EQ(s.token, "file-token-1");
@@ -219,14 +197,14 @@ TEST_F(SecurityTest, FlagsReadTheirFilesAndBadFilesExitTwoNamingFlagAndFile) {
   EXPECT_EQ(s.server_name, "localhost");
 
   // $SURFACER_TOKEN, unless --token is given; ignored for the in-process server.
-  p = parse({"--server", "h:1", "list"}, "env-token");
+  p = parse_cli({"--server", "h:1", "list"}, nullptr, "env-token");
   EXPECT_EQ(std::get<Invocation>(p.result).connect.security.token, "env-token");
-  p = parse({"--server", "h:1", "--token", "flag-token", "list"}, "env-token");
+  p = parse_cli({"--server", "h:1", "--token", "flag-token", "list"}, nullptr, "env-token");
   EXPECT_EQ(std::get<Invocation>(p.result).connect.security.token, "flag-token");
-  p = parse({"list"}, "env-token");
+  p = parse_cli({"list"}, nullptr, "env-token");
   ASSERT_TRUE(std::holds_alternative<Invocation>(p.result)) << p.err;
   EXPECT_FALSE(std::get<Invocation>(p.result).connect.security.token);
-  p = parse({"--server", "h:1", "--tls", "list"});
+  p = parse_cli({"--server", "h:1", "--tls", "list"});
   EXPECT_TRUE(std::get<Invocation>(p.result).connect.security.tls);
   EXPECT_TRUE(std::get<Invocation>(p.result).connect.security.ca_pem.empty());  // system roots
 
@@ -257,7 +235,7 @@ TEST_F(SecurityTest, FlagsReadTheirFilesAndBadFilesExitTwoNamingFlagAndFile) {
     std::vector<std::string> args = {"--server", "h:1"};
     args.insert(args.end(), c.args.begin(), c.args.end());
     args.push_back("list");
-    p = parse(args);
+    p = parse_cli(args);
     ASSERT_TRUE(std::holds_alternative<ExitCode>(p.result)) << c.args[0];
     EXPECT_EQ(std::get<ExitCode>(p.result), ExitCode::kUsage) << c.args[0];
     EXPECT_NE(p.err.find(c.flag), std::string::npos) << p.err;
@@ -266,7 +244,7 @@ TEST_F(SecurityTest, FlagsReadTheirFilesAndBadFilesExitTwoNamingFlagAndFile) {
     }
   }
   // TLS flags without a remote server.
-  p = parse({"--tls-ca", ca(), "list"});
+  p = parse_cli({"--tls-ca", ca(), "list"});
   ASSERT_TRUE(std::holds_alternative<ExitCode>(p.result));
   EXPECT_NE(p.err.find("--server"), std::string::npos) << p.err;
 }
