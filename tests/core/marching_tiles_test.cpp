@@ -700,7 +700,8 @@ TEST(MarchingTiles, LipschitzCullingDoesNotChangeTheMesh) {
   EXPECT_TRUE(testing::throws_invalid_input([&] { marching_tiles(plain, o); }, "search"));
 }
 
-// Marching Cubes' sparse option (issue 3 item 5): identical mesh, fewer field evaluations.
+// Marching Cubes' sparse option (no evaluations where the Lipschitz bound rules out a crossing): identical mesh, fewer
+// field evaluations.
 TEST(MarchingCubesSparse, IdenticalToDenseWithFewerEvaluations) {
   const FieldPtr torus = make_torus(Vec3(0.02, -0.01, 0.03), Vec3(0.2, 0.1, 1.0), 0.55, 0.2);
   MarchingCubesOptions o;

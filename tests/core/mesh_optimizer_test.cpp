@@ -310,7 +310,9 @@ OptimizedRun run(const Reference& ref, const MeshOptimizerOptions& o) {
   return out;
 }
 
-// The acceptance figures against the start mesh.
+// The acceptance figures of a run, against the start mesh: E_d falls 100-fold and E_n 10-fold, every vertex lies
+// within 0.25% of the true solid's bounding-box diagonal from its surface, and the snapshots and the result are
+// watertight with no triangle facing against the field.
 void expect_converged(const Reference& ref, const OptimizedRun& r, const MeshOptimizer& start_figures) {
   const OptimizerIterationStats& s0 = start_figures.stats();
   const OptimizerIterationStats& s1 = r.snapshots.back();
