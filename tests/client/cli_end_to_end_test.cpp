@@ -1,22 +1,25 @@
 // End to end with real processes: a `surfacer-server` child on a loopback port (or the CLI's in-process server)
 // and the `surfacer` binary, checked through exit codes, files and Debian's draco_decoder.
 #include <gtest/gtest.h>
+#include <signal.h>
 
 #include <algorithm>
 #include <chrono>
 #include <filesystem>
-#include <fstream>
 #include <sstream>
 #include <thread>
 
-#include "core/mesh/mesh_checks.h"
-#include "core/mesh/mesh_io.h"
-#include "tests/client/cli_process.h"
+#include "tests/support/files.h"
+#include "tests/support/mesh_expectations.h"
+#include "tests/support/process.h"
+#include "tests/support/server_process.h"
 
 namespace surfacer::client {
 namespace {
 
-using namespace e2e;
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+using namespace surfacer::testing;
 
 constexpr const char* kSphere =
     R"({"name": "sphere", "root": {"sphere": {"center": {"x": 0, "y": 0, "z": 0}, "radius": 1}}})";
@@ -27,35 +30,18 @@ constexpr const char* kBadRadius = R"({"name": "bad", "root": {"sphere": {"radiu
 class CliEndToEnd : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    root_ = fs::temp_directory_path() / ("surfacer_cli_e2e_" + std::to_string(::getpid()));
-    fs::remove_all(root_);
-    fs::create_directories(root_);
+    root_ = fresh_temp_dir("cli_e2e");
     write_file(root_ / "sphere.json", kSphere);
     write_file(root_ / "torus.json", kTorus);
     write_file(root_ / "bad_radius.json", kBadRadius);
     write_file(root_ / "malformed.json", R"({"root": {"sphere": {"radius": 1,,}}})");
-    const fs::path port_file = root_ / "port";
-    server_ = new Child({kServer.string(), "--listen", "127.0.0.1:0", "--port-file", port_file.string(), "--workers",
-                         "2", "--drain-seconds", "1"},
-                        root_ / "server.out", root_ / "server.err", false);
-    ASSERT_TRUE(server_->started()) << "cannot start " << kServer;
-    const auto deadline = std::chrono::steady_clock::now() + 20s;
-    while (std::chrono::steady_clock::now() < deadline) {
-      const std::string text = read_file(port_file);
-      if (!text.empty() && text.back() == '\n') {
-        port_ = std::stoi(text);
-        break;
-      }
-      std::this_thread::sleep_for(20ms);
-    }
-    ASSERT_GT(port_, 0) << "surfacer-server wrote no port file; its stderr:\n" << read_file(root_ / "server.err");
-    address_ = "127.0.0.1:" + std::to_string(port_);
+    server_ = new ServerProcess(root_ / "server", 2, {"--drain-seconds", "1"});
+    ASSERT_GT(server_->port(), 0) << "surfacer-server wrote no port file; its stderr:\n" << server_->log();
   }
 
   static void TearDownTestSuite() {
     if (server_ != nullptr) {
-      server_->signal(SIGTERM);
-      EXPECT_EQ(server_->wait(10s), 0) << "surfacer-server did not shut down cleanly on SIGTERM";
+      EXPECT_EQ(server_->stop(), 0) << "surfacer-server did not shut down cleanly on SIGTERM";
       delete server_;
       server_ = nullptr;
     }
@@ -63,61 +49,34 @@ class CliEndToEnd : public ::testing::Test {
   }
 
   void SetUp() override {
-    ASSERT_GT(port_, 0);
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = root_ / info->name();
-    fs::create_directories(dir_);
+    ASSERT_TRUE(server_ != nullptr && server_->port() > 0);
+    dir_ = current_test_dir(root_);
   }
 
   // Starts the CLI; `remote` prepends --server ADDRESS.
-  std::unique_ptr<Child> spawn(std::vector<std::string> args, bool remote = true, const std::string& tag = "cli") {
-    if (remote) args.insert(args.begin(), {"--server", address_});
-    args.insert(args.begin(), kCli.string());
-    return std::make_unique<Child>(args, dir_ / (tag + ".out"), dir_ / (tag + ".err"), false);
+  std::unique_ptr<ChildProcess> spawn(std::vector<std::string> args, bool remote = true,
+                                      const std::string& tag = "cli") {
+    if (remote) args.insert(args.begin(), {"--server", server_->address()});
+    args.insert(args.begin(), cli_binary().string());
+    return std::make_unique<ChildProcess>(args, dir_ / (tag + ".out"), dir_ / (tag + ".err"));
   }
-  Result cli(std::vector<std::string> args, bool remote = true, std::chrono::seconds timeout = 60s) {
+  ProcessResult cli(std::vector<std::string> args, bool remote = true, std::chrono::seconds timeout = 60s) {
     static int counter = 0;
     const std::string tag = "cli" + std::to_string(counter++);
-    auto child = spawn(std::move(args), remote, tag);
-    Result r;
-    r.code = child->wait(timeout);
-    r.out = read_file(dir_ / (tag + ".out"));
-    r.err = read_file(dir_ / (tag + ".err"));
-    return r;
+    return finish(*spawn(std::move(args), remote, tag), timeout);
   }
 
   static fs::path root_;
-  static Child* server_;
-  static int port_;
-  static std::string address_;
+  static ServerProcess* server_;
   fs::path dir_;
 };
 
 fs::path CliEndToEnd::root_;
-Child* CliEndToEnd::server_ = nullptr;
-int CliEndToEnd::port_ = 0;
-std::string CliEndToEnd::address_;
-
-void expect_closed(const Mesh& mesh, const std::string& what) {
-  EXPECT_FALSE(mesh.triangles.empty()) << what;
-  const MeshReport report = check_mesh(mesh);
-  EXPECT_TRUE(report.closed) << what << ": " << report.boundary_edges << " boundary edges";
-}
-
-// Decodes with Debian's draco_decoder (an independent decoder) and checks the mesh.
-void expect_draco_decodes_closed(const fs::path& drc) {
-  const fs::path ply = drc.parent_path() / (drc.stem().string() + "_decoded.ply");
-  const std::string command =
-      "/usr/bin/draco_decoder -i '" + drc.string() + "' -o '" + ply.string() + "' >'" + ply.string() + ".log' 2>&1";
-  ASSERT_EQ(std::system(command.c_str()), 0) << command << "\n" << read_file(ply.string() + ".log");
-  expect_closed(read_mesh(ply), drc.string());
-}
-
-int count_lines(const std::string& text) { return static_cast<int>(std::count(text.begin(), text.end(), '\n')); }
+ServerProcess* CliEndToEnd::server_ = nullptr;
 
 TEST_F(CliEndToEnd, EveryExampleSceneGivesAClosedDracoFrame) {
   std::vector<fs::path> scenes;
-  for (const auto& entry : fs::directory_iterator(kSource / "examples" / "scenes")) {
+  for (const auto& entry : fs::directory_iterator(fs::path(SURFACER_SOURCE_DIR) / "examples" / "scenes")) {
     if (entry.path().extension() == ".json") scenes.push_back(entry.path());
   }
   std::sort(scenes.begin(), scenes.end());
@@ -125,17 +84,19 @@ TEST_F(CliEndToEnd, EveryExampleSceneGivesAClosedDracoFrame) {
   for (const auto& scene : scenes) {
     SCOPED_TRACE(scene.filename().string());
     const fs::path out = dir_ / scene.stem();
-    Result r = cli({"run", "isosurface", "--scene", scene.string(), "-o", out.string(), "--cells", "48"});
+    ProcessResult r = cli({"run", "isosurface", "--scene", scene.string(), "-o", out.string(), "--cells", "48"});
     ASSERT_EQ(r.code, 0) << r;
     ASSERT_TRUE(fs::exists(out / "frame_0000.drc")) << r;
-    expect_draco_decodes_closed(out / "frame_0000.drc");
+    const fs::path ply = out / "frame_0000_decoded.ply";
+    ASSERT_TRUE(draco_decoder_decodes(out / "frame_0000.drc", ply));
+    EXPECT_TRUE(mesh_file_has(ply, kClosed));
     EXPECT_NE(r.err.find("wrote 1 frame to " + out.string() + "/"), std::string::npos) << r;
   }
 }
 
 TEST_F(CliEndToEnd, SequenceWritesOneFramePerSceneAndStatsRows) {
-  Result r = cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--scene",
-                  (root_ / "torus.json").string(), "--cells", "40", "-o", (dir_ / "out").string()});
+  ProcessResult r = cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--scene",
+                         (root_ / "torus.json").string(), "--cells", "40", "-o", (dir_ / "out").string()});
   ASSERT_EQ(r.code, 0) << r;
   EXPECT_TRUE(fs::exists(dir_ / "out" / "frame_0000.drc"));
   EXPECT_TRUE(fs::exists(dir_ / "out" / "frame_0001.drc"));
@@ -149,12 +110,12 @@ TEST_F(CliEndToEnd, SequenceWritesOneFramePerSceneAndStatsRows) {
 }
 
 TEST_F(CliEndToEnd, PlyAndObjFormatsAndRawLosslessPly) {
-  Result r = cli({"run", "isosurface", "--scene", (root_ / "torus.json").string(), "--cells", "40", "-o",
-                  (dir_ / "conv").string(), "--format", "ply,obj"});
+  ProcessResult r = cli({"run", "isosurface", "--scene", (root_ / "torus.json").string(), "--cells", "40", "-o",
+                         (dir_ / "conv").string(), "--format", "ply,obj"});
   ASSERT_EQ(r.code, 0) << r;
   EXPECT_FALSE(fs::exists(dir_ / "conv" / "frame_0000.drc"));
-  expect_closed(read_mesh(dir_ / "conv" / "frame_0000.ply"), "ply");
-  expect_closed(read_mesh(dir_ / "conv" / "frame_0000.obj"), "obj");
+  EXPECT_TRUE(mesh_file_has(dir_ / "conv" / "frame_0000.ply", kClosed));
+  EXPECT_TRUE(mesh_file_has(dir_ / "conv" / "frame_0000.obj", kClosed));
 
   r = cli({"run", "isosurface", "--scene", (root_ / "torus.json").string(), "--cells", "40", "-o",
            (dir_ / "raw").string(), "--raw"});
@@ -162,69 +123,74 @@ TEST_F(CliEndToEnd, PlyAndObjFormatsAndRawLosslessPly) {
   EXPECT_FALSE(fs::exists(dir_ / "raw" / "frame_0000.drc"));
   const std::string ply = read_file(dir_ / "raw" / "frame_0000.ply");
   EXPECT_NE(ply.find("property double x"), std::string::npos) << ply.substr(0, 300);
-  expect_closed(read_mesh(dir_ / "raw" / "frame_0000.ply"), "raw ply");
+  EXPECT_TRUE(mesh_file_has(dir_ / "raw" / "frame_0000.ply", kClosed));
 }
 
 TEST_F(CliEndToEnd, RunWholeSpecFromJson) {
   write_file(dir_ / "job.json", std::string(R"({"name": "spec job", "output": {"encoding": "MESH_ENCODING_PLY"},
       "isosurface": {"cells": 32, "scenes": [)") +
                                     kSphere + "," + kTorus + "]}}");
-  Result r = cli({"run", "--spec", (dir_ / "job.json").string(), "-o", (dir_ / "spec").string(), "--format", "obj"});
+  ProcessResult r =
+      cli({"run", "--spec", (dir_ / "job.json").string(), "-o", (dir_ / "spec").string(), "--format", "obj"});
   ASSERT_EQ(r.code, 0) << r;
-  expect_closed(read_mesh(dir_ / "spec" / "frame_0000.obj"), "spec frame 0");
-  expect_closed(read_mesh(dir_ / "spec" / "frame_0001.obj"), "spec frame 1");
+  EXPECT_TRUE(mesh_file_has(dir_ / "spec" / "frame_0000.obj", kClosed));
+  EXPECT_TRUE(mesh_file_has(dir_ / "spec" / "frame_0001.obj", kClosed));
 }
 
 TEST_F(CliEndToEnd, SubmitThenWatchFromFrame) {
   const std::string sphere = (root_ / "sphere.json").string();
-  Result s = cli({"submit", "isosurface", "--scene", sphere, "--scene", sphere, "--scene", sphere, "--cells", "32"});
+  ProcessResult s =
+      cli({"submit", "isosurface", "--scene", sphere, "--scene", sphere, "--scene", sphere, "--cells", "32"});
   ASSERT_EQ(s.code, 0) << s;
   std::string id = s.out;
   while (!id.empty() && std::isspace(static_cast<unsigned char>(id.back()))) id.pop_back();
   ASSERT_FALSE(id.empty());
   ASSERT_EQ(id.find('\n'), std::string::npos) << "submit prints only the job id: " << s;
 
-  Result w = cli({"watch", id, "--from-frame", "1", "-o", (dir_ / "w").string()});
+  ProcessResult w = cli({"watch", id, "--from-frame", "1", "-o", (dir_ / "w").string()});
   ASSERT_EQ(w.code, 0) << w;
   EXPECT_FALSE(fs::exists(dir_ / "w" / "frame_0000.drc"));
   EXPECT_TRUE(fs::exists(dir_ / "w" / "frame_0001.drc"));
   EXPECT_TRUE(fs::exists(dir_ / "w" / "frame_0002.drc"));
   EXPECT_EQ(count_lines(read_file(dir_ / "w" / "stats.csv")), 3);
 
-  Result st = cli({"status", id});
+  ProcessResult st = cli({"status", id});
   ASSERT_EQ(st.code, 0) << st;
   EXPECT_NE(st.out.find("SUCCEEDED"), std::string::npos) << st;
   EXPECT_NE(st.out.find("3/3"), std::string::npos) << st;
 
-  Result ls = cli({"list", "--state", "succeeded"});
+  ProcessResult ls = cli({"list", "--state", "succeeded"});
   ASSERT_EQ(ls.code, 0) << ls;
   EXPECT_NE(ls.out.find(id), std::string::npos) << ls;
 }
 
 TEST_F(CliEndToEnd, UnreachableServerExitsThree) {
   const std::string address = "127.0.0.1:" + std::to_string(free_port());
-  Result r = cli({"--server", address, "--timeout", "1", "run", "isosurface", "--scene",
-                  (root_ / "sphere.json").string(), "-o", (dir_ / "x").string()},
-                 /*remote=*/false);
+  ProcessResult r = cli({"--server", address, "--timeout", "1", "run", "isosurface", "--scene",
+                         (root_ / "sphere.json").string(), "-o", (dir_ / "x").string()},
+                        /*remote=*/false);
   EXPECT_EQ(r.code, 3) << r;
   EXPECT_NE(r.err.find("surfacer: error: "), std::string::npos) << r;
   EXPECT_NE(r.err.find(address), std::string::npos) << r;
 }
 
 TEST_F(CliEndToEnd, MalformedSceneExitsTwoNamingTheFile) {
-  Result r = cli({"run", "isosurface", "--scene", (root_ / "malformed.json").string(), "-o", (dir_ / "x").string()});
+  ProcessResult r =
+      cli({"run", "isosurface", "--scene", (root_ / "malformed.json").string(), "-o", (dir_ / "x").string()});
   EXPECT_EQ(r.code, 2) << r;
   EXPECT_NE(r.err.find("surfacer: error: "), std::string::npos) << r;
   EXPECT_NE(r.err.find("malformed.json"), std::string::npos) << r;
-  Result missing = cli({"run", "isosurface", "--scene", (root_ / "nope.json").string(), "-o", (dir_ / "x").string()});
+  ProcessResult missing =
+      cli({"run", "isosurface", "--scene", (root_ / "nope.json").string(), "-o", (dir_ / "x").string()});
   EXPECT_EQ(missing.code, 2) << missing;
   EXPECT_NE(missing.err.find("nope.json"), std::string::npos) << missing;
-  Result flag = cli({"run", "isosurface", "--cells", "many"});
+  ProcessResult flag = cli({"run", "isosurface", "--cells", "many"});
   EXPECT_EQ(flag.code, 2) << flag;
 }
 
 TEST_F(CliEndToEnd, RejectedJobExitsFourNamingTheField) {
-  Result r = cli({"run", "isosurface", "--scene", (root_ / "bad_radius.json").string(), "-o", (dir_ / "x").string()});
+  ProcessResult r =
+      cli({"run", "isosurface", "--scene", (root_ / "bad_radius.json").string(), "-o", (dir_ / "x").string()});
   EXPECT_EQ(r.code, 4) << r;
   EXPECT_NE(r.err.find("INVALID_ARGUMENT"), std::string::npos) << r;
   EXPECT_NE(r.err.find("radius"), std::string::npos) << r;
@@ -245,7 +211,7 @@ TEST_F(CliEndToEnd, CancelFromAnotherCommandMakesRunExitFive) {
   std::string id;
   const auto deadline = std::chrono::steady_clock::now() + 20s;
   while (id.empty() && std::chrono::steady_clock::now() < deadline) {
-    Result ls = cli({"list", "--state", "queued,running"});
+    ProcessResult ls = cli({"list", "--state", "queued,running"});
     ASSERT_EQ(ls.code, 0) << ls;
     std::istringstream lines(ls.out);
     for (std::string line; std::getline(lines, line);) {
@@ -254,12 +220,12 @@ TEST_F(CliEndToEnd, CancelFromAnotherCommandMakesRunExitFive) {
     if (id.empty()) std::this_thread::sleep_for(100ms);
   }
   ASSERT_FALSE(id.empty()) << "the long job never showed up in `surfacer list`";
-  Result c = cli({"cancel", id});
+  ProcessResult c = cli({"cancel", id});
   EXPECT_EQ(c.code, 0) << c;
   const auto t0 = std::chrono::steady_clock::now();
   EXPECT_EQ(run->wait(20s), 5) << read_file(dir_ / "run.err");
   EXPECT_LT(std::chrono::steady_clock::now() - t0, 5s);
-  Result st = cli({"status", id});
+  ProcessResult st = cli({"status", id});
   EXPECT_NE(st.out.find("CANCELLED"), std::string::npos) << st;
 }
 
@@ -276,29 +242,30 @@ TEST_F(CliEndToEnd, CtrlCDuringRunCancelsTheJobAndExitsFive) {
   id = id.substr(0, id.find(' '));
   run->signal(SIGINT);
   EXPECT_EQ(run->wait(20s), 5) << read_file(dir_ / "run.err");
-  Result st = cli({"status", id});
+  ProcessResult st = cli({"status", id});
   EXPECT_NE(st.out.find("CANCELLED"), std::string::npos) << st;
 }
 
 TEST_F(CliEndToEnd, LocalModeWritesClosedMeshes) {
-  Result r = cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--scene",
-                  (root_ / "torus.json").string(), "--cells", "40", "-o", (dir_ / "local").string(), "--workers", "2"},
-                 /*remote=*/false);
+  ProcessResult r =
+      cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--scene", (root_ / "torus.json").string(),
+           "--cells", "40", "-o", (dir_ / "local").string(), "--workers", "2"},
+          /*remote=*/false);
   ASSERT_EQ(r.code, 0) << r;
-  expect_closed(read_mesh(dir_ / "local" / "frame_0000.drc"), "local frame 0");
-  expect_closed(read_mesh(dir_ / "local" / "frame_0001.drc"), "local frame 1");
+  EXPECT_TRUE(mesh_file_has(dir_ / "local" / "frame_0000.drc", kClosed));
+  EXPECT_TRUE(mesh_file_has(dir_ / "local" / "frame_0001.drc", kClosed));
   EXPECT_EQ(r.err.find("warning"), std::string::npos) << "run needs no in-process warning: " << r;
 
-  Result list = cli({"list"}, /*remote=*/false);
+  ProcessResult list = cli({"list"}, /*remote=*/false);
   EXPECT_EQ(list.code, 0) << list;
   EXPECT_NE(list.err.find("warning: using an in-process server"), std::string::npos) << list;
 }
 
 TEST_F(CliEndToEnd, HealthPrintsServing) {
-  Result r = cli({"health"});
+  ProcessResult r = cli({"health"});
   EXPECT_EQ(r.code, 0) << r;
   EXPECT_EQ(r.out, "SERVING\n") << r;
-  Result local = cli({"health"}, /*remote=*/false);
+  ProcessResult local = cli({"health"}, /*remote=*/false);
   EXPECT_EQ(local.code, 0) << local;
   EXPECT_EQ(local.out, "SERVING\n") << local;
 }

@@ -3,18 +3,26 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <random>
+#include <sstream>
 
-#include "core/mesh/mesh_checks.h"
 #include "core/mesh/mesh_io.h"
-#include "tests/client/cli_process.h"
+#include "tests/support/files.h"
+#include "tests/support/mesh_expectations.h"
+#include "tests/support/process.h"
+#include "tests/support/server_process.h"
+#include "tests/support/test_meshes.h"
 
 namespace surfacer::client {
 namespace {
 
-using namespace e2e;
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+using namespace surfacer::testing;
 
 constexpr const char* kSphere = R"({"name": "sphere", "root": {"sphere": {"radius": 0.5}}})";
 constexpr const char* kCube = R"({"name": "cube", "root": {"box": {"half_size": {"x": 0.5, "y": 0.5, "z": 0.5}}}})";
@@ -41,20 +49,8 @@ std::string particle_ball(Vec3 center, double radius, double d, unsigned seed) {
   return text;
 }
 
-Vec3 centroid(const Mesh& mesh) {
-  Vec3 c = Vec3::Zero();
-  for (const Vec3& v : mesh.vertices) c += v;
-  return c / static_cast<double>(std::max<std::size_t>(1, mesh.vertices.size()));
-}
-
-MeshReport expect_closed(const fs::path& file) {
-  const Mesh mesh = read_mesh(file);
-  EXPECT_FALSE(mesh.triangles.empty()) << file;
-  const MeshReport report = check_mesh(mesh);
-  EXPECT_TRUE(report.closed) << file << ": " << report.boundary_edges << " boundary edges";
-  EXPECT_TRUE(report.edge_manifold && report.vertex_manifold) << file;
-  return report;
-}
+// What every mesh the CLI writes here must be.
+constexpr unsigned kClosedFrame = kClosed | kEdgeManifold | kVertexManifold;
 
 std::vector<std::vector<std::string>> csv_rows(const std::string& text) {
   std::vector<std::vector<std::string>> rows;
@@ -81,13 +77,11 @@ int column(const std::vector<std::string>& header, const std::string& name) {
 class CliJobsEndToEnd : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    root_ = fs::temp_directory_path() / ("surfacer_cli_jobs_e2e_" + std::to_string(::getpid()));
-    fs::remove_all(root_);
-    fs::create_directories(root_);
+    root_ = fresh_temp_dir("cli_jobs_e2e");
     write_file(root_ / "sphere.json", kSphere);
     write_file(root_ / "cube.json", kCube);
     write_file(root_ / "box.json", kSmallBox);
-    server_ = new ServerProcess(root_ / "server", 2);
+    server_ = new ServerProcess(root_ / "server", 2, {"--drain-seconds", "1"});
     ASSERT_FALSE(server_->address().empty()) << "surfacer-server did not start:\n" << server_->log();
   }
   static void TearDownTestSuite() {
@@ -100,19 +94,13 @@ class CliJobsEndToEnd : public ::testing::Test {
   }
   void SetUp() override {
     ASSERT_NE(server_, nullptr);
-    dir_ = root_ / ::testing::UnitTest::GetInstance()->current_test_info()->name();
-    fs::create_directories(dir_);
+    dir_ = current_test_dir(root_);
   }
 
-  Result cli(std::vector<std::string> args, std::chrono::seconds timeout = 60s) {
-    args.insert(args.begin(), {kCli.string(), "--server", server_->address()});
+  ProcessResult cli(std::vector<std::string> args, std::chrono::seconds timeout = 60s) {
+    args.insert(args.begin(), {cli_binary().string(), "--server", server_->address()});
     const std::string tag = "cli" + std::to_string(counter_++);
-    Child child(args, dir_ / (tag + ".out"), dir_ / (tag + ".err"), false);
-    Result r;
-    r.code = child.wait(timeout);
-    r.out = read_file(dir_ / (tag + ".out"));
-    r.err = read_file(dir_ / (tag + ".err"));
-    return r;
+    return run_process(args, dir_ / (tag + ".out"), dir_ / (tag + ".err"), timeout);
   }
 
   static fs::path root_;
@@ -125,29 +113,31 @@ fs::path CliJobsEndToEnd::root_;
 ServerProcess* CliJobsEndToEnd::server_ = nullptr;
 
 TEST_F(CliJobsEndToEnd, IsosurfaceTilesGivesAClosedMeshWithoutLowValence) {
-  Result r = cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--method", "tiles", "--cells",
-                  "32", "-o", (dir_ / "tiles").string(), "--format", "ply"});
+  ProcessResult r = cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--method", "tiles",
+                         "--cells", "32", "-o", (dir_ / "tiles").string(), "--format", "ply"});
   ASSERT_EQ(r.code, 0) << r;
-  const MeshReport tiles = expect_closed(dir_ / "tiles" / "frame_0000.ply");
+  MeshReport tiles;
+  EXPECT_TRUE(mesh_file_has(dir_ / "tiles" / "frame_0000.ply", kClosedFrame, &tiles));
   EXPECT_GE(tiles.min_valence, 5);
-  EXPECT_NEAR(tiles.volume, 4.0 / 3.0 * M_PI * 0.125, 0.05 * 4.0 / 3.0 * M_PI * 0.125);
+  EXPECT_NEAR(tiles.volume, sphere_volume(0.5), 0.05 * sphere_volume(0.5));
 
   r = cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--method", "cubes", "--cells", "32", "-o",
            (dir_ / "cubes").string(), "--format", "ply"});
   ASSERT_EQ(r.code, 0) << r;
-  EXPECT_LT(expect_closed(dir_ / "cubes" / "frame_0000.ply").min_valence,
-            5);  // Marching Cubes' valence-3/4
+  MeshReport cubes;
+  EXPECT_TRUE(mesh_file_has(dir_ / "cubes" / "frame_0000.ply", kClosedFrame, &cubes));
+  EXPECT_LT(cubes.min_valence, 5);  // Marching Cubes' valence-3/4
 }
 
 TEST_F(CliJobsEndToEnd, ParticlesBlobGivesAClosedMeshAndASummaryTable) {
   const std::string blob = particle_ball(Vec3(0, 0, 0), 0.4, 0.05, 1);
   write_file(dir_ / "blob.xyz", blob);
   const auto particles = std::count(blob.begin(), blob.end(), '\n') - 1;
-  Result r = cli({"run", "particles", "--input", (dir_ / "blob.xyz").string(), "--r-inner", "0.03", "-o",
-                  (dir_ / "out").string(), "--format", "ply"});
+  ProcessResult r = cli({"run", "particles", "--input", (dir_ / "blob.xyz").string(), "--r-inner", "0.03", "-o",
+                         (dir_ / "out").string(), "--format", "ply"});
   ASSERT_EQ(r.code, 0) << r;
   const Mesh mesh = read_mesh(dir_ / "out" / "frame_0000.ply");
-  expect_closed(dir_ / "out" / "frame_0000.ply");
+  EXPECT_TRUE(mesh_file_has(dir_ / "out" / "frame_0000.ply", kClosedFrame));
   // Faithful: every vertex lies near the blob's boundary (radius 0.4 plus r_inner..r_outer).
   for (const Vec3& v : mesh.vertices) {
     ASSERT_GT(v.norm(), 0.4 - 0.05) << v.transpose();
@@ -165,13 +155,13 @@ TEST_F(CliJobsEndToEnd, ParticleSequenceByPatternWritesFramesInOrder) {
     std::snprintf(name, sizeof name, "fluid_%04d.xyz", i + 7);
     write_file(dir_ / name, particle_ball(Vec3(i, 0, 0), 0.25, 0.05, 10 + i));
   }
-  Result r = cli({"run", "particles", "--input", (dir_ / "fluid_{:04d}.xyz").string(), "--r-inner", "0.03", "-o",
-                  (dir_ / "seq").string(), "--format", "ply"});
+  ProcessResult r = cli({"run", "particles", "--input", (dir_ / "fluid_{:04d}.xyz").string(), "--r-inner", "0.03", "-o",
+                         (dir_ / "seq").string(), "--format", "ply"});
   ASSERT_EQ(r.code, 0) << r;
   for (int i = 0; i < 3; ++i) {
     const fs::path frame = dir_ / "seq" / ("frame_000" + std::to_string(i) + ".ply");
     ASSERT_TRUE(fs::exists(frame)) << frame << "\n" << r;
-    expect_closed(frame);
+    EXPECT_TRUE(mesh_file_has(frame, kClosedFrame));
     EXPECT_NEAR(centroid(read_mesh(frame)).x(), i, 0.05) << "frame " << i << " is not the " << i << "-th file";
   }
   EXPECT_FALSE(fs::exists(dir_ / "seq" / "frame_0003.ply"));
@@ -182,21 +172,22 @@ TEST_F(CliJobsEndToEnd, ParticleSequenceByPatternWritesFramesInOrder) {
 TEST_F(CliJobsEndToEnd, BadParticleFileExitsTwoNamingFileAndLineAndQueuesNoJob) {
   write_file(dir_ / "drop_0.xyz", particle_ball(Vec3(0, 0, 0), 0.2, 0.05, 3));
   write_file(dir_ / "drop_1.xyz", "0 0 0\n0.1 0.1 0.1\n0.2 zero 0.2\n");
-  Result r = cli({"run", "particles", "--input", (dir_ / "drop_{}.xyz").string(), "--r-inner", "0.03", "--name",
-                  "must-not-exist", "-o", (dir_ / "bad").string()});
+  ProcessResult r = cli({"run", "particles", "--input", (dir_ / "drop_{}.xyz").string(), "--r-inner", "0.03", "--name",
+                         "must-not-exist", "-o", (dir_ / "bad").string()});
   EXPECT_EQ(r.code, 2) << r;
   EXPECT_NE(r.err.find("surfacer: error: "), std::string::npos) << r;
   EXPECT_NE(r.err.find("drop_1.xyz"), std::string::npos) << r;
   EXPECT_NE(r.err.find("line 3"), std::string::npos) << r;
-  Result list = cli({"list"});
+  ProcessResult list = cli({"list"});
   ASSERT_EQ(list.code, 0) << list;
   EXPECT_EQ(list.out.find("must-not-exist"), std::string::npos) << list;
   EXPECT_FALSE(fs::exists(dir_ / "bad" / "frame_0000.drc"));
 }
 
 TEST_F(CliJobsEndToEnd, OptimizeWritesSnapshotsAndIterationsCsvWithFallingError) {
-  Result r = cli({"run", "optimize", "--scene", (root_ / "cube.json").string(), "--start-cells", "24", "--iterations",
-                  "20", "--snapshot-every", "5", "-o", (dir_ / "opt").string(), "--format", "ply"});
+  ProcessResult r =
+      cli({"run", "optimize", "--scene", (root_ / "cube.json").string(), "--start-cells", "24", "--iterations", "20",
+           "--snapshot-every", "5", "-o", (dir_ / "opt").string(), "--format", "ply"});
   ASSERT_EQ(r.code, 0) << r;
   const auto rows = csv_rows(read_file(dir_ / "opt" / "iterations.csv"));
   ASSERT_GE(rows.size(), 3u) << read_file(dir_ / "opt" / "iterations.csv");
@@ -225,23 +216,23 @@ TEST_F(CliJobsEndToEnd, OptimizeWritesSnapshotsAndIterationsCsvWithFallingError)
     EXPECT_LT(std::stod(rows[i][e_d]), std::stod(rows[i - 1][e_d])) << "E_d did not fall at row " << i;
   }
   EXPECT_LT(std::stod(rows.back()[e_n]), std::stod(rows[1][e_n]) / 10) << "E_n did not fall 10x";
-  expect_closed(dir_ / "opt" / ("frame_000" + std::to_string(rows.size() - 2) + ".ply"));
+  EXPECT_TRUE(mesh_file_has(dir_ / "opt" / ("frame_000" + std::to_string(rows.size() - 2) + ".ply"), kClosedFrame));
   EXPECT_NE(r.err.find("iterations.csv"), std::string::npos) << r;
 }
 
 TEST_F(CliJobsEndToEnd, OptimizeFromAnUploadedStartMesh) {
-  Result start = cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--method", "cubes", "--cells",
-                      "20", "--raw", "-o", (dir_ / "start").string()});
+  ProcessResult start = cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--method", "cubes",
+                             "--cells", "20", "--raw", "-o", (dir_ / "start").string()});
   ASSERT_EQ(start.code, 0) << start;
-  Result r = cli({"run", "optimize", "--scene", (root_ / "cube.json").string(), "--start-mesh",
-                  (dir_ / "start" / "frame_0000.ply").string(), "--iterations", "10", "-o", (dir_ / "opt").string(),
-                  "--format", "ply"});
+  ProcessResult r = cli({"run", "optimize", "--scene", (root_ / "cube.json").string(), "--start-mesh",
+                         (dir_ / "start" / "frame_0000.ply").string(), "--iterations", "10", "-o",
+                         (dir_ / "opt").string(), "--format", "ply"});
   ASSERT_EQ(r.code, 0) << r;
   EXPECT_NE(r.err.find("uploaded 1/1: start mesh"), std::string::npos) << r;
   const auto rows = csv_rows(read_file(dir_ / "opt" / "iterations.csv"));
   ASSERT_GE(rows.size(), 2u);
   const fs::path last = dir_ / "opt" / ("frame_000" + std::to_string(rows.size() - 2) + ".ply");
-  expect_closed(last);
+  EXPECT_TRUE(mesh_file_has(last, kClosedFrame));
   // Pulled from the sphere (radius 0.5) toward the cube (corners at 0.87 from the centre).
   double max_norm = 0;
   for (const Vec3& v : read_mesh(last).vertices) max_norm = std::max(max_norm, v.norm());
@@ -249,9 +240,9 @@ TEST_F(CliJobsEndToEnd, OptimizeFromAnUploadedStartMesh) {
 }
 
 TEST_F(CliJobsEndToEnd, ActiveMorphWritesClosedFramesWithMetrics) {
-  Result r = cli({"run", "active", "morph", "--from", (root_ / "sphere.json").string(), "--to",
-                  (root_ / "box.json").string(), "--grid-spacing", "0.05", "--max-frames", "4",
-                  "--bounds=-1,-1,-1,1,1,1", "-o", (dir_ / "morph").string(), "--format", "ply"});
+  ProcessResult r = cli({"run", "active", "morph", "--from", (root_ / "sphere.json").string(), "--to",
+                         (root_ / "box.json").string(), "--grid-spacing", "0.05", "--max-frames", "4",
+                         "--bounds=-1,-1,-1,1,1,1", "-o", (dir_ / "morph").string(), "--format", "ply"});
   ASSERT_EQ(r.code, 0) << r;
   ASSERT_TRUE(fs::exists(dir_ / "morph" / "frame_0000.ply")) << r;
   const auto rows = csv_rows(read_file(dir_ / "morph" / "stats.csv"));
@@ -265,7 +256,7 @@ TEST_F(CliJobsEndToEnd, ActiveMorphWritesClosedFramesWithMetrics) {
   EXPECT_LT(std::stod(rows.back()[volume]), std::stod(rows[1][volume]));
   EXPECT_GT(std::stod(rows.back()[volume]), 0.29);
   for (std::size_t i = 1; i < rows.size(); ++i) {
-    expect_closed(dir_ / "morph" / ("frame_000" + std::to_string(i - 1) + ".ply"));
+    EXPECT_TRUE(mesh_file_has(dir_ / "morph" / ("frame_000" + std::to_string(i - 1) + ".ply"), kClosedFrame));
   }
 }
 
@@ -273,13 +264,13 @@ TEST_F(CliJobsEndToEnd, ActiveCoatFollowsAParticleSequence) {
   for (int i = 0; i < 2; ++i) {
     write_file(dir_ / ("coat_" + std::to_string(i) + ".xyz"), particle_ball(Vec3(0.02 * i, 0, 0), 0.3, 0.05, 20 + i));
   }
-  Result r = cli({"run", "active", "coat", "--input", (dir_ / "coat_{}.xyz").string(), "--kernel-radius", "0.1",
-                  "--grid-spacing", "0.03", "-o", (dir_ / "coat").string(), "--format", "ply"});
+  ProcessResult r = cli({"run", "active", "coat", "--input", (dir_ / "coat_{}.xyz").string(), "--kernel-radius", "0.1",
+                         "--grid-spacing", "0.03", "-o", (dir_ / "coat").string(), "--format", "ply"});
   ASSERT_EQ(r.code, 0) << r;
   EXPECT_NE(r.err.find("uploaded 2/2: particle frame 1"), std::string::npos) << r;
   for (int i = 0; i < 2; ++i) {
     const fs::path frame = dir_ / "coat" / ("frame_000" + std::to_string(i) + ".ply");
-    expect_closed(frame);
+    EXPECT_TRUE(mesh_file_has(frame, kClosedFrame));
     EXPECT_NEAR(centroid(read_mesh(frame)).x(), 0.02 * i, 0.02) << frame;
   }
 }
@@ -287,14 +278,14 @@ TEST_F(CliJobsEndToEnd, ActiveCoatFollowsAParticleSequence) {
 TEST_F(CliJobsEndToEnd, ActiveAdvectEnrightWritesEveryFrame) {
   write_file(dir_ / "enright.json",
              R"({"root": {"sphere": {"center": {"x": 0.35, "y": 0.35, "z": 0.35}, "radius": 0.15}}})");
-  Result r = cli({"run", "active", "advect", "--scene", (dir_ / "enright.json").string(), "--enright", "--period", "3",
-                  "--frame-interval", "0.1", "--frames", "2", "--grid-spacing", "0.03", "-o",
-                  (dir_ / "advect").string(), "--format", "ply"});
+  ProcessResult r = cli({"run", "active", "advect", "--scene", (dir_ / "enright.json").string(), "--enright",
+                         "--period", "3", "--frame-interval", "0.1", "--frames", "2", "--grid-spacing", "0.03", "-o",
+                         (dir_ / "advect").string(), "--format", "ply"});
   ASSERT_EQ(r.code, 0) << r;
   const auto rows = csv_rows(read_file(dir_ / "advect" / "stats.csv"));
   ASSERT_GE(rows.size(), 3u) << r;  // the start and 2 frames at least
   for (std::size_t i = 1; i < rows.size(); ++i) {
-    expect_closed(dir_ / "advect" / ("frame_000" + std::to_string(i - 1) + ".ply"));
+    EXPECT_TRUE(mesh_file_has(dir_ / "advect" / ("frame_000" + std::to_string(i - 1) + ".ply"), kClosedFrame));
   }
 }
 
@@ -305,50 +296,50 @@ TEST_F(CliJobsEndToEnd, ActiveAdvectByAnUploadedVelocityGrid) {
   for (int node = 0; node < 11 * 11 * 11; ++node) grid.append(reinterpret_cast<const char*>(wind), sizeof wind);
   write_file(dir_ / "wind.raw", grid);
   write_file(dir_ / "ball.json", R"({"root": {"sphere": {"radius": 0.3}}})");
-  Result r = cli({"run",
-                  "active",
-                  "advect",
-                  "--scene",
-                  (dir_ / "ball.json").string(),
-                  "--velocity-grid",
-                  (dir_ / "wind.raw").string(),
-                  "--velocity-origin=-1,-1,-1",
-                  "--velocity-spacing",
-                  "0.2,0.2,0.2",
-                  "--velocity-dims",
-                  "11,11,11",
-                  "--frame-interval",
-                  "0.25",
-                  "--frames",
-                  "2",
-                  "--grid-spacing",
-                  "0.04",
-                  "-o",
-                  (dir_ / "wind").string(),
-                  "--format",
-                  "ply"});
+  ProcessResult r = cli({"run",
+                         "active",
+                         "advect",
+                         "--scene",
+                         (dir_ / "ball.json").string(),
+                         "--velocity-grid",
+                         (dir_ / "wind.raw").string(),
+                         "--velocity-origin=-1,-1,-1",
+                         "--velocity-spacing",
+                         "0.2,0.2,0.2",
+                         "--velocity-dims",
+                         "11,11,11",
+                         "--frame-interval",
+                         "0.25",
+                         "--frames",
+                         "2",
+                         "--grid-spacing",
+                         "0.04",
+                         "-o",
+                         (dir_ / "wind").string(),
+                         "--format",
+                         "ply"});
   ASSERT_EQ(r.code, 0) << r;
   EXPECT_NE(r.err.find("uploaded 1/1: velocity grid"), std::string::npos) << r;
   const double x0 = centroid(read_mesh(dir_ / "wind" / "frame_0000.ply")).x();
   const fs::path last = dir_ / "wind" / "frame_0002.ply";
   ASSERT_TRUE(fs::exists(last)) << r;
-  expect_closed(last);
+  EXPECT_TRUE(mesh_file_has(last, kClosedFrame));
   EXPECT_NEAR(centroid(read_mesh(last)).x() - x0, 0.1, 0.02);
 }
 
 // submit prints only the job id (uploads are reported on stderr); watch writes the frames and the summary table.
 TEST_F(CliJobsEndToEnd, SubmitParticlesThenWatch) {
   write_file(dir_ / "drop.xyz", particle_ball(Vec3(0, 0, 0), 0.25, 0.05, 7));
-  Result s = cli({"submit", "particles", "--input", (dir_ / "drop.xyz").string(), "--r-inner", "0.03"});
+  ProcessResult s = cli({"submit", "particles", "--input", (dir_ / "drop.xyz").string(), "--r-inner", "0.03"});
   ASSERT_EQ(s.code, 0) << s;
   std::string id = s.out;
   while (!id.empty() && std::isspace(static_cast<unsigned char>(id.back()))) id.pop_back();
   ASSERT_EQ(id.rfind("j-", 0), 0u) << s;
   ASSERT_EQ(id.find('\n'), std::string::npos) << "submit prints only the job id: " << s;
   EXPECT_NE(s.err.find("uploaded 1/1: particle frame 0"), std::string::npos) << s;
-  Result w = cli({"watch", id, "-o", (dir_ / "w").string()});
+  ProcessResult w = cli({"watch", id, "-o", (dir_ / "w").string()});
   ASSERT_EQ(w.code, 0) << w;
-  expect_closed(dir_ / "w" / "frame_0000.drc");
+  EXPECT_TRUE(mesh_file_has(dir_ / "w" / "frame_0000.drc", kClosedFrame));
   EXPECT_NE(w.err.find("frame  particles  triangles  seconds"), std::string::npos) << w;
 }
 

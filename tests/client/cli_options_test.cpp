@@ -4,38 +4,22 @@
 #include <sstream>
 
 #include "client/cli.h"
+#include "tests/support/cli_parse.h"
 
 namespace surfacer::client {
 namespace {
 
-struct Parsed {
-  std::variant<Invocation, ExitCode> result;
-  std::string out;
-  std::string err;
-};
+using surfacer::testing::exit_code_of;
+using surfacer::testing::parse_cli;
+using surfacer::testing::ParsedCli;
 
-Parsed parse(std::vector<std::string> args, const char* env_server = nullptr) {
-  args.insert(args.begin(), "surfacer");
-  std::vector<const char*> argv;
-  for (const auto& a : args) argv.push_back(a.c_str());
-  std::ostringstream out, err;
-  Parsed p{parse_command_line(static_cast<int>(argv.size()), argv.data(), out, err, env_server), "", ""};
-  p.out = out.str();
-  p.err = err.str();
-  return p;
-}
-
-const Invocation& ok(const Parsed& p) {
+const Invocation& ok(const ParsedCli& p) {
   EXPECT_TRUE(std::holds_alternative<Invocation>(p.result)) << p.err;
   return std::get<Invocation>(p.result);
 }
 
-ExitCode code(const Parsed& p) {
-  return std::holds_alternative<ExitCode>(p.result) ? std::get<ExitCode>(p.result) : ExitCode::kSuccess;
-}
-
 TEST(CliOptions, RunIsosurfaceDefaults) {
-  auto p = parse({"run", "isosurface", "--scene", "a.json", "-o", "out"});
+  auto p = parse_cli({"run", "isosurface", "--scene", "a.json", "-o", "out"});
   const Invocation& inv = ok(p);
   EXPECT_TRUE(inv.connect.local());
   const auto& run = std::get<RunCommand>(inv.command);
@@ -48,7 +32,7 @@ TEST(CliOptions, RunIsosurfaceDefaults) {
 }
 
 TEST(CliOptions, RunIsosurfaceAllFlags) {
-  auto p = parse(
+  auto p = parse_cli(
       {"run",       "isosurface",          "--scene",  "a.json", "--scene", "b.json",   "--cell-size", "0.05",
        "--bounds",  "-1,-2,-3,1,2,3",      "--method", "cubes",  "-o",      "out",      "--format",    "ply,obj",
        "--normals", "--quantization-bits", "12",       "--name", "demo",    "--server", "host:1234",   "--timeout",
@@ -71,7 +55,7 @@ TEST(CliOptions, RunIsosurfaceAllFlags) {
 }
 
 TEST(CliOptions, GlobalOptionsBeforeSubcommand) {
-  auto p = parse({"--server", "h:1", "run", "--spec", "job.json", "-o", "d"});
+  auto p = parse_cli({"--server", "h:1", "run", "--spec", "job.json", "-o", "d"});
   const Invocation& inv = ok(p);
   EXPECT_EQ(inv.connect.server, "h:1");
   const auto& run = std::get<RunCommand>(inv.command);
@@ -80,22 +64,22 @@ TEST(CliOptions, GlobalOptionsBeforeSubcommand) {
 }
 
 TEST(CliOptions, ServerFromEnvironmentUnlessLocal) {
-  EXPECT_EQ(ok(parse({"status", "j1"}, "env:9")).connect.server, "env:9");
-  EXPECT_TRUE(ok(parse({"--local", "status", "j1"}, "env:9")).connect.local());
-  EXPECT_EQ(ok(parse({"--server", "x:1", "status", "j1"}, "env:9")).connect.server, "x:1");
-  EXPECT_TRUE(ok(parse({"status", "j1"}, "")).connect.local());
+  EXPECT_EQ(ok(parse_cli({"status", "j1"}, "env:9")).connect.server, "env:9");
+  EXPECT_TRUE(ok(parse_cli({"--local", "status", "j1"}, "env:9")).connect.local());
+  EXPECT_EQ(ok(parse_cli({"--server", "x:1", "status", "j1"}, "env:9")).connect.server, "x:1");
+  EXPECT_TRUE(ok(parse_cli({"status", "j1"}, "")).connect.local());
 }
 
 TEST(CliOptions, OtherSubcommands) {
-  auto watch = std::get<WatchCommand>(ok(parse({"watch", "j-7", "--from-frame", "3", "-o", "d"})).command);
+  auto watch = std::get<WatchCommand>(ok(parse_cli({"watch", "j-7", "--from-frame", "3", "-o", "d"})).command);
   EXPECT_EQ(watch.job_id, "j-7");
   EXPECT_EQ(watch.from_frame, 3);
-  auto list = std::get<ListCommand>(ok(parse({"list", "--state", "running,queued"})).command);
+  auto list = std::get<ListCommand>(ok(parse_cli({"list", "--state", "running,queued"})).command);
   EXPECT_EQ(list.states, (std::vector<std::string>{"running", "queued"}));
-  EXPECT_EQ(std::get<CancelCommand>(ok(parse({"cancel", "j-1"})).command).job_id, "j-1");
-  EXPECT_EQ(std::get<StatusCommand>(ok(parse({"status", "j-2"})).command).job_id, "j-2");
-  EXPECT_TRUE(std::holds_alternative<HealthCommand>(ok(parse({"health"})).command));
-  auto submit = std::get<SubmitCommand>(ok(parse({"submit", "isosurface", "--scene", "a.json", "--raw"})).command);
+  EXPECT_EQ(std::get<CancelCommand>(ok(parse_cli({"cancel", "j-1"})).command).job_id, "j-1");
+  EXPECT_EQ(std::get<StatusCommand>(ok(parse_cli({"status", "j-2"})).command).job_id, "j-2");
+  EXPECT_TRUE(std::holds_alternative<HealthCommand>(ok(parse_cli({"health"})).command));
+  auto submit = std::get<SubmitCommand>(ok(parse_cli({"submit", "isosurface", "--scene", "a.json", "--raw"})).command);
   EXPECT_TRUE(submit.job.raw);
 }
 
@@ -119,26 +103,26 @@ TEST(CliOptions, UsageErrorsExitTwo) {
       {"list", "--state", "sleeping"},
   };
   for (const auto& args : bad) {
-    auto p = parse(args);
+    auto p = parse_cli(args);
     std::string joined;
     for (const auto& a : args) joined += a + " ";
-    EXPECT_EQ(code(p), ExitCode::kUsage) << joined;
+    EXPECT_EQ(exit_code_of(p), ExitCode::kUsage) << joined;
     EXPECT_NE(p.err.find("surfacer: error: "), std::string::npos) << joined << "\n" << p.err;
   }
 }
 
 TEST(CliOptions, HelpListsExampleAndExitCodes) {
-  auto p = parse({"--help"});
-  EXPECT_EQ(code(p), ExitCode::kSuccess);
+  auto p = parse_cli({"--help"});
+  EXPECT_EQ(exit_code_of(p), ExitCode::kSuccess);
   EXPECT_NE(p.out.find("Exit codes"), std::string::npos);
   EXPECT_NE(p.out.find("6  frame integrity error"), std::string::npos);
   for (const char* sub : {"run", "submit", "watch", "status", "list", "cancel", "health"}) {
-    auto h = parse({sub, "--help"});
-    EXPECT_EQ(code(h), ExitCode::kSuccess) << sub;
+    auto h = parse_cli({sub, "--help"});
+    EXPECT_EQ(exit_code_of(h), ExitCode::kSuccess) << sub;
     EXPECT_NE(h.out.find("Example"), std::string::npos) << sub << "\n" << h.out;
   }
-  auto iso = parse({"run", "isosurface", "--help"});
-  EXPECT_EQ(code(iso), ExitCode::kSuccess);
+  auto iso = parse_cli({"run", "isosurface", "--help"});
+  EXPECT_EQ(exit_code_of(iso), ExitCode::kSuccess);
   EXPECT_NE(iso.out.find("--scene"), std::string::npos);
   EXPECT_NE(iso.out.find("Example"), std::string::npos);
 }

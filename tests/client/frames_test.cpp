@@ -3,36 +3,25 @@
 #include <zlib.h>
 
 #include <filesystem>
-#include <fstream>
 #include <limits>
 #include <sstream>
 
-#include "core/util/crc32.h"
 #include "client/exit_codes.h"
 #include "client/frame_assembler.h"
 #include "client/frame_writer.h"
 #include "client/health.h"
 #include "client/job_spec.h"
 #include "core/mesh/mesh_io.h"
+#include "core/util/crc32.h"
+#include "tests/support/files.h"
 
 namespace surfacer::client {
 namespace {
 
 namespace fs = std::filesystem;
-
-fs::path temp_dir(const std::string& name) {
-  fs::path dir = fs::temp_directory_path() / ("surfacer_client_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
-
-std::string read_file(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
+using surfacer::testing::fresh_temp_dir;
+using surfacer::testing::read_file;
+using surfacer::testing::write_file;
 
 // A frame of `bytes` cut into chunks of `chunk_size`, as the server sends it.
 struct Events {
@@ -187,7 +176,7 @@ Mesh tetrahedron() {
 }
 
 TEST(FrameWriter, RawPlyAsReceivedAndConvertedToObj) {
-  const fs::path dir = temp_dir("writer");
+  const fs::path dir = fresh_temp_dir("client_writer");
   const std::string ply = write_ply(tetrahedron(), /*double_precision=*/true);
   Events e = make_frame(2, ply, 1 << 20, v1::MESH_ENCODING_PLY);
   FrameAssembler a;
@@ -210,7 +199,7 @@ TEST(FrameWriter, RawPlyAsReceivedAndConvertedToObj) {
 }
 
 TEST(FrameWriter, DefaultFormatFollowsEncoding) {
-  const fs::path dir = temp_dir("writer_default");
+  const fs::path dir = fresh_temp_dir("client_writer_default");
   FrameWriter writer(FrameOutputOptions{dir, {}});
   ReceivedFrame drc;
   drc.index = 0;
@@ -224,8 +213,8 @@ TEST(FrameWriter, DefaultFormatFollowsEncoding) {
 }
 
 TEST(FrameWriter, UnwritableDirectoryIsAUsageError) {
-  const fs::path dir = temp_dir("writer_file");
-  std::ofstream(dir / "plain_file") << "x";
+  const fs::path dir = fresh_temp_dir("client_writer_file");
+  write_file(dir / "plain_file", "x");
   EXPECT_EQ(error_code_of([&] {
               FrameWriter w(FrameOutputOptions{dir / "plain_file" / "out", {}});
             }),
@@ -271,8 +260,8 @@ TEST(StatsCsv, OneRowPerFrameSortedWithStageColumns) {
 }
 
 TEST(JobSpec, BuildsIsosurfaceFromSceneFiles) {
-  const fs::path dir = temp_dir("spec");
-  std::ofstream(dir / "ball.json") << R"({"name": "ball", "root": {"sphere": {"radius": 0.5}}})";
+  const fs::path dir = fresh_temp_dir("client_spec");
+  write_file(dir / "ball.json", R"({"name": "ball", "root": {"sphere": {"radius": 0.5}}})");
   JobOptions options;
   options.isosurface =
       IsosurfaceOptions{{dir / "ball.json", dir / "ball.json"}, {}, {}, {{-1, -1, -1, 1, 1, 1}}, "cubes"};
@@ -302,9 +291,9 @@ TEST(JobSpec, BuildsIsosurfaceFromSceneFiles) {
 }
 
 TEST(JobSpec, WholeSpecFromJsonWithOverrides) {
-  const fs::path dir = temp_dir("spec_json");
-  std::ofstream(dir / "job.json") << R"({"name": "from file", "output": {"quantizationBits": 9},
-             "isosurface": {"scenes": [{"root": {"torus": {"majorRadius": 1, "minorRadius": 0.25}}}], "cells": 40}})";
+  const fs::path dir = fresh_temp_dir("client_spec_json");
+  write_file(dir / "job.json", R"({"name": "from file", "output": {"quantizationBits": 9},
+             "isosurface": {"scenes": [{"root": {"torus": {"majorRadius": 1, "minorRadius": 0.25}}}], "cells": 40}})");
   JobOptions options;
   options.spec = dir / "job.json";
   v1::JobSpec spec = prepare_job(options).spec;
@@ -317,9 +306,9 @@ TEST(JobSpec, WholeSpecFromJsonWithOverrides) {
 }
 
 TEST(JobSpec, MalformedOrMissingFilesNameTheFile) {
-  const fs::path dir = temp_dir("spec_bad");
-  std::ofstream(dir / "broken.json") << R"({"root": {"sphere": {"radius": }}})";
-  std::ofstream(dir / "typo.json") << R"({"root": {"sphere": {"radios": 1}}})";
+  const fs::path dir = fresh_temp_dir("client_spec_bad");
+  write_file(dir / "broken.json", R"({"root": {"sphere": {"radius": }}})");
+  write_file(dir / "typo.json", R"({"root": {"sphere": {"radios": 1}}})");
   for (const char* name : {"broken.json", "typo.json", "missing.json"}) {
     try {
       read_scene_file(dir / name);

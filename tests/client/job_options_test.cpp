@@ -6,44 +6,29 @@
 #include <bit>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <sstream>
 
 #include "client/cli.h"
 #include "client/cli_jobs.h"
 #include "client/job_spec.h"
 #include "client/particle_files.h"
+#include "tests/support/cli_parse.h"
+#include "tests/support/files.h"
 
 namespace surfacer::client {
 namespace {
 
 namespace fs = std::filesystem;
+using surfacer::testing::exit_code_of;
+using surfacer::testing::fresh_temp_dir;
+using surfacer::testing::parse_cli;
+using surfacer::testing::ParsedCli;
+using surfacer::testing::write_file;
 
-struct Parsed {
-  std::variant<Invocation, ExitCode> result;
-  std::string out;
-  std::string err;
-};
-
-Parsed parse(std::vector<std::string> args) {
-  args.insert(args.begin(), "surfacer");
-  std::vector<const char*> argv;
-  for (const auto& a : args) argv.push_back(a.c_str());
-  std::ostringstream out, err;
-  Parsed p{parse_command_line(static_cast<int>(argv.size()), argv.data(), out, err, nullptr), "", ""};
-  p.out = out.str();
-  p.err = err.str();
-  return p;
-}
-
-JobOptions run_job(const Parsed& p) {
+JobOptions run_job(const ParsedCli& p) {
   EXPECT_TRUE(std::holds_alternative<Invocation>(p.result)) << p.err;
   if (!std::holds_alternative<Invocation>(p.result)) return {};
   return std::get<RunCommand>(std::get<Invocation>(p.result).command).job;
-}
-
-ExitCode code(const Parsed& p) {
-  return std::holds_alternative<ExitCode>(p.result) ? std::get<ExitCode>(p.result) : ExitCode::kSuccess;
 }
 
 std::string joined(const std::vector<std::string>& args) {
@@ -51,15 +36,6 @@ std::string joined(const std::vector<std::string>& args) {
   for (const auto& a : args) text += a + " ";
   return text;
 }
-
-fs::path temp_dir(const std::string& name) {
-  fs::path dir = fs::temp_directory_path() / ("surfacer_jobopts_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
-
-void write_file(const fs::path& path, const std::string& text) { std::ofstream(path, std::ios::binary) << text; }
 
 // Decodes float32 little-endian records.
 std::vector<float> floats(const std::string& bytes) {
@@ -80,50 +56,51 @@ constexpr const char* kCube = R"({"name": "cube", "root": {"box": {"half_size": 
 
 TEST(JobOptions, IsosurfaceMethodTilesOrCubes) {
   for (const char* method : {"tiles", "cubes"}) {
-    const JobOptions job = run_job(parse({"run", "isosurface", "--scene", "a.json", "--method", method, "-o", "d"}));
+    const JobOptions job =
+        run_job(parse_cli({"run", "isosurface", "--scene", "a.json", "--method", method, "-o", "d"}));
     ASSERT_TRUE(job.isosurface);
     EXPECT_EQ(job.isosurface->method, method);
   }
-  EXPECT_FALSE(run_job(parse({"run", "isosurface", "--scene", "a.json", "-o", "d"})).isosurface->method);
+  EXPECT_FALSE(run_job(parse_cli({"run", "isosurface", "--scene", "a.json", "-o", "d"})).isosurface->method);
 }
 
 TEST(JobOptions, ParticlesEveryFlag) {
-  const Parsed p = parse({"run",
-                          "particles",
-                          "--input",
-                          "f_{:04d}.xyz",
-                          "--input",
-                          "extra.ply",
-                          "--start",
-                          "2",
-                          "--end",
-                          "5",
-                          "--r-inner",
-                          "0.1",
-                          "--r-outer",
-                          "0.25",
-                          "--spacing-factor",
-                          "0.7",
-                          "--sweeps",
-                          "4,20,3",
-                          "--relaxation",
-                          "0.5",
-                          "--erosion",
-                          "0.2",
-                          "--container-box",
-                          "0,0,0,1,2,3",
-                          "--container-scene",
-                          "solid.json",
-                          "--min-particles",
-                          "12",
-                          "--normals",
-                          "--raw",
-                          "-o",
-                          "out",
-                          "--format",
-                          "ply,obj",
-                          "--name",
-                          "splash"});
+  const ParsedCli p = parse_cli({"run",
+                                 "particles",
+                                 "--input",
+                                 "f_{:04d}.xyz",
+                                 "--input",
+                                 "extra.ply",
+                                 "--start",
+                                 "2",
+                                 "--end",
+                                 "5",
+                                 "--r-inner",
+                                 "0.1",
+                                 "--r-outer",
+                                 "0.25",
+                                 "--spacing-factor",
+                                 "0.7",
+                                 "--sweeps",
+                                 "4,20,3",
+                                 "--relaxation",
+                                 "0.5",
+                                 "--erosion",
+                                 "0.2",
+                                 "--container-box",
+                                 "0,0,0,1,2,3",
+                                 "--container-scene",
+                                 "solid.json",
+                                 "--min-particles",
+                                 "12",
+                                 "--normals",
+                                 "--raw",
+                                 "-o",
+                                 "out",
+                                 "--format",
+                                 "ply,obj",
+                                 "--name",
+                                 "splash"});
   const JobOptions job = run_job(p);
   ASSERT_TRUE(job.particles);
   const ParticlesOptions& o = *job.particles;
@@ -149,11 +126,11 @@ TEST(JobOptions, ParticlesEveryFlag) {
 }
 
 TEST(JobOptions, ParticlesDeriveRInnerAndSubmit) {
-  const JobOptions job = run_job(parse({"run", "particles", "--input", "a.bgeo", "--derive-r-inner", "-o", "d"}));
+  const JobOptions job = run_job(parse_cli({"run", "particles", "--input", "a.bgeo", "--derive-r-inner", "-o", "d"}));
   ASSERT_TRUE(job.particles);
   EXPECT_TRUE(job.particles->derive_r_inner);
   EXPECT_FALSE(job.particles->r_inner);
-  const Parsed s = parse({"--server", "h:1", "submit", "particles", "--input", "a.bgeo", "--r-inner", "0.5"});
+  const ParsedCli s = parse_cli({"--server", "h:1", "submit", "particles", "--input", "a.bgeo", "--r-inner", "0.5"});
   ASSERT_TRUE(std::holds_alternative<Invocation>(s.result)) << s.err;
   const auto& submit = std::get<SubmitCommand>(std::get<Invocation>(s.result).command);
   ASSERT_TRUE(submit.job.particles);
@@ -161,39 +138,39 @@ TEST(JobOptions, ParticlesDeriveRInnerAndSubmit) {
 }
 
 TEST(JobOptions, OptimizeEveryFlag) {
-  const JobOptions job = run_job(parse({"run",
-                                        "optimize",
-                                        "--scene",
-                                        "cube.json",
-                                        "--start-cells",
-                                        "24",
-                                        "--start-method",
-                                        "tiles",
-                                        "--start-bounds",
-                                        "-2,-2,-2,2,2,2",
-                                        "--iterations",
-                                        "20",
-                                        "--tolerance",
-                                        "1e-4",
-                                        "--snapshot-every",
-                                        "5",
-                                        "--flows",
-                                        "d,n",
-                                        "--c-d",
-                                        "1.5",
-                                        "--c-n",
-                                        "0.5",
-                                        "--c-t",
-                                        "0.25",
-                                        "--step-bound",
-                                        "0.3",
-                                        "--modified-flows",
-                                        "--subdivide",
-                                        "0.01",
-                                        "--triangle-budget",
-                                        "500000",
-                                        "-o",
-                                        "out"}));
+  const JobOptions job = run_job(parse_cli({"run",
+                                            "optimize",
+                                            "--scene",
+                                            "cube.json",
+                                            "--start-cells",
+                                            "24",
+                                            "--start-method",
+                                            "tiles",
+                                            "--start-bounds",
+                                            "-2,-2,-2,2,2,2",
+                                            "--iterations",
+                                            "20",
+                                            "--tolerance",
+                                            "1e-4",
+                                            "--snapshot-every",
+                                            "5",
+                                            "--flows",
+                                            "d,n",
+                                            "--c-d",
+                                            "1.5",
+                                            "--c-n",
+                                            "0.5",
+                                            "--c-t",
+                                            "0.25",
+                                            "--step-bound",
+                                            "0.3",
+                                            "--modified-flows",
+                                            "--subdivide",
+                                            "0.01",
+                                            "--triangle-budget",
+                                            "500000",
+                                            "-o",
+                                            "out"}));
   ASSERT_TRUE(job.optimize);
   const OptimizeOptions& o = *job.optimize;
   EXPECT_EQ(o.scene, fs::path("cube.json"));
@@ -216,7 +193,7 @@ TEST(JobOptions, OptimizeEveryFlag) {
   EXPECT_EQ(o.subdivide, 0.01);
   EXPECT_EQ(o.triangle_budget, 500000);
 
-  const JobOptions mesh = run_job(parse(
+  const JobOptions mesh = run_job(parse_cli(
       {"run", "optimize", "--scene", "c.json", "--start-mesh", "m.drc", "--t-flow-iterations", "7", "-o", "out"}));
   ASSERT_TRUE(mesh.optimize);
   EXPECT_EQ(mesh.optimize->start_mesh, fs::path("m.drc"));
@@ -225,38 +202,38 @@ TEST(JobOptions, OptimizeEveryFlag) {
 }
 
 TEST(JobOptions, ActiveModes) {
-  const JobOptions coat = run_job(parse({"run",
-                                         "active",
-                                         "coat",
-                                         "--input",
-                                         "p_{}.xyz",
-                                         "--start",
-                                         "0",
-                                         "--end",
-                                         "9",
-                                         "--kernel-radius",
-                                         "0.3",
-                                         "--iso",
-                                         "0.4",
-                                         "--substeps",
-                                         "3",
-                                         "--grid-spacing",
-                                         "0.05",
-                                         "--bounds=-1,-1,-1,1,1,1",
-                                         "--alpha",
-                                         "1",
-                                         "--beta",
-                                         "0.01",
-                                         "--gamma",
-                                         "0.5",
-                                         "--delta",
-                                         "2",
-                                         "--cfl",
-                                         "0.4",
-                                         "--polygonizer",
-                                         "cubes",
-                                         "-o",
-                                         "d"}));
+  const JobOptions coat = run_job(parse_cli({"run",
+                                             "active",
+                                             "coat",
+                                             "--input",
+                                             "p_{}.xyz",
+                                             "--start",
+                                             "0",
+                                             "--end",
+                                             "9",
+                                             "--kernel-radius",
+                                             "0.3",
+                                             "--iso",
+                                             "0.4",
+                                             "--substeps",
+                                             "3",
+                                             "--grid-spacing",
+                                             "0.05",
+                                             "--bounds=-1,-1,-1,1,1,1",
+                                             "--alpha",
+                                             "1",
+                                             "--beta",
+                                             "0.01",
+                                             "--gamma",
+                                             "0.5",
+                                             "--delta",
+                                             "2",
+                                             "--cfl",
+                                             "0.4",
+                                             "--polygonizer",
+                                             "cubes",
+                                             "-o",
+                                             "d"}));
   ASSERT_TRUE(coat.active);
   const ActiveOptions& a = *coat.active;
   ASSERT_TRUE(std::holds_alternative<ActiveCoatOptions>(a.mode));
@@ -276,8 +253,8 @@ TEST(JobOptions, ActiveModes) {
   EXPECT_EQ(a.polygonizer, "cubes");
 
   const JobOptions morph =
-      run_job(parse({"run", "active", "morph", "--from", "a.json", "--to", "b.json", "--tolerance", "1e-3",
-                     "--max-frames", "50", "--frame-time", "0.1", "--grid-spacing", "0.02", "-o", "d"}));
+      run_job(parse_cli({"run", "active", "morph", "--from", "a.json", "--to", "b.json", "--tolerance", "1e-3",
+                         "--max-frames", "50", "--frame-time", "0.1", "--grid-spacing", "0.02", "-o", "d"}));
   ASSERT_TRUE(morph.active);
   const auto& m = std::get<ActiveMorphOptions>(morph.active->mode);
   EXPECT_EQ(m.from, fs::path("a.json"));
@@ -287,8 +264,8 @@ TEST(JobOptions, ActiveModes) {
   EXPECT_EQ(m.frame_time, 0.1);
 
   const JobOptions enright =
-      run_job(parse({"run", "active", "advect", "--scene", "s.json", "--enright", "--period", "2", "--frame-interval",
-                     "0.25", "--frames", "8", "--grid-spacing", "0.01", "-o", "d"}));
+      run_job(parse_cli({"run", "active", "advect", "--scene", "s.json", "--enright", "--period", "2",
+                         "--frame-interval", "0.25", "--frames", "8", "--grid-spacing", "0.01", "-o", "d"}));
   ASSERT_TRUE(enright.active);
   const auto& e = std::get<ActiveAdvectOptions>(enright.active->mode);
   EXPECT_EQ(e.scene, fs::path("s.json"));
@@ -297,26 +274,26 @@ TEST(JobOptions, ActiveModes) {
   EXPECT_EQ(e.frame_interval, 0.25);
   EXPECT_EQ(e.frames, 8);
 
-  const JobOptions grid = run_job(parse({"run",
-                                         "active",
-                                         "advect",
-                                         "--scene",
-                                         "s.json",
-                                         "--velocity-grid",
-                                         "v.raw",
-                                         "--velocity-origin=-1,-2,-3",
-                                         "--velocity-spacing",
-                                         "0.5,0.25,0.125",
-                                         "--velocity-dims",
-                                         "5,9,17",
-                                         "--frame-interval",
-                                         "0.1",
-                                         "--frames",
-                                         "3",
-                                         "--grid-spacing",
-                                         "0.05",
-                                         "-o",
-                                         "d"}));
+  const JobOptions grid = run_job(parse_cli({"run",
+                                             "active",
+                                             "advect",
+                                             "--scene",
+                                             "s.json",
+                                             "--velocity-grid",
+                                             "v.raw",
+                                             "--velocity-origin=-1,-2,-3",
+                                             "--velocity-spacing",
+                                             "0.5,0.25,0.125",
+                                             "--velocity-dims",
+                                             "5,9,17",
+                                             "--frame-interval",
+                                             "0.1",
+                                             "--frames",
+                                             "3",
+                                             "--grid-spacing",
+                                             "0.05",
+                                             "-o",
+                                             "d"}));
   ASSERT_TRUE(grid.active);
   const auto& g = std::get<ActiveAdvectOptions>(grid.active->mode);
   ASSERT_TRUE(g.velocity_grid);
@@ -393,8 +370,8 @@ TEST(JobOptions, BadFlagsAreUsageErrorsNamingTheFlag) {
        "isosurface"},
   };
   for (const auto& [args, flag] : cases) {
-    const Parsed r = parse(args);
-    EXPECT_EQ(code(r), ExitCode::kUsage) << joined(args);
+    const ParsedCli r = parse_cli(args);
+    EXPECT_EQ(exit_code_of(r), ExitCode::kUsage) << joined(args);
     EXPECT_NE(r.err.find("surfacer: error: "), std::string::npos) << joined(args) << "\n" << r.err;
     EXPECT_NE(r.err.find(flag), std::string::npos) << joined(args) << "\nexpected the message to name " << flag << ":\n"
                                                    << r.err;
@@ -418,18 +395,18 @@ TEST(JobOptions, EveryNewSubcommandHasHelpWithAnExample) {
   for (auto args : commands) {
     const std::string name = joined(args);
     args.push_back("--help");
-    const Parsed h = parse(args);
-    EXPECT_EQ(code(h), ExitCode::kSuccess) << name;
+    const ParsedCli h = parse_cli(args);
+    EXPECT_EQ(exit_code_of(h), ExitCode::kSuccess) << name;
     EXPECT_NE(h.out.find("Example"), std::string::npos) << name << "\n" << h.out;
     EXPECT_NE(h.out.find("surfacer " + args[0] + " "), std::string::npos) << name << "\n" << h.out;
   }
-  const Parsed particles = parse({"run", "particles", "--help"});
+  const ParsedCli particles = parse_cli({"run", "particles", "--help"});
   for (const char* flag : {"--input", "--start", "--end", "--r-inner", "--derive-r-inner", "--r-outer",
                            "--spacing-factor", "--sweeps", "--relaxation", "--erosion", "--container-box",
                            "--container-scene", "--min-particles", "--format", "--normals", "--raw"}) {
     EXPECT_NE(particles.out.find(flag), std::string::npos) << flag;
   }
-  const Parsed advect = parse({"run", "active", "advect", "--help"});
+  const ParsedCli advect = parse_cli({"run", "active", "advect", "--help"});
   for (const char* flag : {"--enright", "--period", "--velocity-grid", "--velocity-origin", "--velocity-spacing",
                            "--velocity-dims", "--frame-interval", "--frames", "--grid-spacing", "--alpha", "--cfl"}) {
     EXPECT_NE(advect.out.find(flag), std::string::npos) << flag;
@@ -453,7 +430,7 @@ TEST(JobOptions, ValueParsers) {
 // Sequences
 
 TEST(ParticleInputs, PatternsExpandOverTheFilesPresentOrTheGivenRange) {
-  const fs::path dir = temp_dir("seq");
+  const fs::path dir = fresh_temp_dir("jobopts_seq");
   for (int i : {3, 4, 5, 6}) write_file(dir / ("f_000" + std::to_string(i) + ".xyz"), "0 0 0\n");
   write_file(dir / "f_7.xyz", "0 0 0\n");  // not a {:04d} name: ignored
   write_file(dir / "single.xyz", "0 0 0\n");
@@ -495,7 +472,7 @@ TEST(ParticleInputs, PatternsExpandOverTheFilesPresentOrTheGivenRange) {
 }
 
 TEST(ParticleInputs, RecordsAreFloat32WithOrWithoutRadius) {
-  const fs::path dir = temp_dir("records");
+  const fs::path dir = fresh_temp_dir("jobopts_records");
   write_file(dir / "plain.xyz", "# a comment\n1 2 3\n-0.5, 0.25, 8\n");
   write_file(dir / "radius.xyz", "1 2 3 0.5\n4 5 6 0.25\n");
   ParticleRecords plain = read_particle_records(dir / "plain.xyz");
@@ -527,7 +504,7 @@ TEST(ParticleInputs, RecordsAreFloat32WithOrWithoutRadius) {
 // Specs
 
 TEST(JobSpecs, ParticlesFieldsAndOneUploadPerFrame) {
-  const fs::path dir = temp_dir("particles_spec");
+  const fs::path dir = fresh_temp_dir("jobopts_particles_spec");
   write_file(dir / "p_0.xyz", "0 0 0\n1 0 0\n");
   write_file(dir / "p_1.xyz", "0 0 0 0.1\n");
   write_file(dir / "last.xyz", "5 5 5\n6 6 6\n7 7 7\n");
@@ -594,7 +571,7 @@ TEST(JobSpecs, ParticlesFieldsAndOneUploadPerFrame) {
 }
 
 TEST(JobSpecs, OptimizeFromPolygonizationOrUploadedMesh) {
-  const fs::path dir = temp_dir("optimize_spec");
+  const fs::path dir = fresh_temp_dir("jobopts_optimize_spec");
   write_file(dir / "cube.json", kCube);
   JobOptions options;
   OptimizeOptions o;
@@ -686,7 +663,7 @@ TEST(JobSpecs, OptimizeFromPolygonizationOrUploadedMesh) {
 }
 
 TEST(JobSpecs, ActiveModes) {
-  const fs::path dir = temp_dir("active_spec");
+  const fs::path dir = fresh_temp_dir("jobopts_active_spec");
   write_file(dir / "ball.json", kBall);
   write_file(dir / "cube.json", kCube);
   write_file(dir / "c_0.xyz", "0 0 0\n");
@@ -794,7 +771,7 @@ TEST(JobSpecs, ActiveModes) {
 }
 
 TEST(JobSpecs, IsosurfaceMethod) {
-  const fs::path dir = temp_dir("iso_method");
+  const fs::path dir = fresh_temp_dir("jobopts_iso_method");
   write_file(dir / "ball.json", kBall);
   JobOptions options;
   options.isosurface = IsosurfaceOptions{{dir / "ball.json"}, {}, {}, {}, "tiles"};

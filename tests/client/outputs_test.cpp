@@ -10,24 +10,20 @@
 #include "client/progress.h"
 #include "client/summary.h"
 #include "core/mesh/mesh_io.h"
+#include "tests/support/files.h"
 
 namespace surfacer::client {
 namespace {
 
 namespace fs = std::filesystem;
+using surfacer::testing::fresh_temp_dir;
+using surfacer::testing::read_file;
 
 std::vector<std::string> lines_of(const std::string& text) {
   std::vector<std::string> lines;
   std::istringstream in(text);
   for (std::string line; std::getline(in, line);) lines.push_back(line);
   return lines;
-}
-
-std::string read_file(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream s;
-  s << in.rdbuf();
-  return s.str();
 }
 
 v1::FrameStats snapshot(int iteration, std::int64_t triangles, std::map<std::string, double> metrics) {
@@ -87,8 +83,7 @@ ReceivedFrame tetra_frame(int index, const v1::FrameStats& stats) {
 }
 
 TEST(OutputFiles, WriterRewritesIterationsCsvForOptimizeJobsOnly) {
-  const fs::path dir = fs::temp_directory_path() / ("surfacer_outputs_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
+  const fs::path dir = fresh_temp_dir("outputs");
   {
     FrameWriter writer(FrameOutputOptions{dir / "opt", {}});
     writer.set_job_kind("optimize");

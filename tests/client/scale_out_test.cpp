@@ -4,24 +4,33 @@
 #include "client/scale_out.h"
 
 #include <gtest/gtest.h>
+#include <signal.h>
+#include <unistd.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
+#include <filesystem>
+#include <map>
 #include <random>
 #include <regex>
 #include <set>
 #include <sstream>
+#include <thread>
 
 #include "client/cli.h"
 #include "client/server_list.h"
-#include "core/mesh/mesh_checks.h"
-#include "core/mesh/mesh_io.h"
-#include "tests/client/cli_process.h"
+#include "tests/support/files.h"
+#include "tests/support/mesh_expectations.h"
+#include "tests/support/process.h"
+#include "tests/support/server_process.h"
 
 namespace surfacer::client {
 namespace {
 
-using namespace e2e;
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+using namespace surfacer::testing;
 
 // ---------------------------------------------------------------------------------------------------------------
 // Helpers without servers
@@ -146,8 +155,6 @@ TEST(ScaleOutSplit, ServerListsAndDnsNames) {
 // ---------------------------------------------------------------------------------------------------------------
 // Real servers
 
-int count_lines(const std::string& text) { return static_cast<int>(std::count(text.begin(), text.end(), '\n')); }
-
 // The first `columns` cells of every line.
 std::string csv_prefix(const std::string& csv, int columns) {
   std::istringstream lines(csv);
@@ -177,7 +184,8 @@ class ScaleOutEndToEnd : public ::testing::Test {
   // Starts `n` servers with one worker each; returns their addresses.
   void start_servers(int n) {
     for (int i = 0; i < n; ++i) {
-      servers_.push_back(std::make_unique<ServerProcess>(dir_ / ("server" + std::to_string(i)), 1));
+      servers_.push_back(std::make_unique<ServerProcess>(dir_ / ("server" + std::to_string(i)), 1,
+                                                         std::vector<std::string>{"--drain-seconds", "1"}));
       ASSERT_FALSE(servers_.back()->address().empty()) << servers_.back()->log();
     }
   }
@@ -208,20 +216,12 @@ class ScaleOutEndToEnd : public ::testing::Test {
     return args;
   }
 
-  std::unique_ptr<Child> spawn(std::vector<std::string> args, const std::string& tag) {
-    args.insert(args.begin(), kCli.string());
-    return std::make_unique<Child>(args, dir_ / (tag + ".out"), dir_ / (tag + ".err"), false);
+  std::unique_ptr<ChildProcess> spawn(std::vector<std::string> args, const std::string& tag) {
+    args.insert(args.begin(), cli_binary().string());
+    return std::make_unique<ChildProcess>(args, dir_ / (tag + ".out"), dir_ / (tag + ".err"));
   }
-  Result finish(Child& child, const std::string& tag, std::chrono::seconds timeout = 90s) {
-    Result r;
-    r.code = child.wait(timeout);
-    r.out = read_file(dir_ / (tag + ".out"));
-    r.err = read_file(dir_ / (tag + ".err"));
-    return r;
-  }
-  Result cli(std::vector<std::string> args, const std::string& tag) {
-    auto child = spawn(std::move(args), tag);
-    return finish(*child, tag);
+  ProcessResult cli(std::vector<std::string> args, const std::string& tag) {
+    return finish(*spawn(std::move(args), tag), 90s);
   }
 
   // Waits until the server's log shows a started job; false after `timeout`.
@@ -236,7 +236,7 @@ class ScaleOutEndToEnd : public ::testing::Test {
 
   // Jobs of a server by state name, from `surfacer list`.
   std::map<std::string, int> job_states(const std::string& address) {
-    Result r = cli({"--server", address, "list"}, "list" + std::to_string(list_counter_++));
+    ProcessResult r = cli({"--server", address, "list"}, "list" + std::to_string(list_counter_++));
     EXPECT_EQ(r.code, 0) << r;
     std::map<std::string, int> states;
     std::istringstream lines(r.out);
@@ -290,12 +290,8 @@ class ScaleOutEndToEnd : public ::testing::Test {
       std::snprintf(name, sizeof name, "frame_%04d.drc", i);
       const fs::path drc = out / name;
       const fs::path ply = dir_ / (std::string("decoded_") + name + ".ply");
-      const std::string command =
-          "/usr/bin/draco_decoder -i '" + drc.string() + "' -o '" + ply.string() + "' >/dev/null 2>&1";
-      ASSERT_EQ(std::system(command.c_str()), 0) << command;
-      const Mesh mesh = read_mesh(ply);
-      EXPECT_FALSE(mesh.triangles.empty()) << name;
-      EXPECT_TRUE(check_mesh(mesh).closed) << name;
+      ASSERT_TRUE(draco_decoder_decodes(drc, ply));
+      EXPECT_TRUE(mesh_file_has(ply, kClosed));
       EXPECT_TRUE(read_file(drc) == read_file(ref / name)) << name << " differs from the single-server run";
     }
     const std::string csv = read_file(out / "stats.csv");
@@ -328,7 +324,7 @@ TEST_F(ScaleOutEndToEnd, AServerKilledDuringItsFirstBatchLosesNothing) {
   const std::string victim_address = victim.address();
   ASSERT_TRUE(wait_for_job_started(victim)) << read_file(dir_ / "run.err");
   victim.kill_now();
-  const Result r = finish(*run, "run");
+  const ProcessResult r = finish(*run, 90s);
   ASSERT_EQ(r.code, 0) << r;
   EXPECT_NE(r.err.find("server " + victim_address + " is unreachable"), std::string::npos) << r;
   EXPECT_NE(r.err.find("back to the queue"), std::string::npos) << r;
@@ -347,7 +343,7 @@ TEST_F(ScaleOutEndToEnd, AServerKilledDuringItsFirstBatchLosesNothing) {
   std::vector<std::string> ref_args = {"--server", servers_[1]->address(), "run", "isosurface", "--cells", "64",
                                        "-o",       (dir_ / "ref").string()};
   ref_args.insert(ref_args.end(), scene_args.begin(), scene_args.end());
-  const Result ref = cli(ref_args, "ref");
+  const ProcessResult ref = cli(ref_args, "ref");
   ASSERT_EQ(ref.code, 0) << ref;
   expect_exactly_frames(dir_ / "out", kFrames);
   expect_same_as_reference(dir_ / "out", dir_ / "ref", kFrames);
@@ -376,14 +372,14 @@ TEST_F(ScaleOutEndToEnd, ParticleSequenceSplitAcrossServersMatchesOneServer) {
     write_file(dir_ / name, text);
   }
   const std::string pattern = (dir_ / "drop_{:04d}.xyz").string();
-  const Result r = cli({"--server", server_list(), "run", "particles", "--input", pattern, "--derive-r-inner", "-o",
-                        (dir_ / "out").string()},
-                       "run");
+  const ProcessResult r = cli({"--server", server_list(), "run", "particles", "--input", pattern, "--derive-r-inner",
+                               "-o", (dir_ / "out").string()},
+                              "run");
   ASSERT_EQ(r.code, 0) << r;
   EXPECT_NE(r.err.find("splitting 6 frames into 6 batches"), std::string::npos) << r;
-  const Result ref = cli({"--server", servers_[0]->address(), "run", "particles", "--input", pattern,
-                          "--derive-r-inner", "-o", (dir_ / "ref").string()},
-                         "ref");
+  const ProcessResult ref = cli({"--server", servers_[0]->address(), "run", "particles", "--input", pattern,
+                                 "--derive-r-inner", "-o", (dir_ / "ref").string()},
+                                "ref");
   ASSERT_EQ(ref.code, 0) << ref;
   expect_exactly_frames(dir_ / "out", kFrames);
   expect_same_as_reference(dir_ / "out", dir_ / "ref", kFrames);
@@ -404,7 +400,7 @@ TEST_F(ScaleOutEndToEnd, EveryServerDeadExitsThree) {
     ASSERT_TRUE(wait_for_job_started(*s)) << read_file(dir_ / "run.err");
     s->kill_now();
   }
-  const Result r = finish(*run, "run");
+  const ProcessResult r = finish(*run, 90s);
   EXPECT_EQ(r.code, 3) << r;
   EXPECT_NE(r.err.find("every server is unreachable"), std::string::npos) << r;
 
@@ -413,7 +409,7 @@ TEST_F(ScaleOutEndToEnd, EveryServerDeadExitsThree) {
   std::vector<std::string> none = {"--server", nowhere,      "--timeout", "1",
                                    "run",      "isosurface", "-o",        (dir_ / "none").string()};
   none.insert(none.end(), scene_args.begin(), scene_args.end());
-  const Result n = cli(none, "none");
+  const ProcessResult n = cli(none, "none");
   EXPECT_EQ(n.code, 3) << n;
 }
 
@@ -426,7 +422,7 @@ TEST_F(ScaleOutEndToEnd, ABadSceneFailsTheRunAndCancelsTheOtherSubJobs) {
   const auto scene_args = scenes(9, /*bad=*/2);
   args.insert(args.end(), scene_args.begin(), scene_args.end());
   const auto t0 = std::chrono::steady_clock::now();
-  const Result r = cli(args, "run");
+  const ProcessResult r = cli(args, "run");
   EXPECT_EQ(r.code, 4) << r;
   EXPECT_LT(std::chrono::steady_clock::now() - t0, 20s);
   EXPECT_NE(r.err.find("INVALID_ARGUMENT"), std::string::npos) << r;
@@ -438,7 +434,7 @@ TEST_F(ScaleOutEndToEnd, ABadSceneFailsTheRunAndCancelsTheOtherSubJobs) {
   std::vector<std::string> unbounded = {"--server", server_list(), "run", "isosurface",
                                         "--cells",  "32",          "-o",  (dir_ / "out2").string()};
   unbounded.insert(unbounded.end(), scene_args.begin(), scene_args.end());
-  const Result u = cli(unbounded, "unbounded");
+  const ProcessResult u = cli(unbounded, "unbounded");
   EXPECT_EQ(u.code, 4) << u;
   EXPECT_NE(u.err.find("spec.isosurface.scenes[2]"), std::string::npos) << u;
 }
@@ -452,7 +448,7 @@ TEST_F(ScaleOutEndToEnd, CtrlCCancelsEverySubJob) {
   auto run = spawn(args, "run");
   for (auto& s : servers_) ASSERT_TRUE(wait_for_job_started(*s)) << read_file(dir_ / "run.err");
   run->signal(SIGINT);
-  const Result r = finish(*run, "run", 30s);
+  const ProcessResult r = finish(*run, 30s);
   EXPECT_EQ(r.code, 5) << r;
   EXPECT_NE(r.err.find("interrupted"), std::string::npos) << r;
   EXPECT_GE(expect_nothing_left_running(), 2);
@@ -465,7 +461,7 @@ TEST_F(ScaleOutEndToEnd, AJobThatIsNotASequenceFailsOverToTheNextServer) {
   std::vector<std::string> args = {"--server",   list,      "--timeout", "1",  "run",
                                    "isosurface", "--cells", "32",        "-o", (dir_ / "out").string()};
   args.insert(args.end(), scene_args.begin(), scene_args.end());
-  const Result r = cli(args, "run");
+  const ProcessResult r = cli(args, "run");
   ASSERT_EQ(r.code, 0) << r;
   EXPECT_NE(r.err.find("resubmitting the whole job to " + servers_[0]->address()), std::string::npos) << r;
   expect_exactly_frames(dir_ / "out", 1);

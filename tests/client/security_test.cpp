@@ -5,8 +5,6 @@
 
 #include <grpcpp/health_check_service_interface.h>
 #include <grpcpp/security/server_credentials.h>
-#include <grpcpp/server.h>
-#include <grpcpp/server_builder.h>
 #include <gtest/gtest.h>
 
 #include <mutex>
@@ -15,15 +13,18 @@
 #include "client/cli.h"
 #include "client/connection.h"
 #include "client/health.h"
-#include "tests/client/cli_process.h"
+#include "tests/support/cli_parse.h"
+#include "tests/support/files.h"
+#include "tests/support/loopback_grpc.h"
+#include "tests/support/process.h"
 #include "tests/support/test_certs.h"
 
 namespace surfacer::client {
 namespace {
 
-using namespace e2e;
-using surfacer::testing::make_test_certs;
-using surfacer::testing::TestCerts;
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+using namespace surfacer::testing;
 
 constexpr const char* kToken = "tok-3f9a.c0ffee_42";
 
@@ -62,22 +63,15 @@ class TestServer {
  public:
   explicit TestServer(std::shared_ptr<grpc::ServerCredentials> credentials) {
     grpc::EnableDefaultHealthCheckService(true);
-    grpc::ServerBuilder builder;
-    builder.AddListeningPort("127.0.0.1:0", std::move(credentials), &port_);
-    builder.RegisterService(&service_);
-    server_ = builder.BuildAndStart();
+    server_ = std::make_unique<LoopbackGrpcServer>(std::vector<grpc::Service*>{&service_}, std::move(credentials));
   }
-  ~TestServer() {
-    if (server_) server_->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(1));
-  }
-  std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
-  int port() const { return port_; }
+  std::string address() const { return server_->address(); }
+  int port() const { return server_->port(); }
   TokenCheckingService& service() { return service_; }
 
  private:
   TokenCheckingService service_;
-  int port_ = 0;
-  std::unique_ptr<grpc::Server> server_;
+  std::unique_ptr<LoopbackGrpcServer> server_;
 };
 
 std::shared_ptr<grpc::ServerCredentials> tls_server(const TestCerts& certs, bool require_client_cert) {
@@ -92,9 +86,7 @@ std::shared_ptr<grpc::ServerCredentials> tls_server(const TestCerts& certs, bool
 class SecurityTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    root_ = fs::temp_directory_path() / ("surfacer_security_" + std::to_string(::getpid()));
-    fs::remove_all(root_);
-    fs::create_directories(root_);
+    root_ = fresh_temp_dir("security");
     certs_ = new TestCerts(make_test_certs(root_ / "pki"));
     other_ = new TestCerts(make_test_certs(root_ / "other-pki"));
   }
@@ -104,20 +96,12 @@ class SecurityTest : public ::testing::Test {
     certs_ = other_ = nullptr;
     fs::remove_all(root_);
   }
-  void SetUp() override {
-    dir_ = root_ / ::testing::UnitTest::GetInstance()->current_test_info()->name();
-    fs::create_directories(dir_);
-  }
+  void SetUp() override { dir_ = current_test_dir(root_); }
 
-  Result cli(std::vector<std::string> args, std::chrono::seconds timeout = 30s) {
-    args.insert(args.begin(), kCli.string());
+  ProcessResult cli(std::vector<std::string> args, std::chrono::seconds timeout = 30s) {
+    args.insert(args.begin(), cli_binary().string());
     const std::string tag = "cli" + std::to_string(counter_++);
-    Child child(args, dir_ / (tag + ".out"), dir_ / (tag + ".err"), false);
-    Result r;
-    r.code = child.wait(timeout);
-    r.out = read_file(dir_ / (tag + ".out"));
-    r.err = read_file(dir_ / (tag + ".err"));
-    return r;
+    return run_process(args, dir_ / (tag + ".out"), dir_ / (tag + ".err"), timeout);
   }
 
   static std::string ca() { return (certs_->dir / "ca.pem").string(); }
@@ -134,8 +118,7 @@ TestCerts* SecurityTest::certs_ = nullptr;
 TestCerts* SecurityTest::other_ = nullptr;
 
 TEST(TestCerts, MakesACaAServerCertForLocalhostAndAClientCertAndCachesPerDirectory) {
-  const fs::path dir = fs::temp_directory_path() / ("surfacer_certs_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
+  const fs::path dir = fresh_temp_dir("certs");
   const TestCerts a = make_test_certs(dir);
   for (const char* name : {"ca.pem", "server.pem", "server.key", "client.pem", "client.key"}) {
     EXPECT_TRUE(fs::exists(dir / name)) << name;
@@ -199,26 +182,11 @@ TEST(Security, TokenInPlaintextOnlyToLoopbackUnlessAllowed) {
   EXPECT_NO_THROW(check_token_transport("10.1.2.3:50051", no_token));
 }
 
-struct Parsed {
-  std::variant<Invocation, ExitCode> result;
-  std::string err;
-};
-
-Parsed parse(std::vector<std::string> args, const char* env_token = nullptr) {
-  args.insert(args.begin(), "surfacer");
-  std::vector<const char*> argv;
-  for (const auto& a : args) argv.push_back(a.c_str());
-  std::ostringstream out, err;
-  Parsed p{parse_command_line(static_cast<int>(argv.size()), argv.data(), out, err, nullptr, env_token), ""};
-  p.err = err.str();
-  return p;
-}
-
 TEST_F(SecurityTest, FlagsReadTheirFilesAndBadFilesExitTwoNamingFlagAndFile) {
   write_file(dir_ / "token", "  file-token-1\n");
-  auto p = parse({"--server", "h:1", "--token-file", (dir_ / "token").string(), "--tls-ca", ca(), "--tls-cert",
-                  (certs_->dir / "client.pem").string(), "--tls-key", (certs_->dir / "client.key").string(),
-                  "--tls-server-name", "localhost", "list"});
+  auto p = parse_cli({"--server", "h:1", "--token-file", (dir_ / "token").string(), "--tls-ca", ca(), "--tls-cert",
+                      (certs_->dir / "client.pem").string(), "--tls-key", (certs_->dir / "client.key").string(),
+                      "--tls-server-name", "localhost", "list"});
   ASSERT_TRUE(std::holds_alternative<Invocation>(p.result)) << p.err;
   const SecurityOptions& s = std::get<Invocation>(p.result).connect.security;
   EXPECT_EQ(s.token, "file-token-1");
@@ -229,14 +197,14 @@ TEST_F(SecurityTest, FlagsReadTheirFilesAndBadFilesExitTwoNamingFlagAndFile) {
   EXPECT_EQ(s.server_name, "localhost");
 
   // $SURFACER_TOKEN, unless --token is given; ignored for the in-process server.
-  p = parse({"--server", "h:1", "list"}, "env-token");
+  p = parse_cli({"--server", "h:1", "list"}, nullptr, "env-token");
   EXPECT_EQ(std::get<Invocation>(p.result).connect.security.token, "env-token");
-  p = parse({"--server", "h:1", "--token", "flag-token", "list"}, "env-token");
+  p = parse_cli({"--server", "h:1", "--token", "flag-token", "list"}, nullptr, "env-token");
   EXPECT_EQ(std::get<Invocation>(p.result).connect.security.token, "flag-token");
-  p = parse({"list"}, "env-token");
+  p = parse_cli({"list"}, nullptr, "env-token");
   ASSERT_TRUE(std::holds_alternative<Invocation>(p.result)) << p.err;
   EXPECT_FALSE(std::get<Invocation>(p.result).connect.security.token);
-  p = parse({"--server", "h:1", "--tls", "list"});
+  p = parse_cli({"--server", "h:1", "--tls", "list"});
   EXPECT_TRUE(std::get<Invocation>(p.result).connect.security.tls);
   EXPECT_TRUE(std::get<Invocation>(p.result).connect.security.ca_pem.empty());  // system roots
 
@@ -267,7 +235,7 @@ TEST_F(SecurityTest, FlagsReadTheirFilesAndBadFilesExitTwoNamingFlagAndFile) {
     std::vector<std::string> args = {"--server", "h:1"};
     args.insert(args.end(), c.args.begin(), c.args.end());
     args.push_back("list");
-    p = parse(args);
+    p = parse_cli(args);
     ASSERT_TRUE(std::holds_alternative<ExitCode>(p.result)) << c.args[0];
     EXPECT_EQ(std::get<ExitCode>(p.result), ExitCode::kUsage) << c.args[0];
     EXPECT_NE(p.err.find(c.flag), std::string::npos) << p.err;
@@ -276,7 +244,7 @@ TEST_F(SecurityTest, FlagsReadTheirFilesAndBadFilesExitTwoNamingFlagAndFile) {
     }
   }
   // TLS flags without a remote server.
-  p = parse({"--tls-ca", ca(), "list"});
+  p = parse_cli({"--tls-ca", ca(), "list"});
   ASSERT_TRUE(std::holds_alternative<ExitCode>(p.result));
   EXPECT_NE(p.err.find("--server"), std::string::npos) << p.err;
 }
@@ -284,7 +252,7 @@ TEST_F(SecurityTest, FlagsReadTheirFilesAndBadFilesExitTwoNamingFlagAndFile) {
 TEST_F(SecurityTest, HealthOverTlsWithTheRightCaByIpByNameAndWithANameOverride) {
   TestServer server(tls_server(*certs_, false));
   ASSERT_GT(server.port(), 0);
-  Result r = cli({"--server", server.address(), "--tls-ca", ca(), "health"});
+  ProcessResult r = cli({"--server", server.address(), "--tls-ca", ca(), "health"});
   EXPECT_EQ(r.code, 0) << r;
   EXPECT_EQ(r.out, "SERVING\n") << r;
   r = cli({"--server", "localhost:" + std::to_string(server.port()), "--tls-ca", ca(), "health"});
@@ -309,7 +277,7 @@ TEST_F(SecurityTest, HealthOverTlsWithTheRightCaByIpByNameAndWithANameOverride) 
 
 TEST_F(SecurityTest, WrongCaOrPlaintextAgainstTlsExitsThreeWithAMessage) {
   TestServer server(tls_server(*certs_, false));
-  Result r =
+  ProcessResult r =
       cli({"--server", server.address(), "--tls-ca", (other_->dir / "ca.pem").string(), "--timeout", "1", "health"});
   EXPECT_EQ(r.code, 3) << r;
   EXPECT_NE(r.err.find("surfacer: error: cannot reach a Surfacer server at " + server.address()), std::string::npos)
@@ -322,15 +290,15 @@ TEST_F(SecurityTest, WrongCaOrPlaintextAgainstTlsExitsThreeWithAMessage) {
 
 TEST_F(SecurityTest, MutualTlsServerRejectsAClientWithoutACertificateAndAcceptsOneWithIt) {
   TestServer server(tls_server(*certs_, true));
-  Result without = cli({"--server", server.address(), "--tls-ca", ca(), "--timeout", "1", "health"});
+  ProcessResult without = cli({"--server", server.address(), "--tls-ca", ca(), "--timeout", "1", "health"});
   EXPECT_EQ(without.code, 3) << without;
   EXPECT_EQ(without.out.find("SERVING"), std::string::npos) << without;
   // A client certificate from another CA is rejected too.
-  Result foreign =
+  ProcessResult foreign =
       cli({"--server", server.address(), "--tls-ca", ca(), "--tls-cert", (other_->dir / "client.pem").string(),
            "--tls-key", (other_->dir / "client.key").string(), "--timeout", "1", "health"});
   EXPECT_EQ(foreign.code, 3) << foreign;
-  Result with =
+  ProcessResult with =
       cli({"--server", server.address(), "--tls-ca", ca(), "--tls-cert", (certs_->dir / "client.pem").string(),
            "--tls-key", (certs_->dir / "client.key").string(), "health"});
   EXPECT_EQ(with.code, 0) << with;
@@ -339,7 +307,7 @@ TEST_F(SecurityTest, MutualTlsServerRejectsAClientWithoutACertificateAndAcceptsO
 
 TEST_F(SecurityTest, EveryCallCarriesTheBearerTokenOverTls) {
   TestServer server(tls_server(*certs_, false));
-  Result r = cli({"--server", server.address(), "--tls-ca", ca(), "--token", kToken, "list"});
+  ProcessResult r = cli({"--server", server.address(), "--tls-ca", ca(), "--token", kToken, "list"});
   EXPECT_EQ(r.code, 0) << r;
   write_file(dir_ / "token", std::string(kToken) + "\n");
   r = cli({"--server", server.address(), "--tls-ca", ca(), "--token-file", (dir_ / "token").string(), "list"});
@@ -364,7 +332,7 @@ TEST_F(SecurityTest, EveryCallCarriesTheBearerTokenOverTls) {
 
 TEST_F(SecurityTest, TokenInPlaintextGoesToLoopbackButNotElsewhere) {
   TestServer server(grpc::InsecureServerCredentials());
-  Result r = cli({"--server", server.address(), "--token", kToken, "list"});
+  ProcessResult r = cli({"--server", server.address(), "--token", kToken, "list"});
   EXPECT_EQ(r.code, 0) << r;
   ASSERT_FALSE(server.service().seen().empty());
   EXPECT_EQ(server.service().seen().back(), std::string("Bearer ") + kToken);

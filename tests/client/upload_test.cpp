@@ -1,17 +1,12 @@
 // The chunked uploader: against a recording fake service on a loopback port (chunk sizes, name/total_bytes on the
 // first chunk only, a CRC-32 on every chunk, the answer checked) and against the real in-process server (the
 // server's byte count and CRC-32 match; uploaded particle frames and grids are accepted by job specs).
-#include "core/util/crc32.h"
 #include "client/upload.h"
 
-#include <grpcpp/security/server_credentials.h>
-#include <grpcpp/server.h>
-#include <grpcpp/server_builder.h>
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <mutex>
 #include <random>
 #include <sstream>
@@ -20,12 +15,18 @@
 #include "client/exit_codes.h"
 #include "client/job_spec.h"
 #include "client/progress.h"
+#include "core/util/crc32.h"
 #include "surfacer/v1/surfacer.grpc.pb.h"
+#include "tests/support/files.h"
+#include "tests/support/loopback_grpc.h"
 
 namespace surfacer::client {
 namespace {
 
 namespace fs = std::filesystem;
+using surfacer::testing::fresh_temp_dir;
+using surfacer::testing::LoopbackGrpcServer;
+using surfacer::testing::write_file;
 
 enum class Answer { kCorrect, kWrongCrc, kShortCount, kNoId, kRefuse };
 
@@ -70,32 +71,19 @@ std::string random_bytes(std::size_t n, unsigned seed) {
   return bytes;
 }
 
-fs::path temp_dir(const std::string& name) {
-  fs::path dir = fs::temp_directory_path() / ("surfacer_upload_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
-
-void write_file(const fs::path& path, const std::string& bytes) { std::ofstream(path, std::ios::binary) << bytes; }
-
 class FakeUploadTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    grpc::ServerBuilder builder;
-    int port = 0;
-    builder.AddListeningPort("127.0.0.1:0", grpc::InsecureServerCredentials(), &port);
-    builder.RegisterService(&service_);
-    server_ = builder.BuildAndStart();
-    ASSERT_TRUE(server_);
+    server_ = std::make_unique<LoopbackGrpcServer>(std::vector<grpc::Service*>{&service_});
+    ASSERT_TRUE(server_->started());
     ConnectOptions options;
-    options.server = "127.0.0.1:" + std::to_string(port);
+    options.server = server_->address();
     options.timeout_seconds = 5;
     connection_ = Connection::open(options);
   }
   void TearDown() override {
     connection_.reset();
-    server_->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(1));
+    server_.reset();
   }
   ExitCode error_of(const std::function<void()>& f) {
     try {
@@ -108,7 +96,7 @@ class FakeUploadTest : public ::testing::Test {
   }
 
   RecordingSurfacer service_;
-  std::unique_ptr<grpc::Server> server_;
+  std::unique_ptr<LoopbackGrpcServer> server_;
   std::unique_ptr<Connection> connection_;
   std::string message_;
 };
@@ -155,7 +143,7 @@ TEST_F(FakeUploadTest, SmallerChunksAndEmptyAndFileUploads) {
   EXPECT_TRUE(chunks[0].data().empty());
 
   // Files are streamed with the same chunking.
-  const fs::path dir = temp_dir("fake_file");
+  const fs::path dir = fresh_temp_dir("upload_fake_file");
   const std::string file_bytes = random_bytes((std::size_t{1} << 20) + 1, 3);
   write_file(dir / "grid.raw", file_bytes);
   const UploadResult result = upload_file(connection_->stub(), "grid.raw", dir / "grid.raw");
@@ -225,7 +213,7 @@ TEST_F(LocalUploadTest, ServerCountsAndCrcMatch) {
 
 // An uploaded float32 grid file is referenced by a job: the server accepts exactly the bytes the grid needs.
 TEST_F(LocalUploadTest, UploadedFileFeedsAJob) {
-  const fs::path dir = temp_dir("local_grid");
+  const fs::path dir = fresh_temp_dir("upload_local_grid");
   const int n = 12;
   std::string bytes;
   for (int k = 0; k < n; ++k) {
@@ -266,9 +254,9 @@ TEST_F(LocalUploadTest, UploadedFileFeedsAJob) {
 }
 
 TEST_F(LocalUploadTest, PendingParticleFramesAreUploadedInOrder) {
-  const fs::path dir = temp_dir("local_frames");
-  std::ofstream(dir / "drop_0.xyz") << "0 0 0\n0.1 0 0\n";
-  std::ofstream(dir / "drop_1.xyz") << "0 0 0 0.05\n0.1 0 0 0.05\n0.2 0 0 0.05\n";
+  const fs::path dir = fresh_temp_dir("upload_local_frames");
+  write_file(dir / "drop_0.xyz", "0 0 0\n0.1 0 0\n");
+  write_file(dir / "drop_1.xyz", "0 0 0 0.05\n0.1 0 0 0.05\n0.2 0 0 0.05\n");
   JobOptions options;
   ParticlesOptions particles;
   particles.input = {{(dir / "drop_{}.xyz").string()}, {}, {}};
@@ -292,7 +280,7 @@ TEST_F(LocalUploadTest, PendingParticleFramesAreUploadedInOrder) {
   EXPECT_NE(log.str().find("3 particles with radii"), std::string::npos) << log.str();
 
   // A bad frame stops the uploads with a usage error naming the file and line; nothing after it is read.
-  std::ofstream(dir / "drop_1.xyz", std::ios::trunc) << "0 0 0\n0.1 zero 0\n";
+  write_file(dir / "drop_1.xyz", "0 0 0\n0.1 zero 0\n");
   prepared = prepare_job(options);
   try {
     upload_inputs(*connection_, prepared.spec, prepared.uploads, progress);

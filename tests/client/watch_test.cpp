@@ -1,15 +1,10 @@
 // JobWatcher against a scripted fake Surfacer service on a loopback port: reconnect after UNAVAILABLE from the
 // smallest missing frame with duplicates skipped, integrity errors, missing frames, server errors.
-#include "core/util/crc32.h"
 #include "client/watch.h"
 
-#include <grpcpp/security/server_credentials.h>
-#include <grpcpp/server.h>
-#include <grpcpp/server_builder.h>
 #include <gtest/gtest.h>
 
 #include <filesystem>
-#include <fstream>
 #include <functional>
 #include <mutex>
 #include <sstream>
@@ -17,12 +12,17 @@
 #include "client/connection.h"
 #include "client/frame_writer.h"
 #include "client/progress.h"
+#include "core/util/crc32.h"
 #include "surfacer/v1/surfacer.grpc.pb.h"
+#include "tests/support/files.h"
+#include "tests/support/loopback_grpc.h"
 
 namespace surfacer::client {
 namespace {
 
 namespace fs = std::filesystem;
+using surfacer::testing::LoopbackGrpcServer;
+using surfacer::testing::read_file;
 using Writer = grpc::ServerWriter<v1::JobEvent>;
 using Script = std::function<grpc::Status(int call, const v1::WatchJobRequest&, Writer*)>;
 
@@ -88,14 +88,10 @@ class WatchTest : public ::testing::Test {
  protected:
   void start(Script script) {
     service_ = std::make_unique<FakeSurfacer>(std::move(script));
-    grpc::ServerBuilder builder;
-    int port = 0;
-    builder.AddListeningPort("127.0.0.1:0", grpc::InsecureServerCredentials(), &port);
-    builder.RegisterService(service_.get());
-    server_ = builder.BuildAndStart();
-    ASSERT_TRUE(server_);
+    server_ = std::make_unique<LoopbackGrpcServer>(std::vector<grpc::Service*>{service_.get()});
+    ASSERT_TRUE(server_->started());
     ConnectOptions options;
-    options.server = "127.0.0.1:" + std::to_string(port);
+    options.server = server_->address();
     options.timeout_seconds = 5;
     connection_ = Connection::open(options);
     dir_ = fs::temp_directory_path() / ("surfacer_watch_test_" + std::to_string(::getpid()));
@@ -103,7 +99,7 @@ class WatchTest : public ::testing::Test {
   }
   void TearDown() override {
     connection_.reset();
-    if (server_) server_->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(1));
+    server_.reset();
     fs::remove_all(dir_);
   }
   WatchResult watch(int from_frame = 0, ReconnectPolicy policy = fast_policy()) {
@@ -127,7 +123,7 @@ class WatchTest : public ::testing::Test {
   }
 
   std::unique_ptr<FakeSurfacer> service_;
-  std::unique_ptr<grpc::Server> server_;
+  std::unique_ptr<LoopbackGrpcServer> server_;
   std::unique_ptr<Connection> connection_;
   fs::path dir_;
   std::ostringstream log_;
@@ -154,9 +150,7 @@ TEST_F(WatchTest, ReconnectsFromSmallestMissingFrameAndSkipsDuplicates) {
   EXPECT_EQ(result.triangles, 100 + 101 + 102);
   EXPECT_EQ(service_->from_frames(), (std::vector<int>{0, 1}));
   for (int i = 0; i < 3; ++i) {
-    std::ifstream in(dir_ / frame_file_name(i, FileFormat::kDrc), std::ios::binary);
-    std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-    EXPECT_EQ(bytes, frame_bytes(i));
+    EXPECT_EQ(read_file(dir_ / frame_file_name(i, FileFormat::kDrc)), frame_bytes(i));
   }
   EXPECT_NE(log_.str().find("reconnecting from frame 1"), std::string::npos) << log_.str();
 }

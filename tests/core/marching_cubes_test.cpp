@@ -9,20 +9,27 @@
 #include <random>
 #include <thread>
 
-#include "core/util/errors.h"
 #include "core/mesh/mesh_checks.h"
+#include "core/util/errors.h"
+#include "tests/support/error_expectations.h"
+#include "tests/support/mesh_expectations.h"
 #include "tests/support/test_meshes.h"
 
 namespace surfacer {
 namespace {
 
 using testing::BoxField;
+using testing::kClosedManifold;
+using testing::kNoDegenerateTriangles;
+using testing::kOpenManifold;
+using testing::kPositiveVolume;
+using testing::mesh_has;
+using testing::normals_point_away_from;
 using testing::PlaneField;
 using testing::SphereField;
+using testing::throws_invalid_input;
 using testing::TorusField;
 using testing::TwoSpheresField;
-
-constexpr double kPi = 3.14159265358979323846;
 
 MarchingCubesOptions cube_options(double half, int cells, int threads = 1) {
   MarchingCubesOptions o;
@@ -30,15 +37,6 @@ MarchingCubesOptions cube_options(double half, int cells, int threads = 1) {
   o.cells = {cells, cells, cells};
   o.threads = threads;
   return o;
-}
-
-void expect_closed_manifold(const MeshReport& r) {
-  EXPECT_TRUE(r.closed);
-  EXPECT_TRUE(r.edge_manifold);
-  EXPECT_TRUE(r.vertex_manifold);
-  EXPECT_TRUE(r.oriented);
-  EXPECT_EQ(r.boundary_edges, 0);
-  EXPECT_EQ(r.non_manifold_edges, 0);
 }
 
 // Samples of a field on the grid of `options` (x fastest).
@@ -65,12 +63,10 @@ TEST(MarchingCubes, SphereIsClosedManifoldAndAccurate) {
   const double h = 2.0 / 40;
   const Mesh mesh = marching_cubes(sphere, o);
   const MeshReport rep = check_mesh(mesh);
-  expect_closed_manifold(rep);
+  EXPECT_TRUE(mesh_has(rep, kClosedManifold | kNoDegenerateTriangles | kPositiveVolume));
   EXPECT_EQ(rep.euler_characteristic, 2);
   EXPECT_EQ(rep.components, 1);
-  EXPECT_EQ(rep.degenerate_triangles, 0);
-  const double exact = 4.0 / 3.0 * kPi * r * r * r;
-  EXPECT_GT(rep.volume, 0.0);
+  const double exact = testing::sphere_volume(r);
   EXPECT_NEAR(rep.volume, exact, 0.01 * exact);
   // Linear interpolation of an exact SDF along a grid edge misplaces the root by about max|f''| h^2 / 8 with
   // |f''| <= 1 / r near the surface (measured: 0.0078 h here); allow twice that.
@@ -90,10 +86,10 @@ TEST(MarchingCubes, TorusHasEulerZero) {
   TorusField torus(c, 0.6, 0.25);
   const Mesh mesh = marching_cubes(torus, cube_options(1.0, 48, 2));
   const MeshReport rep = check_mesh(mesh);
-  expect_closed_manifold(rep);
+  EXPECT_TRUE(mesh_has(rep, kClosedManifold));
   EXPECT_EQ(rep.euler_characteristic, 0);
   EXPECT_EQ(rep.components, 1);
-  const double exact = 2.0 * kPi * kPi * 0.6 * 0.25 * 0.25;
+  const double exact = testing::torus_volume(0.6, 0.25);
   EXPECT_NEAR(rep.volume, exact, 0.02 * exact);
   const double h = 2.0 / 48;
   EXPECT_LT(testing::max_distance_to_torus(mesh, c, 0.6, 0.25), h * h / (4.0 * 0.25));  // as for the sphere
@@ -103,10 +99,10 @@ TEST(MarchingCubes, TwoSpheresGiveTwoComponents) {
   TwoSpheresField f(Vec3(-0.5, 0, 0), 0.35, Vec3(0.5, 0.05, 0), 0.3);
   const Mesh mesh = marching_cubes(f, cube_options(1.0, 36, 2));
   const MeshReport rep = check_mesh(mesh);
-  expect_closed_manifold(rep);
+  EXPECT_TRUE(mesh_has(rep, kClosedManifold));
   EXPECT_EQ(rep.components, 2);
   EXPECT_EQ(rep.euler_characteristic, 4);
-  const double exact = 4.0 / 3.0 * kPi * (0.35 * 0.35 * 0.35 + 0.3 * 0.3 * 0.3);
+  const double exact = testing::sphere_volume(0.35) + testing::sphere_volume(0.3);
   EXPECT_NEAR(rep.volume, exact, 0.02 * exact);
 }
 
@@ -115,8 +111,7 @@ TEST(MarchingCubes, GridAlignedBoxWithExactZerosHasNoDegenerateTriangles) {
   BoxField box(Vec3::Zero(), Vec3(0.5, 0.5, 0.5));
   const Mesh mesh = marching_cubes(box, cube_options(1.0, 16));
   const MeshReport rep = check_mesh(mesh);
-  expect_closed_manifold(rep);
-  EXPECT_EQ(rep.degenerate_triangles, 0);
+  EXPECT_TRUE(mesh_has(rep, kClosedManifold | kNoDegenerateTriangles));
   EXPECT_EQ(rep.euler_characteristic, 2);
   // Every vertex sits on the box surface (at a zero sample).
   for (const Vec3& p : mesh.vertices) EXPECT_NEAR(p.cwiseAbs().maxCoeff(), 0.5, 1e-12);
@@ -127,11 +122,7 @@ TEST(MarchingCubes, PlaneThroughGridPointsIsOpenButManifold) {
   PlaneField plane(Vec3(0, 0, 1), 0.25);  // z = 0.25 is a grid plane for 8 cells on [-1, 1]
   const Mesh mesh = marching_cubes(plane, cube_options(1.0, 8));
   const MeshReport rep = check_mesh(mesh);
-  EXPECT_FALSE(rep.closed);
-  EXPECT_TRUE(rep.edge_manifold);
-  EXPECT_TRUE(rep.vertex_manifold);
-  EXPECT_TRUE(rep.oriented);
-  EXPECT_EQ(rep.degenerate_triangles, 0);
+  EXPECT_TRUE(mesh_has(rep, kOpenManifold | kNoDegenerateTriangles));
   EXPECT_EQ(rep.components, 1);
   EXPECT_EQ(rep.euler_characteristic, 1);  // a disk
   EXPECT_NEAR(rep.area, 4.0, 1e-9);
@@ -146,11 +137,7 @@ TEST(MarchingCubes, SurfaceLeavingBoundsIsOpenButManifold) {
   SphereField sphere(Vec3(0.7, 0.1, -0.2), 0.6);
   const Mesh mesh = marching_cubes(sphere, cube_options(1.0, 30, 2));
   const MeshReport rep = check_mesh(mesh);
-  EXPECT_FALSE(rep.closed);
-  EXPECT_GT(rep.boundary_edges, 0);
-  EXPECT_TRUE(rep.edge_manifold);
-  EXPECT_TRUE(rep.vertex_manifold);
-  EXPECT_TRUE(rep.oriented);
+  EXPECT_TRUE(mesh_has(rep, kOpenManifold));
   EXPECT_EQ(rep.euler_characteristic, 1);
   for (const Vec3& p : mesh.vertices) EXPECT_LE(p.x(), 1.0);
 }
@@ -179,7 +166,7 @@ TEST(MarchingCubes, DeterministicAcrossThreadCounts) {
   EXPECT_EQ(two_s.vertices, one_s.vertices);
   EXPECT_EQ(two_s.normals, one_s.normals);
   EXPECT_EQ(two_s.triangles, one_s.triangles);
-  expect_closed_manifold(check_mesh(two_s));
+  EXPECT_TRUE(mesh_has(check_mesh(two_s), kClosedManifold));
 }
 
 TEST(MarchingCubes, FieldNormalsAreUnitAndOutward) {
@@ -188,11 +175,7 @@ TEST(MarchingCubes, FieldNormalsAreUnitAndOutward) {
   MarchingCubesOptions o = cube_options(1.0, 24, 2);
   o.normals = true;
   const Mesh mesh = marching_cubes(sphere, o);
-  ASSERT_EQ(mesh.normals.size(), mesh.vertices.size());
-  for (std::size_t v = 0; v < mesh.vertices.size(); ++v) {
-    EXPECT_NEAR(mesh.normals[v].norm(), 1.0, 1e-12);
-    EXPECT_GT(mesh.normals[v].dot((mesh.vertices[v] - c).normalized()), 0.9999);
-  }
+  EXPECT_TRUE(normals_point_away_from(mesh, c, 1e-12, 0.9999));
 }
 
 TEST(MarchingCubes, SampleNormalsFromCentralDifferences) {
@@ -202,16 +185,10 @@ TEST(MarchingCubes, SampleNormalsFromCentralDifferences) {
   o.normals = true;
   const std::vector<float> s = sample(sphere, o);
   const Mesh mesh = marching_cubes_samples(s, o);
-  ASSERT_EQ(mesh.normals.size(), mesh.vertices.size());
   const MeshReport rep = check_mesh(mesh);
-  expect_closed_manifold(rep);
+  EXPECT_TRUE(mesh_has(rep, kClosedManifold));
   EXPECT_EQ(rep.euler_characteristic, 2);
-  double worst = 1.0;
-  for (std::size_t v = 0; v < mesh.vertices.size(); ++v) {
-    EXPECT_NEAR(mesh.normals[v].norm(), 1.0, 1e-9);
-    worst = std::min(worst, mesh.normals[v].dot((mesh.vertices[v] - c).normalized()));
-  }
-  EXPECT_GT(worst, 0.99);
+  EXPECT_TRUE(normals_point_away_from(mesh, c, 1e-9, 0.99));
 }
 
 // Random inside/outside patterns exercise every cube case, ambiguous faces included; padding with outside samples
@@ -238,8 +215,7 @@ TEST(MarchingCubes, RandomSignsGiveClosedOrientedManifolds) {
     const Mesh mesh = marching_cubes_samples(s, o);
     const MeshReport rep = check_mesh(mesh);
     SCOPED_TRACE(trial);
-    expect_closed_manifold(rep);
-    EXPECT_GT(rep.volume, 0.0);
+    EXPECT_TRUE(mesh_has(rep, kClosedManifold | kPositiveVolume));
     EXPECT_EQ(rep.euler_characteristic % 2, 0);
   }
 }
@@ -269,9 +245,11 @@ TEST(MarchingCubes, ExhaustiveSmallConfigurations) {
         s[(static_cast<std::size_t>(k) * (o.cells[1] + 1) + j) * (o.cells[0] + 1) + i] =
             (pattern >> p) & 1 ? -magnitude : magnitude;
       }
-      const MeshReport rep = check_mesh(marching_cubes_samples(s, o));
-      if (!rep.closed || !rep.edge_manifold || !rep.vertex_manifold || !rep.oriented || !(rep.volume > 0.0)) {
-        ADD_FAILURE() << "shape " << shape.nx << shape.ny << shape.nz << " pattern " << pattern;
+      const ::testing::AssertionResult good =
+          mesh_has(check_mesh(marching_cubes_samples(s, o)), kClosedManifold | kPositiveVolume);
+      if (!good) {
+        ADD_FAILURE() << "shape " << shape.nx << shape.ny << shape.nz << " pattern " << pattern << ": "
+                      << good.message();
         ++failures;
       }
     }
@@ -340,33 +318,23 @@ TEST(MarchingCubes, CancelTakesEffectQuickly) {
   EXPECT_LT(std::chrono::duration<double>(end - start).count(), 0.5);
 }
 
-void expect_invalid(const std::function<void()>& call, const std::string& field) {
-  try {
-    call();
-    ADD_FAILURE() << "expected InvalidInput for " << field;
-  } catch (const Error& e) {
-    EXPECT_EQ(e.kind(), ErrorKind::kInvalidInput);
-    EXPECT_EQ(e.field(), field) << e.what();
-  }
-}
-
 TEST(MarchingCubes, InvalidOptions) {
   SphereField sphere(Vec3::Zero(), 0.5);
   MarchingCubesOptions o = cube_options(1.0, 8);
   o.bounds.max.y() = o.bounds.min.y();
-  expect_invalid([&] { marching_cubes(sphere, o); }, "bounds");
+  EXPECT_TRUE(throws_invalid_input([&] { marching_cubes(sphere, o); }, "bounds"));
   o = cube_options(1.0, 8);
   o.bounds.max.x() = std::nan("");
-  expect_invalid([&] { marching_cubes(sphere, o); }, "bounds");
+  EXPECT_TRUE(throws_invalid_input([&] { marching_cubes(sphere, o); }, "bounds"));
   o = cube_options(1.0, 8);
   o.cells[2] = 0;
-  expect_invalid([&] { marching_cubes(sphere, o); }, "cells");
+  EXPECT_TRUE(throws_invalid_input([&] { marching_cubes(sphere, o); }, "cells"));
   o = cube_options(1.0, 8);
   o.threads = -1;
-  expect_invalid([&] { marching_cubes(sphere, o); }, "threads");
+  EXPECT_TRUE(throws_invalid_input([&] { marching_cubes(sphere, o); }, "threads"));
   o = cube_options(1.0, 8);
   std::vector<float> s(9 * 9 * 8, 1.0f);
-  expect_invalid([&] { marching_cubes_samples(s, o); }, "samples");
+  EXPECT_TRUE(throws_invalid_input([&] { marching_cubes_samples(s, o); }, "samples"));
 }
 
 TEST(MarchingCubes, SingleCellGrid) {

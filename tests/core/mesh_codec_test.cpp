@@ -4,22 +4,15 @@
 
 #include <random>
 
-#include "core/util/errors.h"
-#include "core/polygonize/marching_cubes.h"
 #include "core/mesh/mesh_checks.h"
+#include "core/polygonize/marching_cubes.h"
+#include "core/util/errors.h"
+#include "tests/support/error_expectations.h"
+#include "tests/support/mesh_expectations.h"
 #include "tests/support/test_meshes.h"
 
 namespace surfacer {
 namespace {
-
-Aabb bbox(const Mesh& m) {
-  Aabb b{m.vertices[0], m.vertices[0]};
-  for (const Vec3& p : m.vertices) {
-    b.min = b.min.cwiseMin(p);
-    b.max = b.max.cwiseMax(p);
-  }
-  return b;
-}
 
 // Draco may reorder and deduplicate vertices: compare geometry and topology, never indices.
 void expect_same_shape(const Mesh& original, const Mesh& decoded, double tolerance) {
@@ -52,7 +45,7 @@ TEST(MeshCodec, RoundTripWithinQuantizationError) {
     const std::string bytes = encode_draco(m, options);
     const Mesh d = decode_draco(bytes);
     SCOPED_TRACE(bits);
-    expect_same_shape(m, d, draco_max_error(bbox(m), bits));
+    expect_same_shape(m, d, draco_max_error(Aabb::of(m.vertices), bits));
     EXPECT_TRUE(d.normals.empty());
   }
 }
@@ -67,7 +60,7 @@ TEST(MeshCodec, MarchingCubesMeshKeepsTopologyAtEverySpeed) {
     SCOPED_TRACE(speed);
     expect_same_shape(m, d, draco_max_error(*options.quantization_bounds, options.quantization_bits));
     const MeshReport r = check_mesh(d);
-    EXPECT_TRUE(r.closed && r.edge_manifold && r.vertex_manifold && r.oriented);
+    EXPECT_TRUE(testing::mesh_has(r, testing::kClosedManifold));
     EXPECT_EQ(r.euler_characteristic, 2);
   }
 }
@@ -192,19 +185,14 @@ TEST(MeshCodec, DegenerateBoundingBox) {
   for (const Vec3& p : d.vertices) EXPECT_NEAR((p - Vec3(1, 2, 3)).norm(), 0.0, 1e-5);
   // Flat mesh: one axis has zero extent.
   const Mesh square = testing::open_square();
-  expect_same_shape(square, decode_draco(encode_draco(square, DracoOptions{})), draco_max_error(bbox(square), 14));
+  expect_same_shape(square, decode_draco(encode_draco(square, DracoOptions{})),
+                    draco_max_error(Aabb::of(square.vertices), 14));
 }
 
 TEST(MeshCodec, InvalidOptions) {
   const Mesh m = testing::unit_cube();
   auto expect_field = [&](DracoOptions o, const std::string& field) {
-    try {
-      encode_draco(m, o);
-      ADD_FAILURE() << field;
-    } catch (const Error& e) {
-      EXPECT_EQ(e.kind(), ErrorKind::kInvalidInput);
-      EXPECT_EQ(e.field(), field);
-    }
+    EXPECT_TRUE(testing::throws_invalid_input([&] { encode_draco(m, o); }, field));
   };
   DracoOptions o;
   o.quantization_bits = 0;

@@ -1,17 +1,16 @@
 #include "core/mesh/mesh_io.h"
 
 #include <gtest/gtest.h>
-#include <unistd.h>
 
 #include <bit>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <random>
 
-#include "core/util/errors.h"
 #include "core/mesh/mesh_checks.h"
 #include "core/mesh/mesh_codec.h"
+#include "core/util/errors.h"
+#include "tests/support/files.h"
 #include "tests/support/test_meshes.h"
 
 namespace surfacer {
@@ -270,9 +269,7 @@ TEST(MeshIo, RandomBytesNeverCrash) {
 }
 
 TEST(MeshIo, FilesByExtension) {
-  const std::filesystem::path dir =
-      std::filesystem::temp_directory_path() / ("surfacer_mesh_io_" + std::to_string(::getpid()));
-  std::filesystem::create_directories(dir);
+  const std::filesystem::path dir = testing::fresh_temp_dir("mesh_io");
   const Mesh m = testing::icosphere(2);
   for (const char* name : {"a.ply", "a.obj", "a.drc", "A.PLY"}) {
     const std::filesystem::path path = dir / name;
@@ -290,7 +287,7 @@ TEST(MeshIo, FilesByExtension) {
   }
   EXPECT_THROW(write_mesh(dir / "a.stl", m), Error);
   EXPECT_THROW(mesh_format_from_path("noext"), Error);
-  { std::ofstream(dir / "bad.drc") << "garbage"; }
+  testing::write_file(dir / "bad.drc", "garbage");
   try {
     read_mesh(dir / "bad.drc");
     FAIL();

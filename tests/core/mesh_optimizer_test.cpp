@@ -14,15 +14,22 @@
 #include <set>
 #include <thread>
 
-#include "core/util/errors.h"
-#include "core/polygonize/marching_cubes.h"
 #include "core/mesh/mesh_checks.h"
 #include "core/optimize/refine.h"
+#include "core/polygonize/marching_cubes.h"
 #include "core/scene/scene.h"
+#include "core/util/errors.h"
+#include "tests/support/error_expectations.h"
+#include "tests/support/mesh_expectations.h"
 #include "tests/support/test_meshes.h"
 
 namespace surfacer {
 namespace {
+
+using testing::kClosedManifold;
+using testing::kOpenManifold;
+using testing::mesh_has;
+using testing::throws_invalid_input;
 
 constexpr double kPi = 3.14159265358979323846;
 
@@ -283,15 +290,8 @@ int triangles_against_field(const Mesh& mesh, const Field& field) {
   return count;
 }
 
-::testing::AssertionResult watertight(const Mesh& mesh) {
-  const MeshReport r = check_mesh(mesh);
-  if (r.closed && r.edge_manifold && r.vertex_manifold && r.oriented && r.non_manifold_edges == 0) {
-    return ::testing::AssertionSuccess();
-  }
-  return ::testing::AssertionFailure() << "closed " << r.closed << " edge_manifold " << r.edge_manifold
-                                       << " vertex_manifold " << r.vertex_manifold << " oriented " << r.oriented
-                                       << " boundary_edges " << r.boundary_edges;
-}
+// Closed, edge- and vertex-manifold, oriented.
+::testing::AssertionResult watertight(const Mesh& mesh) { return mesh_has(check_mesh(mesh), kClosedManifold); }
 
 struct OptimizedRun {
   Mesh mesh;
@@ -310,7 +310,9 @@ OptimizedRun run(const Reference& ref, const MeshOptimizerOptions& o) {
   return out;
 }
 
-// The acceptance figures against the start mesh.
+// The acceptance figures of a run, against the start mesh: E_d falls 100-fold and E_n 10-fold, every vertex lies
+// within 0.25% of the true solid's bounding-box diagonal from its surface, and the snapshots and the result are
+// watertight with no triangle facing against the field.
 void expect_converged(const Reference& ref, const OptimizedRun& r, const MeshOptimizer& start_figures) {
   const OptimizerIterationStats& s0 = start_figures.stats();
   const OptimizerIterationStats& s1 = r.snapshots.back();
@@ -713,16 +715,6 @@ TEST(MeshOptimizer, CancelMidRunReturnsPromptlyKeepingTheLastSnapshot) {
   EXPECT_EQ(triangles_against_field(last, *ref.field), 0);
 }
 
-void expect_invalid(const std::function<void()>& call, const std::string& field) {
-  try {
-    call();
-    ADD_FAILURE() << "expected InvalidInput for " << field;
-  } catch (const Error& e) {
-    EXPECT_EQ(e.kind(), ErrorKind::kInvalidInput);
-    EXPECT_EQ(e.field(), field) << e.what();
-  }
-}
-
 TEST(MeshOptimizer, InvalidOptionsAndStartMeshes) {
   const testing::SphereField sphere(Vec3::Zero(), 1.0);
   const Mesh good = testing::icosphere(1);
@@ -731,31 +723,31 @@ TEST(MeshOptimizer, InvalidOptionsAndStartMeshes) {
     change(o);
     return [o, &sphere, &good] { MeshOptimizer(sphere, good, o); };
   };
-  expect_invalid(with([](auto& o) { o.c_d = 0.0; }), "c_d");
-  expect_invalid(with([](auto& o) { o.c_n = 1.5; }), "c_n");
-  expect_invalid(with([](auto& o) { o.c_t = -0.1; }), "c_t");
-  expect_invalid(with([](auto& o) { o.step_bound = std::nan(""); }), "step_bound");
-  expect_invalid(with([](auto& o) { o.max_iterations = -1; }), "max_iterations");
-  expect_invalid(with([](auto& o) { o.t_flow_iterations = -2; }), "t_flow_iterations");
-  expect_invalid(with([](auto& o) { o.tolerance = 0.0; }), "tolerance");
-  expect_invalid(with([](auto& o) { o.subdivision_threshold = -1.0; }), "subdivision_threshold");
-  expect_invalid(with([](auto& o) { o.subdivision_interval = 0; }), "subdivision_interval");
-  expect_invalid(with([](auto& o) { o.triangle_budget = 0; }), "triangle_budget");
-  expect_invalid(with([](auto& o) { o.snapshot_every = -1; }), "snapshot_every");
-  expect_invalid(with([](auto& o) { o.threads = -1; }), "threads");
-  expect_invalid(with([](auto& o) { o.d_flow = o.n_flow = o.t_flow = false; }), "d_flow");
+  EXPECT_TRUE(throws_invalid_input(with([](auto& o) { o.c_d = 0.0; }), "c_d"));
+  EXPECT_TRUE(throws_invalid_input(with([](auto& o) { o.c_n = 1.5; }), "c_n"));
+  EXPECT_TRUE(throws_invalid_input(with([](auto& o) { o.c_t = -0.1; }), "c_t"));
+  EXPECT_TRUE(throws_invalid_input(with([](auto& o) { o.step_bound = std::nan(""); }), "step_bound"));
+  EXPECT_TRUE(throws_invalid_input(with([](auto& o) { o.max_iterations = -1; }), "max_iterations"));
+  EXPECT_TRUE(throws_invalid_input(with([](auto& o) { o.t_flow_iterations = -2; }), "t_flow_iterations"));
+  EXPECT_TRUE(throws_invalid_input(with([](auto& o) { o.tolerance = 0.0; }), "tolerance"));
+  EXPECT_TRUE(throws_invalid_input(with([](auto& o) { o.subdivision_threshold = -1.0; }), "subdivision_threshold"));
+  EXPECT_TRUE(throws_invalid_input(with([](auto& o) { o.subdivision_interval = 0; }), "subdivision_interval"));
+  EXPECT_TRUE(throws_invalid_input(with([](auto& o) { o.triangle_budget = 0; }), "triangle_budget"));
+  EXPECT_TRUE(throws_invalid_input(with([](auto& o) { o.snapshot_every = -1; }), "snapshot_every"));
+  EXPECT_TRUE(throws_invalid_input(with([](auto& o) { o.threads = -1; }), "threads"));
+  EXPECT_TRUE(throws_invalid_input(with([](auto& o) { o.d_flow = o.n_flow = o.t_flow = false; }), "d_flow"));
 
   Mesh empty;
-  expect_invalid([&] { MeshOptimizer(sphere, empty, {}); }, "start");
+  EXPECT_TRUE(throws_invalid_input([&] { MeshOptimizer(sphere, empty, {}); }, "start"));
   Mesh bad_index = good;
   bad_index.triangles[3][1] = static_cast<std::uint32_t>(good.vertices.size());
-  expect_invalid([&] { MeshOptimizer(sphere, bad_index, {}); }, "start");
+  EXPECT_TRUE(throws_invalid_input([&] { MeshOptimizer(sphere, bad_index, {}); }, "start"));
   Mesh repeated = good;
   repeated.triangles[0][1] = repeated.triangles[0][0];
-  expect_invalid([&] { MeshOptimizer(sphere, repeated, {}); }, "start");
+  EXPECT_TRUE(throws_invalid_input([&] { MeshOptimizer(sphere, repeated, {}); }, "start"));
   Mesh not_finite = good;
   not_finite.vertices[2].x() = std::numeric_limits<double>::infinity();
-  expect_invalid([&] { MeshOptimizer(sphere, not_finite, {}); }, "start");
+  EXPECT_TRUE(throws_invalid_input([&] { MeshOptimizer(sphere, not_finite, {}); }, "start"));
 }
 
 // Without connectivity repair and subdivision the paper's flows only move vertices: the triangles stay as they were.
@@ -786,9 +778,7 @@ TEST(MeshOptimizer, OpenStartMeshKeepsItsBoundary) {
   o.max_iterations = 40;
   const Mesh out = optimize_mesh(*box, start, o);
   const MeshReport after = check_mesh(out);
-  EXPECT_TRUE(after.edge_manifold);
-  EXPECT_TRUE(after.vertex_manifold);
-  EXPECT_TRUE(after.oriented);
+  EXPECT_TRUE(mesh_has(after, kOpenManifold));
   EXPECT_EQ(after.boundary_edges, before.boundary_edges);
   EXPECT_EQ(triangles_against_field(out, *box), 0);
 }

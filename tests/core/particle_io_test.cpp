@@ -1,16 +1,15 @@
 #include "core/particles/particle_io.h"
 
 #include <gtest/gtest.h>
-#include <unistd.h>
 #include <zlib.h>
 
 #include <bit>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <random>
 
 #include "core/util/errors.h"
+#include "tests/support/files.h"
 
 namespace surfacer {
 namespace {
@@ -323,14 +322,11 @@ std::string gzip(const std::string& data) {
 
 class TempDir {
  public:
-  TempDir() {
-    path_ = std::filesystem::temp_directory_path() / ("particle_io_test_" + std::to_string(::getpid()));
-    std::filesystem::create_directories(path_);
-  }
+  TempDir() : path_(testing::fresh_temp_dir("particle_io")) {}
   ~TempDir() { std::filesystem::remove_all(path_); }
   std::filesystem::path write(const std::string& name, const std::string& bytes) const {
     const std::filesystem::path p = path_ / name;
-    std::ofstream(p, std::ios::binary) << bytes;
+    testing::write_file(p, bytes);
     return p;
   }
 

@@ -11,15 +11,26 @@
 #include <set>
 #include <string>
 
-#include "core/util/errors.h"
 #include "core/mesh/mesh_checks.h"
 #include "core/particles/smoothing.h"
+#include "core/util/errors.h"
+#include "tests/support/error_expectations.h"
+#include "tests/support/mesh_expectations.h"
 #include "tests/support/test_meshes.h"
 
 namespace surfacer {
 namespace {
 
 namespace ps = particle_smoothing;
+using testing::kClosed;
+using testing::kClosedManifold;
+using testing::kEdgeManifold;
+using testing::kNoDegenerateTriangles;
+using testing::kOriented;
+using testing::kPositiveVolume;
+using testing::mesh_has;
+using testing::nearest_point_distance;
+using testing::normals_point_away_from;
 
 // Particles of a jittered cubic lattice (spacing `spacing`, jitter +-spacing/6 per axis) inside a ball: dense enough
 // that r_outer = 2 * r_inner >= spacing leaves no interior voids, irregular enough to be a fair test.
@@ -44,13 +55,6 @@ std::vector<Vec3> three_blobs() {
   for (const Vec3& q : blob(Vec3(6, 0, 0), 1.0, 0.3, 2)) p.push_back(q);
   for (const Vec3& q : blob(Vec3(0, 7, 1), 1.2, 0.3, 3)) p.push_back(q);
   return p;
-}
-
-// Brute-force distance from x to the nearest particle.
-double nearest_distance(const std::vector<Vec3>& particles, const Vec3& x) {
-  double best = std::numeric_limits<double>::infinity();
-  for (const Vec3& p : particles) best = std::min(best, (p - x).norm());
-  return best;
 }
 
 ParticleSurfacingOptions options(double r_inner) {
@@ -99,7 +103,7 @@ TEST(ParticleSurfacer, EveryVertexFaithfulAfterTheConstrainedSweeps) {
   // Tolerance: 1e-9 relative (projection lands exactly on the sphere up to rounding).
   const double tol = 1e-9 * 0.5;
   for (const Vec3& v : mesh.vertices) {
-    const double d = nearest_distance(particles, v);
+    const double d = nearest_point_distance(particles, v);
     ASSERT_GE(d, 0.25 - tol);
     ASSERT_LE(d, 0.5 + tol);
   }
@@ -114,7 +118,7 @@ TEST(ParticleSurfacer, EveryVertexFaithfulAfterTheConstrainedSweeps) {
   std::size_t faithful = 0;
   double worst = 0.0;
   for (const Vec3& v : polished.vertices) {
-    const double d = nearest_distance(particles, v);
+    const double d = nearest_point_distance(particles, v);
     const double violation = std::max({0.25 - d, d - 0.5, 0.0});
     faithful += violation <= tol;
     worst = std::max(worst, violation);
@@ -149,14 +153,9 @@ TEST(ParticleSurfacer, FreeFloatingBlobsGiveClosedOrientedManifolds) {
   ParticleSurfacingStats stats;
   const Mesh mesh = surface_particles(three_blobs(), {}, options(0.25), {}, &stats);
   const MeshReport r = check_mesh(mesh);
-  EXPECT_TRUE(r.closed);
-  EXPECT_TRUE(r.edge_manifold);
-  EXPECT_TRUE(r.vertex_manifold);
-  EXPECT_TRUE(r.oriented);
+  EXPECT_TRUE(mesh_has(r, kClosedManifold | kNoDegenerateTriangles | kPositiveVolume));
   EXPECT_EQ(r.components, 3);
   EXPECT_EQ(r.euler_characteristic, 6);  // three spheres
-  EXPECT_EQ(r.degenerate_triangles, 0);
-  EXPECT_GT(r.volume, 0.0);
   EXPECT_EQ(stats.triangles, mesh.triangles.size());
 }
 
@@ -167,7 +166,7 @@ TEST(ParticleSurfacer, IsolatedParticleGivesASmallClosedSphere) {
   o.polish_sweeps = 0;
   const Mesh mesh = surface_particles(particles, {}, o);
   const MeshReport r = check_mesh(mesh);
-  EXPECT_TRUE(r.closed && r.edge_manifold && r.vertex_manifold && r.oriented);
+  EXPECT_TRUE(mesh_has(r, kClosedManifold));
   EXPECT_EQ(r.components, 1);
   EXPECT_EQ(r.euler_characteristic, 2);
   double lo = 1e9, hi = 0.0;
@@ -180,21 +179,20 @@ TEST(ParticleSurfacer, IsolatedParticleGivesASmallClosedSphere) {
   EXPECT_LT(hi - lo, 0.1);  // round: every vertex within 10% of r_inner of one radius
   // Volume of a sphere of that radius, within the faceting error.
   const double radius = 0.5 * (lo + hi);
-  EXPECT_NEAR(r.volume, 4.0 / 3.0 * M_PI * radius * radius * radius, 0.03 * r.volume);
+  EXPECT_NEAR(r.volume, testing::sphere_volume(radius), 0.03 * r.volume);
 }
 
 TEST(ParticleSurfacer, InitialMarchingTilesMeshHasMinimumValenceFive) {
   ParticleSurfacingStats stats;
   const Mesh initial = initial_particle_surface(three_blobs(), {}, options(0.25), {}, &stats);
   const MeshReport r = check_mesh(initial);
-  EXPECT_GE(r.min_valence, 5);
+  EXPECT_TRUE(mesh_has(r, kClosed | kOriented, 5));
   EXPECT_EQ(stats.initial_min_valence, r.min_valence);
-  EXPECT_TRUE(r.closed && r.oriented);
   EXPECT_EQ(r.components, 3);
   // ... and its vertices lie on the r_outer iso-surface up to the linear interpolation error, at most half a lattice
   // edge where the distance field has a crease between two particles (h = 0.8 r_inner = 0.2).
   const std::vector<Vec3> particles = three_blobs();
-  for (const Vec3& v : initial.vertices) ASSERT_NEAR(nearest_distance(particles, v), 0.5, 0.5 * 0.2);
+  for (const Vec3& v : initial.vertices) ASSERT_NEAR(nearest_point_distance(particles, v), 0.5, 0.5 * 0.2);
   // The full pipeline reports the same initial mesh.
   ParticleSurfacingStats full;
   (void)surface_particles(particles, {}, options(0.25), {}, &full);
@@ -223,8 +221,7 @@ TEST(ParticleSurfacer, ContainerBoxKeepsEveryVertexInside) {
     on_floor += v.z() == 0.0;
   }
   EXPECT_GT(on_floor, 50);  // the fluid lies flat on the floor
-  const MeshReport r = check_mesh(mesh);
-  EXPECT_TRUE(r.closed && r.edge_manifold && r.oriented);
+  EXPECT_TRUE(mesh_has(check_mesh(mesh), kClosed | kEdgeManifold | kOriented));
 }
 
 TEST(ParticleSurfacer, ContainerSolidSnapsVerticesInside) {
@@ -448,11 +445,7 @@ TEST(ParticleSurfacer, NormalsOnRequest) {
   o.normals = true;
   const Vec3 c(0, 0, 0);
   const Mesh mesh = surface_particles(std::vector<Vec3>{c}, {}, o);
-  ASSERT_EQ(mesh.normals.size(), mesh.vertices.size());
-  for (std::size_t i = 0; i < mesh.vertices.size(); ++i) {
-    EXPECT_NEAR(mesh.normals[i].norm(), 1.0, 1e-12);
-    EXPECT_GT(mesh.normals[i].dot((mesh.vertices[i] - c).normalized()), 0.99);  // outward
-  }
+  EXPECT_TRUE(normals_point_away_from(mesh, c, 1e-12, 0.99));  // unit and outward
 }
 
 TEST(ParticleSurfacer, StatefulSurfacerMatchesOneShotAcrossFrames) {
@@ -475,14 +468,9 @@ TEST(ParticleSurfacer, EmptyInputGivesEmptyMesh) {
 
 void expect_invalid(const ParticleSurfacingOptions& o, const std::string& field, std::span<const Vec3> particles = {},
                     std::span<const double> radii = {}) {
-  try {
-    const std::vector<Vec3> one{Vec3::Zero(), Vec3::Ones()};
-    (void)surface_particles(particles.empty() ? std::span<const Vec3>(one) : particles, radii, o);
-    ADD_FAILURE() << "no error for " << field;
-  } catch (const Error& e) {
-    EXPECT_EQ(e.kind(), ErrorKind::kInvalidInput) << e.what();
-    EXPECT_EQ(e.field(), field) << e.what();
-  }
+  const std::vector<Vec3> two{Vec3::Zero(), Vec3::Ones()};
+  EXPECT_TRUE(testing::throws_invalid_input(
+      [&] { (void)surface_particles(particles.empty() ? std::span<const Vec3>(two) : particles, radii, o); }, field));
 }
 
 TEST(ParticleSurfacer, RejectsBadOptionsAndInputsWithTheFieldName) {

@@ -2,22 +2,18 @@
 // emits frames k.. exactly as the uninterrupted run and nothing before k; a killed server (SIGKILL) resumes an active
 // job from its last checkpoint and finishes with every frame.
 #include <gtest/gtest.h>
-#include <fcntl.h>
-#include <signal.h>
-#include <sys/wait.h>
-#include <unistd.h>
 
 #include <chrono>
 #include <filesystem>
-#include <fstream>
 #include <map>
 #include <mutex>
-#include <sstream>
 #include <thread>
 
 #include "server/runners/runner.h"
 #include "server/uploads.h"
 #include "tests/server/test_client.h"
+#include "tests/support/files.h"
+#include "tests/support/server_process.h"
 
 namespace surfacer::testing {
 namespace {
@@ -132,28 +128,17 @@ TEST(Checkpoint, ActiveAdvectResumesAfterAFrameWithTheSameFrames) {
 
 // --- The real server, killed -------------------------------------------------------------------------------------
 
-int frames_done(v1::Surfacer::Stub& stub, const std::string& id) {
-  grpc::ClientContext ctx;
-  v1::GetJobRequest req;
-  req.set_job_id(id);
-  v1::Job job;
-  stub.GetJob(&ctx, req, &job);
-  return job.frames_done();
-}
-
 TEST(Checkpoint, KilledServerResumesAnActiveJobFromItsLastCheckpoint) {
-  const fs::path dir = fs::temp_directory_path() / ("surfacer-checkpoint-" + std::to_string(getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
+  const fs::path dir = fresh_temp_dir("checkpoint");
   const fs::path data = dir / "data";
   const int frames = 10;  // + the initial one
   const v1::JobSpec spec = advect_spec(1.0 / 48.0, frames, 0.15);
   std::string id;
   int done_before_kill = 0;
   {
-    ServerProcess p(dir, {"--data-dir", data.string()});
-    ASSERT_GT(p.port, 0) << slurp(p.log);
-    auto stub = p.stub();
+    ServerProcess p(dir, 1, {"--data-dir", data.string()});
+    ASSERT_GT(p.port(), 0) << p.log();
+    auto stub = make_stub(p.address());
     ASSERT_TRUE(submit(*stub, spec, &id).ok());
     // Kill between two frames, half a frame after frame 2 finished: not while the runner writes the checkpoint
     // that follows a frame (the store replaces the checkpoint file before its row, so a kill in between leaves a
@@ -161,7 +146,7 @@ TEST(Checkpoint, KilledServerResumesAnActiveJobFromItsLastCheckpoint) {
     auto wait_for = [&](int n) {
       const auto until = std::chrono::steady_clock::now() + 60s;
       while (std::chrono::steady_clock::now() < until) {
-        done_before_kill = frames_done(*stub, id);
+        done_before_kill = get_job(*stub, id).frames_done();
         if (done_before_kill >= n) break;
         std::this_thread::sleep_for(5ms);
       }
@@ -170,16 +155,16 @@ TEST(Checkpoint, KilledServerResumesAnActiveJobFromItsLastCheckpoint) {
     const auto t2 = wait_for(2);
     const auto t3 = wait_for(3);
     std::this_thread::sleep_for((t3 - t2) / 2);
-    done_before_kill = frames_done(*stub, id);
-    p.kill9();
-    ASSERT_GE(done_before_kill, 3) << slurp(p.log);
+    done_before_kill = get_job(*stub, id).frames_done();
+    p.kill_now();
+    ASSERT_GE(done_before_kill, 3) << p.log();
     ASSERT_LT(done_before_kill, frames + 1) << "the job finished before the kill: make frames slower";
   }
-  ServerProcess p(dir, {"--data-dir", data.string()});
-  ASSERT_GT(p.port, 0) << slurp(p.log);
-  auto stub = p.stub();
+  ServerProcess p(dir, 1, {"--data-dir", data.string()});
+  ASSERT_GT(p.port(), 0) << p.log();
+  auto stub = make_stub(p.address());
   const auto r = watch_job(*stub, id, 0);
-  const std::string log = slurp(p.log);
+  const std::string log = p.log();
   EXPECT_EQ(r.final_job.state(), v1::JOB_STATE_SUCCEEDED) << r.final_job.error().message() << log;
   EXPECT_TRUE(r.integrity_error.empty()) << r.integrity_error;
   ASSERT_EQ(static_cast<int>(r.frames.size()), frames + 1);

@@ -2,34 +2,23 @@
 // frame, a re-attaching watcher gets every frame from k on, retention deletes by age and bytes, and a write the disk
 // refuses fails the job clearly without damaging the store.
 #include <gtest/gtest.h>
-#include <signal.h>
-#include <fcntl.h>
-#include <sys/resource.h>
-#include <sys/wait.h>
 #include <unistd.h>
 
 #include <chrono>
 #include <filesystem>
-#include <fstream>
-#include <sstream>
 #include <thread>
 
 #include "server/store.h"
 #include "server/uploads.h"
 #include "tests/server/test_client.h"
+#include "tests/support/files.h"
+#include "tests/support/server_process.h"
 
 namespace surfacer::testing {
 namespace {
 
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
-
-fs::path fresh_dir(const std::string& name) {
-  const fs::path dir = fs::temp_directory_path() / ("surfacer-durable-" + name + "-" + std::to_string(getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
 
 // A sequence of `n` spheres of growing radius.
 v1::JobSpec sphere_sequence(int n, int cells, v1::MeshEncoding encoding = v1::MESH_ENCODING_DRACO) {
@@ -55,18 +44,8 @@ server::ServerOptions durable_options(const fs::path& dir, int workers = 2) {
   return o;
 }
 
-v1::Job get_job(v1::Surfacer::Stub& stub, const std::string& id, grpc::Status* status = nullptr) {
-  grpc::ClientContext ctx;
-  v1::GetJobRequest req;
-  req.set_job_id(id);
-  v1::Job job;
-  const auto s = stub.GetJob(&ctx, req, &job);
-  if (status) *status = s;
-  return job;
-}
-
 TEST(DurableStore, FinishedJobsSurviveARestartAndReattachFromFrameK) {
-  const fs::path dir = fresh_dir("restart");
+  const fs::path dir = fresh_temp_dir("durable-restart");
   std::string id;
   std::map<int, std::string> first;
   {
@@ -90,15 +69,15 @@ TEST(DurableStore, FinishedJobsSurviveARestartAndReattachFromFrameK) {
 }
 
 TEST(DurableStore, KillNineMidJobResumesFromTheLastFinishedFrame) {
-  const fs::path dir = fresh_dir("kill9");
+  const fs::path dir = fresh_temp_dir("durable-kill9");
   const fs::path data = dir / "data";
   const int frames = 8;
   std::string id;
   int done_before_kill = 0;
   {
-    ServerProcess p(dir, {"--data-dir", data.string()});
-    ASSERT_GT(p.port, 0) << slurp(p.log);
-    auto stub = p.stub();
+    ServerProcess p(dir, 1, {"--data-dir", data.string()});
+    ASSERT_GT(p.port(), 0) << p.log();
+    auto stub = make_stub(p.address());
     ASSERT_TRUE(submit(*stub, sphere_sequence(frames, 150), &id).ok());
     const auto until = std::chrono::steady_clock::now() + 60s;
     while (std::chrono::steady_clock::now() < until) {
@@ -106,20 +85,20 @@ TEST(DurableStore, KillNineMidJobResumesFromTheLastFinishedFrame) {
       if (done_before_kill >= 2) break;
       std::this_thread::sleep_for(10ms);
     }
-    p.kill9();
-    ASSERT_GE(done_before_kill, 2) << slurp(p.log);
+    p.kill_now();
+    ASSERT_GE(done_before_kill, 2) << p.log();
     ASSERT_LT(done_before_kill, frames) << "the job finished before the kill: make frames slower";
   }
-  ServerProcess p(dir, {"--data-dir", data.string()});
-  ASSERT_GT(p.port, 0) << slurp(p.log);
-  auto stub = p.stub();
+  ServerProcess p(dir, 1, {"--data-dir", data.string()});
+  ASSERT_GT(p.port(), 0) << p.log();
+  auto stub = make_stub(p.address());
   const auto r = watch_job(*stub, id, 0);
-  EXPECT_EQ(r.final_job.state(), v1::JOB_STATE_SUCCEEDED) << r.final_job.error().message() << slurp(p.log);
+  EXPECT_EQ(r.final_job.state(), v1::JOB_STATE_SUCCEEDED) << r.final_job.error().message() << p.log();
   EXPECT_TRUE(r.integrity_error.empty()) << r.integrity_error;
   ASSERT_EQ(static_cast<int>(r.frames.size()), frames);
   for (int i = 0; i < frames; ++i) EXPECT_TRUE(r.frames.count(i)) << "frame " << i << " lost";
   // Only the unfinished frames were computed again.
-  const std::string log = slurp(p.log);
+  const std::string log = p.log();
   const auto at = log.find("event=job_resumed");
   ASSERT_NE(at, std::string::npos) << log;
   const auto tasks_at = log.find("tasks=", at);
@@ -132,7 +111,7 @@ TEST(DurableStore, KillNineMidJobResumesFromTheLastFinishedFrame) {
 }
 
 TEST(DurableStore, AServerStoppingPastItsDrainDeadlineLeavesUnfinishedJobsToTheNext) {
-  const fs::path dir = fresh_dir("suspend");
+  const fs::path dir = fresh_temp_dir("durable-suspend");
   const int frames = 8;
   std::string id;
   int done_before = 0;
@@ -154,15 +133,15 @@ TEST(DurableStore, AServerStoppingPastItsDrainDeadlineLeavesUnfinishedJobsToTheN
 }
 
 TEST(DurableStore, AFullDiskFailsTheJobClearlyAndLeavesTheStoreUsable) {
-  const fs::path dir = fresh_dir("full");
+  const fs::path dir = fresh_temp_dir("durable-full");
   const fs::path data = dir / "data";
   std::string ok_id, id;
   {
     // Raw PLY frames of ~1 MB each against a 3 MB file-size limit: the database and the first small job fit,
     // the big frames do not.
-    ServerProcess p(dir, {"--data-dir", data.string()}, 3u << 20);
-    ASSERT_GT(p.port, 0) << slurp(p.log);
-    auto stub = p.stub();
+    ServerProcess p(dir, 1, {"--data-dir", data.string()}, 3u << 20);
+    ASSERT_GT(p.port(), 0) << p.log();
+    auto stub = make_stub(p.address());
     ASSERT_TRUE(submit(*stub, sphere_sequence(1, 24), &ok_id).ok());
     EXPECT_EQ(watch_job(*stub, ok_id).final_job.state(), v1::JOB_STATE_SUCCEEDED);
     ASSERT_TRUE(submit(*stub, sphere_sequence(3, 200, v1::MESH_ENCODING_PLY), &id).ok());
@@ -174,12 +153,12 @@ TEST(DurableStore, AFullDiskFailsTheJobClearlyAndLeavesTheStoreUsable) {
     std::string again;
     ASSERT_TRUE(submit(*stub, sphere_sequence(1, 24), &again).ok());
     EXPECT_EQ(watch_job(*stub, again).final_job.state(), v1::JOB_STATE_SUCCEEDED);
-    p.kill9();
+    p.kill_now();
   }
   // No temporary or orphan file is left, and everything recorded is readable after a restart.
-  ServerProcess p(dir, {"--data-dir", data.string()});
-  ASSERT_GT(p.port, 0) << slurp(p.log);
-  auto stub = p.stub();
+  ServerProcess p(dir, 1, {"--data-dir", data.string()});
+  ASSERT_GT(p.port(), 0) << p.log();
+  auto stub = make_stub(p.address());
   const auto ok = watch_job(*stub, ok_id);
   EXPECT_EQ(ok.final_job.state(), v1::JOB_STATE_SUCCEEDED);
   EXPECT_EQ(ok.frames.size(), 1u);
@@ -193,7 +172,7 @@ TEST(DurableStore, AFullDiskFailsTheJobClearlyAndLeavesTheStoreUsable) {
 }
 
 TEST(DurableStore, RetentionRemovesTheOldestFinishedJobsByBytesThenByAge) {
-  const fs::path dir = fresh_dir("retention");
+  const fs::path dir = fresh_temp_dir("durable-retention");
   auto o = durable_options(dir);
   o.retention_interval = std::chrono::hours(1);  // run by hand below
   std::vector<std::string> ids;
@@ -241,7 +220,7 @@ TEST(DurableStore, RetentionRemovesTheOldestFinishedJobsByBytesThenByAge) {
 }
 
 TEST(DurableStore, OneServerPerDataDirectory) {
-  const fs::path dir = fresh_dir("lock");
+  const fs::path dir = fresh_temp_dir("durable-lock");
   LoopbackServer s(durable_options(dir));
   try {
     server::SurfacerServer::start(durable_options(dir));
@@ -264,7 +243,7 @@ TEST(DurableStore, OnlyServerGeneratedIdsBecomePaths) {
     EXPECT_FALSE(server::Store::valid_id(bad)) << bad;
   }
   // A request naming a path gets NOT_FOUND and touches nothing on disk.
-  const fs::path dir = fresh_dir("paths");
+  const fs::path dir = fresh_temp_dir("durable-paths");
   LoopbackServer s(durable_options(dir));
   grpc::Status status;
   get_job(*s.stub, "../../../../etc/passwd", &status);

@@ -6,6 +6,7 @@
 #include "core/mesh/mesh_checks.h"
 #include "core/mesh/mesh_codec.h"
 #include "tests/server/test_client.h"
+#include "tests/support/mesh_expectations.h"
 
 namespace surfacer::testing {
 namespace {
@@ -27,10 +28,7 @@ TEST(Examples, EverySceneGivesAClosedMesh) {
     ASSERT_EQ(result.frames.size(), 1u) << result.final_job.error().message();
     const auto report = check_mesh(decode_draco(result.frames.at(0).bytes));
     EXPECT_GT(report.area, 0.0);
-    EXPECT_TRUE(report.closed);
-    EXPECT_TRUE(report.edge_manifold);
-    EXPECT_TRUE(report.oriented);
-    EXPECT_GT(report.volume, 0.0);
+    EXPECT_TRUE(mesh_has(report, kClosed | kEdgeManifold | kOriented | kPositiveVolume));
   }
   EXPECT_GE(scenes, 5);
 }

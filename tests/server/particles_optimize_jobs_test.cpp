@@ -7,6 +7,8 @@
 #include "core/mesh/mesh_checks.h"
 #include "core/mesh/mesh_codec.h"
 #include "tests/server/test_client.h"
+#include "tests/support/mesh_expectations.h"
+#include "tests/support/test_meshes.h"
 
 namespace surfacer::testing {
 namespace {
@@ -55,12 +57,6 @@ std::vector<Vec3> particle_ball(const Vec3& c, double radius, double d, unsigned
   return points;
 }
 
-double nearest_distance(const std::vector<Vec3>& points, const Vec3& x) {
-  double best = 1e300;
-  for (const auto& p : points) best = std::min(best, (p - x).squaredNorm());
-  return std::sqrt(best);
-}
-
 TEST(ParticlesJob, EachFrameIsAClosedSurfaceFaithfulToItsParticles) {
   LoopbackServer s;
   const double d = 0.05, r_inner = 0.05, r_outer = 0.1;
@@ -83,9 +79,7 @@ TEST(ParticlesJob, EachFrameIsAClosedSurfaceFaithfulToItsParticles) {
     const auto& frame = result.frames.at(i);
     const Mesh mesh = decode_draco(frame.bytes);
     const auto report = check_mesh(mesh);
-    EXPECT_TRUE(report.closed);
-    EXPECT_TRUE(report.edge_manifold);
-    EXPECT_TRUE(report.oriented);
+    EXPECT_TRUE(mesh_has(report, kClosed | kEdgeManifold | kOriented));
     EXPECT_EQ(report.components, 1);
     const auto& metrics = frame.header.stats().metrics();
     EXPECT_EQ(metrics.at("particles"), static_cast<double>(frames[i].size()));
@@ -97,7 +91,7 @@ TEST(ParticlesJob, EachFrameIsAClosedSurfaceFaithfulToItsParticles) {
     EXPECT_LT(violation, 0.2 * r_inner);
     const double tolerance = violation + 1e-4;
     for (const auto& v : mesh.vertices) {
-      const double dist = nearest_distance(frames[i], v);
+      const double dist = nearest_point_distance(frames[i], v);
       EXPECT_GT(dist, r_inner - tolerance);
       EXPECT_LT(dist, r_outer + tolerance);
     }
@@ -193,8 +187,8 @@ TEST(OptimizeJob, SphereToCubeSnapshotsConvergeAndStayManifold) {
   EXPECT_LT(last.metrics().at("e_d"), first.metrics().at("e_d") / 100.0);
   EXPECT_LT(last.metrics().at("e_n"), first.metrics().at("e_n"));
   for (const auto& [index, frame] : result.frames) {
-    const auto report = check_mesh(decode_draco(frame.bytes));
-    EXPECT_TRUE(report.closed && report.edge_manifold && report.oriented) << "snapshot " << index;
+    EXPECT_TRUE(mesh_has(check_mesh(decode_draco(frame.bytes)), kClosed | kEdgeManifold | kOriented))
+        << "snapshot " << index;
   }
 }
 

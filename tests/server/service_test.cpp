@@ -11,6 +11,8 @@
 #include "core/mesh/mesh_codec.h"
 #include "core/mesh/mesh_io.h"
 #include "tests/server/test_client.h"
+#include "tests/support/mesh_expectations.h"
+#include "tests/support/test_meshes.h"
 
 namespace surfacer::testing {
 namespace {
@@ -25,16 +27,6 @@ v1::JobSpec slow_spec() {
       {"center": {"x": -0.5}, "radius": 1.2}, {"center": {"x": 0.5}, "radius": 1.2},
       {"center": {"y": 0.6}, "radius": 1.0}]}}})");
   return isosurface_spec({scene}, 1000);
-}
-
-v1::Job get_job(v1::Surfacer::Stub& stub, const std::string& id, grpc::Status* status = nullptr) {
-  grpc::ClientContext context;
-  v1::GetJobRequest request;
-  request.set_job_id(id);
-  v1::Job job;
-  auto s = stub.GetJob(&context, request, &job);
-  if (status) *status = s;
-  return job;
 }
 
 void wait_for_state(v1::Surfacer::Stub& stub, const std::string& id, v1::JobState state) {
@@ -60,11 +52,10 @@ TEST(Service, SphereJobStreamsAClosedDracoMesh) {
   const Mesh mesh = decode_draco(frame.bytes);
   EXPECT_EQ(static_cast<std::int64_t>(mesh.triangles.size()), frame.header.stats().triangles());
   const auto report = check_mesh(mesh);
-  EXPECT_TRUE(report.closed);
-  EXPECT_TRUE(report.edge_manifold);
+  EXPECT_TRUE(mesh_has(report, kClosed | kEdgeManifold));
   EXPECT_EQ(report.euler_characteristic, 2);
   EXPECT_TRUE(frame.header.stats().check().closed());
-  EXPECT_NEAR(report.volume, 4.0 / 3.0 * M_PI, 0.03 * 4.0 / 3.0 * M_PI);
+  EXPECT_NEAR(report.volume, sphere_volume(1.0), 0.03 * sphere_volume(1.0));
   // Every vertex near the true sphere (MC error + quantization).
   for (const auto& v : mesh.vertices) EXPECT_NEAR((v - Vec3(0.1, 0, 0)).norm(), 1.0, 0.02);
   // Stage timings are reported.

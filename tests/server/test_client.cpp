@@ -1,17 +1,11 @@
 #include "tests/server/test_client.h"
 
-#include <fcntl.h>
 #include <google/protobuf/util/json_util.h>
 #include <gtest/gtest.h>
-#include <signal.h>
-#include <sys/wait.h>
-#include <unistd.h>
 #include <zlib.h>
 
-#include <atomic>
 #include <fstream>
 #include <sstream>
-#include <thread>
 
 namespace surfacer::testing {
 namespace {
@@ -124,58 +118,18 @@ grpc::Status submit(v1::Surfacer::Stub& stub, const v1::JobSpec& spec, std::stri
   return status;
 }
 
-ServerProcess::ServerProcess(const std::filesystem::path& dir, const std::vector<std::string>& extra,
-                             rlim_t fsize_limit) {
-  static std::atomic<int> counter{0};
-  const int n = ++counter;
-  const std::filesystem::path port_file = dir / ("port" + std::to_string(n));
-  log = dir / ("server" + std::to_string(n) + ".log");
-  std::vector<std::string> args = {SURFACER_BINARY_DIR "/server/surfacer-server", "--listen", "127.0.0.1:0",
-                                   "--port-file", port_file.string(), "--workers", "1"};
-  args.insert(args.end(), extra.begin(), extra.end());
-  pid = fork();
-  if (pid == 0) {
-    const int fd = ::open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    dup2(fd, 2);
-    if (fsize_limit != RLIM_INFINITY) {
-      signal(SIGXFSZ, SIG_IGN);  // writes past the limit fail with EFBIG instead of killing the process
-      rlimit lim{fsize_limit, fsize_limit};
-      setrlimit(RLIMIT_FSIZE, &lim);
-    }
-    std::vector<char*> argv;
-    for (auto& a : args) argv.push_back(a.data());
-    argv.push_back(nullptr);
-    execv(argv[0], argv.data());
-    _exit(127);
-  }
-  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(30);
-  while (std::chrono::steady_clock::now() < until) {
-    std::ifstream in(port_file);
-    if (in >> port && port > 0) break;
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  }
+std::unique_ptr<v1::Surfacer::Stub> make_stub(const std::string& address) {
+  return v1::Surfacer::NewStub(grpc::CreateChannel(address, grpc::InsecureChannelCredentials()));
 }
 
-ServerProcess::~ServerProcess() { kill9(); }
-
-std::unique_ptr<v1::Surfacer::Stub> ServerProcess::stub() const {
-  return v1::Surfacer::NewStub(
-      grpc::CreateChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials()));
-}
-
-void ServerProcess::kill9() {
-  if (pid > 0) {
-    kill(pid, SIGKILL);
-    waitpid(pid, nullptr, 0);
-    pid = -1;
-  }
-}
-
-std::string slurp(const std::filesystem::path& path) {
-  std::ifstream in(path);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
+v1::Job get_job(v1::Surfacer::Stub& stub, const std::string& id, grpc::Status* status) {
+  grpc::ClientContext context;
+  v1::GetJobRequest request;
+  request.set_job_id(id);
+  v1::Job job;
+  const grpc::Status s = stub.GetJob(&context, request, &job);
+  if (status) *status = s;
+  return job;
 }
 
 }  // namespace surfacer::testing

@@ -2,10 +2,7 @@
 #pragma once
 
 #include <grpcpp/grpcpp.h>
-#include <sys/resource.h>
-#include <sys/types.h>
 
-#include <filesystem>
 #include <map>
 #include <memory>
 #include <string>
@@ -53,22 +50,11 @@ v1::Scene scene_from_json(const std::string& json);
 v1::Scene scene_from_file(const std::string& path);
 v1::JobSpec isosurface_spec(const std::vector<v1::Scene>& scenes, int cells);
 
-// The `surfacer-server` binary as a child process on 127.0.0.1:<free port>, stderr to a log file in `dir`, with
-// `--workers 1` and `extra` flags; optionally under a file-size limit (a full disk, as write() sees it: EFBIG).
-struct ServerProcess {
-  ServerProcess(const std::filesystem::path& dir, const std::vector<std::string>& extra,
-                rlim_t fsize_limit = RLIM_INFINITY);
-  ~ServerProcess();
-  std::unique_ptr<v1::Surfacer::Stub> stub() const;
-  void kill9();
+// A stub on a plain-text channel to `address` ("127.0.0.1:PORT").
+std::unique_ptr<v1::Surfacer::Stub> make_stub(const std::string& address);
 
-  pid_t pid = -1;
-  int port = 0;  // 0 when it did not start within 30 s
-  std::filesystem::path log;
-};
-
-// A whole file as a string ("" when missing).
-std::string slurp(const std::filesystem::path& path);
+// GetJob; the call's status in *status.
+v1::Job get_job(v1::Surfacer::Stub& stub, const std::string& id, grpc::Status* status = nullptr);
 
 grpc::Status submit(v1::Surfacer::Stub& stub, const v1::JobSpec& spec, std::string* job_id,
                     const std::string& token = "");

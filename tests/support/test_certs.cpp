@@ -3,25 +3,18 @@
 #include <unistd.h>
 
 #include <cstdlib>
-#include <fstream>
 #include <map>
 #include <mutex>
 #include <random>
-#include <sstream>
 #include <stdexcept>
 #include <vector>
+
+#include "tests/support/files.h"
 
 namespace surfacer::testing {
 namespace {
 
 namespace fs = std::filesystem;
-
-std::string read_all(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
 
 std::string quote(const std::string& arg) {
   std::string out = "'";
@@ -38,13 +31,13 @@ std::string quote(const std::string& arg) {
 // Runs openssl with `args` in `dir`; throws with its output when it fails.
 void openssl(const fs::path& dir, const std::vector<std::string>& args) {
   std::string command = "cd " + quote(dir.string()) + " && openssl";
-  for (const auto& a : args) command += " " + quote(a);
+  for (const auto& a : args) (command += ' ') += quote(a);
   const fs::path log = dir / "openssl.log";
   command += " >" + quote(log.string()) + " 2>&1";
   const int rc = std::system(command.c_str());
   if (rc != 0) {
     throw std::runtime_error("make_test_certs: `" + command + "` failed (status " + std::to_string(rc) +
-                             "; is openssl installed? scripts/setup.sh installs it):\n" + read_all(log));
+                             "; is openssl installed? scripts/setup.sh installs it):\n" + read_file(log));
   }
 }
 
@@ -59,7 +52,7 @@ std::string random_serial() {
 // A key and certificate signed by the CA in `dir`, with the extensions in `extensions` (openssl x509 -extfile).
 void make_signed(const fs::path& dir, const std::string& name, const std::string& subject,
                  const std::string& extensions) {
-  std::ofstream(dir / (name + ".ext")) << extensions;
+  write_file(dir / (name + ".ext"), extensions);
   openssl(dir, {"req", "-new", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes", "-keyout",
                 name + ".key", "-out", name + ".csr", "-subj", subject});
   openssl(dir, {"x509", "-req", "-in", name + ".csr", "-CA", "ca.pem", "-CAkey", "ca.key", "-set_serial",
@@ -101,11 +94,11 @@ TestCerts generate(const fs::path& dir) {
               "extendedKeyUsage=clientAuth\n");
   TestCerts certs;
   certs.dir = dir;
-  certs.ca_pem = read_all(dir / "ca.pem");
-  certs.server_cert_pem = read_all(dir / "server.pem");
-  certs.server_key_pem = read_all(dir / "server.key");
-  certs.client_cert_pem = read_all(dir / "client.pem");
-  certs.client_key_pem = read_all(dir / "client.key");
+  certs.ca_pem = read_file(dir / "ca.pem");
+  certs.server_cert_pem = read_file(dir / "server.pem");
+  certs.server_key_pem = read_file(dir / "server.key");
+  certs.client_cert_pem = read_file(dir / "client.pem");
+  certs.client_key_pem = read_file(dir / "client.key");
   for (const char* name : {"server.csr", "client.csr", "server.ext", "client.ext", "openssl.log"}) {
     std::error_code ec;
     fs::remove(dir / name, ec);

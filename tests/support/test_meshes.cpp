@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <map>
+#include <numbers>
 #include <unordered_map>
 #include <utility>
 
@@ -206,6 +207,24 @@ std::optional<std::size_t> nearest_vertex(const Mesh& mesh, const Vec3& p) {
     }
   }
   return best;
+}
+
+double nearest_point_distance(const std::vector<Vec3>& points, const Vec3& x) {
+  double best = std::numeric_limits<double>::infinity();
+  for (const Vec3& p : points) best = std::min(best, (p - x).norm());
+  return best;
+}
+
+Vec3 centroid(const Mesh& mesh) {
+  Vec3 c = Vec3::Zero();
+  for (const Vec3& v : mesh.vertices) c += v;
+  return c / static_cast<double>(std::max<std::size_t>(1, mesh.vertices.size()));
+}
+
+double sphere_volume(double radius) { return 4.0 / 3.0 * std::numbers::pi * radius * radius * radius; }
+
+double torus_volume(double major_radius, double minor_radius) {
+  return 2.0 * std::numbers::pi * std::numbers::pi * major_radius * minor_radius * minor_radius;
 }
 
 // --- Fields --------------------------------------------------------------------------------------------------

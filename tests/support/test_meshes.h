@@ -45,6 +45,16 @@ double max_distance_to_torus(const Mesh& mesh, const Vec3& center, double major_
 double max_nearest_vertex_distance(const Mesh& from, const Mesh& to);
 // Index of the vertex of `mesh` nearest to p (linear scan), or nullopt for no vertices.
 std::optional<std::size_t> nearest_vertex(const Mesh& mesh, const Vec3& p);
+// Distance from x to the nearest of `points` (linear scan; infinity for none).
+double nearest_point_distance(const std::vector<Vec3>& points, const Vec3& x);
+// Mean of the vertices (zero for none).
+Vec3 centroid(const Mesh& mesh);
+
+// --- Exact volumes ---------------------------------------------------------------------------------------------
+
+double sphere_volume(double radius);
+// Solid torus: 2 pi^2 R r^2.
+double torus_volume(double major_radius, double minor_radius);
 
 // --- Exact signed-distance fields (negative inside) -----------------------------------------------------------------
 

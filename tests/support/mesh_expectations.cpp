@@ -1,0 +1,76 @@
+#include "tests/support/mesh_expectations.h"
+
+#include <exception>
+#include <sstream>
+
+#include "core/mesh/mesh_io.h"
+#include "tests/support/process.h"
+
+namespace surfacer::testing {
+
+namespace fs = std::filesystem;
+
+::testing::AssertionResult mesh_has(const MeshReport& r, unsigned properties, int min_valence) {
+  std::ostringstream failed;
+  auto require = [&](unsigned property, bool holds, const auto& what) {
+    if ((properties & property) != 0 && !holds) failed << (failed.tellp() > 0 ? "; " : "") << what;
+  };
+  require(kClosed, r.closed, "not closed: " + std::to_string(r.boundary_edges) + " boundary edges");
+  require(kOpen, !r.closed, "closed: no boundary edge");
+  require(kEdgeManifold, r.edge_manifold,
+          "not edge-manifold: " + std::to_string(r.non_manifold_edges) + " edges with more than two triangles");
+  require(kVertexManifold, r.vertex_manifold, "not vertex-manifold");
+  require(kOriented, r.oriented, "not oriented");
+  require(kNoDegenerateTriangles, r.degenerate_triangles == 0,
+          std::to_string(r.degenerate_triangles) + " degenerate triangles");
+  require(kPositiveVolume, r.volume > 0.0, "volume " + std::to_string(r.volume) + " not positive");
+  if (r.min_valence < min_valence) {
+    failed << (failed.tellp() > 0 ? "; " : "") << "minimum valence " << r.min_valence << " below " << min_valence;
+  }
+  if (failed.tellp() == 0) return ::testing::AssertionSuccess();
+  return ::testing::AssertionFailure() << failed.str() << " (Euler characteristic " << r.euler_characteristic << ", "
+                                       << r.components << " components)";
+}
+
+::testing::AssertionResult mesh_file_has(const fs::path& file, unsigned properties, MeshReport* report) {
+  Mesh mesh;
+  try {
+    mesh = read_mesh(file);
+  } catch (const std::exception& e) {
+    return ::testing::AssertionFailure() << file << ": " << e.what();
+  }
+  if (mesh.triangles.empty()) return ::testing::AssertionFailure() << file << ": no triangles";
+  const MeshReport r = check_mesh(mesh);
+  if (report) *report = r;
+  ::testing::AssertionResult result = mesh_has(r, properties);
+  if (!result) return ::testing::AssertionFailure() << file << ": " << result.message();
+  return result;
+}
+
+::testing::AssertionResult normals_point_away_from(const Mesh& mesh, const Vec3& center, double length_tolerance,
+                                                   double min_cosine) {
+  if (mesh.normals.size() != mesh.vertices.size()) {
+    return ::testing::AssertionFailure() << mesh.normals.size() << " normals for " << mesh.vertices.size()
+                                         << " vertices";
+  }
+  for (std::size_t v = 0; v < mesh.vertices.size(); ++v) {
+    const double length = mesh.normals[v].norm();
+    const double cosine = mesh.normals[v].dot((mesh.vertices[v] - center).normalized());
+    if (!(std::abs(length - 1.0) <= length_tolerance) || !(cosine > min_cosine)) {
+      return ::testing::AssertionFailure()
+             << "vertex " << v << " at " << mesh.vertices[v].transpose() << ": normal " << mesh.normals[v].transpose()
+             << " of length " << length << ", cosine " << cosine << " with the outward direction";
+    }
+  }
+  return ::testing::AssertionSuccess();
+}
+
+::testing::AssertionResult draco_decoder_decodes(const fs::path& drc, const fs::path& ply) {
+  const fs::path log = ply.string() + ".log";
+  const ProcessResult r = run_process({"/usr/bin/draco_decoder", "-i", drc.string(), "-o", ply.string()}, log,
+                                      ply.string() + ".err", std::chrono::seconds(60));
+  if (r.code == 0) return ::testing::AssertionSuccess();
+  return ::testing::AssertionFailure() << "draco_decoder -i " << drc << " -o " << ply << ": " << r;
+}
+
+}  // namespace surfacer::testing
