@@ -1,4 +1,5 @@
-// Active implicit surfaces (core/active/active_surface.h): the Enright deformation test and coating a particle sequence.
+// Active implicit surfaces (core/active/active_surface.h): the Enright deformation test and coating a particle
+// sequence.
 //
 //   active_bench                 Enright at 100^3 and the 200-frame coating sequence
 //   active_bench --full          Enright also at 128^3 and 200^3
@@ -38,8 +39,8 @@
 #include <vector>
 
 #include "core/active/active_surface.h"
-#include "core/polygonize/marching_tiles.h"
 #include "core/particles/spatial_hash.h"
+#include "core/polygonize/marching_tiles.h"
 
 namespace {
 

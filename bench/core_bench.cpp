@@ -5,10 +5,10 @@
 #include <cmath>
 #include <vector>
 
-#include "core/polygonize/marching_cubes.h"
 #include "core/mesh/mesh_checks.h"
 #include "core/mesh/mesh_codec.h"
 #include "core/mesh/mesh_io.h"
+#include "core/polygonize/marching_cubes.h"
 
 namespace surfacer {
 namespace {

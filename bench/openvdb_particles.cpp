@@ -94,11 +94,16 @@ int main(int argc, char** argv) {
   for (int a = 1; a + 1 < argc; a += 2) {
     const std::string arg = argv[a];
     const double v = std::atof(argv[a + 1]);
-    if (arg == "--radius") radius = v;
-    else if (arg == "--spacing") spacing = v;
-    else if (arg == "--repeat") repeat = std::max(1, static_cast<int>(v));
-    else if (arg == "--ours") ours = v;
-    else if (arg == "--ours-cpu") ours_cpu = v;
+    if (arg == "--radius")
+      radius = v;
+    else if (arg == "--spacing")
+      spacing = v;
+    else if (arg == "--repeat")
+      repeat = std::max(1, static_cast<int>(v));
+    else if (arg == "--ours")
+      ours = v;
+    else if (arg == "--ours-cpu")
+      ours_cpu = v;
   }
   if (!(radius > 0) || !(spacing > 0)) {
     std::fprintf(stderr, "usage: openvdb_particles --radius R --spacing H [--repeat N] [--ours S] [--ours-cpu S]\n");
@@ -108,8 +113,8 @@ int main(int argc, char** argv) {
   Particles particles;
   particles.positions = jittered_block(80, 0.25, 1);
   particles.radius = radius;
-  std::printf("OpenVDB %s, %zu particles, sphere radius %.4g\n", openvdb::getLibraryVersionString(),
-              particles.size(), radius);
+  std::printf("OpenVDB %s, %zu particles, sphere radius %.4g\n", openvdb::getLibraryVersionString(), particles.size(),
+              radius);
   for (const double voxel : {spacing, 0.5 * spacing}) {
     for (const int passes : {0, 4}) {
       Run best;
@@ -125,13 +130,15 @@ int main(int argc, char** argv) {
         }
       }
       getrusage(RUSAGE_SELF, &after);
-      const double cpu = (after.ru_utime.tv_sec - before.ru_utime.tv_sec) + (after.ru_stime.tv_sec - before.ru_stime.tv_sec) +
-                         1e-6 * ((after.ru_utime.tv_usec - before.ru_utime.tv_usec) +
-                                 (after.ru_stime.tv_usec - before.ru_stime.tv_usec));
-      std::printf("  voxel %.4g, %d Gaussian passes: rasterize %.3f  filter %.3f  mesh %.3f  total %.3f s (cpu %.3f s "
-                  "per run), %zu vertices, %zu triangles",
-                  voxel, passes, best.rasterize, best.filter, best.mesh, best_total, cpu / repeat, best.vertices,
-                  best.triangles);
+      const double cpu =
+          (after.ru_utime.tv_sec - before.ru_utime.tv_sec) + (after.ru_stime.tv_sec - before.ru_stime.tv_sec) +
+          1e-6 *
+              ((after.ru_utime.tv_usec - before.ru_utime.tv_usec) + (after.ru_stime.tv_usec - before.ru_stime.tv_usec));
+      std::printf(
+          "  voxel %.4g, %d Gaussian passes: rasterize %.3f  filter %.3f  mesh %.3f  total %.3f s (cpu %.3f s "
+          "per run), %zu vertices, %zu triangles",
+          voxel, passes, best.rasterize, best.filter, best.mesh, best_total, cpu / repeat, best.vertices,
+          best.triangles);
       if (ours > 0) std::printf("  -> ours/theirs wall %.2f", ours / best_total);
       if (ours_cpu > 0) std::printf(", cpu %.2f", ours_cpu / (cpu / repeat));
       std::printf("\n");

@@ -21,10 +21,10 @@
 #include <string>
 #include <vector>
 
-#include "core/polygonize/marching_cubes.h"
 #include "core/optimize/mesh_optimizer.h"
-#include "core/util/parallel.h"
+#include "core/polygonize/marching_cubes.h"
 #include "core/scene/scene.h"
+#include "core/util/parallel.h"
 
 namespace surfacer {
 namespace {
@@ -66,9 +66,9 @@ struct Shape {
   std::string name;
   FieldPtr field;
   std::vector<Curve> curves;
-  Aabb solid;           // bounding box of the true solid
-  Aabb grid;            // cubic region polygonized (grid planes kept off the faces)
-  FieldPtr start_field; // the field polygonized for the start mesh (sphere-to-cube: the sphere)
+  Aabb solid;            // bounding box of the true solid
+  Aabb grid;             // cubic region polygonized (grid planes kept off the faces)
+  FieldPtr start_field;  // the field polygonized for the start mesh (sphere-to-cube: the sphere)
   double diagonal() const { return solid.size().norm(); }
   double h(int cells) const { return grid.size().x() / cells; }
 };
@@ -149,8 +149,8 @@ Shape rotated_box() {
   s.start_field = s.field;
   s.solid = Aabb::empty();
   for (int c = 0; c < 8; ++c) {
-    s.solid.merge(Vec3(r * Vec3((c & 1) ? half.x() : -half.x(), (c & 2) ? half.y() : -half.y(),
-                                (c & 4) ? half.z() : -half.z())));
+    s.solid.merge(
+        Vec3(r * Vec3((c & 1) ? half.x() : -half.x(), (c & 2) ? half.y() : -half.y(), (c & 4) ? half.z() : -half.z())));
   }
   const double extent = s.solid.size().maxCoeff() * 0.55;
   s.grid = Aabb{Vec3::Constant(-extent - 0.0013), Vec3::Constant(extent - 0.0013)};
@@ -275,7 +275,8 @@ Errors measure(const Shape& s, const Mesh& mesh, double h64) {
                     .normalized());
   };
   for (std::size_t i = 0; i + 1 < corners.size(); ++i) {
-    if (corners[i].first != corners[i + 1].first || (i + 2 < corners.size() && corners[i + 2].first == corners[i].first) ||
+    if (corners[i].first != corners[i + 1].first ||
+        (i + 2 < corners.size() && corners[i + 2].first == corners[i].first) ||
         (i > 0 && corners[i - 1].first == corners[i].first)) {
       continue;
     }
@@ -291,7 +292,8 @@ Errors measure(const Shape& s, const Mesh& mesh, double h64) {
       if (dq > tol) continue;
       c.project(0.5 * (p + q), dm, tangent, end);
       const double sagitta = c.circle ? (q - p).squaredNorm() / (8 * c.radius) : 0.0;
-      if (dm > tol + sagitta || end < exclude || std::abs((q - p).normalized().dot(tangent)) < std::cos(25 * kPi / 180)) {
+      if (dm > tol + sagitta || end < exclude ||
+          std::abs((q - p).normalized().dot(tangent)) < std::cos(25 * kPi / 180)) {
         continue;
       }
       const std::uint32_t t0 = corners[i].second, t1 = corners[i + 1].second;
@@ -346,9 +348,12 @@ void time_flows() {
     bool t, d, n, modified;
   };
   const Config configs[] = {
-      {"T only", true, false, false, false},       {"D only", false, true, false, false},
-      {"N only", false, false, true, false},       {"modified N only", false, false, true, true},
-      {"N o D o T (phase 1)", true, true, true, false}, {"N o D (phase 2)", false, true, true, false},
+      {"T only", true, false, false, false},
+      {"D only", false, true, false, false},
+      {"N only", false, false, true, false},
+      {"modified N only", false, false, true, true},
+      {"N o D o T (phase 1)", true, true, true, false},
+      {"N o D (phase 2)", false, true, true, false},
       {"modified N o D (phase 2)", false, true, true, true},
   };
   const double per_100k = 1e5 / static_cast<double>(start.vertices.size());
@@ -401,8 +406,8 @@ void convergence() {
       const OptimizerIterationStats& s1 = opt.stats();
       const std::string label =
           c.shape.name + " " + std::to_string(c.cells) + "^3 " + (modified ? "modified" : "paper N");
-      std::printf("  %-34s %9d %10.2e %10.2e %10.2e %10.2e %11d %8.2f\n", label.c_str(), s1.iteration, s0.e_d,
-                  s1.e_d, s0.e_n, s1.e_n, t_iterations, sec);
+      std::printf("  %-34s %9d %10.2e %10.2e %10.2e %10.2e %11d %8.2f\n", label.c_str(), s1.iteration, s0.e_d, s1.e_d,
+                  s0.e_n, s1.e_n, t_iterations, sec);
     }
   }
 }
@@ -421,7 +426,8 @@ void resolution_worth(bool quick) {
       const Mesh mc = polygonize(s, cells, false);
       const double sec = seconds_since(t0);
       rows.emplace_back("MC " + std::to_string(cells) + "^3", measure(s, mc, h64));
-      print_errors(rows.back().first + " (" + std::to_string(static_cast<int>(sec * 1000)) + " ms)", rows.back().second);
+      print_errors(rows.back().first + " (" + std::to_string(static_cast<int>(sec * 1000)) + " ms)",
+                   rows.back().second);
     }
     const Mesh start = polygonize(s, 64, false);
     for (int variant = 0; variant < 3; ++variant) {

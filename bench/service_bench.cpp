@@ -21,14 +21,14 @@
 #include <thread>
 #include <vector>
 
-#include "core/polygonize/marching_cubes.h"
 #include "core/mesh/mesh_checks.h"
 #include "core/mesh/mesh_codec.h"
+#include "core/polygonize/marching_cubes.h"
 #include "core/scene/scene.h"
 #include "server/server.h"
+#include "surfacer/v1/surfacer.grpc.pb.h"
 #include "wire/scene.h"
 #include "wire/uploads.h"
-#include "surfacer/v1/surfacer.grpc.pb.h"
 
 namespace {
 
@@ -106,7 +106,7 @@ int main(int argc, char** argv) {
     v1::JobSpec spec;
     auto* iso = spec.mutable_isosurface();
     for (int i = 0; i < n; ++i) *iso->add_scenes() = scene;
-    iso->set_cells(cells);  // cubic bounds: exactly `cells` per axis
+    iso->set_cells(cells);                   // cubic bounds: exactly `cells` per axis
     iso->set_method(v1::POLYGONIZER_CUBES);  // the same polygonizer as the core-only baseline
     auto* min = iso->mutable_bounds()->mutable_min();
     auto* max = iso->mutable_bounds()->mutable_max();
@@ -154,7 +154,8 @@ int main(int argc, char** argv) {
     std::string bytes;
     const double enc = median_time(repeat, [&] { bytes = encode_draco(mesh, o); });
     const double dec = median_time(repeat, [&] { decode_draco(bytes); });
-    std::printf("    speed %2d: %6.3f s  %6.3f s  %5.1f\n", speed, enc, dec, bytes.size() * 8.0 / mesh.triangles.size());
+    std::printf("    speed %2d: %6.3f s  %6.3f s  %5.1f\n", speed, enc, dec,
+                bytes.size() * 8.0 / mesh.triangles.size());
   }
 
   server::ServerOptions local_options;
@@ -175,8 +176,7 @@ int main(int argc, char** argv) {
     const double t_tcp = median_time(repeat, [&] { run_job(*tcp_stub, spec); });
     std::printf("%d frame(s):\n", n);
     std::printf("  core only (frames in turn, %d threads each)   %8.3f s\n", hw, base);
-    std::printf("  core + checks + encode (in turn)              %8.3f s  ratio %.2f\n", with_frame,
-                with_frame / base);
+    std::printf("  core + checks + encode (in turn)              %8.3f s  ratio %.2f\n", with_frame, with_frame / base);
     std::printf("  --local (in-process server)                   %8.3f s  ratio %.2f\n", t_local, t_local / base);
     std::printf("  loopback server                               %8.3f s  ratio %.2f  (target <= 1.10)\n", t_tcp,
                 t_tcp / base);

@@ -93,9 +93,10 @@ void add_isosurface(CLI::App* parent, const std::string& verb, JobFlags& flags, 
                   "region to polygonize: x0,y0,z0,x1,y1,z1 (default: the scenes' own bounds, padded by " +
                       format_number(PolygonizeOptions::kPadCells) + " cells)")
       ->type_name("BOX");
-  iso->add_option("--method", flags.iso.method,
-                  "polygonizer: tiles (Marching Tiles, every vertex of valence >= 5) or cubes (Marching Cubes); default " +
-                      std::string(polygonizer_name(kIsosurfaceDefaults.method)))
+  iso->add_option(
+         "--method", flags.iso.method,
+         "polygonizer: tiles (Marching Tiles, every vertex of valence >= 5) or cubes (Marching Cubes); default " +
+             std::string(polygonizer_name(kIsosurfaceDefaults.method)))
       ->check(CLI::IsMember({"cubes", "tiles"}))
       ->type_name("NAME");
   add_job_common_flags(iso, flags.job);
@@ -125,16 +126,18 @@ void add_particles(CLI::App* parent, const std::string& verb, JobFlags& flags, O
                       " x r_inner; flat on a lattice of spacing d when r_outer^2 >= r_inner^2 + d^2/2)")
       ->check(positive)
       ->type_name("R");
-  app->add_option("--spacing-factor", p.spacing_factor, "sample spacing of the initial tiling / r_inner" +
-                      default_text(kParticleDefaults.spacing_factor))
+  app->add_option("--spacing-factor", p.spacing_factor,
+                  "sample spacing of the initial tiling / r_inner" + default_text(kParticleDefaults.spacing_factor))
       ->check(positive)
       ->type_name("F");
-  app->add_option("--sweeps", flags.sweeps, "Gauss-Seidel sweeps: Laplacian,Bilaplacian,polish (default " +
+  app->add_option("--sweeps", flags.sweeps,
+                  "Gauss-Seidel sweeps: Laplacian,Bilaplacian,polish (default " +
                       std::to_string(kParticleDefaults.laplacian_sweeps) + "," +
                       std::to_string(kParticleDefaults.bilaplacian_sweeps) + "," +
                       std::to_string(kParticleDefaults.polish_sweeps) + ")")
       ->type_name("L,B,P");
-  app->add_option("--relaxation", p.relaxation, "under-relaxation of the Laplacian sweeps" + default_text(kParticleDefaults.relaxation))
+  app->add_option("--relaxation", p.relaxation,
+                  "under-relaxation of the Laplacian sweeps" + default_text(kParticleDefaults.relaxation))
       ->check(positive)
       ->type_name("W");
   app->add_option("--erosion", p.erosion, "move vertices inward by EPS x r_inner at the end (default off)")
@@ -177,13 +180,14 @@ void add_optimize(CLI::App* parent, const std::string& verb, JobFlags& flags, Ou
   CLI::Option* mesh =
       app->add_option("--start-mesh", o.start_mesh, "start mesh file (.ply, .obj or .drc), uploaded as is")
           ->type_name("FILE");
-  app->add_option("--start-cells", o.start_cells,
-                  "or polygonize the scene on the server: cells along the longest axis" +
-                      default_text(kStartDefaults.cells))
+  app->add_option(
+         "--start-cells", o.start_cells,
+         "or polygonize the scene on the server: cells along the longest axis" + default_text(kStartDefaults.cells))
       ->check(positive)
       ->excludes(mesh)
       ->type_name("N");
-  app->add_option("--start-method", o.start_method, "polygonizer of the start mesh: cubes or tiles (default " +
+  app->add_option("--start-method", o.start_method,
+                  "polygonizer of the start mesh: cubes or tiles (default " +
                       std::string(polygonizer_name(kStartDefaults.method)) + ")")
       ->check(CLI::IsMember({"cubes", "tiles"}))
       ->excludes(mesh)
@@ -193,7 +197,9 @@ void add_optimize(CLI::App* parent, const std::string& verb, JobFlags& flags, Ou
       ->excludes(mesh)
       ->type_name("BOX");
   app->add_option("--iterations", o.iterations,
-                  "stop after N iterations" + default_text(kOptimizerDefaults.max_iterations))->check(positive)->type_name("N");
+                  "stop after N iterations" + default_text(kOptimizerDefaults.max_iterations))
+      ->check(positive)
+      ->type_name("N");
   app->add_option("--tolerance", o.tolerance, "stop when E_d and E_n change by less than T (relative)")
       ->check(positive)
       ->type_name("T");
@@ -205,11 +211,17 @@ void add_optimize(CLI::App* parent, const std::string& verb, JobFlags& flags, Ou
                   "flows to run, comma-separated: d (distance), n (normal), t (tangential); "
                   "default d,n,t")
       ->type_name("LIST");
-  app->add_option("--c-d", o.c_d, "D-flow coefficient" + default_text(kOptimizerDefaults.c_d))->check(positive)->type_name("X");
-  app->add_option("--c-n", o.c_n, "N-flow coefficient" + default_text(kOptimizerDefaults.c_n))->check(positive)->type_name("X");
-  app->add_option("--c-t", o.c_t, "T-flow coefficient" + default_text(kOptimizerDefaults.c_t))->check(positive)->type_name("X");
-  app->add_option("--step-bound", o.step_bound, "D-flow step bound c in |C_D F_D| <= c sqrt(A(P))" +
-                      default_text(kOptimizerDefaults.step_bound))
+  app->add_option("--c-d", o.c_d, "D-flow coefficient" + default_text(kOptimizerDefaults.c_d))
+      ->check(positive)
+      ->type_name("X");
+  app->add_option("--c-n", o.c_n, "N-flow coefficient" + default_text(kOptimizerDefaults.c_n))
+      ->check(positive)
+      ->type_name("X");
+  app->add_option("--c-t", o.c_t, "T-flow coefficient" + default_text(kOptimizerDefaults.c_t))
+      ->check(positive)
+      ->type_name("X");
+  app->add_option("--step-bound", o.step_bound,
+                  "D-flow step bound c in |C_D F_D| <= c sqrt(A(P))" + default_text(kOptimizerDefaults.step_bound))
       ->check(positive)
       ->type_name("C");
   app->add_flag("--modified-flows", o.modified_flows, "local-energy gradient descent (paper section 3.1)");
@@ -247,12 +259,17 @@ void add_active_common(CLI::App* app, JobFlags& flags, OutputFlags* output) {
       ->type_name("BOX");
   app->add_option("--alpha", a.alpha,
                   "tracking strength (default " + format_number(ActiveSurfaceOptions::kTrackingAlpha) +
-                      " for coat and morph, " + format_number(kActiveDefaults.alpha) + " for advect)")->check(non_negative)->type_name("X");
+                      " for coat and morph, " + format_number(kActiveDefaults.alpha) + " for advect)")
+      ->check(non_negative)
+      ->type_name("X");
   app->add_option("--beta", a.beta, "surface tension")->check(non_negative)->type_name("X");
   app->add_option("--gamma", a.gamma, "area preservation")->check(non_negative)->type_name("X");
   app->add_option("--delta", a.delta, "volume preservation")->check(non_negative)->type_name("X");
-  app->add_option("--cfl", a.cfl, "CFL factor of the time step" + default_text(*kActiveDefaults.cfl))->check(positive)->type_name("X");
-  app->add_option("--polygonizer", a.polygonizer, "polygonizer of each frame: tiles or cubes (default " +
+  app->add_option("--cfl", a.cfl, "CFL factor of the time step" + default_text(*kActiveDefaults.cfl))
+      ->check(positive)
+      ->type_name("X");
+  app->add_option("--polygonizer", a.polygonizer,
+                  "polygonizer of each frame: tiles or cubes (default " +
                       std::string(polygonizer_name(kActiveDefaults.polygonizer)) + ")")
       ->check(CLI::IsMember({"tiles", "cubes"}))
       ->type_name("NAME");
@@ -284,11 +301,14 @@ void add_active(CLI::App* parent, const std::string& verb, JobFlags& flags, Outp
       ->required()
       ->check(positive)
       ->type_name("R");
-  coat->add_option("--iso", flags.coat.iso, "iso value T of the summed kernel field" + default_text(ParticleTargetOptions{}.iso))
+  coat->add_option("--iso", flags.coat.iso,
+                   "iso value T of the summed kernel field" + default_text(ParticleTargetOptions{}.iso))
       ->check(positive)
       ->type_name("T");
   coat->add_option("--substeps", flags.coat.substeps,
-                   "evolve each frame in exactly N sub-steps instead of CFL-sized ones (excludes --cfl)")->check(positive)->type_name("N");
+                   "evolve each frame in exactly N sub-steps instead of CFL-sized ones (excludes --cfl)")
+      ->check(positive)
+      ->type_name("N");
   add_active_common(coat, flags, output);
   coat->footer("Example:\n  " + coat_example +
                "\nParticle frames are uploaded one at a time before the job is queued (as for `particles`).\n\n" +
@@ -297,13 +317,19 @@ void add_active(CLI::App* parent, const std::string& verb, JobFlags& flags, Outp
   CLI::App* morph = active->add_subcommand("morph", "Morph scene A into scene B, one frame per output step");
   morph->add_option("--from", flags.morph.from, "start scene file (JSON)")->required()->type_name("A.json");
   morph->add_option("--to", flags.morph.to, "target scene file (JSON)")->required()->type_name("B.json");
-  morph->add_option("--tolerance", flags.morph.tolerance,
-                    "stop when max |df/dt| falls below X" + default_text(MorphOptions{}.tolerance))
+  morph
+      ->add_option("--tolerance", flags.morph.tolerance,
+                   "stop when max |df/dt| falls below X" + default_text(MorphOptions{}.tolerance))
       ->check(positive)
       ->type_name("X");
-  morph->add_option("--max-frames", flags.morph.max_frames,
-                    "stop after N frames" + default_text(MorphOptions{}.max_frames))->check(positive)->type_name("N");
-  morph->add_option("--frame-time", flags.morph.frame_time, "simulated time between output frames" + default_text(MorphOptions{}.frame_duration))
+  morph
+      ->add_option("--max-frames", flags.morph.max_frames,
+                   "stop after N frames" + default_text(MorphOptions{}.max_frames))
+      ->check(positive)
+      ->type_name("N");
+  morph
+      ->add_option("--frame-time", flags.morph.frame_time,
+                   "simulated time between output frames" + default_text(MorphOptions{}.frame_duration))
       ->check(positive)
       ->type_name("DT");
   add_active_common(morph, flags, output);
@@ -313,10 +339,11 @@ void add_active(CLI::App* parent, const std::string& verb, JobFlags& flags, Outp
   advect->add_option("--scene", flags.advect.scene, "the shape: scene file (JSON)")->required()->type_name("FILE");
   CLI::Option* enright =
       advect->add_flag("--enright", flags.enright, "the Enright/LeVeque deformation field (analytic)");
-  CLI::Option* period = advect->add_option("--period", flags.advect.enright_period, "Enright period T" + default_text(kEnrightPeriod))
-                            ->check(positive)
-                            ->needs(enright)
-                            ->type_name("T");
+  CLI::Option* period =
+      advect->add_option("--period", flags.advect.enright_period, "Enright period T" + default_text(kEnrightPeriod))
+          ->check(positive)
+          ->needs(enright)
+          ->type_name("T");
   CLI::Option* grid = advect
                           ->add_option("--velocity-grid", flags.velocity_grid,
                                        "sampled velocity: raw little-endian float32 x y z per node, x fastest")

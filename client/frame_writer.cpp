@@ -11,9 +11,9 @@
 #include <set>
 
 #include "client/exit_codes.h"
-#include "core/util/errors.h"
 #include "core/mesh/mesh_codec.h"
 #include "core/mesh/mesh_io.h"
+#include "core/util/errors.h"
 
 namespace surfacer::client {
 namespace {

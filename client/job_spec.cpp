@@ -7,8 +7,8 @@
 
 #include "client/exit_codes.h"
 #include "client/particle_files.h"
-#include "core/util/errors.h"
 #include "core/mesh/mesh_io.h"
+#include "core/util/errors.h"
 
 namespace surfacer::client {
 namespace {

@@ -9,8 +9,8 @@
 #include <set>
 
 #include "client/exit_codes.h"
-#include "core/util/errors.h"
 #include "core/particles/particle_io.h"
+#include "core/util/errors.h"
 
 namespace surfacer::client {
 namespace {

@@ -1,5 +1,5 @@
-// Particle files named on the command line (core/particles/particle_io.h reads them): inputs and sequence patterns expanded
-// to the job's frames, and each frame packed as the protocol's upload records (little-endian float32 x y z, or
+// Particle files named on the command line (core/particles/particle_io.h reads them): inputs and sequence patterns
+// expanded to the job's frames, and each frame packed as the protocol's upload records (little-endian float32 x y z, or
 // x y z r with radii).
 #pragma once
 
@@ -30,8 +30,8 @@ struct ParticleRecords {
   std::int64_t count = 0;
 };
 
-// Reads a particle file (any format of core/particles/particle_io.h) and packs it. Throws CliError(kUsage) whose message
-// starts with the file name and names the line or byte offset of the problem; also for an empty frame, a radius
+// Reads a particle file (any format of core/particles/particle_io.h) and packs it. Throws CliError(kUsage) whose
+// message starts with the file name and names the line or byte offset of the problem; also for an empty frame, a radius
 // count that differs from the particle count, a negative radius, or a value that does not fit in float32.
 ParticleRecords read_particle_records(const std::filesystem::path& path);
 

@@ -37,9 +37,10 @@ namespace {
 
 // A job the client refuses before splitting it: the server's own validation (wire/, core/), run here.
 CliError invalid_job(const Error& e) {
-  return CliError(ExitCode::kJobFailed,
-                  std::string("the job is invalid (checked before splitting it across the servers): INVALID_ARGUMENT: ") +
-                      e.what());
+  return CliError(
+      ExitCode::kJobFailed,
+      std::string("the job is invalid (checked before splitting it across the servers): INVALID_ARGUMENT: ") +
+          e.what());
 }
 
 // The grid the server would derive for the whole sequence (wire/job_options.h, core/polygonize/polygonize.h), fixed

@@ -11,9 +11,9 @@
 #include <string>
 #include <vector>
 
-#include "core/util/crc32.h"
 #include "client/exit_codes.h"
 #include "client/frame_assembler.h"
+#include "core/util/crc32.h"
 #include "fuzz/fuzz_input.h"
 
 namespace surfacer::fuzz {
@@ -95,14 +95,46 @@ void well_formed_frame(FuzzInput& in, Harness& h) {
 
   bool corrupted = encoding == 3 || index < 0;
   switch (corruption) {
-    case 3: if (!parts.empty()) { parts[victim].set_crc32(parts[victim].crc32() ^ 1u); corrupted = true; } break;
-    case 4: header.set_crc32(header.crc32() ^ 0x80000000u); corrupted = true; break;
-    case 5: if (!parts.empty()) { parts.erase(parts.begin() + victim); corrupted = true; } break;
-    case 6: if (!parts.empty()) { parts.insert(parts.begin() + victim, parts[victim]); corrupted = true; } break;
-    case 7: if (parts.size() > 1) { std::swap(parts[0], parts[1]); corrupted = true; } break;
-    case 8: header.set_total_bytes(header.total_bytes() + 1 + in.u8()); corrupted = true; break;
-    case 9: if (!parts.empty()) { parts[victim].set_last(!parts[victim].last()); corrupted = true; } break;
-    default: break;
+    case 3:
+      if (!parts.empty()) {
+        parts[victim].set_crc32(parts[victim].crc32() ^ 1u);
+        corrupted = true;
+      }
+      break;
+    case 4:
+      header.set_crc32(header.crc32() ^ 0x80000000u);
+      corrupted = true;
+      break;
+    case 5:
+      if (!parts.empty()) {
+        parts.erase(parts.begin() + victim);
+        corrupted = true;
+      }
+      break;
+    case 6:
+      if (!parts.empty()) {
+        parts.insert(parts.begin() + victim, parts[victim]);
+        corrupted = true;
+      }
+      break;
+    case 7:
+      if (parts.size() > 1) {
+        std::swap(parts[0], parts[1]);
+        corrupted = true;
+      }
+      break;
+    case 8:
+      header.set_total_bytes(header.total_bytes() + 1 + in.u8());
+      corrupted = true;
+      break;
+    case 9:
+      if (!parts.empty()) {
+        parts[victim].set_last(!parts[victim].last());
+        corrupted = true;
+      }
+      break;
+    default:
+      break;
   }
 
   const bool was_idle = h.idle();

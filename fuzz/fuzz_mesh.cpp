@@ -7,9 +7,9 @@
 #include <cstdint>
 #include <string>
 
-#include "core/util/errors.h"
 #include "core/mesh/mesh_codec.h"
 #include "core/mesh/mesh_io.h"
+#include "core/util/errors.h"
 #include "fuzz/fuzz_input.h"
 
 namespace surfacer::fuzz {
@@ -51,11 +51,21 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   Mesh mesh;
   try {
     switch (selector) {
-      case 0: mesh = parse_mesh(bytes, MeshFormat::kPly, "fuzz.ply"); break;
-      case 1: mesh = parse_mesh(bytes, MeshFormat::kObj, "fuzz.obj"); break;
-      case 2: mesh = parse_mesh(bytes, MeshFormat::kDraco, "fuzz.drc"); break;
-      case 3: mesh = decode_draco(bytes); break;
-      default: mesh = parse_mesh(bytes, fuzz::sniff(bytes), "upload"); break;
+      case 0:
+        mesh = parse_mesh(bytes, MeshFormat::kPly, "fuzz.ply");
+        break;
+      case 1:
+        mesh = parse_mesh(bytes, MeshFormat::kObj, "fuzz.obj");
+        break;
+      case 2:
+        mesh = parse_mesh(bytes, MeshFormat::kDraco, "fuzz.drc");
+        break;
+      case 3:
+        mesh = decode_draco(bytes);
+        break;
+      default:
+        mesh = parse_mesh(bytes, fuzz::sniff(bytes), "upload");
+        break;
     }
   } catch (const Error& e) {
     fuzz::require(e.what()[0] != '\0', "an Error without a message");

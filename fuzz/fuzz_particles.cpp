@@ -12,12 +12,12 @@
 #include <memory>
 #include <string>
 
-#include "core/util/errors.h"
 #include "core/particles/particle_io.h"
+#include "core/util/errors.h"
 #include "fuzz/fuzz_input.h"
+#include "surfacer/v1/surfacer.pb.h"
 #include "wire/particle_frames.h"
 #include "wire/uploads.h"
-#include "surfacer/v1/surfacer.pb.h"
 
 namespace surfacer::fuzz {
 namespace {

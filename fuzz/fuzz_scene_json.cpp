@@ -15,12 +15,12 @@
 #include <string>
 #include <vector>
 
-#include "core/util/errors.h"
 #include "core/scene/scene.h"
+#include "core/util/errors.h"
 #include "fuzz/fuzz_input.h"
+#include "surfacer/v1/scene.pb.h"
 #include "wire/scene.h"
 #include "wire/uploads.h"
-#include "surfacer/v1/scene.pb.h"
 
 namespace surfacer::fuzz {
 namespace {
@@ -58,7 +58,8 @@ void probe(const Field& field) {
   if (bounds && sane(bounds->min) && sane(bounds->max)) {
     const double pad = 1.0 + bounds->size().maxCoeff();
     for (const Vec3& dir : {Vec3(1, 0, 0), Vec3(0, -1, 0), Vec3(0, 0, 1), Vec3(-1, -1, -1)}) {
-      const Vec3 corner(dir.x() > 0 ? bounds->max.x() : bounds->min.x(), dir.y() > 0 ? bounds->max.y() : bounds->min.y(),
+      const Vec3 corner(dir.x() > 0 ? bounds->max.x() : bounds->min.x(),
+                        dir.y() > 0 ? bounds->max.y() : bounds->min.y(),
                         dir.z() > 0 ? bounds->max.z() : bounds->min.z());
       const Vec3 p = corner + pad * dir;
       const double v = field.value(p);

@@ -8,10 +8,10 @@
 #include <cstdint>
 #include <string>
 
+#include "core/util/crc32.h"
 #include "fuzz/fuzz_input.h"
 #include "server/upload_assembler.h"
 #include "server/uploads.h"
-#include "core/util/crc32.h"
 
 namespace surfacer::fuzz {
 namespace {
@@ -27,7 +27,7 @@ std::int64_t limit_from(FuzzInput& in) {
 }
 
 struct Model {
-  std::string bytes;        // accepted so far
+  std::string bytes;  // accepted so far
   std::uint64_t expected = 0;
   int chunks = 0;
   bool failed = false;
@@ -149,16 +149,27 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
         if (in.flag()) chunk.set_total_bytes(in.flag() ? in.u64() : in.u16());
         chunk.set_data(in.bytes(in.u8()));
         switch (in.u8() % 3) {
-          case 0: break;
-          case 1: chunk.set_crc32(crc32_of(chunk.data().data(), chunk.data().size())); break;
-          default: chunk.set_crc32(in.u32()); break;
+          case 0:
+            break;
+          case 1:
+            chunk.set_crc32(crc32_of(chunk.data().data(), chunk.data().size()));
+            break;
+          default:
+            chunk.set_crc32(in.u32());
+            break;
         }
         h.add(chunk);
         break;
       }
-      case 1: h.finish(); break;
-      case 2: h.take(); break;
-      default: fuzz::well_formed_upload(in, h); break;
+      case 1:
+        h.finish();
+        break;
+      case 2:
+        h.take();
+        break;
+      default:
+        fuzz::well_formed_upload(in, h);
+        break;
     }
   }
   return 0;

@@ -53,8 +53,9 @@ std::unique_ptr<TokenAuth> TokenAuth::parse(const std::string& text, const std::
     const std::string where = origin + ":" + std::to_string(number);
     if (!(words >> tenant_name)) throw std::runtime_error(where + ": expected `TOKEN TENANT [running=N] [bytes=N]`");
     if (token.size() < 16) {
-      throw std::runtime_error(where + ": token shorter than 16 characters; use a long random token (e.g. "
-                                       "`openssl rand -hex 32`)");
+      throw std::runtime_error(where +
+                               ": token shorter than 16 characters; use a long random token (e.g. "
+                               "`openssl rand -hex 32`)");
     }
     Tenant tenant{tenant_name};
     while (words >> word) {

@@ -97,7 +97,9 @@ std::vector<int> Job::restore(const StoredJob& stored) {
         if (!runner_ || done.count(c.task)) continue;
         runner_->resume_from(c.task, c.next_frame, c.state);
         log_event(LogLevel::kInfo, "job_checkpoint",
-                  {{"job", id_}, {"task", std::to_string(c.task)}, {"next_frame", std::to_string(c.next_frame)},
+                  {{"job", id_},
+                   {"task", std::to_string(c.task)},
+                   {"next_frame", std::to_string(c.next_frame)},
                    {"bytes", std::to_string(c.state.size())}});
       }
       for (int t = 0; t < tasks_total_; ++t) {
@@ -392,9 +394,9 @@ void Job::task_failed(int task, int grpc_code, const std::string& message) {
   // A failed task fails the job: stop its other tasks.
   cancel_.cancel();
   if (finished) {
-    log_event(LogLevel::kWarn, "job_finished",
-              {{"job", id_}, {"state", v1::JobState_Name(state())}, {"task", std::to_string(task)},
-               {"error", message}});
+    log_event(
+        LogLevel::kWarn, "job_finished",
+        {{"job", id_}, {"state", v1::JobState_Name(state())}, {"task", std::to_string(task)}, {"error", message}});
     finished_hooks();
   }
   notify();

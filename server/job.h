@@ -9,10 +9,9 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <set>
 #include <string>
 #include <vector>
-
-#include <set>
 
 #include "core/util/run_control.h"
 #include "server/runners/runner.h"
@@ -44,7 +43,6 @@ struct FrameRecord {
   std::shared_ptr<const std::string> bytes;
 };
 
-
 // Where a WatchJob stream is in a job's event sequence.
 struct WatchCursor {
   int from_frame = 0;
@@ -61,7 +59,7 @@ struct WatchCursor {
 struct JobInit {
   std::string id;
   std::string name;
-  std::string owner;  // tenant ("" without authentication)
+  std::string owner;                  // tenant ("" without authentication)
   std::unique_ptr<JobRunner> runner;  // null only for a finished job restored from the store
   std::string kind;                   // used when runner is null
   Store* store = nullptr;             // durable store, or null (memory only)

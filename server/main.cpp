@@ -1,6 +1,5 @@
 // surfacer-server: the Surfacer gRPC service on a port.
 #include <CLI/CLI.hpp>
-
 #include <csignal>
 #include <fstream>
 #include <iostream>
@@ -20,9 +19,10 @@ int main(int argc, char** argv) {
   double drain_seconds = 30.0;
   bool verbose = false;
 
-  CLI::App app{"surfacer-server: turns implicit scenes and particle simulations into triangle meshes and streams them "
-               "back frame by frame, Draco-compressed (gRPC service surfacer.v1.Surfacer, plus grpc.health.v1 and "
-               "server reflection).\n\nExample:\n  surfacer-server --listen 0.0.0.0:50051 --workers 2\n"};
+  CLI::App app{
+      "surfacer-server: turns implicit scenes and particle simulations into triangle meshes and streams them "
+      "back frame by frame, Draco-compressed (gRPC service surfacer.v1.Surfacer, plus grpc.health.v1 and "
+      "server reflection).\n\nExample:\n  surfacer-server --listen 0.0.0.0:50051 --workers 2\n"};
   app.add_option("--listen", options.listen, "host:port to listen on (port 0 picks a free port)")
       ->capture_default_str();
   app.add_option("--port-file", port_file, "write the bound port to this file once listening");
@@ -32,8 +32,7 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--max-grid-cells", options.limits.max_grid_cells, "largest grid (cells) a frame may use")
       ->capture_default_str();
-  app.add_option("--max-particles", options.limits.max_particles, "most particles in one frame")
-      ->capture_default_str();
+  app.add_option("--max-particles", options.limits.max_particles, "most particles in one frame")->capture_default_str();
   app.add_option("--max-triangles", options.limits.max_triangles, "most triangles in one output frame")
       ->capture_default_str();
   app.add_option("--max-upload-bytes", options.limits.max_upload_bytes, "largest single upload, in bytes")
@@ -45,8 +44,7 @@ int main(int argc, char** argv) {
                  "durable store: SQLite database + frame/upload files in this directory; unfinished jobs resume "
                  "after a restart (default: none, memory only)");
   app.add_flag("--memory-only", memory_only, "keep jobs in memory only (lost on restart)")->excludes("--data-dir");
-  app.add_option("--retain-hours", retain_hours,
-                 "keep finished jobs (and unused uploads) this long, then delete them")
+  app.add_option("--retain-hours", retain_hours, "keep finished jobs (and unused uploads) this long, then delete them")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
   app.add_option("--retain-bytes", options.retain_bytes,
@@ -116,8 +114,7 @@ int main(int argc, char** argv) {
       server->cancel_jobs("server shutting down (second signal)");
     });
     second.detach();
-    server->shutdown(ShutdownMode::kDrain,
-                     std::chrono::milliseconds(static_cast<long long>(drain_seconds * 1000.0)));
+    server->shutdown(ShutdownMode::kDrain, std::chrono::milliseconds(static_cast<long long>(drain_seconds * 1000.0)));
   });
   server->wait();
   signal_thread.join();

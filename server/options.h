@@ -10,11 +10,11 @@ namespace surfacer::server {
 
 // Sizes beyond these answer RESOURCE_EXHAUSTED with a message naming the limit and the flag that raises it.
 struct Limits {
-  std::int64_t max_grid_cells = std::int64_t{1} << 30;       // --max-grid-cells (cells per frame)
-  std::int64_t max_particles = 50'000'000;                   // --max-particles (per frame)
-  std::int64_t max_triangles = 50'000'000;                   // --max-triangles (per frame)
-  std::int64_t max_upload_bytes = std::int64_t{4} << 30;     // --max-upload-bytes (per upload)
-  std::int64_t max_frames = 100'000;                         // --max-frames (per job)
+  std::int64_t max_grid_cells = std::int64_t{1} << 30;    // --max-grid-cells (cells per frame)
+  std::int64_t max_particles = 50'000'000;                // --max-particles (per frame)
+  std::int64_t max_triangles = 50'000'000;                // --max-triangles (per frame)
+  std::int64_t max_upload_bytes = std::int64_t{4} << 30;  // --max-upload-bytes (per upload)
+  std::int64_t max_frames = 100'000;                      // --max-frames (per job)
 };
 
 struct ServerOptions {

@@ -47,7 +47,8 @@ void Scheduler::resume(std::shared_ptr<Job> job, std::vector<int> tasks) {
     if (n > 0) pending_.push_back({job, std::move(tasks), 0});
   }
   if (n > 0) {
-    log_event(LogLevel::kInfo, "job_resumed", {{"job", job->id()}, {"kind", job->kind()}, {"tasks", std::to_string(n)}});
+    log_event(LogLevel::kInfo, "job_resumed",
+              {{"job", job->id()}, {"kind", job->kind()}, {"tasks", std::to_string(n)}});
   }
   for (int i = 0; i < n; ++i) pool_.post([this] { run_next_task(); });
 }

@@ -1,10 +1,9 @@
 #include "server/server.h"
 
+#include <google/protobuf/util/time_util.h>
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
-
-#include <google/protobuf/util/time_util.h>
 
 #include <algorithm>
 #include <cctype>
@@ -16,11 +15,11 @@
 #include <thread>
 
 #include "server/auth.h"
-#include "server/runners/runner.h"
 #include "server/job.h"
-#include "server/scheduler.h"
 #include "server/log.h"
 #include "server/metrics_http.h"
+#include "server/runners/runner.h"
+#include "server/scheduler.h"
 #include "server/server_metrics.h"
 #include "server/service.h"
 #include "server/status_map.h"
@@ -72,8 +71,7 @@ std::shared_ptr<grpc::ServerCredentials> server_credentials(const ServerOptions&
   grpc::SslServerCredentialsOptions ssl(o.tls_client_ca_file.empty()
                                             ? GRPC_SSL_DONT_REQUEST_CLIENT_CERTIFICATE
                                             : GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY);
-  ssl.pem_key_cert_pairs.push_back(
-      {read_file(o.tls_key_file, "--tls-key"), read_file(o.tls_cert_file, "--tls-cert")});
+  ssl.pem_key_cert_pairs.push_back({read_file(o.tls_key_file, "--tls-key"), read_file(o.tls_cert_file, "--tls-cert")});
   if (!o.tls_client_ca_file.empty()) ssl.pem_root_certs = read_file(o.tls_client_ca_file, "--tls-client-ca");
   return grpc::SslServerCredentials(ssl);
 }
@@ -148,7 +146,8 @@ void SurfacerServer::Impl::register_metrics() {
   hooks.on_frame = [this](const Job& job, const v1::FrameHeader& header) {
     metrics.frames.with({job.kind()}).inc();
     metrics.frame_bytes.inc(static_cast<double>(header.total_bytes()));
-    for (const auto& t : header.stats().timings()) metrics.stage_seconds.with({job.kind(), t.stage()}).observe(t.seconds());
+    for (const auto& t : header.stats().timings())
+      metrics.stage_seconds.with({job.kind(), t.stage()}).observe(t.seconds());
     const v1::Job snap = job.snapshot();
     if (snap.has_started()) {
       const double since = TimeUtil::DurationToNanoseconds(TimeUtil::GetCurrentTime() - snap.started()) * 1e-9;
@@ -162,16 +161,27 @@ void SurfacerServer::Impl::register_metrics() {
     metrics.jobs_finished.with({job.kind(), state}).inc();
   };
   registry.gauge_callback_family("surfacer_jobs", "Jobs known to this server, by state", {"state"}, [this] {
-    std::map<std::string, double> counts = {{"queued", 0}, {"running", 0}, {"succeeded", 0}, {"failed", 0},
-                                            {"cancelled", 0}};
+    std::map<std::string, double> counts = {
+        {"queued", 0}, {"running", 0}, {"succeeded", 0}, {"failed", 0}, {"cancelled", 0}};
     for (const auto& job : scheduler.list()) {
       switch (job->state()) {
-        case v1::JOB_STATE_QUEUED: counts["queued"] += 1; break;
-        case v1::JOB_STATE_RUNNING: counts["running"] += 1; break;
-        case v1::JOB_STATE_SUCCEEDED: counts["succeeded"] += 1; break;
-        case v1::JOB_STATE_FAILED: counts["failed"] += 1; break;
-        case v1::JOB_STATE_CANCELLED: counts["cancelled"] += 1; break;
-        default: break;
+        case v1::JOB_STATE_QUEUED:
+          counts["queued"] += 1;
+          break;
+        case v1::JOB_STATE_RUNNING:
+          counts["running"] += 1;
+          break;
+        case v1::JOB_STATE_SUCCEEDED:
+          counts["succeeded"] += 1;
+          break;
+        case v1::JOB_STATE_FAILED:
+          counts["failed"] += 1;
+          break;
+        case v1::JOB_STATE_CANCELLED:
+          counts["cancelled"] += 1;
+          break;
+        default:
+          break;
       }
     }
     std::vector<LabelledValue> out;
@@ -338,7 +348,8 @@ std::unique_ptr<SurfacerServer> SurfacerServer::start(const ServerOptions& optio
     }
   }
   impl->set_serving(true);
-  if (!options.metrics_listen.empty()) impl->metrics_http = MetricsHttpServer::start(impl->registry, options.metrics_listen);
+  if (!options.metrics_listen.empty())
+    impl->metrics_http = MetricsHttpServer::start(impl->registry, options.metrics_listen);
   impl->janitor = std::thread([p = impl.get()] { p->janitor_loop(); });
   log_event(LogLevel::kInfo, "server_started",
             {{"listen", options.listen.empty() ? "in-process" : options.listen},

@@ -9,13 +9,14 @@ namespace surfacer::server {
 struct ServerMetrics {
   explicit ServerMetrics(MetricsRegistry& r)
       : jobs_submitted(r.counter("surfacer_jobs_submitted_total", "Jobs accepted by SubmitJob", {"kind"})),
-        jobs_rejected(r.counter("surfacer_jobs_rejected_total", "SubmitJob calls refused, by gRPC status code",
-                                {"code"})),
+        jobs_rejected(
+            r.counter("surfacer_jobs_rejected_total", "SubmitJob calls refused, by gRPC status code", {"code"})),
         jobs_finished(r.counter("surfacer_jobs_finished_total", "Jobs that reached a final state", {"kind", "state"})),
         frames(r.counter("surfacer_frames_total", "Frames finished (rate() gives frames/s)", {"kind"})),
         frame_bytes(r.counter("surfacer_frame_bytes_total", "Bytes of finished frames (encoded meshes)").with()),
-        stage_seconds(r.histogram("surfacer_stage_seconds", "Time per frame stage (sample, polygonize, smooth, encode, "
-                                                            "...)",
+        stage_seconds(r.histogram("surfacer_stage_seconds",
+                                  "Time per frame stage (sample, polygonize, smooth, encode, "
+                                  "...)",
                                   latency_buckets(), {"kind", "stage"})),
         frame_seconds(r.histogram("surfacer_frame_seconds", "Wall time from job start to each finished frame",
                                   latency_buckets(), {"kind"})),

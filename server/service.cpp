@@ -3,10 +3,10 @@
 #include <mutex>
 
 #include "core/util/errors.h"
-#include "server/runners/runner.h"
 #include "server/log.h"
-#include "server/status_map.h"
+#include "server/runners/runner.h"
 #include "server/server_metrics.h"
+#include "server/status_map.h"
 #include "server/store.h"
 #include "server/upload_assembler.h"
 #include "wire/status.h"
@@ -32,8 +32,9 @@ grpc::Status not_found(const std::string& id) {
 }
 
 grpc::Status invalid_job_id(const std::string& id) {
-  return id.empty() ? grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, "job_id is empty; give the id SubmitJob returned")
-                    : not_found(id);
+  return id.empty()
+             ? grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, "job_id is empty; give the id SubmitJob returned")
+             : not_found(id);
 }
 
 // Streams one job's events. Kept alive by a self-reference until OnDone, and by the job's weak listener list
@@ -288,7 +289,8 @@ grpc::ServerUnaryReactor* SurfacerService::SubmitJob(grpc::CallbackServerContext
     reactor->Finish(grpc::Status::OK);
   } catch (...) {
     const grpc::Status status = status_from_exception(std::current_exception());
-    if (state_.metrics) state_.metrics->jobs_rejected.with({std::string(wire::status_code_name(status.error_code()))}).inc();
+    if (state_.metrics)
+      state_.metrics->jobs_rejected.with({std::string(wire::status_code_name(status.error_code()))}).inc();
     log_event(LogLevel::kInfo, "job_rejected",
               {{"code", std::to_string(status.error_code())}, {"error", status.error_message()}});
     reactor->Finish(status);

@@ -6,8 +6,8 @@
 
 #include "server/auth.h"
 #include "server/job.h"
-#include "server/scheduler.h"
 #include "server/options.h"
+#include "server/scheduler.h"
 #include "server/uploads.h"
 #include "surfacer/v1/surfacer.grpc.pb.h"
 
@@ -21,7 +21,7 @@ struct ServiceState {
   int worker_threads = 1;
   Scheduler* scheduler = nullptr;
   UploadStore* uploads = nullptr;
-  Store* store = nullptr;         // null: memory only
+  Store* store = nullptr;           // null: memory only
   const TokenAuth* auth = nullptr;  // null: no authentication, every caller is `open_tenant`
   Tenant open_tenant;
   Usage* usage = nullptr;
@@ -31,8 +31,7 @@ struct ServiceState {
 };
 
 // The caller's tenant, or UNAUTHENTICATED.
-const Tenant* authenticate(const ServiceState& state, const grpc::CallbackServerContext& context,
-                           grpc::Status& status);
+const Tenant* authenticate(const ServiceState& state, const grpc::CallbackServerContext& context, grpc::Status& status);
 
 class SurfacerService final : public v1::Surfacer::CallbackService {
  public:

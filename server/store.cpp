@@ -1,12 +1,11 @@
 #include "server/store.h"
 
 #include <fcntl.h>
+#include <google/protobuf/descriptor.h>
+#include <google/protobuf/util/time_util.h>
 #include <sqlite3.h>
 #include <sys/file.h>
 #include <unistd.h>
-
-#include <google/protobuf/descriptor.h>
-#include <google/protobuf/util/time_util.h>
 
 #include <cerrno>
 #include <cstring>
@@ -67,8 +66,8 @@ class Stmt {
   std::int64_t integer(int col) const { return sqlite3_column_int64(stmt_, col); }
 
   [[noreturn]] void throw_sqlite(int rc) const {
-    const std::string message = std::string("the job database refused a write (") + sqlite3_errstr(rc) + ": " +
-                                sqlite3_errmsg(db_) + ")";
+    const std::string message =
+        std::string("the job database refused a write (") + sqlite3_errstr(rc) + ": " + sqlite3_errmsg(db_) + ")";
     if (rc == SQLITE_FULL || rc == SQLITE_IOERR || (rc & 0xFF) == SQLITE_IOERR || rc == SQLITE_READONLY ||
         (rc & 0xFF) == SQLITE_READONLY || rc == SQLITE_CANTOPEN) {
       throw ResourceLimit("data_dir", message + "; free disk space in the server's --data-dir");
@@ -165,8 +164,7 @@ std::unique_ptr<Store> Store::open(const fs::path& dir) {
     holder.resize(n > 0 ? static_cast<std::size_t>(n) : 0);
     while (!holder.empty() && (holder.back() == '\n' || holder.back() == '\0')) holder.pop_back();
     throw std::runtime_error("data dir " + dir.string() + " is in use by another surfacer-server" +
-                             (holder.empty() ? "" : " (pid " + holder + ")") +
-                             "; give each server its own --data-dir");
+                             (holder.empty() ? "" : " (pid " + holder + ")") + "; give each server its own --data-dir");
   }
   const std::string pid = std::to_string(::getpid()) + "\n";
   if (::ftruncate(store->lock_fd_, 0) == 0) (void)!::pwrite(store->lock_fd_, pid.data(), pid.size(), 0);
@@ -287,8 +285,7 @@ void Store::remove_orphans() {
   }
 }
 
-void Store::put_job(const std::string& id, const std::string& owner, const v1::JobSpec& spec,
-                    const v1::Job& snapshot) {
+void Store::put_job(const std::string& id, const std::string& owner, const v1::JobSpec& spec, const v1::Job& snapshot) {
   if (!valid_id(id)) throw Internal("store: bad job id");
   std::lock_guard lock(mutex_);
   Stmt s(db_, "INSERT INTO jobs(id, owner, spec, snapshot, state, created) VALUES(?,?,?,?,?,?)");
@@ -382,7 +379,8 @@ void Store::put_checkpoint(const std::string& job_id, int task, int next_frame, 
     fs::remove(path, ec);
     throw;
   }
-  if (previous >= 0 && previous != next_frame) fs::remove(checkpoint_path(job_id, task, static_cast<int>(previous)), ec);
+  if (previous >= 0 && previous != next_frame)
+    fs::remove(checkpoint_path(job_id, task, static_cast<int>(previous)), ec);
 }
 
 void Store::delete_job(const std::string& id) {
@@ -570,7 +568,8 @@ std::vector<std::pair<std::string, std::string>> Store::referenced_upload_fields
         }
       }
     } else if (field->type() == FD::TYPE_MESSAGE) {
-      if (reflection->HasField(message, field)) append(referenced_upload_fields(reflection->GetMessage(message, field), path));
+      if (reflection->HasField(message, field))
+        append(referenced_upload_fields(reflection->GetMessage(message, field), path));
     } else if (is_upload) {
       std::string v = reflection->GetString(message, field);
       if (!v.empty()) out.emplace_back(path, std::move(v));

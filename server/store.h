@@ -34,7 +34,7 @@ struct StoredJob {
   std::string id;
   std::string owner;
   v1::JobSpec spec;
-  v1::Job snapshot;  // last persisted state (terminal ones are final)
+  v1::Job snapshot;                     // last persisted state (terminal ones are final)
   std::vector<v1::FrameHeader> frames;  // in completion order
   std::vector<int> tasks_done;
   struct Checkpoint {

@@ -1,15 +1,15 @@
 #include "server/upload_assembler.h"
 
-#include "core/util/crc32.h"
-
 #include <algorithm>
 #include <string>
+
+#include "core/util/crc32.h"
 
 namespace surfacer::server {
 namespace {
 constexpr std::size_t kMaxUploadName = 1024;
 constexpr std::uint64_t kReserveAtMost = std::uint64_t{4} << 20;
-}
+}  // namespace
 
 UploadAssembler::UploadAssembler(std::int64_t max_bytes, std::string limit_hint)
     : max_bytes_(std::max<std::int64_t>(0, max_bytes)), limit_hint_(std::move(limit_hint)) {}
@@ -21,9 +21,8 @@ grpc::Status UploadAssembler::fail(grpc::Status status) {
 }
 
 grpc::Status UploadAssembler::over_limit(std::uint64_t bytes) const {
-  return {grpc::StatusCode::RESOURCE_EXHAUSTED, "upload of " + std::to_string(bytes) +
-                                                    " bytes exceeds the limit of " + std::to_string(max_bytes_) +
-                                                    " bytes; " + limit_hint_};
+  return {grpc::StatusCode::RESOURCE_EXHAUSTED, "upload of " + std::to_string(bytes) + " bytes exceeds the limit of " +
+                                                    std::to_string(max_bytes_) + " bytes; " + limit_hint_};
 }
 
 grpc::Status UploadAssembler::add(const v1::UploadChunk& chunk) {
@@ -51,8 +50,8 @@ grpc::Status UploadAssembler::add(const v1::UploadChunk& chunk) {
   const std::uint64_t total = blob_->bytes.size() + data.size();
   if (total > static_cast<std::uint64_t>(max_bytes_)) return fail(over_limit(total));
   if (expected_ != 0 && total > expected_) {
-    return fail({grpc::StatusCode::DATA_LOSS, "total_bytes: the first chunk announced " + std::to_string(expected_) +
-                                                  " bytes but more arrived"});
+    return fail({grpc::StatusCode::DATA_LOSS,
+                 "total_bytes: the first chunk announced " + std::to_string(expected_) + " bytes but more arrived"});
   }
   crc_ = crc32_of(data.data(), data.size(), crc_);
   blob_->bytes += data;

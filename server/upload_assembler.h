@@ -16,8 +16,9 @@ class UploadAssembler {
  public:
   // max_bytes: the server's --max-upload-bytes (or a tenant's remaining quota, whichever is smaller);
   // limit_hint: what to say about raising it.
-  explicit UploadAssembler(std::int64_t max_bytes, std::string limit_hint = "start the server with a larger "
-                                                                            "--max-upload-bytes");
+  explicit UploadAssembler(std::int64_t max_bytes, std::string limit_hint =
+                                                       "start the server with a larger "
+                                                       "--max-upload-bytes");
 
   // Adds the next chunk. A non-OK status ends the upload (RESOURCE_EXHAUSTED past the limit, DATA_LOSS on a bad
   // checksum, INVALID_ARGUMENT on a malformed chunk); later calls return the same status.

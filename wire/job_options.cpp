@@ -8,10 +8,14 @@ namespace surfacer::wire {
 
 Polygonizer to_polygonizer(int value, Polygonizer unspecified, const std::string& field) {
   switch (value) {
-    case v1::POLYGONIZER_UNSPECIFIED: return unspecified;
-    case v1::POLYGONIZER_TILES: return Polygonizer::kTiles;
-    case v1::POLYGONIZER_CUBES: return Polygonizer::kCubes;
-    default: break;
+    case v1::POLYGONIZER_UNSPECIFIED:
+      return unspecified;
+    case v1::POLYGONIZER_TILES:
+      return Polygonizer::kTiles;
+    case v1::POLYGONIZER_CUBES:
+      return Polygonizer::kCubes;
+    default:
+      break;
   }
   throw InvalidInput(field, field + " (" + std::to_string(value) +
                                 ") is not a polygonizer; use POLYGONIZER_TILES or POLYGONIZER_CUBES");

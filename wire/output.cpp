@@ -9,8 +9,12 @@ FrameEncoding frame_encoding(const v1::OutputOptions& options, const Aabb& job_b
   FrameEncoding out;
   switch (options.encoding()) {
     case v1::MESH_ENCODING_UNSPECIFIED:
-    case v1::MESH_ENCODING_DRACO: out.encoding = v1::MESH_ENCODING_DRACO; break;
-    case v1::MESH_ENCODING_PLY: out.encoding = v1::MESH_ENCODING_PLY; break;
+    case v1::MESH_ENCODING_DRACO:
+      out.encoding = v1::MESH_ENCODING_DRACO;
+      break;
+    case v1::MESH_ENCODING_PLY:
+      out.encoding = v1::MESH_ENCODING_PLY;
+      break;
     default:
       throw InvalidInput(path + ".encoding", path + ".encoding (" + std::to_string(options.encoding()) +
                                                  ") is not a mesh encoding; use MESH_ENCODING_DRACO or "

@@ -6,8 +6,8 @@
 
 #include "core/util/errors.h"
 #include "core/util/format.h"
-#include "wire/uploads.h"
 #include "surfacer/v1/surfacer.pb.h"
+#include "wire/uploads.h"
 
 namespace surfacer::wire {
 namespace {
@@ -16,8 +16,7 @@ void check_count(std::size_t count, const std::string& path, std::int64_t max_pa
   if (count == 0) throw InvalidInput(path, path + " has no particles; every frame needs at least one");
   if (static_cast<std::int64_t>(count) > max_particles) {
     throw ResourceLimit("max_particles", path + " has " + std::to_string(count) +
-                                             " particles, over the server's limit of " +
-                                             std::to_string(max_particles) +
+                                             " particles, over the server's limit of " + std::to_string(max_particles) +
                                              " per frame; subsample, or start the server with a larger "
                                              "--max-particles");
   }
@@ -33,8 +32,8 @@ void for_each_particle(const v1::ParticleFrame& frame, const std::string& path, 
       throw InvalidInput(path, path + ": particle " + std::to_string(i) + " has a coordinate that is not finite");
     }
     if (has_radius && !(r > 0.0 && std::isfinite(r))) {
-      throw InvalidInput(path + ".radii", path + ": particle " + std::to_string(i) + " has radius " +
-                                              format_number(r) + "; radii must be finite and > 0");
+      throw InvalidInput(path + ".radii", path + ": particle " + std::to_string(i) + " has radius " + format_number(r) +
+                                              "; radii must be finite and > 0");
     }
   };
   if (!frame.upload_id().empty()) {

@@ -22,8 +22,8 @@ struct ParticleData {
 
 struct ParticleSummary {
   std::int64_t count = 0;
-  Aabb bounds;             // of the positions
-  double max_radius = 0;   // 0 when the frame has no radii
+  Aabb bounds;            // of the positions
+  double max_radius = 0;  // 0 when the frame has no radii
 };
 
 // Validates a frame and summarizes it without keeping the positions (used at submit time for the job's bounds).

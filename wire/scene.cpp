@@ -1,14 +1,13 @@
 #include "wire/scene.h"
 
 #include <Eigen/Geometry>
-
 #include <cmath>
 #include <cstring>
 
 #include "core/util/checks.h"
 #include "core/util/errors.h"
-#include "wire/uploads.h"
 #include "surfacer/v1/scene.pb.h"
+#include "wire/uploads.h"
 
 namespace surfacer::wire {
 namespace {
@@ -45,26 +44,23 @@ class Translator {
       case NodeProto::kRoundedBox: {
         const auto& b = n.rounded_box();
         return with_path(path + ".rounded_box",
-                       [&] { return make_rounded_box(to_vec3(b.center()), to_vec3(b.half_size()), b.radius()); });
+                         [&] { return make_rounded_box(to_vec3(b.center()), to_vec3(b.half_size()), b.radius()); });
       }
       case NodeProto::kCylinder: {
         const auto& c = n.cylinder();
-        return with_path(path + ".cylinder",
-                       [&] { return make_cylinder(to_vec3(c.a()), to_vec3(c.b()), c.radius()); });
+        return with_path(path + ".cylinder", [&] { return make_cylinder(to_vec3(c.a()), to_vec3(c.b()), c.radius()); });
       }
       case NodeProto::kCone: {
         const auto& c = n.cone();
-        return with_path(path + ".cone", [&] {
-          return make_cone(to_vec3(c.a()), to_vec3(c.b()), c.radius_a(), c.radius_b());
-        });
+        return with_path(path + ".cone",
+                         [&] { return make_cone(to_vec3(c.a()), to_vec3(c.b()), c.radius_a(), c.radius_b()); });
       }
       case NodeProto::kTorus: {
         const auto& t = n.torus();
         Vec3 axis = to_vec3(t.axis());
         if (axis.isZero()) axis = Vec3::UnitZ();
-        return with_path(path + ".torus", [&] {
-          return make_torus(to_vec3(t.center()), axis, t.major_radius(), t.minor_radius());
-        });
+        return with_path(path + ".torus",
+                         [&] { return make_torus(to_vec3(t.center()), axis, t.major_radius(), t.minor_radius()); });
       }
       case NodeProto::kPlane: {
         const auto& p = n.plane();
@@ -72,8 +68,7 @@ class Translator {
       }
       case NodeProto::kCapsule: {
         const auto& c = n.capsule();
-        return with_path(path + ".capsule",
-                       [&] { return make_capsule(to_vec3(c.a()), to_vec3(c.b()), c.radius()); });
+        return with_path(path + ".capsule", [&] { return make_capsule(to_vec3(c.a()), to_vec3(c.b()), c.radius()); });
       }
       case NodeProto::kGyroid: {
         const auto& g = n.gyroid();
@@ -94,8 +89,9 @@ class Translator {
       case NodeProto::KIND_NOT_SET:
         break;
     }
-    throw InvalidInput(path, path + " is empty; give one of sphere, box, rounded_box, cylinder, cone, torus, "
-                                     "plane, capsule, gyroid, blobs, union, intersection, difference, transform, grid");
+    throw InvalidInput(path, path +
+                                 " is empty; give one of sphere, box, rounded_box, cylinder, cone, torus, "
+                                 "plane, capsule, gyroid, blobs, union, intersection, difference, transform, grid");
   }
 
   FieldPtr blobs(const v1::Blobs& b, const std::string& path) {
@@ -124,9 +120,15 @@ class Translator {
     }
     CsgOptions options;
     switch (c.blend()) {
-      case v1::BLEND_RFUNCTION: options.blend = CsgBlend::kRFunction; break;
-      case v1::BLEND_SMOOTH: options.blend = CsgBlend::kSmooth; break;
-      default: options.blend = CsgBlend::kMinMax; break;
+      case v1::BLEND_RFUNCTION:
+        options.blend = CsgBlend::kRFunction;
+        break;
+      case v1::BLEND_SMOOTH:
+        options.blend = CsgBlend::kSmooth;
+        break;
+      default:
+        options.blend = CsgBlend::kMinMax;
+        break;
     }
     options.radius = c.radius();
     return with_path(path, [&] { return make_csg(op, std::move(children), options); });
@@ -183,17 +185,15 @@ class Translator {
       }
       auto blob = uploads_.get(g.upload_id(), path + ".upload_id");
       if (blob->bytes.size() % sizeof(float) != 0) {
-        throw InvalidInput(path + ".upload_id", path + ".upload_id: upload has " +
-                                                    std::to_string(blob->bytes.size()) +
+        throw InvalidInput(path + ".upload_id", path + ".upload_id: upload has " + std::to_string(blob->bytes.size()) +
                                                     " bytes, not a whole number of float32 values");
       }
       std::vector<float> values(blob->bytes.size() / sizeof(float));
       std::memcpy(values.data(), blob->bytes.data(), values.size() * sizeof(float));
       return with_path(path, [&] { return make_sampled_grid(desc, values); });
     }
-    return with_path(path, [&] {
-      return make_sampled_grid(desc, std::span<const float>(g.values().data(), g.values_size()));
-    });
+    return with_path(
+        path, [&] { return make_sampled_grid(desc, std::span<const float>(g.values().data(), g.values_size())); });
   }
 
   const UploadLookup& uploads_;
@@ -223,12 +223,12 @@ void set_bounds(v1::Bounds& out, const Aabb& box) {
 
 FieldPtr field_from_scene(const v1::Scene& scene, const std::string& path, const UploadLookup& uploads) {
   if (!scene.has_root()) {
-    throw InvalidInput(path + ".root", path + ".root is missing; a scene needs a root node, e.g. "
-                                              "{\"root\": {\"sphere\": {\"radius\": 1}}}");
+    throw InvalidInput(path + ".root", path +
+                                           ".root is missing; a scene needs a root node, e.g. "
+                                           "{\"root\": {\"sphere\": {\"radius\": 1}}}");
   }
   Translator translator(uploads);
   return translator.node(scene.root(), path + ".root");
 }
 
 }  // namespace surfacer::wire
-

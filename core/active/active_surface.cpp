@@ -58,7 +58,6 @@ constexpr double kInterfaceSlack = 0.5;
 constexpr double kInf = std::numeric_limits<double>::infinity();
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
-
 // Per-thread scratch arrays for aprons.
 float* scratch(int slot, std::size_t size) {
   thread_local std::vector<float> buffers[4];
@@ -66,12 +65,12 @@ float* scratch(int slot, std::size_t size) {
   return buffers[slot].data();
 }
 
-
 }  // namespace
 
 void validate(const ActiveSurfaceOptions& o) {
   const ActiveSurfaceOptions defaults;
-  if (!(o.h > 0.0) || !std::isfinite(o.h)) throw InvalidInput("h", "h (" + format_number(o.h) + ") must be a finite spacing > 0");
+  if (!(o.h > 0.0) || !std::isfinite(o.h))
+    throw InvalidInput("h", "h (" + format_number(o.h) + ") must be a finite spacing > 0");
   if (o.domain) {
     const Aabb& d = *o.domain;
     if (!d.min.allFinite() || !d.max.allFinite() || !d.valid()) {
@@ -84,9 +83,9 @@ void validate(const ActiveSurfaceOptions& o) {
     }
   }
   if (!(o.band_width >= 2.0) || !(o.band_width <= 8.0)) {
-    throw InvalidInput("band_width",
-                       "band_width (" + format_number(o.band_width) + ") must be in [2, 8] grid spacings; the default is " +
-                                                  format_number(defaults.band_width));
+    throw InvalidInput("band_width", "band_width (" + format_number(o.band_width) +
+                                         ") must be in [2, 8] grid spacings; the default is " +
+                                         format_number(defaults.band_width));
   }
   const std::pair<const char*, double> coeffs[] = {
       {"alpha", o.alpha}, {"beta", o.beta}, {"gamma", o.gamma}, {"delta", o.delta}};
@@ -96,14 +95,17 @@ void validate(const ActiveSurfaceOptions& o) {
     }
   }
   if (o.cfl && !(*o.cfl > 0.0 && *o.cfl <= 1.0)) {
-    throw InvalidInput("cfl", "cfl (" + format_number(*o.cfl) + ") must be in (0, 1]; the default is " +
-                                  format_number(*defaults.cfl));
+    throw InvalidInput(
+        "cfl", "cfl (" + format_number(*o.cfl) + ") must be in (0, 1]; the default is " + format_number(*defaults.cfl));
   }
   if (o.substeps_per_frame < 1) throw InvalidInput("substeps_per_frame", "substeps_per_frame must be >= 1");
   if (o.max_substeps_per_frame < 1) throw InvalidInput("max_substeps_per_frame", "max_substeps_per_frame must be >= 1");
-  if (o.reinit_interval < 1) throw InvalidInput("reinit_interval", "reinit_interval must be >= 1; the default is " + std::to_string(defaults.reinit_interval));
+  if (o.reinit_interval < 1)
+    throw InvalidInput("reinit_interval",
+                       "reinit_interval must be >= 1; the default is " + std::to_string(defaults.reinit_interval));
   if (!(o.max_curvature > 0.0) || !std::isfinite(o.max_curvature)) {
-    throw InvalidInput("max_curvature", "max_curvature must be > 0 (in units of 1/h); the default is " + format_number(defaults.max_curvature));
+    throw InvalidInput("max_curvature", "max_curvature must be > 0 (in units of 1/h); the default is " +
+                                            format_number(defaults.max_curvature));
   }
   if (o.threads < 0) throw InvalidInput("threads", "threads must be >= 0 (0: all hardware threads)");
   if (o.max_blocks < 1) throw InvalidInput("max_blocks", "max_blocks must be >= 1");

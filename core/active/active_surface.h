@@ -17,7 +17,8 @@
 //   s = u . n. A uniform u translates the surface by u t whatever the sign convention of f.
 //
 // Engine (core/active/active_surface.cpp; the choices and their measurements are explained there):
-// * Storage: a hash of 8^3-node blocks (core/active/sparse_grid.h) allocated around the band only, so memory grows with the
+// * Storage: a hash of 8^3-node blocks (core/active/sparse_grid.h) allocated around the band only, so memory grows with
+// the
 //   surface area and the grid is unbounded; about 8.5 KB per block (4 float channels + bookkeeping).
 // * Potential profile: f = clamp(-d / (band_width h), -1, 1), d the signed distance (negative inside). Nodes with
 //   |f| < 1, or with a 6-neighbour of the other sign, form the band; the active nodes are the band and its
@@ -61,8 +62,8 @@
 
 #include "core/mesh/mesh.h"
 #include "core/polygonize/polygonize.h"
-#include "core/util/run_control.h"
 #include "core/scene/scene.h"
+#include "core/util/run_control.h"
 
 namespace surfacer {
 
@@ -238,8 +239,8 @@ struct ParticleTargetOptions {
   BlobKernel kernel = BlobKernel::kWyvill;
 };
 // G(x) = sum_i K(|x - p_i| / R) with K(r) = (1 - r^2)^3 (Wyvill, compact) as a normalized field T - G
-// (core/scene/scene.h make_blobs with point skeletons: a uniform grid of cell R, so a query visits only nearby particles).
-// Throws InvalidInput("particles") for an empty set, "radius", "iso".
+// (core/scene/scene.h make_blobs with point skeletons: a uniform grid of cell R, so a query visits only nearby
+// particles). Throws InvalidInput("particles") for an empty set, "radius", "iso".
 FieldPtr make_particle_target(std::span<const Vec3> particles, const ParticleTargetOptions& options);
 
 // --- One-shot helpers for the three modes (each output frame is polygonized and handed to `sink`) -----------------

@@ -1,14 +1,16 @@
 // Polygonization and measures of the active surface's potential (core/active/active_surface.h).
 //
-// * Sparse Marching Cubes on the potential's own grid, with the table of core/polygonize/mc_tables.h (so ambiguous faces are
-//   resolved as in core/polygonize/marching_cubes.cpp). A crossed grid edge belongs to the block of its lower node; a cube to
-//   the block of its lowest corner. Vertices are created per block in (node, axis) order and blocks are concatenated
-//   in block order, so the mesh does not depend on the thread count. A vertex is computed from the global node
-//   coordinates and the two samples of its edge in a fixed order, so every cube sharing an edge computes the same
+// * Sparse Marching Cubes on the potential's own grid, with the table of core/polygonize/mc_tables.h (so ambiguous
+// faces are
+//   resolved as in core/polygonize/marching_cubes.cpp). A crossed grid edge belongs to the block of its lower node; a
+//   cube to the block of its lowest corner. Vertices are created per block in (node, axis) order and blocks are
+//   concatenated in block order, so the mesh does not depend on the thread count. A vertex is computed from the global
+//   node coordinates and the two samples of its edge in a fixed order, so every cube sharing an edge computes the same
 //   point bit for bit; the unwelded measures (area, divergence-theorem volume) therefore see a closed surface.
 // * The sample points of the speed extension are these edge crossings; the speed is stored per (node, axis) of the
 //   owning block, the target evaluated once per crossing.
-// * Marching Tiles (core/polygonize/marching_tiles.h) runs on the trilinear interpolant of f through a Field adapter, seeded
+// * Marching Tiles (core/polygonize/marching_tiles.h) runs on the trilinear interpolant of f through a Field adapter,
+// seeded
 //   with one point per band block (the mean of its crossings).
 #include <Eigen/Geometry>
 #include <algorithm>
@@ -19,9 +21,9 @@
 
 #include "core/active/engine.h"
 #include "core/active/schemes.h"
-#include "core/util/errors.h"
 #include "core/polygonize/marching_tiles.h"
 #include "core/polygonize/mc_tables.h"
+#include "core/util/errors.h"
 #include "core/util/parallel.h"
 
 namespace surfacer {
@@ -34,7 +36,6 @@ using sparse::local_index;
 using sparse::neighbor_slot;
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
-
 
 float* mesh_scratch(std::size_t size) {
   thread_local std::vector<float> buffer;

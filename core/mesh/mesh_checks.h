@@ -9,15 +9,15 @@
 namespace surfacer {
 
 struct MeshReport {
-  bool closed = false;           // no boundary edges
-  bool edge_manifold = false;    // every edge has 1 or 2 incident triangles
-  bool vertex_manifold = false;  // every vertex's incident triangles form one fan (disk or half-disk)
-  bool oriented = false;         // every interior edge is traversed once in each direction
+  bool closed = false;                    // no boundary edges
+  bool edge_manifold = false;             // every edge has 1 or 2 incident triangles
+  bool vertex_manifold = false;           // every vertex's incident triangles form one fan (disk or half-disk)
+  bool oriented = false;                  // every interior edge is traversed once in each direction
   std::int64_t euler_characteristic = 0;  // V - E + F (over referenced vertices)
   int components = 0;                     // connected components (via shared vertices)
   std::int64_t boundary_edges = 0;
-  std::int64_t non_manifold_edges = 0;  // edges with > 2 triangles
-  std::int64_t degenerate_triangles = 0;  // repeated index or zero area
+  std::int64_t non_manifold_edges = 0;          // edges with > 2 triangles
+  std::int64_t degenerate_triangles = 0;        // repeated index or zero area
   std::vector<std::int64_t> valence_histogram;  // [v] = #vertices with v distinct neighbours
   int min_valence = 0;
   int max_valence = 0;

@@ -18,15 +18,13 @@
 #include "core/util/errors.h"
 
 namespace surfacer {
-namespace {
-
-}  // namespace
+namespace {}  // namespace
 
 void validate(const DracoOptions& options) {
   const DracoOptions defaults;
-  require_count("quantization_bits", options.quantization_bits, 1, 30,
-                "the default " + std::to_string(defaults.quantization_bits) +
-                    " keeps errors below 1e-4 of the quantization box");
+  require_count(
+      "quantization_bits", options.quantization_bits, 1, 30,
+      "the default " + std::to_string(defaults.quantization_bits) + " keeps errors below 1e-4 of the quantization box");
   require_count("speed", options.speed, 0, 10,
                 "0: smallest output, 10: fastest; the default is " + std::to_string(defaults.speed));
   if (options.normals) {

@@ -16,9 +16,9 @@
 #include <sstream>
 #include <vector>
 
-#include "core/util/errors.h"
 #include "core/mesh/mesh_codec.h"
 #include "core/mesh/ply.h"
+#include "core/util/errors.h"
 #include "core/util/text.h"
 
 namespace surfacer {
@@ -59,8 +59,9 @@ class PlyBuilder final : public ply::ElementReader {
       if (e.name == "vertex") {
         // Mesh indices are 32-bit (faces may come first and name any index below the declared count).
         if (e.count > std::numeric_limits<std::uint32_t>::max()) {
-          fail(name, line_at(e.header_line),
-               "the vertex element declares " + std::to_string(e.count) + " vertices; at most 4294967295 are supported");
+          fail(
+              name, line_at(e.header_line),
+              "the vertex element declares " + std::to_string(e.count) + " vertices; at most 4294967295 are supported");
         }
         vertex_count_ = e.count;
         layout_.x = e.find({"x"});

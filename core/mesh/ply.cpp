@@ -37,15 +37,19 @@ std::optional<Type> type_from_name(std::string_view name) {
 std::size_t type_size(Type type) {
   switch (type) {
     case Type::kInt8:
-    case Type::kUint8: return 1;
+    case Type::kUint8:
+      return 1;
     case Type::kInt16:
-    case Type::kUint16: return 2;
+    case Type::kUint16:
+      return 2;
     case Type::kInt32:
     case Type::kUint32:
-    case Type::kFloat32: return 4;
+    case Type::kFloat32:
+      return 4;
     case Type::kInt64:
     case Type::kUint64:
-    case Type::kFloat64: return 8;
+    case Type::kFloat64:
+      return 8;
   }
   return 1;
 }
@@ -160,8 +164,8 @@ void read_ascii(std::string_view bytes, const Header& header, ElementReader& rea
         if (!property.list) {
           if (t >= tok.size()) {
             fail(name, where.text(),
-                 "expected " + std::to_string(e.properties.size()) + " numbers for " + item_text(e, i) +
-                     ", found " + std::to_string(tok.size()));
+                 "expected " + std::to_string(e.properties.size()) + " numbers for " + item_text(e, i) + ", found " +
+                     std::to_string(tok.size()));
           }
           if (!parse_double(tok[t], scalars[p])) {
             fail(name, where.text(), "bad number " + quote(tok[t]) + " for " + item_text(e, i));
@@ -226,16 +230,26 @@ class BinaryReader {
     pos_ += size;
     if (swap_) std::reverse(raw, raw + size);
     switch (type) {
-      case Type::kInt8: return static_cast<double>(static_cast<std::int8_t>(raw[0]));
-      case Type::kUint8: return static_cast<double>(raw[0]);
-      case Type::kInt16: return static_cast<double>(load<std::int16_t>(raw));
-      case Type::kUint16: return static_cast<double>(load<std::uint16_t>(raw));
-      case Type::kInt32: return static_cast<double>(load<std::int32_t>(raw));
-      case Type::kUint32: return static_cast<double>(load<std::uint32_t>(raw));
-      case Type::kInt64: return static_cast<double>(load<std::int64_t>(raw));
-      case Type::kUint64: return static_cast<double>(load<std::uint64_t>(raw));
-      case Type::kFloat32: return static_cast<double>(load<float>(raw));
-      case Type::kFloat64: return load<double>(raw);
+      case Type::kInt8:
+        return static_cast<double>(static_cast<std::int8_t>(raw[0]));
+      case Type::kUint8:
+        return static_cast<double>(raw[0]);
+      case Type::kInt16:
+        return static_cast<double>(load<std::int16_t>(raw));
+      case Type::kUint16:
+        return static_cast<double>(load<std::uint16_t>(raw));
+      case Type::kInt32:
+        return static_cast<double>(load<std::int32_t>(raw));
+      case Type::kUint32:
+        return static_cast<double>(load<std::uint32_t>(raw));
+      case Type::kInt64:
+        return static_cast<double>(load<std::int64_t>(raw));
+      case Type::kUint64:
+        return static_cast<double>(load<std::uint64_t>(raw));
+      case Type::kFloat32:
+        return static_cast<double>(load<float>(raw));
+      case Type::kFloat64:
+        return load<double>(raw);
     }
     return 0.0;
   }
@@ -299,8 +313,8 @@ void read_binary(std::string_view bytes, const Header& header, ElementReader& re
           const double value = in.read(property.type, e, i);
           if (keep) {
             if (!whole(value)) {
-              fail(name, where.text(), "bad value " + format_number(value) + " in list " + property.name + " of " +
-                                           item_text(e, i));
+              fail(name, where.text(),
+                   "bad value " + format_number(value) + " in list " + property.name + " of " + item_text(e, i));
             }
             list[k] = value;
           }

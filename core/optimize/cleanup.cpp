@@ -127,7 +127,8 @@ class Cleaner {
   std::vector<std::int32_t>& fan(std::uint32_t v) {
     auto [it, inserted] = fans_.try_emplace(v);
     if (inserted) {
-      for (std::uint32_t i = vt_offset_[v]; i < vt_offset_[v + 1]; ++i) it->second.push_back(static_cast<std::int32_t>(vt_[i]));
+      for (std::uint32_t i = vt_offset_[v]; i < vt_offset_[v + 1]; ++i)
+        it->second.push_back(static_cast<std::int32_t>(vt_[i]));
     }
     return it->second;
   }

@@ -9,20 +9,20 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <limits>
 #include <cstring>
+#include <limits>
 #include <string>
 #include <string_view>
 #include <type_traits>
 #include <utility>
 
-#include "core/util/checks.h"
-#include "core/util/errors.h"
-#include "core/util/state_blob.h"
 #include "core/optimize/cleanup.h"
 #include "core/optimize/refine.h"
-#include "core/util/parallel.h"
 #include "core/scene/scene.h"
+#include "core/util/checks.h"
+#include "core/util/errors.h"
+#include "core/util/parallel.h"
+#include "core/util/state_blob.h"
 
 namespace surfacer {
 namespace {
@@ -164,9 +164,9 @@ void validate(const MeshOptimizerOptions& o) {
   const MeshOptimizerOptions defaults;
   require_range_open_low("c_d", o.c_d, 0.0, 1.0,
                          "the default " + format_number(defaults.c_d) + " takes the full Newton step onto f = 0");
-  require_range_open_low("c_n", o.c_n, 0.0, 1.0,
-                         "the default " + format_number(defaults.c_n) +
-                             " takes the full projection onto the centroid tangent planes");
+  require_range_open_low(
+      "c_n", o.c_n, 0.0, 1.0,
+      "the default " + format_number(defaults.c_n) + " takes the full projection onto the centroid tangent planes");
   require_range_open_low("c_t", o.c_t, 0.0, 1.0, "the paper uses 0.1; the default is " + format_number(defaults.c_t));
   require_range_open_low("step_bound", o.step_bound, 0.0, 1.0,
                          "the paper uses 0.1..0.25; the default is " + format_number(defaults.step_bound));
@@ -188,7 +188,8 @@ void validate(const MeshOptimizerOptions& o) {
   }
   if (o.subdivision_interval < 1) {
     throw InvalidInput("subdivision_interval", "subdivision_interval (" + std::to_string(o.subdivision_interval) +
-                                                   ") must be >= 1; the default is " + std::to_string(defaults.subdivision_interval));
+                                                   ") must be >= 1; the default is " +
+                                                   std::to_string(defaults.subdivision_interval));
   }
   if (o.triangle_budget && *o.triangle_budget <= 0) {
     throw InvalidInput("triangle_budget", "triangle_budget (" + std::to_string(*o.triangle_budget) +
@@ -202,8 +203,9 @@ void validate(const MeshOptimizerOptions& o) {
     throw InvalidInput("threads", "threads (" + std::to_string(o.threads) + ") must be >= 0 (0: hardware threads)");
   }
   if (!o.d_flow && !o.n_flow && !o.t_flow && !o.subdivision_threshold) {
-    throw InvalidInput("d_flow", "every flow is off and subdivision is off, so nothing would change; enable d_flow "
-                                 "and n_flow (the defaults)");
+    throw InvalidInput("d_flow",
+                       "every flow is off and subdivision is off, so nothing would change; enable d_flow "
+                       "and n_flow (the defaults)");
   }
 }
 
@@ -212,8 +214,8 @@ void validate_start_mesh(const Mesh& start) {
     throw InvalidInput("start", "start mesh has no triangles; polygonize the field first (Marching Cubes or Tiles)");
   }
   if (start.vertices.size() >= std::numeric_limits<std::uint32_t>::max() / 2) {
-    throw ResourceLimit("start", "start mesh has " + std::to_string(start.vertices.size()) +
-                                     " vertices; at most 2^31 are supported");
+    throw ResourceLimit(
+        "start", "start mesh has " + std::to_string(start.vertices.size()) + " vertices; at most 2^31 are supported");
   }
   for (std::size_t t = 0; t < start.triangles.size(); ++t) {
     const Triangle& tri = start.triangles[t];
@@ -224,8 +226,8 @@ void validate_start_mesh(const Mesh& start) {
       }
     }
     if (tri[0] == tri[1] || tri[1] == tri[2] || tri[2] == tri[0]) {
-      throw InvalidInput("start", "start triangle " + std::to_string(t) +
-                                      " repeats a vertex; remove degenerate triangles first");
+      throw InvalidInput(
+          "start", "start triangle " + std::to_string(t) + " repeats a vertex; remove degenerate triangles first");
     }
   }
   for (std::size_t v = 0; v < start.vertices.size(); ++v) {
@@ -234,7 +236,6 @@ void validate_start_mesh(const Mesh& start) {
     }
   }
 }
-
 
 struct MeshOptimizer::State {
   const Field& field;
@@ -247,9 +248,9 @@ struct MeshOptimizer::State {
   Topology topo;
   optimizer_detail::RedGreenHierarchy hierarchy;
   OptimizerIterationStats stats;
-  std::vector<double> vertex_f;  // f at the committed vertices
-  std::vector<Vec3> vertex_g;    // ∇f at the committed vertices
-  std::vector<Vec3> triangle_m;  // m(C_T) at the committed centroids
+  std::vector<double> vertex_f;     // f at the committed vertices
+  std::vector<Vec3> vertex_g;       // ∇f at the committed vertices
+  std::vector<Vec3> triangle_m;     // m(C_T) at the committed centroids
   std::vector<double> e_d_history;  // [k] after iteration k
   std::vector<double> e_n_history;
   int last_disruption = 0;  // the last iteration with the T-flow or a subdivision
@@ -636,8 +637,8 @@ struct MeshOptimizer::State {
         for (int j = k - kStableWindow; j < k; ++j) best = std::min(best, history[j]);
         return now >= (1.0 - *options.tolerance) * best || now <= floor;
       };
-      converged = stalled(e_d_history, s.e_d, 1e-24 * length_scale * length_scale) &&
-                  stalled(e_n_history, s.e_n, 1e-24);
+      converged =
+          stalled(e_d_history, s.e_d, 1e-24 * length_scale * length_scale) && stalled(e_n_history, s.e_n, 1e-24);
     }
   }
 
@@ -673,8 +674,8 @@ struct MeshOptimizer::State {
     std::vector<Vec3> m_final = centroid_normals(p, tris, control);
     limited += guard(mesh.vertices, p, tris, triangle_m, &m_final, control);
     // A round on the last iteration would hand back unconverged midpoints, so none is done there.
-    const bool subdivision_due = options.subdivision_threshold && k % options.subdivision_interval == 0 &&
-                                 k < options.max_iterations;
+    const bool subdivision_due =
+        options.subdivision_threshold && k % options.subdivision_interval == 0 && k < options.max_iterations;
     optimizer_detail::RedGreenHierarchy new_h;
     if (options.repair_connectivity || subdivision_due) new_h = hierarchy;
     optimizer_detail::CleanupCounts cleanup;
@@ -682,8 +683,8 @@ struct MeshOptimizer::State {
       optimizer_detail::CleanupOptions co;
       co.min_cos = kMinCos;
       co.degenerate_cross = degenerate_cross();
-      cleanup = optimizer_detail::repair_connectivity(p, tris, new_h, m_final, topo.vt_offset, topo.vt, field, co,
-                                                      control);
+      cleanup =
+          optimizer_detail::repair_connectivity(p, tris, new_h, m_final, topo.vt_offset, topo.vt, field, co, control);
     }
     const bool reconnected = cleanup.flips + cleanup.collapses > 0;
     Topology new_topo;
@@ -749,7 +750,8 @@ std::string MeshOptimizer::save_state() const {
   const OptimizerIterationStats& st = s.stats;
   w.put<std::int32_t>(st.iteration);
   for (const double v : {st.e_d, st.e_n, st.max_distance, st.rms_distance, st.min_angle_degrees}) w.put(v);
-  for (const std::int64_t v : {st.triangles, st.vertices, st.limited_moves, st.triangles_added, st.flips, st.collapses}) {
+  for (const std::int64_t v :
+       {st.triangles, st.vertices, st.limited_moves, st.triangles_added, st.flips, st.collapses}) {
     w.put(v);
   }
   w.put<std::uint8_t>(st.t_flow_on ? 1 : 0);
@@ -768,7 +770,7 @@ std::string MeshOptimizer::save_state() const {
   w.put_array(s.hierarchy.green_parents);
   // The midpoint map in key order, so equal states give equal blobs.
   std::vector<std::pair<std::uint64_t, std::uint32_t>> midpoints(s.hierarchy.midpoints.begin(),
-                                                                  s.hierarchy.midpoints.end());
+                                                                 s.hierarchy.midpoints.end());
   std::sort(midpoints.begin(), midpoints.end());
   w.put<std::uint64_t>(midpoints.size());
   for (const auto& [key, v] : midpoints) {
@@ -803,8 +805,8 @@ MeshOptimizer MeshOptimizer::from_state(const Field& field, std::string_view sta
   for (double* v : {&stats.e_d, &stats.e_n, &stats.max_distance, &stats.rms_distance, &stats.min_angle_degrees}) {
     *v = r.get<double>();
   }
-  for (std::int64_t* v : {&stats.triangles, &stats.vertices, &stats.limited_moves, &stats.triangles_added,
-                          &stats.flips, &stats.collapses}) {
+  for (std::int64_t* v : {&stats.triangles, &stats.vertices, &stats.limited_moves, &stats.triangles_added, &stats.flips,
+                          &stats.collapses}) {
     *v = r.get<std::int64_t>();
   }
   stats.t_flow_on = r.get<std::uint8_t>() != 0;

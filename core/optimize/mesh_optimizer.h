@@ -23,7 +23,8 @@
 //                         across it). Combined with the D-flow as N ∘ D.
 // Schedule (§2.4): N ∘ D ∘ T first; the T-flow rounds sharp edges off (Fig. 10), so it is switched off after
 // `t_flow_iterations` iterations, or, when that is not given, once E_d has stabilised (CHOICE):
-//   after >= 10 T-flow iterations (and k >= 5), E_d(k) > 0.95 · E_d(k - 5) (less than 5 % decrease over the last 5 iterations), or E_d(k)
+//   after >= 10 T-flow iterations (and k >= 5), E_d(k) > 0.95 · E_d(k - 5) (less than 5 % decrease over the last 5
+//   iterations), or E_d(k)
 //   <= 1e-20 · L² (L = start bounding-box diagonal), or k >= max_iterations / 2 (half the run is left for N ∘ D).
 // Then N ∘ D (or modified N ∘ D) until `max_iterations` or `tolerance`.
 //
@@ -129,16 +130,16 @@ struct MeshOptimizerOptions {
 };
 
 struct OptimizerIterationStats {
-  int iteration = 0;     // iterations done (0: the start mesh)
-  double e_d = 0.0;      // scene units²
-  double e_n = 0.0;      // dimensionless
-  double max_distance = 0.0;  // max over used vertices of |f| / |∇f| (scene units)
-  double rms_distance = 0.0;  // root mean square over used vertices of |f| / |∇f| (scene units)
+  int iteration = 0;               // iterations done (0: the start mesh)
+  double e_d = 0.0;                // scene units²
+  double e_n = 0.0;                // dimensionless
+  double max_distance = 0.0;       // max over used vertices of |f| / |∇f| (scene units)
+  double rms_distance = 0.0;       // root mean square over used vertices of |f| / |∇f| (scene units)
   double min_angle_degrees = 0.0;  // smallest triangle angle (degenerate triangles skipped)
   std::int64_t triangles = 0;
-  std::int64_t vertices = 0;     // used by some triangle
-  bool t_flow_on = false;         // the T-flow was applied in this iteration
-  std::int64_t limited_moves = 0;  // vertex moves shortened or dropped by the flip guard in this iteration
+  std::int64_t vertices = 0;         // used by some triangle
+  bool t_flow_on = false;            // the T-flow was applied in this iteration
+  std::int64_t limited_moves = 0;    // vertex moves shortened or dropped by the flip guard in this iteration
   std::int64_t triangles_added = 0;  // by adaptive subdivision in this iteration
   std::int64_t flips = 0;            // edge flips of the connectivity repair in this iteration
   std::int64_t collapses = 0;        // needle collapses of the connectivity repair in this iteration

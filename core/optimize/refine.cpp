@@ -135,7 +135,8 @@ void refine_red_green(std::vector<Vec3>& vertices, std::vector<Triangle>& triang
         const std::uint32_t ab = get_or_make_midpoint(a, b);
         const std::uint32_t bc = get_or_make_midpoint(b, c);
         const std::uint32_t ca = get_or_make_midpoint(c, a);
-        for (const Triangle& child : {Triangle{a, ab, ca}, Triangle{ab, b, bc}, Triangle{ca, bc, c}, Triangle{ab, bc, ca}}) {
+        for (const Triangle& child :
+             {Triangle{a, ab, ca}, Triangle{ab, b, bc}, Triangle{ca, bc, c}, Triangle{ab, bc, ca}}) {
           out.push_back(child);
           out_group.push_back(-1);
         }

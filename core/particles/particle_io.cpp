@@ -1,5 +1,5 @@
-// Particle file readers (core/particles/particle_io.h). Every read is bounds-checked against the bytes present; counts from
-// headers only cap reservations by what the remaining bytes could hold.
+// Particle file readers (core/particles/particle_io.h). Every read is bounds-checked against the bytes present; counts
+// from headers only cap reservations by what the remaining bytes could hold.
 #include "core/particles/particle_io.h"
 
 #include <zlib.h>
@@ -15,8 +15,8 @@
 #include <limits>
 #include <optional>
 
-#include "core/util/errors.h"
 #include "core/particles/particle_io_detail.h"
+#include "core/util/errors.h"
 
 namespace surfacer {
 namespace particle_io_detail {

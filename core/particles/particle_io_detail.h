@@ -14,8 +14,8 @@ namespace surfacer::particle_io_detail {
 
 // Throws InvalidInput("file", "<name>: <where>: <what>").
 [[noreturn]] void fail(const std::string& name, const std::string& where, const std::string& what);
-std::string line_at(std::size_t line);      // "line N"
-std::string byte_at(std::size_t offset);    // "byte N"
+std::string line_at(std::size_t line);    // "line N"
+std::string byte_at(std::size_t offset);  // "byte N"
 // 1-based line number of a byte offset.
 std::size_t line_of(std::string_view text, std::size_t offset);
 

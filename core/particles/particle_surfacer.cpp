@@ -14,12 +14,12 @@
 #include <numeric>
 #include <string>
 
-#include "core/util/errors.h"
-#include "core/util/format.h"
-#include "core/polygonize/marching_tiles.h"
-#include "core/util/parallel.h"
 #include "core/particles/smoothing.h"
 #include "core/particles/spatial_hash.h"
+#include "core/polygonize/marching_tiles.h"
+#include "core/util/errors.h"
+#include "core/util/format.h"
+#include "core/util/parallel.h"
 
 namespace surfacer {
 namespace {
@@ -34,7 +34,6 @@ constexpr double kBandTolerance = 1e-12;     // relative slack before a projecti
 constexpr double kFaithfulTolerance = 1e-9;  // relative slack of the faithfulness statistics
 constexpr int kMaxProjectionRounds = 8;
 constexpr int kMaxNewtonSteps = 16;
-
 
 // Parallel loop over [0, n) in contiguous chunks.
 template <class Body>
@@ -567,19 +566,23 @@ int min_valence(const ps::Graph& ring) {
 void validate(const ParticleSurfacingOptions& o) {
   const ParticleSurfacingOptions defaults;
   if (o.r_inner && !(std::isfinite(*o.r_inner) && *o.r_inner > 0.0)) {
-    throw InvalidInput("r_inner", "r_inner (" + format_number(*o.r_inner) + ") must be a finite number > 0 (scene units)");
+    throw InvalidInput("r_inner",
+                       "r_inner (" + format_number(*o.r_inner) + ") must be a finite number > 0 (scene units)");
   }
   if (o.r_outer && !(std::isfinite(*o.r_outer) && *o.r_outer > 0.0)) {
-    throw InvalidInput("r_outer", "r_outer (" + format_number(*o.r_outer) + ") must be a finite number > 0 (scene units)");
+    throw InvalidInput("r_outer",
+                       "r_outer (" + format_number(*o.r_outer) + ") must be a finite number > 0 (scene units)");
   }
   if (o.r_inner && o.r_outer && !(*o.r_outer > *o.r_inner)) {
-    throw InvalidInput("r_outer", "r_outer (" + format_number(*o.r_outer) + ") must exceed r_inner (" + format_number(*o.r_inner) +
-                                      "); the default is " + format_number(ParticleSurfacingOptions::kDefaultOuterRatio) + " x r_inner");
+    throw InvalidInput("r_outer", "r_outer (" + format_number(*o.r_outer) + ") must exceed r_inner (" +
+                                      format_number(*o.r_inner) + "); the default is " +
+                                      format_number(ParticleSurfacingOptions::kDefaultOuterRatio) + " x r_inner");
   }
   if (!(std::isfinite(o.spacing_factor) && o.spacing_factor > 0.0 && o.spacing_factor <= 10.0)) {
-    throw InvalidInput("spacing_factor", "spacing_factor (" + format_number(o.spacing_factor) +
-                                             ") must be in (0, 10]; the thesis uses 0.8 (samples 0.8 r_inner apart), the default is " +
-                                             format_number(defaults.spacing_factor));
+    throw InvalidInput("spacing_factor",
+                       "spacing_factor (" + format_number(o.spacing_factor) +
+                           ") must be in (0, 10]; the thesis uses 0.8 (samples 0.8 r_inner apart), the default is " +
+                           format_number(defaults.spacing_factor));
   }
   const std::pair<const char*, int> sweeps[] = {{"laplacian_sweeps", o.laplacian_sweeps},
                                                 {"bilaplacian_sweeps", o.bilaplacian_sweeps},
@@ -590,7 +593,8 @@ void validate(const ParticleSurfacingOptions& o) {
     }
   }
   if (!(std::isfinite(o.relaxation) && o.relaxation > 0.0 && o.relaxation <= 1.0)) {
-    throw InvalidInput("relaxation", "relaxation (" + format_number(o.relaxation) + ") must be in (0, 1]; the thesis uses 0.6, the default is " +
+    throw InvalidInput("relaxation", "relaxation (" + format_number(o.relaxation) +
+                                         ") must be in (0, 1]; the thesis uses 0.6, the default is " +
                                          format_number(defaults.relaxation));
   }
   if (o.erosion && !(std::isfinite(*o.erosion) && *o.erosion >= 0.0 && *o.erosion <= 10.0)) {
@@ -820,8 +824,7 @@ void ParticleSurfacer::State::distance_field(std::span<const Vec3> input, std::s
   const double r_outer = o.r_outer ? *o.r_outer : ParticleSurfacingOptions::kDefaultOuterRatio * r_inner;
   if (!(r_outer > r_inner)) {
     throw InvalidInput("r_outer", "r_outer (" + format_number(r_outer) + ") must exceed r_inner (" +
-                                      format_number(r_inner) + (o.r_inner ? ")" : ", derived)") +
-                                      "; the default is " +
+                                      format_number(r_inner) + (o.r_inner ? ")" : ", derived)") + "; the default is " +
                                       format_number(ParticleSurfacingOptions::kDefaultOuterRatio) + " x r_inner");
   }
   const double ratio = r_outer / r_inner;

@@ -4,10 +4,12 @@
 // i.e. outside the union of r_inner balls and inside the union of r_outer balls.
 //
 // Pipeline (thesis Fig. 3.2), one frame:
-//  1. Spatial hash over the particles (core/particles/spatial_hash.h); the field f(x) = d(x) - r_outer, d = distance to the
+//  1. Spatial hash over the particles (core/particles/spatial_hash.h); the field f(x) = d(x) - r_outer, d = distance to
+//  the
 //     nearest particle, is sampled lazily, only where Marching Tiles visits: blocks within r_outer + one sample of a
 //     particle (seeds = particles). Never a dense global grid.
-//  2. Initial mesh: Marching Tiles (core/polygonize/marching_tiles.h) of f = 0, mean sample spacing h = spacing_factor * r_inner
+//  2. Initial mesh: Marching Tiles (core/polygonize/marching_tiles.h) of f = 0, mean sample spacing h = spacing_factor
+//  * r_inner
 //     (thesis: 0.8 r_inner). Closed, oriented, minimum valence >= 5.
 //  3. laplacian_sweeps Gauss-Seidel sweeps on x^T A x (A = uniform graph Laplacian): each vertex moves toward its
 //     1-ring centroid by `relaxation` (thesis 0.6); constraints after each sweep.
@@ -62,8 +64,8 @@
 #include <vector>
 
 #include "core/mesh/mesh.h"
-#include "core/util/run_control.h"
 #include "core/scene/scene.h"
+#include "core/util/run_control.h"
 
 namespace surfacer {
 
@@ -74,8 +76,8 @@ struct ParticleSurfacingOptions {
   // r_inner := mean distance from a particle to its nearest neighbour (over a fixed sample of at most 65536 particles;
   // those whose nearest neighbour is farther than 4x the median are left out as stray spray). Needs >= 2 particles.
   bool derive_r_inner = false;
-  // Outer radius, > r_inner; default kDefaultOuterRatio * r_inner. A planar face over a square lattice of spacing d needs
-  // r_outer^2 >= r_inner^2 + d^2 / 2 (thesis eq. 3.5; triangular lattice: + d^2 / 3, eq. 3.6).
+  // Outer radius, > r_inner; default kDefaultOuterRatio * r_inner. A planar face over a square lattice of spacing d
+  // needs r_outer^2 >= r_inner^2 + d^2 / 2 (thesis eq. 3.5; triangular lattice: + d^2 / 3, eq. 3.6).
   std::optional<double> r_outer;
   static constexpr double kDefaultOuterRatio = 2.0;
   double spacing_factor = 0.8;  // Marching Tiles mean sample spacing / r_inner, in (0, 10]

@@ -1,6 +1,6 @@
-// Mesh smoothing pieces of the particle surfacer (core/particles/particle_surfacer.h, steps 3-6): vertex graphs, the integrated
-// Bilaplacian B = W^T D^-1 W (Williams 2008 eq. 3.2) as a compact sparse matrix, and Gauss-Seidel sweeps in a fixed
-// order that runs blocks of vertices in parallel. Exposed for the tests; not a stable API.
+// Mesh smoothing pieces of the particle surfacer (core/particles/particle_surfacer.h, steps 3-6): vertex graphs, the
+// integrated Bilaplacian B = W^T D^-1 W (Williams 2008 eq. 3.2) as a compact sparse matrix, and Gauss-Seidel sweeps in
+// a fixed order that runs blocks of vertices in parallel. Exposed for the tests; not a stable API.
 #pragma once
 
 #include <cstdint>

@@ -28,10 +28,10 @@
 #include <string>
 #include <vector>
 
-#include "core/util/errors.h"
 #include "core/polygonize/mc_tables.h"
-#include "core/util/parallel.h"
 #include "core/scene/scene.h"
+#include "core/util/errors.h"
+#include "core/util/parallel.h"
 
 namespace surfacer {
 namespace {

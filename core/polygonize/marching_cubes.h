@@ -1,5 +1,6 @@
 // Marching Cubes (Lorensen & Cline 1987, with the standard 256-case table) over a regular grid of cells.
-// The baseline polygonizer; Marching Tiles (core/polygonize/marching_tiles.h) is the default (core/polygonize/polygonize.h).
+// The baseline polygonizer; Marching Tiles (core/polygonize/marching_tiles.h) is the default
+// (core/polygonize/polygonize.h).
 #pragma once
 
 #include <array>

@@ -1,5 +1,5 @@
-// Marching Tiles: marching tetrahedra over the A15 tiling (core/polygonize/a15_table.h), sparse, block-parallel, deterministic.
-// The contract is in marching_tiles.h; this is how it is met.
+// Marching Tiles: marching tetrahedra over the A15 tiling (core/polygonize/a15_table.h), sparse, block-parallel,
+// deterministic. The contract is in marching_tiles.h; this is how it is met.
 //
 // Lattice. Lattice units are the table's (cell edge 4); world = bounds.min + unit * lattice with
 // unit = spacing / a15::kMeanEdge, so the mean tetrahedron edge equals `spacing`. Cell c holds the sites
@@ -56,9 +56,9 @@
 #include <vector>
 
 #include "core/polygonize/a15_table.h"
+#include "core/scene/scene.h"
 #include "core/util/errors.h"
 #include "core/util/parallel.h"
-#include "core/scene/scene.h"
 
 namespace surfacer {
 namespace {

@@ -28,11 +28,14 @@ void validate(const PolygonizeOptions& o) {
   if (o.cell_size) {
     require_positive("cell_size", *o.cell_size, "the cell edge (cubes) or sample spacing (tiles) in scene units");
   } else if (o.cells < 1) {
-    throw InvalidInput("cells", "cells (" + std::to_string(o.cells) + ") must be >= 1 (cells along the longest axis; "
-                                    "the default is " + std::to_string(PolygonizeOptions{}.cells) + ")");
+    throw InvalidInput("cells", "cells (" + std::to_string(o.cells) +
+                                    ") must be >= 1 (cells along the longest axis; "
+                                    "the default is " +
+                                    std::to_string(PolygonizeOptions{}.cells) + ")");
   }
   if (o.threads < 0) {
-    throw InvalidInput("threads", "threads (" + std::to_string(o.threads) + ") must be >= 0 (0: every hardware thread)");
+    throw InvalidInput("threads",
+                       "threads (" + std::to_string(o.threads) + ") must be >= 0 (0: every hardware thread)");
   }
 }
 

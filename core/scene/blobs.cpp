@@ -12,13 +12,12 @@
 #include <string>
 #include <vector>
 
-#include "core/util/errors.h"
 #include "core/scene/scene.h"
 #include "core/util/checks.h"
+#include "core/util/errors.h"
 
 namespace surfacer {
 namespace {
-
 
 constexpr std::size_t kGridThreshold = 64;
 constexpr std::int64_t kMaxGridCells = std::int64_t{1} << 21;
@@ -243,8 +242,8 @@ Skeleton make_skeleton(const Vec3& a, const Vec3& b, double radius, double stren
 void require_radius_in_range(const std::string& field, double radius) {
   constexpr double kMinRadius = 1e-150;
   if (radius < kMinRadius) {
-    throw InvalidInput(field, field + " (" + format_number(radius) +
-                                  ") is too small; give a radius of at least 1e-150");
+    throw InvalidInput(field,
+                       field + " (" + format_number(radius) + ") is too small; give a radius of at least 1e-150");
   }
 }
 
@@ -288,8 +287,9 @@ FieldPtr make_blobs(std::span<const PointSkeleton> points, std::span<const Segme
   for (const Skeleton& s : skeletons) box.merge(s.support);
   if (!box.size().allFinite()) {
     const std::string field = points.empty() ? "segments" : "points";
-    throw InvalidInput(field, field + ": the skeletons and their radii span more than the largest double; keep "
-                                      "coordinates and radii within +-1e300");
+    throw InvalidInput(field, field +
+                                  ": the skeletons and their radii span more than the largest double; keep "
+                                  "coordinates and radii within +-1e300");
   }
   return std::make_shared<Blobs>(std::move(skeletons), options);
 }

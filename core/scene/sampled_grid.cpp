@@ -11,13 +11,12 @@
 #include <string>
 #include <vector>
 
-#include "core/util/errors.h"
 #include "core/scene/scene.h"
 #include "core/util/checks.h"
+#include "core/util/errors.h"
 
 namespace surfacer {
 namespace {
-
 
 class SampledGrid final : public Field {
  public:
@@ -163,8 +162,7 @@ FieldPtr make_sampled_grid(const SampledGridDesc& desc, std::span<const float> v
   static const char* const kSpacingAxes[3] = {"spacing.x", "spacing.y", "spacing.z"};
   for (int i = 0; i < 3; ++i) {
     if (desc.spacing[i] < kMinSpacing) {
-      throw InvalidInput(kSpacingAxes[i], std::string(kSpacingAxes[i]) + " (" +
-                                              format_number(desc.spacing[i]) +
+      throw InvalidInput(kSpacingAxes[i], std::string(kSpacingAxes[i]) + " (" + format_number(desc.spacing[i]) +
                                               ") is too small; give a spacing of at least 1e-300");
     }
   }
@@ -182,7 +180,8 @@ FieldPtr make_sampled_grid(const SampledGridDesc& desc, std::span<const float> v
   const std::uint64_t nxy = static_cast<std::uint64_t>(n[0]) * static_cast<std::uint64_t>(n[1]);
   if (nxy > std::numeric_limits<std::uint64_t>::max() / static_cast<std::uint64_t>(n[2])) {
     throw InvalidInput("nx", "nx * ny * nz (" + std::to_string(n[0]) + " * " + std::to_string(n[1]) + " * " +
-                                 std::to_string(n[2]) + ") exceeds 2^64 samples; give the grid's real dimensions, "
+                                 std::to_string(n[2]) +
+                                 ") exceeds 2^64 samples; give the grid's real dimensions, "
                                  "one value per grid point");
   }
   const std::uint64_t expected = nxy * static_cast<std::uint64_t>(n[2]);

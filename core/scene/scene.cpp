@@ -15,12 +15,11 @@
 #include <utility>
 
 #include "core/scene/dual.h"
-#include "core/util/errors.h"
 #include "core/util/checks.h"
+#include "core/util/errors.h"
 
 namespace surfacer {
 namespace {
-
 
 // --- A tiny 3-vector over the scalar type ------------------------------------------------------------------
 template <class T>

@@ -37,9 +37,7 @@ inline Error InvalidInput(std::string field, const std::string& message) {
 inline Error ResourceLimit(std::string field, const std::string& message) {
   return Error(ErrorKind::kResourceLimit, std::move(field), message);
 }
-inline Error Cancelled(const std::string& message = "cancelled") {
-  return Error(ErrorKind::kCancelled, "", message);
-}
+inline Error Cancelled(const std::string& message = "cancelled") { return Error(ErrorKind::kCancelled, "", message); }
 inline Error Internal(const std::string& message) { return Error(ErrorKind::kInternal, "", message); }
 
 // `error` placed at `path` in a larger document: the field becomes "path.field" and the message

@@ -2,7 +2,6 @@
 #pragma once
 
 #include <Eigen/Core>
-
 #include <iterator>
 #include <limits>
 #include <string>

@@ -18,8 +18,8 @@ namespace {
 
 class ActiveRunner final : public JobRunner {
  public:
-  ActiveRunner(v1::ActiveJob job, const wire::UploadLookup& uploads, ActiveSurfaceOptions options, FrameEncoding encoding,
-               const Limits& limits, int frames_expected)
+  ActiveRunner(v1::ActiveJob job, const wire::UploadLookup& uploads, ActiveSurfaceOptions options,
+               FrameEncoding encoding, const Limits& limits, int frames_expected)
       : job_(std::move(job)),
         uploads_(uploads),
         options_(options),
@@ -86,7 +86,7 @@ class ActiveRunner final : public JobRunner {
         frames.reserve(coat.frames_size());
         for (int i = 0; i < coat.frames_size(); ++i) {
           frames.push_back(wire::load_particle_frame(coat.frames(i), path + ".coat.frames[" + std::to_string(i) + "]",
-                                               uploads_, limits_.max_particles)
+                                                     uploads_, limits_.max_particles)
                                .positions);
         }
         CoatOptions options;
@@ -180,8 +180,9 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
       with_path(path + ".coat",
                 [&] { require_positive("kernel_radius", coat.kernel_radius(), "the Wyvill kernel's support R"); });
       for (int i = 0; i < coat.frames_size(); ++i) {
-        const auto summary = wire::summarize_particle_frame(coat.frames(i), path + ".coat.frames[" + std::to_string(i) + "]",
-                                                      context.uploads, context.limits.max_particles);
+        const auto summary =
+            wire::summarize_particle_frame(coat.frames(i), path + ".coat.frames[" + std::to_string(i) + "]",
+                                           context.uploads, context.limits.max_particles);
         add_region(summary.bounds, coat.kernel_radius() + 4 * options.h);
       }
       check_frame_count(coat.frames_size(), path + ".coat.frames", context.limits);

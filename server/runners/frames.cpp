@@ -3,9 +3,9 @@
 #include <chrono>
 #include <future>
 
-#include "core/util/errors.h"
 #include "core/mesh/mesh_codec.h"
 #include "core/mesh/mesh_io.h"
+#include "core/util/errors.h"
 
 namespace surfacer::server {
 
@@ -32,12 +32,10 @@ void fill_mesh_check(const MeshReport& r, v1::MeshCheck& out) {
   out.set_volume(r.volume);
 }
 
-FrameOutput make_frame(const Mesh& mesh, const FrameEncoding& encoding, std::int64_t max_triangles,
-                       StageTimer& timer) {
+FrameOutput make_frame(const Mesh& mesh, const FrameEncoding& encoding, std::int64_t max_triangles, StageTimer& timer) {
   if (static_cast<std::int64_t>(mesh.triangles.size()) > max_triangles) {
     throw ResourceLimit("max_triangles", "the mesh has " + std::to_string(mesh.triangles.size()) +
-                                             " triangles, over the server's limit of " +
-                                             std::to_string(max_triangles) +
+                                             " triangles, over the server's limit of " + std::to_string(max_triangles) +
                                              "; lower the resolution or start the server with a larger "
                                              "--max-triangles");
   }

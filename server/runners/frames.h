@@ -43,8 +43,7 @@ void fill_mesh_check(const MeshReport& report, v1::MeshCheck& out);
 // Checks and encodes `mesh` into a frame, the checks running beside the (single-threaded) encoder. The frame stats
 // get every timing of `timer` plus "encode" and "check". Throws ResourceLimit when the mesh has more than
 // max_triangles triangles.
-FrameOutput make_frame(const Mesh& mesh, const FrameEncoding& encoding, std::int64_t max_triangles,
-                       StageTimer& timer);
+FrameOutput make_frame(const Mesh& mesh, const FrameEncoding& encoding, std::int64_t max_triangles, StageTimer& timer);
 
 // Keeps checkpoints under ~10% of the task's time: one is taken only when the work since the previous one took at
 // least 10 times what that one cost (serializing plus the store's write and fsync). With snapshots or frames seconds

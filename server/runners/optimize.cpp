@@ -29,8 +29,8 @@ MeshFormat sniff_mesh_format(const std::string& bytes) {
 
 class OptimizeRunner final : public JobRunner {
  public:
-  OptimizeRunner(FieldPtr field, std::optional<Mesh> start, PolygonizeGrid start_grid,
-                 MeshOptimizerOptions options, FrameEncoding encoding, std::int64_t max_triangles, int threads)
+  OptimizeRunner(FieldPtr field, std::optional<Mesh> start, PolygonizeGrid start_grid, MeshOptimizerOptions options,
+                 FrameEncoding encoding, std::int64_t max_triangles, int threads)
       : field_(std::move(field)),
         start_(std::move(start)),
         start_grid_(start_grid),
@@ -64,13 +64,11 @@ class OptimizeRunner final : public JobRunner {
       resume_state_.clear();
     }
     if (!resumed) {
-      Mesh start = start_ ? std::move(*start_)
-                          : start_timer.run("polygonize",
-                                            [&] {
-                                              PolygonizeGrid grid = start_grid_;
-                                              grid.threads = threads_;
-                                              return polygonize(*field_, grid, control);
-                                            });
+      Mesh start = start_ ? std::move(*start_) : start_timer.run("polygonize", [&] {
+        PolygonizeGrid grid = start_grid_;
+        grid.threads = threads_;
+        return polygonize(*field_, grid, control);
+      });
       resumed.emplace(*field_, std::move(start), options);
       resume_frame_ = 0;
     }
@@ -108,7 +106,8 @@ class OptimizeRunner final : public JobRunner {
       const auto t0 = std::chrono::steady_clock::now();
       optimizer.step(control);
       optimize_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      control.report("optimize", static_cast<double>(optimizer.stats().iteration) / std::max(1, options.max_iterations));
+      control.report("optimize",
+                     static_cast<double>(optimizer.stats().iteration) / std::max(1, options.max_iterations));
       if (options.snapshot_every > 0 && optimizer.stats().iteration % options.snapshot_every == 0) {
         StageTimer snapshot_timer;
         snapshot_timer.add("optimize", optimize_seconds);

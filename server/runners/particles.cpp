@@ -4,7 +4,6 @@
 #include "server/runners/frames.h"
 #include "server/runners/runner.h"
 #include "wire/job_options.h"
-#include "wire/job_options.h"
 #include "wire/particle_frames.h"
 
 namespace surfacer::server {
@@ -12,8 +11,8 @@ namespace {
 
 class ParticlesRunner final : public JobRunner {
  public:
-  ParticlesRunner(std::vector<v1::ParticleFrame> frames, const wire::UploadLookup& uploads, ParticleSurfacingOptions options,
-                  FrameEncoding encoding, const Limits& limits, int worker_threads)
+  ParticlesRunner(std::vector<v1::ParticleFrame> frames, const wire::UploadLookup& uploads,
+                  ParticleSurfacingOptions options, FrameEncoding encoding, const Limits& limits, int worker_threads)
       : frames_(std::move(frames)),
         uploads_(uploads),
         options_(std::move(options)),
@@ -78,8 +77,7 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
     throw InvalidInput(path + ".frames", path + ".frames is empty; give at least one particle frame");
   }
   check_frame_count(job.frames_size(), path + ".frames", context.limits);
-  ParticleSurfacingOptions options =
-      wire::particle_options(job, spec.output().normals(), context.uploads, path);
+  ParticleSurfacingOptions options = wire::particle_options(job, spec.output().normals(), context.uploads, path);
 
   // Every frame is checked now (so bad data fails the submit, not a frame later), and the quantization box is the
   // union of the frames' particles, padded by how far the surface can reach.
@@ -91,8 +89,7 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
                                                        context.uploads, context.limits.max_particles));
   }
   const Aabb box = wire::particles_job_box(job, summaries, [&] {
-    return wire::load_particle_frame(job.frames(0), path + ".frames[0]", context.uploads,
-                                     context.limits.max_particles)
+    return wire::load_particle_frame(job.frames(0), path + ".frames[0]", context.uploads, context.limits.max_particles)
         .positions;
   });
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), box, "spec.output");

@@ -221,8 +221,8 @@ TEST(MarchingCubes, RandomSignsGiveClosedOrientedManifolds) {
 }
 
 // Every sign pattern of two face-adjacent cubes (all three axes), and every 5th of four cubes around a z-edge,
-// padded by outside samples: closed, manifold and oriented. (core/polygonize/mc_tables.py checks the face-sharing property the
-// manifoldness rests on for all case pairs; this checks the compiled table and the marcher.)
+// padded by outside samples: closed, manifold and oriented. (core/polygonize/mc_tables.py checks the face-sharing
+// property the manifoldness rests on for all case pairs; this checks the compiled table and the marcher.)
 TEST(MarchingCubes, ExhaustiveSmallConfigurations) {
   struct Shape {
     int nx, ny, nz;  // configuration points per axis

@@ -173,13 +173,14 @@ TEST(MeshIo, PlyErrorsNameFileAndLine) {
 // layout came from the last one and was applied to the values of the first, reading past them (heap overflow).
 TEST(MeshIo, PlyWithTwoVertexOrFaceElementsIsAnError) {
   const std::string vertex3 = "element vertex 1\nproperty float x\nproperty float y\nproperty float z\n";
-  const std::string vertex6 = "element vertex 1\nproperty float x\nproperty float y\nproperty float z\n"
-                              "property float nx\nproperty float ny\nproperty float nz\n";
+  const std::string vertex6 =
+      "element vertex 1\nproperty float x\nproperty float y\nproperty float z\n"
+      "property float nx\nproperty float ny\nproperty float nz\n";
   const std::string face = "element face 1\nproperty list uchar int vertex_indices\n";
   for (const char* format : {"ascii", "binary_little_endian"}) {
     const std::string head = std::string("ply\nformat ") + format + " 1.0\n";
-    expect_parse_error(head + vertex3 + vertex6 + "end_header\n" + std::string(40, '\0'), MeshFormat::kPly,
-                       "two.ply", "line 7: a second 'vertex' element");
+    expect_parse_error(head + vertex3 + vertex6 + "end_header\n" + std::string(40, '\0'), MeshFormat::kPly, "two.ply",
+                       "line 7: a second 'vertex' element");
     expect_parse_error(head + vertex3 + face + face + "end_header\n" + std::string(40, '\0'), MeshFormat::kPly,
                        "two.ply", "line 9: a second 'face' element");
   }

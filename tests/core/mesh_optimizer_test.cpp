@@ -126,8 +126,8 @@ struct FeatureReport {
 
 // Mesh edges on a true feature line: both ends within `tol` of the curve (the midpoint within tol plus the chord's
 // sagitta for circles), direction within 25 degrees of the curve's tangent, its midpoint farther than `exclude` from
-// a segment's ends (corners, where three faces meet), and with the two adjacent triangles' centroids on different faces (field
-// normals more than 30 degrees apart; an edge lying inside one face next to the line is not a feature edge). Its
+// a segment's ends (corners, where three faces meet), and with the two adjacent triangles' centroids on different faces
+// (field normals more than 30 degrees apart; an edge lying inside one face next to the line is not a feature edge). Its
 // dihedral angle is the angle between the two triangle normals.
 FeatureReport measure_features(const Mesh& mesh, const Field& field, const std::vector<FeatureCurve>& curves,
                                double tol, double exclude) {
@@ -247,7 +247,10 @@ double max_surface_distance(const Mesh& mesh, const Field& field, double search)
     const double f0 = field.value_and_gradient(p, g);
     if (f0 == 0.0) continue;
     const bool outside = f0 > 0.0;
-    auto differs = [&](const Vec3& x) { const double f = field.value(x); return outside ? f <= 0.0 : f >= 0.0; };
+    auto differs = [&](const Vec3& x) {
+      const double f = field.value(x);
+      return outside ? f <= 0.0 : f >= 0.0;
+    };
     double best = std::numeric_limits<double>::infinity();
     std::vector<Vec3> directions;
     for (int i = 0; i < 27; ++i) {
@@ -576,8 +579,8 @@ TEST(MeshOptimizer, SavedStateContinuesExactlyLikeTheUninterruptedRun) {
     }
     return false;
   };
-  for (const std::size_t n : {std::size_t{0}, std::size_t{3}, std::size_t{8}, std::size_t{20}, state.size() / 2,
-                              state.size() - 1}) {
+  for (const std::size_t n :
+       {std::size_t{0}, std::size_t{3}, std::size_t{8}, std::size_t{20}, state.size() / 2, state.size() - 1}) {
     EXPECT_TRUE(refused(state.substr(0, n))) << n;
   }
   for (const std::size_t at : {std::size_t{5}, std::size_t{12}, state.size() / 3, state.size() - 3}) {

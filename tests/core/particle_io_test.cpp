@@ -442,8 +442,9 @@ TEST(ParticleIo, VtuTakesThePiecesFirstRadiusArray) {
   VtuStyle st;
   std::vector<double> xyz;
   for (const Vec3& p : f.positions) xyz.insert(xyz.end(), {p.x(), p.y(), p.z()});
-  std::string s = "<VTKFile type=\"UnstructuredGrid\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"12\">\n"
-                  "<PointData>\n";
+  std::string s =
+      "<VTKFile type=\"UnstructuredGrid\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"12\">\n"
+      "<PointData>\n";
   s += vtu_array(f.radii, "radius", 1, st);
   s += vtu_array(std::vector<double>(12, 9.0), "pscale", 1, st);
   s += "</PointData>\n<Points>\n" + vtu_array(xyz, "Points", 3, st) + "</Points>\n</Piece>\n";

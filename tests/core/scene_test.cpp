@@ -1,5 +1,5 @@
-// Tests for core/scene/scene.h: known values and signs, exact gradients against central differences, bounds that contain
-// the solid, exact distances under rigid/uniform-scale transforms, and argument validation.
+// Tests for core/scene/scene.h: known values and signs, exact gradients against central differences, bounds that
+// contain the solid, exact distances under rigid/uniform-scale transforms, and argument validation.
 #include "core/scene/scene.h"
 
 #include <gtest/gtest.h>

@@ -24,7 +24,7 @@ using namespace std::chrono_literals;
 struct RecordingSink final : server::FrameSink {
   std::mutex mutex;
   std::map<int, std::string> frames;       // index -> encoded bytes
-  std::map<int, double> iterations;         // index -> the frame's iteration (optimize) or time (active)
+  std::map<int, double> iterations;        // index -> the frame's iteration (optimize) or time (active)
   std::map<int, std::string> checkpoints;  // next frame -> state
   std::vector<int> order;
 
@@ -53,8 +53,7 @@ struct Runners {
 v1::JobSpec optimize_spec() {
   v1::JobSpec spec;
   auto* job = spec.mutable_optimize();
-  *job->mutable_scene() =
-      scene_from_json(R"({"root": {"box": {"half_size": {"x": 0.5, "y": 0.4, "z": 0.3}}}})");
+  *job->mutable_scene() = scene_from_json(R"({"root": {"box": {"half_size": {"x": 0.5, "y": 0.4, "z": 0.3}}}})");
   job->mutable_polygonize()->set_cells(20);
   job->set_max_iterations(30);
   job->set_snapshot_every(5);

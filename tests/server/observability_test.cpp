@@ -107,13 +107,13 @@ TEST(Observability, HealthIsNotServingWhileDraining) {
   o.health_listen = "127.0.0.1:0";
   LoopbackServer s(o);
   ASSERT_GT(s.server->health_port(), 0);
-  auto probe = grpc::CreateChannel("127.0.0.1:" + std::to_string(s.server->health_port()),
-                                   grpc::InsecureChannelCredentials());
+  auto probe =
+      grpc::CreateChannel("127.0.0.1:" + std::to_string(s.server->health_port()), grpc::InsecureChannelCredentials());
   EXPECT_EQ(health(s.channel), "SERVING");
   EXPECT_EQ(health(probe), "SERVING");
   std::string id;
-  ASSERT_TRUE(submit(*s.stub, isosurface_spec({scene_from_json(R"({"root": {"sphere": {"radius": 1}}})")}, 400), &id)
-                  .ok());
+  ASSERT_TRUE(
+      submit(*s.stub, isosurface_spec({scene_from_json(R"({"root": {"sphere": {"radius": 1}}})")}, 400), &id).ok());
   std::thread drain([&] { s.server->shutdown(server::ShutdownMode::kDrain, 20s); });
   std::string during;
   for (int i = 0; i < 200; ++i) {

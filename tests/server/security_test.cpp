@@ -49,9 +49,8 @@ grpc::Status unary(Call call, const Req& req, Resp* resp, const std::string& tok
 grpc::Status get_job(v1::Surfacer::Stub& stub, const std::string& id, const std::string& token, v1::Job* job) {
   v1::GetJobRequest req;
   req.set_job_id(id);
-  return unary(
-      [&](grpc::ClientContext* c, const v1::GetJobRequest& r, v1::Job* j) { return stub.GetJob(c, r, j); }, req, job,
-      token);
+  return unary([&](grpc::ClientContext* c, const v1::GetJobRequest& r, v1::Job* j) { return stub.GetJob(c, r, j); },
+               req, job, token);
 }
 
 grpc::Status cancel_job(v1::Surfacer::Stub& stub, const std::string& id, const std::string& token) {

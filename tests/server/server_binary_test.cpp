@@ -20,14 +20,18 @@ TEST(ServerBinary, ServesOnARealPortAndExitsZeroOnSigterm) {
   ASSERT_GT(process.port(), 0) << process.log();
   auto stub = make_stub(process.address());
   std::string id;
-  ASSERT_TRUE(submit(*stub, isosurface_spec({scene_from_json(R"({"root": {"torus": {"majorRadius": 1,
-      "minorRadius": 0.3}}})")}, 48), &id).ok());
+  ASSERT_TRUE(submit(*stub,
+                     isosurface_spec({scene_from_json(R"({"root": {"torus": {"majorRadius": 1,
+      "minorRadius": 0.3}}})")},
+                                     48),
+                     &id)
+                  .ok());
   const auto result = watch_job(*stub, id);
   EXPECT_EQ(result.states.back(), v1::JOB_STATE_SUCCEEDED);
   EXPECT_EQ(result.frames.size(), 1u);
   // A job still running at SIGTERM is drained, then the process exits 0.
-  ASSERT_TRUE(submit(*stub, isosurface_spec({scene_from_json(R"({"root": {"sphere": {"radius": 1}}})")}, 96), &id)
-                  .ok());
+  ASSERT_TRUE(
+      submit(*stub, isosurface_spec({scene_from_json(R"({"root": {"sphere": {"radius": 1}}})")}, 96), &id).ok());
   WatchResult watched;
   std::thread watcher([&] { watched = watch_job(*stub, id); });
   std::this_thread::sleep_for(50ms);

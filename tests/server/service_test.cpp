@@ -222,15 +222,12 @@ TEST(Service, BadInputGetsNamedFieldsAndTheServerKeepsServing) {
          grpc::StatusCode::INVALID_ARGUMENT, "radius");
   expect(isosurface_spec({scene_from_json(R"({"root": {"box": {"halfSize": {"x": 1, "y": -2, "z": 1}}}})")}, 16),
          grpc::StatusCode::INVALID_ARGUMENT, "half_size");
-  expect(isosurface_spec({scene_from_json(kSphere)}, -5), grpc::StatusCode::INVALID_ARGUMENT,
-         "spec.isosurface.cells");
-  expect(isosurface_spec({scene_from_json(kSphere)}, 200), grpc::StatusCode::RESOURCE_EXHAUSTED,
-         "--max-grid-cells");
+  expect(isosurface_spec({scene_from_json(kSphere)}, -5), grpc::StatusCode::INVALID_ARGUMENT, "spec.isosurface.cells");
+  expect(isosurface_spec({scene_from_json(kSphere)}, 200), grpc::StatusCode::RESOURCE_EXHAUSTED, "--max-grid-cells");
   expect(isosurface_spec({}, 16), grpc::StatusCode::INVALID_ARGUMENT, "spec.isosurface.scenes");
   expect(isosurface_spec({scene_from_json(R"({"root": {}})")}, 16), grpc::StatusCode::INVALID_ARGUMENT,
          "scenes[0].root");
-  expect(isosurface_spec({scene_from_json(R"({"root": {"union": {"children": [{"sphere": {"radius": 1}}]}}})")},
-                         16),
+  expect(isosurface_spec({scene_from_json(R"({"root": {"union": {"children": [{"sphere": {"radius": 1}}]}}})")}, 16),
          grpc::StatusCode::INVALID_ARGUMENT, "union");
   expect(isosurface_spec({scene_from_json(R"({"root": {"plane": {"normal": {"z": 1}}}})")}, 16),
          grpc::StatusCode::INVALID_ARGUMENT, "spec.isosurface.bounds");

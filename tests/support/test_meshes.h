@@ -1,6 +1,6 @@
 // Analytic test inputs shared by the test binaries: small meshes with known topology, exact signed-distance fields
-// (implemented here against core/scene/scene.h's Field interface so tests do not depend on core/scene/scene.cpp), and distance
-// helpers for asserting geometric bounds.
+// (implemented here against core/scene/scene.h's Field interface so tests do not depend on core/scene/scene.cpp), and
+// distance helpers for asserting geometric bounds.
 #pragma once
 
 #include <algorithm>
