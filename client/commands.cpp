@@ -111,16 +111,6 @@ ExitCode finish_watch(const WatchResult& result, const FrameWriter& writer, Prog
   }
 }
 
-// Best effort, used when the client gives up on a job it started.
-bool cancel_job(Connection& connection, const std::string& job_id) {
-  v1::CancelJobRequest request;
-  request.set_job_id(job_id);
-  grpc::ClientContext context;
-  context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(5));
-  v1::Job job;
-  return connection.stub().CancelJob(&context, request, &job).ok();
-}
-
 std::string submit_job(Connection& connection, const v1::JobSpec& spec, v1::Job* job) {
   v1::SubmitJobRequest request;
   *request.mutable_spec() = spec;

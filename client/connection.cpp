@@ -91,6 +91,15 @@ std::chrono::system_clock::time_point Connection::unary_deadline() const {
          std::chrono::seconds(20);
 }
 
+bool cancel_job(Connection& connection, const std::string& job_id, std::chrono::milliseconds within) {
+  v1::CancelJobRequest request;
+  request.set_job_id(job_id);
+  grpc::ClientContext context;
+  context.set_deadline(std::chrono::system_clock::now() + within);
+  v1::Job job;
+  return connection.stub().CancelJob(&context, request, &job).ok();
+}
+
 CliError rpc_error(const std::string& context, const grpc::Status& status) {
   ExitCode code = ExitCode::kJobFailed;
   if (status.error_code() == grpc::StatusCode::UNAVAILABLE ||

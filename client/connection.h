@@ -55,6 +55,11 @@ class Connection {
 inline std::string status_code_name(grpc::StatusCode code) {
   return std::string(wire::status_code_name(static_cast<int>(code)));
 }
+// Asks the server to cancel `job_id`, waiting at most `within` for the answer. Best effort (a client giving up on a
+// job it started): returns whether the server answered OK.
+bool cancel_job(Connection& connection, const std::string& job_id,
+                std::chrono::milliseconds within = std::chrono::seconds(5));
+
 // "<context>: CODE: message" as a CliError: UNAVAILABLE and DEADLINE_EXCEEDED -> kUnreachable, CANCELLED ->
 // kCancelled, everything else -> kJobFailed.
 CliError rpc_error(const std::string& context, const grpc::Status& status);

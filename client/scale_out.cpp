@@ -119,15 +119,6 @@ bool server_going_away(Connection& connection) {
   }
 }
 
-bool cancel_sub_job(Connection& connection, const std::string& job_id) {
-  v1::CancelJobRequest request;
-  request.set_job_id(job_id);
-  grpc::ClientContext context;
-  context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(3));
-  v1::Job job;
-  return connection.stub().CancelJob(&context, request, &job).ok();
-}
-
 struct ServerSlot {
   std::string address;
   ConnectOptions connect;
@@ -372,7 +363,7 @@ class ScaleOut {
           std::lock_guard lock(mutex_);
           stopping = stopping_;
         }
-        if (stopping && !job_id.empty()) cancel_sub_job(*connection, job_id);
+        if (stopping && !job_id.empty()) cancel_job(*connection, job_id, std::chrono::seconds(3));
       } catch (const CliError& e) {
         bool stopping = false;
         {
@@ -380,19 +371,20 @@ class ScaleOut {
           stopping = stopping_;
         }
         if (stopping) {  // another worker failed, or Ctrl-C: do not leave this sub-job running
-          if (!job_id.empty()) cancel_sub_job(*connection, job_id);
+          if (!job_id.empty()) cancel_job(*connection, job_id, std::chrono::seconds(3));
           return;
         }
         if (e.code() == ExitCode::kUnreachable) {
-          if (!job_id.empty()) cancel_sub_job(*connection, job_id);  // in case it is only our link that broke
+          if (!job_id.empty())
+            cancel_job(*connection, job_id, std::chrono::seconds(3));  // in case it is only our link that broke
           server_died(slot, e.what(), batch);
           return;
         }
-        if (!job_id.empty()) cancel_sub_job(*connection, job_id);
+        if (!job_id.empty()) cancel_job(*connection, job_id, std::chrono::seconds(3));
         stop(e);
         return;
       } catch (const std::exception& e) {  // a bug: end the run cleanly rather than the process
-        if (!job_id.empty()) cancel_sub_job(*connection, job_id);
+        if (!job_id.empty()) cancel_job(*connection, job_id, std::chrono::seconds(3));
         stop(CliError(ExitCode::kInternal, std::string("internal error on ") + slot.address + ": " + e.what()));
         return;
       }

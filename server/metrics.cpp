@@ -6,6 +6,8 @@
 #include <stdexcept>
 #include <utility>
 
+#include "core/util/format.h"
+
 namespace surfacer::server {
 namespace {
 
@@ -108,16 +110,6 @@ void append_sample(std::string& out, std::string_view name, std::string_view suf
   out += '\n';
 }
 
-// 'text' (built by appending: GCC 12 warns falsely, -Wrestrict, on "literal" + std::string temporaries).
-std::string quoted(std::string_view text) {
-  std::string out;
-  out.reserve(text.size() + 2);
-  out += '\'';
-  out += text;
-  out += '\'';
-  return out;
-}
-
 // A gauge family whose samples come from a callback at render time.
 class CallbackGaugeFamily final : public detail::FamilyBase {
  public:
@@ -136,7 +128,7 @@ class CallbackGaugeFamily final : public detail::FamilyBase {
       if (i > 0 && values[i].label_values == values[i - 1].label_values) {
         std::string tuple;
         for (const std::string& value : values[i].label_values) tuple += (tuple.empty() ? "" : ",") + value;
-        throw std::invalid_argument("metric " + quoted(name()) + ": the callback returned the label values {" + tuple +
+        throw std::invalid_argument("metric " + quote(name()) + ": the callback returned the label values {" + tuple +
                                     "} more than once; return each tuple once");
       }
       append_sample(out, name(), "", label_names(), values[i].label_values, "", format_metric_value(values[i].value));
@@ -149,29 +141,29 @@ class CallbackGaugeFamily final : public detail::FamilyBase {
 void validate_family(const std::string& name, const std::string& help, MetricType type,
                      const std::vector<std::string>& label_names) {
   if (!valid_metric_name(name)) {
-    throw std::invalid_argument("metric name " + quoted(name) +
+    throw std::invalid_argument("metric name " + quote(name) +
                                 " is invalid: use letters, digits, '_' and ':', not starting with a digit");
   }
   if (help.empty()) {
-    throw std::invalid_argument("metric " + quoted(name) + ": help text is empty; say what it measures");
+    throw std::invalid_argument("metric " + quote(name) + ": help text is empty; say what it measures");
   }
   for (std::size_t i = 0; i < label_names.size(); ++i) {
     const std::string& label = label_names[i];
     if (!valid_label_name(label)) {
-      throw std::invalid_argument("metric " + quoted(name) + ": label name " + quoted(label) +
+      throw std::invalid_argument("metric " + quote(name) + ": label name " + quote(label) +
                                   " is invalid: use letters, digits and '_', not starting with a digit");
     }
     if (label.starts_with("__")) {
-      throw std::invalid_argument("metric " + quoted(name) + ": label name " + quoted(label) +
+      throw std::invalid_argument("metric " + quote(name) + ": label name " + quote(label) +
                                   " starts with '__', which is reserved for Prometheus");
     }
     if (type == MetricType::kHistogram && label == "le") {
-      throw std::invalid_argument("metric " + quoted(name) +
+      throw std::invalid_argument("metric " + quote(name) +
                                   ": label name 'le' is reserved for histogram buckets; choose another name");
     }
     if (std::find(label_names.begin(), label_names.begin() + static_cast<std::ptrdiff_t>(i), label) !=
         label_names.begin() + static_cast<std::ptrdiff_t>(i)) {
-      throw std::invalid_argument("metric " + quoted(name) + ": label name " + quoted(label) + " is repeated");
+      throw std::invalid_argument("metric " + quote(name) + ": label name " + quote(label) + " is repeated");
     }
   }
 }
@@ -179,11 +171,11 @@ void validate_family(const std::string& name, const std::string& help, MetricTyp
 void validate_buckets(const std::string& name, const std::vector<double>& buckets) {
   for (std::size_t i = 0; i < buckets.size(); ++i) {
     if (!std::isfinite(buckets[i])) {
-      throw std::invalid_argument("histogram " + quoted(name) + ": bucket bound " + format_metric_value(buckets[i]) +
+      throw std::invalid_argument("histogram " + quote(name) + ": bucket bound " + format_metric_value(buckets[i]) +
                                   " is not finite; +Inf is added implicitly");
     }
     if (i > 0 && !(buckets[i] > buckets[i - 1])) {
-      throw std::invalid_argument("histogram " + quoted(name) + ": bucket bounds must be strictly increasing (" +
+      throw std::invalid_argument("histogram " + quote(name) + ": bucket bounds must be strictly increasing (" +
                                   format_metric_value(buckets[i - 1]) + " then " + format_metric_value(buckets[i]) +
                                   ")");
     }
@@ -319,7 +311,7 @@ void detail::FamilyBase::check_arity(std::size_t values) const {
   if (values != label_names_.size()) {
     std::string names;
     for (const std::string& label : label_names_) names += (names.empty() ? "" : ",") + label;
-    throw std::invalid_argument("metric " + quoted(name_) + ": got " + std::to_string(values) +
+    throw std::invalid_argument("metric " + quote(name_) + ": got " + std::to_string(values) +
                                 " label values, expected " + std::to_string(label_names_.size()) + " {" + names + "}");
   }
 }
@@ -396,7 +388,7 @@ Family& MetricsRegistry::add(const std::string& name, const std::string& help, M
   std::lock_guard lock(mutex_);
   for (const std::string& s : series) {
     if (std::find(series_names_.begin(), series_names_.end(), s) != series_names_.end()) {
-      throw std::invalid_argument("metric " + quoted(name) + ": the series name " + quoted(s) +
+      throw std::invalid_argument("metric " + quote(name) + ": the series name " + quote(s) +
                                   " is already registered; metric names must be unique");
     }
   }
@@ -430,7 +422,7 @@ HistogramFamily& MetricsRegistry::histogram(const std::string& name, const std::
 }
 
 void MetricsRegistry::gauge_callback(const std::string& name, const std::string& help, std::function<double()> sample) {
-  if (!sample) throw std::invalid_argument("metric " + quoted(name) + ": the callback is empty");
+  if (!sample) throw std::invalid_argument("metric " + quote(name) + ": the callback is empty");
   add<CallbackGaugeFamily>(name, help, MetricType::kGauge, {}, [sample = std::move(sample)] {
     return std::vector<LabelledValue>{{{}, sample()}};
   });
@@ -439,7 +431,7 @@ void MetricsRegistry::gauge_callback(const std::string& name, const std::string&
 void MetricsRegistry::gauge_callback_family(const std::string& name, const std::string& help,
                                             const std::vector<std::string>& label_names,
                                             std::function<std::vector<LabelledValue>()> sample) {
-  if (!sample) throw std::invalid_argument("metric " + quoted(name) + ": the callback is empty");
+  if (!sample) throw std::invalid_argument("metric " + quote(name) + ": the callback is empty");
   add<CallbackGaugeFamily>(name, help, MetricType::kGauge, label_names, std::move(sample));
 }
 

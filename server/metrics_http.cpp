@@ -15,6 +15,7 @@
 #include <utility>
 #include <vector>
 
+#include "core/util/format.h"
 #include "server/log.h"
 
 namespace surfacer::server {
@@ -31,16 +32,6 @@ constexpr std::string_view kMetricsContentType = "text/plain; version=0.0.4; cha
 constexpr std::string_view kTextContentType = "text/plain; charset=utf-8";
 
 std::string errno_text(int error) { return std::strerror(error); }
-
-// 'text' (built by appending: GCC 12 warns falsely, -Wrestrict, on "literal" + std::string temporaries).
-std::string quote(std::string_view text) {
-  std::string out;
-  out.reserve(text.size() + 2);
-  out += '\'';
-  out += text;
-  out += '\'';
-  return out;
-}
 
 struct HostPort {
   std::string host;
