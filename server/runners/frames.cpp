@@ -71,8 +71,10 @@ FrameOutput FrameMaker::make(const Mesh& mesh, StageTimer& timer, const RunContr
   // Item 0: the checks; item 1: the encoding. Each spreads its own work over the executor.
   executor.for_each(2, [&](int item) {
     if (item == 0) {
+      control.report("check", 0.0);
       report = check_timer.run("check", [&] { return check_mesh(mesh, executor, control); });
     } else {
+      control.report("encode", 0.0);
       out.bytes = encode_timer.run("encode", [&] {
         return own_thread ? encode_on_own_thread(mesh, control) : encode_frame(mesh, options, executor, control);
       });
