@@ -100,6 +100,15 @@ struct TriangleSums {
   // Of all angles, as signed squared cosines cos * |cos| (monotonic in the cosine; no square root per angle).
   double max_cos = -2.0;
   double min_cos = 2.0;
+
+  void add(const TriangleSums& b) {
+    degenerate += b.degenerate;
+    valid += b.valid;
+    area += b.area;
+    volume += b.volume;
+    max_cos = std::max(max_cos, b.max_cos);
+    min_cos = std::min(min_cos, b.min_cos);
+  }
 };
 
 // Sums of one block of vertices.
@@ -114,6 +123,20 @@ struct VertexSums {
   int min_valence = std::numeric_limits<int>::max();
   int max_valence = 0;
   std::vector<std::int64_t> histogram;
+
+  void add(const VertexSums& b) {
+    referenced += b.referenced;
+    edges += b.edges;
+    boundary_edges += b.boundary_edges;
+    non_manifold_edges += b.non_manifold_edges;
+    links += b.links;
+    oriented = oriented && b.oriented;
+    vertex_manifold = vertex_manifold && b.vertex_manifold;
+    min_valence = std::min(min_valence, b.min_valence);
+    max_valence = std::max(max_valence, b.max_valence);
+    if (histogram.size() < b.histogram.size()) histogram.resize(b.histogram.size(), 0);
+    for (std::size_t i = 0; i < b.histogram.size(); ++i) histogram[i] += b.histogram[i];
+  }
 
   void add_valence(int valence) {
     min_valence = std::min(min_valence, valence);
@@ -403,14 +426,7 @@ class Checker {
   MeshReport report() const {
     MeshReport r;
     TriangleSums t;
-    for (const TriangleSums& b : triangle_sums_) {
-      t.degenerate += b.degenerate;
-      t.valid += b.valid;
-      t.area += b.area;
-      t.volume += b.volume;
-      t.max_cos = std::max(t.max_cos, b.max_cos);
-      t.min_cos = std::min(t.min_cos, b.min_cos);
-    }
+    for (const TriangleSums& b : triangle_sums_) t.add(b);
     r.degenerate_triangles = t.degenerate;
     r.area = t.area;
     r.volume = t.volume;
@@ -423,19 +439,7 @@ class Checker {
       r.max_angle_degrees = degrees(t.min_cos);
     }
     VertexSums v;
-    for (const VertexSums& b : vertex_sums_) {
-      v.referenced += b.referenced;
-      v.edges += b.edges;
-      v.boundary_edges += b.boundary_edges;
-      v.non_manifold_edges += b.non_manifold_edges;
-      v.links += b.links;
-      v.oriented = v.oriented && b.oriented;
-      v.vertex_manifold = v.vertex_manifold && b.vertex_manifold;
-      v.min_valence = std::min(v.min_valence, b.min_valence);
-      v.max_valence = std::max(v.max_valence, b.max_valence);
-      if (v.histogram.size() < b.histogram.size()) v.histogram.resize(b.histogram.size(), 0);
-      for (std::size_t i = 0; i < b.histogram.size(); ++i) v.histogram[i] += b.histogram[i];
-    }
+    for (const VertexSums& b : vertex_sums_) v.add(b);
     r.boundary_edges = v.boundary_edges;
     r.non_manifold_edges = v.non_manifold_edges;
     r.closed = r.boundary_edges == 0;
