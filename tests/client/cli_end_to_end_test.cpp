@@ -297,7 +297,7 @@ void expect_same_surface(const Surface& a, const Surface& b, const std::string& 
 
 TEST_F(CliEndToEnd, EveryEncodingWritesTheSameSurfaceInStandardFiles) {
   const fs::path scenes = fs::path(SURFACER_SOURCE_DIR) / "examples" / "scenes";
-  // From one piece to many (a piece holds up to 131072 triangles).
+  // From one piece to many (a piece holds up to 262144 triangles).
   for (const auto& [scene, cells] : std::vector<std::pair<std::string, std::string>>{
            {"torus.json", "24"}, {"csg_block.json", "96"}, {"gyroid_in_sphere.json", "140"}}) {
     SCOPED_TRACE(scene + " at " + cells + " cells");
