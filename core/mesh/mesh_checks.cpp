@@ -21,6 +21,7 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
+#include <bit>
 #include <cmath>
 #include <limits>
 #include <memory>
@@ -28,6 +29,10 @@
 #include <string>
 
 #include "core/util/errors.h"
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 namespace surfacer {
 namespace {
@@ -41,6 +46,21 @@ constexpr std::uint32_t kNext[4] = {1, 2, 0, 0};
 constexpr std::uint32_t kPrev[4] = {2, 0, 1, 0};
 
 bool repeated(const Triangle& t) { return t[0] == t[1] || t[1] == t[2] || t[0] == t[2]; }
+
+// Bit j set where a[j] == x, for j < k; `a` holds k values padded to a multiple of four with values other than x.
+std::uint32_t match_mask(const std::uint32_t* a, int k, std::uint32_t x) {
+  std::uint32_t mask = 0;
+#if defined(__SSE2__)
+  const __m128i key = _mm_set1_epi32(static_cast<int>(x));
+  for (int j = 0; j < k; j += 4) {
+    const __m128i values = _mm_load_si128(reinterpret_cast<const __m128i*>(a + j));
+    mask |= static_cast<std::uint32_t>(_mm_movemask_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(values, key)))) << j;
+  }
+#else
+  for (int j = 0; j < k; ++j) mask |= static_cast<std::uint32_t>(a[j] == x) << j;
+#endif
+  return mask;
+}
 
 int block_count(std::size_t n, std::size_t block) { return static_cast<int>((n + block - 1) / block); }
 
@@ -312,7 +332,9 @@ class Checker {
     const std::uint32_t begin = start_[v], end = start_[v + 1];
     const int k = static_cast<int>(end - begin);
     if (k > kMaxFastCorners) return false;
-    std::array<std::uint32_t, kMaxFastCorners> a, b;
+    // a is padded with v (never a neighbour of itself) to whole groups of four for match_mask.
+    alignas(16) std::array<std::uint32_t, kMaxFastCorners> a, b;
+    for (int i = k; i < ((k + 3) & ~3); ++i) a[i] = v;
     for (int i = 0; i < k; ++i) {
       const std::uint32_t corner = corners_[begin + i];
       const Triangle& tri = mesh_.triangles[corner >> 2];
@@ -323,15 +345,10 @@ class Checker {
     std::array<std::uint8_t, kMaxFastCorners> next{};
     std::uint32_t hit = 0;
     for (int i = 0; i < k; ++i) {
-      int matches = 0, found = 0;
-      for (int j = 0; j < k; ++j) {  // branch-free: the compares are unpredictable
-        const bool equal = a[j] == b[i];
-        matches += equal;
-        found = equal ? j : found;
-      }
-      if (matches != 1 || (hit >> found & 1u)) return false;
-      hit |= 1u << found;
-      next[i] = static_cast<std::uint8_t>(found);
+      const std::uint32_t matches = match_mask(a.data(), k, b[i]);
+      if (matches == 0 || (matches & (matches - 1)) != 0 || (hit & matches)) return false;
+      hit |= matches;
+      next[i] = static_cast<std::uint8_t>(std::countr_zero(matches));
     }
     int length = 1;
     for (int i = next[0]; i != 0; i = next[i]) ++length;
