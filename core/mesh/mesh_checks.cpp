@@ -115,8 +115,8 @@ class AtomicUnionFind {
 struct TriangleSums {
   std::int64_t degenerate = 0;
   std::int64_t valid = 0;
-  double area = 0.0;
-  double volume = 0.0;
+  double area = 0.0;    // twice the area
+  double volume = 0.0;  // six times the signed volume
   // Of all angles, as signed squared cosines cos * |cos| (monotonic in the cosine; no square root per angle).
   double max_cos = -2.0;
   double min_cos = 2.0;
@@ -246,19 +246,20 @@ class Checker {
         const Vec3& b = mesh_.vertices[tri[1]];
         const Vec3& c = mesh_.vertices[tri[2]];
         const Vec3 ab = b - a, ac = c - a, bc = c - b;
-        const double tri_area = 0.5 * ab.cross(ac).norm();
-        s.area += tri_area;
-        s.volume += a.dot(b.cross(c)) / 6.0;
-        if (!(tri_area >= min_area) || tri_area == 0.0) {
+        const double twice_area = ab.cross(ac).norm();
+        s.area += twice_area;           // halved once, in report()
+        s.volume += a.dot(b.cross(c));  // divided by 6 once, in report()
+        if (!(twice_area >= 2.0 * min_area) || twice_area == 0.0) {
           ++s.degenerate;
           continue;
         }
         const double ab2 = ab.squaredNorm(), ac2 = ac.squaredNorm(), bc2 = bc.squaredNorm();
-        // The angles at a, b and c: cos = dot / (|u| |v|), compared as dot |dot| / (|u|^2 |v|^2).
+        // The angles at a, b and c: cos = dot / (|u| |v|), compared as dot |dot| / (|u|^2 |v|^2), with one division.
         const double da = ab.dot(ac), db = -ab.dot(bc), dc = ac.dot(bc);
-        const double sa = da * std::abs(da) / (ab2 * ac2);
-        const double sb = db * std::abs(db) / (ab2 * bc2);
-        const double sc = dc * std::abs(dc) / (ac2 * bc2);
+        const double r = 1.0 / (ab2 * ac2 * bc2);
+        const double sa = da * std::abs(da) * bc2 * r;
+        const double sb = db * std::abs(db) * ac2 * r;
+        const double sc = dc * std::abs(dc) * ab2 * r;
         s.max_cos = std::max({s.max_cos, sa, sb, sc});
         s.min_cos = std::min({s.min_cos, sa, sb, sc});
       }
@@ -445,8 +446,8 @@ class Checker {
     TriangleSums t;
     for (const TriangleSums& b : triangle_sums_) t.add(b);
     r.degenerate_triangles = t.degenerate;
-    r.area = t.area;
-    r.volume = t.volume;
+    r.area = 0.5 * t.area;
+    r.volume = t.volume / 6.0;
     auto degrees = [](double signed_square) {
       const double cosine = std::copysign(std::sqrt(std::abs(signed_square)), signed_square);
       return std::acos(std::clamp(cosine, -1.0, 1.0)) * 180.0 / kPi;
