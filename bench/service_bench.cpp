@@ -12,10 +12,11 @@
 //   6. RPC    : the same single-frame job through a loopback server against the in-process one;
 //   7. the Draco speed sweep (encode s, decode s, bits per triangle).
 // Medians of --repeat runs. Usage: service_bench [--scene FILE] [--cells N] [--frames F] [--sequence-cells N]
-//                                                [--repeat R]
+//                                                [--repeat R] [--section 1..7 (one only; 4 comes with 1)]
 #include <google/protobuf/util/json_util.h>
 #include <grpcpp/grpcpp.h>
 #include <sys/resource.h>
+#include <time.h>
 
 #include <algorithm>
 #include <chrono>
@@ -65,6 +66,28 @@ double cpu_seconds() {
   rusage u{};
   getrusage(RUSAGE_SELF, &u);
   return u.ru_utime.tv_sec + u.ru_stime.tv_sec + 1e-6 * (u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
+
+// The cores this process gets right now: `threads` busy threads for `seconds`, their CPU time over the wall time. On
+// a machine shared with other work (a CI runner, a build) utilization is also printed against this.
+double available_cores(int threads, double seconds = 0.5) {
+  std::vector<std::thread> spinners;
+  std::vector<double> cpu(threads, 0.0);
+  for (int t = 0; t < threads; ++t) {
+    spinners.emplace_back([&, t] {
+      timespec a{}, b{};
+      clock_gettime(CLOCK_THREAD_CPUTIME_ID, &a);
+      const auto start = Clock::now();
+      volatile double x = 0.0;
+      while (seconds_since(start) < seconds) x = x + 1.0;
+      clock_gettime(CLOCK_THREAD_CPUTIME_ID, &b);
+      cpu[t] = (b.tv_sec - a.tv_sec) + 1e-9 * (b.tv_nsec - a.tv_nsec);
+    });
+  }
+  for (auto& s : spinners) s.join();
+  double sum = 0.0;
+  for (double c : cpu) sum += c;
+  return sum / seconds;
 }
 
 struct JobResult {
@@ -133,12 +156,14 @@ int main(int argc, char** argv) {
   int frames = 24;
   int sequence_cells = 128;
   int repeat = 3;
+  int section = 0;  // 0: all
   for (int i = 1; i + 1 < argc; i += 2) {
     if (!std::strcmp(argv[i], "--scene")) scene_path = argv[i + 1];
     if (!std::strcmp(argv[i], "--cells")) cells = std::atoi(argv[i + 1]);
     if (!std::strcmp(argv[i], "--frames")) frames = std::atoi(argv[i + 1]);
     if (!std::strcmp(argv[i], "--sequence-cells")) sequence_cells = std::atoi(argv[i + 1]);
     if (!std::strcmp(argv[i], "--repeat")) repeat = std::atoi(argv[i + 1]);
+    if (!std::strcmp(argv[i], "--section")) section = std::atoi(argv[i + 1]);
   }
   std::ifstream in(scene_path);
   std::stringstream ss;
@@ -170,7 +195,9 @@ int main(int argc, char** argv) {
   Mesh cubes_mesh;
   Aabb cubes_box;
   double cubes_polygonize = 0.0;
+  auto want = [&](int k) { return section == 0 || section == k; };
   for (const auto method : {Polygonizer::kCubes, Polygonizer::kTiles}) {
+    if (!want(1) && !(method == Polygonizer::kCubes && (want(2) || want(3) || want(6) || want(7)))) continue;
     const auto proto_method = method == Polygonizer::kCubes ? v1::POLYGONIZER_CUBES : v1::POLYGONIZER_TILES;
     PolygonizeOptions options;
     options.method = method;
@@ -179,10 +206,18 @@ int main(int argc, char** argv) {
     const PolygonizeGrid grid = resolve_grid(fields, options);
     Mesh mesh;
     const double polygonize_core = median_time(repeat, [&] { mesh = polygonize(*field, grid); });
+    if (method == Polygonizer::kCubes) {
+      cubes_box = grid.bounds;
+      cubes_polygonize = polygonize_core;
+    }
+    if (!want(1)) {
+      cubes_mesh = std::move(mesh);
+      continue;
+    }
     std::printf("\n1. single-frame jobs, %s at %d cells: %zu triangles; polygonize alone %.3f s\n",
                 std::string(polygonizer_name(method)).c_str(), cells, mesh.triangles.size(), polygonize_core);
-    std::printf("   %-13s %10s %8s %8s %8s %10s %8s\n", "codec", "polygonize", "encode", "check", "total",
-                "total/poly", "B/tri");
+    std::printf("   %-13s %10s %8s %8s %8s %10s %8s\n", "codec", "polygonize", "encode", "check", "total", "total/poly",
+                "B/tri");
     for (FrameCodec codec : kCodecs) {
       const JobResult r = median_job(repeat, *local_stub, make_spec(1, cells, proto_method, codec));
       const double poly = r.stage("polygonize");
@@ -195,79 +230,90 @@ int main(int argc, char** argv) {
     const double check_all = median_time(repeat, [&] { check_mesh(mesh, all); });
     std::printf("4. checks: %.3f s on 1 thread, %.3f s on %d (%.1f %% of polygonize; target <= 15 %%)\n", check_one,
                 check_all, hw, 100.0 * check_all / polygonize_core);
-    if (method == Polygonizer::kCubes) {
-      cubes_mesh = std::move(mesh);
-      cubes_box = grid.bounds;
-      cubes_polygonize = polygonize_core;
-    }
+    if (method == Polygonizer::kCubes) cubes_mesh = std::move(mesh);
   }
 
-  // 2 and 3 on the cubes mesh (the >= 2 M-triangle frame at 256 cells).
+  // 2, 3, 6 and 7 on the cubes mesh (the >= 2 M-triangle frame at 256 cells).
   const Mesh& mesh = cubes_mesh;
   FrameCodecOptions options;
   options.draco.quantization_bounds = cubes_box;
   const double raw_mb = (mesh.vertices.size() * 12.0 + mesh.triangles.size() * 12.0) / 1e6;
-  options.codec = FrameCodec::kDraco;
-  std::string standard;
-  const double standard_encode =
-      median_time(repeat, [&] { standard = encode_frame(mesh, options, ThreadExecutor(1)); });
-  std::printf("\n2. encode of the %zu-triangle cubes frame; old path: one Draco mesh on 1 thread, %.3f s\n",
-              mesh.triangles.size(), standard_encode);
-  for (FrameCodec codec : {FrameCodec::kDracoPieces, FrameCodec::kMeshopt}) {
-    options.codec = codec;
-    for (int threads : {1, 2, 4}) {
-      const double t = median_time(repeat, [&] { encode_frame(mesh, options, ThreadExecutor(threads)); });
-      std::printf("   %-13s %d thread%s %8.3f s  %.2fx the old path%s\n", std::string(frame_codec_name(codec)).c_str(),
-                  threads, threads == 1 ? " " : "s", t, t / standard_encode,
-                  codec == FrameCodec::kDracoPieces && threads == 2 ? " (target <= 0.55x on 2 cores)" : "");
+
+  if (want(2)) {
+    options.codec = FrameCodec::kDraco;
+    const double standard = median_time(repeat, [&] { encode_frame(mesh, options, ThreadExecutor(1)); });
+    std::printf("\n2. encode of the %zu-triangle cubes frame; old path: one Draco mesh on 1 thread, %.3f s\n",
+                mesh.triangles.size(), standard);
+    for (FrameCodec codec : {FrameCodec::kDracoPieces, FrameCodec::kMeshopt}) {
+      options.codec = codec;
+      for (int threads : {1, 2, 4}) {
+        const double t = median_time(repeat, [&] { encode_frame(mesh, options, ThreadExecutor(threads)); });
+        std::printf("   %-13s %d thread%s %8.3f s  %.2fx the old path%s\n",
+                    std::string(frame_codec_name(codec)).c_str(), threads, threads == 1 ? " " : "s", t, t / standard,
+                    codec == FrameCodec::kDracoPieces && threads == 2 ? " (target <= 0.55x on 2 cores)" : "");
+      }
     }
   }
 
-  std::printf("\n3. codecs on the same frame (MB/s of the raw float32 mesh, %.1f MB; %d threads)\n", raw_mb, hw);
-  std::printf("   %-13s %8s %12s %12s\n", "codec", "B/tri", "encode MB/s", "decode MB/s");
-  for (FrameCodec codec : kCodecs) {
-    options.codec = codec;
-    std::string bytes;
-    const ThreadExecutor all(hw);
-    const double enc = median_time(repeat, [&] { bytes = encode_frame(mesh, options, all); });
-    const double dec = median_time(repeat, [&] { decode_frame(bytes, codec, all); });
-    std::printf("   %-13s %8.2f %12.1f %12.1f\n", std::string(frame_codec_name(codec)).c_str(),
-                static_cast<double>(bytes.size()) / mesh.triangles.size(), raw_mb / enc, raw_mb / dec);
+  if (want(3)) {
+    std::printf("\n3. codecs on the same frame (MB/s of the raw float32 mesh, %.1f MB; %d threads)\n", raw_mb, hw);
+    std::printf("   %-13s %8s %12s %12s\n", "codec", "B/tri", "encode MB/s", "decode MB/s");
+    for (FrameCodec codec : kCodecs) {
+      options.codec = codec;
+      std::string bytes;
+      const ThreadExecutor all(hw);
+      const double enc = median_time(repeat, [&] { bytes = encode_frame(mesh, options, all); });
+      const double dec = median_time(repeat, [&] { decode_frame(bytes, codec, all); });
+      std::printf("   %-13s %8.2f %12.1f %12.1f\n", std::string(frame_codec_name(codec)).c_str(),
+                  static_cast<double>(bytes.size()) / mesh.triangles.size(), raw_mb / enc, raw_mb / dec);
+    }
   }
 
-  std::printf("\n5. a %d-frame sequence at %d cells (cubes) through the in-process server\n", frames, sequence_cells);
-  for (FrameCodec codec : {FrameCodec::kDraco, FrameCodec::kDracoPieces, FrameCodec::kMeshopt}) {
-    const auto spec = make_spec(frames, sequence_cells, v1::POLYGONIZER_CUBES, codec);
-    const double cpu0 = cpu_seconds();
-    const JobResult r = run_job(*local_stub, spec);
-    const double cpu = cpu_seconds() - cpu0;
-    std::printf("   %-13s wall %7.3f s  CPU %7.3f s  utilization %5.1f %% (target >= 90 %%)\n",
-                std::string(frame_codec_name(codec)).c_str(), r.wall, cpu, 100.0 * cpu / (r.wall * hw));
+  if (want(5)) {
+    std::printf("\n5. a %d-frame sequence at %d cells (cubes) through the in-process server\n", frames, sequence_cells);
+    for (FrameCodec codec : {FrameCodec::kDraco, FrameCodec::kDracoPieces, FrameCodec::kMeshopt}) {
+      const auto spec = make_spec(frames, sequence_cells, v1::POLYGONIZER_CUBES, codec);
+      const double before = available_cores(hw);
+      const double cpu0 = cpu_seconds();
+      const JobResult r = run_job(*local_stub, spec);
+      const double cpu = cpu_seconds() - cpu0;
+      const double available = std::min<double>(hw, 0.5 * (before + available_cores(hw)));
+      std::printf(
+          "   %-13s wall %7.3f s  CPU %7.3f s  utilization %5.1f %% of %d cores (target >= 90 %%), %5.1f %% "
+          "of the %.2f cores this process got around it\n",
+          std::string(frame_codec_name(codec)).c_str(), r.wall, cpu, 100.0 * cpu / (r.wall * hw), hw,
+          100.0 * cpu / (r.wall * available), available);
+    }
   }
 
-  server::ServerOptions tcp_options;
-  tcp_options.listen = "127.0.0.1:0";
-  auto tcp = server::SurfacerServer::start(tcp_options);
-  auto tcp_stub = v1::Surfacer::NewStub(
-      grpc::CreateChannel("127.0.0.1:" + std::to_string(tcp->port()), grpc::InsecureChannelCredentials()));
-  std::printf("\n6. RPC: the cubes job through a loopback server / in-process (polygonize alone %.3f s)\n",
-              cubes_polygonize);
-  for (FrameCodec codec : {FrameCodec::kDraco, FrameCodec::kMeshopt}) {
-    const auto spec = make_spec(1, cells, v1::POLYGONIZER_CUBES, codec);
-    const double t_local = median_job(repeat, *local_stub, spec).wall;
-    const double t_tcp = median_job(repeat, *tcp_stub, spec).wall;
-    std::printf("   %-13s in-process %7.3f s  loopback %7.3f s  ratio %.2f\n",
-                std::string(frame_codec_name(codec)).c_str(), t_local, t_tcp, t_tcp / t_local);
+  if (want(6)) {
+    server::ServerOptions tcp_options;
+    tcp_options.listen = "127.0.0.1:0";
+    auto tcp = server::SurfacerServer::start(tcp_options);
+    auto tcp_stub = v1::Surfacer::NewStub(
+        grpc::CreateChannel("127.0.0.1:" + std::to_string(tcp->port()), grpc::InsecureChannelCredentials()));
+    std::printf("\n6. RPC: the cubes job through a loopback server / in-process (polygonize alone %.3f s)\n",
+                cubes_polygonize);
+    for (FrameCodec codec : {FrameCodec::kDraco, FrameCodec::kMeshopt}) {
+      const auto spec = make_spec(1, cells, v1::POLYGONIZER_CUBES, codec);
+      const double t_local = median_job(repeat, *local_stub, spec).wall;
+      const double t_tcp = median_job(repeat, *tcp_stub, spec).wall;
+      std::printf("   %-13s in-process %7.3f s  loopback %7.3f s  ratio %.2f\n",
+                  std::string(frame_codec_name(codec)).c_str(), t_local, t_tcp, t_tcp / t_local);
+    }
   }
 
-  std::printf("\n7. Draco speed sweep on the cubes frame (encode s, decode s, bits per triangle)\n");
-  for (int speed : {0, 3, 5, 6, 7, 8, 9, 10}) {
-    DracoOptions o = options.draco;
-    o.speed = speed;
-    std::string bytes;
-    const double enc = median_time(repeat, [&] { bytes = encode_draco(mesh, o); });
-    const double dec = median_time(repeat, [&] { decode_draco(bytes); });
-    std::printf("   speed %2d: %6.3f s  %6.3f s  %5.1f\n", speed, enc, dec, bytes.size() * 8.0 / mesh.triangles.size());
+  if (want(7)) {
+    std::printf("\n7. Draco speed sweep on the cubes frame (encode s, decode s, bits per triangle)\n");
+    for (int speed : {0, 3, 5, 6, 7, 8, 9, 10}) {
+      DracoOptions o = options.draco;
+      o.speed = speed;
+      std::string bytes;
+      const double enc = median_time(repeat, [&] { bytes = encode_draco(mesh, o); });
+      const double dec = median_time(repeat, [&] { decode_draco(bytes); });
+      std::printf("   speed %2d: %6.3f s  %6.3f s  %5.1f\n", speed, enc, dec,
+                  bytes.size() * 8.0 / mesh.triangles.size());
+    }
   }
   return 0;
 }
