@@ -150,8 +150,8 @@ std::string encode_meshopt_piece(const QuantizedPiece& piece, int grid_bits, int
     put_stream(out, stream, encode_vertices(stream, pack_vertices<std::uint32_t>(piece), nv));
   }
   stream.resize(meshopt_encodeIndexBufferBound(3 * nt, nv));
-  const std::size_t index_size =
-      meshopt_encodeIndexBuffer(stream.data(), stream.size(), piece.triangles.data()->data(), 3 * nt);
+  const std::size_t index_size = meshopt_encodeIndexBuffer(
+      stream.data(), stream.size(), reinterpret_cast<const std::uint32_t*>(piece.triangles.data()), 3 * nt);
   if (index_size == 0 && nt > 0) throw Internal("meshopt index encoder failed");
   put_stream(out, stream, index_size);
   if (normals) {
@@ -192,9 +192,9 @@ QuantizedPiece decode_meshopt_piece(std::string_view bytes, int grid_bits) {
     unpack_vertices<std::uint32_t>(piece, nv, vertex_stream, max_value);
   }
   piece.triangles.resize(nt);
-  if (nt > 0 && meshopt_decodeIndexBuffer(piece.triangles.data()->data(), 3 * nt, sizeof(std::uint32_t),
-                                          reinterpret_cast<const unsigned char*>(index_stream.data()),
-                                          index_stream.size()) != 0) {
+  if (nt > 0 && meshopt_decodeIndexBuffer(
+                    reinterpret_cast<std::uint32_t*>(piece.triangles.data()), 3 * nt, sizeof(std::uint32_t),
+                    reinterpret_cast<const unsigned char*>(index_stream.data()), index_stream.size()) != 0) {
     bad("has a malformed index stream");
   }
   for (const Triangle& t : piece.triangles) {
