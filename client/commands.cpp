@@ -228,6 +228,7 @@ ExitCode run_failover(const ConnectOptions& connect, const std::vector<std::stri
 
 ExitCode run_run(const ConnectOptions& connect, const RunCommand& command, std::ostream& err, bool tty) {
   PreparedJob prepared = prepare_job(command.job);  // usage errors before connecting
+  fit_encoding_to_files(prepared.spec, command.output.formats);
   if (connect.server && (is_server_list(*connect.server) || is_dns_name(*connect.server))) {
     const std::vector<std::string> servers =
         is_server_list(*connect.server) ? parse_server_list(*connect.server) : resolve_dns_name(*connect.server);

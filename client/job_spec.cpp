@@ -2,6 +2,7 @@
 
 #include <google/protobuf/util/json_util.h>
 
+#include <algorithm>
 #include <fstream>
 #include <sstream>
 
@@ -302,10 +303,21 @@ PreparedJob prepare_job(const JobOptions& options) {
 
   if (options.name) spec.set_name(*options.name);
   v1::OutputOptions* output = spec.mutable_output();
-  if (options.raw) output->set_encoding(v1::MESH_ENCODING_PLY);
+  if (options.encoding == "raw") output->set_encoding(v1::MESH_ENCODING_PLY);
+  if (options.encoding == "meshopt") output->set_encoding(v1::MESH_ENCODING_MESHOPT);
+  if (options.encoding == "draco") output->set_encoding(v1::MESH_ENCODING_DRACO);
   if (options.normals) output->set_normals(true);
   if (options.quantization_bits) output->set_quantization_bits(*options.quantization_bits);
   return prepared;
+}
+
+void fit_encoding_to_files(v1::JobSpec& spec, const std::vector<FileFormat>& formats) {
+  v1::OutputOptions* output = spec.mutable_output();
+  const bool draco =
+      output->encoding() == v1::MESH_ENCODING_UNSPECIFIED || output->encoding() == v1::MESH_ENCODING_DRACO;
+  if (draco && !formats.empty() && std::find(formats.begin(), formats.end(), FileFormat::kDrc) == formats.end()) {
+    output->set_encoding(v1::MESH_ENCODING_DRACO_PIECES);
+  }
 }
 
 }  // namespace surfacer::client

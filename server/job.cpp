@@ -21,6 +21,7 @@ namespace {
 using google::protobuf::util::TimeUtil;
 
 constexpr auto kProgressInterval = std::chrono::milliseconds(100);
+constexpr auto kStageChangeInterval = std::chrono::milliseconds(10);
 constexpr int kGrpcCancelled = 1;
 
 bool is_terminal(v1::JobState s) {
@@ -310,8 +311,11 @@ void Job::emit(int frame_index, FrameOutput output) {
                                            "the server's --tokens-file");
   }
   if (store_) {
+    set_progress(frame_index, "store", 0.0);
+    RunControl control;
+    control.cancel = &cancel_;
     try {
-      store_->put_frame(id_, h, *bytes);
+      store_->put_frame(id_, h, *bytes, control);
     } catch (...) {
       if (usage_) usage_->release(owner_, size);
       throw;
@@ -434,7 +438,9 @@ void Job::set_progress(int frame_index, std::string_view stage, double fraction)
   const auto now = std::chrono::steady_clock::now();
   {
     std::lock_guard lock(mutex_);
-    if (now - last_progress_notify_ < kProgressInterval) return;
+    // At most every kProgressInterval; a new stage sooner, so that watchers see a short stage begin.
+    const auto interval = progress_.stage() == stage ? kProgressInterval : kStageChangeInterval;
+    if (now - last_progress_notify_ < interval) return;
     last_progress_notify_ = now;
     progress_.set_stage(std::string(stage));
     progress_.set_frame_index(frame_index);

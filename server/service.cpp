@@ -264,7 +264,7 @@ grpc::ServerUnaryReactor* SurfacerService::SubmitJob(grpc::CallbackServerContext
                                                " queued or running jobs (its quota); wait for one to finish, or raise "
                                                "running= for its token in the server's --tokens-file");
     }
-    JobContext job_context{state_.options.limits, *state_.uploads, state_.worker_threads};
+    JobContext job_context{state_.options.limits, *state_.uploads, state_.worker_threads, state_.executor};
     JobInit init;
     init.id = random_id("j-");
     init.name = request->spec().name();

@@ -7,6 +7,7 @@
 #include <sys/file.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstring>
 #include <fstream>
@@ -223,16 +224,22 @@ fs::path Store::upload_path(const std::string& id) const {
   return dir_ / "uploads" / (id + ".bin");
 }
 
-void Store::write_file_atomic(const fs::path& path, const std::string& bytes) const {
+void Store::write_file_atomic(const fs::path& path, const std::string& bytes, const RunControl& control) const {
   std::string tmp_name = path.filename().string();
   tmp_name.append(".tmp");
   tmp_name.insert(tmp_name.begin(), '.');
   const fs::path tmp = path.parent_path() / tmp_name;
   const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0640);
   if (fd < 0) throw_io("creating", tmp, errno);
+  constexpr std::size_t kPiece = std::size_t{4} << 20;  // between cancel checks
   std::size_t done = 0;
   while (done < bytes.size()) {
-    const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+    if (control.cancelled()) {
+      ::close(fd);
+      ::unlink(tmp.c_str());
+      throw Cancelled();
+    }
+    const ssize_t n = ::write(fd, bytes.data() + done, std::min(kPiece, bytes.size() - done));
     if (n < 0 && errno == EINTR) continue;
     if (n <= 0) {
       const int err = n < 0 ? errno : ENOSPC;
@@ -301,12 +308,13 @@ void Store::update_job(const v1::Job& snapshot) {
   s.run();
 }
 
-void Store::put_frame(const std::string& job_id, const v1::FrameHeader& header, const std::string& bytes) {
+void Store::put_frame(const std::string& job_id, const v1::FrameHeader& header, const std::string& bytes,
+                      const RunControl& control) {
   const fs::path path = frame_path(job_id, header.frame_index());
   std::error_code ec;
   fs::create_directories(path.parent_path(), ec);
   if (ec) throw_io("creating", path.parent_path(), ec.value());
-  write_file_atomic(path, bytes);
+  write_file_atomic(path, bytes, control);
   try {
     std::lock_guard lock(mutex_);
     Transaction tx(db_);

@@ -18,12 +18,12 @@ namespace {
 
 class ActiveRunner final : public JobRunner {
  public:
-  ActiveRunner(v1::ActiveJob job, const wire::UploadLookup& uploads, ActiveSurfaceOptions options,
-               FrameEncoding encoding, const Limits& limits, int frames_expected)
+  ActiveRunner(v1::ActiveJob job, const wire::UploadLookup& uploads, ActiveSurfaceOptions options, FrameMaker frames,
+               const Limits& limits, int frames_expected)
       : job_(std::move(job)),
         uploads_(uploads),
         options_(options),
-        encoding_(encoding),
+        frames_(std::move(frames)),
         limits_(limits),
         frames_expected_(frames_expected) {}
 
@@ -61,7 +61,7 @@ class ActiveRunner final : public JobRunner {
       const auto now = std::chrono::steady_clock::now();
       StageTimer timer;
       timer.add("evolve", std::chrono::duration<double>(now - last).count());
-      FrameOutput out = make_frame(frame.mesh, encoding_, limits_.max_triangles, timer);
+      FrameOutput out = frames_.make(frame.mesh, timer, control);
       auto& m = *out.stats.mutable_metrics();
       const ActiveFrameStats& s = frame.stats;
       m["time"] = s.time;
@@ -151,7 +151,7 @@ class ActiveRunner final : public JobRunner {
   v1::ActiveJob job_;
   const wire::UploadLookup& uploads_;
   ActiveSurfaceOptions options_;
-  FrameEncoding encoding_;
+  FrameMaker frames_;
   Limits limits_;
   int frames_expected_;
   std::string resume_state_;
@@ -232,7 +232,9 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
     throw InvalidInput(path + ".bounds", path + ": the shape is unbounded; give " + path + ".bounds");
   }
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), *region, "spec.output");
-  return std::make_unique<ActiveRunner>(job, context.uploads, options, encoding, context.limits, frames_expected);
+  return std::make_unique<ActiveRunner>(job, context.uploads, options,
+                                        FrameMaker(encoding, context.limits.max_triangles, context.executor),
+                                        context.limits, frames_expected);
 }
 
 }  // namespace surfacer::server

@@ -118,7 +118,7 @@ TEST(JobOptions, ParticlesEveryFlag) {
   EXPECT_EQ(o.container_scene, fs::path("solid.json"));
   EXPECT_EQ(o.min_particles, 12);
   EXPECT_TRUE(job.normals);
-  EXPECT_TRUE(job.raw);
+  EXPECT_EQ(job.encoding, "raw");
   EXPECT_EQ(job.name, "splash");
   const auto& run = std::get<RunCommand>(std::get<Invocation>(p.result).command);
   EXPECT_EQ(run.output.dir, "out");
