@@ -1,6 +1,5 @@
 #include "server/job.h"
 
-#include <google/protobuf/util/time_util.h>
 #include <grpcpp/support/status.h>
 
 #include <algorithm>
@@ -8,6 +7,7 @@
 #include "core/util/crc32.h"
 #include "core/util/errors.h"
 #include "server/auth.h"
+#include "server/clock.h"
 #include "server/log.h"
 #include "server/status_map.h"
 #include "server/store.h"
@@ -17,8 +17,6 @@
 
 namespace surfacer::server {
 namespace {
-
-using google::protobuf::util::TimeUtil;
 
 constexpr auto kProgressInterval = std::chrono::milliseconds(100);
 constexpr int kGrpcCancelled = 1;
@@ -42,7 +40,7 @@ Job::Job(JobInit init)
       hooks_(init.hooks),
       tasks_total_(runner_ ? runner_->task_count() : 0),
       frames_total_(runner_ ? runner_->frame_count() : 0) {
-  created_ = TimeUtil::GetCurrentTime();
+  created_ = now_timestamp();
   progress_.set_frames_total(frames_total_);
 }
 
@@ -89,8 +87,8 @@ std::vector<int> Job::restore(const StoredJob& stored) {
       finished_ = snap.finished();
       progress_ = snap.progress();
       frames_total_ = snap.frames_total();
-      const auto age = std::chrono::seconds(std::max<std::int64_t>(
-          0, TimeUtil::TimestampToSeconds(TimeUtil::GetCurrentTime()) - TimeUtil::TimestampToSeconds(finished_)));
+      const auto age = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+          std::chrono::duration<double>(std::max(0.0, seconds_since(finished_))));
       finished_steady_ = std::chrono::steady_clock::now() - age;
     } else {
       for (const auto& c : stored.checkpoints) {
@@ -253,7 +251,7 @@ void Job::bump_state_locked() { ++state_version_; }
 
 void Job::finish_locked(v1::JobState state) {
   state_ = state;
-  finished_ = TimeUtil::GetCurrentTime();
+  finished_ = now_timestamp();
   finished_steady_ = std::chrono::steady_clock::now();
   if (state == v1::JOB_STATE_SUCCEEDED) progress_.set_fraction(1.0);
   bump_state_locked();
@@ -277,7 +275,7 @@ bool Job::task_started() {
     ++running_;
     if (state_ != v1::JOB_STATE_QUEUED) return true;
     state_ = v1::JOB_STATE_RUNNING;
-    started_ = TimeUtil::GetCurrentTime();
+    started_ = now_timestamp();
     bump_state_locked();
   }
   log_event(LogLevel::kInfo, "job_started", {{"job", id_}, {"kind", kind_}});

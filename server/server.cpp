@@ -1,6 +1,5 @@
 #include "server/server.h"
 
-#include <google/protobuf/util/time_util.h>
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
@@ -15,6 +14,7 @@
 #include <thread>
 
 #include "server/auth.h"
+#include "server/clock.h"
 #include "server/job.h"
 #include "server/log.h"
 #include "server/metrics_http.h"
@@ -29,8 +29,6 @@
 
 namespace surfacer::server {
 namespace {
-
-using google::protobuf::util::TimeUtil;
 
 std::string read_file(const std::string& path, const char* flag) {
   std::ifstream in(path, std::ios::binary);
@@ -150,8 +148,7 @@ void SurfacerServer::Impl::register_metrics() {
       metrics.stage_seconds.with({job.kind(), t.stage()}).observe(t.seconds());
     const v1::Job snap = job.snapshot();
     if (snap.has_started()) {
-      const double since = TimeUtil::DurationToNanoseconds(TimeUtil::GetCurrentTime() - snap.started()) * 1e-9;
-      metrics.frame_seconds.with({job.kind()}).observe(std::max(0.0, since));
+      metrics.frame_seconds.with({job.kind()}).observe(std::max(0.0, seconds_since(snap.started())));
     }
   };
   hooks.on_finished = [this](const Job& job, v1::JobState s) {

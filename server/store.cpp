@@ -2,7 +2,6 @@
 
 #include <fcntl.h>
 #include <google/protobuf/descriptor.h>
-#include <google/protobuf/util/time_util.h>
 #include <sqlite3.h>
 #include <sys/file.h>
 #include <unistd.h>
@@ -22,7 +21,6 @@ namespace surfacer::server {
 namespace {
 
 namespace fs = std::filesystem;
-using google::protobuf::util::TimeUtil;
 
 // One prepared statement, finalized on scope exit.
 class Stmt {
@@ -110,7 +108,9 @@ class Transaction {
   bool done_ = false;
 };
 
-std::int64_t now_unix() { return TimeUtil::TimestampToSeconds(TimeUtil::GetCurrentTime()); }
+std::int64_t now_unix() {
+  return std::chrono::duration_cast<std::chrono::seconds>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
 
 [[noreturn]] void throw_io(const std::string& what, const fs::path& path, int err) {
   throw ResourceLimit("data_dir", what + " " + path.string() + " failed: " + std::strerror(err) +

@@ -102,6 +102,30 @@ TEST(Observability, MetricsEndpointCountsJobsFramesStagesAndBytes) {
   EXPECT_EQ(sample(text, R"(surfacer_frame_seconds_count{kind="isosurface"})"), 3);
 }
 
+TEST(Observability, JobTimesAndFrameSecondsHaveSubSecondResolution) {
+  LoopbackServer s;
+  std::vector<v1::Scene> scenes(2, scene_from_json(R"({"root": {"sphere": {"radius": 1}}})"));
+  std::string id;
+  ASSERT_TRUE(submit(*s.stub, isosurface_spec(scenes, 48), &id).ok());
+  const v1::Job job = watch_job(*s.stub, id).final_job;
+  ASSERT_EQ(job.state(), v1::JOB_STATE_SUCCEEDED);
+  // Whole seconds would leave every nanos field 0 (the odds of that by chance are nil).
+  EXPECT_NE(job.created().nanos() + job.started().nanos() + job.finished().nanos(), 0) << job.DebugString();
+  auto seconds = [](const google::protobuf::Timestamp& t) {
+    return static_cast<double>(t.seconds()) + 1e-9 * t.nanos();
+  };
+  const double run = seconds(job.finished()) - seconds(job.started());
+  EXPECT_GT(run, 0.0);
+  EXPECT_LT(run, 60.0);
+  EXPECT_LE(seconds(job.created()), seconds(job.started()));
+  // Two frames of a job that ran for a fraction of a second: their sum is a fraction of a second, not 0.
+  const std::string text = s.server->metrics_text();
+  EXPECT_EQ(sample(text, R"(surfacer_frame_seconds_count{kind="isosurface"})"), 2);
+  const double sum = sample(text, R"(surfacer_frame_seconds_sum{kind="isosurface"})");
+  EXPECT_GT(sum, 0.0) << text;
+  EXPECT_LT(sum, 2 * run + 1.0);
+}
+
 TEST(Observability, HealthIsNotServingWhileDraining) {
   auto o = LoopbackServer::default_options();
   o.health_listen = "127.0.0.1:0";
