@@ -9,6 +9,7 @@
 #include "server/status_map.h"
 #include "server/store.h"
 #include "server/upload_assembler.h"
+#include "wire/enums.h"
 #include "wire/status.h"
 
 namespace surfacer::server {
@@ -340,6 +341,14 @@ grpc::ServerUnaryReactor* SurfacerService::ListJobs(grpc::CallbackServerContext*
   auto* reactor = context->DefaultReactor();
   const Tenant* tenant = tenant_or_finish(state_, *context, reactor);
   if (!tenant) return reactor;
+  try {
+    for (int i = 0; i < request->states_size(); ++i) {
+      wire::require_known_enum(v1::JobState_descriptor(), request->states(i), "states[" + std::to_string(i) + "]");
+    }
+  } catch (...) {
+    reactor->Finish(status_from_exception(std::current_exception()));
+    return reactor;
+  }
   for (const auto& job : state_.scheduler->list()) {
     if (job->owner() != tenant->name) continue;
     v1::Job snapshot = job->snapshot();

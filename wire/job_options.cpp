@@ -2,23 +2,21 @@
 
 #include "core/util/checks.h"
 #include "core/util/errors.h"
+#include "wire/enums.h"
 #include "wire/scene.h"
 
 namespace surfacer::wire {
 
 Polygonizer to_polygonizer(int value, Polygonizer unspecified, const std::string& field) {
+  require_known_enum(v1::Polygonizer_descriptor(), value, field);
   switch (value) {
-    case v1::POLYGONIZER_UNSPECIFIED:
-      return unspecified;
     case v1::POLYGONIZER_TILES:
       return Polygonizer::kTiles;
     case v1::POLYGONIZER_CUBES:
       return Polygonizer::kCubes;
     default:
-      break;
+      return unspecified;
   }
-  throw InvalidInput(field, field + " (" + std::to_string(value) +
-                                ") is not a polygonizer; use POLYGONIZER_TILES or POLYGONIZER_CUBES");
 }
 
 v1::Polygonizer to_wire(Polygonizer polygonizer) {

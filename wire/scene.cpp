@@ -7,6 +7,7 @@
 #include "core/util/checks.h"
 #include "core/util/errors.h"
 #include "surfacer/v1/scene.pb.h"
+#include "wire/enums.h"
 #include "wire/uploads.h"
 
 namespace surfacer::wire {
@@ -106,6 +107,7 @@ class Translator {
       segments.push_back({to_vec3(s.a()), to_vec3(s.b()), s.radius(), or_default(s.strength(), 1.0)});
     }
     BlobOptions options;
+    require_known_enum(v1::Kernel_descriptor(), b.kernel(), path + ".kernel");
     options.kernel = b.kernel() == v1::KERNEL_BLINN ? BlobKernel::kBlinn : BlobKernel::kWyvill;
     options.iso = or_default(b.iso(), 0.5);
     options.blobbiness = or_default(b.blobbiness(), 1.0);
@@ -119,6 +121,7 @@ class Translator {
       children.push_back(node(c.children(i), path + ".children[" + std::to_string(i) + "]"));
     }
     CsgOptions options;
+    require_known_enum(v1::Blend_descriptor(), c.blend(), path + ".blend");
     switch (c.blend()) {
       case v1::BLEND_RFUNCTION:
         options.blend = CsgBlend::kRFunction;
