@@ -9,6 +9,8 @@
 #include "client/particle_files.h"
 #include "core/mesh/mesh_io.h"
 #include "core/util/errors.h"
+#include "wire/protocol.h"
+#include "wire/request_limits.h"
 
 namespace surfacer::client {
 namespace {
@@ -25,19 +27,35 @@ std::string read_text_file(const std::filesystem::path& path, const char* what) 
   return text.str();
 }
 
+// `root_path` names the message in errors about its fields ("spec" for a JobSpec, "" for a Scene).
 template <typename Message>
-Message parse_json_file(const std::filesystem::path& path, const char* what) {
+Message parse_json_file(const std::filesystem::path& path, const char* what, const std::string& root_path) {
   const std::string text = read_text_file(path, what);
   Message message;
   google::protobuf::util::JsonParseOptions options;
   options.ignore_unknown_fields = false;
   auto status = google::protobuf::util::JsonStringToMessage(text, &message, options);
+  const std::string where = std::string(what) + " " + path.string();
+  // Protobuf's JSON parser stops at 100 nested objects: a scene that deep is refused the way the server refuses it.
+  if (!status.ok() && wire::json_object_depth(text) >= 100)
+    throw CliError(ExitCode::kUsage, where + ": " + wire::scene_too_deep());
   if (!status.ok()) {
-    throw CliError(ExitCode::kUsage, std::string(what) + " " + path.string() + " is not a valid " +
-                                         Message::descriptor()->full_name() +
+    throw CliError(ExitCode::kUsage, where + " is not a valid " + Message::descriptor()->full_name() +
                                          " in protobuf JSON: " + std::string(status.message()));
   }
+  try {
+    wire::check_request_limits(message, root_path);
+  } catch (const Error& e) {
+    throw CliError(ExitCode::kUsage, where + ": " + e.what());
+  }
   return message;
+}
+
+// The longest prefix of `text` of at most `max_bytes` that does not end inside a UTF-8 sequence.
+std::string utf8_prefix(const std::string& text, std::size_t max_bytes) {
+  std::size_t n = std::min(text.size(), max_bytes);
+  while (n > 0 && n < text.size() && (static_cast<unsigned char>(text[n]) & 0xC0) == 0x80) --n;
+  return text.substr(0, n);
 }
 
 void set_vec3(v1::Vec3* v, double x, double y, double z) {
@@ -275,10 +293,12 @@ void build_active(const ActiveOptions& a, PreparedJob& prepared) {
 
 }  // namespace
 
-v1::Scene read_scene_file(const std::filesystem::path& path) { return parse_json_file<v1::Scene>(path, "scene file"); }
+v1::Scene read_scene_file(const std::filesystem::path& path) {
+  return parse_json_file<v1::Scene>(path, "scene file", "");
+}
 
 v1::JobSpec read_job_spec_file(const std::filesystem::path& path) {
-  return parse_json_file<v1::JobSpec>(path, "job spec file");
+  return parse_json_file<v1::JobSpec>(path, "job spec file", "spec");
 }
 
 PreparedJob prepare_job(const JobOptions& options) {
@@ -300,11 +320,20 @@ PreparedJob prepare_job(const JobOptions& options) {
                    "--spec FILE");
   }
 
-  if (options.name) spec.set_name(*options.name);
+  if (options.name) {
+    spec.set_name(*options.name);
+  } else if (spec.name().size() > wire::kMaxNameBytes) {
+    spec.set_name(utf8_prefix(spec.name(), wire::kMaxNameBytes));  // a name made from long file names
+  }
   v1::OutputOptions* output = spec.mutable_output();
   if (options.raw) output->set_encoding(v1::MESH_ENCODING_PLY);
   if (options.normals) output->set_normals(true);
   if (options.quantization_bits) output->set_quantization_bits(*options.quantization_bits);
+  try {
+    wire::check_request_limits(spec, "spec");
+  } catch (const Error& e) {
+    throw CliError(ExitCode::kUsage, std::string(e.what()) + (options.name ? " (--name)" : ""));
+  }
   return prepared;
 }
 

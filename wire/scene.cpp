@@ -8,6 +8,8 @@
 #include "core/util/errors.h"
 #include "surfacer/v1/scene.pb.h"
 #include "wire/enums.h"
+#include "wire/protocol.h"
+#include "wire/request_limits.h"
 #include "wire/uploads.h"
 
 namespace surfacer::wire {
@@ -19,13 +21,10 @@ double or_default(double value, double fallback) { return value == 0.0 ? fallbac
 
 class Translator {
  public:
-  explicit Translator(const UploadLookup& uploads) : uploads_(uploads) {}
+  Translator(const UploadLookup& uploads, std::string root) : uploads_(uploads), root_(std::move(root)) {}
 
   FieldPtr node(const NodeProto& n, const std::string& path) {
-    if (++depth_ > kMaxSceneDepth) {
-      throw InvalidInput(path, path + ": scene is nested deeper than " + std::to_string(kMaxSceneDepth) +
-                                   " levels; flatten unions into one node with many children");
-    }
+    if (++depth_ > kMaxSceneDepth) throw InvalidInput(root_, root_ + ": " + scene_too_deep());
     FieldPtr result = dispatch(n, path);
     --depth_;
     return result;
@@ -200,6 +199,7 @@ class Translator {
   }
 
   const UploadLookup& uploads_;
+  const std::string root_;  // the scene's root node, where a depth error points
   int depth_ = 0;
 };
 
@@ -230,7 +230,7 @@ FieldPtr field_from_scene(const v1::Scene& scene, const std::string& path, const
                                            ".root is missing; a scene needs a root node, e.g. "
                                            "{\"root\": {\"sphere\": {\"radius\": 1}}}");
   }
-  Translator translator(uploads);
+  Translator translator(uploads, path + ".root");
   return translator.node(scene.root(), path + ".root");
 }
 

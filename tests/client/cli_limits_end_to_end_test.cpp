@@ -1,0 +1,118 @@
+// The CLI against a `surfacer-server` child at the edges of what the protocol allows: `list` follows ListJobs pages,
+// a scene nested past the depth limit is refused before connecting with the server's own message, and particle
+// files that inflate past what the server accepts are refused early, naming the file (exit 2).
+#include <grpcpp/grpcpp.h>
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <filesystem>
+#include <set>
+#include <string>
+
+#include "surfacer/v1/surfacer.grpc.pb.h"
+#include "tests/support/files.h"
+#include "tests/support/process.h"
+#include "tests/support/server_process.h"
+#include "wire/protocol.h"
+#include "wire/request_limits.h"
+
+namespace surfacer::client {
+namespace {
+
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+using namespace surfacer::testing;
+
+class CliLimitsEndToEnd : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    root_ = fresh_temp_dir("cli_limits_e2e");
+    server_ = new ServerProcess(root_ / "server", 2,
+                                {"--drain-seconds", "1", "--max-particles", "1000", "--max-queued-jobs", "1000"});
+    ASSERT_FALSE(server_->address().empty()) << "surfacer-server did not start:\n" << server_->log();
+  }
+  static void TearDownTestSuite() {
+    if (server_ != nullptr) {
+      EXPECT_EQ(server_->stop(), 0) << server_->log();
+      delete server_;
+      server_ = nullptr;
+    }
+    fs::remove_all(root_);
+  }
+  void SetUp() override {
+    ASSERT_NE(server_, nullptr);
+    dir_ = current_test_dir(root_);
+  }
+
+  ProcessResult cli(std::vector<std::string> args, std::chrono::seconds timeout = 60s) {
+    args.insert(args.begin(), {cli_binary().string(), "--server", server_->address()});
+    const std::string tag = "cli" + std::to_string(counter_++);
+    return run_process(args, dir_ / (tag + ".out"), dir_ / (tag + ".err"), timeout);
+  }
+
+  static fs::path root_;
+  static ServerProcess* server_;
+  fs::path dir_;
+  int counter_ = 0;
+};
+
+fs::path CliLimitsEndToEnd::root_;
+ServerProcess* CliLimitsEndToEnd::server_ = nullptr;
+
+// `levels` transforms around a sphere, as scene JSON.
+std::string nested_scene_json(int levels) {
+  std::string node = R"({"sphere": {"radius": 1}})";
+  for (int i = 0; i < levels; ++i) node = R"({"transform": {"translate": {"x": 0.01}, "child": )" + node + "}}";
+  return R"({"root": )" + node + "}";
+}
+
+TEST_F(CliLimitsEndToEnd, ListFollowsEveryPage) {
+  auto stub = v1::Surfacer::NewStub(grpc::CreateChannel(server_->address(), grpc::InsecureChannelCredentials()));
+  std::set<std::string> ids;
+  const int jobs = wire::kDefaultListPageSize * 2 + 30;
+  for (int i = 0; i < jobs; ++i) {
+    grpc::ClientContext context;
+    v1::SubmitJobRequest request;
+    request.mutable_spec()->set_name("paged-" + std::to_string(i));
+    auto* iso = request.mutable_spec()->mutable_isosurface();
+    iso->add_scenes()->mutable_root()->mutable_sphere()->set_radius(1);
+    iso->set_cells(4);
+    v1::SubmitJobResponse response;
+    ASSERT_TRUE(stub->SubmitJob(&context, request, &response).ok());
+    ids.insert(response.job_id());
+  }
+  const ProcessResult r = cli({"list"});
+  ASSERT_EQ(r.code, 0) << r;
+  for (const std::string& id : ids) EXPECT_NE(r.out.find(id), std::string::npos) << id;
+}
+
+TEST_F(CliLimitsEndToEnd, ASceneNestedPastTheLimitIsRefusedWithTheServersMessage) {
+  // Deep enough for the JSON parser to take it, and too deep for it: the same message either way, exit 2.
+  for (int levels : {wire::kMaxSceneDepth + 1, 200}) {
+    const fs::path scene = dir_ / ("deep" + std::to_string(levels) + ".json");
+    write_file(scene, nested_scene_json(levels));
+    const ProcessResult r = cli({"run", "isosurface", "--scene", scene.string(), "-o", (dir_ / "out").string()});
+    EXPECT_EQ(r.code, 2) << r;
+    EXPECT_NE(r.err.find(scene.string()), std::string::npos) << r;
+    EXPECT_NE(r.err.find(wire::scene_too_deep()), std::string::npos) << r;
+  }
+  // At the limit it runs.
+  const fs::path scene = dir_ / "at_limit.json";
+  write_file(scene, nested_scene_json(wire::kMaxSceneDepth - 1));
+  const ProcessResult r =
+      cli({"run", "isosurface", "--scene", scene.string(), "--cells", "16", "-o", (dir_ / "ok").string()});
+  EXPECT_EQ(r.code, 0) << r;
+}
+
+TEST_F(CliLimitsEndToEnd, ANameOverTheLimitIsRefusedBeforeConnecting) {
+  const fs::path scene = dir_ / "sphere.json";
+  write_file(scene, nested_scene_json(0));
+  const ProcessResult r = cli({"submit", "isosurface", "--scene", scene.string(), "--name",
+                               std::string(wire::kMaxNameBytes + 1, 'n')});
+  EXPECT_EQ(r.code, 2) << r;
+  EXPECT_NE(r.err.find("spec.name is 1025 bytes; the limit is 1024 bytes"), std::string::npos) << r;
+  EXPECT_NE(r.err.find("--name"), std::string::npos) << r;
+}
+
+}  // namespace
+}  // namespace surfacer::client
