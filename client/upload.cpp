@@ -45,6 +45,7 @@ UploadResult send_upload(v1::Surfacer::Stub& stub, const std::string& name, std:
 
   std::uint64_t sent = 0;
   std::uint32_t crc = 0;
+  std::uint32_t index = 0;
   bool first = true;
   bool stopped = false;
   bool broken = false;
@@ -68,6 +69,7 @@ UploadResult send_upload(v1::Surfacer::Stub& stub, const std::string& name, std:
     }
     chunk.set_data(piece.data(), piece.size());
     chunk.set_crc32(crc32_of(piece));
+    chunk.set_chunk_index(index++);
     if (!writer->Write(chunk)) {
       broken = true;  // the server ended the call; Finish() says why
       break;

@@ -1,6 +1,6 @@
 // Uploading inputs with Surfacer.Upload (particle frames, start meshes, velocity grids): bytes cut into chunks of
-// at most 1 MiB, the first carrying the name and total_bytes, every one its CRC-32 (zlib polynomial); the server's
-// answer (bytes stored and CRC-32 of the whole upload) is checked against what was sent.
+// at most 1 MiB, the first carrying the name and total_bytes, every one its index and CRC-32 (zlib polynomial); the
+// server's answer (bytes stored and CRC-32 of the whole upload) is checked against what was sent.
 #pragma once
 
 #include <atomic>

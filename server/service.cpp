@@ -155,17 +155,29 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::JobEvent>,
   bool broken_ = false;
 };
 
-// Reassembles a client-streamed upload (UploadAssembler), then stores it under the caller's tenant.
+// Reassembles a client-streamed upload (UploadAssembler), then stores it under the caller's tenant. Only a stream
+// the client closed normally is stored, and only if the client can learn its id: an upload whose call ends
+// cancelled (client cancel, deadline, a message gRPC refused) is forgotten again, wherever it was kept.
 class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
  public:
-  UploadReactor(ServiceState& state, const Tenant& tenant, v1::UploadResponse* response)
-      : state_(state), tenant_(tenant), response_(response), assembler_(limit(state, tenant), hint(state, tenant)) {
+  UploadReactor(ServiceState& state, grpc::CallbackServerContext& context, const Tenant& tenant,
+                v1::UploadResponse* response)
+      : state_(state),
+        context_(context),
+        tenant_(tenant),
+        response_(response),
+        assembler_(limit(state, tenant), hint(state, tenant)) {
     StartRead(&chunk_);
   }
 
   void OnReadDone(bool ok) override {
     if (!ok) {
-      complete();
+      // The stream ended: closed by the client, or cancelled (then nothing is stored).
+      if (context_.IsCancelled()) {
+        Finish(grpc::Status(grpc::StatusCode::CANCELLED, "upload cancelled; nothing was stored"));
+      } else {
+        complete();
+      }
       return;
     }
     if (const grpc::Status status = assembler_.add(chunk_); !status.ok()) {
@@ -175,7 +187,16 @@ class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
     StartRead(&chunk_);
   }
 
-  void OnDone() override { delete this; }
+  void OnDone() override {
+    // The reply never reached the client: it cannot know the id, so the upload must not stay.
+    if (!stored_id_.empty() && context_.IsCancelled()) {
+      const std::int64_t bytes = state_.uploads->remove(stored_id_);
+      if (state_.usage) state_.usage->release(tenant_.name, bytes);
+      log_event(LogLevel::kInfo, "upload_dropped",
+                {{"upload", stored_id_}, {"tenant", tenant_.name}, {"reason", "cancelled before the reply"}});
+    }
+    delete this;
+  }
 
  private:
   // The smaller of --max-upload-bytes and what the tenant's stored-bytes quota has left.
@@ -211,7 +232,8 @@ class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
       response_->set_bytes(blob->bytes.size());
       response_->set_crc32(blob->crc32);
       const std::string name = blob->name;
-      response_->set_upload_id(state_.uploads->add(std::move(blob), tenant_.name));
+      stored_id_ = state_.uploads->add(std::move(blob), tenant_.name);
+      response_->set_upload_id(stored_id_);
       if (state_.metrics) state_.metrics->bytes_in.inc(static_cast<double>(size));
       log_event(LogLevel::kInfo, "upload",
                 {{"upload", response_->upload_id()},
@@ -226,10 +248,12 @@ class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
   }
 
   ServiceState& state_;
+  grpc::CallbackServerContext& context_;
   const Tenant tenant_;
   v1::UploadResponse* response_;
   UploadAssembler assembler_;
   v1::UploadChunk chunk_;
+  std::string stored_id_;  // set once the upload is stored
 };
 
 // The job `id` if it exists and belongs to `tenant` (another tenant's job is reported as missing).
@@ -339,7 +363,7 @@ grpc::ServerReadReactor<v1::UploadChunk>* SurfacerService::Upload(grpc::Callback
   grpc::Status auth_status;
   const Tenant* tenant = authenticate(state_, *context, auth_status);
   if (!tenant) return new FailedRead(auth_status);
-  return new UploadReactor(state_, *tenant, response);
+  return new UploadReactor(state_, *context, *tenant, response);
 }
 
 grpc::ServerWriteReactor<v1::JobEvent>* SurfacerService::WatchJob(grpc::CallbackServerContext* context,

@@ -117,6 +117,8 @@ TEST_F(FakeUploadTest, ChunksOfAtMostOneMiBEachWithItsCrc) {
     EXPECT_GT(c.data().size(), 0u) << i;
     ASSERT_TRUE(c.has_crc32()) << i;
     EXPECT_EQ(c.crc32(), crc32_of(c.data())) << i;
+    ASSERT_TRUE(c.has_chunk_index()) << i;
+    EXPECT_EQ(c.chunk_index(), i);
     EXPECT_EQ(c.name(), i == 0 ? "frame_0001.bgeo" : "") << i;
     EXPECT_EQ(c.total_bytes(), i == 0 ? bytes.size() : 0u) << i;
     joined += c.data();
