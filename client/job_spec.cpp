@@ -101,8 +101,8 @@ void add_particle_frames(PreparedJob& job, const std::vector<std::filesystem::pa
     PendingUpload upload;
     upload.description = "particle frame " + std::to_string(index) + " (" + file.string() + ")";
     upload.frame = index;
-    upload.read = [file, index, frame_of](v1::JobSpec& spec) {
-      ParticleRecords records = read_particle_records(file);
+    upload.read = [file, index, frame_of](v1::JobSpec& spec, const InputLimits& limits) {
+      ParticleRecords records = read_particle_records(file, limits);
       frame_of(spec, index)->set_with_radius(records.with_radius);
       UploadData data;
       data.name = file.filename().string();
@@ -166,7 +166,7 @@ void build_optimize(const OptimizeOptions& o, PreparedJob& prepared) {
     }
     PendingUpload upload;
     upload.description = "start mesh (" + file.string() + ")";
-    upload.read = [file, format](v1::JobSpec&) {
+    upload.read = [file, format](v1::JobSpec&, const InputLimits&) {
       UploadData data;
       data.name = file.filename().string();
       data.bytes = read_text_file(file, "start mesh");
@@ -271,7 +271,7 @@ void build_active(const ActiveOptions& a, PreparedJob& prepared) {
       const std::filesystem::path file = g.file;
       const std::string detail =
           std::to_string(g.dims[0]) + "x" + std::to_string(g.dims[1]) + "x" + std::to_string(g.dims[2]) + " nodes";
-      upload.read = [file, expected, detail](v1::JobSpec&) {
+      upload.read = [file, expected, detail](v1::JobSpec&, const InputLimits&) {
         UploadData data;
         data.name = file.filename().string();
         data.file = file;

@@ -160,6 +160,15 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::JobEvent>,
 // cancelled (client cancel, deadline, a message gRPC refused) is forgotten again, wherever it was kept.
 class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
  public:
+  // The smaller of --max-upload-bytes and what the tenant's stored-bytes quota has left.
+  static std::int64_t limit(const ServiceState& state, const Tenant& tenant) {
+    std::int64_t max = state.options.limits.max_upload_bytes;
+    if (tenant.max_stored_bytes > 0 && state.usage) {
+      max = std::min(max, std::max<std::int64_t>(0, tenant.max_stored_bytes - state.usage->bytes(tenant.name)));
+    }
+    return max;
+  }
+
   UploadReactor(ServiceState& state, grpc::CallbackServerContext& context, const Tenant& tenant,
                 v1::UploadResponse* response)
       : state_(state),
@@ -199,14 +208,6 @@ class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
   }
 
  private:
-  // The smaller of --max-upload-bytes and what the tenant's stored-bytes quota has left.
-  static std::int64_t limit(const ServiceState& state, const Tenant& tenant) {
-    std::int64_t max = state.options.limits.max_upload_bytes;
-    if (tenant.max_stored_bytes > 0 && state.usage) {
-      max = std::min(max, std::max<std::int64_t>(0, tenant.max_stored_bytes - state.usage->bytes(tenant.name)));
-    }
-    return max;
-  }
   static std::string hint(const ServiceState& state, const Tenant& tenant) {
     if (tenant.max_stored_bytes > 0 && state.usage &&
         tenant.max_stored_bytes - state.usage->bytes(tenant.name) < state.options.limits.max_upload_bytes) {
@@ -468,6 +469,28 @@ grpc::ServerUnaryReactor* SurfacerService::CancelJob(grpc::CallbackServerContext
   } else {
     reactor->Finish(invalid_job_id(request->job_id()));
   }
+  return reactor;
+}
+
+grpc::ServerUnaryReactor* SurfacerService::GetServerInfo(grpc::CallbackServerContext* context,
+                                                         const v1::GetServerInfoRequest*, v1::ServerInfo* response) {
+  auto* reactor = context->DefaultReactor();
+  const Tenant* tenant = tenant_or_finish(state_, *context, reactor);
+  if (!tenant) return reactor;
+  const Limits& limits = state_.options.limits;
+  response->set_version(SURFACER_VERSION);
+  v1::ServerLimits* out = response->mutable_limits();
+  out->set_max_grid_cells(limits.max_grid_cells);
+  out->set_max_particles(limits.max_particles);
+  out->set_max_triangles(limits.max_triangles);
+  out->set_max_upload_bytes(UploadReactor::limit(state_, *tenant));
+  out->set_max_frames(limits.max_frames);
+  out->set_max_chunk_bytes(static_cast<std::int32_t>(wire::kMaxChunkBytes));
+  out->set_max_name_bytes(static_cast<std::int32_t>(wire::kMaxNameBytes));
+  out->set_max_id_bytes(static_cast<std::int32_t>(wire::kMaxIdBytes));
+  out->set_max_scene_depth(wire::kMaxSceneDepth);
+  out->set_max_list_page_size(wire::kMaxListPageSize);
+  reactor->Finish(grpc::Status::OK);
   return reactor;
 }
 

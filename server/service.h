@@ -50,6 +50,8 @@ class SurfacerService final : public v1::Surfacer::WithRawCallbackMethod_SubmitJ
                                      v1::ListJobsResponse* response) override;
   grpc::ServerUnaryReactor* CancelJob(grpc::CallbackServerContext* context, const v1::CancelJobRequest* request,
                                       v1::Job* response) override;
+  grpc::ServerUnaryReactor* GetServerInfo(grpc::CallbackServerContext* context, const v1::GetServerInfoRequest* request,
+                                          v1::ServerInfo* response) override;
 
  private:
   // Validates the spec, creates the job and queues it. Throws surfacer::Error (the refusal's status).

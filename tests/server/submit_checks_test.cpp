@@ -1,7 +1,7 @@
 // What SubmitJob refuses at once, through a real server on a loopback port: enum values the schema does not know,
 // values out of range or not finite (enumerated over every numeric field of one spec per job and mode), frame
 // counts over --max-frames, text fields over their limits, scenes nested deeper than the limit. Every refusal names
-// the field; nothing accepted fails later for a reason submit could have seen.
+// the field; nothing accepted fails later for a reason submit could have seen. GetServerInfo tells the limits.
 #include <grpcpp/generic/generic_stub.h>
 #include <gtest/gtest.h>
 
@@ -206,6 +206,29 @@ TEST(SubmitChecks, ListJobsComesInPagesOldestFirst) {
   EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
   EXPECT_NE(status.error_message().find("page_token"), std::string::npos);
   EXPECT_LT(status.error_message().size(), 200u);
+}
+
+TEST(SubmitChecks, GetServerInfoTellsTheLimitsBeforeAnythingIsSent) {
+  auto options = LoopbackServer::default_options();
+  options.limits.max_particles = 1234;
+  options.limits.max_upload_bytes = 56789;
+  options.limits.max_frames = 17;
+  LoopbackServer s(options);
+  grpc::ClientContext context;
+  v1::ServerInfo info;
+  ASSERT_TRUE(s.stub->GetServerInfo(&context, v1::GetServerInfoRequest(), &info).ok());
+  EXPECT_FALSE(info.version().empty());
+  const v1::ServerLimits& limits = info.limits();
+  EXPECT_EQ(limits.max_particles(), 1234);
+  EXPECT_EQ(limits.max_upload_bytes(), 56789);
+  EXPECT_EQ(limits.max_frames(), 17);
+  EXPECT_EQ(limits.max_grid_cells(), options.limits.max_grid_cells);
+  EXPECT_EQ(limits.max_triangles(), options.limits.max_triangles);
+  EXPECT_EQ(limits.max_chunk_bytes(), static_cast<int>(wire::kMaxChunkBytes));
+  EXPECT_EQ(limits.max_name_bytes(), static_cast<int>(wire::kMaxNameBytes));
+  EXPECT_EQ(limits.max_id_bytes(), static_cast<int>(wire::kMaxIdBytes));
+  EXPECT_EQ(limits.max_scene_depth(), wire::kMaxSceneDepth);
+  EXPECT_EQ(limits.max_list_page_size(), wire::kMaxListPageSize);
 }
 
 }  // namespace
