@@ -1,11 +1,14 @@
 // What SubmitJob refuses at once, through a real server on a loopback port: enum values the schema does not know,
 // values out of range or not finite (enumerated over every numeric field of one spec per job and mode), frame
-// counts over --max-frames, text fields over their limits, scenes nested deeper than the limit. Every refusal names
-// the field; nothing accepted fails later for a reason submit could have seen. GetServerInfo tells the limits.
+// counts over --max-frames (every job type and mode), text fields over their limits, scenes nested deeper than the
+// limit. Every refusal names the field; nothing accepted fails later for a reason submit could have seen. GetServerInfo
+// tells the limits.
+#include <google/protobuf/util/json_util.h>
 #include <grpcpp/generic/generic_stub.h>
 #include <gtest/gtest.h>
 
 #include <future>
+#include <limits>
 
 #include "tests/server/test_client.h"
 #include "wire/protocol.h"
@@ -56,6 +59,28 @@ TEST(SubmitChecks, UnknownEnumValuesAreRefusedNamingTheField) {
       "children": [{"sphere": {"radius": 1}}, {"blobs": {"kernel": "KERNEL_BLINN", "points": [{"radius": 1}]}}]}}})"),
                      &id)
                   .ok());
+}
+
+TEST(SubmitChecks, ValuesThatOnlyFailedWhenRunAreRefusedAtSubmitWithTheirPath) {
+  LoopbackServer s;
+  const auto bad = grpc::StatusCode::INVALID_ARGUMENT;
+  expect_refused(*s.stub, isosurface_of(R"({"root": {"sphere": {"radius": 1e308}}})"), bad,
+                 "spec.isosurface.scenes[0].root.sphere.radius (1e+308) is beyond +-1e+12");
+  expect_refused(*s.stub, isosurface_of(R"({"root": {"blobs": {"kernel": "KERNEL_BLINN", "blobbiness": 1e308,
+                     "points": [{"radius": 1}]}}})"),
+                 bad, "spec.isosurface.scenes[0].root.blobs.blobbiness (1e+308) must be in (0, 100]");
+  v1::JobSpec active;
+  active.mutable_active()->set_grid_spacing(0.1);
+  *active.mutable_active()->mutable_morph()->mutable_from() = scene_from_json(R"({"root": {"sphere": {"radius": 1}}})");
+  *active.mutable_active()->mutable_morph()->mutable_to() = scene_from_json(R"({"root": {"sphere": {"radius": 1}}})");
+  active.mutable_active()->set_cfl(1e9);
+  expect_refused(*s.stub, active, bad, "spec.active.cfl (1e+09) must be in (0, 1]");
+  active.mutable_active()->clear_cfl();
+  active.mutable_active()->set_alpha(std::numeric_limits<double>::infinity());
+  expect_refused(*s.stub, active, bad, "spec.active.alpha (inf) must be finite");
+  active.mutable_active()->clear_alpha();
+  active.mutable_active()->mutable_morph()->set_tolerance(std::numeric_limits<double>::quiet_NaN());
+  expect_refused(*s.stub, active, bad, "spec.active.morph.tolerance");
 }
 
 // A sphere inside `levels` nested nodes, alternating unions and transforms.
@@ -229,6 +254,58 @@ TEST(SubmitChecks, GetServerInfoTellsTheLimitsBeforeAnythingIsSent) {
   EXPECT_EQ(limits.max_id_bytes(), static_cast<int>(wire::kMaxIdBytes));
   EXPECT_EQ(limits.max_scene_depth(), wire::kMaxSceneDepth);
   EXPECT_EQ(limits.max_list_page_size(), wire::kMaxListPageSize);
+}
+
+TEST(SubmitChecks, EveryJobTypeAndModeCountsItsFramesAgainstMaxFrames) {
+  auto options = LoopbackServer::default_options();
+  options.limits.max_frames = 4;
+  LoopbackServer s(options);
+  const auto over = grpc::StatusCode::RESOURCE_EXHAUSTED;
+  auto spec_of = [](const std::string& json) {
+    v1::JobSpec spec;
+    EXPECT_TRUE(google::protobuf::util::JsonStringToMessage(json, &spec).ok()) << json;
+    return spec;
+  };
+  const std::string sphere = R"({"root": {"sphere": {"radius": 0.4}}})";
+  const std::string frame = R"({"positions": [0,0,0, 0.1,0,0, 0,0.1,0, 0,0,0.1]})";
+  auto repeat = [](const std::string& item, int n) {
+    std::string out;
+    for (int i = 0; i < n; ++i) out += (i ? "," : "") + item;
+    return out;
+  };
+  const std::vector<std::pair<std::string, std::string>> refused = {
+      {R"({"isosurface": {"cells": 8, "scenes": [)" + repeat(sphere, 5) + "]}}", "spec.isosurface.scenes"},
+      {R"({"particles": {"rInner": 0.06, "frames": [)" + repeat(frame, 5) + "]}}", "spec.particles.frames"},
+      {R"({"optimize": {"scene": )" + sphere + R"(, "maxIterations": 1000000, "snapshotEvery": 1}})",
+       "spec.optimize.snapshot_every"},
+      {R"({"active": {"gridSpacing": 0.1, "coat": {"kernelRadius": 0.3, "frames": [)" + repeat(frame, 5) + "]}}}",
+       "spec.active.coat.frames"},
+      {R"({"active": {"gridSpacing": 0.1, "morph": {"from": )" + sphere + R"(, "to": )" + sphere +
+           R"(, "maxFrames": 5}}})",
+       "spec.active.morph.max_frames"},
+      {R"({"active": {"gridSpacing": 0.1, "morph": {"from": )" + sphere + R"(, "to": )" + sphere + "}}}",
+       "spec.active.morph.max_frames"},  // the default, 100
+      {R"({"active": {"gridSpacing": 0.1, "advect": {"shape": )" + sphere +
+           R"(, "enright": {}, "frameInterval": 0.01, "frames": 4}}})",
+       "spec.active.advect.frames"},  // the initial frame and 4 more
+  };
+  for (const auto& [json, field] : refused) {
+    std::string id;
+    const grpc::Status status = submit(*s.stub, spec_of(json), &id);
+    EXPECT_EQ(status.error_code(), over) << field << ": " << status.error_message();
+    EXPECT_NE(status.error_message().find(field), std::string::npos) << status.error_message();
+    EXPECT_NE(status.error_message().find("--max-frames"), std::string::npos) << status.error_message();
+  }
+  // At the limit: accepted, and no more frames than it come.
+  for (const std::string& json : {R"({"isosurface": {"cells": 8, "scenes": [)" + repeat(sphere, 4) + "]}}",
+                                  R"({"active": {"gridSpacing": 0.1, "advect": {"shape": )" + sphere +
+                                      R"(, "enright": {}, "frameInterval": 0.01, "frames": 3}}})"}) {
+    std::string id;
+    ASSERT_TRUE(submit(*s.stub, spec_of(json), &id).ok()) << json;
+    const auto result = watch_job(*s.stub, id);
+    EXPECT_EQ(result.final_job.state(), v1::JOB_STATE_SUCCEEDED) << result.final_job.error().message();
+    EXPECT_LE(result.frames.size(), 4u);
+  }
 }
 
 }  // namespace
