@@ -133,11 +133,27 @@ void Job::fail_restore(int grpc_code, const std::string& message) {
 
 void Job::persist() const {
   if (!store_) return;
+  const v1::Job job = snapshot();
   try {
-    store_->update_job(snapshot());
+    store_->update_job(job);
+    persist_pending_ = false;
   } catch (const std::exception& e) {
-    log_event(LogLevel::kError, "store_write_failed", {{"job", id_}, {"error", e.what()}});
+    if (!persist_pending_.exchange(true)) {
+      log_event(LogLevel::kError, "store_write_failed",
+                {{"job", id_},
+                 {"state", v1::JobState_Name(job.state())},
+                 {"error", e.what()},
+                 {"note", "the state is kept in memory and written when the store takes it"}});
+    }
   }
+}
+
+bool Job::retry_persist() const {
+  if (!persist_pending_) return true;
+  persist();
+  if (persist_pending_) return false;
+  log_event(LogLevel::kInfo, "store_write_recovered", {{"job", id_}, {"state", v1::JobState_Name(state())}});
+  return true;
 }
 
 void Job::finished_hooks() {

@@ -104,6 +104,8 @@ struct SurfacerServer::Impl {
   // Brings back what the store holds: uploads, finished jobs (for watching) and unfinished ones (resumed).
   void restore();
   void retention();
+  // Writes again the job states the store refused (see Job::persist).
+  void retry_pending_writes();
   void janitor_loop();
 
   int threads;
@@ -306,14 +308,32 @@ void SurfacerServer::Impl::retention() {
   }
 }
 
+void SurfacerServer::Impl::retry_pending_writes() {
+  if (!store) return;
+  std::vector<std::shared_ptr<Job>> pending;
+  for (const auto& job : scheduler.list()) {
+    if (job->persist_pending()) pending.push_back(job);
+  }
+  if (pending.empty()) return;
+  store->reclaim();
+  for (const auto& job : pending) job->retry_persist();
+}
+
 void SurfacerServer::Impl::janitor_loop() {
+  constexpr auto kRetryInterval = std::chrono::seconds(1);
+  auto next_retention = std::chrono::steady_clock::now() + state.options.retention_interval;
   std::unique_lock lock(mutex);
   while (!shutting_down) {
-    cv.wait_for(lock, state.options.retention_interval, [&] { return shutting_down; });
+    cv.wait_for(lock, std::min<std::chrono::steady_clock::duration>(kRetryInterval, state.options.retention_interval),
+                [&] { return shutting_down; });
     if (shutting_down) break;
     lock.unlock();
     try {
-      retention();
+      retry_pending_writes();
+      if (std::chrono::steady_clock::now() >= next_retention) {
+        next_retention = std::chrono::steady_clock::now() + state.options.retention_interval;
+        retention();
+      }
     } catch (const std::exception& e) {
       log_event(LogLevel::kError, "retention_failed", {{"error", e.what()}});
     }
@@ -415,6 +435,16 @@ void SurfacerServer::shutdown(ShutdownMode mode, std::chrono::milliseconds deadl
   s.grpc_server->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(2));
   if (s.health_server) s.health_server->Shutdown(std::chrono::system_clock::now());
   s.pool.stop();
+  // A state the disk refused so far gets a last try; one still refused is lost with this process (the README says
+  // what a client then sees).
+  s.retry_pending_writes();
+  for (const auto& job : s.scheduler.list()) {
+    if (job->persist_pending()) {
+      log_event(
+          LogLevel::kError, "store_write_lost",
+          {{"job", job->id()}, {"state", v1::JobState_Name(job->state())}, {"data_dir", s.state.options.data_dir}});
+    }
+  }
   if (s.metrics_http) s.metrics_http->stop();
   log_event(LogLevel::kInfo, "server_stopped");
   {

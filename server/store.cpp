@@ -514,6 +514,11 @@ std::vector<StoredUpload> Store::list_uploads() const {
   return out;
 }
 
+void Store::reclaim() {
+  std::lock_guard lock(mutex_);
+  sqlite3_wal_checkpoint_v2(db_, nullptr, SQLITE_CHECKPOINT_TRUNCATE, nullptr, nullptr);
+}
+
 std::int64_t Store::total_bytes() const {
   std::lock_guard lock(mutex_);
   Stmt s(db_, "SELECT (SELECT COALESCE(SUM(bytes),0) FROM frames) + (SELECT COALESCE(SUM(bytes),0) FROM uploads)");
