@@ -10,6 +10,7 @@
 #include <string>
 
 #include "surfacer/v1/surfacer.grpc.pb.h"
+#include "tests/support/cli_server_test.h"
 #include "tests/support/files.h"
 #include "tests/support/process.h"
 #include "tests/support/server_process.h"
@@ -23,41 +24,13 @@ namespace fs = std::filesystem;
 using namespace std::chrono_literals;
 using namespace surfacer::testing;
 
-class CliLimitsEndToEnd : public ::testing::Test {
- protected:
-  static void SetUpTestSuite() {
-    root_ = fresh_temp_dir("cli_limits_e2e");
-    server_ = new ServerProcess(root_ / "server", 2,
-                                {"--drain-seconds", "1", "--max-particles", "1000", "--max-queued-jobs", "1000"});
-    ASSERT_FALSE(server_->address().empty()) << "surfacer-server did not start:\n" << server_->log();
+class CliLimitsEndToEnd : public CliServerTest<CliLimitsEndToEnd> {
+ public:
+  static constexpr const char* kName = "cli_limits_e2e";
+  static std::vector<std::string> server_flags() {
+    return {"--drain-seconds", "1", "--max-particles", "1000", "--max-queued-jobs", "1000"};
   }
-  static void TearDownTestSuite() {
-    if (server_ != nullptr) {
-      EXPECT_EQ(server_->stop(), 0) << server_->log();
-      delete server_;
-      server_ = nullptr;
-    }
-    fs::remove_all(root_);
-  }
-  void SetUp() override {
-    ASSERT_NE(server_, nullptr);
-    dir_ = current_test_dir(root_);
-  }
-
-  ProcessResult cli(std::vector<std::string> args, std::chrono::seconds timeout = 60s) {
-    args.insert(args.begin(), {cli_binary().string(), "--server", server_->address()});
-    const std::string tag = "cli" + std::to_string(counter_++);
-    return run_process(args, dir_ / (tag + ".out"), dir_ / (tag + ".err"), timeout);
-  }
-
-  static fs::path root_;
-  static ServerProcess* server_;
-  fs::path dir_;
-  int counter_ = 0;
 };
-
-fs::path CliLimitsEndToEnd::root_;
-ServerProcess* CliLimitsEndToEnd::server_ = nullptr;
 
 // `levels` transforms around a sphere, as scene JSON.
 std::string nested_scene_json(int levels) {
