@@ -9,6 +9,7 @@
 #include "client/particle_files.h"
 #include "core/mesh/mesh_io.h"
 #include "core/util/errors.h"
+#include "core/util/format.h"
 #include "wire/protocol.h"
 #include "wire/request_limits.h"
 
@@ -49,13 +50,6 @@ Message parse_json_file(const std::filesystem::path& path, const char* what, con
     throw CliError(ExitCode::kUsage, where + ": " + e.what());
   }
   return message;
-}
-
-// The longest prefix of `text` of at most `max_bytes` that does not end inside a UTF-8 sequence.
-std::string utf8_prefix(const std::string& text, std::size_t max_bytes) {
-  std::size_t n = std::min(text.size(), max_bytes);
-  while (n > 0 && n < text.size() && (static_cast<unsigned char>(text[n]) & 0xC0) == 0x80) --n;
-  return text.substr(0, n);
 }
 
 void set_vec3(v1::Vec3* v, double x, double y, double z) {

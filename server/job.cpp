@@ -6,6 +6,7 @@
 
 #include "core/util/crc32.h"
 #include "core/util/errors.h"
+#include "core/util/format.h"
 #include "server/auth.h"
 #include "server/clock.h"
 #include "server/log.h"
@@ -124,7 +125,7 @@ void Job::fail_restore(int grpc_code, const std::string& message) {
     std::lock_guard lock(mutex_);
     if (is_terminal(state_)) return;
     error_.set_code(grpc_code);
-    error_.set_message("cannot resume after a server restart: " + message);
+    error_.set_message(utf8_prefix("cannot resume after a server restart: " + message, wire::kMaxErrorBytes));
     finish_locked(v1::JOB_STATE_FAILED);
   }
   persist();
@@ -400,7 +401,8 @@ void Job::task_failed(int task, int grpc_code, const std::string& message) {
       finished = settle_locked();
     } else if (!is_terminal(state_)) {
       error_.set_code(grpc_code);
-      error_.set_message(tasks_total_ > 1 ? "frame " + std::to_string(task) + ": " + message : message);
+      error_.set_message(utf8_prefix(tasks_total_ > 1 ? "frame " + std::to_string(task) + ": " + message : message,
+                                     wire::kMaxErrorBytes));
       finish_locked(v1::JOB_STATE_FAILED);
       finished = true;
     }

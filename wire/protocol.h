@@ -20,8 +20,13 @@ inline constexpr std::size_t kMaxIdBytes = 64;
 // so this stays well inside both parsers' recursion limits (100 in protobuf 3.21, for binary and JSON).
 inline constexpr int kMaxSceneDepth = 32;
 
+// A job's error message (JobError.message) is cut to this many bytes.
+inline constexpr std::size_t kMaxErrorBytes = 2048;
+
 // ListJobs: jobs per page when the request does not say, and at most.
 inline constexpr int kDefaultListPageSize = 100;
 inline constexpr int kMaxListPageSize = 1000;
+// A full page (each Job: its name, its error and under 512 bytes more) stays under gRPC's 4 MiB.
+static_assert(kMaxListPageSize * (kMaxNameBytes + kMaxErrorBytes + 512) < (std::size_t{4} << 20));
 
 }  // namespace surfacer::wire
