@@ -2,7 +2,6 @@
 
 #include <fcntl.h>
 #include <google/protobuf/descriptor.h>
-#include <google/protobuf/util/time_util.h>
 #include <sqlite3.h>
 #include <sys/file.h>
 #include <unistd.h>
@@ -23,7 +22,6 @@ namespace surfacer::server {
 namespace {
 
 namespace fs = std::filesystem;
-using google::protobuf::util::TimeUtil;
 
 // One prepared statement, finalized on scope exit.
 class Stmt {
@@ -111,7 +109,9 @@ class Transaction {
   bool done_ = false;
 };
 
-std::int64_t now_unix() { return TimeUtil::TimestampToSeconds(TimeUtil::GetCurrentTime()); }
+std::int64_t now_unix() {
+  return std::chrono::duration_cast<std::chrono::seconds>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
 
 [[noreturn]] void throw_io(const std::string& what, const fs::path& path, int err) {
   throw ResourceLimit("data_dir", what + " " + path.string() + " failed: " + std::strerror(err) +
@@ -520,6 +520,11 @@ std::vector<StoredUpload> Store::list_uploads() const {
   Stmt s(db_, "SELECT id, owner, name, bytes, created FROM uploads ORDER BY created, rowid");
   while (s.step()) out.push_back({s.text(0), s.text(1), s.text(2), s.integer(3), s.integer(4)});
   return out;
+}
+
+void Store::reclaim() {
+  std::lock_guard lock(mutex_);
+  sqlite3_wal_checkpoint_v2(db_, nullptr, SQLITE_CHECKPOINT_TRUNCATE, nullptr, nullptr);
 }
 
 std::int64_t Store::total_bytes() const {

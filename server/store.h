@@ -90,6 +90,10 @@ class Store {
   void delete_upload(const std::string& id);
   std::vector<StoredUpload> list_uploads() const;
 
+  // After a write the disk refused: moves the WAL's pages into the database file and truncates the WAL, which gives
+  // back its space (best effort; nothing changes when it cannot).
+  void reclaim();
+
   // --- Accounting -------------------------------------------------------------------------------------------
   std::int64_t total_bytes() const;
   // Bytes stored per owner (uploads + frames).

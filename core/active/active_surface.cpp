@@ -772,7 +772,8 @@ double active_detail::Engine::runge_kutta(double dt, const RunControl& control) 
       for (const std::uint16_t i : active[b]) out[i] = 0.75f * f[i] + 0.25f * (in[i] + dt_f * rate[i]);
     });
     if (advect) {
-      const double v2 = *std::max_element(block_max_speed.begin(), block_max_speed.end());
+      // No block left (the surface vanished under the grid's resolution): no speed at all.
+      const double v2 = nb == 0 ? 0.0 : *std::max_element(block_max_speed.begin(), block_max_speed.end());
       if (v2 * dt > h && attempt < 8) {  // beyond the CFL limit of 1 at t + dt: retry with the larger speed
         dt = std::min(dt, cfl * h / v2);
         continue;

@@ -242,6 +242,8 @@ struct ParticleTargetOptions {
 // (core/scene/scene.h make_blobs with point skeletons: a uniform grid of cell R, so a query visits only nearby
 // particles). Throws InvalidInput("particles") for an empty set, "radius", "iso".
 FieldPtr make_particle_target(std::span<const Vec3> particles, const ParticleTargetOptions& options);
+// Throws InvalidInput("radius" / "iso") unless each is finite and > 0.
+void validate(const ParticleTargetOptions& options);
 
 // --- One-shot helpers for the three modes (each output frame is polygonized and handed to `sink`) -----------------
 
@@ -276,6 +278,9 @@ struct CoatOptions {
 // Returns the number of frames emitted (by this call, when resumed).
 int coat_particles(std::span<const std::vector<Vec3>> frames, const CoatOptions& coat,
                    const ActiveSurfaceOptions& options, const ActiveFrameSink& sink, const RunControl& control = {});
+// What coat_particles() checks before it starts: throws InvalidInput("kernel.radius", "kernel.iso",
+// "frame_duration", "alpha", "checkpoints.every").
+void validate(const CoatOptions& coat, const ActiveSurfaceOptions& options);
 
 struct MorphOptions {
   double frame_duration = 0.1;  // simulated time per output frame, > 0
@@ -290,6 +295,9 @@ struct MorphOptions {
 // Returns the number of frames emitted (by this call, when resumed).
 int morph_shapes(const Field& from, FieldPtr to, const MorphOptions& morph, const ActiveSurfaceOptions& options,
                  const ActiveFrameSink& sink, const RunControl& control = {});
+// What morph_shapes() checks before it starts: throws InvalidInput("frame_duration", "max_frames", "tolerance",
+// "alpha", "checkpoints.every").
+void validate(const MorphOptions& morph, const ActiveSurfaceOptions& options);
 
 struct AdvectOptions {
   double frame_interval = 0.1;  // simulated time between output frames, > 0
@@ -302,5 +310,8 @@ int advect_shape(const Field& shape, VelocityFn velocity, const AdvectOptions& a
                  const ActiveSurfaceOptions& options, const ActiveFrameSink& sink, const RunControl& control = {});
 int advect_shape(const Field& shape, SeparableVelocity velocity, const AdvectOptions& advect,
                  const ActiveSurfaceOptions& options, const ActiveFrameSink& sink, const RunControl& control = {});
+// What advect_shape() checks of its options before it starts: throws InvalidInput("frame_interval", "frames",
+// "checkpoints.every").
+void validate(const AdvectOptions& advect);
 
 }  // namespace surfacer

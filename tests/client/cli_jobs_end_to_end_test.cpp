@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "core/mesh/mesh_io.h"
+#include "tests/support/cli_server_test.h"
 #include "tests/support/files.h"
 #include "tests/support/mesh_expectations.h"
 #include "tests/support/process.h"
@@ -74,43 +75,16 @@ int column(const std::vector<std::string>& header, const std::string& name) {
   return it == header.end() ? -1 : static_cast<int>(it - header.begin());
 }
 
-class CliJobsEndToEnd : public ::testing::Test {
- protected:
-  static void SetUpTestSuite() {
-    root_ = fresh_temp_dir("cli_jobs_e2e");
-    write_file(root_ / "sphere.json", kSphere);
-    write_file(root_ / "cube.json", kCube);
-    write_file(root_ / "box.json", kSmallBox);
-    server_ = new ServerProcess(root_ / "server", 2, {"--drain-seconds", "1"});
-    ASSERT_FALSE(server_->address().empty()) << "surfacer-server did not start:\n" << server_->log();
+class CliJobsEndToEnd : public CliServerTest<CliJobsEndToEnd> {
+ public:
+  static constexpr const char* kName = "cli_jobs_e2e";
+  static std::vector<std::string> server_flags() { return {"--drain-seconds", "1"}; }
+  static void write_inputs(const fs::path& root) {
+    write_file(root / "sphere.json", kSphere);
+    write_file(root / "cube.json", kCube);
+    write_file(root / "box.json", kSmallBox);
   }
-  static void TearDownTestSuite() {
-    if (server_ != nullptr) {
-      EXPECT_EQ(server_->stop(), 0) << server_->log();
-      delete server_;
-      server_ = nullptr;
-    }
-    fs::remove_all(root_);
-  }
-  void SetUp() override {
-    ASSERT_NE(server_, nullptr);
-    dir_ = current_test_dir(root_);
-  }
-
-  ProcessResult cli(std::vector<std::string> args, std::chrono::seconds timeout = 60s) {
-    args.insert(args.begin(), {cli_binary().string(), "--server", server_->address()});
-    const std::string tag = "cli" + std::to_string(counter_++);
-    return run_process(args, dir_ / (tag + ".out"), dir_ / (tag + ".err"), timeout);
-  }
-
-  static fs::path root_;
-  static ServerProcess* server_;
-  fs::path dir_;
-  int counter_ = 0;
 };
-
-fs::path CliJobsEndToEnd::root_;
-ServerProcess* CliJobsEndToEnd::server_ = nullptr;
 
 TEST_F(CliJobsEndToEnd, IsosurfaceTilesGivesAClosedMeshWithoutLowValence) {
   ProcessResult r = cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--method", "tiles",

@@ -132,4 +132,10 @@ v1::Job get_job(v1::Surfacer::Stub& stub, const std::string& id, grpc::Status* s
   return job;
 }
 
+double metric_sample(const std::string& text, const std::string& series) {
+  const auto at = text.find("\n" + series + " ");
+  if (at == std::string::npos) return -1;
+  return std::stod(text.substr(at + series.size() + 2));
+}
+
 }  // namespace surfacer::testing
