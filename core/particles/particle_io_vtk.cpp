@@ -292,6 +292,9 @@ class XmlReader {
         }
       } else if (tag->name == "Piece") {
         if (!saw_file) fail(name_, where(tag->begin), "<Piece> outside <VTKFile>");
+        // A piece's counts and radius flag are its own: a piece opened inside another would restart them while the
+        // outer one's arrays are already read.
+        if (piece_points >= 0) fail(name_, where(tag->begin), "<Piece> inside another <Piece>");
         double n = -1.0;
         const std::string_view np = tag->attribute("NumberOfPoints").value_or("");
         if (!parse_double(np, n) || n < 0 || n != std::floor(n) || n > 4.0e9) {
