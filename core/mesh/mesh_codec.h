@@ -1,6 +1,7 @@
 // Draco frame encoding (the lossless alternative is write_ply(mesh, true) in core/mesh/mesh_io.h).
 #pragma once
 
+#include <cstdint>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -29,9 +30,21 @@ void validate(const DracoOptions& options);
 // Cost: Draco's edgebreaker takes ~0.3-0.5 us per triangle at speeds 0-9; speed 10 (sequential) is ~7x faster but
 // ~6x larger.
 std::string encode_draco(const Mesh& mesh, const DracoOptions& options);
+
+// What decoding an untrusted mesh may cost.
+struct MeshReadLimits {
+  // Most triangles the caller will accept (the server's --max-triangles): a decoder may allocate for no more.
+  std::int64_t max_triangles = std::int64_t{1} << 32;
+};
+
 // Throws InvalidInput("frame") if the bytes are not a Draco triangle mesh (fuzzed with truncated and bit-flipped
-// frames).
-Mesh decode_draco(std::string_view bytes);
+// frames). Draco allocates for the element counts a stream declares before it reads the elements, so the decoder runs
+// inside an AllocationBudget (core/util/allocation_budget.h) of 64 MiB plus the smaller of 4096 bytes per input byte
+// and 256 bytes per triangle of limits.max_triangles. Measured: Draco allocates 60-125 bytes per triangle; per input
+// byte 50-500 for polygonized surfaces, 2.1 KB for a flat regular grid of 12.5 M triangles at speed 0 (about the
+// most compressible mesh). A stream that needs more throws InvalidInput("frame") (it declares far more than its
+// bytes hold) or, when the triangle limit is the smaller bound, ResourceLimit("max_triangles").
+Mesh decode_draco(std::string_view bytes, const MeshReadLimits& limits = {});
 
 // Largest position error quantization can introduce: half a quantization step along the box's longest side
 // times sqrt(3) (Draco uses one range, the longest side, for all axes: step = side / (2^bits - 1)), plus a few

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <filesystem>
 #include <random>
@@ -237,6 +238,19 @@ TEST_F(CliJobsEndToEnd, OptimizeFromAnUploadedStartMesh) {
   double max_norm = 0;
   for (const Vec3& v : read_mesh(last).vertices) max_norm = std::max(max_norm, v.norm());
   EXPECT_GT(max_norm, 0.55);
+}
+
+// The CLI validates a --start-mesh before uploading it: a ~140-byte Draco file declaring 200 M triangles took it to
+// 4.8 GB. It now exits 2 naming the flag and the file, without the memory.
+TEST_F(CliJobsEndToEnd, DracoBombStartMeshExitsTwoWithoutTheMemory) {
+  write_file(dir_ / "bomb.drc", draco_bomb(200'000'000));
+  ProcessResult r = cli({"run", "optimize", "--scene", (root_ / "cube.json").string(), "--start-mesh",
+                         (dir_ / "bomb.drc").string(), "-o", (dir_ / "opt").string()});
+  EXPECT_EQ(r.code, 2) << r;
+  EXPECT_NE(r.err.find("--start-mesh: " + (dir_ / "bomb.drc").string()), std::string::npos) << r;
+  EXPECT_NE(r.err.find("it declares far more elements than it holds"), std::string::npos) << r;
+  EXPECT_GT(r.peak_rss_bytes, 0u);
+  EXPECT_LT(r.peak_rss_bytes, std::uint64_t{256} << 20) << "peak RSS " << (r.peak_rss_bytes >> 20) << " MiB";
 }
 
 TEST_F(CliJobsEndToEnd, ActiveMorphWritesClosedFramesWithMetrics) {
