@@ -9,7 +9,9 @@
 
 #include "tests/server/test_client.h"
 #include "tests/support/files.h"
+#include "tests/support/process.h"
 #include "tests/support/server_process.h"
+#include "tests/support/test_certs.h"
 #include "tests/support/test_meshes.h"
 
 namespace surfacer::testing {
@@ -42,6 +44,32 @@ TEST(ServerBinary, ServesOnARealPortAndExitsZeroOnSigterm) {
   watcher.join();
   ASSERT_FALSE(watched.states.empty());
   EXPECT_EQ(watched.states.back(), v1::JOB_STATE_SUCCEEDED);
+  std::filesystem::remove_all(dir);
+}
+
+// A --tls-key that is not the --tls-cert's key used to end in "cannot listen on ... (address in use or not valid?)"
+// after gRPC's own log lines; the server now says what is wrong, naming both flags, before gRPC sees the pair.
+TEST(ServerBinary, TlsKeyOfAnotherCertificateIsNamedAtStartup) {
+  const auto dir = fresh_temp_dir("tls_pair");
+  const TestCerts certs = make_test_certs(dir / "pki");
+  const std::string cert = (certs.dir / "server.pem").string(), key = (certs.dir / "client.key").string();
+  ProcessResult r =
+      run_process({server_binary().string(), "--listen", "127.0.0.1:0", "--tls-cert", cert, "--tls-key", key},
+                  dir / "out", dir / "err", 30s);
+  EXPECT_EQ(r.code, 1) << r;
+  EXPECT_NE(r.err.find("--tls-key " + key + " does not match the certificate in --tls-cert " + cert), std::string::npos)
+      << r;
+  EXPECT_EQ(r.err.find("cannot listen"), std::string::npos) << r;
+  EXPECT_EQ(r.err.find("ssl_transport_security"), std::string::npos) << r;
+  // A client CA bundle OpenSSL cannot read is named too.
+  write_file(dir / "bad-ca.pem", "-----BEGIN CERTIFICATE-----\nAAAA\n-----END CERTIFICATE-----\n");
+  r = run_process({server_binary().string(), "--listen", "127.0.0.1:0", "--tls-cert", cert, "--tls-key",
+                   (certs.dir / "server.key").string(), "--tls-client-ca", (dir / "bad-ca.pem").string()},
+                  dir / "out", dir / "err", 30s);
+  EXPECT_EQ(r.code, 1) << r;
+  EXPECT_NE(r.err.find("--tls-client-ca " + (dir / "bad-ca.pem").string() + ": no certificate OpenSSL can read"),
+            std::string::npos)
+      << r;
   std::filesystem::remove_all(dir);
 }
 
