@@ -144,7 +144,10 @@ ActiveSurfaceOptions active_options(const v1::ActiveJob& job, bool normals, cons
   }
   options.polygonizer = to_polygonizer(job.polygonizer(), options.polygonizer, path + ".polygonizer");
   options.normals = normals;
-  with_path(path, [&] { validate(options); });
+  with_path(path, [&] {
+    validate(options);
+    if (job.mode_case() == v1::ActiveJob::kAdvect) validate_advect(options);
+  });
   return options;
 }
 

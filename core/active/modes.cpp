@@ -7,6 +7,7 @@
 
 #include "core/active/active_surface.h"
 #include "core/util/errors.h"
+#include "core/util/format.h"
 
 namespace surfacer {
 namespace {
@@ -261,6 +262,14 @@ int morph_shapes(const Field& from, FieldPtr to, const MorphOptions& morph, cons
   return emitted;
 }
 
+void validate_advect(const ActiveSurfaceOptions& options) {
+  if (options.alpha > 0.0) {
+    throw InvalidInput("alpha", "alpha (" + format_number(options.alpha) +
+                                    ") tracks a target, and an advected shape has none; leave alpha at 0 (beta, "
+                                    "gamma and delta act on top of the advection)");
+  }
+}
+
 namespace {
 
 template <class Velocity>
@@ -270,6 +279,7 @@ int advect_impl(const Field& shape, Velocity velocity, const AdvectOptions& adve
     throw InvalidInput("frame_interval", "frame_interval must be finite and > 0");
   }
   if (advect.frames < 1) throw InvalidInput("frames", "frames must be >= 1");
+  validate_advect(options);
   validate_checkpoints(advect.checkpoints);
   std::optional<ActiveSurface> surface;
   int emitted = 0;
