@@ -4,10 +4,10 @@
 // scope's total past its limit throws std::bad_alloc before any memory is touched; the decoder unwinds and the
 // caller turns exhausted() into an error that names the limit.
 //
-// allocation_budget.cpp replaces the program's global operator new and delete (malloc and free underneath, as the
-// standard library's) to do the counting; outside a scope an allocation costs one extra thread-local load. Only
-// operator new is counted (not malloc), and frees are not credited: the limit bounds the total allocated in the
-// scope, a conservative bound on its peak.
+// allocation_budget.cpp replaces every form of the program's global operator new and delete (malloc or aligned_alloc
+// and free underneath, as the standard library's; a sanitizer's malloc then sees them all) to do the counting;
+// outside a scope an allocation costs one extra thread-local load. Only operator new is counted (not malloc), and
+// frees are not credited: the limit bounds the total allocated in the scope, a conservative bound on its peak.
 #pragma once
 
 #include <cstddef>
