@@ -346,6 +346,12 @@ class XmlReader {
     if (any_radius && any_piece_without_radius) {
       fail(name_, where(text_.size()), "some pieces have a radius array and some do not");
     }
+    // Each piece checks its own counts; this holds the sum to them too, as the legacy reader's finish() does.
+    if (!frame.radii.empty() && frame.radii.size() != frame.positions.size()) {
+      fail(name_, where(text_.size()),
+           "radius arrays hold " + std::to_string(frame.radii.size()) + " values for " +
+               std::to_string(frame.positions.size()) + " points");
+    }
     return frame;
   }
 
