@@ -258,13 +258,17 @@ void add_active_common(CLI::App* app, JobFlags& flags, OutputFlags* output) {
   app->add_option("--bounds", flags.active_bounds, "domain hint x0,y0,z0,x1,y1,z1 (the grid is sparse and unbounded)")
       ->type_name("BOX");
   app->add_option("--alpha", a.alpha,
-                  "tracking strength (default " + format_number(ActiveSurfaceOptions::kTrackingAlpha) +
-                      " for coat and morph, " + format_number(kActiveDefaults.alpha) + " for advect)")
+                  "tracking strength, coat and morph only (default " +
+                      format_number(ActiveSurfaceOptions::kTrackingAlpha) + "; advect has no target to track)")
       ->check(non_negative)
       ->type_name("X");
-  app->add_option("--beta", a.beta, "surface tension")->check(non_negative)->type_name("X");
+  app->add_option("--beta", a.beta, "surface tension (advect: on top of the velocity, as --gamma and --delta)")
+      ->check(non_negative)
+      ->type_name("X");
   app->add_option("--gamma", a.gamma, "area preservation")->check(non_negative)->type_name("X");
-  app->add_option("--delta", a.delta, "volume preservation")->check(non_negative)->type_name("X");
+  app->add_option("--delta", a.delta, "volume preservation (advect: holds the volume the scheme would lose)")
+      ->check(non_negative)
+      ->type_name("X");
   app->add_option("--cfl", a.cfl, "CFL factor of the time step" + default_text(*kActiveDefaults.cfl))
       ->check(positive)
       ->type_name("X");

@@ -26,6 +26,7 @@
 #include "server/store.h"
 #include "server/uploads.h"
 #include "server/worker_pool.h"
+#include "wire/tls.h"
 
 namespace surfacer::server {
 namespace {
@@ -71,6 +72,16 @@ std::shared_ptr<grpc::ServerCredentials> server_credentials(const ServerOptions&
                                             : GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY);
   ssl.pem_key_cert_pairs.push_back({read_file(o.tls_key_file, "--tls-key"), read_file(o.tls_cert_file, "--tls-cert")});
   if (!o.tls_client_ca_file.empty()) ssl.pem_root_certs = read_file(o.tls_client_ca_file, "--tls-client-ca");
+  // Checked here, not left to gRPC: it would report a bad pair only as a port it cannot listen on.
+  try {
+    wire::check_tls_key_pair(ssl.pem_key_cert_pairs[0].cert_chain, ssl.pem_key_cert_pairs[0].private_key,
+                             "--tls-cert " + o.tls_cert_file, "--tls-key " + o.tls_key_file);
+    if (!o.tls_client_ca_file.empty()) {
+      wire::check_tls_certificates(ssl.pem_root_certs, "--tls-client-ca " + o.tls_client_ca_file);
+    }
+  } catch (const Error& e) {
+    throw std::runtime_error(e.what());
+  }
   return grpc::SslServerCredentials(ssl);
 }
 

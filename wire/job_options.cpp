@@ -144,6 +144,7 @@ ActiveSurfaceOptions active_options(const v1::ActiveJob& job, bool normals, cons
   options.normals = normals;
   try {
     validate(options);
+    if (job.mode_case() == v1::ActiveJob::kAdvect) validate_advect(options);
   } catch (const Error& e) {
     // The engine's domain is the request's bounds, at its grid spacing.
     if (e.field() == "domain") {

@@ -8,6 +8,7 @@
 #include "core/active/active_surface.h"
 #include "core/util/checks.h"
 #include "core/util/errors.h"
+#include "core/util/format.h"
 
 namespace surfacer {
 namespace {
@@ -274,12 +275,21 @@ int morph_shapes(const Field& from, FieldPtr to, const MorphOptions& morph, cons
   return emitted;
 }
 
+void validate_advect(const ActiveSurfaceOptions& options) {
+  if (options.alpha > 0.0) {
+    throw InvalidInput("alpha", "alpha (" + format_number(options.alpha) +
+                                    ") tracks a target, and an advected shape has none; leave alpha at 0 (beta, "
+                                    "gamma and delta act on top of the advection)");
+  }
+}
+
 namespace {
 
 template <class Velocity>
 int advect_impl(const Field& shape, Velocity velocity, const AdvectOptions& advect, const ActiveSurfaceOptions& options,
                 const ActiveFrameSink& sink, const RunControl& control) {
   validate(advect);
+  validate_advect(options);
   std::optional<ActiveSurface> surface;
   int emitted = 0;
   int next = 1;

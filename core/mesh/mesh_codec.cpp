@@ -12,13 +12,14 @@
 #include <cstdio>
 #include <limits>
 #include <memory>
+#include <new>
 #include <optional>
 
+#include "core/util/allocation_budget.h"
 #include "core/util/checks.h"
 #include "core/util/errors.h"
 
 namespace surfacer {
-namespace {}  // namespace
 
 void validate(const DracoOptions& options) {
   const DracoOptions defaults;
@@ -181,9 +182,8 @@ bool numeric_attribute(const draco::PointAttribute& attribute) {
   return type >= draco::DT_INT8 && type <= draco::DT_FLOAT64;
 }
 
-}  // namespace
-
-Mesh decode_draco(std::string_view bytes) {
+// Draco's own decoder, unbounded (see decode_draco).
+Mesh decode_draco_stream(std::string_view bytes) {
   draco::DecoderBuffer buffer;
   buffer.Init(bytes.data(), bytes.size());
   draco::Decoder decoder;
@@ -240,6 +240,35 @@ Mesh decode_draco(std::string_view bytes) {
     }
   }
   return mesh;
+}
+
+constexpr std::size_t kDracoBudgetFloor = std::size_t{64} << 20;
+constexpr std::size_t kDracoBytesPerInputByte = 4096;
+constexpr std::size_t kDracoBytesPerTriangle = 256;
+
+}  // namespace
+
+Mesh decode_draco(std::string_view bytes, const MeshReadLimits& limits) {
+  const std::size_t by_size = kDracoBytesPerInputByte * bytes.size();
+  const std::size_t by_limit =
+      kDracoBytesPerTriangle * static_cast<std::size_t>(std::max<std::int64_t>(limits.max_triangles, 0));
+  const std::size_t budget = kDracoBudgetFloor + std::min(by_size, by_limit);
+  {
+    AllocationBudget scope(budget);
+    try {
+      return decode_draco_stream(bytes);
+    } catch (const std::bad_alloc&) {
+      if (!scope.exhausted()) throw;
+    }
+  }
+  const std::string needs = "decoding this " + std::to_string(bytes.size()) + "-byte Draco stream needs more than " +
+                            std::to_string(budget >> 20) + " MiB";
+  if (by_limit < by_size) {
+    throw ResourceLimit("max_triangles", needs + ", more than a mesh of max_triangles (" +
+                                             std::to_string(limits.max_triangles) + ") triangles may take");
+  }
+  throw InvalidInput("frame", needs + " (" + std::to_string(kDracoBytesPerInputByte) +
+                                  " bytes per input byte are allowed): it declares far more elements than it holds");
 }
 
 // --- Pieces -------------------------------------------------------------------------------------------------------

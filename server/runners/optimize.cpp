@@ -157,9 +157,14 @@ std::unique_ptr<JobRunner> make_optimize_runner(const v1::JobSpec& spec, const J
   if (job.start_case() == v1::OptimizeJob::kMeshUploadId) {
     const auto blob = context.uploads.get(job.mesh_upload_id(), path + ".mesh_upload_id");
     try {
-      start = parse_mesh(blob->bytes, sniff_mesh_format(blob->bytes), "upload " + job.mesh_upload_id());
+      MeshReadLimits read_limits;
+      read_limits.max_triangles = context.limits.max_triangles;
+      start = parse_mesh(blob->bytes, sniff_mesh_format(blob->bytes), "upload " + job.mesh_upload_id(), read_limits);
       validate_start_mesh(*start);
     } catch (const Error& e) {
+      if (e.kind() == ErrorKind::kResourceLimit) {
+        throw ResourceLimit(e.field(), path + ".mesh_upload_id: " + e.what() + "; raise --max-triangles");
+      }
       if (e.kind() != ErrorKind::kInvalidInput) throw;
       throw InvalidInput(path + ".mesh_upload_id", path + ".mesh_upload_id: " + e.what());
     }

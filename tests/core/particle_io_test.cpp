@@ -440,6 +440,20 @@ TEST(ParticleIo, VtuTakesThePiecesFirstRadiusArray) {
   expect_same(parse_particles(s, ParticleFormat::kVtu, "two.vtu"), f);
 }
 
+// Found by fuzz/fuzz_particles (fuzz/corpus/particles/crash-vtu-nested-piece): a <Piece> opened inside another
+// restarted the piece's counts, so the outer piece's radii were kept on top of the inner one's (2 radii, 1 point),
+// and a file ending with the outer piece still open was accepted.
+TEST(ParticleIo, VtuRefusesAPieceInsideAPiece) {
+  VtuStyle st;
+  const std::string radius = vtu_array({0.5}, "radius", 1, st);
+  const std::string s =
+      "<VTKFile type=\"UnstructuredGrid\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"1\">\n"
+      "<PointData>\n" +
+      radius + "</PointData>\n<Piece NumberOfPoints=\"1\">\n<PointData>\n" + radius + "</PointData>\n<Points>\n" +
+      vtu_array({1, 2, 3}, "Points", 3, st) + "</Points>\n</Piece>\n";
+  expect_error(s, ParticleFormat::kVtu, "nested.vtu", {"line 9", "<Piece> inside another <Piece>"});
+}
+
 TEST(ParticleIo, BinRoundTrip) {
   const ParticleFrame f = sample_frame(false);
   expect_same(parse_particles(write_bin(f), ParticleFormat::kBin, "p.bin"), f);
