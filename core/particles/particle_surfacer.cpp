@@ -291,13 +291,105 @@ double violation_uniform(const Particles& P, NeighbourCache& cache, std::size_t 
   return std::max({P.r_inner - d, d - P.r_outer, 0.0});
 }
 
+// Where f < 0 is certain without a search (uniform radii): a bit per cube of side c of a grid over the particles,
+// set when some particle lies closer than r_outer - c sqrt(3) / 2 to the cube's centre, so that every point of the
+// cube is strictly inside that particle's r_outer ball. Inside a fluid nearly every sample of the polygonizer falls in
+// such a cube and its sign costs one bit lookup. Built by rasterizing each particle's ball row by row as spans of
+// bits; rows are padded to whole 64-bit words and z-slabs of rows go to different workers, so no word is written by
+// two (and the bits do not depend on the order anyway). Not built when the grid would hold more than
+// kMaxBitsPerParticle bits per particle (scattered data): the search then answers every query.
+class InsideMask {
+ public:
+  static constexpr double kMaxBitsPerParticle = 512.0;
+
+  InsideMask(const Particles& P, int threads) {
+    if (P.weighted || P.positions.empty() || !P.hash.dense()) return;
+    cell_ = 0.5 * P.r_inner;
+    const double reach = P.r_outer - cell_ * std::sqrt(3.0) / 2.0;
+    if (!(reach > 0.0)) return;
+    origin_ = P.box.min.array() - P.r_outer;
+    for (int a = 0; a < 3; ++a) {
+      dims_[a] = static_cast<std::int64_t>(std::ceil((P.box.size()[a] + 2.0 * P.r_outer) / cell_)) + 1;
+    }
+    row_words_ = (dims_[0] + 63) / 64;
+    const double words = static_cast<double>(row_words_) * static_cast<double>(dims_[1]) * static_cast<double>(dims_[2]);
+    if (64.0 * words > kMaxBitsPerParticle * static_cast<double>(P.positions.size()) + 65536.0) return;
+    words_.assign(static_cast<std::size_t>(words), 0);
+    // Particles in hash order are sorted by z cell (the hash's cells are x fastest), so each slab's particles are a
+    // contiguous range found by binary search on z.
+    const std::span<const Vec3> pts = P.hash.sorted_points();
+    const double inv = 1.0 / cell_, r = reach * inv, r2 = r * r;
+    const int slabs = static_cast<int>(std::min<std::int64_t>(dims_[2], 4 * resolve_threads(threads)));
+    parallel_for(slabs, threads, [&](int slab) {
+      const std::int64_t kb = dims_[2] * slab / slabs, ke = dims_[2] * (slab + 1) / slabs;  // rows [kb, ke)
+      const double z_lo = origin_.z() + (kb - r) * cell_, z_hi = origin_.z() + (ke + r) * cell_;
+      const auto first = std::lower_bound(pts.begin(), pts.end(), z_lo - P.hash.cell_size(),
+                                          [](const Vec3& p, double z) { return p.z() < z; });
+      for (auto it = first; it != pts.end() && it->z() <= z_hi + P.hash.cell_size(); ++it) {
+        const Vec3 q = (*it - origin_) * inv;  // in cells; cell (i, j, k) has its centre at (i + 0.5, ...)
+        const std::int64_t k0 = std::max<std::int64_t>(kb, static_cast<std::int64_t>(std::ceil(q.z() - r - 0.5)));
+        const std::int64_t k1 = std::min<std::int64_t>(ke - 1, static_cast<std::int64_t>(std::floor(q.z() + r - 0.5)));
+        for (std::int64_t k = k0; k <= k1; ++k) {
+          const double dz = k + 0.5 - q.z(), rz2 = r2 - dz * dz;
+          if (!(rz2 > 0.0)) continue;
+          const double rz = std::sqrt(rz2);
+          const std::int64_t j0 = std::max<std::int64_t>(0, static_cast<std::int64_t>(std::ceil(q.y() - rz - 0.5)));
+          const std::int64_t j1 =
+              std::min<std::int64_t>(dims_[1] - 1, static_cast<std::int64_t>(std::floor(q.y() + rz - 0.5)));
+          for (std::int64_t j = j0; j <= j1; ++j) {
+            const double dy = j + 0.5 - q.y(), ry2 = rz2 - dy * dy;
+            if (!(ry2 > 0.0)) continue;
+            const double ry = std::sqrt(ry2);
+            // Strictly inside: centres with (i + 0.5 - q.x)^2 < ry^2.
+            const std::int64_t i0 = std::max<std::int64_t>(0, static_cast<std::int64_t>(std::floor(q.x() - ry - 0.5)) + 1);
+            const std::int64_t i1 =
+                std::min<std::int64_t>(dims_[0] - 1, static_cast<std::int64_t>(std::ceil(q.x() + ry - 0.5)) - 1);
+            if (i0 <= i1) set_span(&words_[static_cast<std::size_t>((k * dims_[1] + j) * row_words_)], i0, i1 - i0 + 1);
+          }
+        }
+      }
+    });
+  }
+
+  // True only where every point within the cube of x is inside some particle's r_outer ball.
+  bool certainly_inside(const Vec3& x) const {
+    if (words_.empty()) return false;
+    std::int64_t c[3];
+    for (int a = 0; a < 3; ++a) {
+      const double v = (x[a] - origin_[a]) / cell_;
+      if (!(v >= 0.0) || v >= static_cast<double>(dims_[a])) return false;
+      c[a] = static_cast<std::int64_t>(v);
+    }
+    const std::uint64_t w = words_[static_cast<std::size_t>((c[2] * dims_[1] + c[1]) * row_words_ + (c[0] >> 6))];
+    return (w >> (c[0] & 63)) & 1u;
+  }
+
+ private:
+  static void set_span(std::uint64_t* row, std::int64_t first, std::int64_t count) {
+    while (count > 0) {
+      const std::int64_t b = first & 63;
+      const std::int64_t n = std::min<std::int64_t>(count, 64 - b);
+      row[first >> 6] |= (n == 64 ? ~std::uint64_t{0} : ((std::uint64_t{1} << n) - 1)) << b;
+      first += n;
+      count -= n;
+    }
+  }
+
+  double cell_ = 0.0;
+  Vec3 origin_ = Vec3::Zero();
+  std::int64_t dims_[3] = {0, 0, 0};
+  std::int64_t row_words_ = 0;
+  std::vector<std::uint64_t> words_;
+};
+
 // f(x) = min_i (|x - p_i| - r_outer_i) for Marching Tiles. Exact where |f| <= band; elsewhere a value of the same
 // sign and no larger magnitude (a deep-inside sample stops at the first particle closer than r_outer - band, a far
 // outside one returns band). With band above the longest lattice edge, every crossed edge has exact end values, and
 // polygonizers that skip regions by |f(c)| > L r stay correct (the bound only gets more conservative).
 class ParticleField final : public Field {
  public:
-  ParticleField(const Particles& particles, double band) : p_(particles), band_(band) {}
+  ParticleField(const Particles& particles, double band, int threads)
+      : p_(particles), band_(band), inside_(particles, threads) {}
 
   double value(const Vec3& x) const override {
     count();
@@ -314,6 +406,20 @@ class ParticleField final : public Field {
     });
     return best;
   }
+
+  // Inside (f < 0) exactly when some particle is closer than its r_outer: the first one found decides.
+  double sign_value(const Vec3& x) const override {
+    count();
+    if (!p_.weighted) return inside_.certainly_inside(x) || p_.hash.any_within(x, p_.r_outer) ? -band_ : band_;
+    const std::span<const Vec3> pts = p_.hash.sorted_points();
+    bool inside = false;
+    p_.hash.for_each_range(x.array() - p_.max_outer, x.array() + p_.max_outer, [&](std::uint32_t begin, std::uint32_t end) {
+      for (std::uint32_t s = begin; s < end && !inside; ++s) inside = (pts[s] - x).norm() < p_.slot_outer[s];
+      return !inside;
+    });
+    return inside ? -band_ : band_;
+  }
+  bool sign_is_cheaper() const override { return true; }
 
   double value_and_gradient(const Vec3& x, Vec3& gradient) const override {
     count();
@@ -353,6 +459,7 @@ class ParticleField final : public Field {
 
   const Particles& p_;
   double band_;
+  InsideMask inside_;
   mutable std::array<Counter, kCounters> counters_;
 };
 
@@ -879,7 +986,7 @@ void ParticleSurfacer::State::distance_field(std::span<const Vec3> input, std::s
 Mesh ParticleSurfacer::State::polygonize(int threads, const RunControl& control, ParticleSurfacingStats& stats) const {
   const Particles& P = particles;
   const double h = stats.spacing;
-  const ParticleField field(P, kFieldBandSpacings * h);
+  const ParticleField field(P, kFieldBandSpacings * h, threads);
   MarchingTilesOptions mt;
   mt.bounds = P.box.padded(P.max_outer + 2.0 * h);
   mt.spacing = h;
