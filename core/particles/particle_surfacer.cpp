@@ -48,6 +48,10 @@ void for_chunks(std::size_t n, int threads, Body&& body) {
 // --- Particles ------------------------------------------------------------------------------------------------------
 
 // The particles in use, a spatial hash over them (cell = the largest r_outer) and their radii.
+struct Interval {
+  double lo = 0.0, hi = 0.0;
+};
+
 struct Particles {
   std::vector<Vec3> positions;
   std::vector<double> inner, outer;            // per particle; empty when uniform
@@ -120,6 +124,65 @@ struct Particles {
     return std::max({-in.value, out.value, 0.0});
   }
   bool faithful(double violation) const { return violation <= kFaithfulTolerance * (weighted ? max_outer : r_outer); }
+
+  // The offsets t (|t| <= reach) for which x + t n stays faithful, as the interval around t = 0 (x itself is faithful
+  // up to kBandTolerance). Along the line, the particles' outer balls allow t in a union of intervals and their inner
+  // balls forbid t in others; every particle that can matter lies within max_outer + reach of x. Exact.
+  Interval band_interval(const Vec3& x, const Vec3& n, double reach, std::vector<Interval>& scratch) const {
+    std::vector<Interval>& allowed = scratch;
+    allowed.clear();
+    double lo_in = -reach, hi_in = reach;  // bounds from the nearest forbidden (inner) intervals
+    auto add = [&](const Vec3& p, double inner, double outer) {
+      const Vec3 q = x - p;
+      const double b = n.dot(q), c = q.squaredNorm() - b * b;  // t along the line, c: squared distance of p to it
+      const double ro = outer * (1.0 + kBandTolerance), ri = inner * (1.0 - kBandTolerance);
+      if (c < ro * ro) {
+        const double h = std::sqrt(ro * ro - c);
+        allowed.push_back({-b - h, -b + h});
+      }
+      if (c < ri * ri) {
+        const double h = std::sqrt(ri * ri - c);
+        const double a = -b - h, e = -b + h;  // open interval (a, e) forbidden
+        if (a >= 0.0) {
+          hi_in = std::min(hi_in, a);
+        } else if (e <= 0.0) {
+          lo_in = std::max(lo_in, e);
+        } else {  // 0 inside an inner ball: only a rounding-level violation can get here
+          hi_in = std::min(hi_in, 0.0);
+          lo_in = std::max(lo_in, 0.0);
+        }
+      }
+    };
+    const double radius = (weighted ? max_outer : r_outer) + reach;
+    const std::span<const Vec3> pts = hash.sorted_points();
+    hash.for_each_range(x.array() - radius, x.array() + radius, [&](std::uint32_t begin, std::uint32_t end) {
+      for (std::uint32_t slot = begin; slot < end; ++slot) {
+        if (weighted) {
+          add(pts[slot], slot_inner[slot], slot_outer[slot]);
+        } else {
+          add(pts[slot], r_inner, r_outer);
+        }
+      }
+    });
+    // The union of the allowed intervals, grown from 0 in both directions.
+    auto grow = [&](double from, int sign) {
+      double cur = from;
+      for (bool moved = true; moved;) {
+        moved = false;
+        for (const Interval& a : allowed) {
+          if (sign > 0 ? (a.lo <= cur && a.hi > cur) : (a.hi >= cur && a.lo < cur)) {
+            cur = sign > 0 ? a.hi : a.lo;
+            moved = true;
+          }
+        }
+      }
+      return cur;
+    };
+    bool covered = false;
+    for (const Interval& a : allowed) covered = covered || (a.lo <= 0.0 && a.hi >= 0.0);
+    if (!covered) return {0.0, 0.0};
+    return {std::max({grow(0.0, -1), lo_in, -reach}), std::min({grow(0.0, 1), hi_in, reach})};
+  }
 
   // Weighted radii: moves x into the faithful band (see the header); returns false when rounds ran out.
   bool project(Vec3& x) const {
@@ -751,10 +814,16 @@ namespace {
 // than 1.07 h (A15 edges are 2, sqrt 5 and sqrt 6 lattice units, mean 2.30).
 constexpr double kFieldBandSpacings = 1.25;
 
-// The smoothing stages over one mesh (thesis Fig. 3.2, steps 3-7): the constraint projection and the faithfulness
-// measure they share, and one function per stage.
+// The smoothing stages over one mesh (thesis Fig. 3.2, steps 3-7). The Laplacian stage moves vertices freely (its
+// point is to even out the triangles) and projects them into the band once at its end; from then on every vertex
+// moves along its normal only, x = x0 + t n, and the band becomes one interval of t per vertex, computed exactly once
+// (Particles::band_interval), so the constrained sweeps clamp instead of searching for particles (docs/ALGORITHMS.md
+// §1, CHOICE "constrained stages along the normals").
 class Smoother {
  public:
+  // Gauss-Seidel over-relaxation of the constrained and polish sweeps (projected SOR; 1 is the thesis' plain GS).
+  static constexpr double kOverRelaxation = 1.4;
+
   Smoother(Mesh& mesh, const ParticleSurfacingOptions& options, const Particles& particles, NeighbourCache& cache,
            int threads)
       : mesh_(mesh),
@@ -774,69 +843,165 @@ class Smoother {
 
   const ps::Graph& ring() const { return ring_; }
 
-  // Steps 3 (after snapping the Marching Tiles vertices, faithful up to interpolation error, exactly).
+  // Step 3, then the projection of every vertex into the band (and the container).
   void laplacian(const RunControl& control) {
-    constrain(true);
     const ps::SweepPlan plan = ps::plan_sweeps(ring_, blocks_);
     for (int s = 0; s < o_.laplacian_sweeps; ++s) {
       control.check();
       ps::laplacian_sweep(x_, ring_, o_.relaxation, plan, threads_);
-      constrain(true);
       control.report("laplacian", (s + 1.0) / o_.laplacian_sweeps);
     }
+    control.check();
+    constrain(true);
   }
 
-  // Step 4: B = W^T D^-1 W and its sweep plan.
+  // Step 4: B = W^T D^-1 W, restricted to moves along the vertex normals, and every vertex's interval of the band.
   void build_b(const RunControl& control, ParticleSurfacingStats& stats) {
-    b_ = ps::bilaplacian(x_, mesh_.triangles, ring_, threads_, control);
-    b_plan_ = ps::plan_sweeps(b_.graph, blocks_);
-    stats.b_nonzeros = b_.nonzeros();
-    stats.seam_fraction = n_ > 0 ? static_cast<double>(b_plan_.seams.size()) / static_cast<double>(n_) : 0.0;
+    x0_ = x_;
+    normals_ = smoothed_normals();
+    intervals(control);
+    ps::SparseMatrix b = ps::bilaplacian(x_, mesh_.triangles, ring_, threads_, control);
+    plan_ = ps::plan_sweeps(b.graph, blocks_);
+    stats.b_nonzeros = b.nonzeros();
+    stats.seam_fraction = n_ > 0 ? static_cast<double>(plan_.seams.size()) / static_cast<double>(n_) : 0.0;
+    system_ = ps::offset_system(std::move(b), x0_, normals_, threads_);
+    t_.assign(n_, 0.0);
     control.report("build_b", 1.0);
   }
 
-  // Step 5, then the faithfulness after it.
+  // Step 5: sweeps clamped to the band, then the faithfulness after them.
   void bilaplacian(const RunControl& control, ParticleSurfacingStats& stats) {
     for (int s = 0; s < o_.bilaplacian_sweeps; ++s) {
       control.check();
-      ps::bilaplacian_sweep(x_, b_, b_plan_, threads_);
-      constrain(true);
+      ps::offset_sweep(t_, system_, lo_, hi_, kOverRelaxation, plan_, threads_);
       control.report("bilaplacian", (s + 1.0) / o_.bilaplacian_sweeps);
     }
-    measure(stats.faithful_after_constrained, stats.max_violation_after_constrained);
+    faithfulness(stats.faithful_after_constrained, stats.max_violation_after_constrained);
   }
 
-  // Step 6 (the container is still enforced).
-  void polish(const RunControl& control) {
-    before_polish_ = x_;
+  // Step 6: sweeps clamped to the container only, then (unless the thesis' unconstrained polish is asked for) the
+  // final projection: every offset back into its interval, a move along the normal (docs/ALGORITHMS.md §1, CHOICE
+  // "faithful at the end").
+  void polish(const RunControl& control, ParticleSurfacingStats& stats) {
+    const std::vector<double> before = t_;
     for (int s = 0; s < o_.polish_sweeps; ++s) {
       control.check();
-      ps::bilaplacian_sweep(x_, b_, b_plan_, threads_);
-      constrain(false);
+      ps::offset_sweep(t_, system_, container_lo_, container_hi_, kOverRelaxation, plan_, threads_);
       control.report("polish", (s + 1.0) / o_.polish_sweeps);
     }
+    faithfulness(stats.faithful_after_polish_sweeps, stats.max_violation_after_polish_sweeps);
+    if (!o_.unconstrained_polish) {
+      for (std::size_t i = 0; i < n_; ++i) {
+        const double clamped = std::clamp(t_[i], lo_[i], hi_[i]);
+        stats.max_final_projection = std::max(stats.max_final_projection, std::abs(clamped - t_[i]));
+        t_[i] = clamped;
+      }
+    }
+    for (std::size_t i = 0; i < n_; ++i) {
+      stats.max_polish_displacement = std::max(stats.max_polish_displacement, std::abs(t_[i] - before[i]));
+    }
+    place();
   }
 
   // Step 7, when asked for.
-  void erosion(const RunControl& control) {
+  void erosion(const RunControl& control, ParticleSurfacingStats& stats) {
     control.check();
+    const std::vector<Vec3> before = x_;
     const std::vector<Vec3> normals = ps::vertex_normals(x_, mesh_.triangles);
     const double depth = *o_.erosion * P_.r_inner;
     for (std::size_t i = 0; i < n_; ++i) x_[i] -= depth * normals[i];
     constrain(false);
+    for (std::size_t i = 0; i < n_; ++i) {
+      stats.max_polish_displacement = std::max(stats.max_polish_displacement, (x_[i] - before[i]).norm());
+    }
     control.report("erosion", 1.0);
   }
 
-  // The figures of the final surface: how far polish and erosion moved vertices, and the faithfulness.
+  // The figures of the final surface.
   void finish(ParticleSurfacingStats& stats) {
-    for (std::size_t i = 0; i < n_; ++i) {
-      stats.max_polish_displacement = std::max(stats.max_polish_displacement, (x_[i] - before_polish_[i]).norm());
+    if (o_.erosion && *o_.erosion > 0.0) {
+      measure(stats.faithful_after_polish, stats.max_violation_after_polish);  // erosion leaves the band on purpose
+    } else {
+      faithfulness(stats.faithful_after_polish, stats.max_violation_after_polish);
     }
-    measure(stats.faithful_after_polish, stats.max_violation_after_polish);
     stats.neighbour_refreshes = cache_.refreshes();
   }
 
  private:
+  // Area-weighted vertex normals averaged once over the 1-ring: the r_outer start is corrugated at the particle
+  // scale, and these tilt less with it.
+  std::vector<Vec3> smoothed_normals() const {
+    const std::vector<Vec3> raw = ps::vertex_normals(x_, mesh_.triangles);
+    std::vector<Vec3> out(n_);
+    for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
+      for (std::size_t i = begin; i < end; ++i) {
+        Vec3 sum = raw[i];
+        for (std::uint32_t e = ring_.offsets[i]; e < ring_.offsets[i + 1]; ++e) sum += raw[ring_.cols[e]];
+        const double len = sum.norm();
+        out[i] = len > 0.0 ? Vec3(sum / len) : raw[i];
+      }
+    });
+    return out;
+  }
+
+  // Every vertex's interval of offsets along its normal: the band's (exact, once) and the container box's; the
+  // constrained sweeps use their intersection.
+  void intervals(const RunControl& control) {
+    band_lo_.resize(n_);
+    band_hi_.resize(n_);
+    lo_.resize(n_);
+    hi_.resize(n_);
+    container_lo_.assign(n_, -kInf);
+    container_hi_.assign(n_, kInf);
+    // From the outer edge of the band to its inner edge.
+    const double reach = P_.weighted ? P_.max_outer : P_.r_outer - P_.r_inner;
+    for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
+      control.check();
+      std::vector<Interval> scratch;
+      for (std::size_t i = begin; i < end; ++i) {
+        const Interval band = P_.band_interval(x0_[i], normals_[i], reach, scratch);
+        band_lo_[i] = band.lo;
+        band_hi_[i] = band.hi;
+        if (container_.box) {
+          for (int a = 0; a < 3; ++a) {
+            const double na = normals_[i][a];
+            if (na == 0.0) continue;
+            double t0 = (container_.box->min[a] - x0_[i][a]) / na, t1 = (container_.box->max[a] - x0_[i][a]) / na;
+            if (t0 > t1) std::swap(t0, t1);
+            container_lo_[i] = std::max(container_lo_[i], std::min(t0, 0.0));
+            container_hi_[i] = std::min(container_hi_[i], std::max(t1, 0.0));
+          }
+        }
+        lo_[i] = std::max(band.lo, container_lo_[i]);
+        hi_[i] = std::min(band.hi, container_hi_[i]);
+        if (lo_[i] > hi_[i]) lo_[i] = hi_[i] = std::clamp(0.0, container_lo_[i], container_hi_[i]);  // the wall wins
+      }
+    });
+  }
+
+  // x = x0 + t n (and the container solid, which wins over the band).
+  void place() {
+    for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
+      for (std::size_t i = begin; i < end; ++i) x_[i] = x0_[i] + t_[i] * normals_[i];
+    });
+    if (container_.solid != nullptr) constrain(false);
+  }
+
+  // The fraction of vertices inside the band and the largest distance outside it, from the exact intervals: a vertex
+  // whose offset lies in its band interval is faithful (up to rounding); one outside it is off by its distance to the
+  // interval along its normal, at least as far as it is from the band.
+  void faithfulness(double& fraction, double& max_violation) const {
+    std::size_t good = 0;
+    double worst = 0.0;
+    for (std::size_t i = 0; i < n_; ++i) {
+      const double v = std::max({band_lo_[i] - t_[i], t_[i] - band_hi_[i], 0.0});
+      good += v == 0.0;
+      worst = std::max(worst, v);
+    }
+    fraction = n_ > 0 ? static_cast<double>(good) / static_cast<double>(n_) : 1.0;
+    max_violation = worst;
+  }
+
   // The particle band (when `to_particles`) and the container, on every vertex.
   void constrain(bool to_particles) {
     if (!to_particles && !container_.active()) return;
@@ -854,7 +1019,7 @@ class Smoother {
     });
   }
 
-  // The fraction of vertices inside the band and the largest distance outside it.
+  // The exact fraction of vertices inside the band and the largest distance outside it (nearest-particle queries).
   void measure(double& fraction, double& max_violation) {
     std::mutex mutex;
     std::size_t good_total = 0;
@@ -885,9 +1050,10 @@ class Smoother {
   const ps::Graph ring_;
   const std::size_t blocks_;
   Container container_;
-  ps::SparseMatrix b_;
-  ps::SweepPlan b_plan_;
-  std::vector<Vec3> before_polish_;
+  ps::SweepPlan plan_;
+  ps::OffsetSystem system_;
+  std::vector<Vec3> x0_, normals_;
+  std::vector<double> t_, lo_, hi_, band_lo_, band_hi_, container_lo_, container_hi_;
 };
 
 }  // namespace
@@ -1018,11 +1184,11 @@ void ParticleSurfacer::State::smooth(Mesh& mesh, int threads, const RunControl& 
   smoother.bilaplacian(control, stats);
   stats.seconds_bilaplacian = seconds_since(t0);
   t0 = Clock::now();
-  smoother.polish(control);
+  smoother.polish(control, stats);
   stats.seconds_polish = seconds_since(t0);
   if (o.erosion && *o.erosion > 0.0) {
     t0 = Clock::now();
-    smoother.erosion(control);
+    smoother.erosion(control, stats);
     stats.seconds_erosion = seconds_since(t0);
   }
   smoother.finish(stats);

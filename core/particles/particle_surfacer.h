@@ -84,6 +84,8 @@ struct ParticleSurfacingOptions {
   int laplacian_sweeps = 5;     // >= 0 each
   int bilaplacian_sweeps = 25;
   int polish_sweeps = 5;
+  // Keep the thesis' unconstrained polish: without the final projection some vertices end outside the band.
+  bool unconstrained_polish = false;
   double relaxation = 0.6;              // Laplacian under-relaxation, in (0, 1]
   std::optional<double> erosion;        // epsilon >= 0 in units of r_inner (thesis §3.9); off by default
   std::optional<Aabb> container_box;    // the surface is kept inside (valid box)
@@ -112,7 +114,11 @@ struct ParticleSurfacingStats {
   // outside that band (scene units), after the constrained sweeps (step 5) and at the end (after polish/erosion).
   double faithful_after_constrained = 0.0, faithful_after_polish = 0.0;
   double max_violation_after_constrained = 0.0, max_violation_after_polish = 0.0;
-  double max_polish_displacement = 0.0;  // largest vertex move during polish + erosion
+  // The same right after the polish sweeps, before the final projection (what the thesis' unconstrained polish
+  // leaves), and the largest move of the final projection.
+  double faithful_after_polish_sweeps = 0.0, max_violation_after_polish_sweeps = 0.0;
+  double max_final_projection = 0.0;
+  double max_polish_displacement = 0.0;  // largest vertex move during polish, final projection and erosion
   double seam_fraction = 0.0;            // vertices updated serially in the parallel Gauss-Seidel (see header)
   std::size_t b_nonzeros = 0;            // stored entries of B (off-diagonal + diagonal)
   std::int64_t neighbour_refreshes = 0;  // constraint queries that rebuilt a vertex's candidate list (uniform radii)

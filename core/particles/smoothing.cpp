@@ -2,6 +2,7 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 
 #include "core/util/parallel.h"
@@ -45,17 +46,13 @@ Graph one_ring(std::size_t vertices, std::span<const Triangle> triangles) {
 
 namespace {
 
-std::size_t find_col(const Graph& g, std::uint32_t row, std::uint32_t col) {
-  const auto begin = g.cols.begin() + g.offsets[row], end = g.cols.begin() + g.offsets[row + 1];
-  return static_cast<std::size_t>(std::lower_bound(begin, end, col) - g.cols.begin());
-}
 
 }  // namespace
 
 SparseMatrix bilaplacian(std::span<const Vec3> x, std::span<const Triangle> triangles, const Graph& ring, int threads,
                          const RunControl& control) {
   const std::size_t n = ring.rows();
-  // Cotangents of the three angles of every triangle (parallel), then a serial scatter into W and D.
+  // Cotangents of the three angles and the area of every triangle (parallel).
   struct Corner {
     double cot[3];  // at corners 0, 1, 2 (opposite edges 12, 20, 01)
     double area;
@@ -83,100 +80,132 @@ SparseMatrix bilaplacian(std::span<const Vec3> x, std::span<const Triangle> tria
     }
   });
   control.check();
-  std::vector<double> w(ring.cols.size(), 0.0), w_diag(n, 0.0), area(n, 0.0);
-  for (std::size_t t = 0; t < triangles.size(); ++t) {
-    const Triangle& tri = triangles[t];
-    const Corner& c = corners[t];
-    for (int k = 0; k < 3; ++k) {
-      area[tri[k]] += c.area;
-      // The angle at corner k is opposite edge (k+1, k+2).
-      const std::uint32_t a = tri[(k + 1) % 3], b = tri[(k + 2) % 3];
-      if (a == b || c.cot[k] == 0.0) continue;
-      const double half = 0.5 * c.cot[k];
-      w[find_col(ring, a, b)] -= half;
-      w[find_col(ring, b, a)] -= half;
-      w_diag[a] += half;
-      w_diag[b] += half;
+
+  // The triangles of every vertex (counting sort of the corners), so that each vertex assembles its own row of W.
+  std::vector<std::uint32_t> corner_offsets(n + 1, 0);
+  for (const Triangle& t : triangles) {
+    for (const std::uint32_t v : t) ++corner_offsets[v + 1];
+  }
+  for (std::size_t i = 0; i < n; ++i) corner_offsets[i + 1] += corner_offsets[i];
+  std::vector<std::uint32_t> corner_list(corner_offsets[n]);  // 3 * triangle + corner
+  {
+    std::vector<std::uint32_t> fill(corner_offsets.begin(), corner_offsets.end() - 1);
+    for (std::size_t t = 0; t < triangles.size(); ++t) {
+      for (std::uint32_t k = 0; k < 3; ++k) corner_list[fill[triangles[t][k]]++] = static_cast<std::uint32_t>(3 * t + k);
     }
   }
   control.check();
-  std::vector<double> inv_area(n, 0.0);
-  for (std::size_t i = 0; i < n; ++i) inv_area[i] = area[i] > 0.0 ? 1.0 / area[i] : 0.0;
 
-  // Gustavson row by row: row i of B = sum over k in {i} + ring(i) of (W_ik / D_k) * (row k of W). Two passes over
-  // static row ranges, one per worker: count each row's distinct columns, then fill the exactly sized arrays.
-  const int workers = std::max(1, std::min(resolve_threads(threads), static_cast<int>(n / 1024 + 1)));
-  auto range = [&](int worker) {
-    return std::pair<std::size_t, std::size_t>{
-        n * static_cast<std::size_t>(worker) / static_cast<std::size_t>(workers),
-        n * static_cast<std::size_t>(worker + 1) / static_cast<std::size_t>(workers)};
+  // W (aligned with ring.cols), its diagonal and the inverse vertex areas, row by row in parallel. Corner k of a
+  // triangle is at vertex i; the angle at the next corner is opposite edge (i, previous) and vice versa.
+  std::vector<double> w(ring.cols.size(), 0.0), w_diag(n, 0.0), inv_area(n, 0.0);
+  const int row_chunks = static_cast<int>(std::min<std::size_t>(256, n / 2048 + 1));
+  auto row_range = [&](int c) {
+    return std::pair<std::size_t, std::size_t>{n * static_cast<std::size_t>(c) / static_cast<std::size_t>(row_chunks),
+                                               n * static_cast<std::size_t>(c + 1) / static_cast<std::size_t>(row_chunks)};
   };
+  parallel_for(row_chunks, threads, [&](int c) {
+    const auto [begin, end] = row_range(c);
+    for (std::size_t i = begin; i < end; ++i) {
+      const std::uint32_t r0 = ring.offsets[i], r1 = ring.offsets[i + 1];
+      auto col = [&](std::uint32_t j) {
+        for (std::uint32_t e = r0; e < r1; ++e) {
+          if (ring.cols[e] == j) return e;
+        }
+        return r1;  // not a neighbour (a triangle with a repeated index)
+      };
+      double area = 0.0;
+      for (std::uint32_t q = corner_offsets[i]; q < corner_offsets[i + 1]; ++q) {
+        const std::uint32_t t = corner_list[q] / 3, k = corner_list[q] % 3;
+        const Triangle& tri = triangles[t];
+        const Corner& cn = corners[t];
+        area += cn.area;
+        const std::uint32_t next = tri[(k + 1) % 3], prev = tri[(k + 2) % 3];
+        // Edge (i, next) is opposite corner prev; edge (i, prev) is opposite corner next.
+        const double half_next = 0.5 * cn.cot[(k + 2) % 3], half_prev = 0.5 * cn.cot[(k + 1) % 3];
+        if (next != i && half_next != 0.0) {
+          const std::uint32_t e = col(next);
+          if (e < r1) w[e] -= half_next;
+          w_diag[i] += half_next;
+        }
+        if (prev != i && half_prev != 0.0) {
+          const std::uint32_t e = col(prev);
+          if (e < r1) w[e] -= half_prev;
+          w_diag[i] += half_prev;
+        }
+      }
+      inv_area[i] = area > 0.0 ? 1.0 / area : 0.0;
+    }
+  });
+  control.check();
+
+  // Gustavson row by row: row i of B = sum over k in {i} + ring(i) of (W_ik / D_k) * (row k of W), columns in
+  // first-touch order. Each chunk of rows fills its own arrays (a column -> slot table per worker), then the chunks
+  // are concatenated: deterministic whatever `threads`.
+  struct Part {
+    std::vector<std::uint32_t> cols;
+    std::vector<float> values;
+  };
+  std::vector<Part> parts(static_cast<std::size_t>(row_chunks));
   SparseMatrix b;
   b.graph.offsets.assign(n + 1, 0);
   b.diagonal.assign(n, 0.0);
-  parallel_for(workers, threads, [&](int worker) {
-    control.check();
-    const auto [begin, end] = range(worker);
-    std::vector<std::uint32_t> mark(n, 0xffffffffu);  // column -> last row that touched it
-    for (std::size_t i = begin; i < end; ++i) {
-      std::uint32_t count = 0;
-      auto touch = [&](std::uint32_t j) {
-        if (j != i && mark[j] != i) {
-          mark[j] = static_cast<std::uint32_t>(i);
-          ++count;
+  const int workers = std::max(1, std::min(resolve_threads(threads), row_chunks));
+  std::vector<std::vector<std::int32_t>> slots(static_cast<std::size_t>(workers));
+  std::atomic<int> next_chunk{0};
+  parallel_for(workers, workers, [&](int worker) {
+    std::vector<std::int32_t>& slot = slots[static_cast<std::size_t>(worker)];
+    slot.assign(n, -1);  // column -> position in the current row, -1 when absent
+    std::vector<double> acc;
+    for (int c = next_chunk.fetch_add(1); c < row_chunks; c = next_chunk.fetch_add(1)) {
+      control.check();
+      const auto [begin, end] = row_range(c);
+      Part& part = parts[static_cast<std::size_t>(c)];
+      part.cols.reserve((end - begin) * 20);
+      for (std::size_t i = begin; i < end; ++i) {
+        const std::size_t row_start = part.cols.size();
+        acc.clear();
+        double diag = 0.0;
+        auto add = [&](std::uint32_t j, double v) {
+          if (j == i) {
+            diag += v;
+            return;
+          }
+          std::int32_t& s = slot[j];
+          if (s < 0) {
+            s = static_cast<std::int32_t>(acc.size());
+            part.cols.push_back(j);
+            acc.push_back(0.0);
+          }
+          acc[static_cast<std::size_t>(s)] += v;
+        };
+        auto add_row = [&](std::uint32_t k, double coeff) {  // coeff * (row k of W); zero coefficients too, so the
+          add(k, coeff * w_diag[k]);                         // columns are the whole 2-ring
+          for (std::uint32_t e = ring.offsets[k]; e < ring.offsets[k + 1]; ++e) add(ring.cols[e], coeff * w[e]);
+        };
+        add_row(static_cast<std::uint32_t>(i), w_diag[i] * inv_area[i]);
+        for (std::uint32_t e = ring.offsets[i]; e < ring.offsets[i + 1]; ++e) {
+          const std::uint32_t k = ring.cols[e];
+          add_row(k, w[e] * inv_area[k]);
         }
-      };
-      auto touch_row = [&](std::uint32_t k) {
-        touch(k);
-        for (std::uint32_t e = ring.offsets[k]; e < ring.offsets[k + 1]; ++e) touch(ring.cols[e]);
-      };
-      touch_row(static_cast<std::uint32_t>(i));
-      for (std::uint32_t e = ring.offsets[i]; e < ring.offsets[i + 1]; ++e) touch_row(ring.cols[e]);
-      b.graph.offsets[i + 1] = count;
+        for (std::size_t p = 0; p < acc.size(); ++p) {
+          part.values.push_back(static_cast<float>(acc[p]));
+          slot[part.cols[row_start + p]] = -1;
+        }
+        b.diagonal[i] = diag;
+        b.graph.offsets[i + 1] = static_cast<std::uint32_t>(acc.size());
+      }
     }
   });
   control.check();
   for (std::size_t i = 0; i < n; ++i) b.graph.offsets[i + 1] += b.graph.offsets[i];
   b.graph.cols.resize(b.graph.offsets[n]);
   b.values.resize(b.graph.offsets[n]);
-  parallel_for(workers, threads, [&](int worker) {
-    control.check();
-    const auto [begin, end] = range(worker);
-    std::vector<std::int32_t> slot(n, -1);  // column -> position in the current row, -1 when absent
-    std::vector<double> acc;
-    for (std::size_t i = begin; i < end; ++i) {
-      const std::size_t row_start = b.graph.offsets[i];
-      std::uint32_t used = 0;
-      acc.assign(b.graph.offsets[i + 1] - row_start, 0.0);
-      double diag = 0.0;
-      auto add = [&](std::uint32_t j, double v) {
-        if (j == i) {
-          diag += v;
-          return;
-        }
-        std::int32_t& s = slot[j];
-        if (s < 0) {
-          s = static_cast<std::int32_t>(used);
-          b.graph.cols[row_start + used++] = j;
-        }
-        acc[static_cast<std::size_t>(s)] += v;
-      };
-      auto add_row = [&](std::uint32_t k, double coeff) {  // coeff * (row k of W); zero coefficients too, so the
-        add(k, coeff * w_diag[k]);                         // columns are exactly those counted above
-        for (std::uint32_t e = ring.offsets[k]; e < ring.offsets[k + 1]; ++e) add(ring.cols[e], coeff * w[e]);
-      };
-      add_row(static_cast<std::uint32_t>(i), w_diag[i] * inv_area[i]);
-      for (std::uint32_t e = ring.offsets[i]; e < ring.offsets[i + 1]; ++e) {
-        const std::uint32_t k = ring.cols[e];
-        add_row(k, w[e] * inv_area[k]);
-      }
-      for (std::uint32_t p = 0; p < used; ++p) {
-        const std::uint32_t j = b.graph.cols[row_start + p];
-        b.values[row_start + p] = static_cast<float>(acc[p]);
-        slot[j] = -1;
-      }
-      b.diagonal[i] = diag;
-    }
+  parallel_for(row_chunks, threads, [&](int c) {
+    const Part& part = parts[static_cast<std::size_t>(c)];
+    const std::size_t at = b.graph.offsets[row_range(c).first];
+    std::copy(part.cols.begin(), part.cols.end(), b.graph.cols.begin() + static_cast<std::ptrdiff_t>(at));
+    std::copy(part.values.begin(), part.values.end(), b.values.begin() + static_cast<std::ptrdiff_t>(at));
   });
   return b;
 }
@@ -229,17 +258,56 @@ void laplacian_sweep(std::vector<Vec3>& x, const Graph& ring, double relaxation,
   });
 }
 
-void bilaplacian_sweep(std::vector<Vec3>& x, const SparseMatrix& b, const SweepPlan& plan, int threads) {
-  sweep(plan, threads, [&](std::uint32_t i) {
-    const double diag = b.diagonal[i];
-    if (diag > 0.0) {
-      Vec3 sum = Vec3::Zero();
+
+OffsetSystem offset_system(SparseMatrix b, std::span<const Vec3> x0, std::span<const Vec3> normals, int threads) {
+  const std::size_t n = b.graph.rows();
+  OffsetSystem system;
+  system.g.resize(n);
+  const int chunks = static_cast<int>(std::min<std::size_t>(64, n / 4096 + 1));
+  parallel_for(chunks, threads, [&](int c) {
+    const std::size_t begin = n * static_cast<std::size_t>(c) / static_cast<std::size_t>(chunks);
+    const std::size_t end = n * static_cast<std::size_t>(c + 1) / static_cast<std::size_t>(chunks);
+    for (std::size_t i = begin; i < end; ++i) {
+      Vec3 bx = b.diagonal[i] * x0[i];
       for (std::uint32_t e = b.graph.offsets[i]; e < b.graph.offsets[i + 1]; ++e) {
-        sum += static_cast<double>(b.values[e]) * x[b.graph.cols[e]];
+        const std::uint32_t j = b.graph.cols[e];
+        bx += static_cast<double>(b.values[e]) * x0[j];
+        b.values[e] = static_cast<float>(static_cast<double>(b.values[e]) * normals[i].dot(normals[j]));
       }
-      x[i] = -sum / diag;
+      system.g[i] = normals[i].dot(bx);
     }
   });
+  system.matrix = std::move(b);
+  return system;
+}
+
+void offset_sweep(std::vector<double>& t, const OffsetSystem& system, std::span<const double> lo,
+                  std::span<const double> hi, double omega, const SweepPlan& plan, int threads) {
+  const SparseMatrix& b = system.matrix;
+  const bool clamp = !lo.empty();
+  sweep(plan, threads, [&](std::uint32_t i) {
+    const double diag = b.diagonal[i];
+    if (!(diag > 0.0)) return;
+    double sum = system.g[i];
+    for (std::uint32_t e = b.graph.offsets[i]; e < b.graph.offsets[i + 1]; ++e) {
+      sum += static_cast<double>(b.values[e]) * t[b.graph.cols[e]];
+    }
+    const double v = t[i] + omega * (-sum / diag - t[i]);
+    t[i] = clamp ? std::clamp(v, lo[i], hi[i]) : v;
+  });
+}
+
+double offset_energy(const OffsetSystem& system, std::span<const double> t) {
+  const SparseMatrix& b = system.matrix;
+  double e = 0.0;
+  for (std::size_t i = 0; i < b.graph.rows(); ++i) {
+    double bt = b.diagonal[i] * t[i];
+    for (std::uint32_t k = b.graph.offsets[i]; k < b.graph.offsets[i + 1]; ++k) {
+      bt += static_cast<double>(b.values[k]) * t[b.graph.cols[k]];
+    }
+    e += t[i] * bt + 2.0 * system.g[i] * t[i];
+  }
+  return e;
 }
 
 double energy(const SparseMatrix& b, std::span<const Vec3> x) {

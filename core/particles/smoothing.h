@@ -64,8 +64,21 @@ SweepPlan plan_sweeps(const Graph& rows, std::size_t blocks);
 
 // One sweep of x_i += relaxation * (centroid of the 1-ring - x_i) (uniform Laplacian, A = graph Laplacian).
 void laplacian_sweep(std::vector<Vec3>& x, const Graph& ring, double relaxation, const SweepPlan& plan, int threads);
-// One sweep of x_i <- -(sum_{j != i} B_ij x_j) / B_ii (rows with B_ii <= 0 are left alone).
-void bilaplacian_sweep(std::vector<Vec3>& x, const SparseMatrix& b, const SweepPlan& plan, int threads);
+// The Bilaplacian for moves along fixed unit normals only: x = x0 + t n (t one offset per vertex). With
+// Bn_ij = B_ij (n_i . n_j) and g_i = n_i . (B x0)_i, the energy summed over the coordinates is t^T Bn t + 2 g^T t +
+// const. Built from B in place (the same graph; the diagonal is unchanged, n_i . n_i = 1).
+struct OffsetSystem {
+  SparseMatrix matrix;
+  std::vector<double> g;
+};
+OffsetSystem offset_system(SparseMatrix b, std::span<const Vec3> x0, std::span<const Vec3> normals, int threads);
+// One sweep of t_i <- t_i + omega (-(g_i + sum_{j != i} Bn_ij t_j) / Bn_ii - t_i), clamped to [lo_i, hi_i] when
+// bounds are given (projected SOR: omega in (0, 2), 1 is plain Gauss-Seidel).
+void offset_sweep(std::vector<double>& t, const OffsetSystem& system, std::span<const double> lo,
+                  std::span<const double> hi, double omega, const SweepPlan& plan, int threads);
+
+// t^T Bn t + 2 g^T t (the offset energy without its constant).
+double offset_energy(const OffsetSystem& system, std::span<const double> t);
 // sum over the three coordinates of x^T B x.
 double energy(const SparseMatrix& b, std::span<const Vec3> x);
 
