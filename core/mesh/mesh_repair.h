@@ -13,7 +13,7 @@
 namespace surfacer {
 
 struct SliverOptions {
-  double min_angle_degrees = 1.0;  // a triangle with a smaller angle is repaired; in [0, 30)
+  double min_angle_degrees = 1.0;  // a triangle with a smaller angle is repaired; in [0, 30]
   // When set, a triangle whose corners, quantized on the grid, are collinear (or repeat a point) is repaired too: the
   // decoder would give it zero area.
   std::optional<QuantizationGrid> grid;
@@ -30,17 +30,18 @@ struct SliverReport {
   std::int64_t remaining = 0;  // bad triangles no allowed repair removed
 };
 
-// Passes over the bad triangles until none is left or a pass repairs nothing (at most max_passes):
-// * a triangle whose largest angle is at least 90 degrees (a cap: a vertex near the opposite edge) has that edge
-//   flipped with the triangle across it, when the new edge does not exist yet, the two new triangles are better (their
-//   smallest angle exceeds the old pair's, neither is degenerate on the grid) and turn the same way as the old pair;
-// * otherwise (a needle: a very short edge) the shortest edge is collapsed onto one of its ends (positions never
-//   move, so a vertex that was faithful to its data stays so), when the two ends share exactly the two opposite
-//   vertices (the link condition: the mesh stays manifold), no triangle around them turns over or gets worse than the
-//   needle, and the valence floor holds.
-// Collapsed vertices are removed (the others keep their order); normals, when present, follow their vertices.
-// Only edges with exactly two triangles are touched. Cost: one parallel-free scan of the triangles when nothing is
-// bad; adjacency is built only when something is. control.check() once per pass.
+// Passes over the bad triangles until none is left or a pass repairs nothing (at most max_passes). For a bad
+// triangle, every move is weighed: the flip of each of its edges (with the triangle across it), and the collapse of
+// each edge onto either end. A move is valid when the mesh stays manifold (a flip's new edge does not exist yet; a
+// collapse's two ends share exactly the two opposite vertices, the link condition), no triangle turns over (a flip's
+// quad is convex seen along its normal), and the valence floor holds; it is taken when the worst of the triangles it
+// makes is better than the worst of those it replaces (a triangle degenerate on the grid counts worst of all). The
+// moves that leave no bad triangle come first, flips before collapses, then the others by quality. A move blocked
+// only by the valence floor is tried after a flip elsewhere gives the blocking vertex a neighbour more (two levels
+// deep; those flips are undone when the move still cannot be made). Positions never move, so a vertex faithful to
+// its data stays so; collapsed vertices are removed (the others keep their order) and normals, when present, follow
+// their vertices. Only edges with exactly two triangles are touched. Cost: one parallel scan of the triangles when
+// nothing is bad; the adjacency is built at the first bad triangle. control.check() once per pass.
 SliverReport repair_slivers(Mesh& mesh, const SliverOptions& options, const RunControl& control = {});
 
 // The smallest angle of triangle (a, b, c) in degrees (0 for a degenerate one).

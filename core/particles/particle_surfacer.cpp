@@ -17,6 +17,7 @@
 #include "core/particles/smoothing.h"
 #include "core/particles/spatial_hash.h"
 #include "core/polygonize/marching_tiles.h"
+#include "core/util/checks.h"
 #include "core/util/errors.h"
 #include "core/util/format.h"
 #include "core/util/parallel.h"
@@ -735,6 +736,12 @@ int min_valence(const ps::Graph& ring) {
 
 void validate(const ParticleSurfacingOptions& o) {
   const ParticleSurfacingOptions defaults;
+  require_range("min_angle_degrees", o.min_angle_degrees, 0.0, 30.0,
+                "0 switches the sliver repair off; the default is " + format_number(defaults.min_angle_degrees));
+  if (o.output_grid) {
+    require_box("output_grid.box", o.output_grid->box);
+    require_count("output_grid.bits", o.output_grid->bits, 1, 30);
+  }
   if (o.r_inner && !(std::isfinite(*o.r_inner) && *o.r_inner > 0.0)) {
     throw InvalidInput("r_inner",
                        "r_inner (" + format_number(*o.r_inner) + ") must be a finite number > 0 (scene units)");
@@ -855,17 +862,16 @@ class Smoother {
     constrain(true);
   }
 
-  // Step 4: B = W^T D^-1 W, restricted to moves along the vertex normals, and every vertex's interval of the band.
+  // Step 4: B = W^T D^-1 W (through W and D), for moves along the vertex normals, and every vertex's interval of
+  // the band.
   void build_b(const RunControl& control, ParticleSurfacingStats& stats) {
     x0_ = x_;
     normals_ = smoothed_normals();
     intervals(control);
-    ps::SparseMatrix b = ps::bilaplacian(x_, mesh_.triangles, ring_, threads_, control);
-    plan_ = ps::plan_sweeps(b.graph, blocks_);
-    stats.b_nonzeros = b.nonzeros();
-    stats.seam_fraction = n_ > 0 ? static_cast<double>(plan_.seams.size()) / static_cast<double>(n_) : 0.0;
-    system_ = ps::offset_system(std::move(b), x0_, normals_, threads_);
-    t_.assign(n_, 0.0);
+    smoothing_.emplace(ring_, ps::cotangent_laplacian(x_, mesh_.triangles, ring_, threads_, control), x0_, normals_,
+                       blocks_);
+    stats.seam_fraction =
+        n_ > 0 ? static_cast<double>(smoothing_->plan().seams.size()) / static_cast<double>(n_) : 0.0;
     control.report("build_b", 1.0);
   }
 
@@ -873,7 +879,7 @@ class Smoother {
   void bilaplacian(const RunControl& control, ParticleSurfacingStats& stats) {
     for (int s = 0; s < o_.bilaplacian_sweeps; ++s) {
       control.check();
-      ps::offset_sweep(t_, system_, lo_, hi_, kOverRelaxation, plan_, threads_);
+      smoothing_->sweep(lo_, hi_, kOverRelaxation, threads_);
       control.report("bilaplacian", (s + 1.0) / o_.bilaplacian_sweeps);
     }
     faithfulness(stats.faithful_after_constrained, stats.max_violation_after_constrained);
@@ -883,22 +889,17 @@ class Smoother {
   // final projection: every offset back into its interval, a move along the normal (docs/ALGORITHMS.md §1, CHOICE
   // "faithful at the end").
   void polish(const RunControl& control, ParticleSurfacingStats& stats) {
-    const std::vector<double> before = t_;
+    const std::vector<double> before(smoothing_->offsets().begin(), smoothing_->offsets().end());
     for (int s = 0; s < o_.polish_sweeps; ++s) {
       control.check();
-      ps::offset_sweep(t_, system_, container_lo_, container_hi_, kOverRelaxation, plan_, threads_);
+      smoothing_->sweep(container_lo_, container_hi_, kOverRelaxation, threads_);
       control.report("polish", (s + 1.0) / o_.polish_sweeps);
     }
     faithfulness(stats.faithful_after_polish_sweeps, stats.max_violation_after_polish_sweeps);
-    if (!o_.unconstrained_polish) {
-      for (std::size_t i = 0; i < n_; ++i) {
-        const double clamped = std::clamp(t_[i], lo_[i], hi_[i]);
-        stats.max_final_projection = std::max(stats.max_final_projection, std::abs(clamped - t_[i]));
-        t_[i] = clamped;
-      }
-    }
+    if (!o_.unconstrained_polish) stats.max_final_projection = smoothing_->clamp(lo_, hi_);
+    const std::span<const double> t = smoothing_->offsets();
     for (std::size_t i = 0; i < n_; ++i) {
-      stats.max_polish_displacement = std::max(stats.max_polish_displacement, std::abs(t_[i] - before[i]));
+      stats.max_polish_displacement = std::max(stats.max_polish_displacement, std::abs(t[i] - before[i]));
     }
     place();
   }
@@ -981,8 +982,9 @@ class Smoother {
 
   // x = x0 + t n (and the container solid, which wins over the band).
   void place() {
+    const std::span<const double> t = smoothing_->offsets();
     for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
-      for (std::size_t i = begin; i < end; ++i) x_[i] = x0_[i] + t_[i] * normals_[i];
+      for (std::size_t i = begin; i < end; ++i) x_[i] = x0_[i] + t[i] * normals_[i];
     });
     if (container_.solid != nullptr) constrain(false);
   }
@@ -991,10 +993,11 @@ class Smoother {
   // whose offset lies in its band interval is faithful (up to rounding); one outside it is off by its distance to the
   // interval along its normal, at least as far as it is from the band.
   void faithfulness(double& fraction, double& max_violation) const {
+    const std::span<const double> t = smoothing_->offsets();
     std::size_t good = 0;
     double worst = 0.0;
     for (std::size_t i = 0; i < n_; ++i) {
-      const double v = std::max({band_lo_[i] - t_[i], t_[i] - band_hi_[i], 0.0});
+      const double v = std::max({band_lo_[i] - t[i], t[i] - band_hi_[i], 0.0});
       good += v == 0.0;
       worst = std::max(worst, v);
     }
@@ -1050,10 +1053,9 @@ class Smoother {
   const ps::Graph ring_;
   const std::size_t blocks_;
   Container container_;
-  ps::SweepPlan plan_;
-  ps::OffsetSystem system_;
   std::vector<Vec3> x0_, normals_;
-  std::vector<double> t_, lo_, hi_, band_lo_, band_hi_, container_lo_, container_hi_;
+  std::optional<ps::OffsetSmoothing> smoothing_;
+  std::vector<double> lo_, hi_, band_lo_, band_hi_, container_lo_, container_hi_;
 };
 
 }  // namespace
@@ -1192,6 +1194,20 @@ void ParticleSurfacer::State::smooth(Mesh& mesh, int threads, const RunControl& 
     stats.seconds_erosion = seconds_since(t0);
   }
   smoother.finish(stats);
+  if (o.min_angle_degrees > 0.0 || o.output_grid) {
+    t0 = Clock::now();
+    SliverOptions slivers;
+    slivers.min_angle_degrees = o.min_angle_degrees;
+    slivers.grid = o.output_grid;
+    slivers.threads = threads;
+    const SliverReport r = repair_slivers(mesh, slivers, control);
+    stats.slivers_found = r.candidates;
+    stats.sliver_flips = r.flips;
+    stats.sliver_collapses = r.collapses;
+    stats.slivers_left = r.remaining;
+    stats.seconds_cleanup = seconds_since(t0);
+    control.report("cleanup", 1.0);
+  }
   if (o.normals) mesh.normals = ps::vertex_normals(mesh.vertices, mesh.triangles);
 }
 

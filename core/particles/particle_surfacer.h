@@ -64,6 +64,7 @@
 #include <vector>
 
 #include "core/mesh/mesh.h"
+#include "core/mesh/mesh_repair.h"
 #include "core/scene/scene.h"
 #include "core/util/run_control.h"
 
@@ -86,6 +87,12 @@ struct ParticleSurfacingOptions {
   int polish_sweeps = 5;
   // Keep the thesis' unconstrained polish: without the final projection some vertices end outside the band.
   bool unconstrained_polish = false;
+  // Triangles with a smaller angle (degrees, in [0, 30]) are repaired at the end by edge flips and collapses
+  // (core/mesh/mesh_repair.h); 0 switches the repair off.
+  double min_angle_degrees = 1.0;
+  // The grid the frames are quantized on (the job's Draco box and bits), when known: triangles degenerate on it are
+  // repaired too.
+  std::optional<QuantizationGrid> output_grid;
   double relaxation = 0.6;              // Laplacian under-relaxation, in (0, 1]
   std::optional<double> erosion;        // epsilon >= 0 in units of r_inner (thesis §3.9); off by default
   std::optional<Aabb> container_box;    // the surface is kept inside (valid box)
@@ -119,8 +126,11 @@ struct ParticleSurfacingStats {
   double faithful_after_polish_sweeps = 0.0, max_violation_after_polish_sweeps = 0.0;
   double max_final_projection = 0.0;
   double max_polish_displacement = 0.0;  // largest vertex move during polish, final projection and erosion
+  // The sliver repair: triangles found below min_angle_degrees (or degenerate on output_grid), edges flipped and
+  // collapsed, and the bad triangles left (none unless a repair would break the mesh), and its seconds.
+  std::int64_t slivers_found = 0, sliver_flips = 0, sliver_collapses = 0, slivers_left = 0;
+  double seconds_cleanup = 0.0;
   double seam_fraction = 0.0;            // vertices updated serially in the parallel Gauss-Seidel (see header)
-  std::size_t b_nonzeros = 0;            // stored entries of B (off-diagonal + diagonal)
   std::int64_t neighbour_refreshes = 0;  // constraint queries that rebuilt a vertex's candidate list (uniform radii)
   std::size_t vertices = 0, triangles = 0;
 };

@@ -8,6 +8,15 @@
 #include "core/util/parallel.h"
 
 namespace surfacer::particle_smoothing {
+namespace {
+
+// Rows [begin, end) of chunk c when n rows are cut into `chunks` contiguous chunks.
+std::pair<std::size_t, std::size_t> chunk_range(std::size_t n, int chunks, int c) {
+  return {n * static_cast<std::size_t>(c) / static_cast<std::size_t>(chunks),
+          n * static_cast<std::size_t>(c + 1) / static_cast<std::size_t>(chunks)};
+}
+
+}  // namespace
 
 Graph one_ring(std::size_t vertices, std::span<const Triangle> triangles) {
   // Both directions of every edge, counted then filled, then each row sorted and deduplicated in place.
@@ -49,8 +58,8 @@ namespace {
 
 }  // namespace
 
-SparseMatrix bilaplacian(std::span<const Vec3> x, std::span<const Triangle> triangles, const Graph& ring, int threads,
-                         const RunControl& control) {
+Cotangent cotangent_laplacian(std::span<const Vec3> x, std::span<const Triangle> triangles, const Graph& ring,
+                              int threads, const RunControl& control) {
   const std::size_t n = ring.rows();
   // Cotangents of the three angles and the area of every triangle (parallel).
   struct Corner {
@@ -98,12 +107,15 @@ SparseMatrix bilaplacian(std::span<const Vec3> x, std::span<const Triangle> tria
 
   // W (aligned with ring.cols), its diagonal and the inverse vertex areas, row by row in parallel. Corner k of a
   // triangle is at vertex i; the angle at the next corner is opposite edge (i, previous) and vice versa.
-  std::vector<double> w(ring.cols.size(), 0.0), w_diag(n, 0.0), inv_area(n, 0.0);
+  Cotangent cot;
+  cot.w.assign(ring.cols.size(), 0.0);
+  cot.w_diag.assign(n, 0.0);
+  cot.inv_area.assign(n, 0.0);
+  std::vector<double>& w = cot.w;
+  std::vector<double>& w_diag = cot.w_diag;
+  std::vector<double>& inv_area = cot.inv_area;
   const int row_chunks = static_cast<int>(std::min<std::size_t>(256, n / 2048 + 1));
-  auto row_range = [&](int c) {
-    return std::pair<std::size_t, std::size_t>{n * static_cast<std::size_t>(c) / static_cast<std::size_t>(row_chunks),
-                                               n * static_cast<std::size_t>(c + 1) / static_cast<std::size_t>(row_chunks)};
-  };
+  auto row_range = [&](int c) { return chunk_range(n, row_chunks, c); };
   parallel_for(row_chunks, threads, [&](int c) {
     const auto [begin, end] = row_range(c);
     for (std::size_t i = begin; i < end; ++i) {
@@ -138,6 +150,18 @@ SparseMatrix bilaplacian(std::span<const Vec3> x, std::span<const Triangle> tria
     }
   });
   control.check();
+  return cot;
+}
+
+SparseMatrix bilaplacian(std::span<const Vec3> x, std::span<const Triangle> triangles, const Graph& ring, int threads,
+                         const RunControl& control) {
+  const Cotangent cot = cotangent_laplacian(x, triangles, ring, threads, control);
+  const std::vector<double>& w = cot.w;
+  const std::vector<double>& w_diag = cot.w_diag;
+  const std::vector<double>& inv_area = cot.inv_area;
+  const std::size_t n = ring.rows();
+  const int row_chunks = static_cast<int>(std::min<std::size_t>(256, n / 2048 + 1));
+  auto row_range = [&](int c) { return chunk_range(n, row_chunks, c); };
 
   // Gustavson row by row: row i of B = sum over k in {i} + ring(i) of (W_ik / D_k) * (row k of W), columns in
   // first-touch order. Each chunk of rows fills its own arrays (a column -> slot table per worker), then the chunks
@@ -259,53 +283,128 @@ void laplacian_sweep(std::vector<Vec3>& x, const Graph& ring, double relaxation,
 }
 
 
-OffsetSystem offset_system(SparseMatrix b, std::span<const Vec3> x0, std::span<const Vec3> normals, int threads) {
-  const std::size_t n = b.graph.rows();
-  OffsetSystem system;
-  system.g.resize(n);
+SweepPlan plan_two_ring_sweeps(const Graph& ring, std::size_t blocks) {
+  const std::size_t n = ring.rows();
+  blocks = std::max<std::size_t>(1, std::min(blocks, std::max<std::size_t>(1, n)));
+  auto block_of = [&](std::size_t v) { return v * blocks / std::max<std::size_t>(1, n); };
+  SweepPlan plan;
+  plan.block_begin.assign(blocks + 1, 0);
+  plan.interior.reserve(n);
+  for (std::size_t b = 0; b < blocks; ++b) {
+    const std::size_t begin = (n * b + blocks - 1) / blocks;  // first v with block_of(v) == b
+    const std::size_t end = (n * (b + 1) + blocks - 1) / blocks;
+    for (std::size_t v = begin; v < end; ++v) {
+      bool inside = true;
+      for (std::uint32_t e = ring.offsets[v]; e < ring.offsets[v + 1] && inside; ++e) {
+        const std::uint32_t k = ring.cols[e];
+        inside = block_of(k) == b;
+        for (std::uint32_t f = ring.offsets[k]; f < ring.offsets[k + 1] && inside; ++f) {
+          inside = block_of(ring.cols[f]) == b;
+        }
+      }
+      (inside ? plan.interior : plan.seams).push_back(static_cast<std::uint32_t>(v));
+    }
+    plan.block_begin[b + 1] = static_cast<std::uint32_t>(plan.interior.size());
+  }
+  return plan;
+}
+
+OffsetSmoothing::OffsetSmoothing(const Graph& ring, const Cotangent& cotangent, std::span<const Vec3> x0,
+                                 std::span<const Vec3> normals, std::size_t blocks)
+    : ring_(ring),
+      w_(cotangent.w.begin(), cotangent.w.end()),
+      w_diag_(cotangent.w_diag),
+      inv_area_(cotangent.inv_area),
+      x0_(x0),
+      normals_(normals),
+      plan_(plan_two_ring_sweeps(ring, blocks)),
+      t_(ring.rows(), 0.0),
+      z_(ring.rows()) {
+  const std::size_t n = ring.rows();
+  diag_.resize(n);
+  c_diag_.resize(n);
+  c_.resize(w_.size());
+  for (std::size_t i = 0; i < n; ++i) {
+    c_diag_[i] = w_diag_[i] * inv_area_[i];
+    double d = w_diag_[i] * c_diag_[i];
+    for (std::uint32_t e = ring.offsets[i]; e < ring.offsets[i + 1]; ++e) {
+      const double w = w_[e], c = w * inv_area_[ring.cols[e]];
+      c_[e] = static_cast<float>(c);
+      d += w * c;
+    }
+    diag_[i] = d;
+  }
+}
+
+void OffsetSmoothing::update_z(int threads) {
+  const std::span<const double> t = t_;
+  const std::size_t n = ring_.rows();
   const int chunks = static_cast<int>(std::min<std::size_t>(64, n / 4096 + 1));
   parallel_for(chunks, threads, [&](int c) {
-    const std::size_t begin = n * static_cast<std::size_t>(c) / static_cast<std::size_t>(chunks);
-    const std::size_t end = n * static_cast<std::size_t>(c + 1) / static_cast<std::size_t>(chunks);
-    for (std::size_t i = begin; i < end; ++i) {
-      Vec3 bx = b.diagonal[i] * x0[i];
-      for (std::uint32_t e = b.graph.offsets[i]; e < b.graph.offsets[i + 1]; ++e) {
-        const std::uint32_t j = b.graph.cols[e];
-        bx += static_cast<double>(b.values[e]) * x0[j];
-        b.values[e] = static_cast<float>(static_cast<double>(b.values[e]) * normals[i].dot(normals[j]));
+    const auto [begin, end] = chunk_range(n, chunks, c);
+    for (std::size_t k = begin; k < end; ++k) {
+      Vec3 z = w_diag_[k] * (x0_[k] + t[k] * normals_[k]);
+      for (std::uint32_t e = ring_.offsets[k]; e < ring_.offsets[k + 1]; ++e) {
+        const std::uint32_t j = ring_.cols[e];
+        z += static_cast<double>(w_[e]) * (x0_[j] + t[j] * normals_[j]);
       }
-      system.g[i] = normals[i].dot(bx);
+      z_[k] = z.cast<float>();
     }
-  });
-  system.matrix = std::move(b);
-  return system;
-}
-
-void offset_sweep(std::vector<double>& t, const OffsetSystem& system, std::span<const double> lo,
-                  std::span<const double> hi, double omega, const SweepPlan& plan, int threads) {
-  const SparseMatrix& b = system.matrix;
-  const bool clamp = !lo.empty();
-  sweep(plan, threads, [&](std::uint32_t i) {
-    const double diag = b.diagonal[i];
-    if (!(diag > 0.0)) return;
-    double sum = system.g[i];
-    for (std::uint32_t e = b.graph.offsets[i]; e < b.graph.offsets[i + 1]; ++e) {
-      sum += static_cast<double>(b.values[e]) * t[b.graph.cols[e]];
-    }
-    const double v = t[i] + omega * (-sum / diag - t[i]);
-    t[i] = clamp ? std::clamp(v, lo[i], hi[i]) : v;
   });
 }
 
-double offset_energy(const OffsetSystem& system, std::span<const double> t) {
-  const SparseMatrix& b = system.matrix;
+void OffsetSmoothing::sweep(std::span<const double> lo, std::span<const double> hi, double omega, int threads) {
+  if (!z_current_) {  // z = W x for these offsets (then kept up to date by the updates below)
+    update_z(threads);
+    z_current_ = true;
+  }
+  std::vector<double>& t = t_;
+  const bool bounded = !lo.empty();
+  auto update = [&](std::uint32_t i) {
+    if (!(diag_[i] > 0.0)) return;
+    const Vec3& n = normals_[i];
+    const Eigen::Vector3f nf = n.cast<float>();
+    const std::uint32_t begin = ring_.offsets[i], end = ring_.offsets[i + 1];
+    float acc = 0.0f;
+    for (std::uint32_t e = begin; e < end; ++e) acc += c_[e] * nf.dot(z_[ring_.cols[e]]);
+    const double grad = c_diag_[i] * n.dot(z_[i].cast<double>()) + static_cast<double>(acc);
+    double next = t[i] - omega * grad / diag_[i];
+    if (bounded) next = std::clamp(next, lo[i], hi[i]);
+    const double delta = next - t[i];
+    if (delta == 0.0) return;
+    t[i] = next;
+    z_[i] += static_cast<float>(w_diag_[i] * delta) * nf;
+    const float df = static_cast<float>(delta);
+    for (std::uint32_t e = begin; e < end; ++e) z_[ring_.cols[e]] += (w_[e] * df) * nf;
+  };
+  parallel_for(static_cast<int>(plan_.blocks()), threads, [&](int b) {
+    for (std::uint32_t s = plan_.block_begin[b]; s < plan_.block_begin[b + 1]; ++s) update(plan_.interior[s]);
+  });
+  for (const std::uint32_t v : plan_.seams) update(v);
+}
+
+double OffsetSmoothing::clamp(std::span<const double> lo, std::span<const double> hi) {
+  double largest = 0.0;
+  for (std::size_t i = 0; i < t_.size(); ++i) {
+    const double clamped = std::clamp(t_[i], lo[i], hi[i]);
+    if (clamped == t_[i]) continue;
+    largest = std::max(largest, std::abs(clamped - t_[i]));
+    t_[i] = clamped;
+    z_current_ = false;
+  }
+  return largest;
+}
+
+double OffsetSmoothing::energy(std::span<const double> t) const {
+  const std::size_t n = ring_.rows();
   double e = 0.0;
-  for (std::size_t i = 0; i < b.graph.rows(); ++i) {
-    double bt = b.diagonal[i] * t[i];
-    for (std::uint32_t k = b.graph.offsets[i]; k < b.graph.offsets[i + 1]; ++k) {
-      bt += static_cast<double>(b.values[k]) * t[b.graph.cols[k]];
+  for (std::size_t k = 0; k < n; ++k) {
+    Vec3 z = w_diag_[k] * (x0_[k] + t[k] * normals_[k]);
+    for (std::uint32_t f = ring_.offsets[k]; f < ring_.offsets[k + 1]; ++f) {
+      const std::uint32_t j = ring_.cols[f];
+      z += static_cast<double>(w_[f]) * (x0_[j] + t[j] * normals_[j]);
     }
-    e += t[i] * bt + 2.0 * system.g[i] * t[i];
+    e += inv_area_[k] * z.squaredNorm();
   }
   return e;
 }
