@@ -464,11 +464,11 @@ Box parse_box(const std::string& text, const std::string& flag) {
 }
 
 std::array<int, 3> parse_sweeps(const std::string& text) {
-  const auto v = parse_numbers(text, 3, "--sweeps", "5,25,5 (Laplacian,Bilaplacian,polish)");
+  const auto v = parse_numbers(text, 3, "--sweeps", "5,15,5 (Laplacian,Bilaplacian,polish)");
   std::array<int, 3> sweeps{};
   for (int i = 0; i < 3; ++i) {
     if (v[i] < 0 || v[i] != std::floor(v[i]) || v[i] > 1e6) {
-      throw usage("--sweeps \"" + text + "\": sweep counts are whole numbers >= 0, e.g. --sweeps 5,25,5");
+      throw usage("--sweeps \"" + text + "\": sweep counts are whole numbers >= 0, e.g. --sweeps 5,15,5");
     }
     sweeps[i] = static_cast<int>(v[i]);
   }

@@ -2,11 +2,21 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 
 #include "core/util/parallel.h"
 
 namespace surfacer::particle_smoothing {
+namespace {
+
+// Rows [begin, end) of chunk c when n rows are cut into `chunks` contiguous chunks.
+std::pair<std::size_t, std::size_t> chunk_range(std::size_t n, int chunks, int c) {
+  return {n * static_cast<std::size_t>(c) / static_cast<std::size_t>(chunks),
+          n * static_cast<std::size_t>(c + 1) / static_cast<std::size_t>(chunks)};
+}
+
+}  // namespace
 
 Graph one_ring(std::size_t vertices, std::span<const Triangle> triangles) {
   // Both directions of every edge, counted then filled, then each row sorted and deduplicated in place.
@@ -43,19 +53,10 @@ Graph one_ring(std::size_t vertices, std::span<const Triangle> triangles) {
   return g;
 }
 
-namespace {
-
-std::size_t find_col(const Graph& g, std::uint32_t row, std::uint32_t col) {
-  const auto begin = g.cols.begin() + g.offsets[row], end = g.cols.begin() + g.offsets[row + 1];
-  return static_cast<std::size_t>(std::lower_bound(begin, end, col) - g.cols.begin());
-}
-
-}  // namespace
-
-SparseMatrix bilaplacian(std::span<const Vec3> x, std::span<const Triangle> triangles, const Graph& ring, int threads,
-                         const RunControl& control) {
+Cotangent cotangent_laplacian(std::span<const Vec3> x, std::span<const Triangle> triangles, const Graph& ring,
+                              int threads, const RunControl& control) {
   const std::size_t n = ring.rows();
-  // Cotangents of the three angles of every triangle (parallel), then a serial scatter into W and D.
+  // Cotangents of the three angles and the area of every triangle (parallel).
   struct Corner {
     double cot[3];  // at corners 0, 1, 2 (opposite edges 12, 20, 01)
     double area;
@@ -83,100 +84,147 @@ SparseMatrix bilaplacian(std::span<const Vec3> x, std::span<const Triangle> tria
     }
   });
   control.check();
-  std::vector<double> w(ring.cols.size(), 0.0), w_diag(n, 0.0), area(n, 0.0);
-  for (std::size_t t = 0; t < triangles.size(); ++t) {
-    const Triangle& tri = triangles[t];
-    const Corner& c = corners[t];
-    for (int k = 0; k < 3; ++k) {
-      area[tri[k]] += c.area;
-      // The angle at corner k is opposite edge (k+1, k+2).
-      const std::uint32_t a = tri[(k + 1) % 3], b = tri[(k + 2) % 3];
-      if (a == b || c.cot[k] == 0.0) continue;
-      const double half = 0.5 * c.cot[k];
-      w[find_col(ring, a, b)] -= half;
-      w[find_col(ring, b, a)] -= half;
-      w_diag[a] += half;
-      w_diag[b] += half;
+
+  // The triangles of every vertex (counting sort of the corners), so that each vertex assembles its own row of W.
+  std::vector<std::uint32_t> corner_offsets(n + 1, 0);
+  for (const Triangle& t : triangles) {
+    for (const std::uint32_t v : t) ++corner_offsets[v + 1];
+  }
+  for (std::size_t i = 0; i < n; ++i) corner_offsets[i + 1] += corner_offsets[i];
+  std::vector<std::uint32_t> corner_list(corner_offsets[n]);  // 3 * triangle + corner
+  {
+    std::vector<std::uint32_t> fill(corner_offsets.begin(), corner_offsets.end() - 1);
+    for (std::size_t t = 0; t < triangles.size(); ++t) {
+      for (std::uint32_t k = 0; k < 3; ++k) corner_list[fill[triangles[t][k]]++] = static_cast<std::uint32_t>(3 * t + k);
     }
   }
   control.check();
-  std::vector<double> inv_area(n, 0.0);
-  for (std::size_t i = 0; i < n; ++i) inv_area[i] = area[i] > 0.0 ? 1.0 / area[i] : 0.0;
 
-  // Gustavson row by row: row i of B = sum over k in {i} + ring(i) of (W_ik / D_k) * (row k of W). Two passes over
-  // static row ranges, one per worker: count each row's distinct columns, then fill the exactly sized arrays.
-  const int workers = std::max(1, std::min(resolve_threads(threads), static_cast<int>(n / 1024 + 1)));
-  auto range = [&](int worker) {
-    return std::pair<std::size_t, std::size_t>{
-        n * static_cast<std::size_t>(worker) / static_cast<std::size_t>(workers),
-        n * static_cast<std::size_t>(worker + 1) / static_cast<std::size_t>(workers)};
+  // W (aligned with ring.cols), its diagonal and the inverse vertex areas, row by row in parallel. Corner k of a
+  // triangle is at vertex i; the angle at the next corner is opposite edge (i, previous) and vice versa.
+  Cotangent cot;
+  cot.w.assign(ring.cols.size(), 0.0);
+  cot.w_diag.assign(n, 0.0);
+  cot.inv_area.assign(n, 0.0);
+  std::vector<double>& w = cot.w;
+  std::vector<double>& w_diag = cot.w_diag;
+  std::vector<double>& inv_area = cot.inv_area;
+  const int row_chunks = static_cast<int>(std::min<std::size_t>(256, n / 2048 + 1));
+  auto row_range = [&](int c) { return chunk_range(n, row_chunks, c); };
+  parallel_for(row_chunks, threads, [&](int c) {
+    const auto [begin, end] = row_range(c);
+    for (std::size_t i = begin; i < end; ++i) {
+      const std::uint32_t r0 = ring.offsets[i], r1 = ring.offsets[i + 1];
+      auto col = [&](std::uint32_t j) {
+        for (std::uint32_t e = r0; e < r1; ++e) {
+          if (ring.cols[e] == j) return e;
+        }
+        return r1;  // not a neighbour (a triangle with a repeated index)
+      };
+      double area = 0.0;
+      for (std::uint32_t q = corner_offsets[i]; q < corner_offsets[i + 1]; ++q) {
+        const std::uint32_t t = corner_list[q] / 3, k = corner_list[q] % 3;
+        const Triangle& tri = triangles[t];
+        const Corner& cn = corners[t];
+        area += cn.area;
+        const std::uint32_t next = tri[(k + 1) % 3], prev = tri[(k + 2) % 3];
+        // Edge (i, next) is opposite corner prev; edge (i, prev) is opposite corner next.
+        const double half_next = 0.5 * cn.cot[(k + 2) % 3], half_prev = 0.5 * cn.cot[(k + 1) % 3];
+        if (next != i && half_next != 0.0) {
+          const std::uint32_t e = col(next);
+          if (e < r1) w[e] -= half_next;
+          w_diag[i] += half_next;
+        }
+        if (prev != i && half_prev != 0.0) {
+          const std::uint32_t e = col(prev);
+          if (e < r1) w[e] -= half_prev;
+          w_diag[i] += half_prev;
+        }
+      }
+      inv_area[i] = area > 0.0 ? 1.0 / area : 0.0;
+    }
+  });
+  control.check();
+  return cot;
+}
+
+SparseMatrix bilaplacian(std::span<const Vec3> x, std::span<const Triangle> triangles, const Graph& ring, int threads,
+                         const RunControl& control) {
+  const Cotangent cot = cotangent_laplacian(x, triangles, ring, threads, control);
+  const std::vector<double>& w = cot.w;
+  const std::vector<double>& w_diag = cot.w_diag;
+  const std::vector<double>& inv_area = cot.inv_area;
+  const std::size_t n = ring.rows();
+  const int row_chunks = static_cast<int>(std::min<std::size_t>(256, n / 2048 + 1));
+  auto row_range = [&](int c) { return chunk_range(n, row_chunks, c); };
+
+  // Gustavson row by row: row i of B = sum over k in {i} + ring(i) of (W_ik / D_k) * (row k of W), columns in
+  // first-touch order. Each chunk of rows fills its own arrays (a column -> slot table per worker), then the chunks
+  // are concatenated: deterministic whatever `threads`.
+  struct Part {
+    std::vector<std::uint32_t> cols;
+    std::vector<float> values;
   };
+  std::vector<Part> parts(static_cast<std::size_t>(row_chunks));
   SparseMatrix b;
   b.graph.offsets.assign(n + 1, 0);
   b.diagonal.assign(n, 0.0);
-  parallel_for(workers, threads, [&](int worker) {
-    control.check();
-    const auto [begin, end] = range(worker);
-    std::vector<std::uint32_t> mark(n, 0xffffffffu);  // column -> last row that touched it
-    for (std::size_t i = begin; i < end; ++i) {
-      std::uint32_t count = 0;
-      auto touch = [&](std::uint32_t j) {
-        if (j != i && mark[j] != i) {
-          mark[j] = static_cast<std::uint32_t>(i);
-          ++count;
+  const int workers = std::max(1, std::min(resolve_threads(threads), row_chunks));
+  std::vector<std::vector<std::int32_t>> slots(static_cast<std::size_t>(workers));
+  std::atomic<int> next_chunk{0};
+  parallel_for(workers, workers, [&](int worker) {
+    std::vector<std::int32_t>& slot = slots[static_cast<std::size_t>(worker)];
+    slot.assign(n, -1);  // column -> position in the current row, -1 when absent
+    std::vector<double> acc;
+    for (int c = next_chunk.fetch_add(1); c < row_chunks; c = next_chunk.fetch_add(1)) {
+      control.check();
+      const auto [begin, end] = row_range(c);
+      Part& part = parts[static_cast<std::size_t>(c)];
+      part.cols.reserve((end - begin) * 20);
+      for (std::size_t i = begin; i < end; ++i) {
+        const std::size_t row_start = part.cols.size();
+        acc.clear();
+        double diag = 0.0;
+        auto add = [&](std::uint32_t j, double v) {
+          if (j == i) {
+            diag += v;
+            return;
+          }
+          std::int32_t& s = slot[j];
+          if (s < 0) {
+            s = static_cast<std::int32_t>(acc.size());
+            part.cols.push_back(j);
+            acc.push_back(0.0);
+          }
+          acc[static_cast<std::size_t>(s)] += v;
+        };
+        auto add_row = [&](std::uint32_t k, double coeff) {  // coeff * (row k of W); zero coefficients too, so the
+          add(k, coeff * w_diag[k]);                         // columns are the whole 2-ring
+          for (std::uint32_t e = ring.offsets[k]; e < ring.offsets[k + 1]; ++e) add(ring.cols[e], coeff * w[e]);
+        };
+        add_row(static_cast<std::uint32_t>(i), w_diag[i] * inv_area[i]);
+        for (std::uint32_t e = ring.offsets[i]; e < ring.offsets[i + 1]; ++e) {
+          const std::uint32_t k = ring.cols[e];
+          add_row(k, w[e] * inv_area[k]);
         }
-      };
-      auto touch_row = [&](std::uint32_t k) {
-        touch(k);
-        for (std::uint32_t e = ring.offsets[k]; e < ring.offsets[k + 1]; ++e) touch(ring.cols[e]);
-      };
-      touch_row(static_cast<std::uint32_t>(i));
-      for (std::uint32_t e = ring.offsets[i]; e < ring.offsets[i + 1]; ++e) touch_row(ring.cols[e]);
-      b.graph.offsets[i + 1] = count;
+        for (std::size_t p = 0; p < acc.size(); ++p) {
+          part.values.push_back(static_cast<float>(acc[p]));
+          slot[part.cols[row_start + p]] = -1;
+        }
+        b.diagonal[i] = diag;
+        b.graph.offsets[i + 1] = static_cast<std::uint32_t>(acc.size());
+      }
     }
   });
   control.check();
   for (std::size_t i = 0; i < n; ++i) b.graph.offsets[i + 1] += b.graph.offsets[i];
   b.graph.cols.resize(b.graph.offsets[n]);
   b.values.resize(b.graph.offsets[n]);
-  parallel_for(workers, threads, [&](int worker) {
-    control.check();
-    const auto [begin, end] = range(worker);
-    std::vector<std::int32_t> slot(n, -1);  // column -> position in the current row, -1 when absent
-    std::vector<double> acc;
-    for (std::size_t i = begin; i < end; ++i) {
-      const std::size_t row_start = b.graph.offsets[i];
-      std::uint32_t used = 0;
-      acc.assign(b.graph.offsets[i + 1] - row_start, 0.0);
-      double diag = 0.0;
-      auto add = [&](std::uint32_t j, double v) {
-        if (j == i) {
-          diag += v;
-          return;
-        }
-        std::int32_t& s = slot[j];
-        if (s < 0) {
-          s = static_cast<std::int32_t>(used);
-          b.graph.cols[row_start + used++] = j;
-        }
-        acc[static_cast<std::size_t>(s)] += v;
-      };
-      auto add_row = [&](std::uint32_t k, double coeff) {  // coeff * (row k of W); zero coefficients too, so the
-        add(k, coeff * w_diag[k]);                         // columns are exactly those counted above
-        for (std::uint32_t e = ring.offsets[k]; e < ring.offsets[k + 1]; ++e) add(ring.cols[e], coeff * w[e]);
-      };
-      add_row(static_cast<std::uint32_t>(i), w_diag[i] * inv_area[i]);
-      for (std::uint32_t e = ring.offsets[i]; e < ring.offsets[i + 1]; ++e) {
-        const std::uint32_t k = ring.cols[e];
-        add_row(k, w[e] * inv_area[k]);
-      }
-      for (std::uint32_t p = 0; p < used; ++p) {
-        const std::uint32_t j = b.graph.cols[row_start + p];
-        b.values[row_start + p] = static_cast<float>(acc[p]);
-        slot[j] = -1;
-      }
-      b.diagonal[i] = diag;
-    }
+  parallel_for(row_chunks, threads, [&](int c) {
+    const Part& part = parts[static_cast<std::size_t>(c)];
+    const std::size_t at = b.graph.offsets[row_range(c).first];
+    std::copy(part.cols.begin(), part.cols.end(), b.graph.cols.begin() + static_cast<std::ptrdiff_t>(at));
+    std::copy(part.values.begin(), part.values.end(), b.values.begin() + static_cast<std::ptrdiff_t>(at));
   });
   return b;
 }
@@ -229,17 +277,136 @@ void laplacian_sweep(std::vector<Vec3>& x, const Graph& ring, double relaxation,
   });
 }
 
-void bilaplacian_sweep(std::vector<Vec3>& x, const SparseMatrix& b, const SweepPlan& plan, int threads) {
-  sweep(plan, threads, [&](std::uint32_t i) {
-    const double diag = b.diagonal[i];
-    if (diag > 0.0) {
-      Vec3 sum = Vec3::Zero();
-      for (std::uint32_t e = b.graph.offsets[i]; e < b.graph.offsets[i + 1]; ++e) {
-        sum += static_cast<double>(b.values[e]) * x[b.graph.cols[e]];
+
+SweepPlan plan_two_ring_sweeps(const Graph& ring, std::size_t blocks) {
+  const std::size_t n = ring.rows();
+  blocks = std::max<std::size_t>(1, std::min(blocks, std::max<std::size_t>(1, n)));
+  auto block_begin = [&](std::size_t b) { return (n * b + blocks - 1) / blocks; };  // first v of block b
+  // inside[k]: k's whole 1-ring lies in k's block. Then v's 2-ring lies in v's block exactly when inside[k] holds
+  // for every neighbour k of v (v itself is in k's ring, so k shares v's block).
+  std::vector<std::uint8_t> inside(n);
+  for (std::size_t b = 0; b < blocks; ++b) {
+    const std::size_t begin = block_begin(b), end = block_begin(b + 1);
+    for (std::size_t k = begin; k < end; ++k) {
+      bool all = true;
+      for (std::uint32_t f = ring.offsets[k]; f < ring.offsets[k + 1] && all; ++f) {
+        all = ring.cols[f] >= begin && ring.cols[f] < end;
       }
-      x[i] = -sum / diag;
+      inside[k] = all;
+    }
+  }
+  SweepPlan plan;
+  plan.block_begin.assign(blocks + 1, 0);
+  plan.interior.reserve(n);
+  for (std::size_t b = 0; b < blocks; ++b) {
+    const std::size_t begin = block_begin(b), end = block_begin(b + 1);
+    for (std::size_t v = begin; v < end; ++v) {
+      bool interior = true;
+      for (std::uint32_t e = ring.offsets[v]; e < ring.offsets[v + 1] && interior; ++e) interior = inside[ring.cols[e]];
+      (interior ? plan.interior : plan.seams).push_back(static_cast<std::uint32_t>(v));
+    }
+    plan.block_begin[b + 1] = static_cast<std::uint32_t>(plan.interior.size());
+  }
+  return plan;
+}
+
+OffsetSmoothing::OffsetSmoothing(const Graph& ring, const Cotangent& cotangent, std::span<const Vec3> x0,
+                                 std::span<const Vec3> normals, std::size_t blocks)
+    : ring_(ring),
+      w_diag_(cotangent.w_diag),
+      inv_area_(cotangent.inv_area),
+      x0_(x0),
+      normals_(normals),
+      plan_(plan_two_ring_sweeps(ring, blocks)),
+      t_(ring.rows(), 0.0),
+      z_(ring.rows()) {
+  const std::size_t n = ring.rows();
+  rows_.resize(n);
+  entries_.resize(cotangent.w.size());
+  for (std::size_t i = 0; i < n; ++i) {
+    const double c_diag = w_diag_[i] * inv_area_[i];
+    double d = w_diag_[i] * c_diag;
+    for (std::uint32_t e = ring.offsets[i]; e < ring.offsets[i + 1]; ++e) {
+      const double w = static_cast<float>(cotangent.w[e]), c = w * inv_area_[ring.cols[e]];  // W as the sweeps see it
+      entries_[e] = {static_cast<float>(c), static_cast<float>(w)};
+      d += w * c;
+    }
+    // inv_diag 0: a vertex without area does not move.
+    rows_[i] = {normals[i].cast<float>(), static_cast<float>(c_diag), static_cast<float>(w_diag_[i]),
+                d > 0.0 ? static_cast<float>(1.0 / d) : 0.0f};
+  }
+}
+
+void OffsetSmoothing::update_z(int threads) {
+  const std::span<const double> t = t_;
+  const std::size_t n = ring_.rows();
+  const int chunks = static_cast<int>(std::min<std::size_t>(64, n / 4096 + 1));
+  parallel_for(chunks, threads, [&](int c) {
+    const auto [begin, end] = chunk_range(n, chunks, c);
+    for (std::size_t k = begin; k < end; ++k) {
+      Vec3 z = w_diag_[k] * (x0_[k] + t[k] * normals_[k]);
+      for (std::uint32_t e = ring_.offsets[k]; e < ring_.offsets[k + 1]; ++e) {
+        const std::uint32_t j = ring_.cols[e];
+        z += static_cast<double>(entries_[e].w) * (x0_[j] + t[j] * normals_[j]);
+      }
+      z_[k] = z.cast<float>();
     }
   });
+}
+
+void OffsetSmoothing::sweep(std::span<const double> lo, std::span<const double> hi, double omega, int threads) {
+  if (!z_current_) {  // z = W x for these offsets (then kept up to date by the updates below)
+    update_z(threads);
+    z_current_ = true;
+  }
+  std::vector<double>& t = t_;
+  const bool bounded = !lo.empty();
+  const float step = static_cast<float>(omega);
+  auto update = [&](std::uint32_t i) {
+    const Row& row = rows_[i];
+    if (row.inv_diag == 0.0f) return;
+    const std::uint32_t begin = ring_.offsets[i], end = ring_.offsets[i + 1];
+    float grad = row.c_diag * row.normal.dot(z_[i]);
+    for (std::uint32_t e = begin; e < end; ++e) grad += entries_[e].c * row.normal.dot(z_[ring_.cols[e]]);
+    double next = t[i] - static_cast<double>(step * grad * row.inv_diag);
+    if (bounded) next = std::clamp(next, lo[i], hi[i]);
+    const double delta = next - t[i];
+    if (delta == 0.0) return;
+    t[i] = next;
+    const Eigen::Vector3f dn = static_cast<float>(delta) * row.normal;
+    z_[i] += row.w_diag * dn;
+    for (std::uint32_t e = begin; e < end; ++e) z_[ring_.cols[e]] += entries_[e].w * dn;
+  };
+  parallel_for(static_cast<int>(plan_.blocks()), threads, [&](int b) {
+    for (std::uint32_t s = plan_.block_begin[b]; s < plan_.block_begin[b + 1]; ++s) update(plan_.interior[s]);
+  });
+  for (const std::uint32_t v : plan_.seams) update(v);
+}
+
+double OffsetSmoothing::clamp(std::span<const double> lo, std::span<const double> hi) {
+  double largest = 0.0;
+  for (std::size_t i = 0; i < t_.size(); ++i) {
+    const double clamped = std::clamp(t_[i], lo[i], hi[i]);
+    if (clamped == t_[i]) continue;
+    largest = std::max(largest, std::abs(clamped - t_[i]));
+    t_[i] = clamped;
+    z_current_ = false;
+  }
+  return largest;
+}
+
+double OffsetSmoothing::energy(std::span<const double> t) const {
+  const std::size_t n = ring_.rows();
+  double e = 0.0;
+  for (std::size_t k = 0; k < n; ++k) {
+    Vec3 z = w_diag_[k] * (x0_[k] + t[k] * normals_[k]);
+    for (std::uint32_t f = ring_.offsets[k]; f < ring_.offsets[k + 1]; ++f) {
+      const std::uint32_t j = ring_.cols[f];
+      z += static_cast<double>(entries_[f].w) * (x0_[j] + t[j] * normals_[j]);
+    }
+    e += inv_area_[k] * z.squaredNorm();
+  }
+  return e;
 }
 
 double energy(const SparseMatrix& b, std::span<const Vec3> x) {

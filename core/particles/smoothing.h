@@ -40,12 +40,21 @@ struct SparseMatrix {
 inline constexpr double kMaxCotangent = 1e3;
 inline constexpr double kDegenerateRelativeArea = 1e-12;
 
-// B = W^T D^-1 W for the mesh (x, triangles) with 1-ring `ring`: W_ij = -(cot a_ij + cot b_ij) / 2 over the (one or
-// two) triangles sharing edge ij, W_ii = -sum_j W_ij; D_kk = sum of the areas of the triangles incident to k, and
-// B_ij = sum_k W_ik W_kj / D_kk over k in {i} + 1-ring(i) with D_kk > 0 (a vertex whose triangles all have zero area
-// has an all-zero W row, so skipping it changes nothing). Rows are assembled in parallel (Gustavson: a counting pass,
-// then a fill pass into exactly sized arrays), the columns of a row in first-touch order: deterministic whatever
-// `threads`. control.check() per pass and worker.
+// W and D of B = W^T D^-1 W (Williams 2008 eq. 3.2) for the mesh (x, triangles) with 1-ring `ring`: W_ij =
+// -(cot a_ij + cot b_ij) / 2 over the (one or two) triangles sharing edge ij, aligned with ring.cols; W_ii = -sum_j
+// W_ij; 1 / D_kk with D_kk the sum of the areas of the triangles incident to k (0 where that sum is 0: such a vertex
+// has an all-zero W row). Every vertex assembles its own row, in parallel: deterministic whatever `threads`.
+struct Cotangent {
+  std::vector<double> w;
+  std::vector<double> w_diag;
+  std::vector<double> inv_area;
+};
+Cotangent cotangent_laplacian(std::span<const Vec3> x, std::span<const Triangle> triangles, const Graph& ring,
+                              int threads, const RunControl& control = {});
+
+// B itself, B_ij = sum_k W_ik W_kj / D_kk over k in {i} + 1-ring(i), as a sparse matrix with 2-ring support (the
+// reference the matrix-free sweeps are tested against). Rows are assembled in parallel chunks (Gustavson), the columns
+// of a row in first-touch order: deterministic whatever `threads`. control.check() per pass and chunk.
 SparseMatrix bilaplacian(std::span<const Vec3> x, std::span<const Triangle> triangles, const Graph& ring, int threads,
                          const RunControl& control = {});
 
@@ -64,8 +73,57 @@ SweepPlan plan_sweeps(const Graph& rows, std::size_t blocks);
 
 // One sweep of x_i += relaxation * (centroid of the 1-ring - x_i) (uniform Laplacian, A = graph Laplacian).
 void laplacian_sweep(std::vector<Vec3>& x, const Graph& ring, double relaxation, const SweepPlan& plan, int threads);
-// One sweep of x_i <- -(sum_{j != i} B_ij x_j) / B_ii (rows with B_ii <= 0 are left alone).
-void bilaplacian_sweep(std::vector<Vec3>& x, const SparseMatrix& b, const SweepPlan& plan, int threads);
+// The same order for sweeps whose update of vertex i reads and writes the 1-rings of i's neighbours (2-ring support):
+// interior means the whole 2-ring lies in the block.
+SweepPlan plan_two_ring_sweeps(const Graph& ring, std::size_t blocks);
+
+// Smoothing by moves along fixed unit normals only: x = x0 + t n, one offset t_i per vertex, minimizing the energy
+// x^T B x (summed over the coordinates) with B applied through W, never formed: with z = W x,
+//   x^T B x = sum_k |z_k|^2 / D_kk,   dE/dt_i = 2 sum_{k in {i} + ring(i)} W_ik (n_i . z_k) / D_kk,
+//   d2E/dt_i^2 = 2 B_ii = 2 sum_k W_ik^2 / D_kk,
+// and moving t_i by delta changes z_k by W_ki n_i delta for k in {i} + ring(i). A sweep streams W's 1-ring (about a
+// third of B's 2-ring) and keeps z up to date. The offsets live here, beside z, so the two cannot disagree; they start
+// at zero.
+class OffsetSmoothing {
+ public:
+  // x0 and normals must outlive the smoothing (they are not copied).
+  OffsetSmoothing(const Graph& ring, const Cotangent& cotangent, std::span<const Vec3> x0,
+                  std::span<const Vec3> normals, std::size_t blocks);
+  // One sweep of projected SOR, t_i <- clamp(t_i - omega (dE/dt_i) / (d2E/dt_i^2), lo_i, hi_i) (no clamp when the
+  // bounds are empty; omega in (0, 2), 1 is plain Gauss-Seidel), in plan() order: block interiors in parallel, then
+  // the seams. Never increases the energy; byte-identical results whatever `threads`.
+  void sweep(std::span<const double> lo, std::span<const double> hi, double omega, int threads);
+  // Every offset into [lo_i, hi_i]; returns the largest move.
+  double clamp(std::span<const double> lo, std::span<const double> hi);
+  std::span<const double> offsets() const { return t_; }
+  // x^T B x summed over the coordinates, for x = x0 + t n (the current offsets when t is not given).
+  double energy(std::span<const double> t) const;
+  double energy() const { return energy(t_); }
+  const SweepPlan& plan() const { return plan_; }
+
+ private:
+  void update_z(int threads);
+
+  // What one update reads, packed so that a sweep streams two arrays besides t and the bounds: per vertex its normal,
+  // W_ii / D_ii, W_ii and 1 / B_ii; per ring entry W_ik / D_kk and W_ik (aligned with ring.cols).
+  struct Row {
+    Eigen::Vector3f normal;
+    float c_diag, w_diag, inv_diag;
+  };
+  struct Entry {
+    float c, w;
+  };
+  const Graph& ring_;
+  std::vector<Row> rows_;
+  std::vector<Entry> entries_;
+  std::vector<double> w_diag_, inv_area_;
+  std::span<const Vec3> x0_, normals_;
+  SweepPlan plan_;
+  std::vector<double> t_;
+  std::vector<Eigen::Vector3f> z_;  // float: the sweep's working set stays in cache; t and x stay double
+  bool z_current_ = false;          // z == W (x0 + t n)
+};
+
 // sum over the three coordinates of x^T B x.
 double energy(const SparseMatrix& b, std::span<const Vec3> x);
 

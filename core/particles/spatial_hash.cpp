@@ -187,6 +187,19 @@ double SpatialHash::bounded_distance(const Vec3& q, double max_distance, double 
   return found ? std::sqrt(best2) : std::numeric_limits<double>::infinity();
 }
 
+bool SpatialHash::any_within(const Vec3& q, double radius) const {
+  const double r2 = radius * radius;
+  const double qx = q.x(), qy = q.y(), qz = q.z();
+  auto scan = [&](std::uint32_t begin, std::uint32_t end) {
+    for (std::uint32_t s = begin; s < end; ++s) {
+      const double dx = points_[s].x() - qx, dy = points_[s].y() - qy, dz = points_[s].z() - qz;
+      if (dx * dx + dy * dy + dz * dz < r2) return false;  // found: stop the walk
+    }
+    return true;
+  };
+  return !for_each_range(q.array(), q.array(), scan) || !for_each_range(q.array() - radius, q.array() + radius, scan);
+}
+
 void SpatialHash::within(const Vec3& q, double radius, std::vector<std::uint32_t>& out) const {
   for_each_within(q, radius, [&](std::uint32_t index, const Vec3&, double) { out.push_back(index); });
 }

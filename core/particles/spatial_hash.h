@@ -56,6 +56,10 @@ class SpatialHash {
   // distance; when no point lies within max_distance returns +infinity.
   double bounded_distance(const Vec3& q, double max_distance, double stop_below) const;
 
+  // Whether some point lies strictly closer than `radius` to q (stops at the first one found: the cell holding q
+  // first, then the box of the ball).
+  bool any_within(const Vec3& q, double radius) const;
+
   // Appends the input indices of all points with |p - q| <= radius (in cell order) to `out`.
   void within(const Vec3& q, double radius, std::vector<std::uint32_t>& out) const;
 

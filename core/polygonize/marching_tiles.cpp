@@ -280,6 +280,7 @@ struct BlockOutput {
 struct alignas(64) Scratch {
   std::vector<double> values = std::vector<double>(static_cast<std::size_t>(kPadCells) * 8);
   std::array<std::uint8_t, kPadCells> evaluated{};  // bit p: point p of the padded cell has a value
+  std::array<std::uint8_t, kPadCells> exact{};      // bit p: that value is value(), not only sign_value()
   std::array<std::uint8_t, kPadCells> valid{};      // bit p: inside bounds
   std::array<std::uint8_t, kPadCells> inside{};     // bit p: value < 0
   std::array<std::uint8_t, kBlockCells> active{};   // cell not culled
@@ -302,7 +303,13 @@ class BlockMesher {
  public:
   BlockMesher(const Lattice& lat, const Field& field, const MarchingTilesOptions& options,
               std::optional<double> lipschitz, const RunControl& control)
-      : lat_(lat), field_(field), options_(options), lipschitz_(lipschitz), control_(control), tab_(tables()) {}
+      : lat_(lat),
+        field_(field),
+        options_(options),
+        lipschitz_(lipschitz),
+        control_(control),
+        tab_(tables()),
+        sign_only_(field.sign_is_cheaper()) {}
 
   void run(std::uint64_t key, Scratch& s, BlockOutput& out) {
     out.key = key;
@@ -359,6 +366,7 @@ class BlockMesher {
       }
     }
     s.evaluated.fill(0);
+    s.exact.fill(0);
     s.inside.fill(0);
   }
 
@@ -413,10 +421,12 @@ class BlockMesher {
             const int ni = i + (oi & 1), nj = j + ((oi >> 1) & 1), nk = k + (oi >> 2);
             double* v = s.values.data() + static_cast<std::size_t>(n) * 8;
             std::uint8_t in = 0;
+            if (!sign_only_) s.exact[n] |= static_cast<std::uint8_t>(need);
             while (need != 0) {
               const int p = std::countr_zero(need);
               need &= need - 1;
-              v[p] = field_.value(point_position(ni, nj, nk, p));
+              const Vec3 x = point_position(ni, nj, nk, p);
+              v[p] = sign_only_ ? field_.sign_value(x) : field_.value(x);
               if (v[p] < 0.0) in |= static_cast<std::uint8_t>(1u << p);
             }
             s.inside[n] |= in;
@@ -503,11 +513,24 @@ class BlockMesher {
     }
   }
 
+  // value() at the point behind values[index] (8 * pad index + point), computed once when the evaluation pass asked
+  // only sign_value().
+  double exact_value(Scratch& s, std::size_t index) const {
+    const std::size_t n = index / 8;
+    const auto bit = static_cast<std::uint8_t>(1u << (index % 8));
+    if (!(s.exact[n] & bit)) {
+      const int pi = static_cast<int>(n % kPad), pj = static_cast<int>(n / kPad % kPad), pk = static_cast<int>(n / (kPad * kPad));
+      s.values[index] = field_.value(point_position(pi, pj, pk, static_cast<int>(index % 8)));
+      s.exact[n] |= bit;
+    }
+    return s.values[index];
+  }
+
   // The interpolated point on an edge, from its end a to its end b (every block computes the same numbers);
   // `param` receives the interpolation parameter.
-  Vec3 edge_point(const Scratch& s, int pc, int i, int j, int k, const EdgeInfo& info, double& param) const {
-    const double fa = s.values[static_cast<std::size_t>(pc) * 8 + info.value[0]];
-    const double fb = s.values[static_cast<std::size_t>(pc) * 8 + info.value[1]];
+  Vec3 edge_point(Scratch& s, int pc, int i, int j, int k, const EdgeInfo& info, double& param) const {
+    const double fa = exact_value(s, static_cast<std::size_t>(pc) * 8 + info.value[0]);
+    const double fb = exact_value(s, static_cast<std::size_t>(pc) * 8 + info.value[1]);
     param = std::clamp(fa / (fa - fb), kMinT, 1.0 - kMinT);
     const std::array<std::int64_t, 3> base{4 * (c0_[0] + i), 4 * (c0_[1] + j), 4 * (c0_[2] + k)};
     Vec3 p;
@@ -592,6 +615,7 @@ class BlockMesher {
   const std::optional<double> lipschitz_;
   const RunControl& control_;
   const Tables& tab_;
+  const bool sign_only_;  // the evaluation pass asks sign_value(); crossed edges' ends get value()
   std::array<std::int64_t, 3> c0_{};
   bool interior_ = false;
 };

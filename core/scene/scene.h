@@ -38,6 +38,11 @@ class Field {
   // of c), so it must never be too small; a loose bound only costs speed. Signed distances give 1; CSG and
   // transforms combine their children's bounds; sampled grids and blobs compute one from their data.
   virtual std::optional<double> lipschitz_bound() const { return std::nullopt; }
+  // A value with the sign of value(p) (a zero value counting as positive) and any magnitude. Polygonizers need exact
+  // values only at the two ends of an edge the surface crosses: where sign_is_cheaper() says so they ask this first
+  // and value() only for those ends. The default is value(p).
+  virtual double sign_value(const Vec3& p) const { return value(p); }
+  virtual bool sign_is_cheaper() const { return false; }
 };
 
 using FieldPtr = std::shared_ptr<const Field>;

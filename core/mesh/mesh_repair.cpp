@@ -1,0 +1,487 @@
+#include "core/mesh/mesh_repair.h"
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <optional>
+#include <span>
+#include <tuple>
+#include <unordered_map>
+#include <vector>
+
+#include "core/util/parallel.h"
+
+namespace surfacer {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+constexpr std::uint32_t kDead = std::numeric_limits<std::uint32_t>::max();
+using GridPoint = std::array<std::uint32_t, 3>;
+
+// Collinear (or repeated) grid points, exactly: coordinates below 2^30, so the cross product fits in 64 bits.
+bool degenerate(const GridPoint& a, const GridPoint& b, const GridPoint& c) {
+  std::array<std::int64_t, 3> u, v;
+  for (int k = 0; k < 3; ++k) {
+    u[k] = static_cast<std::int64_t>(b[k]) - static_cast<std::int64_t>(a[k]);
+    v[k] = static_cast<std::int64_t>(c[k]) - static_cast<std::int64_t>(a[k]);
+  }
+  return u[1] * v[2] == u[2] * v[1] && u[2] * v[0] == u[0] * v[2] && u[0] * v[1] == u[1] * v[0];
+}
+
+// The vertex -> triangles adjacency: compressed rows built once, and the lists of the vertices a repair changed.
+class Adjacency {
+ public:
+  Adjacency(std::size_t vertices, const std::vector<Triangle>& triangles) : offsets_(vertices + 1, 0) {
+    for (const Triangle& t : triangles) {
+      for (const std::uint32_t v : t) ++offsets_[v + 1];
+    }
+    for (std::size_t v = 0; v < vertices; ++v) offsets_[v + 1] += offsets_[v];
+    list_.resize(offsets_[vertices]);
+    std::vector<std::uint32_t> fill(offsets_.begin(), offsets_.end() - 1);
+    for (std::size_t t = 0; t < triangles.size(); ++t) {
+      for (const std::uint32_t v : triangles[t]) list_[fill[v]++] = static_cast<std::uint32_t>(t);
+    }
+  }
+
+  // Valid until the next change of v's list.
+  std::span<const std::uint32_t> of(std::uint32_t v) const {
+    const auto it = changed_.find(v);
+    if (it != changed_.end()) return it->second;
+    return std::span<const std::uint32_t>(list_).subspan(offsets_[v], offsets_[v + 1] - offsets_[v]);
+  }
+  void add(std::uint32_t v, std::uint32_t t) {
+    std::vector<std::uint32_t>& l = editable(v);
+    l.push_back(t);
+  }
+  void remove(std::uint32_t v, std::uint32_t t) {
+    std::vector<std::uint32_t>& l = editable(v);
+    l.erase(std::remove(l.begin(), l.end(), t), l.end());
+  }
+  void set(std::uint32_t v, std::vector<std::uint32_t> l) { changed_[v] = std::move(l); }
+
+ private:
+  std::vector<std::uint32_t>& editable(std::uint32_t v) {
+    const auto it = changed_.find(v);
+    if (it != changed_.end()) return it->second;
+    const std::span<const std::uint32_t> base = of(v);
+    return changed_.emplace(v, std::vector<std::uint32_t>(base.begin(), base.end())).first->second;
+  }
+
+  std::vector<std::uint32_t> offsets_, list_;
+  std::unordered_map<std::uint32_t, std::vector<std::uint32_t>> changed_;
+};
+
+// A candidate repair of one bad triangle: flip one of its edges, or collapse one onto one of its ends.
+struct Move {
+  enum class Kind { kFlip, kCollapse } kind = Kind::kFlip;
+  int edge = 0;             // edge k = (tri[k], tri[k+1]) of the triangle
+  bool keep_first = true;   // collapse: keep tri[k] (else tri[k+1])
+  double before = 0.0;      // the worst quality among the triangles the move removes or changes
+  double after = 0.0;       // the worst quality among the triangles it makes
+  std::array<std::uint32_t, 2> blocked{kDead, kDead};  // vertices the move would take below the valence floor
+};
+
+class Repair {
+ public:
+  Repair(Mesh& mesh, const SliverOptions& options)
+      : mesh_(mesh), x_(mesh.vertices), tris_(mesh.triangles), o_(options) {
+    if (o_.grid) {
+      snapped_.resize(x_.size());
+      for (std::size_t v = 0; v < x_.size(); ++v) snapped_[v] = o_.grid->quantize(x_[v]);
+    }
+  }
+
+  bool bad(const Triangle& t) const { return t[0] != kDead && quality(t) < o_.min_angle_degrees; }
+
+  // Repairs triangle t if it is still bad: of the flips of its three edges and the collapses of each edge onto
+  // either end, the valid move whose new triangles are best, when they are better than what it replaces. A move
+  // blocked only by the valence floor is tried after one flip elsewhere gives the blocking vertex a neighbour more.
+  // Records the triangles it changed.
+  bool repair(std::uint32_t t, std::vector<std::uint32_t>& changed) {
+    if (!bad(tris_[t])) return false;
+    if (!adjacency_) adjacency_.emplace(x_.size(), tris_);  // built at the first bad triangle only
+    undo_.clear();
+    std::vector<Move> moves = candidates(t);
+    for (const Move& m : moves) {
+      if (m.blocked[0] == kDead) return apply(t, m, changed);
+    }
+    for (const Move& m : moves) {
+      const std::size_t mark = undo_.size();
+      bool raised = true;
+      for (const std::uint32_t v : m.blocked) {
+        if (v != kDead && !may_lose(v)) raised = raised && raise_valence(v, t, changed);
+      }
+      // The flips changed the neighbourhood: evaluate the same move again.
+      const std::optional<Move> again =
+          !raised                          ? std::nullopt
+          : m.kind == Move::Kind::kFlip ? evaluate_flip(t, m.edge)
+                                        : evaluate_collapse(t, m.edge, m.keep_first);
+      if (again && again->blocked[0] == kDead && again->after > again->before) return apply(t, *again, changed);
+      roll_back(mark);  // the raising flips served nothing: the mesh stays as it was
+    }
+    return false;
+  }
+
+ private:
+  // A triangle's smallest angle in degrees; -1 when it is degenerate on the output grid.
+  double quality(const Triangle& t) const {
+    if (o_.grid && degenerate(snapped_[t[0]], snapped_[t[1]], snapped_[t[2]])) return -1.0;
+    return min_angle_degrees(x_[t[0]], x_[t[1]], x_[t[2]]);
+  }
+  Vec3 normal(const Triangle& t) const { return (x_[t[1]] - x_[t[0]]).cross(x_[t[2]] - x_[t[0]]); }
+  std::size_t valence(std::uint32_t v) const { return adj().of(v).size(); }
+  // A vertex may lose one neighbour when it stays at or above the floor, or was below it already.
+  bool may_lose(std::uint32_t v) const {
+    const std::size_t val = valence(v);
+    return val < static_cast<std::size_t>(o_.min_valence) || val - 1 >= static_cast<std::size_t>(o_.min_valence);
+  }
+  // The other triangle of directed edge (a, b) of triangle t (the one holding b -> a), or kDead when there is none
+  // or the edge is not manifold.
+  std::uint32_t across(std::uint32_t t, std::uint32_t a, std::uint32_t b) const {
+    std::uint32_t found = kDead;
+    int count = 0;
+    for (const std::uint32_t s : adj().of(a)) {
+      if (s == t) continue;
+      const Triangle& q = tris_[s];
+      for (int k = 0; k < 3; ++k) {
+        if (q[k] == b && q[(k + 1) % 3] == a) {
+          found = s;
+          ++count;
+        }
+        if (q[k] == a && q[(k + 1) % 3] == b) ++count;  // a second triangle along a -> b: not manifold here
+      }
+    }
+    return count == 1 ? found : kDead;
+  }
+  bool has_edge(std::uint32_t a, std::uint32_t b) const {
+    for (const std::uint32_t s : adj().of(a)) {
+      const Triangle& q = tris_[s];
+      if (q[0] == b || q[1] == b || q[2] == b) return true;
+    }
+    return false;
+  }
+  static std::uint32_t third(const Triangle& q, std::uint32_t a, std::uint32_t b) {
+    for (const std::uint32_t w : q) {
+      if (w != a && w != b) return w;
+    }
+    return kDead;
+  }
+  std::vector<std::uint32_t> neighbours(std::uint32_t v) const {
+    std::vector<std::uint32_t> out;
+    for (const std::uint32_t s : adj().of(v)) {
+      for (const std::uint32_t w : tris_[s]) {
+        if (w != v) out.push_back(w);
+      }
+    }
+    std::sort(out.begin(), out.end());
+    out.erase(std::unique(out.begin(), out.end()), out.end());
+    return out;
+  }
+
+  // Every valid move for t, improving ones only, best first (ties in a fixed order: deterministic).
+  std::vector<Move> candidates(std::uint32_t t) const {
+    std::vector<Move> moves;
+    for (int k = 0; k < 3; ++k) {
+      if (const std::optional<Move> m = evaluate_flip(t, k)) moves.push_back(*m);
+      for (const bool keep_first : {true, false}) {
+        if (const std::optional<Move> m = evaluate_collapse(t, k, keep_first)) moves.push_back(*m);
+      }
+    }
+    std::erase_if(moves, [](const Move& m) { return !(m.after > m.before); });
+    // First the moves that leave no bad triangle, flips before collapses (a flip keeps every vertex); then by quality.
+    auto rank = [&](const Move& m) {
+      const bool good = m.after >= o_.min_angle_degrees;
+      return std::tuple(good, good && m.kind == Move::Kind::kFlip, m.after);
+    };
+    std::stable_sort(moves.begin(), moves.end(), [&](const Move& a, const Move& b) { return rank(a) > rank(b); });
+    return moves;
+  }
+
+  // Flip edge k = (u, v) of t = (u, v, x) with t2 = (v, u, y): (u, y, x) and (y, v, x), when edge x-y does not exist
+  // yet and both new triangles turn the way the old pair did (the quad is convex seen along its normal).
+  std::optional<Move> evaluate_flip(std::uint32_t t, int k) const {
+    const Triangle& tri = tris_[t];
+    const std::uint32_t u = tri[k], v = tri[(k + 1) % 3], x = tri[(k + 2) % 3];
+    const std::uint32_t t2 = across(t, u, v);
+    if (t2 == kDead) return std::nullopt;
+    const Triangle& other = tris_[t2];
+    const std::uint32_t y = third(other, u, v);
+    if (y == kDead || y == x || has_edge(x, y)) return std::nullopt;
+    const Triangle n1{u, y, x}, n2{y, v, x};
+    const Vec3 before = normal(tri) + normal(other);
+    if (!(normal(n1).dot(before) > 0.0) || !(normal(n2).dot(before) > 0.0)) return std::nullopt;
+    Move m;
+    m.kind = Move::Kind::kFlip;
+    m.edge = k;
+    m.before = std::min(quality(tri), quality(other));
+    m.after = std::min(quality(n1), quality(n2));
+    int b = 0;
+    for (const std::uint32_t w : {u, v}) {
+      if (!may_lose(w)) m.blocked[b++] = w;
+    }
+    return m;
+  }
+
+  // Collapse edge k = (a, b) of t = (a, b, c), with t2 = (b, a, d), onto `keep`: when a and b share exactly the
+  // neighbours c and d (the link condition: the mesh stays manifold), no triangle around the removed vertex turns
+  // over and the merged vertex keeps the valence floor.
+  std::optional<Move> evaluate_collapse(std::uint32_t t, int k, bool keep_first) const {
+    const Triangle& tri = tris_[t];
+    const std::uint32_t a = tri[k], b = tri[(k + 1) % 3], c = tri[(k + 2) % 3];
+    const std::uint32_t t2 = across(t, a, b);
+    if (t2 == kDead) return std::nullopt;
+    const std::uint32_t d = third(tris_[t2], a, b);
+    if (d == kDead || d == c) return std::nullopt;
+    const std::vector<std::uint32_t> na = neighbours(a), nb = neighbours(b);
+    std::vector<std::uint32_t> common;
+    std::set_intersection(na.begin(), na.end(), nb.begin(), nb.end(), std::back_inserter(common));
+    if (common.size() != 2) return std::nullopt;
+    const std::size_t merged = na.size() + nb.size() - 4, floor = static_cast<std::size_t>(o_.min_valence);
+    if (merged < floor && std::max(na.size(), nb.size()) >= floor) return std::nullopt;
+    const std::uint32_t keep = keep_first ? a : b, gone = keep_first ? b : a;
+    Move m;
+    m.kind = Move::Kind::kCollapse;
+    m.edge = k;
+    m.keep_first = keep_first;
+    m.before = std::min(quality(tri), quality(tris_[t2]));
+    m.after = std::numeric_limits<double>::infinity();
+    for (const std::uint32_t s : adj().of(gone)) {
+      if (s == t || s == t2) continue;
+      Triangle moved = tris_[s];
+      for (std::uint32_t& w : moved) {
+        if (w == gone) w = keep;
+      }
+      if (!(normal(moved).dot(normal(tris_[s])) > 0.0)) return std::nullopt;
+      m.before = std::min(m.before, quality(tris_[s]));
+      m.after = std::min(m.after, quality(moved));
+    }
+    int blocked = 0;
+    for (const std::uint32_t w : {c, d}) {
+      if (!may_lose(w)) m.blocked[blocked++] = w;
+    }
+    return m;
+  }
+
+  bool apply(std::uint32_t t, const Move& m, std::vector<std::uint32_t>& changed) {
+    if (m.kind == Move::Kind::kFlip) {
+      apply_flip(t, m.edge, changed);
+    } else {
+      apply_collapse(t, m.edge, m.keep_first, changed);
+    }
+    return true;
+  }
+
+  void apply_flip(std::uint32_t t, int k, std::vector<std::uint32_t>& changed) {
+    const Triangle tri = tris_[t];
+    const std::uint32_t u = tri[k], v = tri[(k + 1) % 3], x = tri[(k + 2) % 3];
+    const std::uint32_t t2 = across(t, u, v);
+    const std::uint32_t y = third(tris_[t2], u, v);
+    undo_.push_back({t, t2, tris_[t], tris_[t2]});
+    tris_[t] = Triangle{u, y, x};
+    tris_[t2] = Triangle{y, v, x};
+    adj().remove(u, t2);
+    adj().remove(v, t);
+    adj().add(x, t2);
+    adj().add(y, t);
+    changed.push_back(t);
+    changed.push_back(t2);
+    ++flips_;
+  }
+
+  // Undoes the flips recorded after `mark`, newest first.
+  void roll_back(std::size_t mark) {
+    while (undo_.size() > mark) {
+      const FlipRecord r = undo_.back();
+      undo_.pop_back();
+      const Triangle now = tris_[r.t];  // (u, y, x)
+      const std::uint32_t u = now[0], y = now[1], x = now[2], v = tris_[r.t2][1];
+      tris_[r.t] = r.old_t;
+      tris_[r.t2] = r.old_t2;
+      adj().remove(x, r.t2);
+      adj().remove(y, r.t);
+      adj().add(u, r.t2);
+      adj().add(v, r.t);
+      --flips_;
+    }
+  }
+
+  void apply_collapse(std::uint32_t t, int k, bool keep_first, std::vector<std::uint32_t>& changed) {
+    const Triangle tri = tris_[t];
+    const std::uint32_t a = tri[k], b = tri[(k + 1) % 3], c = tri[(k + 2) % 3];
+    const std::uint32_t t2 = across(t, a, b);
+    const std::uint32_t d = third(tris_[t2], a, b);
+    const std::uint32_t keep = keep_first ? a : b, gone = keep_first ? b : a;
+    const std::span<const std::uint32_t> keep_now = adj().of(keep);
+    std::vector<std::uint32_t> keep_list(keep_now.begin(), keep_now.end());
+    std::erase_if(keep_list, [&](std::uint32_t s) { return s == t || s == t2; });
+    for (const std::uint32_t s : adj().of(gone)) {
+      if (s == t || s == t2) continue;
+      for (std::uint32_t& w : tris_[s]) {
+        if (w == gone) w = keep;
+      }
+      keep_list.push_back(s);
+      changed.push_back(s);
+    }
+    adj().set(keep, std::move(keep_list));
+    adj().set(gone, {});
+    adj().remove(c, t);
+    adj().remove(d, t2);
+    tris_[t] = Triangle{kDead, kDead, kDead};
+    tris_[t2] = Triangle{kDead, kDead, kDead};
+    dead_vertices_.push_back(gone);
+    ++collapses_;
+  }
+
+  // One flip that gives v a neighbour more: an edge of v's link (opposite v in one of its triangles, neither triangle
+  // being t or across an edge of t) turned towards v, when it makes no bad triangle. When that flip would take one of
+  // its ends below the floor, that end is raised first the same way, `depth` levels deep.
+  bool raise_valence(std::uint32_t v, std::uint32_t t, std::vector<std::uint32_t>& changed, int depth = 2) {
+    std::array<std::uint32_t, 4> near{t, kDead, kDead, kDead};
+    for (int k = 0; k < 3; ++k) near[k + 1] = across(t, tris_[t][k], tris_[t][(k + 1) % 3]);
+    auto is_near = [&](std::uint32_t s) { return std::find(near.begin(), near.end(), s) != near.end(); };
+    // v's link edges as (p, q): rebuilt from the adjacency on every attempt, since raising an end changes it.
+    auto opposite = [&](std::uint32_t s, std::uint32_t& p, std::uint32_t& q) {
+      const Triangle& tri = tris_[s];
+      const int k = tri[0] == v ? 1 : tri[1] == v ? 2 : 0;  // edge (tri[k], tri[k+1]) is opposite v
+      p = tri[k];
+      q = tri[(k + 1) % 3];
+      return k;
+    };
+    const std::span<const std::uint32_t> around = adj().of(v);
+    const std::vector<std::uint32_t> triangles(around.begin(), around.end());
+    for (const std::uint32_t s : triangles) {
+      if (is_near(s)) continue;
+      std::uint32_t p = kDead, q = kDead;
+      const int k = opposite(s, p, q);
+      const std::uint32_t other = across(s, p, q);
+      if (other == kDead || is_near(other)) continue;
+      std::optional<Move> m = evaluate_flip(s, k);
+      if (!m || !(m->after >= o_.min_angle_degrees)) continue;
+      if (m->blocked[0] != kDead) {
+        if (depth == 0) continue;
+        bool raised = true;
+        for (const std::uint32_t w : m->blocked) {
+          if (w != kDead && w != v && !may_lose(w)) raised = raised && raise_valence(w, t, changed, depth - 1);
+        }
+        // The raises may have changed this triangle: it must still hold v opposite the same edge.
+        if (!raised || tris_[s][0] == kDead || std::find(tris_[s].begin(), tris_[s].end(), v) == tris_[s].end()) {
+          continue;
+        }
+        std::uint32_t p2 = kDead, q2 = kDead;
+        const int k2 = opposite(s, p2, q2);
+        if (p2 != p || q2 != q) continue;
+        m = evaluate_flip(s, k2);
+        if (!m || m->blocked[0] != kDead || !(m->after >= o_.min_angle_degrees)) continue;
+      }
+      apply_flip(s, k, changed);
+      return true;
+    }
+    return false;
+  }
+
+ public:
+  // Removes the collapsed vertices and triangles (the others keep their order).
+  void compact() {
+    if (dead_vertices_.empty()) return;
+    std::vector<std::uint32_t> remap(x_.size(), 0);
+    for (const std::uint32_t v : dead_vertices_) remap[v] = kDead;
+    std::uint32_t next = 0;
+    for (std::size_t v = 0; v < x_.size(); ++v) {
+      if (remap[v] == kDead) continue;
+      x_[next] = x_[v];
+      if (!mesh_.normals.empty()) mesh_.normals[next] = mesh_.normals[v];
+      remap[v] = next++;
+    }
+    x_.resize(next);
+    if (!mesh_.normals.empty()) mesh_.normals.resize(next);
+    std::size_t kept = 0;
+    for (const Triangle& t : tris_) {
+      if (t[0] == kDead) continue;
+      tris_[kept++] = Triangle{remap[t[0]], remap[t[1]], remap[t[2]]};
+    }
+    tris_.resize(kept);
+  }
+
+  std::int64_t flips_ = 0, collapses_ = 0;
+
+ private:
+  Mesh& mesh_;
+  std::vector<Vec3>& x_;
+  std::vector<Triangle>& tris_;
+  const SliverOptions& o_;
+  std::optional<Adjacency> adjacency_;
+  Adjacency& adj() { return *adjacency_; }
+  const Adjacency& adj() const { return *adjacency_; }
+  std::vector<GridPoint> snapped_;
+  std::vector<std::uint32_t> dead_vertices_;
+  struct FlipRecord {
+    std::uint32_t t, t2;
+    Triangle old_t, old_t2;
+  };
+  std::vector<FlipRecord> undo_;  // flips made to raise a valence, until the move they serve is applied
+};
+
+}  // namespace
+
+double min_angle_degrees(const Vec3& a, const Vec3& b, const Vec3& c) {
+  const std::array<Vec3, 3> p{a, b, c};
+  std::array<double, 3> opposite;  // squared length of the edge opposite corner k
+  for (int k = 0; k < 3; ++k) opposite[k] = (p[(k + 2) % 3] - p[(k + 1) % 3]).squaredNorm();
+  const int k = static_cast<int>(std::min_element(opposite.begin(), opposite.end()) - opposite.begin());
+  const Vec3 u = p[(k + 1) % 3] - p[k], v = p[(k + 2) % 3] - p[k];
+  const double cross = u.cross(v).norm();
+  if (!(cross > 0.0)) return 0.0;
+  return std::atan2(cross, u.dot(v)) * 180.0 / kPi;
+}
+
+SliverReport repair_slivers(Mesh& mesh, const SliverOptions& options, const RunControl& control) {
+  SliverReport report;
+  Repair repair(mesh, options);
+  // The first pass scans every triangle (in parallel chunks); later passes only what the previous one changed.
+  std::vector<std::uint32_t> candidates;
+  {
+    const std::size_t n = mesh.triangles.size();
+    const int chunks = static_cast<int>(std::min<std::size_t>(64, n / 16384 + 1));
+    std::vector<std::vector<std::uint32_t>> found(static_cast<std::size_t>(chunks));
+    parallel_for(chunks, resolve_threads(options.threads), [&](int c) {
+      const std::size_t begin = n * static_cast<std::size_t>(c) / static_cast<std::size_t>(chunks);
+      const std::size_t end = n * static_cast<std::size_t>(c + 1) / static_cast<std::size_t>(chunks);
+      for (std::size_t t = begin; t < end; ++t) {
+        if (repair.bad(mesh.triangles[t])) found[static_cast<std::size_t>(c)].push_back(static_cast<std::uint32_t>(t));
+      }
+    });
+    for (const auto& f : found) candidates.insert(candidates.end(), f.begin(), f.end());
+  }
+  report.candidates = static_cast<std::int64_t>(candidates.size());
+  std::vector<std::uint32_t> still_bad;
+  for (int pass = 0; pass < options.max_passes && !candidates.empty(); ++pass) {
+    control.check();
+    std::vector<std::uint32_t> changed;
+    still_bad.clear();
+    bool progress = false;
+    for (const std::uint32_t t : candidates) {
+      if (repair.repair(t, changed)) {
+        progress = true;
+      } else if (repair.bad(mesh.triangles[t])) {
+        still_bad.push_back(t);
+      }
+    }
+    candidates = still_bad;
+    for (const std::uint32_t t : changed) {
+      if (repair.bad(mesh.triangles[t])) candidates.push_back(t);
+    }
+    std::sort(candidates.begin(), candidates.end());
+    candidates.erase(std::unique(candidates.begin(), candidates.end()), candidates.end());
+    if (!progress) break;
+  }
+  report.remaining = 0;
+  for (const std::uint32_t t : candidates) report.remaining += repair.bad(mesh.triangles[t]);
+  report.flips = repair.flips_;
+  report.collapses = repair.collapses_;
+  repair.compact();
+  return report;
+}
+
+}  // namespace surfacer
