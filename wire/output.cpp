@@ -37,6 +37,11 @@ std::optional<FrameCodec> frame_codec(v1::MeshEncoding encoding) {
 
 v1::MeshEncoding FrameEncoding::mesh_encoding() const { return wire::mesh_encoding(options.codec); }
 
+std::optional<QuantizationGrid> FrameEncoding::grid() const {
+  if (options.codec == FrameCodec::kPly) return std::nullopt;
+  return QuantizationGrid::of(*options.draco.quantization_bounds, options.draco.quantization_bits);
+}
+
 FrameEncoding frame_encoding(const v1::OutputOptions& options, const Aabb& job_bounds, const std::string& path) {
   FrameEncoding out;
   const std::optional<FrameCodec> codec = frame_codec(options.encoding());

@@ -15,6 +15,9 @@ struct FrameEncoding {
   FrameCodecOptions options;
 
   v1::MeshEncoding mesh_encoding() const;
+  // The grid every frame's positions are quantized on (every codec but PLY, which is lossless), for engines that
+  // keep their triangles from collapsing on it.
+  std::optional<QuantizationGrid> grid() const;
 };
 
 // Resolves `options` (at `path`, e.g. "spec.output"); `job_bounds` is the default quantization box. Only the fields

@@ -739,14 +739,8 @@ void validate(const ParticleSurfacingOptions& o) {
     require_box("output_grid.box", o.output_grid->box);
     require_count("output_grid.bits", o.output_grid->bits, 1, 30);
   }
-  if (o.r_inner && !(std::isfinite(*o.r_inner) && *o.r_inner > 0.0)) {
-    throw InvalidInput("r_inner",
-                       "r_inner (" + format_number(*o.r_inner) + ") must be a finite number > 0 (scene units)");
-  }
-  if (o.r_outer && !(std::isfinite(*o.r_outer) && *o.r_outer > 0.0)) {
-    throw InvalidInput("r_outer",
-                       "r_outer (" + format_number(*o.r_outer) + ") must be a finite number > 0 (scene units)");
-  }
+  if (o.r_inner) require_length("r_inner", *o.r_inner, "a radius in scene units");
+  if (o.r_outer) require_length("r_outer", *o.r_outer, "a radius in scene units");
   if (o.r_inner && o.r_outer && !(*o.r_outer > *o.r_inner)) {
     throw InvalidInput("r_outer", "r_outer (" + format_number(*o.r_outer) + ") must exceed r_inner (" +
                                       format_number(*o.r_inner) + "); the default is " +

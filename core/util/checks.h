@@ -32,6 +32,9 @@ inline void require_finite(const std::string& field, const Vec3& v) {
 // Coordinates and lengths of scenes, boxes and particles: at most this in magnitude, so that sums, squares, paddings
 // and cell counts made of them stay far from overflow (a sphere of radius 1e308 has bounds of infinite size).
 inline constexpr double kMaxCoordinate = 1e12;
+// The smallest length: below it, reciprocals (a gyroid's 2 pi / period, a grid's cells per unit) overflow or lose
+// every digit against coordinates of ordinary size.
+inline constexpr double kMinLength = 1e-12;
 
 namespace checks_detail {
 inline void require_magnitude(const std::string& field, double v) {
@@ -63,10 +66,16 @@ inline void require_positive(const std::string& field, const Vec3& v, const std:
   for (int i = 0; i < 3; ++i) require_positive(field + checks_detail::kAxes[i], v[i], hint);
 }
 
-// 0 < v <= kMaxCoordinate: a length.
+// kMinLength <= v <= kMaxCoordinate: a length.
 inline void require_length(const std::string& field, double v, const std::string& hint = "") {
   require_positive(field, v, hint);
   checks_detail::require_magnitude(field, v);
+  if (v < kMinLength) {
+    throw InvalidInput(field, checks_detail::with_hint(field + " (" + format_number(v) + ") is below " +
+                                                           format_number(kMinLength) +
+                                                           ", the smallest length; scale the input up",
+                                                       hint));
+  }
 }
 
 inline void require_length(const std::string& field, const Vec3& v, const std::string& hint = "") {

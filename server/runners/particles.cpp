@@ -42,6 +42,7 @@ class ParticlesRunner final : public JobRunner {
     timer.add("bilaplacian", stats.seconds_bilaplacian);
     timer.add("polish", stats.seconds_polish);
     if (options.erosion) timer.add("erosion", stats.seconds_erosion);
+    timer.add("cleanup", stats.seconds_cleanup);
     FrameOutput frame = frame_maker_.make(mesh, timer, control);
     auto& metrics = *frame.stats.mutable_metrics();
     metrics["particles"] = static_cast<double>(stats.particles);
@@ -56,6 +57,8 @@ class ParticlesRunner final : public JobRunner {
     metrics["max_violation_final"] = stats.max_violation_after_polish;
     metrics["initial_min_valence"] = stats.initial_min_valence;
     metrics["field_evaluations"] = static_cast<double>(stats.field_evaluations);
+    metrics["slivers_found"] = static_cast<double>(stats.slivers_found);
+    metrics["slivers_left"] = static_cast<double>(stats.slivers_left);
     sink.emit(index, std::move(frame));
   }
 
@@ -93,6 +96,8 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
         .positions;
   });
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), box, "spec.output");
+  // The sliver repair also removes triangles that would be degenerate once quantized on the job's grid.
+  options.output_grid = encoding.grid();
   return std::make_unique<ParticlesRunner>(std::move(frames), context.uploads, std::move(options),
                                            FrameMaker(encoding, context.limits.max_triangles, context.executor),
                                            context.limits, context.worker_threads);

@@ -677,6 +677,10 @@ TEST(SceneTest, CoordinatesAndLengthsStayWithinTheirRange) {
   expect_invalid([&] { make_box(Vec3::Zero(), Vec3(1, 1e13, 1)); }, "half_size.y");
   expect_invalid([&] { make_plane(Vec3::UnitZ(), -1e300); }, "offset");
   expect_invalid([&] { make_gyroid(1e200, 0.1); }, "period");
+  // Too small is refused too: 2 pi / a denormal period overflows, and the field is garbage.
+  expect_invalid([&] { make_gyroid(1.35807730621777e-312, 0.3); }, "period");
+  expect_invalid([&] { make_sphere(Vec3::Zero(), 1e-13); }, "radius");
+  EXPECT_NO_THROW(make_gyroid(1e-9, 1e-10));
   SampledGridDesc grid;
   grid.nx = grid.ny = grid.nz = 2;
   grid.iso = 1e100;

@@ -1,14 +1,17 @@
 // The particles and optimize jobs through a real server on a loopback port.
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
 #include <cmath>
 #include <random>
 
 #include "core/mesh/mesh_checks.h"
+#include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_codec.h"
 #include "tests/server/test_client.h"
 #include "tests/support/mesh_expectations.h"
 #include "tests/support/test_meshes.h"
+#include "wire/output.h"
 
 namespace surfacer::testing {
 namespace {
@@ -67,11 +70,10 @@ TEST(ParticlesJob, EachFrameIsAClosedSurfaceFaithfulToItsParticles) {
     EXPECT_EQ(metrics.at("particles"), static_cast<double>(frames[i].size()));
     EXPECT_GE(metrics.at("initial_min_valence"), 5.0);
     EXPECT_GT(metrics.at("faithful_fraction"), 0.999);
-    // Polish (unconstrained) may move vertices slightly out of [r_inner, r_outer]: by no more than the reported
-    // violation (plus quantization), and that by less than a fifth of r_inner.
-    const double violation = metrics.at("max_violation_final");
-    EXPECT_LT(violation, 0.2 * r_inner);
-    const double tolerance = violation + 1e-4;
+    // Every final vertex is faithful (the polish ends with a projection), up to the 16-bit quantization.
+    EXPECT_EQ(metrics.at("faithful_fraction_final"), 1.0);
+    EXPECT_LE(metrics.at("max_violation_final"), 1e-3 * r_inner);
+    const double tolerance = 1e-3 * r_inner + draco_max_error(Aabb::of(mesh.vertices), 16);
     for (const auto& v : mesh.vertices) {
       const double dist = nearest_point_distance(frames[i], v);
       EXPECT_GT(dist, r_inner - tolerance);
@@ -80,6 +82,44 @@ TEST(ParticlesJob, EachFrameIsAClosedSurfaceFaithfulToItsParticles) {
     std::vector<std::string> stages;
     for (const auto& t : frame.header.stats().timings()) stages.push_back(t.stage());
     EXPECT_NE(std::find(stages.begin(), stages.end(), "bilaplacian"), stages.end());
+  }
+}
+
+// Thin wavy sheets, one particle thick, from the default quantization down to a coarse one (10 bits: edges of 5-10 grid
+// steps, where a repair by angles alone leaves zero-area triangles): the sliver repair knows the job's grid, so no
+// decoded triangle has zero area, whatever the codec that quantizes. (At 9 bits some are left: the repair moves no
+// vertex.)
+TEST(ParticlesJob, NoTriangleCollapsesOnTheJobsQuantizationGrid) {
+  LoopbackServer s;
+  for (const int bits : {10, 12, 14}) {
+    for (const auto encoding : {v1::MESH_ENCODING_DRACO, v1::MESH_ENCODING_MESHOPT}) {
+      SCOPED_TRACE(v1::MeshEncoding_Name(encoding) + " at " + std::to_string(bits) + " bits");
+      std::vector<Vec3> sheet;
+      const double d = 0.01;
+      for (int i = 0; i < 40; ++i)
+        for (int j = 0; j < 40; ++j)
+          sheet.emplace_back(i * d, j * d, 0.02 * std::sin(0.3 * i + 0.1 * bits) * std::cos(0.2 * j));
+      v1::JobSpec spec;
+      spec.mutable_particles()->add_frames()->set_upload_id(upload(*s.stub, as_float32(sheet)));
+      spec.mutable_particles()->set_r_inner(0.5 * d);
+      spec.mutable_output()->set_quantization_bits(bits);
+      spec.mutable_output()->set_encoding(encoding);
+      std::string id;
+      ASSERT_TRUE(submit(*s.stub, spec, &id).ok());
+      const auto result = watch_job(*s.stub, id);
+      ASSERT_EQ(result.states.back(), v1::JOB_STATE_SUCCEEDED) << result.final_job.error().message();
+      const auto& frame = result.frames.at(0);
+      const Mesh mesh = decode_frame(frame.bytes, *wire::frame_codec(encoding), ThreadExecutor(2));
+      ASSERT_GT(mesh.triangles.size(), 1000u);
+      std::size_t zero_area = 0;
+      for (const auto& t : mesh.triangles) {
+        const Vec3 a = mesh.vertices[t[0]], b = mesh.vertices[t[1]], c = mesh.vertices[t[2]];
+        zero_area += (b - a).cross(c - a).squaredNorm() == 0.0;
+      }
+      EXPECT_EQ(zero_area, 0u);
+      EXPECT_TRUE(mesh_has(check_mesh(mesh), kClosed | kEdgeManifold | kOriented));
+      EXPECT_EQ(frame.header.stats().metrics().at("slivers_left"), 0.0);
+    }
   }
 }
 
