@@ -6,17 +6,21 @@
 //   active_bench --enright N     Enright at N^3 only (repeatable)
 //   active_bench --coat-only     only the coating sequence
 //   active_bench --general-only  Enright with the general velocity only (VelocityFn called per node and stage, as
-//                                OpenVDB's field functor is); by default the separable (cached u(x)) form runs too
+//                                OpenVDB's field functor is); by default the separable (cached u(x)) form runs too,
+//                                then again with volume control (delta) on top, and a table puts them side by side
+//   active_bench --delta D       the volume control of those runs (repeatable; default 1; 0: none)
 //   options: --threads T (default 2), --particles N (default 10000), --frames F (default 200),
 //            --alpha A (tracking alpha = A * kernel radius, default 0.3), --beta B (tension beta = B * radius^2,
 //            default 0.02), --dropout D (fraction of the particles absent from each frame, default 0.1)
 //
 // Enright (Enright, Fedkiw, Ferziger & Mitchell 2002, §5.3): sphere r = 0.15 at (0.35, 0.35, 0.35) in the unit cube,
-// period T = 3, no volume control. Reported: volume change at T/2 and T (Marching Cubes volume of the potential on
-// its grid, against the initial one), wall and CPU seconds, and cost per active node per sub-step (wall and CPU, over
-// the sum of active nodes of every sub-step, reinitializations and polygonizations included). Anchor on this machine:
-// OpenVDB LevelSetAdvection (HJ-WENO5, TVD-RK2) -36.1% at 100^3 (-25.3% at 128^3, -7.35% at 200^3), ~0.5 us per
-// active voxel per step.
+// period T = 3, without and with volume control (docs/ALGORITHMS.md §4, "Control terms on top of advection").
+// Reported: volume change at T/2 and T (Marching Cubes volume of the potential on its grid, against the initial one),
+// wall and CPU seconds, and cost per active node per sub-step (wall and CPU, over the sum of active nodes of every
+// sub-step, reinitializations and polygonizations included); for the side-by-side table also the largest volume
+// change over the frames and the mean distance of the surface at T to the exact solution (the initial sphere).
+// Anchor on this machine: OpenVDB LevelSetAdvection (HJ-WENO5, TVD-RK2, no volume control) -36.1% at 100^3 (-25.3%
+// at 128^3, -7.35% at 200^3), ~0.5 us per active voxel per step.
 //
 // Coating: a generated sequence of particles (a ball that stretches into two lobes and turns, with per-frame jitter
 // of 0.15 spacing like a simulation's noise, and a changing particle set: 10% absent from each frame) coated with the
@@ -46,6 +50,9 @@ namespace {
 
 using namespace surfacer;
 
+// Volume control of the Enright runs with delta (see print_delta_table).
+constexpr double kDefaultDelta = 1.0;
+
 double cpu_seconds() {
   rusage u{};
   getrusage(RUSAGE_SELF, &u);
@@ -72,12 +79,22 @@ class Sphere final : public Field {
   double r_;
 };
 
-void enright(int n, int threads, bool separable) {
+struct EnrightResult {
+  double delta = 0.0;
+  double dv_half = 0.0, dv_end = 0.0;  // volume change at T/2 and T, %
+  double max_abs_dv = 0.0;             // largest |volume change| over the frames, %
+  double shape_error = 0.0;            // mean distance of the surface at T to the initial sphere, in h
+  int steps = 0;
+  double wall = 0.0;
+};
+
+EnrightResult enright(int n, int threads, bool separable, double delta = 0.0) {
   const double period = 3.0;
   ActiveSurfaceOptions o;
   o.h = 1.0 / n;
   o.domain = Aabb{Vec3::Zero(), Vec3::Ones()};
   o.threads = threads;
+  o.delta = delta;
   const Sphere sphere(Vec3(0.35, 0.35, 0.35), 0.15);
   const double w0 = wall_seconds(), c0 = cpu_seconds();
   ActiveSurface surface(sphere, o);
@@ -89,16 +106,16 @@ void enright(int n, int threads, bool separable) {
   const ActiveFrameStats s0 = surface.stats();
   const double exact = 4.0 / 3.0 * 3.14159265358979323846 * 0.15 * 0.15 * 0.15;
   std::printf(
-      "\nEnright %d^3, %s velocity (h = %.5f, band_width %.0f, reinit every %d, %d threads): V0 %.6f (exact "
-      "%.6f), %lld active nodes\n",
+      "\nEnright %d^3, %s velocity (h = %.5f, band_width %.0f, reinit every %d, %d threads, delta %g): V0 %.6f "
+      "(exact %.6f), %lld active nodes\n",
       n, separable ? "separable (cached)" : "general (per node and stage)", o.h, o.band_width, o.reinit_interval,
-      threads, s0.volume, exact, static_cast<long long>(s0.active_nodes));
+      threads, delta, s0.volume, exact, static_cast<long long>(s0.active_nodes));
   std::printf("  %6s %9s %6s %10s %10s %6s %5s %9s %9s %10s %10s\n", "t", "dV", "steps", "active", "peak act.",
               "reinit", "comp", "wall s", "cpu s", "us/n-s wall", "us/n-s cpu");
   const int frames = 8;
   double node_steps = 0.0, peak = 0.0;
   int steps = 0;
-  double dv_half = 0.0, dv_end = 0.0;
+  double dv_half = 0.0, dv_end = 0.0, max_abs_dv = 0.0;
   for (int f = 1; f <= frames; ++f) {
     const ActiveFrameStats s = surface.advance(period / frames);
     node_steps += static_cast<double>(s.active_node_steps);
@@ -107,6 +124,7 @@ void enright(int n, int threads, bool separable) {
     const double dv = 100.0 * (s.volume - s0.volume) / s0.volume;
     if (f == frames / 2) dv_half = dv;
     if (f == frames) dv_end = dv;
+    max_abs_dv = std::max(max_abs_dv, std::abs(dv));
     const double w = wall_seconds() - w0, c = cpu_seconds() - c0;
     std::printf("  %6.3f %8.2f%% %6d %10lld %10.0f %6d %5d %9.2f %9.2f %10.3f %10.3f\n", s.time, dv, s.substeps,
                 static_cast<long long>(s.active_nodes), peak, s.reinitializations, s.components, w, c,
@@ -114,11 +132,29 @@ void enright(int n, int threads, bool separable) {
     std::fflush(stdout);
   }
   const double w = wall_seconds() - w0, c = cpu_seconds() - c0;
+  // The exact solution at T is the initial sphere: how far the surface ended from it (outside the timings).
+  double shape_error = 0.0;
+  const Mesh end = surface.polygonize(Polygonizer::kCubes);
+  for (const Vec3& p : end.vertices) shape_error += std::abs((p - Vec3(0.35, 0.35, 0.35)).norm() - 0.15);
+  shape_error /= std::max<std::size_t>(1, end.vertices.size()) * o.h;
   std::printf(
       "  => %d^3 %s: dV(T/2) %.2f%%  dV(T) %.2f%%  %d steps  %.1f s wall (%.1f s cpu)  %.3f us per active "
       "node-step wall (%.3f cpu, %.3f cpu per thread)\n",
       n, separable ? "separable" : "general", dv_half, dv_end, steps, w, c, 1e6 * w / node_steps, 1e6 * c / node_steps,
       1e6 * c / node_steps / threads);
+  return {delta, dv_half, dv_end, max_abs_dv, shape_error, steps, w};
+}
+
+// Volume-controlled advection side by side: the separable Enright run without delta (the last entry of `runs`) and
+// with each delta.
+void print_delta_table(int n, const std::vector<EnrightResult>& runs) {
+  std::printf("\nEnright %d^3, volume control on top of the advection (normal speed delta (V0 - V) / V0):\n", n);
+  std::printf("  %8s %10s %10s %12s %16s %7s %8s\n", "delta", "dV(T/2)", "dV(T)", "max |dV|", "sphere dist (h)",
+              "steps", "wall s");
+  for (const EnrightResult& r : runs) {
+    std::printf("  %8g %9.2f%% %9.2f%% %11.2f%% %16.2f %7d %8.1f\n", r.delta, r.dv_half, r.dv_end, r.max_abs_dv,
+                r.shape_error, r.steps, r.wall);
+  }
 }
 
 // --- Coating ---------------------------------------------------------------------------------------------------------
@@ -342,6 +378,8 @@ int main(int argc, char** argv) {
   double alpha_scale = 0.3, beta_scale = 0.02, dropout = 0.1;
   bool full = false, coat_only = false, general_only = false;
   std::vector<int> sizes;
+  std::vector<double> deltas;
+  bool deltas_given = false;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto next = [&]() -> int {
@@ -365,6 +403,10 @@ int main(int argc, char** argv) {
       particles = next();
     } else if (a == "--frames") {
       frames = next();
+    } else if (a == "--delta") {
+      if (i + 1 >= argc) return 2;
+      deltas_given = true;
+      if (const double d = std::atof(argv[++i]); d > 0.0) deltas.push_back(d);
     } else if (a == "--alpha" || a == "--beta" || a == "--dropout") {
       if (i + 1 >= argc) return 2;
       (a == "--alpha" ? alpha_scale : a == "--beta" ? beta_scale : dropout) = std::atof(argv[++i]);
@@ -373,6 +415,7 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
+  if (!deltas_given) deltas = {kDefaultDelta};
   const bool enright_only = !sizes.empty();
   if (sizes.empty() && !coat_only) {
     sizes.push_back(100);
@@ -386,7 +429,10 @@ int main(int argc, char** argv) {
       "128^3, -7.35%% at 200^3; ~0.5 us per active voxel per step\n");
   for (const int n : sizes) {
     enright(n, threads, false);
-    if (!general_only) enright(n, threads, true);
+    if (general_only) continue;
+    std::vector<EnrightResult> runs = {enright(n, threads, true)};
+    for (const double delta : deltas) runs.push_back(enright(n, threads, true, delta));
+    if (!deltas.empty()) print_delta_table(n, runs);
   }
   if (!enright_only) coat(particles, frames, threads, alpha_scale, beta_scale, dropout);
   return 0;

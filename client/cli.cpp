@@ -1,9 +1,11 @@
 #include "client/cli.h"
 
+#include <grpc/support/log.h>
 #include <unistd.h>
 
 #include <CLI/CLI.hpp>
 #include <algorithm>
+#include <cstdio>
 #include <cstdlib>
 #include <iostream>
 #include <string>
@@ -15,6 +17,12 @@
 
 namespace surfacer::client {
 namespace {
+
+void drop_grpc_log(gpr_log_func_args*) {}
+
+void print_grpc_log(gpr_log_func_args* args) {
+  std::fprintf(stderr, "surfacer: grpc: %s (%s:%d)\n", args->message, args->file, args->line);
+}
 
 std::vector<FileFormat> parse_formats(const std::vector<std::string>& names) {
   std::vector<FileFormat> formats;
@@ -80,7 +88,8 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
       ->check(CLI::PositiveNumber)
       ->type_name("S");
   app.add_flag("-v,--verbose", connect.verbose,
-               "more lines: with several servers, which server produced each frame and every sub-job");
+               "more lines: with several servers, which server produced each frame and every sub-job; gRPC's own "
+               "log lines");
 
   SecurityFlags security;
   CLI::Option* token_opt =
@@ -250,9 +259,13 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
 }
 
 int run_cli(int argc, const char* const* argv) {
+  // gRPC logs its own lines ("E1124 ... ssl_transport_security.cc:...") about failures the CLI reports itself, with
+  // its exit code; they reach the user only with -v.
+  gpr_set_log_function(drop_grpc_log);
   auto parsed = parse_command_line(argc, argv, std::cout, std::cerr, std::getenv("SURFACER_SERVER"),
                                    std::getenv("SURFACER_TOKEN"));
   if (const ExitCode* code = std::get_if<ExitCode>(&parsed)) return to_int(*code);
+  if (std::get<Invocation>(parsed).connect.verbose) gpr_set_log_function(print_grpc_log);
   ExitCode code = ExitCode::kInternal;
   try {
     code = run_invocation(std::get<Invocation>(parsed), std::cout, std::cerr, isatty(STDERR_FILENO) != 0);

@@ -76,7 +76,7 @@ std::vector<double> parse_numbers(const std::string& text, std::size_t count, co
                                   const std::string& example);
 // x0,y0,z0,x1,y1,z1 with min < max on every axis.
 Box parse_box(const std::string& text, const std::string& flag);
-// "5,25,5" -> Laplacian, Bilaplacian and polish sweep counts (integers >= 0).
+// "5,15,5" -> Laplacian, Bilaplacian and polish sweep counts (integers >= 0).
 std::array<int, 3> parse_sweeps(const std::string& text);
 // "d,n" -> the flows on (the others off); at least one of d, n, t.
 FlowSet parse_flows(const std::string& text);

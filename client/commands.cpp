@@ -228,6 +228,7 @@ ExitCode run_failover(const ConnectOptions& connect, const std::vector<std::stri
 
 ExitCode run_run(const ConnectOptions& connect, const RunCommand& command, std::ostream& err, bool tty) {
   PreparedJob prepared = prepare_job(command.job);  // usage errors before connecting
+  fit_encoding_to_files(prepared.spec, command.output.formats);
   if (connect.server && (is_server_list(*connect.server) || is_dns_name(*connect.server))) {
     const std::vector<std::string> servers =
         is_server_list(*connect.server) ? parse_server_list(*connect.server) : resolve_dns_name(*connect.server);
@@ -312,7 +313,17 @@ ExitCode run_list(const ConnectOptions& connect, const ListCommand& command, std
     if (!v1::JobState_Parse(upper, &state)) throw CliError(ExitCode::kUsage, "unknown job state " + name);
     request.add_states(state);
   }
-  const v1::ListJobsResponse response = call(*connection, "listing jobs", &v1::Surfacer::Stub::ListJobs, request);
+  // Page by page (a server answers at most 1000 jobs at a time), until the last one.
+  v1::ListJobsResponse response;
+  do {
+    request.set_page_token(response.next_page_token());
+    v1::ListJobsResponse page = call(*connection, "listing jobs", &v1::Surfacer::Stub::ListJobs, request);
+    if (!page.next_page_token().empty() && (page.jobs_size() == 0 || page.next_page_token() == request.page_token())) {
+      throw CliError(ExitCode::kInternal, "listing jobs: the server returned a page that does not advance");
+    }
+    response.mutable_jobs()->MergeFrom(page.jobs());
+    response.set_next_page_token(page.next_page_token());
+  } while (!response.next_page_token().empty());
   std::size_t id_width = 6;
   for (const auto& job : response.jobs()) id_width = std::max(id_width, job.id().size());
   out << std::left << std::setw(static_cast<int>(id_width)) << "JOB_ID"

@@ -91,6 +91,21 @@ std::chrono::system_clock::time_point Connection::unary_deadline() const {
          std::chrono::seconds(20);
 }
 
+const std::optional<v1::ServerInfo>& Connection::server_info() {
+  if (server_info_asked_) return server_info_;
+  grpc::ClientContext context;
+  context.set_deadline(unary_deadline());
+  v1::ServerInfo info;
+  const grpc::Status status = stub_->GetServerInfo(&context, v1::GetServerInfoRequest(), &info);
+  if (status.ok()) {
+    server_info_ = std::move(info);
+  } else if (status.error_code() != grpc::StatusCode::UNIMPLEMENTED) {
+    throw rpc_error("asking the server's limits", status);
+  }
+  server_info_asked_ = true;
+  return server_info_;
+}
+
 bool cancel_job(Connection& connection, const std::string& job_id, std::chrono::milliseconds within) {
   v1::CancelJobRequest request;
   request.set_job_id(job_id);

@@ -8,6 +8,7 @@
 
 #include <chrono>
 #include <memory>
+#include <optional>
 #include <string>
 
 #include "client/exit_codes.h"
@@ -41,6 +42,9 @@ class Connection {
   bool wait_connected(std::chrono::system_clock::time_point deadline);
   // Deadline for unary calls: the connection timeout plus a margin for the call itself.
   std::chrono::system_clock::time_point unary_deadline() const;
+  // The server's version and limits (GetServerInfo), asked once; nullopt from a server that predates the call.
+  // Throws rpc_error("asking the server's limits", status) when the server cannot answer.
+  const std::optional<v1::ServerInfo>& server_info();
 
  private:
   Connection() = default;
@@ -49,6 +53,8 @@ class Connection {
   std::unique_ptr<server::InProcessServer> local_server_;
   std::shared_ptr<grpc::Channel> channel_;
   std::unique_ptr<v1::Surfacer::Stub> stub_;
+  bool server_info_asked_ = false;
+  std::optional<v1::ServerInfo> server_info_;
 };
 
 // "INVALID_ARGUMENT", "UNAVAILABLE", ... for a grpc::StatusCode.

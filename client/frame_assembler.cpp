@@ -6,6 +6,7 @@
 #include "client/exit_codes.h"
 #include "core/util/crc32.h"
 #include "core/util/format.h"
+#include "wire/output.h"
 
 namespace surfacer::client {
 namespace {
@@ -82,17 +83,9 @@ ReceivedFrame FrameAssembler::finish(int index, Pending& pending) {
   }
   ReceivedFrame frame;
   frame.index = index;
-  switch (header.encoding()) {
-    case v1::MESH_ENCODING_UNSPECIFIED:
-    case v1::MESH_ENCODING_DRACO:
-      frame.encoding = v1::MESH_ENCODING_DRACO;
-      break;
-    case v1::MESH_ENCODING_PLY:
-      frame.encoding = v1::MESH_ENCODING_PLY;
-      break;
-    default:
-      integrity(index, "unknown MeshEncoding " + std::to_string(header.encoding()));
-  }
+  const std::optional<FrameCodec> codec = wire::frame_codec(header.encoding());
+  if (!codec) integrity(index, "unknown MeshEncoding " + std::to_string(header.encoding()));
+  frame.encoding = wire::mesh_encoding(*codec);
   frame.bytes = std::move(pending.bytes);
   frame.stats = header.stats();
   pending_.erase(index);

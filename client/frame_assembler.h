@@ -17,7 +17,7 @@ using wire::kMaxChunkBytes;
 
 struct ReceivedFrame {
   int index = 0;
-  v1::MeshEncoding encoding = v1::MESH_ENCODING_DRACO;  // UNSPECIFIED is normalized to DRACO
+  v1::MeshEncoding encoding = v1::MESH_ENCODING_DRACO;  // a known encoding; UNSPECIFIED is normalized to DRACO
   std::string bytes;
   v1::FrameStats stats;
 };

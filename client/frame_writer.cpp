@@ -11,9 +11,10 @@
 #include <set>
 
 #include "client/exit_codes.h"
-#include "core/mesh/mesh_codec.h"
+#include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_io.h"
 #include "core/util/errors.h"
+#include "wire/output.h"
 
 namespace surfacer::client {
 namespace {
@@ -150,7 +151,7 @@ std::string iterations_csv(const std::map<int, v1::FrameStats>& stats) {
   return csv;
 }
 
-FrameWriter::FrameWriter(FrameOutputOptions options) : options_(std::move(options)) {
+FrameWriter::FrameWriter(FrameOutputOptions options) : options_(std::move(options)), decode_executor_(0) {
   std::error_code ec;
   std::filesystem::create_directories(options_.dir, ec);
   if (ec || !std::filesystem::is_directory(options_.dir)) {
@@ -160,19 +161,23 @@ FrameWriter::FrameWriter(FrameOutputOptions options) : options_(std::move(option
 }
 
 std::vector<std::filesystem::path> FrameWriter::write(const ReceivedFrame& frame) {
-  const bool draco = frame.encoding != v1::MESH_ENCODING_PLY;
+  const std::optional<FrameCodec> known = wire::frame_codec(frame.encoding);
+  if (!known) {
+    throw CliError(ExitCode::kIntegrity,
+                   "frame " + std::to_string(frame.index) + ": unknown MeshEncoding " + std::to_string(frame.encoding));
+  }
+  const FrameCodec codec = *known;
   std::vector<FileFormat> formats = options_.formats;
-  if (formats.empty()) formats.push_back(draco ? FileFormat::kDrc : FileFormat::kPly);
+  if (formats.empty()) formats.push_back(default_format(codec));
 
   std::optional<Mesh> mesh;
   auto decoded = [&]() -> const Mesh& {
     if (!mesh) {
       try {
-        mesh = draco ? decode_draco(frame.bytes)
-                     : parse_mesh(frame.bytes, MeshFormat::kPly, "frame " + std::to_string(frame.index));
+        mesh = decode_frame(frame.bytes, codec, decode_executor_);
       } catch (const std::exception& e) {
         throw CliError(ExitCode::kIntegrity, "frame " + std::to_string(frame.index) + ": its " +
-                                                 (draco ? "Draco" : "PLY") +
+                                                 std::string(frame_codec_name(codec)) +
                                                  " bytes passed the CRC-32 check but do not decode: " + e.what());
       }
     }
@@ -186,15 +191,15 @@ std::vector<std::filesystem::path> FrameWriter::write(const ReceivedFrame& frame
     std::string_view bytes;
     switch (format) {
       case FileFormat::kDrc:
-        if (draco) {
+        if (codec == FrameCodec::kDraco) {
           bytes = frame.bytes;
         } else {
-          converted = encode_draco(decoded(), DracoOptions{});
+          converted = to_standard_draco(frame.bytes, codec, decoded());
           bytes = converted;
         }
         break;
       case FileFormat::kPly:
-        if (!draco) {
+        if (codec == FrameCodec::kPly) {
           bytes = frame.bytes;  // lossless: double-precision positions as sent
         } else {
           converted = write_ply(decoded());
@@ -214,6 +219,10 @@ std::vector<std::filesystem::path> FrameWriter::write(const ReceivedFrame& frame
   if (kind_ == "optimize" || frame.stats.iteration() != 0) iterations_ = true;
   if (iterations_) write_file_atomically(options_.dir / "iterations.csv", iterations_csv(stats_));
   return written;
+}
+
+FileFormat default_format(FrameCodec codec) {
+  return codec == FrameCodec::kDraco || codec == FrameCodec::kDracoPieces ? FileFormat::kDrc : FileFormat::kPly;
 }
 
 }  // namespace surfacer::client

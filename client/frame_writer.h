@@ -11,6 +11,8 @@
 
 #include "client/frame_assembler.h"
 #include "client/options.h"
+#include "core/mesh/frame_codec.h"
+#include "core/util/parallel.h"
 #include "surfacer/v1/surfacer.pb.h"
 
 namespace surfacer::client {
@@ -33,13 +35,18 @@ std::string stats_csv(const std::map<int, v1::FrameStats>& stats);
 // column per metrics key seen in any frame (sorted: e_d, e_n, max_distance, min_angle_degrees, rms_distance, ...).
 std::string iterations_csv(const std::map<int, v1::FrameStats>& stats);
 
+// The file a frame is written as when no format is asked for: .drc for Draco (one mesh or pieces), .ply otherwise.
+FileFormat default_format(FrameCodec codec);
+
 class FrameWriter {
  public:
   // Creates the directory; CliError(kUsage) when that fails.
   explicit FrameWriter(FrameOutputOptions options);
 
-  // Writes one file per requested format (default: the frame's own encoding, bytes as received), converting
-  // when needed: Draco -> PLY/OBJ by decoding; lossless PLY -> OBJ by parsing, -> Draco by encoding (14 bits).
+  // Writes one file per requested format (default: default_format of the frame's codec), bytes as received when
+  // they are that file, converted otherwise: decoded (pieced frames on every core, welded) for PLY/OBJ; to one
+  // standard Draco mesh for .drc (pieced frames on their own quantization grid, lossless PLY on its own box, 14
+  // bits).
   // Throws CliError(kIntegrity) when the frame's bytes do not decode, CliError(kUsage) when a file cannot be
   // written. Returns the files written.
   std::vector<std::filesystem::path> write(const ReceivedFrame& frame);
@@ -56,6 +63,7 @@ class FrameWriter {
 
  private:
   FrameOutputOptions options_;
+  ThreadExecutor decode_executor_;  // every core
   std::map<int, v1::FrameStats> stats_;
   std::string kind_;
   bool iterations_ = false;

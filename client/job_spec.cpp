@@ -2,6 +2,7 @@
 
 #include <google/protobuf/util/json_util.h>
 
+#include <algorithm>
 #include <fstream>
 #include <sstream>
 
@@ -9,6 +10,9 @@
 #include "client/particle_files.h"
 #include "core/mesh/mesh_io.h"
 #include "core/util/errors.h"
+#include "core/util/format.h"
+#include "wire/protocol.h"
+#include "wire/request_limits.h"
 
 namespace surfacer::client {
 namespace {
@@ -25,17 +29,26 @@ std::string read_text_file(const std::filesystem::path& path, const char* what) 
   return text.str();
 }
 
+// `root_path` names the message in errors about its fields ("spec" for a JobSpec, "" for a Scene).
 template <typename Message>
-Message parse_json_file(const std::filesystem::path& path, const char* what) {
+Message parse_json_file(const std::filesystem::path& path, const char* what, const std::string& root_path) {
   const std::string text = read_text_file(path, what);
   Message message;
   google::protobuf::util::JsonParseOptions options;
   options.ignore_unknown_fields = false;
   auto status = google::protobuf::util::JsonStringToMessage(text, &message, options);
+  const std::string where = std::string(what) + " " + path.string();
+  // Protobuf's JSON parser stops at 100 nested objects: a scene that deep is refused the way the server refuses it.
+  if (!status.ok() && wire::json_object_depth(text) >= 100)
+    throw CliError(ExitCode::kUsage, where + ": " + wire::scene_too_deep());
   if (!status.ok()) {
-    throw CliError(ExitCode::kUsage, std::string(what) + " " + path.string() + " is not a valid " +
-                                         Message::descriptor()->full_name() +
+    throw CliError(ExitCode::kUsage, where + " is not a valid " + Message::descriptor()->full_name() +
                                          " in protobuf JSON: " + std::string(status.message()));
+  }
+  try {
+    wire::check_request_limits(message, root_path);
+  } catch (const Error& e) {
+    throw CliError(ExitCode::kUsage, where + ": " + e.what());
   }
   return message;
 }
@@ -83,8 +96,8 @@ void add_particle_frames(PreparedJob& job, const std::vector<std::filesystem::pa
     PendingUpload upload;
     upload.description = "particle frame " + std::to_string(index) + " (" + file.string() + ")";
     upload.frame = index;
-    upload.read = [file, index, frame_of](v1::JobSpec& spec) {
-      ParticleRecords records = read_particle_records(file);
+    upload.read = [file, index, frame_of](v1::JobSpec& spec, const InputLimits& limits) {
+      ParticleRecords records = read_particle_records(file, limits);
       frame_of(spec, index)->set_with_radius(records.with_radius);
       UploadData data;
       data.name = file.filename().string();
@@ -148,7 +161,7 @@ void build_optimize(const OptimizeOptions& o, PreparedJob& prepared) {
     }
     PendingUpload upload;
     upload.description = "start mesh (" + file.string() + ")";
-    upload.read = [file, format](v1::JobSpec&) {
+    upload.read = [file, format](v1::JobSpec&, const InputLimits&) {
       UploadData data;
       data.name = file.filename().string();
       data.bytes = read_text_file(file, "start mesh");
@@ -253,7 +266,7 @@ void build_active(const ActiveOptions& a, PreparedJob& prepared) {
       const std::filesystem::path file = g.file;
       const std::string detail =
           std::to_string(g.dims[0]) + "x" + std::to_string(g.dims[1]) + "x" + std::to_string(g.dims[2]) + " nodes";
-      upload.read = [file, expected, detail](v1::JobSpec&) {
+      upload.read = [file, expected, detail](v1::JobSpec&, const InputLimits&) {
         UploadData data;
         data.name = file.filename().string();
         data.file = file;
@@ -275,10 +288,12 @@ void build_active(const ActiveOptions& a, PreparedJob& prepared) {
 
 }  // namespace
 
-v1::Scene read_scene_file(const std::filesystem::path& path) { return parse_json_file<v1::Scene>(path, "scene file"); }
+v1::Scene read_scene_file(const std::filesystem::path& path) {
+  return parse_json_file<v1::Scene>(path, "scene file", "");
+}
 
 v1::JobSpec read_job_spec_file(const std::filesystem::path& path) {
-  return parse_json_file<v1::JobSpec>(path, "job spec file");
+  return parse_json_file<v1::JobSpec>(path, "job spec file", "spec");
 }
 
 PreparedJob prepare_job(const JobOptions& options) {
@@ -300,12 +315,32 @@ PreparedJob prepare_job(const JobOptions& options) {
                    "--spec FILE");
   }
 
-  if (options.name) spec.set_name(*options.name);
+  if (options.name) {
+    spec.set_name(*options.name);
+  } else if (spec.name().size() > wire::kMaxNameBytes) {
+    spec.set_name(utf8_prefix(spec.name(), wire::kMaxNameBytes));  // a name made from long file names
+  }
   v1::OutputOptions* output = spec.mutable_output();
-  if (options.raw) output->set_encoding(v1::MESH_ENCODING_PLY);
+  if (options.encoding == "raw") output->set_encoding(v1::MESH_ENCODING_PLY);
+  if (options.encoding == "meshopt") output->set_encoding(v1::MESH_ENCODING_MESHOPT);
+  if (options.encoding == "draco") output->set_encoding(v1::MESH_ENCODING_DRACO);
   if (options.normals) output->set_normals(true);
   if (options.quantization_bits) output->set_quantization_bits(*options.quantization_bits);
+  try {
+    wire::check_request_limits(spec, "spec");
+  } catch (const Error& e) {
+    throw CliError(ExitCode::kUsage, std::string(e.what()) + (options.name ? " (--name)" : ""));
+  }
   return prepared;
+}
+
+void fit_encoding_to_files(v1::JobSpec& spec, const std::vector<FileFormat>& formats) {
+  v1::OutputOptions* output = spec.mutable_output();
+  const bool draco =
+      output->encoding() == v1::MESH_ENCODING_UNSPECIFIED || output->encoding() == v1::MESH_ENCODING_DRACO;
+  if (draco && !formats.empty() && std::find(formats.begin(), formats.end(), FileFormat::kDrc) == formats.end()) {
+    output->set_encoding(v1::MESH_ENCODING_DRACO_PIECES);
+  }
 }
 
 }  // namespace surfacer::client

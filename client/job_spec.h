@@ -27,11 +27,17 @@ struct PreparedJob {
 };
 
 // The job of `options`: `options.spec` read from its file, or built from the one job type set, then the output
-// overrides (name, raw, normals, quantization bits) applied. Scene files are read and sequence patterns expanded
+// overrides (name, encoding, normals, quantization bits) applied. Scene files are read and sequence patterns expanded
 // here, and every input file is checked to exist (and a velocity grid's size against its dimensions), so usage
 // errors come before connecting; the input files themselves are read by the pending uploads. Range checks of
 // values beyond the flags' own are the server's (it answers INVALID_ARGUMENT naming the field).
 // Throws CliError(kUsage).
 PreparedJob prepare_job(const JobOptions& options);
+
+// What a `run` that writes `formats` asks of the server (docs/ALGORITHMS.md §5 "Frames"): Draco frames come in
+// pieces, encoded on every core of the server and decoded on every core here, unless a .drc file is to be written
+// (a standard Draco file is one Draco mesh, which the server encodes on one core; welding pieces and encoding them
+// again here would cost more). Other encodings are left alone.
+void fit_encoding_to_files(v1::JobSpec& spec, const std::vector<FileFormat>& formats);
 
 }  // namespace surfacer::client

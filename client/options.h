@@ -157,7 +157,8 @@ struct JobOptions {
   std::optional<OptimizeOptions> optimize;
   std::optional<ActiveOptions> active;
   std::optional<std::string> name;
-  bool raw = false;      // lossless PLY frames instead of Draco
+  // --encoding: "draco", "meshopt" or "raw" (lossless PLY; --raw is its alias); unset: the server's default (Draco).
+  std::optional<std::string> encoding;
   bool normals = false;  // per-vertex normals in every frame
   std::optional<int> quantization_bits;
 };
@@ -166,7 +167,8 @@ enum class FileFormat { kDrc, kPly, kObj };
 
 struct FrameOutputOptions {
   std::filesystem::path dir;
-  // Files written per frame. Empty: one file in the frame's own encoding (.drc for Draco, .ply for raw PLY).
+  // Files written per frame. Empty: one file in the frame's own encoding (.drc for Draco, .ply for meshopt and raw
+  // PLY).
   std::vector<FileFormat> formats;
 };
 

@@ -105,6 +105,28 @@ void put_float(std::string& out, double value) {
 
 bool fits_float(double v) { return std::isfinite(v) && std::abs(v) <= std::numeric_limits<float>::max(); }
 
+// What reading one file may amount to, from what the server accepts: particles (at least 12 bytes of upload each),
+// and the file's bytes per particle: exactly 12 in a raw .bin, at most kFileBytesPerParticle in the other formats.
+ParticleReadLimits particle_read_limits(const fs::path& path, const InputLimits& limits) {
+  constexpr std::uint64_t kFileBytesPerParticle = 256;
+  constexpr std::uint64_t kHeaderBytes = std::uint64_t{64} << 10;
+  constexpr std::uint64_t kRecordBytes = 12;
+  ParticleReadLimits out;
+  const std::uint64_t particles =
+      std::min(static_cast<std::uint64_t>(std::max<std::int64_t>(0, limits.max_particles)),
+               static_cast<std::uint64_t>(std::max<std::int64_t>(0, limits.max_upload_bytes)) / kRecordBytes);
+  out.max_particles = static_cast<std::int64_t>(particles);
+  ParticleFormat format = ParticleFormat::kXyz;
+  try {
+    format = particle_format_from_path(path);
+  } catch (const Error&) {
+    return out;  // read_particles names the extension
+  }
+  const std::uint64_t per = format == ParticleFormat::kBin ? kRecordBytes : kFileBytesPerParticle;
+  if (particles < (out.max_bytes - kHeaderBytes) / per) out.max_bytes = particles * per + kHeaderBytes;
+  return out;
+}
+
 }  // namespace
 
 bool is_sequence_pattern(const std::string& input) { return split_pattern(input).placeholders > 0; }
@@ -168,18 +190,27 @@ std::vector<fs::path> expand_particle_inputs(const ParticleInputOptions& options
   return files;
 }
 
-ParticleRecords read_particle_records(const fs::path& path) {
+ParticleRecords read_particle_records(const fs::path& path, const InputLimits& limits) {
+  const std::string name = path.string();
+  const bool limited =
+      limits.max_particles != InputLimits{}.max_particles || limits.max_upload_bytes != InputLimits{}.max_upload_bytes;
+  const std::string server_limits = "; the server takes at most " + std::to_string(limits.max_particles) +
+                                    " particles per frame (its --max-particles) and " +
+                                    std::to_string(limits.max_upload_bytes) +
+                                    " bytes per upload (its --max-upload-bytes, or what the token's quota has left)";
   ParticleFrame frame;
   try {
-    frame = read_particles(path);
+    frame = read_particles(path, particle_read_limits(path, limits));
   } catch (const Error& e) {
     std::string message = e.what();
     if (message.find(path.string()) == std::string::npos && message.find(path.filename().string()) != 0) {
       message = path.string() + ": " + message;
     }
+    if (e.kind() == ErrorKind::kResourceLimit && limited) message += server_limits;
     throw usage(message);
+  } catch (const std::bad_alloc&) {
+    throw usage(name + ": reading it needs more memory than there is");
   }
-  const std::string name = path.string();
   if (frame.positions.empty()) throw usage(name + ": no particles; every frame needs at least one");
   const bool with_radius = !frame.radii.empty();
   if (with_radius && frame.radii.size() != frame.positions.size()) {
@@ -208,6 +239,10 @@ ParticleRecords read_particle_records(const fs::path& path) {
       }
       put_float(records.bytes, r);
     }
+  }
+  if (records.bytes.size() > static_cast<std::uint64_t>(limits.max_upload_bytes)) {
+    throw usage(name + ": " + std::to_string(records.count) + " particles make an upload of " +
+                std::to_string(records.bytes.size()) + " bytes" + server_limits);
   }
   return records;
 }

@@ -5,6 +5,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -23,6 +24,12 @@ bool is_sequence_pattern(const std::string& input);
 std::vector<std::filesystem::path> expand_particle_inputs(const ParticleInputOptions& options,
                                                           const std::string& flag = "--input");
 
+// What a server accepts of one particle frame (its GetServerInfo limits); the defaults accept anything.
+struct InputLimits {
+  std::int64_t max_particles = std::numeric_limits<std::int64_t>::max();     // --max-particles
+  std::int64_t max_upload_bytes = std::numeric_limits<std::int64_t>::max();  // --max-upload-bytes (or quota left)
+};
+
 // One frame as upload records.
 struct ParticleRecords {
   std::string bytes;  // float32 LE records: x y z (or x y z r when with_radius)
@@ -32,7 +39,10 @@ struct ParticleRecords {
 
 // Reads a particle file (any format of core/particles/particle_io.h) and packs it. Throws CliError(kUsage) whose
 // message starts with the file name and names the line or byte offset of the problem; also for an empty frame, a radius
-// count that differs from the particle count, a negative radius, or a value that does not fit in float32.
-ParticleRecords read_particle_records(const std::filesystem::path& path);
+// count that differs from the particle count, a negative radius, or a value that does not fit in float32. A file
+// the server would refuse (more particles than `limits` allow, records over its upload limit) is refused as early as
+// its content shows it: gzip data stops inflating at 12 bytes per accepted particle (.bin) or 256 (other formats:
+// text lines or records with many columns), at most 16 GiB; the message names the limit and the server flag.
+ParticleRecords read_particle_records(const std::filesystem::path& path, const InputLimits& limits = {});
 
 }  // namespace surfacer::client

@@ -261,7 +261,7 @@ class ScaleOut {
     for (int g : batch) {
       for (const PendingUpload& pending : prepared_.uploads) {
         if (pending.frame != g) continue;
-        UploadData data = pending.read(scratch);
+        UploadData data = pending.read(scratch, input_limits(connection));
         const std::uint64_t size = data.file ? data.file_bytes : data.bytes.size();
         UploadSettings settings;
         settings.deadline = upload_deadline(connection, size);
@@ -545,7 +545,7 @@ void pin_particles_from_inputs(PreparedJob& prepared) {
       if (p.frame == g) pending = &p;
     }
     if (pending != nullptr) {
-      const UploadData data = pending->read(scratch);
+      const UploadData data = pending->read(scratch, InputLimits{});  // before connecting: each server checks its own
       const bool with_radius = scratch.particles().frames(g).with_radius();
       const std::size_t record = (with_radius ? 4 : 3) * sizeof(float);
       for (std::size_t at = 0; at + record <= data.bytes.size(); at += record) {

@@ -10,7 +10,9 @@
 #include <sstream>
 
 #include "client/exit_codes.h"
+#include "core/util/errors.h"
 #include "core/util/format.h"
+#include "wire/tls.h"
 
 namespace surfacer::client {
 namespace {
@@ -145,10 +147,20 @@ SecurityOptions load_security(const SecurityFlags& flags, const char* env_token,
   if (flags.tls_server_name && flags.tls_server_name->empty()) {
     throw usage("--tls-server-name is empty; give the name the server's certificate carries, e.g. localhost");
   }
-  if (flags.tls_ca) s.ca_pem = read_pem("--tls-ca", *flags.tls_ca, false);
-  if (flags.tls_cert) {
-    s.cert_pem = read_pem("--tls-cert", *flags.tls_cert, false);
-    s.key_pem = read_pem("--tls-key", *flags.tls_key, true);
+  // Checked here, not left to gRPC: it would report a bad pair only as an unusable channel.
+  try {
+    if (flags.tls_ca) {
+      s.ca_pem = read_pem("--tls-ca", *flags.tls_ca, false);
+      wire::check_tls_certificates(s.ca_pem, "--tls-ca " + flags.tls_ca->string());
+    }
+    if (flags.tls_cert) {
+      s.cert_pem = read_pem("--tls-cert", *flags.tls_cert, false);
+      s.key_pem = read_pem("--tls-key", *flags.tls_key, true);
+      wire::check_tls_key_pair(s.cert_pem, s.key_pem, "--tls-cert " + flags.tls_cert->string(),
+                               "--tls-key " + flags.tls_key->string());
+    }
+  } catch (const Error& e) {
+    throw usage(e.what());
   }
   s.server_name = flags.tls_server_name;
   s.allow_insecure = flags.allow_insecure;

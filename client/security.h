@@ -30,8 +30,9 @@ struct SecurityFlags {
 };
 
 // Reads the files the flags name and checks them: a missing or unreadable file, a file that is not PEM of the
-// expected kind, an empty token file, a token with spaces or control characters, --tls-cert without --tls-key (or
-// the reverse), --tls-server-name without TLS. `env_token` is $SURFACER_TOKEN (may be null), used when neither
+// expected kind (or that OpenSSL cannot read), a --tls-key that does not match its --tls-cert, an empty token file, a
+// token with spaces or control characters, --tls-cert without --tls-key (or the reverse), --tls-server-name without
+// TLS. `env_token` is $SURFACER_TOKEN (may be null), used when neither
 // --token nor --token-file is given. `remote` is false for the in-process server: TLS and token flags are then
 // an error (there is no network), while $SURFACER_TOKEN is ignored. Throws CliError(kUsage) naming the flag and
 // the file.

@@ -45,6 +45,7 @@ UploadResult send_upload(v1::Surfacer::Stub& stub, const std::string& name, std:
 
   std::uint64_t sent = 0;
   std::uint32_t crc = 0;
+  std::uint32_t index = 0;
   bool first = true;
   bool stopped = false;
   bool broken = false;
@@ -68,6 +69,7 @@ UploadResult send_upload(v1::Surfacer::Stub& stub, const std::string& name, std:
     }
     chunk.set_data(piece.data(), piece.size());
     chunk.set_crc32(crc32_of(piece));
+    chunk.set_chunk_index(index++);
     if (!writer->Write(chunk)) {
       broken = true;  // the server ended the call; Finish() says why
       break;
@@ -139,16 +141,26 @@ std::chrono::system_clock::time_point upload_deadline(const Connection& connecti
   return connection.unary_deadline() + std::chrono::seconds(1 + bytes / (std::uint64_t{1} << 20));
 }
 
+InputLimits input_limits(Connection& connection) {
+  InputLimits limits;
+  if (const auto& info = connection.server_info()) {
+    if (info->limits().max_particles() > 0) limits.max_particles = info->limits().max_particles();
+    if (info->limits().max_upload_bytes() > 0) limits.max_upload_bytes = info->limits().max_upload_bytes();
+  }
+  return limits;
+}
+
 UploadSummary upload_inputs(Connection& connection, v1::JobSpec& spec, const std::vector<PendingUpload>& uploads,
                             ProgressDisplay& progress, const std::atomic<bool>* stop) {
   UploadSummary summary;
+  const InputLimits limits = uploads.empty() ? InputLimits{} : input_limits(connection);
   const int total = static_cast<int>(uploads.size());
   for (const PendingUpload& pending : uploads) {
     if (stop != nullptr && stop->load()) {
       throw CliError(ExitCode::kCancelled, "interrupted before the job was submitted (while uploading inputs)");
     }
     // Read one input, upload it, drop it: only one input is in memory at a time.
-    UploadData data = pending.read(spec);
+    UploadData data = pending.read(spec, limits);
     const std::uint64_t size = data.file ? data.file_bytes : data.bytes.size();
     UploadSettings settings;
     settings.deadline = upload_deadline(connection, size);

@@ -1,6 +1,6 @@
 // Uploading inputs with Surfacer.Upload (particle frames, start meshes, velocity grids): bytes cut into chunks of
-// at most 1 MiB, the first carrying the name and total_bytes, every one its CRC-32 (zlib polynomial); the server's
-// answer (bytes stored and CRC-32 of the whole upload) is checked against what was sent.
+// at most 1 MiB, the first carrying the name and total_bytes, every one its index and CRC-32 (zlib polynomial); the
+// server's answer (bytes stored and CRC-32 of the whole upload) is checked against what was sent.
 #pragma once
 
 #include <atomic>
@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "client/frame_assembler.h"
+#include "client/particle_files.h"
 #include "surfacer/v1/surfacer.grpc.pb.h"
 
 namespace surfacer::client {
@@ -63,9 +64,10 @@ struct UploadData {
 struct PendingUpload {
   std::string description;  // "particle frame 3 (data/fluid_0003.bgeo)"
   int frame = -1;           // the job's frame index this input feeds (particle frames), else -1
-  // Reads (and validates) the input; may record what the content tells in the spec (e.g. with_radius). Throws
-  // CliError(kUsage) naming the file and the line or byte offset of a problem.
-  std::function<UploadData(v1::JobSpec& spec)> read;
+  // Reads (and validates) the input, refusing one the server would refuse by `limits`; may record what the content
+  // tells in the spec (e.g. with_radius). Throws CliError(kUsage) naming the file and the line or byte offset of a
+  // problem.
+  std::function<UploadData(v1::JobSpec& spec, const InputLimits& limits)> read;
   // Stores the upload id in the spec.
   std::function<void(v1::JobSpec& spec, const std::string& upload_id)> set_id;
 };
@@ -76,8 +78,12 @@ struct UploadSummary {
   std::map<int, std::int64_t> particles;  // frame index -> particles uploaded for it
 };
 
-// Reads and uploads every pending input in order, filling the spec's upload ids; one progress line per input.
-// Errors as read() and upload_bytes()/upload_file(); CliError(kCancelled) when `stop` fires in between.
+// What the server of `connection` accepts of an input (GetServerInfo); the defaults when it cannot say.
+InputLimits input_limits(Connection& connection);
+
+// Reads and uploads every pending input in order (read within input_limits()), filling the spec's upload ids; one
+// progress line per input. Errors as read() and upload_bytes()/upload_file(); CliError(kCancelled) when `stop`
+// fires in between.
 UploadSummary upload_inputs(Connection& connection, v1::JobSpec& spec, const std::vector<PendingUpload>& uploads,
                             ProgressDisplay& progress, const std::atomic<bool>* stop = nullptr);
 

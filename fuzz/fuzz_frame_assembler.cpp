@@ -45,7 +45,8 @@ class Harness {
     const v1::FrameHeader& h = it->second;
     require(frame->bytes.size() == h.total_bytes(), "frame size differs from FrameHeader.total_bytes");
     require(crc32_of(frame->bytes) == h.crc32(), "frame CRC-32 differs from FrameHeader.crc32");
-    require(frame->encoding == v1::MESH_ENCODING_DRACO || frame->encoding == v1::MESH_ENCODING_PLY,
+    require(frame->encoding == v1::MESH_ENCODING_DRACO || frame->encoding == v1::MESH_ENCODING_PLY ||
+                frame->encoding == v1::MESH_ENCODING_DRACO_PIECES || frame->encoding == v1::MESH_ENCODING_MESHOPT,
             "frame with an unknown encoding");
     last_ = frame;
   }

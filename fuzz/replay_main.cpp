@@ -2,7 +2,12 @@
 // given (directories: every regular file below them, in name order), so the seed corpora and the crash inputs
 // saved in fuzz/corpus/ stay regression tests without libFuzzer or clang. Exits 0 when every input ran through;
 // a crash, an abort (violated property) or an uncaught exception ends the process, like under libFuzzer.
+// The process runs with 1 GiB of address space (RLIMIT_AS), as scripts/fuzz.sh runs libFuzzer under an RSS and a
+// malloc limit: an input that makes a decoder allocate far beyond its size (a decompression bomb) fails here too,
+// with std::bad_alloc, where it would otherwise pass by allocating gigabytes and then being refused.
 // Usage: fuzz_replay_<target> FILE_OR_DIR...
+#include <sys/resource.h>
+
 #include <algorithm>
 #include <cstdint>
 #include <cstdio>
@@ -18,6 +23,12 @@ int main(int argc, char** argv) {
   namespace fs = std::filesystem;
   if (argc < 2) {
     std::fprintf(stderr, "usage: %s FILE_OR_DIR...\n", argv[0]);
+    return 2;
+  }
+  constexpr rlim_t kAddressSpace = rlim_t{1} << 30;
+  const rlimit limit{kAddressSpace, kAddressSpace};
+  if (setrlimit(RLIMIT_AS, &limit) != 0) {
+    std::perror("setrlimit(RLIMIT_AS)");
     return 2;
   }
   std::vector<fs::path> files;

@@ -1,13 +1,14 @@
 #include "server/job.h"
 
-#include <google/protobuf/util/time_util.h>
 #include <grpcpp/support/status.h>
 
 #include <algorithm>
 
 #include "core/util/crc32.h"
 #include "core/util/errors.h"
+#include "core/util/format.h"
 #include "server/auth.h"
+#include "server/clock.h"
 #include "server/log.h"
 #include "server/status_map.h"
 #include "server/store.h"
@@ -18,9 +19,8 @@
 namespace surfacer::server {
 namespace {
 
-using google::protobuf::util::TimeUtil;
-
 constexpr auto kProgressInterval = std::chrono::milliseconds(100);
+constexpr auto kStageChangeInterval = std::chrono::milliseconds(10);
 constexpr int kGrpcCancelled = 1;
 
 bool is_terminal(v1::JobState s) {
@@ -42,7 +42,7 @@ Job::Job(JobInit init)
       hooks_(init.hooks),
       tasks_total_(runner_ ? runner_->task_count() : 0),
       frames_total_(runner_ ? runner_->frame_count() : 0) {
-  created_ = TimeUtil::GetCurrentTime();
+  created_ = now_timestamp();
   progress_.set_frames_total(frames_total_);
 }
 
@@ -89,8 +89,8 @@ std::vector<int> Job::restore(const StoredJob& stored) {
       finished_ = snap.finished();
       progress_ = snap.progress();
       frames_total_ = snap.frames_total();
-      const auto age = std::chrono::seconds(std::max<std::int64_t>(
-          0, TimeUtil::TimestampToSeconds(TimeUtil::GetCurrentTime()) - TimeUtil::TimestampToSeconds(finished_)));
+      const auto age = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+          std::chrono::duration<double>(std::max(0.0, seconds_since(finished_))));
       finished_steady_ = std::chrono::steady_clock::now() - age;
     } else {
       for (const auto& c : stored.checkpoints) {
@@ -126,7 +126,7 @@ void Job::fail_restore(int grpc_code, const std::string& message) {
     std::lock_guard lock(mutex_);
     if (is_terminal(state_)) return;
     error_.set_code(grpc_code);
-    error_.set_message("cannot resume after a server restart: " + message);
+    error_.set_message(utf8_prefix("cannot resume after a server restart: " + message, wire::kMaxErrorBytes));
     finish_locked(v1::JOB_STATE_FAILED);
   }
   persist();
@@ -135,11 +135,27 @@ void Job::fail_restore(int grpc_code, const std::string& message) {
 
 void Job::persist() const {
   if (!store_) return;
+  const v1::Job job = snapshot();
   try {
-    store_->update_job(snapshot());
+    store_->update_job(job);
+    persist_pending_ = false;
   } catch (const std::exception& e) {
-    log_event(LogLevel::kError, "store_write_failed", {{"job", id_}, {"error", e.what()}});
+    if (!persist_pending_.exchange(true)) {
+      log_event(LogLevel::kError, "store_write_failed",
+                {{"job", id_},
+                 {"state", v1::JobState_Name(job.state())},
+                 {"error", e.what()},
+                 {"note", "the state is kept in memory and written when the store takes it"}});
+    }
   }
+}
+
+bool Job::retry_persist() const {
+  if (!persist_pending_) return true;
+  persist();
+  if (persist_pending_) return false;
+  log_event(LogLevel::kInfo, "store_write_recovered", {{"job", id_}, {"state", v1::JobState_Name(state())}});
+  return true;
 }
 
 void Job::finished_hooks() {
@@ -253,7 +269,7 @@ void Job::bump_state_locked() { ++state_version_; }
 
 void Job::finish_locked(v1::JobState state) {
   state_ = state;
-  finished_ = TimeUtil::GetCurrentTime();
+  finished_ = now_timestamp();
   finished_steady_ = std::chrono::steady_clock::now();
   if (state == v1::JOB_STATE_SUCCEEDED) progress_.set_fraction(1.0);
   bump_state_locked();
@@ -277,7 +293,7 @@ bool Job::task_started() {
     ++running_;
     if (state_ != v1::JOB_STATE_QUEUED) return true;
     state_ = v1::JOB_STATE_RUNNING;
-    started_ = TimeUtil::GetCurrentTime();
+    started_ = now_timestamp();
     bump_state_locked();
   }
   log_event(LogLevel::kInfo, "job_started", {{"job", id_}, {"kind", kind_}});
@@ -310,8 +326,11 @@ void Job::emit(int frame_index, FrameOutput output) {
                                            "the server's --tokens-file");
   }
   if (store_) {
+    set_progress(frame_index, "store", 0.0);
+    RunControl control;
+    control.cancel = &cancel_;
     try {
-      store_->put_frame(id_, h, *bytes);
+      store_->put_frame(id_, h, *bytes, control);
     } catch (...) {
       if (usage_) usage_->release(owner_, size);
       throw;
@@ -386,7 +405,8 @@ void Job::task_failed(int task, int grpc_code, const std::string& message) {
       finished = settle_locked();
     } else if (!is_terminal(state_)) {
       error_.set_code(grpc_code);
-      error_.set_message(tasks_total_ > 1 ? "frame " + std::to_string(task) + ": " + message : message);
+      error_.set_message(utf8_prefix(tasks_total_ > 1 ? "frame " + std::to_string(task) + ": " + message : message,
+                                     wire::kMaxErrorBytes));
       finish_locked(v1::JOB_STATE_FAILED);
       finished = true;
     }
@@ -434,7 +454,9 @@ void Job::set_progress(int frame_index, std::string_view stage, double fraction)
   const auto now = std::chrono::steady_clock::now();
   {
     std::lock_guard lock(mutex_);
-    if (now - last_progress_notify_ < kProgressInterval) return;
+    // At most every kProgressInterval; a new stage sooner, so that watchers see a short stage begin.
+    const auto interval = progress_.stage() == stage ? kProgressInterval : kStageChangeInterval;
+    if (now - last_progress_notify_ < interval) return;
     last_progress_notify_ = now;
     progress_.set_stage(std::string(stage));
     progress_.set_frame_index(frame_index);

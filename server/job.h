@@ -2,6 +2,7 @@
 // its tasks; a job runner (server/runners/runner.h) computes them.
 #pragma once
 
+#include <atomic>
 #include <chrono>
 #include <cstdint>
 #include <deque>
@@ -100,8 +101,13 @@ class Job : public FrameSink {
   std::vector<int> restore(const StoredJob& stored);
   // Fails a job that cannot be resumed (its runner could not be rebuilt after a restart).
   void fail_restore(int grpc_code, const std::string& message);
-  // Writes the current snapshot to the store (no-op without one); failures are logged.
+  // Writes the current snapshot to the store (no-op without one). A write the store refuses (a full disk) is logged
+  // and stays pending: the snapshot, terminal state included, lives in memory until retry_persist() gets it written
+  // (the server retries every second and once more before it stops), so a restart does not bring back an older one.
   void persist() const;
+  bool persist_pending() const { return persist_pending_.load(); }
+  // Writes the snapshot again if the last write failed; true once the store holds it.
+  bool retry_persist() const;
 
   // --- Transitions, called by the scheduler ----------------------------------------------------------------
   // A task starts; returns false when the job is already finished (cancelled or failed).
@@ -164,6 +170,7 @@ class Job : public FrameSink {
   google::protobuf::Timestamp created_, started_, finished_;
   std::chrono::steady_clock::time_point finished_steady_{};
   std::vector<std::weak_ptr<JobListener>> listeners_;
+  mutable std::atomic<bool> persist_pending_{false};
 };
 
 }  // namespace surfacer::server

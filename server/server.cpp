@@ -1,6 +1,5 @@
 #include "server/server.h"
 
-#include <google/protobuf/util/time_util.h>
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
@@ -15,6 +14,7 @@
 #include <thread>
 
 #include "server/auth.h"
+#include "server/clock.h"
 #include "server/job.h"
 #include "server/log.h"
 #include "server/metrics_http.h"
@@ -26,11 +26,10 @@
 #include "server/store.h"
 #include "server/uploads.h"
 #include "server/worker_pool.h"
+#include "wire/tls.h"
 
 namespace surfacer::server {
 namespace {
-
-using google::protobuf::util::TimeUtil;
 
 std::string read_file(const std::string& path, const char* flag) {
   std::ifstream in(path, std::ios::binary);
@@ -73,6 +72,16 @@ std::shared_ptr<grpc::ServerCredentials> server_credentials(const ServerOptions&
                                             : GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY);
   ssl.pem_key_cert_pairs.push_back({read_file(o.tls_key_file, "--tls-key"), read_file(o.tls_cert_file, "--tls-cert")});
   if (!o.tls_client_ca_file.empty()) ssl.pem_root_certs = read_file(o.tls_client_ca_file, "--tls-client-ca");
+  // Checked here, not left to gRPC: it would report a bad pair only as a port it cannot listen on.
+  try {
+    wire::check_tls_key_pair(ssl.pem_key_cert_pairs[0].cert_chain, ssl.pem_key_cert_pairs[0].private_key,
+                             "--tls-cert " + o.tls_cert_file, "--tls-key " + o.tls_key_file);
+    if (!o.tls_client_ca_file.empty()) {
+      wire::check_tls_certificates(ssl.pem_root_certs, "--tls-client-ca " + o.tls_client_ca_file);
+    }
+  } catch (const Error& e) {
+    throw std::runtime_error(e.what());
+  }
   return grpc::SslServerCredentials(ssl);
 }
 
@@ -83,6 +92,7 @@ struct SurfacerServer::Impl {
       : threads(options.workers > 0 ? options.workers
                                     : std::max(1, static_cast<int>(std::thread::hardware_concurrency()))),
         pool(threads),
+        executor(pool),
         store(options.data_dir.empty() ? nullptr : Store::open(options.data_dir)),
         auth(options.tokens_file.empty() ? nullptr : TokenAuth::load(options.tokens_file)),
         uploads(store.get()),
@@ -91,6 +101,7 @@ struct SurfacerServer::Impl {
         service(state) {
     state.options = options;
     state.worker_threads = threads;
+    state.executor = &executor;
     state.scheduler = &scheduler;
     state.uploads = &uploads;
     state.store = store.get();
@@ -106,10 +117,13 @@ struct SurfacerServer::Impl {
   // Brings back what the store holds: uploads, finished jobs (for watching) and unfinished ones (resumed).
   void restore();
   void retention();
+  // Writes again the job states the store refused (see Job::persist).
+  void retry_pending_writes();
   void janitor_loop();
 
   int threads;
   WorkerPool pool;
+  PoolExecutor executor;
   std::unique_ptr<Store> store;
   std::unique_ptr<TokenAuth> auth;
   Usage usage;
@@ -150,8 +164,7 @@ void SurfacerServer::Impl::register_metrics() {
       metrics.stage_seconds.with({job.kind(), t.stage()}).observe(t.seconds());
     const v1::Job snap = job.snapshot();
     if (snap.has_started()) {
-      const double since = TimeUtil::DurationToNanoseconds(TimeUtil::GetCurrentTime() - snap.started()) * 1e-9;
-      metrics.frame_seconds.with({job.kind()}).observe(std::max(0.0, since));
+      metrics.frame_seconds.with({job.kind()}).observe(std::max(0.0, seconds_since(snap.started())));
     }
   };
   hooks.on_finished = [this](const Job& job, v1::JobState s) {
@@ -224,7 +237,7 @@ void SurfacerServer::Impl::restore() {
     grpc::Status failure;
     if (!finished) {
       try {
-        JobContext context{state.options.limits, uploads, threads};
+        JobContext context{state.options.limits, uploads, threads, &executor};
         init.runner = make_job_runner(stored.spec, context);
       } catch (...) {
         failure = status_from_exception(std::current_exception());
@@ -309,14 +322,32 @@ void SurfacerServer::Impl::retention() {
   }
 }
 
+void SurfacerServer::Impl::retry_pending_writes() {
+  if (!store) return;
+  std::vector<std::shared_ptr<Job>> pending;
+  for (const auto& job : scheduler.list()) {
+    if (job->persist_pending()) pending.push_back(job);
+  }
+  if (pending.empty()) return;
+  store->reclaim();
+  for (const auto& job : pending) job->retry_persist();
+}
+
 void SurfacerServer::Impl::janitor_loop() {
+  constexpr auto kRetryInterval = std::chrono::seconds(1);
+  auto next_retention = std::chrono::steady_clock::now() + state.options.retention_interval;
   std::unique_lock lock(mutex);
   while (!shutting_down) {
-    cv.wait_for(lock, state.options.retention_interval, [&] { return shutting_down; });
+    cv.wait_for(lock, std::min<std::chrono::steady_clock::duration>(kRetryInterval, state.options.retention_interval),
+                [&] { return shutting_down; });
     if (shutting_down) break;
     lock.unlock();
     try {
-      retention();
+      retry_pending_writes();
+      if (std::chrono::steady_clock::now() >= next_retention) {
+        next_retention = std::chrono::steady_clock::now() + state.options.retention_interval;
+        retention();
+      }
     } catch (const std::exception& e) {
       log_event(LogLevel::kError, "retention_failed", {{"error", e.what()}});
     }
@@ -418,6 +449,16 @@ void SurfacerServer::shutdown(ShutdownMode mode, std::chrono::milliseconds deadl
   s.grpc_server->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(2));
   if (s.health_server) s.health_server->Shutdown(std::chrono::system_clock::now());
   s.pool.stop();
+  // A state the disk refused so far gets a last try; one still refused is lost with this process (the README says
+  // what a client then sees).
+  s.retry_pending_writes();
+  for (const auto& job : s.scheduler.list()) {
+    if (job->persist_pending()) {
+      log_event(
+          LogLevel::kError, "store_write_lost",
+          {{"job", job->id()}, {"state", v1::JobState_Name(job->state())}, {"data_dir", s.state.options.data_dir}});
+    }
+  }
   if (s.metrics_http) s.metrics_http->stop();
   log_event(LogLevel::kInfo, "server_stopped");
   {

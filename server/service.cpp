@@ -1,15 +1,26 @@
 #include "server/service.h"
 
+#include <google/protobuf/io/coded_stream.h>
+#include <grpcpp/support/proto_buffer_reader.h>
+
+#include <algorithm>
+#include <charconv>
 #include <mutex>
+#include <optional>
 
 #include "core/util/errors.h"
+#include "core/util/format.h"
 #include "server/log.h"
 #include "server/runners/runner.h"
 #include "server/server_metrics.h"
 #include "server/status_map.h"
 #include "server/store.h"
 #include "server/upload_assembler.h"
+#include "wire/enums.h"
+#include "wire/protocol.h"
+#include "wire/request_limits.h"
 #include "wire/status.h"
+#include "wire/uploads.h"
 
 namespace surfacer::server {
 namespace {
@@ -26,15 +37,35 @@ class FailedRead final : public grpc::ServerReadReactor<v1::UploadChunk> {
   void OnDone() override { delete this; }
 };
 
-grpc::Status not_found(const std::string& id) {
+grpc::Status invalid_job_id(const std::string& id) {
+  if (id.empty()) return {grpc::StatusCode::INVALID_ARGUMENT, "job_id is empty; give the id SubmitJob returned"};
+  if (id.size() > wire::kMaxIdBytes) {
+    return {grpc::StatusCode::INVALID_ARGUMENT, "job_id is " + std::to_string(id.size()) + " bytes; ids are at most " +
+                                                    std::to_string(wire::kMaxIdBytes) +
+                                                    " bytes (give the id SubmitJob returned)"};
+  }
   return {grpc::StatusCode::NOT_FOUND,
-          "job_id: no job '" + id + "' on this server (finished jobs are kept for a limited time; see ListJobs)"};
+          "job_id: no job " + quote(id) + " on this server (finished jobs are kept for a limited time; see ListJobs)"};
 }
 
-grpc::Status invalid_job_id(const std::string& id) {
-  return id.empty()
-             ? grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, "job_id is empty; give the id SubmitJob returned")
-             : not_found(id);
+// The request of a SubmitJob call. Parsed here rather than by gRPC so that a scene nested deeper than the parser
+// allows gets the same INVALID_ARGUMENT as one a level too deep (gRPC would answer a blank UNIMPLEMENTED).
+v1::SubmitJobRequest parse_submit_request(const grpc::ByteBuffer& bytes) {
+  v1::SubmitJobRequest request;
+  grpc::ByteBuffer copy(bytes);  // the reader consumes its buffer
+  grpc::ProtoBufferReader reader(&copy);
+  google::protobuf::io::CodedInputStream coded(&reader);
+  coded.SetRecursionLimit(wire::kRequestRecursionLimit);
+  if (request.ParseFromCodedStream(&coded) && coded.ConsumedEntireMessage()) return request;
+  std::vector<grpc::Slice> slices;
+  std::string flat;
+  if (bytes.Dump(&slices).ok()) {
+    for (const grpc::Slice& slice : slices) flat.append(reinterpret_cast<const char*>(slice.begin()), slice.size());
+  }
+  if (wire::wire_nests_deeper_than(flat, wire::kRequestRecursionLimit - 1)) {
+    throw InvalidInput("spec", "spec: " + wire::scene_too_deep());
+  }
+  throw InvalidInput("spec", "the request is not a valid surfacer.v1.SubmitJobRequest (malformed protobuf)");
 }
 
 // Streams one job's events. Kept alive by a self-reference until OnDone, and by the job's weak listener list
@@ -124,17 +155,38 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::JobEvent>,
   bool broken_ = false;
 };
 
-// Reassembles a client-streamed upload (UploadAssembler), then stores it under the caller's tenant.
+// Reassembles a client-streamed upload (UploadAssembler), then stores it under the caller's tenant. Only a stream
+// the client closed normally is stored, and only if the client can learn its id: an upload whose call ends
+// cancelled (client cancel, deadline, a message gRPC refused) is forgotten again, wherever it was kept.
 class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
  public:
-  UploadReactor(ServiceState& state, const Tenant& tenant, v1::UploadResponse* response)
-      : state_(state), tenant_(tenant), response_(response), assembler_(limit(state, tenant), hint(state, tenant)) {
+  // The smaller of --max-upload-bytes and what the tenant's stored-bytes quota has left.
+  static std::int64_t limit(const ServiceState& state, const Tenant& tenant) {
+    std::int64_t max = state.options.limits.max_upload_bytes;
+    if (tenant.max_stored_bytes > 0 && state.usage) {
+      max = std::min(max, std::max<std::int64_t>(0, tenant.max_stored_bytes - state.usage->bytes(tenant.name)));
+    }
+    return max;
+  }
+
+  UploadReactor(ServiceState& state, grpc::CallbackServerContext& context, const Tenant& tenant,
+                v1::UploadResponse* response)
+      : state_(state),
+        context_(context),
+        tenant_(tenant),
+        response_(response),
+        assembler_(limit(state, tenant), hint(state, tenant)) {
     StartRead(&chunk_);
   }
 
   void OnReadDone(bool ok) override {
     if (!ok) {
-      complete();
+      // The stream ended: closed by the client, or cancelled (then nothing is stored).
+      if (context_.IsCancelled()) {
+        Finish(grpc::Status(grpc::StatusCode::CANCELLED, "upload cancelled; nothing was stored"));
+      } else {
+        complete();
+      }
       return;
     }
     if (const grpc::Status status = assembler_.add(chunk_); !status.ok()) {
@@ -144,17 +196,18 @@ class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
     StartRead(&chunk_);
   }
 
-  void OnDone() override { delete this; }
+  void OnDone() override {
+    // The reply never reached the client: it cannot know the id, so the upload must not stay.
+    if (!stored_id_.empty() && context_.IsCancelled()) {
+      const std::int64_t bytes = state_.uploads->remove(stored_id_);
+      if (state_.usage) state_.usage->release(tenant_.name, bytes);
+      log_event(LogLevel::kInfo, "upload_dropped",
+                {{"upload", stored_id_}, {"tenant", tenant_.name}, {"reason", "cancelled before the reply"}});
+    }
+    delete this;
+  }
 
  private:
-  // The smaller of --max-upload-bytes and what the tenant's stored-bytes quota has left.
-  static std::int64_t limit(const ServiceState& state, const Tenant& tenant) {
-    std::int64_t max = state.options.limits.max_upload_bytes;
-    if (tenant.max_stored_bytes > 0 && state.usage) {
-      max = std::min(max, std::max<std::int64_t>(0, tenant.max_stored_bytes - state.usage->bytes(tenant.name)));
-    }
-    return max;
-  }
   static std::string hint(const ServiceState& state, const Tenant& tenant) {
     if (tenant.max_stored_bytes > 0 && state.usage &&
         tenant.max_stored_bytes - state.usage->bytes(tenant.name) < state.options.limits.max_upload_bytes) {
@@ -180,7 +233,8 @@ class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
       response_->set_bytes(blob->bytes.size());
       response_->set_crc32(blob->crc32);
       const std::string name = blob->name;
-      response_->set_upload_id(state_.uploads->add(std::move(blob), tenant_.name));
+      stored_id_ = state_.uploads->add(std::move(blob), tenant_.name);
+      response_->set_upload_id(stored_id_);
       if (state_.metrics) state_.metrics->bytes_in.inc(static_cast<double>(size));
       log_event(LogLevel::kInfo, "upload",
                 {{"upload", response_->upload_id()},
@@ -195,10 +249,12 @@ class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
   }
 
   ServiceState& state_;
+  grpc::CallbackServerContext& context_;
   const Tenant tenant_;
   v1::UploadResponse* response_;
   UploadAssembler assembler_;
   v1::UploadChunk chunk_;
+  std::string stored_id_;  // set once the upload is stored
 };
 
 // The job `id` if it exists and belongs to `tenant` (another tenant's job is reported as missing).
@@ -238,8 +294,8 @@ const Tenant* tenant_or_finish(const ServiceState& state, const grpc::CallbackSe
 }  // namespace
 
 grpc::ServerUnaryReactor* SurfacerService::SubmitJob(grpc::CallbackServerContext* context,
-                                                     const v1::SubmitJobRequest* request,
-                                                     v1::SubmitJobResponse* response) {
+                                                     const grpc::ByteBuffer* request_bytes,
+                                                     grpc::ByteBuffer* response_bytes) {
   auto* reactor = context->DefaultReactor();
   if (!state_.accepting.load()) {
     reactor->Finish(grpc::Status(grpc::StatusCode::UNAVAILABLE, "server is shutting down; submit to another server"));
@@ -247,55 +303,60 @@ grpc::ServerUnaryReactor* SurfacerService::SubmitJob(grpc::CallbackServerContext
   }
   const Tenant* tenant = tenant_or_finish(state_, *context, reactor);
   if (!tenant) return reactor;
-  std::shared_ptr<Job> job;
+  v1::SubmitJobResponse response;
+  grpc::Status status;
   try {
-    // Another tenant's uploads do not exist for this one.
-    std::vector<std::string> uploads;
-    for (const auto& [path, id] : Store::referenced_upload_fields(request->spec(), "spec")) {
-      if (!state_.uploads->owned_by(id, tenant->name)) {
-        throw InvalidInput(path, path + ": no upload with id '" + id +
-                                     "'; upload the data first with Surfacer.Upload and use the id it returns");
-      }
-      uploads.push_back(id);
-    }
-    if (tenant->max_running_jobs > 0 && state_.scheduler->active_jobs(tenant->name) >= tenant->max_running_jobs) {
-      throw ResourceLimit("quota.running", "tenant '" + tenant->name + "' already has " +
-                                               std::to_string(tenant->max_running_jobs) +
-                                               " queued or running jobs (its quota); wait for one to finish, or raise "
-                                               "running= for its token in the server's --tokens-file");
-    }
-    JobContext job_context{state_.options.limits, *state_.uploads, state_.worker_threads};
-    JobInit init;
-    init.id = random_id("j-");
-    init.name = request->spec().name();
-    init.owner = tenant->name;
-    init.runner = make_job_runner(request->spec(), job_context);
-    init.store = state_.store;
-    init.usage = state_.usage;
-    init.max_stored_bytes = tenant->max_stored_bytes;
-    init.upload_ids = std::move(uploads);
-    init.hooks = state_.hooks;
-    job = std::make_shared<Job>(std::move(init));
-    if (state_.store) state_.store->put_job(job->id(), tenant->name, request->spec(), job->snapshot());
-    try {
-      state_.scheduler->submit(job);
-    } catch (...) {
-      if (state_.store) state_.store->delete_job(job->id());
-      throw;
-    }
-    if (state_.metrics) state_.metrics->jobs_submitted.with({job->kind()}).inc();
-    response->set_job_id(job->id());
-    *response->mutable_job() = job->snapshot();
-    reactor->Finish(grpc::Status::OK);
+    submit(parse_submit_request(*request_bytes), *tenant, response);
+    bool own_buffer = false;
+    status = grpc::SerializationTraits<v1::SubmitJobResponse>::Serialize(response, response_bytes, &own_buffer);
   } catch (...) {
-    const grpc::Status status = status_from_exception(std::current_exception());
+    status = status_from_exception(std::current_exception());
     if (state_.metrics)
       state_.metrics->jobs_rejected.with({std::string(wire::status_code_name(status.error_code()))}).inc();
     log_event(LogLevel::kInfo, "job_rejected",
               {{"code", std::to_string(status.error_code())}, {"error", status.error_message()}});
-    reactor->Finish(status);
   }
+  reactor->Finish(status);
   return reactor;
+}
+
+void SurfacerService::submit(const v1::SubmitJobRequest& request, const Tenant& tenant,
+                             v1::SubmitJobResponse& response) {
+  wire::check_request_limits(request.spec(), "spec");
+  // Another tenant's uploads do not exist for this one.
+  std::vector<std::string> uploads;
+  for (const auto& [path, id] : Store::referenced_upload_fields(request.spec(), "spec")) {
+    if (!state_.uploads->owned_by(id, tenant.name)) throw wire::unknown_upload(id, path);
+    uploads.push_back(id);
+  }
+  if (tenant.max_running_jobs > 0 && state_.scheduler->active_jobs(tenant.name) >= tenant.max_running_jobs) {
+    throw ResourceLimit("quota.running", "tenant '" + tenant.name + "' already has " +
+                                             std::to_string(tenant.max_running_jobs) +
+                                             " queued or running jobs (its quota); wait for one to finish, or raise "
+                                             "running= for its token in the server's --tokens-file");
+  }
+  JobContext job_context{state_.options.limits, *state_.uploads, state_.worker_threads, state_.executor};
+  JobInit init;
+  init.id = random_id("j-");
+  init.name = request.spec().name();
+  init.owner = tenant.name;
+  init.runner = make_job_runner(request.spec(), job_context);
+  init.store = state_.store;
+  init.usage = state_.usage;
+  init.max_stored_bytes = tenant.max_stored_bytes;
+  init.upload_ids = std::move(uploads);
+  init.hooks = state_.hooks;
+  auto job = std::make_shared<Job>(std::move(init));
+  if (state_.store) state_.store->put_job(job->id(), tenant.name, request.spec(), job->snapshot());
+  try {
+    state_.scheduler->submit(job);
+  } catch (...) {
+    if (state_.store) state_.store->delete_job(job->id());
+    throw;
+  }
+  if (state_.metrics) state_.metrics->jobs_submitted.with({job->kind()}).inc();
+  response.set_job_id(job->id());
+  *response.mutable_job() = job->snapshot();
 }
 
 grpc::ServerReadReactor<v1::UploadChunk>* SurfacerService::Upload(grpc::CallbackServerContext* context,
@@ -303,7 +364,7 @@ grpc::ServerReadReactor<v1::UploadChunk>* SurfacerService::Upload(grpc::Callback
   grpc::Status auth_status;
   const Tenant* tenant = authenticate(state_, *context, auth_status);
   if (!tenant) return new FailedRead(auth_status);
-  return new UploadReactor(state_, *tenant, response);
+  return new UploadReactor(state_, *context, *tenant, response);
 }
 
 grpc::ServerWriteReactor<v1::JobEvent>* SurfacerService::WatchJob(grpc::CallbackServerContext* context,
@@ -340,15 +401,60 @@ grpc::ServerUnaryReactor* SurfacerService::ListJobs(grpc::CallbackServerContext*
   auto* reactor = context->DefaultReactor();
   const Tenant* tenant = tenant_or_finish(state_, *context, reactor);
   if (!tenant) return reactor;
-  for (const auto& job : state_.scheduler->list()) {
-    if (job->owner() != tenant->name) continue;
-    v1::Job snapshot = job->snapshot();
-    bool keep = request->states_size() == 0;
-    for (int s : request->states()) keep = keep || s == snapshot.state();
-    if (keep) *response->add_jobs() = std::move(snapshot);
+  try {
+    list_jobs(*request, *tenant, *response);
+    reactor->Finish(grpc::Status::OK);
+  } catch (...) {
+    reactor->Finish(status_from_exception(std::current_exception()));
   }
-  reactor->Finish(grpc::Status::OK);
   return reactor;
+}
+
+void SurfacerService::list_jobs(const v1::ListJobsRequest& request, const Tenant& tenant,
+                                v1::ListJobsResponse& response) const {
+  for (int i = 0; i < request.states_size(); ++i) {
+    wire::require_known_enum(v1::JobState_descriptor(), request.states(i), "states[" + std::to_string(i) + "]");
+  }
+  if (request.page_size() < 0) {
+    throw InvalidInput("page_size", "page_size (" + std::to_string(request.page_size()) + ") must be >= 0 (0 means " +
+                                        std::to_string(wire::kDefaultListPageSize) + ")");
+  }
+  const int page_size =
+      request.page_size() == 0 ? wire::kDefaultListPageSize : std::min(request.page_size(), wire::kMaxListPageSize);
+  // Pages follow (created, id), oldest first; a token is the key of the last job of its page, so jobs removed or
+  // added meanwhile neither shift nor repeat the rest.
+  using Key = std::pair<std::int64_t, std::string>;
+  auto key_of = [](const v1::Job& job) {
+    return Key{job.created().seconds() * 1'000'000'000 + job.created().nanos(), job.id()};
+  };
+  std::optional<Key> after;
+  if (!request.page_token().empty()) {
+    const std::string& token = request.page_token();
+    const auto dash = token.find('-');
+    std::int64_t created = 0;
+    const auto [end, ec] = std::from_chars(token.data(), token.data() + std::min(dash, token.size()), created);
+    if (token.size() > wire::kMaxIdBytes || dash == std::string::npos || ec != std::errc() ||
+        end != token.data() + dash) {
+      throw InvalidInput("page_token", "page_token " + quote(token) +
+                                           " is not one ListJobs returned; pass next_page_token as it came, or none");
+    }
+    after = Key{created, token.substr(dash + 1)};
+  }
+  std::vector<std::pair<Key, v1::Job>> jobs;
+  for (const auto& job : state_.scheduler->list()) {
+    if (job->owner() != tenant.name) continue;
+    v1::Job snapshot = job->snapshot();
+    bool keep = request.states_size() == 0;
+    for (int s : request.states()) keep = keep || s == snapshot.state();
+    Key key = key_of(snapshot);
+    if (keep && (!after || *after < key)) jobs.emplace_back(std::move(key), std::move(snapshot));
+  }
+  std::sort(jobs.begin(), jobs.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+  const std::size_t n = std::min(jobs.size(), static_cast<std::size_t>(page_size));
+  for (std::size_t i = 0; i < n; ++i) *response.add_jobs() = std::move(jobs[i].second);
+  if (n < jobs.size()) {
+    response.set_next_page_token(std::to_string(jobs[n - 1].first.first) + "-" + jobs[n - 1].first.second);
+  }
 }
 
 grpc::ServerUnaryReactor* SurfacerService::CancelJob(grpc::CallbackServerContext* context,
@@ -363,6 +469,28 @@ grpc::ServerUnaryReactor* SurfacerService::CancelJob(grpc::CallbackServerContext
   } else {
     reactor->Finish(invalid_job_id(request->job_id()));
   }
+  return reactor;
+}
+
+grpc::ServerUnaryReactor* SurfacerService::GetServerInfo(grpc::CallbackServerContext* context,
+                                                         const v1::GetServerInfoRequest*, v1::ServerInfo* response) {
+  auto* reactor = context->DefaultReactor();
+  const Tenant* tenant = tenant_or_finish(state_, *context, reactor);
+  if (!tenant) return reactor;
+  const Limits& limits = state_.options.limits;
+  response->set_version(SURFACER_VERSION);
+  v1::ServerLimits* out = response->mutable_limits();
+  out->set_max_grid_cells(limits.max_grid_cells);
+  out->set_max_particles(limits.max_particles);
+  out->set_max_triangles(limits.max_triangles);
+  out->set_max_upload_bytes(UploadReactor::limit(state_, *tenant));
+  out->set_max_frames(limits.max_frames);
+  out->set_max_chunk_bytes(static_cast<std::int32_t>(wire::kMaxChunkBytes));
+  out->set_max_name_bytes(static_cast<std::int32_t>(wire::kMaxNameBytes));
+  out->set_max_id_bytes(static_cast<std::int32_t>(wire::kMaxIdBytes));
+  out->set_max_scene_depth(wire::kMaxSceneDepth);
+  out->set_max_list_page_size(wire::kMaxListPageSize);
+  reactor->Finish(grpc::Status::OK);
   return reactor;
 }
 

@@ -19,6 +19,7 @@ struct ServerMetrics;
 struct ServiceState {
   ServerOptions options;
   int worker_threads = 1;
+  const Executor* executor = nullptr;  // the worker pool, for the frames' checks and pieces
   Scheduler* scheduler = nullptr;
   UploadStore* uploads = nullptr;
   Store* store = nullptr;           // null: memory only
@@ -33,12 +34,13 @@ struct ServiceState {
 // The caller's tenant, or UNAUTHENTICATED.
 const Tenant* authenticate(const ServiceState& state, const grpc::CallbackServerContext& context, grpc::Status& status);
 
-class SurfacerService final : public v1::Surfacer::CallbackService {
+// SubmitJob takes its request as bytes and parses it itself (a scene nested too deep gets a clear error).
+class SurfacerService final : public v1::Surfacer::WithRawCallbackMethod_SubmitJob<v1::Surfacer::CallbackService> {
  public:
   explicit SurfacerService(ServiceState& state) : state_(state) {}
 
-  grpc::ServerUnaryReactor* SubmitJob(grpc::CallbackServerContext* context, const v1::SubmitJobRequest* request,
-                                      v1::SubmitJobResponse* response) override;
+  grpc::ServerUnaryReactor* SubmitJob(grpc::CallbackServerContext* context, const grpc::ByteBuffer* request,
+                                      grpc::ByteBuffer* response) override;
   grpc::ServerReadReactor<v1::UploadChunk>* Upload(grpc::CallbackServerContext* context,
                                                    v1::UploadResponse* response) override;
   grpc::ServerWriteReactor<v1::JobEvent>* WatchJob(grpc::CallbackServerContext* context,
@@ -49,8 +51,15 @@ class SurfacerService final : public v1::Surfacer::CallbackService {
                                      v1::ListJobsResponse* response) override;
   grpc::ServerUnaryReactor* CancelJob(grpc::CallbackServerContext* context, const v1::CancelJobRequest* request,
                                       v1::Job* response) override;
+  grpc::ServerUnaryReactor* GetServerInfo(grpc::CallbackServerContext* context, const v1::GetServerInfoRequest* request,
+                                          v1::ServerInfo* response) override;
 
  private:
+  // Validates the spec, creates the job and queues it. Throws surfacer::Error (the refusal's status).
+  void submit(const v1::SubmitJobRequest& request, const Tenant& tenant, v1::SubmitJobResponse& response);
+  // One page of the tenant's jobs. Throws InvalidInput for a bad filter, page size or token.
+  void list_jobs(const v1::ListJobsRequest& request, const Tenant& tenant, v1::ListJobsResponse& response) const;
+
   ServiceState& state_;
 };
 

@@ -2,11 +2,11 @@
 
 #include <fcntl.h>
 #include <google/protobuf/descriptor.h>
-#include <google/protobuf/util/time_util.h>
 #include <sqlite3.h>
 #include <sys/file.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstring>
 #include <fstream>
@@ -22,7 +22,6 @@ namespace surfacer::server {
 namespace {
 
 namespace fs = std::filesystem;
-using google::protobuf::util::TimeUtil;
 
 // One prepared statement, finalized on scope exit.
 class Stmt {
@@ -110,7 +109,9 @@ class Transaction {
   bool done_ = false;
 };
 
-std::int64_t now_unix() { return TimeUtil::TimestampToSeconds(TimeUtil::GetCurrentTime()); }
+std::int64_t now_unix() {
+  return std::chrono::duration_cast<std::chrono::seconds>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
 
 [[noreturn]] void throw_io(const std::string& what, const fs::path& path, int err) {
   throw ResourceLimit("data_dir", what + " " + path.string() + " failed: " + std::strerror(err) +
@@ -223,16 +224,22 @@ fs::path Store::upload_path(const std::string& id) const {
   return dir_ / "uploads" / (id + ".bin");
 }
 
-void Store::write_file_atomic(const fs::path& path, const std::string& bytes) const {
+void Store::write_file_atomic(const fs::path& path, const std::string& bytes, const RunControl& control) const {
   std::string tmp_name = path.filename().string();
   tmp_name.append(".tmp");
   tmp_name.insert(tmp_name.begin(), '.');
   const fs::path tmp = path.parent_path() / tmp_name;
   const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0640);
   if (fd < 0) throw_io("creating", tmp, errno);
+  constexpr std::size_t kPiece = std::size_t{4} << 20;  // between cancel checks
   std::size_t done = 0;
   while (done < bytes.size()) {
-    const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+    if (control.cancelled()) {
+      ::close(fd);
+      ::unlink(tmp.c_str());
+      throw Cancelled();
+    }
+    const ssize_t n = ::write(fd, bytes.data() + done, std::min(kPiece, bytes.size() - done));
     if (n < 0 && errno == EINTR) continue;
     if (n <= 0) {
       const int err = n < 0 ? errno : ENOSPC;
@@ -301,12 +308,13 @@ void Store::update_job(const v1::Job& snapshot) {
   s.run();
 }
 
-void Store::put_frame(const std::string& job_id, const v1::FrameHeader& header, const std::string& bytes) {
+void Store::put_frame(const std::string& job_id, const v1::FrameHeader& header, const std::string& bytes,
+                      const RunControl& control) {
   const fs::path path = frame_path(job_id, header.frame_index());
   std::error_code ec;
   fs::create_directories(path.parent_path(), ec);
   if (ec) throw_io("creating", path.parent_path(), ec.value());
-  write_file_atomic(path, bytes);
+  write_file_atomic(path, bytes, control);
   try {
     std::lock_guard lock(mutex_);
     Transaction tx(db_);
@@ -512,6 +520,11 @@ std::vector<StoredUpload> Store::list_uploads() const {
   Stmt s(db_, "SELECT id, owner, name, bytes, created FROM uploads ORDER BY created, rowid");
   while (s.step()) out.push_back({s.text(0), s.text(1), s.text(2), s.integer(3), s.integer(4)});
   return out;
+}
+
+void Store::reclaim() {
+  std::lock_guard lock(mutex_);
+  sqlite3_wal_checkpoint_v2(db_, nullptr, SQLITE_CHECKPOINT_TRUNCATE, nullptr, nullptr);
 }
 
 std::int64_t Store::total_bytes() const {

@@ -17,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "core/util/run_control.h"
 #include "surfacer/v1/surfacer.pb.h"
 
 struct sqlite3;
@@ -69,8 +70,10 @@ class Store {
   // the store is unchanged then.
   void put_job(const std::string& id, const std::string& owner, const v1::JobSpec& spec, const v1::Job& snapshot);
   void update_job(const v1::Job& snapshot);
-  // Writes the frame's bytes and records its header, atomically.
-  void put_frame(const std::string& job_id, const v1::FrameHeader& header, const std::string& bytes);
+  // Writes the frame's bytes and records its header, atomically. The bytes go out in pieces of a few MiB and
+  // `control` is checked between them: a cancel leaves nothing stored and throws Cancelled.
+  void put_frame(const std::string& job_id, const v1::FrameHeader& header, const std::string& bytes,
+                 const RunControl& control = {});
   // Reads a stored frame's bytes back, checking size and CRC-32. Throws std::runtime_error when it is gone
   // (retention) or damaged.
   std::string read_frame(const std::string& job_id, const v1::FrameHeader& header) const;
@@ -86,6 +89,10 @@ class Store {
   std::shared_ptr<UploadBlob> load_upload(const std::string& id, std::string* owner = nullptr) const;
   void delete_upload(const std::string& id);
   std::vector<StoredUpload> list_uploads() const;
+
+  // After a write the disk refused: moves the WAL's pages into the database file and truncates the WAL, which gives
+  // back its space (best effort; nothing changes when it cannot).
+  void reclaim();
 
   // --- Accounting -------------------------------------------------------------------------------------------
   std::int64_t total_bytes() const;
@@ -104,7 +111,8 @@ class Store {
  private:
   explicit Store(std::filesystem::path dir);
   void exec(const char* sql) const;
-  void write_file_atomic(const std::filesystem::path& path, const std::string& bytes) const;
+  void write_file_atomic(const std::filesystem::path& path, const std::string& bytes,
+                         const RunControl& control = {}) const;
   std::filesystem::path frame_path(const std::string& job_id, int index) const;
   std::filesystem::path checkpoint_path(const std::string& job_id, int task, int next_frame) const;
   std::filesystem::path upload_path(const std::string& id) const;

@@ -4,10 +4,10 @@
 #include <string>
 
 #include "core/util/crc32.h"
+#include "wire/protocol.h"
 
 namespace surfacer::server {
 namespace {
-constexpr std::size_t kMaxUploadName = 1024;
 constexpr std::uint64_t kReserveAtMost = std::uint64_t{4} << 20;
 }  // namespace
 
@@ -30,10 +30,24 @@ grpc::Status UploadAssembler::add(const v1::UploadChunk& chunk) {
   if (finished_ || !blob_) {
     return fail({grpc::StatusCode::FAILED_PRECONDITION, "chunk after the end of the upload"});
   }
+  const std::string chunk_name = "chunk " + std::to_string(chunks_);
+  if (chunk.data().size() > wire::kMaxChunkBytes) {
+    return fail({grpc::StatusCode::INVALID_ARGUMENT, chunk_name + ": data is " + std::to_string(chunk.data().size()) +
+                                                         " bytes; a chunk carries at most " +
+                                                         std::to_string(wire::kMaxChunkBytes) + " (1 MiB)"});
+  }
+  if (chunks_ == 0) indexed_ = chunk.has_chunk_index();
+  if (indexed_ && (!chunk.has_chunk_index() || chunk.chunk_index() != static_cast<std::uint32_t>(chunks_))) {
+    return fail({grpc::StatusCode::DATA_LOSS,
+                 chunk_name + ": chunk_index is " +
+                     (chunk.has_chunk_index() ? std::to_string(chunk.chunk_index()) : std::string("missing")) +
+                     " (a chunk was lost or reordered, or the index left out); resend the upload"});
+  }
   if (chunks_ == 0) {
-    if (chunk.name().size() > kMaxUploadName) {
-      return fail({grpc::StatusCode::INVALID_ARGUMENT, "name: longer than " + std::to_string(kMaxUploadName) +
-                                                           " bytes; send a short file name (it is only a label)"});
+    if (chunk.name().size() > wire::kMaxNameBytes) {
+      return fail({grpc::StatusCode::INVALID_ARGUMENT,
+                   "name is " + std::to_string(chunk.name().size()) + " bytes; the limit is " +
+                       std::to_string(wire::kMaxNameBytes) + " bytes (it is a label; send a short file name)"});
     }
     blob_->name = chunk.name();
     expected_ = chunk.total_bytes();
@@ -44,8 +58,7 @@ grpc::Status UploadAssembler::add(const v1::UploadChunk& chunk) {
   }
   const std::string& data = chunk.data();
   if (chunk.has_crc32() && crc32_of(data.data(), data.size()) != chunk.crc32()) {
-    return fail({grpc::StatusCode::DATA_LOSS,
-                 "chunk " + std::to_string(chunks_) + ": crc32 does not match its data; resend the upload"});
+    return fail({grpc::StatusCode::DATA_LOSS, chunk_name + ": crc32 does not match its data; resend the upload"});
   }
   const std::uint64_t total = blob_->bytes.size() + data.size();
   if (total > static_cast<std::uint64_t>(max_bytes_)) return fail(over_limit(total));
@@ -62,6 +75,10 @@ grpc::Status UploadAssembler::add(const v1::UploadChunk& chunk) {
 grpc::Status UploadAssembler::finish() {
   if (!error_.ok()) return error_;
   if (finished_ || !blob_) return fail({grpc::StatusCode::FAILED_PRECONDITION, "upload already finished"});
+  if (chunks_ == 0) {
+    return fail({grpc::StatusCode::INVALID_ARGUMENT,
+                 "the upload ended before its first chunk; send at least one (an empty upload is one empty chunk)"});
+  }
   if (expected_ != 0 && expected_ != blob_->bytes.size()) {
     return fail({grpc::StatusCode::DATA_LOSS, "total_bytes: the first chunk announced " + std::to_string(expected_) +
                                                   " bytes but " + std::to_string(blob_->bytes.size()) + " arrived"});

@@ -21,9 +21,10 @@ class UploadAssembler {
                                                        "--max-upload-bytes");
 
   // Adds the next chunk. A non-OK status ends the upload (RESOURCE_EXHAUSTED past the limit, DATA_LOSS on a bad
-  // checksum, INVALID_ARGUMENT on a malformed chunk); later calls return the same status.
+  // checksum or a chunk_index out of sequence, INVALID_ARGUMENT on a malformed chunk: more than 1 MiB of data, a
+  // name over its limit); later calls return the same status.
   grpc::Status add(const v1::UploadChunk& chunk);
-  // The client closed the stream: checks the announced total. OK -> take() returns the blob.
+  // The client closed the stream: checks the announced total (and that a chunk came). OK -> take() returns the blob.
   grpc::Status finish();
   std::shared_ptr<UploadBlob> take();
 
@@ -41,6 +42,7 @@ class UploadAssembler {
   std::uint64_t expected_ = 0;
   std::uint32_t crc_ = 0;
   int chunks_ = 0;
+  bool indexed_ = false;  // the first chunk carried a chunk_index: every chunk must
   bool finished_ = false;
 };
 

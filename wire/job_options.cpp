@@ -2,23 +2,21 @@
 
 #include "core/util/checks.h"
 #include "core/util/errors.h"
+#include "wire/enums.h"
 #include "wire/scene.h"
 
 namespace surfacer::wire {
 
 Polygonizer to_polygonizer(int value, Polygonizer unspecified, const std::string& field) {
+  require_known_enum(v1::Polygonizer_descriptor(), value, field);
   switch (value) {
-    case v1::POLYGONIZER_UNSPECIFIED:
-      return unspecified;
     case v1::POLYGONIZER_TILES:
       return Polygonizer::kTiles;
     case v1::POLYGONIZER_CUBES:
       return Polygonizer::kCubes;
     default:
-      break;
+      return unspecified;
   }
-  throw InvalidInput(field, field + " (" + std::to_string(value) +
-                                ") is not a polygonizer; use POLYGONIZER_TILES or POLYGONIZER_CUBES");
 }
 
 v1::Polygonizer to_wire(Polygonizer polygonizer) {
@@ -117,7 +115,7 @@ MeshOptimizerOptions optimizer_options(const v1::OptimizeJob& job, bool normals,
 ActiveSurfaceOptions active_options(const v1::ActiveJob& job, bool normals, const std::string& path) {
   ActiveSurfaceOptions options;
   // The request calls the engine's h grid_spacing, and has no default for it.
-  with_path(path, [&] { require_positive("grid_spacing", job.grid_spacing(), "the potential's grid spacing h"); });
+  with_path(path, [&] { require_length("grid_spacing", job.grid_spacing(), "the potential's grid spacing h"); });
   options.h = job.grid_spacing();
   if (job.has_bounds()) options.domain = to_aabb(job.bounds(), path + ".bounds");
   const bool tracking = job.mode_case() == v1::ActiveJob::kCoat || job.mode_case() == v1::ActiveJob::kMorph;
@@ -144,8 +142,69 @@ ActiveSurfaceOptions active_options(const v1::ActiveJob& job, bool normals, cons
   }
   options.polygonizer = to_polygonizer(job.polygonizer(), options.polygonizer, path + ".polygonizer");
   options.normals = normals;
-  with_path(path, [&] { validate(options); });
+  try {
+    validate(options);
+    if (job.mode_case() == v1::ActiveJob::kAdvect) validate_advect(options);
+  } catch (const Error& e) {
+    // The engine's domain is the request's bounds, at its grid spacing.
+    if (e.field() == "domain") {
+      throw Error(e.kind(), path + ".bounds",
+                  path + ".bounds at grid_spacing " + format_number(options.h) + ": " + e.what());
+    }
+    if (e.kind() == ErrorKind::kInvalidInput) throw at_path(e, path);
+    throw;
+  }
   return options;
+}
+
+namespace {
+
+// Runs validate() of a mode's options; an InvalidInput it throws is placed at `path`.mode with the request's name
+// for the field (`renames`: engine name -> request name), or at `path` itself for the job-wide alpha.
+template <class F>
+void validate_mode(const std::string& path, const std::string& mode,
+                   std::initializer_list<std::pair<std::string_view, std::string_view>> renames, F&& validate_options) {
+  try {
+    validate_options();
+  } catch (const Error& e) {
+    if (e.kind() != ErrorKind::kInvalidInput) throw;
+    if (e.field() == "alpha") throw at_path(e, path);
+    for (const auto& [engine, request] : renames) {
+      if (e.field() != engine) continue;
+      std::string message = e.what();
+      if (message.starts_with(engine)) message = std::string(request) + message.substr(engine.size());
+      throw at_path(Error(e.kind(), std::string(request), message), path + "." + mode);
+    }
+    throw at_path(e, path + "." + mode);
+  }
+}
+
+}  // namespace
+
+CoatOptions coat_options(const v1::ActiveCoat& coat, const ActiveSurfaceOptions& options, const std::string& path) {
+  CoatOptions out;
+  out.kernel.radius = coat.kernel_radius();
+  if (coat.has_iso()) out.kernel.iso = coat.iso();
+  validate_mode(path, "coat", {{"kernel.radius", "kernel_radius"}, {"kernel.iso", "iso"}},
+                [&] { validate(out, options); });
+  return out;
+}
+
+MorphOptions morph_options(const v1::ActiveMorph& morph, const ActiveSurfaceOptions& options, const std::string& path) {
+  MorphOptions out;
+  if (morph.has_tolerance()) out.tolerance = morph.tolerance();
+  if (morph.has_max_frames()) out.max_frames = morph.max_frames();
+  if (morph.has_frame_time()) out.frame_duration = morph.frame_time();
+  validate_mode(path, "morph", {{"frame_duration", "frame_time"}}, [&] { validate(out, options); });
+  return out;
+}
+
+AdvectOptions advect_options(const v1::ActiveAdvect& advect, const std::string& path) {
+  AdvectOptions out;
+  out.frame_interval = advect.frame_interval();
+  out.frames = advect.frames();
+  validate_mode(path, "advect", {}, [&] { validate(out); });
+  return out;
 }
 
 }  // namespace surfacer::wire

@@ -44,5 +44,10 @@ MeshOptimizerOptions optimizer_options(const v1::OptimizeJob& job, bool normals,
 // ActiveJob: grid spacing, domain, motion coefficients (alpha defaults to kTrackingAlpha in coat and morph), cfl,
 // polygonizer.
 ActiveSurfaceOptions active_options(const v1::ActiveJob& job, bool normals, const std::string& path);
+// The active job's mode (path "spec.active"), each validated with the job's `options` (the engine's names become the
+// request's: kernel_radius, iso, frame_time; alpha is the job's).
+CoatOptions coat_options(const v1::ActiveCoat& coat, const ActiveSurfaceOptions& options, const std::string& path);
+MorphOptions morph_options(const v1::ActiveMorph& morph, const ActiveSurfaceOptions& options, const std::string& path);
+AdvectOptions advect_options(const v1::ActiveAdvect& advect, const std::string& path);
 
 }  // namespace surfacer::wire

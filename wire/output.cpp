@@ -5,22 +5,49 @@
 
 namespace surfacer::wire {
 
-FrameEncoding frame_encoding(const v1::OutputOptions& options, const Aabb& job_bounds, const std::string& path) {
-  FrameEncoding out;
-  switch (options.encoding()) {
+v1::MeshEncoding mesh_encoding(FrameCodec codec) {
+  switch (codec) {
+    case FrameCodec::kDraco:
+      return v1::MESH_ENCODING_DRACO;
+    case FrameCodec::kDracoPieces:
+      return v1::MESH_ENCODING_DRACO_PIECES;
+    case FrameCodec::kMeshopt:
+      return v1::MESH_ENCODING_MESHOPT;
+    case FrameCodec::kPly:
+      return v1::MESH_ENCODING_PLY;
+  }
+  return v1::MESH_ENCODING_UNSPECIFIED;
+}
+
+std::optional<FrameCodec> frame_codec(v1::MeshEncoding encoding) {
+  switch (encoding) {
     case v1::MESH_ENCODING_UNSPECIFIED:
     case v1::MESH_ENCODING_DRACO:
-      out.encoding = v1::MESH_ENCODING_DRACO;
-      break;
+      return FrameCodec::kDraco;
+    case v1::MESH_ENCODING_DRACO_PIECES:
+      return FrameCodec::kDracoPieces;
+    case v1::MESH_ENCODING_MESHOPT:
+      return FrameCodec::kMeshopt;
     case v1::MESH_ENCODING_PLY:
-      out.encoding = v1::MESH_ENCODING_PLY;
-      break;
+      return FrameCodec::kPly;
     default:
-      throw InvalidInput(path + ".encoding", path + ".encoding (" + std::to_string(options.encoding()) +
-                                                 ") is not a mesh encoding; use MESH_ENCODING_DRACO or "
-                                                 "MESH_ENCODING_PLY");
+      return std::nullopt;
   }
-  DracoOptions& draco = out.draco;
+}
+
+v1::MeshEncoding FrameEncoding::mesh_encoding() const { return wire::mesh_encoding(options.codec); }
+
+FrameEncoding frame_encoding(const v1::OutputOptions& options, const Aabb& job_bounds, const std::string& path) {
+  FrameEncoding out;
+  const std::optional<FrameCodec> codec = frame_codec(options.encoding());
+  if (!codec) {
+    throw InvalidInput(path + ".encoding", path + ".encoding (" + std::to_string(options.encoding()) +
+                                               ") is not a mesh encoding; use MESH_ENCODING_DRACO, "
+                                               "MESH_ENCODING_DRACO_PIECES, MESH_ENCODING_MESHOPT or "
+                                               "MESH_ENCODING_PLY");
+  }
+  out.options.codec = *codec;
+  DracoOptions& draco = out.options.draco;
   if (options.has_quantization_bits()) draco.quantization_bits = options.quantization_bits();
   if (options.has_draco_speed()) draco.speed = options.draco_speed();
   draco.quantization_bounds = options.has_quantization_bounds()
@@ -29,7 +56,7 @@ FrameEncoding frame_encoding(const v1::OutputOptions& options, const Aabb& job_b
   draco.normals = options.normals();
   // The engine's names for the two fields the request names differently.
   try {
-    validate(draco);
+    validate(out.options);
   } catch (const Error& e) {
     if (e.kind() != ErrorKind::kInvalidInput) throw;
     throw at_path(e.field() == "speed" ? Error(e.kind(), "draco_speed", std::string("draco_") + e.what()) : e, path);

@@ -7,6 +7,9 @@
 #include "core/util/checks.h"
 #include "core/util/errors.h"
 #include "surfacer/v1/scene.pb.h"
+#include "wire/enums.h"
+#include "wire/protocol.h"
+#include "wire/request_limits.h"
 #include "wire/uploads.h"
 
 namespace surfacer::wire {
@@ -18,15 +21,22 @@ double or_default(double value, double fallback) { return value == 0.0 ? fallbac
 
 class Translator {
  public:
-  explicit Translator(const UploadLookup& uploads) : uploads_(uploads) {}
+  Translator(const UploadLookup& uploads, std::string root) : uploads_(uploads), root_(std::move(root)) {}
 
   FieldPtr node(const NodeProto& n, const std::string& path) {
-    if (++depth_ > kMaxSceneDepth) {
-      throw InvalidInput(path, path + ": scene is nested deeper than " + std::to_string(kMaxSceneDepth) +
-                                   " levels; flatten unions into one node with many children");
-    }
+    if (++depth_ > kMaxSceneDepth) throw InvalidInput(root_, root_ + ": " + scene_too_deep());
     FieldPtr result = dispatch(n, path);
     --depth_;
+    // Every argument is within range, but some nodes reach far beyond them (a Blinn kernel of tiny blobbiness).
+    if (const std::optional<Aabb> b = result->bounds()) {
+      const double reach = std::max(b->min.cwiseAbs().maxCoeff(), b->max.cwiseAbs().maxCoeff());
+      if (!(reach <= kMaxCoordinate)) {
+        const std::string where = path + "." + NodeProto::descriptor()->FindFieldByNumber(n.kind_case())->name();
+        throw InvalidInput(where, where + ": the node reaches " + format_number(reach) + ", beyond +-" +
+                                      format_number(kMaxCoordinate) +
+                                      ", the range of coordinates; bring its arguments into a smaller region");
+      }
+    }
     return result;
   }
 
@@ -106,6 +116,7 @@ class Translator {
       segments.push_back({to_vec3(s.a()), to_vec3(s.b()), s.radius(), or_default(s.strength(), 1.0)});
     }
     BlobOptions options;
+    require_known_enum(v1::Kernel_descriptor(), b.kernel(), path + ".kernel");
     options.kernel = b.kernel() == v1::KERNEL_BLINN ? BlobKernel::kBlinn : BlobKernel::kWyvill;
     options.iso = or_default(b.iso(), 0.5);
     options.blobbiness = or_default(b.blobbiness(), 1.0);
@@ -119,6 +130,7 @@ class Translator {
       children.push_back(node(c.children(i), path + ".children[" + std::to_string(i) + "]"));
     }
     CsgOptions options;
+    require_known_enum(v1::Blend_descriptor(), c.blend(), path + ".blend");
     switch (c.blend()) {
       case v1::BLEND_RFUNCTION:
         options.blend = CsgBlend::kRFunction;
@@ -146,6 +158,9 @@ class Translator {
         throw InvalidInput(path + ".matrix", path + ".matrix has " + std::to_string(t.matrix_size()) +
                                                  " numbers; give 12 (row-major 3x4 [A | t]) or none");
       }
+      for (int i = 0; i < 12; ++i) {
+        with_path(path, [&] { require_coordinate("matrix[" + std::to_string(i) + "]", t.matrix(i)); });
+      }
       for (int r = 0; r < 3; ++r) {
         for (int c = 0; c < 3; ++c) linear(r, c) = t.matrix(4 * r + c);
         translation[r] = t.matrix(4 * r + 3);
@@ -153,15 +168,23 @@ class Translator {
     } else {
       const double scale = or_default(t.scale(), 1.0);
       const Vec3 axis = to_vec3(t.rotate_axis());
+      with_path(path, [&] {
+        require_range("scale", scale, 1.0 / kMaxCoordinate, kMaxCoordinate, "0 or absent means 1");
+        require_finite("rotate_axis", axis);
+        require_finite("rotate_degrees", t.rotate_degrees());
+        require_coordinate("translate", to_vec3(t.translate()));
+      });
       Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();
       if (t.rotate_degrees() != 0.0) {
-        if (!(axis.norm() > 0.0)) {
+        const double largest = axis.cwiseAbs().maxCoeff();  // scaled first: the norm of a huge axis overflows
+        if (!(largest > 0.0)) {
           throw InvalidInput(path + ".rotate_axis",
                              path + ".rotate_axis is zero; give the axis to rotate about, e.g. {\"z\": 1}");
         }
-        rotation = Eigen::AngleAxisd(t.rotate_degrees() * M_PI / 180.0, axis.normalized()).toRotationMatrix();
+        // Whole turns dropped first: sin and cos of a huge angle in radians lose every digit.
+        const double degrees = std::fmod(t.rotate_degrees(), 360.0);
+        rotation = Eigen::AngleAxisd(degrees * M_PI / 180.0, (axis / largest).normalized()).toRotationMatrix();
       }
-      with_path(path, [&] { require_positive("scale", scale, "0 or absent means 1"); });
       linear = scale * rotation;
       translation = to_vec3(t.translate());
     }
@@ -197,6 +220,7 @@ class Translator {
   }
 
   const UploadLookup& uploads_;
+  const std::string root_;  // the scene's root node, where a depth error points
   int depth_ = 0;
 };
 
@@ -227,7 +251,7 @@ FieldPtr field_from_scene(const v1::Scene& scene, const std::string& path, const
                                            ".root is missing; a scene needs a root node, e.g. "
                                            "{\"root\": {\"sphere\": {\"radius\": 1}}}");
   }
-  Translator translator(uploads);
+  Translator translator(uploads, path + ".root");
   return translator.node(scene.root(), path + ".root");
 }
 

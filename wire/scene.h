@@ -16,9 +16,6 @@ namespace surfacer::wire {
 
 class UploadLookup;
 
-// Nodes nested deeper than this are refused (the CSG and transform nodes recurse).
-inline constexpr int kMaxSceneDepth = 200;
-
 // Builds the field of `scene`. `path` names the scene in the request (e.g. "spec.isosurface.scenes[0]") and
 // prefixes every error: "spec.isosurface.scenes[0].root.sphere.radius (-1) must be > 0".
 // Throws surfacer::Error(kInvalidInput).

@@ -23,6 +23,10 @@
 //   run densely over the 512 nodes of each block with an active node (vectorized), keeping only active results.
 // * Time-dependent velocities: the step is chosen from |u| at the step's start, at most twice the previous step, and
 //   rejected (recomputed with a smaller dt) when |u| at the second stage breaks the CFL limit of 1.
+// * Control terms on top of advection (not in the paper, nor in OpenVDB's LevelSetAdvection): with beta, gamma or
+//   delta (or alpha and a target) the extended normal speed s is added, df/dt = -u . grad f + s |grad f|, each term
+//   upwinded on its own, s frozen over the sub-step, the CFL speed |u| + |s|, and the controllers' step bounds as in
+//   the normal-speed modes. Volume control then holds the volume the advection scheme loses (Enright test).
 // * Reinitialization every reinit_interval sub-steps: d_tau = -S(d0) (|grad d| - 1) in grid units, Godunov with
 //   second-order ENO differences, pseudo-time step 1/2, ceil(2 (w - 1)) + 2 iterations over all allocated blocks. The
 //   surface must not move, and every rescaling of the nodes at a crossed edge moves the linearly interpolated
@@ -60,7 +64,7 @@ constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
 // Per-thread scratch arrays for aprons.
 float* scratch(int slot, std::size_t size) {
-  thread_local std::vector<float> buffers[4];
+  thread_local std::vector<float> buffers[6];
   if (buffers[slot].size() < size) buffers[slot].resize(size);
   return buffers[slot].data();
 }
@@ -689,8 +693,24 @@ void active_detail::Engine::stage_rate(int b, int in_ch, double t_stage, float* 
         ms = std::max(ms, v.norm());
       }
     }
-    if (max_speed != nullptr) *max_speed = ms;
     active_detail::advect_rate_block(ap, u, u + kBlockNodes, u + std::ptrdiff_t{2} * kBlockNodes, inv_h_f, rate);
+    if (advect_controls()) {
+      // The control terms' normal speed on top of the advection: df/dt = -u . grad f + s |grad f|, each term upwinded
+      // on its own, and the block's speed is the largest |u| + |s|.
+      const float* speed = grid.data(b, kChanSpeed);
+      float* s = scratch(4, kBlockNodes);
+      float* normal_rate = scratch(5, kBlockNodes);
+      std::fill_n(s, kBlockNodes, 0.0f);
+      ms = 0.0;
+      for (const std::uint16_t i : active[b]) {
+        s[i] = speed[i];
+        const Vec3 ui(u[i], u[kBlockNodes + i], u[2 * kBlockNodes + i]);
+        ms = std::max(ms, ui.norm() + std::abs(static_cast<double>(speed[i])));
+      }
+      active_detail::normal_rate_block(ap, s, inv_h_f, normal_rate);
+      for (const std::uint16_t i : active[b]) rate[i] += normal_rate[i];
+    }
+    if (max_speed != nullptr) *max_speed = ms;
   } else {
     const float* speed = grid.data(b, kChanSpeed);
     float* s = scratch(2, kBlockNodes);
@@ -711,11 +731,11 @@ double active_detail::Engine::stable_dt(double vmax) const {
   const double cfl = opt.cfl ? *opt.cfl : 1.0;
   double dt_stable = kInf;
   if (vmax > 0.0) dt_stable = cfl * h / vmax;
-  if (!advect) {
+  if (!advect || advect_controls()) {
     if (opt.beta > 0.0) dt_stable = std::min(dt_stable, cfl * h * h / (6.0 * opt.beta));
     // The controllers are stiff too: tracking relaxes the distance to the target at the rate alpha |grad g|, volume
     // control the volume at delta A / V0, area control the area at about gamma mean|kappa| A / A0; an explicit
-    // step must stay below the inverse rates.
+    // step must stay below the inverse rates. (last_measures is the sub-step's own: extend_speed measured it.)
     const ActiveMeasures& m = last_measures;
     if (target && opt.alpha > 0.0 && m.max_target_gradient > 0.0) {
       dt_stable = std::min(dt_stable, cfl / (opt.alpha * m.max_target_gradient));
@@ -733,9 +753,9 @@ double active_detail::Engine::stable_dt(double vmax) const {
   return dt_stable;
 }
 
-// TVD-RK3 from the stage-1 rates (kChanA, or kChanSpeed when advecting), into kChanA: Shu-Osher's three stages, the
-// result clamped to [-1, 1] and cut by the domain wall. An advecting step whose stage-2 velocity breaks the CFL bound
-// is retried shorter (at most 8 times). Returns the dt taken.
+// TVD-RK3 from the stage-1 rates (kChanA, or advect_rate_channel() when advecting), into kChanA: Shu-Osher's three
+// stages, the result clamped to [-1, 1] and cut by the domain wall. An advecting step whose stage-2 speed breaks the
+// CFL bound is retried shorter (at most 8 times). Returns the dt taken.
 double active_detail::Engine::runge_kutta(double dt, const RunControl& control) {
   const bool advect = advecting();
   const int nb = grid.block_count();
@@ -746,7 +766,7 @@ double active_detail::Engine::runge_kutta(double dt, const RunControl& control) 
     if (advect) {
       parallel_for(nb, threads, [&](int b) {
         const float* f = grid.data(b, kChanF);
-        const float* rate = grid.data(b, kChanSpeed);
+        const float* rate = grid.data(b, advect_rate_channel());
         float* out = grid.data(b, kChanA);
         std::copy_n(f, kBlockNodes, out);
         for (const std::uint16_t i : active[b]) out[i] = f[i] + dt_f * rate[i];
@@ -772,7 +792,8 @@ double active_detail::Engine::runge_kutta(double dt, const RunControl& control) 
       for (const std::uint16_t i : active[b]) out[i] = 0.75f * f[i] + 0.25f * (in[i] + dt_f * rate[i]);
     });
     if (advect) {
-      const double v2 = *std::max_element(block_max_speed.begin(), block_max_speed.end());
+      // No block left (the surface vanished under the grid's resolution): no speed at all.
+      const double v2 = nb == 0 ? 0.0 : *std::max_element(block_max_speed.begin(), block_max_speed.end());
       if (v2 * dt > h && attempt < 8) {  // beyond the CFL limit of 1 at t + dt: retry with the larger speed
         dt = std::min(dt, cfl * h / v2);
         continue;
@@ -806,14 +827,18 @@ double active_detail::Engine::step(double dt_limit, const RunControl& control) {
   const bool advect = advecting();
   const int nb = grid.block_count();
   const double cfl = opt.cfl ? *opt.cfl : 1.0;
-  if (!advect) extend_speed(control);
+  if (advect_controls() && advect_rate < 0) {
+    advect_rate = grid.channels();
+    grid.add_channels(1, 0.0f);
+  }
+  if (!advect || advect_controls()) extend_speed(control);
 
   // Runge-Kutta stages. stage_rate computes L(in) = df/dt for the 512 nodes of a block (dense, vectorized WENO);
   // only active nodes keep it. Stage outputs equal f at inactive nodes.
   std::vector<double> block_max_rate(nb, 0.0), block_max_speed(nb, 0.0);
-  // Stage 1: L(f) (into A in normal-speed modes; into Speed when advecting, where Speed is free, so that a rejected
-  // step can restart from it), with the maxima for the time step.
-  const int rate_ch = advect ? kChanSpeed : kChanA;
+  // Stage 1: L(f) (into A in normal-speed modes; when advecting into Speed, free unless it holds the control speed,
+  // else into the extra channel, so that a rejected step can restart from it), with the maxima for the time step.
+  const int rate_ch = advect ? advect_rate_channel() : kChanA;
   control.check();
   parallel_for(nb, threads, [&](int b) {
     const float* f = grid.data(b, kChanF);

@@ -14,7 +14,9 @@
 //   speed -beta * kappa shrinks a sphere of radius r with dr/dt = -2 beta / r (the CHOICE of sign made there).
 //   Units: alpha [length / (time * unit of g)], beta [length^2 / time], gamma and delta [length / time].
 // * Advection: df/dt = -u . grad f for a velocity u (the material derivative of f vanishes), i.e. the normal speed
-//   s = u . n. A uniform u translates the surface by u t whatever the sign convention of f.
+//   s = u . n. A uniform u translates the surface by u t whatever the sign convention of f. The motion strategy's
+//   terms act on top (ALGORITHMS §4, "Advection"): df/dt = -u . grad f + s |grad f|, so delta holds the volume an
+//   advection scheme loses, beta smooths, gamma holds the area (alpha needs a target: set_target).
 //
 // Engine (core/active/active_surface.cpp; the choices and their measurements are explained there):
 // * Storage: a hash of 8^3-node blocks (core/active/sparse_grid.h) allocated around the band only, so memory grows with
@@ -154,8 +156,8 @@ class ActiveSurface {
   // (make_particle_target); for a morph, shape B. nullptr clears it. Evaluated only at the surface sample points
   // (value and gradient; the gradient bounds the time step), or at band nodes the speed extension does not reach.
   void set_target(FieldPtr target);
-  // Advect mode: the surface is carried by u (the motion strategy is then ignored). An empty function returns to
-  // the normal-speed mode.
+  // Advect mode: the surface is carried by u, plus the motion strategy's normal speed when any of its terms is on
+  // (see "Advection" above). An empty function returns to the normal-speed mode.
   void set_velocity(VelocityFn velocity);
   // The same for a separable velocity (cached per node). Throws InvalidInput("velocity") without a spatial part.
   void set_velocity(SeparableVelocity velocity);
@@ -242,6 +244,8 @@ struct ParticleTargetOptions {
 // (core/scene/scene.h make_blobs with point skeletons: a uniform grid of cell R, so a query visits only nearby
 // particles). Throws InvalidInput("particles") for an empty set, "radius", "iso".
 FieldPtr make_particle_target(std::span<const Vec3> particles, const ParticleTargetOptions& options);
+// Throws InvalidInput("radius" / "iso") unless each is finite and > 0.
+void validate(const ParticleTargetOptions& options);
 
 // --- One-shot helpers for the three modes (each output frame is polygonized and handed to `sink`) -----------------
 
@@ -276,6 +280,9 @@ struct CoatOptions {
 // Returns the number of frames emitted (by this call, when resumed).
 int coat_particles(std::span<const std::vector<Vec3>> frames, const CoatOptions& coat,
                    const ActiveSurfaceOptions& options, const ActiveFrameSink& sink, const RunControl& control = {});
+// What coat_particles() checks before it starts: throws InvalidInput("kernel.radius", "kernel.iso",
+// "frame_duration", "alpha", "checkpoints.every").
+void validate(const CoatOptions& coat, const ActiveSurfaceOptions& options);
 
 struct MorphOptions {
   double frame_duration = 0.1;  // simulated time per output frame, > 0
@@ -290,17 +297,26 @@ struct MorphOptions {
 // Returns the number of frames emitted (by this call, when resumed).
 int morph_shapes(const Field& from, FieldPtr to, const MorphOptions& morph, const ActiveSurfaceOptions& options,
                  const ActiveFrameSink& sink, const RunControl& control = {});
+// What morph_shapes() checks before it starts: throws InvalidInput("frame_duration", "max_frames", "tolerance",
+// "alpha", "checkpoints.every").
+void validate(const MorphOptions& morph, const ActiveSurfaceOptions& options);
 
 struct AdvectOptions {
   double frame_interval = 0.1;  // simulated time between output frames, > 0
   int frames = 10;              // frames after the initial one, >= 1
   ActiveCheckpoints checkpoints;
 };
-// Shape carried by u: emits the initial frame and `frames` more, frame_interval apart. Returns frames emitted (by
-// this call, when resumed).
+// Shape carried by u: emits the initial frame and `frames` more, frame_interval apart. options.beta, gamma and delta
+// act on top of the advection (volume-controlled advection with delta); options.alpha must be 0 (there is no target
+// to track: InvalidInput("alpha")). Returns frames emitted (by this call, when resumed).
+// The options advect_shape refuses beyond validate(options): throws InvalidInput("alpha") for alpha > 0.
+void validate_advect(const ActiveSurfaceOptions& options);
 int advect_shape(const Field& shape, VelocityFn velocity, const AdvectOptions& advect,
                  const ActiveSurfaceOptions& options, const ActiveFrameSink& sink, const RunControl& control = {});
 int advect_shape(const Field& shape, SeparableVelocity velocity, const AdvectOptions& advect,
                  const ActiveSurfaceOptions& options, const ActiveFrameSink& sink, const RunControl& control = {});
+// What advect_shape() checks of its options before it starts: throws InvalidInput("frame_interval", "frames",
+// "checkpoints.every").
+void validate(const AdvectOptions& advect);
 
 }  // namespace surfacer

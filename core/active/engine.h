@@ -53,6 +53,15 @@ struct Engine {
   int velocity_cache = -1;      // first of the 3 channels caching spatial(x) (NaN: not evaluated), or -1
   bool advecting() const { return static_cast<bool>(velocity) || static_cast<bool>(separable.spatial); }
   void clear_velocity_cache();
+  // Advecting with a normal speed on top (alpha with a target, beta, gamma or delta > 0): the extended normal speed
+  // of those terms is then in kChanSpeed, as in the normal-speed modes, and the stage-1 rate in the extra channel
+  // `advect_rate` (added on first use).
+  bool advect_controls() const {
+    return advecting() && ((target && opt.alpha > 0.0) || opt.beta > 0.0 || opt.gamma > 0.0 || opt.delta > 0.0);
+  }
+  int advect_rate = -1;
+  // Where an advecting step keeps its stage-1 rate (a rejected step restarts from it).
+  int advect_rate_channel() const { return advect_controls() ? advect_rate : static_cast<int>(kChanSpeed); }
   double time = 0.0;
   double area0 = 0.0, volume0 = 0.0;
   int steps_since_reinit = 0;
@@ -77,8 +86,9 @@ struct Engine {
   void reinitialize(const RunControl& control);
   // One sub-step of at most dt_limit (infinity: the CFL step). Returns the dt taken.
   double step(double dt_limit, const RunControl& control);
-  // The stages of step(): the extended normal speed (kChanSpeed; normal-speed modes), the rate df/dt of one block
-  // from channel in_ch at time t_stage (with the block's largest speed), and the stable sub-step for speed vmax.
+  // The stages of step(): the extended normal speed (kChanSpeed; normal-speed modes and advect_controls()), the rate
+  // df/dt of one block from channel in_ch at time t_stage (with the block's largest speed, |u| + |s| when both
+  // act), and the stable sub-step for speed vmax.
   void extend_speed(const RunControl& control);
   void stage_rate(int b, int in_ch, double t_stage, float* rate, double* max_speed);
   double stable_dt(double vmax) const;

@@ -6,7 +6,9 @@
 #include <string_view>
 
 #include "core/active/active_surface.h"
+#include "core/util/checks.h"
 #include "core/util/errors.h"
+#include "core/util/format.h"
 
 namespace surfacer {
 namespace {
@@ -159,12 +161,7 @@ SeparableVelocity make_separable_velocity(const std::shared_ptr<const VelocityGr
 
 FieldPtr make_particle_target(std::span<const Vec3> particles, const ParticleTargetOptions& options) {
   if (particles.empty()) throw InvalidInput("particles", "the particle frame is empty; give at least one particle");
-  if (!(options.radius > 0.0) || !std::isfinite(options.radius)) {
-    throw InvalidInput("radius", "kernel radius must be finite and > 0");
-  }
-  if (!(options.iso > 0.0) || !std::isfinite(options.iso)) {
-    throw InvalidInput("iso", "iso must be finite and > 0; the default is 0.5");
-  }
+  validate(options);
   std::vector<PointSkeleton> points(particles.size());
   for (std::size_t i = 0; i < particles.size(); ++i) {
     if (!particles[i].allFinite()) {
@@ -180,9 +177,14 @@ FieldPtr make_particle_target(std::span<const Vec3> particles, const ParticleTar
   return make_blobs(points, {}, blob);
 }
 
-int coat_particles(std::span<const std::vector<Vec3>> frames, const CoatOptions& coat,
-                   const ActiveSurfaceOptions& options, const ActiveFrameSink& sink, const RunControl& control) {
-  if (frames.empty()) throw InvalidInput("frames", "no particle frames; give at least one");
+void validate(const ParticleTargetOptions& options) {
+  // The kernels are blobs (core/scene/scene.h): radii in [1e-150, kMaxCoordinate], iso in (0, kMaxCoordinate].
+  require_range("radius", options.radius, 1e-150, kMaxCoordinate, "the kernel's support R");
+  require_range_open_low("iso", options.iso, 0.0, kMaxCoordinate, "the default is 0.5");
+}
+
+void validate(const CoatOptions& coat, const ActiveSurfaceOptions& options) {
+  with_path("kernel", [&] { validate(coat.kernel); });
   if (!(coat.frame_duration > 0.0) || !std::isfinite(coat.frame_duration)) {
     throw InvalidInput("frame_duration", "frame_duration must be finite and > 0; the default is 1");
   }
@@ -190,6 +192,12 @@ int coat_particles(std::span<const std::vector<Vec3>> frames, const CoatOptions&
     throw InvalidInput("alpha", "coating needs alpha > 0 (the tracking speed per unit of kernel potential)");
   }
   validate_checkpoints(coat.checkpoints);
+}
+
+int coat_particles(std::span<const std::vector<Vec3>> frames, const CoatOptions& coat,
+                   const ActiveSurfaceOptions& options, const ActiveFrameSink& sink, const RunControl& control) {
+  if (frames.empty()) throw InvalidInput("frames", "no particle frames; give at least one");
+  validate(coat, options);
   const int last = static_cast<int>(frames.size()) - 1;
   std::optional<ActiveSurface> surface;
   int emitted = 0;
@@ -223,16 +231,22 @@ int coat_particles(std::span<const std::vector<Vec3>> frames, const CoatOptions&
   return emitted;
 }
 
-int morph_shapes(const Field& from, FieldPtr to, const MorphOptions& morph, const ActiveSurfaceOptions& options,
-                 const ActiveFrameSink& sink, const RunControl& control) {
-  if (!to) throw InvalidInput("to", "the target shape is null");
+void validate(const MorphOptions& morph, const ActiveSurfaceOptions& options) {
   if (!(morph.frame_duration > 0.0) || !std::isfinite(morph.frame_duration)) {
     throw InvalidInput("frame_duration", "frame_duration must be finite and > 0");
   }
   if (morph.max_frames < 1) throw InvalidInput("max_frames", "max_frames must be >= 1");
-  if (!(morph.tolerance >= 0.0)) throw InvalidInput("tolerance", "tolerance must be >= 0");
+  if (!(morph.tolerance >= 0.0) || !std::isfinite(morph.tolerance)) {
+    throw InvalidInput("tolerance", "tolerance must be finite and >= 0");
+  }
   if (!(options.alpha > 0.0)) throw InvalidInput("alpha", "a morph needs alpha > 0 (the tracking speed)");
   validate_checkpoints(morph.checkpoints);
+}
+
+int morph_shapes(const Field& from, FieldPtr to, const MorphOptions& morph, const ActiveSurfaceOptions& options,
+                 const ActiveFrameSink& sink, const RunControl& control) {
+  if (!to) throw InvalidInput("to", "the target shape is null");
+  validate(morph, options);
   const int last = morph.max_frames - 1;
   std::optional<ActiveSurface> surface;
   int emitted = 0;
@@ -261,16 +275,21 @@ int morph_shapes(const Field& from, FieldPtr to, const MorphOptions& morph, cons
   return emitted;
 }
 
+void validate_advect(const ActiveSurfaceOptions& options) {
+  if (options.alpha > 0.0) {
+    throw InvalidInput("alpha", "alpha (" + format_number(options.alpha) +
+                                    ") tracks a target, and an advected shape has none; leave alpha at 0 (beta, "
+                                    "gamma and delta act on top of the advection)");
+  }
+}
+
 namespace {
 
 template <class Velocity>
 int advect_impl(const Field& shape, Velocity velocity, const AdvectOptions& advect, const ActiveSurfaceOptions& options,
                 const ActiveFrameSink& sink, const RunControl& control) {
-  if (!(advect.frame_interval > 0.0) || !std::isfinite(advect.frame_interval)) {
-    throw InvalidInput("frame_interval", "frame_interval must be finite and > 0");
-  }
-  if (advect.frames < 1) throw InvalidInput("frames", "frames must be >= 1");
-  validate_checkpoints(advect.checkpoints);
+  validate(advect);
+  validate_advect(options);
   std::optional<ActiveSurface> surface;
   int emitted = 0;
   int next = 1;
@@ -297,6 +316,14 @@ int advect_impl(const Field& shape, Velocity velocity, const AdvectOptions& adve
 }
 
 }  // namespace
+
+void validate(const AdvectOptions& advect) {
+  if (!(advect.frame_interval > 0.0) || !std::isfinite(advect.frame_interval)) {
+    throw InvalidInput("frame_interval", "frame_interval must be finite and > 0");
+  }
+  if (advect.frames < 1) throw InvalidInput("frames", "frames must be >= 1");
+  validate_checkpoints(advect.checkpoints);
+}
 
 int advect_shape(const Field& shape, VelocityFn velocity, const AdvectOptions& advect,
                  const ActiveSurfaceOptions& options, const ActiveFrameSink& sink, const RunControl& control) {

@@ -1,191 +1,435 @@
-// check_mesh works from one vertex -> corner table (counting sort of the 3F corners by vertex, O(V + F), no maps):
-// for every vertex v the corners of its triangles give its link edges (a, b) (triangle (v, a, b) counter-clockwise),
-// i.e. directed mesh edges v->a and b->v. Sorting those few (neighbour, direction) pairs per vertex yields, for each
-// edge (v, w) counted at its smaller end, its number of triangles and how often each direction is used; the link
-// graph's connectivity (a small union-find per vertex) decides whether the triangles around v form one fan.
+// check_mesh works from one vertex -> corner table (a counting sort of the 3F corners by vertex, O(V + F), no maps)
+// and then makes one pass over the vertices. For every vertex v the corners of its triangles give its link edges
+// a -> b (triangle (v, a, b) counter-clockwise), i.e. directed mesh edges v -> a and b -> v.
+//
+// Fast path (nearly every vertex of a closed, oriented surface): when every b is the a of exactly one other corner,
+// the link edges chain into a permutation of the corners; one cycle through all of them is one closed, oriented
+// disk of triangles around v, whose valence is the number of corners and whose edges each have two triangles, one
+// in each direction. Checking that takes a few compares per corner, no sort.
+// General path (boundary, non-manifold or misoriented vertices): sorting the (neighbour, direction) pairs yields,
+// for each edge (v, w) counted at its smaller end, its number of triangles and how often each direction is used; the
+// link graph's connectivity (a small union-find) decides whether the triangles around v form one fan.
+//
+// Parallel and deterministic: triangles and vertices are cut into blocks of fixed size, each block's sums are kept
+// apart and added in block order, so the report's bits do not depend on the executor. The table is built without
+// atomics: each of a few vertex ranges scans every triangle and keeps the corners of its own vertices, in triangle
+// order. Components come from a lock-free union-find (links always point to the smaller index); their number is the
+// referenced vertices minus the successful links, whichever thread made them.
 #include "core/mesh/mesh_checks.h"
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <array>
+#include <atomic>
+#include <bit>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <numeric>
 #include <string>
 
 #include "core/util/errors.h"
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 namespace surfacer {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
-
-struct UnionFind {
-  std::vector<std::uint32_t> parent;
-  explicit UnionFind(std::size_t n) : parent(n) { std::iota(parent.begin(), parent.end(), 0u); }
-  std::uint32_t find(std::uint32_t x) {
-    while (parent[x] != x) {
-      parent[x] = parent[parent[x]];  // path halving
-      x = parent[x];
-    }
-    return x;
-  }
-  void unite(std::uint32_t a, std::uint32_t b) {
-    a = find(a);
-    b = find(b);
-    if (a == b) return;
-    if (a < b) std::swap(a, b);
-    parent[a] = b;  // smaller id becomes the root: deterministic and keeps trees shallow enough here
-  }
-};
+constexpr std::size_t kTriangleBlock = std::size_t{1} << 16;
+constexpr std::size_t kVertexBlock = std::size_t{1} << 15;
+constexpr int kMaxFastCorners = 32;  // corners of one vertex the fast path handles (a bit mask each)
+// The corner after / before corner c of a triangle (no branch, no division: corners are stored as 4 t + c).
+constexpr std::uint32_t kNext[4] = {1, 2, 0, 0};
+constexpr std::uint32_t kPrev[4] = {2, 0, 1, 0};
 
 bool repeated(const Triangle& t) { return t[0] == t[1] || t[1] == t[2] || t[0] == t[2]; }
 
-}  // namespace
-
-MeshReport check_mesh(const Mesh& mesh) {
-  MeshReport report;
-  const std::size_t nv = mesh.vertices.size();
-  const std::size_t nf = mesh.triangles.size();
-  if (nf > (std::numeric_limits<std::uint32_t>::max() - 2) / 3) {
-    throw ResourceLimit("triangles", "check_mesh supports at most 1431655764 triangles");
+// Bit j set where a[j] == x, for j < k; `a` holds k values padded to a multiple of four with values other than x.
+std::uint32_t match_mask(const std::uint32_t* a, int k, std::uint32_t x) {
+  std::uint32_t mask = 0;
+#if defined(__SSE2__)
+  const __m128i key = _mm_set1_epi32(static_cast<int>(x));
+  for (int j = 0; j < k; j += 4) {
+    const __m128i values = _mm_load_si128(reinterpret_cast<const __m128i*>(a + j));
+    mask |= static_cast<std::uint32_t>(_mm_movemask_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(values, key)))) << j;
   }
-  for (std::size_t t = 0; t < nf; ++t) {
-    for (std::uint32_t v : mesh.triangles[t]) {
-      if (v >= nv) {
-        throw InvalidInput("triangles", "triangle " + std::to_string(t) + " uses vertex " + std::to_string(v) +
-                                            " but the mesh has " + std::to_string(nv) + " vertices");
+#else
+  for (int j = 0; j < k; ++j) mask |= static_cast<std::uint32_t>(a[j] == x) << j;
+#endif
+  return mask;
+}
+
+int block_count(std::size_t n, std::size_t block) { return static_cast<int>((n + block - 1) / block); }
+
+// Union-find on atomics: links point from the larger root to the smaller, so no cycle can form and concurrent
+// unite() calls agree; path halving only ever shortens a path to a vertex's own root.
+class AtomicUnionFind {
+ public:
+  explicit AtomicUnionFind(std::size_t n) : parent_(new std::atomic<std::uint32_t>[n]) {
+    for (std::size_t i = 0; i < n; ++i) parent_[i].store(static_cast<std::uint32_t>(i), std::memory_order_relaxed);
+  }
+  std::uint32_t find(std::uint32_t x) const {
+    for (;;) {
+      const std::uint32_t p = parent_[x].load(std::memory_order_relaxed);
+      if (p == x) return x;
+      const std::uint32_t g = parent_[p].load(std::memory_order_relaxed);
+      if (g != p) parent_[x].store(g, std::memory_order_relaxed);  // x is no root: only compressions write it
+      x = g;
+    }
+  }
+  // Joins w's component to the one whose root was `root` (updated to the joined root); true when this call joined
+  // two components. Cheaper than unite() when one vertex is joined to many neighbours in a row.
+  bool join(std::uint32_t& root, std::uint32_t w) const {
+    std::uint32_t rw = find(w);
+    if (rw == root) return false;
+    std::uint32_t big = std::max(root, rw), small = std::min(root, rw);
+    if (parent_[big].compare_exchange_strong(big, small, std::memory_order_relaxed)) {
+      root = small;
+      return true;
+    }
+    // Another thread moved one of the roots meanwhile.
+    const bool joined = unite(root, w);
+    root = find(root);
+    return joined;
+  }
+  // True when this call joined two components.
+  bool unite(std::uint32_t a, std::uint32_t b) const {
+    for (;;) {
+      a = find(a);
+      b = find(b);
+      if (a == b) return false;
+      if (a < b) std::swap(a, b);
+      std::uint32_t expected = a;
+      if (parent_[a].compare_exchange_strong(expected, b, std::memory_order_relaxed)) return true;
+    }
+  }
+
+ private:
+  std::unique_ptr<std::atomic<std::uint32_t>[]> parent_;
+};
+
+// Sums of one block of triangles.
+struct TriangleSums {
+  std::int64_t degenerate = 0;
+  std::int64_t valid = 0;
+  double area = 0.0;    // twice the area
+  double volume = 0.0;  // six times the signed volume
+  // Of all angles, as signed squared cosines cos * |cos| (monotonic in the cosine; no square root per angle).
+  double max_cos = -2.0;
+  double min_cos = 2.0;
+
+  void add(const TriangleSums& b) {
+    degenerate += b.degenerate;
+    valid += b.valid;
+    area += b.area;
+    volume += b.volume;
+    max_cos = std::max(max_cos, b.max_cos);
+    min_cos = std::min(min_cos, b.min_cos);
+  }
+};
+
+// Sums of one block of vertices.
+struct VertexSums {
+  std::int64_t referenced = 0;
+  std::int64_t edges = 0;
+  std::int64_t boundary_edges = 0;
+  std::int64_t non_manifold_edges = 0;
+  std::int64_t links = 0;  // successful union-find links
+  bool oriented = true;
+  bool vertex_manifold = true;
+  int min_valence = std::numeric_limits<int>::max();
+  int max_valence = 0;
+  std::vector<std::int64_t> histogram;
+
+  void add(const VertexSums& b) {
+    referenced += b.referenced;
+    edges += b.edges;
+    boundary_edges += b.boundary_edges;
+    non_manifold_edges += b.non_manifold_edges;
+    links += b.links;
+    oriented = oriented && b.oriented;
+    vertex_manifold = vertex_manifold && b.vertex_manifold;
+    min_valence = std::min(min_valence, b.min_valence);
+    max_valence = std::max(max_valence, b.max_valence);
+    if (histogram.size() < b.histogram.size()) histogram.resize(b.histogram.size(), 0);
+    for (std::size_t i = 0; i < b.histogram.size(); ++i) histogram[i] += b.histogram[i];
+  }
+
+  void add_valence(int valence) {
+    min_valence = std::min(min_valence, valence);
+    max_valence = std::max(max_valence, valence);
+    if (histogram.size() <= static_cast<std::size_t>(valence)) histogram.resize(valence + 1, 0);
+    ++histogram[valence];
+  }
+};
+
+class Checker {
+ public:
+  Checker(const Mesh& mesh, const Executor& executor, const RunControl& control)
+      : mesh_(mesh),
+        executor_(executor),
+        control_(control),
+        nv_(mesh.vertices.size()),
+        nf_(mesh.triangles.size()),
+        components_(nv_) {}
+
+  MeshReport run() {
+    if (nf_ >= std::size_t{1} << 30) throw ResourceLimit("triangles", "check_mesh supports at most 2^30 - 1 triangles");
+    validate_indices();
+    triangle_pass();
+    build_corner_table();
+    vertex_pass();
+    return report();
+  }
+
+ private:
+  // Throws InvalidInput for the first triangle (lowest index) that uses a vertex out of range; also finds the
+  // bounding box (for the zero-area threshold).
+  void validate_indices() {
+    const int tri_blocks = block_count(nf_, kTriangleBlock);
+    const int vert_blocks = block_count(nv_, kVertexBlock);
+    std::vector<std::size_t> first_bad(tri_blocks, nf_);
+    std::vector<Aabb> boxes(vert_blocks, Aabb::empty());
+    executor_.for_each(tri_blocks + vert_blocks, [&](int item) {
+      control_.check();
+      if (item < tri_blocks) {
+        const std::size_t end = std::min(nf_, (item + 1) * kTriangleBlock);
+        for (std::size_t t = item * kTriangleBlock; t < end; ++t) {
+          const Triangle& tri = mesh_.triangles[t];
+          if (tri[0] >= nv_ || tri[1] >= nv_ || tri[2] >= nv_) {
+            first_bad[item] = t;
+            return;
+          }
+        }
+      } else {
+        const std::size_t b = item - tri_blocks;
+        const std::size_t end = std::min(nv_, (b + 1) * kVertexBlock);
+        Aabb box = Aabb::empty();
+        for (std::size_t v = b * kVertexBlock; v < end; ++v) box.merge(mesh_.vertices[v]);
+        boxes[b] = box;
+      }
+    });
+    for (std::size_t t : first_bad) {
+      if (t == nf_) continue;
+      for (std::uint32_t v : mesh_.triangles[t]) {
+        if (v >= nv_) {
+          throw InvalidInput("triangles", "triangle " + std::to_string(t) + " uses vertex " + std::to_string(v) +
+                                              " but the mesh has " + std::to_string(nv_) + " vertices");
+        }
       }
     }
+    Aabb box = Aabb::empty();
+    for (const Aabb& b : boxes) box.merge(b);
+    diag2_ = nv_ > 0 ? box.size().squaredNorm() : 0.0;
   }
 
-  // --- Geometry per triangle -----------------------------------------------------------------------------------
-  const double diag2 = nv > 0 ? Aabb::of(mesh.vertices).size().squaredNorm() : 0.0;
-  const double min_area = 1e-14 * diag2;
-  double max_cos = -2.0, min_cos = 2.0;  // of all angles: smallest angle <-> largest cosine
-  double area = 0.0, volume = 0.0;
-  std::int64_t valid_faces = 0;
-  for (const Triangle& t : mesh.triangles) {
-    if (repeated(t)) {
-      ++report.degenerate_triangles;
-      continue;
-    }
-    ++valid_faces;
-    const Vec3& a = mesh.vertices[t[0]];
-    const Vec3& b = mesh.vertices[t[1]];
-    const Vec3& c = mesh.vertices[t[2]];
-    const Vec3 n = (b - a).cross(c - a);
-    const double tri_area = 0.5 * n.norm();
-    area += tri_area;
-    volume += a.dot(b.cross(c)) / 6.0;
-    if (!(tri_area >= min_area) || tri_area == 0.0) {
-      ++report.degenerate_triangles;
-      continue;
-    }
-    const Vec3* p[3] = {&a, &b, &c};
-    for (int i = 0; i < 3; ++i) {
-      const Vec3 u = *p[(i + 1) % 3] - *p[i];
-      const Vec3 v = *p[(i + 2) % 3] - *p[i];
-      const double cosine = u.dot(v) / std::sqrt(u.squaredNorm() * v.squaredNorm());
-      max_cos = std::max(max_cos, cosine);
-      min_cos = std::min(min_cos, cosine);
-    }
-  }
-  report.area = area;
-  report.volume = volume;
-  if (max_cos >= -1.5) {
-    report.min_angle_degrees = std::acos(std::clamp(max_cos, -1.0, 1.0)) * 180.0 / kPi;
-    report.max_angle_degrees = std::acos(std::clamp(min_cos, -1.0, 1.0)) * 180.0 / kPi;
-  }
-
-  // --- Vertex -> corner table (triangles with a repeated index are left out of the topology) ------------------
-  std::vector<std::uint32_t> start(nv + 1, 0);
-  for (const Triangle& t : mesh.triangles) {
-    if (repeated(t)) continue;
-    for (std::uint32_t v : t) ++start[v + 1];
-  }
-  for (std::size_t v = 0; v < nv; ++v) start[v + 1] += start[v];
-  std::vector<std::uint32_t> corners(start[nv]);
-  {
-    std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
-    for (std::size_t t = 0; t < nf; ++t) {
-      const Triangle& tri = mesh.triangles[t];
-      if (repeated(tri)) continue;
-      for (std::uint32_t c = 0; c < 3; ++c) corners[fill[tri[c]]++] = static_cast<std::uint32_t>(3 * t + c);
-    }
+  // Area, volume, angles and degenerate triangles, per block of triangles.
+  void triangle_pass() {
+    const int blocks = block_count(nf_, kTriangleBlock);
+    triangle_sums_.assign(blocks, TriangleSums{});
+    const double min_area = 1e-14 * diag2_;
+    executor_.for_each(blocks, [&](int block) {
+      control_.check();
+      TriangleSums s;
+      const std::size_t end = std::min(nf_, (block + 1) * kTriangleBlock);
+      for (std::size_t t = block * kTriangleBlock; t < end; ++t) {
+        const Triangle& tri = mesh_.triangles[t];
+        if (repeated(tri)) {
+          ++s.degenerate;
+          continue;
+        }
+        ++s.valid;
+        const Vec3& a = mesh_.vertices[tri[0]];
+        const Vec3& b = mesh_.vertices[tri[1]];
+        const Vec3& c = mesh_.vertices[tri[2]];
+        const Vec3 ab = b - a, ac = c - a, bc = c - b;
+        const double twice_area = ab.cross(ac).norm();
+        s.area += twice_area;           // halved once, in report()
+        s.volume += a.dot(b.cross(c));  // divided by 6 once, in report()
+        if (!(twice_area >= 2.0 * min_area) || twice_area == 0.0) {
+          ++s.degenerate;
+          continue;
+        }
+        const double ab2 = ab.squaredNorm(), ac2 = ac.squaredNorm(), bc2 = bc.squaredNorm();
+        // The angles at a, b and c: cos = dot / (|u| |v|), compared as dot |dot| / (|u|^2 |v|^2), with one division.
+        const double da = ab.dot(ac), db = -ab.dot(bc), dc = ac.dot(bc);
+        const double r = 1.0 / (ab2 * ac2 * bc2);
+        const double sa = da * std::abs(da) * bc2 * r;
+        const double sb = db * std::abs(db) * ac2 * r;
+        const double sc = dc * std::abs(dc) * ab2 * r;
+        s.max_cos = std::max({s.max_cos, sa, sb, sc});
+        s.min_cos = std::min({s.min_cos, sa, sb, sc});
+      }
+      triangle_sums_[block] = s;
+    });
   }
 
-  // --- Per vertex: edges, orientation, valence, fans --------------------------------------------------------------
+  // start_[v] .. start_[v + 1]: the corners (4 t + c) at vertex v, in triangle order; triangles with a repeated
+  // index are left out of the topology.
+  void build_corner_table() {
+    const int ranges = std::clamp(executor_.concurrency(), 1, std::max(1, static_cast<int>(nv_ / kVertexBlock)));
+    std::vector<std::size_t> range_begin(ranges + 1);
+    for (int r = 0; r <= ranges; ++r) range_begin[r] = nv_ * r / ranges;
+    start_.assign(nv_ + 1, 0);
+    // Counts, then a prefix sum within each range.
+    std::vector<std::uint32_t> range_total(ranges, 0);
+    executor_.for_each(ranges, [&](int r) {
+      control_.check();
+      const std::uint32_t lo = static_cast<std::uint32_t>(range_begin[r]);
+      const std::uint32_t hi = static_cast<std::uint32_t>(range_begin[r + 1]);
+      std::uint32_t* count = start_.data() + 1;
+      for (const Triangle& tri : mesh_.triangles) {
+        if (repeated(tri)) continue;
+        for (std::uint32_t v : tri) {
+          if (v - lo < hi - lo) ++count[v];
+        }
+      }
+      std::uint32_t sum = 0;
+      for (std::uint32_t v = lo; v < hi; ++v) sum = count[v] += sum;
+      range_total[r] = sum;
+    });
+    std::vector<std::uint32_t> offset(ranges, 0);
+    for (int r = 1; r < ranges; ++r) offset[r] = offset[r - 1] + range_total[r - 1];
+    corners_.resize(ranges > 0 ? offset[ranges - 1] + range_total[ranges - 1] : 0);
+    executor_.for_each(ranges, [&](int r) {
+      control_.check();
+      const std::uint32_t lo = static_cast<std::uint32_t>(range_begin[r]);
+      const std::uint32_t hi = static_cast<std::uint32_t>(range_begin[r + 1]);
+      for (std::uint32_t v = lo; v < hi; ++v) start_[v + 1] += offset[r];
+      std::vector<std::uint32_t> fill(start_.begin() + lo, start_.begin() + hi);
+      for (std::size_t t = 0; t < nf_; ++t) {
+        const Triangle& tri = mesh_.triangles[t];
+        if (repeated(tri)) continue;
+        for (std::uint32_t c = 0; c < 3; ++c) {
+          const std::uint32_t v = tri[c];
+          if (v - lo < hi - lo) corners_[fill[v - lo]++] = static_cast<std::uint32_t>(t << 2 | c);
+        }
+      }
+    });
+  }
+
+  void vertex_pass() {
+    const int blocks = block_count(nv_, kVertexBlock);
+    vertex_sums_.assign(blocks, VertexSums{});
+    executor_.for_each(blocks, [&](int block) {
+      control_.check();
+      VertexSums s;
+      Scratch scratch;
+      const std::size_t end = std::min(nv_, (block + 1) * kVertexBlock);
+      for (std::size_t v = block * kVertexBlock; v < end; ++v) {
+        if (start_[v] == start_[v + 1]) continue;
+        ++s.referenced;
+        if (!closed_fan(static_cast<std::uint32_t>(v), s)) general_vertex(static_cast<std::uint32_t>(v), s, scratch);
+      }
+      vertex_sums_[block] = std::move(s);
+    });
+  }
+
+  // The fast path; false (and nothing recorded) when v needs the general one.
+  bool closed_fan(std::uint32_t v, VertexSums& s) const {
+    const std::uint32_t begin = start_[v], end = start_[v + 1];
+    const int k = static_cast<int>(end - begin);
+    if (k > kMaxFastCorners) return false;
+    // a is padded with v (never a neighbour of itself) to whole groups of four for match_mask.
+    alignas(16) std::array<std::uint32_t, kMaxFastCorners> a, b;
+    for (int i = k; i < ((k + 3) & ~3); ++i) a[i] = v;
+    for (int i = 0; i < k; ++i) {
+      const std::uint32_t corner = corners_[begin + i];
+      const Triangle& tri = mesh_.triangles[corner >> 2];
+      a[i] = tri[kNext[corner & 3]];
+      b[i] = tri[kPrev[corner & 3]];
+    }
+    // next[i] = the corner j whose a is corner i's b (the next triangle around v); it must be one and only one.
+    std::array<std::uint8_t, kMaxFastCorners> next{};
+    std::uint32_t hit = 0;
+    for (int i = 0; i < k; ++i) {
+      const std::uint32_t matches = match_mask(a.data(), k, b[i]);
+      if (matches == 0 || (matches & (matches - 1)) != 0 || (hit & matches)) return false;
+      hit |= matches;
+      next[i] = static_cast<std::uint8_t>(std::countr_zero(matches));
+    }
+    int length = 1;
+    for (int i = next[0]; i != 0; i = next[i]) ++length;
+    if (length != k) return false;
+    s.add_valence(k);
+    std::uint32_t root = components_.find(v);
+    for (int i = 0; i < k; ++i) {
+      if (a[i] > v) {
+        ++s.edges;
+        if (components_.join(root, a[i])) ++s.links;
+      }
+    }
+    return true;
+  }
+
   struct Incidence {
     std::uint32_t other;
     int direction;  // +1: v -> other, -1: other -> v
     bool operator<(const Incidence& o) const { return other < o.other; }
   };
-  std::vector<Incidence> incidences;
-  std::vector<std::uint32_t> distinct;
-  std::vector<std::uint32_t> link_parent;
-  auto link_find = [&](std::uint32_t x) {
-    while (link_parent[x] != x) x = link_parent[x] = link_parent[link_parent[x]];
-    return x;
+  struct Scratch {
+    std::vector<Incidence> incidences;
+    std::vector<std::uint32_t> distinct;
+    std::vector<std::uint32_t> link_parent;
   };
-  std::int64_t edges = 0, referenced = 0;
-  bool oriented = true, vertex_manifold = true;
-  int min_valence = std::numeric_limits<int>::max(), max_valence = 0;
-  std::vector<std::int64_t> histogram;
-  UnionFind components(nv);
 
-  for (std::size_t v = 0; v < nv; ++v) {
-    const std::uint32_t begin = start[v], end = start[v + 1];
-    if (begin == end) continue;
-    ++referenced;
+  void general_vertex(std::uint32_t v, VertexSums& s, Scratch& scratch) const {
+    const std::uint32_t begin = start_[v], end = start_[v + 1];
+    auto& incidences = scratch.incidences;
+    auto& distinct = scratch.distinct;
+    auto& link_parent = scratch.link_parent;
     incidences.clear();
     for (std::uint32_t k = begin; k < end; ++k) {
-      const std::uint32_t t = corners[k] / 3, c = corners[k] % 3;
-      const Triangle& tri = mesh.triangles[t];
-      incidences.push_back({tri[(c + 1) % 3], +1});
-      incidences.push_back({tri[(c + 2) % 3], -1});
+      const Triangle& tri = mesh_.triangles[corners_[k] >> 2];
+      const std::uint32_t c = corners_[k] & 3;
+      incidences.push_back({tri[kNext[c]], +1});
+      incidences.push_back({tri[kPrev[c]], -1});
     }
     std::sort(incidences.begin(), incidences.end());
     distinct.clear();
     bool fan_ok = true;
     for (std::size_t r = 0; r < incidences.size();) {
-      std::size_t s = r;
+      std::size_t q = r;
       int out = 0;
-      while (s < incidences.size() && incidences[s].other == incidences[r].other) {
-        out += incidences[s].direction > 0 ? 1 : 0;
-        ++s;
+      while (q < incidences.size() && incidences[q].other == incidences[r].other) {
+        out += incidences[q].direction > 0 ? 1 : 0;
+        ++q;
       }
-      const auto multiplicity = static_cast<std::int64_t>(s - r);
+      const auto multiplicity = static_cast<std::int64_t>(q - r);
       const std::uint32_t w = incidences[r].other;
       distinct.push_back(w);
       if (multiplicity > 2) fan_ok = false;
       if (w > v) {
-        ++edges;
-        components.unite(static_cast<std::uint32_t>(v), w);
-        if (multiplicity == 1) ++report.boundary_edges;
-        if (multiplicity > 2) ++report.non_manifold_edges;
-        if (multiplicity > 2 || (multiplicity == 2 && out != 1)) oriented = false;
+        ++s.edges;
+        if (components_.unite(v, w)) ++s.links;
+        if (multiplicity == 1) ++s.boundary_edges;
+        if (multiplicity > 2) ++s.non_manifold_edges;
+        if (multiplicity > 2 || (multiplicity == 2 && out != 1)) s.oriented = false;
       }
-      r = s;
+      r = q;
     }
-    const int valence = static_cast<int>(distinct.size());
-    min_valence = std::min(min_valence, valence);
-    max_valence = std::max(max_valence, valence);
-    if (histogram.size() <= static_cast<std::size_t>(valence)) histogram.resize(valence + 1, 0);
-    ++histogram[valence];
+    s.add_valence(static_cast<int>(distinct.size()));
 
     // The link of v: its distinct neighbours joined by one edge per triangle. One fan <=> connected link with every
     // neighbour in at most two triangles (a path: half-disk; a cycle: disk).
     if (fan_ok) {
       link_parent.resize(distinct.size());
       std::iota(link_parent.begin(), link_parent.end(), 0u);
+      auto link_find = [&](std::uint32_t x) {
+        while (link_parent[x] != x) x = link_parent[x] = link_parent[link_parent[x]];
+        return x;
+      };
       std::size_t parts = distinct.size();
       for (std::uint32_t k = begin; k < end; ++k) {
-        const std::uint32_t t = corners[k] / 3, c = corners[k] % 3;
-        const Triangle& tri = mesh.triangles[t];
-        const auto ia = static_cast<std::uint32_t>(
-            std::lower_bound(distinct.begin(), distinct.end(), tri[(c + 1) % 3]) - distinct.begin());
-        const auto ib = static_cast<std::uint32_t>(
-            std::lower_bound(distinct.begin(), distinct.end(), tri[(c + 2) % 3]) - distinct.begin());
+        const Triangle& tri = mesh_.triangles[corners_[k] >> 2];
+        const std::uint32_t c = corners_[k] & 3;
+        const auto ia = static_cast<std::uint32_t>(std::lower_bound(distinct.begin(), distinct.end(), tri[kNext[c]]) -
+                                                   distinct.begin());
+        const auto ib = static_cast<std::uint32_t>(std::lower_bound(distinct.begin(), distinct.end(), tri[kPrev[c]]) -
+                                                   distinct.begin());
         const std::uint32_t ra = link_find(ia), rb = link_find(ib);
         if (ra != rb) {
           link_parent[ra] = rb;
@@ -194,23 +438,61 @@ MeshReport check_mesh(const Mesh& mesh) {
       }
       fan_ok = parts == 1;
     }
-    vertex_manifold = vertex_manifold && fan_ok;
+    s.vertex_manifold = s.vertex_manifold && fan_ok;
   }
 
-  report.closed = report.boundary_edges == 0;
-  report.edge_manifold = report.non_manifold_edges == 0;
-  report.vertex_manifold = vertex_manifold && report.edge_manifold;
-  report.oriented = oriented;
-  report.euler_characteristic = referenced - edges + valid_faces;
-  for (std::size_t v = 0; v < nv; ++v) {
-    if (start[v] != start[v + 1] && components.find(static_cast<std::uint32_t>(v)) == v) ++report.components;
+  MeshReport report() const {
+    MeshReport r;
+    TriangleSums t;
+    for (const TriangleSums& b : triangle_sums_) t.add(b);
+    r.degenerate_triangles = t.degenerate;
+    r.area = 0.5 * t.area;
+    r.volume = t.volume / 6.0;
+    auto degrees = [](double signed_square) {
+      const double cosine = std::copysign(std::sqrt(std::abs(signed_square)), signed_square);
+      return std::acos(std::clamp(cosine, -1.0, 1.0)) * 180.0 / kPi;
+    };
+    if (t.max_cos >= -1.5) {
+      r.min_angle_degrees = degrees(t.max_cos);
+      r.max_angle_degrees = degrees(t.min_cos);
+    }
+    VertexSums v;
+    for (const VertexSums& b : vertex_sums_) v.add(b);
+    r.boundary_edges = v.boundary_edges;
+    r.non_manifold_edges = v.non_manifold_edges;
+    r.closed = r.boundary_edges == 0;
+    r.edge_manifold = r.non_manifold_edges == 0;
+    r.vertex_manifold = v.vertex_manifold && r.edge_manifold;
+    r.oriented = v.oriented;
+    r.euler_characteristic = v.referenced - v.edges + t.valid;
+    r.components = static_cast<int>(v.referenced - v.links);
+    r.valence_histogram = std::move(v.histogram);
+    if (v.referenced > 0) {
+      r.min_valence = v.min_valence;
+      r.max_valence = v.max_valence;
+    }
+    return r;
   }
-  report.valence_histogram = std::move(histogram);
-  if (referenced > 0) {
-    report.min_valence = min_valence;
-    report.max_valence = max_valence;
-  }
-  return report;
+
+  const Mesh& mesh_;
+  const Executor& executor_;
+  const RunControl& control_;
+  const std::size_t nv_;
+  const std::size_t nf_;
+  double diag2_ = 0.0;
+  std::vector<TriangleSums> triangle_sums_;
+  std::vector<std::uint32_t> start_;
+  std::vector<std::uint32_t> corners_;
+  std::vector<VertexSums> vertex_sums_;
+  AtomicUnionFind components_;
+};
+
+}  // namespace
+
+MeshReport check_mesh(const Mesh& mesh) { return check_mesh(mesh, ThreadExecutor(1)); }
+
+MeshReport check_mesh(const Mesh& mesh, const Executor& executor, const RunControl& control) {
+  return Checker(mesh, executor, control).run();
 }
 
 }  // namespace surfacer

@@ -12,13 +12,14 @@
 #include <cstdio>
 #include <limits>
 #include <memory>
+#include <new>
 #include <optional>
 
+#include "core/util/allocation_budget.h"
 #include "core/util/checks.h"
 #include "core/util/errors.h"
 
 namespace surfacer {
-namespace {}  // namespace
 
 void validate(const DracoOptions& options) {
   const DracoOptions defaults;
@@ -106,6 +107,17 @@ int add_float3_attribute(draco::Mesh& out, draco::GeometryAttribute::Type type, 
 
 }  // namespace
 
+QuantizationGrid quantization_grid(const Mesh& mesh, const DracoOptions& options) {
+  validate(mesh, options);
+  const QuantizationBox q = quantization_box(mesh, options);
+  QuantizationGrid grid;
+  for (int c = 0; c < 3; ++c) grid.origin[c] = static_cast<float>(q.origin[c]);
+  grid.range = static_cast<float>(q.range);
+  grid.bits = options.quantization_bits;
+  if (options.quantization_bounds) grid.box = *options.quantization_bounds;
+  return grid;
+}
+
 double draco_max_error(const Aabb& box, int quantization_bits) {
   const double range = box.size().maxCoeff();
   const double step = range / (std::ldexp(1.0, quantization_bits) - 1.0);
@@ -114,12 +126,17 @@ double draco_max_error(const Aabb& box, int quantization_bits) {
   return 0.5 * step * std::sqrt(3.0) + 8.0 * std::numeric_limits<float>::epsilon() * magnitude;
 }
 
-std::string encode_draco(const Mesh& mesh, const DracoOptions& options) {
+struct DracoEncoder::State {
+  draco::Mesh mesh;
+  draco::Encoder encoder;
+};
+
+DracoEncoder::DracoEncoder(const Mesh& mesh, const DracoOptions& options) : state_(std::make_unique<State>()) {
   validate(mesh, options);
   const QuantizationBox q = quantization_box(mesh, options);
   const bool encode_normals = options.normals && !mesh.normals.empty();
 
-  draco::Mesh out;
+  draco::Mesh& out = state_->mesh;
   if (!mesh.triangles.empty()) {
     out.set_num_points(static_cast<draco::PointIndex::ValueType>(mesh.vertices.size()));
     add_float3_attribute(out, draco::GeometryAttribute::POSITION, mesh.vertices, options.quantization_bounds);
@@ -135,7 +152,7 @@ std::string encode_draco(const Mesh& mesh, const DracoOptions& options) {
     out.SetFace(draco::FaceIndex(static_cast<std::uint32_t>(t)), face);
   }
 
-  draco::Encoder encoder;
+  draco::Encoder& encoder = state_->encoder;
   const float origin[3] = {static_cast<float>(q.origin.x()), static_cast<float>(q.origin.y()),
                            static_cast<float>(q.origin.z())};
   encoder.SetAttributeExplicitQuantization(draco::GeometryAttribute::POSITION, options.quantization_bits, 3, origin,
@@ -143,12 +160,18 @@ std::string encode_draco(const Mesh& mesh, const DracoOptions& options) {
   if (encode_normals) encoder.SetAttributeQuantization(draco::GeometryAttribute::NORMAL, options.normal_bits);
   encoder.SetSpeedOptions(options.speed, options.speed);
   if (mesh.triangles.empty()) encoder.SetEncodingMethod(draco::MESH_SEQUENTIAL_ENCODING);
+}
 
+DracoEncoder::~DracoEncoder() = default;
+
+std::string DracoEncoder::encode() {
   draco::EncoderBuffer buffer;
-  const draco::Status status = encoder.EncodeMeshToBuffer(out, &buffer);
+  const draco::Status status = state_->encoder.EncodeMeshToBuffer(state_->mesh, &buffer);
   if (!status.ok()) throw Internal("Draco encoder failed: " + status.error_msg_string());
   return std::string(buffer.data(), buffer.size());
 }
+
+std::string encode_draco(const Mesh& mesh, const DracoOptions& options) { return DracoEncoder(mesh, options).encode(); }
 
 namespace {
 
@@ -159,9 +182,8 @@ bool numeric_attribute(const draco::PointAttribute& attribute) {
   return type >= draco::DT_INT8 && type <= draco::DT_FLOAT64;
 }
 
-}  // namespace
-
-Mesh decode_draco(std::string_view bytes) {
+// Draco's own decoder, unbounded (see decode_draco).
+Mesh decode_draco_stream(std::string_view bytes) {
   draco::DecoderBuffer buffer;
   buffer.Init(bytes.data(), bytes.size());
   draco::Decoder decoder;
@@ -218,6 +240,163 @@ Mesh decode_draco(std::string_view bytes) {
     }
   }
   return mesh;
+}
+
+constexpr std::size_t kDracoBudgetFloor = std::size_t{64} << 20;
+constexpr std::size_t kDracoBytesPerInputByte = 4096;
+constexpr std::size_t kDracoBytesPerTriangle = 256;
+
+}  // namespace
+
+Mesh decode_draco(std::string_view bytes, const MeshReadLimits& limits) {
+  const std::size_t by_size = kDracoBytesPerInputByte * bytes.size();
+  const std::size_t by_limit =
+      kDracoBytesPerTriangle * static_cast<std::size_t>(std::max<std::int64_t>(limits.max_triangles, 0));
+  const std::size_t budget = kDracoBudgetFloor + std::min(by_size, by_limit);
+  {
+    AllocationBudget scope(budget);
+    try {
+      return decode_draco_stream(bytes);
+    } catch (const std::bad_alloc&) {
+      if (!scope.exhausted()) throw;
+    }
+  }
+  const std::string needs = "decoding this " + std::to_string(bytes.size()) + "-byte Draco stream needs more than " +
+                            std::to_string(budget >> 20) + " MiB";
+  if (by_limit < by_size) {
+    throw ResourceLimit("max_triangles", needs + ", more than a mesh of max_triangles (" +
+                                             std::to_string(limits.max_triangles) + ") triangles may take");
+  }
+  throw InvalidInput("frame", needs + " (" + std::to_string(kDracoBytesPerInputByte) +
+                                  " bytes per input byte are allowed): it declares far more elements than it holds");
+}
+
+// --- Pieces -------------------------------------------------------------------------------------------------------
+
+namespace {
+
+template <class T>
+void add_integer_attribute(draco::Mesh& out, draco::GeometryAttribute::Type type, draco::DataType data_type,
+                           int components, const std::vector<T>& values) {
+  auto attribute = std::make_unique<draco::PointAttribute>();
+  const std::size_t count = values.size() / components;
+  attribute->Init(type, components, data_type, false, count);
+  if (!values.empty()) attribute->buffer()->Write(0, values.data(), values.size() * sizeof(T));
+  out.AddAttribute(std::move(attribute));
+}
+
+bool unsigned_attribute(const draco::PointAttribute& attribute) {
+  const draco::DataType type = attribute.data_type();
+  return type == draco::DT_UINT8 || type == draco::DT_UINT16 || type == draco::DT_UINT32;
+}
+
+}  // namespace
+
+std::string encode_draco_piece(const QuantizedPiece& piece, int grid_bits, const DracoOptions& options) {
+  // A piece without triangles is written without points, as encode_draco writes an empty frame.
+  const std::size_t nv = piece.triangles.empty() ? 0 : piece.positions.size();
+  draco::Mesh out;
+  out.set_num_points(static_cast<draco::PointIndex::ValueType>(nv));
+  if (nv > 0 && grid_bits <= 16) {
+    std::vector<std::uint16_t> values(3 * nv);
+    for (std::size_t v = 0; v < nv; ++v) {
+      for (int c = 0; c < 3; ++c) values[3 * v + c] = static_cast<std::uint16_t>(piece.positions[v][c]);
+    }
+    add_integer_attribute(out, draco::GeometryAttribute::POSITION, draco::DT_UINT16, 3, values);
+  } else if (nv > 0) {
+    std::vector<std::uint32_t> values(3 * nv);
+    for (std::size_t v = 0; v < nv; ++v) {
+      for (int c = 0; c < 3; ++c) values[3 * v + c] = piece.positions[v][c];
+    }
+    add_integer_attribute(out, draco::GeometryAttribute::POSITION, draco::DT_UINT32, 3, values);
+  }
+  if (nv > 0 && std::any_of(piece.seam_tags.begin(), piece.seam_tags.end(), [](std::uint16_t t) { return t != 0; })) {
+    add_integer_attribute(out, draco::GeometryAttribute::GENERIC, draco::DT_UINT16, 1, piece.seam_tags);
+  }
+  const bool encode_normals = nv > 0 && options.normals && !piece.normals.empty();
+  if (encode_normals) add_float3_attribute(out, draco::GeometryAttribute::NORMAL, piece.normals, std::nullopt);
+  out.SetNumFaces(piece.triangles.size());
+  for (std::size_t t = 0; t < piece.triangles.size(); ++t) {
+    draco::Mesh::Face face;
+    for (int c = 0; c < 3; ++c) face[c] = draco::PointIndex(piece.triangles[t][c]);
+    out.SetFace(draco::FaceIndex(static_cast<std::uint32_t>(t)), face);
+  }
+  draco::Encoder encoder;
+  if (encode_normals) encoder.SetAttributeQuantization(draco::GeometryAttribute::NORMAL, options.normal_bits);
+  encoder.SetSpeedOptions(options.speed, options.speed);
+  if (piece.triangles.empty()) encoder.SetEncodingMethod(draco::MESH_SEQUENTIAL_ENCODING);
+  draco::EncoderBuffer buffer;
+  const draco::Status status = encoder.EncodeMeshToBuffer(out, &buffer);
+  if (!status.ok()) throw Internal("Draco encoder failed on a piece: " + status.error_msg_string());
+  return std::string(buffer.data(), buffer.size());
+}
+
+QuantizedPiece decode_draco_piece(std::string_view bytes, int grid_bits) {
+  draco::DecoderBuffer buffer;
+  buffer.Init(bytes.data(), bytes.size());
+  draco::Decoder decoder;
+  auto decoded = decoder.DecodeMeshFromBuffer(&buffer);
+  if (!decoded.ok()) {
+    throw InvalidInput("frame", "a piece is not a Draco triangle mesh (" + decoded.status().error_msg_string() + ")");
+  }
+  const std::unique_ptr<draco::Mesh> in = std::move(decoded).value();
+  const std::size_t np = in->num_points();
+  QuantizedPiece piece;
+  if (np == 0 && in->num_faces() == 0) return piece;
+  const draco::PointAttribute* position = in->GetNamedAttribute(draco::GeometryAttribute::POSITION);
+  if (position == nullptr || position->num_components() != 3 || !unsigned_attribute(*position)) {
+    throw InvalidInput("frame", "a Draco piece has no integer 3D POSITION attribute");
+  }
+  const std::uint32_t max_value = (std::uint32_t{1} << grid_bits) - 1u;
+  piece.positions.resize(np);
+  for (std::size_t p = 0; p < np; ++p) {
+    auto& q = piece.positions[p];
+    if (!position->ConvertValue<std::uint32_t, 3>(
+            position->mapped_index(draco::PointIndex(static_cast<std::uint32_t>(p))), q.data()) ||
+        q[0] > max_value || q[1] > max_value || q[2] > max_value) {
+      throw InvalidInput("frame",
+                         "a Draco piece's POSITION is unreadable or off the grid at point " + std::to_string(p));
+    }
+  }
+  piece.seam_tags.assign(np, 0);
+  if (const draco::PointAttribute* tags = in->GetNamedAttribute(draco::GeometryAttribute::GENERIC)) {
+    if (tags->num_components() != 1 || !unsigned_attribute(*tags)) {
+      throw InvalidInput("frame", "a Draco piece's seam tags are not one unsigned integer per point");
+    }
+    for (std::size_t p = 0; p < np; ++p) {
+      if (!tags->ConvertValue<std::uint16_t, 1>(tags->mapped_index(draco::PointIndex(static_cast<std::uint32_t>(p))),
+                                                &piece.seam_tags[p])) {
+        throw InvalidInput("frame", "a Draco piece's seam tag is unreadable at point " + std::to_string(p));
+      }
+    }
+  }
+  const draco::PointAttribute* normal = in->GetNamedAttribute(draco::GeometryAttribute::NORMAL);
+  if (normal != nullptr) {
+    if (normal->num_components() != 3 || !numeric_attribute(*normal)) {
+      throw InvalidInput("frame", "a Draco piece's NORMAL attribute is not numeric 3D");
+    }
+    piece.normals.resize(np);
+    std::array<float, 3> value{};
+    for (std::size_t p = 0; p < np; ++p) {
+      if (!normal->ConvertValue<float, 3>(normal->mapped_index(draco::PointIndex(static_cast<std::uint32_t>(p))),
+                                          value.data())) {
+        throw InvalidInput("frame", "a Draco piece's NORMAL is unreadable at point " + std::to_string(p));
+      }
+      const Vec3 n(value[0], value[1], value[2]);
+      const double len = n.norm();
+      piece.normals[p] = len > 0.0 ? Vec3(n / len) : n;
+    }
+  }
+  piece.triangles.resize(in->num_faces());
+  for (std::uint32_t f = 0; f < in->num_faces(); ++f) {
+    const draco::Mesh::Face& face = in->face(draco::FaceIndex(f));
+    for (int c = 0; c < 3; ++c) {
+      const std::uint32_t v = face[c].value();
+      if (v >= np) throw InvalidInput("frame", "a Draco piece's face " + std::to_string(f) + " uses a missing point");
+      piece.triangles[f][c] = v;
+    }
+  }
+  return piece;
 }
 
 }  // namespace surfacer

@@ -1,11 +1,15 @@
 // Draco frame encoding (the lossless alternative is write_ply(mesh, true) in core/mesh/mesh_io.h).
 #pragma once
 
+#include <cstdint>
+#include <memory>
 #include <optional>
 #include <string>
 #include <string_view>
 
 #include "core/mesh/mesh.h"
+#include "core/mesh/mesh_pieces.h"
+#include "core/mesh/quantization.h"
 
 namespace surfacer {
 
@@ -29,13 +33,55 @@ void validate(const DracoOptions& options);
 // Cost: Draco's edgebreaker takes ~0.3-0.5 us per triangle at speeds 0-9; speed 10 (sequential) is ~7x faster but
 // ~6x larger.
 std::string encode_draco(const Mesh& mesh, const DracoOptions& options);
+
+// encode_draco in two steps, for callers that run Draco's encoder (which cannot be interrupted) on a thread of their
+// own: the constructor validates and copies what the encoder needs, so the mesh may go away before encode() runs.
+class DracoEncoder {
+ public:
+  // Throws like encode_draco.
+  DracoEncoder(const Mesh& mesh, const DracoOptions& options);
+  ~DracoEncoder();
+  DracoEncoder(const DracoEncoder&) = delete;
+  DracoEncoder& operator=(const DracoEncoder&) = delete;
+  // The Draco bytes; call once. Throws Internal on encoder failure.
+  std::string encode();
+
+ private:
+  struct State;
+  std::unique_ptr<State> state_;
+};
+
+// What decoding an untrusted mesh may cost.
+struct MeshReadLimits {
+  // Most triangles the caller will accept (the server's --max-triangles): a decoder may allocate for no more.
+  std::int64_t max_triangles = std::int64_t{1} << 32;
+};
+
 // Throws InvalidInput("frame") if the bytes are not a Draco triangle mesh (fuzzed with truncated and bit-flipped
-// frames).
-Mesh decode_draco(std::string_view bytes);
+// frames). Draco allocates for the element counts a stream declares before it reads the elements, so the decoder runs
+// inside an AllocationBudget (core/util/allocation_budget.h) of 64 MiB plus the smaller of 4096 bytes per input byte
+// and 256 bytes per triangle of limits.max_triangles. Measured: Draco allocates 60-125 bytes per triangle; per input
+// byte 50-500 for polygonized surfaces, 2.1 KB for a flat regular grid of 12.5 M triangles at speed 0 (about the
+// most compressible mesh). A stream that needs more throws InvalidInput("frame") (it declares far more than its
+// bytes hold) or, when the triangle limit is the smaller bound, ResourceLimit("max_triangles").
+Mesh decode_draco(std::string_view bytes, const MeshReadLimits& limits = {});
+
+// The grid `mesh` is quantized on: options.quantization_bounds, else the mesh's own bounding box. Checks the mesh
+// first and throws as encode_draco does (non-finite vertices, bad indices, normals, vertices outside the box).
+QuantizationGrid quantization_grid(const Mesh& mesh, const DracoOptions& options);
 
 // Largest position error quantization can introduce: half a quantization step along the box's longest side
 // times sqrt(3) (Draco uses one range, the longest side, for all axes: step = side / (2^bits - 1)), plus a few
 // float32 ulps of the box's coordinates because Draco quantizes in float32.
 double draco_max_error(const Aabb& box, int quantization_bits);
+
+// One piece of a frame (core/mesh/mesh_pieces.h) as Draco bytes: the grid coordinates as an integer POSITION
+// attribute (16-bit for grids of up to 16 bits; Draco's own quantization is not needed, they are on the grid
+// already), the seam tags as a 16-bit GENERIC attribute when some are non-zero, and the normals as encode_draco
+// writes them (options.normals, options.normal_bits). options.speed applies; its quantization fields do not.
+std::string encode_draco_piece(const QuantizedPiece& piece, int grid_bits, const DracoOptions& options);
+// Throws InvalidInput("frame") when the bytes are not such a piece (no integer POSITION, coordinates beyond
+// 2^grid_bits - 1).
+QuantizedPiece decode_draco_piece(std::string_view bytes, int grid_bits);
 
 }  // namespace surfacer

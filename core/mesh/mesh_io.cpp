@@ -278,7 +278,8 @@ MeshFormat mesh_format_from_path(const std::filesystem::path& path) {
   throw InvalidInput("file", path.string() + ": unknown mesh file extension '" + ext + "'; use .ply, .obj or .drc");
 }
 
-Mesh parse_mesh(std::string_view bytes, MeshFormat format, const std::string& name_for_errors) {
+Mesh parse_mesh(std::string_view bytes, MeshFormat format, const std::string& name_for_errors,
+                const MeshReadLimits& limits) {
   switch (format) {
     case MeshFormat::kPly:
       return parse_ply(bytes, name_for_errors);
@@ -286,18 +287,19 @@ Mesh parse_mesh(std::string_view bytes, MeshFormat format, const std::string& na
       return parse_obj(bytes, name_for_errors);
     case MeshFormat::kDraco:
       try {
-        return decode_draco(bytes);
+        return decode_draco(bytes, limits);
       } catch (const Error& e) {
+        if (e.kind() != ErrorKind::kInvalidInput) throw Error(e.kind(), e.field(), name_for_errors + ": " + e.what());
         throw InvalidInput("file", name_for_errors + ": " + e.what());
       }
   }
   throw Internal("parse_mesh: unknown format");
 }
 
-Mesh read_mesh(const std::filesystem::path& path) {
+Mesh read_mesh(const std::filesystem::path& path, const MeshReadLimits& limits) {
   const MeshFormat format = mesh_format_from_path(path);
   const std::string bytes = read_file(path);
-  return parse_mesh(bytes, format, path.string());
+  return parse_mesh(bytes, format, path.string(), limits);
 }
 
 std::string write_ply(const Mesh& mesh, bool double_precision) {

@@ -7,6 +7,7 @@
 #include <string_view>
 
 #include "core/mesh/mesh.h"
+#include "core/mesh/mesh_codec.h"
 
 namespace surfacer {
 
@@ -15,8 +16,11 @@ enum class MeshFormat { kPly, kObj, kDraco };
 // Format from the extension (.ply, .obj, .drc); throws InvalidInput otherwise.
 MeshFormat mesh_format_from_path(const std::filesystem::path& path);
 
-Mesh read_mesh(const std::filesystem::path& path);
-Mesh parse_mesh(std::string_view bytes, MeshFormat format, const std::string& name_for_errors);
+// PLY and OBJ allocate in proportion to the bytes present (never for a count a header declares); Draco within
+// `limits` (decode_draco). Errors keep their kind, with the file's name in front of the message.
+Mesh read_mesh(const std::filesystem::path& path, const MeshReadLimits& limits = {});
+Mesh parse_mesh(std::string_view bytes, MeshFormat format, const std::string& name_for_errors,
+                const MeshReadLimits& limits = {});
 
 // PLY is written binary little-endian (float positions unless `double_precision`); OBJ as text with %.9g.
 void write_mesh(const std::filesystem::path& path, const Mesh& mesh);

@@ -14,6 +14,7 @@
 #include <fstream>
 #include <limits>
 #include <optional>
+#include <vector>
 
 #include "core/particles/particle_io_detail.h"
 #include "core/util/errors.h"
@@ -218,40 +219,43 @@ namespace {
 
 using namespace particle_io_detail;
 
-constexpr std::uint64_t kMaxInflated = std::uint64_t{16} << 30;
-
 bool is_gzip(std::string_view bytes) {
   return bytes.size() >= 2 && static_cast<unsigned char>(bytes[0]) == 0x1f &&
          static_cast<unsigned char>(bytes[1]) == 0x8b;
 }
 
-std::string gunzip(std::string_view bytes, const std::string& name) {
+[[noreturn]] void too_many_bytes(const std::string& name, std::uint64_t max_bytes, const char* what) {
+  throw ResourceLimit("file", name + ": " + what + " more than " + std::to_string(max_bytes) + " bytes (the limit)");
+}
+
+// Inflates gzip data (concatenated members are one stream) into `out` (capacity bytes), or, when `out` is null,
+// only counts what it inflates to (through a small scratch buffer), stopping once that passes `max_bytes`. Returns
+// the inflated size.
+std::uint64_t inflate_all(std::string_view bytes, const std::string& name, std::uint64_t max_bytes, char* out,
+                          std::uint64_t capacity) {
   z_stream zs{};
   if (inflateInit2(&zs, 16 + MAX_WBITS) != Z_OK) throw Internal("zlib inflateInit2 failed");
-  std::string out;
-  out.resize(std::max<std::size_t>(4096, std::min<std::size_t>(bytes.size() * 4, std::size_t{1} << 30)));
-  std::size_t produced = 0;
+  struct End {
+    z_stream& zs;
+    ~End() { inflateEnd(&zs); }
+  } end{zs};
+  std::vector<char> scratch(out == nullptr ? std::size_t{1} << 18 : 0);
+  std::uint64_t produced = 0;
   std::size_t consumed = 0;
-  int status = Z_OK;
   while (true) {
-    if (produced == out.size()) {
-      if (out.size() >= kMaxInflated) {
-        inflateEnd(&zs);
-        throw ResourceLimit("file", name + ": inflated data exceeds 16 GiB");
-      }
-      out.resize(std::min<std::uint64_t>(out.size() * 2, kMaxInflated));
-    }
+    if (produced > max_bytes) too_many_bytes(name, max_bytes, "its gzip data inflates to");
+    char* const target = out != nullptr ? out + produced : scratch.data();
+    const std::uint64_t room = out != nullptr ? capacity - produced : scratch.size();
     const std::size_t in_chunk = std::min<std::size_t>(bytes.size() - consumed, 1u << 30);
-    const std::size_t out_chunk = std::min<std::size_t>(out.size() - produced, 1u << 30);
+    const std::size_t out_chunk = static_cast<std::size_t>(std::min<std::uint64_t>(room, 1u << 30));
     zs.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(bytes.data() + consumed));
     zs.avail_in = static_cast<uInt>(in_chunk);
-    zs.next_out = reinterpret_cast<Bytef*>(out.data() + produced);
+    zs.next_out = reinterpret_cast<Bytef*>(target);
     zs.avail_out = static_cast<uInt>(out_chunk);
-    status = inflate(&zs, Z_NO_FLUSH);
+    const int status = inflate(&zs, Z_NO_FLUSH);
     consumed += in_chunk - zs.avail_in;
     produced += out_chunk - zs.avail_out;
     if (status == Z_STREAM_END) {
-      // Concatenated gzip members are one stream.
       if (consumed < bytes.size() && is_gzip(bytes.substr(consumed))) {
         inflateReset(&zs);
         continue;
@@ -259,15 +263,30 @@ std::string gunzip(std::string_view bytes, const std::string& name) {
       break;
     }
     if (status == Z_OK) continue;
-    if (status == Z_BUF_ERROR && zs.avail_out == 0) continue;
+    if (status == Z_BUF_ERROR && zs.avail_out == 0 && out_chunk > 0) continue;
     const std::string message = zs.msg != nullptr ? zs.msg : "";
-    inflateEnd(&zs);
     if (status == Z_BUF_ERROR) fail(name, byte_at(consumed) + " of the gzip data", "truncated gzip stream");
     fail(name, byte_at(consumed) + " of the gzip data",
          "corrupt gzip stream" + (message.empty() ? "" : ": " + message));
   }
-  inflateEnd(&zs);
-  out.resize(produced);
+  if (produced > max_bytes) too_many_bytes(name, max_bytes, "its gzip data inflates to");
+  return produced;
+}
+
+// Inflates gzip data into at most `max_bytes`. The data is inflated twice: first only counted, so a bomb is refused
+// having allocated nothing, then into a buffer of exactly its size (never a larger one, nor a copy while growing).
+std::string gunzip(std::string_view bytes, const std::string& name, std::uint64_t max_bytes) {
+  const std::uint64_t size = inflate_all(bytes, name, max_bytes, nullptr, 0);
+  std::string out;
+  try {
+    out.resize(static_cast<std::size_t>(size) + 1);  // one spare byte: room for inflate() to see the end
+  } catch (const std::bad_alloc&) {
+    throw ResourceLimit(
+        "file", name + ": its gzip data inflates to " + std::to_string(size) + " bytes, more memory than there is");
+  }
+  const std::uint64_t again = inflate_all(bytes, name, max_bytes, out.data(), out.size());
+  if (again != size) throw Internal(name + ": gzip data inflated to two different sizes");
+  out.resize(static_cast<std::size_t>(size));
   return out;
 }
 
@@ -505,36 +524,78 @@ ParticleFormat particle_format_from_path(const std::filesystem::path& path) {
                          "'; use .xyz, .txt, .csv, .ply, .vtk, .vtu, .bin, .bgeo or .bhclassic (optionally .gz)");
 }
 
-ParticleFrame parse_particles(std::string_view bytes, ParticleFormat format, const std::string& name_for_errors) {
-  std::string inflated;
-  if (is_gzip(bytes)) {
-    inflated = gunzip(bytes, name_for_errors);
-    bytes = inflated;
-  }
+namespace {
+
+ParticleFrame parse_format(std::string_view bytes, ParticleFormat format, const std::string& name) {
   switch (format) {
     case ParticleFormat::kXyz:
-      return parse_xyz(bytes, name_for_errors);
+      return parse_xyz(bytes, name);
     case ParticleFormat::kPly:
-      return parse_ply_points(bytes, name_for_errors);
+      return parse_ply_points(bytes, name);
     case ParticleFormat::kVtk:
-      return parse_vtk_points(bytes, name_for_errors);
+      return parse_vtk_points(bytes, name);
     case ParticleFormat::kVtu:
-      return parse_vtu_points(bytes, name_for_errors);
+      return parse_vtu_points(bytes, name);
     case ParticleFormat::kBin:
-      return parse_bin(bytes, name_for_errors);
+      return parse_bin(bytes, name);
     case ParticleFormat::kBgeo:
-      return parse_bgeo(bytes, name_for_errors);
+      return parse_bgeo(bytes, name);
   }
   throw Internal("unknown particle format");
 }
 
-ParticleFrame read_particles(const std::filesystem::path& path) {
+[[noreturn]] void too_many_particles(const std::string& name, std::uint64_t count, std::int64_t max_particles) {
+  throw ResourceLimit("file", name + ": " + std::to_string(count) + " particles, more than " +
+                                  std::to_string(max_particles) + " (the limit)");
+}
+
+}  // namespace
+
+ParticleFrame parse_particles(std::string_view bytes, ParticleFormat format, const std::string& name_for_errors,
+                              const ParticleReadLimits& limits) {
+  std::string inflated;
+  if (is_gzip(bytes)) {
+    inflated = gunzip(bytes, name_for_errors, limits.max_bytes);
+    bytes = inflated;
+  } else if (bytes.size() > limits.max_bytes) {
+    too_many_bytes(name_for_errors, limits.max_bytes, "it holds");
+  }
+  // A raw file tells its count by its size: refused before parsing.
+  if (format == ParticleFormat::kBin && bytes.size() / 12 > static_cast<std::uint64_t>(limits.max_particles)) {
+    too_many_particles(name_for_errors, bytes.size() / 12, limits.max_particles);
+  }
+  ParticleFrame frame = parse_format(bytes, format, name_for_errors);
+  if (frame.positions.size() > static_cast<std::uint64_t>(limits.max_particles)) {
+    too_many_particles(name_for_errors, frame.positions.size(), limits.max_particles);
+  }
+  return frame;
+}
+
+ParticleFrame read_particles(const std::filesystem::path& path, const ParticleReadLimits& limits) {
   const ParticleFormat format = particle_format_from_path(path);
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InvalidInput("file", path.string() + ": cannot open for reading: " + std::strerror(errno));
+  // A plain file is its data: one over the limit is not read at all (gzip data is checked as it inflates).
+  std::error_code ec;
+  const std::uintmax_t size = std::filesystem::file_size(path, ec);
+  char magic[2] = {0, 0};
+  in.read(magic, 2);
+  const bool gzip = in.gcount() == 2 && is_gzip(std::string_view(magic, 2));
+  // Deflate never grows data by more than a fraction of a percent (plus a few bytes a member): gzip data much larger
+  // than the limit cannot inflate within it.
+  const std::uint64_t max_bytes = std::min(limits.max_bytes, std::uint64_t{1} << 62);
+  const std::uint64_t max_file = gzip ? max_bytes + max_bytes / 64 + (std::uint64_t{1} << 16) : max_bytes;
+  if (!ec && size > max_file) {
+    if (!gzip) too_many_bytes(path.string(), max_bytes, "it holds");
+    throw ResourceLimit("file", path.string() + ": its gzip data (" + std::to_string(size) +
+                                    " bytes) cannot inflate to " + std::to_string(max_bytes) +
+                                    " bytes or less (the limit)");
+  }
+  in.clear();
+  in.seekg(0);
   std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   if (in.bad()) throw InvalidInput("file", path.string() + ": read error");
-  return parse_particles(bytes, format, path.string());
+  return parse_particles(bytes, format, path.string(), limits);
 }
 
 std::vector<std::filesystem::path> expand_sequence(const std::string& pattern, int start, int end) {

@@ -22,10 +22,14 @@
 // the line (text) or byte offset (binary; offsets of gzip data are into the inflated bytes), e.g.
 //   "fluid_0003.bgeo: byte 131: truncated point 2 of 1000 (needs 28 bytes, 5 left)".
 // Headers are never trusted: reservations are capped by the bytes present, so hostile files cannot exhaust memory.
-// Inflated gzip data larger than 16 GiB throws ResourceLimit("file").
+// What a file may amount to is bounded by ParticleReadLimits: past its bytes (a plain file's size, gzip data as it
+// inflates, checked as it goes, so a small bomb stops at the limit) or particles, or when inflating runs out of
+// memory, ResourceLimit("file") names the file and the limit.
 #pragma once
 
+#include <cstdint>
 #include <filesystem>
+#include <limits>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -41,12 +45,18 @@ struct ParticleFrame {
 
 enum class ParticleFormat { kXyz, kPly, kVtk, kVtu, kBin, kBgeo };
 
+struct ParticleReadLimits {
+  std::uint64_t max_bytes = std::uint64_t{16} << 30;  // of the file's data, once inflated
+  std::int64_t max_particles = std::numeric_limits<std::int64_t>::max();
+};
+
 // Format from the file name's extension (see above); throws InvalidInput("file") naming the supported extensions.
 ParticleFormat particle_format_from_path(const std::filesystem::path& path);
 
-ParticleFrame read_particles(const std::filesystem::path& path);
+ParticleFrame read_particles(const std::filesystem::path& path, const ParticleReadLimits& limits = {});
 // The same from bytes in memory (gzip accepted); `name_for_errors` prefixes every message.
-ParticleFrame parse_particles(std::string_view bytes, ParticleFormat format, const std::string& name_for_errors);
+ParticleFrame parse_particles(std::string_view bytes, ParticleFormat format, const std::string& name_for_errors,
+                              const ParticleReadLimits& limits = {});
 
 // Frame file names from a pattern with one placeholder "{}" (the frame number as is) or "{:Nd}" / "{:0Nd}"
 // (zero-padded to N digits; N in 1..18), for frames start..end inclusive, e.g.

@@ -292,6 +292,9 @@ class XmlReader {
         }
       } else if (tag->name == "Piece") {
         if (!saw_file) fail(name_, where(tag->begin), "<Piece> outside <VTKFile>");
+        // A piece's counts and radius flag are its own: a piece opened inside another would restart them while the
+        // outer one's arrays are already read.
+        if (piece_points >= 0) fail(name_, where(tag->begin), "<Piece> inside another <Piece>");
         double n = -1.0;
         const std::string_view np = tag->attribute("NumberOfPoints").value_or("");
         if (!parse_double(np, n) || n < 0 || n != std::floor(n) || n > 4.0e9) {
@@ -342,6 +345,12 @@ class XmlReader {
     if (piece_points >= 0) fail(name_, where(text_.size()), "file ends inside a <Piece>");
     if (any_radius && any_piece_without_radius) {
       fail(name_, where(text_.size()), "some pieces have a radius array and some do not");
+    }
+    // Each piece checks its own counts; this holds the sum to them too, as the legacy reader's finish() does.
+    if (!frame.radii.empty() && frame.radii.size() != frame.positions.size()) {
+      fail(name_, where(text_.size()),
+           "radius arrays hold " + std::to_string(frame.radii.size()) + " values for " +
+               std::to_string(frame.positions.size()) + " points");
     }
     return frame;
   }

@@ -3,41 +3,31 @@
 //     r_inner <= min_i |x - p_i| <= r_outer                                          (thesis eq. 3.4)
 // i.e. outside the union of r_inner balls and inside the union of r_outer balls.
 //
-// Pipeline (thesis Fig. 3.2), one frame:
+// Pipeline (thesis Fig. 3.2), one frame; the steps and every change from the thesis (CHOICE) are in
+// docs/ALGORITHMS.md §1:
 //  1. Spatial hash over the particles (core/particles/spatial_hash.h); the field f(x) = d(x) - r_outer, d = distance to
-//  the
-//     nearest particle, is sampled lazily, only where Marching Tiles visits: blocks within r_outer + one sample of a
-//     particle (seeds = particles). Never a dense global grid.
+//     the nearest particle, is sampled lazily where Marching Tiles visits. Never a dense global grid.
 //  2. Initial mesh: Marching Tiles (core/polygonize/marching_tiles.h) of f = 0, mean sample spacing h = spacing_factor
-//  * r_inner
-//     (thesis: 0.8 r_inner). Closed, oriented, minimum valence >= 5.
-//  3. laplacian_sweeps Gauss-Seidel sweeps on x^T A x (A = uniform graph Laplacian): each vertex moves toward its
-//     1-ring centroid by `relaxation` (thesis 0.6); constraints after each sweep.
-//  4. B = W^T D^-1 W (eq. 3.2) built once, as CSR (2-ring support): W = cotangent Laplacian
-//     (W_ij = -(cot a_ij + cot b_ij) / 2, W_ii = -sum_j W_ij), D = diag(area of the triangles incident to i).
-//  5. bilaplacian_sweeps Gauss-Seidel sweeps x_i <- -(sum_{j != i} B_ij x_j) / B_ii (no relaxation: the thesis
-//     under-relaxes only step 3), constraints after each sweep.
-//  6. polish_sweeps of the same without the particle constraints (the container is still enforced, so the output
-//     never leaves it).
+//     * r_inner. Closed, oriented, minimum valence >= 5.
+//  3. laplacian_sweeps Gauss-Seidel sweeps on the uniform Laplacian energy (under-relaxed by `relaxation`), then every
+//     vertex projected into the band once.
+//  4. x0 and a unit normal n per vertex fixed; the band along each normal is an exact interval of offsets t.
+//  5. bilaplacian_sweeps projected SOR sweeps on |W (x0 + t n)|^2 over D (B = W^T D^-1 W, eq. 3.2, applied through W),
+//     each offset clamped into its interval: CHOICEs "constrained stages along the normals", "over-relaxed sweeps".
+//  6. polish_sweeps of the same clamped to the container only, then (unless unconstrained_polish) every offset clamped
+//     into its band interval again: every final vertex is faithful (CHOICE "faithful at the end").
 //  7. Optional erosion x <- x - erosion * r_inner * n(x) (area-weighted vertex normal), then the container again.
+//  8. Sliver repair (core/mesh/mesh_repair.h): angles below min_angle_degrees, or triangles collinear on output_grid,
+//     removed by flips and collapses that move no vertex.
 //
-// Constraint projection (after every constrained sweep): the nearest particle p (exact, spatial hash); |x - p| <
-// r_inner pushes x out along (x - p) to r_inner (repeated, at most 8 times, while the push lands inside another
-// particle's r_inner ball); |x - p| > r_outer pulls x toward p to r_outer (p stays the nearest on that segment).
-// Then the container: coordinates clamped into container_box; a vertex with container_solid(x) > 0 is moved by
-// Newton steps x -= (f + m) grad f / |grad f|^2 (at most 16; m = 1e-9 r_inner, so it lands just inside) until f <= 0.
 // Container snapping wins over faithfulness: vertices held at a wall may be outside [r_inner, r_outer].
-// Nearest-particle queries are exact: each vertex keeps the particles within d0 + 0.3 r_inner of where it last
-// looked (d0 = its nearest distance there) and scans only those until it has moved 0.15 r_inner.
 //
 // What to expect (measured in tests/core/particle_surfacer_test.cpp and bench/particles_bench.cpp):
 //  * Marching Tiles puts a vertex on every crossed lattice edge: about 5 vertices per h^2 of surface.
-//  * Constraints hold on vertices only (as in the thesis), so on a flat face vertices can slide off the cusps between
-//    outer spheres rather than the whole face sinking below them. Square lattice of spacing d = r_inner: with
-//    r_outer = 2 r_inner the top face's RMS height deviation is ~0.7% of r_inner after step 5; close to the eq. 3.5
-//    bound (r_outer = 1.22..1.5 r_inner) it stays ~1.1-1.4%; below it (1.05 r_inner) ~3%.
-//  * The unconstrained polish moves vertices by up to ~0.2 r_inner (at sharp features), leaving ~86-92% within the
-//    band; both are reported in the stats.
+//  * Square lattices of spacing d (r_outer = 2 d, r_inner / d in 0.45..1): the top face's RMS height deviation is
+//    0.6-1.4% of r_inner (docs/ALGORITHMS.md §1, "Flat surfaces").
+//  * Every final vertex in the band (faithful_after_polish = 1) unless unconstrained_polish or the container says
+//    otherwise; no triangle angle below min_angle_degrees on sheets and droplets (slivers_left counts the rest).
 //
 // Per-particle radii (radii non-empty): particle i gets r_inner_i = radii[i] and r_outer_i = k * radii[i], where
 // k = r_outer / r_inner of the options (default 2) and the reference r_inner is options.r_inner when set, else the mean
@@ -49,11 +39,12 @@
 // Parallelism: vertices are renumbered along a Morton curve and cut into contiguous blocks (a count that depends only
 // on the vertex count); a sweep first updates, in parallel, every block's interior vertices (whose matrix row reads
 // only its own block), then the remaining "seam" vertices serially. That is exactly Gauss-Seidel in a fixed vertex
-// order, so convergence is Gauss-Seidel's and the result is byte-identical whatever `threads`. Constraint
-// projection, B's assembly and Marching Tiles run in parallel too.
+// order, so convergence is Gauss-Seidel's and the result is byte-identical whatever `threads`. The band
+// intervals, W's assembly and Marching Tiles run in parallel too.
 //
 // Cancellation: control.check() at least once per sweep, per assembly chunk and inside Marching Tiles; progress is
-// reported per stage: "distance_field", "polygonize", "laplacian", "build_b", "bilaplacian", "polish", "erosion".
+// reported per stage: "distance_field", "polygonize", "laplacian", "build_b", "bilaplacian", "polish", "erosion",
+// "cleanup".
 #pragma once
 
 #include <cstdint>
@@ -83,7 +74,7 @@ struct ParticleSurfacingOptions {
   static constexpr double kDefaultOuterRatio = 2.0;
   double spacing_factor = 0.8;  // Marching Tiles mean sample spacing / r_inner, in (0, 10]
   int laplacian_sweeps = 5;     // >= 0 each
-  int bilaplacian_sweeps = 25;
+  int bilaplacian_sweeps = 15;  // over-relaxed: 15 reach a lower energy than 25 plain ones (docs/ALGORITHMS.md §1)
   int polish_sweeps = 5;
   // Keep the thesis' unconstrained polish: without the final projection some vertices end outside the band.
   bool unconstrained_polish = false;

@@ -53,11 +53,6 @@ Graph one_ring(std::size_t vertices, std::span<const Triangle> triangles) {
   return g;
 }
 
-namespace {
-
-
-}  // namespace
-
 Cotangent cotangent_laplacian(std::span<const Vec3> x, std::span<const Triangle> triangles, const Graph& ring,
                               int threads, const RunControl& control) {
   const std::size_t n = ring.rows();
@@ -286,23 +281,29 @@ void laplacian_sweep(std::vector<Vec3>& x, const Graph& ring, double relaxation,
 SweepPlan plan_two_ring_sweeps(const Graph& ring, std::size_t blocks) {
   const std::size_t n = ring.rows();
   blocks = std::max<std::size_t>(1, std::min(blocks, std::max<std::size_t>(1, n)));
-  auto block_of = [&](std::size_t v) { return v * blocks / std::max<std::size_t>(1, n); };
+  auto block_begin = [&](std::size_t b) { return (n * b + blocks - 1) / blocks; };  // first v of block b
+  // inside[k]: k's whole 1-ring lies in k's block. Then v's 2-ring lies in v's block exactly when inside[k] holds
+  // for every neighbour k of v (v itself is in k's ring, so k shares v's block).
+  std::vector<std::uint8_t> inside(n);
+  for (std::size_t b = 0; b < blocks; ++b) {
+    const std::size_t begin = block_begin(b), end = block_begin(b + 1);
+    for (std::size_t k = begin; k < end; ++k) {
+      bool all = true;
+      for (std::uint32_t f = ring.offsets[k]; f < ring.offsets[k + 1] && all; ++f) {
+        all = ring.cols[f] >= begin && ring.cols[f] < end;
+      }
+      inside[k] = all;
+    }
+  }
   SweepPlan plan;
   plan.block_begin.assign(blocks + 1, 0);
   plan.interior.reserve(n);
   for (std::size_t b = 0; b < blocks; ++b) {
-    const std::size_t begin = (n * b + blocks - 1) / blocks;  // first v with block_of(v) == b
-    const std::size_t end = (n * (b + 1) + blocks - 1) / blocks;
+    const std::size_t begin = block_begin(b), end = block_begin(b + 1);
     for (std::size_t v = begin; v < end; ++v) {
-      bool inside = true;
-      for (std::uint32_t e = ring.offsets[v]; e < ring.offsets[v + 1] && inside; ++e) {
-        const std::uint32_t k = ring.cols[e];
-        inside = block_of(k) == b;
-        for (std::uint32_t f = ring.offsets[k]; f < ring.offsets[k + 1] && inside; ++f) {
-          inside = block_of(ring.cols[f]) == b;
-        }
-      }
-      (inside ? plan.interior : plan.seams).push_back(static_cast<std::uint32_t>(v));
+      bool interior = true;
+      for (std::uint32_t e = ring.offsets[v]; e < ring.offsets[v + 1] && interior; ++e) interior = inside[ring.cols[e]];
+      (interior ? plan.interior : plan.seams).push_back(static_cast<std::uint32_t>(v));
     }
     plan.block_begin[b + 1] = static_cast<std::uint32_t>(plan.interior.size());
   }
@@ -312,7 +313,6 @@ SweepPlan plan_two_ring_sweeps(const Graph& ring, std::size_t blocks) {
 OffsetSmoothing::OffsetSmoothing(const Graph& ring, const Cotangent& cotangent, std::span<const Vec3> x0,
                                  std::span<const Vec3> normals, std::size_t blocks)
     : ring_(ring),
-      w_(cotangent.w.begin(), cotangent.w.end()),
       w_diag_(cotangent.w_diag),
       inv_area_(cotangent.inv_area),
       x0_(x0),
@@ -321,18 +321,19 @@ OffsetSmoothing::OffsetSmoothing(const Graph& ring, const Cotangent& cotangent, 
       t_(ring.rows(), 0.0),
       z_(ring.rows()) {
   const std::size_t n = ring.rows();
-  diag_.resize(n);
-  c_diag_.resize(n);
-  c_.resize(w_.size());
+  rows_.resize(n);
+  entries_.resize(cotangent.w.size());
   for (std::size_t i = 0; i < n; ++i) {
-    c_diag_[i] = w_diag_[i] * inv_area_[i];
-    double d = w_diag_[i] * c_diag_[i];
+    const double c_diag = w_diag_[i] * inv_area_[i];
+    double d = w_diag_[i] * c_diag;
     for (std::uint32_t e = ring.offsets[i]; e < ring.offsets[i + 1]; ++e) {
-      const double w = w_[e], c = w * inv_area_[ring.cols[e]];
-      c_[e] = static_cast<float>(c);
+      const double w = static_cast<float>(cotangent.w[e]), c = w * inv_area_[ring.cols[e]];  // W as the sweeps see it
+      entries_[e] = {static_cast<float>(c), static_cast<float>(w)};
       d += w * c;
     }
-    diag_[i] = d;
+    // inv_diag 0: a vertex without area does not move.
+    rows_[i] = {normals[i].cast<float>(), static_cast<float>(c_diag), static_cast<float>(w_diag_[i]),
+                d > 0.0 ? static_cast<float>(1.0 / d) : 0.0f};
   }
 }
 
@@ -346,7 +347,7 @@ void OffsetSmoothing::update_z(int threads) {
       Vec3 z = w_diag_[k] * (x0_[k] + t[k] * normals_[k]);
       for (std::uint32_t e = ring_.offsets[k]; e < ring_.offsets[k + 1]; ++e) {
         const std::uint32_t j = ring_.cols[e];
-        z += static_cast<double>(w_[e]) * (x0_[j] + t[j] * normals_[j]);
+        z += static_cast<double>(entries_[e].w) * (x0_[j] + t[j] * normals_[j]);
       }
       z_[k] = z.cast<float>();
     }
@@ -360,22 +361,21 @@ void OffsetSmoothing::sweep(std::span<const double> lo, std::span<const double> 
   }
   std::vector<double>& t = t_;
   const bool bounded = !lo.empty();
+  const float step = static_cast<float>(omega);
   auto update = [&](std::uint32_t i) {
-    if (!(diag_[i] > 0.0)) return;
-    const Vec3& n = normals_[i];
-    const Eigen::Vector3f nf = n.cast<float>();
+    const Row& row = rows_[i];
+    if (row.inv_diag == 0.0f) return;
     const std::uint32_t begin = ring_.offsets[i], end = ring_.offsets[i + 1];
-    float acc = 0.0f;
-    for (std::uint32_t e = begin; e < end; ++e) acc += c_[e] * nf.dot(z_[ring_.cols[e]]);
-    const double grad = c_diag_[i] * n.dot(z_[i].cast<double>()) + static_cast<double>(acc);
-    double next = t[i] - omega * grad / diag_[i];
+    float grad = row.c_diag * row.normal.dot(z_[i]);
+    for (std::uint32_t e = begin; e < end; ++e) grad += entries_[e].c * row.normal.dot(z_[ring_.cols[e]]);
+    double next = t[i] - static_cast<double>(step * grad * row.inv_diag);
     if (bounded) next = std::clamp(next, lo[i], hi[i]);
     const double delta = next - t[i];
     if (delta == 0.0) return;
     t[i] = next;
-    z_[i] += static_cast<float>(w_diag_[i] * delta) * nf;
-    const float df = static_cast<float>(delta);
-    for (std::uint32_t e = begin; e < end; ++e) z_[ring_.cols[e]] += (w_[e] * df) * nf;
+    const Eigen::Vector3f dn = static_cast<float>(delta) * row.normal;
+    z_[i] += row.w_diag * dn;
+    for (std::uint32_t e = begin; e < end; ++e) z_[ring_.cols[e]] += entries_[e].w * dn;
   };
   parallel_for(static_cast<int>(plan_.blocks()), threads, [&](int b) {
     for (std::uint32_t s = plan_.block_begin[b]; s < plan_.block_begin[b + 1]; ++s) update(plan_.interior[s]);
@@ -402,7 +402,7 @@ double OffsetSmoothing::energy(std::span<const double> t) const {
     Vec3 z = w_diag_[k] * (x0_[k] + t[k] * normals_[k]);
     for (std::uint32_t f = ring_.offsets[k]; f < ring_.offsets[k + 1]; ++f) {
       const std::uint32_t j = ring_.cols[f];
-      z += static_cast<double>(w_[f]) * (x0_[j] + t[j] * normals_[j]);
+      z += static_cast<double>(entries_[f].w) * (x0_[j] + t[j] * normals_[j]);
     }
     e += inv_area_[k] * z.squaredNorm();
   }

@@ -104,9 +104,19 @@ class OffsetSmoothing {
  private:
   void update_z(int threads);
 
+  // What one update reads, packed so that a sweep streams two arrays besides t and the bounds: per vertex its normal,
+  // W_ii / D_ii, W_ii and 1 / B_ii; per ring entry W_ik / D_kk and W_ik (aligned with ring.cols).
+  struct Row {
+    Eigen::Vector3f normal;
+    float c_diag, w_diag, inv_diag;
+  };
+  struct Entry {
+    float c, w;
+  };
   const Graph& ring_;
-  std::vector<float> w_, c_;  // W_ik, and W_ik / D_kk, aligned with ring.cols
-  std::vector<double> w_diag_, inv_area_, c_diag_, diag_;
+  std::vector<Row> rows_;
+  std::vector<Entry> entries_;
+  std::vector<double> w_diag_, inv_area_;
   std::span<const Vec3> x0_, normals_;
   SweepPlan plan_;
   std::vector<double> t_;

@@ -26,7 +26,7 @@ void validate(const PolygonizeOptions& o) {
   }
   if (o.bounds) require_box("bounds", *o.bounds);
   if (o.cell_size) {
-    require_positive("cell_size", *o.cell_size, "the cell edge (cubes) or sample spacing (tiles) in scene units");
+    require_length("cell_size", *o.cell_size, "the cell edge (cubes) or sample spacing (tiles) in scene units");
   } else if (o.cells < 1) {
     throw InvalidInput("cells", "cells (" + std::to_string(o.cells) +
                                     ") must be >= 1 (cells along the longest axis; "

@@ -254,9 +254,12 @@ FieldPtr make_blobs(std::span<const PointSkeleton> points, std::span<const Segme
   if (points.empty() && segments.empty()) {
     throw InvalidInput("points", "points and segments are both empty; give at least one point or segment skeleton");
   }
-  require_positive("iso", options.iso, "the default is 0.5");
+  require_range_open_low("iso", options.iso, 0.0, kMaxCoordinate, "the default is 0.5");
   require_finite("blobbiness", options.blobbiness);
-  if (options.kernel == BlobKernel::kBlinn) require_positive("blobbiness", options.blobbiness, "the default is 1");
+  // Blinn kernels peak at s e^b: beyond b = 100 a sum of them overflows.
+  if (options.kernel == BlobKernel::kBlinn) {
+    require_range_open_low("blobbiness", options.blobbiness, 0.0, 100.0, "the default is 1");
+  }
   if (options.kernel != BlobKernel::kWyvill && options.kernel != BlobKernel::kBlinn) {
     throw InvalidInput("kernel", "kernel is not a known blob kernel; use Wyvill or Blinn");
   }
@@ -267,29 +270,20 @@ FieldPtr make_blobs(std::span<const PointSkeleton> points, std::span<const Segme
   skeletons.reserve(points.size() + segments.size());
   for (std::size_t i = 0; i < points.size(); ++i) {
     const std::string f = "points[" + std::to_string(i) + "]";
-    require_finite(f + ".center", points[i].center);
-    require_positive(f + ".radius", points[i].radius);
+    require_coordinate(f + ".center", points[i].center);
+    require_length(f + ".radius", points[i].radius);
     require_radius_in_range(f + ".radius", points[i].radius);
-    require_finite(f + ".strength", points[i].strength);
+    require_range(f + ".strength", points[i].strength, -kMaxCoordinate, kMaxCoordinate);
     skeletons.push_back(make_skeleton(points[i].center, points[i].center, points[i].radius, points[i].strength));
   }
   for (std::size_t i = 0; i < segments.size(); ++i) {
     const std::string f = "segments[" + std::to_string(i) + "]";
-    require_finite(f + ".a", segments[i].a);
-    require_finite(f + ".b", segments[i].b);
-    require_positive(f + ".radius", segments[i].radius);
+    require_coordinate(f + ".a", segments[i].a);
+    require_coordinate(f + ".b", segments[i].b);
+    require_length(f + ".radius", segments[i].radius);
     require_radius_in_range(f + ".radius", segments[i].radius);
-    require_finite(f + ".strength", segments[i].strength);
+    require_range(f + ".strength", segments[i].strength, -kMaxCoordinate, kMaxCoordinate);
     skeletons.push_back(make_skeleton(segments[i].a, segments[i].b, segments[i].radius, segments[i].strength));
-  }
-  // The supports' box must have a finite size (the acceleration grid divides it into cells).
-  Aabb box = skeletons[0].support;
-  for (const Skeleton& s : skeletons) box.merge(s.support);
-  if (!box.size().allFinite()) {
-    const std::string field = points.empty() ? "segments" : "points";
-    throw InvalidInput(field, field +
-                                  ": the skeletons and their radii span more than the largest double; keep "
-                                  "coordinates and radii within +-1e300");
   }
   return std::make_shared<Blobs>(std::move(skeletons), options);
 }

@@ -155,8 +155,8 @@ class SampledGrid final : public Field {
 }  // namespace
 
 FieldPtr make_sampled_grid(const SampledGridDesc& desc, std::span<const float> values) {
-  require_finite("origin", desc.origin);
-  require_positive("spacing", desc.spacing, "give the distance between samples along each axis");
+  require_coordinate("origin", desc.origin);
+  require_length("spacing", desc.spacing, "give the distance between samples along each axis");
   // Evaluation multiplies by 1/spacing: below ~5.6e-309 that is infinite (and 0 * inf a NaN cell index).
   constexpr double kMinSpacing = 1e-300;
   static const char* const kSpacingAxes[3] = {"spacing.x", "spacing.y", "spacing.z"};
@@ -166,7 +166,7 @@ FieldPtr make_sampled_grid(const SampledGridDesc& desc, std::span<const float> v
                                               ") is too small; give a spacing of at least 1e-300");
     }
   }
-  require_finite("iso", desc.iso);
+  require_coordinate("iso", desc.iso);
   const int n[3] = {desc.nx, desc.ny, desc.nz};
   const char* const names[3] = {"nx", "ny", "nz"};
   for (int i = 0; i < 3; ++i) {

@@ -460,21 +460,21 @@ void require_nonzero_direction(const std::string& field, const Vec3& v) {
 
 // --- Builders ------------------------------------------------------------------------------------------------
 FieldPtr make_sphere(const Vec3& center, double radius) {
-  require_finite("center", center);
-  require_positive("radius", radius);
+  require_coordinate("center", center);
+  require_length("radius", radius);
   return std::make_shared<Sphere>(center, radius);
 }
 
 FieldPtr make_box(const Vec3& center, const Vec3& half_size) {
-  require_finite("center", center);
-  require_positive("half_size", half_size, "give half the box's extent along each axis");
+  require_coordinate("center", center);
+  require_length("half_size", half_size, "give half the box's extent along each axis");
   return std::make_shared<RoundedBox>(center, half_size, 0.0);
 }
 
 FieldPtr make_rounded_box(const Vec3& center, const Vec3& half_size, double radius) {
-  require_finite("center", center);
-  require_positive("half_size", half_size, "give half the box's extent along each axis");
-  require_positive("radius", radius);
+  require_coordinate("center", center);
+  require_length("half_size", half_size, "give half the box's extent along each axis");
+  require_length("radius", radius);
   const double limit = half_size.minCoeff();
   if (radius > limit) {
     throw InvalidInput("radius", "radius (" + format_number(radius) + ") must be <= the smallest half_size (" +
@@ -484,18 +484,18 @@ FieldPtr make_rounded_box(const Vec3& center, const Vec3& half_size, double radi
 }
 
 FieldPtr make_cylinder(const Vec3& a, const Vec3& b, double radius) {
-  require_finite("a", a);
-  require_finite("b", b);
-  require_positive("radius", radius);
+  require_coordinate("a", a);
+  require_coordinate("b", b);
+  require_length("radius", radius);
   require_distinct(a, b, "cylinder");
   return std::make_shared<Cylinder>(a, b, radius);
 }
 
 FieldPtr make_cone(const Vec3& a, const Vec3& b, double radius_a, double radius_b) {
-  require_finite("a", a);
-  require_finite("b", b);
-  require_finite("radius_a", radius_a);
-  require_finite("radius_b", radius_b);
+  require_coordinate("a", a);
+  require_coordinate("b", b);
+  require_coordinate("radius_a", radius_a);
+  require_coordinate("radius_b", radius_b);
   if (radius_a < 0.0) {
     throw InvalidInput("radius_a", "radius_a (" + format_number(radius_a) + ") must be >= 0");
   }
@@ -510,10 +510,10 @@ FieldPtr make_cone(const Vec3& a, const Vec3& b, double radius_a, double radius_
 }
 
 FieldPtr make_torus(const Vec3& center, const Vec3& axis, double major_radius, double minor_radius) {
-  require_finite("center", center);
+  require_coordinate("center", center);
   require_nonzero_direction("axis", axis);
-  require_positive("major_radius", major_radius);
-  require_positive("minor_radius", minor_radius);
+  require_length("major_radius", major_radius);
+  require_length("minor_radius", minor_radius);
   if (minor_radius >= major_radius) {
     throw InvalidInput("minor_radius", "minor_radius (" + format_number(minor_radius) + ") must be < major_radius (" +
                                            format_number(major_radius) + "); the tube would cross the axis");
@@ -523,20 +523,20 @@ FieldPtr make_torus(const Vec3& center, const Vec3& axis, double major_radius, d
 
 FieldPtr make_plane(const Vec3& normal, double offset) {
   require_nonzero_direction("normal", normal);
-  require_finite("offset", offset);
+  require_coordinate("offset", offset);
   return std::make_shared<Plane>(normal, offset);
 }
 
 FieldPtr make_capsule(const Vec3& a, const Vec3& b, double radius) {
-  require_finite("a", a);
-  require_finite("b", b);
-  require_positive("radius", radius);
+  require_coordinate("a", a);
+  require_coordinate("b", b);
+  require_length("radius", radius);
   return std::make_shared<Capsule>(a, b, radius);
 }
 
 FieldPtr make_gyroid(double period, double thickness) {
-  require_positive("period", period, "give the length of one gyroid cell");
-  require_positive("thickness", thickness, "give the sheet thickness");
+  require_length("period", period, "give the length of one gyroid cell");
+  require_length("thickness", thickness, "give the sheet thickness");
   return std::make_shared<Gyroid>(period, thickness);
 }
 
@@ -552,7 +552,7 @@ FieldPtr make_csg(CsgOp op, std::vector<FieldPtr> children, const CsgOptions& op
     }
   }
   if (options.blend == CsgBlend::kSmooth) {
-    require_positive("radius", options.radius, "BLEND_SMOOTH needs a blend radius");
+    require_length("radius", options.radius, "BLEND_SMOOTH needs a blend radius");
   }
   return std::make_shared<Csg>(op, std::move(children), options);
 }
@@ -564,7 +564,7 @@ FieldPtr make_transform(FieldPtr child, const Eigen::Matrix3d& linear, const Vec
       require_finite("linear(" + std::to_string(r) + "," + std::to_string(c) + ")", linear(r, c));
     }
   }
-  require_finite("translation", translation);
+  require_coordinate("translation", translation);
   // Singular (or numerically so) relative to the matrix's own scale.
   const double norm = linear.norm();
   if (!(norm > 0.0) || std::abs(linear.determinant()) <= 1e-12 * norm * norm * norm) {
@@ -576,7 +576,17 @@ FieldPtr make_transform(FieldPtr child, const Eigen::Matrix3d& linear, const Vec
   const double s2 = ata.trace() / 3.0;
   const double deviation = (ata - s2 * Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
   const double factor = deviation <= 1e-9 * s2 ? std::sqrt(s2) : 1.0;
-  return std::make_shared<Transform>(std::move(child), linear, translation, factor);
+  auto transform = std::make_shared<Transform>(std::move(child), linear, translation, factor);
+  // The child carried this far must stay within the range of coordinates too.
+  if (const std::optional<Aabb> b = transform->bounds()) {
+    const double reach = std::max(b->min.cwiseAbs().maxCoeff(), b->max.cwiseAbs().maxCoeff());
+    if (!(reach <= kMaxCoordinate)) {
+      throw InvalidInput("linear", "linear map and translation carry the child to " + format_number(reach) +
+                                       ", beyond +-" + format_number(kMaxCoordinate) +
+                                       ", the range of coordinates; scale the scene down");
+    }
+  }
+  return transform;
 }
 
 }  // namespace surfacer

@@ -9,6 +9,9 @@
 //
 // Builders validate their arguments and throw surfacer::Error(kInvalidInput) with the argument name as `field`
 // (e.g. "radius") and a message saying how to fix it; callers that know the path in a larger document prefix it.
+// Coordinates and lengths (centres, end points, radii, sizes, offsets, a transform's reach) must lie within
+// +-kMaxCoordinate (core/util/checks.h, 1e12), skeleton strengths too, and a Blinn blobbiness in (0, 100], so that
+// no bound, padding or kernel value computed from them overflows.
 #pragma once
 
 #include <memory>

@@ -29,6 +29,29 @@ inline void require_finite(const std::string& field, const Vec3& v) {
   for (int i = 0; i < 3; ++i) require_finite(field + checks_detail::kAxes[i], v[i]);
 }
 
+// Coordinates and lengths of scenes, boxes and particles: at most this in magnitude, so that sums, squares, paddings
+// and cell counts made of them stay far from overflow (a sphere of radius 1e308 has bounds of infinite size).
+inline constexpr double kMaxCoordinate = 1e12;
+
+namespace checks_detail {
+inline void require_magnitude(const std::string& field, double v) {
+  if (std::abs(v) > kMaxCoordinate) {
+    throw InvalidInput(field, field + " (" + format_number(v) + ") is beyond +-" + format_number(kMaxCoordinate) +
+                                  ", the range of coordinates and lengths; scale the input down");
+  }
+}
+}  // namespace checks_detail
+
+// Finite and within +-kMaxCoordinate.
+inline void require_coordinate(const std::string& field, double v) {
+  require_finite(field, v);
+  checks_detail::require_magnitude(field, v);
+}
+
+inline void require_coordinate(const std::string& field, const Vec3& v) {
+  for (int i = 0; i < 3; ++i) require_coordinate(field + checks_detail::kAxes[i], v[i]);
+}
+
 inline void require_positive(const std::string& field, double v, const std::string& hint = "") {
   require_finite(field, v);
   if (!(v > 0.0)) {
@@ -38,6 +61,16 @@ inline void require_positive(const std::string& field, double v, const std::stri
 
 inline void require_positive(const std::string& field, const Vec3& v, const std::string& hint = "") {
   for (int i = 0; i < 3; ++i) require_positive(field + checks_detail::kAxes[i], v[i], hint);
+}
+
+// 0 < v <= kMaxCoordinate: a length.
+inline void require_length(const std::string& field, double v, const std::string& hint = "") {
+  require_positive(field, v, hint);
+  checks_detail::require_magnitude(field, v);
+}
+
+inline void require_length(const std::string& field, const Vec3& v, const std::string& hint = "") {
+  for (int i = 0; i < 3; ++i) require_length(field + checks_detail::kAxes[i], v[i], hint);
 }
 
 // lo <= v <= hi (finite).
@@ -71,10 +104,10 @@ inline void require_count(const std::string& field, std::int64_t v, std::int64_t
   }
 }
 
-// Finite corners with min < max on every axis.
+// Corners within +-kMaxCoordinate with min < max on every axis.
 inline void require_box(const std::string& field, const Aabb& box) {
-  require_finite(field + ".min", box.min);
-  require_finite(field + ".max", box.max);
+  require_coordinate(field + ".min", box.min);
+  require_coordinate(field + ".max", box.max);
   for (int i = 0; i < 3; ++i) {
     if (!(box.min[i] < box.max[i])) {
       const std::string axis = checks_detail::kAxes[i];

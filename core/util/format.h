@@ -2,6 +2,7 @@
 // (a tolerance of 1e-9 reads 1e-09, never 0.000000).
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <charconv>
 #include <cstdint>
@@ -33,6 +34,13 @@ inline std::string quote(std::string_view text, std::size_t max_chars = 40) {
   out.append(text.substr(0, max_chars));
   out += '\'';
   return out;
+}
+
+// The longest prefix of `text` of at most `max_bytes` bytes that does not end inside a UTF-8 sequence.
+inline std::string utf8_prefix(std::string_view text, std::size_t max_bytes) {
+  std::size_t n = std::min(text.size(), max_bytes);
+  while (n > 0 && n < text.size() && (static_cast<unsigned char>(text[n]) & 0xC0) == 0x80) --n;
+  return std::string(text.substr(0, n));
 }
 
 // `text` without leading and trailing white space.

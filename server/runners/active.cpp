@@ -18,12 +18,12 @@ namespace {
 
 class ActiveRunner final : public JobRunner {
  public:
-  ActiveRunner(v1::ActiveJob job, const wire::UploadLookup& uploads, ActiveSurfaceOptions options,
-               FrameEncoding encoding, const Limits& limits, int frames_expected)
+  ActiveRunner(v1::ActiveJob job, const wire::UploadLookup& uploads, ActiveSurfaceOptions options, FrameMaker frames,
+               const Limits& limits, int frames_expected)
       : job_(std::move(job)),
         uploads_(uploads),
         options_(options),
-        encoding_(encoding),
+        frames_(std::move(frames)),
         limits_(limits),
         frames_expected_(frames_expected) {}
 
@@ -61,7 +61,7 @@ class ActiveRunner final : public JobRunner {
       const auto now = std::chrono::steady_clock::now();
       StageTimer timer;
       timer.add("evolve", std::chrono::duration<double>(now - last).count());
-      FrameOutput out = make_frame(frame.mesh, encoding_, limits_.max_triangles, timer);
+      FrameOutput out = frames_.make(frame.mesh, timer, control);
       auto& m = *out.stats.mutable_metrics();
       const ActiveFrameStats& s = frame.stats;
       m["time"] = s.time;
@@ -89,9 +89,7 @@ class ActiveRunner final : public JobRunner {
                                                      uploads_, limits_.max_particles)
                                .positions);
         }
-        CoatOptions options;
-        options.kernel.radius = coat.kernel_radius();
-        if (coat.has_iso()) options.kernel.iso = coat.iso();
+        CoatOptions options = wire::coat_options(coat, options_, path);
         options.checkpoints = checkpoints;
         coat_particles(frames, options, options_, emit, control);
         break;
@@ -100,10 +98,7 @@ class ActiveRunner final : public JobRunner {
         const auto& morph = job_.morph();
         const FieldPtr from = wire::field_from_scene(morph.from(), path + ".morph.from", uploads_);
         const FieldPtr to = wire::field_from_scene(morph.to(), path + ".morph.to", uploads_);
-        MorphOptions options;
-        if (morph.has_tolerance()) options.tolerance = morph.tolerance();
-        if (morph.has_max_frames()) options.max_frames = morph.max_frames();
-        if (morph.has_frame_time()) options.frame_duration = morph.frame_time();
+        MorphOptions options = wire::morph_options(morph, options_, path);
         options.checkpoints = checkpoints;
         morph_shapes(*from, to, options, options_, emit, control);
         break;
@@ -111,9 +106,7 @@ class ActiveRunner final : public JobRunner {
       case v1::ActiveJob::kAdvect: {
         const auto& advect = job_.advect();
         const FieldPtr shape = wire::field_from_scene(advect.shape(), path + ".advect.shape", uploads_);
-        AdvectOptions options;
-        options.frame_interval = advect.frame_interval();
-        options.frames = advect.frames();
+        AdvectOptions options = wire::advect_options(advect, path);
         options.checkpoints = checkpoints;
         advect_shape(*shape, velocity(advect, path + ".advect"), options, options_, emit, control);
         break;
@@ -151,7 +144,7 @@ class ActiveRunner final : public JobRunner {
   v1::ActiveJob job_;
   const wire::UploadLookup& uploads_;
   ActiveSurfaceOptions options_;
-  FrameEncoding encoding_;
+  FrameMaker frames_;
   Limits limits_;
   int frames_expected_;
   std::string resume_state_;
@@ -165,7 +158,9 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
   const ActiveSurfaceOptions options = wire::active_options(job, spec.output().normals(), path);
 
   // Validate the mode now and find the region the surface can occupy (the frames' quantization box).
-  std::optional<Aabb> region = options.domain;
+  // With bounds, the surface closes just outside the last grid nodes inside them: up to a cell beyond.
+  std::optional<Aabb> region;
+  if (options.domain) region = options.domain->padded(options.h);
   int frames_expected = 1;
   auto add_region = [&](const std::optional<Aabb>& b, double pad) {
     if (!b || options.domain) return;
@@ -177,8 +172,7 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
       if (coat.frames_size() == 0) {
         throw InvalidInput(path + ".coat.frames", path + ".coat.frames is empty; give the particle sequence");
       }
-      with_path(path + ".coat",
-                [&] { require_positive("kernel_radius", coat.kernel_radius(), "the Wyvill kernel's support R"); });
+      wire::coat_options(coat, options, path);
       for (int i = 0; i < coat.frames_size(); ++i) {
         const auto summary =
             wire::summarize_particle_frame(coat.frames(i), path + ".coat.frames[" + std::to_string(i) + "]",
@@ -198,27 +192,25 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
       }
       add_region(from->bounds(), 4 * options.h);
       add_region(to->bounds(), 4 * options.h);
-      if (morph.has_max_frames()) check_frame_count(morph.max_frames(), path + ".morph.max_frames", context.limits);
-      frames_expected = (morph.has_max_frames() ? morph.max_frames() : MorphOptions{}.max_frames) + 1;
+      const MorphOptions morph_options = wire::morph_options(morph, options, path);
+      check_frame_count(morph_options.max_frames, path + ".morph.max_frames", context.limits);
+      frames_expected = morph_options.max_frames + 1;
       break;
     }
     case v1::ActiveJob::kAdvect: {
       const auto& advect = job.advect();
       const FieldPtr shape = wire::field_from_scene(advect.shape(), path + ".advect.shape", context.uploads);
-      if (!(advect.frame_interval() > 0.0) || advect.frames() < 1) {
-        throw InvalidInput(path + ".advect", path + ".advect needs frame_interval > 0 and frames >= 1 (got " +
-                                                 format_number(advect.frame_interval()) + ", " +
-                                                 std::to_string(advect.frames()) + ")");
-      }
-      check_frame_count(advect.frames(), path + ".advect.frames", context.limits);
+      // The initial frame, then `frames` more.
+      check_frame_count(std::int64_t{wire::advect_options(advect, path).frames} + 1, path + ".advect.frames",
+                        context.limits);
       add_region(shape->bounds(), 4 * options.h);
       if (advect.has_grid()) {
         const auto grid = ActiveRunner::velocity_grid(advect.grid(), path + ".advect.grid", context.uploads);
         const Vec3 far = grid->origin + grid->spacing.cwiseProduct(Vec3(grid->nx - 1, grid->ny - 1, grid->nz - 1));
         add_region(Aabb{grid->origin, far}, 4 * options.h);
       } else {
-        if (advect.enright().has_period() && !(advect.enright().period() > 0.0)) {
-          throw InvalidInput(path + ".advect.enright.period", path + ".advect.enright.period must be > 0");
+        if (advect.enright().has_period()) {
+          with_path(path + ".advect.enright", [&] { require_positive("period", advect.enright().period()); });
         }
         add_region(Aabb{Vec3::Zero(), Vec3::Ones()}, 4 * options.h);  // the Enright field lives in the unit cube
       }
@@ -232,7 +224,9 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
     throw InvalidInput(path + ".bounds", path + ": the shape is unbounded; give " + path + ".bounds");
   }
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), *region, "spec.output");
-  return std::make_unique<ActiveRunner>(job, context.uploads, options, encoding, context.limits, frames_expected);
+  return std::make_unique<ActiveRunner>(job, context.uploads, options,
+                                        FrameMaker(encoding, context.limits.max_triangles, context.executor),
+                                        context.limits, frames_expected);
 }
 
 }  // namespace surfacer::server

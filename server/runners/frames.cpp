@@ -2,9 +2,11 @@
 
 #include <chrono>
 #include <future>
+#include <memory>
+#include <thread>
 
+#include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_codec.h"
-#include "core/mesh/mesh_io.h"
 #include "core/util/errors.h"
 
 namespace surfacer::server {
@@ -32,28 +34,52 @@ void fill_mesh_check(const MeshReport& r, v1::MeshCheck& out) {
   out.set_volume(r.volume);
 }
 
-FrameOutput make_frame(const Mesh& mesh, const FrameEncoding& encoding, std::int64_t max_triangles, StageTimer& timer) {
-  if (static_cast<std::int64_t>(mesh.triangles.size()) > max_triangles) {
+FrameMaker::FrameMaker(FrameEncoding encoding, std::int64_t max_triangles, const Executor* executor)
+    : encoding_(std::move(encoding)), max_triangles_(max_triangles), executor_(executor), inline_executor_(1) {}
+
+std::string FrameMaker::encode_on_own_thread(const Mesh& mesh, const RunControl& control) const {
+  // The thread owns the encoder (which holds its own copy of the mesh) and the promise, so it may outlive this call.
+  auto encoder = std::make_shared<DracoEncoder>(mesh, encoding_.options.draco);
+  auto promise = std::make_shared<std::promise<std::string>>();
+  std::future<std::string> result = promise->get_future();
+  std::thread([encoder, promise] {
+    try {
+      promise->set_value(encoder->encode());
+    } catch (...) {
+      promise->set_exception(std::current_exception());
+    }
+  }).detach();
+  while (result.wait_for(std::chrono::milliseconds(10)) != std::future_status::ready) control.check();
+  return result.get();
+}
+
+FrameOutput FrameMaker::make(const Mesh& mesh, StageTimer& timer, const RunControl& control) const {
+  if (static_cast<std::int64_t>(mesh.triangles.size()) > max_triangles_) {
     throw ResourceLimit("max_triangles", "the mesh has " + std::to_string(mesh.triangles.size()) +
-                                             " triangles, over the server's limit of " + std::to_string(max_triangles) +
+                                             " triangles, over the server's limit of " +
+                                             std::to_string(max_triangles_) +
                                              "; lower the resolution or start the server with a larger "
                                              "--max-triangles");
   }
+  const Executor& executor = executor_ ? *executor_ : inline_executor_;
+  const FrameCodecOptions& options = encoding_.options;
   FrameOutput out;
-  out.encoding = encoding.encoding;
-  double check_seconds = 0.0;
-  // The checks run beside the (single-threaded) encoder.
-  std::future<MeshReport> report_future = std::async(std::launch::async, [&] {
-    StageTimer check_timer;
-    MeshReport r = check_timer.run("check", [&] { return check_mesh(mesh); });
-    check_seconds = check_timer.timings().front().second;
-    return r;
+  out.encoding = encoding_.mesh_encoding();
+  MeshReport report;
+  StageTimer check_timer, encode_timer;
+  const bool own_thread = options.codec == FrameCodec::kDraco && mesh.triangles.size() > options.max_piece_triangles;
+  // Item 0: the checks; item 1: the encoding. Each spreads its own work over the executor.
+  executor.for_each(2, [&](int item) {
+    if (item == 0) {
+      control.report("check", 0.0);
+      report = check_timer.run("check", [&] { return check_mesh(mesh, executor, control); });
+    } else {
+      control.report("encode", 0.0);
+      out.bytes = encode_timer.run("encode", [&] {
+        return own_thread ? encode_on_own_thread(mesh, control) : encode_frame(mesh, options, executor, control);
+      });
+    }
   });
-  timer.run("encode", [&] {
-    out.bytes = encoding.encoding == v1::MESH_ENCODING_PLY ? write_ply(mesh, /*double_precision=*/true)
-                                                           : encode_draco(mesh, encoding.draco);
-  });
-  const MeshReport report = report_future.get();
   out.stats.set_vertices(static_cast<std::int64_t>(mesh.vertices.size()));
   out.stats.set_triangles(static_cast<std::int64_t>(mesh.triangles.size()));
   fill_mesh_check(report, *out.stats.mutable_check());
@@ -62,8 +88,9 @@ FrameOutput make_frame(const Mesh& mesh, const FrameEncoding& encoding, std::int
     t->set_stage(stage);
     t->set_seconds(seconds);
   };
-  for (const auto& [stage, seconds] : timer.timings()) add_timing(stage, seconds);
-  add_timing("check", check_seconds);
+  for (const StageTimer* t : {&timer, &encode_timer, &check_timer}) {
+    for (const auto& [stage, seconds] : t->timings()) add_timing(stage, seconds);
+  }
   return out;
 }
 

@@ -8,6 +8,7 @@
 
 #include "core/mesh/mesh.h"
 #include "core/mesh/mesh_checks.h"
+#include "core/util/parallel.h"
 #include "server/runners/runner.h"
 #include "wire/output.h"
 
@@ -40,10 +41,31 @@ class StageTimer {
 
 void fill_mesh_check(const MeshReport& report, v1::MeshCheck& out);
 
-// Checks and encodes `mesh` into a frame, the checks running beside the (single-threaded) encoder. The frame stats
-// get every timing of `timer` plus "encode" and "check". Throws ResourceLimit when the mesh has more than
-// max_triangles triangles.
-FrameOutput make_frame(const Mesh& mesh, const FrameEncoding& encoding, std::int64_t max_triangles, StageTimer& timer);
+// Turns a job's meshes into frames: checks, stats and encoding (docs/ALGORITHMS.md §5 "Frames").
+class FrameMaker {
+ public:
+  // `executor`: where the checks and the pieces of a pieced codec run (the server's worker pool); null: on the
+  // calling thread. Throws nothing; the encoding was validated by wire::frame_encoding.
+  FrameMaker(FrameEncoding encoding, std::int64_t max_triangles, const Executor* executor);
+
+  // The frame of `mesh`, its stats holding every timing of `timer` plus "encode" and "check" (wall seconds of
+  // each; they run at the same time). The checks and a pieced codec's pieces run as items of the executor and stop
+  // between items when `control` fires. A standard Draco frame's encoder cannot be interrupted: above one piece's
+  // size it runs on a thread of its own, which a cancel leaves to finish in the background, so that the caller is
+  // free at once. Throws ResourceLimit when the mesh has more than max_triangles triangles, Cancelled, and what the
+  // codec throws.
+  FrameOutput make(const Mesh& mesh, StageTimer& timer, const RunControl& control) const;
+
+  const FrameEncoding& encoding() const { return encoding_; }
+
+ private:
+  std::string encode_on_own_thread(const Mesh& mesh, const RunControl& control) const;
+
+  FrameEncoding encoding_;
+  std::int64_t max_triangles_;
+  const Executor* executor_;
+  ThreadExecutor inline_executor_;
+};
 
 // Keeps checkpoints under ~10% of the task's time: one is taken only when the work since the previous one took at
 // least 10 times what that one cost (serializing plus the store's write and fsync). With snapshots or frames seconds

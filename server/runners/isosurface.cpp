@@ -11,13 +11,8 @@ namespace {
 
 class IsosurfaceRunner final : public JobRunner {
  public:
-  IsosurfaceRunner(std::vector<FieldPtr> fields, PolygonizeGrid grid, FrameEncoding encoding,
-                   std::int64_t max_triangles, int worker_threads)
-      : fields_(std::move(fields)),
-        grid_(grid),
-        encoding_(encoding),
-        max_triangles_(max_triangles),
-        worker_threads_(worker_threads) {}
+  IsosurfaceRunner(std::vector<FieldPtr> fields, PolygonizeGrid grid, FrameMaker frames, int worker_threads)
+      : fields_(std::move(fields)), grid_(grid), frames_(std::move(frames)), worker_threads_(worker_threads) {}
 
   std::string kind() const override { return "isosurface"; }
   int task_count() const override { return static_cast<int>(fields_.size()); }
@@ -30,14 +25,13 @@ class IsosurfaceRunner final : public JobRunner {
     StageTimer timer;
     const Mesh mesh = timer.run("polygonize", [&] { return polygonize(*fields_[index], grid, control); });
     control.check();
-    sink.emit(index, make_frame(mesh, encoding_, max_triangles_, timer));
+    sink.emit(index, frames_.make(mesh, timer, control));
   }
 
  private:
   std::vector<FieldPtr> fields_;
   PolygonizeGrid grid_;
-  FrameEncoding encoding_;
-  std::int64_t max_triangles_;
+  FrameMaker frames_;
   int worker_threads_;
 };
 
@@ -60,7 +54,8 @@ std::unique_ptr<JobRunner> make_isosurface_runner(const v1::JobSpec& spec, const
   const PolygonizeGrid grid = with_path(path, [&] { return resolve_grid(fields, options); });
   check_grid_cells(grid, path, context.limits);
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), grid.bounds, "spec.output");
-  return std::make_unique<IsosurfaceRunner>(std::move(fields), grid, encoding, context.limits.max_triangles,
+  return std::make_unique<IsosurfaceRunner>(std::move(fields), grid,
+                                            FrameMaker(encoding, context.limits.max_triangles, context.executor),
                                             context.worker_threads);
 }
 

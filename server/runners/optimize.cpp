@@ -30,13 +30,12 @@ MeshFormat sniff_mesh_format(const std::string& bytes) {
 class OptimizeRunner final : public JobRunner {
  public:
   OptimizeRunner(FieldPtr field, std::optional<Mesh> start, PolygonizeGrid start_grid, MeshOptimizerOptions options,
-                 FrameEncoding encoding, std::int64_t max_triangles, int threads)
+                 FrameMaker frames, int threads)
       : field_(std::move(field)),
         start_(std::move(start)),
         start_grid_(start_grid),
         options_(options),
-        encoding_(encoding),
-        max_triangles_(max_triangles),
+        frames_(std::move(frames)),
         threads_(threads) {}
 
   std::string kind() const override { return "optimize"; }
@@ -80,7 +79,7 @@ class OptimizeRunner final : public JobRunner {
     int last_emitted = frame > 0 ? optimizer.stats().iteration : -1;
     auto emit = [&](StageTimer& timer) {
       const auto& stats = optimizer.stats();
-      FrameOutput out = make_frame(optimizer.mesh(), encoding_, max_triangles_, timer);
+      FrameOutput out = frames_.make(optimizer.mesh(), timer, control);
       out.stats.set_iteration(stats.iteration);
       auto& m = *out.stats.mutable_metrics();
       m["e_d"] = stats.e_d;
@@ -127,8 +126,7 @@ class OptimizeRunner final : public JobRunner {
   std::optional<Mesh> start_;
   PolygonizeGrid start_grid_;
   MeshOptimizerOptions options_;
-  FrameEncoding encoding_;
-  std::int64_t max_triangles_;
+  FrameMaker frames_;
   int threads_;
   int resume_frame_ = 0;
   std::string resume_state_;
@@ -159,9 +157,14 @@ std::unique_ptr<JobRunner> make_optimize_runner(const v1::JobSpec& spec, const J
   if (job.start_case() == v1::OptimizeJob::kMeshUploadId) {
     const auto blob = context.uploads.get(job.mesh_upload_id(), path + ".mesh_upload_id");
     try {
-      start = parse_mesh(blob->bytes, sniff_mesh_format(blob->bytes), "upload " + job.mesh_upload_id());
+      MeshReadLimits read_limits;
+      read_limits.max_triangles = context.limits.max_triangles;
+      start = parse_mesh(blob->bytes, sniff_mesh_format(blob->bytes), "upload " + job.mesh_upload_id(), read_limits);
       validate_start_mesh(*start);
     } catch (const Error& e) {
+      if (e.kind() == ErrorKind::kResourceLimit) {
+        throw ResourceLimit(e.field(), path + ".mesh_upload_id: " + e.what() + "; raise --max-triangles");
+      }
       if (e.kind() != ErrorKind::kInvalidInput) throw;
       throw InvalidInput(path + ".mesh_upload_id", path + ".mesh_upload_id: " + e.what());
     }
@@ -181,8 +184,9 @@ std::unique_ptr<JobRunner> make_optimize_runner(const v1::JobSpec& spec, const J
   }
   box = box.padded(kBoxPadFraction * box.size().norm());
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), box, "spec.output");
-  return std::make_unique<OptimizeRunner>(std::move(field), std::move(start), grid, options, encoding,
-                                          context.limits.max_triangles, context.worker_threads);
+  return std::make_unique<OptimizeRunner>(std::move(field), std::move(start), grid, options,
+                                          FrameMaker(encoding, context.limits.max_triangles, context.executor),
+                                          context.worker_threads);
 }
 
 }  // namespace surfacer::server

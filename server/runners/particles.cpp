@@ -12,11 +12,11 @@ namespace {
 class ParticlesRunner final : public JobRunner {
  public:
   ParticlesRunner(std::vector<v1::ParticleFrame> frames, const wire::UploadLookup& uploads,
-                  ParticleSurfacingOptions options, FrameEncoding encoding, const Limits& limits, int worker_threads)
+                  ParticleSurfacingOptions options, FrameMaker frame_maker, const Limits& limits, int worker_threads)
       : frames_(std::move(frames)),
         uploads_(uploads),
         options_(std::move(options)),
-        encoding_(encoding),
+        frame_maker_(std::move(frame_maker)),
         limits_(limits),
         worker_threads_(worker_threads) {}
 
@@ -42,7 +42,7 @@ class ParticlesRunner final : public JobRunner {
     timer.add("bilaplacian", stats.seconds_bilaplacian);
     timer.add("polish", stats.seconds_polish);
     if (options.erosion) timer.add("erosion", stats.seconds_erosion);
-    FrameOutput frame = make_frame(mesh, encoding_, limits_.max_triangles, timer);
+    FrameOutput frame = frame_maker_.make(mesh, timer, control);
     auto& metrics = *frame.stats.mutable_metrics();
     metrics["particles"] = static_cast<double>(stats.particles);
     metrics["particles_used"] = static_cast<double>(stats.particles_used);
@@ -63,7 +63,7 @@ class ParticlesRunner final : public JobRunner {
   std::vector<v1::ParticleFrame> frames_;
   const wire::UploadLookup& uploads_;
   ParticleSurfacingOptions options_;
-  FrameEncoding encoding_;
+  FrameMaker frame_maker_;
   Limits limits_;
   int worker_threads_;
 };
@@ -93,7 +93,8 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
         .positions;
   });
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), box, "spec.output");
-  return std::make_unique<ParticlesRunner>(std::move(frames), context.uploads, std::move(options), encoding,
+  return std::make_unique<ParticlesRunner>(std::move(frames), context.uploads, std::move(options),
+                                           FrameMaker(encoding, context.limits.max_triangles, context.executor),
                                            context.limits, context.worker_threads);
 }
 

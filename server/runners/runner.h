@@ -7,6 +7,7 @@
 #include <memory>
 #include <string>
 
+#include "core/util/parallel.h"
 #include "core/util/run_control.h"
 #include "server/options.h"
 #include "surfacer/v1/surfacer.pb.h"
@@ -60,6 +61,8 @@ struct JobContext {
   const Limits& limits;
   const wire::UploadLookup& uploads;
   int worker_threads = 1;
+  // Where frames are checked and encoded (the worker pool); null: on the task's own thread.
+  const Executor* executor = nullptr;
 };
 
 // Throws ResourceLimit naming --max-grid-cells when the grid of a polygonization requested at `path` is larger.

@@ -5,12 +5,14 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <filesystem>
 #include <random>
 #include <sstream>
 
 #include "core/mesh/mesh_io.h"
+#include "tests/support/cli_server_test.h"
 #include "tests/support/files.h"
 #include "tests/support/mesh_expectations.h"
 #include "tests/support/process.h"
@@ -74,43 +76,16 @@ int column(const std::vector<std::string>& header, const std::string& name) {
   return it == header.end() ? -1 : static_cast<int>(it - header.begin());
 }
 
-class CliJobsEndToEnd : public ::testing::Test {
- protected:
-  static void SetUpTestSuite() {
-    root_ = fresh_temp_dir("cli_jobs_e2e");
-    write_file(root_ / "sphere.json", kSphere);
-    write_file(root_ / "cube.json", kCube);
-    write_file(root_ / "box.json", kSmallBox);
-    server_ = new ServerProcess(root_ / "server", 2, {"--drain-seconds", "1"});
-    ASSERT_FALSE(server_->address().empty()) << "surfacer-server did not start:\n" << server_->log();
+class CliJobsEndToEnd : public CliServerTest<CliJobsEndToEnd> {
+ public:
+  static constexpr const char* kName = "cli_jobs_e2e";
+  static std::vector<std::string> server_flags() { return {"--drain-seconds", "1"}; }
+  static void write_inputs(const fs::path& root) {
+    write_file(root / "sphere.json", kSphere);
+    write_file(root / "cube.json", kCube);
+    write_file(root / "box.json", kSmallBox);
   }
-  static void TearDownTestSuite() {
-    if (server_ != nullptr) {
-      EXPECT_EQ(server_->stop(), 0) << server_->log();
-      delete server_;
-      server_ = nullptr;
-    }
-    fs::remove_all(root_);
-  }
-  void SetUp() override {
-    ASSERT_NE(server_, nullptr);
-    dir_ = current_test_dir(root_);
-  }
-
-  ProcessResult cli(std::vector<std::string> args, std::chrono::seconds timeout = 60s) {
-    args.insert(args.begin(), {cli_binary().string(), "--server", server_->address()});
-    const std::string tag = "cli" + std::to_string(counter_++);
-    return run_process(args, dir_ / (tag + ".out"), dir_ / (tag + ".err"), timeout);
-  }
-
-  static fs::path root_;
-  static ServerProcess* server_;
-  fs::path dir_;
-  int counter_ = 0;
 };
-
-fs::path CliJobsEndToEnd::root_;
-ServerProcess* CliJobsEndToEnd::server_ = nullptr;
 
 TEST_F(CliJobsEndToEnd, IsosurfaceTilesGivesAClosedMeshWithoutLowValence) {
   ProcessResult r = cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--method", "tiles",
@@ -237,6 +212,64 @@ TEST_F(CliJobsEndToEnd, OptimizeFromAnUploadedStartMesh) {
   double max_norm = 0;
   for (const Vec3& v : read_mesh(last).vertices) max_norm = std::max(max_norm, v.norm());
   EXPECT_GT(max_norm, 0.55);
+}
+
+// The CLI validates a --start-mesh before uploading it: a ~140-byte Draco file declaring 200 M triangles took it to
+// 4.8 GB. It now exits 2 naming the flag and the file, without the memory.
+TEST_F(CliJobsEndToEnd, DracoBombStartMeshExitsTwoWithoutTheMemory) {
+  write_file(dir_ / "bomb.drc", draco_bomb(200'000'000));
+  ProcessResult r = cli({"run", "optimize", "--scene", (root_ / "cube.json").string(), "--start-mesh",
+                         (dir_ / "bomb.drc").string(), "-o", (dir_ / "opt").string()});
+  EXPECT_EQ(r.code, 2) << r;
+  EXPECT_NE(r.err.find("--start-mesh: " + (dir_ / "bomb.drc").string()), std::string::npos) << r;
+  EXPECT_NE(r.err.find("it declares far more elements than it holds"), std::string::npos) << r;
+  EXPECT_GT(r.peak_rss_bytes, 0u);
+  EXPECT_LT(r.peak_rss_bytes, std::uint64_t{256} << 20) << "peak RSS " << (r.peak_rss_bytes >> 20) << " MiB";
+}
+
+// `run active advect --delta` used to give the same bytes as without it: the control terms now act on top of the
+// advection (the volume the scheme loses is held), and --alpha, which has no target to track there, is refused.
+TEST_F(CliJobsEndToEnd, ActiveAdvectAppliesTheControlTermsAndRefusesAlpha) {
+  write_file(dir_ / "ball.json",
+             R"({"root": {"sphere": {"center": {"x": 0.35, "y": 0.35, "z": 0.35}, "radius": 0.15}}})");
+  auto advect = [&](const std::string& out, std::vector<std::string> extra) {
+    std::vector<std::string> args = {"run",
+                                     "active",
+                                     "advect",
+                                     "--scene",
+                                     (dir_ / "ball.json").string(),
+                                     "--enright",
+                                     "--frame-interval",
+                                     "0.25",
+                                     "--frames",
+                                     "3",
+                                     "--grid-spacing",
+                                     "0.03125",
+                                     "-o",
+                                     (dir_ / out).string(),
+                                     "--format",
+                                     "ply"};
+    args.insert(args.end(), extra.begin(), extra.end());
+    return cli(args);
+  };
+  auto last_volume_change = [&](const std::string& out) {
+    const auto rows = csv_rows(read_file(dir_ / out / "stats.csv"));
+    const int volume = column(rows.at(0), "metric_volume");
+    EXPECT_GE(volume, 0);
+    return std::stod(rows.back().at(volume)) / std::stod(rows.at(1).at(volume)) - 1.0;
+  };
+  ProcessResult r = advect("plain", {});
+  ASSERT_EQ(r.code, 0) << r;
+  r = advect("held", {"--delta", "3"});
+  ASSERT_EQ(r.code, 0) << r;
+  EXPECT_NE(read_file(dir_ / "plain" / "frame_0003.ply"), read_file(dir_ / "held" / "frame_0003.ply"));
+  const double plain = last_volume_change("plain"), held = last_volume_change("held");
+  EXPECT_LT(plain, -0.1);
+  EXPECT_LT(std::abs(held), 0.2 * std::abs(plain)) << "plain " << plain << ", --delta 3 " << held;
+
+  r = advect("alpha", {"--alpha", "1"});
+  EXPECT_EQ(r.code, 4) << r;
+  EXPECT_NE(r.err.find("spec.active.alpha"), std::string::npos) << r;
 }
 
 TEST_F(CliJobsEndToEnd, ActiveMorphWritesClosedFramesWithMetrics) {

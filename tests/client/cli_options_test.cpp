@@ -26,7 +26,7 @@ TEST(CliOptions, RunIsosurfaceDefaults) {
   ASSERT_TRUE(run.job.isosurface);
   EXPECT_EQ(run.job.isosurface->scenes.size(), 1u);
   EXPECT_FALSE(run.job.isosurface->cells);  // the 128 default is applied when building the spec
-  EXPECT_FALSE(run.job.raw);
+  EXPECT_FALSE(run.job.encoding);
   EXPECT_EQ(run.output.dir, "out");
   EXPECT_TRUE(run.output.formats.empty());
 }
@@ -80,7 +80,7 @@ TEST(CliOptions, OtherSubcommands) {
   EXPECT_EQ(std::get<StatusCommand>(ok(parse_cli({"status", "j-2"})).command).job_id, "j-2");
   EXPECT_TRUE(std::holds_alternative<HealthCommand>(ok(parse_cli({"health"})).command));
   auto submit = std::get<SubmitCommand>(ok(parse_cli({"submit", "isosurface", "--scene", "a.json", "--raw"})).command);
-  EXPECT_TRUE(submit.job.raw);
+  EXPECT_EQ(submit.job.encoding, "raw");
 }
 
 TEST(CliOptions, UsageErrorsExitTwo) {

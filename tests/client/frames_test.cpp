@@ -265,7 +265,7 @@ TEST(JobSpec, BuildsIsosurfaceFromSceneFiles) {
   JobOptions options;
   options.isosurface =
       IsosurfaceOptions{{dir / "ball.json", dir / "ball.json"}, {}, {}, {{-1, -1, -1, 1, 1, 1}}, "cubes"};
-  options.raw = true;
+  options.encoding = "raw";
   options.normals = true;
   v1::JobSpec spec = prepare_job(options).spec;
   ASSERT_TRUE(spec.has_isosurface());
@@ -281,7 +281,7 @@ TEST(JobSpec, BuildsIsosurfaceFromSceneFiles) {
 
   options.isosurface->cell_size = 0.1;
   options.name = "named";
-  options.raw = false;
+  options.encoding.reset();
   options.quantization_bits = 11;
   spec = prepare_job(options).spec;
   EXPECT_DOUBLE_EQ(spec.isosurface().cell_size(), 0.1);
@@ -300,7 +300,7 @@ TEST(JobSpec, WholeSpecFromJsonWithOverrides) {
   EXPECT_EQ(spec.name(), "from file");
   EXPECT_EQ(spec.isosurface().cells(), 40);
   EXPECT_EQ(spec.output().quantization_bits(), 9);
-  options.raw = true;
+  options.encoding = "raw";
   EXPECT_EQ(prepare_job(options).spec.output().encoding(), v1::MESH_ENCODING_PLY);
   fs::remove_all(dir);
 }

@@ -118,7 +118,7 @@ TEST(JobOptions, ParticlesEveryFlag) {
   EXPECT_EQ(o.container_scene, fs::path("solid.json"));
   EXPECT_EQ(o.min_particles, 12);
   EXPECT_TRUE(job.normals);
-  EXPECT_TRUE(job.raw);
+  EXPECT_EQ(job.encoding, "raw");
   EXPECT_EQ(job.name, "splash");
   const auto& run = std::get<RunCommand>(std::get<Invocation>(p.result).command);
   EXPECT_EQ(run.output.dir, "out");
@@ -415,7 +415,7 @@ TEST(JobOptions, EveryNewSubcommandHasHelpWithAnExample) {
 
 TEST(JobOptions, ValueParsers) {
   EXPECT_EQ(parse_box("-1,-2,-3,1,2,3", "--bounds"), (Box{-1, -2, -3, 1, 2, 3}));
-  EXPECT_EQ(parse_sweeps("0,25,5"), (std::array<int, 3>{0, 25, 5}));
+  EXPECT_EQ(parse_sweeps("0,15,5"), (std::array<int, 3>{0, 15, 5}));
   const FlowSet t = parse_flows("t");
   EXPECT_FALSE(t.d);
   EXPECT_FALSE(t.n);
@@ -549,14 +549,14 @@ TEST(JobSpecs, ParticlesFieldsAndOneUploadPerFrame) {
     const PendingUpload& upload = prepared.uploads[i];
     EXPECT_EQ(upload.frame, i);
     EXPECT_TRUE(job.frames(i).upload_id().empty());
-    UploadData data = upload.read(spec);
+    UploadData data = upload.read(spec, {});
     EXPECT_EQ(job.frames(i).with_radius(), expected[i].first) << i;
     EXPECT_EQ(data.bytes.size(), expected[i].second) << i;
     EXPECT_FALSE(data.file);
     upload.set_id(spec, "u-" + std::to_string(i));
     EXPECT_EQ(job.frames(i).upload_id(), "u-" + std::to_string(i));
   }
-  EXPECT_EQ(prepared.uploads[2].read(spec).particles, 3);
+  EXPECT_EQ(prepared.uploads[2].read(spec, {}).particles, 3);
   EXPECT_NE(prepared.uploads[2].description.find("last.xyz"), std::string::npos);
 
   options.particles->r_inner.reset();
@@ -632,7 +632,7 @@ TEST(JobSpecs, OptimizeFromPolygonizationOrUploadedMesh) {
   options.optimize = bare;
   prepared = prepare_job(options);
   ASSERT_EQ(prepared.uploads.size(), 1u);
-  UploadData data = prepared.uploads[0].read(prepared.spec);
+  UploadData data = prepared.uploads[0].read(prepared.spec, {});
   EXPECT_EQ(data.bytes, obj);
   EXPECT_EQ(data.name, "tet.obj");
   prepared.uploads[0].set_id(prepared.spec, "u-mesh");
@@ -644,7 +644,7 @@ TEST(JobSpecs, OptimizeFromPolygonizationOrUploadedMesh) {
   options.optimize = bare;
   prepared = prepare_job(options);
   try {
-    prepared.uploads[0].read(prepared.spec);
+    prepared.uploads[0].read(prepared.spec, {});
     ADD_FAILURE() << "bad.obj was accepted";
   } catch (const CliError& e) {
     EXPECT_EQ(e.code(), ExitCode::kUsage);
@@ -702,7 +702,7 @@ TEST(JobSpecs, ActiveModes) {
   EXPECT_DOUBLE_EQ(job.coat().iso(), 0.45);
   EXPECT_EQ(job.coat().substeps_per_frame(), 4);
   ASSERT_EQ(prepared.uploads.size(), 2u);
-  EXPECT_EQ(prepared.uploads[1].read(prepared.spec).bytes.size(), 24u);
+  EXPECT_EQ(prepared.uploads[1].read(prepared.spec, {}).bytes.size(), 24u);
   prepared.uploads[1].set_id(prepared.spec, "u-c1");
   EXPECT_EQ(job.coat().frames(1).upload_id(), "u-c1");
 
@@ -754,7 +754,7 @@ TEST(JobSpecs, ActiveModes) {
   EXPECT_DOUBLE_EQ(grid.origin().y(), -1);
   EXPECT_DOUBLE_EQ(grid.spacing().z(), 1);
   ASSERT_EQ(prepared.uploads.size(), 1u);
-  const UploadData data = prepared.uploads[0].read(prepared.spec);
+  const UploadData data = prepared.uploads[0].read(prepared.spec, {});
   EXPECT_EQ(data.file, dir / "v.raw");
   EXPECT_EQ(data.file_bytes, 216u);
   prepared.uploads[0].set_id(prepared.spec, "u-v");

@@ -225,6 +225,9 @@ TEST_F(SecurityTest, FlagsReadTheirFilesAndBadFilesExitTwoNamingFlagAndFile) {
        "--tls-key",
        (certs_->dir / "client.pem").string()},
       {{"--tls-cert", (certs_->dir / "client.pem").string()}, "--tls-key", ""},
+      {{"--tls-cert", (certs_->dir / "client.pem").string(), "--tls-key", (certs_->dir / "server.key").string()},
+       "does not match the certificate in --tls-cert",
+       (certs_->dir / "server.key").string()},
       {{"--token-file", missing}, "--token-file", missing},
       {{"--token-file", (dir_ / "empty").string()}, "--token-file", (dir_ / "empty").string()},
       {{"--token-file", (dir_ / "two_tokens").string()}, "--token-file", (dir_ / "two_tokens").string()},
@@ -286,6 +289,42 @@ TEST_F(SecurityTest, WrongCaOrPlaintextAgainstTlsExitsThreeWithAMessage) {
   r = cli({"--server", server.address(), "--timeout", "1", "health"});
   EXPECT_EQ(r.code, 3) << r;
   EXPECT_NE(r.err.find("--tls"), std::string::npos) << "should suggest TLS: " << r;
+}
+
+// A --tls-key that is not the --tls-cert's key used to exit 3 with "UNAVAILABLE: empty address list" after gRPC's
+// own log lines: it is a usage error (exit 2) naming both flags, found before any connection, and gRPC's log lines
+// never reach the user (unless -v).
+TEST_F(SecurityTest, KeyOfAnotherCertificateExitsTwoNamingBothFlags) {
+  TestServer server(tls_server(*certs_, true));
+  const std::string cert = (certs_->dir / "client.pem").string(), key = (certs_->dir / "server.key").string();
+  ProcessResult r = cli({"--server", server.address(), "--tls-ca", ca(), "--tls-cert", cert, "--tls-key", key,
+                         "--timeout", "1", "health"});
+  EXPECT_EQ(r.code, 2) << r;
+  EXPECT_NE(r.err.find("surfacer: error: --tls-key " + key + " does not match the certificate in --tls-cert " + cert),
+            std::string::npos)
+      << r;
+  EXPECT_EQ(r.err.find("ssl_transport_security"), std::string::npos) << r;
+  // A CA file with a certificate OpenSSL cannot read.
+  write_file(dir_ / "bad-ca.pem", "-----BEGIN CERTIFICATE-----\nAAAA\n-----END CERTIFICATE-----\n");
+  r = cli({"--server", server.address(), "--tls-ca", (dir_ / "bad-ca.pem").string(), "health"});
+  EXPECT_EQ(r.code, 2) << r;
+  EXPECT_NE(r.err.find("--tls-ca " + (dir_ / "bad-ca.pem").string() + ": no certificate OpenSSL can read"),
+            std::string::npos)
+      << r;
+}
+
+TEST_F(SecurityTest, GrpcLogLinesReachTheUserOnlyWithVerbose) {
+  TestServer server(tls_server(*certs_, false));
+  const std::vector<std::string> wrong_ca = {
+      "--server", server.address(), "--tls-ca", (other_->dir / "ca.pem").string(), "--timeout", "1", "health"};
+  ProcessResult r = cli(wrong_ca);
+  EXPECT_EQ(r.code, 3) << r;
+  EXPECT_EQ(r.err.find("ssl_transport_security"), std::string::npos) << r;
+  std::vector<std::string> verbose = {"-v"};
+  verbose.insert(verbose.end(), wrong_ca.begin(), wrong_ca.end());
+  r = cli(verbose);
+  EXPECT_EQ(r.code, 3) << r;
+  EXPECT_NE(r.err.find("surfacer: grpc: Handshake failed"), std::string::npos) << r;
 }
 
 TEST_F(SecurityTest, MutualTlsServerRejectsAClientWithoutACertificateAndAcceptsOneWithIt) {

@@ -16,6 +16,7 @@
 #include "client/job_spec.h"
 #include "client/progress.h"
 #include "core/util/crc32.h"
+#include "server/options.h"
 #include "surfacer/v1/surfacer.grpc.pb.h"
 #include "tests/support/files.h"
 #include "tests/support/loopback_grpc.h"
@@ -117,6 +118,8 @@ TEST_F(FakeUploadTest, ChunksOfAtMostOneMiBEachWithItsCrc) {
     EXPECT_GT(c.data().size(), 0u) << i;
     ASSERT_TRUE(c.has_crc32()) << i;
     EXPECT_EQ(c.crc32(), crc32_of(c.data())) << i;
+    ASSERT_TRUE(c.has_chunk_index()) << i;
+    EXPECT_EQ(c.chunk_index(), i);
     EXPECT_EQ(c.name(), i == 0 ? "frame_0001.bgeo" : "") << i;
     EXPECT_EQ(c.total_bytes(), i == 0 ? bytes.size() : 0u) << i;
     joined += c.data();
@@ -190,6 +193,13 @@ TEST_F(FakeUploadTest, RefusalIsTheServersMessageAndStopCancels) {
 }
 
 // The real server, in process (what `surfacer --local` runs).
+// A server that predates GetServerInfo (the fake does not implement it): no limits are known, nothing fails.
+TEST_F(FakeUploadTest, AServerThatCannotTellItsLimitsGivesNone) {
+  const InputLimits limits = input_limits(*connection_);
+  EXPECT_EQ(limits.max_particles, InputLimits{}.max_particles);
+  EXPECT_EQ(limits.max_upload_bytes, InputLimits{}.max_upload_bytes);
+}
+
 class LocalUploadTest : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -199,6 +209,12 @@ class LocalUploadTest : public ::testing::Test {
   }
   std::unique_ptr<Connection> connection_;
 };
+
+TEST_F(LocalUploadTest, TheInProcessServerTellsItsLimits) {
+  const InputLimits limits = input_limits(*connection_);
+  EXPECT_EQ(limits.max_particles, server::Limits{}.max_particles);
+  EXPECT_EQ(limits.max_upload_bytes, server::Limits{}.max_upload_bytes);
+}
 
 TEST_F(LocalUploadTest, ServerCountsAndCrcMatch) {
   const std::string bytes = random_bytes((std::size_t{3} << 20) + 123, 6);

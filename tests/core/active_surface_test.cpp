@@ -202,6 +202,83 @@ TEST(ActiveSurface, UniformVelocityTranslatesTheSurface) {
   EXPECT_NEAR(s.max_speed, u.norm(), 1e-6);
 }
 
+// The motion strategy's terms act on top of an advection (ALGORITHMS §4, "Advection"), each in its direction.
+
+// Volume control: the Enright field stretches the sphere into a sheet the grid cannot hold, and the scheme loses
+// about 30 % of the volume by T/4 at this resolution. With delta the loss is a fraction of that, smaller the larger
+// delta (a proportional controller: the deficit it leaves falls as 1 / delta).
+TEST(ActiveSurface, AdvectWithVolumeControlKeepsTheVolumeTheSchemeLoses) {
+  auto volume_change_at_quarter_period = [](double delta) {
+    ActiveSurfaceOptions o = base_options(1.0 / 32.0);
+    o.domain = Aabb{Vec3::Zero(), Vec3::Ones()};
+    o.delta = delta;
+    ActiveSurface surface(SphereField(Vec3(0.35, 0.35, 0.35), 0.15), o);
+    surface.set_velocity(enright_separable_velocity(kEnrightPeriod));
+    const double v0 = surface.stats().volume;
+    surface.advance(0.25 * kEnrightPeriod);
+    return (surface.stats().volume - v0) / v0;
+  };
+  const double plain = volume_change_at_quarter_period(0.0);
+  EXPECT_LT(plain, -0.2);
+  double previous = std::abs(plain);
+  for (const double delta : {0.3, 1.0, 3.0}) {
+    const double loss = std::abs(volume_change_at_quarter_period(delta));
+    EXPECT_LT(loss, 0.3 * std::abs(plain)) << "delta " << delta;
+    EXPECT_LT(loss, 0.5 * previous) << "delta " << delta;
+    previous = loss;
+  }
+  EXPECT_LT(previous, 0.02);  // delta 3
+}
+
+// The isoperimetric quotient 36 pi V^2 / A^3: 1 for a sphere, less for anything else.
+double roundness(const ActiveFrameStats& s) { return 36.0 * kPi * s.volume * s.volume / (s.area * s.area * s.area); }
+
+// Tension smooths a translated box (its corners round off: rounder, less area) while the advection still carries it
+// by u t; area control then holds the area that tension takes.
+TEST(ActiveSurface, AdvectWithTensionSmoothsAndAreaControlHoldsTheArea) {
+  const double h = 1.0 / 32.0;
+  const Vec3 c0(-0.2, 0.0, 0.05), u(0.5, 0.25, 0.0);
+  const double t = 0.4;
+  auto run = [&](double beta, double gamma) {
+    ActiveSurfaceOptions o = base_options(h);
+    o.beta = beta;
+    o.gamma = gamma;
+    ActiveSurface surface(BoxField(c0, Vec3(0.3, 0.25, 0.2)), o);
+    surface.set_velocity([u](const Vec3&, double) { return Vec3(u); });
+    const ActiveFrameStats s0 = surface.stats();
+    const ActiveFrameStats s = surface.advance(t);
+    EXPECT_LT((testing::centroid(surface.polygonize()) - (c0 + t * u)).norm(), 0.5 * h) << beta << " " << gamma;
+    return std::make_pair(s0, s);
+  };
+  const auto [start, plain] = run(0.0, 0.0);
+  const auto [unused, smoothed] = run(0.01, 0.0);
+  EXPECT_GT(roundness(smoothed), roundness(plain) + 0.02);
+  EXPECT_LT(smoothed.area, 0.97 * plain.area);
+  const auto [unused2, held] = run(0.01, 2.0);
+  EXPECT_LT(std::abs(held.area - start.area), 0.5 * std::abs(smoothed.area - start.area));
+}
+
+// alpha tracks a target; the advect mode has none, so it refuses alpha (the engine itself tracks a target set with
+// set_target while it advects).
+TEST(ActiveSurface, AdvectRefusesAlphaWithoutATarget) {
+  ActiveSurfaceOptions o = base_options(1.0 / 16.0);
+  o.alpha = 1.0;
+  AdvectOptions a;
+  a.frames = 1;
+  EXPECT_TRUE(testing::throws_invalid_input(
+      [&] {
+        advect_shape(
+            SphereField(Vec3::Zero(), 0.3), [](const Vec3&, double) { return Vec3(1, 0, 0); }, a, o,
+            [](ActiveFrame&&) {});
+      },
+      "alpha"));
+  ActiveSurface surface(SphereField(Vec3::Zero(), 0.3), o);
+  surface.set_target(std::make_shared<SphereField>(Vec3::Zero(), 0.45));
+  surface.set_velocity([](const Vec3&, double) { return Vec3::Zero(); });
+  const double v0 = surface.stats().volume;
+  EXPECT_GT(surface.advance(0.3).volume, 1.3 * v0);  // it grows toward the larger target sphere
+}
+
 // Coating: two particle clusters drift apart; the skin's component count follows the particles' own surface.
 TEST(ActiveSurface, CoatingFollowsAParticleBlobSplittingInTwo) {
   const int frames = 10;
@@ -335,30 +412,42 @@ void expect_same_frames(const RecordedRun& straight, const RecordedRun& resumed,
   }
 }
 
+// An Enright advection of 6 frames (the sphere of the standard test, period 1) with options `o`, straight or resumed
+// from `resume`.
+int run_enright_advect(const ActiveSurfaceOptions& o, const std::string* resume, RecordedRun& out) {
+  const SphereField shape(Vec3(0.35, 0.35, 0.35), 0.15);
+  const VelocityFn velocity = [](const Vec3& p, double t) { return enright_velocity(p, t, 1.0); };
+  AdvectOptions a;
+  a.frame_interval = 0.05;
+  a.frames = 5;
+  a.checkpoints.resume_state = resume;
+  a.checkpoints.save = out.saver();
+  return advect_shape(shape, velocity, a, o, out.recorder());
+}
+
+// The run resumed after frame 3 matches the uninterrupted one; returns the uninterrupted run.
+RecordedRun expect_advect_resumes_exactly(const ActiveSurfaceOptions& o) {
+  RecordedRun straight, resumed;
+  EXPECT_EQ(run_enright_advect(o, nullptr, straight), 6);
+  EXPECT_EQ(straight.indices, (std::vector<int>{0, 1, 2, 3, 4, 5}));
+  // After every frame but the last.
+  EXPECT_EQ(straight.states.size(), 5u);
+  if (straight.states.size() != 5u) return straight;
+  EXPECT_EQ(straight.states.begin()->first, 1);
+  EXPECT_EQ(run_enright_advect(o, &straight.states.at(3), resumed), 3);
+  expect_same_frames(straight, resumed, 3);
+  // The resumed run's own checkpoints are the uninterrupted run's.
+  EXPECT_EQ(resumed.states.at(4), straight.states.at(4));
+  return straight;
+}
+
 TEST(ActiveSurface, AdvectResumedFromACheckpointMatchesTheUninterruptedRun) {
   ActiveSurfaceOptions o = base_options(1.0 / 32.0);
   o.domain = Aabb{Vec3::Zero(), Vec3::Ones()};
   o.reinit_interval = 3;  // so the resumed frames cross reinitializations at a saved phase
-  const auto shape = std::make_shared<SphereField>(Vec3(0.35, 0.35, 0.35), 0.15);
-  const VelocityFn velocity = [](const Vec3& p, double t) { return enright_velocity(p, t, 1.0); };
-  auto run = [&](const std::string* resume, RecordedRun& out) {
-    AdvectOptions a;
-    a.frame_interval = 0.05;
-    a.frames = 5;
-    a.checkpoints.resume_state = resume;
-    a.checkpoints.save = out.saver();
-    return advect_shape(*shape, velocity, a, o, out.recorder());
-  };
-  RecordedRun straight, resumed;
-  EXPECT_EQ(run(nullptr, straight), 6);
-  EXPECT_EQ(straight.indices, (std::vector<int>{0, 1, 2, 3, 4, 5}));
-  // After every frame but the last.
+  const RecordedRun straight = expect_advect_resumes_exactly(o);
   ASSERT_EQ(straight.states.size(), 5u);
-  EXPECT_EQ(straight.states.begin()->first, 1);
-  EXPECT_EQ(run(&straight.states.at(3), resumed), 3);
-  expect_same_frames(straight, resumed, 3);
-  // The resumed run's own checkpoints are the uninterrupted run's.
-  EXPECT_EQ(resumed.states.at(4), straight.states.at(4));
+  auto run = [&](const std::string* resume, RecordedRun& out) { return run_enright_advect(o, resume, out); };
 
   // A damaged or foreign state throws InvalidInput("resume_state") before any frame.
   const std::string& good = straight.states.at(2);
@@ -382,6 +471,25 @@ TEST(ActiveSurface, AdvectResumedFromACheckpointMatchesTheUninterruptedRun) {
   ActiveSurfaceOptions other = o;
   other.h = 1.0 / 30.0;
   EXPECT_THROW(ActiveSurface::from_state(std::string_view(good).substr(13), other), Error);
+}
+
+// With the control terms on top of the advection (their speed is recomputed from f every sub-step, and the
+// stage-1 rate moves to its own channel) the resumed run is still the uninterrupted one, and differs from plain
+// advection.
+TEST(ActiveSurface, AdvectWithControlTermsResumesExactly) {
+  ActiveSurfaceOptions o = base_options(1.0 / 32.0);
+  o.domain = Aabb{Vec3::Zero(), Vec3::Ones()};
+  o.reinit_interval = 3;
+  o.beta = 0.0005;
+  o.gamma = 0.05;
+  o.delta = 1.0;
+  const RecordedRun controlled = expect_advect_resumes_exactly(o);
+  ActiveSurfaceOptions plain_options = o;
+  plain_options.beta = plain_options.gamma = plain_options.delta = 0.0;
+  RecordedRun plain;
+  run_enright_advect(plain_options, nullptr, plain);
+  ASSERT_EQ(controlled.stats.size(), plain.stats.size());
+  EXPECT_NE(controlled.stats.back().volume, plain.stats.back().volume);
 }
 
 TEST(ActiveSurface, MorphResumedFromACheckpointMatchesTheUninterruptedRun) {

@@ -4,6 +4,10 @@
 
 #include <chrono>
 #include <cmath>
+#include <map>
+#include <numeric>
+#include <random>
+#include <set>
 
 #include "core/util/errors.h"
 #include "tests/support/test_meshes.h"
@@ -164,6 +168,164 @@ TEST(MeshChecks, MillionTrianglesQuickly) {
   EXPECT_LT(seconds, 20.0);  // Debug / sanitizer builds
 #endif
   RecordProperty("seconds", std::to_string(seconds));
+}
+
+// A plain reference for the topology (edge map, per-vertex link), to compare the fast paths against.
+MeshReport reference_topology(const Mesh& m) {
+  MeshReport r;
+  struct EdgeUse {
+    int count = 0;
+    int forward = 0;  // uses from the smaller vertex to the larger
+  };
+  std::map<std::pair<std::uint32_t, std::uint32_t>, EdgeUse> edges;
+  std::vector<std::set<std::uint32_t>> neighbours(m.vertices.size());
+  std::vector<std::vector<std::pair<std::uint32_t, std::uint32_t>>> links(m.vertices.size());
+  std::int64_t faces = 0;
+  for (const Triangle& t : m.triangles) {
+    if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) continue;
+    ++faces;
+    for (int c = 0; c < 3; ++c) {
+      const std::uint32_t u = t[c], w = t[(c + 1) % 3];
+      EdgeUse& e = edges[{std::min(u, w), std::max(u, w)}];
+      ++e.count;
+      e.forward += u < w;
+      neighbours[u].insert(w);
+      neighbours[w].insert(u);
+      links[t[c]].push_back({t[(c + 1) % 3], t[(c + 2) % 3]});
+    }
+  }
+  std::vector<std::uint32_t> parent(m.vertices.size());
+  std::iota(parent.begin(), parent.end(), 0u);
+  auto find = [&](std::uint32_t x) {
+    while (parent[x] != x) x = parent[x];
+    return x;
+  };
+  r.oriented = true;
+  for (const auto& [key, use] : edges) {
+    parent[find(key.first)] = find(key.second);
+    if (use.count == 1) ++r.boundary_edges;
+    if (use.count > 2) ++r.non_manifold_edges;
+    if (use.count > 2 || (use.count == 2 && use.forward != 1)) r.oriented = false;
+  }
+  std::int64_t referenced = 0;
+  bool fans = true;
+  r.min_valence = 0;
+  for (std::size_t v = 0; v < m.vertices.size(); ++v) {
+    if (links[v].empty()) continue;
+    ++referenced;
+    if (find(static_cast<std::uint32_t>(v)) == v) ++r.components;
+    const int valence = static_cast<int>(neighbours[v].size());
+    if (r.valence_histogram.size() <= static_cast<std::size_t>(valence)) r.valence_histogram.resize(valence + 1);
+    ++r.valence_histogram[valence];
+    r.min_valence = referenced == 1 ? valence : std::min(r.min_valence, valence);
+    r.max_valence = std::max(r.max_valence, valence);
+    // One fan: the link (neighbours joined by one edge per triangle) is connected, every neighbour in <= 2 triangles.
+    std::map<std::uint32_t, int> uses;
+    std::map<std::uint32_t, std::uint32_t> link_parent;
+    std::function<std::uint32_t(std::uint32_t)> link_find = [&](std::uint32_t x) {
+      return link_parent[x] == x ? x : link_find(link_parent[x]);
+    };
+    for (auto [a, b] : links[v]) {
+      ++uses[a];
+      ++uses[b];
+      link_parent.emplace(a, a);
+      link_parent.emplace(b, b);
+    }
+    for (auto [a, b] : links[v]) link_parent[link_find(a)] = link_find(b);
+    std::set<std::uint32_t> roots;
+    for (const auto& [w, n] : uses) {
+      roots.insert(link_find(w));
+      if (n > 2) fans = false;
+    }
+    if (roots.size() != 1) fans = false;
+  }
+  r.closed = r.boundary_edges == 0;
+  r.edge_manifold = r.non_manifold_edges == 0;
+  r.vertex_manifold = fans && r.edge_manifold;
+  r.euler_characteristic = referenced - static_cast<std::int64_t>(edges.size()) + faces;
+  return r;
+}
+
+void expect_same_topology(const MeshReport& a, const MeshReport& b, const std::string& what) {
+  SCOPED_TRACE(what);
+  EXPECT_EQ(a.closed, b.closed);
+  EXPECT_EQ(a.edge_manifold, b.edge_manifold);
+  EXPECT_EQ(a.vertex_manifold, b.vertex_manifold);
+  EXPECT_EQ(a.oriented, b.oriented);
+  EXPECT_EQ(a.euler_characteristic, b.euler_characteristic);
+  EXPECT_EQ(a.components, b.components);
+  EXPECT_EQ(a.boundary_edges, b.boundary_edges);
+  EXPECT_EQ(a.non_manifold_edges, b.non_manifold_edges);
+  EXPECT_EQ(a.valence_histogram, b.valence_histogram);
+  EXPECT_EQ(a.min_valence, b.min_valence);
+  EXPECT_EQ(a.max_valence, b.max_valence);
+}
+
+// Meshes with every kind of defect, from clean to badly broken: triangles removed (boundaries), flipped
+// (misoriented), duplicated or sharing an edge with a third (non-manifold), glued at a vertex (bowties).
+std::vector<std::pair<std::string, Mesh>> defective_meshes() {
+  std::vector<std::pair<std::string, Mesh>> out = {{"cube", testing::unit_cube()},
+                                                   {"torus", testing::torus_mesh(1.0, 0.3, 24, 12)},
+                                                   {"square", testing::open_square()},
+                                                   {"non-manifold edge", testing::non_manifold_edge()},
+                                                   {"bowtie", testing::bowtie()},
+                                                   {"double tetrahedron", testing::double_tetrahedron()},
+                                                   {"flipped", testing::flipped_triangle()},
+                                                   {"empty", Mesh{}}};
+  std::mt19937 rng(7);
+  for (int subdivisions = 0; subdivisions <= 4; ++subdivisions) {
+    for (double rate : {0.0, 0.001, 0.01, 0.1}) {
+      Mesh m = testing::icosphere(subdivisions);
+      std::uniform_real_distribution<double> u(0.0, 1.0);
+      std::uniform_int_distribution<std::uint32_t> vertex(0, static_cast<std::uint32_t>(m.vertices.size() - 1));
+      std::vector<Triangle> triangles;
+      for (Triangle t : m.triangles) {
+        const double x = u(rng);
+        if (x < rate) continue;                                     // removed
+        if (x < 2 * rate) std::swap(t[1], t[2]);                    // flipped
+        if (x < 3 * rate && x >= 2 * rate) triangles.push_back(t);  // duplicated
+        if (x < 4 * rate && x >= 3 * rate) t[0] = vertex(rng);      // rewired (bowties, repeats)
+        if (x < 5 * rate && x >= 4 * rate) triangles.push_back({t[0], t[1], vertex(rng)});  // a third triangle
+        triangles.push_back(t);
+      }
+      m.triangles = std::move(triangles);
+      out.emplace_back("icosphere(" + std::to_string(subdivisions) + ") defects " + std::to_string(rate), m);
+    }
+  }
+  return out;
+}
+
+TEST(MeshChecks, TopologyMatchesAPlainReferenceOnDefectiveMeshes) {
+  for (const auto& [name, mesh] : defective_meshes()) {
+    expect_same_topology(check_mesh(mesh), reference_topology(mesh), name);
+  }
+}
+
+TEST(MeshChecks, SameBitsWhateverTheExecutor) {
+  auto meshes = defective_meshes();
+  meshes.emplace_back("icosphere(7)", testing::icosphere(7));  // several blocks of triangles and vertices
+  for (const auto& [name, mesh] : meshes) {
+    SCOPED_TRACE(name);
+    const MeshReport one = check_mesh(mesh);
+    for (int threads : {2, 3, 8}) {
+      const MeshReport r = check_mesh(mesh, ThreadExecutor(threads));
+      expect_same_topology(r, one, name + " on " + std::to_string(threads) + " threads");
+      EXPECT_EQ(r.area, one.area);
+      EXPECT_EQ(r.volume, one.volume);
+      EXPECT_EQ(r.min_angle_degrees, one.min_angle_degrees);
+      EXPECT_EQ(r.max_angle_degrees, one.max_angle_degrees);
+      EXPECT_EQ(r.degenerate_triangles, one.degenerate_triangles);
+    }
+  }
+}
+
+TEST(MeshChecks, CancelledBetweenBlocks) {
+  const Mesh m = testing::icosphere(6);
+  CancelToken token;
+  token.cancel();
+  RunControl control;
+  control.cancel = &token;
+  EXPECT_THROW(check_mesh(m, ThreadExecutor(2), control), Error);
 }
 
 }  // namespace

@@ -5,7 +5,9 @@
 #include <random>
 
 #include "core/mesh/mesh_checks.h"
+#include "core/mesh/mesh_io.h"
 #include "core/polygonize/marching_cubes.h"
+#include "core/util/allocation_budget.h"
 #include "core/util/errors.h"
 #include "tests/support/error_expectations.h"
 #include "tests/support/mesh_expectations.h"
@@ -146,6 +148,56 @@ TEST(MeshCodec, BooleanAttributeIsInvalidInput) {
     EXPECT_EQ(e.field(), "frame");
     EXPECT_NE(std::string(e.what()).find("attribute is not numeric"), std::string::npos) << e.what();
   }
+}
+
+// The class fuzz/fuzz_mesh found (fuzz/corpus/mesh/crash-draco-edgebreaker-declares-200m-faces): an edgebreaker
+// stream whose header declares 200 M triangles made Draco allocate its corner table (2.4 GB) before reading a symbol.
+TEST(MeshCodec, DecompressionBombIsRefusedWithinTheBudget) {
+  const std::string bomb = testing::draco_bomb(200'000'000);
+  ASSERT_LT(bomb.size(), 400u);
+  // Held to the decoder's own budget: 64 MiB plus 4 KiB per input byte.
+  AllocationBudget outer(std::size_t{80} << 20);
+  EXPECT_TRUE(testing::throws_error([&] { decode_draco(bomb); }, ErrorKind::kInvalidInput, "frame",
+                                    "bytes per input byte are allowed"));
+  EXPECT_FALSE(outer.exhausted());
+  EXPECT_LT(outer.allocated(), std::size_t{66} << 20);
+  // Through parse_mesh the file's name comes first.
+  EXPECT_TRUE(testing::throws_error([&] { parse_mesh(bomb, MeshFormat::kDraco, "bomb.drc"); }, ErrorKind::kInvalidInput,
+                                    "file", "bomb.drc: decoding this"));
+}
+
+TEST(MeshCodec, TriangleLimitBoundsTheDecoder) {
+  const Mesh sphere = testing::icosphere(6);  // 81920 triangles
+  const std::string bytes = encode_draco(sphere, DracoOptions{});
+  EXPECT_EQ(decode_draco(bytes).triangles.size(), sphere.triangles.size());
+  // With a tight triangle limit the budget is 64 MiB plus 256 bytes per allowed triangle: the limit binds.
+  MeshReadLimits limits;
+  limits.max_triangles = 1000;
+  EXPECT_TRUE(testing::throws_error([&] { decode_draco(testing::draco_bomb(300'000'000), limits); },
+                                    ErrorKind::kResourceLimit, "max_triangles", "max_triangles (1000)"));
+  EXPECT_TRUE(
+      testing::throws_error([&] { parse_mesh(testing::draco_bomb(300'000'000), MeshFormat::kDraco, "b.drc", limits); },
+                            ErrorKind::kResourceLimit, "max_triangles", "b.drc: decoding this"));
+}
+
+// The most compressible mesh we know, a flat regular grid at speed 0 (about 20 triangles per byte), still decodes.
+TEST(MeshCodec, HighlyCompressedMeshDecodesWithinTheBudget) {
+  const int n = 1000;
+  Mesh grid;
+  for (int j = 0; j <= n; ++j)
+    for (int i = 0; i <= n; ++i) grid.vertices.emplace_back(double(i) / n, double(j) / n, 0.0);
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i) {
+      const auto a = static_cast<std::uint32_t>(j * (n + 1) + i), c = a + static_cast<std::uint32_t>(n) + 1;
+      grid.triangles.push_back({a, a + 1, c + 1});
+      grid.triangles.push_back({a, c + 1, c});
+    }
+  DracoOptions options;
+  options.speed = 0;
+  options.quantization_bits = 8;
+  const std::string bytes = encode_draco(grid, options);
+  EXPECT_GT(static_cast<double>(grid.triangles.size()) / static_cast<double>(bytes.size()), 5.0);
+  EXPECT_EQ(decode_draco(bytes).triangles.size(), grid.triangles.size());
 }
 
 TEST(MeshCodec, NormalsRoundTripApproximately) {

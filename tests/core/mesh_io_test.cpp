@@ -9,7 +9,9 @@
 
 #include "core/mesh/mesh_checks.h"
 #include "core/mesh/mesh_codec.h"
+#include "core/util/allocation_budget.h"
 #include "core/util/errors.h"
+#include "tests/support/error_expectations.h"
 #include "tests/support/files.h"
 #include "tests/support/test_meshes.h"
 
@@ -201,6 +203,26 @@ TEST(MeshIo, PlyHugeFaceIndicesAndVertexCounts) {
       "element vertex 5000000000\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
       "3 0 1 4999999999\n0 0 0\n",
       MeshFormat::kPly, "many.ply", "line 5: the vertex element declares 5000000000 vertices");
+}
+
+// PLY allocates in proportion to the bytes present, never for a count its header or a list declares (OBJ declares no
+// counts): small hostile files fail as InvalidInput well within a small allocation budget. (The Draco decoder has a
+// budget of its own: decode_draco.)
+TEST(MeshIo, DeclaredCountsDoNotDriveAllocations) {
+  const std::string xyz = "property float x\nproperty float y\nproperty float z\n";
+  const std::string huge_counts = "ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\n" + xyz +
+                                  "element face 4000000000\nproperty list uchar int vertex_indices\nend_header\n" +
+                                  std::string(36, '\0');
+  std::string huge_list = "ply\nformat binary_little_endian 1.0\nelement vertex 3\n" + xyz +
+                          "element face 1\nproperty list uint uchar vertex_indices\nend_header\n" +
+                          std::string(36, '\0');
+  huge_list += std::string("\xff\xff\xff\xff", 4) + std::string(100, '\0');  // a list of 2^32 - 1 indices
+  AllocationBudget budget(std::size_t{4} << 20);
+  for (const std::string& bytes : {huge_counts, huge_list}) {
+    EXPECT_TRUE(testing::throws_error([&] { parse_mesh(bytes, MeshFormat::kPly, "hostile.ply"); },
+                                      ErrorKind::kInvalidInput, "file"));
+  }
+  EXPECT_FALSE(budget.exhausted());
 }
 
 TEST(MeshIo, BinaryPlyIndexOutOfRange) {

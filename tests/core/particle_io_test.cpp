@@ -1,11 +1,11 @@
 #include "core/particles/particle_io.h"
 
 #include <gtest/gtest.h>
-#include <zlib.h>
 
 #include <bit>
 #include <cstring>
 #include <filesystem>
+#include <functional>
 #include <random>
 
 #include "core/util/errors.h"
@@ -306,19 +306,7 @@ std::string write_bgeo(const ParticleFrame& f) {
   return s;
 }
 
-std::string gzip(const std::string& data) {
-  z_stream zs{};
-  EXPECT_EQ(deflateInit2(&zs, 6, Z_DEFLATED, 16 + MAX_WBITS, 8, Z_DEFAULT_STRATEGY), Z_OK);
-  std::string out(deflateBound(&zs, data.size()) + 64, '\0');
-  zs.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(data.data()));
-  zs.avail_in = static_cast<uInt>(data.size());
-  zs.next_out = reinterpret_cast<Bytef*>(out.data());
-  zs.avail_out = static_cast<uInt>(out.size());
-  EXPECT_EQ(deflate(&zs, Z_FINISH), Z_STREAM_END);
-  out.resize(zs.total_out);
-  deflateEnd(&zs);
-  return out;
-}
+using testing::gzip;
 
 class TempDir {
  public:
@@ -452,6 +440,20 @@ TEST(ParticleIo, VtuTakesThePiecesFirstRadiusArray) {
   expect_same(parse_particles(s, ParticleFormat::kVtu, "two.vtu"), f);
 }
 
+// Found by fuzz/fuzz_particles (fuzz/corpus/particles/crash-vtu-nested-piece): a <Piece> opened inside another
+// restarted the piece's counts, so the outer piece's radii were kept on top of the inner one's (2 radii, 1 point),
+// and a file ending with the outer piece still open was accepted.
+TEST(ParticleIo, VtuRefusesAPieceInsideAPiece) {
+  VtuStyle st;
+  const std::string radius = vtu_array({0.5}, "radius", 1, st);
+  const std::string s =
+      "<VTKFile type=\"UnstructuredGrid\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"1\">\n"
+      "<PointData>\n" +
+      radius + "</PointData>\n<Piece NumberOfPoints=\"1\">\n<PointData>\n" + radius + "</PointData>\n<Points>\n" +
+      vtu_array({1, 2, 3}, "Points", 3, st) + "</Points>\n</Piece>\n";
+  expect_error(s, ParticleFormat::kVtu, "nested.vtu", {"line 9", "<Piece> inside another <Piece>"});
+}
+
 TEST(ParticleIo, BinRoundTrip) {
   const ParticleFrame f = sample_frame(false);
   expect_same(parse_particles(write_bin(f), ParticleFormat::kBin, "p.bin"), f);
@@ -492,6 +494,45 @@ TEST(ParticleIo, ReadFilesByExtensionIncludingGzip) {
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("missing.xyz: cannot open"), std::string::npos) << e.what();
   }
+}
+
+// A ResourceLimit("file") whose message holds every one of `parts`.
+void expect_limit(const std::function<void()>& read, const std::vector<std::string>& parts) {
+  try {
+    read();
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::kResourceLimit) << e.what();
+    EXPECT_EQ(e.field(), "file");
+    for (const auto& part : parts) EXPECT_NE(std::string(e.what()).find(part), std::string::npos) << e.what();
+  }
+}
+
+TEST(ParticleIo, LimitsStopBombsAndLargeFilesEarly) {
+  const TempDir dir;
+  // 64 MiB of zeros in ~64 KiB of gzip, twice over as two members: stopped at the limit, whatever follows.
+  const std::string member = gzip(std::string(std::size_t{64} << 20, '\0'));
+  ParticleReadLimits limits;
+  limits.max_bytes = 12000;
+  expect_limit([&] { parse_particles(member + member, ParticleFormat::kBin, "bomb.bin.gz", limits); },
+               {"bomb.bin.gz: its gzip data inflates to more than 12000 bytes"});
+  expect_limit([&] { read_particles(dir.write("bomb.xyz.gz", member + member), limits); }, {"bomb.xyz.gz"});
+  // Members within the limit are one stream.
+  const ParticleFrame f = sample_frame(false, 10);
+  expect_same(parse_particles(gzip(write_bin(f)) + gzip(""), ParticleFormat::kBin, "two.bin.gz", limits), f);
+  // Plain files: by their size, before reading them.
+  limits.max_bytes = 100;
+  expect_limit([&] { read_particles(dir.write("big.xyz", std::string(101, ' ')), limits); },
+               {"big.xyz: it holds more than 100 bytes"});
+  // Particles: a raw file by its size, before parsing; others once parsed.
+  limits = {};
+  limits.max_particles = 9;
+  expect_limit([&] { parse_particles(write_bin(f), ParticleFormat::kBin, "ten.bin", limits); },
+               {"ten.bin: 10 particles, more than 9"});
+  expect_limit([&] { parse_particles(write_xyz(f, " "), ParticleFormat::kXyz, "ten.xyz", limits); },
+               {"ten.xyz: 10 particles, more than 9"});
+  limits.max_particles = 10;
+  expect_same(parse_particles(write_xyz(f, " "), ParticleFormat::kXyz, "ten.xyz", limits), f);
 }
 
 // --- Errors name the file and the line or byte -------------------------------------------------------------------

@@ -661,9 +661,32 @@ TEST(SceneTest, ManyBlobsFarApartBuildAndEvaluate) {
   expect_invalid([&] { make_blobs(tiny, {}, BlobOptions{}); }, "points[0].radius");
   std::vector<PointSkeleton> huge;
   for (int i = 0; i < 70; ++i) huge.push_back({Vec3((i % 2 ? 1 : -1) * 1e308, 0, 0), 1e308, 1.0});
-  expect_invalid([&] { make_blobs(huge, {}, BlobOptions{}); }, "points");
+  expect_invalid([&] { make_blobs(huge, {}, BlobOptions{}); }, "points[0].center.x");
   const SegmentSkeleton wide{Vec3(-1e308, 0, 0), Vec3(1e308, 0, 0), 1.0, 1.0};
-  expect_invalid([&] { make_blobs({}, std::span(&wide, 1), BlobOptions{}); }, "segments");
+  expect_invalid([&] { make_blobs({}, std::span(&wide, 1), BlobOptions{}); }, "segments[0].a.x");
+  // Within the range of coordinates, but a Blinn kernel this strong would overflow.
+  BlobOptions blinn;
+  blinn.kernel = BlobKernel::kBlinn;
+  blinn.blobbiness = 1e9;
+  expect_invalid([&] { make_blobs(points, {}, blinn); }, "blobbiness");
+}
+
+TEST(SceneTest, CoordinatesAndLengthsStayWithinTheirRange) {
+  expect_invalid([&] { make_sphere(Vec3::Zero(), 1e308); }, "radius");
+  expect_invalid([&] { make_sphere(Vec3(0, 2e12, 0), 1.0); }, "center.y");
+  expect_invalid([&] { make_box(Vec3::Zero(), Vec3(1, 1e13, 1)); }, "half_size.y");
+  expect_invalid([&] { make_plane(Vec3::UnitZ(), -1e300); }, "offset");
+  expect_invalid([&] { make_gyroid(1e200, 0.1); }, "period");
+  SampledGridDesc grid;
+  grid.nx = grid.ny = grid.nz = 2;
+  grid.iso = 1e100;
+  const std::vector<float> values(8, 0.0f);
+  expect_invalid([&] { make_sampled_grid(grid, values); }, "iso");
+  // Each argument in range, but the transform carries the child too far.
+  const FieldPtr big = make_sphere(Vec3::Zero(), 1e11);
+  EXPECT_NO_THROW(make_transform(big, 5.0 * Eigen::Matrix3d::Identity(), Vec3::Zero()));
+  expect_invalid([&] { make_transform(big, 1e3 * Eigen::Matrix3d::Identity(), Vec3::Zero()); }, "linear");
+  EXPECT_NO_THROW(make_sphere(Vec3::Constant(1e12 - 1.0), 1.0));
 }
 
 TEST(SceneTest, CompositeValidation) {

@@ -125,6 +125,14 @@ TEST(Checkpoint, ActiveAdvectResumesAfterAFrameWithTheSameFrames) {
   expect_resume_matches(advect_spec(1.0 / 32.0, 5, 0.1), 2);
 }
 
+// Volume control and tension on top of the advection: still the uninterrupted run's frames.
+TEST(Checkpoint, ActiveAdvectWithControlTermsResumesWithTheSameFrames) {
+  v1::JobSpec spec = advect_spec(1.0 / 32.0, 5, 0.1);
+  spec.mutable_active()->set_delta(1.0);
+  spec.mutable_active()->set_beta(0.0005);
+  expect_resume_matches(spec, 2);
+}
+
 // --- The real server, killed -------------------------------------------------------------------------------------
 
 TEST(Checkpoint, KilledServerResumesAnActiveJobFromItsLastCheckpoint) {

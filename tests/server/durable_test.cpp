@@ -171,6 +171,42 @@ TEST(DurableStore, AFullDiskFailsTheJobClearlyAndLeavesTheStoreUsable) {
   }
 }
 
+TEST(DurableStore, AStateTheFullDiskRefusedIsKeptAndWrittenOnceItCanBe) {
+  const fs::path dir = fresh_temp_dir("durable-full-state");
+  const fs::path data = dir / "data";
+  std::string id;
+  {
+    // 512 KiB per file: the frames (a few kB each) fit, but the database's write-ahead log fills up mid-job, so the
+    // job fails and its FAILED state cannot be written either.
+    ServerProcess p(dir, 1, {"--data-dir", data.string()}, 512u << 10);
+    ASSERT_GT(p.port(), 0) << p.log();
+    auto stub = make_stub(p.address());
+    for (int attempt = 0; attempt < 10 && id.empty(); ++attempt) {
+      std::string job;
+      if (!submit(*stub, sphere_sequence(60, 12), &job).ok()) continue;
+      const auto r = watch_job(*stub, job);
+      if (r.final_job.state() == v1::JOB_STATE_FAILED) id = job;
+    }
+    ASSERT_FALSE(id.empty()) << "no job failed on the full store:\n" << p.log();
+    EXPECT_EQ(get_job(*stub, id).error().code(), static_cast<int>(grpc::StatusCode::RESOURCE_EXHAUSTED));
+    // The state waited in memory, and the server wrote it once the log's space was given back.
+    const auto until = std::chrono::steady_clock::now() + 20s;
+    while (p.log().find("event=store_write_recovered job=" + id) == std::string::npos &&
+           std::chrono::steady_clock::now() < until) {
+      std::this_thread::sleep_for(50ms);
+    }
+    EXPECT_NE(p.log().find("event=store_write_failed job=" + id), std::string::npos) << p.log();
+    EXPECT_NE(p.log().find("event=store_write_recovered job=" + id), std::string::npos) << p.log();
+    p.kill_now();
+  }
+  // After a crash the job is as it was reported: FAILED, not resumed (and then perhaps SUCCEEDED).
+  ServerProcess p(dir, 1, {"--data-dir", data.string()});
+  ASSERT_GT(p.port(), 0) << p.log();
+  auto stub = make_stub(p.address());
+  EXPECT_EQ(get_job(*stub, id).state(), v1::JOB_STATE_FAILED) << p.log();
+  EXPECT_EQ(watch_job(*stub, id).final_job.state(), v1::JOB_STATE_FAILED);
+}
+
 TEST(DurableStore, RetentionRemovesTheOldestFinishedJobsByBytesThenByAge) {
   const fs::path dir = fresh_temp_dir("durable-retention");
   auto o = durable_options(dir);

@@ -38,13 +38,6 @@ std::string http_get(int port, const std::string& path) {
   return response;
 }
 
-// The value of one sample line `name{labels} value` (labels as printed), or -1.
-double sample(const std::string& text, const std::string& series) {
-  const auto at = text.find("\n" + series + " ");
-  if (at == std::string::npos) return -1;
-  return std::stod(text.substr(at + series.size() + 2));
-}
-
 // "SERVING" / "NOT_SERVING" from grpc.health.v1.Health/Check for the whole server.
 std::string health(const std::shared_ptr<grpc::Channel>& channel) {
   grpc::GenericStub stub(channel);
@@ -85,21 +78,45 @@ TEST(Observability, MetricsEndpointCountsJobsFramesStagesAndBytes) {
   const std::string response = http_get(port, "/metrics");
   ASSERT_NE(response.find("200 OK"), std::string::npos) << response.substr(0, 200);
   const std::string text = response.substr(response.find("\r\n\r\n") + 3);
-  EXPECT_EQ(sample(text, R"(surfacer_jobs_submitted_total{kind="isosurface"})"), 1);
-  EXPECT_EQ(sample(text, R"(surfacer_frames_total{kind="isosurface"})"), 3);
-  EXPECT_EQ(sample(text, R"(surfacer_jobs{state="succeeded"})"), 1);
-  EXPECT_EQ(sample(text, R"(surfacer_jobs{state="running"})"), 0);
-  EXPECT_EQ(sample(text, "surfacer_queue_depth"), 0);
-  EXPECT_EQ(sample(text, R"(surfacer_jobs_finished_total{kind="isosurface",state="succeeded"})"), 1);
-  EXPECT_EQ(sample(text, R"(surfacer_jobs_rejected_total{code="INVALID_ARGUMENT"})"), 1);
-  EXPECT_EQ(sample(text, "surfacer_stream_bytes_total"), static_cast<double>(streamed));
-  EXPECT_EQ(sample(text, "surfacer_frame_bytes_total"), static_cast<double>(streamed));
-  EXPECT_EQ(sample(text, "surfacer_serving"), 1);
+  EXPECT_EQ(metric_sample(text, R"(surfacer_jobs_submitted_total{kind="isosurface"})"), 1);
+  EXPECT_EQ(metric_sample(text, R"(surfacer_frames_total{kind="isosurface"})"), 3);
+  EXPECT_EQ(metric_sample(text, R"(surfacer_jobs{state="succeeded"})"), 1);
+  EXPECT_EQ(metric_sample(text, R"(surfacer_jobs{state="running"})"), 0);
+  EXPECT_EQ(metric_sample(text, "surfacer_queue_depth"), 0);
+  EXPECT_EQ(metric_sample(text, R"(surfacer_jobs_finished_total{kind="isosurface",state="succeeded"})"), 1);
+  EXPECT_EQ(metric_sample(text, R"(surfacer_jobs_rejected_total{code="INVALID_ARGUMENT"})"), 1);
+  EXPECT_EQ(metric_sample(text, "surfacer_stream_bytes_total"), static_cast<double>(streamed));
+  EXPECT_EQ(metric_sample(text, "surfacer_frame_bytes_total"), static_cast<double>(streamed));
+  EXPECT_EQ(metric_sample(text, "surfacer_serving"), 1);
   // One latency observation per frame and stage, e.g. the polygonizer's.
   const std::regex polygonize(R"re(surfacer_stage_seconds_count\{kind="isosurface",stage="([a-z_]+)"\} 3)re");
   EXPECT_TRUE(std::regex_search(text, polygonize)) << text;
   EXPECT_NE(text.find("# TYPE surfacer_stage_seconds histogram"), std::string::npos);
-  EXPECT_EQ(sample(text, R"(surfacer_frame_seconds_count{kind="isosurface"})"), 3);
+  EXPECT_EQ(metric_sample(text, R"(surfacer_frame_seconds_count{kind="isosurface"})"), 3);
+}
+
+TEST(Observability, JobTimesAndFrameSecondsHaveSubSecondResolution) {
+  LoopbackServer s;
+  std::vector<v1::Scene> scenes(2, scene_from_json(R"({"root": {"sphere": {"radius": 1}}})"));
+  std::string id;
+  ASSERT_TRUE(submit(*s.stub, isosurface_spec(scenes, 48), &id).ok());
+  const v1::Job job = watch_job(*s.stub, id).final_job;
+  ASSERT_EQ(job.state(), v1::JOB_STATE_SUCCEEDED);
+  // Whole seconds would leave every nanos field 0 (the odds of that by chance are nil).
+  EXPECT_NE(job.created().nanos() + job.started().nanos() + job.finished().nanos(), 0) << job.DebugString();
+  auto seconds = [](const google::protobuf::Timestamp& t) {
+    return static_cast<double>(t.seconds()) + 1e-9 * t.nanos();
+  };
+  const double run = seconds(job.finished()) - seconds(job.started());
+  EXPECT_GT(run, 0.0);
+  EXPECT_LT(run, 60.0);
+  EXPECT_LE(seconds(job.created()), seconds(job.started()));
+  // Two frames of a job that ran for a fraction of a second: their sum is a fraction of a second, not 0.
+  const std::string text = s.server->metrics_text();
+  EXPECT_EQ(metric_sample(text, R"(surfacer_frame_seconds_count{kind="isosurface"})"), 2);
+  const double sum = metric_sample(text, R"(surfacer_frame_seconds_sum{kind="isosurface"})");
+  EXPECT_GT(sum, 0.0) << text;
+  EXPECT_LT(sum, 2 * run + 1.0);
 }
 
 TEST(Observability, HealthIsNotServingWhileDraining) {

@@ -13,24 +13,6 @@
 namespace surfacer::testing {
 namespace {
 
-std::string upload(v1::Surfacer::Stub& stub, const std::string& bytes, v1::UploadResponse* response_out = nullptr) {
-  grpc::ClientContext context;
-  v1::UploadResponse response;
-  auto writer = stub.Upload(&context, &response);
-  for (std::size_t offset = 0; offset < bytes.size() || offset == 0; offset += 1 << 20) {
-    v1::UploadChunk chunk;
-    if (offset == 0) chunk.set_total_bytes(bytes.size());
-    chunk.set_data(bytes.substr(offset, 1 << 20));
-    EXPECT_TRUE(writer->Write(chunk));
-    if (bytes.empty()) break;
-  }
-  writer->WritesDone();
-  const auto status = writer->Finish();
-  EXPECT_TRUE(status.ok()) << status.error_message();
-  if (response_out) *response_out = response;
-  return response.upload_id();
-}
-
 std::string as_float32(const std::vector<Vec3>& points) {
   std::string bytes(points.size() * 3 * sizeof(float), '\0');
   auto* f = reinterpret_cast<float*>(bytes.data());

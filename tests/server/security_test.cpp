@@ -100,7 +100,19 @@ TEST(Security, EveryRpcNeedsAKnownToken) {
   EXPECT_EQ(status.error_code(), grpc::StatusCode::UNAUTHENTICATED);
   EXPECT_EQ(upload(*s.stub, "abc", "", nullptr).error_code(), grpc::StatusCode::UNAUTHENTICATED);
   EXPECT_EQ(watch_job(*s.stub, "j-0000000000000000").status.error_code(), grpc::StatusCode::UNAUTHENTICATED);
+  v1::ServerInfo info;
+  EXPECT_EQ(unary([&](grpc::ClientContext* c, const v1::GetServerInfoRequest& r,
+                      v1::ServerInfo* o) { return s.stub->GetServerInfo(c, r, o); },
+                  v1::GetServerInfoRequest(), &info, "")
+                .error_code(),
+            grpc::StatusCode::UNAUTHENTICATED);
   ASSERT_TRUE(submit(*s.stub, small_job(), &id, kBob).ok());
+  // The upload limit a tenant is told is what its stored-bytes quota leaves.
+  EXPECT_TRUE(unary([&](grpc::ClientContext* c, const v1::GetServerInfoRequest& r,
+                        v1::ServerInfo* o) { return s.stub->GetServerInfo(c, r, o); },
+                    v1::GetServerInfoRequest(), &info, kCarol)
+                  .ok());
+  EXPECT_EQ(info.limits().max_upload_bytes(), 4000);
 }
 
 TEST(Security, AnotherTenantCanNeitherWatchListNorCancelAJob) {

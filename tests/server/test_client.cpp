@@ -118,6 +118,24 @@ grpc::Status submit(v1::Surfacer::Stub& stub, const v1::JobSpec& spec, std::stri
   return status;
 }
 
+std::string upload(v1::Surfacer::Stub& stub, const std::string& bytes, v1::UploadResponse* response_out) {
+  grpc::ClientContext context;
+  v1::UploadResponse response;
+  auto writer = stub.Upload(&context, &response);
+  for (std::size_t offset = 0; offset < bytes.size() || offset == 0; offset += 1 << 20) {
+    v1::UploadChunk chunk;
+    if (offset == 0) chunk.set_total_bytes(bytes.size());
+    chunk.set_data(bytes.substr(offset, 1 << 20));
+    EXPECT_TRUE(writer->Write(chunk));
+    if (bytes.empty()) break;
+  }
+  writer->WritesDone();
+  const auto status = writer->Finish();
+  EXPECT_TRUE(status.ok()) << status.error_message();
+  if (response_out) *response_out = response;
+  return response.upload_id();
+}
+
 std::unique_ptr<v1::Surfacer::Stub> make_stub(const std::string& address) {
   return v1::Surfacer::NewStub(grpc::CreateChannel(address, grpc::InsecureChannelCredentials()));
 }
@@ -130,6 +148,12 @@ v1::Job get_job(v1::Surfacer::Stub& stub, const std::string& id, grpc::Status* s
   const grpc::Status s = stub.GetJob(&context, request, &job);
   if (status) *status = s;
   return job;
+}
+
+double metric_sample(const std::string& text, const std::string& series) {
+  const auto at = text.find("\n" + series + " ");
+  if (at == std::string::npos) return -1;
+  return std::stod(text.substr(at + series.size() + 2));
 }
 
 }  // namespace surfacer::testing

@@ -59,4 +59,10 @@ v1::Job get_job(v1::Surfacer::Stub& stub, const std::string& id, grpc::Status* s
 grpc::Status submit(v1::Surfacer::Stub& stub, const v1::JobSpec& spec, std::string* job_id,
                     const std::string& token = "");
 
+// The value of one sample line `name{labels} value` (labels as printed) of a Prometheus text exposition, or -1.
+double metric_sample(const std::string& text, const std::string& series);
+
+// Uploads `bytes` in chunks of 1 MiB and returns the upload id (a failed upload fails the test).
+std::string upload(v1::Surfacer::Stub& stub, const std::string& bytes, v1::UploadResponse* response_out = nullptr);
+
 }  // namespace surfacer::testing

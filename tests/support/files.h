@@ -1,4 +1,4 @@
-// Files for tests: a fresh scratch directory, whole files read and written as bytes, and lines counted.
+// Files for tests: a fresh scratch directory, whole files read and written as bytes, lines counted, gzip data.
 #pragma once
 
 #include <filesystem>
@@ -20,5 +20,8 @@ void write_file(const std::filesystem::path& path, const std::string& bytes);
 
 // The number of '\n' in `text`.
 int count_lines(const std::string& text);
+
+// `data` as one gzip member.
+std::string gzip(const std::string& data);
 
 }  // namespace surfacer::testing

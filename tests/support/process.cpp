@@ -9,6 +9,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <fstream>
 #include <thread>
 
 #include "tests/support/files.h"
@@ -96,13 +97,26 @@ void ChildProcess::signal(int sig) const {
   if (pid_ > 0 && !exited_) ::kill(pid_, sig);
 }
 
+std::optional<std::uint64_t> ChildProcess::peak_rss_bytes() const {
+  if (pid_ <= 0) return std::nullopt;
+  if (exited_) return peak_rss_;
+  std::ifstream status("/proc/" + std::to_string(pid_) + "/status");
+  std::string line;
+  while (std::getline(status, line)) {
+    if (line.rfind("VmHWM:", 0) == 0) return std::stoull(line.substr(6)) * 1024;  // "VmHWM:   12345 kB"
+  }
+  return std::nullopt;
+}
+
 std::optional<int> ChildProcess::poll() {
   if (pid_ <= 0) return -1;
   if (!exited_) {
     int status = 0;
-    if (::waitpid(pid_, &status, WNOHANG) != pid_) return std::nullopt;
+    rusage usage{};
+    if (::wait4(pid_, &status, WNOHANG, &usage) != pid_) return std::nullopt;
     exited_ = true;
     code_ = exit_code(status);
+    peak_rss_ = static_cast<std::uint64_t>(usage.ru_maxrss) * 1024;
   }
   return code_;
 }
@@ -129,6 +143,7 @@ std::ostream& operator<<(std::ostream& os, const ProcessResult& r) {
 ProcessResult finish(ChildProcess& child, std::chrono::milliseconds timeout) {
   ProcessResult r;
   r.code = child.wait(timeout);
+  r.peak_rss_bytes = child.peak_rss_bytes().value_or(0);
   r.out = read_file(child.out_path());
   r.err = read_file(child.err_path());
   return r;

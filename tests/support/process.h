@@ -41,11 +41,15 @@ class ChildProcess {
   // Exit code, 128 + signal when a signal ended it, or -1 after `timeout` (the child is then killed) or when it
   // never started.
   int wait(std::chrono::milliseconds timeout);
+  // Peak resident set size in bytes: VmHWM while the child runs, its rusage once it has exited normally; nullopt
+  // when it never started or was killed by wait()'s timeout.
+  std::optional<std::uint64_t> peak_rss_bytes() const;
 
  private:
   pid_t pid_ = -1;
   bool exited_ = false;
   int code_ = -1;
+  std::optional<std::uint64_t> peak_rss_;
   std::filesystem::path out_, err_;
 };
 
@@ -53,6 +57,7 @@ struct ProcessResult {
   int code = -1;
   std::string out;
   std::string err;
+  std::uint64_t peak_rss_bytes = 0;  // 0 when unknown
 };
 
 std::ostream& operator<<(std::ostream& os, const ProcessResult& r);

@@ -40,6 +40,10 @@ ServerProcess::~ServerProcess() { kill_now(); }
 
 std::string ServerProcess::log() const { return read_file(log_); }
 
+std::optional<std::uint64_t> ServerProcess::peak_rss_bytes() const {
+  return child_ ? child_->peak_rss_bytes() : std::nullopt;
+}
+
 void ServerProcess::kill_now() {
   if (!child_) return;
   child_->signal(SIGKILL);

@@ -8,6 +8,8 @@
 #include <unordered_map>
 #include <utility>
 
+#include "core/mesh/mesh_codec.h"
+
 namespace surfacer::testing {
 
 Mesh unit_cube() {
@@ -120,6 +122,30 @@ Mesh flipped_triangle() {
   Mesh m = icosphere(1);
   std::swap(m.triangles[0][1], m.triangles[0][2]);
   return m;
+}
+
+std::string draco_bomb(std::uint32_t faces) {
+  DracoOptions options;
+  options.speed = 5;  // edgebreaker, standard traversal
+  const std::string valid = encode_draco(icosphere(1), options);
+  // Header (11 bytes), traversal type (1), then varints: vertices, faces, a byte of attribute data, symbols,
+  // split symbols (Draco bitstream 2.2).
+  std::size_t at = 12;
+  auto varint_end = [&](std::size_t i) {
+    while (static_cast<unsigned char>(valid.at(i)) & 0x80) ++i;
+    return i + 1;
+  };
+  auto varint = [](std::uint32_t v) {
+    std::string out;
+    for (; v >= 0x80; v >>= 7) out.push_back(static_cast<char>((v & 0x7f) | 0x80));
+    out.push_back(static_cast<char>(v));
+    return out;
+  };
+  const std::size_t vertices_end = varint_end(at);
+  const std::size_t faces_end = varint_end(vertices_end);
+  const std::size_t symbols_end = varint_end(faces_end + 1);
+  std::string bomb = valid.substr(0, vertices_end) + varint(faces) + valid.at(faces_end) + varint(faces);
+  return bomb + valid.substr(symbols_end);
 }
 
 double max_distance_to_sphere(const Mesh& mesh, const Vec3& center, double radius) {

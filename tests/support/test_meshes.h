@@ -4,7 +4,9 @@
 #pragma once
 
 #include <algorithm>
+#include <cstdint>
 #include <optional>
+#include <string>
 
 #include "core/mesh/mesh.h"
 #include "core/scene/scene.h"
@@ -33,6 +35,11 @@ Mesh bowtie();
 Mesh double_tetrahedron();
 // icosphere(1) with triangle 0 reversed: closed and manifold but not oriented.
 Mesh flipped_triangle();
+
+// A Draco edgebreaker stream of icosphere(1) whose connectivity header declares `faces` triangles (and as many
+// traversal symbols) instead of 80: a decompression bomb of about 200 bytes, since Draco allocates its corner table
+// for the declared count (about 12 bytes per triangle) before it reads a symbol.
+std::string draco_bomb(std::uint32_t faces = 200'000'000);
 
 // --- Distances ---------------------------------------------------------------------------------------------------
 

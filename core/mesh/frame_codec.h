@@ -1,0 +1,56 @@
+// A frame's bytes in every codec the service speaks (docs/ALGORITHMS.md §5 "Frames"): one standard Draco mesh, Draco
+// pieces or meshoptimizer pieces (encoded and decoded in parallel, welded exactly; core/mesh/mesh_pieces.h), or
+// lossless PLY. Every codec but PLY puts the vertices on the job's quantization grid.
+#pragma once
+
+#include <cstddef>
+#include <string>
+#include <string_view>
+
+#include "core/mesh/mesh.h"
+#include "core/mesh/mesh_codec.h"
+#include "core/util/parallel.h"
+#include "core/util/run_control.h"
+
+namespace surfacer {
+
+enum class FrameCodec {
+  kDraco,        // one standard Draco mesh (what Debian's draco_decoder reads); the encoder runs on one thread
+  kDracoPieces,  // Draco pieces in a frame container: every core encodes, ~3 % larger than kDraco
+  kMeshopt,      // meshoptimizer pieces in a frame container: ~10x faster than Draco, ~3x larger
+  kPly,          // binary little-endian PLY with double-precision positions: lossless
+};
+
+// "draco", "draco-pieces", "meshopt", "ply".
+std::string_view frame_codec_name(FrameCodec codec);
+
+struct FrameCodecOptions {
+  FrameCodec codec = FrameCodec::kDraco;
+  // The quantization grid (bits, bounds) of every codec but PLY, and Draco's own settings (speed, normal bits);
+  // `normals` applies to every codec.
+  DracoOptions draco;
+  // Pieced codecs: at most this many triangles per piece (>= 1024); a frame up to this size is one piece. Smaller
+  // pieces spread over more cores and stop sooner on a cancel; larger ones compress a little better.
+  std::size_t max_piece_triangles = std::size_t{1} << 18;
+};
+
+// Throws InvalidInput naming the option (DracoOptions' names, "max_piece_triangles").
+void validate(const FrameCodecOptions& options);
+
+// The bytes of `mesh` in options.codec. Pieces are encoded as items of `executor` (their bytes do not depend on it)
+// and `control` is checked between them (Cancelled). Throws like encode_draco (bad mesh, vertices outside the
+// quantization box). A one-piece Draco or PLY frame is encoded on the calling thread, uninterruptibly.
+std::string encode_frame(const Mesh& mesh, const FrameCodecOptions& options, const Executor& executor,
+                         const RunControl& control = {});
+
+// The mesh of a frame's bytes in `codec`; pieces are decoded on `executor` and welded. Throws InvalidInput("frame")
+// when the bytes are not such a frame.
+Mesh decode_frame(std::string_view bytes, FrameCodec codec, const Executor& executor);
+
+// The frame as one standard Draco mesh, what Debian's draco_decoder reads (the CLI's frame_NNNN.drc): kDraco bytes
+// as they are; a pieced frame re-encoded from `decoded` (decode_frame of the same bytes) on the frame's own grid, so
+// its vertices are those of a kDraco frame of the job; a PLY frame on the mesh's own box with the default bits.
+// Runs Draco's encoder on the calling thread. Throws InvalidInput("frame") for bytes that are not such a frame.
+std::string to_standard_draco(std::string_view bytes, FrameCodec codec, const Mesh& decoded);
+
+}  // namespace surfacer
