@@ -1,9 +1,6 @@
 #include "bench/openvdb_reference.h"
 
-#ifdef SURFACER_HAVE_OPENVDB
-
 #include <openvdb/openvdb.h>
-#include <openvdb/tools/LevelSetFilter.h>
 #include <openvdb/tools/ParticlesToLevelSet.h>
 #include <openvdb/tools/VolumeToMesh.h>
 #include <tbb/global_control.h>
@@ -35,13 +32,12 @@ double seconds_since(std::chrono::steady_clock::time_point t0) {
 
 }  // namespace
 
-std::optional<std::string> openvdb_version() { return std::string(openvdb::getLibraryVersionString()); }
+std::string openvdb_version() { return openvdb::getLibraryVersionString(); }
 
-OpenVdbMesh openvdb_surface(std::span<const Vec3> particles, double radius, double voxel, int gaussian_passes,
-                            int threads) {
+OpenVdbSurface openvdb_surface(std::span<const Vec3> particles, double radius, double voxel, int threads) {
   openvdb::initialize();
   const tbb::global_control limit(tbb::global_control::max_allowed_parallelism, static_cast<std::size_t>(threads));
-  OpenVdbMesh out;
+  OpenVdbSurface out;
 
   auto t0 = std::chrono::steady_clock::now();
   const openvdb::FloatGrid::Ptr grid = openvdb::createLevelSet<openvdb::FloatGrid>(voxel, 3.0);
@@ -52,37 +48,22 @@ OpenVdbMesh openvdb_surface(std::span<const Vec3> particles, double radius, doub
   out.seconds_rasterize = seconds_since(t0);
 
   t0 = std::chrono::steady_clock::now();
-  if (gaussian_passes > 0) {
-    openvdb::tools::LevelSetFilter<openvdb::FloatGrid> filter(*grid);
-    for (int k = 0; k < gaussian_passes; ++k) filter.gaussian(1);
-  }
-  out.seconds_filter = seconds_since(t0);
-
-  t0 = std::chrono::steady_clock::now();
   std::vector<openvdb::Vec3s> points;
   std::vector<openvdb::Vec3I> triangles;
   std::vector<openvdb::Vec4I> quads;
   openvdb::tools::volumeToMesh(*grid, points, triangles, quads, /*isovalue=*/0.0, /*adaptivity=*/0.0);
   out.seconds_mesh = seconds_since(t0);
-  out.vertices = points.size();
-  out.triangles = triangles.size() + 2 * quads.size();
+
+  // volumeToMesh winds its faces clockwise seen from outside a level set: reversed here so the mesh is outward.
+  out.mesh.vertices.reserve(points.size());
+  for (const openvdb::Vec3s& p : points) out.mesh.vertices.emplace_back(p.x(), p.y(), p.z());
+  out.mesh.triangles.reserve(triangles.size() + 2 * quads.size());
+  for (const openvdb::Vec3I& t : triangles) out.mesh.triangles.push_back({t[0], t[2], t[1]});
+  for (const openvdb::Vec4I& q : quads) {
+    out.mesh.triangles.push_back({q[0], q[2], q[1]});
+    out.mesh.triangles.push_back({q[0], q[3], q[2]});
+  }
   return out;
 }
 
 }  // namespace surfacer::bench
-
-#else  // built without OpenVDB
-
-#include <stdexcept>
-
-namespace surfacer::bench {
-
-std::optional<std::string> openvdb_version() { return std::nullopt; }
-
-OpenVdbMesh openvdb_surface(std::span<const Vec3>, double, double, int, int) {
-  throw std::logic_error(kOpenVdbMissing);
-}
-
-}  // namespace surfacer::bench
-
-#endif

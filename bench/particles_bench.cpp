@@ -1,47 +1,40 @@
-// Particle surfacing benchmark, with OpenVDB side by side on the same particles in the same run. Data sets are
-// generated in-process. Every run (ours, and OpenVDB at each voxel size) happens in its own forked child that also
-// generates the particles, so its peak RSS (ru_maxrss) is its own and not the largest of everything before it.
+// Particle surfacing benchmark (docs/ALGORITHMS.md §1), with OpenVDB side by side on the same particles in the same
+// run. The data sets are generated here, deterministically. Every timed run (ours at each thread count, OpenVDB at
+// each voxel size and thread count) happens in a forked child that generates its own particles, so the peak RSS the
+// parent reads from wait4 is that run's alone.
 //
-//   particles_bench [--sets a,b] [--repeat N] [--threads T] [--write DIR] [--no-openvdb]
+//   particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness] [--threads T] [--write
+//   DIR]
 //
-//   --sets       default block500k,sheet,droplets,flatness; also block, block_fine, spray
-//   --repeat     repetitions of every timed run (default 3): wall = the fastest, cpu = the least user + sys time
-//   --threads    our threads and OpenVDB's TBB threads, the same count (default 0: hardware threads)
-//   --write DIR  our meshes as DIR/<set>.ply
-//   --no-openvdb our side only
+//   --particles N   block size (default 500000): the 100 x 50 x 100 block scaled by cbrt(N / 500000) per axis
+//   --repeat R      repetitions of each of our timed runs (default 3); seconds are the minimum over them
+//   --vdb-repeat R  the same for OpenVDB's runs (default 1: one takes 10-30 s on the 500 k block, 2 cores)
+//   --section S    block or flatness only (default both)
+//   --threads T    one thread count for both sides (default: 1, then 2)
+//   --write DIR    our meshes as DIR/<name>.ply
 //
-// Ours, per data set: surface_particles end to end (wall and cpu) and particles/s; the Draco encode of the result
-// (default DracoOptions, quantization box = the mesh's bounds) and surfacing + encode, since users receive frames
-// Draco-encoded; per stage seconds and a normalized cost: ns per particle for distance_field, ns per vertex for
-// polygonize, build_b and cleanup, ns per vertex per sweep for laplacian, bilaplacian and polish (vertices: the
-// Marching Tiles mesh these stages work on). Peak RSS is printed for the surfacing alone and with the encode.
-//
-// OpenVDB (bench/openvdb_reference.h): spheres of r_outer, the radius of our initial surface, through
-// ParticlesToLevelSet and volumeToMesh (isovalue 0, adaptivity 0), no smoothing, at two voxel sizes:
-//  (a) equal triangles: first voxel h = our Marching Tiles spacing, then voxel * sqrt(T_openvdb / T_ours) (triangle
-//      count ~ area / voxel^2), corrected once more when still more than 5% off. Also printed with 4 Gaussian
-//      LevelSetFilter passes (width 1) at that voxel.
-//  (b) equal sample density: the A15 lattice has kPointCount = 8 sites per cell of kCellEdge = 4 lattice units, and a
-//      lattice unit is h / kMeanEdge (kMeanEdge = 2.3047; core/polygonize/a15_table.h). A cell is therefore
-//      4 h / 2.3047 = 1.736 h wide and holds 8 / (1.736 h)^3 = 1.53 / h^3 samples; a cubic grid of voxel v holds
-//      1 / v^3, the same at v = h * 4 / (2.3047 * cbrt(8)) = 0.868 h.
-// The ratios are ours / OpenVDB, end to end surfacing without the encode (< 1: we are faster).
-//
-// Data sets:
-//   block500k   100 x 50 x 100 particles (x, y, z) on a cubic lattice of spacing d = 0.01, each coordinate jittered
-//               uniformly by +-0.1 d; r_inner = 0.6 d. Target: <= 2.0 s end to end on a 2-core machine, peak RSS
-//               <= 600 MB (printed beside the results).
-//   block       80^3 = 512,000 particles on a cubic lattice of spacing 1, each jittered uniformly by +-0.25 per axis;
-//               r_inner derived (mean nearest-neighbour distance, ~0.78), r_outer = 2 r_inner.
-//   block_fine  the same particles with r_inner = 0.5 (SPH "radius = half the spacing"): ~4x the triangles.
-//   sheet       a wavy sheet two particles thick, 250 x 250 x 2 = 125,000 particles, r_inner = 1.
-//   droplets    1,000 droplets of 8..64 particles (~36,000) scattered in a 400^3 box, r_inner = 0.8.
-//   spray       a 40^3 block plus 100,000 single particles scattered over a 1000^3 box (~164,000), r_inner = 0.6,
-//               min_particles_per_component = 5: we drop the spray before surfacing, OpenVDB meshes every particle.
-//   flatness    square-lattice slabs of 60 x 60 particles and 6 layers in z at spacing d = 0.01 (no jitter),
-//               r_inner / d in {0.45, 0.6, 0.7, 1.0}, r_outer = 2 r_inner. The top face: vertices above the top
-//               layer and at least 5 d inside the slab's sides; its RMS height deviation about the mean and its
-//               peak-to-peak, in % of r_inner (target: RMS < 0.5 %). Ours only: OpenVDB's spheres are not smoothed.
+// block: 100 x 50 x 100 particles (x, y, z) on a cubic lattice of spacing d = 0.01 from the origin, every coordinate
+// jittered uniformly by +-0.1 d (std::mt19937, seed 7), r_inner = 0.6 d, r_outer = 2 r_inner: the same block as the
+// issue's data/block500k.bin (another generator, so not the same bits). Printed per thread count:
+//  * per stage of ParticleSurfacingStats: seconds, and ns per vertex per sweep for the sweep stages (laplacian,
+//    bilaplacian, polish), ns per vertex (of the Marching Tiles mesh) for polygonize, build_b and cleanup, ns per
+//    particle for distance_field;
+//  * end to end, as a particles job produces a frame: surfacing with output_grid set plus the Draco encode at
+//    14 bits on the job's box (particle_sequence_box), in seconds (minimum of the repetitions of the sum), user + sys
+//    CPU seconds and particles/s; peak RSS of the child;
+//  * OpenVDB (bench/openvdb_reference.h): spheres of r_outer (the radius of our initial surface), ParticlesToLevelSet
+//    + volumeToMesh, no smoothing, its mesh Draco-encoded exactly as ours, at two voxel sizes:
+//     (a) equal triangles: the voxel whose mesh has about our triangle count (equal_triangles_voxel: at most 3
+//         meshings from voxel (b), stopping within 3 %; the count found is printed);
+//     (b) equal resolution: voxel = the mean edge length of our final mesh, i.e. the same sampling distance along the
+//         surface (their quads have sides of about one voxel, so their mesh has more triangles than ours);
+//    with the ratios ours / theirs of the surfacing, end-to-end and CPU seconds (< 1: we are faster; on a loaded
+//    machine the CPU ratio is the one to trust).
+// flatness: square-lattice slabs of 60 x 60 particles and 6 layers at d = 0.01, no jitter, r_outer = 2 d (eq. 3.5
+// holds for every ratio), r_inner / d in {0.45, 0.6, 0.7, 1.0}, at the largest thread count. Top face as in
+// tests/core/particle_surfacer_test.cpp: vertices above the top layer and at least 5 d inside the slab's sides. Its
+// RMS height deviation about the mean and peak to peak in % of r_inner (target: RMS < 0.5 %), the faithful fraction
+// at the end, the smallest angle and the slivers left; one run each. Fixed size: --particles does not apply.
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -51,6 +44,7 @@
 #include <charconv>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -58,7 +52,6 @@
 #include <limits>
 #include <optional>
 #include <random>
-#include <sstream>
 #include <string>
 #include <thread>
 #include <type_traits>
@@ -69,17 +62,26 @@
 #include "core/mesh/mesh_codec.h"
 #include "core/mesh/mesh_io.h"
 #include "core/particles/particle_surfacer.h"
-#include "core/polygonize/a15_table.h"
-#include "core/util/parallel.h"
 
 namespace surfacer {
 namespace {
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
+constexpr int kDracoBits = 14;
+constexpr std::size_t kBlockParticles = 100 * 50 * 100;
+constexpr double kBlockTargetSeconds = 2.0;  // end to end at 2 threads, issue target
+constexpr double kBlockTargetMb = 600.0;
 constexpr double kFlatnessTargetPercent = 0.5;
-constexpr int kGaussianPasses = 4;
-// Cubic voxel with the sample density of the A15 lattice of mean spacing h, over h (derivation at the top).
-const double kEqualDensityVoxel = a15::kCellEdge / (a15::kMeanEdge * std::cbrt(double{a15::kPointCount}));
+constexpr double kEqualTrianglesTolerance = 0.03;
+
+struct Config {
+  std::size_t particles = kBlockParticles;
+  int repeat = 3;
+  int vdb_repeat = 1;  // an OpenVDB run of the 500 k block takes 10-30 s
+  std::vector<int> threads = {1, 2};
+  bool block = true, flatness = true;
+  std::string write_dir;
+};
 
 // ---- Data sets ----------------------------------------------------------------------------------------------------
 
@@ -89,20 +91,13 @@ struct FlatTop {
 };
 
 struct DataSet {
-  std::vector<Vec3> particles;
+  std::string name;                              // for --write
+  std::function<std::vector<Vec3>()> particles;  // called in the child
   ParticleSurfacingOptions options;
   std::optional<FlatTop> top;  // flatness slabs only
 };
 
-// One surfacing run of the bench. `make` runs in the child, so the particles never live in the parent.
-struct Case {
-  std::string label;  // the --sets name; flatness cases add their r_inner / d
-  std::string note;
-  std::function<DataSet()> make;
-  std::optional<double> target_seconds, target_mb;
-};
-
-// n[0] x n[1] x n[2] particles on a cubic lattice of spacing d from the origin, x fastest, each coordinate jittered
+// n[0] x n[1] x n[2] particles on a cubic lattice of spacing d from the origin, x fastest, every coordinate jittered
 // uniformly by +-jitter.
 std::vector<Vec3> lattice(std::array<int, 3> n, double d, double jitter, std::uint32_t seed) {
   std::mt19937 rng(seed);
@@ -123,114 +118,47 @@ std::vector<Vec3> lattice(std::array<int, 3> n, double d, double jitter, std::ui
   return p;
 }
 
-DataSet sheet() {
-  DataSet s;
-  std::mt19937 rng(2);
-  std::uniform_real_distribution<double> u(-0.1, 0.1);
-  for (int layer = 0; layer < 2; ++layer) {
-    for (int j = 0; j < 250; ++j) {
-      for (int i = 0; i < 250; ++i) {
-        const double z = layer + 6.0 * std::sin(i / 40.0) * std::cos(j / 55.0);
-        s.particles.emplace_back(i + u(rng), j + u(rng), z + u(rng));
-      }
-    }
-  }
-  s.options.r_inner = 1.0;
-  return s;
+constexpr double kBlockSpacing = 0.01;
+
+// The block's particle counts per axis for about `particles` particles (100 x 50 x 100 at 500000).
+std::array<int, 3> block_dims(std::size_t particles) {
+  const double s = std::cbrt(static_cast<double>(particles) / static_cast<double>(kBlockParticles));
+  const auto axis = [s](int n) { return std::max(2, static_cast<int>(std::lround(n * s))); };
+  return {axis(100), axis(50), axis(100)};
 }
 
-DataSet droplets() {
+DataSet block_set(std::size_t particles) {
+  const std::array<int, 3> n = block_dims(particles);
   DataSet s;
-  std::mt19937 rng(3);
-  std::uniform_real_distribution<double> box(0.0, 400.0), u(-1.0, 1.0);
-  std::uniform_int_distribution<int> size(8, 64);
-  for (int d = 0; d < 1000; ++d) {
-    const Vec3 c(box(rng), box(rng), box(rng));
-    const int count = size(rng);
-    const double radius = 0.62 * std::cbrt(static_cast<double>(count));
-    for (int p = 0; p < count;) {
-      const Vec3 q(u(rng), u(rng), u(rng));
-      if (q.norm() > 1.0) continue;
-      s.particles.push_back(c + radius * q);
-      ++p;
-    }
-  }
-  s.options.r_inner = 0.8;
+  s.name = "block";
+  s.particles = [n] { return lattice(n, kBlockSpacing, 0.1 * kBlockSpacing, 7); };
+  s.options.r_inner = 0.6 * kBlockSpacing;
   return s;
-}
-
-DataSet spray() {
-  DataSet s;
-  s.particles = lattice({40, 40, 40}, 1.0, 0.2, 4);
-  std::mt19937 rng(5);
-  std::uniform_real_distribution<double> box(-500.0, 500.0);
-  for (int p = 0; p < 100000; ++p) s.particles.emplace_back(box(rng), box(rng), box(rng));
-  s.options.r_inner = 0.6;
-  s.options.min_particles_per_component = 5;
-  return s;
-}
-
-// The case of a --sets name other than flatness; nullopt for an unknown name.
-std::optional<Case> case_of(const std::string& name) {
-  if (name == "block500k") {
-    return Case{name, "100 x 50 x 100 lattice, d 0.01, jitter +-0.1 d, r_inner 0.6 d",
-                [] {
-                  DataSet s;
-                  s.particles = lattice({100, 50, 100}, 0.01, 0.001, 7);
-                  s.options.r_inner = 0.006;
-                  return s;
-                },
-                2.0, 600.0};
-  }
-  if (name == "block" || name == "block_fine") {
-    const bool fine = name == "block_fine";
-    return Case{name,
-                fine ? "80^3 lattice, jitter +-0.25, r_inner 0.5" : "80^3 lattice, jitter +-0.25, r_inner derived",
-                [fine] {
-                  DataSet s;
-                  s.particles = lattice({80, 80, 80}, 1.0, 0.25, 1);
-                  if (fine) {
-                    s.options.r_inner = 0.5;
-                  } else {
-                    s.options.derive_r_inner = true;
-                  }
-                  return s;
-                },
-                std::nullopt, std::nullopt};
-  }
-  if (name == "sheet") return Case{name, "250 x 250 x 2 wavy sheet, r_inner 1", sheet, std::nullopt, std::nullopt};
-  if (name == "droplets") {
-    return Case{name, "1000 droplets of 8..64 particles in a 400^3 box, r_inner 0.8", droplets, std::nullopt,
-                std::nullopt};
-  }
-  if (name == "spray") {
-    return Case{name, "40^3 block + 100k single particles over 1000^3, r_inner 0.6, min 5 per component", spray,
-                std::nullopt, std::nullopt};
-  }
-  return std::nullopt;
 }
 
 constexpr std::array<double, 4> kFlatnessRatios = {0.45, 0.6, 0.7, 1.0};  // r_inner / d
 
-Case flatness_case(double ratio) {
-  char label[32];
-  std::snprintf(label, sizeof label, "flatness_%.2g", ratio);
-  return Case{label, "",
-              [ratio] {
-                constexpr double d = 0.01;
-                constexpr int n = 60, layers = 6;
-                constexpr double inset = 5 * d;
-                DataSet s;
-                s.particles = lattice({n, n, layers}, d, 0.0, 8);
-                s.options.r_inner = ratio * d;
-                s.options.r_outer = 2.0 * ratio * d;
-                s.top = FlatTop{(layers - 1) * d, inset, (n - 1) * d - inset};
-                return s;
-              },
-              std::nullopt, std::nullopt};
+DataSet flatness_set(double ratio) {
+  constexpr double d = 0.01;
+  constexpr int n = 60, layers = 6;
+  constexpr double inset = 5 * d;
+  char name[32];
+  std::snprintf(name, sizeof name, "flatness_%.2f", ratio);
+  DataSet s;
+  s.name = name;
+  s.particles = [] { return lattice({n, n, layers}, d, 0.0, 8); };
+  s.options.r_inner = ratio * d;
+  s.options.r_outer = 2.0 * d;
+  s.top = FlatTop{(layers - 1) * d, inset, (n - 1) * d - inset};
+  return s;
 }
 
-// ---- Runs in a child process ----------------------------------------------------------------------------------------
+// The Draco box of a particles job over these particles (one frame, uniform radii).
+Aabb job_box(const std::vector<Vec3>& particles, const ParticleSurfacingOptions& options) {
+  return particle_sequence_box(Aabb::of(particles), 0.0, options.r_inner, options.r_outer, {}, std::nullopt);
+}
+
+// ---- Child processes ------------------------------------------------------------------------------------------------
 
 double cpu_seconds() {
   rusage ru{};
@@ -243,34 +171,18 @@ double seconds_since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
-// A child hands its result back as the bytes of a trivially copyable struct (same binary, same layout), followed by
-// the wall time of every repetition.
+// Runs `work` in a forked child, which hands its result back as the bytes of a trivially copyable struct (same
+// binary, same layout). The result and the child's peak RSS in MB, or nullopt when the child failed (it says why on
+// stderr). The parent starts no threads, so forking is safe.
 template <class T>
-std::string to_bytes(const T& value, const std::vector<double>& walls) {
-  static_assert(std::is_trivially_copyable_v<T>);
-  std::string out(reinterpret_cast<const char*>(&value), sizeof value);
-  out.append(reinterpret_cast<const char*>(walls.data()), walls.size() * sizeof(double));
-  return out;
-}
-
-template <class T>
-std::optional<T> from_bytes(const std::string& bytes, std::vector<double>& walls) {
-  if (bytes.size() < sizeof(T) || (bytes.size() - sizeof(T)) % sizeof(double) != 0) return std::nullopt;
+struct InChild {
   T value;
-  std::memcpy(&value, bytes.data(), sizeof value);
-  walls.resize((bytes.size() - sizeof(T)) / sizeof(double));
-  std::memcpy(walls.data(), bytes.data() + sizeof(T), walls.size() * sizeof(double));
-  return value;
-}
-
-struct ChildOutput {
-  std::string bytes;
   double peak_mb = 0.0;
 };
 
-// Runs `work` in a forked child; its bytes and the child's peak RSS, or nullopt when it failed (it says why on
-// stderr). The parent starts no threads, so forking is safe.
-std::optional<ChildOutput> in_child(const std::function<std::string()>& work) {
+template <class T>
+std::optional<InChild<T>> in_child(const std::function<T()>& work) {
+  static_assert(std::is_trivially_copyable_v<T>);
   int fd[2];
   if (pipe(fd) != 0) return std::nullopt;
   std::fflush(nullptr);
@@ -282,33 +194,70 @@ std::optional<ChildOutput> in_child(const std::function<std::string()>& work) {
   }
   if (pid == 0) {
     close(fd[0]);
-    int code = 0;
     try {
-      const std::string bytes = work();
-      for (std::size_t done = 0; done < bytes.size();) {
-        const ssize_t n = write(fd[1], bytes.data() + done, bytes.size() - done);
+      const T value = work();
+      const char* bytes = reinterpret_cast<const char*>(&value);
+      for (std::size_t done = 0; done < sizeof value;) {
+        const ssize_t n = write(fd[1], bytes + done, sizeof value - done);
         if (n <= 0) std::_Exit(3);
         done += static_cast<std::size_t>(n);
       }
     } catch (const std::exception& e) {
-      std::fprintf(stderr, "  child failed: %s\n", e.what());
-      code = 1;
+      std::fprintf(stderr, "particles_bench: child failed: %s\n", e.what());
+      std::_Exit(1);
     }
-    std::_Exit(code);
+    std::_Exit(0);
   }
   close(fd[1]);
-  ChildOutput out;
-  char buf[1 << 16];
-  for (ssize_t n; (n = read(fd[0], buf, sizeof buf)) > 0;) out.bytes.append(buf, static_cast<std::size_t>(n));
+  std::string bytes;
+  char buf[4096];
+  for (ssize_t n; (n = read(fd[0], buf, sizeof buf)) > 0;) bytes.append(buf, static_cast<std::size_t>(n));
   close(fd[0]);
   int status = 0;
   rusage ru{};
   if (wait4(pid, &status, 0, &ru) != pid || !WIFEXITED(status) || WEXITSTATUS(status) != 0) return std::nullopt;
+  if (bytes.size() != sizeof(T)) return std::nullopt;
+  InChild<T> out;
+  std::memcpy(&out.value, bytes.data(), sizeof(T));
   out.peak_mb = static_cast<double>(ru.ru_maxrss) / 1024.0;
   return out;
 }
 
-// RMS about the mean and peak-to-peak of z over the top-face vertices (scene units).
+// What both sides report about a mesh.
+struct MeshFacts {
+  std::size_t vertices = 0, triangles = 0;
+  int components = 0;
+  bool closed_manifold = false, outward = false;
+  double min_angle = 0.0, area = 0.0, mean_edge = 0.0;
+  std::uint64_t hash = 0;  // of the vertex bytes and triangles: equal meshes for 1 and 2 threads
+};
+
+MeshFacts facts_of(const Mesh& mesh) {
+  const MeshReport r = check_mesh(mesh);
+  MeshFacts f;
+  f.vertices = mesh.vertices.size();
+  f.triangles = mesh.triangles.size();
+  f.components = r.components;
+  f.closed_manifold = r.closed && r.edge_manifold && r.vertex_manifold && r.oriented;
+  f.outward = r.volume > 0.0;
+  f.min_angle = r.min_angle_degrees;
+  f.area = r.area;
+  double sum = 0.0;
+  for (const Triangle& t : mesh.triangles) {
+    for (int k = 0; k < 3; ++k) sum += (mesh.vertices[t[k]] - mesh.vertices[t[(k + 1) % 3]]).norm();
+  }
+  f.mean_edge = mesh.triangles.empty() ? 0.0 : sum / (3.0 * static_cast<double>(mesh.triangles.size()));
+  std::uint64_t h = 1469598103934665603ull;  // FNV-1a
+  const auto mix = [&h](const void* data, std::size_t size) {
+    for (std::size_t i = 0; i < size; ++i) h = (h ^ static_cast<const unsigned char*>(data)[i]) * 1099511628211ull;
+  };
+  mix(mesh.vertices.data(), mesh.vertices.size() * sizeof(Vec3));
+  mix(mesh.triangles.data(), mesh.triangles.size() * sizeof(Triangle));
+  f.hash = h;
+  return f;
+}
+
+// RMS about the mean and peak to peak of z over the top-face vertices (scene units).
 struct Flatness {
   std::size_t vertices = 0;
   double rms = 0.0, peak_to_peak = 0.0;
@@ -335,277 +284,310 @@ Flatness flatness(const Mesh& mesh, const FlatTop& top) {
   return f;
 }
 
+// Seconds of one side's run: the fastest repetition of surfacing + encode, and its parts.
+struct Timing {
+  double surface = kInf, encode = kInf, end_to_end = kInf, cpu = kInf;
+};
+
 struct OursResult {
   std::size_t particles = 0;
   ParticleSurfacingStats stats;  // of the fastest repetition
-  double wall = kInf, cpu = kInf, encode = kInf;
+  Timing time;
   std::size_t draco_bytes = 0;
-  double surfacing_peak_mb = 0.0;  // before the encode
-  bool closed = false, manifold = false;
-  int components = 0;
-  int laplacian_sweeps = 0, bilaplacian_sweeps = 0, polish_sweeps = 0;  // the options the set ran with
-  Flatness top;                                                         // flatness slabs only
+  MeshFacts mesh;
+  Flatness top;  // flatness slabs only
+  int laplacian_sweeps = 0, bilaplacian_sweeps = 0, polish_sweeps = 0;
 };
 
-std::string run_ours(const Case& c, int repeat, int threads, const std::string& write_dir) {
-  DataSet set = c.make();
-  set.options.threads = threads;
+OursResult run_ours(const DataSet& set, int threads, int repeat, const std::string& write_dir) {
+  const std::vector<Vec3> particles = set.particles();
+  ParticleSurfacingOptions options = set.options;
+  options.threads = threads;
+  const Aabb box = job_box(particles, options);
+  options.output_grid = QuantizationGrid::of(box, kDracoBits);
+  DracoOptions draco;
+  draco.quantization_bits = kDracoBits;
+  draco.quantization_bounds = box;
+
   OursResult r;
-  r.particles = set.particles.size();
-  r.laplacian_sweeps = set.options.laplacian_sweeps;
-  r.bilaplacian_sweeps = set.options.bilaplacian_sweeps;
-  r.polish_sweeps = set.options.polish_sweeps;
-  std::vector<double> walls;
+  r.particles = particles.size();
+  r.laplacian_sweeps = options.laplacian_sweeps;
+  r.bilaplacian_sweeps = options.bilaplacian_sweeps;
+  r.polish_sweeps = options.polish_sweeps;
   Mesh mesh;
   for (int k = 0; k < repeat; ++k) {
     mesh = {};  // the previous mesh must not add to this run's peak
     ParticleSurfacingStats stats;
     const double c0 = cpu_seconds();
     const auto t0 = std::chrono::steady_clock::now();
-    mesh = surface_particles(set.particles, {}, set.options, {}, &stats);
-    walls.push_back(seconds_since(t0));
-    r.cpu = std::min(r.cpu, cpu_seconds() - c0);
-    if (walls.back() < r.wall) {
-      r.wall = walls.back();
+    mesh = surface_particles(particles, {}, options, {}, &stats);
+    const double surface = seconds_since(t0);
+    const auto t1 = std::chrono::steady_clock::now();
+    r.draco_bytes = encode_draco(mesh, draco).size();
+    const double encode = seconds_since(t1);
+    r.time.cpu = std::min(r.time.cpu, cpu_seconds() - c0);
+    if (surface + encode < r.time.end_to_end) {
+      r.time = {surface, encode, surface + encode, r.time.cpu};
       r.stats = stats;
     }
   }
-  rusage ru{};
-  getrusage(RUSAGE_SELF, &ru);
-  r.surfacing_peak_mb = static_cast<double>(ru.ru_maxrss) / 1024.0;
-  DracoOptions draco;
-  draco.quantization_bounds = Aabb::of(mesh.vertices);
-  for (int k = 0; k < repeat; ++k) {
-    const auto t0 = std::chrono::steady_clock::now();
-    r.draco_bytes = encode_draco(mesh, draco).size();
-    r.encode = std::min(r.encode, seconds_since(t0));
-  }
-  const MeshReport report = check_mesh(mesh);
-  r.closed = report.closed;
-  r.manifold = report.edge_manifold && report.vertex_manifold;
-  r.components = report.components;
+  r.mesh = facts_of(mesh);
   if (set.top) r.top = flatness(mesh, *set.top);
-  if (!write_dir.empty()) write_mesh(write_dir + "/" + c.label + ".ply", mesh);
-  return to_bytes(r, walls);
+  if (!write_dir.empty()) write_mesh(write_dir + "/" + set.name + "_t" + std::to_string(threads) + ".ply", mesh);
+  return r;
 }
 
 struct VdbResult {
-  bench::OpenVdbMesh mesh;  // of the fastest repetition
-  double wall = kInf, cpu = kInf;
+  Timing time;
+  double seconds_rasterize = 0.0, seconds_mesh = 0.0;  // of the fastest repetition
+  std::size_t particles_too_small = 0;
+  std::size_t draco_bytes = 0;
+  MeshFacts mesh;
 };
 
-std::string run_openvdb(const Case& c, double radius, double voxel, int gaussian_passes, int repeat, int threads) {
-  const DataSet set = c.make();
+VdbResult run_openvdb(const DataSet& set, double radius, double voxel, int threads, int repeat) {
+  const std::vector<Vec3> particles = set.particles();
+  DracoOptions draco;
+  draco.quantization_bits = kDracoBits;
+  draco.quantization_bounds = job_box(particles, set.options);
   VdbResult r;
-  std::vector<double> walls;
+  Mesh mesh;
   for (int k = 0; k < repeat; ++k) {
+    mesh = {};
     const double c0 = cpu_seconds();
     const auto t0 = std::chrono::steady_clock::now();
-    const bench::OpenVdbMesh mesh = bench::openvdb_surface(set.particles, radius, voxel, gaussian_passes, threads);
-    walls.push_back(seconds_since(t0));
-    r.cpu = std::min(r.cpu, cpu_seconds() - c0);
-    if (walls.back() < r.wall) {
-      r.wall = walls.back();
-      r.mesh = mesh;
+    bench::OpenVdbSurface out = bench::openvdb_surface(particles, radius, voxel, threads);
+    const double surface = seconds_since(t0);
+    const auto t1 = std::chrono::steady_clock::now();
+    r.draco_bytes = encode_draco(out.mesh, draco).size();
+    const double encode = seconds_since(t1);
+    r.time.cpu = std::min(r.time.cpu, cpu_seconds() - c0);
+    if (surface + encode < r.time.end_to_end) {
+      r.time = {surface, encode, surface + encode, r.time.cpu};
+      r.seconds_rasterize = out.seconds_rasterize;
+      r.seconds_mesh = out.seconds_mesh;
+      r.particles_too_small = out.particles_too_small;
     }
+    mesh = std::move(out.mesh);
   }
-  return to_bytes(r, walls);
+  r.mesh = facts_of(mesh);
+  return r;
 }
 
-// ---- The parent: runs and prints ------------------------------------------------------------------------------------
-
-struct Config {
-  int repeat = 3;
-  int threads = 0;  // as given; resolve_threads(threads) for both sides
-  std::string write_dir;
-  bool openvdb = true;
+// The voxel whose OpenVDB mesh has about `triangles` triangles, in at most kSearchTries meshings starting from
+// `voxel`: first rescaled by sqrt(T_theirs / T_ours) (triangles ~ area / voxel^2), then by the secant of log T over
+// log voxel through the last two tries, since the count of a bumpy sphere union falls faster than 1 / voxel^2 where
+// the bumps stop being resolved. The try closest to `triangles`.
+struct VoxelSearch {
+  double voxel = 0.0;
+  std::size_t triangles = 0;
+  int tries = 0;
 };
 
-template <class T>
-struct Measured {
-  T result;
-  std::vector<double> walls;
-  double peak_mb = 0.0;
-};
+constexpr int kSearchTries = 3;
 
-template <class T>
-std::optional<Measured<T>> measure(const std::function<std::string()>& work) {
-  const std::optional<ChildOutput> out = in_child(work);
-  if (!out) return std::nullopt;
-  Measured<T> m;
-  const std::optional<T> value = from_bytes<T>(out->bytes, m.walls);
-  if (!value) return std::nullopt;
-  m.result = *value;
-  m.peak_mb = out->peak_mb;
-  return m;
+VoxelSearch equal_triangles_voxel(const DataSet& set, double radius, double voxel, std::size_t triangles, int threads) {
+  const std::vector<Vec3> particles = set.particles();
+  const double target = static_cast<double>(triangles);
+  VoxelSearch best;
+  double log_v0 = 0.0, log_t0 = 0.0;
+  for (int tries = 1; tries <= kSearchTries; ++tries) {
+    const std::size_t count = bench::openvdb_surface(particles, radius, voxel, threads).mesh.triangles.size();
+    if (count == 0) break;
+    const double error = std::abs(std::log(static_cast<double>(count) / target));
+    if (tries == 1 || error < std::abs(std::log(static_cast<double>(best.triangles) / target))) {
+      best.voxel = voxel;
+      best.triangles = count;
+    }
+    best.tries = tries;
+    if (error <= std::log1p(kEqualTrianglesTolerance)) break;
+    const double log_v = std::log(voxel), log_t = std::log(static_cast<double>(count));
+    double slope = -2.0;
+    if (tries > 1 && log_v != log_v0) slope = std::clamp((log_t - log_t0) / (log_v - log_v0), -8.0, -1.0);
+    log_v0 = log_v;
+    log_t0 = log_t;
+    voxel = std::exp(log_v + (std::log(target) - log_t) / slope);
+  }
+  return best;
 }
+
+// ---- Printing -------------------------------------------------------------------------------------------------------
 
 double ns_per(double seconds, double count) { return count > 0 ? 1e9 * seconds / count : 0.0; }
 
-std::string wall_list(const std::vector<double>& walls) {
-  std::string s;
-  char buf[32];
-  for (std::size_t k = 0; k < walls.size(); ++k) {
-    std::snprintf(buf, sizeof buf, "%s%.3f", k ? ", " : "", walls[k]);
-    s += buf;
-  }
-  return s;
-}
-
-void print_ours(const Case& c, const Measured<OursResult>& m) {
-  const OursResult& r = m.result;
-  const ParticleSurfacingStats& s = r.stats;
-  std::printf("%s  %s\n", c.label.c_str(), c.note.c_str());
-  std::printf("  particles %zu (used %zu, %zu clusters dropped)  r_inner %.4g r_outer %.4g spacing %.4g\n", r.particles,
-              s.particles_used, s.components_dropped, s.r_inner, s.r_outer, s.spacing);
-  std::printf(
-      "  mesh: %zu vertices, %zu triangles, %d components, closed %s, manifold %s (Marching Tiles: %zu vertices, "
-      "min valence %d)\n",
-      s.vertices, s.triangles, r.components, r.closed ? "yes" : "NO", r.manifold ? "yes" : "NO", s.initial_vertices,
-      s.initial_min_valence);
-  std::printf("  end to end: wall %.3f s (best of %s), cpu %.3f s -> %.0f particles/s", r.wall,
-              wall_list(m.walls).c_str(), r.cpu, static_cast<double>(r.particles) / r.wall);
-  if (c.target_seconds) std::printf("  [target <= %.1f s on 2 cores]", *c.target_seconds);
-  std::printf("\n  Draco encode %.3f s (%.2f MB, default options, box = mesh bounds); surfacing + encode %.3f s\n",
-              r.encode, static_cast<double>(r.draco_bytes) / 1e6, r.wall + r.encode);
-  std::printf("  peak RSS %.0f MB surfacing, %.0f MB with the encode", r.surfacing_peak_mb, m.peak_mb);
-  if (c.target_mb) std::printf("  [target <= %.0f MB]", *c.target_mb);
-  std::printf("\n");
-
-  // Every stage after distance_field works on the Marching Tiles mesh.
-  const auto vertices = static_cast<double>(s.initial_vertices);
-  const auto particles = static_cast<double>(r.particles);
-  struct Row {
-    const char* stage;
-    double seconds, count;
-    std::string per;
+// Per stage, one pair of columns (seconds, ns per unit) per thread count.
+void print_stages(const std::vector<int>& threads, const std::vector<InChild<OursResult>>& runs) {
+  struct Stage {
+    const char* name;
+    double ParticleSurfacingStats::*seconds;
+    int OursResult::*sweeps;  // nullptr: not a sweep stage
+    const char* per;
   };
-  const auto sweeps = [](int n) { return "vertex x sweep (" + std::to_string(n) + " sweeps)"; };
-  const Row rows[] = {
-      {"distance_field", s.seconds_distance_field, particles, "particle"},
-      {"polygonize", s.seconds_polygonize, vertices, "vertex"},
-      {"laplacian", s.seconds_laplacian, vertices * r.laplacian_sweeps, sweeps(r.laplacian_sweeps)},
-      {"build_b", s.seconds_build_b, vertices, "vertex"},
-      {"bilaplacian", s.seconds_bilaplacian, vertices * r.bilaplacian_sweeps, sweeps(r.bilaplacian_sweeps)},
-      {"polish", s.seconds_polish, vertices * r.polish_sweeps, sweeps(r.polish_sweeps)},
-      {"cleanup", s.seconds_cleanup, vertices, "vertex"},
-      {"total", s.seconds_total, particles, "particle"},
+  const Stage stages[] = {
+      {"distance_field", &ParticleSurfacingStats::seconds_distance_field, nullptr, "particle"},
+      {"polygonize", &ParticleSurfacingStats::seconds_polygonize, nullptr, "vertex"},
+      {"laplacian", &ParticleSurfacingStats::seconds_laplacian, &OursResult::laplacian_sweeps, "vertex per sweep"},
+      {"build_b", &ParticleSurfacingStats::seconds_build_b, nullptr, "vertex"},
+      {"bilaplacian", &ParticleSurfacingStats::seconds_bilaplacian, &OursResult::bilaplacian_sweeps,
+       "vertex per sweep"},
+      {"polish", &ParticleSurfacingStats::seconds_polish, &OursResult::polish_sweeps, "vertex per sweep"},
+      {"erosion", &ParticleSurfacingStats::seconds_erosion, nullptr, "vertex"},
+      {"cleanup", &ParticleSurfacingStats::seconds_cleanup, nullptr, "vertex"},
+      {"surface total", &ParticleSurfacingStats::seconds_total, nullptr, "particle"},
   };
-  std::printf("  %-16s %9s %10s  per\n", "stage (fastest)", "seconds", "ns");
-  for (const Row& row : rows) {
-    std::printf("  %-16s %9.3f %10.1f  %s\n", row.stage, row.seconds, ns_per(row.seconds, row.count), row.per.c_str());
+  std::printf("  %-15s %6s", "stage", "sweeps");
+  for (const int t : threads) std::printf("  %9s %9s", (std::to_string(t) + "T s").c_str(), "ns");
+  std::printf("  ns per\n");
+  for (const Stage& stage : stages) {
+    const OursResult& first = runs.front().value;
+    const int sweeps = stage.sweeps ? first.*stage.sweeps : 1;
+    std::printf("  %-15s %6s", stage.name, stage.sweeps ? std::to_string(sweeps).c_str() : "");
+    for (const InChild<OursResult>& run : runs) {
+      const OursResult& r = run.value;
+      const double seconds = r.stats.*stage.seconds;
+      const bool per_particle = std::strcmp(stage.per, "particle") == 0;
+      // Every stage after distance_field works on the Marching Tiles mesh.
+      const double count =
+          per_particle ? static_cast<double>(r.particles) : static_cast<double>(r.stats.initial_vertices) * sweeps;
+      std::printf("  %9.3f %9.1f", seconds, ns_per(seconds, count));
+    }
+    std::printf("  %s\n", stage.per);
   }
+}
+
+void print_row_header() {
+  std::printf("  %-28s %2s %8s %7s %9s %7s %7s %7s %7s %8s %5s %8s %7s %7s\n", "", "T", "voxel", "voxel/h", "triangles",
+              "surface", "encode", "e2e s", "cpu s", "Mpart/s", "MB", "surf o/t", "e2e o/t", "cpu o/t");
+}
+
+void print_row(const char* label, int threads, std::optional<double> voxel, double spacing, std::size_t particles,
+               const Timing& t, const MeshFacts& mesh, double peak_mb, const Timing* ours) {
+  char v[16] = "", vh[16] = "", surf_ratio[16] = "", e2e_ratio[16] = "", cpu_ratio[16] = "";
+  if (voxel) {
+    std::snprintf(v, sizeof v, "%.4g", *voxel);
+    std::snprintf(vh, sizeof vh, "%.3f", *voxel / spacing);
+  }
+  if (ours) {
+    std::snprintf(surf_ratio, sizeof surf_ratio, "%.2f", ours->surface / t.surface);
+    std::snprintf(e2e_ratio, sizeof e2e_ratio, "%.2f", ours->end_to_end / t.end_to_end);
+    std::snprintf(cpu_ratio, sizeof cpu_ratio, "%.2f", ours->cpu / t.cpu);
+  }
+  std::printf("  %-28s %2d %8s %7s %9zu %7.3f %7.3f %7.3f %7.3f %8.3f %5.0f %8s %7s %7s\n", label, threads, v, vh,
+              mesh.triangles, t.surface, t.encode, t.end_to_end, t.cpu,
+              1e-6 * static_cast<double>(particles) / t.end_to_end, peak_mb, surf_ratio, e2e_ratio, cpu_ratio);
+}
+
+bool bench_block(const Config& cfg) {
+  const DataSet set = block_set(cfg.particles);
+  const std::array<int, 3> n = block_dims(cfg.particles);
+  std::vector<InChild<OursResult>> ours;
+  for (const int t : cfg.threads) {
+    const auto run = in_child<OursResult>([&] { return run_ours(set, t, cfg.repeat, cfg.write_dir); });
+    if (!run) {
+      std::printf("block: our run at %d threads FAILED\n", t);
+      return false;
+    }
+    ours.push_back(*run);
+  }
+  const OursResult& o = ours.front().value;
+  const ParticleSurfacingStats& s = o.stats;
   std::printf(
-      "  faithful %.4f%% after the constrained sweeps, %.4f%% at the end (max violation %.3g); slivers: %lld found, "
-      "%lld flips, %lld collapses, %lld left\n",
-      100.0 * s.faithful_after_constrained, 100.0 * s.faithful_after_polish, s.max_violation_after_polish,
-      static_cast<long long>(s.slivers_found), static_cast<long long>(s.sliver_flips),
-      static_cast<long long>(s.sliver_collapses), static_cast<long long>(s.slivers_left));
-}
-
-// One OpenVDB run at `voxel`, in a child; prints why when it fails.
-std::optional<Measured<VdbResult>> openvdb_run(const Case& c, const Config& cfg, double radius, double voxel,
-                                               int gaussian_passes) {
-  auto m = measure<VdbResult>(
-      [&] { return run_openvdb(c, radius, voxel, gaussian_passes, cfg.repeat, resolve_threads(cfg.threads)); });
-  if (!m) std::printf("    OpenVDB at voxel %.4g FAILED\n", voxel);
-  return m;
-}
-
-void print_openvdb_row(const char* label, double voxel, double spacing, const Measured<VdbResult>& m,
-                       const OursResult& ours) {
-  const VdbResult& r = m.result;
-  std::printf("    %-24s %8.4g %6.3f %7.3f %7.3f %7.3f %7.3f %7.3f %10zu %9zu %6.0f %6.2f %5.2f\n", label, voxel,
-              voxel / spacing, r.wall, r.cpu, r.mesh.seconds_rasterize, r.mesh.seconds_filter, r.mesh.seconds_mesh,
-              r.mesh.triangles, r.mesh.vertices, m.peak_mb, ours.wall / r.wall, ours.cpu / r.cpu);
-  if (r.mesh.particles_too_small > 0) {
-    std::printf("      (%zu particles skipped by ParticlesToLevelSet: radius below 1.5 voxels)\n",
-                r.mesh.particles_too_small);
-  }
-}
-
-void compare_openvdb(const Case& c, const Config& cfg, const OursResult& ours) {
-  const ParticleSurfacingStats& s = ours.stats;
-  if (s.triangles == 0) {
-    std::printf("  OpenVDB: skipped (our mesh is empty)\n");
-    return;
-  }
+      "block  %d x %d x %d = %zu particles, d %.3g, jitter +-0.1 d (seed 7), r_inner %.4g (0.6 d), r_outer %.4g\n",
+      n[0], n[1], n[2], o.particles, kBlockSpacing, s.r_inner, s.r_outer);
   std::printf(
-      "  OpenVDB %s: spheres of r_outer %.4g -> ParticlesToLevelSet -> volumeToMesh (isovalue 0, adaptivity 0), "
-      "%d TBB threads\n",
-      bench::openvdb_version()->c_str(), s.r_outer, resolve_threads(cfg.threads));
+      "  ours: Marching Tiles spacing h %.4g -> %zu vertices; final %zu vertices, %zu triangles, %d components, "
+      "closed manifold oriented %s, mean edge %.4g (%.3f h)\n",
+      s.spacing, s.initial_vertices, o.mesh.vertices, o.mesh.triangles, o.mesh.components,
+      o.mesh.closed_manifold ? "yes" : "NO", o.mesh.mean_edge, o.mesh.mean_edge / s.spacing);
+  std::printf("        faithful at the end %.4f %%, min angle %.2f deg, slivers left %lld, Draco %.2f MB",
+              100.0 * s.faithful_after_polish, o.mesh.min_angle, static_cast<long long>(s.slivers_left),
+              1e-6 * static_cast<double>(o.draco_bytes));
+  bool same = true;
+  for (const auto& run : ours) same = same && run.value.mesh.hash == o.mesh.hash;
+  std::printf("%s\n",
+              ours.size() > 1 ? (same ? ", same mesh at every thread count" : ", MESH DIFFERS ACROSS THREADS") : "");
+  print_stages(cfg.threads, ours);
 
-  // (a) Triangle count ~ area / voxel^2: rescale by the square root of the count ratio until within 5%.
-  double voxel = s.spacing;
-  std::optional<Measured<VdbResult>> equal;
-  std::string trail;
-  for (int step = 0; step < 3; ++step) {
-    equal = openvdb_run(c, cfg, s.r_outer, voxel, 0);
-    if (!equal) return;
-    const double ratio = static_cast<double>(equal->result.mesh.triangles) / static_cast<double>(s.triangles);
-    char buf[96];
-    std::snprintf(buf, sizeof buf, "%svoxel %.4g -> %zu (%+.1f%%)", step ? ", " : "", voxel,
-                  equal->result.mesh.triangles, 100.0 * (ratio - 1.0));
-    trail += buf;
-    if (std::abs(ratio - 1.0) <= 0.05 || ratio == 0.0 || step == 2) break;
-    voxel *= std::sqrt(ratio);
-  }
-  std::printf("    equal triangles (ours %zu): %s\n", s.triangles, trail.c_str());
-  const double equal_voxel = voxel;
-  const auto smoothed = openvdb_run(c, cfg, s.r_outer, equal_voxel, kGaussianPasses);
-  const double density_voxel = kEqualDensityVoxel * s.spacing;
-  const auto dense = openvdb_run(c, cfg, s.r_outer, density_voxel, 0);
-
-  std::printf("    %-24s %8s %6s %7s %7s %7s %7s %7s %10s %9s %6s %12s\n", "", "voxel", "/h", "wall s", "cpu s",
-              "raster", "filter", "mesh", "triangles", "vertices", "MB", "ours/theirs");
-  std::printf("    %-24s %8.4g %6.3f %7.3f %7.3f %7s %7s %7s %10zu %9zu %6.0f %6s %5s\n", "ours", s.spacing, 1.0,
-              ours.wall, ours.cpu, "", "", "", s.triangles, s.vertices, ours.surfacing_peak_mb, "wall", "cpu");
-  print_openvdb_row("(a) equal triangles", equal_voxel, s.spacing, *equal, ours);
-  if (smoothed) print_openvdb_row("(a) + 4 Gaussian passes", equal_voxel, s.spacing, *smoothed, ours);
-  if (dense) print_openvdb_row("(b) equal sample density", density_voxel, s.spacing, *dense, ours);
-}
-
-bool bench_set(const Case& c, const Config& cfg) {
-  const auto ours = measure<OursResult>([&] { return run_ours(c, cfg.repeat, cfg.threads, cfg.write_dir); });
-  if (!ours) {
-    std::printf("%s FAILED\n\n", c.label.c_str());
+  const int max_threads = *std::max_element(cfg.threads.begin(), cfg.threads.end());
+  const double radius = s.r_outer;
+  std::printf(
+      "  end to end = surface (output_grid on) + Draco encode at %d bits on the job's box; OpenVDB %s: spheres "
+      "of r_outer, ParticlesToLevelSet + volumeToMesh, no smoothing, Draco-encoded the same way\n",
+      kDracoBits, bench::openvdb_version().c_str());
+  const auto search = in_child<VoxelSearch>(
+      [&] { return equal_triangles_voxel(set, radius, o.mesh.mean_edge, o.mesh.triangles, max_threads); });
+  if (!search) {
+    std::printf("  OpenVDB voxel search FAILED\n");
     return false;
   }
-  print_ours(c, *ours);
-  if (!cfg.openvdb) {
-    std::printf("  OpenVDB: off (--no-openvdb)\n");
-  } else if (!bench::openvdb_version()) {
-    std::printf("  %s\n", bench::kOpenVdbMissing);
-  } else {
-    compare_openvdb(c, cfg, ours->result);
+  const double voxels[2] = {search->value.voxel, o.mesh.mean_edge};
+  const char* labels[2] = {"OpenVDB (a) equal triangles", "OpenVDB (b) voxel = our edge"};
+  print_row_header();
+  bool ok = true;
+  for (std::size_t k = 0; k < cfg.threads.size(); ++k) {
+    const int t = cfg.threads[k];
+    const OursResult& r = ours[k].value;
+    print_row("ours", t, std::nullopt, s.spacing, r.particles, r.time, r.mesh, ours[k].peak_mb, nullptr);
+    for (int v = 0; v < 2; ++v) {
+      const auto vdb = in_child<VdbResult>([&] { return run_openvdb(set, radius, voxels[v], t, cfg.vdb_repeat); });
+      if (!vdb) {
+        std::printf("  %s at voxel %.4g FAILED\n", labels[v], voxels[v]);
+        ok = false;
+        continue;
+      }
+      print_row(labels[v], t, voxels[v], s.spacing, r.particles, vdb->value.time, vdb->value.mesh, vdb->peak_mb,
+                &r.time);
+      if (k + 1 == cfg.threads.size()) {
+        const VdbResult& w = vdb->value;
+        std::printf("      raster %.3f s, mesh %.3f s; %zu vertices, %d components, min angle %.2f deg, outward %s%s\n",
+                    w.seconds_rasterize, w.seconds_mesh, w.mesh.vertices, w.mesh.components, w.mesh.min_angle,
+                    w.mesh.outward ? "yes" : "NO",
+                    w.particles_too_small ? " (some particles below 1.5 voxels skipped)" : "");
+      }
+    }
+  }
+  std::printf("  (a) voxel found in %d meshings: %zu triangles vs our %zu (%+.1f %%); OpenVDB seconds: min of %d\n",
+              search->value.tries, search->value.triangles, o.mesh.triangles,
+              100.0 * (static_cast<double>(search->value.triangles) / static_cast<double>(o.mesh.triangles) - 1.0),
+              cfg.vdb_repeat);
+  for (std::size_t k = 0; k < cfg.threads.size(); ++k) {
+    const double e2e = ours[k].value.time.end_to_end, mb = ours[k].peak_mb;
+    if (cfg.particles == kBlockParticles && cfg.threads[k] == 2) {
+      std::printf("  target at 2 threads: end to end <= %.1f s (%s, %.3f s), peak <= %.0f MB (%s, %.0f MB)\n",
+                  kBlockTargetSeconds, e2e <= kBlockTargetSeconds ? "met" : "NOT met", e2e, kBlockTargetMb,
+                  mb <= kBlockTargetMb ? "met" : "NOT met", mb);
+    }
   }
   std::printf("\n");
   std::fflush(stdout);
-  return true;
+  return ok;
 }
 
 bool bench_flatness(const Config& cfg) {
+  const int threads = *std::max_element(cfg.threads.begin(), cfg.threads.end());
   std::printf(
-      "flatness  60 x 60 x 6 square-lattice slabs, d 0.01, no jitter, r_outer = 2 r_inner; top face: vertices above "
-      "the top layer, 5 d inside the sides (ours only)\n");
-  std::printf("  %9s %9s %10s %8s %7s %9s %8s %8s %11s %8s\n", "r_inner/d", "vertices", "triangles", "wall s", "mesh",
-              "top verts", "RMS %", "p-p %", "target RMS", "faithful");
+      "flatness  60 x 60 x 6 square-lattice slabs, d 0.01, no jitter, r_outer = 2 d; top face: vertices above the top "
+      "layer, 5 d inside the sides; %d threads\n",
+      threads);
+  std::printf("  %9s %9s %10s %9s %8s %8s %11s %10s %9s %7s %8s\n", "r_inner/d", "vertices", "triangles", "top verts",
+              "RMS %ri", "p-p %ri", "RMS < 0.5%", "faithful %", "min angle", "slivers", "seconds");
   bool ok = true;
   for (const double ratio : kFlatnessRatios) {
-    const Case c = flatness_case(ratio);
-    const auto m = measure<OursResult>([&] { return run_ours(c, cfg.repeat, cfg.threads, cfg.write_dir); });
-    if (!m) {
+    const DataSet set = flatness_set(ratio);
+    const auto run = in_child<OursResult>([&] { return run_ours(set, threads, 1, cfg.write_dir); });
+    if (!run) {
       std::printf("  %9.2f FAILED\n", ratio);
       ok = false;
       continue;
     }
-    const OursResult& r = m->result;
+    const OursResult& r = run->value;
     const double r_inner = r.stats.r_inner;
     const double rms = 100.0 * r.top.rms / r_inner;
-    std::printf("  %9.2f %9zu %10zu %8.3f %7s %9zu %8.3f %8.3f %5s %.1f%% %7.3f%%\n", ratio, r.stats.vertices,
-                r.stats.triangles, r.wall, r.closed && r.manifold ? "ok" : "BROKEN", r.top.vertices, rms,
-                100.0 * r.top.peak_to_peak / r_inner, rms < kFlatnessTargetPercent ? "met <" : "NOT <",
-                kFlatnessTargetPercent, 100.0 * r.stats.faithful_after_polish);
+    std::printf("  %9.2f %9zu %10zu %9zu %8.3f %8.3f %11s %10.4f %9.2f %7lld %8.3f%s\n", ratio, r.mesh.vertices,
+                r.mesh.triangles, r.top.vertices, rms, 100.0 * r.top.peak_to_peak / r_inner,
+                rms < kFlatnessTargetPercent ? "yes" : "no", 100.0 * r.stats.faithful_after_polish, r.mesh.min_angle,
+                static_cast<long long>(r.stats.slivers_left), r.time.surface,
+                r.mesh.closed_manifold ? "" : "  mesh NOT closed manifold");
     std::fflush(stdout);
   }
   std::printf("\n");
@@ -613,16 +595,17 @@ bool bench_flatness(const Config& cfg) {
 }
 
 constexpr const char* kUsage =
-    "usage: particles_bench [--sets a,b] [--repeat N] [--threads T] [--write DIR] [--no-openvdb]\n"
-    "  sets: block500k, sheet, droplets, flatness (default), block, block_fine, spray\n";
+    "usage: particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness] [--threads T]\n"
+    "                       [--write DIR]\n";
 
 [[noreturn]] void usage_error(const std::string& message) {
   std::fprintf(stderr, "particles_bench: %s\n%s", message.c_str(), kUsage);
   std::exit(2);
 }
 
-int parse_int(const std::string& flag, const std::string& text, int min) {
-  int v = 0;
+template <class Int>
+Int parse_int(const std::string& flag, const std::string& text, Int min) {
+  Int v = 0;
   const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
   if (ec != std::errc() || end != text.data() + text.size() || v < min) {
     usage_error(flag + " needs an integer >= " + std::to_string(min) + ", got '" + text + "'");
@@ -635,29 +618,32 @@ int parse_int(const std::string& flag, const std::string& text, int min) {
 
 int main(int argc, char** argv) {
   using namespace surfacer;
-  std::vector<std::string> sets = {"block500k", "sheet", "droplets", "flatness"};
   Config cfg;
   for (int a = 1; a < argc; ++a) {
     const std::string arg = argv[a];
-    auto value = [&]() -> std::string {
+    const auto value = [&]() -> std::string {
       if (a + 1 >= argc) usage_error(arg + " needs a value");
       return argv[++a];
     };
-    if (arg == "--sets") {
-      sets.clear();
-      std::stringstream ss(value());
-      for (std::string item; std::getline(ss, item, ',');) {
-        if (item != "flatness" && !case_of(item)) usage_error("unknown data set '" + item + "'");
-        sets.push_back(item);
-      }
+    if (arg == "--particles") {
+      cfg.particles = parse_int<std::size_t>(arg, value(), 8);
     } else if (arg == "--repeat") {
       cfg.repeat = parse_int(arg, value(), 1);
+    } else if (arg == "--vdb-repeat") {
+      cfg.vdb_repeat = parse_int(arg, value(), 1);
+    } else if (arg == "--section") {
+      const std::string section = value();
+      if (section != "block" && section != "flatness")
+        usage_error("--section is block or flatness, got '" + section + "'");
+      cfg.block = section == "block";
+      cfg.flatness = section == "flatness";
     } else if (arg == "--threads") {
-      cfg.threads = parse_int(arg, value(), 0);
+      cfg.threads = {parse_int(arg, value(), 1)};
     } else if (arg == "--write") {
       cfg.write_dir = value();
-    } else if (arg == "--no-openvdb") {
-      cfg.openvdb = false;
+    } else if (arg == "--help" || arg == "-h") {
+      std::printf("%s", kUsage);
+      return 0;
     } else {
       usage_error("unknown argument '" + arg + "'");
     }
@@ -665,20 +651,13 @@ int main(int argc, char** argv) {
   double load[3] = {0, 0, 0};
   if (getloadavg(load, 3) < 0) load[0] = -1;
   std::printf(
-      "particles_bench: %u hardware threads, %d threads for ours and for OpenVDB, load average %.2f, %d "
-      "repetitions per run\n",
-      std::thread::hardware_concurrency(), resolve_threads(cfg.threads), load[0], cfg.repeat);
-  if (!cfg.openvdb) {
-    std::printf("OpenVDB comparison off (--no-openvdb)\n");
-  } else if (const auto version = bench::openvdb_version()) {
-    std::printf("OpenVDB %s\n", version->c_str());
-  } else {
-    std::printf("%s\n", bench::kOpenVdbMissing);
-  }
-  std::printf("(wall = fastest repetition, cpu = least user + sys; every run in its own child process)\n\n");
+      "particles_bench: %u hardware threads, load average %.2f at start, seconds = min of %d repetitions "
+      "(OpenVDB: %d), every run in its own child process (MB = its peak RSS)\n\n",
+      std::thread::hardware_concurrency(), load[0], cfg.repeat, cfg.vdb_repeat);
   std::fflush(stdout);
   bool ok = true;
-  for (const std::string& name : sets)
-    ok = (name == "flatness" ? bench_flatness(cfg) : bench_set(*case_of(name), cfg)) && ok;
+  if (cfg.block) ok = bench_block(cfg) && ok;
+  if (cfg.flatness) ok = bench_flatness(cfg) && ok;
+  if (getloadavg(load, 3) >= 0) std::printf("load average %.2f at the end\n", load[0]);
   return ok ? 0 : 1;
 }
