@@ -3,15 +3,18 @@
 // each voxel size and thread count) happens in a forked child that generates its own particles, so the peak RSS the
 // parent reads from wait4 is that run's alone.
 //
-//   particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness] [--threads T] [--write
-//   DIR]
+//   particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness] [--threads T]
+//                   [--write DIR]
 //
 //   --particles N   block size (default 500000): the 100 x 50 x 100 block scaled by cbrt(N / 500000) per axis
 //   --repeat R      repetitions of each of our timed runs (default 3); seconds are the minimum over them
 //   --vdb-repeat R  the same for OpenVDB's runs (default 1: one takes 10-30 s on the 500 k block, 2 cores)
-//   --section S    block or flatness only (default both)
-//   --threads T    one thread count for both sides (default: 1, then 2)
-//   --write DIR    our meshes as DIR/<name>.ply
+//   --section S     block or flatness only (default both)
+//   --threads T     one thread count for both sides (default: 1, then 2)
+//   --write DIR     our meshes as DIR/<name>_t<threads>.ply
+//
+// Exits 1 when a run fails, or when one of our meshes is not a closed, oriented manifold or differs between thread
+// counts; timings are never checked.
 //
 // block: 100 x 50 x 100 particles (x, y, z) on a cubic lattice of spacing d = 0.01 from the origin, every coordinate
 // jittered uniformly by +-0.1 d (std::mt19937, seed 7), r_inner = 0.6 d, r_outer = 2 r_inner: the same block as the
@@ -523,7 +526,8 @@ bool bench_block(const Config& cfg) {
   const double voxels[2] = {search->value.voxel, o.mesh.mean_edge};
   const char* labels[2] = {"OpenVDB (a) equal triangles", "OpenVDB (b) voxel = our edge"};
   print_row_header();
-  bool ok = true;
+  bool ok = same;
+  for (const auto& run : ours) ok = ok && run.value.mesh.closed_manifold;
   for (std::size_t k = 0; k < cfg.threads.size(); ++k) {
     const int t = cfg.threads[k];
     const OursResult& r = ours[k].value;
@@ -581,6 +585,7 @@ bool bench_flatness(const Config& cfg) {
       continue;
     }
     const OursResult& r = run->value;
+    ok = ok && r.mesh.closed_manifold;
     const double r_inner = r.stats.r_inner;
     const double rms = 100.0 * r.top.rms / r_inner;
     std::printf("  %9.2f %9zu %10zu %9zu %8.3f %8.3f %11s %10.4f %9.2f %7lld %8.3f%s\n", ratio, r.mesh.vertices,
