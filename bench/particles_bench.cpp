@@ -17,8 +17,8 @@
 // counts; timings are never checked.
 //
 // block: 100 x 50 x 100 particles (x, y, z) on a cubic lattice of spacing d = 0.01 from the origin, every coordinate
-// jittered uniformly by +-0.1 d (std::mt19937, seed 7), r_inner = 0.6 d, r_outer = 2 r_inner: the same block as the
-// issue's data/block500k.bin (another generator, so not the same bits). Printed per thread count:
+// jittered uniformly by +-0.1 d (std::mt19937, seed 7), r_inner = 0.6 d, r_outer = 2 r_inner. Printed per thread
+// count:
 //  * per stage of ParticleSurfacingStats: seconds, and ns per vertex per sweep for the sweep stages (laplacian,
 //    bilaplacian, polish), ns per vertex (of the Marching Tiles mesh) for polygonize, build_b and cleanup, ns per
 //    particle for distance_field;
@@ -33,6 +33,8 @@
 //         surface (their quads have sides of about one voxel, so their mesh has more triangles than ours);
 //    with the ratios ours / theirs of the surfacing, end-to-end and CPU seconds (< 1: we are faster; on a loaded
 //    machine the CPU ratio is the one to trust).
+//    Their time is mostly ParticlesToLevelSet, which writes every voxel within r_outer + 3 voxels of every particle,
+//    interior ones included (r_outer is about 5 voxels here).
 // flatness: square-lattice slabs of 60 x 60 particles and 6 layers at d = 0.01, no jitter, r_outer = 2 d (eq. 3.5
 // holds for every ratio), r_inner / d in {0.45, 0.6, 0.7, 1.0}, at the largest thread count. Top face as in
 // tests/core/particle_surfacer_test.cpp: vertices above the top layer and at least 5 d inside the slab's sides. Its
