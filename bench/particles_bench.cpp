@@ -1,138 +1,169 @@
-// Particle surfacing benchmark: generates data sets in-process, surfaces each with surface_particles and
-// prints particles/s, time per stage and peak memory. Each data set runs in its own child process, so its peak RSS
-// (wait4 ru_maxrss) is its own and not the largest of everything before it.
+// Particle surfacing benchmark (docs/ALGORITHMS.md §1), with OpenVDB side by side on the same particles in the same
+// run. The data sets are generated here, deterministically. Every timed run (ours at each thread count, OpenVDB at
+// each voxel size and thread count) happens in a forked child that generates its own particles, so the peak RSS the
+// parent reads from wait4 is that run's alone.
 //
-//   particles_bench [--sets block,sheet,droplets,spray,block_fine] [--repeat N] [--threads T] [--write DIR]
+//   particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness] [--threads T]
+//                   [--write DIR]
 //
-// Data sets (d = lattice spacing 1):
-//   block       80^3 = 512,000 particles on a cubic lattice, each jittered uniformly by +-0.25 d per axis;
-//               r_inner derived (mean nearest-neighbour distance, ~0.78 d), r_outer = 2 r_inner. The issue's target
-//               (<= 2.5 s including all smoothing, <= 1.5 GB) is for this set.
-//   block_fine  the same particles with r_inner = 0.5 d (SPH "radius = half the spacing"): ~4x the triangles.
-//   sheet       a wavy sheet two particles thick, 250 x 250 x 2 = 125,000 particles, r_inner = d.
-//   droplets    1,000 droplets of 8..64 particles (~36,000) scattered in a 400 d box, r_inner = 0.8 d.
-//   spray       a 40^3 block plus 100,000 single particles scattered over a 1000 d box (~164,000), r_inner = 0.6 d,
-//               min_particles_per_component = 5 (the spray is dropped before surfacing).
+//   --particles N   block size (default 500000): the 100 x 50 x 100 block scaled by cbrt(N / 500000) per axis
+//   --repeat R      repetitions of each of our timed runs (default 3); seconds are the minimum over them
+//   --vdb-repeat R  the same for OpenVDB's runs (default 1: one takes 10-30 s on the 500 k block, 2 cores)
+//   --section S     block or flatness only (default both)
+//   --threads T     one thread count for both sides (default: 1, then 2)
+//   --write DIR     our meshes as DIR/<name>_t<threads>.ply
+//
+// Exits 1 when a run fails, or when one of our meshes is not a closed, oriented manifold or differs between thread
+// counts; timings are never checked.
+//
+// block: 100 x 50 x 100 particles (x, y, z) on a cubic lattice of spacing d = 0.01 from the origin, every coordinate
+// jittered uniformly by +-0.1 d (std::mt19937, seed 7), r_inner = 0.6 d, r_outer = 2 r_inner. Printed per thread
+// count:
+//  * per stage of ParticleSurfacingStats: seconds, and ns per vertex per sweep for the sweep stages (laplacian,
+//    bilaplacian, polish), ns per vertex (of the Marching Tiles mesh) for polygonize, build_b and cleanup, ns per
+//    particle for distance_field;
+//  * end to end, as a particles job produces a frame: surfacing with output_grid set plus the Draco encode at
+//    14 bits on the job's box (particle_sequence_box), in seconds (minimum of the repetitions of the sum), user + sys
+//    CPU seconds and particles/s; peak RSS of the child;
+//  * OpenVDB (bench/openvdb_reference.h): spheres of r_outer (the radius of our initial surface), ParticlesToLevelSet
+//    + volumeToMesh, no smoothing, its mesh Draco-encoded exactly as ours, at two voxel sizes:
+//     (a) equal triangles: the voxel whose mesh has about our triangle count (equal_triangles_voxel: at most 3
+//         meshings from voxel (b), stopping within 3 %; the count found is printed);
+//     (b) equal resolution: voxel = the mean edge length of our final mesh, i.e. the same sampling distance along the
+//         surface (their quads have sides of about one voxel, so their mesh has more triangles than ours);
+//    with the ratios ours / theirs of the surfacing, end-to-end and CPU seconds (< 1: we are faster; on a loaded
+//    machine the CPU ratio is the one to trust).
+//    Their time is mostly ParticlesToLevelSet, which writes every voxel within r_outer + 3 voxels of every particle,
+//    interior ones included (r_outer is about 5 voxels here).
+// flatness: square-lattice slabs of 60 x 60 particles and 6 layers at d = 0.01, no jitter, r_outer = 2 d (eq. 3.5
+// holds for every ratio), r_inner / d in {0.45, 0.6, 0.7, 1.0}, at the largest thread count. Top face as in
+// tests/core/particle_surfacer_test.cpp: vertices above the top layer and at least 5 d inside the slab's sides. Its
+// RMS height deviation about the mean and peak to peak in % of r_inner (target: RMS < 0.5 %), the faithful fraction
+// at the end, the smallest angle and the slivers left; one run each. Fixed size: --particles does not apply.
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
+#include <charconv>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
-#include <fstream>
+#include <functional>
+#include <limits>
+#include <optional>
 #include <random>
-#include <sstream>
 #include <string>
 #include <thread>
+#include <type_traits>
 #include <vector>
 
+#include "bench/openvdb_reference.h"
 #include "core/mesh/mesh_checks.h"
+#include "core/mesh/mesh_codec.h"
 #include "core/mesh/mesh_io.h"
 #include "core/particles/particle_surfacer.h"
 
+namespace surfacer {
 namespace {
 
-using surfacer::Vec3;
+constexpr double kInf = std::numeric_limits<double>::infinity();
+constexpr int kDracoBits = 14;
+constexpr std::size_t kBlockParticles = 100 * 50 * 100;
+constexpr double kBlockTargetSeconds = 2.0;  // end to end at 2 threads, issue target
+constexpr double kBlockTargetMb = 600.0;
+constexpr double kFlatnessTargetPercent = 0.5;
+constexpr double kEqualTrianglesTolerance = 0.03;
+
+struct Config {
+  std::size_t particles = kBlockParticles;
+  int repeat = 3;
+  int vdb_repeat = 1;  // an OpenVDB run of the 500 k block takes 10-30 s
+  std::vector<int> threads = {1, 2};
+  bool block = true, flatness = true;
+  std::string write_dir;
+};
+
+// ---- Data sets ----------------------------------------------------------------------------------------------------
+
+// The top face of a flatness slab: vertices with z > z_top and lo <= x, y <= hi.
+struct FlatTop {
+  double z_top = 0.0, lo = 0.0, hi = 0.0;
+};
 
 struct DataSet {
-  std::string name;
-  std::vector<Vec3> particles;
-  surfacer::ParticleSurfacingOptions options;
+  std::string name;                              // for --write
+  std::function<std::vector<Vec3>()> particles;  // called in the child
+  ParticleSurfacingOptions options;
+  std::optional<FlatTop> top;  // flatness slabs only
 };
 
-DataSet jittered_block(int n, double jitter, std::uint32_t seed) {
-  DataSet s;
+// n[0] x n[1] x n[2] particles on a cubic lattice of spacing d from the origin, x fastest, every coordinate jittered
+// uniformly by +-jitter.
+std::vector<Vec3> lattice(std::array<int, 3> n, double d, double jitter, std::uint32_t seed) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> u(-jitter, jitter);
-  s.particles.reserve(static_cast<std::size_t>(n) * n * n);
-  for (int k = 0; k < n; ++k) {
-    for (int j = 0; j < n; ++j) {
-      for (int i = 0; i < n; ++i) {
-        // One statement each: the generator's call order must not depend on argument evaluation order
-        // (bench/openvdb_particles.cpp regenerates the same block).
-        const double x = i + u(rng);
-        const double y = j + u(rng);
-        const double z = k + u(rng);
-        s.particles.emplace_back(x, y, z);
+  std::vector<Vec3> p;
+  p.reserve(static_cast<std::size_t>(n[0]) * n[1] * n[2]);
+  for (int k = 0; k < n[2]; ++k) {
+    for (int j = 0; j < n[1]; ++j) {
+      for (int i = 0; i < n[0]; ++i) {
+        // One statement each: the generator's call order must not depend on argument evaluation order.
+        const double x = i * d + u(rng);
+        const double y = j * d + u(rng);
+        const double z = k * d + u(rng);
+        p.emplace_back(x, y, z);
       }
     }
   }
-  return s;
+  return p;
 }
 
-std::string note_of(const std::string& name) {
-  if (name == "block") return "80^3 lattice, jitter +-0.25, r_inner derived";
-  if (name == "block_fine") return "80^3 lattice, jitter +-0.25, r_inner 0.5";
-  if (name == "sheet") return "250 x 250 x 2 wavy sheet, r_inner 1";
-  if (name == "droplets") return "1000 droplets of 8..64 particles in a 400^3 box, r_inner 0.8";
-  if (name == "spray") return "40^3 block + 100k single particles over 1000^3, r_inner 0.6, min 5 per component";
-  return "";
+constexpr double kBlockSpacing = 0.01;
+
+// The block's particle counts per axis for about `particles` particles (100 x 50 x 100 at 500000).
+std::array<int, 3> block_dims(std::size_t particles) {
+  const double s = std::cbrt(static_cast<double>(particles) / static_cast<double>(kBlockParticles));
+  const auto axis = [s](int n) { return std::max(2, static_cast<int>(std::lround(n * s))); };
+  return {axis(100), axis(50), axis(100)};
 }
 
-DataSet make_set(const std::string& name) {
+DataSet block_set(std::size_t particles) {
+  const std::array<int, 3> n = block_dims(particles);
   DataSet s;
-  if (name == "block" || name == "block_fine") {
-    s = jittered_block(80, 0.25, 1);
-    if (name == "block") {
-      s.options.derive_r_inner = true;
-    } else {
-      s.options.r_inner = 0.5;
-    }
-  } else if (name == "sheet") {
-    std::mt19937 rng(2);
-    std::uniform_real_distribution<double> u(-0.1, 0.1);
-    for (int layer = 0; layer < 2; ++layer) {
-      for (int j = 0; j < 250; ++j) {
-        for (int i = 0; i < 250; ++i) {
-          const double z = layer + 6.0 * std::sin(i / 40.0) * std::cos(j / 55.0);
-          s.particles.emplace_back(i + u(rng), j + u(rng), z + u(rng));
-        }
-      }
-    }
-    s.options.r_inner = 1.0;
-  } else if (name == "droplets") {
-    std::mt19937 rng(3);
-    std::uniform_real_distribution<double> box(0.0, 400.0), u(-1.0, 1.0);
-    std::uniform_int_distribution<int> size(8, 64);
-    for (int d = 0; d < 1000; ++d) {
-      const Vec3 c(box(rng), box(rng), box(rng));
-      const int count = size(rng);
-      const double radius = 0.62 * std::cbrt(static_cast<double>(count));
-      for (int p = 0; p < count;) {
-        const Vec3 q(u(rng), u(rng), u(rng));
-        if (q.norm() > 1.0) continue;
-        s.particles.push_back(c + radius * q);
-        ++p;
-      }
-    }
-    s.options.r_inner = 0.8;
-  } else if (name == "spray") {
-    s = jittered_block(40, 0.2, 4);
-    std::mt19937 rng(5);
-    std::uniform_real_distribution<double> box(-500.0, 500.0);
-    for (int p = 0; p < 100000; ++p) s.particles.emplace_back(box(rng), box(rng), box(rng));
-    s.options.r_inner = 0.6;
-    s.options.min_particles_per_component = 5;
-  } else {
-    std::fprintf(stderr, "unknown data set '%s'\n", name.c_str());
-    std::exit(2);
-  }
-  s.name = name;
+  s.name = "block";
+  s.particles = [n] { return lattice(n, kBlockSpacing, 0.1 * kBlockSpacing, 7); };
+  s.options.r_inner = 0.6 * kBlockSpacing;
   return s;
 }
 
-struct Result {
-  std::size_t particles = 0;
-  std::vector<double> wall;  // per repetition
-  double cpu = 0.0;          // user + system seconds of the last repetition
-  surfacer::ParticleSurfacingStats stats;
-  bool closed = false, manifold = false;
-  int components = 0;
-};
+constexpr std::array<double, 4> kFlatnessRatios = {0.45, 0.6, 0.7, 1.0};  // r_inner / d
+
+DataSet flatness_set(double ratio) {
+  constexpr double d = 0.01;
+  constexpr int n = 60, layers = 6;
+  constexpr double inset = 5 * d;
+  char name[32];
+  std::snprintf(name, sizeof name, "flatness_%.2f", ratio);
+  DataSet s;
+  s.name = name;
+  s.particles = [] { return lattice({n, n, layers}, d, 0.0, 8); };
+  s.options.r_inner = ratio * d;
+  s.options.r_outer = 2.0 * d;
+  s.top = FlatTop{(layers - 1) * d, inset, (n - 1) * d - inset};
+  return s;
+}
+
+// The Draco box of a particles job over these particles (one frame, uniform radii).
+Aabb job_box(const std::vector<Vec3>& particles, const ParticleSurfacingOptions& options) {
+  return particle_sequence_box(Aabb::of(particles), 0.0, options.r_inner, options.r_outer, {}, std::nullopt);
+}
+
+// ---- Child processes ------------------------------------------------------------------------------------------------
 
 double cpu_seconds() {
   rusage ru{};
@@ -141,134 +172,499 @@ double cpu_seconds() {
          1e-6 * static_cast<double>(ru.ru_utime.tv_usec + ru.ru_stime.tv_usec);
 }
 
-// Runs in the child: generate, surface `repeat` times, write a result line to fd.
-void child(const std::string& name, int repeat, int threads, const std::string& write_dir, int fd) {
-  DataSet set = make_set(name);
-  set.options.threads = threads;
-  Result r;
-  r.particles = set.particles.size();
-  surfacer::Mesh mesh;
+double seconds_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// Runs `work` in a forked child, which hands its result back as the bytes of a trivially copyable struct (same
+// binary, same layout). The result and the child's peak RSS in MB, or nullopt when the child failed (it says why on
+// stderr). The parent starts no threads, so forking is safe.
+template <class T>
+struct InChild {
+  T value;
+  double peak_mb = 0.0;
+};
+
+template <class T>
+std::optional<InChild<T>> in_child(const std::function<T()>& work) {
+  static_assert(std::is_trivially_copyable_v<T>);
+  int fd[2];
+  if (pipe(fd) != 0) return std::nullopt;
+  std::fflush(nullptr);
+  const pid_t pid = fork();
+  if (pid < 0) {
+    close(fd[0]);
+    close(fd[1]);
+    return std::nullopt;
+  }
+  if (pid == 0) {
+    close(fd[0]);
+    try {
+      const T value = work();
+      const char* bytes = reinterpret_cast<const char*>(&value);
+      for (std::size_t done = 0; done < sizeof value;) {
+        const ssize_t n = write(fd[1], bytes + done, sizeof value - done);
+        if (n <= 0) std::_Exit(3);
+        done += static_cast<std::size_t>(n);
+      }
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "particles_bench: child failed: %s\n", e.what());
+      std::_Exit(1);
+    }
+    std::_Exit(0);
+  }
+  close(fd[1]);
+  std::string bytes;
+  char buf[4096];
+  for (ssize_t n; (n = read(fd[0], buf, sizeof buf)) > 0;) bytes.append(buf, static_cast<std::size_t>(n));
+  close(fd[0]);
+  int status = 0;
+  rusage ru{};
+  if (wait4(pid, &status, 0, &ru) != pid || !WIFEXITED(status) || WEXITSTATUS(status) != 0) return std::nullopt;
+  if (bytes.size() != sizeof(T)) return std::nullopt;
+  InChild<T> out;
+  std::memcpy(&out.value, bytes.data(), sizeof(T));
+  out.peak_mb = static_cast<double>(ru.ru_maxrss) / 1024.0;
+  return out;
+}
+
+// What both sides report about a mesh.
+struct MeshFacts {
+  std::size_t vertices = 0, triangles = 0;
+  int components = 0;
+  bool closed_manifold = false, outward = false;
+  double min_angle = 0.0, area = 0.0, mean_edge = 0.0;
+  std::uint64_t hash = 0;  // of the vertex bytes and triangles: equal meshes for 1 and 2 threads
+};
+
+MeshFacts facts_of(const Mesh& mesh) {
+  const MeshReport r = check_mesh(mesh);
+  MeshFacts f;
+  f.vertices = mesh.vertices.size();
+  f.triangles = mesh.triangles.size();
+  f.components = r.components;
+  f.closed_manifold = r.closed && r.edge_manifold && r.vertex_manifold && r.oriented;
+  f.outward = r.volume > 0.0;
+  f.min_angle = r.min_angle_degrees;
+  f.area = r.area;
+  double sum = 0.0;
+  for (const Triangle& t : mesh.triangles) {
+    for (int k = 0; k < 3; ++k) sum += (mesh.vertices[t[k]] - mesh.vertices[t[(k + 1) % 3]]).norm();
+  }
+  f.mean_edge = mesh.triangles.empty() ? 0.0 : sum / (3.0 * static_cast<double>(mesh.triangles.size()));
+  std::uint64_t h = 1469598103934665603ull;  // FNV-1a
+  const auto mix = [&h](const void* data, std::size_t size) {
+    for (std::size_t i = 0; i < size; ++i) h = (h ^ static_cast<const unsigned char*>(data)[i]) * 1099511628211ull;
+  };
+  mix(mesh.vertices.data(), mesh.vertices.size() * sizeof(Vec3));
+  mix(mesh.triangles.data(), mesh.triangles.size() * sizeof(Triangle));
+  f.hash = h;
+  return f;
+}
+
+// RMS about the mean and peak to peak of z over the top-face vertices (scene units).
+struct Flatness {
+  std::size_t vertices = 0;
+  double rms = 0.0, peak_to_peak = 0.0;
+};
+
+Flatness flatness(const Mesh& mesh, const FlatTop& top) {
+  std::vector<double> z;
+  for (const Vec3& v : mesh.vertices) {
+    if (v.z() > top.z_top && v.x() >= top.lo && v.x() <= top.hi && v.y() >= top.lo && v.y() <= top.hi) {
+      z.push_back(v.z());
+    }
+  }
+  Flatness f;
+  f.vertices = z.size();
+  if (z.empty()) return f;
+  double mean = 0.0;
+  for (const double h : z) mean += h;
+  mean /= static_cast<double>(z.size());
+  double sum2 = 0.0;
+  for (const double h : z) sum2 += (h - mean) * (h - mean);
+  f.rms = std::sqrt(sum2 / static_cast<double>(z.size()));
+  const auto [lo, hi] = std::minmax_element(z.begin(), z.end());
+  f.peak_to_peak = *hi - *lo;
+  return f;
+}
+
+// Seconds of one side's run: the fastest repetition of surfacing + encode, and its parts.
+struct Timing {
+  double surface = kInf, encode = kInf, end_to_end = kInf, cpu = kInf;
+};
+
+struct OursResult {
+  std::size_t particles = 0;
+  ParticleSurfacingStats stats;  // of the fastest repetition
+  Timing time;
+  std::size_t draco_bytes = 0;
+  MeshFacts mesh;
+  Flatness top;  // flatness slabs only
+  int laplacian_sweeps = 0, bilaplacian_sweeps = 0, polish_sweeps = 0;
+};
+
+OursResult run_ours(const DataSet& set, int threads, int repeat, const std::string& write_dir) {
+  const std::vector<Vec3> particles = set.particles();
+  ParticleSurfacingOptions options = set.options;
+  options.threads = threads;
+  const Aabb box = job_box(particles, options);
+  options.output_grid = QuantizationGrid::of(box, kDracoBits);
+  DracoOptions draco;
+  draco.quantization_bits = kDracoBits;
+  draco.quantization_bounds = box;
+
+  OursResult r;
+  r.particles = particles.size();
+  r.laplacian_sweeps = options.laplacian_sweeps;
+  r.bilaplacian_sweeps = options.bilaplacian_sweeps;
+  r.polish_sweeps = options.polish_sweeps;
+  Mesh mesh;
   for (int k = 0; k < repeat; ++k) {
+    mesh = {};  // the previous mesh must not add to this run's peak
+    ParticleSurfacingStats stats;
     const double c0 = cpu_seconds();
     const auto t0 = std::chrono::steady_clock::now();
-    mesh = surfacer::surface_particles(set.particles, {}, set.options, {}, &r.stats);
-    r.wall.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
-    r.cpu = cpu_seconds() - c0;
+    mesh = surface_particles(particles, {}, options, {}, &stats);
+    const double surface = seconds_since(t0);
+    const auto t1 = std::chrono::steady_clock::now();
+    r.draco_bytes = encode_draco(mesh, draco).size();
+    const double encode = seconds_since(t1);
+    r.time.cpu = std::min(r.time.cpu, cpu_seconds() - c0);
+    if (surface + encode < r.time.end_to_end) {
+      r.time = {surface, encode, surface + encode, r.time.cpu};
+      r.stats = stats;
+    }
   }
-  const surfacer::MeshReport report = surfacer::check_mesh(mesh);
-  if (!write_dir.empty()) surfacer::write_mesh(write_dir + "/" + name + ".ply", mesh);
-  const auto& s = r.stats;
-  std::ostringstream out;
-  out.precision(6);
-  out << r.particles << ' ' << s.particles_used << ' ' << s.vertices << ' ' << s.triangles << ' ' << r.cpu << ' '
-      << s.r_inner << ' ' << s.r_outer << ' ' << s.spacing << ' ' << s.seconds_distance_field << ' '
-      << s.seconds_polygonize << ' ' << s.seconds_laplacian << ' ' << s.seconds_build_b << ' ' << s.seconds_bilaplacian
-      << ' ' << s.seconds_polish << ' ' << s.seconds_total << ' ' << s.faithful_after_constrained << ' '
-      << s.faithful_after_polish << ' ' << s.max_violation_after_polish << ' ' << s.seam_fraction << ' '
-      << s.field_evaluations << ' ' << report.closed << ' ' << (report.edge_manifold && report.vertex_manifold) << ' '
-      << report.components << ' ' << s.initial_min_valence << ' ' << s.components_dropped;
-  for (const double w : r.wall) out << ' ' << w;
-  out << '\n';
-  const std::string line = out.str();
-  if (write(fd, line.data(), line.size()) != static_cast<ssize_t>(line.size())) std::_Exit(3);
+  r.mesh = facts_of(mesh);
+  if (set.top) r.top = flatness(mesh, *set.top);
+  if (!write_dir.empty()) write_mesh(write_dir + "/" + set.name + "_t" + std::to_string(threads) + ".ply", mesh);
+  return r;
+}
+
+struct VdbResult {
+  Timing time;
+  double seconds_rasterize = 0.0, seconds_mesh = 0.0;  // of the fastest repetition
+  std::size_t particles_too_small = 0;
+  std::size_t draco_bytes = 0;
+  MeshFacts mesh;
+};
+
+VdbResult run_openvdb(const DataSet& set, double radius, double voxel, int threads, int repeat) {
+  const std::vector<Vec3> particles = set.particles();
+  DracoOptions draco;
+  draco.quantization_bits = kDracoBits;
+  draco.quantization_bounds = job_box(particles, set.options);
+  VdbResult r;
+  Mesh mesh;
+  for (int k = 0; k < repeat; ++k) {
+    mesh = {};
+    const double c0 = cpu_seconds();
+    const auto t0 = std::chrono::steady_clock::now();
+    bench::OpenVdbSurface out = bench::openvdb_surface(particles, radius, voxel, threads);
+    const double surface = seconds_since(t0);
+    const auto t1 = std::chrono::steady_clock::now();
+    r.draco_bytes = encode_draco(out.mesh, draco).size();
+    const double encode = seconds_since(t1);
+    r.time.cpu = std::min(r.time.cpu, cpu_seconds() - c0);
+    if (surface + encode < r.time.end_to_end) {
+      r.time = {surface, encode, surface + encode, r.time.cpu};
+      r.seconds_rasterize = out.seconds_rasterize;
+      r.seconds_mesh = out.seconds_mesh;
+      r.particles_too_small = out.particles_too_small;
+    }
+    mesh = std::move(out.mesh);
+  }
+  r.mesh = facts_of(mesh);
+  return r;
+}
+
+// The voxel whose OpenVDB mesh has about `triangles` triangles, in at most kSearchTries meshings starting from
+// `voxel`: first rescaled by sqrt(T_theirs / T_ours) (triangles ~ area / voxel^2), then by the secant of log T over
+// log voxel through the last two tries, since the count of a bumpy sphere union falls faster than 1 / voxel^2 where
+// the bumps stop being resolved. The try closest to `triangles`.
+struct VoxelSearch {
+  double voxel = 0.0;
+  std::size_t triangles = 0;
+  int tries = 0;
+};
+
+constexpr int kSearchTries = 3;
+
+VoxelSearch equal_triangles_voxel(const DataSet& set, double radius, double voxel, std::size_t triangles, int threads) {
+  const std::vector<Vec3> particles = set.particles();
+  const double target = static_cast<double>(triangles);
+  VoxelSearch best;
+  double log_v0 = 0.0, log_t0 = 0.0;
+  for (int tries = 1; tries <= kSearchTries; ++tries) {
+    const std::size_t count = bench::openvdb_surface(particles, radius, voxel, threads).mesh.triangles.size();
+    if (count == 0) break;
+    const double error = std::abs(std::log(static_cast<double>(count) / target));
+    if (tries == 1 || error < std::abs(std::log(static_cast<double>(best.triangles) / target))) {
+      best.voxel = voxel;
+      best.triangles = count;
+    }
+    best.tries = tries;
+    if (error <= std::log1p(kEqualTrianglesTolerance)) break;
+    const double log_v = std::log(voxel), log_t = std::log(static_cast<double>(count));
+    double slope = -2.0;
+    if (tries > 1 && log_v != log_v0) slope = std::clamp((log_t - log_t0) / (log_v - log_v0), -8.0, -1.0);
+    log_v0 = log_v;
+    log_t0 = log_t;
+    voxel = std::exp(log_v + (std::log(target) - log_t) / slope);
+  }
+  return best;
+}
+
+// ---- Printing -------------------------------------------------------------------------------------------------------
+
+double ns_per(double seconds, double count) { return count > 0 ? 1e9 * seconds / count : 0.0; }
+
+// Per stage, one pair of columns (seconds, ns per unit) per thread count.
+void print_stages(const std::vector<int>& threads, const std::vector<InChild<OursResult>>& runs) {
+  struct Stage {
+    const char* name;
+    double ParticleSurfacingStats::*seconds;
+    int OursResult::*sweeps;  // nullptr: not a sweep stage
+    const char* per;
+  };
+  const Stage stages[] = {
+      {"distance_field", &ParticleSurfacingStats::seconds_distance_field, nullptr, "particle"},
+      {"polygonize", &ParticleSurfacingStats::seconds_polygonize, nullptr, "vertex"},
+      {"laplacian", &ParticleSurfacingStats::seconds_laplacian, &OursResult::laplacian_sweeps, "vertex per sweep"},
+      {"build_b", &ParticleSurfacingStats::seconds_build_b, nullptr, "vertex"},
+      {"bilaplacian", &ParticleSurfacingStats::seconds_bilaplacian, &OursResult::bilaplacian_sweeps,
+       "vertex per sweep"},
+      {"polish", &ParticleSurfacingStats::seconds_polish, &OursResult::polish_sweeps, "vertex per sweep"},
+      {"erosion", &ParticleSurfacingStats::seconds_erosion, nullptr, "vertex"},
+      {"cleanup", &ParticleSurfacingStats::seconds_cleanup, nullptr, "vertex"},
+      {"surface total", &ParticleSurfacingStats::seconds_total, nullptr, "particle"},
+  };
+  std::printf("  %-15s %6s", "stage", "sweeps");
+  for (const int t : threads) std::printf("  %9s %9s", (std::to_string(t) + "T s").c_str(), "ns");
+  std::printf("  ns per\n");
+  for (const Stage& stage : stages) {
+    const OursResult& first = runs.front().value;
+    const int sweeps = stage.sweeps ? first.*stage.sweeps : 1;
+    std::printf("  %-15s %6s", stage.name, stage.sweeps ? std::to_string(sweeps).c_str() : "");
+    for (const InChild<OursResult>& run : runs) {
+      const OursResult& r = run.value;
+      const double seconds = r.stats.*stage.seconds;
+      const bool per_particle = std::strcmp(stage.per, "particle") == 0;
+      // Every stage after distance_field works on the Marching Tiles mesh.
+      const double count =
+          per_particle ? static_cast<double>(r.particles) : static_cast<double>(r.stats.initial_vertices) * sweeps;
+      std::printf("  %9.3f %9.1f", seconds, ns_per(seconds, count));
+    }
+    std::printf("  %s\n", stage.per);
+  }
+}
+
+void print_row_header() {
+  std::printf("  %-28s %2s %8s %7s %9s %7s %7s %7s %7s %8s %5s %8s %7s %7s\n", "", "T", "voxel", "voxel/h", "triangles",
+              "surface", "encode", "e2e s", "cpu s", "Mpart/s", "MB", "surf o/t", "e2e o/t", "cpu o/t");
+}
+
+void print_row(const char* label, int threads, std::optional<double> voxel, double spacing, std::size_t particles,
+               const Timing& t, const MeshFacts& mesh, double peak_mb, const Timing* ours) {
+  char v[16] = "", vh[16] = "", surf_ratio[16] = "", e2e_ratio[16] = "", cpu_ratio[16] = "";
+  if (voxel) {
+    std::snprintf(v, sizeof v, "%.4g", *voxel);
+    std::snprintf(vh, sizeof vh, "%.3f", *voxel / spacing);
+  }
+  if (ours) {
+    std::snprintf(surf_ratio, sizeof surf_ratio, "%.2f", ours->surface / t.surface);
+    std::snprintf(e2e_ratio, sizeof e2e_ratio, "%.2f", ours->end_to_end / t.end_to_end);
+    std::snprintf(cpu_ratio, sizeof cpu_ratio, "%.2f", ours->cpu / t.cpu);
+  }
+  std::printf("  %-28s %2d %8s %7s %9zu %7.3f %7.3f %7.3f %7.3f %8.3f %5.0f %8s %7s %7s\n", label, threads, v, vh,
+              mesh.triangles, t.surface, t.encode, t.end_to_end, t.cpu,
+              1e-6 * static_cast<double>(particles) / t.end_to_end, peak_mb, surf_ratio, e2e_ratio, cpu_ratio);
+}
+
+bool bench_block(const Config& cfg) {
+  const DataSet set = block_set(cfg.particles);
+  const std::array<int, 3> n = block_dims(cfg.particles);
+  std::vector<InChild<OursResult>> ours;
+  for (const int t : cfg.threads) {
+    const auto run = in_child<OursResult>([&] { return run_ours(set, t, cfg.repeat, cfg.write_dir); });
+    if (!run) {
+      std::printf("block: our run at %d threads FAILED\n", t);
+      return false;
+    }
+    ours.push_back(*run);
+  }
+  const OursResult& o = ours.front().value;
+  const ParticleSurfacingStats& s = o.stats;
+  std::printf(
+      "block  %d x %d x %d = %zu particles, d %.3g, jitter +-0.1 d (seed 7), r_inner %.4g (0.6 d), r_outer %.4g\n",
+      n[0], n[1], n[2], o.particles, kBlockSpacing, s.r_inner, s.r_outer);
+  std::printf(
+      "  ours: Marching Tiles spacing h %.4g -> %zu vertices; final %zu vertices, %zu triangles, %d components, "
+      "closed manifold oriented %s, mean edge %.4g (%.3f h)\n",
+      s.spacing, s.initial_vertices, o.mesh.vertices, o.mesh.triangles, o.mesh.components,
+      o.mesh.closed_manifold ? "yes" : "NO", o.mesh.mean_edge, o.mesh.mean_edge / s.spacing);
+  std::printf("        faithful at the end %.4f %%, min angle %.2f deg, slivers left %lld, Draco %.2f MB",
+              100.0 * s.faithful_after_polish, o.mesh.min_angle, static_cast<long long>(s.slivers_left),
+              1e-6 * static_cast<double>(o.draco_bytes));
+  bool same = true;
+  for (const auto& run : ours) same = same && run.value.mesh.hash == o.mesh.hash;
+  std::printf("%s\n",
+              ours.size() > 1 ? (same ? ", same mesh at every thread count" : ", MESH DIFFERS ACROSS THREADS") : "");
+  print_stages(cfg.threads, ours);
+
+  const int max_threads = *std::max_element(cfg.threads.begin(), cfg.threads.end());
+  const double radius = s.r_outer;
+  std::printf(
+      "  end to end = surface (output_grid on) + Draco encode at %d bits on the job's box; OpenVDB %s: spheres "
+      "of r_outer, ParticlesToLevelSet + volumeToMesh, no smoothing, Draco-encoded the same way\n",
+      kDracoBits, bench::openvdb_version().c_str());
+  const auto search = in_child<VoxelSearch>(
+      [&] { return equal_triangles_voxel(set, radius, o.mesh.mean_edge, o.mesh.triangles, max_threads); });
+  if (!search) {
+    std::printf("  OpenVDB voxel search FAILED\n");
+    return false;
+  }
+  const double voxels[2] = {search->value.voxel, o.mesh.mean_edge};
+  const char* labels[2] = {"OpenVDB (a) equal triangles", "OpenVDB (b) voxel = our edge"};
+  print_row_header();
+  bool ok = same;
+  for (const auto& run : ours) ok = ok && run.value.mesh.closed_manifold;
+  for (std::size_t k = 0; k < cfg.threads.size(); ++k) {
+    const int t = cfg.threads[k];
+    const OursResult& r = ours[k].value;
+    print_row("ours", t, std::nullopt, s.spacing, r.particles, r.time, r.mesh, ours[k].peak_mb, nullptr);
+    for (int v = 0; v < 2; ++v) {
+      const auto vdb = in_child<VdbResult>([&] { return run_openvdb(set, radius, voxels[v], t, cfg.vdb_repeat); });
+      if (!vdb) {
+        std::printf("  %s at voxel %.4g FAILED\n", labels[v], voxels[v]);
+        ok = false;
+        continue;
+      }
+      print_row(labels[v], t, voxels[v], s.spacing, r.particles, vdb->value.time, vdb->value.mesh, vdb->peak_mb,
+                &r.time);
+      if (k + 1 == cfg.threads.size()) {
+        const VdbResult& w = vdb->value;
+        std::printf("      raster %.3f s, mesh %.3f s; %zu vertices, %d components, min angle %.2f deg, outward %s%s\n",
+                    w.seconds_rasterize, w.seconds_mesh, w.mesh.vertices, w.mesh.components, w.mesh.min_angle,
+                    w.mesh.outward ? "yes" : "NO",
+                    w.particles_too_small ? " (some particles below 1.5 voxels skipped)" : "");
+      }
+    }
+  }
+  std::printf("  (a) voxel found in %d meshings: %zu triangles vs our %zu (%+.1f %%); OpenVDB seconds: min of %d\n",
+              search->value.tries, search->value.triangles, o.mesh.triangles,
+              100.0 * (static_cast<double>(search->value.triangles) / static_cast<double>(o.mesh.triangles) - 1.0),
+              cfg.vdb_repeat);
+  for (std::size_t k = 0; k < cfg.threads.size(); ++k) {
+    const double e2e = ours[k].value.time.end_to_end, mb = ours[k].peak_mb;
+    if (cfg.particles == kBlockParticles && cfg.threads[k] == 2) {
+      std::printf("  target at 2 threads: end to end <= %.1f s (%s, %.3f s), peak <= %.0f MB (%s, %.0f MB)\n",
+                  kBlockTargetSeconds, e2e <= kBlockTargetSeconds ? "met" : "NOT met", e2e, kBlockTargetMb,
+                  mb <= kBlockTargetMb ? "met" : "NOT met", mb);
+    }
+  }
+  std::printf("\n");
+  std::fflush(stdout);
+  return ok;
+}
+
+bool bench_flatness(const Config& cfg) {
+  const int threads = *std::max_element(cfg.threads.begin(), cfg.threads.end());
+  std::printf(
+      "flatness  60 x 60 x 6 square-lattice slabs, d 0.01, no jitter, r_outer = 2 d; top face: vertices above the top "
+      "layer, 5 d inside the sides; %d threads\n",
+      threads);
+  std::printf("  %9s %9s %10s %9s %8s %8s %11s %10s %9s %7s %8s\n", "r_inner/d", "vertices", "triangles", "top verts",
+              "RMS %ri", "p-p %ri", "RMS < 0.5%", "faithful %", "min angle", "slivers", "seconds");
+  bool ok = true;
+  for (const double ratio : kFlatnessRatios) {
+    const DataSet set = flatness_set(ratio);
+    const auto run = in_child<OursResult>([&] { return run_ours(set, threads, 1, cfg.write_dir); });
+    if (!run) {
+      std::printf("  %9.2f FAILED\n", ratio);
+      ok = false;
+      continue;
+    }
+    const OursResult& r = run->value;
+    ok = ok && r.mesh.closed_manifold;
+    const double r_inner = r.stats.r_inner;
+    const double rms = 100.0 * r.top.rms / r_inner;
+    std::printf("  %9.2f %9zu %10zu %9zu %8.3f %8.3f %11s %10.4f %9.2f %7lld %8.3f%s\n", ratio, r.mesh.vertices,
+                r.mesh.triangles, r.top.vertices, rms, 100.0 * r.top.peak_to_peak / r_inner,
+                rms < kFlatnessTargetPercent ? "yes" : "no", 100.0 * r.stats.faithful_after_polish, r.mesh.min_angle,
+                static_cast<long long>(r.stats.slivers_left), r.time.surface,
+                r.mesh.closed_manifold ? "" : "  mesh NOT closed manifold");
+    std::fflush(stdout);
+  }
+  std::printf("\n");
+  return ok;
+}
+
+constexpr const char* kUsage =
+    "usage: particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness] [--threads T]\n"
+    "                       [--write DIR]\n";
+
+[[noreturn]] void usage_error(const std::string& message) {
+  std::fprintf(stderr, "particles_bench: %s\n%s", message.c_str(), kUsage);
+  std::exit(2);
+}
+
+template <class Int>
+Int parse_int(const std::string& flag, const std::string& text, Int min) {
+  Int v = 0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
+  if (ec != std::errc() || end != text.data() + text.size() || v < min) {
+    usage_error(flag + " needs an integer >= " + std::to_string(min) + ", got '" + text + "'");
+  }
+  return v;
 }
 
 }  // namespace
+}  // namespace surfacer
 
 int main(int argc, char** argv) {
-  std::vector<std::string> sets = {"block", "sheet", "droplets", "spray"};
-  int repeat = 3;
-  int threads = 0;
-  std::string write_dir;
+  using namespace surfacer;
+  Config cfg;
   for (int a = 1; a < argc; ++a) {
     const std::string arg = argv[a];
-    auto value = [&]() -> std::string {
-      if (a + 1 >= argc) {
-        std::fprintf(stderr, "%s needs a value\n", arg.c_str());
-        std::exit(2);
-      }
+    const auto value = [&]() -> std::string {
+      if (a + 1 >= argc) usage_error(arg + " needs a value");
       return argv[++a];
     };
-    if (arg == "--sets") {
-      sets.clear();
-      std::stringstream ss(value());
-      for (std::string item; std::getline(ss, item, ',');) sets.push_back(item);
+    if (arg == "--particles") {
+      cfg.particles = parse_int<std::size_t>(arg, value(), 8);
     } else if (arg == "--repeat") {
-      repeat = std::max(1, std::atoi(value().c_str()));
+      cfg.repeat = parse_int(arg, value(), 1);
+    } else if (arg == "--vdb-repeat") {
+      cfg.vdb_repeat = parse_int(arg, value(), 1);
+    } else if (arg == "--section") {
+      const std::string section = value();
+      if (section != "block" && section != "flatness")
+        usage_error("--section is block or flatness, got '" + section + "'");
+      cfg.block = section == "block";
+      cfg.flatness = section == "flatness";
     } else if (arg == "--threads") {
-      threads = std::atoi(value().c_str());
+      cfg.threads = {parse_int(arg, value(), 1)};
     } else if (arg == "--write") {
-      write_dir = value();
+      cfg.write_dir = value();
+    } else if (arg == "--help" || arg == "-h") {
+      std::printf("%s", kUsage);
+      return 0;
     } else {
-      std::fprintf(stderr,
-                   "usage: particles_bench [--sets block,block_fine,sheet,droplets,spray] [--repeat N] [--threads T] "
-                   "[--write DIR]\n");
-      return 2;
+      usage_error("unknown argument '" + arg + "'");
     }
   }
   double load[3] = {0, 0, 0};
   if (getloadavg(load, 3) < 0) load[0] = -1;
-  std::printf("particles_bench: %u hardware threads, threads=%d, load average %.2f, %d repetitions per set\n",
-              std::thread::hardware_concurrency(), threads, load[0], repeat);
-  std::printf("(wall = best of the repetitions; cpu = user+sys of the last; peak RSS of the child process)\n\n");
+  std::printf(
+      "particles_bench: %u hardware threads, load average %.2f at start, seconds = min of %d repetitions "
+      "(OpenVDB: %d), every run in its own child process (MB = its peak RSS)\n\n",
+      std::thread::hardware_concurrency(), load[0], cfg.repeat, cfg.vdb_repeat);
   std::fflush(stdout);
-  bool all_ok = true;
-  for (const std::string& name : sets) {
-    int pipefd[2];
-    if (pipe(pipefd) != 0) return 3;
-    const pid_t pid = fork();
-    if (pid == 0) {
-      close(pipefd[0]);
-      child(name, repeat, threads, write_dir, pipefd[1]);
-      close(pipefd[1]);
-      std::_Exit(0);
-    }
-    close(pipefd[1]);
-    std::string line;
-    char buf[4096];
-    for (ssize_t n; (n = read(pipefd[0], buf, sizeof buf)) > 0;) line.append(buf, static_cast<std::size_t>(n));
-    close(pipefd[0]);
-    int status = 0;
-    rusage ru{};
-    wait4(pid, &status, 0, &ru);
-    if (!WIFEXITED(status) || WEXITSTATUS(status) != 0 || line.empty()) {
-      std::printf("%-10s FAILED (status %d)\n", name.c_str(), status);
-      all_ok = false;
-      continue;
-    }
-    std::istringstream in(line);
-    std::size_t particles, used, vertices, triangles;
-    double cpu, r_in, r_out, h, t_df, t_poly, t_lap, t_b, t_bilap, t_polish, t_total, faithful, faithful_polish,
-        violation, seam;
-    long long evaluations;
-    int closed, manifold, components, min_valence;
-    std::size_t dropped;
-    in >> particles >> used >> vertices >> triangles >> cpu >> r_in >> r_out >> h >> t_df >> t_poly >> t_lap >> t_b >>
-        t_bilap >> t_polish >> t_total >> faithful >> faithful_polish >> violation >> seam >> evaluations >> closed >>
-        manifold >> components >> min_valence >> dropped;
-    std::vector<double> walls;
-    for (double w; in >> w;) walls.push_back(w);
-    const double best = *std::min_element(walls.begin(), walls.end());
-    const double peak_mb = static_cast<double>(ru.ru_maxrss) / 1024.0;
-    std::printf("%-10s %s\n", name.c_str(), note_of(name).c_str());
-    std::printf("  particles %zu (used %zu, %zu spray clusters dropped)  r_inner %.4g r_outer %.4g spacing %.4g\n",
-                particles, used, dropped, r_in, r_out, h);
-    std::printf(
-        "  mesh: %zu vertices, %zu triangles, %d components, closed %s, manifold %s; Marching Tiles min valence %d\n",
-        vertices, triangles, components, closed ? "yes" : "NO", manifold ? "yes" : "NO", min_valence);
-    std::printf("  wall %.3f s best (", best);
-    for (std::size_t k = 0; k < walls.size(); ++k) std::printf("%s%.3f", k ? ", " : "", walls[k]);
-    std::printf(")  cpu %.3f s  ->  %.0f particles/s (%.0f per cpu-second)\n", cpu, particles / best, particles / cpu);
-    std::printf(
-        "  stages (last run, s): distance_field %.3f  polygonize %.3f  laplacian %.3f  build_B %.3f  "
-        "bilaplacian %.3f  polish %.3f  total %.3f\n",
-        t_df, t_poly, t_lap, t_b, t_bilap, t_polish, t_total);
-    std::printf(
-        "  field samples %lld, serial seam %.1f%%, faithful %.4f%% after constrained sweeps, %.2f%% after "
-        "polish (max violation %.3g)\n",
-        evaluations, 100.0 * seam, 100.0 * faithful, 100.0 * faithful_polish, violation);
-    std::printf("  peak RSS %.0f MB\n\n", peak_mb);
-    std::fflush(stdout);
-  }
-  return all_ok ? 0 : 1;
+  bool ok = true;
+  if (cfg.block) ok = bench_block(cfg) && ok;
+  if (cfg.flatness) ok = bench_flatness(cfg) && ok;
+  if (getloadavg(load, 3) >= 0) std::printf("load average %.2f at the end\n", load[0]);
+  return ok ? 0 : 1;
 }
