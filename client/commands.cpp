@@ -111,23 +111,6 @@ ExitCode finish_watch(const WatchResult& result, const FrameWriter& writer, Prog
   }
 }
 
-std::string submit_job(Connection& connection, const v1::JobSpec& spec, v1::Job* job) {
-  v1::SubmitJobRequest request;
-  *request.mutable_spec() = spec;
-  grpc::ClientContext context;
-  context.set_deadline(connection.unary_deadline());
-  v1::SubmitJobResponse response;
-  const grpc::Status status = connection.stub().SubmitJob(&context, request, &response);
-  if (!status.ok()) {
-    CliError error = rpc_error("the server rejected the job", status);
-    // A rejection is the job's failure (exit 4), unless the server could not be reached at all.
-    if (error.code() == ExitCode::kCancelled) throw CliError(ExitCode::kJobFailed, error.what());
-    throw error;
-  }
-  if (job != nullptr) *job = response.job();
-  return response.job_id();
-}
-
 // `run` against one server (or the in-process one).
 ExitCode run_single(const ConnectOptions& connect, PreparedJob prepared, const FrameOutputOptions& output,
                     std::ostream& err, bool tty, ReconnectPolicy policy = {}) {
@@ -283,9 +266,7 @@ std::string percent_text(double fraction) {
 ExitCode run_status(const ConnectOptions& connect, const StatusCommand& command, std::ostream& out, std::ostream& err) {
   auto connection = Connection::open(connect);
   warn_local(*connection, err);
-  v1::GetJobRequest request;
-  request.set_job_id(command.job_id);
-  const v1::Job job = call(*connection, "status of job " + command.job_id, &v1::Surfacer::Stub::GetJob, request);
+  const v1::Job job = get_job(*connection, command.job_id);
   out << "job:      " << job.id() << "\n";
   if (!job.name().empty()) out << "name:     " << job.name() << "\n";
   if (!job.kind().empty()) out << "kind:     " << job.kind() << "\n";
@@ -305,33 +286,15 @@ ExitCode run_status(const ConnectOptions& connect, const StatusCommand& command,
 ExitCode run_list(const ConnectOptions& connect, const ListCommand& command, std::ostream& out, std::ostream& err) {
   auto connection = Connection::open(connect);
   warn_local(*connection, err);
-  v1::ListJobsRequest request;
-  for (const std::string& name : command.states) {
-    std::string upper = "JOB_STATE_";
-    for (char c : name) upper += static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
-    v1::JobState state;
-    if (!v1::JobState_Parse(upper, &state)) throw CliError(ExitCode::kUsage, "unknown job state " + name);
-    request.add_states(state);
-  }
-  // Page by page (a server answers at most 1000 jobs at a time), until the last one.
-  v1::ListJobsResponse response;
-  do {
-    request.set_page_token(response.next_page_token());
-    v1::ListJobsResponse page = call(*connection, "listing jobs", &v1::Surfacer::Stub::ListJobs, request);
-    if (!page.next_page_token().empty() && (page.jobs_size() == 0 || page.next_page_token() == request.page_token())) {
-      throw CliError(ExitCode::kInternal, "listing jobs: the server returned a page that does not advance");
-    }
-    response.mutable_jobs()->MergeFrom(page.jobs());
-    response.set_next_page_token(page.next_page_token());
-  } while (!response.next_page_token().empty());
+  const std::vector<v1::Job> jobs = list_jobs(*connection, command.states);
   std::size_t id_width = 6;
-  for (const auto& job : response.jobs()) id_width = std::max(id_width, job.id().size());
+  for (const auto& job : jobs) id_width = std::max(id_width, job.id().size());
   out << std::left << std::setw(static_cast<int>(id_width)) << "JOB_ID"
       << "  " << std::setw(9) << "STATE"
       << "  " << std::setw(11) << "FRAMES"
       << "  " << std::setw(10) << "KIND"
       << "  NAME\n";
-  for (const auto& job : response.jobs()) {
+  for (const auto& job : jobs) {
     out << std::setw(static_cast<int>(id_width)) << job.id() << "  " << std::setw(9) << state_name(job.state()) << "  "
         << std::setw(11) << (std::to_string(job.frames_done()) + "/" + std::to_string(job.frames_total())) << "  "
         << std::setw(10) << (job.kind().empty() ? "-" : job.kind()) << "  " << job.name() << "\n";
@@ -343,9 +306,7 @@ ExitCode run_list(const ConnectOptions& connect, const ListCommand& command, std
 ExitCode run_cancel(const ConnectOptions& connect, const CancelCommand& command, std::ostream& out, std::ostream& err) {
   auto connection = Connection::open(connect);
   warn_local(*connection, err);
-  v1::CancelJobRequest request;
-  request.set_job_id(command.job_id);
-  const v1::Job job = call(*connection, "cancelling job " + command.job_id, &v1::Surfacer::Stub::CancelJob, request);
+  const v1::Job job = request_cancel(*connection, command.job_id);
   if (is_terminal(job.state())) {
     out << "job " << job.id() << ": " << state_name(job.state()) << "\n";
   } else {
@@ -369,6 +330,58 @@ ExitCode run_health(const ConnectOptions& connect, const HealthCommand& command,
 }
 
 }  // namespace
+
+std::string submit_job(Connection& connection, const v1::JobSpec& spec, v1::Job* job) {
+  v1::SubmitJobRequest request;
+  *request.mutable_spec() = spec;
+  grpc::ClientContext context;
+  context.set_deadline(connection.unary_deadline());
+  v1::SubmitJobResponse response;
+  const grpc::Status status = connection.stub().SubmitJob(&context, request, &response);
+  if (!status.ok()) {
+    CliError error = rpc_error("the server rejected the job", status);
+    // A rejection is the job's failure (exit 4), unless the server could not be reached at all.
+    if (error.code() == ExitCode::kCancelled) throw CliError(ExitCode::kJobFailed, error.what(), error.status_code());
+    throw error;
+  }
+  if (job != nullptr) *job = response.job();
+  return response.job_id();
+}
+
+v1::Job get_job(Connection& connection, const std::string& job_id) {
+  v1::GetJobRequest request;
+  request.set_job_id(job_id);
+  return call(connection, "status of job " + job_id, &v1::Surfacer::Stub::GetJob, request);
+}
+
+std::vector<v1::Job> list_jobs(Connection& connection, const std::vector<std::string>& states) {
+  v1::ListJobsRequest request;
+  for (const std::string& name : states) {
+    std::string upper = "JOB_STATE_";
+    for (char c : name) upper += static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+    v1::JobState state;
+    if (!v1::JobState_Parse(upper, &state)) throw CliError(ExitCode::kUsage, "unknown job state " + name);
+    request.add_states(state);
+  }
+  // Page by page (a server answers at most 1000 jobs at a time), until the last one.
+  v1::ListJobsResponse response;
+  do {
+    request.set_page_token(response.next_page_token());
+    v1::ListJobsResponse page = call(connection, "listing jobs", &v1::Surfacer::Stub::ListJobs, request);
+    if (!page.next_page_token().empty() && (page.jobs_size() == 0 || page.next_page_token() == request.page_token())) {
+      throw CliError(ExitCode::kInternal, "listing jobs: the server returned a page that does not advance");
+    }
+    response.mutable_jobs()->MergeFrom(page.jobs());
+    response.set_next_page_token(page.next_page_token());
+  } while (!response.next_page_token().empty());
+  return {response.jobs().begin(), response.jobs().end()};
+}
+
+v1::Job request_cancel(Connection& connection, const std::string& job_id) {
+  v1::CancelJobRequest request;
+  request.set_job_id(job_id);
+  return call(connection, "cancelling job " + job_id, &v1::Surfacer::Stub::CancelJob, request);
+}
 
 ExitCode run_invocation(const Invocation& invocation, std::ostream& out, std::ostream& err, bool tty) {
   const ConnectOptions& connect = invocation.connect;

@@ -1,10 +1,15 @@
-// Runs a parsed invocation against a server: run, submit, watch, status, list, cancel, health.
+// Runs a parsed invocation against a server: run, submit, watch, status, list, cancel, health. The unary calls
+// behind them are public for the Python package, which drives the same functions.
 #pragma once
 
 #include <iosfwd>
+#include <string>
+#include <vector>
 
+#include "client/connection.h"
 #include "client/exit_codes.h"
 #include "client/options.h"
+#include "surfacer/v1/surfacer.pb.h"
 
 namespace surfacer::client {
 
@@ -12,5 +17,16 @@ namespace surfacer::client {
 // status, lists), progress, warnings and the summary to `err`; `tty` selects the in-place progress bar.
 // Throws CliError for every failure (its code is the exit code).
 ExitCode run_invocation(const Invocation& invocation, std::ostream& out, std::ostream& err, bool tty);
+
+// SubmitJob: returns the job id (and the job as queued in `job` when not null). A rejection throws
+// CliError(kJobFailed) with the server's status code and message (kUnreachable when the server cannot be reached).
+std::string submit_job(Connection& connection, const v1::JobSpec& spec, v1::Job* job = nullptr);
+// GetJob. Throws rpc_error("status of job ID", status), e.g. NOT_FOUND.
+v1::Job get_job(Connection& connection, const std::string& job_id);
+// ListJobs, every page, of jobs in `states` (lower-case names, "running"; empty: all). CliError(kUsage) for an
+// unknown state name, rpc_error("listing jobs", status) when the server refuses.
+std::vector<v1::Job> list_jobs(Connection& connection, const std::vector<std::string>& states);
+// CancelJob: the job as the server answered (terminal, or still running with the cancel requested).
+v1::Job request_cancel(Connection& connection, const std::string& job_id);
 
 }  // namespace surfacer::client

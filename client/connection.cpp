@@ -134,7 +134,7 @@ CliError rpc_error(const std::string& context, const grpc::Status& status) {
         " (the server does not allow this for the token or client certificate given: check --token, "
         "--token-file, $SURFACER_TOKEN or --tls-cert)";
   }
-  return CliError(code, message);
+  return CliError(code, message, static_cast<int>(status.error_code()));
 }
 
 }  // namespace surfacer::client

@@ -1,6 +1,7 @@
 // Exit codes of the `surfacer` CLI (documented in `surfacer --help`) and the one error type commands throw.
 #pragma once
 
+#include <optional>
 #include <stdexcept>
 #include <string>
 
@@ -30,14 +31,18 @@ inline constexpr const char* kExitCodesHelp =
     "  6  frame integrity error (CRC-32, size or chunk count mismatch, or a protocol violation)\n";
 
 // Thrown by every client function that ends the command; main() prints "surfacer: error: <what()>" and exits
-// with `code()`.
+// with `code()`. An error that is a server's answer also keeps its gRPC status code (a grpc::StatusCode value; the
+// Python package raises it as `.code`).
 class CliError : public std::runtime_error {
  public:
-  CliError(ExitCode code, const std::string& message) : std::runtime_error(message), code_(code) {}
+  CliError(ExitCode code, const std::string& message, std::optional<int> status_code = std::nullopt)
+      : std::runtime_error(message), code_(code), status_code_(status_code) {}
   ExitCode code() const { return code_; }
+  const std::optional<int>& status_code() const { return status_code_; }
 
  private:
   ExitCode code_;
+  std::optional<int> status_code_;
 };
 
 }  // namespace surfacer::client

@@ -29,15 +29,14 @@ std::string read_text_file(const std::filesystem::path& path, const char* what) 
   return text.str();
 }
 
-// `root_path` names the message in errors about its fields ("spec" for a JobSpec, "" for a Scene).
+// `where` names the text in errors ("scene file a.json"), `root_path` the message in errors about its fields ("spec"
+// for a JobSpec, "" for a Scene).
 template <typename Message>
-Message parse_json_file(const std::filesystem::path& path, const char* what, const std::string& root_path) {
-  const std::string text = read_text_file(path, what);
+Message parse_json(const std::string& text, const std::string& where, const std::string& root_path) {
   Message message;
   google::protobuf::util::JsonParseOptions options;
   options.ignore_unknown_fields = false;
   auto status = google::protobuf::util::JsonStringToMessage(text, &message, options);
-  const std::string where = std::string(what) + " " + path.string();
   // Protobuf's JSON parser stops at 100 nested objects: a scene that deep is refused the way the server refuses it.
   if (!status.ok() && wire::json_object_depth(text) >= 100)
     throw CliError(ExitCode::kUsage, where + ": " + wire::scene_too_deep());
@@ -51,6 +50,41 @@ Message parse_json_file(const std::filesystem::path& path, const char* what, con
     throw CliError(ExitCode::kUsage, where + ": " + e.what());
   }
   return message;
+}
+
+template <typename Message>
+Message parse_json_file(const std::filesystem::path& path, const char* what, const std::string& root_path) {
+  return parse_json<Message>(read_text_file(path, what), std::string(what) + " " + path.string(), root_path);
+}
+
+// A scene named in the options: in memory, or read from its file.
+v1::Scene scene_of(const std::filesystem::path& path, const InMemoryInputs& in_memory) {
+  const auto it = in_memory.scenes.find(path.string());
+  if (it != in_memory.scenes.end()) return parse_scene_json(it->second, "scene " + it->first);
+  return read_scene_file(path);
+}
+
+// The frames of particle inputs: in-memory frames as they are, files and patterns expanded (expand_particle_inputs).
+std::vector<std::filesystem::path> particle_inputs_of(const ParticleInputOptions& input,
+                                                      const InMemoryInputs& in_memory) {
+  const auto in_memory_input = [&](const std::string& name) { return in_memory.particles.count(name) != 0; };
+  if (std::none_of(input.inputs.begin(), input.inputs.end(), in_memory_input)) return expand_particle_inputs(input);
+  std::vector<std::filesystem::path> frames;
+  for (const std::string& name : input.inputs) {
+    if (in_memory_input(name)) {
+      frames.emplace_back(name);
+      continue;
+    }
+    ParticleInputOptions one;
+    one.inputs = {name};
+    if (is_sequence_pattern(name)) {
+      one.start = input.start;
+      one.end = input.end;
+    }
+    const auto files = expand_particle_inputs(one);
+    frames.insert(frames.end(), files.begin(), files.end());
+  }
+  return frames;
 }
 
 void set_vec3(v1::Vec3* v, double x, double y, double z) {
@@ -89,15 +123,18 @@ void require_file(const std::filesystem::path& path, const std::string& flag) {
 
 // One pending upload per particle file; `frame_of(spec, i)` is the i-th ParticleFrame of the spec.
 void add_particle_frames(PreparedJob& job, const std::vector<std::filesystem::path>& files,
-                         v1::ParticleFrame* (*frame_of)(v1::JobSpec&, int)) {
+                         v1::ParticleFrame* (*frame_of)(v1::JobSpec&, int), const InMemoryInputs& in_memory) {
   for (std::size_t i = 0; i < files.size(); ++i) {
     const int index = static_cast<int>(i);
     const std::filesystem::path& file = files[i];
+    const auto it = in_memory.particles.find(file.string());
+    const ParticleFrame* frame = it == in_memory.particles.end() ? nullptr : &it->second;  // outlives the upload
     PendingUpload upload;
     upload.description = "particle frame " + std::to_string(index) + " (" + file.string() + ")";
     upload.frame = index;
-    upload.read = [file, index, frame_of](v1::JobSpec& spec, const InputLimits& limits) {
-      ParticleRecords records = read_particle_records(file, limits);
+    upload.read = [file, frame, index, frame_of](v1::JobSpec& spec, const InputLimits& limits) {
+      ParticleRecords records =
+          frame != nullptr ? pack_particle_records(*frame, file.string(), limits) : read_particle_records(file, limits);
       frame_of(spec, index)->set_with_radius(records.with_radius);
       UploadData data;
       data.name = file.filename().string();
@@ -113,9 +150,9 @@ void add_particle_frames(PreparedJob& job, const std::vector<std::filesystem::pa
   }
 }
 
-void build_isosurface(const IsosurfaceOptions& iso, v1::JobSpec& spec) {
+void build_isosurface(const IsosurfaceOptions& iso, v1::JobSpec& spec, const InMemoryInputs& in_memory) {
   v1::IsosurfaceJob* job = spec.mutable_isosurface();
-  for (const auto& path : iso.scenes) *job->add_scenes() = read_scene_file(path);
+  for (const auto& path : iso.scenes) *job->add_scenes() = scene_of(path, in_memory);
   if (iso.bounds) set_bounds(job->mutable_bounds(), *iso.bounds);
   if (iso.cell_size) job->set_cell_size(*iso.cell_size);
   if (iso.cells) job->set_cells(*iso.cells);
@@ -123,12 +160,13 @@ void build_isosurface(const IsosurfaceOptions& iso, v1::JobSpec& spec) {
   spec.set_name(first_and_more(iso.scenes, ""));
 }
 
-void build_particles(const ParticlesOptions& p, PreparedJob& prepared) {
+void build_particles(const ParticlesOptions& p, PreparedJob& prepared, const InMemoryInputs& in_memory) {
   v1::JobSpec& spec = prepared.spec;
   v1::ParticlesJob* job = spec.mutable_particles();
-  const auto files = expand_particle_inputs(p.input);
+  const auto files = particle_inputs_of(p.input, in_memory);
   for (std::size_t i = 0; i < files.size(); ++i) job->add_frames();
-  add_particle_frames(prepared, files, [](v1::JobSpec& s, int i) { return s.mutable_particles()->mutable_frames(i); });
+  add_particle_frames(
+      prepared, files, [](v1::JobSpec& s, int i) { return s.mutable_particles()->mutable_frames(i); }, in_memory);
   if (p.r_inner) job->set_r_inner(*p.r_inner);
   job->set_derive_r_inner(p.derive_r_inner);
   if (p.r_outer) job->set_r_outer(*p.r_outer);
@@ -141,15 +179,15 @@ void build_particles(const ParticlesOptions& p, PreparedJob& prepared) {
   if (p.relaxation) job->set_relaxation(*p.relaxation);
   if (p.erosion) job->set_erosion(*p.erosion);
   if (p.container_box) set_bounds(job->mutable_container()->mutable_box(), *p.container_box);
-  if (p.container_scene) *job->mutable_container()->mutable_solid() = read_scene_file(*p.container_scene);
+  if (p.container_scene) *job->mutable_container()->mutable_solid() = scene_of(*p.container_scene, in_memory);
   if (p.min_particles) job->set_min_particles_per_component(*p.min_particles);
   spec.set_name(first_and_more(files, "frames"));
 }
 
-void build_optimize(const OptimizeOptions& o, PreparedJob& prepared) {
+void build_optimize(const OptimizeOptions& o, PreparedJob& prepared, const InMemoryInputs& in_memory) {
   v1::JobSpec& spec = prepared.spec;
   v1::OptimizeJob* job = spec.mutable_optimize();
-  *job->mutable_scene() = read_scene_file(o.scene);
+  *job->mutable_scene() = scene_of(o.scene, in_memory);
   if (o.start_mesh) {
     const std::filesystem::path file = *o.start_mesh;
     require_file(file, "--start-mesh");
@@ -202,7 +240,7 @@ void build_optimize(const OptimizeOptions& o, PreparedJob& prepared) {
   spec.set_name(o.scene.stem().string());
 }
 
-void build_active(const ActiveOptions& a, PreparedJob& prepared) {
+void build_active(const ActiveOptions& a, PreparedJob& prepared, const InMemoryInputs& in_memory) {
   v1::JobSpec& spec = prepared.spec;
   v1::ActiveJob* job = spec.mutable_active();
   job->set_grid_spacing(a.grid_spacing);
@@ -216,18 +254,19 @@ void build_active(const ActiveOptions& a, PreparedJob& prepared) {
 
   if (const auto* coat = std::get_if<ActiveCoatOptions>(&a.mode)) {
     v1::ActiveCoat* c = job->mutable_coat();
-    const auto files = expand_particle_inputs(coat->input);
+    const auto files = particle_inputs_of(coat->input, in_memory);
     for (std::size_t i = 0; i < files.size(); ++i) c->add_frames();
-    add_particle_frames(prepared, files,
-                        [](v1::JobSpec& s, int i) { return s.mutable_active()->mutable_coat()->mutable_frames(i); });
+    add_particle_frames(
+        prepared, files, [](v1::JobSpec& s, int i) { return s.mutable_active()->mutable_coat()->mutable_frames(i); },
+        in_memory);
     c->set_kernel_radius(coat->kernel_radius);
     if (coat->iso) c->set_iso(*coat->iso);
     if (coat->substeps) c->set_substeps_per_frame(*coat->substeps);
     spec.set_name("coat " + first_and_more(files, "frames"));
   } else if (const auto* morph = std::get_if<ActiveMorphOptions>(&a.mode)) {
     v1::ActiveMorph* m = job->mutable_morph();
-    *m->mutable_from() = read_scene_file(morph->from);
-    *m->mutable_to() = read_scene_file(morph->to);
+    *m->mutable_from() = scene_of(morph->from, in_memory);
+    *m->mutable_to() = scene_of(morph->to, in_memory);
     if (morph->tolerance) m->set_tolerance(*morph->tolerance);
     if (morph->max_frames) m->set_max_frames(*morph->max_frames);
     if (morph->frame_time) m->set_frame_time(*morph->frame_time);
@@ -235,7 +274,7 @@ void build_active(const ActiveOptions& a, PreparedJob& prepared) {
   } else {
     const auto& advect = std::get<ActiveAdvectOptions>(a.mode);
     v1::ActiveAdvect* m = job->mutable_advect();
-    *m->mutable_shape() = read_scene_file(advect.scene);
+    *m->mutable_shape() = scene_of(advect.scene, in_memory);
     m->set_frame_interval(advect.frame_interval);
     m->set_frames(advect.frames);
     if (advect.velocity_grid) {
@@ -288,6 +327,10 @@ void build_active(const ActiveOptions& a, PreparedJob& prepared) {
 
 }  // namespace
 
+v1::Scene parse_scene_json(const std::string& text, const std::string& where) {
+  return parse_json<v1::Scene>(text, where, "");
+}
+
 v1::Scene read_scene_file(const std::filesystem::path& path) {
   return parse_json_file<v1::Scene>(path, "scene file", "");
 }
@@ -296,19 +339,19 @@ v1::JobSpec read_job_spec_file(const std::filesystem::path& path) {
   return parse_json_file<v1::JobSpec>(path, "job spec file", "spec");
 }
 
-PreparedJob prepare_job(const JobOptions& options) {
+PreparedJob prepare_job(const JobOptions& options, const InMemoryInputs& in_memory) {
   PreparedJob prepared;
   v1::JobSpec& spec = prepared.spec;
   if (options.spec) {
     spec = read_job_spec_file(*options.spec);
   } else if (options.isosurface) {
-    build_isosurface(*options.isosurface, spec);
+    build_isosurface(*options.isosurface, spec, in_memory);
   } else if (options.particles) {
-    build_particles(*options.particles, prepared);
+    build_particles(*options.particles, prepared, in_memory);
   } else if (options.optimize) {
-    build_optimize(*options.optimize, prepared);
+    build_optimize(*options.optimize, prepared, in_memory);
   } else if (options.active) {
-    build_active(*options.active, prepared);
+    build_active(*options.active, prepared, in_memory);
   } else {
     throw CliError(ExitCode::kUsage,
                    "no job given: use a job type (isosurface, particles, optimize, active) or "
@@ -324,6 +367,10 @@ PreparedJob prepare_job(const JobOptions& options) {
   if (options.encoding == "raw") output->set_encoding(v1::MESH_ENCODING_PLY);
   if (options.encoding == "meshopt") output->set_encoding(v1::MESH_ENCODING_MESHOPT);
   if (options.encoding == "draco") output->set_encoding(v1::MESH_ENCODING_DRACO);
+  if (options.encoding && *options.encoding != "raw" && *options.encoding != "meshopt" &&
+      *options.encoding != "draco") {
+    throw CliError(ExitCode::kUsage, "--encoding must be draco, meshopt or raw, not " + *options.encoding);
+  }
   if (options.normals) output->set_normals(true);
   if (options.quantization_bits) output->set_quantization_bits(*options.quantization_bits);
   try {

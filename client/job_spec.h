@@ -5,6 +5,8 @@
 #pragma once
 
 #include <filesystem>
+#include <map>
+#include <string>
 #include <vector>
 
 #include "client/options.h"
@@ -26,13 +28,26 @@ struct PreparedJob {
   std::vector<PendingUpload> uploads;  // in order; empty for isosurface, morph, Enright advect and --spec
 };
 
+// Inputs handed over in memory rather than as files (the Python package): JobOptions name each one like a file, by
+// its key here (a scene "file", or a particle input), and it is taken from here instead of being read. Every check,
+// default and upload is otherwise that of a file.
+struct InMemoryInputs {
+  std::map<std::string, std::string> scenes;       // key -> a surfacer.v1.Scene in protobuf JSON
+  std::map<std::string, ParticleFrame> particles;  // key -> one particle frame
+};
+
+// Parses a Scene from protobuf JSON with the checks of a scene file; `where` names it in errors ("scene file
+// a.json"). Throws CliError(kUsage).
+v1::Scene parse_scene_json(const std::string& text, const std::string& where);
+
 // The job of `options`: `options.spec` read from its file, or built from the one job type set, then the output
 // overrides (name, encoding, normals, quantization bits) applied. Scene files are read and sequence patterns expanded
 // here, and every input file is checked to exist (and a velocity grid's size against its dimensions), so usage
 // errors come before connecting; the input files themselves are read by the pending uploads. Range checks of
 // values beyond the flags' own are the server's (it answers INVALID_ARGUMENT naming the field).
-// Throws CliError(kUsage).
-PreparedJob prepare_job(const JobOptions& options);
+// Inputs named by a key of `in_memory` come from there (its particle frames are read by the uploads: keep it until
+// they are done). Throws CliError(kUsage).
+PreparedJob prepare_job(const JobOptions& options, const InMemoryInputs& in_memory = {});
 
 // What a `run` that writes `formats` asks of the server (docs/ALGORITHMS.md §5 "Frames"): Draco frames come in
 // pieces, encoded on every core of the server and decoded on every core here, unless a .drc file is to be written

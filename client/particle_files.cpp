@@ -127,6 +127,13 @@ ParticleReadLimits particle_read_limits(const fs::path& path, const InputLimits&
   return out;
 }
 
+// "; the server takes at most N particles per frame ..." for messages about a frame the server would refuse.
+std::string server_limits_text(const InputLimits& limits) {
+  return "; the server takes at most " + std::to_string(limits.max_particles) +
+         " particles per frame (its --max-particles) and " + std::to_string(limits.max_upload_bytes) +
+         " bytes per upload (its --max-upload-bytes, or what the token's quota has left)";
+}
+
 }  // namespace
 
 bool is_sequence_pattern(const std::string& input) { return split_pattern(input).placeholders > 0; }
@@ -194,10 +201,7 @@ ParticleRecords read_particle_records(const fs::path& path, const InputLimits& l
   const std::string name = path.string();
   const bool limited =
       limits.max_particles != InputLimits{}.max_particles || limits.max_upload_bytes != InputLimits{}.max_upload_bytes;
-  const std::string server_limits = "; the server takes at most " + std::to_string(limits.max_particles) +
-                                    " particles per frame (its --max-particles) and " +
-                                    std::to_string(limits.max_upload_bytes) +
-                                    " bytes per upload (its --max-upload-bytes, or what the token's quota has left)";
+  const std::string server_limits = server_limits_text(limits);
   ParticleFrame frame;
   try {
     frame = read_particles(path, particle_read_limits(path, limits));
@@ -211,7 +215,15 @@ ParticleRecords read_particle_records(const fs::path& path, const InputLimits& l
   } catch (const std::bad_alloc&) {
     throw usage(name + ": reading it needs more memory than there is");
   }
+  return pack_particle_records(frame, name, limits);
+}
+
+ParticleRecords pack_particle_records(const ParticleFrame& frame, const std::string& name, const InputLimits& limits) {
+  const std::string server_limits = server_limits_text(limits);
   if (frame.positions.empty()) throw usage(name + ": no particles; every frame needs at least one");
+  if (static_cast<std::uint64_t>(frame.positions.size()) > static_cast<std::uint64_t>(limits.max_particles)) {
+    throw usage(name + ": " + std::to_string(frame.positions.size()) + " particles" + server_limits);
+  }
   const bool with_radius = !frame.radii.empty();
   if (with_radius && frame.radii.size() != frame.positions.size()) {
     throw usage(name + ": " + std::to_string(frame.radii.size()) + " radii for " +

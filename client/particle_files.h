@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "client/options.h"
+#include "core/particles/particle_io.h"
 
 namespace surfacer::client {
 
@@ -44,5 +45,11 @@ struct ParticleRecords {
 // its content shows it: gzip data stops inflating at 12 bytes per accepted particle (.bin) or 256 (other formats:
 // text lines or records with many columns), at most 16 GiB; the message names the limit and the server flag.
 ParticleRecords read_particle_records(const std::filesystem::path& path, const InputLimits& limits = {});
+
+// Packs a frame already in memory (what read_particle_records does after reading), with the same checks and
+// messages, `name` standing for the file: an empty frame, radii that are not one per particle or are negative,
+// values that do not fit in float32, more particles or bytes than `limits` allow. Throws CliError(kUsage).
+ParticleRecords pack_particle_records(const ParticleFrame& frame, const std::string& name,
+                                      const InputLimits& limits = {});
 
 }  // namespace surfacer::client

@@ -785,3 +785,54 @@ TEST(JobSpecs, IsosurfaceMethod) {
 
 }  // namespace
 }  // namespace surfacer::client
+
+namespace surfacer::client {
+namespace {
+
+// What the Python package hands prepare_job(): a scene as JSON and a particle frame in memory, named by keys in the
+// options like files, mixed with a real file; they become the same spec and uploads a file would.
+TEST(InMemoryInputs, ScenesAndParticleFramesStandInForFiles) {
+  const fs::path dir = fresh_temp_dir("in_memory_inputs");
+  write_file(dir / "cube.json", kCube);
+  write_file(dir / "b.xyz", "0 0 0\n1 0 0\n");
+
+  InMemoryInputs memory;
+  memory.scenes["scene[0]"] = kBall;
+  memory.particles["frame[0]"].positions = {Vec3(0, 0, 0), Vec3(0.5, 0, 0), Vec3(0, 0.5, 0)};
+
+  JobOptions iso;
+  iso.isosurface.emplace().scenes = {"scene[0]", dir / "cube.json"};
+  const PreparedJob scenes = prepare_job(iso, memory);
+  ASSERT_EQ(scenes.spec.isosurface().scenes_size(), 2);
+  EXPECT_EQ(scenes.spec.isosurface().scenes(0).name(), "ball");
+  EXPECT_EQ(scenes.spec.isosurface().scenes(1).name(), "cube");
+
+  JobOptions particles;
+  particles.particles.emplace().input.inputs = {"frame[0]", (dir / "b.xyz").string()};
+  const PreparedJob frames = prepare_job(particles, memory);
+  ASSERT_EQ(frames.uploads.size(), 2u);
+  v1::JobSpec spec = frames.spec;
+  const UploadData first = frames.uploads[0].read(spec, InputLimits{});
+  EXPECT_EQ(first.particles, 3);
+  EXPECT_EQ(floats(first.bytes), (std::vector<float>{0, 0, 0, 0.5f, 0, 0, 0, 0.5f, 0}));
+  EXPECT_EQ(frames.uploads[1].read(spec, InputLimits{}).particles, 2);
+
+  // The checks of a file apply: a bad scene, an empty frame, a frame over the server's limit.
+  memory.scenes["scene[0]"] = R"({"root": {"sphere": {"radius": 1, "colour": 2}}})";
+  try {
+    prepare_job(iso, memory);
+    ADD_FAILURE() << "a scene with an unknown field was accepted";
+  } catch (const CliError& e) {
+    EXPECT_EQ(e.code(), ExitCode::kUsage);
+    EXPECT_NE(std::string(e.what()).find("scene scene[0]"), std::string::npos) << e.what();
+  }
+  InputLimits two;
+  two.max_particles = 2;
+  EXPECT_THROW(frames.uploads[0].read(spec, two), CliError);
+  memory.particles["frame[0]"].positions.clear();
+  const PreparedJob empty = prepare_job(particles, memory);
+  EXPECT_THROW(empty.uploads[0].read(spec, InputLimits{}), CliError);
+}
+
+}  // namespace
+}  // namespace surfacer::client

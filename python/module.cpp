@@ -1,0 +1,869 @@
+// surfacer._surfacer: the C++ client library (client/) as a Python extension. Jobs are built by prepare_job() from the
+// CLI's own option structs, inputs uploaded by upload_inputs(), frames received by JobWatcher (CRC checks, reconnect
+// and resume) and decoded by decode_frame(): the Python package adds only the mapping of keyword arguments onto those
+// structs and the conversion of arrays and dicts. The public API (classes, docstrings) is python/surfacer/__init__.py.
+#include <google/protobuf/descriptor.h>
+#include <google/protobuf/reflection.h>
+#include <google/protobuf/timestamp.pb.h>
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <atomic>
+#include <condition_variable>
+#include <cstdlib>
+#include <deque>
+#include <functional>
+#include <iostream>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "client/cli_jobs.h"
+#include "client/commands.h"
+#include "client/connection.h"
+#include "client/health.h"
+#include "client/job_spec.h"
+#include "client/progress.h"
+#include "client/security.h"
+#include "client/summary.h"
+#include "client/upload.h"
+#include "client/watch.h"
+#include "core/mesh/frame_codec.h"
+#include "core/mesh/mesh_io.h"
+#include "core/util/errors.h"
+#include "core/util/format.h"
+#include "wire/output.h"
+
+namespace py = pybind11;
+
+namespace surfacer::client {
+namespace {
+
+// ---- errors ------------------------------------------------------------------------------------------------------
+
+// The gRPC code name a client-side failure stands for, when the error is not a server's answer.
+std::string code_of(const CliError& e) {
+  if (e.status_code()) return status_code_name(static_cast<grpc::StatusCode>(*e.status_code()));
+  switch (e.code()) {
+    case ExitCode::kUsage:
+      return "INVALID_ARGUMENT";
+    case ExitCode::kUnreachable:
+      return "UNAVAILABLE";
+    case ExitCode::kCancelled:
+      return "CANCELLED";
+    case ExitCode::kIntegrity:
+      return "DATA_LOSS";
+    case ExitCode::kJobFailed:
+      return "UNKNOWN";
+    default:
+      return "INTERNAL";
+  }
+}
+
+// Raises the surfacer.Error subclass of the CLI's exit code (python/surfacer/_errors.py) with `.code` (gRPC code name)
+// and `.exit_code` (what the CLI would exit with).
+void raise_error(ExitCode exit_code, const std::string& code, const std::string& message) {
+  const char* name = "Error";
+  switch (exit_code) {
+    case ExitCode::kUsage:
+      name = "UsageError";
+      break;
+    case ExitCode::kUnreachable:
+      name = "Unreachable";
+      break;
+    case ExitCode::kJobFailed:
+      name = "JobFailed";
+      break;
+    case ExitCode::kCancelled:
+      name = "Cancelled";
+      break;
+    case ExitCode::kIntegrity:
+      name = "IntegrityError";
+      break;
+    default:
+      break;
+  }
+  py::object cls = py::module_::import("surfacer._errors").attr(name);
+  py::object error = cls(message, code, to_int(exit_code));
+  PyErr_SetObject(cls.ptr(), error.ptr());
+}
+
+// ---- protobuf messages as Python values -------------------------------------------------------------------------
+
+py::object to_python(const google::protobuf::Message& message);
+
+py::object field_value(const google::protobuf::Message& message, const google::protobuf::FieldDescriptor* field,
+                       int index) {
+  using FD = google::protobuf::FieldDescriptor;
+  const google::protobuf::Reflection* r = message.GetReflection();
+  const bool repeated = field->is_repeated();
+  switch (field->cpp_type()) {
+    case FD::CPPTYPE_INT32:
+      return py::int_(repeated ? r->GetRepeatedInt32(message, field, index) : r->GetInt32(message, field));
+    case FD::CPPTYPE_INT64:
+      return py::int_(repeated ? r->GetRepeatedInt64(message, field, index) : r->GetInt64(message, field));
+    case FD::CPPTYPE_UINT32:
+      return py::int_(repeated ? r->GetRepeatedUInt32(message, field, index) : r->GetUInt32(message, field));
+    case FD::CPPTYPE_UINT64:
+      return py::int_(repeated ? r->GetRepeatedUInt64(message, field, index) : r->GetUInt64(message, field));
+    case FD::CPPTYPE_DOUBLE:
+      return py::float_(repeated ? r->GetRepeatedDouble(message, field, index) : r->GetDouble(message, field));
+    case FD::CPPTYPE_FLOAT:
+      return py::float_(repeated ? r->GetRepeatedFloat(message, field, index) : r->GetFloat(message, field));
+    case FD::CPPTYPE_BOOL:
+      return py::bool_(repeated ? r->GetRepeatedBool(message, field, index) : r->GetBool(message, field));
+    case FD::CPPTYPE_ENUM:
+      return py::str((repeated ? r->GetRepeatedEnum(message, field, index) : r->GetEnum(message, field))->name());
+    case FD::CPPTYPE_STRING:
+      if (field->type() == FD::TYPE_BYTES) {
+        return py::bytes(repeated ? r->GetRepeatedString(message, field, index) : r->GetString(message, field));
+      }
+      return py::str(repeated ? r->GetRepeatedString(message, field, index) : r->GetString(message, field));
+    case FD::CPPTYPE_MESSAGE:
+      return to_python(repeated ? r->GetRepeatedMessage(message, field, index) : r->GetMessage(message, field));
+  }
+  return py::none();
+}
+
+// A message as a dict keyed by the proto's field names: scalars always (their defaults included), messages and oneof
+// members when set, repeated fields as lists, maps as dicts, enums by name, Timestamps as seconds since the epoch.
+py::object to_python(const google::protobuf::Message& message) {
+  if (const auto* ts = dynamic_cast<const google::protobuf::Timestamp*>(&message)) {
+    return py::float_(static_cast<double>(ts->seconds()) + ts->nanos() * 1e-9);
+  }
+  const google::protobuf::Descriptor* d = message.GetDescriptor();
+  const google::protobuf::Reflection* r = message.GetReflection();
+  py::dict out;
+  for (int i = 0; i < d->field_count(); ++i) {
+    const google::protobuf::FieldDescriptor* field = d->field(i);
+    if (field->is_map()) {
+      py::dict map;
+      for (int k = 0; k < r->FieldSize(message, field); ++k) {
+        const google::protobuf::Message& entry = r->GetRepeatedMessage(message, field, k);
+        const google::protobuf::Descriptor* e = entry.GetDescriptor();
+        map[field_value(entry, e->field(0), -1)] = field_value(entry, e->field(1), -1);
+      }
+      out[py::str(field->name())] = map;
+    } else if (field->is_repeated()) {
+      py::list list;
+      for (int k = 0; k < r->FieldSize(message, field); ++k) list.append(field_value(message, field, k));
+      out[py::str(field->name())] = list;
+    } else if (field->has_presence() && !r->HasField(message, field)) {
+      if (field->containing_oneof() == nullptr) out[py::str(field->name())] = py::none();
+    } else {
+      out[py::str(field->name())] = field_value(message, field, -1);
+    }
+  }
+  return out;
+}
+
+// ---- keyword arguments onto the CLI's option structs ---------------------------------------------------------------
+
+using Setter = std::function<void(py::handle value)>;
+using Setters = std::map<std::string, Setter>;
+
+std::string text_of(py::handle value) { return py::str(value).cast<std::string>(); }
+
+bool is_path_like(py::handle value) { return py::isinstance<py::str>(value) || py::hasattr(value, "__fspath__"); }
+std::string path_of(py::handle value) { return py::module_::import("os").attr("fspath")(value).cast<std::string>(); }
+
+// "1,2,3" from a sequence of numbers, for the CLI's value parsers (parse_box, parse_sweeps): one set of checks.
+std::string joined(py::handle value, const std::string& keyword) {
+  if (py::isinstance<py::str>(value) || !py::isinstance<py::sequence>(value)) {
+    throw py::type_error(keyword + " must be a sequence of numbers, not " + text_of(py::repr(value)));
+  }
+  std::string text;
+  for (py::handle item : value) {
+    if (!text.empty()) text += ",";
+    text += format_number(item.cast<double>());
+  }
+  return text;
+}
+
+template <typename T>
+Setter set(std::optional<T>& target) {
+  return [&target](py::handle v) { target = v.cast<T>(); };
+}
+Setter set(bool& target) {
+  return [&target](py::handle v) { target = v.cast<bool>(); };
+}
+Setter set_box(std::optional<Box>& target, const std::string& keyword) {
+  return [&target, keyword](py::handle v) { target = parse_box(joined(v, keyword), keyword); };
+}
+
+// Applies `kwargs` through `setters`; an unknown keyword is a TypeError naming it, None leaves the default.
+void apply(const py::dict& kwargs, const Setters& setters, const std::string& function) {
+  for (auto [key, value] : kwargs) {
+    const std::string name = key.cast<std::string>();
+    const auto it = setters.find(name);
+    if (it == setters.end()) {
+      std::string known;
+      for (const auto& [k, unused] : setters) known += (known.empty() ? "" : ", ") + k;
+      throw py::type_error(function + "() got an unexpected keyword argument '" + name + "' (it takes " + known + ")");
+    }
+    if (value.is_none()) continue;
+    try {
+      it->second(value);
+    } catch (const py::cast_error&) {
+      throw py::type_error(function + "(): " + name + "=" + text_of(py::repr(value)) + " has the wrong type");
+    }
+  }
+}
+
+// Inputs of one call: scenes and particle frames given as dicts and arrays are kept here, under keys that stand for
+// them in the options structs ("scene[0]", "frame[2]").
+struct Inputs {
+  InMemoryInputs memory;
+
+  // A scene: a path, or a dict in protobuf's JSON mapping of surfacer.v1.Scene.
+  std::filesystem::path scene(py::handle value, const std::string& what) {
+    if (is_path_like(value)) return path_of(value);
+    if (!py::isinstance<py::dict>(value)) {
+      throw py::type_error(what + " must be a scene dict or a path to a scene JSON file, not " +
+                           text_of(py::repr(value)));
+    }
+    const std::string key = what;
+    memory.scenes[key] = py::module_::import("json").attr("dumps")(value).cast<std::string>();
+    return key;
+  }
+
+  // One input per item: (N,3) positions, (N,4) positions and radii, or a file or pattern (fluid_{:04d}.bgeo). A
+  // single array or path is one input.
+  std::vector<std::string> particle_inputs(py::handle frames) {
+    std::vector<py::handle> items;
+    if (py::isinstance<py::array>(frames) || is_path_like(frames)) {
+      items.push_back(frames);
+    } else {
+      for (py::handle item : frames) items.push_back(item);
+    }
+    std::vector<std::string> inputs;
+    for (std::size_t i = 0; i < items.size(); ++i) {
+      const std::string key = "frame[" + std::to_string(i) + "]";
+      if (is_path_like(items[i])) {
+        inputs.push_back(path_of(items[i]));
+        continue;
+      }
+      const auto array = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(items[i]);
+      if (!array || array.ndim() != 2 || (array.shape(1) != 3 && array.shape(1) != 4)) {
+        const std::string got =
+            array ? "an array of shape " + text_of(array.attr("shape")) : text_of(py::repr(py::type::of(items[i])));
+        throw py::type_error(key + " must be an (N,3) array of positions, an (N,4) array of positions and radii, " +
+                             "or a particle file or pattern, not " + got);
+      }
+      ParticleFrame frame;
+      const auto a = array.unchecked<2>();
+      frame.positions.reserve(static_cast<std::size_t>(a.shape(0)));
+      for (py::ssize_t k = 0; k < a.shape(0); ++k) frame.positions.emplace_back(a(k, 0), a(k, 1), a(k, 2));
+      if (a.shape(1) == 4) {
+        for (py::ssize_t k = 0; k < a.shape(0); ++k) frame.radii.push_back(a(k, 3));
+      }
+      memory.particles[key] = std::move(frame);
+      inputs.push_back(key);
+    }
+    return inputs;
+  }
+};
+
+// name, encoding, normals, quantization_bits: every job type's output options.
+void add_common(Setters& s, JobOptions& job) {
+  s["name"] = set(job.name);
+  s["encoding"] = set(job.encoding);
+  s["normals"] = set(job.normals);
+  s["quantization_bits"] = set(job.quantization_bits);
+}
+
+void add_particle_range(Setters& s, ParticleInputOptions& input) {
+  s["start"] = set(input.start);
+  s["end"] = set(input.end);
+}
+
+// grid_spacing, bounds, alpha, beta, gamma, delta, cfl, polygonizer: every active mode's engine options.
+void add_active(Setters& s, ActiveOptions& a) {
+  s["grid_spacing"] = [&a](py::handle v) { a.grid_spacing = v.cast<double>(); };
+  s["bounds"] = set_box(a.bounds, "bounds");
+  s["alpha"] = set(a.alpha);
+  s["beta"] = set(a.beta);
+  s["gamma"] = set(a.gamma);
+  s["delta"] = set(a.delta);
+  s["cfl"] = set(a.cfl);
+  s["polygonizer"] = set(a.polygonizer);
+}
+
+// The JobOptions of a call of `kind` with its positional `inputs` and keyword `kwargs`, dicts and arrays kept in
+// `in`. Python types are read here; values are checked where the CLI checks them (prepare_job, the server).
+JobOptions job_options(const std::string& kind, const py::tuple& inputs, const py::dict& kwargs, Inputs& in) {
+  const auto need = [&](std::size_t count, const char* what) {
+    if (inputs.size() != count) {
+      throw py::type_error(kind + "() takes " + what + " (" + std::to_string(inputs.size()) + " given)");
+    }
+  };
+  JobOptions job;
+  Setters s;
+  add_common(s, job);
+  if (kind == "isosurface") {
+    need(1, "one positional argument: a scene or a list of scenes (dicts or paths)");
+    IsosurfaceOptions& iso = job.isosurface.emplace();
+    s["cells"] = set(iso.cells);
+    s["cell_size"] = set(iso.cell_size);
+    s["bounds"] = set_box(iso.bounds, "bounds");
+    s["method"] = set(iso.method);
+    apply(kwargs, s, kind);
+    py::handle scenes = inputs[0];
+    if (py::isinstance<py::dict>(scenes) || is_path_like(scenes)) {
+      iso.scenes.push_back(in.scene(scenes, "scene[0]"));
+    } else {
+      for (py::handle scene : scenes)
+        iso.scenes.push_back(in.scene(scene, "scene[" + std::to_string(iso.scenes.size()) + "]"));
+    }
+  } else if (kind == "particles") {
+    need(1, "one positional argument: a list of frames ((N,3) arrays or file paths/patterns)");
+    ParticlesOptions& p = job.particles.emplace();
+    add_particle_range(s, p.input);
+    s["r_inner"] = set(p.r_inner);
+    s["derive_r_inner"] = set(p.derive_r_inner);
+    s["r_outer"] = set(p.r_outer);
+    s["spacing_factor"] = set(p.spacing_factor);
+    s["sweeps"] = [&p](py::handle v) { p.sweeps = parse_sweeps(joined(v, "sweeps")); };
+    s["relaxation"] = set(p.relaxation);
+    s["erosion"] = set(p.erosion);
+    s["container_box"] = set_box(p.container_box, "container_box");
+    s["container_scene"] = [&p, &in](py::handle v) { p.container_scene = in.scene(v, "container_scene"); };
+    s["min_particles"] = set(p.min_particles);
+    apply(kwargs, s, kind);
+    p.input.inputs = in.particle_inputs(inputs[0]);
+  } else if (kind == "optimize") {
+    need(1, "one positional argument: the scene (a dict or a path)");
+    OptimizeOptions& o = job.optimize.emplace();
+    s["start_mesh"] = [&o](py::handle v) { o.start_mesh = path_of(v); };
+    s["start_cells"] = set(o.start_cells);
+    s["start_method"] = set(o.start_method);
+    s["start_bounds"] = set_box(o.start_bounds, "start_bounds");
+    s["iterations"] = set(o.iterations);
+    s["tolerance"] = set(o.tolerance);
+    s["snapshot_every"] = set(o.snapshot_every);
+    s["flows"] = [&o](py::handle v) {
+      o.flows = parse_flows(py::isinstance<py::str>(v) ? v.cast<std::string>()
+                                                       : py::str(",").attr("join")(v).cast<std::string>());
+    };
+    s["c_d"] = set(o.c_d);
+    s["c_n"] = set(o.c_n);
+    s["c_t"] = set(o.c_t);
+    s["step_bound"] = set(o.step_bound);
+    s["modified_flows"] = set(o.modified_flows);
+    s["t_flow_iterations"] = set(o.t_flow_iterations);
+    s["subdivide"] = set(o.subdivide);
+    s["triangle_budget"] = set(o.triangle_budget);
+    apply(kwargs, s, kind);
+    o.scene = in.scene(inputs[0], "scene");
+  } else if (kind == "active_coat") {
+    need(1, "one positional argument: a list of particle frames ((N,3) arrays or file paths/patterns)");
+    ActiveOptions& a = job.active.emplace();
+    ActiveCoatOptions coat;
+    add_active(s, a);
+    add_particle_range(s, coat.input);
+    s["kernel_radius"] = [&coat](py::handle v) { coat.kernel_radius = v.cast<double>(); };
+    s["iso"] = set(coat.iso);
+    s["substeps"] = set(coat.substeps);
+    apply(kwargs, s, kind);
+    coat.input.inputs = in.particle_inputs(inputs[0]);
+    a.mode = coat;
+  } else if (kind == "active_morph") {
+    need(2, "two positional arguments: the scenes to morph from and to (dicts or paths)");
+    ActiveOptions& a = job.active.emplace();
+    ActiveMorphOptions morph;
+    add_active(s, a);
+    s["tolerance"] = set(morph.tolerance);
+    s["max_frames"] = set(morph.max_frames);
+    s["frame_time"] = set(morph.frame_time);
+    apply(kwargs, s, kind);
+    morph.from = in.scene(inputs[0], "from");
+    morph.to = in.scene(inputs[1], "to");
+    a.mode = morph;
+  } else if (kind == "active_advect") {
+    need(1, "one positional argument: the scene to advect (a dict or a path)");
+    ActiveOptions& a = job.active.emplace();
+    ActiveAdvectOptions advect;
+    add_active(s, a);
+    s["enright_period"] = set(advect.enright_period);
+    s["frame_interval"] = [&advect](py::handle v) { advect.frame_interval = v.cast<double>(); };
+    s["frames"] = [&advect](py::handle v) { advect.frames = v.cast<int>(); };
+    apply(kwargs, s, kind);
+    advect.scene = in.scene(inputs[0], "scene");
+    a.mode = advect;
+  } else {
+    throw py::value_error("unknown job kind '" + kind +
+                          "': isosurface, particles, optimize, active_coat, active_morph or active_advect");
+  }
+  return job;
+}
+
+// ---- blocking calls ----------------------------------------------------------------------------------------------
+
+// Runs `work` on a helper thread with the GIL released, checking for Python signals (Ctrl-C) every 100 ms. On one,
+// `on_interrupt` runs (e.g. sets a stop flag the work watches), the work is waited for, and the KeyboardInterrupt is
+// raised. The work's own exception is rethrown.
+template <typename T>
+T interruptible(std::function<T()> work, const std::function<void()>& on_interrupt) {
+  std::mutex mutex;
+  std::condition_variable cv;
+  bool done = false;
+  std::optional<T> result;
+  std::exception_ptr error;
+  std::thread thread([&] {
+    try {
+      result.emplace(work());
+    } catch (...) {
+      error = std::current_exception();
+    }
+    std::lock_guard lock(mutex);
+    done = true;
+    cv.notify_all();
+  });
+  while (true) {
+    {
+      py::gil_scoped_release release;
+      std::unique_lock lock(mutex);
+      cv.wait_for(lock, std::chrono::milliseconds(100), [&] { return done; });
+    }
+    bool finished = false;
+    {
+      std::lock_guard lock(mutex);
+      finished = done;
+    }
+    if (finished) break;
+    if (PyErr_CheckSignals() != 0) {
+      py::error_already_set interrupt;
+      {
+        py::gil_scoped_release release;
+        on_interrupt();
+        thread.join();
+      }
+      throw interrupt;
+    }
+  }
+  thread.join();
+  if (error) std::rethrow_exception(error);
+  return std::move(*result);
+}
+
+// ---- the client --------------------------------------------------------------------------------------------------
+
+class Client {
+ public:
+  Client(std::optional<std::string> server, std::optional<std::string> token, std::optional<std::string> token_file,
+         bool tls, std::optional<std::string> tls_ca, std::optional<std::string> tls_cert,
+         std::optional<std::string> tls_key, std::optional<std::string> tls_server_name, bool allow_insecure,
+         std::optional<double> timeout, std::optional<int> workers) {
+    ConnectOptions options;
+    options.server = server;
+    if (timeout) options.timeout_seconds = *timeout;
+    if (workers) options.workers = *workers;
+    SecurityFlags flags;
+    flags.token = token;
+    if (token_file) flags.token_file = *token_file;
+    flags.tls = tls;
+    if (tls_ca) flags.tls_ca = *tls_ca;
+    if (tls_cert) flags.tls_cert = *tls_cert;
+    if (tls_key) flags.tls_key = *tls_key;
+    flags.tls_server_name = tls_server_name;
+    flags.allow_insecure = allow_insecure;
+    options.security = load_security(flags, std::getenv("SURFACER_TOKEN"), !options.local());
+    py::gil_scoped_release release;
+    connection_ = std::shared_ptr<Connection>(Connection::open(options));
+  }
+
+  // Drops this handle's share of the connection (the in-process server stops once no Job uses it either).
+  void close() {
+    std::shared_ptr<Connection> connection;
+    connection.swap(connection_);
+    py::gil_scoped_release release;
+    connection.reset();
+  }
+
+  Connection& connection() {
+    if (!connection_) throw CliError(ExitCode::kUsage, "the client is closed");
+    return *connection_;
+  }
+  const std::shared_ptr<Connection>& shared() {
+    connection();
+    return connection_;
+  }
+  bool local() { return connection().local(); }
+  std::string describe() { return connection().describe(); }
+
+  // Prepares the job, uploads its inputs and submits it; Ctrl-C during the uploads abandons them (no job is
+  // queued), during the submission cancels the job.
+  std::string submit(const std::string& kind, const py::tuple& inputs, const py::dict& kwargs) {
+    auto in = std::make_shared<Inputs>();
+    const JobOptions options = job_options(kind, inputs, kwargs, *in);
+    auto prepared = std::make_shared<PreparedJob>(prepare_job(options, in->memory));
+    Connection& connection = this->connection();
+    auto stop = std::make_shared<std::atomic<bool>>(false);
+    return interruptible<std::string>(
+        [&connection, in, prepared, stop]() {
+          std::ostringstream quiet;
+          ProgressDisplay progress(quiet, false);
+          upload_inputs(connection, prepared->spec, prepared->uploads, progress, stop.get());
+          if (*stop) throw CliError(ExitCode::kCancelled, "interrupted before the job was submitted");
+          const std::string id = submit_job(connection, prepared->spec);
+          if (*stop) cancel_job(connection, id);
+          return id;
+        },
+        [stop] { *stop = true; });
+  }
+
+  py::object status(const std::string& id) {
+    v1::Job job;
+    {
+      py::gil_scoped_release release;
+      job = get_job(connection(), id);
+    }
+    return to_python(job);
+  }
+
+  py::list list(const std::vector<std::string>& states) {
+    std::vector<v1::Job> jobs;
+    {
+      py::gil_scoped_release release;
+      jobs = list_jobs(connection(), states);
+    }
+    py::list out;
+    for (const v1::Job& job : jobs) out.append(to_python(job));
+    return out;
+  }
+
+  py::object cancel(const std::string& id) {
+    v1::Job job;
+    {
+      py::gil_scoped_release release;
+      job = request_cancel(connection(), id);
+    }
+    return to_python(job);
+  }
+
+  std::string health(const std::string& service) {
+    HealthStatus status;
+    {
+      py::gil_scoped_release release;
+      status = check_health(connection().channel_ptr(), service, connection().unary_deadline());
+    }
+    return health_status_name(status);
+  }
+
+  py::object server_info() {
+    std::optional<v1::ServerInfo> info;
+    {
+      py::gil_scoped_release release;
+      info = connection().server_info();
+    }
+    return info ? to_python(*info) : py::none();
+  }
+
+ private:
+  std::shared_ptr<Connection> connection_;
+};
+
+// A decoded frame, waiting to be handed to Python.
+struct DecodedFrame {
+  int index = 0;
+  Mesh mesh;
+  v1::FrameStats stats;
+};
+
+// The frames of one job, received by a JobWatcher on a helper thread (started by the first next()) and decoded
+// there; at most kQueued frames wait for Python, so a slow consumer slows the stream instead of filling memory.
+class FrameStream {
+ public:
+  static constexpr std::size_t kQueued = 4;
+
+  FrameStream(std::shared_ptr<Connection> connection, std::string job_id, int from_frame, bool owns_job)
+      : connection_(std::move(connection)), job_id_(std::move(job_id)), from_frame_(from_frame), owns_job_(owns_job) {}
+
+  ~FrameStream() {
+    py::gil_scoped_release release;
+    close_locked_out();
+  }
+
+  const std::string& job_id() const { return job_id_; }
+  py::object job() const {
+    std::lock_guard lock(mutex_);
+    return finished_ ? to_python(result_.job) : py::none();
+  }
+
+  // The next frame as (index, vertices, triangles, normals or None, stats); StopIteration once the job succeeded and
+  // every frame was returned; the job's failure or cancellation as surfacer errors. Ctrl-C cancels a job this stream
+  // submitted, stops watching and raises KeyboardInterrupt.
+  py::tuple next() {
+    start();
+    while (true) {
+      std::optional<DecodedFrame> frame;
+      bool finished = false;
+      {
+        py::gil_scoped_release release;
+        std::unique_lock lock(mutex_);
+        cv_.wait_for(lock, std::chrono::milliseconds(100), [&] { return !queue_.empty() || finished_; });
+        if (!queue_.empty()) {
+          frame = std::move(queue_.front());
+          queue_.pop_front();
+          cv_.notify_all();
+        } else {
+          finished = finished_;
+        }
+      }
+      if (frame) return frame_tuple(*frame);
+      if (finished) finish();
+      if (PyErr_CheckSignals() != 0) {
+        py::error_already_set interrupt;
+        {
+          py::gil_scoped_release release;
+          close_locked_out();  // cancels the job if this stream submitted it
+        }
+        throw interrupt;
+      }
+    }
+  }
+
+  // Stops watching; a job this stream submitted and that has not finished is cancelled.
+  void close() {
+    py::gil_scoped_release release;
+    close_locked_out();
+  }
+
+  // Asks the server to cancel the job (the stream then ends with surfacer.Cancelled).
+  py::object cancel() {
+    v1::Job job;
+    {
+      py::gil_scoped_release release;
+      job = request_cancel(*connection_, job_id_);
+    }
+    return to_python(job);
+  }
+
+ private:
+  void start() {
+    std::lock_guard lock(mutex_);
+    if (started_ || closed_) {
+      if (closed_ && !finished_) throw CliError(ExitCode::kCancelled, "stopped watching job " + job_id_);
+      return;
+    }
+    started_ = true;
+    watcher_ = std::make_unique<JobWatcher>(
+        *connection_, job_id_, from_frame_, [this](const ReceivedFrame& frame) { receive(frame); }, progress_,
+        ReconnectPolicy{}, /*quiet=*/true);
+    thread_ = std::thread([this] { run(); });
+  }
+
+  void run() {
+    WatchResult result;
+    std::exception_ptr error;
+    try {
+      result = watcher_->run();
+    } catch (...) {
+      error = std::current_exception();
+    }
+    std::lock_guard lock(mutex_);
+    result_ = std::move(result);
+    error_ = error;
+    finished_ = true;
+    cv_.notify_all();
+  }
+
+  // On the watcher's thread: decode, then wait for room in the queue.
+  void receive(const ReceivedFrame& frame) {
+    const std::optional<FrameCodec> codec = wire::frame_codec(frame.encoding);
+    if (!codec) throw CliError(ExitCode::kIntegrity, "frame " + std::to_string(frame.index) + ": unknown encoding");
+    DecodedFrame decoded;
+    decoded.index = frame.index;
+    decoded.stats = frame.stats;
+    try {
+      decoded.mesh = decode_frame(frame.bytes, *codec, decoder_);
+    } catch (const Error& e) {
+      throw CliError(ExitCode::kIntegrity, "frame " + std::to_string(frame.index) + ": " +
+                                               std::string(frame_codec_name(*codec)) +
+                                               " bytes passed the CRC-32 check but do not decode: " + e.what());
+    }
+    std::unique_lock lock(mutex_);
+    cv_.wait(lock, [&] { return queue_.size() < kQueued || closed_; });
+    if (closed_) throw CliError(ExitCode::kCancelled, "stopped watching job " + job_id_);
+    queue_.push_back(std::move(decoded));
+    cv_.notify_all();
+  }
+
+  // Raises the end of the stream: StopIteration after success, else the error or the job's terminal state.
+  [[noreturn]] void finish() {
+    std::exception_ptr error;
+    v1::Job job;
+    {
+      std::lock_guard lock(mutex_);
+      error = error_;
+      job = result_.job;
+    }
+    if (error) std::rethrow_exception(error);
+    const std::string reason = job_error_text(job);
+    switch (job.state()) {
+      case v1::JOB_STATE_SUCCEEDED:
+        throw py::stop_iteration();
+      case v1::JOB_STATE_CANCELLED:
+        throw CliError(ExitCode::kCancelled,
+                       "job " + job.id() + " was cancelled" + (reason.empty() ? "" : ": " + reason),
+                       static_cast<int>(grpc::StatusCode::CANCELLED));
+      default:
+        throw CliError(ExitCode::kJobFailed, "job " + job.id() + " failed" + (reason.empty() ? "" : ": " + reason),
+                       job.error().code() != 0 ? std::optional<int>(job.error().code()) : std::nullopt);
+    }
+  }
+
+  // Without the GIL: ends the watcher and joins it; cancels an owned job that did not finish.
+  void close_locked_out() {
+    bool cancel = false;
+    {
+      std::lock_guard lock(mutex_);
+      if (closed_) return;
+      closed_ = true;
+      cancel = owns_job_ && !finished_;
+      cv_.notify_all();
+    }
+    if (cancel) cancel_job(*connection_, job_id_);
+    if (watcher_) watcher_->stop();
+    if (thread_.joinable()) thread_.join();
+  }
+
+  static py::tuple frame_tuple(const DecodedFrame& frame) {
+    const Mesh& mesh = frame.mesh;
+    const auto n = static_cast<py::ssize_t>(mesh.vertices.size());
+    const auto m = static_cast<py::ssize_t>(mesh.triangles.size());
+    py::array_t<double> vertices({n, py::ssize_t{3}});
+    auto v = vertices.mutable_unchecked<2>();
+    for (py::ssize_t i = 0; i < n; ++i) {
+      for (int k = 0; k < 3; ++k) v(i, k) = mesh.vertices[static_cast<std::size_t>(i)][k];
+    }
+    py::array_t<std::int32_t> triangles({m, py::ssize_t{3}});
+    auto t = triangles.mutable_unchecked<2>();
+    for (py::ssize_t i = 0; i < m; ++i) {
+      for (int k = 0; k < 3; ++k) t(i, k) = static_cast<std::int32_t>(mesh.triangles[static_cast<std::size_t>(i)][k]);
+    }
+    py::object normals = py::none();
+    if (!mesh.normals.empty()) {
+      py::array_t<double> array({n, py::ssize_t{3}});
+      auto a = array.mutable_unchecked<2>();
+      for (py::ssize_t i = 0; i < n; ++i) {
+        for (int k = 0; k < 3; ++k) a(i, k) = mesh.normals[static_cast<std::size_t>(i)][k];
+      }
+      normals = array;
+    }
+    return py::make_tuple(frame.index, vertices, triangles, normals, to_python(frame.stats));
+  }
+
+  std::shared_ptr<Connection> connection_;
+  std::string job_id_;
+  int from_frame_;
+  bool owns_job_;
+  ThreadExecutor decoder_{0};                   // pieced frames decode on every core
+  ProgressDisplay progress_{std::cerr, false};  // quiet: only reconnect lines
+  std::unique_ptr<JobWatcher> watcher_;
+  std::thread thread_;
+
+  mutable std::mutex mutex_;
+  std::condition_variable cv_;
+  std::deque<DecodedFrame> queue_;
+  bool started_ = false;
+  bool closed_ = false;
+  bool finished_ = false;
+  WatchResult result_;
+  std::exception_ptr error_;
+};
+
+// Writes a mesh given as arrays with core's writer (write_mesh: .ply, .obj or .drc by the extension).
+void write_mesh_file(const std::string& path,
+                     const py::array_t<double, py::array::c_style | py::array::forcecast>& vertices,
+                     const py::array_t<std::int64_t, py::array::c_style | py::array::forcecast>& triangles,
+                     const std::optional<py::array_t<double, py::array::c_style | py::array::forcecast>>& normals) {
+  const auto rows = [](const auto& array, const char* what) {
+    if (array.ndim() != 2 || array.shape(1) != 3) throw py::value_error(std::string(what) + " must be an (N,3) array");
+    return array.shape(0);
+  };
+  Mesh mesh;
+  const auto v = vertices.unchecked<2>();
+  for (py::ssize_t i = 0, n = rows(vertices, "vertices"); i < n; ++i)
+    mesh.vertices.emplace_back(v(i, 0), v(i, 1), v(i, 2));
+  const auto t = triangles.unchecked<2>();
+  for (py::ssize_t i = 0, n = rows(triangles, "triangles"); i < n; ++i) {
+    Triangle triangle;
+    for (int k = 0; k < 3; ++k) {
+      if (t(i, k) < 0 || t(i, k) >= static_cast<std::int64_t>(mesh.vertices.size())) {
+        throw py::value_error("triangle " + std::to_string(i) + " refers to vertex " + std::to_string(t(i, k)) +
+                              ", not one of the " + std::to_string(mesh.vertices.size()));
+      }
+      triangle[k] = static_cast<std::uint32_t>(t(i, k));
+    }
+    mesh.triangles.push_back(triangle);
+  }
+  if (normals) {
+    const auto a = normals->unchecked<2>();
+    if (rows(*normals, "normals") != static_cast<py::ssize_t>(mesh.vertices.size())) {
+      throw py::value_error("normals must have one row per vertex");
+    }
+    for (py::ssize_t i = 0; i < a.shape(0); ++i) mesh.normals.emplace_back(a(i, 0), a(i, 1), a(i, 2));
+  }
+  py::gil_scoped_release release;
+  try {
+    surfacer::write_mesh(path, mesh);
+  } catch (const Error& e) {
+    throw CliError(ExitCode::kUsage, e.what());
+  }
+}
+
+}  // namespace
+}  // namespace surfacer::client
+
+PYBIND11_MODULE(_surfacer, m) {
+  using namespace surfacer::client;
+  m.doc() = "Surfacer's C++ client library; use the `surfacer` package, not this module.";
+
+  py::register_exception_translator([](std::exception_ptr p) {
+    try {
+      if (p) std::rethrow_exception(p);
+    } catch (const CliError& e) {
+      raise_error(e.code(), code_of(e), e.what());
+    }
+  });
+
+  py::class_<Client>(m, "Client")
+      .def(py::init<std::optional<std::string>, std::optional<std::string>, std::optional<std::string>, bool,
+                    std::optional<std::string>, std::optional<std::string>, std::optional<std::string>,
+                    std::optional<std::string>, bool, std::optional<double>, std::optional<int>>(),
+           py::arg("server"), py::arg("token"), py::arg("token_file"), py::arg("tls"), py::arg("tls_ca"),
+           py::arg("tls_cert"), py::arg("tls_key"), py::arg("tls_server_name"), py::arg("allow_insecure"),
+           py::arg("timeout"), py::arg("workers"))
+      .def("close", &Client::close)
+      .def_property_readonly("local", &Client::local)
+      .def("describe", &Client::describe)
+      .def("submit", &Client::submit, py::arg("kind"), py::arg("inputs"), py::arg("options"))
+      .def(
+          "stream",
+          [](Client& client, const std::string& job_id, int from_frame, bool owns_job) {
+            return std::make_unique<FrameStream>(client.shared(), job_id, from_frame, owns_job);
+          },
+          py::arg("job_id"), py::arg("from_frame"), py::arg("owns_job"))
+      .def("status", &Client::status, py::arg("job_id"))
+      .def("list", &Client::list, py::arg("states"))
+      .def("cancel", &Client::cancel, py::arg("job_id"))
+      .def("health", &Client::health, py::arg("service"))
+      .def("server_info", &Client::server_info);
+
+  m.def("write_mesh", &write_mesh_file, py::arg("path"), py::arg("vertices"), py::arg("triangles"),
+        py::arg("normals") = py::none());
+
+  py::class_<FrameStream>(m, "FrameStream")
+      .def_property_readonly("job_id", &FrameStream::job_id)
+      .def_property_readonly("job", &FrameStream::job)
+      .def("next", &FrameStream::next)
+      .def("close", &FrameStream::close)
+      .def("cancel", &FrameStream::cancel);
+}

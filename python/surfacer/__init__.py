@@ -1,0 +1,203 @@
+"""Surfacer from Python: implicit scenes and particle simulations to triangle meshes, numpy in and out.
+
+    import surfacer
+    c = surfacer.Client()                      # an in-process server; Client("host:50051", token=...) for a remote one
+    for f in c.isosurface([scene], cells=128):  # scene: a dict in protobuf's JSON mapping of surfacer.v1.Scene, or a path
+        f.index, f.vertices, f.triangles, f.normals, f.stats
+
+This is the `surfacer` CLI's own client library (C++, in the extension module `surfacer._surfacer`): inputs are
+uploaded in CRC-checked chunks, frames are verified, a broken stream is reopened from the first missing frame, and
+frames are decoded (Draco, meshopt, PLY) in C++. Keyword options are those of `surfacer run <type>` with dashes as
+underscores (``--r-inner`` is ``r_inner=``); an option left out (or None) takes the engine's default, and an
+unknown keyword is a TypeError.
+"""
+
+import os
+from dataclasses import dataclass
+from typing import Any, Dict, Iterator, List, Optional
+
+import numpy as np
+
+from . import _surfacer
+from ._errors import Cancelled, Error, IntegrityError, JobFailed, Unreachable, UsageError
+
+__all__ = ["Client", "Job", "Frame", "Error", "UsageError", "Unreachable", "JobFailed", "Cancelled",
+           "IntegrityError"]
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One finished frame of a job.
+
+    vertices: (N,3) float64; triangles: (M,3) int32 indices into vertices, counter-clockwise seen from outside;
+    normals: (N,3) float64 unit normals when the job asked for them (``normals=True``), else None; stats: the
+    server's FrameStats as a dict (vertices, triangles, check (closed, edge_manifold, ...), timings, metrics,
+    iteration)."""
+
+    index: int
+    vertices: np.ndarray
+    triangles: np.ndarray
+    normals: Optional[np.ndarray]
+    stats: Dict[str, Any]
+
+    def write(self, path) -> None:
+        """Writes the mesh with the CLI's own writers, the format by the extension: .ply (binary), .obj or .drc."""
+        _surfacer.write_mesh(os.fspath(path), self.vertices, self.triangles, self.normals)
+
+
+class Job:
+    """The frames of one job, streamed lazily in the order they finish (``Frame.index`` says which; iterate it, or
+    ``sorted(job, key=lambda f: f.index)``).
+
+    ``id`` is the job id; ``state`` the job's terminal state (a dict, as ``Client.status``) once the iteration ended.
+    Iteration raises surfacer.JobFailed when the job fails and surfacer.Cancelled when it is cancelled. A job that
+    this object submitted (``Client.isosurface`` and the like) is cancelled by Ctrl-C while iterating, by
+    ``close()``, and when the object is dropped before the job finished; a job followed with ``Client.watch`` is
+    only no longer watched. The GIL is released while waiting for frames."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    @property
+    def id(self) -> str:
+        return self._stream.job_id
+
+    @property
+    def state(self) -> Optional[Dict[str, Any]]:
+        return self._stream.job
+
+    def __iter__(self) -> Iterator[Frame]:
+        return self
+
+    def __next__(self) -> Frame:
+        return Frame(*self._stream.next())
+
+    def cancel(self) -> Dict[str, Any]:
+        """Asks the server to cancel the job; iterating then ends with surfacer.Cancelled."""
+        return self._stream.cancel()
+
+    def close(self) -> None:
+        """Stops watching (cancelling the job if this object submitted it and it has not finished)."""
+        self._stream.close()
+
+    def __enter__(self) -> "Job":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return "<surfacer.Job %s>" % self.id
+
+
+class Client:
+    """A connection to a Surfacer server.
+
+    ``Client()`` starts an in-process server (no network; it lives as long as the client and its jobs; ``workers``
+    sizes it). ``Client("host:50051")`` connects to a surfacer-server, waiting up to ``timeout`` seconds; ``tls``
+    (system roots) or ``tls_ca`` (a CA file) turn TLS on, ``tls_cert``/``tls_key`` present a client certificate,
+    ``tls_server_name`` checks the certificate against that name; ``token`` or ``token_file`` (or $SURFACER_TOKEN)
+    send a bearer token, refused in plain text to a host that is not loopback unless ``allow_insecure``. These are
+    the CLI's --server, --tls, --tls-ca, ... with the same checks and defaults."""
+
+    def __init__(self, server: Optional[str] = None, *, token: Optional[str] = None,
+                 token_file: Optional[str] = None, tls: bool = False, tls_ca: Optional[str] = None,
+                 tls_cert: Optional[str] = None, tls_key: Optional[str] = None,
+                 tls_server_name: Optional[str] = None, allow_insecure: bool = False,
+                 timeout: Optional[float] = None, workers: Optional[int] = None):
+        self._client = _surfacer.Client(server, token, token_file, tls, tls_ca, tls_cert, tls_key, tls_server_name,
+                                        allow_insecure, timeout, workers)
+
+    # -- jobs that stream their frames back ------------------------------------------------------------------------
+
+    def isosurface(self, scenes, **options) -> Job:
+        """Polygonizes f = 0 of each scene (a dict in protobuf's JSON mapping of surfacer.v1.Scene, or a path to a
+        scene JSON file; one scene or a list), one frame per scene. Options: cells, cell_size, bounds (x0, y0, z0,
+        x1, y1, z1), method ("tiles" or "cubes"), and every job's name, encoding ("draco", "meshopt", "raw"),
+        normals, quantization_bits."""
+        return self._run("isosurface", (scenes,), options)
+
+    def particles(self, frames, **options) -> Job:
+        """Surfaces particle frames (Williams 2008), one mesh per frame. Each frame is an (N,3) array of positions,
+        an (N,4) array of positions and radii, or a particle file or pattern (``fluid_{:04d}.bgeo``, with start=
+        and end=). Options: r_inner or derive_r_inner=True, r_outer, spacing_factor, sweeps (L, B, P), relaxation,
+        erosion, container_box, container_scene (dict or path), min_particles, start, end, and every job's."""
+        return self._run("particles", (frames,), options)
+
+    def optimize(self, scene, **options) -> Job:
+        """Optimizes a mesh toward the scene's surface (Ohtake-Belyaev-Pasko 2002): snapshot frames, the last one the
+        result. Options: start_mesh (a .ply/.obj/.drc path) or start_cells, start_method, start_bounds; iterations,
+        tolerance, snapshot_every, flows ("d,n,t" or a list), c_d, c_n, c_t, step_bound, modified_flows,
+        t_flow_iterations, subdivide, triangle_budget, and every job's."""
+        return self._run("optimize", (scene,), options)
+
+    def active_coat(self, frames, **options) -> Job:
+        """A skin coating a particle sequence (Desbrun-Cani 1998). Options: kernel_radius and grid_spacing
+        (required), iso, substeps, start, end, bounds, alpha, beta, gamma, delta, cfl, polygonizer, and every
+        job's."""
+        return self._run("active_coat", (frames,), options)
+
+    def active_morph(self, a, b, **options) -> Job:
+        """Morphs scene a into scene b (Desbrun-Cani 1998). Options: grid_spacing (required), tolerance, max_frames,
+        frame_time, bounds, alpha, beta, gamma, delta, cfl, polygonizer, and every job's."""
+        return self._run("active_morph", (a, b), options)
+
+    def active_advect(self, scene, **options) -> Job:
+        """Advects a scene by the Enright test field. Options: grid_spacing, frame_interval, frames (required),
+        enright_period, bounds, alpha, beta, gamma, delta, cfl, polygonizer, and every job's."""
+        return self._run("active_advect", (scene,), options)
+
+    def _run(self, kind, inputs, options) -> Job:
+        job_id = self._client.submit(kind, inputs, options)
+        return Job(self._client.stream(job_id, 0, True))
+
+    # -- jobs by id ------------------------------------------------------------------------------------------------
+
+    def submit(self, kind: str, *inputs, **options) -> str:
+        """Submits a job without watching it and returns its id. kind: "isosurface", "particles", "optimize",
+        "active_coat", "active_morph" or "active_advect"; inputs and options as for the method of that name."""
+        return self._client.submit(kind, inputs, options)
+
+    def watch(self, job_id: str, from_frame: int = 0) -> Job:
+        """The frames of a job from frame ``from_frame`` on (also those already finished)."""
+        return Job(self._client.stream(job_id, from_frame, False))
+
+    def status(self, job_id: str) -> Dict[str, Any]:
+        """The job as a dict: id, name, kind, state ("JOB_STATE_RUNNING", ...), frames_total, frames_done,
+        progress, error (code, message), created/started/finished (seconds since the epoch)."""
+        return self._client.status(job_id)
+
+    def list(self, states: Optional[List[str]] = None) -> List[Dict[str, Any]]:
+        """Every job the server keeps (for this token), optionally only those in ``states`` ("queued",
+        "running", "succeeded", "failed", "cancelled")."""
+        return self._client.list(list(states or []))
+
+    def cancel(self, job_id: str) -> Dict[str, Any]:
+        """Asks the server to cancel a job; returns the job as the server answered."""
+        return self._client.cancel(job_id)
+
+    def health(self, service: str = "") -> str:
+        """The grpc.health.v1 status: "SERVING", "NOT_SERVING", ..."""
+        return self._client.health(service)
+
+    def server_info(self) -> Optional[Dict[str, Any]]:
+        """The server's version and limits (GetServerInfo)."""
+        return self._client.server_info()
+
+    @property
+    def local(self) -> bool:
+        """True for an in-process server."""
+        return self._client.local
+
+    def close(self) -> None:
+        """Lets go of the connection (an in-process server stops once no Job uses it either)."""
+        self._client.close()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return "<surfacer.Client %s>" % self._client.describe()

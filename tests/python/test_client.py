@@ -1,0 +1,148 @@
+"""The surfacer package end to end: jobs against the in-process server and a real loopback server, numpy in and out,
+errors as exceptions with the gRPC code, cancel, and the job-management calls."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import surfacer
+from conftest import SCENES, assert_closed, lattice_ball, sphere_scene
+
+
+def test_isosurface_in_process_dict_and_path(local_client):
+    frames = sorted(local_client.isosurface([sphere_scene(0.8), SCENES / "torus.json"], cells=24, normals=True),
+                    key=lambda f: f.index)
+    assert [f.index for f in frames] == [0, 1]
+    for f in frames:
+        assert_closed(f)
+        assert f.normals is not None and f.normals.shape == f.vertices.shape
+        assert np.allclose(np.linalg.norm(f.normals, axis=1), 1.0, atol=1e-2)
+        assert f.stats["triangles"] == len(f.triangles)
+        assert f.stats["check"]["closed"] is True
+    # Within the scenes' bounds (plus a cell of padding): a ball of 0.8, a torus of radii 1 and 0.35.
+    assert np.abs(frames[0].vertices).max() < 0.8 * 1.2
+    radius = np.linalg.norm(frames[0].vertices, axis=1)
+    assert abs(radius.mean() - 0.8) < 0.05
+    assert np.abs(frames[1].vertices[:, 2]).max() < 0.35 * 1.2
+    assert np.linalg.norm(frames[1].vertices[:, :2], axis=1).max() < 1.35 * 1.1
+
+
+def test_isosurface_remote(remote_client):
+    assert not remote_client.local
+    job = remote_client.isosurface(sphere_scene(1.0), cells=20, method="cubes")
+    frames = list(job)
+    assert len(frames) == 1
+    assert_closed(frames[0])
+    assert job.state["state"] == "JOB_STATE_SUCCEEDED"
+    assert any(j["id"] == job.id for j in remote_client.list())
+
+
+def test_particles_from_numpy(local_client):
+    ball = lattice_ball()
+    frames = sorted(local_client.particles([ball, ball + [0.0, 0.0, 0.02]], r_inner=0.04), key=lambda f: f.index)
+    assert [f.index for f in frames] == [0, 1]  # frames come as they finish, in any order
+    for f, shift in zip(frames, (0.0, 0.02)):
+        assert_closed(f)
+        # Every vertex lies within r_outer (default 2 x r_inner) of the particles, so within the ball + 0.08.
+        centre = np.array([0.0, 0.0, shift])
+        assert np.linalg.norm(f.vertices - centre, axis=1).max() < 0.3 + 0.08 + 1e-6
+
+
+def test_particles_remote_with_radii(remote_client):
+    ball = lattice_ball()
+    with_radii = np.hstack([ball, np.full((len(ball), 1), 0.04)]).astype(np.float32)
+    (frame,) = remote_client.particles([with_radii], r_inner=0.04)
+    assert_closed(frame)
+
+
+def test_bad_option_names_the_field(local_client):
+    with pytest.raises(surfacer.Error) as error:
+        list(local_client.isosurface(sphere_scene(), cells=-1))
+    assert error.value.code == "INVALID_ARGUMENT"
+    assert "cells" in str(error.value)
+    assert isinstance(error.value, surfacer.JobFailed)
+
+
+def test_bad_scene_is_a_usage_error(local_client):
+    with pytest.raises(surfacer.UsageError) as error:
+        local_client.isosurface({"root": {"sphere": {"radius": 1, "colour": 3}}})
+    assert error.value.code == "INVALID_ARGUMENT" and "colour" in str(error.value)
+
+
+def test_unknown_keyword_is_a_type_error(local_client):
+    with pytest.raises(TypeError, match="'cels'"):
+        local_client.isosurface(sphere_scene(), cels=32)
+    with pytest.raises(TypeError, match="'r_iner'"):
+        local_client.particles([lattice_ball()], r_iner=0.04)
+
+
+def test_unknown_job_is_not_found(remote_client):
+    with pytest.raises(surfacer.JobFailed) as error:
+        remote_client.status("j-does-not-exist")
+    assert error.value.code == "NOT_FOUND"
+
+
+def test_cancel(local_client):
+    # Many fine frames, so the job is still running when it is cancelled.
+    job_id = local_client.submit("isosurface", [sphere_scene()] * 50, cells=200)
+    job = local_client.watch(job_id)
+    answer = local_client.cancel(job_id)
+    assert answer["id"] == job_id
+    started = time.monotonic()
+    with pytest.raises(surfacer.Cancelled) as error:
+        for _ in job:
+            pass
+    assert error.value.code == "CANCELLED"
+    assert time.monotonic() - started < 10
+    assert local_client.status(job_id)["state"] == "JOB_STATE_CANCELLED"
+
+
+def test_keyboard_interrupt_cancels_the_job(local_client):
+    job = local_client.isosurface([sphere_scene()] * 50, cells=200)
+    # A KeyboardInterrupt as Ctrl-C raises it: in the main thread, while next() waits with the GIL released.
+    timer = threading.Timer(0.3, lambda: __import__("_thread").interrupt_main())
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        for _ in job:
+            pass
+    timer.join()
+    deadline = time.monotonic() + 10
+    while local_client.status(job.id)["state"] != "JOB_STATE_CANCELLED":
+        assert time.monotonic() < deadline, local_client.status(job.id)
+        time.sleep(0.05)
+
+
+def test_submit_watch_status_list_health(remote_client):
+    assert remote_client.health() == "SERVING"
+    job_id = remote_client.submit("isosurface", [sphere_scene(0.5)], cells=16)
+    frames = list(remote_client.watch(job_id))
+    assert len(frames) == 1 and frames[0].index == 0
+    status = remote_client.status(job_id)
+    assert status["state"] == "JOB_STATE_SUCCEEDED" and status["kind"] == "isosurface"
+    assert status["frames_done"] == 1
+    assert job_id in [j["id"] for j in remote_client.list(["succeeded"])]
+    assert job_id not in [j["id"] for j in remote_client.list(["running"])]
+    # Watching again from a later frame gets nothing more.
+    assert list(remote_client.watch(job_id, from_frame=1)) == []
+
+
+def test_optimize_and_morph(local_client):
+    snapshots = list(local_client.optimize(SCENES / "csg_block.json", start_cells=16, iterations=4,
+                                           snapshot_every=2))
+    assert len(snapshots) >= 2
+    assert_closed(snapshots[-1])
+    assert snapshots[-1].stats["iteration"] >= 2
+    morph = list(local_client.active_morph(sphere_scene(0.5), sphere_scene(0.5, (0.2, 0.0, 0.0)),
+                                           grid_spacing=0.1, max_frames=3))
+    assert 1 <= len(morph) <= 3
+    assert_closed(morph[-1])
+
+
+def test_frame_write(local_client, tmp_path):
+    (frame,) = local_client.isosurface(sphere_scene(), cells=12)
+    frame.write(tmp_path / "ball.ply")
+    frame.write(tmp_path / "ball.obj")
+    assert (tmp_path / "ball.ply").read_bytes().startswith(b"ply\n")
+    assert sum(1 for line in open(tmp_path / "ball.obj") if line.startswith("f ")) == len(frame.triangles)
