@@ -390,13 +390,15 @@ Triple parse_triple(const std::string& text, const std::string& flag, const std:
 
 void add_output_flags(CLI::App* app, OutputFlags& flags) {
   app->add_option("-o,--output", flags.dir,
-                  "directory for frame_NNNN.<ext> files, stats.csv (and iterations.csv for optimize) (created)")
-      ->type_name("DIR");
+                  "directory for frame_NNNN.<ext> files, stats.csv (and iterations.csv for optimize) (created); or a "
+                  "file pattern such as 'out/surface_{:04d}.ply' whose extension sets the format. NNNN is the "
+                  "input sequence's own frame number (--start 100 writes frame_0100), else the frame index")
+      ->type_name("DIR|PATTERN");
   app->add_option("--format", flags.formats,
-                  "files per frame, comma-separated: drc,ply,obj (default: .drc for Draco frames, .ply for meshopt "
-                  "and raw ones)")
+                  "files per frame, comma-separated: drc,ply,obj,vtk,vtu (default: .drc for Draco frames, .ply for "
+                  "meshopt and raw ones; vtk = legacy binary, vtu = VTK XML with zlib, for ParaView and Blender)")
       ->delimiter(',')
-      ->check(CLI::IsMember({"drc", "ply", "obj"}))
+      ->check(CLI::IsMember({"drc", "ply", "obj", "vtk", "vtu"}))
       ->type_name("LIST");
 }
 

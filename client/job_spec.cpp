@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "client/exit_codes.h"
+#include "client/output_files.h"
 #include "client/particle_files.h"
 #include "core/mesh/mesh_io.h"
 #include "core/util/errors.h"
@@ -126,7 +127,9 @@ void build_isosurface(const IsosurfaceOptions& iso, v1::JobSpec& spec) {
 void build_particles(const ParticlesOptions& p, PreparedJob& prepared) {
   v1::JobSpec& spec = prepared.spec;
   v1::ParticlesJob* job = spec.mutable_particles();
-  const auto files = expand_particle_inputs(p.input);
+  const ParticleInputFiles inputs = expand_particle_sequence(p.input);
+  const auto& files = inputs.files;
+  prepared.frame_numbers = output_numbers(inputs.numbers);
   for (std::size_t i = 0; i < files.size(); ++i) job->add_frames();
   add_particle_frames(prepared, files, [](v1::JobSpec& s, int i) { return s.mutable_particles()->mutable_frames(i); });
   if (p.r_inner) job->set_r_inner(*p.r_inner);
@@ -216,7 +219,9 @@ void build_active(const ActiveOptions& a, PreparedJob& prepared) {
 
   if (const auto* coat = std::get_if<ActiveCoatOptions>(&a.mode)) {
     v1::ActiveCoat* c = job->mutable_coat();
-    const auto files = expand_particle_inputs(coat->input);
+    const ParticleInputFiles inputs = expand_particle_sequence(coat->input);
+    const auto& files = inputs.files;
+    prepared.frame_numbers = output_numbers(inputs.numbers);
     for (std::size_t i = 0; i < files.size(); ++i) c->add_frames();
     add_particle_frames(prepared, files,
                         [](v1::JobSpec& s, int i) { return s.mutable_active()->mutable_coat()->mutable_frames(i); });
