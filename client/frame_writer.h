@@ -57,6 +57,8 @@ class FrameWriter {
   void set_job_kind(const std::string& kind) { kind_ = kind; }
 
   const std::filesystem::path& dir() const { return options_.dir; }
+  // What -o named: the directory, or the file pattern.
+  std::string target() const { return options_.pattern.value_or(options_.dir.string()); }
   int frames_written() const { return static_cast<int>(stats_.size()); }
   // Stats of every frame written, by index.
   const std::map<int, v1::FrameStats>& stats() const { return stats_; }

@@ -93,8 +93,9 @@ std::map<int, fs::path> frames_present(const std::string& pattern, const std::st
     const fs::path file = dir == "." && !path.has_parent_path() ? fs::path(name) : dir / name;
     const auto [at, inserted] = frames.emplace(number, file);
     if (!inserted) {
-      const auto [first, second] = std::minmax(at->second.filename().string(), name);
-      throw usage(where + ": " + first + " and " + second + " are both frame " + std::to_string(number) +
+      const std::string other = at->second.filename().string();
+      throw usage(where + ": " + std::min(other, name) + " and " + std::max(other, name) + " are both frame " +
+                  std::to_string(number) +
                   "; remove one, or give the padding, e.g. {:04d}");
     }
   }
