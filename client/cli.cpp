@@ -12,6 +12,7 @@
 
 #include "client/cli_jobs.h"
 #include "client/commands.h"
+#include "client/output_files.h"
 #include "client/security.h"
 #include "client/server_list.h"
 
@@ -24,20 +25,8 @@ void print_grpc_log(gpr_log_func_args* args) {
   std::fprintf(stderr, "surfacer: grpc: %s (%s:%d)\n", args->message, args->file, args->line);
 }
 
-std::vector<FileFormat> parse_formats(const std::vector<std::string>& names) {
-  std::vector<FileFormat> formats;
-  for (const std::string& name : names) {
-    FileFormat f = name == "drc" ? FileFormat::kDrc : name == "ply" ? FileFormat::kPly : FileFormat::kObj;
-    if (std::find(formats.begin(), formats.end(), f) == formats.end()) formats.push_back(f);
-  }
-  return formats;
-}
-
 FrameOutputOptions finish_output(const OutputFlags& flags, const std::string& command) {
-  if (!flags.dir || flags.dir->empty()) {
-    throw CliError(ExitCode::kUsage, command + " needs an output directory: -o DIR");
-  }
-  return FrameOutputOptions{*flags.dir, parse_formats(flags.formats)};
+  return frame_output_options(flags.dir.value_or(""), flags.formats, command);
 }
 
 }  // namespace

@@ -61,8 +61,9 @@ void set_examples(CLI::App* app, const std::string& verb, const std::vector<std:
 CLI::Option* add_particle_inputs(CLI::App* app, ParticleInputOptions& input) {
   CLI::Option* opt =
       app->add_option("--input", input.inputs,
-                      "particle file (.xyz .txt .csv .ply .vtk .vtu .bin .bgeo, gzip allowed) or sequence pattern "
-                      "(fluid_{}.bgeo, fluid_{:04d}.ply); repeat to append; frame i = the i-th file")
+                      "particle file (.xyz .txt .csv .ply .vtk .vtu .bin .bgeo .json, gzip allowed) or sequence "
+                      "pattern (fluid_{}.bgeo: any zero padding; fluid_{:04d}.ply: exactly 4 digits); repeat to "
+                      "append; frame i = the i-th file")
           ->required()
           ->type_name("FILE|PATTERN");
   app->add_option("--start", input.start,
@@ -163,7 +164,8 @@ void add_particles(CLI::App* parent, const std::string& verb, JobFlags& flags, O
        "surfacer run particles --input drop.xyz --derive-r-inner --container-box 0,0,0,1,1,1 -o out/"},
       {"surfacer --server localhost:50051 submit particles --input 'sim/fluid_{}.bgeo' --r-inner 0.01"},
       std::string("Frames are uploaded one at a time (float32) before the job is queued; a bad file stops the command\n"
-                  "(exit 2) naming the file and the line or byte. frame_NNNN = the N-th input file. ") +
+                  "(exit 2) naming the file and the line or byte. frame_NNNN carries the input's frame number (one\n"
+                  "pattern, or increasing numbers), else N counts the inputs from 0. ") +
           (verb == "run" ? "A table of particles,\ntriangles and seconds per frame is printed at the end.\n"
                          : "The job id is printed\nonce every frame is uploaded; `surfacer watch ID -o DIR` fetches "
                            "the meshes and prints the table.\n"));
@@ -390,13 +392,15 @@ Triple parse_triple(const std::string& text, const std::string& flag, const std:
 
 void add_output_flags(CLI::App* app, OutputFlags& flags) {
   app->add_option("-o,--output", flags.dir,
-                  "directory for frame_NNNN.<ext> files, stats.csv (and iterations.csv for optimize) (created)")
-      ->type_name("DIR");
+                  "directory for frame_NNNN.<ext> files, stats.csv (and iterations.csv for optimize) (created); or a "
+                  "file pattern such as 'out/surface_{:04d}.ply' whose extension sets the format. NNNN is the "
+                  "input sequence's own frame number (--start 100 writes frame_0100), else the frame index")
+      ->type_name("DIR|PATTERN");
   app->add_option("--format", flags.formats,
-                  "files per frame, comma-separated: drc,ply,obj (default: .drc for Draco frames, .ply for meshopt "
-                  "and raw ones)")
+                  "files per frame, comma-separated: drc,ply,obj,vtk,vtu (default: .drc for Draco frames, .ply for "
+                  "meshopt and raw ones; vtk = legacy binary, vtu = VTK XML with zlib, for ParaView and Blender)")
       ->delimiter(',')
-      ->check(CLI::IsMember({"drc", "ply", "obj"}))
+      ->check(CLI::IsMember({"drc", "ply", "obj", "vtk", "vtu"}))
       ->type_name("LIST");
 }
 

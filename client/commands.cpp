@@ -209,8 +209,10 @@ ExitCode run_failover(const ConnectOptions& connect, const std::vector<std::stri
   throw CliError(ExitCode::kUnreachable, "every server is unreachable:" + failures);
 }
 
-ExitCode run_run(const ConnectOptions& connect, const RunCommand& command, std::ostream& err, bool tty) {
-  PreparedJob prepared = prepare_job(command.job);  // usage errors before connecting
+ExitCode run_run(const ConnectOptions& connect, const RunCommand& run, std::ostream& err, bool tty) {
+  PreparedJob prepared = prepare_job(run.job);  // usage errors before connecting
+  RunCommand command = run;
+  command.output.frame_numbers = prepared.frame_numbers;  // output names keep the input files' frame numbers
   fit_encoding_to_files(prepared.spec, command.output.formats);
   if (connect.server && (is_server_list(*connect.server) || is_dns_name(*connect.server))) {
     const std::vector<std::string> servers =

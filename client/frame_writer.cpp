@@ -11,25 +11,15 @@
 #include <set>
 
 #include "client/exit_codes.h"
+#include "client/output_files.h"
 #include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_io.h"
+#include "core/mesh/mesh_vtk.h"
 #include "core/util/errors.h"
 #include "wire/output.h"
 
 namespace surfacer::client {
 namespace {
-
-const char* extension(FileFormat format) {
-  switch (format) {
-    case FileFormat::kDrc:
-      return "drc";
-    case FileFormat::kPly:
-      return "ply";
-    case FileFormat::kObj:
-      return "obj";
-  }
-  return "bin";
-}
 
 std::string format_double(const char* fmt, double v) {
   char buf[64];
@@ -92,7 +82,7 @@ void write_file_atomically(const std::filesystem::path& path, std::string_view b
 
 std::string frame_file_name(int index, FileFormat format) {
   char buf[32];
-  std::snprintf(buf, sizeof buf, "frame_%04d.%s", index, extension(format));
+  std::snprintf(buf, sizeof buf, "frame_%04d.%s", index, file_format_name(format));
   return buf;
 }
 
@@ -186,7 +176,7 @@ std::vector<std::filesystem::path> FrameWriter::write(const ReceivedFrame& frame
 
   std::vector<std::filesystem::path> written;
   for (FileFormat format : formats) {
-    const std::filesystem::path path = options_.dir / frame_file_name(frame.index, format);
+    const std::filesystem::path path = frame_file_path(options_, frame.index, format);
     std::string converted;
     std::string_view bytes;
     switch (format) {
@@ -208,6 +198,14 @@ std::vector<std::filesystem::path> FrameWriter::write(const ReceivedFrame& frame
         break;
       case FileFormat::kObj:
         converted = write_obj(decoded());
+        bytes = converted;
+        break;
+      case FileFormat::kVtk:  // positions in double precision when the frame has them (lossless PLY frames)
+        converted = write_vtk(decoded(), codec == FrameCodec::kPly);
+        bytes = converted;
+        break;
+      case FileFormat::kVtu:
+        converted = write_vtu(decoded(), codec == FrameCodec::kPly);
         bytes = converted;
         break;
     }

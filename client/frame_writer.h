@@ -1,4 +1,5 @@
-// Writes received frames to the output directory: frame_NNNN.{drc,ply,obj} (each file atomically: temporary file
+// Writes received frames to the output directory: frame_NNNN.{drc,ply,obj,vtk,vtu} or the names of an output
+// pattern (client/output_files.h; each file atomically: temporary file
 // in the same directory, then rename), stats.csv (one row per frame, rewritten atomically after every frame) and,
 // for optimize jobs, iterations.csv (one row per snapshot).
 #pragma once
@@ -21,7 +22,7 @@ namespace surfacer::client {
 // Throws CliError(kUsage) naming the path and the OS error.
 void write_file_atomically(const std::filesystem::path& path, std::string_view bytes);
 
-// "frame_0003.drc"
+// "frame_0003.drc" (the name of frame 3 when the output has no pattern and no frame numbers)
 std::string frame_file_name(int index, FileFormat format);
 
 // stats.csv text: header, then one row per frame in index order: frame, vertices, triangles, closed, manifold
@@ -56,6 +57,8 @@ class FrameWriter {
   void set_job_kind(const std::string& kind) { kind_ = kind; }
 
   const std::filesystem::path& dir() const { return options_.dir; }
+  // What -o named: the directory, or the file pattern.
+  std::string target() const { return options_.pattern.value_or(options_.dir.string()); }
   int frames_written() const { return static_cast<int>(stats_.size()); }
   // Stats of every frame written, by index.
   const std::map<int, v1::FrameStats>& stats() const { return stats_; }

@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "client/exit_codes.h"
+#include "client/output_files.h"
 #include "client/particle_files.h"
 #include "core/mesh/mesh_io.h"
 #include "core/util/errors.h"
@@ -64,15 +65,16 @@ v1::Scene scene_of(const std::filesystem::path& path, const InMemoryInputs& in_m
   return read_scene_file(path);
 }
 
-// The frames of particle inputs: in-memory frames as they are, files and patterns expanded (expand_particle_inputs).
-std::vector<std::filesystem::path> particle_inputs_of(const ParticleInputOptions& input,
-                                                      const InMemoryInputs& in_memory) {
+// The frames of `input`: files as the CLI expands them (with their frame numbers), and names the caller holds in
+// memory (the Python package's arrays), which have none.
+ParticleInputFiles particle_inputs_of(const ParticleInputOptions& input, const InMemoryInputs& in_memory) {
   const auto in_memory_input = [&](const std::string& name) { return in_memory.particles.count(name) != 0; };
-  if (std::none_of(input.inputs.begin(), input.inputs.end(), in_memory_input)) return expand_particle_inputs(input);
-  std::vector<std::filesystem::path> frames;
+  if (std::none_of(input.inputs.begin(), input.inputs.end(), in_memory_input)) return expand_particle_sequence(input);
+  ParticleInputFiles frames;
   for (const std::string& name : input.inputs) {
     if (in_memory_input(name)) {
-      frames.emplace_back(name);
+      frames.files.emplace_back(name);
+      frames.numbers.emplace_back();
       continue;
     }
     ParticleInputOptions one;
@@ -81,8 +83,9 @@ std::vector<std::filesystem::path> particle_inputs_of(const ParticleInputOptions
       one.start = input.start;
       one.end = input.end;
     }
-    const auto files = expand_particle_inputs(one);
-    frames.insert(frames.end(), files.begin(), files.end());
+    const ParticleInputFiles expanded = expand_particle_sequence(one);
+    frames.files.insert(frames.files.end(), expanded.files.begin(), expanded.files.end());
+    frames.numbers.insert(frames.numbers.end(), expanded.numbers.begin(), expanded.numbers.end());
   }
   return frames;
 }
@@ -163,7 +166,9 @@ void build_isosurface(const IsosurfaceOptions& iso, v1::JobSpec& spec, const InM
 void build_particles(const ParticlesOptions& p, PreparedJob& prepared, const InMemoryInputs& in_memory) {
   v1::JobSpec& spec = prepared.spec;
   v1::ParticlesJob* job = spec.mutable_particles();
-  const auto files = particle_inputs_of(p.input, in_memory);
+  const ParticleInputFiles inputs = particle_inputs_of(p.input, in_memory);
+  const auto& files = inputs.files;
+  prepared.frame_numbers = output_numbers(inputs.numbers);
   for (std::size_t i = 0; i < files.size(); ++i) job->add_frames();
   add_particle_frames(
       prepared, files, [](v1::JobSpec& s, int i) { return s.mutable_particles()->mutable_frames(i); }, in_memory);
@@ -254,7 +259,9 @@ void build_active(const ActiveOptions& a, PreparedJob& prepared, const InMemoryI
 
   if (const auto* coat = std::get_if<ActiveCoatOptions>(&a.mode)) {
     v1::ActiveCoat* c = job->mutable_coat();
-    const auto files = particle_inputs_of(coat->input, in_memory);
+    const ParticleInputFiles inputs = particle_inputs_of(coat->input, in_memory);
+    const auto& files = inputs.files;
+    prepared.frame_numbers = output_numbers(inputs.numbers);
     for (std::size_t i = 0; i < files.size(); ++i) c->add_frames();
     add_particle_frames(
         prepared, files, [](v1::JobSpec& s, int i) { return s.mutable_active()->mutable_coat()->mutable_frames(i); },

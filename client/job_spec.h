@@ -26,6 +26,9 @@ v1::JobSpec read_job_spec_file(const std::filesystem::path& path);
 struct PreparedJob {
   v1::JobSpec spec;
   std::vector<PendingUpload> uploads;  // in order; empty for isosurface, morph, Enright advect and --spec
+  // The number in each frame's output file name (client/output_files.h output_numbers): the input files' frame
+  // numbers for particle sequences read from patterns; empty otherwise.
+  std::vector<int> frame_numbers;
 };
 
 // Inputs handed over in memory rather than as files (the Python package): JobOptions name each one like a file, by

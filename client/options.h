@@ -163,13 +163,19 @@ struct JobOptions {
   std::optional<int> quantization_bits;
 };
 
-enum class FileFormat { kDrc, kPly, kObj };
+enum class FileFormat { kDrc, kPly, kObj, kVtk, kVtu };
 
 struct FrameOutputOptions {
   std::filesystem::path dir;
   // Files written per frame. Empty: one file in the frame's own encoding (.drc for Draco, .ply for meshopt and raw
   // PLY).
   std::vector<FileFormat> formats;
+  // -o PATTERN (e.g. out/surface_{:04d}.ply, client/output_files.h): each frame's one file is named by the pattern
+  // instead of DIR/frame_NNNN.<ext>; `dir` is then the pattern's directory (stats.csv goes there) and `formats` the
+  // format of its extension.
+  std::optional<std::string> pattern = std::nullopt;
+  // The number in frame i's file name: frame_numbers[i] (the input files' own frame numbers), or i past its end.
+  std::vector<int> frame_numbers = {};
 };
 
 struct RunCommand {

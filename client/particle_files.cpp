@@ -5,6 +5,7 @@
 #include <charconv>
 #include <cmath>
 #include <limits>
+#include <map>
 #include <optional>
 #include <set>
 
@@ -22,6 +23,7 @@ struct PatternParts {
   std::string prefix;
   std::string suffix;
   int placeholders = 0;
+  bool any_padding = false;  // the placeholder is "{}": it matches the number with any zero padding
 };
 
 PatternParts split_pattern(const std::string& text) {
@@ -36,6 +38,7 @@ PatternParts split_pattern(const std::string& text) {
       const std::size_t close = text.find('}', i);
       if (close == std::string::npos) break;  // malformed: expand_sequence() says so
       ++parts.placeholders;
+      parts.any_padding = close == i + 1;
       out = &parts.suffix;
       i = close;
     } else {
@@ -55,8 +58,9 @@ std::vector<fs::path> expand(const std::string& pattern, int start, int end, con
   }
 }
 
-// Frame numbers of the files in the pattern's directory that the pattern names exactly.
-std::vector<int> frames_present(const std::string& pattern, const std::string& where) {
+// The files in the pattern's directory that the pattern names, by frame number: exactly as expand_sequence() names
+// them, or for "{}" with any zero padding (fluid_7.bgeo, fluid_0007.bgeo); two files of one number are an error.
+std::map<int, fs::path> frames_present(const std::string& pattern, const std::string& where) {
   const fs::path path(pattern);
   const fs::path dir = path.has_parent_path() ? path.parent_path() : fs::path(".");
   if (split_pattern(dir.string()).placeholders != 0) {
@@ -70,7 +74,7 @@ std::vector<int> frames_present(const std::string& pattern, const std::string& w
   std::error_code ec;
   fs::directory_iterator it(dir, ec);
   if (ec) throw usage(where + ": cannot list " + dir.string() + ": " + ec.message());
-  std::set<int> frames;
+  std::map<int, fs::path> frames;
   for (const fs::directory_entry& entry : it) {
     const std::string name = entry.path().filename().string();
     if (name.size() <= parts.prefix.size() + parts.suffix.size() || name.rfind(parts.prefix, 0) != 0 ||
@@ -82,11 +86,20 @@ std::vector<int> frames_present(const std::string& pattern, const std::string& w
     int number = 0;
     auto [end, ec2] = std::from_chars(middle.data(), middle.data() + middle.size(), number);
     if (ec2 != std::errc() || end != middle.data() + middle.size()) continue;
-    // The pattern must produce exactly this name (e.g. {:04d} does not name fluid_7.ply).
-    if (expand(pattern, number, number, where).front().filename() != entry.path().filename()) continue;
-    frames.insert(number);
+    // The pattern must produce exactly this name (e.g. {:04d} does not name fluid_7.ply); {} takes any padding.
+    if (!parts.any_padding && expand(pattern, number, number, where).front().filename() != entry.path().filename()) {
+      continue;
+    }
+    const fs::path file = dir == "." && !path.has_parent_path() ? fs::path(name) : dir / name;
+    const auto [at, inserted] = frames.emplace(number, file);
+    if (!inserted) {
+      const std::string other = at->second.filename().string();
+      throw usage(where + ": " + std::min(other, name) + " and " + std::max(other, name) + " are both frame " +
+                  std::to_string(number) +
+                  "; remove one, or give the padding, e.g. {:04d}");
+    }
   }
-  return {frames.begin(), frames.end()};
+  return frames;
 }
 
 void require_exists(const fs::path& file, const std::string& where) {
@@ -138,63 +151,80 @@ std::string server_limits_text(const InputLimits& limits) {
 
 bool is_sequence_pattern(const std::string& input) { return split_pattern(input).placeholders > 0; }
 
-std::vector<fs::path> expand_particle_inputs(const ParticleInputOptions& options, const std::string& flag) {
+ParticleInputFiles expand_particle_sequence(const ParticleInputOptions& options, const std::string& flag) {
   if (options.inputs.empty()) throw usage(flag + " is required: a particle file or a pattern such as fluid_{}.bgeo");
   if (options.start && options.end && *options.end < *options.start) {
     throw usage("--end (" + std::to_string(*options.end) + ") must not be below --start (" +
                 std::to_string(*options.start) + ")");
   }
   bool any_pattern = false;
-  std::vector<fs::path> files;
+  ParticleInputFiles out;
   for (const std::string& input : options.inputs) {
     const std::string where = flag + " " + input;
     if (!is_sequence_pattern(input)) {
       require_exists(input, where);
-      files.emplace_back(input);
+      out.files.emplace_back(input);
+      out.numbers.emplace_back(std::nullopt);
       continue;
     }
     any_pattern = true;
+    // "{}" in the file name matches any zero padding: the directory is listed even when --start and --end are given.
+    const bool any_padding = split_pattern(fs::path(input).filename().string()).any_padding &&
+                             split_pattern(fs::path(input).parent_path().string()).placeholders == 0;
+    std::map<int, fs::path> present;
     int start = 0;
     int end = 0;
+    if (any_padding || !(options.start && options.end)) present = frames_present(input, where);
     if (options.start && options.end) {
       start = *options.start;
       end = *options.end;
     } else {
-      const std::vector<int> present = frames_present(input, where);
       if (present.empty()) {
         throw usage(where + ": no file in " +
                     (fs::path(input).has_parent_path() ? fs::path(input).parent_path().string() : std::string(".")) +
                     " matches the pattern");
       }
-      start = options.start.value_or(present.front());
-      end = options.end.value_or(present.back());
+      start = options.start.value_or(present.begin()->first);
+      end = options.end.value_or(present.rbegin()->first);
       if (end < start) {
         throw usage(where + ": no frame in the range " + std::to_string(start) + ".." + std::to_string(end) +
-                    " (files present: " + std::to_string(present.front()) + ".." + std::to_string(present.back()) +
-                    ")");
+                    " (files present: " + std::to_string(present.begin()->first) + ".." +
+                    std::to_string(present.rbegin()->first) + ")");
       }
     }
     const std::vector<fs::path> sequence = expand(input, start, end, where);
     std::size_t missing = 0;
     std::string first_missing;
-    for (const fs::path& file : sequence) {
+    for (std::size_t k = 0; k < sequence.size(); ++k) {
+      const int number = start + static_cast<int>(k);
+      fs::path file = sequence[k];
+      if (any_padding) {
+        const auto it = present.find(number);
+        if (it != present.end()) file = it->second;
+      }
       std::error_code ec;
       if (!fs::is_regular_file(file, ec)) {
-        if (missing++ == 0) first_missing = file.string();
+        if (missing++ == 0) first_missing = file.string() + (any_padding ? " (with any zero padding)" : "");
+        continue;
       }
+      out.files.push_back(file);
+      out.numbers.emplace_back(number);
     }
     if (missing > 0) {
       throw usage(where + ": " + std::to_string(missing) + " of the " + std::to_string(sequence.size()) + " frames " +
                   std::to_string(start) + ".." + std::to_string(end) + " are missing, the first " + first_missing +
                   " (set --start/--end to the frames present)");
     }
-    files.insert(files.end(), sequence.begin(), sequence.end());
   }
   if ((options.start || options.end) && !any_pattern) {
     throw usage("--start/--end select frames of a sequence pattern (" + flag +
                 " fluid_{:04d}.ply); no input is a pattern");
   }
-  return files;
+  return out;
+}
+
+std::vector<fs::path> expand_particle_inputs(const ParticleInputOptions& options, const std::string& flag) {
+  return expand_particle_sequence(options, flag).files;
 }
 
 ParticleRecords read_particle_records(const fs::path& path, const InputLimits& limits) {

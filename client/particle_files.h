@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <limits>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -24,6 +25,15 @@ bool is_sequence_pattern(const std::string& input);
 // --start/--end without any pattern. `flag` names the option in messages ("--input").
 std::vector<std::filesystem::path> expand_particle_inputs(const ParticleInputOptions& options,
                                                           const std::string& flag = "--input");
+
+// The same files with each one's frame number (nullopt for an input that is not a pattern). A "{}" placeholder in
+// the file name matches any zero padding (fluid_{}.bgeo names fluid_7.bgeo and fluid_0007.bgeo; both present is an
+// error); "{:04d}" names exactly fluid_0007.bgeo.
+struct ParticleInputFiles {
+  std::vector<std::filesystem::path> files;
+  std::vector<std::optional<int>> numbers;
+};
+ParticleInputFiles expand_particle_sequence(const ParticleInputOptions& options, const std::string& flag = "--input");
 
 // What a server accepts of one particle frame (its GetServerInfo limits); the defaults accept anything.
 struct InputLimits {

@@ -140,7 +140,7 @@ WatchResult JobWatcher::run() {
     const std::string resume = writer_ == nullptr
                                    ? std::string()
                                    : "; resume with: surfacer watch " + job_id_ + " --from-frame " +
-                                         std::to_string(next_missing()) + " -o " + writer_->dir().string();
+                                         std::to_string(next_missing()) + " -o " + writer_->target();
     if (std::chrono::steady_clock::now() >= deadline) {
       throw CliError(ExitCode::kUnreachable,
                      "lost the connection to " + connection_.describe() + " while watching job " + job_id_ +

@@ -19,9 +19,9 @@
 #   SURFACER              optional path of the CLI (default: surfacer on PATH)
 #
 # Pod i surfaces frames START..END, START = FRAME_FIRST + i * FRAMES_PER_POD, END = min(START + FRAMES_PER_POD,
-# FRAME_FIRST + FRAMES_TOTAL) - 1. The CLI numbers a run's frames from 0 (frame_0000 = its first input file), so
-# the pod writes into OUT_DIR/.part-<i>/ and then renames frame_<k>.<ext> to OUT_DIR/frame_<START+k>.<ext> with mv,
-# an atomic rename on the same file system: a reader never sees a partial frame. Its stats.csv goes to
+# FRAME_FIRST + FRAMES_TOTAL) - 1. The CLI names each frame by its input's frame number (frame_<START+k>), so the
+# pod writes into OUT_DIR/.part-<i>/ and then moves the files to OUT_DIR/ with mv, an atomic rename on the same file
+# system: a reader never sees a partial frame. Its stats.csv (whose frame column counts from 0) goes to
 # OUT_DIR/stats/part-<i>.csv with the frame column made global. A retried pod starts its part directory afresh and
 # overwrites its own frames, so retries are safe.
 #
@@ -96,15 +96,15 @@ if [ "$status" -ne 0 ]; then
   exit "$status"
 fi
 
-# Check first, rename second: nothing is published unless the part holds exactly frames 0..COUNT-1.
+# Check first, rename second: nothing is published unless the part holds exactly frames START..END.
 declare -A seen=()
 files=()
 shopt -s nullglob
 for path in "$PART"/frame_*; do
   name=${path##*/}
   [[ $name =~ ^frame_([0-9]+)\.([A-Za-z0-9]+)$ ]] || continue
-  local_index=$((10#${BASH_REMATCH[1]}))
-  if [ "$local_index" -ge "$COUNT" ]; then
+  local_index=$((10#${BASH_REMATCH[1]} - START))
+  if [ "$local_index" -lt 0 ] || [ "$local_index" -ge "$COUNT" ]; then
     log error unexpected_frame "index=$INDEX file=$name frames=$COUNT"
     exit 1
   fi
@@ -118,9 +118,7 @@ fi
 
 for path in "${files[@]}"; do
   name=${path##*/}
-  [[ $name =~ ^frame_([0-9]+)\.([A-Za-z0-9]+)$ ]]
-  global=$((START + 10#${BASH_REMATCH[1]}))
-  mv -f -- "$path" "$OUT_DIR/$(printf 'frame_%04d' "$global").${BASH_REMATCH[2]}"
+  mv -f -- "$path" "$OUT_DIR/${path##*/}"
 done
 if [ -f "$PART/stats.csv" ]; then
   awk -F, -v OFS=, -v start="$START" 'NR == 1 || $1 !~ /^[0-9]+$/ { print; next } { $1 = $1 + start; print }' \

@@ -1,7 +1,7 @@
 // Fuzz target: particle frames, every reader in core/particle_io (from memory; gzip is detected by its magic bytes
 // in every format) and the server's decoding of uploaded and inline frames (wire/particle_frames).
 // Input: one selector byte, then the file or upload bytes:
-//   0 xyz/csv text, 1 PLY, 2 VTK legacy, 3 VTU, 4 raw float32, 5 BGEO (core::parse_particles)
+//   0 xyz/csv text, 1 PLY, 2 VTK legacy, 3 VTU, 4 raw float32, 5 BGEO, 9 JSON (core::parse_particles)
 //   6 upload of float32 x y z records, 7 of x y z r records (with_radius), 8 a serialized v1::ParticleFrame with
 //   inline positions/radii (wire::summarize_particle_frame + load_particle_frame)
 // Expected failures are surfacer::Error; anything else escaping, a crash, UB or a violated property is a bug.
@@ -51,13 +51,14 @@ void decode_server_frame(const v1::ParticleFrame& frame, const wire::UploadLooku
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   using namespace surfacer;
   if (size == 0) return 0;
-  const std::uint8_t selector = data[0] % 9;
+  const std::uint8_t selector = data[0] % 10;
   const std::string_view bytes = fuzz::as_view(data + 1, size - 1);
   try {
-    if (selector <= 5) {
+    if (selector <= 5 || selector == 9) {
       static constexpr ParticleFormat kFormats[] = {ParticleFormat::kXyz, ParticleFormat::kPly, ParticleFormat::kVtk,
                                                     ParticleFormat::kVtu, ParticleFormat::kBin, ParticleFormat::kBgeo};
-      fuzz::check_frame(parse_particles(bytes, kFormats[selector], "fuzz"));
+      const ParticleFormat format = selector == 9 ? ParticleFormat::kJson : kFormats[selector];
+      fuzz::check_frame(parse_particles(bytes, format, "fuzz"));
     } else if (selector <= 7) {
       wire::MemoryUploads uploads;
       auto blob = std::make_shared<wire::UploadBlob>();

@@ -221,34 +221,60 @@ def b64(data):
     return base64.b64encode(data).decode()
 
 
-def vtu_array(values, name, comps, fmt, header, big, float64):
+def vtu_payload(raw, header, big, zlib_blocks):
+    """A binary array's header and data: a byte count, or VTK's zlib layout (blocks, block size, partial last block
+    size or 0, each block's compressed size; then the zlib blocks)."""
+    word = "Q" if header == "UInt64" else "I"
+    if not zlib_blocks:
+        return put(word, big, len(raw)), raw
+    import zlib
+    bs = zlib_blocks
+    blocks = [zlib.compress(raw[i:i + bs]) for i in range(0, len(raw), bs)]
+    h = put(word, big, len(blocks)) + put(word, big, bs) + put(word, big, len(raw) % bs)
+    return h + b"".join(put(word, big, len(b)) for b in blocks), b"".join(blocks)
+
+
+def vtu_array(values, name, comps, fmt, header, big, float64, zlib_blocks=0, appended=None):
     t = "Float64" if float64 else "Float32"
-    s = '<DataArray type="%s" %sNumberOfComponents="%d" format="%s">\n' % (
+    s = '<DataArray type="%s" %sNumberOfComponents="%d" format="%s"' % (
         t, 'Name="%s" ' % name if name else "", comps, fmt)
     if fmt == "ascii":
-        s += " ".join(repr(v) for v in values) + " "
-    else:
-        data = b"".join(put("d" if float64 else "f", big, v) for v in values)
-        h = put("Q" if header == "UInt64" else "I", big, len(data))
-        s += b64(h) + b64(data)
-    return s + "\n</DataArray>\n"
+        return s + ">\n" + " ".join(repr(v) for v in values) + " \n</DataArray>\n"
+    data = b"".join(put("d" if float64 else "f", big, v) for v in values)
+    h, d = vtu_payload(data, header, big, zlib_blocks)
+    if fmt == "appended":
+        s += ' offset="%d"/>\n' % len(appended)
+        appended += h + d
+        return s
+    return s + ">\n" + b64(h) + b64(d) + "\n</DataArray>\n"
 
 
-def vtu(pts, rs, fmt="ascii", header="UInt32", big=False, float64=False, pieces=1, kind="UnstructuredGrid"):
+def vtu(pts, rs, fmt="ascii", header="UInt32", big=False, float64=False, pieces=1, kind="UnstructuredGrid",
+        zlib_blocks=0):
     s = ('<?xml version="1.0"?>\n<!-- seed -->\n<VTKFile type="%s" version="1.0" byte_order="%s" '
-         'header_type="%s">\n<%s>\n' % (kind, "BigEndian" if big else "LittleEndian", header, kind))
+         'header_type="%s"%s>\n<%s>\n' % (kind, "BigEndian" if big else "LittleEndian", header,
+                                         ' compressor="vtkZLibDataCompressor"' if zlib_blocks else "", kind))
     n = len(pts)
+    appended = bytearray()
+    args = (fmt, header, big, float64, zlib_blocks, appended)
     for piece in range(pieces):
         a, e = n * piece // pieces, n * (piece + 1) // pieces
         s += '<Piece NumberOfPoints="%d" NumberOfCells="0">\n<PointData Scalars="radius">\n' % (e - a)
-        s += vtu_array([2.0] * (e - a), "density", 1, fmt, header, big, float64)
+        s += vtu_array([2.0] * (e - a), "density", 1, *args)
         if rs:
-            s += vtu_array(rs[a:e], "radius", 1, fmt, header, big, float64)
+            s += vtu_array(rs[a:e], "radius", 1, *args)
         s += "</PointData>\n<Points>\n"
-        s += vtu_array([c for p in pts[a:e] for c in p], "Points", 3, fmt, header, big, float64)
+        s += vtu_array([c for p in pts[a:e] for c in p], "Points", 3, *args)
         s += ('</Points>\n<Cells>\n<DataArray type="Int64" Name="connectivity" format="ascii"></DataArray>\n'
               '</Cells>\n</Piece>\n')
-    return (s + "</%s>\n</VTKFile>\n" % kind).encode()
+    b = (s + "</%s>\n" % kind).encode()
+    if fmt == "appended":
+        b += b'<AppendedData encoding="raw">\n   _' + bytes(appended) + b"\n</AppendedData>\n"
+    return b + b"</VTKFile>\n"
+
+
+def json_points(pts):
+    return ("[" + ",\n ".join("[%r, %r, %r]" % p for p in pts) + "]\n").encode()
 
 
 def bgeo(pts, rs):
@@ -275,7 +301,7 @@ def gz(data):
 
 def particles():
     d = reset("particles")
-    # selector byte: 0 xyz, 1 ply, 2 vtk, 3 vtu, 4 bin, 5 bgeo, 6/7 upload (xyz / xyzr), 8 ParticleFrame proto
+    # selector byte: 0 xyz, 1 ply, 2 vtk, 3 vtu, 4 bin, 5 bgeo, 6/7 upload (xyz / xyzr), 8 ParticleFrame proto, 9 json
     for radii in (False, True):
         pts, rs = sample(radii=radii)
         r = "_r" if radii else ""
@@ -293,13 +319,20 @@ def particles():
         write(d, "vtu_b64_u64_be_f64%s" % r,
               b"\x03" + vtu(pts, rs, fmt="binary", header="UInt64", big=True, float64=True, pieces=2))
         write(d, "vtu_polydata%s" % r, b"\x03" + vtu(pts, rs, kind="PolyData"))
+        write(d, "vtu_appended_raw%s" % r, b"\x03" + vtu(pts, rs, fmt="appended"))
+        write(d, "vtu_appended_zlib%s" % r, b"\x03" + vtu(pts, rs, fmt="appended", zlib_blocks=32))
+        write(d, "vtu_b64_zlib_u64_be%s" % r,
+              b"\x03" + vtu(pts, rs, fmt="binary", header="UInt64", big=True, pieces=2, zlib_blocks=40))
         write(d, "bgeo%s" % r, b"\x05" + bgeo(pts, rs))
         write(d, "bgeo_gz%s" % r, b"\x05" + gz(bgeo(pts, rs)))
     pts, rs = sample()
     write(d, "xyz_header", b"\x00id,Z,y,x,pscale,vx\n1,3,2,1,0.5,9\n2,6,5,4,0.25,9\n")
     write(d, "xyz_gz", b"\x00" + gz(xyz(pts, [], " ")))
     write(d, "ply_gz", b"\x01" + gz(ply(pts, [], "ascii")))
-    write(d, "vtu_appended", b"\x03" + vtu(pts, []).replace(b'format="ascii"', b'format="appended" offset="0"', 1))
+    write(d, "vtu_appended_no_data", b"\x03" + vtu(pts, []).replace(b'format="ascii"', b'format="appended" offset="0"'))
+    write(d, "json", b"\x09" + json_points(pts))
+    write(d, "json_empty", b"\x09[]")
+    write(d, "xyz_binary", b"\x00" + b"".join(put("fff", False, *p) for p in pts))
     write(d, "bin", b"\x04" + b"".join(put("fff", False, *p) for p in pts))
     write(d, "bin_gz", b"\x04" + gz(b"".join(put("fff", False, *p) for p in pts)))
     write(d, "upload_xyz", b"\x06" + b"".join(put("fff", False, *p) for p in pts))

@@ -219,24 +219,6 @@ Mesh parse_obj(std::string_view bytes, const std::string& name) {
 
 // --- Writers ------------------------------------------------------------------------------------------------------
 
-void check_writable(const Mesh& mesh) {
-  if (mesh.vertices.size() > static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max())) {
-    throw InvalidInput("vertices", "mesh has too many vertices for a PLY/OBJ file (max 2^31 - 1)");
-  }
-  if (!mesh.normals.empty() && mesh.normals.size() != mesh.vertices.size()) {
-    throw InvalidInput("normals", "mesh has " + std::to_string(mesh.normals.size()) + " normals for " +
-                                      std::to_string(mesh.vertices.size()) + " vertices");
-  }
-  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
-    for (std::uint32_t v : mesh.triangles[t]) {
-      if (v >= mesh.vertices.size()) {
-        throw InvalidInput("triangles", "triangle " + std::to_string(t) + " uses vertex " + std::to_string(v) +
-                                            " but the mesh has " + std::to_string(mesh.vertices.size()) + " vertices");
-      }
-    }
-  }
-}
-
 template <class T>
 void append_le(std::string& out, T value) {
   unsigned char raw[sizeof(T)];
@@ -267,6 +249,24 @@ std::string read_file(const std::filesystem::path& path) {
 }
 
 }  // namespace
+
+void check_mesh_writable(const Mesh& mesh, std::string_view format) {
+  if (mesh.vertices.size() > static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max())) {
+    throw InvalidInput("vertices", "mesh has too many vertices for a " + std::string(format) + " file (max 2^31 - 1)");
+  }
+  if (!mesh.normals.empty() && mesh.normals.size() != mesh.vertices.size()) {
+    throw InvalidInput("normals", "mesh has " + std::to_string(mesh.normals.size()) + " normals for " +
+                                      std::to_string(mesh.vertices.size()) + " vertices");
+  }
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+    for (std::uint32_t v : mesh.triangles[t]) {
+      if (v >= mesh.vertices.size()) {
+        throw InvalidInput("triangles", "triangle " + std::to_string(t) + " uses vertex " + std::to_string(v) +
+                                            " but the mesh has " + std::to_string(mesh.vertices.size()) + " vertices");
+      }
+    }
+  }
+}
 
 MeshFormat mesh_format_from_path(const std::filesystem::path& path) {
   std::string ext = path.extension().string();
@@ -303,7 +303,7 @@ Mesh read_mesh(const std::filesystem::path& path, const MeshReadLimits& limits) 
 }
 
 std::string write_ply(const Mesh& mesh, bool double_precision) {
-  check_writable(mesh);
+  check_mesh_writable(mesh, "PLY/OBJ");
   const bool normals = !mesh.normals.empty();
   std::string out;
   const char* type = double_precision ? "double" : "float";
@@ -337,7 +337,7 @@ std::string write_ply(const Mesh& mesh, bool double_precision) {
 }
 
 std::string write_obj(const Mesh& mesh) {
-  check_writable(mesh);
+  check_mesh_writable(mesh, "PLY/OBJ");
   const bool normals = !mesh.normals.empty();
   std::string out = "# surfacer\n";
   out.reserve(mesh.vertices.size() * (normals ? 80 : 40) + mesh.triangles.size() * (normals ? 40 : 24));

@@ -22,6 +22,10 @@ Mesh read_mesh(const std::filesystem::path& path, const MeshReadLimits& limits =
 Mesh parse_mesh(std::string_view bytes, MeshFormat format, const std::string& name_for_errors,
                 const MeshReadLimits& limits = {});
 
+// Throws InvalidInput unless every mesh file can hold `mesh`: at most 2^31 - 1 vertices (files index with int32),
+// no normals or one per vertex, every triangle's indices below the vertex count. `format` names the file in messages.
+void check_mesh_writable(const Mesh& mesh, std::string_view format);
+
 // PLY is written binary little-endian (float positions unless `double_precision`); OBJ as text with %.9g.
 void write_mesh(const std::filesystem::path& path, const Mesh& mesh);
 std::string write_obj(const Mesh& mesh);

@@ -292,7 +292,22 @@ std::string gunzip(std::string_view bytes, const std::string& name, std::uint64_
 
 // --- .xyz / .txt / .csv ---------------------------------------------------------------------------------------------
 
+// Text particle files hold no control bytes but white space; splashsurf's .xyz (raw float32 triples) is full of them.
+void refuse_binary_text(std::string_view text, const std::string& name) {
+  const std::string_view head = text.substr(0, 4096);
+  for (std::size_t i = 0; i < head.size(); ++i) {
+    const auto c = static_cast<unsigned char>(head[i]);
+    if ((c < 0x20 && c != '\t' && c != '\n' && c != '\r' && c != '\f' && c != '\v') || c == 0x7f) {
+      fail(name, byte_at(i),
+           "binary data in a text particle file (.xyz/.txt/.csv are \"x y z [r]\" lines); if this is splashsurf's "
+           "binary .xyz (raw little-endian float32 x y z triples), rename it to .bin, which Surfacer reads as "
+           "exactly that");
+    }
+  }
+}
+
 ParticleFrame parse_xyz(std::string_view text, const std::string& name) {
+  refuse_binary_text(text, name);
   ParticleFrame frame;
   frame.positions.reserve(text.size() / 8);
   std::size_t pos = 0, line_no = 0;
@@ -519,14 +534,16 @@ ParticleFormat particle_format_from_path(const std::filesystem::path& path) {
   if (ext == ".vtu") return ParticleFormat::kVtu;
   if (ext == ".bin") return ParticleFormat::kBin;
   if (ext == ".bgeo" || ext == ".bhclassic") return ParticleFormat::kBgeo;
-  throw InvalidInput("file",
-                     path.string() + ": unknown particle file extension '" + ext +
-                         "'; use .xyz, .txt, .csv, .ply, .vtk, .vtu, .bin, .bgeo or .bhclassic (optionally .gz)");
+  if (ext == ".json") return ParticleFormat::kJson;
+  throw InvalidInput("file", path.string() + ": unknown particle file extension '" + ext +
+                                 "'; use .xyz, .txt, .csv, .ply, .vtk, .vtu, .bin, .bgeo, .bhclassic or .json "
+                                 "(optionally .gz)");
 }
 
 namespace {
 
-ParticleFrame parse_format(std::string_view bytes, ParticleFormat format, const std::string& name) {
+ParticleFrame parse_format(std::string_view bytes, ParticleFormat format, const std::string& name,
+                           const ParticleReadLimits& limits) {
   switch (format) {
     case ParticleFormat::kXyz:
       return parse_xyz(bytes, name);
@@ -535,11 +552,13 @@ ParticleFrame parse_format(std::string_view bytes, ParticleFormat format, const 
     case ParticleFormat::kVtk:
       return parse_vtk_points(bytes, name);
     case ParticleFormat::kVtu:
-      return parse_vtu_points(bytes, name);
+      return parse_vtu_points(bytes, name, limits.max_bytes);
     case ParticleFormat::kBin:
       return parse_bin(bytes, name);
     case ParticleFormat::kBgeo:
       return parse_bgeo(bytes, name);
+    case ParticleFormat::kJson:
+      return parse_json_points(bytes, name);
   }
   throw Internal("unknown particle format");
 }
@@ -564,7 +583,7 @@ ParticleFrame parse_particles(std::string_view bytes, ParticleFormat format, con
   if (format == ParticleFormat::kBin && bytes.size() / 12 > static_cast<std::uint64_t>(limits.max_particles)) {
     too_many_particles(name_for_errors, bytes.size() / 12, limits.max_particles);
   }
-  ParticleFrame frame = parse_format(bytes, format, name_for_errors);
+  ParticleFrame frame = parse_format(bytes, format, name_for_errors, limits);
   if (frame.positions.size() > static_cast<std::uint64_t>(limits.max_particles)) {
     too_many_particles(name_for_errors, frame.positions.size(), limits.max_particles);
   }

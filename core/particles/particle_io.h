@@ -4,15 +4,21 @@
 // magic bytes 1f 8b whatever the extension, then inflated before parsing):
 //   .xyz .txt .csv  text, one particle per line: "x y z" or "x y z r", separated by whitespace and/or commas;
 //                   '#' starts a comment; an optional first line of column names (e.g. "x,y,z,radius,id") selects
-//                   the x, y, z and radius (or pscale) columns by name.
+//                   the x, y, z and radius (or pscale) columns by name. Binary data (a control byte other than
+//                   tab, CR, LF, FF or VT in the first 4 KiB: splashsurf's raw float32 `.xyz`) is refused with a
+//                   message that says to rename the file to .bin.
 //   .ply            point cloud (ascii, binary_little_endian, binary_big_endian): element "vertex" with properties
 //                   x, y, z of any scalar type and an optional radius or pscale; other properties/elements skipped.
 //   .vtk            VTK legacy, DATASET POLYDATA or UNSTRUCTURED_GRID, ASCII or BINARY (big-endian): the POINTS
 //                   (any numeric type); radii from a POINT_DATA SCALARS or FIELD array named radius or pscale.
-//   .vtu            VTK XML UnstructuredGrid/PolyData: <Points><DataArray> of every <Piece>, format "ascii" or inline
-//                   "binary" (base64 with a UInt32 or UInt64 byte-count header, little- or big-endian), Float32 or
-//                   Float64; radii from a PointData DataArray named radius or pscale. Appended data and compressed
-//                   files are rejected with an error saying so.
+//   .vtu            VTK XML UnstructuredGrid/PolyData: <Points><DataArray> of every <Piece>, format "ascii", inline
+//                   "binary" (base64) or "appended" (<AppendedData encoding="raw"> or "base64"), with a UInt32 or
+//                   UInt64 header, little- or big-endian, uncompressed or compressed with zlib
+//                   (compressor="vtkZLibDataCompressor": VTK's default is appended raw zlib, meshio's inline binary
+//                   zlib), any numeric type; radii from a PointData DataArray named radius or pscale. Compressed
+//                   arrays inflate to at most ParticleReadLimits::max_bytes in all, and a block that claims more than
+//                   zlib can produce from its bytes (1032:1) is refused before anything is allocated for it.
+//   .json           splashsurf's JSON: a list of [x, y, z] lists, e.g. [[0, 0, 0], [0.1, 0, 0]].
 //   .bin            raw little-endian float32 x y z triples, no header.
 //   .bgeo .bhclassic  Houdini classic binary geometry (magic "Bgeo", version 5; as written by Partio and
 //                   SPlisHSPlasH): the point positions, radii from a float point attribute named pscale or radius.
@@ -43,7 +49,7 @@ struct ParticleFrame {
   std::vector<double> radii;  // empty, or one per position (as stored; not validated here)
 };
 
-enum class ParticleFormat { kXyz, kPly, kVtk, kVtu, kBin, kBgeo };
+enum class ParticleFormat { kXyz, kPly, kVtk, kVtu, kBin, kBgeo, kJson };
 
 struct ParticleReadLimits {
   std::uint64_t max_bytes = std::uint64_t{16} << 30;  // of the file's data, once inflated

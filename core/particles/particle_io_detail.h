@@ -54,6 +54,8 @@ std::size_t capped_reserve(std::int64_t declared, std::size_t bytes_left, std::s
 
 ParticleFrame parse_ply_points(std::string_view bytes, const std::string& name);
 ParticleFrame parse_vtk_points(std::string_view bytes, const std::string& name);
-ParticleFrame parse_vtu_points(std::string_view bytes, const std::string& name);
+ParticleFrame parse_json_points(std::string_view bytes, const std::string& name);
+// Compressed arrays may inflate to at most `max_inflated_bytes` in all (ResourceLimit past it).
+ParticleFrame parse_vtu_points(std::string_view bytes, const std::string& name, std::uint64_t max_inflated_bytes);
 
 }  // namespace surfacer::particle_io_detail

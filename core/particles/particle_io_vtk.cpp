@@ -1,4 +1,6 @@
 // VTK legacy (.vtk) and VTK XML (.vtu) point positions for core/particles/particle_io.h.
+#include <zlib.h>
+
 #include <algorithm>
 #include <cctype>
 #include <cmath>
@@ -7,6 +9,7 @@
 #include <vector>
 
 #include "core/particles/particle_io_detail.h"
+#include "core/util/errors.h"
 
 namespace surfacer::particle_io_detail {
 namespace {
@@ -237,15 +240,28 @@ struct Tag {
   }
 };
 
+// A Points or radius DataArray found while scanning the tags, decoded once the scan has found the appended data (if
+// any): arrays are decoded in file order, so the pieces' points stay in order whatever their storage.
+struct ArrayRef {
+  Tag tag;
+  bool points = false;
+  std::int64_t count = 0;          // values: points x 3, or radii
+  std::string_view content;        // inline arrays: the text between the tags
+  std::size_t content_at = 0;      // ... and where it starts
+  std::optional<std::uint64_t> offset;  // appended arrays: offset into the appended data
+  std::vector<double> values;           // inline arrays: decoded as soon as they are met
+};
+
 class XmlReader {
  public:
-  XmlReader(std::string_view text, const std::string& name) : text_(text), name_(name) {}
+  XmlReader(std::string_view text, const std::string& name, std::uint64_t max_inflated_bytes)
+      : text_(text), name_(name), max_inflated_bytes_(max_inflated_bytes) {}
 
   ParticleFrame read() {
-    ParticleFrame frame;
+    std::vector<ArrayRef> arrays;
     std::vector<std::string_view> stack;
     std::int64_t piece_points = -1;  // -1 outside a <Piece>
-    std::size_t piece_first = 0;     // index of the piece's first point in frame.positions
+    std::int64_t piece_points_read = 0;
     bool piece_radius = false;
     bool saw_file = false, any_radius = false, any_piece_without_radius = false;
     std::size_t pos = 0;
@@ -259,10 +275,10 @@ class XmlReader {
         }
         stack.pop_back();
         if (tag->name == "Piece") {
-          if (frame.positions.size() - piece_first != static_cast<std::size_t>(piece_points)) {
+          if (piece_points_read != piece_points) {
             fail(name_, where(tag->begin),
                  "piece declares " + std::to_string(piece_points) + " points but has " +
-                     std::to_string(frame.positions.size() - piece_first));
+                     std::to_string(piece_points_read));
           }
           (piece_radius ? any_radius : any_piece_without_radius) = true;
           piece_points = -1;
@@ -285,10 +301,13 @@ class XmlReader {
           fail(name_, where(tag->begin), "bad header_type '" + header + "'");
         header_size_ = header == "UInt64" ? 8 : 4;
         if (const auto compressor = tag->attribute("compressor"); compressor && !compressor->empty()) {
-          fail(name_, where(tag->begin),
-               "compressed VTU (compressor=\"" + std::string(compressor->substr(0, 60)) +
-                   "\") is not supported; write the file uncompressed (e.g. "
-                   "vtkXMLWriter::SetCompressorTypeToNone, meshio compression=None)");
+          if (*compressor != "vtkZLibDataCompressor") {
+            fail(name_, where(tag->begin),
+                 "compressor \"" + std::string(compressor->substr(0, 60)) +
+                     "\" is not supported; write the file with zlib (vtkZLibDataCompressor, VTK's and meshio's "
+                     "default) or uncompressed");
+          }
+          compressed_ = true;
         }
       } else if (tag->name == "Piece") {
         if (!saw_file) fail(name_, where(tag->begin), "<Piece> outside <VTKFile>");
@@ -301,10 +320,11 @@ class XmlReader {
           fail(name_, where(tag->begin), "Piece has no valid NumberOfPoints");
         }
         piece_points = static_cast<std::int64_t>(n);
-        piece_first = frame.positions.size();
+        piece_points_read = 0;
         piece_radius = false;
       } else if (tag->name == "AppendedData") {
-        break;  // raw bytes follow; every array we need was inline (appended ones were rejected below)
+        appended(*tag);
+        break;  // raw bytes follow, up to the end of the file
       } else if (tag->name == "DataArray" && !stack.empty() &&
                  (stack.back() == "Points" ||
                   // The piece's first radius (or pscale) array; a second one is other data, not more radii.
@@ -320,23 +340,35 @@ class XmlReader {
         if (nc != static_cast<double>(components) && points) {
           fail(name_, where(tag->begin), "Points DataArray must have NumberOfComponents=\"3\"");
         }
-        if (tag->self_closing) fail(name_, where(tag->begin), "empty DataArray");
+        const bool is_appended = tag->attribute("format").value_or("ascii") == "appended";
+        if (tag->self_closing && !is_appended) fail(name_, where(tag->begin), "empty DataArray");
         if (nc == static_cast<double>(components)) {  // (a multi-component "radius" is not a radius: skipped)
-          const std::size_t close = text_.find("</DataArray>", tag->end);
-          if (close == std::string_view::npos) fail(name_, where(tag->begin), "DataArray is not closed");
-          std::vector<double> values =
-              decode(*tag, text_.substr(tag->end, close - tag->end), tag->end, piece_points * components);
-          if (points) {
-            for (std::size_t i = 0; i + 2 < values.size(); i += 3) {
-              const Vec3 p(values[i], values[i + 1], values[i + 2]);
-              check_finite(p, name_, where(tag->end) + " (point " + std::to_string(i / 3) + ")");
-              frame.positions.push_back(p);
+          ArrayRef array;
+          array.tag = *tag;
+          array.points = points;
+          array.count = piece_points * components;
+          if (is_appended) {
+            double offset = -1.0;
+            if (!parse_double(tag->attribute("offset").value_or(""), offset) || offset < 0 ||
+                offset != std::floor(offset) || offset > 1e18) {
+              fail(name_, where(tag->begin), "appended DataArray has no valid offset");
             }
+            array.offset = static_cast<std::uint64_t>(offset);
+          }
+          if (!tag->self_closing) {
+            const std::size_t close = text_.find("</DataArray>", tag->end);
+            if (close == std::string_view::npos) fail(name_, where(tag->begin), "DataArray is not closed");
+            array.content = text_.substr(tag->end, close - tag->end);
+            array.content_at = tag->end;
+            pos = close;
+          }
+          if (!is_appended) array.values = decode(array);
+          arrays.push_back(std::move(array));
+          if (points) {
+            piece_points_read += piece_points;
           } else {
-            frame.radii.insert(frame.radii.end(), values.begin(), values.end());
             piece_radius = true;
           }
-          pos = close;
         }
       }
       if (!tag->self_closing) stack.push_back(tag->name);
@@ -345,6 +377,21 @@ class XmlReader {
     if (piece_points >= 0) fail(name_, where(text_.size()), "file ends inside a <Piece>");
     if (any_radius && any_piece_without_radius) {
       fail(name_, where(text_.size()), "some pieces have a radius array and some do not");
+    }
+    ParticleFrame frame;
+    for (ArrayRef& array : arrays) {
+      const std::vector<double> values = array.offset ? decode(array) : std::move(array.values);
+      if (array.points) {
+        for (std::size_t i = 0; i + 2 < values.size(); i += 3) {
+          const Vec3 p(values[i], values[i + 1], values[i + 2]);
+          if (!p.allFinite()) {  // (the line is found only on failure: counting lines per point is quadratic)
+            check_finite(p, name_, where(array.tag.begin) + " (point " + std::to_string(i / 3) + ")");
+          }
+          frame.positions.push_back(p);
+        }
+      } else {
+        frame.radii.insert(frame.radii.end(), values.begin(), values.end());
+      }
     }
     // Each piece checks its own counts; this holds the sum to them too, as the legacy reader's finish() does.
     if (!frame.radii.empty() && frame.radii.size() != frame.positions.size()) {
@@ -357,6 +404,191 @@ class XmlReader {
 
  private:
   std::string where(std::size_t offset) const { return line_at(line_of(text_, offset)); }
+
+  // <AppendedData encoding="raw|base64">, then optional white space and '_': the data starts after the '_'.
+  void appended(const Tag& tag) {
+    const std::string encoding(tag.attribute("encoding").value_or("raw"));
+    if (encoding != "raw" && encoding != "base64") {
+      fail(name_, where(tag.begin), "AppendedData encoding '" + encoding.substr(0, 40) + "' is not raw or base64");
+    }
+    appended_base64_ = encoding == "base64";
+    std::size_t i = tag.end;
+    while (i < text_.size() && std::isspace(static_cast<unsigned char>(text_[i]))) ++i;
+    if (i >= text_.size() || text_[i] != '_') fail(name_, where(tag.end), "AppendedData must start with '_'");
+    appended_at_ = i + 1;
+  }
+
+  // Bytes of one array's payload, in order: inline base64 decoded up front, appended data read where it lies.
+  class Payload {
+   public:
+    Payload(std::string_view bytes, bool base64, const XmlReader& reader, std::string where)
+        : bytes_(bytes), base64_(base64), reader_(reader), where_(std::move(where)) {}
+    // The next n bytes (n is checked against what is left before anything is decoded or copied).
+    std::string take(std::uint64_t n, const std::string& what) {
+      const std::uint64_t need = base64_ ? (n + 2) / 3 * 4 : n;
+      if (need > bytes_.size() - pos_) {
+        fail(reader_.name_, where_,
+             "truncated " + what + " (needs " + std::to_string(n) + " bytes, " +
+                 std::to_string(base64_ ? (bytes_.size() - pos_) / 4 * 3 : bytes_.size() - pos_) + " left)");
+      }
+      std::string out = base64_ ? reader_.base64(bytes_.substr(pos_, need), 0) : std::string(bytes_.substr(pos_, n));
+      out.resize(static_cast<std::size_t>(n));
+      pos_ += static_cast<std::size_t>(need);
+      return out;
+    }
+    std::uint64_t left() const { return base64_ ? (bytes_.size() - pos_) / 4 * 3 : bytes_.size() - pos_; }
+    const std::string& where() const { return where_; }
+
+   private:
+    std::string_view bytes_;
+    bool base64_;
+    const XmlReader& reader_;
+    std::string where_;
+    std::size_t pos_ = 0;
+  };
+
+  std::uint64_t header_word(const std::string& bytes, std::size_t index) const {
+    const double v = read_scalar(bytes.data() + index * header_size_,
+                                 header_size_ == 8 ? Scalar::kU64 : Scalar::kU32, big_endian_);
+    return v >= 1.8e19 ? std::numeric_limits<std::uint64_t>::max() : static_cast<std::uint64_t>(v);
+  }
+
+  // The uncompressed bytes of one binary array: a byte-count header and the data, or (compressed) VTK's block
+  // header (blocks, block size, size of a partial last block or 0, each block's compressed size) and zlib blocks.
+  // `expected` bytes are what the array must hold; nothing is allocated for a size the bytes present cannot back.
+  std::string payload_bytes(Payload& in, std::uint64_t expected) {
+    if (!compressed_) {
+      const std::uint64_t declared = header_word(in.take(header_size_, "DataArray header"), 0);
+      if (declared != expected) {
+        fail(name_, in.where(),
+             "binary DataArray header says " + std::to_string(declared) + " bytes, expected " +
+                 std::to_string(expected));
+      }
+      return in.take(expected, "binary DataArray");
+    }
+    const std::string head = in.take(3 * header_size_, "compressed DataArray header");
+    const std::uint64_t blocks = header_word(head, 0), block_size = header_word(head, 1),
+                        last_size = header_word(head, 2);
+    if (blocks > in.left() / header_size_) {
+      fail(name_, in.where(), "compressed DataArray declares " + std::to_string(blocks) + " blocks; the file is "
+                              "too short for their sizes");
+    }
+    const std::string sizes = in.take(blocks * header_size_, "compressed DataArray block sizes");
+    bool fits = last_size <= block_size;
+    std::uint64_t total = 0;
+    if (blocks > 0) {
+      // (blocks - 1) full blocks within `expected` first, so the sum below cannot overflow.
+      fits = fits && block_size > 0 && blocks - 1 <= expected / block_size;
+      if (fits) total = (blocks - 1) * block_size + (last_size != 0 ? last_size : block_size);
+    }
+    if (!fits || total != expected) {
+      fail(name_, in.where(),
+           "compressed DataArray header gives " + std::to_string(blocks) + " blocks of " +
+               std::to_string(block_size) + " bytes (last " + std::to_string(last_size) + "), expected " +
+               std::to_string(expected) + " bytes in all");
+    }
+    inflated_ += total;
+    // zlib inflates at most 1032 bytes per compressed byte (plus its header): a block that claims more is a lie,
+    // refused before its output is allocated.
+    std::uint64_t compressed_total = 0;
+    for (std::uint64_t b = 0; b < blocks; ++b) {
+      const std::uint64_t size = header_word(sizes, static_cast<std::size_t>(b));
+      const std::uint64_t out = b + 1 == blocks && last_size != 0 ? last_size : block_size;
+      if (size > in.left() || out > size * 1032 + 64) {
+        fail(name_, in.where(),
+             "compressed block " + std::to_string(b) + " of " + std::to_string(blocks) + " claims " +
+                 std::to_string(size) + " bytes inflating to " + std::to_string(out) +
+                 (size > in.left() ? ", more than the file holds" : ", more than zlib can produce"));
+      }
+      compressed_total += size;
+      if (compressed_total > in.left()) {
+        fail(name_, in.where(), "compressed blocks hold more bytes than the file has left");
+      }
+    }
+    if (inflated_ > max_inflated_bytes_) {
+      throw ResourceLimit("file", name_ + ": " + in.where() + ": its compressed DataArrays inflate to " +
+                                      std::to_string(inflated_) + " bytes, more than " +
+                                      std::to_string(max_inflated_bytes_) + " (the limit)");
+    }
+    std::string out(static_cast<std::size_t>(total), '\0');
+    std::uint64_t done = 0;
+    for (std::uint64_t b = 0; b < blocks; ++b) {
+      const std::uint64_t size = header_word(sizes, static_cast<std::size_t>(b));
+      const std::string block = in.take(size, "compressed block " + std::to_string(b));
+      const std::uint64_t want = b + 1 == blocks && last_size != 0 ? last_size : block_size;
+      uLongf produced = static_cast<uLongf>(want);
+      const int rc = uncompress(reinterpret_cast<Bytef*>(out.data() + done), &produced,
+                                reinterpret_cast<const Bytef*>(block.data()), static_cast<uLong>(block.size()));
+      if (rc != Z_OK || produced != want) {
+        fail(name_, in.where(),
+             "compressed block " + std::to_string(b) + " of " + std::to_string(blocks) + " does not inflate to its " +
+                 std::to_string(want) + " bytes (zlib: " + (rc == Z_OK ? "too short" : zError(rc)) + ")");
+      }
+      done += want;
+    }
+    return out;
+  }
+
+  std::vector<double> decode(const ArrayRef& array) {
+    const Tag& tag = array.tag;
+    const std::int64_t count = array.count;
+    const std::string type_name(tag.attribute("type").value_or(""));
+    const std::optional<Scalar> type = scalar_from_name(type_name);
+    if (!type) fail(name_, where(tag.begin), "unsupported DataArray type '" + type_name.substr(0, 40) + "'");
+    const std::string format(tag.attribute("format").value_or("ascii"));
+    std::vector<double> values;
+    if (format == "ascii") {
+      const std::string_view content = array.content;
+      TextCursor c{content, name_};
+      values.reserve(capped_reserve(count, content.size(), 2));
+      std::size_t last = 0;  // end of the last value read
+      for (std::int64_t i = 0; i < count; ++i) {
+        const std::optional<std::string_view> t = c.next();
+        if (!t) {
+          fail(name_, where(array.content_at + last),
+               "DataArray has " + std::to_string(i) + " values, expected " + std::to_string(count));
+        }
+        last = c.pos;
+        double v = 0.0;
+        if (!parse_double(*t, v)) {
+          fail(name_, where(array.content_at + c.pos), "'" + std::string(t->substr(0, 40)) + "' is not a number");
+        }
+        values.push_back(v);
+      }
+      if (c.next())
+        fail(name_, where(array.content_at + c.pos), "DataArray has more than " + std::to_string(count) + " values");
+      return values;
+    }
+    const std::uint64_t size = scalar_size(*type);
+    const std::uint64_t expected = static_cast<std::uint64_t>(count) * size;
+    std::string bytes;
+    if (format == "appended") {
+      if (!appended_at_) {
+        fail(name_, where(tag.begin), "appended DataArray, but the file has no <AppendedData> after it");
+      }
+      const std::uint64_t offset = *array.offset;
+      const std::size_t available = text_.size() - *appended_at_;
+      if (offset > available) {
+        fail(name_, where(tag.begin),
+             "appended DataArray offset " + std::to_string(offset) + " is past the end of the appended data (" +
+                 std::to_string(available) + " bytes)");
+      }
+      Payload in(text_.substr(*appended_at_ + static_cast<std::size_t>(offset)), appended_base64_, *this,
+                 where(tag.begin) + " (appended data at offset " + std::to_string(offset) + ")");
+      bytes = payload_bytes(in, expected);
+    } else if (format == "binary") {
+      const std::string decoded = base64(array.content, array.content_at);
+      Payload in(decoded, false, *this, where(array.content_at));
+      bytes = payload_bytes(in, expected);
+    } else {
+      fail(name_, where(tag.begin), "unknown DataArray format '" + format.substr(0, 40) + "'");
+    }
+    values.resize(static_cast<std::size_t>(count));
+    for (std::size_t i = 0; i < values.size(); ++i) {
+      values[i] = read_scalar(bytes.data() + i * size, *type, big_endian_);
+    }
+    return values;
+  }
 
   std::optional<Tag> next_tag(std::size_t pos) const {
     while (true) {
@@ -422,62 +654,6 @@ class XmlReader {
     }
   }
 
-  std::vector<double> decode(const Tag& tag, std::string_view content, std::size_t content_at,
-                             std::int64_t count) const {
-    const std::string type_name(tag.attribute("type").value_or(""));
-    const std::optional<Scalar> type = scalar_from_name(type_name);
-    if (!type) fail(name_, where(tag.begin), "unsupported DataArray type '" + type_name.substr(0, 40) + "'");
-    const std::string format(tag.attribute("format").value_or("ascii"));
-    std::vector<double> values;
-    if (format == "ascii") {
-      TextCursor c{content, name_};
-      values.reserve(capped_reserve(count, content.size(), 2));
-      std::size_t last = 0;  // end of the last value read
-      for (std::int64_t i = 0; i < count; ++i) {
-        const std::optional<std::string_view> t = c.next();
-        if (!t) {
-          fail(name_, where(content_at + last),
-               "DataArray has " + std::to_string(i) + " values, expected " + std::to_string(count));
-        }
-        last = c.pos;
-        double v = 0.0;
-        if (!parse_double(*t, v)) {
-          fail(name_, where(content_at + c.pos), "'" + std::string(t->substr(0, 40)) + "' is not a number");
-        }
-        values.push_back(v);
-      }
-      if (c.next())
-        fail(name_, where(content_at + c.pos), "DataArray has more than " + std::to_string(count) + " values");
-      return values;
-    }
-    if (format == "appended") {
-      fail(name_, where(tag.begin),
-           "appended DataArray data is not supported; write the file with inline data "
-           "(vtkXMLWriter::SetDataModeToBinary or SetDataModeToAscii)");
-    }
-    if (format != "binary") fail(name_, where(tag.begin), "unknown DataArray format '" + format.substr(0, 40) + "'");
-    const std::string bytes = base64(content, content_at);
-    if (bytes.size() < header_size_) fail(name_, where(content_at), "binary DataArray shorter than its header");
-    const double declared = read_scalar(bytes.data(), header_size_ == 8 ? Scalar::kU64 : Scalar::kU32, big_endian_);
-    const std::size_t size = scalar_size(*type);
-    const double expected = static_cast<double>(count) * static_cast<double>(size);
-    if (declared != expected) {
-      fail(name_, where(content_at),
-           "binary DataArray header says " + std::to_string(static_cast<std::uint64_t>(declared)) +
-               " bytes, expected " + std::to_string(static_cast<std::uint64_t>(expected)));
-    }
-    if (static_cast<double>(bytes.size() - header_size_) < expected) {
-      fail(name_, where(content_at),
-           "binary DataArray holds " + std::to_string(bytes.size() - header_size_) + " bytes, expected " +
-               std::to_string(static_cast<std::uint64_t>(expected)));
-    }
-    values.resize(static_cast<std::size_t>(count));
-    for (std::size_t i = 0; i < values.size(); ++i) {
-      values[i] = read_scalar(bytes.data() + header_size_ + i * size, *type, big_endian_);
-    }
-    return values;
-  }
-
   // Base64 decoded in groups of four characters; padding ends a group, so independently encoded blocks (header and
   // data written separately, as VTK does) decode as well as one stream.
   std::string base64(std::string_view content, std::size_t content_at) const {
@@ -523,8 +699,13 @@ class XmlReader {
 
   std::string_view text_;
   const std::string& name_;
+  std::uint64_t max_inflated_bytes_;
+  std::uint64_t inflated_ = 0;  // bytes the compressed arrays decoded so far inflated to
   bool big_endian_ = false;
+  bool compressed_ = false;
   std::size_t header_size_ = 4;
+  std::optional<std::size_t> appended_at_;  // first byte after <AppendedData ...> _
+  bool appended_base64_ = false;
 };
 
 }  // namespace
@@ -533,8 +714,8 @@ ParticleFrame parse_vtk_points(std::string_view bytes, const std::string& name) 
   return LegacyReader(bytes, name).read();
 }
 
-ParticleFrame parse_vtu_points(std::string_view bytes, const std::string& name) {
-  return XmlReader(bytes, name).read();
+ParticleFrame parse_vtu_points(std::string_view bytes, const std::string& name, std::uint64_t max_inflated_bytes) {
+  return XmlReader(bytes, name, max_inflated_bytes).read();
 }
 
 }  // namespace surfacer::particle_io_detail

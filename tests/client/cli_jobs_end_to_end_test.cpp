@@ -133,13 +133,15 @@ TEST_F(CliJobsEndToEnd, ParticleSequenceByPatternWritesFramesInOrder) {
   ProcessResult r = cli({"run", "particles", "--input", (dir_ / "fluid_{:04d}.xyz").string(), "--r-inner", "0.03", "-o",
                          (dir_ / "seq").string(), "--format", "ply"});
   ASSERT_EQ(r.code, 0) << r;
+  // The files keep the inputs' frame numbers (7, 8, 9).
   for (int i = 0; i < 3; ++i) {
-    const fs::path frame = dir_ / "seq" / ("frame_000" + std::to_string(i) + ".ply");
+    const fs::path frame = dir_ / "seq" / ("frame_000" + std::to_string(i + 7) + ".ply");
     ASSERT_TRUE(fs::exists(frame)) << frame << "\n" << r;
     EXPECT_TRUE(mesh_file_has(frame, kClosedFrame));
     EXPECT_NEAR(centroid(read_mesh(frame)).x(), i, 0.05) << "frame " << i << " is not the " << i << "-th file";
   }
-  EXPECT_FALSE(fs::exists(dir_ / "seq" / "frame_0003.ply"));
+  EXPECT_FALSE(fs::exists(dir_ / "seq" / "frame_0000.ply"));
+  EXPECT_FALSE(fs::exists(dir_ / "seq" / "frame_0010.ply"));
   EXPECT_EQ(csv_rows(read_file(dir_ / "seq" / "stats.csv")).size(), 4u);
   EXPECT_NE(r.err.find("3 frames, "), std::string::npos) << r;
 }

@@ -8,6 +8,8 @@
 #include <functional>
 #include <random>
 
+#include <zlib.h>
+
 #include "core/util/errors.h"
 #include "tests/support/files.h"
 
@@ -204,32 +206,75 @@ struct VtuStyle {
   bool separate_header = true;  // header and data base64-encoded separately (as VTK does)
   bool float64 = false;
   int pieces = 1;
-  std::string compressor;
+  std::string compressor;        // "" or vtkZLibDataCompressor (or any name, written as is)
+  std::string encoding = "raw";  // of <AppendedData>: raw | base64
+  std::size_t block_bytes = 64;  // uncompressed bytes per zlib block (small: several blocks per array)
 };
 
-std::string vtu_array(const std::vector<double>& values, const std::string& name, int components, const VtuStyle& st) {
+void put_word(std::string& out, std::uint64_t v, const VtuStyle& st) {
+  if (st.header == "UInt64") {
+    put<std::uint64_t>(out, v, st.big_endian);
+  } else {
+    put<std::uint32_t>(out, static_cast<std::uint32_t>(v), st.big_endian);
+  }
+}
+
+std::string zlib(std::string_view raw) {
+  uLongf size = compressBound(static_cast<uLong>(raw.size()));
+  std::string out(size, '\0');
+  EXPECT_EQ(compress(reinterpret_cast<Bytef*>(out.data()), &size, reinterpret_cast<const Bytef*>(raw.data()),
+                     static_cast<uLong>(raw.size())),
+            Z_OK);
+  out.resize(size);
+  return out;
+}
+
+// A binary array's header and data: a byte count and the values, or VTK's zlib layout (blocks, block size, partial
+// last block size or 0, each block's compressed size; then the blocks).
+std::pair<std::string, std::string> vtu_payload(const std::string& raw, const VtuStyle& st) {
+  std::string header, data;
+  if (st.compressor != "vtkZLibDataCompressor") {
+    put_word(header, raw.size(), st);
+    return {header, raw};
+  }
+  const std::size_t blocks = (raw.size() + st.block_bytes - 1) / st.block_bytes;
+  put_word(header, blocks, st);
+  put_word(header, st.block_bytes, st);
+  put_word(header, raw.size() % st.block_bytes, st);
+  for (std::size_t b = 0; b < blocks; ++b) {
+    const std::string z = zlib(std::string_view(raw).substr(b * st.block_bytes, st.block_bytes));
+    put_word(header, z.size(), st);
+    data += z;
+  }
+  return {header, data};
+}
+
+std::string vtu_array(const std::vector<double>& values, const std::string& name, int components, const VtuStyle& st,
+                      std::string* appended = nullptr) {
   const std::string type = st.float64 ? "Float64" : "Float32";
   std::string s = "<DataArray type=\"" + type + "\" " + (name.empty() ? "" : "Name=\"" + name + "\" ") +
-                  "NumberOfComponents=\"" + std::to_string(components) + "\" format=\"" + st.format + "\">\n";
+                  "NumberOfComponents=\"" + std::to_string(components) + "\" format=\"" + st.format + "\"";
   if (st.format == "ascii") {
+    s += ">\n";
     for (const double v : values) s += fmt(v) + " ";
-  } else {
-    std::string data;
-    for (const double v : values) {
-      if (st.float64) {
-        put<double>(data, v, st.big_endian);
-      } else {
-        put<float>(data, static_cast<float>(v), st.big_endian);
-      }
-    }
-    std::string header;
-    if (st.header == "UInt64") {
-      put<std::uint64_t>(header, data.size(), st.big_endian);
-    } else {
-      put<std::uint32_t>(header, static_cast<std::uint32_t>(data.size()), st.big_endian);
-    }
-    s += st.separate_header ? base64(header) + base64(data) : base64(header + data);
+    return s + "\n</DataArray>\n";
   }
+  std::string raw;
+  for (const double v : values) {
+    if (st.float64) {
+      put<double>(raw, v, st.big_endian);
+    } else {
+      put<float>(raw, static_cast<float>(v), st.big_endian);
+    }
+  }
+  const auto [header, data] = vtu_payload(raw, st);
+  if (st.format == "appended") {
+    s += " offset=\"" + std::to_string(appended->size()) + "\"/>\n";
+    *appended += st.encoding == "base64" ? base64(header) + base64(data) : header + data;
+    return s;
+  }
+  s += ">\n";
+  s += st.separate_header ? base64(header) + base64(data) : base64(header + data);
   return s + "\n</DataArray>\n";
 }
 
@@ -240,23 +285,26 @@ std::string write_vtu(const ParticleFrame& f, const VtuStyle& st) {
       std::string(st.big_endian ? "BigEndian" : "LittleEndian") + "\" header_type=\"" + st.header + "\"" +
       (st.compressor.empty() ? "" : " compressor=\"" + st.compressor + "\"") + ">\n<UnstructuredGrid>\n";
   const std::size_t n = f.positions.size();
+  std::string appended;
   for (int piece = 0; piece < st.pieces; ++piece) {
     const std::size_t begin = n * piece / st.pieces, end = n * (piece + 1) / st.pieces;
     s += "<Piece NumberOfPoints=\"" + std::to_string(end - begin) +
          "\" NumberOfCells=\"0\">\n<PointData Scalars=\"radius\">\n";
-    s += vtu_array(std::vector<double>(end - begin, 2.0), "density", 1, st);
+    s += vtu_array(std::vector<double>(end - begin, 2.0), "density", 1, st, &appended);
     if (!f.radii.empty()) {
-      s += vtu_array(std::vector<double>(f.radii.begin() + begin, f.radii.begin() + end), "radius", 1, st);
+      s += vtu_array(std::vector<double>(f.radii.begin() + begin, f.radii.begin() + end), "radius", 1, st, &appended);
     }
     s += "</PointData>\n<Points>\n";
     std::vector<double> xyz;
     for (std::size_t i = begin; i < end; ++i)
       xyz.insert(xyz.end(), {f.positions[i].x(), f.positions[i].y(), f.positions[i].z()});
-    s += vtu_array(xyz, "Points", 3, st);
+    s += vtu_array(xyz, "Points", 3, st, &appended);
     s += "</Points>\n<Cells>\n<DataArray type=\"Int64\" Name=\"connectivity\" "
          "format=\"ascii\"></DataArray>\n</Cells>\n</Piece>\n";
   }
-  return s + "</UnstructuredGrid>\n</VTKFile>\n";
+  s += "</UnstructuredGrid>\n";
+  if (st.format == "appended") s += "<AppendedData encoding=\"" + st.encoding + "\">\n   _" + appended + "\n</AppendedData>\n";
+  return s + "</VTKFile>\n";
 }
 
 std::string write_bin(const ParticleFrame& f) {
@@ -593,20 +641,155 @@ TEST(ParticleIo, BinaryErrorsNameTheByteOffset) {
                {"byte " + std::to_string(points), "truncated POINTS", "50 left"});
 }
 
+TEST(ParticleIo, VtuRoundTripAppendedAndCompressed) {
+  // VTK's default (appended raw, zlib), meshio's (inline binary, zlib), and the other combinations.
+  std::vector<VtuStyle> styles;
+  for (const std::string format : {"appended", "binary"}) {
+    for (const std::string compressor : {"", "vtkZLibDataCompressor"}) {
+      for (const std::string encoding : {"raw", "base64"}) {
+        if (format == "binary" && encoding == "base64") continue;  // (inline data is always base64)
+        VtuStyle st;
+        st.format = format;
+        st.compressor = compressor;
+        st.encoding = encoding;
+        styles.push_back(st);
+        st.header = "UInt64";
+        st.big_endian = true;
+        st.float64 = true;
+        st.pieces = 3;
+        st.block_bytes = 1 << 15;  // one block per array, with a partial last block
+        styles.push_back(st);
+      }
+    }
+  }
+  for (const VtuStyle& st : styles) {
+    for (const bool radii : {false, true}) {
+      for (const std::size_t n : {std::size_t{0}, std::size_t{1}, std::size_t{58}}) {
+        SCOPED_TRACE(st.format + " " + st.compressor + " " + st.encoding + " " + st.header + " pieces " +
+                     std::to_string(st.pieces) + " n " + std::to_string(n) + (radii ? " radii" : ""));
+        const ParticleFrame f = sample_frame(radii, n);
+        expect_same(parse_particles(write_vtu(f, st), ParticleFormat::kVtu, "p.vtu"), f);
+      }
+    }
+  }
+  // A whole block (64 bytes = 16 floats, and 48 floats of points: 3 full blocks, last size 0).
+  VtuStyle st;
+  st.format = "binary";
+  st.compressor = "vtkZLibDataCompressor";
+  const ParticleFrame f = sample_frame(false, 16);
+  expect_same(parse_particles(write_vtu(f, st), ParticleFormat::kVtu, "p.vtu"), f);
+  TempDir dir;
+  expect_same(read_particles(dir.write("on_disk.vtu", write_vtu(f, st))), f);
+}
+
 TEST(ParticleIo, VtuVariantsWeDoNotReadSayWhy) {
   const ParticleFrame f = sample_frame(false, 4);
-  VtuStyle appended;
-  appended.format = "appended";
-  expect_error(write_vtu(f, appended), ParticleFormat::kVtu, "a.vtu", {"appended", "not supported"});
-  VtuStyle compressed;
-  compressed.format = "binary";
-  compressed.compressor = "vtkZLibDataCompressor";
-  expect_error(write_vtu(f, compressed), ParticleFormat::kVtu, "c.vtu", {"line 3", "compressed VTU"});
+  VtuStyle lz4;
+  lz4.format = "binary";
+  lz4.compressor = "vtkLZ4DataCompressor";
+  expect_error(write_vtu(f, lz4), ParticleFormat::kVtu, "c.vtu", {"line 3", "vtkLZ4DataCompressor", "zlib"});
   VtuStyle binary;
   binary.format = "binary";
   std::string bad = write_vtu(f, binary);
   bad.replace(bad.find("AAAA", bad.find("<Points>")), 1, "!");
   expect_error(bad, ParticleFormat::kVtu, "b.vtu", {"invalid base64"});
+  VtuStyle appended;
+  appended.format = "appended";
+  std::string no_data = write_vtu(f, appended);
+  no_data.erase(no_data.find("<AppendedData"));
+  expect_error(no_data + "</VTKFile>\n", ParticleFormat::kVtu, "a.vtu", {"no <AppendedData>"});
+  // (the first array, density, is not read: the Points' offset is the one that matters)
+  auto points_offset = [](const std::string& vtu) { return vtu.find("offset=\"", vtu.find("<Points>")) + 8; };
+  std::string far = write_vtu(f, appended);
+  far.replace(points_offset(far), far.find('"', points_offset(far)) - points_offset(far), "99999");
+  expect_error(far, ParticleFormat::kVtu, "a.vtu", {"offset 99999", "past the end"});
+  VtuStyle zlib_style = appended;
+  zlib_style.compressor = "vtkZLibDataCompressor";
+  std::string corrupt = write_vtu(f, zlib_style);
+  const std::size_t data = corrupt.find('_', corrupt.find("<AppendedData")) + 1;
+  const std::size_t at = points_offset(corrupt);
+  const std::size_t offset = std::stoul(corrupt.substr(at, corrupt.find('"', at) - at));
+  corrupt[data + offset + 4 * 4 + 3] ^= 0x55;  // inside the Points' first zlib block, past its 2-byte header
+  expect_error(corrupt, ParticleFormat::kVtu, "z.vtu", {"does not inflate"});
+}
+
+// A compressed inline DataArray whose header is `words` (UInt64) followed by `blocks` of data.
+std::string vtu_with_compressed_points(std::uint64_t points, const std::vector<std::uint64_t>& words,
+                                       const std::string& blocks) {
+  std::string header;
+  for (const std::uint64_t w : words) put<std::uint64_t>(header, w, false);
+  return "<VTKFile type=\"UnstructuredGrid\" header_type=\"UInt64\" compressor=\"vtkZLibDataCompressor\">\n"
+         "<UnstructuredGrid><Piece NumberOfPoints=\"" +
+         std::to_string(points) +
+         "\"><Points>\n<DataArray type=\"Float32\" NumberOfComponents=\"3\" format=\"binary\">" + base64(header) +
+         base64(blocks) + "</DataArray></Points></Piece></UnstructuredGrid></VTKFile>\n";
+}
+
+TEST(ParticleIo, VtuHostileCompressedSizesAreRefusedBeforeAllocating) {
+  // 4e9 points declared, one block "inflating" 48 GB from 16 bytes: more than zlib can produce.
+  const std::uint64_t points = 4000000000;
+  expect_error(vtu_with_compressed_points(points, {1, points * 12, 0, 16}, std::string(16, 'x')),
+               ParticleFormat::kVtu, "lie.vtu", {"more than zlib can produce"});
+  // Block sizes that multiply past 2^64 (and would wrap to the expected size).
+  expect_error(vtu_with_compressed_points(1, {3, std::uint64_t{1} << 63, 12, 1, 1, 1}, "abc"), ParticleFormat::kVtu,
+               "wrap.vtu", {"expected 12 bytes"});
+  // Billions of blocks declared in a few bytes.
+  expect_error(vtu_with_compressed_points(1, {std::uint64_t{1} << 40, 12, 0}, ""), ParticleFormat::kVtu,
+               "blocks.vtu", {"too short"});
+  // Real zlib data of 8 MB of zeros (a few KB): refused past the byte limit as a ResourceLimit, naming the file.
+  const std::uint64_t n = (8u << 20) / 12;
+  const std::string zeros = zlib(std::string(static_cast<std::size_t>(n * 12), '\0'));
+  const std::string bomb = vtu_with_compressed_points(n, {1, n * 12, 0, zeros.size()}, zeros);
+  ParticleReadLimits limits;
+  limits.max_bytes = 1 << 20;
+  try {
+    parse_particles(bomb, ParticleFormat::kVtu, "bomb.vtu", limits);
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::kResourceLimit) << e.what();
+    EXPECT_NE(std::string(e.what()).find("bomb.vtu"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(parse_particles(bomb, ParticleFormat::kVtu, "bomb.vtu").positions.size(), n);  // within the default
+}
+
+TEST(ParticleIo, JsonRoundTripAndErrors) {
+  for (const std::size_t n : {std::size_t{0}, std::size_t{1}, std::size_t{57}}) {
+    const ParticleFrame f = sample_frame(false, n);
+    std::string json = "[";
+    for (std::size_t i = 0; i < n; ++i) {
+      json += std::string(i == 0 ? "" : ",") + (i % 7 == 0 ? "\n  " : " ") + "[" + fmt(f.positions[i].x()) + ", " +
+              fmt(f.positions[i].y()) + ",\t" + fmt(f.positions[i].z()) + "]";
+    }
+    json += "]\n";
+    expect_same(parse_particles(json, ParticleFormat::kJson, "p.json"), f);
+    TempDir dir;
+    expect_same(read_particles(dir.write("p.json", json)), f);
+    expect_same(read_particles(dir.write("p.json.gz", gzip(json))), f);
+  }
+  EXPECT_EQ(particle_format_from_path("a/B.JSON"), ParticleFormat::kJson);
+  expect_error("[[1, 2, 3],\n [4, 5]]", ParticleFormat::kJson, "p.json", {"line 2", "particle 1"});
+  expect_error("[[1, 2, 3, 4]]", ParticleFormat::kJson, "p.json", {"line 1", "']' after the 3 coordinates"});
+  expect_error("[[1, 2, x]]", ParticleFormat::kJson, "p.json", {"expected a number", "particle 0"});
+  expect_error("[[1, 2, 3]] extra", ParticleFormat::kJson, "p.json", {"after the closing"});
+  expect_error("{\"points\": []}", ParticleFormat::kJson, "p.json", {"'[' to open the list"});
+  expect_error("[[1, 2, 3],", ParticleFormat::kJson, "p.json", {"found the end"});
+  expect_error("[[1e999, 2, 3]]", ParticleFormat::kJson, "p.json", {"expected a number", "1e999"});
+}
+
+TEST(ParticleIo, BinaryXyzPointsToBin) {
+  const ParticleFrame f = sample_frame(false, 10);
+  expect_error(write_bin(f), ParticleFormat::kXyz, "splash.xyz", {"byte ", "rename it to .bin"});
+  TempDir dir;
+  const std::filesystem::path xyz = dir.write("splash.xyz", write_bin(f));
+  try {
+    read_particles(xyz);
+    ADD_FAILURE();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find(".bin"), std::string::npos) << e.what();
+  }
+  // The same bytes as .bin, and text .xyz (with a UTF-8 comment) as before.
+  expect_same(read_particles(dir.write("splash.bin", write_bin(f))), f);
+  expect_same(parse_particles("# caf\xc3\xa9\n" + write_xyz(f, " "), ParticleFormat::kXyz, "a.xyz"), f);
 }
 
 TEST(ParticleIo, TruncatedAndCorruptFilesNeverCrash) {
@@ -620,6 +803,14 @@ TEST(ParticleIo, TruncatedAndCorruptFilesNeverCrash) {
   binary.format = "binary";
   fuzz(write_vtu(f, binary), ParticleFormat::kVtu);
   fuzz(write_vtu(f, VtuStyle{}), ParticleFormat::kVtu);
+  VtuStyle compressed = binary;
+  compressed.compressor = "vtkZLibDataCompressor";
+  fuzz(write_vtu(f, compressed), ParticleFormat::kVtu);
+  compressed.format = "appended";
+  fuzz(write_vtu(f, compressed), ParticleFormat::kVtu);
+  compressed.encoding = "base64";
+  fuzz(write_vtu(f, compressed), ParticleFormat::kVtu);
+  fuzz("[[1, 2, 3], [4.5, -6e-3, 7]]", ParticleFormat::kJson);
   fuzz(write_bin(f), ParticleFormat::kBin);
   fuzz(write_bgeo(f), ParticleFormat::kBgeo);
   fuzz(gzip(write_bgeo(f)), ParticleFormat::kBgeo);

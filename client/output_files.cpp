@@ -1,0 +1,113 @@
+#include "client/output_files.h"
+
+#include <algorithm>
+#include <cctype>
+#include <cstdio>
+
+#include "client/exit_codes.h"
+#include "client/particle_files.h"
+#include "core/particles/particle_io.h"
+#include "core/util/errors.h"
+
+namespace surfacer::client {
+namespace {
+
+CliError usage(const std::string& message) { return CliError(ExitCode::kUsage, message); }
+
+constexpr FileFormat kAllFormats[] = {FileFormat::kDrc, FileFormat::kPly, FileFormat::kObj, FileFormat::kVtk,
+                                      FileFormat::kVtu};
+
+}  // namespace
+
+std::optional<FileFormat> file_format_from_name(std::string_view name) {
+  for (FileFormat f : kAllFormats) {
+    if (name == file_format_name(f)) return f;
+  }
+  return std::nullopt;
+}
+
+const char* file_format_name(FileFormat format) {
+  switch (format) {
+    case FileFormat::kDrc:
+      return "drc";
+    case FileFormat::kPly:
+      return "ply";
+    case FileFormat::kObj:
+      return "obj";
+    case FileFormat::kVtk:
+      return "vtk";
+    case FileFormat::kVtu:
+      return "vtu";
+  }
+  return "bin";
+}
+
+FrameOutputOptions frame_output_options(const std::string& target, const std::vector<std::string>& formats,
+                                        const std::string& command) {
+  if (target.empty()) throw usage(command + " needs an output directory: -o DIR (or a file pattern: -o 'out/f_{:04d}.ply')");
+  FrameOutputOptions options;
+  if (!is_sequence_pattern(target)) {
+    options.dir = target;
+    for (const std::string& name : formats) {
+      const std::optional<FileFormat> f = file_format_from_name(name);
+      if (!f) throw usage("--format " + name + ": not a file format; use drc, ply, obj, vtk or vtu");
+      if (std::find(options.formats.begin(), options.formats.end(), *f) == options.formats.end()) {
+        options.formats.push_back(*f);
+      }
+    }
+    return options;
+  }
+  const std::filesystem::path path(target);
+  if (is_sequence_pattern(path.parent_path().string())) {
+    throw usage("-o " + target + ": the frame placeholder must be in the file name, not in a directory name");
+  }
+  try {
+    expand_sequence(target, 0, 0);  // the placeholder's syntax
+  } catch (const Error& e) {
+    throw usage("-o " + target + ": " + e.what());
+  }
+  std::string extension = path.extension().string();
+  std::transform(extension.begin(), extension.end(), extension.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  const std::optional<FileFormat> format =
+      extension.size() > 1 ? file_format_from_name(std::string_view(extension).substr(1)) : std::nullopt;
+  if (!format || is_sequence_pattern(extension)) {
+    throw usage("-o " + target +
+                ": a file pattern's extension sets the format; end it in .drc, .ply, .obj, .vtk or .vtu (e.g. -o "
+                "'out/surface_{:04d}.ply')");
+  }
+  if (!formats.empty()) {
+    throw usage("--format with -o " + target +
+                ": the pattern's extension sets the one format; drop --format, or write several formats with -o DIR "
+                "--format LIST");
+  }
+  options.dir = path.has_parent_path() ? path.parent_path() : std::filesystem::path(".");
+  options.formats = {*format};
+  options.pattern = target;
+  return options;
+}
+
+int output_frame_number(const FrameOutputOptions& options, int index) {
+  return index >= 0 && static_cast<std::size_t>(index) < options.frame_numbers.size()
+             ? options.frame_numbers[static_cast<std::size_t>(index)]
+             : index;
+}
+
+std::filesystem::path frame_file_path(const FrameOutputOptions& options, int index, FileFormat format) {
+  const int number = output_frame_number(options, index);
+  if (options.pattern) return expand_sequence(*options.pattern, number, number).front();
+  char name[48];
+  std::snprintf(name, sizeof name, "frame_%04d.%s", number, file_format_name(format));
+  return options.dir / name;
+}
+
+std::vector<int> output_numbers(const std::vector<std::optional<int>>& numbers) {
+  std::vector<int> out;
+  for (std::size_t i = 0; i < numbers.size(); ++i) {
+    if (!numbers[i] || (i > 0 && *numbers[i] <= out.back())) return {};
+    out.push_back(*numbers[i]);
+  }
+  return out;
+}
+
+}  // namespace surfacer::client

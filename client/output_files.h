@@ -1,0 +1,39 @@
+// Where `run` and `watch` write each frame: -o DIR (DIR/frame_NNNN.<ext> per --format) or -o PATTERN
+// (out/surface_{:04d}.ply: one file per frame named by the pattern, its extension giving the format), and the
+// number in each name (the input sequence's own frame numbers when they exist, else the frame index).
+#pragma once
+
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "client/options.h"
+
+namespace surfacer::client {
+
+// "drc" -> kDrc, ... "vtu" -> kVtu (lower case, no dot); nullopt for anything else.
+std::optional<FileFormat> file_format_from_name(std::string_view name);
+const char* file_format_name(FileFormat format);  // "drc", ...
+
+// The output of `command` ("run", "watch") from -o TARGET and --format NAMES (already checked to be format names).
+// A TARGET with a placeholder ({} or {:04d}, as in input patterns) is a pattern: its extension must name a format
+// and --format must not be given; the placeholder may not be in a directory name. Throws CliError(kUsage) naming -o
+// or --format and the fix.
+FrameOutputOptions frame_output_options(const std::string& target, const std::vector<std::string>& formats,
+                                        const std::string& command);
+
+// The number frame `index` carries in its file name (options.frame_numbers, else the index).
+int output_frame_number(const FrameOutputOptions& options, int index);
+
+// The file frame `index` is written to in `format`: DIR/frame_NNNN.<ext> (at least 4 digits), or the pattern
+// expanded with the frame's number.
+std::filesystem::path frame_file_path(const FrameOutputOptions& options, int index, FileFormat format);
+
+// Frame numbers for the output names of a sequence whose frames came from input files numbered `numbers` (nullopt:
+// a file that is not part of a pattern): the numbers themselves when every frame has one and they increase, so
+// `--input 'fluid_{:04d}.bgeo' --start 100` writes frame_0100.*; otherwise empty (frames are numbered from 0).
+std::vector<int> output_numbers(const std::vector<std::optional<int>>& numbers);
+
+}  // namespace surfacer::client

@@ -1,0 +1,192 @@
+// Legacy VTK and VTK XML (.vtu) mesh writers (core/mesh/mesh_vtk.h).
+#include "core/mesh/mesh_vtk.h"
+
+#include <zlib.h>
+
+#include <algorithm>
+#include <bit>
+#include <cstdint>
+#include <cstring>
+#include <limits>
+#include <string_view>
+
+#include "core/mesh/mesh_io.h"
+#include "core/util/errors.h"
+
+namespace surfacer {
+namespace {
+
+constexpr std::uint8_t kVtkTriangle = 5;
+constexpr std::size_t kBlockBytes = std::size_t{1} << 20;  // uncompressed bytes per zlib block of a .vtu array
+
+template <class T>
+void append_raw(std::string& out, T value, bool big_endian) {
+  unsigned char raw[sizeof(T)];
+  std::memcpy(raw, &value, sizeof(T));
+  if (big_endian != (std::endian::native == std::endian::big)) std::reverse(raw, raw + sizeof(T));
+  out.append(reinterpret_cast<const char*>(raw), sizeof(T));
+}
+
+// Positions or normals as 3 x Float32 (or Float64) per vertex.
+std::string vectors(const std::vector<Vec3>& values, bool float64, bool big_endian) {
+  std::string out;
+  out.reserve(values.size() * (float64 ? 24 : 12));
+  for (const Vec3& p : values) {
+    for (int c = 0; c < 3; ++c) {
+      if (float64) {
+        append_raw<double>(out, p[c], big_endian);
+      } else {
+        append_raw<float>(out, static_cast<float>(p[c]), big_endian);
+      }
+    }
+  }
+  return out;
+}
+
+// --- Legacy ----------------------------------------------------------------------------------------------------------
+
+std::string legacy(const Mesh& mesh, bool double_precision) {
+  check_mesh_writable(mesh, "VTK");
+  const std::size_t triangles = mesh.triangles.size();
+  if (triangles > static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max()) / 4) {
+    throw InvalidInput("triangles", "a legacy .vtk file holds at most 536870911 triangles (its cell list size is a "
+                                    "32-bit count); this mesh has " +
+                                        std::to_string(triangles) + ": write .vtu instead");
+  }
+  const char* type = double_precision ? "double" : "float";
+  std::string out = "# vtk DataFile Version 4.2\nsurfacer\nBINARY\nDATASET UNSTRUCTURED_GRID\nPOINTS " +
+                    std::to_string(mesh.vertices.size()) + " " + type + "\n";
+  out += vectors(mesh.vertices, double_precision, true);
+  out += "\nCELLS " + std::to_string(triangles) + " " + std::to_string(4 * triangles) + "\n";
+  out.reserve(out.size() + triangles * 20 + mesh.normals.size() * 12 + 128);
+  for (const Triangle& t : mesh.triangles) {
+    append_raw<std::int32_t>(out, 3, true);
+    for (std::uint32_t v : t) append_raw<std::int32_t>(out, static_cast<std::int32_t>(v), true);
+  }
+  out += "\nCELL_TYPES " + std::to_string(triangles) + "\n";
+  for (std::size_t t = 0; t < triangles; ++t) append_raw<std::int32_t>(out, kVtkTriangle, true);
+  out += "\n";
+  if (!mesh.normals.empty()) {
+    out += "POINT_DATA " + std::to_string(mesh.vertices.size()) + "\nNORMALS Normals float\n";
+    out += vectors(mesh.normals, false, true);
+    out += "\n";
+  }
+  return out;
+}
+
+// --- XML -------------------------------------------------------------------------------------------------------------
+
+void append_base64(std::string& out, std::string_view bytes) {
+  static constexpr char kDigits[] = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  out.reserve(out.size() + (bytes.size() + 2) / 3 * 4);
+  std::size_t i = 0;
+  for (; i + 2 < bytes.size(); i += 3) {
+    const unsigned v = static_cast<unsigned char>(bytes[i]) << 16 | static_cast<unsigned char>(bytes[i + 1]) << 8 |
+                       static_cast<unsigned char>(bytes[i + 2]);
+    out += kDigits[v >> 18];
+    out += kDigits[(v >> 12) & 63];
+    out += kDigits[(v >> 6) & 63];
+    out += kDigits[v & 63];
+  }
+  if (i < bytes.size()) {
+    const bool two = i + 1 < bytes.size();
+    const unsigned v =
+        static_cast<unsigned char>(bytes[i]) << 16 | (two ? static_cast<unsigned char>(bytes[i + 1]) << 8 : 0u);
+    out += kDigits[v >> 18];
+    out += kDigits[(v >> 12) & 63];
+    out += two ? kDigits[(v >> 6) & 63] : '=';
+    out += '=';
+  }
+}
+
+// One DataArray's content in VTK's compressed binary layout: the header (UInt64 little-endian: number of blocks,
+// uncompressed block size, uncompressed size of a partial last block or 0, then each block's compressed size) and
+// the zlib blocks, each base64-encoded on its own, as vtkXMLWriter does.
+std::string compressed_base64(std::string_view data) {
+  const std::size_t blocks = (data.size() + kBlockBytes - 1) / kBlockBytes;
+  std::string header;
+  append_raw<std::uint64_t>(header, blocks, false);
+  append_raw<std::uint64_t>(header, kBlockBytes, false);
+  append_raw<std::uint64_t>(header, data.size() % kBlockBytes, false);
+  std::string compressed;
+  std::string block;
+  for (std::size_t b = 0; b < blocks; ++b) {
+    const std::string_view in = data.substr(b * kBlockBytes, kBlockBytes);
+    uLongf size = compressBound(static_cast<uLong>(in.size()));
+    block.resize(size);
+    if (compress2(reinterpret_cast<Bytef*>(block.data()), &size, reinterpret_cast<const Bytef*>(in.data()),
+                  static_cast<uLong>(in.size()), Z_BEST_SPEED) != Z_OK) {
+      throw Internal("zlib compress2 failed");
+    }
+    compressed.append(block.data(), size);
+    append_raw<std::uint64_t>(header, size, false);
+  }
+  std::string out;
+  append_base64(out, header);
+  append_base64(out, compressed);
+  return out;
+}
+
+void data_array(std::string& out, const char* type, const char* name, int components, std::string_view data) {
+  out += "        <DataArray type=\"";
+  out += type;
+  out += "\" Name=\"";
+  out += name;
+  out += "\" NumberOfComponents=\"" + std::to_string(components) + "\" format=\"binary\">\n          ";
+  out += compressed_base64(data);
+  out += "\n        </DataArray>\n";
+}
+
+std::string xml(const Mesh& mesh, bool double_precision) {
+  check_mesh_writable(mesh, "VTU");
+  const std::size_t triangles = mesh.triangles.size();
+  const bool wide = 3 * static_cast<std::uint64_t>(triangles) >
+                    static_cast<std::uint64_t>(std::numeric_limits<std::int32_t>::max());
+  std::string connectivity, offsets, types(triangles, static_cast<char>(kVtkTriangle));
+  connectivity.reserve(triangles * (wide ? 24 : 12));
+  offsets.reserve(triangles * (wide ? 8 : 4));
+  for (std::size_t t = 0; t < triangles; ++t) {
+    for (std::uint32_t v : mesh.triangles[t]) {
+      if (wide) {
+        append_raw<std::int64_t>(connectivity, v, false);
+      } else {
+        append_raw<std::int32_t>(connectivity, static_cast<std::int32_t>(v), false);
+      }
+    }
+    if (wide) {
+      append_raw<std::int64_t>(offsets, static_cast<std::int64_t>(3 * (t + 1)), false);
+    } else {
+      append_raw<std::int32_t>(offsets, static_cast<std::int32_t>(3 * (t + 1)), false);
+    }
+  }
+  const char* index_type = wide ? "Int64" : "Int32";
+  std::string out =
+      "<?xml version=\"1.0\"?>\n"
+      "<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\" "
+      "compressor=\"vtkZLibDataCompressor\">\n"
+      "  <UnstructuredGrid>\n"
+      "    <Piece NumberOfPoints=\"" +
+      std::to_string(mesh.vertices.size()) + "\" NumberOfCells=\"" + std::to_string(triangles) + "\">\n";
+  if (!mesh.normals.empty()) {
+    out += "      <PointData Normals=\"Normals\">\n";
+    data_array(out, "Float32", "Normals", 3, vectors(mesh.normals, false, false));
+    out += "      </PointData>\n";
+  }
+  out += "      <Points>\n";
+  data_array(out, double_precision ? "Float64" : "Float32", "Points", 3,
+             vectors(mesh.vertices, double_precision, false));
+  out += "      </Points>\n      <Cells>\n";
+  data_array(out, index_type, "connectivity", 1, connectivity);
+  data_array(out, index_type, "offsets", 1, offsets);
+  data_array(out, "UInt8", "types", 1, types);
+  out += "      </Cells>\n    </Piece>\n  </UnstructuredGrid>\n</VTKFile>\n";
+  return out;
+}
+
+}  // namespace
+
+std::string write_vtk(const Mesh& mesh, bool double_precision) { return legacy(mesh, double_precision); }
+
+std::string write_vtu(const Mesh& mesh, bool double_precision) { return xml(mesh, double_precision); }
+
+}  // namespace surfacer
