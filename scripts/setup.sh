@@ -10,6 +10,7 @@ PACKAGES=(
   libeigen3-dev libopenmesh-dev libdraco-dev draco libmeshoptimizer-dev
   libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev zlib1g-dev libsqlite3-dev libssl-dev
   clang-14 libclang-rt-14-dev  # libFuzzer targets (scripts/fuzz.sh)
+  libstb-dev  # PNG previews and plots (core/render/, header-only)
 )
 missing=()
 for p in "${PACKAGES[@]}"; do
