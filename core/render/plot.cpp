@@ -155,7 +155,7 @@ Image plot_log_y(std::span<const PlotSeries> series, const PlotOptions& options)
     canvas.text(0.5 * (left + right) - 0.5 * text_width(options.x_label, font), bottom + 24 * S, options.x_label,
                 font, kBlack);
   }
-  if (!options.y_label.empty()) canvas.text(4 * S, top - 12 * S, options.y_label, font, kBlack);
+  if (!options.y_label.empty()) canvas.text(left + 4 * S, top - 12 * S, options.y_label, font, kBlack);
 
   // The series, then the legend in the top right corner.
   for (const PlotSeries& s : series) {
