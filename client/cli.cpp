@@ -12,8 +12,8 @@
 
 #include "client/cli_jobs.h"
 #include "client/cli_preview.h"
-#include "client/json_output.h"
 #include "client/commands.h"
+#include "client/json_output.h"
 #include "client/security.h"
 #include "client/server_list.h"
 #include "core/util/version.h"
@@ -227,8 +227,8 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
 
     Invocation invocation{connect, HealthCommand{}};
     if (run->parsed()) {
-      invocation.command = RunCommand{finish_job(run_flags, "run"), finish_output(run_output, "run"),
-                                      finish_report(run_output.report)};
+      invocation.command =
+          RunCommand{finish_job(run_flags, "run"), finish_output(run_output, "run"), finish_report(run_output.report)};
     } else if (submit->parsed()) {
       invocation.command = SubmitCommand{finish_job(submit_flags, "submit")};
     } else if (watch->parsed()) {

@@ -14,20 +14,24 @@ CLI::App* add_preview_command(CLI::App& app, PreviewFlags& flags) {
       ->type_name("FRAME...");
   preview->add_option("-o,--output", flags.dir, "directory for <frame>.png (created)")->type_name("DIR");
   preview->add_option("--size", flags.size, "picture size in pixels (default 480x360)")->type_name("WxH");
-  preview->add_option("--azimuth", flags.options.azimuth_degrees,
-                      "camera direction around the vertical (z) axis, degrees from +x (default -60)")
+  preview
+      ->add_option("--azimuth", flags.options.azimuth_degrees,
+                   "camera direction around the vertical (z) axis, degrees from +x (default -60)")
       ->type_name("DEG");
-  preview->add_option("--elevation", flags.options.elevation_degrees,
-                      "camera height above the horizontal, degrees, -89..89 (default 25)")
+  preview
+      ->add_option("--elevation", flags.options.elevation_degrees,
+                   "camera height above the horizontal, degrees, -89..89 (default 25)")
       ->check(CLI::Range(-89.0, 89.0))
       ->type_name("DEG");
-  preview->add_option("--particles", flags.particles,
-                      "particle file or pattern (any format `run particles --input` reads) drawn as dots over the "
-                      "surface; one file per frame, in the frames' order")
+  preview
+      ->add_option("--particles", flags.particles,
+                   "particle file or pattern (any format `run particles --input` reads) drawn as dots over the "
+                   "surface; one file per frame, in the frames' order")
       ->type_name("FILE|PATTERN");
-  preview->add_option("--iterations", flags.iterations,
-                      "an optimize run's iterations.csv: also plot e_d and e_n per iteration (log scale) as "
-                      "DIR/iterations.png")
+  preview
+      ->add_option("--iterations", flags.iterations,
+                   "an optimize run's iterations.csv: also plot e_d and e_n per iteration (log scale) as "
+                   "DIR/iterations.png")
       ->type_name("CSV");
   preview->footer(std::string("Examples:\n"
                               "  surfacer preview out/seq/frame_*.drc -o out/seq/preview\n"
@@ -56,8 +60,9 @@ PreviewCommand finish_preview(const PreviewFlags& flags) {
   std::int64_t w = 0, h = 0;
   if (x == std::string::npos || !parse_int(flags.size.substr(0, x), w) || !parse_int(flags.size.substr(x + 1), h) ||
       w < 16 || h < 16 || w > 8192 || h > 8192) {
-    throw CliError(ExitCode::kUsage, "--size " + flags.size + " must be WIDTHxHEIGHT in pixels, each 16..8192, e.g. "
-                                                              "480x360");
+    throw CliError(ExitCode::kUsage, "--size " + flags.size +
+                                         " must be WIDTHxHEIGHT in pixels, each 16..8192, e.g. "
+                                         "480x360");
   }
   command.options.width = static_cast<int>(w);
   command.options.height = static_cast<int>(h);

@@ -19,7 +19,6 @@
 #include "client/interrupt.h"
 #include "client/job_spec.h"
 #include "client/json_output.h"
-#include "core/util/format.h"
 #include "client/preview.h"
 #include "client/progress.h"
 #include "client/run_report.h"
@@ -29,6 +28,7 @@
 #include "client/summary.h"
 #include "client/upload.h"
 #include "client/watch.h"
+#include "core/util/format.h"
 
 namespace surfacer::client {
 namespace {
@@ -399,8 +399,8 @@ ExitCode run_invocation(const Invocation& invocation, std::ostream& out, std::os
       [&](const auto& command) -> ExitCode {
         using T = std::decay_t<decltype(command)>;
         if constexpr (std::is_same_v<T, RunCommand>) {
-          return run_run(connect, command, ReportSink{out, err, progress_mode(command.report.progress, tty),
-                                                      command.report});
+          return run_run(connect, command,
+                         ReportSink{out, err, progress_mode(command.report.progress, tty), command.report});
         } else if constexpr (std::is_same_v<T, SubmitCommand>) {
           return run_submit(connect, command, out, err, tty);
         } else if constexpr (std::is_same_v<T, WatchCommand>) {

@@ -2,9 +2,9 @@
 
 #include <google/protobuf/util/time_util.h>
 
+#include "client/connection.h"
 #include "client/progress.h"
 #include "client/summary.h"
-#include "client/connection.h"
 
 namespace surfacer::client {
 namespace {

@@ -213,8 +213,8 @@ struct ListCommand {
 };
 // `surfacer preview`: no server involved.
 struct PreviewCommand {
-  std::vector<std::filesystem::path> frames;             // mesh files (.drc .ply .obj)
-  std::optional<std::filesystem::path> iterations_csv;   // an optimize run's iterations.csv: a plot of e_d, e_n
+  std::vector<std::filesystem::path> frames;            // mesh files (.drc .ply .obj)
+  std::optional<std::filesystem::path> iterations_csv;  // an optimize run's iterations.csv: a plot of e_d, e_n
   std::filesystem::path dir;
   PreviewOptions options;
 };

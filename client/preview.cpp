@@ -29,7 +29,9 @@ auto user_file(F&& f) {
   }
 }
 
-Mesh load_mesh(const fs::path& path) { return user_file([&] { return read_mesh(path); }); }
+Mesh load_mesh(const fs::path& path) {
+  return user_file([&] { return read_mesh(path); });
+}
 
 std::vector<Vec3> load_particles(const fs::path& path) {
   return user_file([&] { return read_particles(path).positions; });
@@ -58,8 +60,8 @@ void create_dir(const fs::path& dir) {
 std::vector<fs::path> render_frame_previews(const std::vector<fs::path>& frames, const fs::path& dir,
                                             const PreviewOptions& options) {
   if (!options.particles.empty() && options.particles.size() != frames.size()) {
-    throw CliError(ExitCode::kUsage, "--particles names " + std::to_string(options.particles.size()) +
-                                         " file(s) for " + std::to_string(frames.size()) +
+    throw CliError(ExitCode::kUsage, "--particles names " + std::to_string(options.particles.size()) + " file(s) for " +
+                                         std::to_string(frames.size()) +
                                          " frame(s); give one particle file per frame, in the frames' order");
   }
   for (std::size_t i = 0; i < frames.size(); ++i) {  // two frames would write one picture
@@ -126,7 +128,8 @@ fs::path render_iterations_plot(const fs::path& csv, const fs::path& dir, const 
   };
   const int x_column = column("iteration") >= 0 ? column("iteration") : column("frame");
   if (x_column < 0) {
-    throw CliError(ExitCode::kUsage, csv.string() + " has no iteration column (is it an optimize run's iterations.csv?)");
+    throw CliError(ExitCode::kUsage,
+                   csv.string() + " has no iteration column (is it an optimize run's iterations.csv?)");
   }
   std::vector<PlotSeries> series{{"e_d", {}, {}, {31, 119, 180}}, {"e_n", {}, {}, {214, 39, 40}}};
   const int columns[2] = {column("e_d"), column("e_n")};
@@ -172,8 +175,8 @@ fs::path render_iterations_plot(const fs::path& csv, const fs::path& dir, const 
 ExitCode run_preview(const PreviewCommand& command, std::ostream& out) {
   std::vector<fs::path> written;
   if (!command.frames.empty()) written = render_frame_previews(command.frames, command.dir, command.options);
-  if (command.iterations_csv) written.push_back(render_iterations_plot(*command.iterations_csv, command.dir,
-                                                                       command.options));
+  if (command.iterations_csv)
+    written.push_back(render_iterations_plot(*command.iterations_csv, command.dir, command.options));
   for (const fs::path& path : written) out << path.string() << "\n";
   out << std::flush;
   return ExitCode::kSuccess;

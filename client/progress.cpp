@@ -120,8 +120,7 @@ void ProgressDisplay::on_progress(const v1::Progress& progress) {
   frames_done_ = std::max(frames_done_, progress.frames_done());
   eta_seconds_ = eta_.update(progress.fraction(), std::chrono::steady_clock::now());
   if (json_) {
-    err_ << progress_event_json(job_id_, progress, frames_done_, frames_total_, eta_seconds_,
-                                seconds_since(started_))
+    err_ << progress_event_json(job_id_, progress, frames_done_, frames_total_, eta_seconds_, seconds_since(started_))
          << "\n"
          << std::flush;
     return;

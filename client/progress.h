@@ -26,7 +26,8 @@ ProgressMode progress_mode(ProgressFormat format, bool tty);
 
 class ProgressDisplay {
  public:
-  ProgressDisplay(std::ostream& err, bool tty) : ProgressDisplay(err, tty ? ProgressMode::kBar : ProgressMode::kLines) {}
+  ProgressDisplay(std::ostream& err, bool tty)
+      : ProgressDisplay(err, tty ? ProgressMode::kBar : ProgressMode::kLines) {}
   ProgressDisplay(std::ostream& err, ProgressMode mode);
   ~ProgressDisplay();  // clears the bar
 

@@ -168,10 +168,9 @@ void Job::finished_hooks() {
     frames_total = std::to_string(frames_total_);
     // Running time: from the first task's start (a job cancelled while queued ran for 0 s) to the end.
     const bool started = started_.seconds() != 0 || started_.nanos() != 0;
-    const double seconds =
-        started ? static_cast<double>(finished_.seconds() - started_.seconds()) +
-                      1e-9 * static_cast<double>(finished_.nanos() - started_.nanos())
-                : 0.0;
+    const double seconds = started ? static_cast<double>(finished_.seconds() - started_.seconds()) +
+                                         1e-9 * static_cast<double>(finished_.nanos() - started_.nanos())
+                                   : 0.0;
     char buf[32];
     std::snprintf(buf, sizeof buf, "%.3f", std::max(0.0, seconds));
     duration = buf;
@@ -180,12 +179,21 @@ void Job::finished_hooks() {
   const LogLevel level = state_text == "JOB_STATE_FAILED" ? LogLevel::kWarn : LogLevel::kInfo;
   if (error.empty()) {
     log_event(level, "job_finished",
-              {{"job", id_}, {"kind", kind_}, {"state", state_text}, {"frames", frames}, {"frames_total", frames_total},
+              {{"job", id_},
+               {"kind", kind_},
+               {"state", state_text},
+               {"frames", frames},
+               {"frames_total", frames_total},
                {"duration_s", duration}});
   } else {
     log_event(level, "job_finished",
-              {{"job", id_}, {"kind", kind_}, {"state", state_text}, {"frames", frames}, {"frames_total", frames_total},
-               {"duration_s", duration}, {"error", error}});
+              {{"job", id_},
+               {"kind", kind_},
+               {"state", state_text},
+               {"frames", frames},
+               {"frames_total", frames_total},
+               {"duration_s", duration},
+               {"error", error}});
   }
   persist();
   if (hooks_ && hooks_->on_finished) hooks_->on_finished(*this, state());

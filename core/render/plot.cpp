@@ -152,8 +152,8 @@ Image plot_log_y(std::span<const PlotSeries> series, const PlotOptions& options)
                 kBlack);
   }
   if (!options.x_label.empty()) {
-    canvas.text(0.5 * (left + right) - 0.5 * text_width(options.x_label, font), bottom + 24 * S, options.x_label,
-                font, kBlack);
+    canvas.text(0.5 * (left + right) - 0.5 * text_width(options.x_label, font), bottom + 24 * S, options.x_label, font,
+                kBlack);
   }
   if (!options.y_label.empty()) canvas.text(left + 4 * S, top - 12 * S, options.y_label, font, kBlack);
 

@@ -48,17 +48,17 @@ Vec3 Camera::project(const Vec3& p) const {
 
 Camera frame_camera(const Aabb& box, int width, int height, const ViewOptions& view) {
   if (width < 1 || height < 1) {
-    throw InvalidInput("view", "image size " + std::to_string(width) + "x" + std::to_string(height) +
-                                   " must be at least 1x1 pixels");
+    throw InvalidInput(
+        "view", "image size " + std::to_string(width) + "x" + std::to_string(height) + " must be at least 1x1 pixels");
   }
   if (!box.finite()) throw InvalidInput("view", "the box to frame is not finite (a mesh with no vertices?)");
   if (!(std::abs(view.elevation_degrees) < 90.0)) {
-    throw InvalidInput("view", "elevation " + format_number(view.elevation_degrees) +
-                                   " degrees must lie strictly between -90 and 90");
+    throw InvalidInput(
+        "view", "elevation " + format_number(view.elevation_degrees) + " degrees must lie strictly between -90 and 90");
   }
   if (!(view.field_of_view_degrees >= 1.0 && view.field_of_view_degrees <= 120.0)) {
-    throw InvalidInput("view", "field of view " + format_number(view.field_of_view_degrees) +
-                                   " degrees must lie within 1..120");
+    throw InvalidInput(
+        "view", "field of view " + format_number(view.field_of_view_degrees) + " degrees must lie within 1..120");
   }
   if (!std::isfinite(view.azimuth_degrees)) throw InvalidInput("view", "azimuth must be a finite angle");
   const Vec3 center = 0.5 * (box.min + box.max);

@@ -34,9 +34,8 @@ const Rgb kBackground{255, 255, 255};
 bool centre_shaded_corners_background(const Image& image) {
   const int w = image.width, h = image.height;
   if (w == 0) return false;
-  return image.at(w / 2, h / 2) != kBackground && image.at(0, 0) == kBackground &&
-         image.at(w - 1, 0) == kBackground && image.at(0, h - 1) == kBackground &&
-         image.at(w - 1, h - 1) == kBackground;
+  return image.at(w / 2, h / 2) != kBackground && image.at(0, 0) == kBackground && image.at(w - 1, 0) == kBackground &&
+         image.at(0, h - 1) == kBackground && image.at(w - 1, h - 1) == kBackground;
 }
 
 // GET http://127.0.0.1:port/metrics, the body ("" on failure).
@@ -72,15 +71,16 @@ class RunReportEndToEnd : public CliServerTest<RunReportEndToEnd> {
 
 TEST_F(RunReportEndToEnd, RunWithJsonProgressSummaryAndPreviews) {
   const fs::path out = dir_ / "out";
-  const ProcessResult r = cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--scene",
-                               (root_ / "moved.json").string(), "--cells", "32", "-o", out.string(), "--format",
-                               "ply,drc", "--progress", "json", "--json", "--preview"});
+  const ProcessResult r =
+      cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--scene", (root_ / "moved.json").string(),
+           "--cells", "32", "-o", out.string(), "--format", "ply,drc", "--progress", "json", "--json", "--preview"});
   ASSERT_EQ(r.code, 0) << r;
   // stdout: one JSON document.
   EXPECT_EQ(python_json(r.out, "d['job']['state'], d['job']['kind'], d['job']['error'], d['frames_written']"),
             "('SUCCEEDED', 'isosurface', None, 2)");
-  EXPECT_EQ(python_json(r.out, "[f['index'] for f in d['frames']], [f['closed'] and f['manifold'] for f in "
-                               "d['frames']]"),
+  EXPECT_EQ(python_json(r.out,
+                        "[f['index'] for f in d['frames']], [f['closed'] and f['manifold'] for f in "
+                        "d['frames']]"),
             "([0, 1], [True, True])");
   EXPECT_EQ(python_json(r.out, "all(f['triangles'] > 100 and len(f['files']) == 2 for f in d['frames'])"), "True");
   EXPECT_EQ(python_json(r.out, "d['triangles'] == sum(f['triangles'] for f in d['frames']), d['wall_seconds'] > 0"),
@@ -123,8 +123,9 @@ TEST_F(RunReportEndToEnd, RunWithJsonProgressSummaryAndPreviews) {
     EXPECT_EQ(image->at(image->width - 1, image->height - 1), kBackground);
   }
   // The server logged the job's end with its frames and duration.
-  const std::regex finished("event=job_finished job=([^ ]+) kind=isosurface state=JOB_STATE_SUCCEEDED frames=2 "
-                            "frames_total=2 duration_s=[0-9]+\\.[0-9]{3}");
+  const std::regex finished(
+      "event=job_finished job=([^ ]+) kind=isosurface state=JOB_STATE_SUCCEEDED frames=2 "
+      "frames_total=2 duration_s=[0-9]+\\.[0-9]{3}");
   EXPECT_TRUE(std::regex_search(server_->log(), finished)) << server_->log();
 }
 
@@ -139,8 +140,8 @@ TEST_F(RunReportEndToEnd, ARejectedRunEndsWithAJsonErrorLine) {
 }
 
 TEST_F(RunReportEndToEnd, StatusAndListAsJson) {
-  ProcessResult r = cli({"submit", "isosurface", "--scene", (root_ / "moved.json").string(), "--cells", "16",
-                         "--name", "moved \"sphere\"\n"});
+  ProcessResult r = cli({"submit", "isosurface", "--scene", (root_ / "moved.json").string(), "--cells", "16", "--name",
+                         "moved \"sphere\"\n"});
   ASSERT_EQ(r.code, 0) << r;
   const std::string id = std::string(trim(r.out));
   r = cli({"watch", id, "-o", (dir_ / "w").string(), "--json"});  // wait for it to finish
@@ -166,7 +167,8 @@ TEST_F(RunReportEndToEnd, StatusAndListAsJson) {
 TEST_F(RunReportEndToEnd, VersionOnBothBinariesAndBuildInfoMetric) {
   const std::string version(build_version());
   ASSERT_FALSE(version.empty());
-  for (const auto& [binary, name] : {std::pair{cli_binary(), "surfacer"}, std::pair{server_binary(), "surfacer-server"}}) {
+  for (const auto& [binary, name] :
+       {std::pair{cli_binary(), "surfacer"}, std::pair{server_binary(), "surfacer-server"}}) {
     const ProcessResult r = run_process({binary.string(), "--version"}, dir_ / "v.out", dir_ / "v.err", 30s);
     EXPECT_EQ(r.code, 0) << r;
     EXPECT_EQ(r.out, std::string(name) + " " + version + "\n") << r;
@@ -203,8 +205,8 @@ TEST_F(RunReportEndToEnd, PreviewCommandPicturesFramesParticlesAndTheOptimizePlo
   }
   // Particles as dots over the surface: the picture changes, in the dots' colour.
   write_file(dir_ / "p.xyz", "0.2 0.1 -0.3\n0.3 0.1 -0.3\n0.2 0.2 -0.3\n");
-  ProcessResult r = cli({"preview", (dir_ / "a.ply").string(), "--particles", (dir_ / "p.xyz").string(), "-o",
-                         (dir_ / "dots").string()});
+  ProcessResult r = cli(
+      {"preview", (dir_ / "a.ply").string(), "--particles", (dir_ / "p.xyz").string(), "-o", (dir_ / "dots").string()});
   ASSERT_EQ(r.code, 0) << r;
   const Image plain = read_png(dir_ / "pics_480x360" / "a.png");
   const Image dotted = read_png(dir_ / "dots" / "a.png");

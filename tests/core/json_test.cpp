@@ -58,7 +58,7 @@ TEST(JsonWriter, StringsAreEscaped) {
   std::string nasty = "a\"b\\c/d\n\r\t\b\f";
   for (char c = 1; c < 0x20; ++c) nasty += c;
   nasty += "\x7f \xc3\xa9 \xe2\x82\xac \xf0\x9f\x98\x80";  // é € 😀
-  const std::string invalid = "x\xff\xc3(y\xed\xa0\x80";    // a stray byte, a cut sequence, a surrogate
+  const std::string invalid = "x\xff\xc3(y\xed\xa0\x80";   // a stray byte, a cut sequence, a surrogate
   JsonWriter w;
   w.begin_object().key(nasty).value(nasty).key("invalid").value(invalid).end_object();
   // Python compares with the same characters it decodes from the escapes.
