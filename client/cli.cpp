@@ -11,10 +11,13 @@
 #include <string>
 
 #include "client/cli_jobs.h"
+#include "client/cli_preview.h"
 #include "client/commands.h"
+#include "client/json_output.h"
 #include "client/output_files.h"
 #include "client/security.h"
 #include "client/server_list.h"
+#include "core/util/version.h"
 
 namespace surfacer::client {
 namespace {
@@ -76,6 +79,7 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
                  "lost server may take to come back before its frames go to the others")
       ->check(CLI::PositiveNumber)
       ->type_name("S");
+  app.set_version_flag("--version", "surfacer " + std::string(build_version()), "print the version and exit");
   app.add_flag("-v,--verbose", connect.verbose,
                "more lines: with several servers, which server produced each frame and every sub-job; gRPC's own "
                "log lines");
@@ -156,6 +160,7 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
   StatusCommand status_cmd;
   CLI::App* status = app.add_subcommand("status", "Print a job's state, frames done/total, progress and error");
   status->add_option("job_id", status_cmd.job_id, "job id")->required()->type_name("JOB_ID");
+  status->add_flag("--json", status_cmd.json, "print {\"job\": {...}} as one JSON document (stable keys)");
   status->footer(std::string("Example:\n  surfacer --server localhost:50051 status j-3f2a\n\n") + kGlobalNote);
 
   // list
@@ -165,6 +170,7 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
       ->delimiter(',')
       ->check(CLI::IsMember({"queued", "running", "succeeded", "failed", "cancelled"}))
       ->type_name("LIST");
+  list->add_flag("--json", list_cmd.json, "print {\"jobs\": [...]} as one JSON document (stable keys)");
   list->footer(std::string("Example:\n  surfacer --server localhost:50051 list --state queued,running\n\n") +
                kGlobalNote);
 
@@ -173,6 +179,10 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
   CLI::App* cancel = app.add_subcommand("cancel", "Cancel a job (cancelling a finished job is not an error)");
   cancel->add_option("job_id", cancel_cmd.job_id, "job id")->required()->type_name("JOB_ID");
   cancel->footer(std::string("Example:\n  surfacer --server localhost:50051 cancel j-3f2a\n\n") + kGlobalNote);
+
+  // preview
+  PreviewFlags preview_flags;
+  CLI::App* preview = add_preview_command(app, preview_flags);
 
   // health
   HealthCommand health_cmd;
@@ -206,11 +216,13 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
 
     Invocation invocation{connect, HealthCommand{}};
     if (run->parsed()) {
-      invocation.command = RunCommand{finish_job(run_flags, "run"), finish_output(run_output, "run")};
+      invocation.command =
+          RunCommand{finish_job(run_flags, "run"), finish_output(run_output, "run"), finish_report(run_output.report)};
     } else if (submit->parsed()) {
       invocation.command = SubmitCommand{finish_job(submit_flags, "submit")};
     } else if (watch->parsed()) {
       watch_cmd.output = finish_output(watch_output, "watch");
+      watch_cmd.report = finish_report(watch_output.report);
       invocation.command = watch_cmd;
     } else if (status->parsed()) {
       invocation.command = status_cmd;
@@ -220,6 +232,8 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
       invocation.command = cancel_cmd;
     } else if (health->parsed()) {
       invocation.command = health_cmd;
+    } else if (preview->parsed()) {
+      invocation.command = finish_preview(preview_flags);
     }
     return invocation;
   } catch (const CLI::CallForHelp&) {
@@ -227,6 +241,9 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
     return ExitCode::kSuccess;
   } catch (const CLI::CallForAllHelp&) {
     out << app.help("", CLI::AppFormatMode::All);
+    return ExitCode::kSuccess;
+  } catch (const CLI::CallForVersion& e) {
+    out << e.what() << "\n";
     return ExitCode::kSuccess;
   } catch (const CLI::ParseError& e) {
     std::string message = e.what();
@@ -255,20 +272,36 @@ int run_cli(int argc, const char* const* argv) {
                                    std::getenv("SURFACER_TOKEN"));
   if (const ExitCode* code = std::get_if<ExitCode>(&parsed)) return to_int(*code);
   if (std::get<Invocation>(parsed).connect.verbose) gpr_set_log_function(print_grpc_log);
+  // With --progress json, stderr stays one JSON object per line: the error too.
+  const bool json_errors = std::visit(
+      [](const auto& command) {
+        using T = std::decay_t<decltype(command)>;
+        if constexpr (std::is_same_v<T, RunCommand> || std::is_same_v<T, WatchCommand>) {
+          return command.report.progress == ProgressFormat::kJson;
+        }
+        return false;
+      },
+      std::get<Invocation>(parsed).command);
+  const auto print_error = [&](ExitCode code, const std::string& message) {
+    std::cout.flush();
+    if (json_errors) {
+      std::cerr << error_event_json(to_int(code), message) << "\n";
+    } else {
+      std::cerr << "surfacer: error: " << message << "\n";
+    }
+  };
   ExitCode code = ExitCode::kInternal;
   try {
     code = run_invocation(std::get<Invocation>(parsed), std::cout, std::cerr, isatty(STDERR_FILENO) != 0);
   } catch (const CliError& e) {
-    std::cout.flush();
-    std::cerr << "surfacer: error: " << e.what() << "\n";
     code = e.code();
+    print_error(code, e.what());
   } catch (const std::exception& e) {
-    std::cout.flush();
-    std::cerr << "surfacer: error: internal error: " << e.what() << "\n";
     code = ExitCode::kInternal;
+    print_error(code, std::string("internal error: ") + e.what());
   } catch (...) {
-    std::cerr << "surfacer: error: internal error (unknown exception)\n";
     code = ExitCode::kInternal;
+    print_error(code, "internal error (unknown exception)");
   }
   std::cout.flush();
   return to_int(code);

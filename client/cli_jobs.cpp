@@ -402,6 +402,7 @@ void add_output_flags(CLI::App* app, OutputFlags& flags) {
       ->delimiter(',')
       ->check(CLI::IsMember({"drc", "ply", "obj", "vtk", "vtu"}))
       ->type_name("LIST");
+  add_report_flags(app, flags.report);
 }
 
 void add_job_common_flags(CLI::App* app, JobOptions& job) {

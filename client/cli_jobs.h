@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "client/options.h"
+#include "client/run_report.h"
 
 namespace surfacer::client {
 
@@ -18,10 +19,11 @@ inline constexpr const char* kGlobalNote =
     "--tls, --tls-ca/--tls-cert/--tls-key/--tls-server-name, --allow-insecure) may also be given after the "
     "subcommand; see `surfacer --help`.\n";
 
-// Output flags of `run` and `watch`: -o DIR, --format LIST.
+// Output flags of `run` and `watch`: -o DIR, --format LIST, and how they report (--progress, --json, --preview).
 struct OutputFlags {
   std::optional<std::string> dir;
   std::vector<std::string> formats;
+  ReportFlags report;
 };
 
 // Variables CLI11 writes into for one `run` or `submit` command and its job-type subcommands.

@@ -18,13 +18,17 @@
 #include "client/health.h"
 #include "client/interrupt.h"
 #include "client/job_spec.h"
+#include "client/json_output.h"
+#include "client/preview.h"
 #include "client/progress.h"
+#include "client/run_report.h"
 #include "client/scale_out.h"
 #include "client/security.h"
 #include "client/server_list.h"
 #include "client/summary.h"
 #include "client/upload.h"
 #include "client/watch.h"
+#include "core/util/format.h"
 
 namespace surfacer::client {
 namespace {
@@ -80,7 +84,7 @@ std::string kind_of(const v1::JobSpec& spec) {
 // The exit code of a watched job's terminal state; prints the summary (and, for particles jobs, the table of
 // frames; `uploaded` holds the particle counts this client uploaded, by frame).
 ExitCode finish_watch(const WatchResult& result, const FrameWriter& writer, ProgressDisplay& progress,
-                      std::chrono::steady_clock::time_point start, bool cancelled_here,
+                      std::chrono::steady_clock::time_point start, bool cancelled_here, const ReportSink& sink,
                       const std::map<int, std::int64_t>& uploaded = {}) {
   progress.clear();
   progress.line(summary(result, writer, start));
@@ -94,6 +98,7 @@ ExitCode finish_watch(const WatchResult& result, const FrameWriter& writer, Prog
     if (!table.empty() && table.back() == '\n') table.pop_back();
     progress.line(table);
   }
+  report_run(job, writer, sink, progress, start);
   switch (job.state()) {
     case v1::JOB_STATE_SUCCEEDED:
       return ExitCode::kSuccess;
@@ -113,13 +118,13 @@ ExitCode finish_watch(const WatchResult& result, const FrameWriter& writer, Prog
 
 // `run` against one server (or the in-process one).
 ExitCode run_single(const ConnectOptions& connect, PreparedJob prepared, const FrameOutputOptions& output,
-                    std::ostream& err, bool tty, ReconnectPolicy policy = {}) {
+                    const ReportSink& sink, ReconnectPolicy policy = {}) {
   const auto start = std::chrono::steady_clock::now();
   v1::JobSpec& spec = prepared.spec;
   FrameWriter writer(output);
   writer.set_job_kind(kind_of(spec));
   auto connection = Connection::open(connect);
-  ProgressDisplay progress(err, tty);
+  ProgressDisplay progress(sink.err, sink.progress);
 
   std::mutex mutex;
   std::string job_id;
@@ -178,13 +183,13 @@ ExitCode run_single(const ConnectOptions& connect, PreparedJob prepared, const F
     std::lock_guard lock(mutex);
     watcher = nullptr;
   }
-  return finish_watch(result, writer, progress, start, interrupted, uploaded.particles);
+  return finish_watch(result, writer, progress, start, interrupted, sink, uploaded.particles);
 }
 
 // A job that is not a frame sequence, with several servers: the whole job on the first server that answers,
 // resubmitted from scratch to the next one when that server becomes unreachable (connection lost for --timeout).
 ExitCode run_failover(const ConnectOptions& connect, const std::vector<std::string>& servers,
-                      const PreparedJob& prepared, const FrameOutputOptions& output, std::ostream& err, bool tty) {
+                      const PreparedJob& prepared, const FrameOutputOptions& output, const ReportSink& sink) {
   const std::string dns_name = connect.server ? dns_host(*connect.server) : "";
   for (const std::string& server : servers) check_token_transport(server, connect.security);
   ReconnectPolicy policy;
@@ -195,21 +200,21 @@ ExitCode run_failover(const ConnectOptions& connect, const std::vector<std::stri
     one.server = servers[i];
     if (!dns_name.empty() && one.security.tls && !one.security.server_name) one.security.server_name = dns_name;
     try {
-      return run_single(one, prepared, output, err, tty, policy);
+      return run_single(one, prepared, output, sink, policy);
     } catch (const CliError& e) {
       if (e.code() != ExitCode::kUnreachable) throw;
       failures += "\n  " + servers[i] + ": " + e.what();
       if (i + 1 < servers.size()) {
-        err << "server " << servers[i] << " is unreachable, leaving it out: " << e.what()
-            << "\nresubmitting the whole job to " << servers[i + 1] << " (from scratch)\n"
-            << std::flush;
+        ProgressDisplay(sink.err, sink.progress)
+            .line("server " + servers[i] + " is unreachable, leaving it out: " + e.what() +
+                  "\nresubmitting the whole job to " + servers[i + 1] + " (from scratch)");
       }
     }
   }
   throw CliError(ExitCode::kUnreachable, "every server is unreachable:" + failures);
 }
 
-ExitCode run_run(const ConnectOptions& connect, const RunCommand& run, std::ostream& err, bool tty) {
+ExitCode run_run(const ConnectOptions& connect, const RunCommand& run, const ReportSink& sink) {
   PreparedJob prepared = prepare_job(run.job);  // usage errors before connecting
   RunCommand command = run;
   command.output.frame_numbers = prepared.frame_numbers;  // output names keep the input files' frame numbers
@@ -219,17 +224,23 @@ ExitCode run_run(const ConnectOptions& connect, const RunCommand& run, std::ostr
         is_server_list(*connect.server) ? parse_server_list(*connect.server) : resolve_dns_name(*connect.server);
     if (servers.size() > 1) {
       if (sequence_frames(prepared.spec) > 0) {
-        return run_scale_out(connect, servers, std::move(prepared), command.output, err, tty);
+        if (sink.options.json || sink.options.preview) {
+          throw CliError(ExitCode::kUsage, std::string(sink.options.json ? "--json" : "--preview") +
+                                               " is not available when a run is split across servers; run against "
+                                               "one --server, or picture the frames afterwards with `surfacer "
+                                               "preview`");
+        }
+        return run_scale_out(connect, servers, std::move(prepared), command.output, sink.err, sink.progress);
       }
-      return run_failover(connect, servers, prepared, command.output, err, tty);
+      return run_failover(connect, servers, prepared, command.output, sink);
     }
     if (is_server_list(*connect.server)) {  // a list of one
       ConnectOptions one = connect;
       one.server = servers.front();
-      return run_single(one, std::move(prepared), command.output, err, tty);
+      return run_single(one, std::move(prepared), command.output, sink);
     }
   }
-  return run_single(connect, std::move(prepared), command.output, err, tty);
+  return run_single(connect, std::move(prepared), command.output, sink);
 }
 
 ExitCode run_submit(const ConnectOptions& connect, const SubmitCommand& command, std::ostream& out, std::ostream& err,
@@ -248,15 +259,19 @@ ExitCode run_submit(const ConnectOptions& connect, const SubmitCommand& command,
   return ExitCode::kSuccess;
 }
 
-ExitCode run_watch(const ConnectOptions& connect, const WatchCommand& command, std::ostream& err, bool tty) {
+ExitCode run_watch(const ConnectOptions& connect, const WatchCommand& command, const ReportSink& sink) {
   const auto start = std::chrono::steady_clock::now();
   FrameWriter writer(command.output);
   auto connection = Connection::open(connect);
-  warn_local(*connection, err);
-  ProgressDisplay progress(err, tty);
+  ProgressDisplay progress(sink.err, sink.progress);
+  if (connection->local()) {
+    std::ostringstream warning;
+    warn_local(*connection, warning);
+    progress.line(trim(warning.str()));
+  }
   JobWatcher watcher(*connection, command.job_id, command.from_frame, writer, progress);
   const WatchResult result = watcher.run();
-  return finish_watch(result, writer, progress, start, false);
+  return finish_watch(result, writer, progress, start, false, sink);
 }
 
 std::string percent_text(double fraction) {
@@ -269,6 +284,10 @@ ExitCode run_status(const ConnectOptions& connect, const StatusCommand& command,
   auto connection = Connection::open(connect);
   warn_local(*connection, err);
   const v1::Job job = get_job(*connection, command.job_id);
+  if (command.json) {
+    out << status_json(job) << "\n" << std::flush;
+    return ExitCode::kSuccess;
+  }
   out << "job:      " << job.id() << "\n";
   if (!job.name().empty()) out << "name:     " << job.name() << "\n";
   if (!job.kind().empty()) out << "kind:     " << job.kind() << "\n";
@@ -289,6 +308,10 @@ ExitCode run_list(const ConnectOptions& connect, const ListCommand& command, std
   auto connection = Connection::open(connect);
   warn_local(*connection, err);
   const std::vector<v1::Job> jobs = list_jobs(*connection, command.states);
+  if (command.json) {
+    out << list_json(jobs) << "\n" << std::flush;
+    return ExitCode::kSuccess;
+  }
   std::size_t id_width = 6;
   for (const auto& job : jobs) id_width = std::max(id_width, job.id().size());
   out << std::left << std::setw(static_cast<int>(id_width)) << "JOB_ID"
@@ -391,17 +414,21 @@ ExitCode run_invocation(const Invocation& invocation, std::ostream& out, std::os
       [&](const auto& command) -> ExitCode {
         using T = std::decay_t<decltype(command)>;
         if constexpr (std::is_same_v<T, RunCommand>) {
-          return run_run(connect, command, err, tty);
+          return run_run(connect, command,
+                         ReportSink{out, err, progress_mode(command.report.progress, tty), command.report});
         } else if constexpr (std::is_same_v<T, SubmitCommand>) {
           return run_submit(connect, command, out, err, tty);
         } else if constexpr (std::is_same_v<T, WatchCommand>) {
-          return run_watch(connect, command, err, tty);
+          return run_watch(connect, command,
+                           ReportSink{out, err, progress_mode(command.report.progress, tty), command.report});
         } else if constexpr (std::is_same_v<T, StatusCommand>) {
           return run_status(connect, command, out, err);
         } else if constexpr (std::is_same_v<T, ListCommand>) {
           return run_list(connect, command, out, err);
         } else if constexpr (std::is_same_v<T, CancelCommand>) {
           return run_cancel(connect, command, out, err);
+        } else if constexpr (std::is_same_v<T, PreviewCommand>) {
+          return run_preview(command, out);
         } else {
           return run_health(connect, command, out);
         }

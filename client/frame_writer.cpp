@@ -213,6 +213,7 @@ std::vector<std::filesystem::path> FrameWriter::write(const ReceivedFrame& frame
     written.push_back(path);
   }
   stats_[frame.index] = frame.stats;
+  files_[frame.index] = written;
   write_file_atomically(options_.dir / "stats.csv", stats_csv(stats_));
   if (kind_ == "optimize" || frame.stats.iteration() != 0) iterations_ = true;
   if (iterations_) write_file_atomically(options_.dir / "iterations.csv", iterations_csv(stats_));

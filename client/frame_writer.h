@@ -62,12 +62,15 @@ class FrameWriter {
   int frames_written() const { return static_cast<int>(stats_.size()); }
   // Stats of every frame written, by index.
   const std::map<int, v1::FrameStats>& stats() const { return stats_; }
+  // The files written for each frame, by index (what write() returned).
+  const std::map<int, std::vector<std::filesystem::path>>& files() const { return files_; }
   bool wrote_iterations() const { return iterations_; }
 
  private:
   FrameOutputOptions options_;
   ThreadExecutor decode_executor_;  // every core
   std::map<int, v1::FrameStats> stats_;
+  std::map<int, std::vector<std::filesystem::path>> files_;
   std::string kind_;
   bool iterations_ = false;
 };

@@ -178,9 +178,27 @@ struct FrameOutputOptions {
   std::vector<int> frame_numbers = {};
 };
 
+// How `run` and `watch` report (client/run_report.h): --progress, --json, --preview.
+enum class ProgressFormat { kAuto, kJson };  // auto: a bar on a terminal, plain lines otherwise
+struct ReportOptions {
+  ProgressFormat progress = ProgressFormat::kAuto;
+  bool json = false;     // the summary as one JSON document on stdout
+  bool preview = false;  // a PNG per frame (and the optimize plot) in DIR/preview/
+};
+
+// Pictures of frame files (client/preview.h): one camera for the whole sequence.
+struct PreviewOptions {
+  int width = 480;
+  int height = 360;
+  double azimuth_degrees = -60.0;
+  double elevation_degrees = 25.0;
+  std::vector<std::filesystem::path> particles;  // none, or one file per frame, drawn as dots over the surface
+};
+
 struct RunCommand {
   JobOptions job;
   FrameOutputOptions output;
+  ReportOptions report;
 };
 struct SubmitCommand {
   JobOptions job;
@@ -189,12 +207,22 @@ struct WatchCommand {
   std::string job_id;
   int from_frame = 0;
   FrameOutputOptions output;
+  ReportOptions report;
 };
 struct StatusCommand {
   std::string job_id;
+  bool json = false;
 };
 struct ListCommand {
   std::vector<std::string> states;  // lower-case state names ("running"); empty: all
+  bool json = false;
+};
+// `surfacer preview`: no server involved.
+struct PreviewCommand {
+  std::vector<std::filesystem::path> frames;            // mesh files (.drc .ply .obj)
+  std::optional<std::filesystem::path> iterations_csv;  // an optimize run's iterations.csv: a plot of e_d, e_n
+  std::filesystem::path dir;
+  PreviewOptions options;
 };
 struct CancelCommand {
   std::string job_id;
@@ -203,8 +231,8 @@ struct HealthCommand {
   std::string service;  // "" = the whole server
 };
 
-using Command =
-    std::variant<RunCommand, SubmitCommand, WatchCommand, StatusCommand, ListCommand, CancelCommand, HealthCommand>;
+using Command = std::variant<RunCommand, SubmitCommand, WatchCommand, StatusCommand, ListCommand, CancelCommand,
+                             HealthCommand, PreviewCommand>;
 
 struct Invocation {
   ConnectOptions connect;

@@ -5,6 +5,8 @@
 #include <cstdio>
 #include <ostream>
 
+#include "client/json_output.h"
+
 namespace surfacer::client {
 namespace {
 
@@ -12,6 +14,10 @@ std::string percent(double fraction) {
   char buf[16];
   std::snprintf(buf, sizeof buf, "%3d%%", static_cast<int>(std::floor(std::clamp(fraction, 0.0, 1.0) * 100.0)));
   return buf;
+}
+
+double seconds_since(std::chrono::steady_clock::time_point start) {
+  return std::round(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() * 1000.0) / 1000.0;
 }
 
 }  // namespace
@@ -52,7 +58,13 @@ std::string frame_summary(const ReceivedFrame& frame, int frames_total) {
   return text + buf;
 }
 
-ProgressDisplay::ProgressDisplay(std::ostream& err, bool tty) : err_(err), tty_(tty) {}
+ProgressMode progress_mode(ProgressFormat format, bool tty) {
+  if (format == ProgressFormat::kJson) return ProgressMode::kJson;
+  return tty ? ProgressMode::kBar : ProgressMode::kLines;
+}
+
+ProgressDisplay::ProgressDisplay(std::ostream& err, ProgressMode mode)
+    : err_(err), tty_(mode == ProgressMode::kBar), json_(mode == ProgressMode::kJson) {}
 
 ProgressDisplay::~ProgressDisplay() { clear(); }
 
@@ -74,6 +86,10 @@ void ProgressDisplay::line(std::string_view text) {
 }
 
 void ProgressDisplay::line_locked(std::string_view text) {
+  if (json_) {
+    err_ << message_event_json(text, seconds_since(started_)) << "\n" << std::flush;
+    return;
+  }
   const bool redraw = bar_shown_;
   clear_locked();
   err_ << text << "\n" << std::flush;
@@ -84,8 +100,13 @@ void ProgressDisplay::on_state(const v1::Job& job) {
   std::lock_guard lock(mutex_);
   if (job.frames_total() > 0) frames_total_ = job.frames_total();
   frames_done_ = std::max(frames_done_, job.frames_done());
+  job_id_ = job.id();
   if (job.state() != state_) {
     state_ = job.state();
+    if (json_) {
+      err_ << state_event_json(job, seconds_since(started_)) << "\n" << std::flush;
+      return;
+    }
     if (state_ == v1::JOB_STATE_QUEUED || state_ == v1::JOB_STATE_RUNNING) {
       line_locked("job " + job.id() + ": " + state_name(state_));
     }
@@ -97,12 +118,24 @@ void ProgressDisplay::on_progress(const v1::Progress& progress) {
   last_ = progress;
   if (progress.frames_total() > 0) frames_total_ = progress.frames_total();
   frames_done_ = std::max(frames_done_, progress.frames_done());
+  eta_seconds_ = eta_.update(progress.fraction(), std::chrono::steady_clock::now());
+  if (json_) {
+    err_ << progress_event_json(job_id_, progress, frames_done_, frames_total_, eta_seconds_, seconds_since(started_))
+         << "\n"
+         << std::flush;
+    return;
+  }
   draw(false);
 }
 
-void ProgressDisplay::on_frame(const ReceivedFrame& frame) {
+void ProgressDisplay::on_frame(const ReceivedFrame& frame, int frames_total, std::string_view note) {
   std::lock_guard lock(mutex_);
-  line_locked(frame_summary(frame, frames_total_));
+  const int total = frames_total > 0 ? frames_total : frames_total_;
+  if (json_) {
+    err_ << frame_event_json(job_id_, frame, total, seconds_since(started_)) << "\n" << std::flush;
+    return;
+  }
+  line_locked(frame_summary(frame, total) + std::string(note));
 }
 
 void ProgressDisplay::draw(bool force) {
@@ -120,6 +153,11 @@ void ProgressDisplay::draw(bool force) {
     text += std::to_string(frames_total_);
   }
   text += "  (" + std::to_string(frames_done_) + " done)";
+  if (eta_seconds_ && fraction < 1.0) {
+    char eta[32];
+    std::snprintf(eta, sizeof eta, "  ETA %.0f s", std::ceil(*eta_seconds_));
+    text += eta;
+  }
   if (tty_) {
     constexpr int kWidth = 24;
     const int filled = static_cast<int>(std::round(fraction * kWidth));

@@ -1,22 +1,34 @@
 // Progress on stderr while a job is watched. On a terminal: one bar redrawn in place (stage, frame i/n, percent).
 // Otherwise: plain lines, progress at most once a second. Both: one line per finished frame
-// ("frame 3/10: 124512 triangles, closed, 0.21 s") and state changes. Thread-safe (the Ctrl-C handler prints too).
+// ("frame 3/10: 124512 triangles, closed, 0.21 s") and state changes. With ProgressMode::kJson, every one of these is
+// a JSON object on a line of its own instead (client/json_output.h lists them). Thread-safe (the Ctrl-C handler
+// prints too).
 #pragma once
 
 #include <chrono>
 #include <iosfwd>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <string_view>
 
+#include "client/eta.h"
 #include "client/frame_assembler.h"
+#include "client/options.h"
 #include "surfacer/v1/surfacer.pb.h"
 
 namespace surfacer::client {
 
+enum class ProgressMode { kLines, kBar, kJson };
+
+// --progress: JSON when asked, else the bar on a terminal and lines otherwise.
+ProgressMode progress_mode(ProgressFormat format, bool tty);
+
 class ProgressDisplay {
  public:
-  ProgressDisplay(std::ostream& err, bool tty);
+  ProgressDisplay(std::ostream& err, bool tty)
+      : ProgressDisplay(err, tty ? ProgressMode::kBar : ProgressMode::kLines) {}
+  ProgressDisplay(std::ostream& err, ProgressMode mode);
   ~ProgressDisplay();  // clears the bar
 
   ProgressDisplay(const ProgressDisplay&) = delete;
@@ -24,7 +36,9 @@ class ProgressDisplay {
 
   void on_state(const v1::Job& job);
   void on_progress(const v1::Progress& progress);
-  void on_frame(const ReceivedFrame& frame);
+  // `frames_total` > 0 overrides the total learnt from the job (scale-out writes frames of several sub-jobs);
+  // `note` is appended to the text line.
+  void on_frame(const ReceivedFrame& frame, int frames_total = 0, std::string_view note = {});
   // A message line (the bar is cleared first and redrawn after).
   void line(std::string_view text);
   // Removes the bar (before the summary).
@@ -39,6 +53,11 @@ class ProgressDisplay {
 
   std::ostream& err_;
   bool tty_;
+  bool json_;
+  std::chrono::steady_clock::time_point started_ = std::chrono::steady_clock::now();
+  std::string job_id_;
+  EtaEstimator eta_;
+  std::optional<double> eta_seconds_;
   bool bar_shown_ = false;
   v1::Progress last_;
   int frames_total_ = 0;

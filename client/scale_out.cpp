@@ -248,9 +248,7 @@ class ScaleOut {
     triangles_ += global.stats.triangles();
     ++slot.frames;
     --remaining_;
-    std::string line = frame_summary(global, frames_total_);
-    if (verbose_) line += " [" + slot.address + ", job " + job_id + "]";
-    progress_.line(line);
+    progress_.on_frame(global, frames_total_, verbose_ ? " [" + slot.address + ", job " + job_id + "]" : "");
     if (remaining_ == 0) ready_.notify_all();
   }
 
@@ -568,7 +566,7 @@ void pin_particles_from_inputs(PreparedJob& prepared) {
 }  // namespace
 
 ExitCode run_scale_out(const ConnectOptions& connect, const std::vector<std::string>& servers, PreparedJob prepared,
-                       const FrameOutputOptions& output, std::ostream& err, bool tty) {
+                       const FrameOutputOptions& output, std::ostream& err, ProgressMode mode) {
   const auto start = std::chrono::steady_clock::now();
   if (const auto reference = find_upload_reference(prepared.spec)) {
     throw CliError(ExitCode::kUsage,
@@ -582,7 +580,7 @@ ExitCode run_scale_out(const ConnectOptions& connect, const std::vector<std::str
   } else {
     pin_whole_job_geometry(prepared.spec, {}, {});
   }
-  ProgressDisplay progress(err, tty);
+  ProgressDisplay progress(err, mode);
   ScaleOut scale_out(connect, servers, std::move(prepared), output, progress);
   return scale_out.run(start);
 }

@@ -23,6 +23,7 @@
 #include "client/exit_codes.h"
 #include "client/job_spec.h"
 #include "client/options.h"
+#include "client/progress.h"
 #include "core/mesh/mesh.h"
 #include "surfacer/v1/surfacer.pb.h"
 #include "wire/particle_frames.h"
@@ -64,6 +65,6 @@ void pin_whole_job_geometry(v1::JobSpec& spec, const std::vector<wire::ParticleS
 // The whole `run` of a sequence job across `servers` (already resolved "HOST:PORT" targets, at least two).
 // Returns kSuccess or throws CliError (see the header comment for the codes).
 ExitCode run_scale_out(const ConnectOptions& connect, const std::vector<std::string>& servers, PreparedJob prepared,
-                       const FrameOutputOptions& output, std::ostream& err, bool tty);
+                       const FrameOutputOptions& output, std::ostream& err, ProgressMode progress);
 
 }  // namespace surfacer::client

@@ -12,6 +12,7 @@ PACKAGES=(
   clang-14 libclang-rt-14-dev  # libFuzzer targets (scripts/fuzz.sh)
   libopenvdb-dev  # the OpenVDB reference of bench/particles_bench (the bench is built only with it)
   pybind11-dev python3-dev python3-numpy python3-pytest  # the Python package (python/) and its tests
+  libstb-dev  # PNG previews and plots (core/render/, header-only)
 )
 missing=()
 for p in "${PACKAGES[@]}"; do

@@ -3,6 +3,7 @@
 #include <grpcpp/support/status.h>
 
 #include <algorithm>
+#include <cstdio>
 
 #include "core/util/crc32.h"
 #include "core/util/errors.h"
@@ -159,6 +160,41 @@ bool Job::retry_persist() const {
 }
 
 void Job::finished_hooks() {
+  std::string state_text, frames, frames_total, duration, error;
+  {
+    std::lock_guard lock(mutex_);
+    state_text = v1::JobState_Name(state_);
+    frames = std::to_string(frames_done_);
+    frames_total = std::to_string(frames_total_);
+    // Running time: from the first task's start (a job cancelled while queued ran for 0 s) to the end.
+    const bool started = started_.seconds() != 0 || started_.nanos() != 0;
+    const double seconds = started ? static_cast<double>(finished_.seconds() - started_.seconds()) +
+                                         1e-9 * static_cast<double>(finished_.nanos() - started_.nanos())
+                                   : 0.0;
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.3f", std::max(0.0, seconds));
+    duration = buf;
+    error = error_.message();
+  }
+  const LogLevel level = state_text == "JOB_STATE_FAILED" ? LogLevel::kWarn : LogLevel::kInfo;
+  if (error.empty()) {
+    log_event(level, "job_finished",
+              {{"job", id_},
+               {"kind", kind_},
+               {"state", state_text},
+               {"frames", frames},
+               {"frames_total", frames_total},
+               {"duration_s", duration}});
+  } else {
+    log_event(level, "job_finished",
+              {{"job", id_},
+               {"kind", kind_},
+               {"state", state_text},
+               {"frames", frames},
+               {"frames_total", frames_total},
+               {"duration_s", duration},
+               {"error", error}});
+  }
   persist();
   if (hooks_ && hooks_->on_finished) hooks_->on_finished(*this, state());
 }
@@ -388,7 +424,6 @@ void Job::task_succeeded(int task) {
     finished = settle_locked();
   }
   if (finished) {
-    log_event(LogLevel::kInfo, "job_finished", {{"job", id_}, {"state", v1::JobState_Name(state())}});
     finished_hooks();
   }
   notify();
@@ -414,9 +449,6 @@ void Job::task_failed(int task, int grpc_code, const std::string& message) {
   // A failed task fails the job: stop its other tasks.
   cancel_.cancel();
   if (finished) {
-    log_event(
-        LogLevel::kWarn, "job_finished",
-        {{"job", id_}, {"state", v1::JobState_Name(state())}, {"task", std::to_string(task)}, {"error", message}});
     finished_hooks();
   }
   notify();

@@ -5,6 +5,7 @@
 #include <iostream>
 #include <thread>
 
+#include "core/util/version.h"
 #include "server/log.h"
 #include "server/server.h"
 
@@ -75,6 +76,8 @@ int main(int argc, char** argv) {
                  "cancels at once)")
       ->capture_default_str();
   app.add_flag("-v,--verbose", verbose, "debug logs");
+  app.set_version_flag("--version", "surfacer-server " + std::string(surfacer::build_version()),
+                       "print the version and exit");
   CLI11_PARSE(app, argc, argv);
   if (verbose) surfacer::server::set_log_level(LogLevel::kDebug);
   options.keep_finished = std::chrono::seconds(static_cast<long long>(retain_hours * 3600.0));

@@ -13,6 +13,7 @@
 #include <stdexcept>
 #include <thread>
 
+#include "core/util/version.h"
 #include "server/auth.h"
 #include "server/clock.h"
 #include "server/job.h"
@@ -388,7 +389,10 @@ std::unique_ptr<SurfacerServer> SurfacerServer::start(const ServerOptions& optio
              {"workers", std::to_string(impl->threads)},
              {"tls", options.tls_cert_file.empty() ? "off" : (options.tls_client_ca_file.empty() ? "on" : "mutual")},
              {"auth", impl->auth ? std::to_string(impl->auth->size()) + " tokens" : "off"},
-             {"data_dir", options.data_dir.empty() ? "memory-only" : options.data_dir}});
+             {"data_dir", options.data_dir.empty() ? "memory-only" : options.data_dir},
+             {"metrics_port", impl->metrics_http ? std::to_string(impl->metrics_http->port()) : "off"},
+             {"health_port", impl->health_port != 0 ? std::to_string(impl->health_port) : "off"},
+             {"version", std::string(build_version())}});
   return std::unique_ptr<SurfacerServer>(new SurfacerServer(std::move(impl)));
 }
 

@@ -2,6 +2,7 @@
 // count. One instance per server, owned by SurfacerServer::Impl; served by --metrics-listen.
 #pragma once
 
+#include "core/util/version.h"
 #include "server/metrics.h"
 
 namespace surfacer::server {
@@ -22,7 +23,10 @@ struct ServerMetrics {
                                   latency_buckets(), {"kind"})),
         bytes_in(r.counter("surfacer_upload_bytes_total", "Bytes received by Upload").with()),
         bytes_out(r.counter("surfacer_stream_bytes_total", "Frame bytes sent by WatchJob streams").with()),
-        watchers(r.gauge("surfacer_watch_streams", "Open WatchJob streams").with()) {}
+        watchers(r.gauge("surfacer_watch_streams", "Open WatchJob streams").with()) {
+    // The Prometheus "info" idiom: a constant 1 whose label says which build is running.
+    r.gauge("surfacer_build_info", "The version of this server (1)", {"version"}).with({build_version()}).set(1);
+  }
 
   CounterFamily& jobs_submitted;
   CounterFamily& jobs_rejected;

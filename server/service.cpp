@@ -10,6 +10,7 @@
 
 #include "core/util/errors.h"
 #include "core/util/format.h"
+#include "core/util/version.h"
 #include "server/log.h"
 #include "server/runners/runner.h"
 #include "server/server_metrics.h"
@@ -478,7 +479,7 @@ grpc::ServerUnaryReactor* SurfacerService::GetServerInfo(grpc::CallbackServerCon
   const Tenant* tenant = tenant_or_finish(state_, *context, reactor);
   if (!tenant) return reactor;
   const Limits& limits = state_.options.limits;
-  response->set_version(SURFACER_VERSION);
+  response->set_version(std::string(build_version()));
   v1::ServerLimits* out = response->mutable_limits();
   out->set_max_grid_cells(limits.max_grid_cells);
   out->set_max_particles(limits.max_particles);
