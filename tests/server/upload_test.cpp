@@ -82,7 +82,9 @@ TEST(Uploads, CancelledAndTimedOutUploadsAreNotKept) {
   // A message over gRPC's 4 MiB: gRPC refuses it, and the call with it.
   EXPECT_EQ(upload(*s.stub, 1, 5 * mib, End::kClose).error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
   expect_stored_bytes(*s.server, 0);
-  // Cancelled right after the last chunk: kept exactly when the client got the id.
+  // Cancelled right after the last chunk: every upload whose id reached the client is kept. One whose reply crossed
+  // the cancel on the wire may be kept too (the server saw a complete call, the client dropped its reply): nothing
+  // references it, and retention removes it like any unused upload.
   int kept = 0;
   for (int i = 0; i < 20; ++i) {
     std::string id;
@@ -91,11 +93,12 @@ TEST(Uploads, CancelledAndTimedOutUploadsAreNotKept) {
       ++kept;
     }
   }
-  expect_stored_bytes(*s.server, 1000.0 * kept);
   // A whole upload is kept.
   std::string id;
   ASSERT_TRUE(upload(*s.stub, 2, mib, End::kClose, &id).ok());
-  expect_stored_bytes(*s.server, 1000.0 * kept + 2.0 * mib);
+  const double stored = stored_bytes(*s.server);
+  EXPECT_GE(stored, 1000.0 * kept + 2.0 * mib);
+  EXPECT_LE(stored, 1000.0 * 20 + 2.0 * mib);
 }
 
 TEST(Uploads, AbortedUploadsUseNoQuotaAndLeaveNoFileOrRowAfterARestart) {
