@@ -182,6 +182,25 @@ struct Particles {
     return {std::max({piece.lo, lo_in, -reach}), std::min({piece.hi, hi_in, reach})};
   }
 
+  // Uniform radii: moves x into the faithful band (see the header): out of the nearest inner ball (again while the
+  // push lands in another), or toward the nearest particle onto its outer sphere (it stays the nearest on the way).
+  void project_uniform(Vec3& x) const {
+    for (int round = 0; round < kMaxProjectionRounds; ++round) {
+      const Hit n = nearest(x);
+      const Vec3& p = positions[n.index];
+      if (n.distance < r_inner * (1.0 - kBandTolerance)) {
+        x = p + r_inner * (n.distance > 0.0 ? Vec3((x - p) / n.distance) : Vec3::UnitZ());
+        continue;
+      }
+      if (n.distance > r_outer * (1.0 + kBandTolerance)) x = p + (x - p) * (r_outer / n.distance);
+      return;
+    }
+  }
+  double violation_uniform(const Vec3& x) const {
+    const double d = nearest(x).distance;
+    return std::max({r_inner - d, d - r_outer, 0.0});
+  }
+
   // Weighted radii: moves x into the faithful band (see the header); returns false when rounds ran out.
   bool project(Vec3& x) const {
     for (int round = 0; round < kMaxProjectionRounds; ++round) {
@@ -202,155 +221,6 @@ struct Particles {
     return false;
   }
 };
-
-// Exact nearest-particle queries for vertices that move a little between queries (uniform radii). At an anchor a
-// whose nearest particle is d0 away, a vertex keeps the list of every particle within d0 + 2 delta of a. For x with
-// |x - a| <= delta the nearest particle is in that list: it is at most d0 + delta from x, every other particle is
-// farther than d0 + delta. So a query is a short scan of the list until the vertex has moved delta; then the list is
-// rebuilt from the spatial hash (or, when it would exceed kCapacity, the query is answered from the hash alone).
-class NeighbourCache {
- public:
-  static constexpr int kCapacity = 16;
-
-  void reset(std::size_t n, double delta) {
-    checked_.resize(n);
-    slack_.assign(n, 0.0);
-    anchor_.resize(n);
-    count_.assign(n, kInvalid);
-    slots_.resize(n * kCapacity);
-    delta_ = delta;
-    refreshes_.store(0);
-  }
-
-  struct Nearest {
-    const Vec3* p;
-    double distance;
-  };
-
-  Nearest nearest(const Particles& P, std::size_t i, const Vec3& x) {
-    const std::span<const Vec3> pts = P.hash.sorted_points();
-    std::uint32_t* list = slots_.data() + i * kCapacity;
-    if (count_[i] != kInvalid && (x - anchor_[i]).squaredNorm() <= delta_ * delta_) {
-      double best2 = kInf;
-      std::uint32_t best = list[0];
-      for (int k = 0; k < count_[i]; ++k) {
-        const double d2 = (pts[list[k]] - x).squaredNorm();
-        if (d2 < best2) {
-          best2 = d2;
-          best = list[k];
-        }
-      }
-      return {&pts[best], std::sqrt(best2)};
-    }
-    refreshes_.fetch_add(1, std::memory_order_relaxed);
-    // Radius of the scan: a known particle bounds the nearest distance.
-    double bound = P.r_outer;
-    if (count_[i] != kInvalid) {
-      for (int k = 0; k < count_[i]; ++k) bound = std::min(bound, (pts[list[k]] - x).norm());
-    }
-    std::array<std::pair<double, std::uint32_t>, 64> found;
-    int n_found = 0;
-    bool overflow = false;
-    double best = kInf;
-    std::uint32_t best_slot = 0;
-    auto collect = [&](double radius) {
-      const double keep = radius + 2.0 * delta_;
-      P.hash.for_each_range(x.array() - keep, x.array() + keep, [&](std::uint32_t begin, std::uint32_t end) {
-        double b = best;  // locals, so the loop keeps them in registers
-        std::uint32_t b_slot = best_slot;
-        int count = n_found;
-        for (std::uint32_t s = begin; s < end; ++s) {
-          const double d = (pts[s] - x).norm();
-          if (d < b) {
-            b = d;
-            b_slot = s;
-          }
-          if (d > b + 2.0 * delta_) continue;
-          if (count < static_cast<int>(found.size())) {
-            found[static_cast<std::size_t>(count++)] = {d, s};
-          } else {
-            overflow = true;
-          }
-        }
-        best = b;
-        best_slot = b_slot;
-        n_found = count;
-      });
-    };
-    collect(bound);
-    if (best == kInf || best > bound) {
-      // The nearest is farther than assumed (or beyond the box: far outside): scan again around its distance.
-      const double d0 = best == kInf ? P.nearest(x).distance : best;
-      n_found = 0;
-      overflow = false;
-      collect(d0);
-    }
-    int kept = 0;
-    for (int k = 0; k < n_found; ++k) kept += found[static_cast<std::size_t>(k)].first <= best + 2.0 * delta_;
-    if (overflow || kept > kCapacity) {
-      count_[i] = kInvalid;
-    } else {
-      int k2 = 0;
-      for (int k = 0; k < n_found; ++k) {
-        if (found[static_cast<std::size_t>(k)].first <= best + 2.0 * delta_)
-          list[k2++] = found[static_cast<std::size_t>(k)].second;
-      }
-      std::sort(list, list + k2);
-      count_[i] = static_cast<std::uint8_t>(k2);
-      anchor_[i] = x;
-    }
-    return {&pts[best_slot], best};
-  }
-
-  std::int64_t refreshes() const { return refreshes_.load(); }
-
-  // The nearest-particle distance is 1-Lipschitz: a vertex last seen at c with r_inner + m <= d(c) <= r_outer - m is
-  // faithful anywhere within m of c, with no query at all.
-  bool certainly_faithful(std::size_t i, const Vec3& x) const {
-    return (x - checked_[i]).squaredNorm() < slack_[i] * slack_[i];
-  }
-  void record(std::size_t i, const Vec3& x, double slack) {
-    checked_[i] = x;
-    slack_[i] = std::max(0.0, slack);
-  }
-
- private:
-  static constexpr std::uint8_t kInvalid = 0xff;
-  std::vector<Vec3> checked_;
-  std::vector<double> slack_;
-  std::vector<Vec3> anchor_;
-  std::vector<std::uint8_t> count_;
-  std::vector<std::uint32_t> slots_;
-  double delta_ = 0.0;
-  std::atomic<std::int64_t> refreshes_{0};
-};
-
-// Uniform radii: the projection of Particles::project, with nearest queries from the cache.
-void project_uniform(const Particles& P, NeighbourCache& cache, std::size_t i, Vec3& x) {
-  if (cache.certainly_faithful(i, x)) return;
-  for (int round = 0; round < kMaxProjectionRounds; ++round) {
-    const NeighbourCache::Nearest n = cache.nearest(P, i, x);
-    if (n.distance < P.r_inner * (1.0 - kBandTolerance)) {
-      x = *n.p + P.r_inner * (n.distance > 0.0 ? Vec3((x - *n.p) / n.distance) : Vec3::UnitZ());
-      continue;  // the push may land inside another particle's inner ball
-    }
-    if (n.distance > P.r_outer * (1.0 + kBandTolerance)) {
-      // Toward the nearest particle, which stays the nearest along the way.
-      x = *n.p + (x - *n.p) * (P.r_outer / n.distance);
-      cache.record(i, x, 0.0);
-    } else {
-      cache.record(i, x, std::min(n.distance - P.r_inner, P.r_outer - n.distance));
-    }
-    return;
-  }
-  cache.record(i, x, 0.0);
-}
-
-double violation_uniform(const Particles& P, NeighbourCache& cache, std::size_t i, const Vec3& x) {
-  if (cache.certainly_faithful(i, x)) return 0.0;
-  const double d = cache.nearest(P, i, x).distance;
-  return std::max({P.r_inner - d, d - P.r_outer, 0.0});
-}
 
 // Where f < 0 is certain without a search (uniform radii): a bit per cube of side c of a grid over the particles,
 // set when some particle lies closer than r_outer - c sqrt(3) / 2 to the cube's centre, so that every point of the
@@ -790,7 +660,6 @@ void validate(const ParticleSurfacingOptions& o) {
 struct ParticleSurfacer::State {
   ParticleSurfacingOptions options;
   Particles particles;
-  NeighbourCache cache;
 
   Mesh run(std::span<const Vec3> input, std::span<const double> radii, const RunControl& control,
            ParticleSurfacingStats* stats_out, bool initial_only);
@@ -823,21 +692,18 @@ class Smoother {
   // 1.7 with 15 sweeps reaches a lower energy than 1.4 with 25 (docs/ALGORITHMS.md §1, CHOICE "over-relaxed sweeps").
   static constexpr double kOverRelaxation = 1.7;
 
-  Smoother(Mesh& mesh, const ParticleSurfacingOptions& options, const Particles& particles, NeighbourCache& cache,
-           int threads)
+  Smoother(Mesh& mesh, const ParticleSurfacingOptions& options, const Particles& particles, int threads)
       : mesh_(mesh),
         x_(mesh.vertices),
         n_(x_.size()),
         o_(options),
         P_(particles),
-        cache_(cache),
         threads_(threads),
         ring_(ps::one_ring(n_, mesh.triangles)),
         blocks_(ps::default_block_count(n_)) {
     container_.box = o_.container_box;
     container_.solid = o_.container_solid.get();
     container_.inside_margin = 1e-9 * P_.r_inner;
-    cache_.reset(P_.weighted ? 0 : n_, 0.15 * P_.r_inner);
   }
 
   const ps::Graph& ring() const { return ring_; }
@@ -917,7 +783,6 @@ class Smoother {
     } else {
       faithfulness(stats.faithful_after_polish, stats.max_violation_after_polish);
     }
-    stats.neighbour_refreshes = cache_.refreshes();
   }
 
  private:
@@ -1006,7 +871,7 @@ class Smoother {
           if (P_.weighted) {
             P_.project(x_[i]);
           } else {
-            project_uniform(P_, cache_, i, x_[i]);
+            P_.project_uniform(x_[i]);
           }
         }
         if (container_.active()) container_.project(x_[i]);
@@ -1023,7 +888,7 @@ class Smoother {
       std::size_t good = 0;
       double worst = 0.0;
       for (std::size_t i = begin; i < end; ++i) {
-        const double v = P_.weighted ? P_.violation(x_[i]) : violation_uniform(P_, cache_, i, x_[i]);
+        const double v = P_.weighted ? P_.violation(x_[i]) : P_.violation_uniform(x_[i]);
         good += P_.faithful(v);
         worst = std::max(worst, v);
       }
@@ -1040,7 +905,6 @@ class Smoother {
   const std::size_t n_;
   const ParticleSurfacingOptions& o_;
   const Particles& P_;
-  NeighbourCache& cache_;
   const int threads_;
   const ps::Graph ring_;
   const std::size_t blocks_;
@@ -1167,7 +1031,7 @@ void ParticleSurfacer::State::smooth(Mesh& mesh, int threads, const RunControl& 
   Clock::time_point t0 = Clock::now();
   morton_reorder(mesh, stats.spacing);
   mesh.normals.clear();
-  Smoother smoother(mesh, o, particles, cache, threads);
+  Smoother smoother(mesh, o, particles, threads);
   stats.initial_min_valence = min_valence(smoother.ring());
   smoother.laplacian(control);
   stats.seconds_laplacian = seconds_since(t0);

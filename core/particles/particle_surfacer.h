@@ -122,7 +122,6 @@ struct ParticleSurfacingStats {
   std::int64_t slivers_found = 0, sliver_flips = 0, sliver_collapses = 0, slivers_left = 0;
   double seconds_cleanup = 0.0;
   double seam_fraction = 0.0;            // vertices updated serially in the parallel Gauss-Seidel (see header)
-  std::int64_t neighbour_refreshes = 0;  // constraint queries that rebuilt a vertex's candidate list (uniform radii)
   std::size_t vertices = 0, triangles = 0;
 };
 
