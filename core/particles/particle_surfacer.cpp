@@ -36,16 +36,6 @@ constexpr double kFaithfulTolerance = 1e-9;  // relative slack of the faithfulne
 constexpr int kMaxProjectionRounds = 8;
 constexpr int kMaxNewtonSteps = 16;
 
-// Parallel loop over [0, n) in contiguous chunks.
-template <class Body>
-void for_chunks(std::size_t n, int threads, Body&& body) {
-  const int chunks = static_cast<int>(std::min<std::size_t>(std::max(1, 4 * threads), n / 1024 + 1));
-  parallel_for(chunks, threads, [&](int c) {
-    body(n * static_cast<std::size_t>(c) / static_cast<std::size_t>(chunks),
-         n * static_cast<std::size_t>(c + 1) / static_cast<std::size_t>(chunks));
-  });
-}
-
 // --- Particles ------------------------------------------------------------------------------------------------------
 
 // The particles in use, a spatial hash over them (cell = the largest r_outer) and their radii.
@@ -551,7 +541,7 @@ std::vector<char> filter_components(const Particles& all, int min_size, std::siz
 
 // Renumbers vertices along a Morton curve (cells of `cell`): neighbours in space become neighbours in memory, and
 // contiguous index blocks become compact patches (few seam vertices in the parallel sweeps).
-void morton_reorder(Mesh& mesh, double cell) {
+void morton_reorder(Mesh& mesh, double cell, int threads) {
   const std::size_t n = mesh.vertices.size();
   if (n == 0) return;
   const Aabb box = Aabb::of(mesh.vertices);
@@ -566,26 +556,32 @@ void morton_reorder(Mesh& mesh, double cell) {
   };
   std::vector<std::pair<std::uint64_t, std::uint32_t>> keys(n);
   const double inv = 1.0 / cell;
-  for (std::size_t i = 0; i < n; ++i) {
-    std::uint64_t code = 0;
-    for (int a = 0; a < 3; ++a) {
-      const double q = std::clamp((mesh.vertices[i][a] - box.min[a]) * inv, 0.0, 2097151.0);
-      code |= spread(static_cast<std::uint64_t>(q)) << a;
+  for_chunks(n, threads, [&](std::size_t begin, std::size_t end) {
+    for (std::size_t i = begin; i < end; ++i) {
+      std::uint64_t code = 0;
+      for (int a = 0; a < 3; ++a) {
+        const double q = std::clamp((mesh.vertices[i][a] - box.min[a]) * inv, 0.0, 2097151.0);
+        code |= spread(static_cast<std::uint64_t>(q)) << a;
+      }
+      keys[i] = {code, static_cast<std::uint32_t>(i)};
     }
-    keys[i] = {code, static_cast<std::uint32_t>(i)};
-  }
-  std::sort(keys.begin(), keys.end());
+  });
+  parallel_sort(keys, threads);  // keys are unique (the index breaks ties): the order is the serial sort's
   std::vector<std::uint32_t> new_of_old(n);
   std::vector<Vec3> vertices(n);
   std::vector<Vec3> normals(mesh.normals.empty() ? 0 : n);
-  for (std::size_t k = 0; k < n; ++k) {
-    new_of_old[keys[k].second] = static_cast<std::uint32_t>(k);
-    vertices[k] = mesh.vertices[keys[k].second];
-    if (!normals.empty()) normals[k] = mesh.normals[keys[k].second];
-  }
-  for (Triangle& t : mesh.triangles) {
-    for (std::uint32_t& v : t) v = new_of_old[v];
-  }
+  for_chunks(n, threads, [&](std::size_t begin, std::size_t end) {
+    for (std::size_t k = begin; k < end; ++k) {
+      new_of_old[keys[k].second] = static_cast<std::uint32_t>(k);
+      vertices[k] = mesh.vertices[keys[k].second];
+      if (!normals.empty()) normals[k] = mesh.normals[keys[k].second];
+    }
+  });
+  for_chunks(mesh.triangles.size(), threads, [&](std::size_t begin, std::size_t end) {
+    for (std::size_t t = begin; t < end; ++t) {
+      for (std::uint32_t& v : mesh.triangles[t]) v = new_of_old[v];
+    }
+  });
   mesh.vertices = std::move(vertices);
   mesh.normals = std::move(normals);
 }
@@ -699,7 +695,7 @@ class Smoother {
         o_(options),
         P_(particles),
         threads_(threads),
-        ring_(ps::one_ring(n_, mesh.triangles)),
+        ring_(ps::one_ring(n_, mesh.triangles, threads)),
         blocks_(ps::default_block_count(n_)) {
     container_.box = o_.container_box;
     container_.solid = o_.container_solid.get();
@@ -1029,7 +1025,7 @@ void ParticleSurfacer::State::smooth(Mesh& mesh, int threads, const RunControl& 
                                      ParticleSurfacingStats& stats) {
   const ParticleSurfacingOptions& o = options;
   Clock::time_point t0 = Clock::now();
-  morton_reorder(mesh, stats.spacing);
+  morton_reorder(mesh, stats.spacing, threads);
   mesh.normals.clear();
   Smoother smoother(mesh, o, particles, threads);
   stats.initial_min_valence = min_valence(smoother.ring());
@@ -1094,7 +1090,7 @@ Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const d
   Mesh mesh = polygonize(threads, control, stats);
   stats.seconds_polygonize = seconds_since(t0);
   if (initial_only) {
-    stats.initial_min_valence = min_valence(ps::one_ring(mesh.vertices.size(), mesh.triangles));
+    stats.initial_min_valence = min_valence(ps::one_ring(mesh.vertices.size(), mesh.triangles, threads));
     return finish(std::move(mesh));
   }
 

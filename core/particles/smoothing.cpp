@@ -18,38 +18,49 @@ std::pair<std::size_t, std::size_t> chunk_range(std::size_t n, int chunks, int c
 
 }  // namespace
 
-Graph one_ring(std::size_t vertices, std::span<const Triangle> triangles) {
-  // Both directions of every edge, counted then filled, then each row sorted and deduplicated in place.
-  std::vector<std::uint32_t> count(vertices + 1, 0);
-  for (const Triangle& t : triangles) {
-    for (int c = 0; c < 3; ++c) {
-      const std::uint32_t a = t[c], b = t[(c + 1) % 3];
-      if (a == b) continue;
-      ++count[a + 1];
-      ++count[b + 1];
+Graph one_ring(std::size_t vertices, std::span<const Triangle> triangles, int threads) {
+  // Both directions of every edge, counted then filled, then each row sorted and deduplicated. The rows are cut into
+  // a few vertex ranges; each range scans every triangle and keeps the edges that start in it, so no two threads
+  // write one row.
+  const int parts = static_cast<int>(std::min<std::size_t>(std::clamp(threads, 1, 4), vertices / 65536 + 1));
+  auto for_edges_of_part = [&](int part, auto&& add) {
+    const auto [lo, hi] = chunk_range(vertices, parts, part);
+    for (const Triangle& t : triangles) {
+      for (int c = 0; c < 3; ++c) {
+        const std::uint32_t a = t[c], b = t[(c + 1) % 3];
+        if (a == b) continue;
+        if (a >= lo && a < hi) add(a, b);
+        if (b >= lo && b < hi) add(b, a);
+      }
     }
-  }
+  };
+  std::vector<std::uint32_t> count(vertices + 1, 0);
+  parallel_for(parts, threads, [&](int part) {
+    for_edges_of_part(part, [&](std::uint32_t from, std::uint32_t) { ++count[from + 1]; });
+  });
   for (std::size_t i = 0; i < vertices; ++i) count[i + 1] += count[i];
   std::vector<std::uint32_t> raw(count[vertices]);
   std::vector<std::uint32_t> fill(count.begin(), count.end() - 1);
-  for (const Triangle& t : triangles) {
-    for (int c = 0; c < 3; ++c) {
-      const std::uint32_t a = t[c], b = t[(c + 1) % 3];
-      if (a == b) continue;
-      raw[fill[a]++] = b;
-      raw[fill[b]++] = a;
+  parallel_for(parts, threads, [&](int part) {
+    for_edges_of_part(part, [&](std::uint32_t from, std::uint32_t to) { raw[fill[from]++] = to; });
+  });
+  // Rows sorted and deduplicated in place (fill[i] becomes the end of row i's distinct neighbours), then packed.
+  for_chunks(vertices, threads, [&](std::size_t begin, std::size_t end) {
+    for (std::size_t i = begin; i < end; ++i) {
+      auto row = raw.begin() + count[i];
+      std::sort(row, raw.begin() + count[i + 1]);
+      fill[i] = static_cast<std::uint32_t>(std::unique(row, raw.begin() + count[i + 1]) - raw.begin());
     }
-  }
+  });
   Graph g;
   g.offsets.assign(vertices + 1, 0);
-  g.cols.reserve(raw.size() / 2 + vertices);
-  for (std::size_t i = 0; i < vertices; ++i) {
-    auto begin = raw.begin() + count[i], end = raw.begin() + count[i + 1];
-    std::sort(begin, end);
-    end = std::unique(begin, end);
-    g.cols.insert(g.cols.end(), begin, end);
-    g.offsets[i + 1] = static_cast<std::uint32_t>(g.cols.size());
-  }
+  for (std::size_t i = 0; i < vertices; ++i) g.offsets[i + 1] = g.offsets[i] + (fill[i] - count[i]);
+  g.cols.resize(g.offsets[vertices]);
+  for_chunks(vertices, threads, [&](std::size_t begin, std::size_t end) {
+    for (std::size_t i = begin; i < end; ++i) {
+      std::copy(raw.begin() + count[i], raw.begin() + fill[i], g.cols.begin() + g.offsets[i]);
+    }
+  });
   return g;
 }
 

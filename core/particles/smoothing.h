@@ -21,8 +21,8 @@ struct Graph {
 };
 
 // The 1-ring of every vertex (sorted, without repeats, without the vertex itself). Triangles with a repeated index
-// contribute only their distinct edges.
-Graph one_ring(std::size_t vertices, std::span<const Triangle> triangles);
+// contribute only their distinct edges. The same graph whatever `threads`.
+Graph one_ring(std::size_t vertices, std::span<const Triangle> triangles, int threads = 1);
 
 // Symmetric matrix: the diagonal apart (double), off-diagonal entries in `values` aligned with `graph.cols`, stored as
 // float: a sweep streams the whole matrix, so half the bytes is most of the speed, and 1e-7 relative error in the

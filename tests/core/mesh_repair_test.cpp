@@ -141,12 +141,16 @@ TEST(MeshRepair, RemovesCapsAndNeedlesKeepingTheMeshValid) {
         const MeshReport rb = check_mesh(before);
         ASSERT_GT(count_below(before, 1.0), 0);
         Mesh m = before;
-        const SliverReport r = repair_slivers(m, {.min_angle_degrees = 1.0});
+        const SliverReport r = repair_slivers(m, SliverOptions());
         EXPECT_EQ(r.candidates, count_below(before, 1.0));
         EXPECT_EQ(r.remaining, 0);
         EXPECT_EQ(count_below(m, 1.0), 0);
-        if (!kind.caps) EXPECT_GT(r.collapses, 0);  // a needle's short edge can only be collapsed
-        if (!kind.needles) EXPECT_GT(r.flips, 0);   // a cap is mostly flipped away
+        if (!kind.caps) {
+          EXPECT_GT(r.collapses, 0);  // a needle's short edge can only be collapsed
+        }
+        if (!kind.needles) {
+          EXPECT_GT(r.flips, 0);  // a cap is mostly flipped away
+        }
         EXPECT_EQ(m.vertices.size(), before.vertices.size() - static_cast<std::size_t>(r.collapses));
         EXPECT_EQ(m.triangles.size(), before.triangles.size() - 2 * static_cast<std::size_t>(r.collapses));
         const MeshReport ra = check_mesh(m);
@@ -156,7 +160,7 @@ TEST(MeshRepair, RemovesCapsAndNeedlesKeepingTheMeshValid) {
         EXPECT_NEAR(ra.volume, rb.volume, 0.01 * rb.volume);
         EXPECT_TRUE(vertices_are_a_subsequence(m, before));
         const Mesh once = m;
-        const SliverReport again = repair_slivers(m, {.min_angle_degrees = 1.0});
+        const SliverReport again = repair_slivers(m, SliverOptions());
         EXPECT_EQ(again.candidates, 0);
         EXPECT_EQ(m.triangles, once.triangles);
       }
@@ -164,11 +168,17 @@ TEST(MeshRepair, RemovesCapsAndNeedlesKeepingTheMeshValid) {
   }
 }
 
+SliverOptions with_threads(int threads) {
+  SliverOptions o;
+  o.threads = threads;
+  return o;
+}
+
 TEST(MeshRepair, SameResultOnAnyThreadCount) {
   const Mesh before = sphere_with_slivers(11, 20, 1e-3, true, true);
   Mesh one = before, four = before;
-  const SliverReport r1 = repair_slivers(one, {.threads = 1});
-  const SliverReport r4 = repair_slivers(four, {.threads = 4});
+  const SliverReport r1 = repair_slivers(one, with_threads(1));
+  const SliverReport r4 = repair_slivers(four, with_threads(4));
   EXPECT_EQ(r1.flips, r4.flips);
   EXPECT_EQ(r1.collapses, r4.collapses);
   EXPECT_EQ(one.vertices, four.vertices);
@@ -215,7 +225,9 @@ TEST(MeshRepair, TrianglesDegenerateOnTheOutputGridAreRepaired) {
 TEST(MeshRepair, KeepsTheValenceFloor) {
   for (int seed = 0; seed < 4; ++seed) {
     Mesh m = sphere_with_slivers(seed, 16, 1e-4, true, true);
-    (void)repair_slivers(m, {.min_valence = 6});
+    SliverOptions floor6;
+    floor6.min_valence = 6;
+    (void)repair_slivers(m, floor6);
     // icosphere vertices have valence 5 (twelve of them) or 6; those at 6 may not drop below it.
     const MeshReport r = check_mesh(m);
     EXPECT_TRUE(testing::mesh_has(r, testing::kClosedManifold));

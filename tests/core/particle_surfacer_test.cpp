@@ -292,6 +292,37 @@ Mesh noisy_sphere(int subdivisions, double noise, std::uint32_t seed) {
   return m;
 }
 
+// The 1-ring against a set-based reference, on a closed mesh large enough to be cut into several vertex ranges and on
+// a soup with repeated and degenerate triangles, for several thread counts.
+TEST(ParticleSmoothing, OneRingIsTheSetOfEdgeNeighboursWhateverTheThreads) {
+  Mesh soup;
+  std::mt19937 rng(5);
+  std::uniform_int_distribution<std::uint32_t> pick(0, 149999);
+  for (int t = 0; t < 300000; ++t) soup.triangles.push_back({pick(rng), pick(rng), t % 7 == 0 ? 17u : pick(rng)});
+  for (const Mesh& m : {testing::icosphere(7, 1.0), soup}) {
+    const std::size_t n = m.triangles.size() == 300000 ? 150000 : m.vertices.size();
+    ASSERT_GT(n, 2u * 65536u);
+    std::vector<std::set<std::uint32_t>> reference(n);
+    for (const Triangle& t : m.triangles) {
+      for (int c = 0; c < 3; ++c) {
+        const std::uint32_t a = t[c], b = t[(c + 1) % 3];
+        if (a == b) continue;
+        reference[a].insert(b);
+        reference[b].insert(a);
+      }
+    }
+    for (const int threads : {1, 2, 3, 8}) {
+      SCOPED_TRACE(threads);
+      const ps::Graph ring = ps::one_ring(n, m.triangles, threads);
+      ASSERT_EQ(ring.rows(), n);
+      for (std::size_t i = 0; i < n; ++i) {
+        const std::vector<std::uint32_t> row(ring.cols.begin() + ring.offsets[i], ring.cols.begin() + ring.offsets[i + 1]);
+        ASSERT_EQ(row, std::vector<std::uint32_t>(reference[i].begin(), reference[i].end())) << "vertex " << i;
+      }
+    }
+  }
+}
+
 TEST(ParticleSmoothing, BilaplacianIsSymmetricPositiveSemidefiniteWithTwoRingSupport) {
   const Mesh m = noisy_sphere(3, 0.05, 1);
   const ps::Graph ring = ps::one_ring(m.vertices.size(), m.triangles);

@@ -7,6 +7,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <chrono>
 #include <future>
 #include <regex>
 #include <thread>
@@ -75,9 +76,16 @@ TEST(Observability, MetricsEndpointCountsJobsFramesStagesAndBytes) {
   v1::JobSpec bad;
   EXPECT_FALSE(submit(*s.stub, bad, &id).ok());
 
-  const std::string response = http_get(port, "/metrics");
-  ASSERT_NE(response.find("200 OK"), std::string::npos) << response.substr(0, 200);
-  const std::string text = response.substr(response.find("\r\n\r\n") + 3);
+  // The finished counter follows the terminal state a watcher sees by a moment (the job's end hooks run after it is
+  // settled): scrape until it is there.
+  std::string text;
+  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+  do {
+    const std::string response = http_get(port, "/metrics");
+    ASSERT_NE(response.find("200 OK"), std::string::npos) << response.substr(0, 200);
+    text = response.substr(response.find("\r\n\r\n") + 3);
+  } while (metric_sample(text, R"(surfacer_jobs_finished_total{kind="isosurface",state="succeeded"})") != 1 &&
+           std::chrono::steady_clock::now() < until);
   EXPECT_EQ(metric_sample(text, R"(surfacer_jobs_submitted_total{kind="isosurface"})"), 1);
   EXPECT_EQ(metric_sample(text, R"(surfacer_frames_total{kind="isosurface"})"), 3);
   EXPECT_EQ(metric_sample(text, R"(surfacer_jobs{state="succeeded"})"), 1);
