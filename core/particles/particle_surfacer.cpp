@@ -723,7 +723,7 @@ class Smoother {
     normals_ = smoothed_normals();
     intervals(control);
     smoothing_.emplace(ring_, ps::cotangent_laplacian(x_, mesh_.triangles, ring_, threads_, control), x0_, normals_,
-                       blocks_);
+                       blocks_, threads_);
     stats.seam_fraction =
         n_ > 0 ? static_cast<double>(smoothing_->plan().seams.size()) / static_cast<double>(n_) : 0.0;
     control.report("build_b", 1.0);
@@ -762,7 +762,7 @@ class Smoother {
   void erosion(const RunControl& control, ParticleSurfacingStats& stats) {
     control.check();
     const std::vector<Vec3> before = x_;
-    const std::vector<Vec3> normals = ps::vertex_normals(x_, mesh_.triangles);
+    const std::vector<Vec3> normals = ps::vertex_normals(x_, mesh_.triangles, threads_);
     const double depth = *o_.erosion * P_.r_inner;
     for (std::size_t i = 0; i < n_; ++i) x_[i] -= depth * normals[i];
     constrain(false);
@@ -785,7 +785,7 @@ class Smoother {
   // Area-weighted vertex normals averaged once over the 1-ring: the r_outer start is corrugated at the particle
   // scale, and these tilt less with it.
   std::vector<Vec3> smoothed_normals() const {
-    const std::vector<Vec3> raw = ps::vertex_normals(x_, mesh_.triangles);
+    const std::vector<Vec3> raw = ps::vertex_normals(x_, mesh_.triangles, threads_);
     std::vector<Vec3> out(n_);
     for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
       for (std::size_t i = begin; i < end; ++i) {
@@ -1060,7 +1060,7 @@ void ParticleSurfacer::State::smooth(Mesh& mesh, int threads, const RunControl& 
     stats.seconds_cleanup = seconds_since(t0);
     control.report("cleanup", 1.0);
   }
-  if (o.normals) mesh.normals = ps::vertex_normals(mesh.vertices, mesh.triangles);
+  if (o.normals) mesh.normals = ps::vertex_normals(mesh.vertices, mesh.triangles, threads);
 }
 
 Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const double> radii, const RunControl& control,

@@ -16,15 +16,33 @@ std::pair<std::size_t, std::size_t> chunk_range(std::size_t n, int chunks, int c
           n * static_cast<std::size_t>(c + 1) / static_cast<std::size_t>(chunks)};
 }
 
+// A compressed-row table (offsets, values) filled by scan(lo, hi, add), which must call add(row, value) for every
+// entry whose row lies in [lo, hi), in the same order on every call. The rows are cut into a few ranges that fill
+// in parallel (each range's scan reads all the input and keeps its own rows): the table is the serial one.
+template <class Scan>
+void rows_by_range(std::size_t rows, int threads, std::vector<std::uint32_t>& offsets,
+                   std::vector<std::uint32_t>& values, Scan&& scan) {
+  const int parts = static_cast<int>(std::min<std::size_t>(std::clamp(threads, 1, 4), rows / 65536 + 1));
+  offsets.assign(rows + 1, 0);
+  parallel_for(parts, threads, [&](int part) {
+    const auto [lo, hi] = chunk_range(rows, parts, part);
+    scan(lo, hi, [&](std::uint32_t row, std::uint32_t) { ++offsets[row + 1]; });
+  });
+  for (std::size_t i = 0; i < rows; ++i) offsets[i + 1] += offsets[i];
+  values.resize(offsets[rows]);
+  std::vector<std::uint32_t> fill(offsets.begin(), offsets.end() - 1);
+  parallel_for(parts, threads, [&](int part) {
+    const auto [lo, hi] = chunk_range(rows, parts, part);
+    scan(lo, hi, [&](std::uint32_t row, std::uint32_t value) { values[fill[row]++] = value; });
+  });
+}
+
 }  // namespace
 
 Graph one_ring(std::size_t vertices, std::span<const Triangle> triangles, int threads) {
-  // Both directions of every edge, counted then filled, then each row sorted and deduplicated. The rows are cut into
-  // a few vertex ranges; each range scans every triangle and keeps the edges that start in it, so no two threads
-  // write one row.
-  const int parts = static_cast<int>(std::min<std::size_t>(std::clamp(threads, 1, 4), vertices / 65536 + 1));
-  auto for_edges_of_part = [&](int part, auto&& add) {
-    const auto [lo, hi] = chunk_range(vertices, parts, part);
+  // Both directions of every edge, bucketed by vertex, then each row sorted and deduplicated.
+  std::vector<std::uint32_t> count, raw;
+  rows_by_range(vertices, threads, count, raw, [&](std::size_t lo, std::size_t hi, auto&& add) {
     for (const Triangle& t : triangles) {
       for (int c = 0; c < 3; ++c) {
         const std::uint32_t a = t[c], b = t[(c + 1) % 3];
@@ -33,32 +51,23 @@ Graph one_ring(std::size_t vertices, std::span<const Triangle> triangles, int th
         if (b >= lo && b < hi) add(b, a);
       }
     }
-  };
-  std::vector<std::uint32_t> count(vertices + 1, 0);
-  parallel_for(parts, threads, [&](int part) {
-    for_edges_of_part(part, [&](std::uint32_t from, std::uint32_t) { ++count[from + 1]; });
   });
-  for (std::size_t i = 0; i < vertices; ++i) count[i + 1] += count[i];
-  std::vector<std::uint32_t> raw(count[vertices]);
-  std::vector<std::uint32_t> fill(count.begin(), count.end() - 1);
-  parallel_for(parts, threads, [&](int part) {
-    for_edges_of_part(part, [&](std::uint32_t from, std::uint32_t to) { raw[fill[from]++] = to; });
-  });
-  // Rows sorted and deduplicated in place (fill[i] becomes the end of row i's distinct neighbours), then packed.
+  // Rows sorted and deduplicated in place (row_end[i]: the end of row i's distinct neighbours), then packed.
+  std::vector<std::uint32_t> row_end(vertices);
   for_chunks(vertices, threads, [&](std::size_t begin, std::size_t end) {
     for (std::size_t i = begin; i < end; ++i) {
       auto row = raw.begin() + count[i];
       std::sort(row, raw.begin() + count[i + 1]);
-      fill[i] = static_cast<std::uint32_t>(std::unique(row, raw.begin() + count[i + 1]) - raw.begin());
+      row_end[i] = static_cast<std::uint32_t>(std::unique(row, raw.begin() + count[i + 1]) - raw.begin());
     }
   });
   Graph g;
   g.offsets.assign(vertices + 1, 0);
-  for (std::size_t i = 0; i < vertices; ++i) g.offsets[i + 1] = g.offsets[i] + (fill[i] - count[i]);
+  for (std::size_t i = 0; i < vertices; ++i) g.offsets[i + 1] = g.offsets[i] + (row_end[i] - count[i]);
   g.cols.resize(g.offsets[vertices]);
   for_chunks(vertices, threads, [&](std::size_t begin, std::size_t end) {
     for (std::size_t i = begin; i < end; ++i) {
-      std::copy(raw.begin() + count[i], raw.begin() + fill[i], g.cols.begin() + g.offsets[i]);
+      std::copy(raw.begin() + count[i], raw.begin() + row_end[i], g.cols.begin() + g.offsets[i]);
     }
   });
   return g;
@@ -96,19 +105,16 @@ Cotangent cotangent_laplacian(std::span<const Vec3> x, std::span<const Triangle>
   });
   control.check();
 
-  // The triangles of every vertex (counting sort of the corners), so that each vertex assembles its own row of W.
-  std::vector<std::uint32_t> corner_offsets(n + 1, 0);
-  for (const Triangle& t : triangles) {
-    for (const std::uint32_t v : t) ++corner_offsets[v + 1];
-  }
-  for (std::size_t i = 0; i < n; ++i) corner_offsets[i + 1] += corner_offsets[i];
-  std::vector<std::uint32_t> corner_list(corner_offsets[n]);  // 3 * triangle + corner
-  {
-    std::vector<std::uint32_t> fill(corner_offsets.begin(), corner_offsets.end() - 1);
+  // The triangles of every vertex (its corners, 3 * triangle + corner), so that each vertex assembles its own row of W.
+  std::vector<std::uint32_t> corner_offsets, corner_list;
+  rows_by_range(n, threads, corner_offsets, corner_list, [&](std::size_t lo, std::size_t hi, auto&& add) {
     for (std::size_t t = 0; t < triangles.size(); ++t) {
-      for (std::uint32_t k = 0; k < 3; ++k) corner_list[fill[triangles[t][k]]++] = static_cast<std::uint32_t>(3 * t + k);
+      for (std::uint32_t k = 0; k < 3; ++k) {
+        const std::uint32_t v = triangles[t][k];
+        if (v >= lo && v < hi) add(v, static_cast<std::uint32_t>(3 * t + k));
+      }
     }
-  }
+  });
   control.check();
 
   // W (aligned with ring.cols), its diagonal and the inverse vertex areas, row by row in parallel. Corner k of a
@@ -289,14 +295,16 @@ void laplacian_sweep(std::vector<Vec3>& x, const Graph& ring, double relaxation,
 }
 
 
-SweepPlan plan_two_ring_sweeps(const Graph& ring, std::size_t blocks) {
+SweepPlan plan_two_ring_sweeps(const Graph& ring, std::size_t blocks, int threads) {
   const std::size_t n = ring.rows();
   blocks = std::max<std::size_t>(1, std::min(blocks, std::max<std::size_t>(1, n)));
   auto block_begin = [&](std::size_t b) { return (n * b + blocks - 1) / blocks; };  // first v of block b
   // inside[k]: k's whole 1-ring lies in k's block. Then v's 2-ring lies in v's block exactly when inside[k] holds
-  // for every neighbour k of v (v itself is in k's ring, so k shares v's block).
+  // for every neighbour k of v (v itself is in k's ring, so k shares v's block). Blocks in parallel: each writes
+  // its own vertices, then its own lists, joined in block order.
   std::vector<std::uint8_t> inside(n);
-  for (std::size_t b = 0; b < blocks; ++b) {
+  const int block_count = static_cast<int>(blocks);
+  parallel_for(block_count, threads, [&](int b) {
     const std::size_t begin = block_begin(b), end = block_begin(b + 1);
     for (std::size_t k = begin; k < end; ++k) {
       bool all = true;
@@ -305,47 +313,53 @@ SweepPlan plan_two_ring_sweeps(const Graph& ring, std::size_t blocks) {
       }
       inside[k] = all;
     }
-  }
+  });
+  std::vector<std::vector<std::uint32_t>> interior(blocks), seams(blocks);
+  parallel_for(block_count, threads, [&](int b) {
+    for (std::size_t v = block_begin(b); v < block_begin(b + 1); ++v) {
+      bool in = true;
+      for (std::uint32_t e = ring.offsets[v]; e < ring.offsets[v + 1] && in; ++e) in = inside[ring.cols[e]];
+      (in ? interior[b] : seams[b]).push_back(static_cast<std::uint32_t>(v));
+    }
+  });
   SweepPlan plan;
   plan.block_begin.assign(blocks + 1, 0);
   plan.interior.reserve(n);
   for (std::size_t b = 0; b < blocks; ++b) {
-    const std::size_t begin = block_begin(b), end = block_begin(b + 1);
-    for (std::size_t v = begin; v < end; ++v) {
-      bool interior = true;
-      for (std::uint32_t e = ring.offsets[v]; e < ring.offsets[v + 1] && interior; ++e) interior = inside[ring.cols[e]];
-      (interior ? plan.interior : plan.seams).push_back(static_cast<std::uint32_t>(v));
-    }
+    plan.interior.insert(plan.interior.end(), interior[b].begin(), interior[b].end());
+    plan.seams.insert(plan.seams.end(), seams[b].begin(), seams[b].end());
     plan.block_begin[b + 1] = static_cast<std::uint32_t>(plan.interior.size());
   }
   return plan;
 }
 
 OffsetSmoothing::OffsetSmoothing(const Graph& ring, const Cotangent& cotangent, std::span<const Vec3> x0,
-                                 std::span<const Vec3> normals, std::size_t blocks)
+                                 std::span<const Vec3> normals, std::size_t blocks, int threads)
     : ring_(ring),
       w_diag_(cotangent.w_diag),
       inv_area_(cotangent.inv_area),
       x0_(x0),
       normals_(normals),
-      plan_(plan_two_ring_sweeps(ring, blocks)),
+      plan_(plan_two_ring_sweeps(ring, blocks, threads)),
       t_(ring.rows(), 0.0),
       z_(ring.rows()) {
   const std::size_t n = ring.rows();
   rows_.resize(n);
   entries_.resize(cotangent.w.size());
-  for (std::size_t i = 0; i < n; ++i) {
-    const double c_diag = w_diag_[i] * inv_area_[i];
-    double d = w_diag_[i] * c_diag;
-    for (std::uint32_t e = ring.offsets[i]; e < ring.offsets[i + 1]; ++e) {
-      const double w = static_cast<float>(cotangent.w[e]), c = w * inv_area_[ring.cols[e]];  // W as the sweeps see it
-      entries_[e] = {static_cast<float>(c), static_cast<float>(w)};
-      d += w * c;
+  for_chunks(n, threads, [&](std::size_t begin, std::size_t end) {
+    for (std::size_t i = begin; i < end; ++i) {
+      const double c_diag = w_diag_[i] * inv_area_[i];
+      double d = w_diag_[i] * c_diag;
+      for (std::uint32_t e = ring.offsets[i]; e < ring.offsets[i + 1]; ++e) {
+        const double w = static_cast<float>(cotangent.w[e]), c = w * inv_area_[ring.cols[e]];  // W as sweeps see it
+        entries_[e] = {static_cast<float>(c), static_cast<float>(w)};
+        d += w * c;
+      }
+      // inv_diag 0: a vertex without area does not move.
+      rows_[i] = {normals[i].cast<float>(), static_cast<float>(c_diag), static_cast<float>(w_diag_[i]),
+                  d > 0.0 ? static_cast<float>(1.0 / d) : 0.0f};
     }
-    // inv_diag 0: a vertex without area does not move.
-    rows_[i] = {normals[i].cast<float>(), static_cast<float>(c_diag), static_cast<float>(w_diag_[i]),
-                d > 0.0 ? static_cast<float>(1.0 / d) : 0.0f};
-  }
+  });
 }
 
 void OffsetSmoothing::update_z(int threads) {
@@ -431,17 +445,28 @@ double energy(const SparseMatrix& b, std::span<const Vec3> x) {
   return e;
 }
 
-std::vector<Vec3> vertex_normals(std::span<const Vec3> x, std::span<const Triangle> triangles) {
-  std::vector<Vec3> n(x.size(), Vec3::Zero());
-  for (const Triangle& t : triangles) {
-    const Vec3 a = (x[t[1]] - x[t[0]]).cross(x[t[2]] - x[t[0]]);  // |a| = 2 area
-    for (int c = 0; c < 3; ++c) n[t[c]] += a;
-  }
-  for (Vec3& v : n) {
-    const double len = v.norm();
-    v = len > 0.0 ? Vec3(v / len) : Vec3::Zero();
-  }
-  return n;
+std::vector<Vec3> vertex_normals(std::span<const Vec3> x, std::span<const Triangle> triangles, int threads) {
+  // Each vertex range sums, in triangle order, the face normals of the triangles at its vertices: the same sums as
+  // one serial pass.
+  const std::size_t n = x.size();
+  std::vector<Vec3> normals(n, Vec3::Zero());
+  const int parts = static_cast<int>(std::min<std::size_t>(std::clamp(threads, 1, 4), n / 65536 + 1));
+  parallel_for(parts, threads, [&](int part) {
+    const auto [lo, hi] = chunk_range(n, parts, part);
+    for (const Triangle& t : triangles) {
+      const bool mine[3] = {t[0] >= lo && t[0] < hi, t[1] >= lo && t[1] < hi, t[2] >= lo && t[2] < hi};
+      if (!mine[0] && !mine[1] && !mine[2]) continue;
+      const Vec3 a = (x[t[1]] - x[t[0]]).cross(x[t[2]] - x[t[0]]);  // |a| = 2 area
+      for (int c = 0; c < 3; ++c) {
+        if (mine[c]) normals[t[c]] += a;
+      }
+    }
+    for (std::size_t v = lo; v < hi; ++v) {
+      const double len = normals[v].norm();
+      normals[v] = len > 0.0 ? Vec3(normals[v] / len) : Vec3::Zero();
+    }
+  });
+  return normals;
 }
 
 }  // namespace surfacer::particle_smoothing

@@ -75,7 +75,7 @@ SweepPlan plan_sweeps(const Graph& rows, std::size_t blocks);
 void laplacian_sweep(std::vector<Vec3>& x, const Graph& ring, double relaxation, const SweepPlan& plan, int threads);
 // The same order for sweeps whose update of vertex i reads and writes the 1-rings of i's neighbours (2-ring support):
 // interior means the whole 2-ring lies in the block.
-SweepPlan plan_two_ring_sweeps(const Graph& ring, std::size_t blocks);
+SweepPlan plan_two_ring_sweeps(const Graph& ring, std::size_t blocks, int threads = 1);
 
 // Smoothing by moves along fixed unit normals only: x = x0 + t n, one offset t_i per vertex, minimizing the energy
 // x^T B x (summed over the coordinates) with B applied through W, never formed: with z = W x,
@@ -88,7 +88,7 @@ class OffsetSmoothing {
  public:
   // x0 and normals must outlive the smoothing (they are not copied).
   OffsetSmoothing(const Graph& ring, const Cotangent& cotangent, std::span<const Vec3> x0,
-                  std::span<const Vec3> normals, std::size_t blocks);
+                  std::span<const Vec3> normals, std::size_t blocks, int threads = 1);
   // One sweep of projected SOR, t_i <- clamp(t_i - omega (dE/dt_i) / (d2E/dt_i^2), lo_i, hi_i) (no clamp when the
   // bounds are empty; omega in (0, 2), 1 is plain Gauss-Seidel), in plan() order: block interiors in parallel, then
   // the seams. Never increases the energy; byte-identical results whatever `threads`.
@@ -127,7 +127,7 @@ class OffsetSmoothing {
 // sum over the three coordinates of x^T B x.
 double energy(const SparseMatrix& b, std::span<const Vec3> x);
 
-// Area-weighted unit vertex normals (zero for vertices without area).
-std::vector<Vec3> vertex_normals(std::span<const Vec3> x, std::span<const Triangle> triangles);
+// Area-weighted unit vertex normals (zero for vertices without area); the same whatever `threads`.
+std::vector<Vec3> vertex_normals(std::span<const Vec3> x, std::span<const Triangle> triangles, int threads = 1);
 
 }  // namespace surfacer::particle_smoothing

@@ -323,6 +323,25 @@ TEST(ParticleSmoothing, OneRingIsTheSetOfEdgeNeighboursWhateverTheThreads) {
   }
 }
 
+// Normals and the two-ring sweep plan are built in parallel pieces: the same bits and lists whatever the threads.
+TEST(ParticleSmoothing, NormalsAndSweepPlanAreTheSameWhateverTheThreads) {
+  const Mesh m = noisy_sphere(7, 0.02, 3);
+  ASSERT_GT(m.vertices.size(), 2u * 65536u);
+  const ps::Graph ring = ps::one_ring(m.vertices.size(), m.triangles, 2);
+  const std::vector<Vec3> normals = ps::vertex_normals(m.vertices, m.triangles, 1);
+  const ps::SweepPlan plan = ps::plan_two_ring_sweeps(ring, 8, 1);
+  EXPECT_EQ(plan.interior.size() + plan.seams.size(), m.vertices.size());
+  for (const Vec3& n : normals) ASSERT_NEAR(n.norm(), 1.0, 1e-12);
+  for (const int threads : {2, 3, 8}) {
+    SCOPED_TRACE(threads);
+    EXPECT_EQ(ps::vertex_normals(m.vertices, m.triangles, threads), normals);
+    const ps::SweepPlan p = ps::plan_two_ring_sweeps(ring, 8, threads);
+    EXPECT_EQ(p.interior, plan.interior);
+    EXPECT_EQ(p.seams, plan.seams);
+    EXPECT_EQ(p.block_begin, plan.block_begin);
+  }
+}
+
 TEST(ParticleSmoothing, BilaplacianIsSymmetricPositiveSemidefiniteWithTwoRingSupport) {
   const Mesh m = noisy_sphere(3, 0.05, 1);
   const ps::Graph ring = ps::one_ring(m.vertices.size(), m.triangles);
