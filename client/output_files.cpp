@@ -44,7 +44,8 @@ const char* file_format_name(FileFormat format) {
 
 FrameOutputOptions frame_output_options(const std::string& target, const std::vector<std::string>& formats,
                                         const std::string& command) {
-  if (target.empty()) throw usage(command + " needs an output directory: -o DIR (or a file pattern: -o 'out/f_{:04d}.ply')");
+  if (target.empty())
+    throw usage(command + " needs an output directory: -o DIR (or a file pattern: -o 'out/f_{:04d}.ply')");
   FrameOutputOptions options;
   if (!is_sequence_pattern(target)) {
     options.dir = target;

@@ -95,8 +95,7 @@ std::map<int, fs::path> frames_present(const std::string& pattern, const std::st
     if (!inserted) {
       const std::string other = at->second.filename().string();
       throw usage(where + ": " + std::min(other, name) + " and " + std::max(other, name) + " are both frame " +
-                  std::to_string(number) +
-                  "; remove one, or give the padding, e.g. {:04d}");
+                  std::to_string(number) + "; remove one, or give the padding, e.g. {:04d}");
     }
   }
   return frames;

@@ -137,10 +137,9 @@ WatchResult JobWatcher::run() {
     assembler.reset();
     const auto deadline = last_success + policy_.budget;
     // With a FrameHandler the caller decides what happens to the job (scale-out hands its frames to another server).
-    const std::string resume = writer_ == nullptr
-                                   ? std::string()
-                                   : "; resume with: surfacer watch " + job_id_ + " --from-frame " +
-                                         std::to_string(next_missing()) + " -o " + writer_->target();
+    const std::string resume = writer_ == nullptr ? std::string()
+                                                  : "; resume with: surfacer watch " + job_id_ + " --from-frame " +
+                                                        std::to_string(next_missing()) + " -o " + writer_->target();
     if (std::chrono::steady_clock::now() >= deadline) {
       throw CliError(ExitCode::kUnreachable,
                      "lost the connection to " + connection_.describe() + " while watching job " + job_id_ +

@@ -177,24 +177,14 @@ void Job::finished_hooks() {
     error = error_.message();
   }
   const LogLevel level = state_text == "JOB_STATE_FAILED" ? LogLevel::kWarn : LogLevel::kInfo;
-  if (error.empty()) {
-    log_event(level, "job_finished",
-              {{"job", id_},
-               {"kind", kind_},
-               {"state", state_text},
-               {"frames", frames},
-               {"frames_total", frames_total},
-               {"duration_s", duration}});
-  } else {
-    log_event(level, "job_finished",
-              {{"job", id_},
-               {"kind", kind_},
-               {"state", state_text},
-               {"frames", frames},
-               {"frames_total", frames_total},
-               {"duration_s", duration},
-               {"error", error}});
-  }
+  std::vector<LogField> fields = {{"job", id_},
+                                  {"kind", kind_},
+                                  {"state", state_text},
+                                  {"frames", frames},
+                                  {"frames_total", frames_total},
+                                  {"duration_s", duration}};
+  if (!error.empty()) fields.emplace_back("error", error);
+  log_event(level, "job_finished", fields);
   persist();
   if (hooks_ && hooks_->on_finished) hooks_->on_finished(*this, state());
 }

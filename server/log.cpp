@@ -48,7 +48,7 @@ void append_value(std::string& out, std::string_view value) {
 
 void set_log_level(LogLevel level) { g_level.store(static_cast<int>(level)); }
 
-void log_event(LogLevel level, std::string_view event, std::initializer_list<LogField> fields) {
+void log_event(LogLevel level, std::string_view event, std::span<const LogField> fields) {
   if (static_cast<int>(level) < g_level.load()) return;
   const auto now = std::chrono::system_clock::now();
   const std::time_t secs = std::chrono::system_clock::to_time_t(now);

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <initializer_list>
+#include <span>
 #include <string>
 #include <string_view>
 #include <utility>
@@ -13,7 +14,10 @@ enum class LogLevel { kDebug, kInfo, kWarn, kError };
 
 using LogField = std::pair<std::string_view, std::string>;
 
-void log_event(LogLevel level, std::string_view event, std::initializer_list<LogField> fields = {});
+void log_event(LogLevel level, std::string_view event, std::span<const LogField> fields);
+inline void log_event(LogLevel level, std::string_view event, std::initializer_list<LogField> fields = {}) {
+  log_event(level, event, std::span<const LogField>(fields.begin(), fields.size()));
+}
 // Messages below this level are dropped (default kInfo).
 void set_log_level(LogLevel level);
 

@@ -76,10 +76,10 @@ class Adjacency {
 // A candidate repair of one bad triangle: flip one of its edges, or collapse one onto one of its ends.
 struct Move {
   enum class Kind { kFlip, kCollapse } kind = Kind::kFlip;
-  int edge = 0;             // edge k = (tri[k], tri[k+1]) of the triangle
-  bool keep_first = true;   // collapse: keep tri[k] (else tri[k+1])
-  double before = 0.0;      // the worst quality among the triangles the move removes or changes
-  double after = 0.0;       // the worst quality among the triangles it makes
+  int edge = 0;            // edge k = (tri[k], tri[k+1]) of the triangle
+  bool keep_first = true;  // collapse: keep tri[k] (else tri[k+1])
+  double before = 0.0;     // the worst quality among the triangles the move removes or changes
+  double after = 0.0;      // the worst quality among the triangles it makes
   std::array<std::uint32_t, 2> blocked{kDead, kDead};  // vertices the move would take below the valence floor
 };
 
@@ -114,10 +114,9 @@ class Repair {
         if (v != kDead && !may_lose(v)) raised = raised && raise_valence(v, t, changed);
       }
       // The flips changed the neighbourhood: evaluate the same move again.
-      const std::optional<Move> again =
-          !raised                          ? std::nullopt
-          : m.kind == Move::Kind::kFlip ? evaluate_flip(t, m.edge)
-                                        : evaluate_collapse(t, m.edge, m.keep_first);
+      const std::optional<Move> again = !raised                       ? std::nullopt
+                                        : m.kind == Move::Kind::kFlip ? evaluate_flip(t, m.edge)
+                                                                      : evaluate_collapse(t, m.edge, m.keep_first);
       if (again && again->blocked[0] == kDead && again->after > again->before) return apply(t, *again, changed);
       roll_back(mark);  // the raising flips served nothing: the mesh stays as it was
     }

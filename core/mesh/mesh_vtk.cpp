@@ -49,9 +49,10 @@ std::string legacy(const Mesh& mesh, bool double_precision) {
   check_mesh_writable(mesh, "VTK");
   const std::size_t triangles = mesh.triangles.size();
   if (triangles > static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max()) / 4) {
-    throw InvalidInput("triangles", "a legacy .vtk file holds at most 536870911 triangles (its cell list size is a "
-                                    "32-bit count); this mesh has " +
-                                        std::to_string(triangles) + ": write .vtu instead");
+    throw InvalidInput("triangles",
+                       "a legacy .vtk file holds at most 536870911 triangles (its cell list size is a "
+                       "32-bit count); this mesh has " +
+                           std::to_string(triangles) + ": write .vtu instead");
   }
   const char* type = double_precision ? "double" : "float";
   std::string out = "# vtk DataFile Version 4.2\nsurfacer\nBINARY\nDATASET UNSTRUCTURED_GRID\nPOINTS " +
@@ -140,8 +141,8 @@ void data_array(std::string& out, const char* type, const char* name, int compon
 std::string xml(const Mesh& mesh, bool double_precision) {
   check_mesh_writable(mesh, "VTU");
   const std::size_t triangles = mesh.triangles.size();
-  const bool wide = 3 * static_cast<std::uint64_t>(triangles) >
-                    static_cast<std::uint64_t>(std::numeric_limits<std::int32_t>::max());
+  const bool wide =
+      3 * static_cast<std::uint64_t>(triangles) > static_cast<std::uint64_t>(std::numeric_limits<std::int32_t>::max());
   std::string connectivity, offsets, types(triangles, static_cast<char>(kVtkTriangle));
   connectivity.reserve(triangles * (wide ? 24 : 12));
   offsets.reserve(triangles * (wide ? 8 : 4));

@@ -78,8 +78,9 @@ class JsonPoints {
       pos_ = start;
       fail(name_, where(),
            "expected a number in " + which +
-               (start < text_.size() ? ", found " + quote(text_.substr(start, std::min<std::size_t>(20, text_.size() - start)))
-                                     : ", found the end"));
+               (start < text_.size()
+                    ? ", found " + quote(text_.substr(start, std::min<std::size_t>(20, text_.size() - start)))
+                    : ", found the end"));
     }
     return v;
   }

@@ -245,9 +245,9 @@ struct Tag {
 struct ArrayRef {
   Tag tag;
   bool points = false;
-  std::int64_t count = 0;          // values: points x 3, or radii
-  std::string_view content;        // inline arrays: the text between the tags
-  std::size_t content_at = 0;      // ... and where it starts
+  std::int64_t count = 0;               // values: points x 3, or radii
+  std::string_view content;             // inline arrays: the text between the tags
+  std::size_t content_at = 0;           // ... and where it starts
   std::optional<std::uint64_t> offset;  // appended arrays: offset into the appended data
   std::vector<double> values;           // inline arrays: decoded as soon as they are met
 };
@@ -448,8 +448,8 @@ class XmlReader {
   };
 
   std::uint64_t header_word(const std::string& bytes, std::size_t index) const {
-    const double v = read_scalar(bytes.data() + index * header_size_,
-                                 header_size_ == 8 ? Scalar::kU64 : Scalar::kU32, big_endian_);
+    const double v =
+        read_scalar(bytes.data() + index * header_size_, header_size_ == 8 ? Scalar::kU64 : Scalar::kU32, big_endian_);
     return v >= 1.8e19 ? std::numeric_limits<std::uint64_t>::max() : static_cast<std::uint64_t>(v);
   }
 
@@ -470,8 +470,10 @@ class XmlReader {
     const std::uint64_t blocks = header_word(head, 0), block_size = header_word(head, 1),
                         last_size = header_word(head, 2);
     if (blocks > in.left() / header_size_) {
-      fail(name_, in.where(), "compressed DataArray declares " + std::to_string(blocks) + " blocks; the file is "
-                              "too short for their sizes");
+      fail(name_, in.where(),
+           "compressed DataArray declares " + std::to_string(blocks) +
+               " blocks; the file is "
+               "too short for their sizes");
     }
     const std::string sizes = in.take(blocks * header_size_, "compressed DataArray block sizes");
     bool fits = last_size <= block_size;
@@ -483,9 +485,9 @@ class XmlReader {
     }
     if (!fits || total != expected) {
       fail(name_, in.where(),
-           "compressed DataArray header gives " + std::to_string(blocks) + " blocks of " +
-               std::to_string(block_size) + " bytes (last " + std::to_string(last_size) + "), expected " +
-               std::to_string(expected) + " bytes in all");
+           "compressed DataArray header gives " + std::to_string(blocks) + " blocks of " + std::to_string(block_size) +
+               " bytes (last " + std::to_string(last_size) + "), expected " + std::to_string(expected) +
+               " bytes in all");
     }
     inflated_ += total;
     // zlib inflates at most 1032 bytes per compressed byte (plus its header): a block that claims more is a lie,

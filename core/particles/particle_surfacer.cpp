@@ -233,7 +233,8 @@ class InsideMask {
       dims_[a] = static_cast<std::int64_t>(std::ceil((P.box.size()[a] + 2.0 * P.r_outer) / cell_)) + 1;
     }
     row_words_ = (dims_[0] + 63) / 64;
-    const double words = static_cast<double>(row_words_) * static_cast<double>(dims_[1]) * static_cast<double>(dims_[2]);
+    const double words =
+        static_cast<double>(row_words_) * static_cast<double>(dims_[1]) * static_cast<double>(dims_[2]);
     if (64.0 * words > kMaxBitsPerParticle * static_cast<double>(P.positions.size()) + 65536.0) return;
     words_.assign(static_cast<std::size_t>(words), 0);
     // Particles in hash order are sorted by z cell (the hash's cells are x fastest), so each slab's particles are a
@@ -262,7 +263,8 @@ class InsideMask {
             if (!(ry2 > 0.0)) continue;
             const double ry = std::sqrt(ry2);
             // Strictly inside: centres with (i + 0.5 - q.x)^2 < ry^2.
-            const std::int64_t i0 = std::max<std::int64_t>(0, static_cast<std::int64_t>(std::floor(q.x() - ry - 0.5)) + 1);
+            const std::int64_t i0 =
+                std::max<std::int64_t>(0, static_cast<std::int64_t>(std::floor(q.x() - ry - 0.5)) + 1);
             const std::int64_t i1 =
                 std::min<std::int64_t>(dims_[0] - 1, static_cast<std::int64_t>(std::ceil(q.x() + ry - 0.5)) - 1);
             if (i0 <= i1) set_span(&words_[static_cast<std::size_t>((k * dims_[1] + j) * row_words_)], i0, i1 - i0 + 1);
@@ -334,10 +336,12 @@ class ParticleField final : public Field {
     if (!p_.weighted) return inside_.certainly_inside(x) || p_.hash.any_within(x, p_.r_outer) ? -band_ : band_;
     const std::span<const Vec3> pts = p_.hash.sorted_points();
     bool inside = false;
-    p_.hash.for_each_range(x.array() - p_.max_outer, x.array() + p_.max_outer, [&](std::uint32_t begin, std::uint32_t end) {
-      for (std::uint32_t s = begin; s < end && !inside; ++s) inside = (pts[s] - x).norm() < p_.slot_outer[s];
-      return !inside;
-    });
+    p_.hash.for_each_range(x.array() - p_.max_outer, x.array() + p_.max_outer,
+                           [&](std::uint32_t begin, std::uint32_t end) {
+                             for (std::uint32_t s = begin; s < end && !inside; ++s)
+                               inside = (pts[s] - x).norm() < p_.slot_outer[s];
+                             return !inside;
+                           });
     return inside ? -band_ : band_;
   }
   bool sign_is_cheaper() const override { return true; }
@@ -724,8 +728,7 @@ class Smoother {
     intervals(control);
     smoothing_.emplace(ring_, ps::cotangent_laplacian(x_, mesh_.triangles, ring_, threads_, control), x0_, normals_,
                        blocks_, threads_);
-    stats.seam_fraction =
-        n_ > 0 ? static_cast<double>(smoothing_->plan().seams.size()) / static_cast<double>(n_) : 0.0;
+    stats.seam_fraction = n_ > 0 ? static_cast<double>(smoothing_->plan().seams.size()) / static_cast<double>(n_) : 0.0;
     control.report("build_b", 1.0);
   }
 

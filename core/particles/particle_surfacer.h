@@ -121,7 +121,7 @@ struct ParticleSurfacingStats {
   // collapsed, and the bad triangles left (none unless a repair would break the mesh), and its seconds.
   std::int64_t slivers_found = 0, sliver_flips = 0, sliver_collapses = 0, slivers_left = 0;
   double seconds_cleanup = 0.0;
-  double seam_fraction = 0.0;            // vertices updated serially in the parallel Gauss-Seidel (see header)
+  double seam_fraction = 0.0;  // vertices updated serially in the parallel Gauss-Seidel (see header)
   std::size_t vertices = 0, triangles = 0;
 };
 

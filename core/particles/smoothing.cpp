@@ -294,7 +294,6 @@ void laplacian_sweep(std::vector<Vec3>& x, const Graph& ring, double relaxation,
   });
 }
 
-
 SweepPlan plan_two_ring_sweeps(const Graph& ring, std::size_t blocks, int threads) {
   const std::size_t n = ring.rows();
   blocks = std::max<std::size_t>(1, std::min(blocks, std::max<std::size_t>(1, n)));

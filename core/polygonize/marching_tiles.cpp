@@ -519,7 +519,8 @@ class BlockMesher {
     const std::size_t n = index / 8;
     const auto bit = static_cast<std::uint8_t>(1u << (index % 8));
     if (!(s.exact[n] & bit)) {
-      const int pi = static_cast<int>(n % kPad), pj = static_cast<int>(n / kPad % kPad), pk = static_cast<int>(n / (kPad * kPad));
+      const int pi = static_cast<int>(n % kPad), pj = static_cast<int>(n / kPad % kPad),
+                pk = static_cast<int>(n / (kPad * kPad));
       s.values[index] = field_.value(point_position(pi, pj, pk, static_cast<int>(index % 8)));
       s.exact[n] |= bit;
     }

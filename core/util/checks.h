@@ -71,10 +71,10 @@ inline void require_length(const std::string& field, double v, const std::string
   require_positive(field, v, hint);
   checks_detail::require_magnitude(field, v);
   if (v < kMinLength) {
-    throw InvalidInput(field, checks_detail::with_hint(field + " (" + format_number(v) + ") is below " +
-                                                           format_number(kMinLength) +
-                                                           ", the smallest length; scale the input up",
-                                                       hint));
+    throw InvalidInput(
+        field, checks_detail::with_hint(field + " (" + format_number(v) + ") is below " + format_number(kMinLength) +
+                                            ", the smallest length; scale the input up",
+                                        hint));
   }
 }
 

@@ -118,8 +118,8 @@ TEST_F(FormatsEndToEnd, CompressedVtuParticlesAreSurfaced) {
   Mesh points;
   points.vertices = ball(Vec3(0.5, 0.5, 0.5), 0.3, 0.05, 3);
   write_file(dir_ / "cloud.vtu", write_vtu(points));
-  const ProcessResult r = cli({"run", "particles", "--input", (dir_ / "cloud.vtu").string(), "--r-inner", "0.03",
-                               "-o", (dir_ / "out").string(), "--format", "ply"});
+  const ProcessResult r = cli({"run", "particles", "--input", (dir_ / "cloud.vtu").string(), "--r-inner", "0.03", "-o",
+                               (dir_ / "out").string(), "--format", "ply"});
   ASSERT_EQ(r.code, 0) << r;
   EXPECT_TRUE(mesh_file_has(dir_ / "out" / "frame_0000.ply", kClosed | kEdgeManifold | kVertexManifold));
   EXPECT_NE(r.err.find(std::to_string(points.vertices.size())), std::string::npos) << r;

@@ -153,8 +153,8 @@ TEST_F(InputPatterns, EmptyPlaceholderMatchesAnyZeroPadding) {
   for (const auto& [start, end] : std::vector<std::pair<std::optional<int>, std::optional<int>>>{
            {std::nullopt, std::nullopt}, {7, 10}, {7, std::nullopt}, {std::nullopt, 10}}) {
     const ParticleInputFiles files = expand("fluid_{}.xyz", start, end);
-    EXPECT_EQ(files.files, (std::vector<fs::path>{dir_ / "fluid_7.xyz", dir_ / "fluid_0008.xyz",
-                                                  dir_ / "fluid_009.xyz", dir_ / "fluid_10.xyz"}));
+    EXPECT_EQ(files.files, (std::vector<fs::path>{dir_ / "fluid_7.xyz", dir_ / "fluid_0008.xyz", dir_ / "fluid_009.xyz",
+                                                  dir_ / "fluid_10.xyz"}));
     EXPECT_EQ(output_numbers(files.numbers), (std::vector<int>{7, 8, 9, 10}));
   }
   const ParticleInputFiles part = expand("fluid_{}.xyz", 8, 9);

@@ -3,7 +3,6 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
-
 #include <algorithm>
 #include <cmath>
 #include <random>
@@ -107,8 +106,7 @@ bool vertices_are_a_subsequence(const Mesh& after, const Mesh& before) {
 TEST(MeshRepair, MinAngleOfKnownTriangles) {
   EXPECT_NEAR(min_angle_degrees(Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(0.5, std::sqrt(0.75), 0)), 60.0, 1e-9);
   EXPECT_NEAR(min_angle_degrees(Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(0, 1, 0)), 45.0, 1e-9);
-  EXPECT_NEAR(min_angle_degrees(Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(0.5, 0.01, 0)), std::atan(0.02) * 180 / M_PI,
-              1e-9);
+  EXPECT_NEAR(min_angle_degrees(Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(0.5, 0.01, 0)), std::atan(0.02) * 180 / M_PI, 1e-9);
   EXPECT_EQ(min_angle_degrees(Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(2, 0, 0)), 0.0);
   EXPECT_EQ(min_angle_degrees(Vec3(0, 0, 0), Vec3(0, 0, 0), Vec3(2, 1, 0)), 0.0);
 }
@@ -116,8 +114,8 @@ TEST(MeshRepair, MinAngleOfKnownTriangles) {
 TEST(MeshRepair, LeavesAGoodMeshUntouched) {
   for (const Mesh& good : {testing::icosphere(3), testing::torus_mesh(1.0, 0.3)}) {
     Mesh m = good;
-    const SliverReport r = repair_slivers(m, {.min_angle_degrees = 10.0, .grid = QuantizationGrid::of(
-                                                                             Aabb{Vec3(-2, -2, -2), Vec3(2, 2, 2)}, 14)});
+    const SliverReport r = repair_slivers(
+        m, {.min_angle_degrees = 10.0, .grid = QuantizationGrid::of(Aabb{Vec3(-2, -2, -2), Vec3(2, 2, 2)}, 14)});
     EXPECT_EQ(r.candidates, 0);
     EXPECT_EQ(r.flips + r.collapses + r.remaining, 0);
     EXPECT_EQ(m.vertices, good.vertices);

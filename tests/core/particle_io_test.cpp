@@ -1,14 +1,13 @@
 #include "core/particles/particle_io.h"
 
 #include <gtest/gtest.h>
+#include <zlib.h>
 
 #include <bit>
 #include <cstring>
 #include <filesystem>
 #include <functional>
 #include <random>
-
-#include <zlib.h>
 
 #include "core/util/errors.h"
 #include "tests/support/files.h"
@@ -303,7 +302,8 @@ std::string write_vtu(const ParticleFrame& f, const VtuStyle& st) {
          "format=\"ascii\"></DataArray>\n</Cells>\n</Piece>\n";
   }
   s += "</UnstructuredGrid>\n";
-  if (st.format == "appended") s += "<AppendedData encoding=\"" + st.encoding + "\">\n   _" + appended + "\n</AppendedData>\n";
+  if (st.format == "appended")
+    s += "<AppendedData encoding=\"" + st.encoding + "\">\n   _" + appended + "\n</AppendedData>\n";
   return s + "</VTKFile>\n";
 }
 
@@ -728,14 +728,14 @@ std::string vtu_with_compressed_points(std::uint64_t points, const std::vector<s
 TEST(ParticleIo, VtuHostileCompressedSizesAreRefusedBeforeAllocating) {
   // 4e9 points declared, one block "inflating" 48 GB from 16 bytes: more than zlib can produce.
   const std::uint64_t points = 4000000000;
-  expect_error(vtu_with_compressed_points(points, {1, points * 12, 0, 16}, std::string(16, 'x')),
-               ParticleFormat::kVtu, "lie.vtu", {"more than zlib can produce"});
+  expect_error(vtu_with_compressed_points(points, {1, points * 12, 0, 16}, std::string(16, 'x')), ParticleFormat::kVtu,
+               "lie.vtu", {"more than zlib can produce"});
   // Block sizes that multiply past 2^64 (and would wrap to the expected size).
   expect_error(vtu_with_compressed_points(1, {3, std::uint64_t{1} << 63, 12, 1, 1, 1}, "abc"), ParticleFormat::kVtu,
                "wrap.vtu", {"expected 12 bytes"});
   // Billions of blocks declared in a few bytes.
-  expect_error(vtu_with_compressed_points(1, {std::uint64_t{1} << 40, 12, 0}, ""), ParticleFormat::kVtu,
-               "blocks.vtu", {"too short"});
+  expect_error(vtu_with_compressed_points(1, {std::uint64_t{1} << 40, 12, 0}, ""), ParticleFormat::kVtu, "blocks.vtu",
+               {"too short"});
   // Real zlib data of 8 MB of zeros (a few KB): refused past the byte limit as a ResourceLimit, naming the file.
   const std::uint64_t n = (8u << 20) / 12;
   const std::string zeros = zlib(std::string(static_cast<std::size_t>(n * 12), '\0'));

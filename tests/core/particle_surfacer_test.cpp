@@ -316,7 +316,8 @@ TEST(ParticleSmoothing, OneRingIsTheSetOfEdgeNeighboursWhateverTheThreads) {
       const ps::Graph ring = ps::one_ring(n, m.triangles, threads);
       ASSERT_EQ(ring.rows(), n);
       for (std::size_t i = 0; i < n; ++i) {
-        const std::vector<std::uint32_t> row(ring.cols.begin() + ring.offsets[i], ring.cols.begin() + ring.offsets[i + 1]);
+        const std::vector<std::uint32_t> row(ring.cols.begin() + ring.offsets[i],
+                                             ring.cols.begin() + ring.offsets[i + 1]);
         ASSERT_EQ(row, std::vector<std::uint32_t>(reference[i].begin(), reference[i].end())) << "vertex " << i;
       }
     }
@@ -409,7 +410,8 @@ TEST(ParticleSmoothing, BlockOrderedGaussSeidelConvergesLikeSequential) {
   const ps::SparseMatrix b = ps::bilaplacian(m.vertices, m.triangles, ring, 2);
   const ps::Cotangent cot = ps::cotangent_laplacian(m.vertices, m.triangles, ring, 2);
   const std::vector<Vec3> normals = ps::vertex_normals(m.vertices, m.triangles);
-  const ps::SweepPlan sequential_plan = ps::plan_two_ring_sweeps(ring, 1), blocked_plan = ps::plan_two_ring_sweeps(ring, 8);
+  const ps::SweepPlan sequential_plan = ps::plan_two_ring_sweeps(ring, 1),
+                      blocked_plan = ps::plan_two_ring_sweeps(ring, 8);
   ASSERT_TRUE(sequential_plan.seams.empty());
   ASSERT_FALSE(blocked_plan.seams.empty());
   EXPECT_EQ(blocked_plan.interior.size() + blocked_plan.seams.size(), n);

@@ -5,8 +5,8 @@
 #include <cmath>
 #include <random>
 
-#include "core/mesh/mesh_checks.h"
 #include "core/mesh/frame_codec.h"
+#include "core/mesh/mesh_checks.h"
 #include "core/mesh/mesh_codec.h"
 #include "tests/server/test_client.h"
 #include "tests/support/mesh_expectations.h"
