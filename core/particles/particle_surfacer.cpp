@@ -1166,7 +1166,16 @@ Aabb particle_sequence_box(const Aabb& particle_bounds, double max_radius, std::
     pad = kDerivedPadSafety * ratio * std::max(spacing, 1e-6 * std::max(box.size().maxCoeff(), 1.0));
   }
   box = box.padded(1.5 * pad);
-  if (container) box.intersect(*container);
+  if (container) {
+    // A wall that misses the particles' reach would flatten the whole surface onto itself, outside this box.
+    if (!Aabb(box).intersect(*container).valid()) {
+      throw InvalidInput("container_box", "container_box (min " + format_point(container->min) + ", max " +
+                                              format_point(container->max) + ") does not overlap the particles' " +
+                                              "surface (within min " + format_point(box.min) + ", max " +
+                                              format_point(box.max) + "); give a box around the fluid");
+    }
+    box.intersect(*container);
+  }
   return box;
 }
 
