@@ -53,7 +53,9 @@ class SampledGrid final : public Field {
       const double u = (q[i] - origin_[i]) * inv_spacing_[i];
       const std::int64_t c = std::clamp<std::int64_t>(static_cast<std::int64_t>(std::floor(u)), 0, n_[i] - 2);
       cell[i] = c;
-      f[i] = u - static_cast<double>(c);
+      // In [0, 1] also when rounding puts u a hair past the last sample: a weight of 1 + 1e-16 on a sample of 1e30
+      // would move the value by 1e14.
+      f[i] = std::clamp(u - static_cast<double>(c), 0.0, 1.0);
     }
     const std::int64_t sx = 1, sy = n_[0], sz = std::int64_t{n_[0]} * n_[1];
     const std::int64_t base = cell[0] + sy * cell[1] + sz * cell[2];
