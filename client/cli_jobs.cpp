@@ -144,6 +144,12 @@ void add_particles(CLI::App* parent, const std::string& verb, JobFlags& flags, O
   app->add_option("--erosion", p.erosion, "move vertices inward by EPS x r_inner at the end (default off)")
       ->check(non_negative)
       ->type_name("EPS");
+  app->add_flag("--unconstrained-polish", p.unconstrained_polish,
+                "keep the thesis' polish: no final projection, so some vertices may end outside [r_inner, r_outer]");
+  app->add_option("--min-angle", p.min_angle,
+                  "repair triangles with a smaller angle, in degrees (0: no repair)" +
+                      default_text(kParticleDefaults.min_angle_degrees))
+      ->type_name("DEG");
   app->add_option("--container-box", flags.container_box,
                   "keep the surface inside this box: x0,y0,z0,x1,y1,z1 (vertices outside are snapped to it)")
       ->type_name("BOX");

@@ -68,6 +68,8 @@ struct ParticlesOptions {
   std::optional<std::array<int, 3>> sweeps;  // Laplacian, Bilaplacian, polish
   std::optional<double> relaxation;
   std::optional<double> erosion;
+  bool unconstrained_polish = false;
+  std::optional<double> min_angle;
   std::optional<Box> container_box;
   std::optional<std::filesystem::path> container_scene;
   std::optional<int> min_particles;

@@ -332,6 +332,8 @@ JobOptions job_options(const std::string& kind, const py::tuple& inputs, const p
     s["sweeps"] = [&p](py::handle v) { p.sweeps = parse_sweeps(joined(v, "sweeps")); };
     s["relaxation"] = set(p.relaxation);
     s["erosion"] = set(p.erosion);
+    s["unconstrained_polish"] = set(p.unconstrained_polish);
+    s["min_angle"] = set(p.min_angle);
     s["container_box"] = set_box(p.container_box, "container_box");
     s["container_scene"] = [&p, &in](py::handle v) { p.container_scene = in.scene(v, "container_scene"); };
     s["min_particles"] = set(p.min_particles);

@@ -60,6 +60,8 @@ ParticleSurfacingOptions particle_options(const v1::ParticlesJob& job, bool norm
   if (job.has_polish_sweeps()) options.polish_sweeps = job.polish_sweeps();
   if (job.has_relaxation()) options.relaxation = job.relaxation();
   if (job.has_erosion()) options.erosion = job.erosion();
+  if (job.has_unconstrained_polish()) options.unconstrained_polish = job.unconstrained_polish();
+  if (job.has_min_angle_degrees()) options.min_angle_degrees = job.min_angle_degrees();
   if (job.container().has_box()) options.container_box = to_aabb(job.container().box(), path + ".container.box");
   if (job.container().has_solid()) {
     options.container_solid = field_from_scene(job.container().solid(), path + ".container.solid", uploads);

@@ -87,6 +87,9 @@ TEST(JobOptions, ParticlesEveryFlag) {
                                  "0.5",
                                  "--erosion",
                                  "0.2",
+                                 "--unconstrained-polish",
+                                 "--min-angle",
+                                 "2.5",
                                  "--container-box",
                                  "0,0,0,1,2,3",
                                  "--container-scene",
@@ -114,6 +117,8 @@ TEST(JobOptions, ParticlesEveryFlag) {
   EXPECT_EQ(o.sweeps, (std::array<int, 3>{4, 20, 3}));
   EXPECT_EQ(o.relaxation, 0.5);
   EXPECT_EQ(o.erosion, 0.2);
+  EXPECT_TRUE(o.unconstrained_polish);
+  EXPECT_EQ(o.min_angle, 2.5);
   EXPECT_EQ(o.container_box, (Box{0, 0, 0, 1, 2, 3}));
   EXPECT_EQ(o.container_scene, fs::path("solid.json"));
   EXPECT_EQ(o.min_particles, 12);
@@ -403,7 +408,7 @@ TEST(JobOptions, EveryNewSubcommandHasHelpWithAnExample) {
   const ParsedCli particles = parse_cli({"run", "particles", "--help"});
   for (const char* flag : {"--input", "--start", "--end", "--r-inner", "--derive-r-inner", "--r-outer",
                            "--spacing-factor", "--sweeps", "--relaxation", "--erosion", "--container-box",
-                           "--container-scene", "--min-particles", "--format", "--normals", "--raw"}) {
+                           "--container-scene", "--min-particles", "--min-angle", "--unconstrained-polish", "--format", "--normals", "--raw"}) {
     EXPECT_NE(particles.out.find(flag), std::string::npos) << flag;
   }
   const ParsedCli advect = parse_cli({"run", "active", "advect", "--help"});
@@ -518,6 +523,8 @@ TEST(JobSpecs, ParticlesFieldsAndOneUploadPerFrame) {
   p.sweeps = {{3, 21, 2}};
   p.relaxation = 0.55;
   p.erosion = 0.05;
+  p.unconstrained_polish = true;
+  p.min_angle = 0;
   p.container_box = Box{-1, -1, -1, 8, 8, 8};
   p.container_scene = dir / "solid.json";
   p.min_particles = 4;
@@ -537,6 +544,9 @@ TEST(JobSpecs, ParticlesFieldsAndOneUploadPerFrame) {
   EXPECT_EQ(job.polish_sweeps(), 2);
   EXPECT_DOUBLE_EQ(job.relaxation(), 0.55);
   EXPECT_DOUBLE_EQ(job.erosion(), 0.05);
+  EXPECT_TRUE(job.unconstrained_polish());
+  ASSERT_TRUE(job.has_min_angle_degrees());
+  EXPECT_EQ(job.min_angle_degrees(), 0.0);
   EXPECT_DOUBLE_EQ(job.container().box().max().y(), 8);
   EXPECT_DOUBLE_EQ(job.container().solid().root().box().half_size().x(), 1);
   EXPECT_EQ(job.min_particles_per_component(), 4);

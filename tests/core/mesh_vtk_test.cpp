@@ -138,7 +138,7 @@ Mesh big_index_mesh() {
   Mesh m;
   const std::uint32_t n = (1u << 18) + 17;
   for (std::uint32_t i = 0; i < n; ++i) m.vertices.emplace_back(u(rng), u(rng), u(rng));
-  for (std::uint32_t t = 0; t < 100000; ++t) m.triangles.push_back({rng() % n, n - 1 - t, rng() % n});
+  for (std::uint32_t t = 0; t < 100000; ++t) m.triangles.push_back({static_cast<std::uint32_t>(rng() % n), n - 1 - t, static_cast<std::uint32_t>(rng() % n)});
   return m;
 }
 

@@ -50,6 +50,17 @@ def test_particles_from_numpy(local_client):
         assert np.linalg.norm(f.vertices - centre, axis=1).max() < 0.3 + 0.08 + 1e-6
 
 
+def test_particles_polish_and_sliver_options(local_client):
+    ball = lattice_ball()
+    (faithful,) = local_client.particles([ball], r_inner=0.04)
+    (thesis,) = local_client.particles([ball], r_inner=0.04, unconstrained_polish=True, min_angle=0)
+    assert faithful.stats["metrics"]["faithful_fraction_final"] == 1.0
+    assert thesis.stats["metrics"]["faithful_fraction_final"] < 1.0
+    with pytest.raises(surfacer.JobFailed) as error:
+        local_client.particles([ball], r_inner=0.04, min_angle=45)
+    assert error.value.code == "INVALID_ARGUMENT" and "min_angle_degrees" in str(error.value)
+
+
 def test_particles_remote_with_radii(remote_client):
     ball = lattice_ball()
     with_radii = np.hstack([ball, np.full((len(ball), 1), 0.04)]).astype(np.float32)

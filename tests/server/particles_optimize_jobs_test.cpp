@@ -145,6 +145,27 @@ TEST(ParticlesJob, DerivedRadiusKeepsTheSurfaceInsideTheQuantizationBox) {
   EXPECT_TRUE(check_mesh(decode_draco(result.frames.at(0).bytes)).closed);
 }
 
+// The thesis' polish on request: without the final projection some vertices end outside the band, as reported;
+// by default none does.
+TEST(ParticlesJob, UnconstrainedPolishIsTheThesisPolish) {
+  LoopbackServer s;
+  const std::vector<Vec3> ball = particle_ball(Vec3(0, 0, 0), 0.3, 0.05, 4);
+  const std::string id_of_ball = upload(*s.stub, as_float32(ball));
+  auto faithful_final = [&](bool unconstrained) {
+    v1::JobSpec spec;
+    spec.mutable_particles()->add_frames()->set_upload_id(id_of_ball);
+    spec.mutable_particles()->set_r_inner(0.05);
+    if (unconstrained) spec.mutable_particles()->set_unconstrained_polish(true);
+    std::string id;
+    EXPECT_TRUE(submit(*s.stub, spec, &id).ok());
+    const auto result = watch_job(*s.stub, id);
+    EXPECT_EQ(result.frames.size(), 1u) << result.final_job.error().message();
+    return result.frames.empty() ? -1.0 : result.frames.at(0).header.stats().metrics().at("faithful_fraction_final");
+  };
+  EXPECT_EQ(faithful_final(false), 1.0);
+  EXPECT_LT(faithful_final(true), 1.0);
+}
+
 TEST(ParticlesJob, BadParticlesAndOptionsNameTheField) {
   server::ServerOptions options = LoopbackServer::default_options();
   options.limits.max_particles = 100;
@@ -170,6 +191,11 @@ TEST(ParticlesJob, BadParticlesAndOptionsNameTheField) {
   expect(spec, grpc::StatusCode::INVALID_ARGUMENT, "r_inner");
 
   spec.mutable_particles()->set_r_inner(0.05);
+  for (const double angle : {-1.0, 31.0, std::nan("")}) {
+    spec.mutable_particles()->set_min_angle_degrees(angle);
+    expect(spec, grpc::StatusCode::INVALID_ARGUMENT, "spec.particles.min_angle_degrees");
+  }
+  spec.mutable_particles()->clear_min_angle_degrees();
   frame->clear_positions();
   for (int i = 0; i < 3 * 101; ++i) frame->add_positions(static_cast<float>(i));
   expect(spec, grpc::StatusCode::RESOURCE_EXHAUSTED, "--max-particles");
