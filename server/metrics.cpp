@@ -15,29 +15,17 @@ namespace {
 std::string escape(std::string_view text, bool quote) {
   std::string out;
   out.reserve(text.size());
-  for (std::size_t i = 0; i < text.size();) {
-    const std::size_t length = utf8_sequence_length(text, i);
-    if (length == 0) {
-      out += "\xEF\xBF\xBD";
-      ++i;
-      continue;
-    }
-    if (length > 1) {
-      out.append(text.substr(i, length));
-      i += length;
-      continue;
-    }
-    const char c = text[i++];
+  append_utf8_escaped(out, text, [quote](std::string& o, char c) {
     if (c == '\\') {
-      out += "\\\\";
+      o += "\\\\";
     } else if (c == '\n') {
-      out += "\\n";
+      o += "\\n";
     } else if (c == '"' && quote) {
-      out += "\\\"";
+      o += "\\\"";
     } else {
-      out += c;
+      o += c;
     }
-  }
+  });
   return out;
 }
 

@@ -65,6 +65,24 @@ inline std::size_t utf8_sequence_length(std::string_view s, std::size_t i) {
   return length;
 }
 
+// Appends `text` to `out` as valid UTF-8: an invalid byte becomes U+FFFD, a multi-byte sequence is copied, and each
+// ASCII byte goes through escape_ascii(out, c) (the format's own escapes).
+template <class EscapeAscii>
+void append_utf8_escaped(std::string& out, std::string_view text, EscapeAscii&& escape_ascii) {
+  for (std::size_t i = 0; i < text.size();) {
+    const std::size_t length = utf8_sequence_length(text, i);
+    if (length == 0) {
+      out += "\xEF\xBF\xBD";
+      ++i;
+    } else if (length > 1) {
+      out.append(text.substr(i, length));
+      i += length;
+    } else {
+      escape_ascii(out, text[i++]);
+    }
+  }
+}
+
 // The longest prefix of `text` of at most `max_bytes` bytes that does not end inside a UTF-8 sequence.
 inline std::string utf8_prefix(std::string_view text, std::size_t max_bytes) {
   std::size_t n = std::min(text.size(), max_bytes);

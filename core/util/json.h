@@ -20,45 +20,34 @@ inline std::string json_quote(std::string_view text) {
   std::string out;
   out.reserve(text.size() + 2);
   out += '"';
-  for (std::size_t i = 0; i < text.size();) {
-    const std::size_t length = utf8_sequence_length(text, i);
-    if (length == 0) {
-      out += "\xEF\xBF\xBD";
-      ++i;
-      continue;
-    }
-    if (length > 1) {
-      out.append(text.substr(i, length));
-      i += length;
-      continue;
-    }
-    const auto c = static_cast<unsigned char>(text[i++]);
+  append_utf8_escaped(out, text, [](std::string& o, char ch) {
+    const auto c = static_cast<unsigned char>(ch);
     switch (c) {
       case '"':
-        out += "\\\"";
+        o += "\\\"";
         break;
       case '\\':
-        out += "\\\\";
+        o += "\\\\";
         break;
       case '\n':
-        out += "\\n";
+        o += "\\n";
         break;
       case '\r':
-        out += "\\r";
+        o += "\\r";
         break;
       case '\t':
-        out += "\\t";
+        o += "\\t";
         break;
       default:
         if (c < 0x20 || c == 0x7F) {
-          out += "\\u00";
-          out += kHex[c >> 4];
-          out += kHex[c & 0xF];
+          o += "\\u00";
+          o += kHex[c >> 4];
+          o += kHex[c & 0xF];
         } else {
-          out += static_cast<char>(c);
+          o += ch;
         }
     }
-  }
+  });
   out += '"';
   return out;
 }
