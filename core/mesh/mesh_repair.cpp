@@ -445,8 +445,7 @@ SliverReport repair_slivers(Mesh& mesh, const SliverOptions& options, const RunC
     const int chunks = static_cast<int>(std::min<std::size_t>(64, n / 16384 + 1));
     std::vector<std::vector<std::uint32_t>> found(static_cast<std::size_t>(chunks));
     parallel_for(chunks, resolve_threads(options.threads), [&](int c) {
-      const std::size_t begin = n * static_cast<std::size_t>(c) / static_cast<std::size_t>(chunks);
-      const std::size_t end = n * static_cast<std::size_t>(c + 1) / static_cast<std::size_t>(chunks);
+      const auto [begin, end] = chunk_range(n, chunks, c);
       for (std::size_t t = begin; t < end; ++t) {
         if (repair.bad(mesh.triangles[t])) found[static_cast<std::size_t>(c)].push_back(static_cast<std::uint32_t>(t));
       }

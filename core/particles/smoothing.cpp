@@ -10,10 +10,10 @@
 namespace surfacer::particle_smoothing {
 namespace {
 
-// Rows [begin, end) of chunk c when n rows are cut into `chunks` contiguous chunks.
-std::pair<std::size_t, std::size_t> chunk_range(std::size_t n, int chunks, int c) {
-  return {n * static_cast<std::size_t>(c) / static_cast<std::size_t>(chunks),
-          n * static_cast<std::size_t>(c + 1) / static_cast<std::size_t>(chunks)};
+// How many vertex ranges a per-vertex table is filled in when each range scans the whole input: a few (each range
+// repeats the scan), and one for small meshes.
+int vertex_range_count(std::size_t rows, int threads) {
+  return static_cast<int>(std::min<std::size_t>(std::clamp(threads, 1, 4), rows / 65536 + 1));
 }
 
 // A compressed-row table (offsets, values) filled by scan(lo, hi, add), which must call add(row, value) for every
@@ -22,7 +22,7 @@ std::pair<std::size_t, std::size_t> chunk_range(std::size_t n, int chunks, int c
 template <class Scan>
 void rows_by_range(std::size_t rows, int threads, std::vector<std::uint32_t>& offsets,
                    std::vector<std::uint32_t>& values, Scan&& scan) {
-  const int parts = static_cast<int>(std::min<std::size_t>(std::clamp(threads, 1, 4), rows / 65536 + 1));
+  const int parts = vertex_range_count(rows, threads);
   offsets.assign(rows + 1, 0);
   parallel_for(parts, threads, [&](int part) {
     const auto [lo, hi] = chunk_range(rows, parts, part);
@@ -84,8 +84,7 @@ Cotangent cotangent_laplacian(std::span<const Vec3> x, std::span<const Triangle>
   std::vector<Corner> corners(triangles.size());
   const int chunks = static_cast<int>(std::min<std::size_t>(64, triangles.size() / 4096 + 1));
   parallel_for(chunks, threads, [&](int c) {
-    const std::size_t begin = triangles.size() * static_cast<std::size_t>(c) / static_cast<std::size_t>(chunks);
-    const std::size_t end = triangles.size() * static_cast<std::size_t>(c + 1) / static_cast<std::size_t>(chunks);
+    const auto [begin, end] = chunk_range(triangles.size(), chunks, c);
     for (std::size_t t = begin; t < end; ++t) {
       const Triangle& tri = triangles[t];
       Corner& out = corners[t];
@@ -449,7 +448,7 @@ std::vector<Vec3> vertex_normals(std::span<const Vec3> x, std::span<const Triang
   // one serial pass.
   const std::size_t n = x.size();
   std::vector<Vec3> normals(n, Vec3::Zero());
-  const int parts = static_cast<int>(std::min<std::size_t>(std::clamp(threads, 1, 4), n / 65536 + 1));
+  const int parts = vertex_range_count(n, threads);
   parallel_for(parts, threads, [&](int part) {
     const auto [lo, hi] = chunk_range(n, parts, part);
     for (const Triangle& t : triangles) {

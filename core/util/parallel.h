@@ -8,6 +8,7 @@
 #include <functional>
 #include <mutex>
 #include <thread>
+#include <utility>
 #include <vector>
 
 namespace surfacer {
@@ -55,14 +56,20 @@ void parallel_for(int items, int threads, Body&& body) {
   if (error) std::rethrow_exception(error);
 }
 
+// Items [begin, end) of chunk c when n items are cut into `chunks` contiguous chunks of near-equal size.
+inline std::pair<std::size_t, std::size_t> chunk_range(std::size_t n, int chunks, int c) {
+  return {n * static_cast<std::size_t>(c) / static_cast<std::size_t>(chunks),
+          n * static_cast<std::size_t>(c + 1) / static_cast<std::size_t>(chunks)};
+}
+
 // body(begin, end) over [0, n) cut into contiguous chunks (about four per thread, at least ~1024 items each), run by
 // parallel_for: the chunks depend on n and threads only.
 template <class Body>
 void for_chunks(std::size_t n, int threads, Body&& body) {
   const int chunks = static_cast<int>(std::min<std::size_t>(std::max(1, 4 * threads), n / 1024 + 1));
   parallel_for(chunks, threads, [&](int c) {
-    body(n * static_cast<std::size_t>(c) / static_cast<std::size_t>(chunks),
-         n * static_cast<std::size_t>(c + 1) / static_cast<std::size_t>(chunks));
+    const auto [begin, end] = chunk_range(n, chunks, c);
+    body(begin, end);
   });
 }
 
