@@ -157,18 +157,30 @@ struct Particles {
         }
       }
     });
-    // The piece of the union of the allowed intervals that holds 0: sorted by start, merged while they overlap.
-    std::sort(allowed.begin(), allowed.end(), [](const Interval& a, const Interval& b) { return a.lo < b.lo; });
+    // The piece of the union of the allowed intervals that holds 0: the intervals holding 0, then grown by every
+    // interval that meets it until none does (no sort: a few passes over a short list). Absorbed intervals are
+    // swapped to the front.
     Interval piece{0.0, -1.0};  // empty
-    for (const Interval& a : allowed) {
-      if (piece.hi >= piece.lo && a.lo <= piece.hi) {
-        piece.hi = std::max(piece.hi, a.hi);
-        continue;
+    std::size_t absorbed = 0;
+    for (std::size_t k = 0; k < allowed.size(); ++k) {
+      if (allowed[k].lo <= 0.0 && allowed[k].hi >= 0.0) {
+        piece =
+            absorbed == 0 ? allowed[k] : Interval{std::min(piece.lo, allowed[k].lo), std::max(piece.hi, allowed[k].hi)};
+        std::swap(allowed[absorbed++], allowed[k]);
       }
-      if (piece.lo <= 0.0 && piece.hi >= 0.0) break;  // the piece holding 0 is complete
-      piece = a;
     }
-    if (!(piece.lo <= 0.0 && piece.hi >= 0.0)) return {0.0, 0.0};
+    if (absorbed == 0) return {0.0, 0.0};
+    for (bool grew = true; grew;) {
+      grew = false;
+      for (std::size_t k = absorbed; k < allowed.size(); ++k) {
+        if (allowed[k].lo <= piece.hi && allowed[k].hi >= piece.lo) {
+          piece.lo = std::min(piece.lo, allowed[k].lo);
+          piece.hi = std::max(piece.hi, allowed[k].hi);
+          std::swap(allowed[absorbed++], allowed[k]);
+          grew = true;
+        }
+      }
+    }
     return {std::max({piece.lo, lo_in, -reach}), std::min({piece.hi, hi_in, reach})};
   }
 
