@@ -357,12 +357,8 @@ ExitCode run_health(const ConnectOptions& connect, const HealthCommand& command,
 }  // namespace
 
 std::string submit_job(Connection& connection, const v1::JobSpec& spec, v1::Job* job) {
-  v1::SubmitJobRequest request;
-  *request.mutable_spec() = spec;
-  grpc::ClientContext context;
-  context.set_deadline(connection.unary_deadline());
   v1::SubmitJobResponse response;
-  const grpc::Status status = connection.stub().SubmitJob(&context, request, &response);
+  const grpc::Status status = connection.submit(spec, response);
   if (!status.ok()) {
     CliError error = rpc_error("the server rejected the job", status);
     // A rejection is the job's failure (exit 4), unless the server could not be reached at all.

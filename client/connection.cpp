@@ -91,6 +91,14 @@ std::chrono::system_clock::time_point Connection::unary_deadline() const {
          std::chrono::seconds(20);
 }
 
+grpc::Status Connection::submit(const v1::JobSpec& spec, v1::SubmitJobResponse& response) {
+  v1::SubmitJobRequest request;
+  *request.mutable_spec() = spec;
+  grpc::ClientContext context;
+  context.set_deadline(unary_deadline());
+  return stub_->SubmitJob(&context, request, &response);
+}
+
 const std::optional<v1::ServerInfo>& Connection::server_info() {
   if (server_info_asked_) return server_info_;
   grpc::ClientContext context;

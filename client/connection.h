@@ -42,6 +42,8 @@ class Connection {
   bool wait_connected(std::chrono::system_clock::time_point deadline);
   // Deadline for unary calls: the connection timeout plus a margin for the call itself.
   std::chrono::system_clock::time_point unary_deadline() const;
+  // SubmitJob with the unary deadline; the caller words and classifies a failure (the CLI and scale-out differ).
+  grpc::Status submit(const v1::JobSpec& spec, v1::SubmitJobResponse& response);
   // The server's version and limits (GetServerInfo), asked once; nullopt from a server that predates the call.
   // Throws rpc_error("asking the server's limits", status) when the server cannot answer.
   const std::optional<v1::ServerInfo>& server_info();

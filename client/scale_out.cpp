@@ -275,12 +275,8 @@ class ScaleOut {
   }
 
   std::string submit(Connection& connection, ServerSlot& slot, const v1::JobSpec& spec, const std::vector<int>& batch) {
-    v1::SubmitJobRequest request;
-    *request.mutable_spec() = spec;
-    grpc::ClientContext context;
-    context.set_deadline(connection.unary_deadline());
     v1::SubmitJobResponse response;
-    const grpc::Status status = connection.stub().SubmitJob(&context, request, &response);
+    const grpc::Status status = connection.submit(spec, response);
     if (!status.ok()) {
       CliError error = rpc_error(slot.address + " rejected the sub-job of " + frames_text(batch), status);
       if (error.code() == ExitCode::kUnreachable) throw error;
