@@ -4,13 +4,15 @@
 // parent reads from wait4 is that run's alone.
 //
 //   particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness] [--threads T]
-//                   [--write DIR]
+//                   [--flatness-sweeps N] [--write DIR]
 //
 //   --particles N   block size (default 500000): the 100 x 50 x 100 block scaled by cbrt(N / 500000) per axis
 //   --repeat R      repetitions of each of our timed runs (default 3); seconds are the minimum over them
 //   --vdb-repeat R  the same for OpenVDB's runs (default 1: one takes 10-30 s on the 500 k block, 2 cores)
 //   --section S     block or flatness only (default both)
 //   --threads T     one thread count for both sides (default: 1, then 2)
+//   --flatness-sweeps N  Bilaplacian sweeps of the flatness slabs (default: the option's default); many (e.g. 1000)
+//                   show where the sweeps converge to
 //   --write DIR     our meshes as DIR/<name>_t<threads>.ply
 //
 // Exits 1 when a run fails, or when one of our meshes is not a closed, oriented manifold or differs between thread
@@ -40,7 +42,9 @@
 // pair; the second is the deeper-cusped case users get by default), at the largest thread count. Top face as in
 // tests/core/particle_surfacer_test.cpp: vertices above the top layer and at least 5 d inside the slab's sides. Its
 // RMS height deviation about the mean and peak to peak in % of r_inner (target: RMS < 0.5 %), the faithful fraction
-// at the end, the smallest angle and the slivers left; one run each. Fixed size: --particles does not apply.
+// at the end, the smallest angle and the slivers left; one run each. Fixed size: --particles does not apply. Also the
+// face's mean height above the top layer beside the highest plane the band allows, sqrt(r_outer^2 - d^2 / 2) (eq.
+// 3.5), both in d: a mean above that plane means the face rests on the cusps of the r_outer spheres.
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -86,6 +90,7 @@ struct Config {
   int vdb_repeat = 1;  // an OpenVDB run of the 500 k block takes 10-30 s
   std::vector<int> threads = {1, 2};
   bool block = true, flatness = true;
+  std::optional<int> flatness_sweeps;
   std::string write_dir;
 };
 
@@ -143,10 +148,11 @@ DataSet block_set(std::size_t particles) {
 }
 
 constexpr std::array<double, 4> kFlatnessRatios = {0.45, 0.6, 0.7, 1.0};  // r_inner / d
+constexpr double kFlatnessSpacing = 0.01;                                   // d
 
 // r_outer = 2 d, or (default_outer) the default 2 r_inner.
 DataSet flatness_set(double ratio, bool default_outer) {
-  constexpr double d = 0.01;
+  constexpr double d = kFlatnessSpacing;
   constexpr int n = 60, layers = 6;
   constexpr double inset = 5 * d;
   char name[40];
@@ -264,10 +270,10 @@ MeshFacts facts_of(const Mesh& mesh) {
   return f;
 }
 
-// RMS about the mean and peak to peak of z over the top-face vertices (scene units).
+// Mean, RMS about the mean and peak to peak of z over the top-face vertices (scene units).
 struct Flatness {
   std::size_t vertices = 0;
-  double rms = 0.0, peak_to_peak = 0.0;
+  double mean = 0.0, rms = 0.0, peak_to_peak = 0.0;
 };
 
 Flatness flatness(const Mesh& mesh, const FlatTop& top) {
@@ -285,6 +291,7 @@ Flatness flatness(const Mesh& mesh, const FlatTop& top) {
   mean /= static_cast<double>(z.size());
   double sum2 = 0.0;
   for (const double h : z) sum2 += (h - mean) * (h - mean);
+  f.mean = mean;
   f.rms = std::sqrt(sum2 / static_cast<double>(z.size()));
   const auto [lo, hi] = std::minmax_element(z.begin(), z.end());
   f.peak_to_peak = *hi - *lo;
@@ -575,15 +582,18 @@ bool bench_flatness(const Config& cfg) {
   const int threads = *std::max_element(cfg.threads.begin(), cfg.threads.end());
   std::printf(
       "flatness  60 x 60 x 6 square-lattice slabs, d 0.01, no jitter, r_outer = 2 d or 2 r_inner (the default); top "
-      "face: vertices above the top layer, 5 d inside the sides; %d threads\n",
-      threads);
-  std::printf("  %9s %8s %9s %10s %9s %8s %8s %11s %10s %9s %7s %8s\n", "r_inner/d", "r_outer", "vertices", "triangles",
-              "top verts", "RMS %ri", "p-p %ri", "RMS < 0.5%", "faithful %", "min angle", "slivers", "seconds");
+      "face: vertices above the top layer, 5 d inside the sides; %d threads, %s Bilaplacian sweeps\n"
+      "  mean/d: the face's mean height above the top layer; plane/d: the highest plane the band allows (eq. 3.5)\n",
+      threads, cfg.flatness_sweeps ? std::to_string(*cfg.flatness_sweeps).c_str() : "default");
+  std::printf("  %9s %8s %9s %10s %9s %8s %8s %11s %7s %8s %10s %9s %7s %8s\n", "r_inner/d", "r_outer", "vertices",
+              "triangles", "top verts", "RMS %ri", "p-p %ri", "RMS < 0.5%", "mean/d", "plane/d", "faithful %",
+              "min angle", "slivers", "seconds");
   bool ok = true;
   for (const bool default_outer : {false, true}) {
     for (const double ratio : kFlatnessRatios) {
       if (default_outer && ratio == 1.0) continue;  // 2 r_inner = 2 d: the slab above
-      const DataSet set = flatness_set(ratio, default_outer);
+      DataSet set = flatness_set(ratio, default_outer);
+      if (cfg.flatness_sweeps) set.options.bilaplacian_sweeps = *cfg.flatness_sweeps;
       const char* outer = default_outer ? "2 r_in" : "2 d";
       const auto run = in_child<OursResult>([&] { return run_ours(set, threads, 1, cfg.write_dir); });
       if (!run) {
@@ -594,10 +604,12 @@ bool bench_flatness(const Config& cfg) {
       const OursResult& r = run->value;
       ok = ok && r.mesh.closed_manifold;
       const double r_inner = r.stats.r_inner;
-      const double rms = 100.0 * r.top.rms / r_inner;
-      std::printf("  %9.2f %8s %9zu %10zu %9zu %8.3f %8.3f %11s %10.4f %9.2f %7lld %8.3f%s\n", ratio, outer,
+      const double rms = 100.0 * r.top.rms / r_inner, d = kFlatnessSpacing;
+      const double plane = std::sqrt(r.stats.r_outer * r.stats.r_outer - d * d / 2.0);
+      std::printf("  %9.2f %8s %9zu %10zu %9zu %8.3f %8.3f %11s %7.3f %8.3f %10.4f %9.2f %7lld %8.3f%s\n", ratio, outer,
                   r.mesh.vertices, r.mesh.triangles, r.top.vertices, rms, 100.0 * r.top.peak_to_peak / r_inner,
-                  rms < kFlatnessTargetPercent ? "yes" : "no", 100.0 * r.stats.faithful_after_polish, r.mesh.min_angle,
+                  rms < kFlatnessTargetPercent ? "yes" : "no", (r.top.mean - set.top->z_top) / d, plane / d,
+                  100.0 * r.stats.faithful_after_polish, r.mesh.min_angle,
                   static_cast<long long>(r.stats.slivers_left), r.time.surface,
                   r.mesh.closed_manifold ? "" : "  mesh NOT closed manifold");
       std::fflush(stdout);
@@ -609,7 +621,7 @@ bool bench_flatness(const Config& cfg) {
 
 constexpr const char* kUsage =
     "usage: particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness] [--threads T]\n"
-    "                       [--write DIR]\n";
+    "                       [--flatness-sweeps N] [--write DIR]\n";
 
 [[noreturn]] void usage_error(const std::string& message) {
   std::fprintf(stderr, "particles_bench: %s\n%s", message.c_str(), kUsage);
@@ -652,6 +664,8 @@ int main(int argc, char** argv) {
       cfg.flatness = section == "flatness";
     } else if (arg == "--threads") {
       cfg.threads = {parse_int(arg, value(), 1)};
+    } else if (arg == "--flatness-sweeps") {
+      cfg.flatness_sweeps = parse_int(arg, value(), 0);
     } else if (arg == "--write") {
       cfg.write_dir = value();
     } else if (arg == "--help" || arg == "-h") {
