@@ -3,15 +3,18 @@
 //
 //   active_bench                 Enright at 100^3 and the 200-frame coating sequence
 //   active_bench --full          Enright also at 128^3 and 200^3
-//   active_bench --enright N     Enright at N^3 only (repeatable)
+//   active_bench --enright N     Enright at N^3 only (N >= 8: coarser grids barely hold the sphere; repeatable)
 //   active_bench --coat-only     only the coating sequence
 //   active_bench --general-only  Enright with the general velocity only (VelocityFn called per node and stage, as
 //                                OpenVDB's field functor is); by default the separable (cached u(x)) form runs too,
 //                                then again with volume control (delta) on top, and a table puts them side by side
 //   active_bench --delta D       the volume control of those runs (repeatable; default 1; 0: none)
-//   options: --threads T (default 2), --particles N (default 10000), --frames F (default 200),
-//            --alpha A (tracking alpha = A * kernel radius, default 0.3), --beta B (tension beta = B * radius^2,
-//            default 0.02), --dropout D (fraction of the particles absent from each frame, default 0.1)
+//   options: --threads T (default 2), --particles N (default 10000), --frames F (>= 2, default 200),
+//            --alpha A (tracking alpha = A * kernel radius, > 0, default 0.3), --beta B (tension beta = B * radius^2,
+//            default 0.02), --dropout D (fraction of the particles absent from each frame, below 1, default 0.1)
+//   A flag the others make useless is refused like a bad value (exit 2): --coat-only with --enright, --full,
+//   --general-only or --delta; --full with --enright; --delta with --general-only; a coating flag (--particles,
+//   --frames, --alpha, --beta, --dropout) with --enright.
 //
 // Enright (Enright, Fedkiw, Ferziger & Mitchell 2002, §5.3): sphere r = 0.15 at (0.35, 0.35, 0.35) in the unit cube,
 // period T = 3, without and with volume control (docs/ALGORITHMS.md §4, "Control terms on top of advection").
@@ -36,12 +39,11 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
-#include <cstring>
 #include <random>
 #include <string>
 #include <vector>
 
+#include "bench/bench_args.h"
 #include "core/active/active_surface.h"
 #include "core/particles/spatial_hash.h"
 #include "core/polygonize/marching_tiles.h"
@@ -371,6 +373,10 @@ void coat(int particles, int frames, int threads, double alpha_scale, double bet
               skin_lag / frames / o.h, skin_to_clean / frames / o.h);
 }
 
+constexpr const char* kUsage =
+    "usage: active_bench [--full] [--enright N]... [--coat-only] [--general-only] [--delta D]... [--threads T]\n"
+    "                    [--particles N] [--frames F] [--alpha A] [--beta B] [--dropout D]\n";
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -380,40 +386,56 @@ int main(int argc, char** argv) {
   std::vector<int> sizes;
   std::vector<double> deltas;
   bool deltas_given = false;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto next = [&]() -> int {
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "%s needs a value\n", a.c_str());
-        std::exit(2);
+  // The last flag given that only the Enright runs use, and the last that only the coating sequence uses.
+  std::string enright_flag, coating_flag;
+  bench::Args args(argc, argv, "active_bench", kUsage);
+  while (args.next()) {
+    const std::string& a = args.flag();
+    if (a == "--full" || a == "--general-only" || a == "--enright" || a == "--delta") {
+      enright_flag = a;
+      if (a == "--full") {
+        full = true;
+      } else if (a == "--general-only") {
+        general_only = true;
+      } else if (a == "--enright") {
+        sizes.push_back(args.integer(8));
+      } else {
+        deltas_given = true;
+        if (const double d = args.number({.min = 0.0}); d > 0.0) deltas.push_back(d);
       }
-      return std::atoi(argv[++i]);
-    };
-    if (a == "--full") {
-      full = true;
     } else if (a == "--coat-only") {
       coat_only = true;
-    } else if (a == "--general-only") {
-      general_only = true;
-    } else if (a == "--enright") {
-      sizes.push_back(next());
     } else if (a == "--threads") {
-      threads = next();
-    } else if (a == "--particles") {
-      particles = next();
-    } else if (a == "--frames") {
-      frames = next();
-    } else if (a == "--delta") {
-      if (i + 1 >= argc) return 2;
-      deltas_given = true;
-      if (const double d = std::atof(argv[++i]); d > 0.0) deltas.push_back(d);
-    } else if (a == "--alpha" || a == "--beta" || a == "--dropout") {
-      if (i + 1 >= argc) return 2;
-      (a == "--alpha" ? alpha_scale : a == "--beta" ? beta_scale : dropout) = std::atof(argv[++i]);
+      threads = args.integer(1);
+    } else if (a == "--particles" || a == "--frames" || a == "--alpha" || a == "--beta" || a == "--dropout") {
+      coating_flag = a;
+      if (a == "--particles") {
+        particles = args.integer(1);
+      } else if (a == "--frames") {
+        frames = args.integer(2);  // the flicker is measured between consecutive frames
+      } else if (a == "--alpha") {
+        alpha_scale = args.number({.min = 0.0, .min_open = true});  // coat_particles tracks with alpha > 0
+      } else if (a == "--beta") {
+        beta_scale = args.number({.min = 0.0});
+      } else {
+        dropout = args.number({.min = 0.0, .max = 1.0, .max_open = true});  // coat_particles needs no frame empty
+      }
     } else {
-      std::fprintf(stderr, "unknown option %s (see the comment at the top of bench/active_bench.cpp)\n", a.c_str());
-      return 2;
+      args.unknown();
     }
+  }
+  // Combinations in which a flag would change nothing.
+  if (coat_only && !enright_flag.empty()) {
+    args.error(enright_flag + " configures the Enright runs, which --coat-only skips");
+  }
+  if (full && !sizes.empty()) {
+    args.error("--full adds 128^3 and 200^3 to the default 100^3; with --enright, give every size as --enright N");
+  }
+  if (general_only && deltas_given) {
+    args.error("--delta is the volume control of the separable runs, which --general-only skips");
+  }
+  if (!sizes.empty() && !coating_flag.empty()) {
+    args.error(coating_flag + " configures the coating sequence, which --enright skips (Enright only)");
   }
   if (!deltas_given) deltas = {kDefaultDelta};
   const bool enright_only = !sizes.empty();

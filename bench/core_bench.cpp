@@ -1,10 +1,15 @@
 // Core throughput: dense Marching Cubes, Draco encode/decode, mesh checks.
 //   build-release/bench/core_bench --benchmark_counters_tabular=true
+// Takes Google Benchmark's flags only (--benchmark_filter=REGEX, ...; --help lists them); anything else, or a flag
+// Google Benchmark cannot parse, is an error (exit 2).
 #include <benchmark/benchmark.h>
 
 #include <cmath>
+#include <cstdio>
+#include <string>
 #include <vector>
 
+#include "bench/bench_args.h"
 #include "core/mesh/mesh_checks.h"
 #include "core/mesh/mesh_codec.h"
 #include "core/mesh/mesh_io.h"
@@ -151,7 +156,32 @@ void BM_WritePlyBinary(benchmark::State& state) {
 }
 BENCHMARK(BM_WritePlyBinary)->Unit(benchmark::kMillisecond)->UseRealTime();
 
+constexpr const char* kUsage = "usage: core_bench [--benchmark_<flag>=<value>]... [--v=<verbosity>]\n";
+
 }  // namespace
 }  // namespace surfacer
 
-BENCHMARK_MAIN();
+// BENCHMARK_MAIN, as strict as the other benches: Google Benchmark alone exits 1 on an unknown flag and 0 (after its
+// help) on a --benchmark_format, --benchmark_out_format, --benchmark_color or --benchmark_time_unit it does not know.
+int main(int argc, char** argv) {
+  using namespace surfacer;
+  bench::Args args(argc, argv, "core_bench", kUsage, [] {
+    std::printf("Google Benchmark's flags:\n");
+    benchmark::PrintDefaultHelp();
+  });
+  while (args.next()) {
+    if (!args.flag().starts_with("--benchmark_") && !args.flag().starts_with("--v=")) args.unknown();
+  }
+  // Initialize calls this on a value it does not know instead of exiting 0; a handler cannot capture, hence the static.
+  static const bench::Args* const parser = &args;
+  benchmark::Initialize(&argc, argv, [] {
+    parser->error(
+        "--benchmark_format and --benchmark_out_format take console, json or csv, --benchmark_color auto, true or "
+        "false, --benchmark_time_unit ns, us, ms or s");
+  });
+  // Initialize leaves in argv the flags it did not take: unknown ones and values it cannot parse.
+  if (argc > 1) args.error("Google Benchmark does not take '" + std::string(argv[1]) + "' (see --help)");
+  benchmark::RunSpecifiedBenchmarks();
+  benchmark::Shutdown();
+  return 0;
+}

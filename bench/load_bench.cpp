@@ -25,11 +25,12 @@
 // Usage: load_bench [--clients N] [--seconds S] [--cancel-fraction P] [--reattach-fraction P] [--workers W]
 //                   [--max-queued-jobs Q] [--data-dir DIR] [--server HOST:PORT] [--seed N] [--job-timeout S]
 //                   [--server-logs]
+// --workers, --max-queued-jobs, --data-dir and --server-logs configure the embedded server: with --server they are
+// refused (exit 2), as they would change nothing. --help describes every flag.
 #include <google/protobuf/util/json_util.h>
 #include <grpcpp/grpcpp.h>
 #include <sys/resource.h>
 
-#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -46,6 +47,7 @@
 #include <thread>
 #include <vector>
 
+#include "bench/bench_args.h"
 #include "client/exit_codes.h"
 #include "client/frame_assembler.h"
 #include "client/upload.h"
@@ -676,58 +678,83 @@ std::string load_average() {
   return one + " " + five + " " + fifteen;
 }
 
+constexpr const char* kUsage =
+    "usage: load_bench [--clients N] [--seconds S] [--cancel-fraction P] [--reattach-fraction P] [--workers W]\n"
+    "                  [--max-queued-jobs Q] [--data-dir DIR] [--server HOST:PORT] [--seed N] [--job-timeout S]\n"
+    "                  [--server-logs]\n";
+
+void print_help() {
+  std::fputs(R"(
+Load test: concurrent clients submit, watch, re-attach to and cancel small jobs on a real server over TCP for a
+fixed time; every frame is CRC-checked, Draco-decoded and mesh-checked.
+
+  --clients N            concurrent client threads, 1 to 1024 (default 8)
+  --seconds S            how long clients start new jobs (in-flight jobs then finish), 0.1 to 86400 (default 20)
+  --cancel-fraction P    share of jobs cancelled (at once or after frame 0), 0 to 1 (default 0.2)
+  --reattach-fraction P  share of the other jobs watched again with from_frame = k (mid-stream or after the end),
+                         0 to 1 (default 0.25)
+  --workers W            embedded server's worker threads, 0 to 1024 (default 0: hardware)
+  --max-queued-jobs Q    embedded server's queue length (beyond it SubmitJob answers RESOURCE_EXHAUSTED),
+                         1 to 1000000 (default 64)
+  --data-dir DIR         embedded server's durable store (SQLite + files; created if missing; default: memory only)
+  --server-logs          keep the embedded server's info logs on stderr
+  --server HOST:PORT     a running server instead of the embedded one (none of the four flags above with it)
+  --seed N               seed of the job mix (client i uses a stream derived from it; default 1)
+  --job-timeout S        a job not finished this many seconds after submit fails, 1 to 86400 (default 120)
+
+Examples:
+  load_bench --seconds 30 --clients 32                 # embedded server on 127.0.0.1:<free port>
+  load_bench --max-queued-jobs 2 --clients 16          # provoke RESOURCE_EXHAUSTED backpressure
+  load_bench --data-dir /tmp/load-store                # embedded server with the durable store
+  load_bench --server 127.0.0.1:50051 --seconds 60     # against a running surfacer-server
+Exit codes: 0 all checks passed, 1 failures (listed), 2 bad flags, 3 --server unreachable.
+)",
+             stdout);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   Settings settings;
-  CLI::App app{
-      "Load test: concurrent clients submit, watch, re-attach to and cancel small jobs on a real server over TCP for "
-      "a fixed time; every frame is CRC-checked, Draco-decoded and mesh-checked. Exits 1 if any job failed or any "
-      "frame was lost or corrupted.",
-      "load_bench"};
-  app.footer(
-      "Examples:\n"
-      "  load_bench --seconds 30 --clients 32                 # embedded server on 127.0.0.1:<free port>\n"
-      "  load_bench --max-queued-jobs 2 --clients 16          # provoke RESOURCE_EXHAUSTED backpressure\n"
-      "  load_bench --data-dir /tmp/load-store                # embedded server with the durable store\n"
-      "  load_bench --server 127.0.0.1:50051 --seconds 60     # against a running surfacer-server\n"
-      "Exit codes: 0 all checks passed, 1 failures (listed), 2 bad flags, 3 --server unreachable.");
-  app.add_option("--clients", settings.clients, "Concurrent client threads")->check(CLI::Range(1, 1024));
-  app.add_option("--seconds", settings.seconds, "How long clients start new jobs (in-flight jobs then finish)")
-      ->check(CLI::Range(0.1, 86400.0));
-  app.add_option("--cancel-fraction", settings.cancel_fraction, "Share of jobs cancelled (at once or after frame 0)")
-      ->check(CLI::Range(0.0, 1.0));
-  app.add_option("--reattach-fraction", settings.reattach_fraction,
-                 "Share of the other jobs watched again with from_frame = k (mid-stream or after the end)")
-      ->check(CLI::Range(0.0, 1.0));
-  auto* workers = app.add_option("--workers", settings.workers, "Embedded server's worker threads (0: hardware)")
-                      ->check(CLI::Range(0, 1024));
-  auto* queued = app.add_option("--max-queued-jobs", settings.max_queued_jobs,
-                                "Embedded server's queue length (beyond it SubmitJob answers RESOURCE_EXHAUSTED)")
-                     ->check(CLI::Range(1, 1000000));
-  auto* data_dir = app.add_option("--data-dir", settings.data_dir,
-                                  "Embedded server's durable store (SQLite + files; created if missing). Default: "
-                                  "memory only");
-  auto* remote =
-      app.add_option("--server", settings.server, "HOST:PORT of a running server instead of the embedded one");
-  app.add_option("--seed", settings.seed, "Seed of the job mix (client i uses a stream derived from it)");
-  app.add_option("--job-timeout", settings.job_timeout, "A job not finished this many seconds after submit fails")
-      ->check(CLI::Range(1.0, 86400.0));
-  app.add_flag("--server-logs", settings.server_logs, "Keep the embedded server's info logs on stderr");
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    return app.exit(e) == 0 ? 0 : 2;
-  }
-  if (remote->count() > 0) {
-    for (const CLI::Option* embedded_only : {workers, queued, data_dir}) {
-      if (embedded_only->count() == 0) continue;
-      std::fprintf(stderr,
-                   "load_bench: %s configures the embedded server and cannot be combined with --server; drop it, or "
-                   "give it to the remote surfacer-server instead\n",
-                   embedded_only->get_name().c_str());
-      return 2;
+  std::string embedded_flag;  // the last flag given that configures the embedded server, which --server replaces
+  bench::Args args(argc, argv, "load_bench", kUsage, print_help);
+  while (args.next()) {
+    const std::string& flag = args.flag();
+    if (flag == "--clients") {
+      settings.clients = args.integer(1, 1024);
+    } else if (flag == "--seconds") {
+      settings.seconds = args.number({.min = 0.1, .max = 86400.0});
+    } else if (flag == "--cancel-fraction") {
+      settings.cancel_fraction = args.number({.min = 0.0, .max = 1.0});
+    } else if (flag == "--reattach-fraction") {
+      settings.reattach_fraction = args.number({.min = 0.0, .max = 1.0});
+    } else if (flag == "--workers") {
+      settings.workers = args.integer(0, 1024);
+      embedded_flag = flag;
+    } else if (flag == "--max-queued-jobs") {
+      settings.max_queued_jobs = args.integer(1, 1000000);
+      embedded_flag = flag;
+    } else if (flag == "--data-dir") {
+      settings.data_dir = args.value("a directory");
+      embedded_flag = flag;
+    } else if (flag == "--server-logs") {
+      settings.server_logs = true;
+      embedded_flag = flag;
+    } else if (flag == "--server") {
+      settings.server = args.value("HOST:PORT");
+      if (settings.server.empty()) args.error("--server needs HOST:PORT, got ''");
+    } else if (flag == "--seed") {
+      settings.seed = args.integer<unsigned>(0);
+    } else if (flag == "--job-timeout") {
+      settings.job_timeout = args.number({.min = 1.0, .max = 86400.0});
+    } else {
+      args.unknown();
     }
+  }
+  if (!settings.server.empty() && !embedded_flag.empty()) {
+    args.error(embedded_flag +
+               " configures the embedded server and cannot be combined with --server; drop it, or give it to the "
+               "remote surfacer-server instead");
   }
 
   std::unique_ptr<server::SurfacerServer> embedded;

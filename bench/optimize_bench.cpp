@@ -17,10 +17,10 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <cstring>
 #include <string>
 #include <vector>
 
+#include "bench/bench_args.h"
 #include "core/optimize/mesh_optimizer.h"
 #include "core/polygonize/marching_cubes.h"
 #include "core/scene/scene.h"
@@ -460,11 +460,21 @@ void resolution_worth(bool quick) {
   }
 }
 
+constexpr const char* kUsage = "usage: optimize_bench [--quick]\n";
+
 }  // namespace
 }  // namespace surfacer
 
 int main(int argc, char** argv) {
-  const bool quick = argc > 1 && std::strcmp(argv[1], "--quick") == 0;
+  bool quick = false;
+  surfacer::bench::Args args(argc, argv, "optimize_bench", surfacer::kUsage);
+  while (args.next()) {
+    if (args.flag() == "--quick") {
+      quick = true;
+    } else {
+      args.unknown();
+    }
+  }
   std::printf("optimize_bench: hardware threads %d\n", surfacer::resolve_threads(0));
   surfacer::time_flows();
   surfacer::convergence();

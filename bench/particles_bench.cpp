@@ -15,6 +15,9 @@
 //                   show where the sweeps converge to
 //   --write DIR     our meshes as DIR/<name>_t<threads>.ply
 //
+// --particles, --repeat and --vdb-repeat are the block's, --flatness-sweeps the flatness slabs'; with the other
+// --section alone they would change nothing, so they are refused (exit 2, as any bad flag).
+//
 // Exits 1 when a run fails, or when one of our meshes is not a closed, oriented manifold or differs between thread
 // counts; timings are never checked.
 //
@@ -51,7 +54,6 @@
 
 #include <algorithm>
 #include <array>
-#include <charconv>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
@@ -67,6 +69,7 @@
 #include <type_traits>
 #include <vector>
 
+#include "bench/bench_args.h"
 #include "bench/openvdb_reference.h"
 #include "core/mesh/mesh_checks.h"
 #include "core/mesh/mesh_codec.h"
@@ -623,58 +626,45 @@ constexpr const char* kUsage =
     "usage: particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness] [--threads T]\n"
     "                       [--flatness-sweeps N] [--write DIR]\n";
 
-[[noreturn]] void usage_error(const std::string& message) {
-  std::fprintf(stderr, "particles_bench: %s\n%s", message.c_str(), kUsage);
-  std::exit(2);
-}
-
-template <class Int>
-Int parse_int(const std::string& flag, const std::string& text, Int min) {
-  Int v = 0;
-  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
-  if (ec != std::errc() || end != text.data() + text.size() || v < min) {
-    usage_error(flag + " needs an integer >= " + std::to_string(min) + ", got '" + text + "'");
-  }
-  return v;
-}
-
 }  // namespace
 }  // namespace surfacer
 
 int main(int argc, char** argv) {
   using namespace surfacer;
   Config cfg;
-  for (int a = 1; a < argc; ++a) {
-    const std::string arg = argv[a];
-    const auto value = [&]() -> std::string {
-      if (a + 1 >= argc) usage_error(arg + " needs a value");
-      return argv[++a];
-    };
-    if (arg == "--particles") {
-      cfg.particles = parse_int<std::size_t>(arg, value(), 8);
-    } else if (arg == "--repeat") {
-      cfg.repeat = parse_int(arg, value(), 1);
-    } else if (arg == "--vdb-repeat") {
-      cfg.vdb_repeat = parse_int(arg, value(), 1);
-    } else if (arg == "--section") {
-      const std::string section = value();
+  std::string block_flag, flatness_flag;  // the last flag given that only the block, only the flatness slabs use
+  bench::Args args(argc, argv, "particles_bench", kUsage);
+  while (args.next()) {
+    const std::string& flag = args.flag();
+    if (flag == "--particles") {
+      cfg.particles = args.integer<std::size_t>(8);
+      block_flag = flag;
+    } else if (flag == "--repeat") {
+      cfg.repeat = args.integer(1);
+      block_flag = flag;
+    } else if (flag == "--vdb-repeat") {
+      cfg.vdb_repeat = args.integer(1);
+      block_flag = flag;
+    } else if (flag == "--section") {
+      const std::string section = args.value("block or flatness");
       if (section != "block" && section != "flatness")
-        usage_error("--section is block or flatness, got '" + section + "'");
+        args.error("--section is block or flatness, got '" + section + "'");
       cfg.block = section == "block";
       cfg.flatness = section == "flatness";
-    } else if (arg == "--threads") {
-      cfg.threads = {parse_int(arg, value(), 1)};
-    } else if (arg == "--flatness-sweeps") {
-      cfg.flatness_sweeps = parse_int(arg, value(), 0);
-    } else if (arg == "--write") {
-      cfg.write_dir = value();
-    } else if (arg == "--help" || arg == "-h") {
-      std::printf("%s", kUsage);
-      return 0;
+    } else if (flag == "--threads") {
+      cfg.threads = {args.integer(1)};
+    } else if (flag == "--flatness-sweeps") {
+      cfg.flatness_sweeps = args.integer(0);
+      flatness_flag = flag;
+    } else if (flag == "--write") {
+      cfg.write_dir = args.value("a directory");
     } else {
-      usage_error("unknown argument '" + arg + "'");
+      args.unknown();
     }
   }
+  // The flatness slabs have a fixed size and run once, on our side only; the block keeps the default sweeps.
+  if (!cfg.block && !block_flag.empty()) args.error(block_flag + " applies to the block only");
+  if (!cfg.flatness && !flatness_flag.empty()) args.error(flatness_flag + " applies to the flatness slabs only");
   double load[3] = {0, 0, 0};
   if (getloadavg(load, 3) < 0) load[0] = -1;
   std::printf(

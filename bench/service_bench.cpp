@@ -11,8 +11,11 @@
 //               seconds and utilization = CPU / (wall x hardware threads);
 //   6. RPC    : the same single-frame job through a loopback server against the in-process one;
 //   7. the Draco speed sweep (encode s, decode s, bits per triangle).
-// Medians of --repeat runs. Usage: service_bench [--scene FILE] [--cells N] [--frames F] [--sequence-cells N]
-//                                                [--repeat R] [--section 1..7 (one only; 4 comes with 1)]
+// Medians of --repeat runs (section 5's sequence runs once). Usage:
+//   service_bench [--scene FILE] [--cells N] [--frames F] [--sequence-cells N] [--repeat R]
+//                 [--section 1..7 (one only; 4 comes with 1)]
+// --frames and --sequence-cells are section 5's, --cells and --repeat every other section's: given with a --section
+// they do not apply to, they are refused like a bad value (exit 2).
 #include <google/protobuf/util/json_util.h>
 #include <grpcpp/grpcpp.h>
 #include <sys/resource.h>
@@ -21,7 +24,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
-#include <cstring>
 #include <fstream>
 #include <functional>
 #include <map>
@@ -30,6 +32,7 @@
 #include <thread>
 #include <vector>
 
+#include "bench/bench_args.h"
 #include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_checks.h"
 #include "core/polygonize/polygonize.h"
@@ -148,6 +151,10 @@ JobResult median_job(int repeat, v1::Surfacer::Stub& stub, const v1::JobSpec& sp
 
 const FrameCodec kCodecs[] = {FrameCodec::kDraco, FrameCodec::kDracoPieces, FrameCodec::kMeshopt, FrameCodec::kPly};
 
+constexpr const char* kUsage =
+    "usage: service_bench [--scene FILE] [--cells N] [--frames F] [--sequence-cells N] [--repeat R]\n"
+    "                     [--section 1..7]\n";
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -157,13 +164,36 @@ int main(int argc, char** argv) {
   int sequence_cells = 128;
   int repeat = 3;
   int section = 0;  // 0: all
-  for (int i = 1; i + 1 < argc; i += 2) {
-    if (!std::strcmp(argv[i], "--scene")) scene_path = argv[i + 1];
-    if (!std::strcmp(argv[i], "--cells")) cells = std::atoi(argv[i + 1]);
-    if (!std::strcmp(argv[i], "--frames")) frames = std::atoi(argv[i + 1]);
-    if (!std::strcmp(argv[i], "--sequence-cells")) sequence_cells = std::atoi(argv[i + 1]);
-    if (!std::strcmp(argv[i], "--repeat")) repeat = std::atoi(argv[i + 1]);
-    if (!std::strcmp(argv[i], "--section")) section = std::atoi(argv[i + 1]);
+  // The last flag given that only section 5 (the sequence) uses, and the last that only the single-frame sections use.
+  std::string sequence_flag, single_frame_flag;
+  bench::Args args(argc, argv, "service_bench", kUsage);
+  while (args.next()) {
+    const std::string& flag = args.flag();
+    if (flag == "--scene") {
+      scene_path = args.value("a file");
+    } else if (flag == "--cells") {
+      cells = args.integer(1);
+      single_frame_flag = flag;
+    } else if (flag == "--frames") {
+      frames = args.integer(1);
+      sequence_flag = flag;
+    } else if (flag == "--sequence-cells") {
+      sequence_cells = args.integer(1);
+      sequence_flag = flag;
+    } else if (flag == "--repeat") {
+      repeat = args.integer(1);
+      single_frame_flag = flag;
+    } else if (flag == "--section") {
+      section = args.integer(1, 7);
+    } else {
+      args.unknown();
+    }
+  }
+  if (section == 5 && !single_frame_flag.empty()) {
+    args.error(single_frame_flag + " does not apply to section 5 (the sequence)");
+  }
+  if (section != 0 && section != 5 && !sequence_flag.empty()) {
+    args.error(sequence_flag + " applies to section 5 (the sequence) only");
   }
   std::ifstream in(scene_path);
   std::stringstream ss;
@@ -195,7 +225,8 @@ int main(int argc, char** argv) {
   Mesh cubes_mesh;
   Aabb cubes_box;
   double cubes_polygonize = 0.0;
-  auto want = [&](int k) { return section == 0 || section == k; };
+  // The checks (4) measure section 1's meshes, so 4 runs 1.
+  auto want = [&](int k) { return section == 0 || section == k || (k == 1 && section == 4); };
   for (const auto method : {Polygonizer::kCubes, Polygonizer::kTiles}) {
     if (!want(1) && !(method == Polygonizer::kCubes && (want(2) || want(3) || want(6) || want(7)))) continue;
     const auto proto_method = method == Polygonizer::kCubes ? v1::POLYGONIZER_CUBES : v1::POLYGONIZER_TILES;
