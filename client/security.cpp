@@ -113,6 +113,7 @@ SecurityOptions load_security(const SecurityFlags& flags, const char* env_token,
                        : flags.tls_key         ? "--tls-key"
                        : flags.tls_server_name ? "--tls-server-name"
                        : flags.tls             ? "--tls"
+                       : flags.allow_insecure  ? "--allow-insecure"
                                                : nullptr;
     if (flag != nullptr) {
       throw usage(std::string(flag) +

@@ -97,7 +97,8 @@ class Client:
     sizes it). ``Client("host:50051")`` connects to a surfacer-server, waiting up to ``timeout`` seconds; ``tls``
     (system roots) or ``tls_ca`` (a CA file) turn TLS on, ``tls_cert``/``tls_key`` present a client certificate,
     ``tls_server_name`` checks the certificate against that name; ``token`` or ``token_file`` (or $SURFACER_TOKEN)
-    send a bearer token, refused in plain text to a host that is not loopback unless ``allow_insecure``. These are
+    send a bearer token, refused in plain text to a host that is not loopback unless ``allow_insecure``. ``workers``
+    with a server, and the TLS, token and ``allow_insecure`` options without one, raise UsageError. These are
     the CLI's --server, --tls, --tls-ca, ... with the same checks and defaults."""
 
     def __init__(self, server: Optional[str] = None, *, token: Optional[str] = None,

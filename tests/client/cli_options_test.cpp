@@ -70,6 +70,20 @@ TEST(CliOptions, ServerFromEnvironmentUnlessLocal) {
   EXPECT_TRUE(ok(parse_cli({"status", "j1"}, "")).connect.local());
 }
 
+// Flags for one kind of server are refused with the other, naming the flag, rather than ignored.
+TEST(CliOptions, ServerKindFlagsRefusedWithTheOtherKind) {
+  EXPECT_EQ(ok(parse_cli({"--workers", "3", "list"})).connect.workers, 3);
+  EXPECT_EQ(ok(parse_cli({"--local", "--workers", "3", "list"}, "env:9")).connect.workers, 3);
+  auto remote = parse_cli({"--workers", "3", "list"}, "env:9");
+  EXPECT_EQ(exit_code_of(remote), ExitCode::kUsage);
+  EXPECT_NE(remote.err.find("--workers"), std::string::npos) << remote.err;
+  EXPECT_NE(remote.err.find("env:9"), std::string::npos) << remote.err;
+  EXPECT_TRUE(ok(parse_cli({"--server", "h:1", "--allow-insecure", "list"})).connect.security.allow_insecure);
+  auto local = parse_cli({"--allow-insecure", "list"});
+  EXPECT_EQ(exit_code_of(local), ExitCode::kUsage);
+  EXPECT_NE(local.err.find("--allow-insecure"), std::string::npos) << local.err;
+}
+
 TEST(CliOptions, OtherSubcommands) {
   auto watch = std::get<WatchCommand>(ok(parse_cli({"watch", "j-7", "--from-frame", "3", "-o", "d"})).command);
   EXPECT_EQ(watch.job_id, "j-7");
@@ -99,6 +113,8 @@ TEST(CliOptions, UsageErrorsExitTwo) {
       {"run", "isosurface", "--scene", "a", "--raw", "--quantization-bits", "10", "-o", "d"},
       {"run", "isosurface", "--scene", "a", "--method", "hexes", "-o", "d"},
       {"--server", "h:1", "--local", "health"},
+      {"--server", "h:1", "--workers", "2", "list"},  // sizes only the in-process server
+      {"--allow-insecure", "--local", "list"},        // no token goes anywhere
       {"watch", "-o", "d"},
       {"list", "--state", "sleeping"},
   };

@@ -82,6 +82,14 @@ def test_bad_scene_is_a_usage_error(local_client):
     assert error.value.code == "INVALID_ARGUMENT" and "colour" in str(error.value)
 
 
+def test_server_kind_options_refused_with_the_other_kind():
+    """workers sizes only the in-process server, allow_insecure concerns only tokens sent to a remote one."""
+    with pytest.raises(surfacer.UsageError, match="workers"):
+        surfacer.Client(server="localhost:1", workers=2)
+    with pytest.raises(surfacer.UsageError, match="--allow-insecure"):
+        surfacer.Client(allow_insecure=True)
+
+
 def test_unknown_keyword_is_a_type_error(local_client):
     with pytest.raises(TypeError, match="'cels'"):
         local_client.isosurface(sphere_scene(), cels=32)
