@@ -555,53 +555,6 @@ std::vector<char> filter_components(const Particles& all, int min_size, std::siz
   return keep;
 }
 
-// Renumbers vertices along a Morton curve (cells of `cell`): neighbours in space become neighbours in memory, and
-// contiguous index blocks become compact patches (few seam vertices in the parallel sweeps).
-void morton_reorder(Mesh& mesh, double cell, int threads) {
-  const std::size_t n = mesh.vertices.size();
-  if (n == 0) return;
-  const Aabb box = Aabb::of(mesh.vertices);
-  auto spread = [](std::uint64_t v) {
-    v &= 0x1fffff;
-    v = (v | v << 32) & 0x1f00000000ffffull;
-    v = (v | v << 16) & 0x1f0000ff0000ffull;
-    v = (v | v << 8) & 0x100f00f00f00f00full;
-    v = (v | v << 4) & 0x10c30c30c30c30c3ull;
-    v = (v | v << 2) & 0x1249249249249249ull;
-    return v;
-  };
-  std::vector<std::pair<std::uint64_t, std::uint32_t>> keys(n);
-  const double inv = 1.0 / cell;
-  for_chunks(n, threads, [&](std::size_t begin, std::size_t end) {
-    for (std::size_t i = begin; i < end; ++i) {
-      std::uint64_t code = 0;
-      for (int a = 0; a < 3; ++a) {
-        const double q = std::clamp((mesh.vertices[i][a] - box.min[a]) * inv, 0.0, 2097151.0);
-        code |= spread(static_cast<std::uint64_t>(q)) << a;
-      }
-      keys[i] = {code, static_cast<std::uint32_t>(i)};
-    }
-  });
-  parallel_sort(keys, threads);  // keys are unique (the index breaks ties): the order is the serial sort's
-  std::vector<std::uint32_t> new_of_old(n);
-  std::vector<Vec3> vertices(n);
-  std::vector<Vec3> normals(mesh.normals.empty() ? 0 : n);
-  for_chunks(n, threads, [&](std::size_t begin, std::size_t end) {
-    for (std::size_t k = begin; k < end; ++k) {
-      new_of_old[keys[k].second] = static_cast<std::uint32_t>(k);
-      vertices[k] = mesh.vertices[keys[k].second];
-      if (!normals.empty()) normals[k] = mesh.normals[keys[k].second];
-    }
-  });
-  for_chunks(mesh.triangles.size(), threads, [&](std::size_t begin, std::size_t end) {
-    for (std::size_t t = begin; t < end; ++t) {
-      for (std::uint32_t& v : mesh.triangles[t]) v = new_of_old[v];
-    }
-  });
-  mesh.vertices = std::move(vertices);
-  mesh.normals = std::move(normals);
-}
-
 int min_valence(const ps::Graph& ring) {
   int m = 0;
   for (std::size_t i = 0; i < ring.rows(); ++i) {
@@ -1040,7 +993,6 @@ void ParticleSurfacer::State::smooth(Mesh& mesh, int threads, const RunControl& 
                                      ParticleSurfacingStats& stats) {
   const ParticleSurfacingOptions& o = options;
   Clock::time_point t0 = Clock::now();
-  morton_reorder(mesh, stats.spacing, threads);
   mesh.normals.clear();
   Smoother smoother(mesh, o, particles, threads);
   stats.initial_min_valence = min_valence(smoother.ring());

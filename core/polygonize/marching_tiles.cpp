@@ -32,8 +32,9 @@
 // z-layers of home cells the current cell layer reaches, so it stays in L1 -- gives each crossed edge one id; edges
 // owned elsewhere get a "foreign" id (owner block, slot). The merge groups foreign ids by owner and answers them from
 // the owner's (slot -> vertex) table laid out in a worker's array; no hash maps, no sorting of vertex lists. Blocks
-// are concatenated in key order (z, y, x), vertices and triangles in each block's creation order: the mesh is
-// byte-identical whatever the thread count or scheduling.
+// are concatenated along a Morton curve over the block grid (so a range of indices is a compact piece of surface),
+// vertices and triangles in each block's creation order: the mesh is byte-identical whatever the thread count or
+// scheduling.
 //
 // Triangles. For each crossed tetrahedron (case = inside bits; 0 counts as outside) one triangle (1 or 3 inside) or
 // a quad split along its shorter diagonal (2 inside), oriented outward (toward increasing f): the orientation is
@@ -51,6 +52,7 @@
 #include <cstdint>
 #include <limits>
 #include <mutex>
+#include <numeric>
 #include <string>
 #include <unordered_set>
 #include <vector>
@@ -866,9 +868,25 @@ std::vector<std::uint64_t> sign_scan(const Lattice& lat, const Field& field, con
 
 // --- Merge ---------------------------------------------------------------------------------------------------------
 
+// Whether block a comes before block b along a Morton (Z-order) curve over the block grid, z the most significant
+// axis at every bit: the axis whose coordinates differ in the highest bit decides. No limit on the coordinates.
+bool morton_less(const std::array<std::int64_t, 3>& a, const std::array<std::int64_t, 3>& b) {
+  int axis = 2;
+  std::uint64_t highest = 0;
+  for (int d = 2; d >= 0; --d) {
+    const std::uint64_t diff = static_cast<std::uint64_t>(a[d] ^ b[d]);
+    if (highest < diff && highest < (highest ^ diff)) {  // diff's top bit is above highest's
+      highest = diff;
+      axis = d;
+    }
+  }
+  return a[axis] < b[axis];
+}
+
 // Resolves foreign ids without sorting whole vertex lists: the references are grouped by owner block, and each
 // owner's (slot -> id) table is laid out in a worker's slot array just long enough to answer them.
-Mesh merge(std::vector<BlockOutput>& blocks, bool normals, std::vector<Scratch>& scratch, const RunControl& control) {
+Mesh merge(const Lattice& lat, std::vector<BlockOutput>& blocks, bool normals, std::vector<Scratch>& scratch,
+           const RunControl& control) {
   std::sort(blocks.begin(), blocks.end(), [](const BlockOutput& a, const BlockOutput& b) { return a.key < b.key; });
   const std::size_t n = blocks.size();
   const int threads = static_cast<int>(scratch.size());
@@ -876,9 +894,25 @@ Mesh merge(std::vector<BlockOutput>& blocks, bool normals, std::vector<Scratch>&
   std::vector<std::size_t> vbase(n + 1, 0), tbase(n + 1, 0), fbase(n + 1, 0);
   for (std::size_t b = 0; b < n; ++b) {
     keys[b] = blocks[b].key;
-    vbase[b + 1] = vbase[b] + blocks[b].vertices.size();
-    tbase[b + 1] = tbase[b] + blocks[b].triangles.size();
     fbase[b + 1] = fbase[b] + blocks[b].foreign.size();
+  }
+  // The blocks' vertices and triangles are laid out along a Morton curve over the block grid, so that any range of
+  // indices is a compact piece of the surface (the particle surfacer's sweep blocks, the codecs' pieces).
+  {
+    std::vector<std::uint32_t> place(n);
+    std::iota(place.begin(), place.end(), 0u);
+    std::sort(place.begin(), place.end(), [&](std::uint32_t a, std::uint32_t b) {
+      return morton_less(lat.block_of_key(keys[a]), lat.block_of_key(keys[b]));
+    });
+    std::size_t v = 0, t = 0;
+    for (const std::uint32_t b : place) {
+      vbase[b] = v;
+      tbase[b] = t;
+      v += blocks[b].vertices.size();
+      t += blocks[b].triangles.size();
+    }
+    vbase[n] = v;
+    tbase[n] = t;
   }
   if (vbase[n] > std::numeric_limits<std::uint32_t>::max()) {
     throw ResourceLimit("spacing", "marching tiles produced more than 2^32 vertices; use a larger spacing");
@@ -1015,7 +1049,7 @@ Mesh marching_tiles(const Field& field, const MarchingTilesOptions& options, con
     scheduled += static_cast<std::int64_t>(next.size());
     frontier = std::move(next);
   }
-  Mesh mesh = merge(done, options.normals, scratch, control);
+  Mesh mesh = merge(lat, done, options.normals, scratch, control);
   control.report("polygonize", 1.0);
   return mesh;
 }

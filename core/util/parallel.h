@@ -73,27 +73,6 @@ void for_chunks(std::size_t n, int threads, Body&& body) {
   });
 }
 
-// std::sort of v on `threads` threads: runs sorted in parallel, then merged pairwise in parallel rounds. The result
-// is std::sort's whenever no two elements compare equal (or equal ones are interchangeable).
-template <class T>
-void parallel_sort(std::vector<T>& v, int threads) {
-  const std::size_t n = v.size();
-  const int runs = static_cast<int>(std::min<std::size_t>(std::max(1, threads), n / 65536 + 1));
-  std::vector<std::size_t> bounds(static_cast<std::size_t>(runs) + 1);
-  for (int r = 0; r <= runs; ++r) bounds[r] = n * static_cast<std::size_t>(r) / static_cast<std::size_t>(runs);
-  parallel_for(runs, threads, [&](int r) { std::sort(v.begin() + bounds[r], v.begin() + bounds[r + 1]); });
-  while (bounds.size() > 2) {
-    const int pairs = static_cast<int>((bounds.size() - 1) / 2);
-    parallel_for(pairs, threads, [&](int p) {
-      std::inplace_merge(v.begin() + bounds[2 * p], v.begin() + bounds[2 * p + 1], v.begin() + bounds[2 * p + 2]);
-    });
-    std::vector<std::size_t> merged;
-    for (std::size_t b = 0; b < bounds.size(); b += 2) merged.push_back(bounds[b]);
-    if (merged.back() != n) merged.push_back(n);
-    bounds = std::move(merged);
-  }
-}
-
 // Where a data-parallel loop runs. Engines that take one let a server run their items on its own worker pool
 // (server/worker_pool.h) next to other work, instead of starting threads; ThreadExecutor is the fork-join default.
 class Executor {
