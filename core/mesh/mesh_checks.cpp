@@ -13,8 +13,11 @@
 // Parallel and deterministic: triangles and vertices are cut into blocks of fixed size, each block's sums are kept
 // apart and added in block order, so the report's bits do not depend on the executor. The table is built without
 // atomics: each of a few vertex ranges scans every triangle and keeps the corners of its own vertices, in triangle
-// order. Components come from a lock-free union-find (links always point to the smaller index); their number is the
-// referenced vertices minus the successful links, whichever thread made them.
+// order. Components come from a union-find whose links always point to the smaller index: each block of vertices
+// links the edges inside it without atomics (its finds never leave it), then the edges between blocks are linked in
+// parallel with atomic compare-and-swap; the number of components is the referenced vertices minus the successful
+// links, whichever thread made them. Large arrays are allocated uninitialized and first written by the parallel
+// passes, so their pages are faulted in by every thread rather than by one.
 #include "core/mesh/mesh_checks.h"
 
 #include <Eigen/Geometry>
@@ -64,19 +67,22 @@ std::uint32_t match_mask(const std::uint32_t* a, int k, std::uint32_t x) {
 
 int block_count(std::size_t n, std::size_t block) { return static_cast<int>((n + block - 1) / block); }
 
-// Union-find on atomics: links point from the larger root to the smaller, so no cycle can form and concurrent
-// unite() calls agree; path halving only ever shortens a path to a vertex's own root.
+// Union-find: links point from the larger root to the smaller, so no cycle can form and concurrent unite() calls
+// agree; path halving only ever shortens a path to a vertex's own root. The *_alone calls skip the atomics.
 class AtomicUnionFind {
  public:
-  explicit AtomicUnionFind(std::size_t n) : parent_(new std::atomic<std::uint32_t>[n]) {
-    for (std::size_t i = 0; i < n; ++i) parent_[i].store(static_cast<std::uint32_t>(i), std::memory_order_relaxed);
+  // Allocated, not initialized: reset() every vertex first (in parallel, so that the pages are first touched by the
+  // threads that use them rather than by one).
+  explicit AtomicUnionFind(std::size_t n) : parent_(std::make_unique_for_overwrite<std::uint32_t[]>(n)) {}
+  void reset(std::size_t begin, std::size_t end) const {
+    for (std::size_t i = begin; i < end; ++i) parent_[i] = static_cast<std::uint32_t>(i);
   }
   std::uint32_t find(std::uint32_t x) const {
     for (;;) {
-      const std::uint32_t p = parent_[x].load(std::memory_order_relaxed);
+      const std::uint32_t p = at(x).load(std::memory_order_relaxed);
       if (p == x) return x;
-      const std::uint32_t g = parent_[p].load(std::memory_order_relaxed);
-      if (g != p) parent_[x].store(g, std::memory_order_relaxed);  // x is no root: only compressions write it
+      const std::uint32_t g = at(p).load(std::memory_order_relaxed);
+      if (g != p) at(x).store(g, std::memory_order_relaxed);  // x is no root: only compressions write it
       x = g;
     }
   }
@@ -86,7 +92,7 @@ class AtomicUnionFind {
     std::uint32_t rw = find(w);
     if (rw == root) return false;
     std::uint32_t big = std::max(root, rw), small = std::min(root, rw);
-    if (parent_[big].compare_exchange_strong(big, small, std::memory_order_relaxed)) {
+    if (at(big).compare_exchange_strong(big, small, std::memory_order_relaxed)) {
       root = small;
       return true;
     }
@@ -94,6 +100,22 @@ class AtomicUnionFind {
     const bool joined = unite(root, w);
     root = find(root);
     return joined;
+  }
+  // The same without atomics, for one thread alone on a set of vertices whose paths stay inside it.
+  std::uint32_t find_alone(std::uint32_t x) const {
+    while (parent_[x] != x) x = parent_[x] = parent_[parent_[x]];
+    return x;
+  }
+  bool join_alone(std::uint32_t& root, std::uint32_t w) const {
+    const std::uint32_t rw = find_alone(w);
+    if (rw == root) return false;
+    if (rw < root) {
+      parent_[root] = rw;
+      root = rw;
+    } else {
+      parent_[rw] = root;
+    }
+    return true;
   }
   // True when this call joined two components.
   bool unite(std::uint32_t a, std::uint32_t b) const {
@@ -103,12 +125,13 @@ class AtomicUnionFind {
       if (a == b) return false;
       if (a < b) std::swap(a, b);
       std::uint32_t expected = a;
-      if (parent_[a].compare_exchange_strong(expected, b, std::memory_order_relaxed)) return true;
+      if (at(a).compare_exchange_strong(expected, b, std::memory_order_relaxed)) return true;
     }
   }
 
  private:
-  std::unique_ptr<std::atomic<std::uint32_t>[]> parent_;
+  std::atomic_ref<std::uint32_t> at(std::uint32_t x) const { return std::atomic_ref<std::uint32_t>(parent_[x]); }
+  std::unique_ptr<std::uint32_t[]> parent_;
 };
 
 // Sums of one block of triangles.
@@ -207,6 +230,7 @@ class Checker {
       } else {
         const std::size_t b = item - tri_blocks;
         const std::size_t end = std::min(nv_, (b + 1) * kVertexBlock);
+        components_.reset(b * kVertexBlock, end);
         Aabb box = Aabb::empty();
         for (std::size_t v = b * kVertexBlock; v < end; ++v) box.merge(mesh_.vertices[v]);
         boxes[b] = box;
@@ -273,14 +297,16 @@ class Checker {
     const int ranges = std::clamp(executor_.concurrency(), 1, std::max(1, static_cast<int>(nv_ / kVertexBlock)));
     std::vector<std::size_t> range_begin(ranges + 1);
     for (int r = 0; r <= ranges; ++r) range_begin[r] = nv_ * r / ranges;
-    start_.assign(nv_ + 1, 0);
+    start_ = std::make_unique_for_overwrite<std::uint32_t[]>(nv_ + 1);  // zeroed below, range by range
+    start_[0] = 0;
     // Counts, then a prefix sum within each range.
     std::vector<std::uint32_t> range_total(ranges, 0);
     executor_.for_each(ranges, [&](int r) {
       control_.check();
       const std::uint32_t lo = static_cast<std::uint32_t>(range_begin[r]);
       const std::uint32_t hi = static_cast<std::uint32_t>(range_begin[r + 1]);
-      std::uint32_t* count = start_.data() + 1;
+      std::uint32_t* count = start_.get() + 1;
+      std::fill(count + lo, count + hi, 0u);
       for (const Triangle& tri : mesh_.triangles) {
         if (repeated(tri)) continue;
         for (std::uint32_t v : tri) {
@@ -293,13 +319,15 @@ class Checker {
     });
     std::vector<std::uint32_t> offset(ranges, 0);
     for (int r = 1; r < ranges; ++r) offset[r] = offset[r - 1] + range_total[r - 1];
-    corners_.resize(ranges > 0 ? offset[ranges - 1] + range_total[ranges - 1] : 0);
+    // Not initialized: every slot is written once by the fill below.
+    corners_ =
+        std::make_unique_for_overwrite<std::uint32_t[]>(ranges > 0 ? offset[ranges - 1] + range_total[ranges - 1] : 0);
     executor_.for_each(ranges, [&](int r) {
       control_.check();
       const std::uint32_t lo = static_cast<std::uint32_t>(range_begin[r]);
       const std::uint32_t hi = static_cast<std::uint32_t>(range_begin[r + 1]);
       for (std::uint32_t v = lo; v < hi; ++v) start_[v + 1] += offset[r];
-      std::vector<std::uint32_t> fill(start_.begin() + lo, start_.begin() + hi);
+      std::vector<std::uint32_t> fill(start_.get() + lo, start_.get() + hi);
       for (std::size_t t = 0; t < nf_; ++t) {
         const Triangle& tri = mesh_.triangles[t];
         if (repeated(tri)) continue;
@@ -311,25 +339,53 @@ class Checker {
     });
   }
 
+  // The component links of one block of vertices, which ends at `end`: an edge to a vertex of the same block is linked
+  // at once, without atomics (a find from a vertex of the block then stays in the block: links point to smaller
+  // indices), one to a later block is kept for the second phase.
+  struct Links {
+    std::uint32_t end;
+    std::vector<std::array<std::uint32_t, 2>> later;
+  };
+
   void vertex_pass() {
     const int blocks = block_count(nv_, kVertexBlock);
     vertex_sums_.assign(blocks, VertexSums{});
+    std::vector<std::vector<std::array<std::uint32_t, 2>>> later(blocks);
     executor_.for_each(blocks, [&](int block) {
       control_.check();
       VertexSums s;
       Scratch scratch;
       const std::size_t end = std::min(nv_, (block + 1) * kVertexBlock);
+      Links links{static_cast<std::uint32_t>(end), {}};
       for (std::size_t v = block * kVertexBlock; v < end; ++v) {
         if (start_[v] == start_[v + 1]) continue;
         ++s.referenced;
-        if (!closed_fan(static_cast<std::uint32_t>(v), s)) general_vertex(static_cast<std::uint32_t>(v), s, scratch);
+        if (!closed_fan(static_cast<std::uint32_t>(v), s, links)) {
+          general_vertex(static_cast<std::uint32_t>(v), s, scratch, links);
+        }
       }
       vertex_sums_[block] = std::move(s);
+      later[block] = std::move(links.later);
+    });
+    // The edges between blocks, in parallel on the atomic union-find.
+    executor_.for_each(blocks, [&](int block) {
+      control_.check();
+      std::int64_t made = 0;
+      for (const auto& [v, w] : later[block]) made += components_.unite(v, w) ? 1 : 0;
+      vertex_sums_[block].links += made;
     });
   }
 
+  void link(std::uint32_t& root, std::uint32_t v, std::uint32_t w, VertexSums& s, Links& links) const {
+    if (w < links.end) {
+      s.links += components_.join_alone(root, w) ? 1 : 0;
+    } else {
+      links.later.push_back({v, w});
+    }
+  }
+
   // The fast path; false (and nothing recorded) when v needs the general one.
-  bool closed_fan(std::uint32_t v, VertexSums& s) const {
+  bool closed_fan(std::uint32_t v, VertexSums& s, Links& links) const {
     const std::uint32_t begin = start_[v], end = start_[v + 1];
     const int k = static_cast<int>(end - begin);
     if (k > kMaxFastCorners) return false;
@@ -355,11 +411,11 @@ class Checker {
     for (int i = next[0]; i != 0; i = next[i]) ++length;
     if (length != k) return false;
     s.add_valence(k);
-    std::uint32_t root = components_.find(v);
+    std::uint32_t root = components_.find_alone(v);
     for (int i = 0; i < k; ++i) {
       if (a[i] > v) {
         ++s.edges;
-        if (components_.join(root, a[i])) ++s.links;
+        link(root, v, a[i], s, links);
       }
     }
     return true;
@@ -376,7 +432,7 @@ class Checker {
     std::vector<std::uint32_t> link_parent;
   };
 
-  void general_vertex(std::uint32_t v, VertexSums& s, Scratch& scratch) const {
+  void general_vertex(std::uint32_t v, VertexSums& s, Scratch& scratch, Links& links) const {
     const std::uint32_t begin = start_[v], end = start_[v + 1];
     auto& incidences = scratch.incidences;
     auto& distinct = scratch.distinct;
@@ -404,7 +460,8 @@ class Checker {
       if (multiplicity > 2) fan_ok = false;
       if (w > v) {
         ++s.edges;
-        if (components_.unite(v, w)) ++s.links;
+        std::uint32_t root = components_.find_alone(v);
+        link(root, v, w, s, links);
         if (multiplicity == 1) ++s.boundary_edges;
         if (multiplicity > 2) ++s.non_manifold_edges;
         if (multiplicity > 2 || (multiplicity == 2 && out != 1)) s.oriented = false;
@@ -481,8 +538,8 @@ class Checker {
   const std::size_t nf_;
   double diag2_ = 0.0;
   std::vector<TriangleSums> triangle_sums_;
-  std::vector<std::uint32_t> start_;
-  std::vector<std::uint32_t> corners_;
+  std::unique_ptr<std::uint32_t[]> start_;    // nv_ + 1 offsets into corners_
+  std::unique_ptr<std::uint32_t[]> corners_;  // 4 t + c
   std::vector<VertexSums> vertex_sums_;
   AtomicUnionFind components_;
 };
