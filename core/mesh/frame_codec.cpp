@@ -101,7 +101,7 @@ Container read_container(std::string_view bytes) {
 
 std::string encode_pieces(const Mesh& mesh, const FrameCodecOptions& options, const Executor& executor,
                           const RunControl& control) {
-  const QuantizationGrid grid = quantization_grid(mesh, options.draco);
+  const QuantizationGrid grid = quantization_grid(mesh, options.draco, executor);
   control.check();
   const MeshPieces cut(mesh, grid, options.max_piece_triangles, executor, control);
   const int n = cut.count();

@@ -36,56 +36,98 @@ void validate(const DracoOptions& options) {
 
 namespace {
 
-void validate(const Mesh& mesh, const DracoOptions& options) {
-  validate(options);
-  if (!mesh.normals.empty() && mesh.normals.size() != mesh.vertices.size()) {
-    throw InvalidInput("normals", "mesh has " + std::to_string(mesh.normals.size()) + " normals for " +
-                                      std::to_string(mesh.vertices.size()) +
-                                      " vertices; give one normal per vertex or none");
-  }
-  for (std::size_t v = 0; v < mesh.vertices.size(); ++v) {
-    if (!mesh.vertices[v].allFinite()) {
-      throw InvalidInput("vertices",
-                         "vertex " + std::to_string(v) + " is not finite: " + format_point(mesh.vertices[v]));
-    }
-  }
-  const std::size_t nv = mesh.vertices.size();
-  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
-    for (std::uint32_t i : mesh.triangles[t]) {
-      if (i >= nv) {
-        throw InvalidInput("triangles", "triangle " + std::to_string(t) + " uses vertex " + std::to_string(i) +
-                                            " but the mesh has " + std::to_string(nv) + " vertices");
-      }
-    }
-  }
-}
-
 // The quantization box as Draco sees it: origin and one range for all axes (the box's longest side).
 struct QuantizationBox {
   Vec3 origin;
   double range;
 };
 
-QuantizationBox quantization_box(const Mesh& mesh, const DracoOptions& options) {
-  if (options.quantization_bounds) {
-    const Aabb& box = *options.quantization_bounds;
-    const double range = box.size().maxCoeff();
-    // Vertices may touch the box (marching cubes puts them exactly on its faces); allow rounding slack only.
-    const double tolerance = 1e-9 * range;
-    for (std::size_t v = 0; v < mesh.vertices.size(); ++v) {
-      const Vec3& p = mesh.vertices[v];
-      if ((p.array() < box.min.array() - tolerance).any() || (p.array() > box.max.array() + tolerance).any()) {
-        throw InvalidInput("quantization_bounds", "vertex " + std::to_string(v) + " at " + format_point(p) +
-                                                      " lies outside quantization_bounds min " + format_point(box.min) +
-                                                      " max " + format_point(box.max) +
-                                                      "; use a box that contains every frame (e.g. the job's bounds)");
+// Checks the mesh for encoding and returns its quantization box: options.quantization_bounds, else the mesh's own
+// box. Throws for the first problem in this order: the options, the normals' count, the lowest non-finite vertex, the
+// lowest triangle with an index out of range, the lowest vertex outside quantization_bounds. Blocks of vertices and
+// of triangles are items of `executor`; the error is the same whatever it is.
+QuantizationBox checked_box(const Mesh& mesh, const DracoOptions& options, const Executor& executor) {
+  validate(options);
+  if (!mesh.normals.empty() && mesh.normals.size() != mesh.vertices.size()) {
+    throw InvalidInput("normals", "mesh has " + std::to_string(mesh.normals.size()) + " normals for " +
+                                      std::to_string(mesh.vertices.size()) +
+                                      " vertices; give one normal per vertex or none");
+  }
+  constexpr std::size_t kBlock = std::size_t{1} << 16;
+  const std::size_t nv = mesh.vertices.size(), nf = mesh.triangles.size();
+  const int vertex_blocks = static_cast<int>((nv + kBlock - 1) / kBlock);
+  const int triangle_blocks = static_cast<int>((nf + kBlock - 1) / kBlock);
+  const std::optional<Aabb>& bounds = options.quantization_bounds;
+  // Vertices may touch the box (marching cubes puts them exactly on its faces); allow rounding slack only.
+  const double tolerance = bounds ? 1e-9 * bounds->size().maxCoeff() : 0.0;
+  struct Found {
+    std::size_t non_finite, outside, bad_triangle;
+    Aabb box = Aabb::empty();
+  };
+  std::vector<Found> found(vertex_blocks + triangle_blocks, Found{nv, nv, nf});
+  executor.for_each(vertex_blocks + triangle_blocks, [&](int item) {
+    Found& f = found[item];
+    if (item < vertex_blocks) {
+      const std::size_t end = std::min(nv, (item + 1) * kBlock);
+      for (std::size_t v = item * kBlock; v < end; ++v) {
+        const Vec3& p = mesh.vertices[v];
+        if (!p.allFinite()) {
+          f.non_finite = v;
+          return;
+        }
+        if (bounds) {
+          if (f.outside == nv && ((p.array() < bounds->min.array() - tolerance).any() ||
+                                  (p.array() > bounds->max.array() + tolerance).any())) {
+            f.outside = v;
+          }
+        } else {
+          f.box.merge(p);
+        }
+      }
+    } else {
+      const std::size_t block = item - vertex_blocks;
+      const std::size_t end = std::min(nf, (block + 1) * kBlock);
+      for (std::size_t t = block * kBlock; t < end; ++t) {
+        const Triangle& tri = mesh.triangles[t];
+        if (tri[0] >= nv || tri[1] >= nv || tri[2] >= nv) {
+          f.bad_triangle = t;
+          return;
+        }
       }
     }
-    return {box.min, range};
+  });
+  Found first{nv, nv, nf};
+  for (const Found& f : found) {
+    first.non_finite = std::min(first.non_finite, f.non_finite);
+    first.outside = std::min(first.outside, f.outside);
+    first.bad_triangle = std::min(first.bad_triangle, f.bad_triangle);
+    first.box.merge(f.box);
   }
-  const Aabb own = Aabb::of(mesh.vertices);
-  const Vec3& lo = own.min;
-  double range = own.size().maxCoeff();
+  if (first.non_finite < nv) {
+    throw InvalidInput("vertices", "vertex " + std::to_string(first.non_finite) +
+                                       " is not finite: " + format_point(mesh.vertices[first.non_finite]));
+  }
+  if (first.bad_triangle < nf) {
+    for (std::uint32_t i : mesh.triangles[first.bad_triangle]) {
+      if (i >= nv) {
+        throw InvalidInput("triangles", "triangle " + std::to_string(first.bad_triangle) + " uses vertex " +
+                                            std::to_string(i) + " but the mesh has " + std::to_string(nv) +
+                                            " vertices");
+      }
+    }
+  }
+  if (bounds) {
+    if (first.outside < nv) {
+      throw InvalidInput("quantization_bounds", "vertex " + std::to_string(first.outside) + " at " +
+                                                    format_point(mesh.vertices[first.outside]) +
+                                                    " lies outside quantization_bounds min " +
+                                                    format_point(bounds->min) + " max " + format_point(bounds->max) +
+                                                    "; use a box that contains every frame (e.g. the job's bounds)");
+    }
+    return {bounds->min, bounds->size().maxCoeff()};
+  }
+  const Vec3 lo = nv > 0 ? first.box.min : Vec3::Zero();
+  double range = nv > 0 ? first.box.size().maxCoeff() : 0.0;
   if (!(range > 0.0)) range = std::max(1.0, lo.cwiseAbs().maxCoeff()) * 1e-6;  // all vertices coincide
   return {lo, range};
 }
@@ -108,8 +150,11 @@ int add_float3_attribute(draco::Mesh& out, draco::GeometryAttribute::Type type, 
 }  // namespace
 
 QuantizationGrid quantization_grid(const Mesh& mesh, const DracoOptions& options) {
-  validate(mesh, options);
-  const QuantizationBox q = quantization_box(mesh, options);
+  return quantization_grid(mesh, options, ThreadExecutor(1));
+}
+
+QuantizationGrid quantization_grid(const Mesh& mesh, const DracoOptions& options, const Executor& executor) {
+  const QuantizationBox q = checked_box(mesh, options, executor);
   QuantizationGrid grid;
   for (int c = 0; c < 3; ++c) grid.origin[c] = static_cast<float>(q.origin[c]);
   grid.range = static_cast<float>(q.range);
@@ -132,8 +177,7 @@ struct DracoEncoder::State {
 };
 
 DracoEncoder::DracoEncoder(const Mesh& mesh, const DracoOptions& options) : state_(std::make_unique<State>()) {
-  validate(mesh, options);
-  const QuantizationBox q = quantization_box(mesh, options);
+  const QuantizationBox q = checked_box(mesh, options, ThreadExecutor(1));
   const bool encode_normals = options.normals && !mesh.normals.empty();
 
   draco::Mesh& out = state_->mesh;

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <limits>
 #include <random>
 
 #include "core/mesh/mesh_checks.h"
@@ -160,6 +161,41 @@ TEST(FrameCodec, BytesDoNotDependOnTheThreads) {
       }
     }
   }
+}
+
+// A bad mesh is refused naming the field and its lowest bad vertex or triangle, whatever the threads, also when the
+// problems lie in several blocks of the parallel check (blocks of 65536), and in the order: non-finite vertices,
+// indices out of range, vertices outside the quantization box.
+TEST(FrameCodec, BadMeshNamesItsFirstProblemWhateverTheThreads) {
+  const Mesh sphere = testing::icosphere(7);  // 163842 vertices, 327680 triangles: 3 and 5 blocks
+  const Aabb box{Vec3::Constant(-1.0), Vec3::Constant(1.0)};
+  auto message = [&](const Mesh& m, int threads) {
+    try {
+      encode_frame(m, options_for(FrameCodec::kMeshopt, box, 1 << 18), ThreadExecutor(threads));
+    } catch (const Error& e) {
+      return std::string(e.field()) + ": " + e.what();
+    }
+    return std::string("no error");
+  };
+  auto expect = [&](const Mesh& m, const std::string& field, const std::string& what) {
+    for (int threads : {1, 2, 4}) {
+      const std::string text = message(m, threads);
+      EXPECT_EQ(text.rfind(field + ": ", 0), 0u) << text;
+      EXPECT_NE(text.find(what), std::string::npos) << threads << " threads: " << text;
+    }
+  };
+  Mesh outside = sphere;
+  outside.vertices[150000] = Vec3(0.0, 0.0, 3.0);
+  outside.vertices[70000] = Vec3(0.0, 2.0, 0.0);
+  expect(outside, "quantization_bounds", "vertex 70000 ");
+  Mesh bad_index = outside;
+  bad_index.triangles[300000][1] = 999999;
+  bad_index.triangles[100000][2] = 888888;
+  expect(bad_index, "triangles", "triangle 100000 uses vertex 888888");
+  Mesh non_finite = bad_index;
+  non_finite.vertices[160000].x() = std::numeric_limits<double>::quiet_NaN();
+  non_finite.vertices[66000].y() = std::numeric_limits<double>::infinity();
+  expect(non_finite, "vertices", "vertex 66000 ");
 }
 
 TEST(FrameCodec, StandardDracoOfPiecesIsOnTheJobGrid) {
