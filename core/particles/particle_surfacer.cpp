@@ -688,7 +688,10 @@ class Smoother {
   // Step 4: B = W^T D^-1 W (through W and D), for moves along the vertex normals, and every vertex's interval of
   // the band.
   void build_b(const RunControl& control, ParticleSurfacingStats& stats) {
-    x0_ = x_;
+    x0_.resize(n_);  // copied in parallel: first touched by the threads that use it
+    for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
+      std::copy(x_.begin() + begin, x_.begin() + end, x0_.begin() + begin);
+    });
     normals_ = smoothed_normals();
     intervals(control);
     smoothing_.emplace(ring_, ps::cotangent_laplacian(x_, mesh_.triangles, ring_, threads_, control), x0_, normals_,
@@ -773,8 +776,8 @@ class Smoother {
     band_hi_.resize(n_);
     lo_.resize(n_);
     hi_.resize(n_);
-    container_lo_.assign(n_, -kInf);
-    container_hi_.assign(n_, kInf);
+    container_lo_.resize(n_);
+    container_hi_.resize(n_);
     // From the outer edge of the band to its inner edge.
     const double reach = P_.weighted ? P_.max_outer : P_.r_outer - P_.r_inner;
     for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
@@ -784,6 +787,8 @@ class Smoother {
         const Interval band = P_.band_interval(x0_[i], normals_[i], reach, scratch);
         band_lo_[i] = band.lo;
         band_hi_[i] = band.hi;
+        container_lo_[i] = -kInf;
+        container_hi_[i] = kInf;
         if (container_.box) {
           for (int a = 0; a < 3; ++a) {
             const double na = normals_[i][a];
@@ -875,7 +880,7 @@ class Smoother {
   Container container_;
   std::vector<Vec3> x0_, normals_;
   std::optional<ps::OffsetSmoothing> smoothing_;
-  std::vector<double> lo_, hi_, band_lo_, band_hi_, container_lo_, container_hi_;
+  Buffer<double> lo_, hi_, band_lo_, band_hi_, container_lo_, container_hi_;
 };
 
 }  // namespace

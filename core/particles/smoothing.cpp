@@ -19,9 +19,8 @@ int vertex_range_count(std::size_t rows, int threads) {
 // A compressed-row table (offsets, values) filled by scan(lo, hi, add), which must call add(row, value) for every
 // entry whose row lies in [lo, hi), in the same order on every call. The rows are cut into a few ranges that fill
 // in parallel (each range's scan reads all the input and keeps its own rows): the table is the serial one.
-template <class Scan>
-void rows_by_range(std::size_t rows, int threads, std::vector<std::uint32_t>& offsets,
-                   std::vector<std::uint32_t>& values, Scan&& scan) {
+template <class Values, class Scan>
+void rows_by_range(std::size_t rows, int threads, std::vector<std::uint32_t>& offsets, Values& values, Scan&& scan) {
   const int parts = vertex_range_count(rows, threads);
   offsets.assign(rows + 1, 0);
   parallel_for(parts, threads, [&](int part) {
@@ -41,7 +40,8 @@ void rows_by_range(std::size_t rows, int threads, std::vector<std::uint32_t>& of
 
 Graph one_ring(std::size_t vertices, std::span<const Triangle> triangles, int threads) {
   // Both directions of every edge, bucketed by vertex, then each row sorted and deduplicated.
-  std::vector<std::uint32_t> count, raw;
+  std::vector<std::uint32_t> count;
+  Buffer<std::uint32_t> raw;
   rows_by_range(vertices, threads, count, raw, [&](std::size_t lo, std::size_t hi, auto&& add) {
     for (const Triangle& t : triangles) {
       for (int c = 0; c < 3; ++c) {
@@ -53,7 +53,7 @@ Graph one_ring(std::size_t vertices, std::span<const Triangle> triangles, int th
     }
   });
   // Rows sorted and deduplicated in place (row_end[i]: the end of row i's distinct neighbours), then packed.
-  std::vector<std::uint32_t> row_end(vertices);
+  Buffer<std::uint32_t> row_end(vertices);
   for_chunks(vertices, threads, [&](std::size_t begin, std::size_t end) {
     for (std::size_t i = begin; i < end; ++i) {
       auto row = raw.begin() + count[i];
@@ -81,7 +81,7 @@ Cotangent cotangent_laplacian(std::span<const Vec3> x, std::span<const Triangle>
     double cot[3];  // at corners 0, 1, 2 (opposite edges 12, 20, 01)
     double area;
   };
-  std::vector<Corner> corners(triangles.size());
+  Buffer<Corner> corners(triangles.size());
   const int chunks = static_cast<int>(std::min<std::size_t>(64, triangles.size() / 4096 + 1));
   parallel_for(chunks, threads, [&](int c) {
     const auto [begin, end] = chunk_range(triangles.size(), chunks, c);
@@ -105,7 +105,8 @@ Cotangent cotangent_laplacian(std::span<const Vec3> x, std::span<const Triangle>
   control.check();
 
   // The triangles of every vertex (its corners, 3 * triangle + corner), so that each vertex assembles its own row of W.
-  std::vector<std::uint32_t> corner_offsets, corner_list;
+  std::vector<std::uint32_t> corner_offsets;
+  Buffer<std::uint32_t> corner_list;
   rows_by_range(n, threads, corner_offsets, corner_list, [&](std::size_t lo, std::size_t hi, auto&& add) {
     for (std::size_t t = 0; t < triangles.size(); ++t) {
       for (std::uint32_t k = 0; k < 3; ++k) {
@@ -119,18 +120,20 @@ Cotangent cotangent_laplacian(std::span<const Vec3> x, std::span<const Triangle>
   // W (aligned with ring.cols), its diagonal and the inverse vertex areas, row by row in parallel. Corner k of a
   // triangle is at vertex i; the angle at the next corner is opposite edge (i, previous) and vice versa.
   Cotangent cot;
-  cot.w.assign(ring.cols.size(), 0.0);
-  cot.w_diag.assign(n, 0.0);
-  cot.inv_area.assign(n, 0.0);
-  std::vector<double>& w = cot.w;
-  std::vector<double>& w_diag = cot.w_diag;
-  std::vector<double>& inv_area = cot.inv_area;
+  cot.w.resize(ring.cols.size());  // each row zeroes its own entries below
+  cot.w_diag.resize(n);
+  cot.inv_area.resize(n);
+  Buffer<double>& w = cot.w;
+  Buffer<double>& w_diag = cot.w_diag;
+  Buffer<double>& inv_area = cot.inv_area;
   const int row_chunks = static_cast<int>(std::min<std::size_t>(256, n / 2048 + 1));
   auto row_range = [&](int c) { return chunk_range(n, row_chunks, c); };
   parallel_for(row_chunks, threads, [&](int c) {
     const auto [begin, end] = row_range(c);
     for (std::size_t i = begin; i < end; ++i) {
       const std::uint32_t r0 = ring.offsets[i], r1 = ring.offsets[i + 1];
+      std::fill(w.begin() + r0, w.begin() + r1, 0.0);
+      w_diag[i] = 0.0;
       auto col = [&](std::uint32_t j) {
         for (std::uint32_t e = r0; e < r1; ++e) {
           if (ring.cols[e] == j) return e;
@@ -167,9 +170,9 @@ Cotangent cotangent_laplacian(std::span<const Vec3> x, std::span<const Triangle>
 SparseMatrix bilaplacian(std::span<const Vec3> x, std::span<const Triangle> triangles, const Graph& ring, int threads,
                          const RunControl& control) {
   const Cotangent cot = cotangent_laplacian(x, triangles, ring, threads, control);
-  const std::vector<double>& w = cot.w;
-  const std::vector<double>& w_diag = cot.w_diag;
-  const std::vector<double>& inv_area = cot.inv_area;
+  const Buffer<double>& w = cot.w;
+  const Buffer<double>& w_diag = cot.w_diag;
+  const Buffer<double>& inv_area = cot.inv_area;
   const std::size_t n = ring.rows();
   const int row_chunks = static_cast<int>(std::min<std::size_t>(256, n / 2048 + 1));
   auto row_range = [&](int c) { return chunk_range(n, row_chunks, c); };
@@ -331,11 +334,11 @@ SweepPlan plan_two_ring_sweeps(const Graph& ring, std::size_t blocks, int thread
   return plan;
 }
 
-OffsetSmoothing::OffsetSmoothing(const Graph& ring, const Cotangent& cotangent, std::span<const Vec3> x0,
+OffsetSmoothing::OffsetSmoothing(const Graph& ring, Cotangent cotangent, std::span<const Vec3> x0,
                                  std::span<const Vec3> normals, std::size_t blocks, int threads)
     : ring_(ring),
-      w_diag_(cotangent.w_diag),
-      inv_area_(cotangent.inv_area),
+      w_diag_(std::move(cotangent.w_diag)),
+      inv_area_(std::move(cotangent.inv_area)),
       x0_(x0),
       normals_(normals),
       plan_(plan_two_ring_sweeps(ring, blocks, threads)),
@@ -447,10 +450,11 @@ std::vector<Vec3> vertex_normals(std::span<const Vec3> x, std::span<const Triang
   // Each vertex range sums, in triangle order, the face normals of the triangles at its vertices: the same sums as
   // one serial pass.
   const std::size_t n = x.size();
-  std::vector<Vec3> normals(n, Vec3::Zero());
+  std::vector<Vec3> normals(n);  // not initialized (Eigen): each part zeroes its own range
   const int parts = vertex_range_count(n, threads);
   parallel_for(parts, threads, [&](int part) {
     const auto [lo, hi] = chunk_range(n, parts, part);
+    std::fill(normals.begin() + lo, normals.begin() + hi, Vec3::Zero());
     for (const Triangle& t : triangles) {
       const bool mine[3] = {t[0] >= lo && t[0] < hi, t[1] >= lo && t[1] < hi, t[2] >= lo && t[2] < hi};
       if (!mine[0] && !mine[1] && !mine[2]) continue;

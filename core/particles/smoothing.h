@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "core/mesh/mesh.h"
+#include "core/util/parallel.h"
 #include "core/util/run_control.h"
 
 namespace surfacer::particle_smoothing {
@@ -15,7 +16,7 @@ namespace surfacer::particle_smoothing {
 // Compressed rows: the neighbours of vertex i are cols[offsets[i] .. offsets[i + 1]).
 struct Graph {
   std::vector<std::uint32_t> offsets{0};
-  std::vector<std::uint32_t> cols;
+  Buffer<std::uint32_t> cols;
   std::size_t rows() const { return offsets.size() - 1; }
   std::size_t degree(std::size_t i) const { return offsets[i + 1] - offsets[i]; }
 };
@@ -45,9 +46,9 @@ inline constexpr double kDegenerateRelativeArea = 1e-12;
 // W_ij; 1 / D_kk with D_kk the sum of the areas of the triangles incident to k (0 where that sum is 0: such a vertex
 // has an all-zero W row). Every vertex assembles its own row, in parallel: deterministic whatever `threads`.
 struct Cotangent {
-  std::vector<double> w;
-  std::vector<double> w_diag;
-  std::vector<double> inv_area;
+  Buffer<double> w;
+  Buffer<double> w_diag;
+  Buffer<double> inv_area;
 };
 Cotangent cotangent_laplacian(std::span<const Vec3> x, std::span<const Triangle> triangles, const Graph& ring,
                               int threads, const RunControl& control = {});
@@ -87,8 +88,8 @@ SweepPlan plan_two_ring_sweeps(const Graph& ring, std::size_t blocks, int thread
 class OffsetSmoothing {
  public:
   // x0 and normals must outlive the smoothing (they are not copied).
-  OffsetSmoothing(const Graph& ring, const Cotangent& cotangent, std::span<const Vec3> x0,
-                  std::span<const Vec3> normals, std::size_t blocks, int threads = 1);
+  OffsetSmoothing(const Graph& ring, Cotangent cotangent, std::span<const Vec3> x0, std::span<const Vec3> normals,
+                  std::size_t blocks, int threads = 1);
   // One sweep of projected SOR, t_i <- clamp(t_i - omega (dE/dt_i) / (d2E/dt_i^2), lo_i, hi_i) (no clamp when the
   // bounds are empty; omega in (0, 2), 1 is plain Gauss-Seidel), in plan() order: block interiors in parallel, then
   // the seams. Never increases the energy; byte-identical results whatever `threads`.
@@ -114,14 +115,14 @@ class OffsetSmoothing {
     float c, w;
   };
   const Graph& ring_;
-  std::vector<Row> rows_;
-  std::vector<Entry> entries_;
-  std::vector<double> w_diag_, inv_area_;
+  Buffer<Row> rows_;
+  Buffer<Entry> entries_;
+  Buffer<double> w_diag_, inv_area_;
   std::span<const Vec3> x0_, normals_;
   SweepPlan plan_;
   std::vector<double> t_;
-  std::vector<Eigen::Vector3f> z_;  // float: the sweep's working set stays in cache; t and x stay double
-  bool z_current_ = false;          // z == W (x0 + t n)
+  Buffer<Eigen::Vector3f> z_;  // float: the sweep's working set stays in cache; t and x stay double
+  bool z_current_ = false;     // z == W (x0 + t n)
 };
 
 // sum over the three coordinates of x^T B x.

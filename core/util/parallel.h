@@ -6,8 +6,10 @@
 #include <atomic>
 #include <exception>
 #include <functional>
+#include <memory>
 #include <mutex>
 #include <thread>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -72,6 +74,34 @@ void for_chunks(std::size_t n, int threads, Body&& body) {
     body(begin, end);
   });
 }
+
+// The allocator of Buffer: resize() and the size constructor default-initialize, which leaves trivial elements
+// unwritten.
+template <class T>
+class DefaultInitAllocator : public std::allocator<T> {
+ public:
+  template <class U>
+  struct rebind {
+    using other = DefaultInitAllocator<U>;
+  };
+  DefaultInitAllocator() = default;
+  template <class U>
+  DefaultInitAllocator(const DefaultInitAllocator<U>&) noexcept {}
+  template <class U>
+  void construct(U* p) noexcept(std::is_nothrow_default_constructible_v<U>) {
+    ::new (static_cast<void*>(p)) U;
+  }
+  template <class U, class... Args>
+  void construct(U* p, Args&&... args) {
+    ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+  }
+};
+
+// A vector for large arrays that a parallel loop fills: resizing it does not zero the elements, so their pages are
+// first touched (and faulted in) by the threads that write them instead of by one thread's memset, and are written
+// once instead of twice. Every element must be written before it is read.
+template <class T>
+using Buffer = std::vector<T, DefaultInitAllocator<T>>;
 
 // Where a data-parallel loop runs. Engines that take one let a server run their items on its own worker pool
 // (server/worker_pool.h) next to other work, instead of starting threads; ThreadExecutor is the fork-join default.
