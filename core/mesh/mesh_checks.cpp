@@ -69,11 +69,11 @@ int block_count(std::size_t n, std::size_t block) { return static_cast<int>((n +
 
 // Union-find: links point from the larger root to the smaller, so no cycle can form and concurrent unite() calls
 // agree; path halving only ever shortens a path to a vertex's own root. The *_alone calls skip the atomics.
-class AtomicUnionFind {
+class UnionFind {
  public:
   // Allocated, not initialized: reset() every vertex first (in parallel, so that the pages are first touched by the
   // threads that use them rather than by one).
-  explicit AtomicUnionFind(std::size_t n) : parent_(std::make_unique_for_overwrite<std::uint32_t[]>(n)) {}
+  explicit UnionFind(std::size_t n) : parent_(std::make_unique_for_overwrite<std::uint32_t[]>(n)) {}
   void reset(std::size_t begin, std::size_t end) const {
     for (std::size_t i = begin; i < end; ++i) parent_[i] = static_cast<std::uint32_t>(i);
   }
@@ -541,7 +541,7 @@ class Checker {
   std::unique_ptr<std::uint32_t[]> start_;    // nv_ + 1 offsets into corners_
   std::unique_ptr<std::uint32_t[]> corners_;  // 4 t + c
   std::vector<VertexSums> vertex_sums_;
-  AtomicUnionFind components_;
+  UnionFind components_;
 };
 
 }  // namespace
