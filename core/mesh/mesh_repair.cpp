@@ -93,7 +93,11 @@ class Repair {
     }
   }
 
-  bool bad(const Triangle& t) const { return t[0] != kDead && quality(t) < o_.min_angle_degrees; }
+  bool bad(const Triangle& t) const {
+    if (t[0] == kDead) return false;
+    if (!(o_.grid && degenerate(snapped_[t[0]], snapped_[t[1]], snapped_[t[2]])) && clearly_good(t)) return false;
+    return quality(t) < o_.min_angle_degrees;
+  }
 
   // Repairs triangle t if it is still bad: of the flips of its three edges and the collapses of each edge onto
   // either end, the valid move whose new triangles are best, when they are better than what it replaces. A move
@@ -124,6 +128,17 @@ class Repair {
   }
 
  private:
+  // Whether the smallest angle is well above min_angle_degrees, without an arctangent: at every corner, |u x v| >
+  // tan(min angle) (u . v) with a margin far above rounding (the smallest angle is below 60 degrees, so at its corner
+  // u . v > 0); the exact test decides the rest.
+  bool clearly_good(const Triangle& t) const {
+    const Vec3 &a = x_[t[0]], &b = x_[t[1]], &c = x_[t[2]];
+    const Vec3 ab = b - a, ac = c - a, bc = c - b;
+    const double cross = ab.cross(ac).norm();
+    const double bound = tan_min_angle_ * (1.0 + 1e-9);
+    return cross > bound * ab.dot(ac) && cross > -bound * ab.dot(bc) && cross > bound * ac.dot(bc);
+  }
+
   // A triangle's smallest angle in degrees; -1 when it is degenerate on the output grid.
   double quality(const Triangle& t) const {
     if (o_.grid && degenerate(snapped_[t[0]], snapped_[t[1]], snapped_[t[2]])) return -1.0;
@@ -410,6 +425,7 @@ class Repair {
   std::vector<Vec3>& x_;
   std::vector<Triangle>& tris_;
   const SliverOptions& o_;
+  const double tan_min_angle_ = std::tan(o_.min_angle_degrees * kPi / 180.0);
   std::optional<Adjacency> adjacency_;
   Adjacency& adj() { return *adjacency_; }
   const Adjacency& adj() const { return *adjacency_; }

@@ -111,6 +111,40 @@ TEST(MeshRepair, MinAngleOfKnownTriangles) {
   EXPECT_EQ(min_angle_degrees(Vec3(0, 0, 0), Vec3(0, 0, 0), Vec3(2, 1, 0)), 0.0);
 }
 
+// The repair's candidates are exactly the triangles whose smallest angle (min_angle_degrees) is below the threshold,
+// also within 1e-7 degrees of it, at any corner and orientation, for thresholds across the allowed range.
+TEST(MeshRepair, CandidatesAreExactlyTheTrianglesBelowTheThreshold) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> unit(-1.0, 1.0);
+  for (double threshold : {0.5, 1.0, 7.0, 20.0, 30.0}) {
+    Mesh m;
+    for (int i = 0; i < 600; ++i) {
+      // An isosceles-free triangle whose smallest angle, at a random corner, is the threshold plus a small offset.
+      const double offsets[] = {-1e-3, -1e-7, 1e-7, 1e-3, 1.0, -0.5 * threshold};
+      const double angle = (threshold + offsets[i % 6]) * M_PI / 180.0;
+      const double length = 1.0 + 0.5 * std::abs(unit(rng));
+      const Vec3 origin(unit(rng), unit(rng), unit(rng));
+      const Eigen::Matrix3d rotation =
+          Eigen::AngleAxisd(M_PI * unit(rng), Vec3(unit(rng), unit(rng), 1.0).normalized()).toRotationMatrix();
+      // Corner at the origin with the smallest angle between edges of lengths 1 and `length` (> 1 keeps the other
+      // angles larger as long as the angle stays below 60 degrees).
+      const Vec3 a = origin, b = origin + rotation * Vec3(1.0, 0.0, 0.0),
+                 c = origin + rotation * (length * Vec3(std::cos(angle), std::sin(angle), 0.0));
+      const auto base = static_cast<std::uint32_t>(m.vertices.size());
+      m.vertices.insert(m.vertices.end(), {a, b, c});
+      const std::uint32_t k = static_cast<std::uint32_t>(i % 3);  // which corner comes first
+      const std::array<std::uint32_t, 3> order{base + k, base + (k + 1) % 3, base + (k + 2) % 3};
+      m.triangles.push_back(i % 2 == 0 ? Triangle{order[0], order[1], order[2]}
+                                       : Triangle{order[0], order[2], order[1]});
+    }
+    Mesh repaired = m;
+    const SliverReport r = repair_slivers(repaired, {.min_angle_degrees = threshold, .max_passes = 0});
+    EXPECT_EQ(r.candidates, count_below(m, threshold)) << threshold;
+    EXPECT_GT(r.candidates, 0);
+    EXPECT_LT(r.candidates, static_cast<std::int64_t>(m.triangles.size()));
+  }
+}
+
 TEST(MeshRepair, LeavesAGoodMeshUntouched) {
   for (const Mesh& good : {testing::icosphere(3), testing::torus_mesh(1.0, 0.3)}) {
     Mesh m = good;
