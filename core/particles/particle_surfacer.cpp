@@ -228,8 +228,9 @@ struct Particles {
 // set when some particle lies closer than r_outer - c sqrt(3) / 2 to the cube's centre, so that every point of the
 // cube is strictly inside that particle's r_outer ball. Inside a fluid nearly every sample of the polygonizer falls in
 // such a cube and its sign costs one bit lookup. Built by rasterizing each particle's ball row by row as spans of
-// bits; rows are padded to whole 64-bit words and z-slabs of rows go to different workers, so no word is written by
-// two (and the bits do not depend on the order anyway). Not built when the grid would hold more than
+// bits, from a table of rows per class of the particle's offset in its cube (Stencils: no square root per particle);
+// rows are padded to whole 64-bit words and z-slabs of rows go to different workers, so no word is written by two (and
+// the bits do not depend on the order anyway). Not built when the grid would hold more than
 // kMaxBitsPerParticle bits per particle (scattered data): the search then answers every query.
 class InsideMask {
  public:
@@ -237,7 +238,8 @@ class InsideMask {
 
   InsideMask(const Particles& P, int threads) {
     if (P.weighted || P.positions.empty() || !P.hash.dense()) return;
-    cell_ = 0.5 * P.r_inner;
+    // Half r_inner, or coarser when r_outer is many times r_inner, so that a ball spans at most kMaxReachCells cells.
+    cell_ = std::max(0.5 * P.r_inner, P.r_outer / Stencils::kMaxReachCells);
     const double reach = P.r_outer - cell_ * std::sqrt(3.0) / 2.0;
     if (!(reach > 0.0)) return;
     origin_ = P.box.min.array() - P.r_outer;
@@ -252,35 +254,31 @@ class InsideMask {
     // Particles in hash order are sorted by z cell (the hash's cells are x fastest), so each slab's particles are a
     // contiguous range found by binary search on z.
     const std::span<const Vec3> pts = P.hash.sorted_points();
-    const double inv = 1.0 / cell_, r = reach * inv, r2 = r * r;
+    const double inv = 1.0 / cell_;
+    const Stencils stencils(reach * inv);
     const int slabs = static_cast<int>(std::min<std::int64_t>(dims_[2], 4 * resolve_threads(threads)));
     parallel_for(slabs, threads, [&](int slab) {
       const std::int64_t kb = dims_[2] * slab / slabs, ke = dims_[2] * (slab + 1) / slabs;  // rows [kb, ke)
-      const double z_lo = origin_.z() + (kb - r) * cell_, z_hi = origin_.z() + (ke + r) * cell_;
+      const double z_lo = origin_.z() + (kb - stencils.reach) * cell_,
+                   z_hi = origin_.z() + (ke + stencils.reach) * cell_;
       const auto first = std::lower_bound(pts.begin(), pts.end(), z_lo - P.hash.cell_size(),
                                           [](const Vec3& p, double z) { return p.z() < z; });
       for (auto it = first; it != pts.end() && it->z() <= z_hi + P.hash.cell_size(); ++it) {
         const Vec3 q = (*it - origin_) * inv;  // in cells; cell (i, j, k) has its centre at (i + 0.5, ...)
-        const std::int64_t k0 = std::max<std::int64_t>(kb, static_cast<std::int64_t>(std::ceil(q.z() - r - 0.5)));
-        const std::int64_t k1 = std::min<std::int64_t>(ke - 1, static_cast<std::int64_t>(std::floor(q.z() + r - 0.5)));
-        for (std::int64_t k = k0; k <= k1; ++k) {
-          const double dz = k + 0.5 - q.z(), rz2 = r2 - dz * dz;
-          if (!(rz2 > 0.0)) continue;
-          const double rz = std::sqrt(rz2);
-          const std::int64_t j0 = std::max<std::int64_t>(0, static_cast<std::int64_t>(std::ceil(q.y() - rz - 0.5)));
-          const std::int64_t j1 =
-              std::min<std::int64_t>(dims_[1] - 1, static_cast<std::int64_t>(std::floor(q.y() + rz - 0.5)));
-          for (std::int64_t j = j0; j <= j1; ++j) {
-            const double dy = j + 0.5 - q.y(), ry2 = rz2 - dy * dy;
-            if (!(ry2 > 0.0)) continue;
-            const double ry = std::sqrt(ry2);
-            // Strictly inside: centres with (i + 0.5 - q.x)^2 < ry^2.
-            const std::int64_t i0 =
-                std::max<std::int64_t>(0, static_cast<std::int64_t>(std::floor(q.x() - ry - 0.5)) + 1);
-            const std::int64_t i1 =
-                std::min<std::int64_t>(dims_[0] - 1, static_cast<std::int64_t>(std::ceil(q.x() + ry - 0.5)) - 1);
-            if (i0 <= i1) set_span(&words_[static_cast<std::size_t>((k * dims_[1] + j) * row_words_)], i0, i1 - i0 + 1);
-          }
+        std::int64_t base[3];
+        int cls = 0;
+        for (int a = 2; a >= 0; --a) {
+          const double fl = std::floor(q[a]);
+          base[a] = static_cast<std::int64_t>(fl);
+          cls = cls * Stencils::kClasses +
+                std::min(Stencils::kClasses - 1, static_cast<int>((q[a] - fl) * Stencils::kClasses));
+        }
+        for (const Stencils::Row& row : stencils.rows(cls)) {
+          const std::int64_t k = base[2] + row.dk, j = base[1] + row.dj;
+          if (k < kb || k >= ke || j < 0 || j >= dims_[1]) continue;
+          const std::int64_t i0 = std::max<std::int64_t>(0, base[0] + row.di0);
+          const std::int64_t i1 = std::min<std::int64_t>(dims_[0] - 1, base[0] + row.di1);
+          if (i0 <= i1) set_span(&words_[static_cast<std::size_t>((k * dims_[1] + j) * row_words_)], i0, i1 - i0 + 1);
         }
       }
     });
@@ -300,6 +298,52 @@ class InsideMask {
   }
 
  private:
+  // The cells strictly within `reach` (in cells) of a particle, as rows of cells relative to the particle's cell,
+  // one list per class of its offset in the cell (kClasses per axis). A list is made for the class's centre with the
+  // reach shortened by the largest distance from it to a point of the class, so it holds for every particle of the
+  // class: no square root per particle and row.
+  class Stencils {
+   public:
+    static constexpr int kClasses = 8;
+    static constexpr double kMaxReachCells = 8.0;  // keeps the table small (~100 k rows) and the offsets in int8
+    struct Row {
+      std::int8_t dk, dj, di0, di1;
+    };
+    explicit Stencils(double full_reach) : reach(full_reach) {
+      const double r = full_reach - std::sqrt(3.0) * 0.5 / kClasses;
+      const int extent = static_cast<int>(std::ceil(full_reach)) + 1;
+      start_.push_back(0);
+      for (int cz = 0; cz < kClasses; ++cz) {
+        for (int cy = 0; cy < kClasses; ++cy) {
+          for (int cx = 0; cx < kClasses; ++cx) {
+            const double o[3] = {(cx + 0.5) / kClasses, (cy + 0.5) / kClasses, (cz + 0.5) / kClasses};
+            for (int dk = -extent; dk <= extent && r > 0.0; ++dk) {
+              for (int dj = -extent; dj <= extent; ++dj) {
+                const double dz = dk + 0.5 - o[2], dy = dj + 0.5 - o[1], ry2 = r * r - dz * dz - dy * dy;
+                if (!(ry2 > 0.0)) continue;
+                const double ry = std::sqrt(ry2);
+                // Strictly inside: centres with (di + 0.5 - o.x)^2 < ry^2.
+                const int di0 = static_cast<int>(std::floor(o[0] - ry - 0.5)) + 1;
+                const int di1 = static_cast<int>(std::ceil(o[0] + ry - 0.5)) - 1;
+                if (di0 <= di1) {
+                  rows_.push_back({static_cast<std::int8_t>(dk), static_cast<std::int8_t>(dj),
+                                   static_cast<std::int8_t>(di0), static_cast<std::int8_t>(di1)});
+                }
+              }
+            }
+            start_.push_back(static_cast<std::uint32_t>(rows_.size()));
+          }
+        }
+      }
+    }
+    std::span<const Row> rows(int cls) const { return {rows_.data() + start_[cls], rows_.data() + start_[cls + 1]}; }
+    const double reach;
+
+   private:
+    std::vector<Row> rows_;
+    std::vector<std::uint32_t> start_;
+  };
+
   static void set_span(std::uint64_t* row, std::int64_t first, std::int64_t count) {
     while (count > 0) {
       const std::int64_t b = first & 63;

@@ -242,6 +242,33 @@ TEST(ParticleSurfacer, IsolatedParticleGivesASmallClosedSphere) {
   EXPECT_NEAR(r.volume, testing::sphere_volume(radius), 0.03 * r.volume);
 }
 
+// Dense particles (where the polygonizer reads most signs from a precomputed inside mask) across r_outer / r_inner,
+// including ratios whose mask is coarser than r_inner / 2: the initial vertices lie on the r_outer iso-surface up to
+// half a lattice edge, so no sample outside the r_outer balls was taken for inside.
+TEST(ParticleSurfacer, InitialSurfaceLiesOnTheOuterIsoSurfaceAcrossRadiusRatios) {
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<double> jitter(-0.02, 0.02);
+  std::vector<Vec3> particles;
+  for (int i = 0; i < 12; ++i) {
+    for (int j = 0; j < 12; ++j) {
+      for (int k = 0; k < 12; ++k)
+        particles.emplace_back(0.1 * i + jitter(rng), 0.1 * j + jitter(rng), 0.1 * k + jitter(rng));
+    }
+  }
+  const double r_inner = 0.08, h = 0.8 * r_inner;  // the default spacing factor
+  for (double ratio : {1.3, 2.0, 5.0, 12.0}) {
+    ParticleSurfacingOptions o = options(r_inner);
+    o.r_outer = ratio * r_inner;
+    const Mesh initial = initial_particle_surface(particles, {}, o, {});
+    ASSERT_GT(initial.vertices.size(), 100u) << ratio;
+    double worst = 0.0;
+    for (const Vec3& v : initial.vertices) {
+      worst = std::max(worst, std::abs(nearest_point_distance(particles, v) - *o.r_outer));
+    }
+    EXPECT_LE(worst, 0.5 * h) << "r_outer = " << ratio << " r_inner";
+  }
+}
+
 TEST(ParticleSurfacer, InitialMarchingTilesMeshHasMinimumValenceFive) {
   ParticleSurfacingStats stats;
   const Mesh initial = initial_particle_surface(three_blobs(), {}, options(0.25), {}, &stats);
