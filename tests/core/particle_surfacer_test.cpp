@@ -32,6 +32,23 @@ using testing::mesh_has;
 using testing::nearest_point_distance;
 using testing::normals_point_away_from;
 
+// A box of nx x ny x nz particles from `origin` at `spacing`, each moved by up to +-jitter per axis.
+std::vector<Vec3> jittered_block(const Vec3& origin, int nx, int ny, int nz, double spacing, double jitter,
+                                 std::uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> offset(-jitter, jitter);
+  std::vector<Vec3> p;
+  for (int k = 0; k < nz; ++k) {
+    for (int j = 0; j < ny; ++j) {
+      for (int i = 0; i < nx; ++i) {
+        p.emplace_back(origin.x() + spacing * i + offset(rng), origin.y() + spacing * j + offset(rng),
+                       origin.z() + spacing * k + offset(rng));
+      }
+    }
+  }
+  return p;
+}
+
 // Particles of a jittered cubic lattice (spacing `spacing`, jitter +-spacing/6 per axis) inside a ball: dense enough
 // that r_outer = 2 * r_inner >= spacing leaves no interior voids, irregular enough to be a fair test.
 std::vector<Vec3> blob(const Vec3& center, double radius, double spacing, std::uint32_t seed) {
@@ -246,15 +263,7 @@ TEST(ParticleSurfacer, IsolatedParticleGivesASmallClosedSphere) {
 // including ratios whose mask is coarser than r_inner / 2: the initial vertices lie on the r_outer iso-surface up to
 // half a lattice edge, so no sample outside the r_outer balls was taken for inside.
 TEST(ParticleSurfacer, InitialSurfaceLiesOnTheOuterIsoSurfaceAcrossRadiusRatios) {
-  std::mt19937 rng(9);
-  std::uniform_real_distribution<double> jitter(-0.02, 0.02);
-  std::vector<Vec3> particles;
-  for (int i = 0; i < 12; ++i) {
-    for (int j = 0; j < 12; ++j) {
-      for (int k = 0; k < 12; ++k)
-        particles.emplace_back(0.1 * i + jitter(rng), 0.1 * j + jitter(rng), 0.1 * k + jitter(rng));
-    }
-  }
+  const std::vector<Vec3> particles = jittered_block(Vec3::Zero(), 12, 12, 12, 0.1, 0.02, 9);
   const double r_inner = 0.08, h = 0.8 * r_inner;  // the default spacing factor
   for (double ratio : {1.3, 2.0, 5.0, 12.0}) {
     ParticleSurfacingOptions o = options(r_inner);
@@ -289,15 +298,7 @@ TEST(ParticleSurfacer, InitialMarchingTilesMeshHasMinimumValenceFive) {
 
 TEST(ParticleSurfacer, ContainerBoxKeepsEveryVertexInside) {
   // Fluid resting in the corner of a tank: particles reach the walls, so the r_outer surface pokes through them.
-  std::mt19937 rng(5);
-  std::uniform_real_distribution<double> jitter(-0.05, 0.05);
-  std::vector<Vec3> particles;
-  for (int k = 0; k < 4; ++k) {
-    for (int j = 0; j < 8; ++j) {
-      for (int i = 0; i < 8; ++i)
-        particles.emplace_back(0.1 + 0.3 * i + jitter(rng), 0.1 + 0.3 * j + jitter(rng), 0.1 + 0.3 * k + jitter(rng));
-    }
-  }
+  const std::vector<Vec3> particles = jittered_block(Vec3::Constant(0.1), 8, 8, 4, 0.3, 0.05, 5);
   ParticleSurfacingOptions o = options(0.25);
   o.container_box = Aabb{Vec3(0, 0, 0), Vec3(2, 2, 2)};
   o.erosion = 0.2;  // erosion moves vertices too; the container still wins
