@@ -70,12 +70,11 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
                "run an in-process server for this command only (the default without --server and "
                "$SURFACER_SERVER)")
       ->excludes(server_opt);
-  CLI::Option* workers_opt =
-      app.add_option("--workers", connect.workers,
-                     "worker threads of the in-process server (0: one per core); a remote server's are set where it "
-                     "runs (surfacer-server --workers)")
-          ->check(CLI::NonNegativeNumber)
-          ->type_name("N");
+  app.add_option("--workers", connect.workers,
+                 "worker threads of the in-process server (0: one per core); a remote server's are set where it "
+                 "runs (surfacer-server --workers)")
+      ->check(CLI::NonNegativeNumber)
+      ->type_name("N");
   app.add_option("--timeout", connect.timeout_seconds,
                  "seconds to wait for the server connection (default 10); with several servers, also how long a "
                  "lost server may take to come back before its frames go to the others")
@@ -214,12 +213,7 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
                            "command");
       }
     }
-    if (connect.server && workers_opt->count() > 0) {
-      throw CliError(ExitCode::kUsage, "--workers sizes the in-process server, but this command talks to " +
-                                           *connect.server +
-                                           "; a remote server's workers are set where it runs (surfacer-server "
-                                           "--workers N), or give --local");
-    }
+    check_workers(connect);
     connect.security = load_security(security, env_token, connect.server.has_value());
 
     Invocation invocation{connect, HealthCommand{}};

@@ -29,12 +29,19 @@ std::string connect_failure_reason(const std::shared_ptr<grpc::Channel>& channel
 
 }  // namespace
 
+void check_workers(const ConnectOptions& options) {
+  if (options.local() || !options.workers) return;
+  throw CliError(ExitCode::kUsage, "--workers sizes the in-process server, but the server here is " + *options.server +
+                                       "; a remote server's workers are set where it runs (surfacer-server --workers "
+                                       "N)");
+}
+
 std::unique_ptr<Connection> Connection::open(const ConnectOptions& options) {
   std::unique_ptr<Connection> connection(new Connection());
   connection->options_ = options;
   if (options.local()) {
     try {
-      connection->local_server_ = server::InProcessServer::start(options.workers);
+      connection->local_server_ = server::InProcessServer::start(options.workers.value_or(0));
     } catch (const std::exception& e) {
       throw CliError(ExitCode::kUnreachable, std::string("cannot start the in-process server: ") + e.what());
     }

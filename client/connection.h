@@ -22,6 +22,9 @@ class InProcessServer;
 
 namespace surfacer::client {
 
+// Throws CliError(kUsage) when options.workers is given for a remote server: it sizes the in-process server only.
+void check_workers(const ConnectOptions& options);
+
 class Connection {
  public:
   // Connects to `options.server`, waiting up to `options.timeout_seconds` (CliError kUnreachable otherwise), or

@@ -31,7 +31,7 @@ struct SecurityOptions {
 // target.
 struct ConnectOptions {
   std::optional<std::string> server;  // host:port (or a list, see above)
-  int workers = 0;                    // in-process server's worker threads; 0 = hardware threads
+  std::optional<int> workers;         // in-process server's worker threads (0, or unset: hardware threads)
   double timeout_seconds = 10.0;      // how long to wait for the connection (and for unary calls to start)
   SecurityOptions security;
   bool verbose = false;  // -v: which server produced each frame, sub-jobs (scale-out)

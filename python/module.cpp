@@ -465,14 +465,8 @@ class Client {
     ConnectOptions options;
     options.server = server;
     if (timeout) options.timeout_seconds = *timeout;
-    if (workers) {
-      if (server) {
-        throw CliError(ExitCode::kUsage, "workers sizes the in-process server, but this client talks to " + *server +
-                                             "; a remote server's workers are set where it runs (surfacer-server "
-                                             "--workers N)");
-      }
-      options.workers = *workers;
-    }
+    options.workers = workers;
+    check_workers(options);
     SecurityFlags flags;
     flags.token = token;
     if (token_file) flags.token_file = *token_file;
