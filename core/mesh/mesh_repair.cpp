@@ -95,8 +95,8 @@ class Repair {
 
   bool bad(const Triangle& t) const {
     if (t[0] == kDead) return false;
-    if (!(o_.grid && degenerate(snapped_[t[0]], snapped_[t[1]], snapped_[t[2]])) && clearly_good(t)) return false;
-    return quality(t) < o_.min_angle_degrees;
+    if (o_.grid && degenerate(snapped_[t[0]], snapped_[t[1]], snapped_[t[2]])) return true;  // quality -1
+    return !clearly_good(t) && min_angle_degrees(x_[t[0]], x_[t[1]], x_[t[2]]) < o_.min_angle_degrees;
   }
 
   // Repairs triangle t if it is still bad: of the flips of its three edges and the collapses of each edge onto

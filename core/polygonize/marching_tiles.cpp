@@ -899,11 +899,12 @@ Mesh merge(const Lattice& lat, std::vector<BlockOutput>& blocks, bool normals, s
   // The blocks' vertices and triangles are laid out along a Morton curve over the block grid, so that any range of
   // indices is a compact piece of the surface (the particle surfacer's sweep blocks, the codecs' pieces).
   {
+    std::vector<std::array<std::int64_t, 3>> coords(n);
+    for (std::size_t b = 0; b < n; ++b) coords[b] = lat.block_of_key(keys[b]);
     std::vector<std::uint32_t> place(n);
     std::iota(place.begin(), place.end(), 0u);
-    std::sort(place.begin(), place.end(), [&](std::uint32_t a, std::uint32_t b) {
-      return morton_less(lat.block_of_key(keys[a]), lat.block_of_key(keys[b]));
-    });
+    std::sort(place.begin(), place.end(),
+              [&](std::uint32_t a, std::uint32_t b) { return morton_less(coords[a], coords[b]); });
     std::size_t v = 0, t = 0;
     for (const std::uint32_t b : place) {
       vbase[b] = v;
