@@ -447,6 +447,7 @@ class Checker {
     std::sort(incidences.begin(), incidences.end());
     distinct.clear();
     bool fan_ok = true;
+    std::uint32_t root = components_.find_alone(v);
     for (std::size_t r = 0; r < incidences.size();) {
       std::size_t q = r;
       int out = 0;
@@ -460,7 +461,6 @@ class Checker {
       if (multiplicity > 2) fan_ok = false;
       if (w > v) {
         ++s.edges;
-        std::uint32_t root = components_.find_alone(v);
         link(root, v, w, s, links);
         if (multiplicity == 1) ++s.boundary_edges;
         if (multiplicity > 2) ++s.non_manifold_edges;
