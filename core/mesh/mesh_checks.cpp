@@ -297,7 +297,7 @@ class Checker {
     const int ranges = std::clamp(executor_.concurrency(), 1, std::max(1, static_cast<int>(nv_ / kVertexBlock)));
     std::vector<std::size_t> range_begin(ranges + 1);
     for (int r = 0; r <= ranges; ++r) range_begin[r] = nv_ * r / ranges;
-    start_ = std::make_unique_for_overwrite<std::uint32_t[]>(nv_ + 1);  // zeroed below, range by range
+    start_.resize(nv_ + 1);  // zeroed below, range by range
     start_[0] = 0;
     // Counts, then a prefix sum within each range.
     std::vector<std::uint32_t> range_total(ranges, 0);
@@ -305,7 +305,7 @@ class Checker {
       control_.check();
       const std::uint32_t lo = static_cast<std::uint32_t>(range_begin[r]);
       const std::uint32_t hi = static_cast<std::uint32_t>(range_begin[r + 1]);
-      std::uint32_t* count = start_.get() + 1;
+      std::uint32_t* count = start_.data() + 1;
       std::fill(count + lo, count + hi, 0u);
       for (const Triangle& tri : mesh_.triangles) {
         if (repeated(tri)) continue;
@@ -319,15 +319,13 @@ class Checker {
     });
     std::vector<std::uint32_t> offset(ranges, 0);
     for (int r = 1; r < ranges; ++r) offset[r] = offset[r - 1] + range_total[r - 1];
-    // Not initialized: every slot is written once by the fill below.
-    corners_ =
-        std::make_unique_for_overwrite<std::uint32_t[]>(ranges > 0 ? offset[ranges - 1] + range_total[ranges - 1] : 0);
+    corners_.resize(ranges > 0 ? offset[ranges - 1] + range_total[ranges - 1] : 0);  // each slot filled once below
     executor_.for_each(ranges, [&](int r) {
       control_.check();
       const std::uint32_t lo = static_cast<std::uint32_t>(range_begin[r]);
       const std::uint32_t hi = static_cast<std::uint32_t>(range_begin[r + 1]);
       for (std::uint32_t v = lo; v < hi; ++v) start_[v + 1] += offset[r];
-      std::vector<std::uint32_t> fill(start_.get() + lo, start_.get() + hi);
+      std::vector<std::uint32_t> fill(start_.begin() + lo, start_.begin() + hi);
       for (std::size_t t = 0; t < nf_; ++t) {
         const Triangle& tri = mesh_.triangles[t];
         if (repeated(tri)) continue;
@@ -538,8 +536,8 @@ class Checker {
   const std::size_t nf_;
   double diag2_ = 0.0;
   std::vector<TriangleSums> triangle_sums_;
-  std::unique_ptr<std::uint32_t[]> start_;    // nv_ + 1 offsets into corners_
-  std::unique_ptr<std::uint32_t[]> corners_;  // 4 t + c
+  Buffer<std::uint32_t> start_;    // nv_ + 1 offsets into corners_
+  Buffer<std::uint32_t> corners_;  // 4 t + c
   std::vector<VertexSums> vertex_sums_;
   UnionFind components_;
 };
