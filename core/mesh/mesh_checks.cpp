@@ -12,8 +12,10 @@
 //
 // Parallel and deterministic: triangles and vertices are cut into blocks of fixed size, each block's sums are kept
 // apart and added in block order, so the report's bits do not depend on the executor. The table is built without
-// atomics: each of a few vertex ranges scans every triangle and keeps the corners of its own vertices, in triangle
-// order. Components come from a union-find whose links always point to the smaller index: each block of vertices
+// atomics: the triangles are cut into a few contiguous parts (one per thread, at most kMaxParts), each of which
+// counts its corners per vertex in an array of its own while the triangle pass reads it; prefix sums over the
+// vertices turn the counts into each part's write cursors, and each part then writes its corners. Every triangle is
+// read twice by one thread, and a vertex's corners come in triangle order whatever the threads. Components come from a union-find whose links always point to the smaller index: each block of vertices
 // links the edges inside it without atomics (its finds never leave it), then the edges between blocks are linked in
 // parallel with atomic compare-and-swap; the number of components is the referenced vertices minus the successful
 // links, whichever thread made them. Large arrays are allocated uninitialized and first written by the parallel
@@ -30,6 +32,7 @@
 #include <memory>
 #include <numeric>
 #include <string>
+#include <utility>
 
 #include "core/util/errors.h"
 
@@ -44,6 +47,7 @@ constexpr double kPi = 3.14159265358979323846;
 constexpr std::size_t kTriangleBlock = std::size_t{1} << 16;
 constexpr std::size_t kVertexBlock = std::size_t{1} << 15;
 constexpr int kMaxFastCorners = 32;  // corners of one vertex the fast path handles (a bit mask each)
+constexpr int kMaxParts = 8;  // triangle parts: each costs 4 bytes per vertex
 // The corner after / before corner c of a triangle (no branch, no division: corners are stored as 4 t + c).
 constexpr std::uint32_t kNext[4] = {1, 2, 0, 0};
 constexpr std::uint32_t kPrev[4] = {2, 0, 1, 0};
@@ -201,39 +205,89 @@ class Checker {
 
   MeshReport run() {
     if (nf_ >= std::size_t{1} << 30) throw ResourceLimit("triangles", "check_mesh supports at most 2^30 - 1 triangles");
-    validate_indices();
+    prepare_vertices();
     triangle_pass();
-    build_corner_table();
+    build_offsets();
+    fill_corners();
     vertex_pass();
     return report();
   }
 
  private:
-  // Throws InvalidInput for the first triangle (lowest index) that uses a vertex out of range; also finds the
-  // bounding box (for the zero-area threshold).
-  void validate_indices() {
-    const int tri_blocks = block_count(nf_, kTriangleBlock);
-    const int vert_blocks = block_count(nv_, kVertexBlock);
-    std::vector<std::size_t> first_bad(tri_blocks, nf_);
-    std::vector<Aabb> boxes(vert_blocks, Aabb::empty());
-    executor_.for_each(tri_blocks + vert_blocks, [&](int item) {
+  // The bounding box (for the zero-area threshold); resets the union-find and zeroes the parts' corner counts, one
+  // block of vertices per item, so that their pages are first touched by every thread.
+  void prepare_vertices() {
+    const int vertex_blocks = block_count(nv_, kVertexBlock);
+    const int triangle_blocks = block_count(nf_, kTriangleBlock);
+    parts_ = std::clamp(executor_.concurrency(), 1, std::clamp(triangle_blocks, 1, kMaxParts));
+    part_begin_.resize(parts_ + 1);
+    for (int p = 0; p <= parts_; ++p) part_begin_[p] = static_cast<std::size_t>(triangle_blocks) * p / parts_;
+    cursors_.resize(static_cast<std::size_t>(parts_) * nv_);
+    std::vector<Aabb> boxes(vertex_blocks, Aabb::empty());
+    executor_.for_each(vertex_blocks, [&](int b) {
       control_.check();
-      if (item < tri_blocks) {
-        const std::size_t end = std::min(nf_, (item + 1) * kTriangleBlock);
-        for (std::size_t t = item * kTriangleBlock; t < end; ++t) {
+      const std::size_t begin = b * kVertexBlock, end = std::min(nv_, (b + 1) * kVertexBlock);
+      components_.reset(begin, end);
+      for (int p = 0; p < parts_; ++p) std::fill(cursor(p) + begin, cursor(p) + end, 0u);
+      Aabb box = Aabb::empty();
+      for (std::size_t v = begin; v < end; ++v) box.merge(mesh_.vertices[v]);
+      boxes[b] = box;
+    });
+    Aabb box = Aabb::empty();
+    for (const Aabb& b : boxes) box.merge(b);
+    diag2_ = nv_ > 0 ? box.size().squaredNorm() : 0.0;
+  }
+
+  // Part p's cursor per vertex: its corner count, then where it writes its next corner.
+  std::uint32_t* cursor(int p) { return cursors_.data() + static_cast<std::size_t>(p) * nv_; }
+
+  // Area, volume, angles and degenerate triangles, per block of triangles, and the corners per vertex, per part.
+  // Throws InvalidInput for the first triangle (lowest index) that uses a vertex out of range: a part stops at its
+  // first, and the parts are in triangle order.
+  void triangle_pass() {
+    triangle_sums_.assign(block_count(nf_, kTriangleBlock), TriangleSums{});
+    std::vector<std::size_t> first_bad(parts_, nf_);
+    const double min_area = 1e-14 * diag2_;
+    executor_.for_each(parts_, [&](int part) {
+      std::uint32_t* count = cursor(part);
+      for (std::size_t block = part_begin_[part]; block < part_begin_[part + 1]; ++block) {
+        control_.check();
+        TriangleSums s;
+        const std::size_t end = std::min(nf_, (block + 1) * kTriangleBlock);
+        for (std::size_t t = block * kTriangleBlock; t < end; ++t) {
           const Triangle& tri = mesh_.triangles[t];
           if (tri[0] >= nv_ || tri[1] >= nv_ || tri[2] >= nv_) {
-            first_bad[item] = t;
+            first_bad[part] = t;
             return;
           }
+          if (repeated(tri)) {
+            ++s.degenerate;
+            continue;
+          }
+          ++s.valid;
+          for (std::uint32_t v : tri) ++count[v];
+          const Vec3& a = mesh_.vertices[tri[0]];
+          const Vec3& b = mesh_.vertices[tri[1]];
+          const Vec3& c = mesh_.vertices[tri[2]];
+          const Vec3 ab = b - a, ac = c - a, bc = c - b;
+          const double twice_area = ab.cross(ac).norm();
+          s.area += twice_area;           // halved once, in report()
+          s.volume += a.dot(b.cross(c));  // divided by 6 once, in report()
+          if (!(twice_area >= 2.0 * min_area) || twice_area == 0.0) {
+            ++s.degenerate;
+            continue;
+          }
+          const double ab2 = ab.squaredNorm(), ac2 = ac.squaredNorm(), bc2 = bc.squaredNorm();
+          // The angles at a, b and c: cos = dot / (|u| |v|), compared as dot |dot| / (|u|^2 |v|^2), with one division.
+          const double da = ab.dot(ac), db = -ab.dot(bc), dc = ac.dot(bc);
+          const double r = 1.0 / (ab2 * ac2 * bc2);
+          const double sa = da * std::abs(da) * bc2 * r;
+          const double sb = db * std::abs(db) * ac2 * r;
+          const double sc = dc * std::abs(dc) * ab2 * r;
+          s.max_cos = std::max({s.max_cos, sa, sb, sc});
+          s.min_cos = std::min({s.min_cos, sa, sb, sc});
         }
-      } else {
-        const std::size_t b = item - tri_blocks;
-        const std::size_t end = std::min(nv_, (b + 1) * kVertexBlock);
-        components_.reset(b * kVertexBlock, end);
-        Aabb box = Aabb::empty();
-        for (std::size_t v = b * kVertexBlock; v < end; ++v) box.merge(mesh_.vertices[v]);
-        boxes[b] = box;
+        triangle_sums_[block] = s;
       }
     });
     for (std::size_t t : first_bad) {
@@ -245,94 +299,46 @@ class Checker {
         }
       }
     }
-    Aabb box = Aabb::empty();
-    for (const Aabb& b : boxes) box.merge(b);
-    diag2_ = nv_ > 0 ? box.size().squaredNorm() : 0.0;
   }
 
-  // Area, volume, angles and degenerate triangles, per block of triangles.
-  void triangle_pass() {
-    const int blocks = block_count(nf_, kTriangleBlock);
-    triangle_sums_.assign(blocks, TriangleSums{});
-    const double min_area = 1e-14 * diag2_;
-    executor_.for_each(blocks, [&](int block) {
+  // start_[v]: v's first corner, the vertices in order; within v, part 0's corners come first, and so on. The parts'
+  // counts become their write cursors.
+  void build_offsets() {
+    const int blocks = block_count(nv_, kVertexBlock);
+    std::vector<std::uint32_t> first(blocks + 1, 0);  // the corners before each block of vertices
+    executor_.for_each(blocks, [&](int b) {
       control_.check();
-      TriangleSums s;
-      const std::size_t end = std::min(nf_, (block + 1) * kTriangleBlock);
-      for (std::size_t t = block * kTriangleBlock; t < end; ++t) {
-        const Triangle& tri = mesh_.triangles[t];
-        if (repeated(tri)) {
-          ++s.degenerate;
-          continue;
-        }
-        ++s.valid;
-        const Vec3& a = mesh_.vertices[tri[0]];
-        const Vec3& b = mesh_.vertices[tri[1]];
-        const Vec3& c = mesh_.vertices[tri[2]];
-        const Vec3 ab = b - a, ac = c - a, bc = c - b;
-        const double twice_area = ab.cross(ac).norm();
-        s.area += twice_area;           // halved once, in report()
-        s.volume += a.dot(b.cross(c));  // divided by 6 once, in report()
-        if (!(twice_area >= 2.0 * min_area) || twice_area == 0.0) {
-          ++s.degenerate;
-          continue;
-        }
-        const double ab2 = ab.squaredNorm(), ac2 = ac.squaredNorm(), bc2 = bc.squaredNorm();
-        // The angles at a, b and c: cos = dot / (|u| |v|), compared as dot |dot| / (|u|^2 |v|^2), with one division.
-        const double da = ab.dot(ac), db = -ab.dot(bc), dc = ac.dot(bc);
-        const double r = 1.0 / (ab2 * ac2 * bc2);
-        const double sa = da * std::abs(da) * bc2 * r;
-        const double sb = db * std::abs(db) * ac2 * r;
-        const double sc = dc * std::abs(dc) * ab2 * r;
-        s.max_cos = std::max({s.max_cos, sa, sb, sc});
-        s.min_cos = std::min({s.min_cos, sa, sb, sc});
-      }
-      triangle_sums_[block] = s;
-    });
-  }
-
-  // start_[v] .. start_[v + 1]: the corners (4 t + c) at vertex v, in triangle order; triangles with a repeated
-  // index are left out of the topology.
-  void build_corner_table() {
-    const int ranges = std::clamp(executor_.concurrency(), 1, std::max(1, static_cast<int>(nv_ / kVertexBlock)));
-    std::vector<std::size_t> range_begin(ranges + 1);
-    for (int r = 0; r <= ranges; ++r) range_begin[r] = nv_ * r / ranges;
-    start_.resize(nv_ + 1);  // zeroed below, range by range
-    start_[0] = 0;
-    // Counts, then a prefix sum within each range.
-    std::vector<std::uint32_t> range_total(ranges, 0);
-    executor_.for_each(ranges, [&](int r) {
-      control_.check();
-      const std::uint32_t lo = static_cast<std::uint32_t>(range_begin[r]);
-      const std::uint32_t hi = static_cast<std::uint32_t>(range_begin[r + 1]);
-      std::uint32_t* count = start_.data() + 1;
-      std::fill(count + lo, count + hi, 0u);
-      for (const Triangle& tri : mesh_.triangles) {
-        if (repeated(tri)) continue;
-        for (std::uint32_t v : tri) {
-          if (v - lo < hi - lo) ++count[v];
-        }
-      }
+      const std::size_t begin = b * kVertexBlock, end = std::min(nv_, (b + 1) * kVertexBlock);
       std::uint32_t sum = 0;
-      for (std::uint32_t v = lo; v < hi; ++v) sum = count[v] += sum;
-      range_total[r] = sum;
+      for (int p = 0; p < parts_; ++p) sum = std::accumulate(cursor(p) + begin, cursor(p) + end, sum);
+      first[b + 1] = sum;
     });
-    std::vector<std::uint32_t> offset(ranges, 0);
-    for (int r = 1; r < ranges; ++r) offset[r] = offset[r - 1] + range_total[r - 1];
-    corners_.resize(ranges > 0 ? offset[ranges - 1] + range_total[ranges - 1] : 0);  // each slot filled once below
-    executor_.for_each(ranges, [&](int r) {
+    std::partial_sum(first.begin(), first.end(), first.begin());
+    start_.resize(nv_ + 1);
+    start_[nv_] = first[blocks];
+    corners_.resize(first[blocks]);  // each slot filled once, by fill_corners
+    executor_.for_each(blocks, [&](int b) {
       control_.check();
-      const std::uint32_t lo = static_cast<std::uint32_t>(range_begin[r]);
-      const std::uint32_t hi = static_cast<std::uint32_t>(range_begin[r + 1]);
-      for (std::uint32_t v = lo; v < hi; ++v) start_[v + 1] += offset[r];
-      std::vector<std::uint32_t> fill(start_.begin() + lo, start_.begin() + hi);
-      for (std::size_t t = 0; t < nf_; ++t) {
+      const std::size_t begin = b * kVertexBlock, end = std::min(nv_, (b + 1) * kVertexBlock);
+      std::uint32_t next = first[b];
+      for (std::size_t v = begin; v < end; ++v) {
+        start_[v] = next;
+        for (int p = 0; p < parts_; ++p) next += std::exchange(cursor(p)[v], next);
+      }
+    });
+  }
+
+  // corners_[start_[v] ..  start_[v + 1]): the corners (4 t + c) at vertex v, in triangle order; triangles with a
+  // repeated index are left out of the topology.
+  void fill_corners() {
+    executor_.for_each(parts_, [&](int part) {
+      control_.check();
+      std::uint32_t* next = cursor(part);
+      const std::size_t end = std::min(nf_, part_begin_[part + 1] * kTriangleBlock);
+      for (std::size_t t = part_begin_[part] * kTriangleBlock; t < end; ++t) {
         const Triangle& tri = mesh_.triangles[t];
         if (repeated(tri)) continue;
-        for (std::uint32_t c = 0; c < 3; ++c) {
-          const std::uint32_t v = tri[c];
-          if (v - lo < hi - lo) corners_[fill[v - lo]++] = static_cast<std::uint32_t>(t << 2 | c);
-        }
+        for (std::uint32_t c = 0; c < 3; ++c) corners_[next[tri[c]]++] = static_cast<std::uint32_t>(t << 2 | c);
       }
     });
   }
@@ -409,13 +415,16 @@ class Checker {
     for (int i = next[0]; i != 0; i = next[i]) ++length;
     if (length != k) return false;
     s.add_valence(k);
-    std::uint32_t root = components_.find_alone(v);
+    // The edges counted at v (those to larger neighbours), gathered without a branch per neighbour.
+    std::array<std::uint32_t, kMaxFastCorners> larger;
+    int m = 0;
     for (int i = 0; i < k; ++i) {
-      if (a[i] > v) {
-        ++s.edges;
-        link(root, v, a[i], s, links);
-      }
+      larger[m] = a[i];
+      m += a[i] > v ? 1 : 0;
     }
+    s.edges += m;
+    std::uint32_t root = components_.find_alone(v);
+    for (int i = 0; i < m; ++i) link(root, v, larger[i], s, links);
     return true;
   }
 
@@ -540,6 +549,9 @@ class Checker {
   Buffer<std::uint32_t> corners_;  // 4 t + c
   std::vector<VertexSums> vertex_sums_;
   UnionFind components_;
+  int parts_ = 1;                       // contiguous runs of triangle blocks, each counted and filled by one item
+  std::vector<std::size_t> part_begin_;  // parts_ + 1 triangle block indices
+  Buffer<std::uint32_t> cursors_;        // parts_ x nv_, see cursor()
 };
 
 }  // namespace

@@ -33,8 +33,8 @@ struct MeshReport {
 // edges, not in F); zero-area triangles (area < 1e-14 * bbox diagonal^2) count as degenerate but keep their topology,
 // and are skipped for the angles. Edges with > 2 triangles make the mesh neither oriented nor vertex-manifold.
 // Unreferenced vertices are ignored everywhere. An empty mesh is vacuously closed/manifold/oriented with all counts 0.
-// O(V + F) time (50-65 ns per triangle on one core, on polygonizer output) and about 4 bytes per triangle corner of
-// scratch memory (plus 8 per edge between blocks of 32768 vertices).
+// O(V + F) time (45-55 ns per triangle on one core, on polygonizer output) and about 4 bytes per triangle corner of
+// scratch memory, plus 4 per vertex and thread (8 threads at most) and 8 per edge between blocks of 32768 vertices.
 // Throws InvalidInput("triangles") when a triangle uses a vertex index >= vertices.size() (the lowest such triangle).
 MeshReport check_mesh(const Mesh& mesh);
 // The same report, bit for bit whatever the executor, with the work spread over `executor` in blocks; throws

@@ -155,6 +155,33 @@ TEST(MeshChecks, OutOfRangeIndexThrows) {
   }
 }
 
+// Bad indices far apart (in different blocks, and in different threads' shares of the triangles): the error names
+// the lowest triangle, whatever the threads.
+TEST(MeshChecks, OutOfRangeIndexNamesTheFirstBadTriangleWhateverTheThreads) {
+  const Mesh sphere = testing::icosphere(7);  // 327680 triangles: 5 blocks
+  const auto nv = static_cast<std::uint32_t>(sphere.vertices.size());
+  const std::size_t nf = sphere.triangles.size();
+  for (const std::vector<std::size_t>& bad : std::vector<std::vector<std::size_t>>{
+           {nf - 1}, {nf / 2, nf - 1}, {nf / 3, 2 * nf / 3}, {70000, 5, 300000}, {0}}) {
+    Mesh m = sphere;
+    for (std::size_t t : bad) m.triangles[t][t % 3] = nv + static_cast<std::uint32_t>(t);
+    const std::size_t first = *std::min_element(bad.begin(), bad.end());
+    for (int threads : {1, 2, 3, 8}) {
+      SCOPED_TRACE("first bad " + std::to_string(first) + ", " + std::to_string(threads) + " threads");
+      try {
+        check_mesh(m, ThreadExecutor(threads));
+        ADD_FAILURE() << "no error";
+      } catch (const Error& e) {
+        EXPECT_EQ(e.field(), "triangles");
+        EXPECT_NE(std::string(e.what()).find("triangle " + std::to_string(first) + " uses vertex " +
+                                             std::to_string(nv + first)),
+                  std::string::npos)
+            << e.what();
+      }
+    }
+  }
+}
+
 // A large closed mesh (1.3 M triangles, 20 blocks of vertices): its speed is measured by bench/service_bench.
 TEST(MeshChecks, MillionTriangles) {
   const Mesh m = testing::icosphere(8);
