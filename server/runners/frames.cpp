@@ -37,8 +37,8 @@ void fill_mesh_check(const MeshReport& r, v1::MeshCheck& out) {
 FrameMaker::FrameMaker(FrameEncoding encoding, std::int64_t max_triangles, const Executor* executor)
     : encoding_(std::move(encoding)), max_triangles_(max_triangles), executor_(executor), inline_executor_(1) {}
 
-std::string FrameMaker::encode_on_own_thread(const Mesh& mesh, const RunControl& control) const {
-  // The thread owns the encoder (which holds its own copy of the mesh) and the promise, so it may outlive this call.
+std::future<std::string> FrameMaker::start_own_thread(const Mesh& mesh) const {
+  // The thread owns the encoder (which holds its own copy of the mesh) and the promise, so it may outlive the frame.
   auto encoder = std::make_shared<DracoEncoder>(mesh, encoding_.options.draco);
   auto promise = std::make_shared<std::promise<std::string>>();
   std::future<std::string> result = promise->get_future();
@@ -49,8 +49,7 @@ std::string FrameMaker::encode_on_own_thread(const Mesh& mesh, const RunControl&
       promise->set_exception(std::current_exception());
     }
   }).detach();
-  while (result.wait_for(std::chrono::milliseconds(10)) != std::future_status::ready) control.check();
-  return result.get();
+  return result;
 }
 
 FrameOutput FrameMaker::make(const Mesh& mesh, StageTimer& timer, const RunControl& control) const {
@@ -67,19 +66,26 @@ FrameOutput FrameMaker::make(const Mesh& mesh, StageTimer& timer, const RunContr
   out.encoding = encoding_.mesh_encoding();
   MeshReport report;
   StageTimer check_timer, encode_timer;
-  const bool own_thread = options.codec == FrameCodec::kDraco && mesh.triangles.size() > options.max_piece_triangles;
-  // Item 0: the checks; item 1: the encoding. Each spreads its own work over the executor.
-  executor.for_each(2, [&](int item) {
-    if (item == 0) {
-      control.report("check", 0.0);
-      report = check_timer.run("check", [&] { return check_mesh(mesh, executor, control); });
-    } else {
+  auto check = [&] {
+    control.report("check", 0.0);
+    report = check_timer.run("check", [&] { return check_mesh(mesh, executor, control); });
+  };
+  if (options.codec == FrameCodec::kDraco && mesh.triangles.size() > options.max_piece_triangles) {
+    // One Draco mesh, on a thread of its own while the checks run on the executor.
+    out.bytes = encode_timer.run("encode", [&] {
+      std::future<std::string> encoded = start_own_thread(mesh);
+      check();
       control.report("encode", 0.0);
-      out.bytes = encode_timer.run("encode", [&] {
-        return own_thread ? encode_on_own_thread(mesh, control) : encode_frame(mesh, options, executor, control);
-      });
-    }
-  });
+      while (encoded.wait_for(std::chrono::milliseconds(10)) != std::future_status::ready) control.check();
+      return encoded.get();
+    });
+  } else {
+    // The checks, then the encoding, each on every thread of the executor: run side by side as two items, each
+    // would get one thread only, since a pool thread waiting for its items does not run the other item's pieces.
+    check();
+    control.report("encode", 0.0);
+    out.bytes = encode_timer.run("encode", [&] { return encode_frame(mesh, options, executor, control); });
+  }
   out.stats.set_vertices(static_cast<std::int64_t>(mesh.vertices.size()));
   out.stats.set_triangles(static_cast<std::int64_t>(mesh.triangles.size()));
   fill_mesh_check(report, *out.stats.mutable_check());

@@ -2,6 +2,7 @@
 #pragma once
 
 #include <chrono>
+#include <future>
 #include <string>
 #include <utility>
 #include <vector>
@@ -49,7 +50,8 @@ class FrameMaker {
   FrameMaker(FrameEncoding encoding, std::int64_t max_triangles, const Executor* executor);
 
   // The frame of `mesh`, its stats holding every timing of `timer` plus "encode" and "check" (wall seconds of
-  // each; they run at the same time). The checks and a pieced codec's pieces run as items of the executor and stop
+  // each). The checks run first, then the encoding, each on every thread of the executor; a standard Draco frame is
+  // encoded while the checks run. The checks and a pieced codec's pieces run as items of the executor and stop
   // between items when `control` fires. A standard Draco frame's encoder cannot be interrupted: above one piece's
   // size it runs on a thread of its own, which a cancel leaves to finish in the background, so that the caller is
   // free at once. Throws ResourceLimit when the mesh has more than max_triangles triangles, Cancelled, and what the
@@ -59,7 +61,8 @@ class FrameMaker {
   const FrameEncoding& encoding() const { return encoding_; }
 
  private:
-  std::string encode_on_own_thread(const Mesh& mesh, const RunControl& control) const;
+  // Starts encoding `mesh` as one Draco mesh on a detached thread.
+  std::future<std::string> start_own_thread(const Mesh& mesh) const;
 
   FrameEncoding encoding_;
   std::int64_t max_triangles_;
