@@ -129,7 +129,8 @@ std::size_t SpatialHash::memory_bytes() const {
          table_.capacity() * sizeof(std::uint32_t);
 }
 
-std::optional<SpatialHash::Neighbor> SpatialHash::nearest(const Vec3& q, double max_distance) const {
+std::optional<SpatialHash::Neighbor> SpatialHash::nearest(const Vec3& q, double max_distance,
+                                                         double first_radius) const {
   if (points_.empty() || !(max_distance >= 0.0)) return std::nullopt;
   // Radius beyond which every point is inside the search box: the distance to the farthest corner of the grid.
   const Eigen::Array3d far =
@@ -137,7 +138,7 @@ std::optional<SpatialHash::Neighbor> SpatialHash::nearest(const Vec3& q, double 
           .abs()
           .max((q.array() - origin_.array() - Eigen::Array3d(dims_[0], dims_[1], dims_[2]) * cell_).abs());
   const double all = far.matrix().norm() * (1.0 + 1e-12) + cell_;
-  double r = std::min({max_distance, cell_, all});
+  double r = std::min({max_distance, first_radius > 0.0 ? first_radius : cell_, all});
   while (true) {
     double best2 = r * r;
     std::uint32_t best = kEmpty;

@@ -47,9 +47,12 @@ class SpatialHash {
   // Bytes held by the structure (points, order, cell directory).
   std::size_t memory_bytes() const;
 
-  // The nearest point with distance <= max_distance (exact; ties go to the first in cell order), or nullopt.
-  // With max_distance = infinity the search widens shell by shell until it is exact.
-  std::optional<Neighbor> nearest(const Vec3& q, double max_distance = std::numeric_limits<double>::infinity()) const;
+  // The nearest point with distance <= max_distance (exact; ties go to the first in cell order), or nullopt. The
+  // search first looks within `first_radius` (0: one cell), then doubles its radius up to max_distance: a caller that
+  // knows about how far its nearest point lies skips the rounds below that. With max_distance = infinity the search
+  // widens until it is exact.
+  std::optional<Neighbor> nearest(const Vec3& q, double max_distance = std::numeric_limits<double>::infinity(),
+                                  double first_radius = 0.0) const;
 
   // Distance to the nearest point, bounded for speed: exact when it lies in [stop_below, max_distance]; when some
   // point is closer than stop_below the search may stop there and return that (larger-than-exact but < stop_below)
