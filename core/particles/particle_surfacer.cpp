@@ -94,7 +94,7 @@ struct Particles {
 
   // Exact minimisers of |x - p_i| - inner_i and |x - p_i| - outer_i (weighted radii).
   void nearest_weighted(const Vec3& x, Hit& in, Hit& out) const {
-    double r = max_outer;
+    double r = kFirstSearch * max_outer;  // as in nearest()
     const std::span<const Vec3> pts = hash.sorted_points();
     while (true) {
       in = out = Hit{};
@@ -242,14 +242,18 @@ class InsideMask {
   static constexpr double kMaxBitsPerParticle = 512.0;
 
   InsideMask(const Particles& P, int threads) {
-    if (P.weighted || P.positions.empty() || !P.hash.dense()) return;
+    if (P.positions.empty() || !P.hash.dense()) return;
+    // Per-particle radii: every ball holds the ball of the smallest radii about the same centre, so a mask of those
+    // is a sound one.
+    const double r_inner = P.weighted ? *std::min_element(P.inner.begin(), P.inner.end()) : P.r_inner;
+    const double r_outer = P.weighted ? *std::min_element(P.outer.begin(), P.outer.end()) : P.r_outer;
     // Half r_inner, or coarser when r_outer is many times r_inner, so that a ball spans at most kMaxReachCells cells.
-    cell_ = std::max(0.5 * P.r_inner, P.r_outer / Stencils::kMaxReachCells);
-    const double reach = P.r_outer - cell_ * std::sqrt(3.0) / 2.0;
+    cell_ = std::max(0.5 * r_inner, r_outer / Stencils::kMaxReachCells);
+    const double reach = r_outer - cell_ * std::sqrt(3.0) / 2.0;
     if (!(reach > 0.0)) return;
-    origin_ = P.box.min.array() - P.r_outer;
+    origin_ = P.box.min.array() - r_outer;
     for (int a = 0; a < 3; ++a) {
-      dims_[a] = static_cast<std::int64_t>(std::ceil((P.box.size()[a] + 2.0 * P.r_outer) / cell_)) + 1;
+      dims_[a] = static_cast<std::int64_t>(std::ceil((P.box.size()[a] + 2.0 * r_outer) / cell_)) + 1;
     }
     row_words_ = (dims_[0] + 63) / 64;
     const double words =
@@ -394,7 +398,8 @@ class ParticleField final : public Field {
   // Inside (f < 0) exactly when some particle is closer than its r_outer: the first one found decides.
   double sign_value(const Vec3& x) const override {
     count();
-    if (!p_.weighted) return inside_.certainly_inside(x) || p_.hash.any_within(x, p_.r_outer) ? -band_ : band_;
+    if (inside_.certainly_inside(x)) return -band_;
+    if (!p_.weighted) return p_.hash.any_within(x, p_.r_outer) ? -band_ : band_;
     const std::span<const Vec3> pts = p_.hash.sorted_points();
     bool inside = false;
     p_.hash.for_each_range(x.array() - p_.max_outer, x.array() + p_.max_outer,

@@ -278,6 +278,33 @@ TEST(ParticleSurfacer, InitialSurfaceLiesOnTheOuterIsoSurfaceAcrossRadiusRatios)
   }
 }
 
+// The same with per-particle radii, narrow and wide spreads: the initial vertices lie on the iso-surface of
+// min_i (|x - p_i| - r_outer_i), which the polygonizer's sign test and its inside mask (built for the smallest
+// ball) must both respect.
+TEST(ParticleSurfacer, InitialSurfaceLiesOnTheWeightedOuterIsoSurface) {
+  const std::vector<Vec3> particles = jittered_block(Vec3::Zero(), 12, 12, 12, 0.1, 0.02, 11);
+  const double r_inner = 0.08, h = 0.8 * r_inner;
+  for (const double spread : {0.1, 0.5}) {
+    std::vector<double> radii(particles.size());
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> factor(1.0 - spread, 1.0 + spread);
+    for (double& r : radii) r = r_inner * factor(rng);
+    for (const double ratio : {2.0, 5.0}) {
+      ParticleSurfacingOptions o = options(r_inner);
+      o.r_outer = ratio * r_inner;
+      const Mesh initial = initial_particle_surface(particles, radii, o, {});
+      ASSERT_GT(initial.vertices.size(), 100u);
+      double worst = 0.0;
+      for (const Vec3& v : initial.vertices) {
+        double f = std::numeric_limits<double>::infinity();
+        for (std::size_t i = 0; i < particles.size(); ++i) f = std::min(f, (v - particles[i]).norm() - ratio * radii[i]);
+        worst = std::max(worst, std::abs(f));
+      }
+      EXPECT_LE(worst, 0.5 * h) << "radii spread " << spread << ", r_outer = " << ratio << " r_inner";
+    }
+  }
+}
+
 TEST(ParticleSurfacer, InitialMarchingTilesMeshHasMinimumValenceFive) {
   ParticleSurfacingStats stats;
   const Mesh initial = initial_particle_surface(three_blobs(), {}, options(0.25), {}, &stats);
