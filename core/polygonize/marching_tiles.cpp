@@ -748,42 +748,71 @@ std::optional<Aabb> search_region(const Field& field, const MarchingTilesOptions
 }
 
 // Blocks whose reachable box lies within seed_radius of a seed.
-std::vector<std::uint64_t> seed_blocks(const Lattice& lat, const MarchingTilesOptions& o, const RunControl& control) {
-  std::unordered_set<std::uint64_t> set;
+// Calls add(key) for every block within o.seed_radius of `seed` (the same block may come more than once).
+template <class Add>
+void blocks_near_seed(const Lattice& lat, const MarchingTilesOptions& o, const Vec3& seed, const RunControl& control,
+                      Add&& add) {
   const double r = o.seed_radius;
   const double block_world = 4.0 * kBlock * lat.unit;
-  std::size_t n = 0;
-  for (const Vec3& seed : o.seeds) {
-    if ((++n & 1023) == 0) control.check();
-    std::array<std::int64_t, 3> lo, hi;
-    bool empty = false;
-    for (int a = 0; a < 3; ++a) {
-      // A block b reaches lattice [4 kBlock b, 4 kBlock (b + 1) + 1]: meets [s - r, s + r] for b in this range.
-      const double l = (seed[a] - r - lat.origin[a]) / block_world - (kReach - 4.0) / (4.0 * kBlock);
-      const double h = (seed[a] + r - lat.origin[a]) / block_world;
-      lo[a] = static_cast<std::int64_t>(std::max(0.0, std::floor(l) - 1.0));
-      hi[a] = static_cast<std::int64_t>(std::min(static_cast<double>(lat.blocks[a] - 1), std::floor(h)));
-      if (hi[a] < lo[a]) empty = true;
-    }
-    if (empty) continue;
-    for (std::int64_t bz = lo[2]; bz <= hi[2]; ++bz) {
-      if (hi[2] > lo[2]) control.check();  // a large seed_radius covers many blocks
-      for (std::int64_t by = lo[1]; by <= hi[1]; ++by) {
-        for (std::int64_t bx = lo[0]; bx <= hi[0]; ++bx) {
-          std::array<std::int64_t, 3> llo, lhi;
-          block_range_lattice({bx, by, bz}, {bx + 1, by + 1, bz + 1}, llo, lhi);
-          double d2 = 0.0;
-          for (int a = 0; a < 3; ++a) {
-            const double x0 = lat.world(a, llo[a]), x1 = lat.world(a, lhi[a]);
-            const double d = std::max({x0 - seed[a], seed[a] - x1, 0.0});
-            d2 += d * d;
-          }
-          if (d2 <= r * r * kBallMargin) set.insert(lat.key(bx, by, bz));
+  std::array<std::int64_t, 3> lo, hi;
+  for (int a = 0; a < 3; ++a) {
+    // A block b reaches lattice [4 kBlock b, 4 kBlock (b + 1) + 1]: meets [s - r, s + r] for b in this range.
+    const double l = (seed[a] - r - lat.origin[a]) / block_world - (kReach - 4.0) / (4.0 * kBlock);
+    const double h = (seed[a] + r - lat.origin[a]) / block_world;
+    lo[a] = static_cast<std::int64_t>(std::max(0.0, std::floor(l) - 1.0));
+    hi[a] = static_cast<std::int64_t>(std::min(static_cast<double>(lat.blocks[a] - 1), std::floor(h)));
+    if (hi[a] < lo[a]) return;
+  }
+  for (std::int64_t bz = lo[2]; bz <= hi[2]; ++bz) {
+    if (hi[2] > lo[2]) control.check();  // a large seed_radius covers many blocks
+    for (std::int64_t by = lo[1]; by <= hi[1]; ++by) {
+      for (std::int64_t bx = lo[0]; bx <= hi[0]; ++bx) {
+        std::array<std::int64_t, 3> llo, lhi;
+        block_range_lattice({bx, by, bz}, {bx + 1, by + 1, bz + 1}, llo, lhi);
+        double d2 = 0.0;
+        for (int a = 0; a < 3; ++a) {
+          const double x0 = lat.world(a, llo[a]), x1 = lat.world(a, lhi[a]);
+          const double d = std::max({x0 - seed[a], seed[a] - x1, 0.0});
+          d2 += d * d;
         }
+        if (d2 <= r * r * kBallMargin) add(lat.key(bx, by, bz));
       }
     }
   }
-  std::vector<std::uint64_t> keys(set.begin(), set.end());
+}
+
+// The blocks near the seeds, sorted. A bit per block of the lattice when that costs at most 64 bits per seed (plus
+// 2^20): the seeds are then cut into chunks over the threads, which set bits (an atomic OR, after a plain read finds
+// most bits already set by the seeds before), and the set bits come out in key order. A hash set otherwise.
+std::vector<std::uint64_t> seed_blocks(const Lattice& lat, const MarchingTilesOptions& o, int threads,
+                                       const RunControl& control) {
+  const double blocks = static_cast<double>(lat.blocks[0]) * static_cast<double>(lat.blocks[1]) *
+                        static_cast<double>(lat.blocks[2]);
+  std::vector<std::uint64_t> keys;
+  if (blocks <= 64.0 * static_cast<double>(o.seeds.size()) + static_cast<double>(1 << 20)) {
+    std::vector<std::uint64_t> bits((static_cast<std::size_t>(blocks) + 63) / 64, 0);
+    for_chunks(o.seeds.size(), threads, [&](std::size_t begin, std::size_t end) {
+      for (std::size_t i = begin; i < end; ++i) {
+        if (((i - begin) & 1023) == 0) control.check();
+        blocks_near_seed(lat, o, o.seeds[i], control, [&](std::uint64_t key) {
+          const std::uint64_t bit = std::uint64_t{1} << (key & 63);
+          std::atomic_ref<std::uint64_t> word(bits[key >> 6]);
+          if (!(word.load(std::memory_order_relaxed) & bit)) word.fetch_or(bit, std::memory_order_relaxed);
+        });
+      }
+    });
+    for (std::size_t w = 0; w < bits.size(); ++w) {
+      for (std::uint64_t m = bits[w]; m != 0; m &= m - 1) keys.push_back(w * 64 + std::countr_zero(m));
+    }
+    return keys;
+  }
+  std::unordered_set<std::uint64_t> set;
+  std::size_t n = 0;
+  for (const Vec3& seed : o.seeds) {
+    if ((++n & 1023) == 0) control.check();
+    blocks_near_seed(lat, o, seed, control, [&](std::uint64_t key) { set.insert(key); });
+  }
+  keys.assign(set.begin(), set.end());
   std::sort(keys.begin(), keys.end());
   return keys;
 }
@@ -1002,7 +1031,7 @@ Mesh marching_tiles(const Field& field, const MarchingTilesOptions& options, con
   std::int64_t scan_evaluations = 0;
   std::vector<std::uint64_t> frontier;
   if (!options.seeds.empty()) {
-    frontier = seed_blocks(lat, options, control);
+    frontier = seed_blocks(lat, options, threads, control);
   } else if (const std::optional<Aabb> region = search_region(field, options)) {
     if (lipschitz && options.search != TileSearch::kSignScan) {
       lipschitz_scan(lat, field, *lipschitz, *region, {0, 0, 0}, lat.blocks, frontier, scan_evaluations, control);

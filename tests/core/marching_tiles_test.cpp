@@ -438,6 +438,28 @@ TEST(MarchingTiles, SeedsModeIsClosedAndMatchesFullSearch) {
   RecordProperty("full_evaluations", std::to_string(full_count.calls()));
 }
 
+// The blocks near the seeds are collected in a bit per block of the lattice when the seeds are many for the lattice,
+// in a hash set when they are few: both ways find the same blocks. A few seeds on a fine lattice take the set; the
+// same seeds plus many copies of one far seed (its blocks hold no surface) take the bits.
+TEST(MarchingTiles, SeedBlocksAreTheSameWhetherKeptAsBitsOrAsASet) {
+  const std::vector<Vec3> points = {Vec3(-0.5, -0.4, 0.1), Vec3(0.45, 0.3, -0.2), Vec3(0.1, 0.55, 0.5)};
+  const double r = 0.012;
+  const PointsField field(points, r);
+  for (int threads : {1, 3}) {
+    MarchingTilesOptions o = tile_options(1.0, 0.001, threads);  // 250^3 blocks: over 2^20 + 64 bits per seed
+    o.seed_radius = r * 1.01;
+    o.seeds = points;
+    const Mesh few = marching_tiles(field, o);
+    std::vector<Vec3> many = points;
+    many.resize(points.size() + 300000, Vec3(0.9, 0.9, 0.9));
+    o.seeds = many;
+    const Mesh with_far = marching_tiles(field, o);
+    EXPECT_EQ(check_mesh(few).components, 3);
+    EXPECT_EQ(with_far.vertices, few.vertices) << threads << " threads";
+    EXPECT_EQ(with_far.triangles, few.triangles) << threads << " threads";
+  }
+}
+
 // Sparse evaluation: halving the spacing multiplies field evaluations by ~4 (surface area), not ~8 (volume).
 TEST(MarchingTiles, EvaluationsScaleWithArea) {
   const FieldPtr sphere = make_sphere(Vec3(0.01, 0.02, 0.03), 0.6);
