@@ -12,10 +12,10 @@
 //
 // Parallel and deterministic: triangles and vertices are cut into blocks of fixed size, each block's sums are kept
 // apart and added in block order, so the report's bits do not depend on the executor. The table is built without
-// atomics: the triangles are cut into a few contiguous parts (one per thread, at most kMaxParts), each of which
-// counts its corners per vertex in an array of its own while the triangle pass reads it; prefix sums over the
-// vertices turn the counts into each part's write cursors, and each part then writes its corners. Every triangle is
-// read twice by one thread, and a vertex's corners come in triangle order whatever the threads. Components come from a union-find whose links always point to the smaller index: each block of vertices
+// atomics (RowBuckets, core/util/parallel.h): the triangles are cut into a few contiguous parts (one per thread, at
+// most kMaxParts), each of which counts its corners per vertex while the triangle pass reads it anyway, then writes
+// them at its cursors. Every triangle is read twice by one thread, and a vertex's corners come in triangle order
+// whatever the threads. Components come from a union-find whose links always point to the smaller index: each block of vertices
 // links the edges inside it without atomics (its finds never leave it), then the edges between blocks are linked in
 // parallel with atomic compare-and-swap; the number of components is the referenced vertices minus the successful
 // links, whichever thread made them. Large arrays are allocated uninitialized and first written by the parallel
@@ -31,6 +31,7 @@
 #include <limits>
 #include <memory>
 #include <numeric>
+#include <optional>
 #include <string>
 #include <utility>
 
@@ -222,13 +223,13 @@ class Checker {
     parts_ = std::clamp(executor_.concurrency(), 1, std::clamp(triangle_blocks, 1, kMaxParts));
     part_begin_.resize(parts_ + 1);
     for (int p = 0; p <= parts_; ++p) part_begin_[p] = static_cast<std::size_t>(triangle_blocks) * p / parts_;
-    cursors_.resize(static_cast<std::size_t>(parts_) * nv_);
+    buckets_.emplace(nv_, parts_);
     std::vector<Aabb> boxes(vertex_blocks, Aabb::empty());
     executor_.for_each(vertex_blocks, [&](int b) {
       control_.check();
       const std::size_t begin = b * kVertexBlock, end = std::min(nv_, (b + 1) * kVertexBlock);
       components_.reset(begin, end);
-      for (int p = 0; p < parts_; ++p) std::fill(cursor(p) + begin, cursor(p) + end, 0u);
+      buckets_->clear(begin, end);
       Aabb box = Aabb::empty();
       for (std::size_t v = begin; v < end; ++v) box.merge(mesh_.vertices[v]);
       boxes[b] = box;
@@ -238,9 +239,6 @@ class Checker {
     diag2_ = nv_ > 0 ? box.size().squaredNorm() : 0.0;
   }
 
-  // Part p's cursor per vertex: its corner count, then where it writes its next corner.
-  std::uint32_t* cursor(int p) { return cursors_.data() + static_cast<std::size_t>(p) * nv_; }
-
   // Area, volume, angles and degenerate triangles, per block of triangles, and the corners per vertex, per part.
   // Throws InvalidInput for the first triangle (lowest index) that uses a vertex out of range: a part stops at its
   // first, and the parts are in triangle order.
@@ -249,7 +247,7 @@ class Checker {
     std::vector<std::size_t> first_bad(parts_, nf_);
     const double min_area = 1e-14 * diag2_;
     executor_.for_each(parts_, [&](int part) {
-      std::uint32_t* count = cursor(part);
+      std::uint32_t* count = buckets_->count(part);
       for (std::size_t block = part_begin_[part]; block < part_begin_[part + 1]; ++block) {
         control_.check();
         TriangleSums s;
@@ -309,9 +307,7 @@ class Checker {
     executor_.for_each(blocks, [&](int b) {
       control_.check();
       const std::size_t begin = b * kVertexBlock, end = std::min(nv_, (b + 1) * kVertexBlock);
-      std::uint32_t sum = 0;
-      for (int p = 0; p < parts_; ++p) sum = std::accumulate(cursor(p) + begin, cursor(p) + end, sum);
-      first[b + 1] = sum;
+      first[b + 1] = buckets_->total(begin, end);
     });
     std::partial_sum(first.begin(), first.end(), first.begin());
     start_.resize(nv_ + 1);
@@ -320,11 +316,7 @@ class Checker {
     executor_.for_each(blocks, [&](int b) {
       control_.check();
       const std::size_t begin = b * kVertexBlock, end = std::min(nv_, (b + 1) * kVertexBlock);
-      std::uint32_t next = first[b];
-      for (std::size_t v = begin; v < end; ++v) {
-        start_[v] = next;
-        for (int p = 0; p < parts_; ++p) next += std::exchange(cursor(p)[v], next);
-      }
+      buckets_->place(begin, end, first[b], start_.data());
     });
   }
 
@@ -333,7 +325,7 @@ class Checker {
   void fill_corners() {
     executor_.for_each(parts_, [&](int part) {
       control_.check();
-      std::uint32_t* next = cursor(part);
+      std::uint32_t* next = buckets_->cursor(part);
       const std::size_t end = std::min(nf_, part_begin_[part + 1] * kTriangleBlock);
       for (std::size_t t = part_begin_[part] * kTriangleBlock; t < end; ++t) {
         const Triangle& tri = mesh_.triangles[t];
@@ -551,7 +543,7 @@ class Checker {
   UnionFind components_;
   int parts_ = 1;                       // contiguous runs of triangle blocks, each counted and filled by one item
   std::vector<std::size_t> part_begin_;  // parts_ + 1 triangle block indices
-  Buffer<std::uint32_t> cursors_;        // parts_ x nv_, see cursor()
+  std::optional<RowBuckets> buckets_;    // the corners per vertex, counted and written by the parts
 };
 
 }  // namespace

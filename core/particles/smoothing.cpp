@@ -16,23 +16,50 @@ int vertex_range_count(std::size_t rows, int threads) {
   return static_cast<int>(std::min<std::size_t>(std::clamp(threads, 1, 4), rows / 65536 + 1));
 }
 
-// A compressed-row table (offsets, values) filled by scan(lo, hi, add), which must call add(row, value) for every
-// entry whose row lies in [lo, hi), in the same order on every call. The rows are cut into a few ranges that fill
-// in parallel (each range's scan reads all the input and keeps its own rows): the table is the serial one.
+// A compressed-row table (offsets, values) of `items` input items: scan(begin, end, add) must call add(row, value)
+// for every entry of items [begin, end), in the same order on every call (rows >= `rows` are left out). Each thread's share of the items counts
+// and then writes its own entries (RowBuckets): every item is scanned twice, by one thread, and each row holds its
+// entries in item order, the table of one serial pass.
 template <class Values, class Scan>
-void rows_by_range(std::size_t rows, int threads, std::vector<std::uint32_t>& offsets, Values& values, Scan&& scan) {
-  const int parts = vertex_range_count(rows, threads);
-  offsets.assign(rows + 1, 0);
-  parallel_for(parts, threads, [&](int part) {
-    const auto [lo, hi] = chunk_range(rows, parts, part);
-    scan(lo, hi, [&](std::uint32_t row, std::uint32_t) { ++offsets[row + 1]; });
+void rows_by_items(std::size_t rows, std::size_t items, int threads, std::vector<std::uint32_t>& offsets,
+                   Values& values, Scan&& scan) {
+  constexpr std::size_t kRowBlock = 32768;
+  const int parts = static_cast<int>(std::min<std::size_t>(std::clamp(threads, 1, 8), items / 4096 + 1));
+  RowBuckets buckets(rows, parts);
+  const int blocks = static_cast<int>((rows + kRowBlock - 1) / kRowBlock);
+  auto block_rows = [&](int b) {
+    return std::pair{b * kRowBlock, std::min(rows, (b + 1) * kRowBlock)};
+  };
+  parallel_for(blocks, threads, [&](int b) {
+    const auto [begin, end] = block_rows(b);
+    buckets.clear(begin, end);
   });
-  for (std::size_t i = 0; i < rows; ++i) offsets[i + 1] += offsets[i];
-  values.resize(offsets[rows]);
-  std::vector<std::uint32_t> fill(offsets.begin(), offsets.end() - 1);
   parallel_for(parts, threads, [&](int part) {
-    const auto [lo, hi] = chunk_range(rows, parts, part);
-    scan(lo, hi, [&](std::uint32_t row, std::uint32_t value) { values[fill[row]++] = value; });
+    const auto [begin, end] = chunk_range(items, parts, part);
+    std::uint32_t* count = buckets.count(part);
+    scan(begin, end, [&](std::uint32_t row, std::uint32_t) {
+      if (row < rows) ++count[row];
+    });
+  });
+  std::vector<std::uint32_t> first(blocks + 1, 0);  // the entries before each block of rows
+  parallel_for(blocks, threads, [&](int b) {
+    const auto [begin, end] = block_rows(b);
+    first[b + 1] = buckets.total(begin, end);
+  });
+  std::partial_sum(first.begin(), first.end(), first.begin());
+  offsets.resize(rows + 1);
+  offsets[rows] = first[blocks];
+  parallel_for(blocks, threads, [&](int b) {
+    const auto [begin, end] = block_rows(b);
+    buckets.place(begin, end, first[b], offsets.data());
+  });
+  values.resize(first[blocks]);
+  parallel_for(parts, threads, [&](int part) {
+    const auto [begin, end] = chunk_range(items, parts, part);
+    std::uint32_t* cursor = buckets.cursor(part);
+    scan(begin, end, [&](std::uint32_t row, std::uint32_t value) {
+      if (row < rows) values[cursor[row]++] = value;
+    });
   });
 }
 
@@ -42,13 +69,14 @@ Graph one_ring(std::size_t vertices, std::span<const Triangle> triangles, int th
   // Both directions of every edge, bucketed by vertex, then each row sorted and deduplicated.
   std::vector<std::uint32_t> count;
   Buffer<std::uint32_t> raw;
-  rows_by_range(vertices, threads, count, raw, [&](std::size_t lo, std::size_t hi, auto&& add) {
-    for (const Triangle& t : triangles) {
+  rows_by_items(vertices, triangles.size(), threads, count, raw, [&](std::size_t begin, std::size_t end, auto&& add) {
+    for (std::size_t i = begin; i < end; ++i) {
+      const Triangle& t = triangles[i];
       for (int c = 0; c < 3; ++c) {
         const std::uint32_t a = t[c], b = t[(c + 1) % 3];
         if (a == b) continue;
-        if (a >= lo && a < hi) add(a, b);
-        if (b >= lo && b < hi) add(b, a);
+        add(a, b);
+        add(b, a);
       }
     }
   });
@@ -107,14 +135,12 @@ Cotangent cotangent_laplacian(std::span<const Vec3> x, std::span<const Triangle>
   // The triangles of every vertex (its corners, 3 * triangle + corner), so that each vertex assembles its own row of W.
   std::vector<std::uint32_t> corner_offsets;
   Buffer<std::uint32_t> corner_list;
-  rows_by_range(n, threads, corner_offsets, corner_list, [&](std::size_t lo, std::size_t hi, auto&& add) {
-    for (std::size_t t = 0; t < triangles.size(); ++t) {
-      for (std::uint32_t k = 0; k < 3; ++k) {
-        const std::uint32_t v = triangles[t][k];
-        if (v >= lo && v < hi) add(v, static_cast<std::uint32_t>(3 * t + k));
-      }
-    }
-  });
+  rows_by_items(n, triangles.size(), threads, corner_offsets, corner_list,
+                [&](std::size_t begin, std::size_t end, auto&& add) {
+                  for (std::size_t t = begin; t < end; ++t) {
+                    for (std::uint32_t k = 0; k < 3; ++k) add(triangles[t][k], static_cast<std::uint32_t>(3 * t + k));
+                  }
+                });
   control.check();
 
   // W (aligned with ring.cols), its diagonal and the inverse vertex areas, row by row in parallel. Corner k of a

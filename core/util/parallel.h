@@ -4,10 +4,12 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cstdint>
 #include <exception>
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <numeric>
 #include <thread>
 #include <type_traits>
 #include <utility>
@@ -102,6 +104,44 @@ class DefaultInitAllocator : public std::allocator<T> {
 // once instead of twice. Every element must be written before it is read.
 template <class T>
 using Buffer = std::vector<T, DefaultInitAllocator<T>>;
+
+// Entries bucketed by row in parallel without atomics (a counting sort). The input is cut into `parts` contiguous
+// shares; each share counts its entries per row in an array of its own, place() turns the counts into the rows'
+// offsets and each share's write cursors, and each share then writes its entries at its cursors. Within a row, share
+// 0's entries come first, then share 1's and so on: input order, whatever the threads. 4 bytes per row and share.
+// The caller spreads each step over its own threads:
+//   1. clear() every range of rows;   2. each share: ++count(share)[row] per entry;
+//   3. total() of every range of rows, a prefix sum of those, then place() every range;
+//   4. each share: values[cursor(share)[row]++] = value per entry, in the order it counted them.
+class RowBuckets {
+ public:
+  RowBuckets(std::size_t rows, int parts)
+      : rows_(rows), parts_(std::max(1, parts)), counts_(rows * static_cast<std::size_t>(std::max(1, parts))) {}
+  int parts() const { return parts_; }
+  void clear(std::size_t begin, std::size_t end) {
+    for (int p = 0; p < parts_; ++p) std::fill(count(p) + begin, count(p) + end, 0u);
+  }
+  std::uint32_t* count(int part) { return counts_.data() + static_cast<std::size_t>(part) * rows_; }
+  // Entries of rows [begin, end), all shares.
+  std::uint32_t total(std::size_t begin, std::size_t end) {
+    std::uint32_t sum = 0;
+    for (int p = 0; p < parts_; ++p) sum = std::accumulate(count(p) + begin, count(p) + end, sum);
+    return sum;
+  }
+  // offsets[row] for rows [begin, end), whose first entry goes at `first`; the counts become the cursors.
+  void place(std::size_t begin, std::size_t end, std::uint32_t first, std::uint32_t* offsets) {
+    for (std::size_t row = begin; row < end; ++row) {
+      offsets[row] = first;
+      for (int p = 0; p < parts_; ++p) first += std::exchange(count(p)[row], first);
+    }
+  }
+  std::uint32_t* cursor(int part) { return count(part); }
+
+ private:
+  std::size_t rows_;
+  int parts_;
+  Buffer<std::uint32_t> counts_;
+};
 
 // Where a data-parallel loop runs. Engines that take one let a server run their items on its own worker pool
 // (server/worker_pool.h) next to other work, instead of starting threads; ThreadExecutor is the fork-join default.
