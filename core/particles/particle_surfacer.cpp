@@ -306,6 +306,32 @@ class InsideMask {
     return (w >> (c[0] & 63)) & 1u;
   }
 
+  bool usable() const { return !words_.empty(); }
+
+  // True only where every point of `box` is inside some particle's r_outer ball: every cube the box meets is marked.
+  bool covers(const Aabb& box) const {
+    if (words_.empty()) return false;
+    std::int64_t lo[3], hi[3];
+    for (int a = 0; a < 3; ++a) {
+      const double l = (box.min[a] - origin_[a]) / cell_, h = (box.max[a] - origin_[a]) / cell_;
+      if (!(l >= 0.0) || !(h < static_cast<double>(dims_[a]))) return false;
+      lo[a] = static_cast<std::int64_t>(l);
+      hi[a] = static_cast<std::int64_t>(h);
+    }
+    for (std::int64_t k = lo[2]; k <= hi[2]; ++k) {
+      for (std::int64_t j = lo[1]; j <= hi[1]; ++j) {
+        const std::uint64_t* row = &words_[static_cast<std::size_t>((k * dims_[1] + j) * row_words_)];
+        for (std::int64_t w = lo[0] >> 6; w <= hi[0] >> 6; ++w) {
+          const std::int64_t first = std::max(lo[0], 64 * w) - 64 * w, last = std::min(hi[0], 64 * w + 63) - 64 * w;
+          const std::uint64_t bits = (last == 63 ? ~std::uint64_t{0} : (std::uint64_t{1} << (last + 1)) - 1) &
+                                     ~((std::uint64_t{1} << first) - 1);
+          if ((row[w] & bits) != bits) return false;
+        }
+      }
+    }
+    return true;
+  }
+
  private:
   // The cells strictly within `reach` (in cells) of a particle, as rows of cells relative to the particle's cell,
   // one list per class of its offset in the cell (kClasses per axis). A list is made for the class's centre with the
@@ -411,6 +437,8 @@ class ParticleField final : public Field {
     return inside ? -band_ : band_;
   }
   bool sign_is_cheaper() const override { return true; }
+  bool inside_everywhere(const Aabb& box) const override { return inside_.covers(box); }
+  bool answers_inside_boxes() const override { return inside_.usable(); }
 
   double value_and_gradient(const Vec3& x, Vec3& gradient) const override {
     count();

@@ -71,6 +71,7 @@ constexpr int kPadCells = kPad * kPad * kPad;          // 729
 constexpr int kBlockCells = kBlock * kBlock * kBlock;  // 512
 constexpr int kSub = 2;       // cells between the corners of the sign scan (fields without a Lipschitz bound)
 constexpr int kCullCell = 1;  // smallest cube the Lipschitz cull tests, in cells
+constexpr int kInsideCullCell = 4;  // smallest cube a field's inside test is asked about (without a Lipschitz bound)
 constexpr int kReach = 5;     // tetrahedra of home cell c reach lattice 4c + 5
 constexpr int kSlots = kPadCells * a15::kEdgeCount;  // edge slots of a block
 constexpr int kRingSlots = 2 * kPad * kPad * a15::kEdgeCount;
@@ -311,7 +312,8 @@ class BlockMesher {
         lipschitz_(lipschitz),
         control_(control),
         tab_(tables()),
-        sign_only_(field.sign_is_cheaper()) {}
+        sign_only_(field.sign_is_cheaper()),
+        inside_boxes_(field.answers_inside_boxes()) {}
 
   void run(std::uint64_t key, Scratch& s, BlockOutput& out) {
     out.key = key;
@@ -372,9 +374,10 @@ class BlockMesher {
     s.inside.fill(0);
   }
 
-  // Marks the cells the Lipschitz test cannot exclude (every cell without a bound).
+  // Marks the cells that the Lipschitz test, or the field's inside test, cannot exclude (every cell when the field
+  // offers neither).
   void cull(Scratch& s) {
-    if (!lipschitz_) {
+    if (!lipschitz_ && !inside_boxes_) {
       s.active.fill(1);
       return;
     }
@@ -383,7 +386,9 @@ class BlockMesher {
   }
 
   // Octree over the block's cells: a cube of `size` cells at `lo` is dropped when the Lipschitz ball around the box
-  // its tetrahedra reach excludes a sign change; otherwise its octants are tested, down to kCullCell cells.
+  // its tetrahedra reach excludes a sign change, or when the field knows the box to be inside everywhere; otherwise
+  // its octants are tested, down to kCullCell cells (kInsideCullCell for the inside test alone: below that its
+  // answers cost more than the cells they skip).
   void cull_cube(Scratch& s, const std::array<int, 3>& lo, int size) {
     std::array<std::int64_t, 3> llo, lhi;
     for (int a = 0; a < 3; ++a) {
@@ -391,8 +396,11 @@ class BlockMesher {
       lhi[a] = 4 * (c0_[a] + lo[a] + size - 1) + kReach;
     }
     const std::optional<Aabb> box = clipped_box(lat_, llo, lhi, options_.bounds);
-    if (!box || ball_excludes(field_, *lipschitz_, *box)) return;
-    if (size <= kCullCell) {
+    if (!box || (lipschitz_ && ball_excludes(field_, *lipschitz_, *box)) ||
+        (inside_boxes_ && field_.inside_everywhere(*box))) {
+      return;
+    }
+    if (size <= (lipschitz_ ? kCullCell : kInsideCullCell)) {
       for (int k = lo[2]; k < lo[2] + size; ++k) {
         for (int j = lo[1]; j < lo[1] + size; ++j) {
           for (int i = lo[0]; i < lo[0] + size; ++i) s.active[(k * kBlock + j) * kBlock + i] = 1;
@@ -618,7 +626,8 @@ class BlockMesher {
   const std::optional<double> lipschitz_;
   const RunControl& control_;
   const Tables& tab_;
-  const bool sign_only_;  // the evaluation pass asks sign_value(); crossed edges' ends get value()
+  const bool sign_only_;     // the evaluation pass asks sign_value(); crossed edges' ends get value()
+  const bool inside_boxes_;  // the cull asks field_.inside_everywhere()
   std::array<std::int64_t, 3> c0_{};
   bool interior_ = false;
 };

@@ -43,6 +43,14 @@ class Field {
   // and value() only for those ends. The default is value(p).
   virtual double sign_value(const Vec3& p) const { return value(p); }
   virtual bool sign_is_cheaper() const { return false; }
+  // True only when every point of `box` is inside (value < 0); false when that is not known, which is always safe.
+  // Polygonizers skip the cells whose tetrahedra lie in such a box. Fields that can tell cheaply (a particle field's
+  // mask of cubes inside the balls) say so with answers_inside_boxes(); the default answers nothing.
+  virtual bool inside_everywhere(const Aabb& box) const {
+    (void)box;
+    return false;
+  }
+  virtual bool answers_inside_boxes() const { return false; }
 };
 
 using FieldPtr = std::shared_ptr<const Field>;

@@ -438,6 +438,60 @@ TEST(MarchingTiles, SeedsModeIsClosedAndMatchesFullSearch) {
   RecordProperty("full_evaluations", std::to_string(full_count.calls()));
 }
 
+// A field's inside test lets the polygonizer skip cells whose tetrahedra lie inside; it must not change the mesh.
+// Here: balls (no Lipschitz bound given) whose inside test is exact for boxes (a box is inside a ball when its
+// farthest corner is), against the same field answering nothing.
+class BallsWithInsideTest final : public Field {
+ public:
+  BallsWithInsideTest(std::vector<Vec3> centres, double r, bool answers)
+      : centres_(std::move(centres)), r_(r), answers_(answers) {}
+  double value(const Vec3& p) const override {
+    calls_.fetch_add(1, std::memory_order_relaxed);
+    double d = HUGE_VAL;
+    for (const Vec3& c : centres_) d = std::min(d, (p - c).norm());
+    return d - r_;
+  }
+  double value_and_gradient(const Vec3& p, Vec3& g) const override {
+    g = Vec3::UnitX();
+    return value(p);
+  }
+  std::optional<Aabb> bounds() const override { return std::nullopt; }
+  bool inside_everywhere(const Aabb& box) const override {
+    for (const Vec3& c : centres_) {
+      const Vec3 far = (box.min - c).cwiseAbs().cwiseMax((box.max - c).cwiseAbs());
+      if (far.norm() < r_) return true;
+    }
+    return false;
+  }
+  bool answers_inside_boxes() const override { return answers_; }
+  std::int64_t calls() const { return calls_.load(); }
+
+ private:
+  std::vector<Vec3> centres_;
+  double r_;
+  bool answers_;
+  mutable std::atomic<std::int64_t> calls_{0};
+};
+
+TEST(MarchingTiles, CellsInsideTheFieldAreSkippedWithoutChangingTheMesh) {
+  const std::vector<Vec3> centres = {Vec3(-0.3, 0.0, 0.1), Vec3(0.35, 0.1, -0.1)};
+  for (const double spacing : {0.01, 0.023}) {
+    for (const double r : {0.2, 0.45}) {  // apart, then overlapping
+      SCOPED_TRACE("spacing " + std::to_string(spacing) + ", r " + std::to_string(r));
+      MarchingTilesOptions o = tile_options(1.0, spacing, 2);
+      o.seeds = centres;
+      o.seed_radius = 1.01 * r;
+      const BallsWithInsideTest plain(centres, r, false), culled(centres, r, true);
+      const Mesh a = marching_tiles(plain, o);
+      const Mesh b = marching_tiles(culled, o);
+      EXPECT_TRUE(mesh_has(check_mesh(b), kGoodClosed, kMinValence));
+      EXPECT_EQ(b.vertices, a.vertices);
+      EXPECT_EQ(b.triangles, a.triangles);
+      EXPECT_LT(culled.calls(), plain.calls());
+    }
+  }
+}
+
 // The blocks near the seeds are collected in a bit per block of the lattice when the seeds are many for the lattice,
 // in a hash set when they are few: both ways find the same blocks. A few seeds on a fine lattice take the set; the
 // same seeds plus many copies of one far seed (its blocks hold no surface) take the bits.

@@ -270,6 +270,7 @@ TEST(ParticleSurfacer, InitialSurfaceLiesOnTheOuterIsoSurfaceAcrossRadiusRatios)
     o.r_outer = ratio * r_inner;
     const Mesh initial = initial_particle_surface(particles, {}, o, {});
     ASSERT_GT(initial.vertices.size(), 100u) << ratio;
+    EXPECT_TRUE(mesh_has(check_mesh(initial), kClosed | kOriented, 5)) << ratio;  // no cell skipped that held surface
     double worst = 0.0;
     for (const Vec3& v : initial.vertices) {
       worst = std::max(worst, std::abs(nearest_point_distance(particles, v) - *o.r_outer));
@@ -294,6 +295,7 @@ TEST(ParticleSurfacer, InitialSurfaceLiesOnTheWeightedOuterIsoSurface) {
       o.r_outer = ratio * r_inner;
       const Mesh initial = initial_particle_surface(particles, radii, o, {});
       ASSERT_GT(initial.vertices.size(), 100u);
+      EXPECT_TRUE(mesh_has(check_mesh(initial), kClosed | kOriented, 5));
       double worst = 0.0;
       for (const Vec3& v : initial.vertices) {
         double f = std::numeric_limits<double>::infinity();
