@@ -757,10 +757,11 @@ std::optional<Aabb> search_region(const Field& field, const MarchingTilesOptions
 }
 
 // Blocks whose reachable box lies within seed_radius of a seed.
-// Calls add(key) for every block within o.seed_radius of `seed` (the same block may come more than once).
-template <class Add>
+// Calls add(key) for every block within o.seed_radius of `seed` that known(key) does not report as added already
+// (the same block may still come more than once).
+template <class Known, class Add>
 void blocks_near_seed(const Lattice& lat, const MarchingTilesOptions& o, const Vec3& seed, const RunControl& control,
-                      Add&& add) {
+                      Known&& known, Add&& add) {
   const double r = o.seed_radius;
   const double block_world = 4.0 * kBlock * lat.unit;
   std::array<std::int64_t, 3> lo, hi;
@@ -776,6 +777,8 @@ void blocks_near_seed(const Lattice& lat, const MarchingTilesOptions& o, const V
     if (hi[2] > lo[2]) control.check();  // a large seed_radius covers many blocks
     for (std::int64_t by = lo[1]; by <= hi[1]; ++by) {
       for (std::int64_t bx = lo[0]; bx <= hi[0]; ++bx) {
+        const std::uint64_t key = lat.key(bx, by, bz);
+        if (known(key)) continue;
         std::array<std::int64_t, 3> llo, lhi;
         block_range_lattice({bx, by, bz}, {bx + 1, by + 1, bz + 1}, llo, lhi);
         double d2 = 0.0;
@@ -784,15 +787,16 @@ void blocks_near_seed(const Lattice& lat, const MarchingTilesOptions& o, const V
           const double d = std::max({x0 - seed[a], seed[a] - x1, 0.0});
           d2 += d * d;
         }
-        if (d2 <= r * r * kBallMargin) add(lat.key(bx, by, bz));
+        if (d2 <= r * r * kBallMargin) add(key);
       }
     }
   }
 }
 
 // The blocks near the seeds, sorted. A bit per block of the lattice when that costs at most 64 bits per seed (plus
-// 2^20): the seeds are then cut into chunks over the threads, which set bits (an atomic OR, after a plain read finds
-// most bits already set by the seeds before), and the set bits come out in key order. A hash set otherwise.
+// 2^20): the seeds are then cut into chunks over the threads, which set bits (an atomic OR), and the set bits come
+// out in key order. Most blocks near a seed were set by the seeds before it (neighbours in space are mostly
+// neighbours in the list): a plain read of the bit skips the block's distance test. A hash set otherwise.
 std::vector<std::uint64_t> seed_blocks(const Lattice& lat, const MarchingTilesOptions& o, int threads,
                                        const RunControl& control) {
   const double blocks = static_cast<double>(lat.blocks[0]) * static_cast<double>(lat.blocks[1]) *
@@ -803,11 +807,11 @@ std::vector<std::uint64_t> seed_blocks(const Lattice& lat, const MarchingTilesOp
     for_chunks(o.seeds.size(), threads, [&](std::size_t begin, std::size_t end) {
       for (std::size_t i = begin; i < end; ++i) {
         if (((i - begin) & 1023) == 0) control.check();
-        blocks_near_seed(lat, o, o.seeds[i], control, [&](std::uint64_t key) {
-          const std::uint64_t bit = std::uint64_t{1} << (key & 63);
-          std::atomic_ref<std::uint64_t> word(bits[key >> 6]);
-          if (!(word.load(std::memory_order_relaxed) & bit)) word.fetch_or(bit, std::memory_order_relaxed);
-        });
+        auto word = [&](std::uint64_t key) { return std::atomic_ref<std::uint64_t>(bits[key >> 6]); };
+        blocks_near_seed(
+            lat, o, o.seeds[i], control,
+            [&](std::uint64_t key) { return (word(key).load(std::memory_order_relaxed) >> (key & 63)) & 1; },
+            [&](std::uint64_t key) { word(key).fetch_or(std::uint64_t{1} << (key & 63), std::memory_order_relaxed); });
       }
     });
     for (std::size_t w = 0; w < bits.size(); ++w) {
@@ -819,7 +823,8 @@ std::vector<std::uint64_t> seed_blocks(const Lattice& lat, const MarchingTilesOp
   std::size_t n = 0;
   for (const Vec3& seed : o.seeds) {
     if ((++n & 1023) == 0) control.check();
-    blocks_near_seed(lat, o, seed, control, [&](std::uint64_t key) { set.insert(key); });
+    blocks_near_seed(
+        lat, o, seed, control, [](std::uint64_t) { return false; }, [&](std::uint64_t key) { set.insert(key); });
   }
   keys.assign(set.begin(), set.end());
   std::sort(keys.begin(), keys.end());
