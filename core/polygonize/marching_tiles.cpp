@@ -756,9 +756,8 @@ std::optional<Aabb> search_region(const Field& field, const MarchingTilesOptions
   return region;
 }
 
-// Blocks whose reachable box lies within seed_radius of a seed.
-// Calls add(key) for every block within o.seed_radius of `seed` that known(key) does not report as added already
-// (the same block may still come more than once).
+// Calls add(key) for every block whose reachable box lies within o.seed_radius of `seed` and that known(key) does
+// not report as added already (the same block may still come more than once).
 template <class Known, class Add>
 void blocks_near_seed(const Lattice& lat, const MarchingTilesOptions& o, const Vec3& seed, const RunControl& control,
                       Known&& known, Add&& add) {
