@@ -229,10 +229,11 @@ struct Particles {
   }
 };
 
-// Where f < 0 is certain without a search (uniform radii): a bit per cube of side c of a grid over the particles,
-// set when some particle lies closer than r_outer - c sqrt(3) / 2 to the cube's centre, so that every point of the
-// cube is strictly inside that particle's r_outer ball. Inside a fluid nearly every sample of the polygonizer falls in
-// such a cube and its sign costs one bit lookup. Built by rasterizing each particle's ball row by row as spans of
+// Where f < 0 is certain without a search: a bit per cube of side c of a grid over the particles, set when some
+// particle lies closer than r_outer - c sqrt(3) / 2 to the cube's centre (per-particle radii: the smallest r_outer_i),
+// so that every point of the cube is strictly inside that particle's ball. Inside a fluid nearly every sample of the
+// polygonizer falls in such a cube and its sign costs one bit lookup, and Marching Tiles skips the cubes of cells
+// whose boxes it covers (covers()). Built by rasterizing each particle's ball row by row as spans of
 // bits, from a table of rows per class of the particle's offset in its cube (Stencils: no square root per particle);
 // rows are padded to whole 64-bit words and z-slabs of rows go to different workers, so no word is written by two (and
 // the bits do not depend on the order anyway). Not built when the grid would hold more than
