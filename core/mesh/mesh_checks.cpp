@@ -15,11 +15,11 @@
 // atomics (RowBuckets, core/util/parallel.h): the triangles are cut into a few contiguous parts (one per thread, at
 // most kMaxParts), each of which counts its corners per vertex while the triangle pass reads it anyway, then writes
 // them at its cursors. Every triangle is read twice by one thread, and a vertex's corners come in triangle order
-// whatever the threads. Components come from a union-find whose links always point to the smaller index: each block of vertices
-// links the edges inside it without atomics (its finds never leave it), then the edges between blocks are linked in
-// parallel with atomic compare-and-swap; the number of components is the referenced vertices minus the successful
-// links, whichever thread made them. Large arrays are allocated uninitialized and first written by the parallel
-// passes, so their pages are faulted in by every thread rather than by one.
+// whatever the threads. Components come from a union-find whose links always point to the smaller index: each block of
+// vertices links the edges inside it without atomics (its finds never leave it), then the edges between blocks are
+// linked in parallel with atomic compare-and-swap; the number of components is the referenced vertices minus the
+// successful links, whichever thread made them. Large arrays are allocated uninitialized and first written by the
+// parallel passes, so their pages are faulted in by every thread rather than by one.
 #include "core/mesh/mesh_checks.h"
 
 #include <Eigen/Geometry>
@@ -48,7 +48,7 @@ constexpr double kPi = 3.14159265358979323846;
 constexpr std::size_t kTriangleBlock = std::size_t{1} << 16;
 constexpr std::size_t kVertexBlock = std::size_t{1} << 15;
 constexpr int kMaxFastCorners = 32;  // corners of one vertex the fast path handles (a bit mask each)
-constexpr int kMaxParts = 8;  // triangle parts: each costs 4 bytes per vertex
+constexpr int kMaxParts = 8;         // triangle parts: each costs 4 bytes per vertex
 // The corner after / before corner c of a triangle (no branch, no division: corners are stored as 4 t + c).
 constexpr std::uint32_t kNext[4] = {1, 2, 0, 0};
 constexpr std::uint32_t kPrev[4] = {2, 0, 1, 0};
@@ -541,7 +541,7 @@ class Checker {
   Buffer<std::uint32_t> corners_;  // 4 t + c
   std::vector<VertexSums> vertex_sums_;
   UnionFind components_;
-  int parts_ = 1;                       // contiguous runs of triangle blocks, each counted and filled by one item
+  int parts_ = 1;                        // contiguous runs of triangle blocks, each counted and filled by one item
   std::vector<std::size_t> part_begin_;  // parts_ + 1 triangle block indices
   std::optional<RowBuckets> buckets_;    // the corners per vertex, counted and written by the parts
 };

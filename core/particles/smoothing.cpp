@@ -17,9 +17,9 @@ int vertex_range_count(std::size_t rows, int threads) {
 }
 
 // A compressed-row table (offsets, values) of `items` input items: scan(begin, end, add) must call add(row, value)
-// for every entry of items [begin, end), in the same order on every call (rows >= `rows` are left out). Each thread's share of the items counts
-// and then writes its own entries (RowBuckets): every item is scanned twice, by one thread, and each row holds its
-// entries in item order, the table of one serial pass.
+// for every entry of items [begin, end), in the same order on every call (rows >= `rows` are left out). Each thread's
+// share of the items counts and then writes its own entries (RowBuckets): every item is scanned twice, by one thread,
+// and each row holds its entries in item order, the table of one serial pass.
 template <class Values, class Scan>
 void rows_by_items(std::size_t rows, std::size_t items, int threads, std::vector<std::uint32_t>& offsets,
                    Values& values, Scan&& scan) {
@@ -27,9 +27,7 @@ void rows_by_items(std::size_t rows, std::size_t items, int threads, std::vector
   const int parts = static_cast<int>(std::min<std::size_t>(std::clamp(threads, 1, 8), items / 4096 + 1));
   RowBuckets buckets(rows, parts);
   const int blocks = static_cast<int>((rows + kRowBlock - 1) / kRowBlock);
-  auto block_rows = [&](int b) {
-    return std::pair{b * kRowBlock, std::min(rows, (b + 1) * kRowBlock)};
-  };
+  auto block_rows = [&](int b) { return std::pair{b * kRowBlock, std::min(rows, (b + 1) * kRowBlock)}; };
   parallel_for(blocks, threads, [&](int b) {
     const auto [begin, end] = block_rows(b);
     buckets.clear(begin, end);

@@ -130,7 +130,7 @@ std::size_t SpatialHash::memory_bytes() const {
 }
 
 std::optional<SpatialHash::Neighbor> SpatialHash::nearest(const Vec3& q, double max_distance,
-                                                         double first_radius) const {
+                                                          double first_radius) const {
   if (points_.empty() || !(max_distance >= 0.0)) return std::nullopt;
   // Radius beyond which every point is inside the search box: the distance to the farthest corner of the grid.
   const Eigen::Array3d far =

@@ -69,10 +69,10 @@ constexpr int kBlock = 8;                              // cells per block edge
 constexpr int kPad = kBlock + 1;                       // padded cells per block edge
 constexpr int kPadCells = kPad * kPad * kPad;          // 729
 constexpr int kBlockCells = kBlock * kBlock * kBlock;  // 512
-constexpr int kSub = 2;       // cells between the corners of the sign scan (fields without a Lipschitz bound)
-constexpr int kCullCell = 1;  // smallest cube the Lipschitz cull tests, in cells
+constexpr int kSub = 2;             // cells between the corners of the sign scan (fields without a Lipschitz bound)
+constexpr int kCullCell = 1;        // smallest cube the Lipschitz cull tests, in cells
 constexpr int kInsideCullCell = 4;  // smallest cube a field's inside test is asked about (without a Lipschitz bound)
-constexpr int kReach = 5;     // tetrahedra of home cell c reach lattice 4c + 5
+constexpr int kReach = 5;           // tetrahedra of home cell c reach lattice 4c + 5
 constexpr int kSlots = kPadCells * a15::kEdgeCount;  // edge slots of a block
 constexpr int kRingSlots = 2 * kPad * kPad * a15::kEdgeCount;
 constexpr double kMinT = 1e-3;              // clamp of the interpolation parameter
@@ -798,8 +798,8 @@ void blocks_near_seed(const Lattice& lat, const MarchingTilesOptions& o, const V
 // neighbours in the list): a plain read of the bit skips the block's distance test. A hash set otherwise.
 std::vector<std::uint64_t> seed_blocks(const Lattice& lat, const MarchingTilesOptions& o, int threads,
                                        const RunControl& control) {
-  const double blocks = static_cast<double>(lat.blocks[0]) * static_cast<double>(lat.blocks[1]) *
-                        static_cast<double>(lat.blocks[2]);
+  const double blocks =
+      static_cast<double>(lat.blocks[0]) * static_cast<double>(lat.blocks[1]) * static_cast<double>(lat.blocks[2]);
   std::vector<std::uint64_t> keys;
   if (blocks <= 64.0 * static_cast<double>(o.seeds.size()) + static_cast<double>(1 << 20)) {
     std::vector<std::uint64_t> bits((static_cast<std::size_t>(blocks) + 63) / 64, 0);

@@ -299,7 +299,8 @@ TEST(ParticleSurfacer, InitialSurfaceLiesOnTheWeightedOuterIsoSurface) {
       double worst = 0.0;
       for (const Vec3& v : initial.vertices) {
         double f = std::numeric_limits<double>::infinity();
-        for (std::size_t i = 0; i < particles.size(); ++i) f = std::min(f, (v - particles[i]).norm() - ratio * radii[i]);
+        for (std::size_t i = 0; i < particles.size(); ++i)
+          f = std::min(f, (v - particles[i]).norm() - ratio * radii[i]);
         worst = std::max(worst, std::abs(f));
       }
       EXPECT_LE(worst, 0.5 * h) << "radii spread " << spread << ", r_outer = " << ratio << " r_inner";
