@@ -302,22 +302,14 @@ class Checker {
   // start_[v]: v's first corner, the vertices in order; within v, part 0's corners come first, and so on. The parts'
   // counts become their write cursors.
   void build_offsets() {
-    const int blocks = block_count(nv_, kVertexBlock);
-    std::vector<std::uint32_t> first(blocks + 1, 0);  // the corners before each block of vertices
-    executor_.for_each(blocks, [&](int b) {
-      control_.check();
-      const std::size_t begin = b * kVertexBlock, end = std::min(nv_, (b + 1) * kVertexBlock);
-      first[b + 1] = buckets_->total(begin, end);
-    });
-    std::partial_sum(first.begin(), first.end(), first.begin());
     start_.resize(nv_ + 1);
-    start_[nv_] = first[blocks];
-    corners_.resize(first[blocks]);  // each slot filled once, by fill_corners
-    executor_.for_each(blocks, [&](int b) {
-      control_.check();
-      const std::size_t begin = b * kVertexBlock, end = std::min(nv_, (b + 1) * kVertexBlock);
-      buckets_->place(begin, end, first[b], start_.data());
+    const std::uint32_t corners = buckets_->place(start_.data(), [&](int blocks, auto&& body) {
+      executor_.for_each(blocks, [&](int b) {
+        control_.check();
+        body(b);
+      });
     });
+    corners_.resize(corners);  // each slot filled once, by fill_corners
   }
 
   // corners_[start_[v] ..  start_[v + 1]): the corners (4 t + c) at vertex v, in triangle order; triangles with a

@@ -23,15 +23,9 @@ int vertex_range_count(std::size_t rows, int threads) {
 template <class Values, class Scan>
 void rows_by_items(std::size_t rows, std::size_t items, int threads, std::vector<std::uint32_t>& offsets,
                    Values& values, Scan&& scan) {
-  constexpr std::size_t kRowBlock = 32768;
   const int parts = static_cast<int>(std::min<std::size_t>(std::clamp(threads, 1, 8), items / 4096 + 1));
   RowBuckets buckets(rows, parts);
-  const int blocks = static_cast<int>((rows + kRowBlock - 1) / kRowBlock);
-  auto block_rows = [&](int b) { return std::pair{b * kRowBlock, std::min(rows, (b + 1) * kRowBlock)}; };
-  parallel_for(blocks, threads, [&](int b) {
-    const auto [begin, end] = block_rows(b);
-    buckets.clear(begin, end);
-  });
+  for_chunks(rows, threads, [&](std::size_t begin, std::size_t end) { buckets.clear(begin, end); });
   parallel_for(parts, threads, [&](int part) {
     const auto [begin, end] = chunk_range(items, parts, part);
     std::uint32_t* count = buckets.count(part);
@@ -39,19 +33,8 @@ void rows_by_items(std::size_t rows, std::size_t items, int threads, std::vector
       if (row < rows) ++count[row];
     });
   });
-  std::vector<std::uint32_t> first(blocks + 1, 0);  // the entries before each block of rows
-  parallel_for(blocks, threads, [&](int b) {
-    const auto [begin, end] = block_rows(b);
-    first[b + 1] = buckets.total(begin, end);
-  });
-  std::partial_sum(first.begin(), first.end(), first.begin());
   offsets.resize(rows + 1);
-  offsets[rows] = first[blocks];
-  parallel_for(blocks, threads, [&](int b) {
-    const auto [begin, end] = block_rows(b);
-    buckets.place(begin, end, first[b], offsets.data());
-  });
-  values.resize(first[blocks]);
+  values.resize(buckets.place(offsets.data(), [&](int blocks, auto&& body) { parallel_for(blocks, threads, body); }));
   parallel_for(parts, threads, [&](int part) {
     const auto [begin, end] = chunk_range(items, parts, part);
     std::uint32_t* cursor = buckets.cursor(part);

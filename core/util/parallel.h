@@ -109,10 +109,10 @@ using Buffer = std::vector<T, DefaultInitAllocator<T>>;
 // shares; each share counts its entries per row in an array of its own, place() turns the counts into the rows'
 // offsets and each share's write cursors, and each share then writes its entries at its cursors. Within a row, share
 // 0's entries come first, then share 1's and so on: input order, whatever the threads. 4 bytes per row and share.
-// The caller spreads each step over its own threads:
+// The caller spreads the steps over its own threads:
 //   1. clear() every range of rows;   2. each share: ++count(share)[row] per entry;
-//   3. total() of every range of rows, a prefix sum of those, then place() every range;
-//   4. each share: values[cursor(share)[row]++] = value per entry, in the order it counted them.
+//   3. place(offsets, for_blocks);   4. each share: values[cursor(share)[row]++] = value per entry, in the order it
+//      counted them.
 class RowBuckets {
  public:
   RowBuckets(std::size_t rows, int parts)
@@ -122,22 +122,36 @@ class RowBuckets {
     for (int p = 0; p < parts_; ++p) std::fill(count(p) + begin, count(p) + end, 0u);
   }
   std::uint32_t* count(int part) { return counts_.data() + static_cast<std::size_t>(part) * rows_; }
-  // Entries of rows [begin, end), all shares.
-  std::uint32_t total(std::size_t begin, std::size_t end) {
-    std::uint32_t sum = 0;
-    for (int p = 0; p < parts_; ++p) sum = std::accumulate(count(p) + begin, count(p) + end, sum);
-    return sum;
-  }
-  // offsets[row] for rows [begin, end), whose first entry goes at `first`; the counts become the cursors.
-  void place(std::size_t begin, std::size_t end, std::uint32_t first, std::uint32_t* offsets) {
-    for (std::size_t row = begin; row < end; ++row) {
-      offsets[row] = first;
-      for (int p = 0; p < parts_; ++p) first += std::exchange(count(p)[row], first);
-    }
+  // offsets[row] for every row and offsets[rows] (rows + 1 of them), which is returned: the number of entries. The
+  // counts become the cursors. for_blocks(n, body) must call body(b) once for every b in [0, n), in any order and on
+  // any threads; each b is a block of kBlockRows rows, summed, then (after a prefix sum over the blocks) placed.
+  template <class ForBlocks>
+  std::uint32_t place(std::uint32_t* offsets, ForBlocks&& for_blocks) {
+    const int blocks = static_cast<int>((rows_ + kBlockRows - 1) / kBlockRows);
+    auto range = [&](int b) { return std::pair{b * kBlockRows, std::min(rows_, (b + 1) * kBlockRows)}; };
+    std::vector<std::uint32_t> first(blocks + 1, 0);  // the entries before each block of rows
+    for_blocks(blocks, [&](int b) {
+      const auto [begin, end] = range(b);
+      std::uint32_t sum = 0;
+      for (int p = 0; p < parts_; ++p) sum = std::accumulate(count(p) + begin, count(p) + end, sum);
+      first[b + 1] = sum;
+    });
+    std::partial_sum(first.begin(), first.end(), first.begin());
+    for_blocks(blocks, [&](int b) {
+      const auto [begin, end] = range(b);
+      std::uint32_t next = first[b];
+      for (std::size_t row = begin; row < end; ++row) {
+        offsets[row] = next;
+        for (int p = 0; p < parts_; ++p) next += std::exchange(count(p)[row], next);
+      }
+    });
+    offsets[rows_] = first[blocks];
+    return first[blocks];
   }
   std::uint32_t* cursor(int part) { return count(part); }
 
  private:
+  static constexpr std::size_t kBlockRows = 32768;
   std::size_t rows_;
   int parts_;
   Buffer<std::uint32_t> counts_;
