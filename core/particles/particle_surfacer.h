@@ -26,8 +26,9 @@
 //  * Marching Tiles puts a vertex on every crossed lattice edge: about 5 vertices per h^2 of surface.
 //  * Square lattices of spacing d (r_inner / d in 0.45..1): the top face's RMS height deviation is 0.6-1.4% of
 //    r_inner with r_outer = 2 d and 1.6-2.7% with the default r_outer = 2 r_inner (0.5-1.7% once the sweeps have
-//    converged), not the 0 a plane allows: the energy's constrained minimum rests the face on the outer spheres'
-//    cusps, above every admissible plane, and the face sags between them (docs/ALGORITHMS.md §1, "Flat surfaces").
+//    converged), not the 0 a plane allows: the band binds at the vertices only, which mostly miss the outer
+//    spheres' cusps, so the face floats above every admissible plane, held where a vertex lies near a cusp
+//    (docs/ALGORITHMS.md §1, "Flat surfaces").
 //  * Every final vertex in the band (faithful_after_polish = 1) unless unconstrained_polish or the container says
 //    otherwise; no triangle angle below min_angle_degrees on sheets and droplets (slivers_left counts the rest).
 //
