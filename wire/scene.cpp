@@ -25,20 +25,29 @@ class Translator {
 
   FieldPtr node(const NodeProto& n, const std::string& path) {
     if (++depth_ > kMaxSceneDepth) throw InvalidInput(root_, root_ + ": " + scene_too_deep());
+    std::string outer_reason = std::move(unbounded_reason_);
+    unbounded_reason_.clear();
     FieldPtr result = dispatch(n, path);
     --depth_;
-    // Every argument is within range, but some nodes reach far beyond them (a Blinn kernel of tiny blobbiness).
+    const auto where = [&] { return path + "." + NodeProto::descriptor()->FindFieldByNumber(n.kind_case())->name(); };
     if (const std::optional<Aabb> b = result->bounds()) {
+      // Every argument is within range, but some nodes reach far beyond them (a Blinn kernel of tiny blobbiness).
       const double reach = std::max(b->min.cwiseAbs().maxCoeff(), b->max.cwiseAbs().maxCoeff());
       if (!(reach <= kMaxCoordinate)) {
-        const std::string where = path + "." + NodeProto::descriptor()->FindFieldByNumber(n.kind_case())->name();
-        throw InvalidInput(where, where + ": the node reaches " + format_number(reach) + ", beyond +-" +
-                                      format_number(kMaxCoordinate) +
-                                      ", the range of coordinates; bring its arguments into a smaller region");
+        throw InvalidInput(where(), where() + ": the node reaches " + format_number(reach) + ", beyond +-" +
+                                        format_number(kMaxCoordinate) +
+                                        ", the range of coordinates; bring its arguments into a smaller region");
       }
+      unbounded_reason_ = std::move(outer_reason);  // an unbounded descendant was bounded here
+    } else if (unbounded_reason_.empty()) {
+      // No child is unbounded (csg() explains a smooth union's own reach): the node itself is, a plane or gyroid.
+      unbounded_reason_ = where() + " is unbounded; intersect it with a bounded solid";
     }
     return result;
   }
+
+  // Why the last node translated is unbounded (empty if it is bounded): the deepest node that made it so.
+  const std::string& unbounded_reason() const { return unbounded_reason_; }
 
  private:
   FieldPtr dispatch(const NodeProto& n, const std::string& path) {
@@ -143,7 +152,23 @@ class Translator {
         break;
     }
     options.radius = c.radius();
-    return with_path(path, [&] { return make_csg(op, std::move(children), options); });
+    FieldPtr result = with_path(path, [&] { return make_csg(op, children, options); });
+    if (op == CsgOp::kUnion && options.blend == CsgBlend::kSmooth && unbounded_reason_.empty() && !result->bounds()) {
+      // Every child is bounded, but the blend reaches below the one that stays nearest its surface far away.
+      std::size_t i = 0;
+      for (std::size_t j = 1; j < children.size(); ++j) {
+        if (children[j]->sublevel_limit() < children[i]->sublevel_limit()) i = j;
+      }
+      const NodeProto& child = c.children(static_cast<int>(i));
+      unbounded_reason_ = path + " is unbounded: its smooth blend (radius " + format_number(options.radius) +
+                          ") lowers the value by up to " + format_number(kSmoothBlendDepth * options.radius) +
+                          " per child where children come within the radius of each other, and " + path + ".children[" +
+                          std::to_string(i) + "]." +
+                          NodeProto::descriptor()->FindFieldByNumber(child.kind_case())->name() + " stays within " +
+                          format_number(children[i]->sublevel_limit()) +
+                          " of its surface arbitrarily far away; give a smaller radius, or bounds";
+    }
+    return result;
   }
 
   FieldPtr transform(const v1::Transform& t, const std::string& path) {
@@ -222,6 +247,7 @@ class Translator {
   const UploadLookup& uploads_;
   const std::string root_;  // the scene's root node, where a depth error points
   int depth_ = 0;
+  std::string unbounded_reason_;
 };
 
 }  // namespace
@@ -245,14 +271,17 @@ void set_bounds(v1::Bounds& out, const Aabb& box) {
   set_vec3(*out.mutable_max(), box.max);
 }
 
-FieldPtr field_from_scene(const v1::Scene& scene, const std::string& path, const UploadLookup& uploads) {
+FieldPtr field_from_scene(const v1::Scene& scene, const std::string& path, const UploadLookup& uploads,
+                          std::string* unbounded_reason) {
   if (!scene.has_root()) {
     throw InvalidInput(path + ".root", path +
                                            ".root is missing; a scene needs a root node, e.g. "
                                            "{\"root\": {\"sphere\": {\"radius\": 1}}}");
   }
   Translator translator(uploads, path + ".root");
-  return translator.node(scene.root(), path + ".root");
+  FieldPtr field = translator.node(scene.root(), path + ".root");
+  if (unbounded_reason) *unbounded_reason = translator.unbounded_reason();
+  return field;
 }
 
 }  // namespace surfacer::wire

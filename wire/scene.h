@@ -18,8 +18,11 @@ class UploadLookup;
 
 // Builds the field of `scene`. `path` names the scene in the request (e.g. "spec.isosurface.scenes[0]") and
 // prefixes every error: "spec.isosurface.scenes[0].root.sphere.radius (-1) must be > 0".
+// If the field is unbounded and `unbounded_reason` is given, it receives why, naming the node that makes it so:
+// "spec.isosurface.scenes[0].root.plane is unbounded; intersect it with a bounded solid".
 // Throws surfacer::Error(kInvalidInput).
-FieldPtr field_from_scene(const v1::Scene& scene, const std::string& path, const UploadLookup& uploads);
+FieldPtr field_from_scene(const v1::Scene& scene, const std::string& path, const UploadLookup& uploads,
+                          std::string* unbounded_reason = nullptr);
 
 Vec3 to_vec3(const v1::Vec3& v);
 // Throws InvalidInput naming `path` when a coordinate is not finite or min >= max on some axis.

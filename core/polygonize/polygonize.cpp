@@ -52,8 +52,10 @@ PolygonizeGrid resolve_grid(std::span<const FieldPtr> fields, const PolygonizeOp
     for (std::size_t i = 0; i < fields.size(); ++i) {
       const auto b = fields[i]->bounds();
       if (!b) {
-        throw InvalidInput("bounds", "bounds are needed: scene " + std::to_string(i) +
-                                         " is unbounded (a plane or gyroid not intersected with a bounded solid)");
+        throw InvalidInput(
+            "bounds", "bounds are needed: scene " + std::to_string(i) +
+                          " is unbounded (a plane or gyroid not intersected with a bounded solid, or a smooth union "
+                          "whose blend reaches below a child arbitrarily far away)");
       }
       bounds = i == 0 ? *b : merged(bounds, *b);
     }

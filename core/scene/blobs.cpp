@@ -31,7 +31,7 @@ struct Skeleton {
   Aabb support;  // the skeleton's box padded by R
 };
 
-class Blobs final : public Field {
+class Blobs final : public SceneField {
  public:
   Blobs(std::vector<Skeleton> skeletons, const BlobOptions& options)
       : skeletons_(std::move(skeletons)), options_(options) {
@@ -55,21 +55,27 @@ class Blobs final : public Field {
   // skeleton and those overlapping it. Blinn kernels have no compact support: the sum over all skeletons.
   std::optional<double> lipschitz_bound() const override { return lipschitz_; }
 
-  std::optional<Aabb> bounds() const override {
+  double sublevel_limit() const override { return options_.iso; }
+
+  // value <= level where the sum reaches iso' = iso - level. If iso' <= 0 that includes everywhere far from every
+  // skeleton (the sum tends to 0): unbounded.
+  std::optional<Aabb> sublevel_bounds(double level) const override {
+    const double iso = options_.iso - std::max(level, 0.0);
+    if (!(iso > 0.0)) return std::nullopt;
     if (options_.kernel == BlobKernel::kWyvill) {
-      // Outside every support the sum is 0 < iso.
+      // Outside every support the sum is 0 < iso'.
       Aabb box = skeletons_[0].support;
       for (const Skeleton& s : skeletons_) box.merge(s.support);
       return box;
     }
     // Blinn: let S = sum of the positive strengths. Where every positive skeleton i has
-    //   s_i exp(-b (r_i^2/R_i^2 - 1)) < s_i iso / S,   i.e.   r_i > rho_i = R_i sqrt(1 + ln(S / iso) / b),
-    // the sum is below iso (negative strengths only lower it): the solid lies within rho_i of some skeleton.
-    // If 1 + ln(S / iso) / b <= 0 (S e^b <= iso) the sum never reaches iso and the solid is empty; the box then
+    //   s_i exp(-b (r_i^2/R_i^2 - 1)) < s_i iso' / S,   i.e.   r_i > rho_i = R_i sqrt(1 + ln(S / iso') / b),
+    // the sum is below iso' (negative strengths only lower it): the set lies within rho_i of some skeleton.
+    // If 1 + ln(S / iso') / b <= 0 (S e^b <= iso') the sum never reaches iso' and the set is empty; the box then
     // uses rho_i = R_i so that it stays a valid box.
     double total = 0.0;
     for (const Skeleton& s : skeletons_) total += std::max(0.0, s.strength);
-    const double q = total > 0.0 ? 1.0 + std::log(total / options_.iso) / options_.blobbiness : 0.0;
+    const double q = total > 0.0 ? 1.0 + std::log(total / iso) / options_.blobbiness : 0.0;
     const double factor = q > 0.0 ? std::sqrt(q) : 1.0;
     std::optional<Aabb> box;
     for (const Skeleton& s : skeletons_) {

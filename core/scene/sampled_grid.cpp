@@ -18,7 +18,7 @@
 namespace surfacer {
 namespace {
 
-class SampledGrid final : public Field {
+class SampledGrid final : public SceneField {
  public:
   SampledGrid(const SampledGridDesc& desc, std::span<const float> values)
       : origin_(desc.origin),
@@ -29,13 +29,12 @@ class SampledGrid final : public Field {
         iso_(desc.iso),
         values_(values.begin(), values.end()) {
     for (int i = 0; i < 3; ++i) max_corner_[i] = origin_[i] + spacing_[i] * (n_[i] - 1);
-    compute_bounds();
+    compute_slice_minima();
     compute_lipschitz();
   }
 
   double value(const Vec3& p) const override { return eval<false>(p, nullptr); }
   double value_and_gradient(const Vec3& p, Vec3& gradient) const override { return eval<true>(p, &gradient); }
-  std::optional<Aabb> bounds() const override { return bounds_; }
   // Inside the grid each partial derivative of the trilinear interpolant is a weighted mean of its cell's edge
   // difference quotients, so |grad| <= sqrt(Dx^2 + Dy^2 + Dz^2) with D_a the largest |difference| / spacing along
   // axis a. Outside, the clamped axes contribute the unit vector (p - q)/|p - q| instead: at most sqrt(D^2 + 1).
@@ -87,41 +86,47 @@ class SampledGrid final : public Field {
     return sign_ * (v - iso_) + dist;
   }
 
-  // Trilinear values lie between their cell's corner values, so inside the grid the solid lies in cells that have
-  // a corner with normalized value <= 0: the box of those samples padded by one cell. Outside the grid the value
-  // is interp(q) + |p - q|, so the solid reaches at most L = max(0, -min boundary value) beyond the boundary, near
-  // boundary points whose cell holds such a sample: pad that box by L (no clamping to the grid box then).
-  void compute_bounds() {
-    std::int64_t lo[3] = {n_[0], n_[1], n_[2]}, hi[3] = {-1, -1, -1};
-    double leak = 0.0;
+  // The smallest normalized value in each slice of samples across each axis, and on the grid's boundary.
+  void compute_slice_minima() {
+    const double inf = std::numeric_limits<double>::infinity();
+    for (int a = 0; a < 3; ++a) slice_min_[a].assign(static_cast<std::size_t>(n_[a]), inf);
     std::int64_t index = 0;
     for (std::int64_t k = 0; k < n_[2]; ++k) {
       for (std::int64_t j = 0; j < n_[1]; ++j) {
         for (std::int64_t i = 0; i < n_[0]; ++i, ++index) {
           const double v = normalized(index);
-          if (v > 0.0) continue;
           const std::int64_t ijk[3] = {i, j, k};
           for (int a = 0; a < 3; ++a) {
-            lo[a] = std::min(lo[a], ijk[a]);
-            hi[a] = std::max(hi[a], ijk[a]);
+            double& m = slice_min_[a][static_cast<std::size_t>(ijk[a])];
+            m = std::min(m, v);
           }
-          const bool boundary = i == 0 || j == 0 || k == 0 || i == n_[0] - 1 || j == n_[1] - 1 || k == n_[2] - 1;
-          if (boundary) leak = std::max(leak, -v);
         }
       }
     }
-    Aabb box{origin_, max_corner_};
-    if (hi[0] >= 0) {
-      for (int a = 0; a < 3; ++a) {
-        box.min[a] = origin_[a] + spacing_[a] * static_cast<double>(std::max<std::int64_t>(lo[a] - 1, 0));
-        box.max[a] = origin_[a] + spacing_[a] * static_cast<double>(std::min<std::int64_t>(hi[a] + 1, n_[a] - 1));
-      }
-      box.min.array() -= leak;
-      box.max.array() += leak;
-    }
-    // else: no sample is inside, the solid is empty; keep the grid box.
-    bounds_ = box;
+    boundary_min_ = inf;
+    for (int a = 0; a < 3; ++a) boundary_min_ = std::min({boundary_min_, slice_min_[a].front(), slice_min_[a].back()});
   }
+
+  // Trilinear values lie between their cell's corner values, so inside the grid {value <= level} lies in cells that
+  // have a corner at or below level: the box of those samples padded by one cell. Outside the grid the value is
+  // interp(q) + |p - q|, so the set reaches at most level - (the smallest boundary value) beyond the boundary, near
+  // boundary points whose cell holds such a sample: pad that box by as much (no clamping to the grid box then).
+  // If no sample is at or below level the set is empty; the grid box stands for it. So every level has a box.
+  std::optional<Aabb> sublevel_bounds(double level) const override {
+    Aabb box{origin_, max_corner_};
+    for (int a = 0; a < 3; ++a) {
+      const std::vector<double>& m = slice_min_[a];
+      const auto at_or_below = [level](double v) { return v <= level; };
+      const auto first = std::find_if(m.begin(), m.end(), at_or_below);
+      if (first == m.end()) return box;
+      const auto last = std::find_if(m.rbegin(), m.rend(), at_or_below);
+      const std::int64_t lo = first - m.begin(), hi = (m.rend() - last) - 1;
+      box.min[a] = origin_[a] + spacing_[a] * static_cast<double>(std::max<std::int64_t>(lo - 1, 0));
+      box.max[a] = origin_[a] + spacing_[a] * static_cast<double>(std::min<std::int64_t>(hi + 1, n_[a] - 1));
+    }
+    return box.padded(std::max(0.0, level - boundary_min_));
+  }
+  double sublevel_limit() const override { return std::numeric_limits<double>::infinity(); }
 
   void compute_lipschitz() {
     const std::int64_t stride[3] = {1, n_[0], std::int64_t{n_[0]} * n_[1]};
@@ -150,7 +155,8 @@ class SampledGrid final : public Field {
   double sign_;  // +1: signed distance (inside below iso); -1: potential (inside above iso)
   double iso_;
   std::vector<float> values_;
-  Aabb bounds_;
+  std::vector<double> slice_min_[3];
+  double boundary_min_ = 0.0;
   double lipschitz_ = 1.0;
 };
 

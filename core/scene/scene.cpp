@@ -73,7 +73,7 @@ SURFACER_FORCE_INLINE T box_like(const std::array<T, N>& q) {
 
 // Shared plumbing: Derived provides `template <class T> T eval(const V3<T>& p) const`.
 template <class Derived>
-class TemplatedField : public Field {
+class TemplatedField : public SceneField {
  public:
   double value(const Vec3& p) const final {
     return static_cast<const Derived*>(this)->eval(V3<double>{p.x(), p.y(), p.z()});
@@ -84,6 +84,9 @@ class TemplatedField : public Field {
     gradient = Vec3(r.d[0], r.d[1], r.d[2]);
     return r.v;
   }
+  // The primitives are signed distances, whose value grows without bound away from the solid (plane and gyroid
+  // excepted).
+  double sublevel_limit() const override { return std::numeric_limits<double>::infinity(); }
 };
 
 // Box of a disk of radius r centred at c, perpendicular to the unit vector u.
@@ -102,7 +105,10 @@ class Sphere final : public TemplatedField<Sphere> {
   T eval(const V3<T>& p) const {
     return length(p - c_) - r_;
   }
-  std::optional<Aabb> bounds() const override { return Aabb{c_.array() - r_, c_.array() + r_}; }
+  // Exact signed distances: {value <= level} is the solid grown by level.
+  std::optional<Aabb> sublevel_bounds(double level) const override {
+    return Aabb{c_.array() - r_, c_.array() + r_}.padded(level);
+  }
 
  private:
   Vec3 c_;
@@ -120,7 +126,7 @@ class RoundedBox final : public TemplatedField<RoundedBox> {
     return box_like(std::array<T, 3>{tabs(d.x) - (h_.x() - r_), tabs(d.y) - (h_.y() - r_), tabs(d.z) - (h_.z() - r_)}) -
            r_;
   }
-  std::optional<Aabb> bounds() const override { return Aabb{c_ - h_, c_ + h_}; }
+  std::optional<Aabb> sublevel_bounds(double level) const override { return Aabb{c_ - h_, c_ + h_}.padded(level); }
 
  private:
   Vec3 c_, h_;
@@ -140,7 +146,9 @@ class Cylinder final : public TemplatedField<Cylinder> {
     const T radial = length(w - scaled(u_, y));
     return box_like(std::array<T, 2>{radial - r_, tabs(y) - half_});
   }
-  std::optional<Aabb> bounds() const override { return merged(disk_box(a_, u_, r_), disk_box(b_, u_, r_)); }
+  std::optional<Aabb> sublevel_bounds(double level) const override {
+    return merged(disk_box(a_, u_, r_), disk_box(b_, u_, r_)).padded(level);
+  }
 
  private:
   Vec3 a_, b_, m_, u_;
@@ -181,7 +189,9 @@ class Cone final : public TemplatedField<Cone> {
     const T side = t <= 0.0 ? length2(r - ra_, y) : (t >= 1.0 ? length2(r - rb_, d_top) : tabs(d_side));
     return tmin(tmin(bottom, top), side);
   }
-  std::optional<Aabb> bounds() const override { return merged(disk_box(a_, u_, ra_), disk_box(b_, u_, rb_)); }
+  std::optional<Aabb> sublevel_bounds(double level) const override {
+    return merged(disk_box(a_, u_, ra_), disk_box(b_, u_, rb_)).padded(level);
+  }
 
  private:
   Vec3 a_, b_, u_;
@@ -201,11 +211,8 @@ class Torus final : public TemplatedField<Torus> {
     const T rho = length(w - scaled(n_, h));
     return length2(rho - major_, h) - minor_;
   }
-  std::optional<Aabb> bounds() const override {
-    Aabb box = disk_box(c_, n_, major_);
-    box.min.array() -= minor_;
-    box.max.array() += minor_;
-    return box;
+  std::optional<Aabb> sublevel_bounds(double level) const override {
+    return disk_box(c_, n_, major_).padded(minor_ + level);
   }
 
  private:
@@ -221,7 +228,8 @@ class Plane final : public TemplatedField<Plane> {
   T eval(const V3<T>& p) const {
     return dot(p, n_) - offset_;
   }
-  std::optional<Aabb> bounds() const override { return std::nullopt; }
+  std::optional<Aabb> sublevel_bounds(double) const override { return std::nullopt; }
+  double sublevel_limit() const override { return -std::numeric_limits<double>::infinity(); }
 
  private:
   Vec3 n_;
@@ -241,8 +249,8 @@ class Capsule final : public TemplatedField<Capsule> {
     const T t = tclamp(dot(w, ba_) * inv_baba_, 0.0, 1.0);
     return length(w - scaled(ba_, t)) - r_;
   }
-  std::optional<Aabb> bounds() const override {
-    return Aabb{a_.cwiseMin(b_).array() - r_, a_.cwiseMax(b_).array() + r_};
+  std::optional<Aabb> sublevel_bounds(double level) const override {
+    return Aabb{a_.cwiseMin(b_), a_.cwiseMax(b_)}.padded(r_ + level);
   }
 
  private:
@@ -266,14 +274,15 @@ class Gyroid final : public TemplatedField<Gyroid> {
     const T g = sin(x) * cos(y) + sin(y) * cos(z) + sin(z) * cos(x);
     return tabs(g) * (1.0 / k_) - half_thickness_;
   }
-  std::optional<Aabb> bounds() const override { return std::nullopt; }
+  std::optional<Aabb> sublevel_bounds(double) const override { return std::nullopt; }
+  double sublevel_limit() const override { return -std::numeric_limits<double>::infinity(); }
 
  private:
   double k_, half_thickness_;
 };
 
 // --- CSG -----------------------------------------------------------------------------------------------------
-class Csg final : public Field {
+class Csg final : public SceneField {
  public:
   Csg(CsgOp op, std::vector<FieldPtr> children, const CsgOptions& options)
       : op_(op), blend_(options.blend), k_(options.radius), children_(std::move(children)) {}
@@ -314,30 +323,29 @@ class Csg final : public Field {
     return acc;
   }
 
-  std::optional<Aabb> bounds() const override {
+  // Children are folded left to right, acc_i = combine(acc_(i-1), child_i). Every intersection and difference blend
+  // is >= its first argument (and an intersection's >= both), so {acc <= level} lies in the first child's set below
+  // the same level (and in every child's). A min or R-function union is at or below `level` only where some child
+  // is at or below level * union_factor(). Smooth unions: smooth_union_bounds(). One call per child: nested blends cost
+  // linear time.
+  std::optional<Aabb> sublevel_bounds(double level) const override {
     switch (op_) {
       case CsgOp::kUnion: {
-        // R-function union has exactly the union's solid; the polynomial smooth union lies below min(a, b) by at
-        // most k/4 per fold, so (for distance-like children) its solid is within (n-1)k/4 of the union.
+        if (blend_ == CsgBlend::kSmooth) return smooth_union_bounds(level);
         std::optional<Aabb> box;
         for (const FieldPtr& c : children_) {
-          const std::optional<Aabb> b = c->bounds();
+          const std::optional<Aabb> b = c->sublevel_bounds(level * union_factor());
           if (!b) return std::nullopt;
           box = box ? merged(*box, *b) : *b;
-        }
-        if (blend_ == CsgBlend::kSmooth) {
-          const double pad = std::max(k_, 0.25 * k_ * static_cast<double>(children_.size() - 1));
-          box->min.array() -= pad;
-          box->max.array() += pad;
         }
         return box;
       }
       case CsgOp::kIntersection: {
-        // Every blend here is >= max(a, b), so the solid lies in each child's solid. If the boxes do not overlap
-        // the solid is empty and the returned box is degenerate (min == max on some axis; Aabb::valid() false).
+        // If the boxes do not overlap the set is empty and the returned box is degenerate (min == max on some axis;
+        // Aabb::valid() false).
         std::optional<Aabb> box;
         for (const FieldPtr& c : children_) {
-          const std::optional<Aabb> b = c->bounds();
+          const std::optional<Aabb> b = c->sublevel_bounds(level);
           if (!b) continue;
           box = box ? box->intersect(*b) : *b;
         }
@@ -345,7 +353,7 @@ class Csg final : public Field {
         return box;
       }
       case CsgOp::kDifference:
-        return children_[0]->bounds();  // the result is >= the first child everywhere
+        return children_[0]->sublevel_bounds(level);
     }
     return std::nullopt;
   }
@@ -364,17 +372,31 @@ class Csg final : public Field {
     return a;
   }
 
+  // sqrt(a^2 + b^2); above 1e150 a and b are scaled by their larger magnitude first, so that the squares do not
+  // overflow. sqrt(0) has derivative 0 (dual.h), so at a = b = 0 the R-function's gradient is grad a + grad b.
+  template <class T>
+  static T rhypot(const T& a, const T& b) {
+    const double m = std::max(std::abs(value_of(a)), std::abs(value_of(b)));
+    if (!(m > 1e150) || !std::isfinite(m)) return tsqrt(a * a + b * b);
+    const T x = a * (1.0 / m), y = b * (1.0 / m);
+    return tsqrt(x * x + y * y) * m;
+  }
+
   template <class T>
   T join(const T& a, const T& b) const {
     switch (blend_) {
       case CsgBlend::kMinMax:
         return tmin(a, b);
-      case CsgBlend::kRFunction:
-        // sqrt(0) has derivative 0 (dual.h), so at a = b = 0 the gradient is grad a + grad b.
-        return a + b - tsqrt(a * a + b * b);
+      case CsgBlend::kRFunction: {
+        // a + b - sqrt(a^2 + b^2). Where a + b > 0 the two terms cancel (a = 1, b = 1e17 gives 0): there it is
+        // 2ab / (a + b + sqrt(a^2 + b^2)), written so that no product overflows.
+        const T s = a + b;
+        const T r = rhypot(a, b);
+        return value_of(s) > 0.0 ? 2.0 * a * (b / (s + r)) : s - r;
+      }
       case CsgBlend::kSmooth: {
         const T h = tmax(T(k_) - tabs(a - b), T(0.0)) * (1.0 / k_);
-        return tmin(a, b) - h * h * (0.25 * k_);
+        return tmin(a, b) - h * h * (kSmoothBlendDepth * k_);
       }
     }
     return a;
@@ -385,14 +407,85 @@ class Csg final : public Field {
     switch (blend_) {
       case CsgBlend::kMinMax:
         return tmax(a, b);
-      case CsgBlend::kRFunction:
-        return a + b + tsqrt(a * a + b * b);
+      case CsgBlend::kRFunction: {
+        // a + b + sqrt(a^2 + b^2), without the cancellation where a + b < 0 (as join).
+        const T s = a + b;
+        const T r = rhypot(a, b);
+        return value_of(s) < 0.0 ? 2.0 * a * (b / (s - r)) : s + r;
+      }
       case CsgBlend::kSmooth: {
         const T h = tmax(T(k_) - tabs(a - b), T(0.0)) * (1.0 / k_);
-        return tmax(a, b) + h * h * (0.25 * k_);
+        return tmax(a, b) + h * h * (kSmoothBlendDepth * k_);
       }
     }
     return a;
+  }
+
+  // Min: a union at or below a level has a child there. R-function, for positive a and b: 2ab / (a + b +
+  // sqrt(a^2 + b^2)) >= (2 - sqrt 2) min(a, b) (equality at a = b), and 1 / R(a, b) <= 1 / a + 1 / b (as
+  // sqrt(a^2 + b^2) <= a + b), so over the n - 1 folds the union reaches at least min / min(n, (2 - sqrt 2)^-(n-1)).
+  double union_factor() const {
+    if (blend_ != CsgBlend::kRFunction) return 1.0;
+    const double n = static_cast<double>(children_.size());
+    return std::min(n, std::pow(1.0 / (2.0 - std::numbers::sqrt2), n - 1.0));
+  }
+
+  // The smooth blend lowers min(acc, child) by at most d = kSmoothBlendDepth k (k: its radius, 4 d), and only where
+  // the two are within k of each other. Let L be the level.
+  //   - All children at L + min(n - 1, 5) d. Each fold dips at most d: (n - 1) d. Or: where every child is above
+  //     W = L + k + d, acc stays above L: a fold leaves min(acc, child) alone unless acc > child - k > W - k, and
+  //     then the result is > W - k - d = L.
+  //   - Children whose sublevel_limit() says they are unbounded there (blobs tend to their iso far away): split the
+  //     children into those, U, and the rest, B. Let V = L + (|U| - 1) d and W = V + 2 k + 2 d. Where every child of
+  //     U is above V and every child of B above W: before the first child of U, acc > W - k - d as above; that fold
+  //     gives min(acc, u) > V + d when it dips (u > acc - k), so acc > V; each later child of U lowers the bound by d
+  //     (it ends at L), and a child b of B only dips where acc > b - k > W - k, leaving acc > W - k - d > V. So U's
+  //     children are asked below V, and B's below W.
+  // Either way one call per child.
+  std::optional<Aabb> smooth_union_bounds(double level) const {
+    const double d = kSmoothBlendDepth * k_;
+    const double all = level + smooth_union_depth();
+    std::vector<bool> in_u(children_.size(), false);
+    std::size_t u = 0;
+    for (std::size_t i = 0; i < children_.size(); ++i) {
+      if (children_[i]->sublevel_limit() <= all) {
+        in_u[i] = true;
+        ++u;
+      }
+    }
+    const double v = level + static_cast<double>(u > 0 ? u - 1 : 0) * d, w = v + 2.0 * (k_ + d);
+    std::optional<Aabb> box;
+    for (std::size_t i = 0; i < children_.size(); ++i) {
+      const std::optional<Aabb> b = children_[i]->sublevel_bounds(u == 0 ? all : (in_u[i] ? v : w));
+      if (!b) return std::nullopt;
+      box = box ? merged(*box, *b) : *b;
+    }
+    return box;
+  }
+
+  // How far below its children smooth_union_bounds() asks when no child is in U: min(n - 1, 5) d.
+  double smooth_union_depth() const {
+    return static_cast<double>(std::min<std::size_t>(children_.size() - 1, 5)) * kSmoothBlendDepth * k_;
+  }
+
+  // As sublevel_bounds(): the level below which it finds a box, as far as the children's hints tell.
+  double sublevel_limit() const override {
+    double lowest = std::numeric_limits<double>::infinity(), highest = -lowest;
+    for (const FieldPtr& c : children_) {
+      const double t = c->sublevel_limit();
+      lowest = std::min(lowest, t);
+      highest = std::max(highest, t);
+    }
+    switch (op_) {
+      case CsgOp::kUnion:
+        if (blend_ != CsgBlend::kSmooth) return lowest / union_factor();
+        return lowest - smooth_union_depth();
+      case CsgOp::kIntersection:
+        return highest;
+      case CsgOp::kDifference:
+        return children_[0]->sublevel_limit();
+    }
+    return lowest;
   }
 
   CsgOp op_;
@@ -402,7 +495,7 @@ class Csg final : public Field {
 };
 
 // --- Transform -----------------------------------------------------------------------------------------------
-class Transform final : public Field {
+class Transform final : public SceneField {
  public:
   Transform(FieldPtr child, const Eigen::Matrix3d& a, const Vec3& t, double factor)
       : child_(std::move(child)), a_(a), inv_(a.inverse()), inv_t_(inv_.transpose()), t_(t), factor_(factor) {
@@ -425,8 +518,11 @@ class Transform final : public Field {
     return factor_ * v;
   }
 
-  std::optional<Aabb> bounds() const override {
-    const std::optional<Aabb> b = child_->bounds();
+  double sublevel_limit() const override { return child_->sublevel_limit() * factor_; }
+
+  // value(p) <= level exactly where child(A^-1 (p - t)) <= level / factor: that set's box, carried by A and t.
+  std::optional<Aabb> sublevel_bounds(double level) const override {
+    const std::optional<Aabb> b = child_->sublevel_bounds(level / factor_);
     if (!b) return std::nullopt;
     Aabb out = Aabb::empty();
     for (int corner = 0; corner < 8; ++corner) {

@@ -14,6 +14,7 @@
 // no bound, padding or kernel value computed from them overflows.
 #pragma once
 
+#include <limits>
 #include <memory>
 #include <optional>
 #include <span>
@@ -33,6 +34,14 @@ class Field {
   // A box containing the whole solid {value <= 0}, if the solid is bounded; nullopt for unbounded fields
   // (plane, gyroid, complement-like differences keep their first child's bounds).
   virtual std::optional<Aabb> bounds() const = 0;
+  // A box containing {value <= level} for a level >= 0, if that set is bounded. Smooth CSG blends lower the value
+  // by up to a quarter of their radius, so they ask their children for the set below that level. The default
+  // knows only the solid itself (level <= 0).
+  virtual std::optional<Aabb> sublevel_bounds(double level) const { return level <= 0.0 ? bounds() : std::nullopt; }
+  // A hint for smooth unions: below this level sublevel_bounds() gives a box (+infinity where the value grows without
+  // bound away from the solid, as distances do; a blob's iso, which its value tends to far away; -infinity for a
+  // plane). The default: 0 if the solid is bounded.
+  virtual double sublevel_limit() const { return bounds() ? 0.0 : -std::numeric_limits<double>::infinity(); }
   // A constant L with |value(p) - value(q)| <= L |p - q| for all p, q, if one is known; nullopt otherwise (the
   // default). Polygonizers use it to skip regions that cannot hold the surface (|value(c)| > L r: no zero within r
   // of c), so it must never be too small; a loose bound only costs speed. Signed distances give 1; CSG and
@@ -54,6 +63,13 @@ class Field {
 };
 
 using FieldPtr = std::shared_ptr<const Field>;
+
+// The nodes built here answer sublevel_bounds() at every level; their bounds() is level 0.
+class SceneField : public Field {
+ public:
+  std::optional<Aabb> bounds() const final { return sublevel_bounds(0.0); }
+  std::optional<Aabb> sublevel_bounds(double level) const override = 0;
+};
 
 // --- Primitives (signed distances, exact or a bound where noted) -----------------------------------------------
 FieldPtr make_sphere(const Vec3& center, double radius);
@@ -98,6 +114,10 @@ struct CsgOptions {
   CsgBlend blend = CsgBlend::kMinMax;
   double radius = 0.0;  // kSmooth only, > 0
 };
+// The smooth blend moves min(a, b) (union) or max(a, b) (intersection) by at most this times its radius. So a smooth
+// union of n children goes at most (n - 1) times as far below its lowest child, and is unbounded when a child comes
+// that close to its surface arbitrarily far away (blobs, whose value tends to iso there).
+inline constexpr double kSmoothBlendDepth = 0.25;
 // Requires at least two children.
 FieldPtr make_csg(CsgOp op, std::vector<FieldPtr> children, const CsgOptions& options = {});
 

@@ -185,10 +185,13 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
     }
     case v1::ActiveJob::kMorph: {
       const auto& morph = job.morph();
-      const FieldPtr from = wire::field_from_scene(morph.from(), path + ".morph.from", context.uploads);
-      const FieldPtr to = wire::field_from_scene(morph.to(), path + ".morph.to", context.uploads);
-      if (!options.domain && (!from->bounds() || !to->bounds())) {
-        throw InvalidInput(path + ".bounds", path + ": a morph between unbounded scenes needs " + path + ".bounds");
+      std::string from_unbounded, to_unbounded;
+      const FieldPtr from =
+          wire::field_from_scene(morph.from(), path + ".morph.from", context.uploads, &from_unbounded);
+      const FieldPtr to = wire::field_from_scene(morph.to(), path + ".morph.to", context.uploads, &to_unbounded);
+      if (!options.domain && (!from_unbounded.empty() || !to_unbounded.empty())) {
+        throw InvalidInput(path + ".bounds", path + ": a morph between unbounded scenes needs " + path + ".bounds: " +
+                                                 (from_unbounded.empty() ? to_unbounded : from_unbounded));
       }
       add_region(from->bounds(), 4 * options.h);
       add_region(to->bounds(), 4 * options.h);

@@ -443,8 +443,10 @@ TEST(SceneTest, CsgBounds) {
   const Aabb d = *make_csg(CsgOp::kDifference, {b, a})->bounds();
   EXPECT_TRUE(d.min.isApprox(Vec3(0, -1, -1)));
   EXPECT_FALSE(make_csg(CsgOp::kDifference, {plane, a})->bounds().has_value());
+  // The smooth union dips at most radius / 4 below min: distance children's boxes grow by that much.
   const Aabb s = *make_csg(CsgOp::kUnion, {a, b}, CsgOptions{CsgBlend::kSmooth, 0.5})->bounds();
-  EXPECT_LE(s.min.x(), -2.5);
+  EXPECT_DOUBLE_EQ(s.min.x(), -2.125);
+  expect_bounds_contain_solid(*make_csg(CsgOp::kUnion, {a, b}, CsgOptions{CsgBlend::kSmooth, 2.0}), cube(4), 33);
   // Gyroid sheet inside a sphere: bounded by the sphere.
   const FieldPtr g = make_csg(CsgOp::kIntersection, {make_gyroid(1.0, 0.1), make_sphere(Vec3::Zero(), 2.0)});
   EXPECT_TRUE(g->bounds()->max.isApprox(Vec3(2, 2, 2)));
@@ -606,6 +608,168 @@ TEST(SceneTest, SampledGridGradientsAndBounds) {
   Vec3 g;
   f->value_and_gradient(p, g);
   EXPECT_LT((g - central_difference(*f, p, 1e-7)).norm(), 1e-6);
+}
+
+// No point outside sublevel_bounds(level) has value <= level: random points in the box grown by twice its size
+// (outside the box), and points along rays out to a thousand times its size. bounds() is level 0.
+void expect_positive_outside_bounds(const Field& f, unsigned seed, double level = 0.0) {
+  const std::optional<Aabb> b = f.sublevel_bounds(level);
+  ASSERT_TRUE(b.has_value());
+  if (level == 0.0) {
+    ASSERT_TRUE(f.bounds().has_value());
+    EXPECT_TRUE(f.bounds()->min == b->min && f.bounds()->max == b->max);
+  }
+  const double size = 1.0 + b->size().maxCoeff();
+  std::mt19937 rng(seed);
+  const Aabb around = b->padded(2.0 * size);
+  int outside = 0;
+  for (int s = 0; s < 4000; ++s) {
+    const Vec3 p = random_point(rng, around);
+    if (b->contains(p)) continue;
+    ++outside;
+    EXPECT_GT(f.value(p), level) << "at " << p.transpose() << ", outside [" << b->min.transpose() << "] - ["
+                                 << b->max.transpose() << "]";
+  }
+  EXPECT_GT(outside, 1000);
+  std::normal_distribution<double> n(0.0, 1.0);
+  const Vec3 centre = 0.5 * (b->min + b->max);
+  for (int r = 0; r < 64; ++r) {
+    const Vec3 dir = Vec3(n(rng), n(rng), n(rng)).normalized();
+    for (double t : {1.0, 3.0, 10.0, 100.0, 1000.0}) {
+      const Vec3 p = centre + t * size * dir;
+      EXPECT_GT(f.value(p), level) << "at " << p.transpose();
+    }
+  }
+}
+
+// A smooth blend lowers a union below its children by up to radius / 4 wherever they are within a radius of each
+// other. Children that are not distances can stay that close far from their solids: a sphere stretched by a
+// non-uniform map (its value shrinks with the stretch), a sampled grid, blobs (their value tends to iso). bounds()
+// must still hold the whole solid, for every operation and radius.
+TEST(SceneTest, SmoothBlendBoundsHoldTheSolidOfAnyChildren) {
+  std::vector<FieldPtr> children;
+  for (double stretch : {1e-3, 1.0, 1e3}) {
+    const Eigen::Matrix3d a = Eigen::Vector3d(stretch, stretch, 1.001 * stretch).asDiagonal();
+    children.push_back(make_transform(make_sphere(Vec3(0.3, 0, 0), 0.5), a, Vec3(0, 0.2 * stretch, 0)));
+  }
+  const SampledSphere grid = sample_sphere(9, Vec3(0.1, 0, 0.2), 0.7);
+  children.push_back(make_sampled_grid(grid.desc, grid.values));
+  const PointSkeleton point{Vec3(0, 0.4, 0), 0.8, 1.0};
+  children.push_back(make_blobs(std::span(&point, 1), {}, BlobOptions{BlobKernel::kWyvill, 0.5, 1.0}));
+  children.push_back(make_blobs(std::span(&point, 1), {}, BlobOptions{BlobKernel::kBlinn, 0.5, 2.0}));
+  unsigned seed = 700;
+  for (double radius : {0.05, 0.6, 1.9}) {
+    for (std::size_t i = 0; i < children.size(); ++i) {
+      for (std::size_t j = 0; j < children.size(); ++j) {
+        if (i == j) continue;
+        for (CsgOp op : {CsgOp::kUnion, CsgOp::kIntersection, CsgOp::kDifference}) {
+          SCOPED_TRACE(::testing::Message()
+                       << "radius " << radius << " children " << i << ", " << j << " op " << static_cast<int>(op));
+          const FieldPtr f = make_csg(op, {children[i], children[j]}, CsgOptions{CsgBlend::kSmooth, radius});
+          if (f->bounds()) expect_positive_outside_bounds(*f, seed++);
+        }
+        // Unions of three, and a union nested in a union.
+        const FieldPtr three = make_csg(CsgOp::kUnion, {children[i], children[j], children[(i + j + 1) % 6]},
+                                        CsgOptions{CsgBlend::kSmooth, radius});
+        if (three->bounds()) expect_positive_outside_bounds(*three, seed++);
+        const FieldPtr nested = make_csg(CsgOp::kUnion, {three, children[j]}, CsgOptions{CsgBlend::kSmooth, radius});
+        if (nested->bounds()) expect_positive_outside_bounds(*nested, seed++);
+      }
+    }
+  }
+  // Two sets of blobs blended wider than 4 iso lie below 0 everywhere far away: unbounded, and bounds() says so.
+  const PointSkeleton other{Vec3(2, 0, 0), 0.5, 1.0};
+  const FieldPtr far_blobs = make_blobs(std::span(&other, 1), {}, BlobOptions{BlobKernel::kWyvill, 0.5, 1.0});
+  const FieldPtr wide = make_csg(CsgOp::kUnion, {children[4], far_blobs}, CsgOptions{CsgBlend::kSmooth, 2.5});
+  EXPECT_FALSE(wide->bounds().has_value());
+  EXPECT_LT(wide->value(Vec3(1e6, -3e5, 7e5)), 0.0);
+  // Narrower than 4 iso it is bounded, and its solid lies within its bounds.
+  const FieldPtr narrow = make_csg(CsgOp::kUnion, {children[4], far_blobs}, CsgOptions{CsgBlend::kSmooth, 1.5});
+  ASSERT_TRUE(narrow->bounds().has_value());
+  expect_positive_outside_bounds(*narrow, seed++);
+  // One set of blobs whose iso is far below the blend is bounded when the other children grow away from their
+  // solids: the blend only dips where children come within its radius.
+  for (double iso : {1e-300, 1e-3, 0.1}) {
+    const FieldPtr faint = make_blobs(std::span(&other, 1), {}, BlobOptions{BlobKernel::kWyvill, iso, 1.0});
+    for (const FieldPtr& partner : {children[0], children[1], children[3]}) {
+      const FieldPtr mixed =
+          make_csg(CsgOp::kUnion, {partner, faint, children[3], children[2]}, CsgOptions{CsgBlend::kSmooth, 0.3});
+      ASSERT_TRUE(mixed->bounds().has_value()) << "iso " << iso;
+      expect_positive_outside_bounds(*mixed, seed++);
+    }
+  }
+}
+
+// sublevel_bounds(level) holds {value <= level} for every kind of node and level, nested in each CSG blend and in
+// transforms (uniform scale, which scales values, and a general map, which does not).
+TEST(SceneTest, SublevelBoundsHoldTheSetBelowEachLevel) {
+  const SampledSphere grid = sample_sphere(9, Vec3(0.1, 0, 0.2), 0.7);
+  const PointSkeleton point{Vec3(0, 0.4, 0), 0.8, 1.0};
+  const SegmentSkeleton segment{Vec3(-0.5, 0, 0), Vec3(0.5, 0.2, 0), 0.6, 1.2};
+  std::vector<FieldPtr> leaves = {
+      make_sphere(Vec3(0.1, -0.2, 0.3), 1.2),
+      make_rounded_box(Vec3(0, 0.1, 0), Vec3(1.1, 0.8, 0.9), 0.3),
+      make_cylinder(Vec3(-0.5, -0.4, -1), Vec3(0.6, 0.5, 1.2), 0.7),
+      make_cone(Vec3(-0.5, -0.4, -1), Vec3(0.6, 0.5, 1.2), 1.0, 0.2),
+      make_torus(Vec3(0.1, 0, 0), Vec3(1, 2, 3), 1.4, 0.5),
+      make_capsule(Vec3(-1, 0, 0), Vec3(1, 0.5, 0), 0.4),
+      make_sampled_grid(grid.desc, grid.values),
+      make_blobs(std::span(&point, 1), std::span(&segment, 1), BlobOptions{BlobKernel::kWyvill, 0.8, 1.0}),
+      make_blobs(std::span(&point, 1), {}, BlobOptions{BlobKernel::kBlinn, 0.8, 2.0}),
+  };
+  const std::size_t primitives = leaves.size();
+  for (std::size_t i = 0; i < primitives; ++i) {
+    const Eigen::Matrix3d general = (Eigen::Matrix3d() << 2, 0.3, 0, 0, 0.5, 0.1, 0.2, 0, 1.5).finished();
+    leaves.push_back(make_transform(leaves[i], 0.5 * Eigen::Matrix3d::Identity(), Vec3(0.3, 0, 0)));
+    leaves.push_back(make_transform(leaves[i], general, Vec3(0, -0.2, 0.1)));
+  }
+  unsigned seed = 900;
+  for (double level : {0.0, 0.05, 0.5, 3.0}) {
+    for (std::size_t i = 0; i < leaves.size(); ++i) {
+      SCOPED_TRACE(::testing::Message() << "level " << level << " leaf " << i);
+      if (leaves[i]->sublevel_limit() > level) expect_positive_outside_bounds(*leaves[i], seed++, level);
+      for (CsgBlend blend : {CsgBlend::kMinMax, CsgBlend::kRFunction, CsgBlend::kSmooth}) {
+        const FieldPtr& other = leaves[(i * 7 + 3) % leaves.size()];
+        for (CsgOp op : {CsgOp::kUnion, CsgOp::kIntersection, CsgOp::kDifference}) {
+          const FieldPtr f = make_csg(op, {leaves[i], other, leaves[(i + 1) % leaves.size()]}, {blend, 0.4});
+          if (f->sublevel_bounds(level)) expect_positive_outside_bounds(*f, seed++, level);
+        }
+      }
+    }
+  }
+}
+
+// The R-function blends keep their value when one child is many orders of magnitude larger than the other (the
+// textbook a + b - sqrt(a^2 + b^2) cancels to 0 there, putting points far outside the solid on its surface).
+TEST(SceneTest, RFunctionKeepsItsValueWhenChildrenDifferByManyOrders) {
+  const FieldPtr unit = make_sphere(Vec3::Zero(), 1.0);
+  const CsgOptions r{CsgBlend::kRFunction, 0.0};
+  // A far sphere whose value is multiplied by 1e6 per non-uniform squeeze (the map keeps its sign, not distances).
+  FieldPtr amplified = make_sphere(Vec3(0, 50, 0), 1.0);
+  const Eigen::Matrix3d squeeze = Eigen::Vector3d(1e-6, 1, 1).asDiagonal();
+  for (int level = 0; level <= 4; ++level) {
+    SCOPED_TRACE(::testing::Message() << "squeezed " << level << " times");
+    const FieldPtr u = make_csg(CsgOp::kUnion, {unit, amplified}, r);
+    const FieldPtr d = make_csg(CsgOp::kDifference, {unit, amplified}, r);
+    const FieldPtr i = make_csg(CsgOp::kIntersection,
+                                {unit, make_csg(CsgOp::kDifference, {make_sphere(Vec3::Zero(), 1e3), amplified})}, r);
+    for (const Vec3& p : {Vec3(3, 0, 0), Vec3(0, -7, 2), Vec3(-20, 1, 1)}) {
+      const double a = unit->value(p), big = amplified->value(p);
+      ASSERT_GT(big / a, 1.0);
+      // For 0 < a <= b the union lies in [(2 - sqrt 2) a, a] and tends to a as b / a grows; meet(a, -b) lies in
+      // [a, (2 + sqrt 2) a] and also tends to a.
+      const double tolerance = big / a > 1e8 ? 1e-6 : 1.0 - (2.0 - std::numbers::sqrt2);
+      EXPECT_NEAR(u->value(p) / a, 1.0, tolerance) << "at " << p.transpose() << ", b / a = " << big / a;
+      EXPECT_GE(d->value(p), a * (1 - 1e-12)) << "at " << p.transpose();
+      EXPECT_NEAR(d->value(p) / a, 1.0, big / a > 1e8 ? 1e-6 : 1.0 + std::numbers::sqrt2);
+      EXPECT_GT(i->value(p), 0.0) << "at " << p.transpose();
+      Vec3 g;
+      EXPECT_NEAR(u->value_and_gradient(p, g), u->value(p), 1e-12 * a);
+      EXPECT_TRUE(g.allFinite());
+    }
+    expect_positive_outside_bounds(*u, 800 + level);
+    amplified = make_transform(amplified, squeeze, Vec3::Zero());
+  }
 }
 
 // --- Validation ----------------------------------------------------------------------------------------------

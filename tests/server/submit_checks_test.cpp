@@ -83,6 +83,38 @@ TEST(SubmitChecks, ValuesThatOnlyFailedWhenRunAreRefusedAtSubmitWithTheirPath) {
   expect_refused(*s.stub, active, bad, "spec.active.morph.tolerance");
 }
 
+// Without bounds an unbounded scene is refused at submit, naming the node that makes it so, however deep; with
+// bounds it runs.
+TEST(SubmitChecks, UnboundedScenesNameTheNodeThatMakesThemSo) {
+  LoopbackServer s;
+  const auto bad = grpc::StatusCode::INVALID_ARGUMENT;
+  // A plane under a union stays unbounded; one under an intersection with a sphere does not.
+  expect_refused(*s.stub, isosurface_of(R"({"root": {"union": {"children": [
+      {"intersection": {"children": [{"plane": {"normal": {"z": 1}}}, {"sphere": {"radius": 1}}]}},
+      {"transform": {"translate": {"x": 3}, "child": {"gyroid": {"period": 1, "thickness": 0.1}}}}]}}})"),
+                 bad,
+                 "spec.isosurface.bounds are needed: spec.isosurface.scenes[0].root.union.children[1].transform."
+                 "child.gyroid is unbounded");
+  // Two sets of blobs tend to their iso (0.5) far away; a blend of radius 4 lowers that by 1 there.
+  const std::string wide = R"({"root": {"union": {"blend": "BLEND_SMOOTH", "radius": 4, "children": [
+      {"sphere": {"radius": 1}},
+      {"blobs": {"points": [{"center": {"x": 2}, "radius": 1}]}},
+      {"blobs": {"points": [{"center": {"x": -2}, "radius": 1}]}}]}}})";
+  expect_refused(*s.stub, isosurface_of(wide), bad, "spec.isosurface.scenes[0].root.union is unbounded");
+  expect_refused(*s.stub, isosurface_of(wide), bad, "spec.isosurface.scenes[0].root.union.children[1].blobs");
+  v1::JobSpec bounded = isosurface_of(wide);
+  auto* box = bounded.mutable_isosurface()->mutable_bounds();
+  box->mutable_min()->set_x(-3), box->mutable_min()->set_y(-3), box->mutable_min()->set_z(-3);
+  box->mutable_max()->set_x(3), box->mutable_max()->set_y(3), box->mutable_max()->set_z(3);
+  std::string id;
+  EXPECT_TRUE(submit(*s.stub, bounded, &id).ok());
+  // A radius of 1 dips by at most 0.25 < 0.5: bounded.
+  std::string narrow = wide;
+  const std::string radius = "\"radius\": 4";
+  narrow.replace(narrow.find(radius), radius.size(), "\"radius\": 1");
+  EXPECT_TRUE(submit(*s.stub, isosurface_of(narrow), &id).ok());
+}
+
 // A sphere inside `levels` nested nodes, alternating unions and transforms.
 v1::Scene nested_scene(int levels) {
   v1::Scene scene;
