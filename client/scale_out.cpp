@@ -50,11 +50,7 @@ void pin_isosurface(v1::JobSpec& spec) {
   if (job.has_bounds()) return;  // the server derives the cell size from the given bounds, alike in every sub-job
   const wire::MemoryUploads no_uploads;  // scale-out refuses jobs that refer to uploads (find_upload_reference)
   try {
-    std::vector<FieldPtr> fields;
-    for (int i = 0; i < job.scenes_size(); ++i) {
-      fields.push_back(
-          wire::field_from_scene(job.scenes(i), "spec.isosurface.scenes[" + std::to_string(i) + "]", no_uploads));
-    }
+    const std::vector<FieldPtr> fields = wire::isosurface_fields(job, no_uploads, "spec.isosurface");
     const PolygonizeOptions options = wire::isosurface_options(job, spec.output().normals(), "spec.isosurface");
     const PolygonizeGrid grid = with_path("spec.isosurface", [&] { return resolve_grid(fields, options); });
     wire::set_bounds(*job.mutable_bounds(), grid.bounds);

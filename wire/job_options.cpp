@@ -44,6 +44,20 @@ PolygonizeOptions isosurface_options(const v1::IsosurfaceJob& job, bool normals,
   return polygonize_request(job, options, path);
 }
 
+std::vector<FieldPtr> isosurface_fields(const v1::IsosurfaceJob& job, const UploadLookup& uploads,
+                                        const std::string& path) {
+  std::vector<FieldPtr> fields;
+  fields.reserve(job.scenes_size());
+  for (int i = 0; i < job.scenes_size(); ++i) {
+    std::string unbounded;
+    fields.push_back(field_from_scene(job.scenes(i), path + ".scenes[" + std::to_string(i) + "]", uploads, &unbounded));
+    if (!job.has_bounds() && !unbounded.empty()) {
+      throw InvalidInput(path + ".bounds", path + ".bounds are needed: " + unbounded);
+    }
+  }
+  return fields;
+}
+
 PolygonizeOptions start_polygonize_options(const v1::Polygonize& start, const std::string& path) {
   return polygonize_request(start, default_start_polygonize(), path);
 }

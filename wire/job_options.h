@@ -27,6 +27,10 @@ v1::Polygonizer to_wire(Polygonizer polygonizer);
 
 // IsosurfaceJob (path "spec.isosurface"): method, bounds, cells or cell_size.
 PolygonizeOptions isosurface_options(const v1::IsosurfaceJob& job, bool normals, const std::string& path);
+// The fields of an IsosurfaceJob's scenes, one per frame. Without job.bounds an unbounded scene is refused, naming
+// the node that makes it so ("spec.isosurface.bounds are needed: ...root.plane is unbounded; ...").
+std::vector<FieldPtr> isosurface_fields(const v1::IsosurfaceJob& job, const UploadLookup& uploads,
+                                        const std::string& path);
 // OptimizeJob.polygonize: the start mesh the job makes itself (defaults: default_start_polygonize()).
 PolygonizeOptions start_polygonize_options(const v1::Polygonize& start, const std::string& path);
 // ParticlesJob: radii, sweeps, relaxation, erosion, container (its solid is a scene: uploads are looked up).

@@ -156,8 +156,13 @@ class Translator {
     if (op == CsgOp::kUnion && options.blend == CsgBlend::kSmooth && unbounded_reason_.empty() && !result->bounds()) {
       // Every child is bounded, but the blend reaches below the one that stays nearest its surface far away.
       std::size_t i = 0;
+      double limit = children[0]->sublevel_limit();
       for (std::size_t j = 1; j < children.size(); ++j) {
-        if (children[j]->sublevel_limit() < children[i]->sublevel_limit()) i = j;
+        const double l = children[j]->sublevel_limit();
+        if (l < limit) {
+          i = j;
+          limit = l;
+        }
       }
       const NodeProto& child = c.children(static_cast<int>(i));
       unbounded_reason_ = path + " is unbounded: its smooth blend (radius " + format_number(options.radius) +
@@ -165,7 +170,7 @@ class Translator {
                           " per child where children come within the radius of each other, and " + path + ".children[" +
                           std::to_string(i) + "]." +
                           NodeProto::descriptor()->FindFieldByNumber(child.kind_case())->name() + " stays within " +
-                          format_number(children[i]->sublevel_limit()) +
+                          format_number(limit) +
                           " of its surface arbitrarily far away; give a smaller radius, or bounds";
     }
     return result;

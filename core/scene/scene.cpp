@@ -285,7 +285,7 @@ class Gyroid final : public TemplatedField<Gyroid> {
 class Csg final : public SceneField {
  public:
   Csg(CsgOp op, std::vector<FieldPtr> children, const CsgOptions& options)
-      : op_(op), blend_(options.blend), k_(options.radius), children_(std::move(children)) {}
+      : op_(op), blend_(options.blend), k_(options.radius), children_(std::move(children)), limit_(compute_limit()) {}
 
   double value(const Vec3& p) const override {
     double v = children_[0]->value(p);
@@ -468,8 +468,11 @@ class Csg final : public SceneField {
     return static_cast<double>(std::min<std::size_t>(children_.size() - 1, 5)) * kSmoothBlendDepth * k_;
   }
 
-  // As sublevel_bounds(): the level below which it finds a box, as far as the children's hints tell.
-  double sublevel_limit() const override {
+  double sublevel_limit() const override { return limit_; }
+
+  // As sublevel_bounds(): the level below which it finds a box, as far as the children's hints tell. Once, when the
+  // node is built: smooth unions ask their children's at every sublevel_bounds().
+  double compute_limit() const {
     double lowest = std::numeric_limits<double>::infinity(), highest = -lowest;
     for (const FieldPtr& c : children_) {
       const double t = c->sublevel_limit();
@@ -492,6 +495,7 @@ class Csg final : public SceneField {
   CsgBlend blend_;
   double k_;
   std::vector<FieldPtr> children_;
+  double limit_;  // sublevel_limit(), from the children's
 };
 
 // --- Transform -----------------------------------------------------------------------------------------------

@@ -4,7 +4,6 @@
 #include "server/runners/frames.h"
 #include "server/runners/runner.h"
 #include "wire/job_options.h"
-#include "wire/scene.h"
 
 namespace surfacer::server {
 namespace {
@@ -44,17 +43,8 @@ std::unique_ptr<JobRunner> make_isosurface_runner(const v1::JobSpec& spec, const
     throw InvalidInput(path + ".scenes", path + ".scenes is empty; give at least one scene (one frame per scene)");
   }
   check_frame_count(job.scenes_size(), path + ".scenes", context.limits);
+  std::vector<FieldPtr> fields = wire::isosurface_fields(job, context.uploads, path);
   const PolygonizeOptions options = wire::isosurface_options(job, spec.output().normals(), path);
-  std::vector<FieldPtr> fields;
-  fields.reserve(job.scenes_size());
-  for (int i = 0; i < job.scenes_size(); ++i) {
-    std::string unbounded;
-    fields.push_back(wire::field_from_scene(job.scenes(i), path + ".scenes[" + std::to_string(i) + "]", context.uploads,
-                                            &unbounded));
-    if (!options.bounds && !unbounded.empty()) {
-      throw InvalidInput(path + ".bounds", path + ".bounds are needed: " + unbounded);
-    }
-  }
   const PolygonizeGrid grid = with_path(path, [&] { return resolve_grid(fields, options); });
   check_grid_cells(grid, path, context.limits);
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), grid.bounds, "spec.output");
