@@ -303,10 +303,11 @@ void read_binary(std::string_view bytes, const Header& header, ElementReader& re
         const std::size_t count_at = in.pos();
         const double count = in.read(property.count_type, e, i);
         if (count < 0) fail(name, "byte " + std::to_string(count_at), "negative list length in " + item_text(e, i));
-        const auto n = static_cast<std::uint64_t>(count);
-        if (n > in.remaining() / type_size(property.type)) {
-          in.truncated(e, i, " (list of " + std::to_string(n) + ")");
+        // Compared as a double before the cast: a 64-bit count can exceed what std::uint64_t holds once rounded.
+        if (count > static_cast<double>(in.remaining() / type_size(property.type))) {
+          in.truncated(e, i, " (list of " + format_number(count) + ")");
         }
+        const auto n = static_cast<std::uint64_t>(count);
         const bool keep = static_cast<int>(p) == wanted;
         if (keep) list.resize(n);
         for (std::uint64_t k = 0; k < n; ++k) {

@@ -225,6 +225,32 @@ TEST(MeshIo, DeclaredCountsDoNotDriveAllocations) {
   EXPECT_FALSE(budget.exhausted());
 }
 
+// A list length of any integer type, up to the largest it holds (2^64 - 1 rounds above what a 64-bit index holds),
+// in either byte order, is refused as the end of the file inside that face when the bytes for it are not there.
+TEST(MeshIo, BinaryPlyListLengthsUpToTheirTypesMaximum) {
+  struct CountType {
+    const char* name;
+    int bytes;
+  };
+  const CountType types[] = {{"uchar", 1}, {"ushort", 2}, {"uint", 4}, {"uint64", 8},
+                             {"char", 1},  {"short", 2},  {"int", 4},  {"int64", 8}};
+  for (const bool big : {false, true}) {
+    for (const CountType& type : types) {
+      const bool is_signed = type.name[0] != 'u';
+      std::string bytes = std::string("ply\nformat ") + (big ? "binary_big_endian" : "binary_little_endian") +
+                          " 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                          "element face 1\nproperty list " +
+                          type.name + " uint vertex_indices\nend_header\n" + std::string(36, '\0');
+      // The type's largest value: all ones, with the sign bit clear for signed types.
+      std::string count(static_cast<std::size_t>(type.bytes), '\xff');
+      if (is_signed) count[big ? 0 : count.size() - 1] = '\x7f';
+      bytes += count + std::string(12, '\0');
+      SCOPED_TRACE(std::string(type.name) + (big ? " big endian" : " little endian"));
+      expect_parse_error(bytes, MeshFormat::kPly, "long_list.ply", "unexpected end of file in face 0 of 1 (list of ");
+    }
+  }
+}
+
 TEST(MeshIo, BinaryPlyIndexOutOfRange) {
   Mesh m = testing::unit_cube();
   std::string bytes = write_ply(m);
