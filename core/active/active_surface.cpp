@@ -158,7 +158,7 @@ void active_detail::Engine::update_topology(const RunControl& control) {
 
   // Allocate the 26 neighbours of every band block (in block order, so the result is deterministic).
   std::int64_t block_hi[3];
-  const int wall_blocks = static_cast<int>(std::ceil((ramp + 1.0) / 8.0));  // blocks holding the wall's outer ramp
+  const int wall_blocks = this->wall_blocks();
   for (int a = 0; a < 3; ++a) block_hi[a] = has_domain ? dom_hi[a] / 8 + wall_blocks : sparse::kCoordLimit - 1;
   // Collect first, so that exceeding max_blocks leaves the state untouched.
   struct NewBlock {
@@ -406,16 +406,34 @@ void active_detail::Engine::configure() {
   }
 }
 
-void active_detail::Engine::init(const Field& shape, const RunControl& control) {
-  configure();
-  const std::optional<Aabb> sb = shape.bounds();
-  if (!sb && !has_domain) {
+void active_detail::Engine::covering_blocks(const Aabb& region, std::int64_t lo[3], std::int64_t hi[3]) const {
+  for (int a = 0; a < 3; ++a) {
+    // One block of margin: a solid touching the domain closes in the wall blocks just outside it. In double until
+    // the range check: a shape of 1e8 at h = 1e-12 is 1e19 blocks, past what std::int64_t holds.
+    double block_lo = std::floor((region.min[a] - origin[a]) * inv_h / 8.0) - 1.0;
+    double block_hi = std::floor((region.max[a] - origin[a]) * inv_h / 8.0) + 1.0;
+    if (has_domain) {
+      block_lo = std::max<double>(block_lo, -wall_blocks());
+      block_hi = std::min<double>(block_hi, static_cast<double>(dom_hi[a] / 8 + wall_blocks()));
+    }
+    if (!(block_lo >= -sparse::kCoordLimit) || !(block_hi < sparse::kCoordLimit)) {
+      throw ResourceLimit("h", "the surface would span more than 2^23 grid nodes per axis (" +
+                                   format_number(8.0 * (block_hi - block_lo)) + " at h = " + format_number(h) +
+                                   "); coarsen h");
+    }
+    lo[a] = static_cast<std::int64_t>(block_lo);
+    hi[a] = static_cast<std::int64_t>(block_hi);
+  }
+}
+
+Aabb active_detail::Engine::initial_region(const std::optional<Aabb>& shape_bounds) const {
+  if (!shape_bounds && !has_domain) {
     throw InvalidInput("domain", "the initial shape is unbounded (it has no bounds); set options.domain to confine it");
   }
   Aabb region;
-  if (sb) {
+  if (shape_bounds) {
     const double pad = (ramp + 2.0) * h;
-    region = Aabb{sb->min.array() - pad, sb->max.array() + pad};
+    region = Aabb{shape_bounds->min.array() - pad, shape_bounds->max.array() + pad};
     if (!region.min.allFinite() || !region.max.allFinite()) {
       if (!has_domain) {
         throw InvalidInput("domain", "the initial shape's bounds are not finite; set options.domain to confine it");
@@ -429,20 +447,15 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
   if (!region.valid()) {
     throw InvalidInput("initial_shape", "the initial shape lies outside the domain; move it or enlarge the domain");
   }
-  const int wall_blocks = static_cast<int>(std::ceil((ramp + 1.0) / 8.0));  // blocks holding the wall's outer ramp
-  std::int64_t lo[3], hi[3], dims[3];
+  return region;
+}
+
+std::int64_t active_detail::Engine::initial_blocks(const std::optional<Aabb>& shape_bounds, std::int64_t lo[3],
+                                                   std::int64_t dims[3]) const {
+  std::int64_t hi[3];
+  covering_blocks(initial_region(shape_bounds), lo, hi);
   std::int64_t candidates = 1;
   for (int a = 0; a < 3; ++a) {
-    // One block of margin: a solid touching the domain closes in the wall blocks just outside it.
-    lo[a] = static_cast<std::int64_t>(std::floor((region.min[a] - origin[a]) * inv_h / 8.0)) - 1;
-    hi[a] = static_cast<std::int64_t>(std::floor((region.max[a] - origin[a]) * inv_h / 8.0)) + 1;
-    if (has_domain) {
-      lo[a] = std::max<std::int64_t>(lo[a], -wall_blocks);
-      hi[a] = std::min<std::int64_t>(hi[a], dom_hi[a] / 8 + wall_blocks);
-    }
-    if (lo[a] < -sparse::kCoordLimit || hi[a] >= sparse::kCoordLimit) {
-      throw ResourceLimit("h", "the initial shape spans more than 2^23 nodes per axis; coarsen h");
-    }
     dims[a] = hi[a] - lo[a] + 1;
     candidates *= dims[a];
     if (candidates > (std::int64_t{1} << 24)) {
@@ -451,6 +464,23 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
                           "h or give a tighter domain");
     }
   }
+  return candidates;
+}
+
+void check_grid_reach(const std::optional<Aabb>& initial_bounds, const Aabb& region,
+                      const ActiveSurfaceOptions& options) {
+  active_detail::Engine engine;
+  engine.opt = options;
+  engine.configure();
+  std::int64_t lo[3], hi[3], dims[3];
+  engine.covering_blocks(region, lo, hi);
+  engine.initial_blocks(initial_bounds, lo, dims);
+}
+
+void active_detail::Engine::init(const Field& shape, const RunControl& control) {
+  configure();
+  std::int64_t lo[3], dims[3];
+  const std::int64_t candidates = initial_blocks(shape.bounds(), lo, dims);
 
   // Pass 1: blocks whose 9^3 nodes (the block and the first node of its + neighbours) see both signs.
   auto sample = [&](const sparse::BlockCoord& c, int x, int y, int z) -> double {
@@ -484,7 +514,7 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
           const sparse::BlockCoord n{c[0] + dx, c[1] + dy, c[2] + dz};
           if (has_domain) {
             bool inside = true;
-            for (int a = 0; a < 3; ++a) inside &= n[a] >= -wall_blocks && n[a] <= dom_hi[a] / 8 + wall_blocks;
+            for (int a = 0; a < 3; ++a) inside &= n[a] >= -wall_blocks() && n[a] <= dom_hi[a] / 8 + wall_blocks();
             if (!inside) continue;
           }
           if (grid.find(n[0], n[1], n[2]) >= 0) continue;

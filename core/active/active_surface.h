@@ -108,6 +108,13 @@ struct ActiveSurfaceOptions {
 // Throws InvalidInput naming the option ("h", "band_width", "alpha", "cfl", ...) with the fix, ResourceLimit("domain")
 // for a domain of more than 2^23 nodes per axis.
 void validate(const ActiveSurfaceOptions& options);
+// The grid checks ActiveSurface's constructor makes on its initial shape, for a caller to make first: throws
+// ResourceLimit("h") when a surface in `region` (every place the surface will occupy, clipped to options.domain) needs
+// grid nodes beyond the 2^23 per axis the engine addresses at options.h, ResourceLimit("domain") when the box scanned
+// for the initial shape (`initial_bounds`, nullopt when unbounded) holds more than 2^24 blocks, and what the
+// constructor throws for those bounds (InvalidInput "domain", "initial_shape") and validate(options).
+void check_grid_reach(const std::optional<Aabb>& initial_bounds, const Aabb& region,
+                      const ActiveSurfaceOptions& options);
 
 struct ActiveFrameStats {
   double time = 0.0;    // simulated time at the end of the frame

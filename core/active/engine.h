@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <optional>
 #include <vector>
 
 #include "core/active/active_surface.h"
@@ -81,6 +82,18 @@ struct Engine {
   // --- engine (active_surface.cpp) ---
   // Validates opt and derives the grid geometry (h, ramp, origin, domain) from it.
   void configure();
+  // Blocks beyond the domain's last node holding the wall's outer ramp.
+  int wall_blocks() const { return static_cast<int>(std::ceil((ramp + 1.0) / 8.0)); }
+  // The blocks [lo, hi] per axis that cover `region`, with one block of margin, clipped to the domain's wall blocks;
+  // throws ResourceLimit("h") when they leave the grid's block coordinates.
+  void covering_blocks(const Aabb& region, std::int64_t lo[3], std::int64_t hi[3]) const;
+  // The box init() scans for the initial shape: its bounds padded by the band, clipped to the domain (or the domain
+  // when it has none). Throws InvalidInput("domain") for an unbounded shape without a domain, ("initial_shape") for
+  // one outside it.
+  Aabb initial_region(const std::optional<Aabb>& shape_bounds) const;
+  // The blocks covering initial_region(): the first per axis (lo), their counts (dims), and their number (returned).
+  // Throws ResourceLimit("domain") above 2^24 blocks, and what covering_blocks throws.
+  std::int64_t initial_blocks(const std::optional<Aabb>& shape_bounds, std::int64_t lo[3], std::int64_t dims[3]) const;
   void init(const Field& shape, const RunControl& control);
   void update_topology(const RunControl& control);
   void reinitialize(const RunControl& control);

@@ -161,10 +161,25 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
   // With bounds, the surface closes just outside the last grid nodes inside them: up to a cell beyond.
   std::optional<Aabb> region;
   if (options.domain) region = options.domain->padded(options.h);
+  std::optional<Aabb> initial_bounds;  // of the shape the surface starts from
+  // Where the region and the initial shape come from, for a grid too fine for them: the part of the request that
+  // reaches furthest from the grid's origin, and the initial shape's.
+  std::string widest = path + ".bounds", initial_source = path + ".bounds";
+  double reach = -1.0;
   int frames_expected = 1;
-  auto add_region = [&](const std::optional<Aabb>& b, double pad) {
+  auto add_region = [&](const std::optional<Aabb>& b, double pad, const std::string& source) {
     if (!b || options.domain) return;
-    region = region ? merged(*region, b->padded(pad)) : b->padded(pad);
+    const Aabb padded = b->padded(pad);
+    region = region ? merged(*region, padded) : padded;
+    const double r = std::max(padded.min.cwiseAbs().maxCoeff(), padded.max.cwiseAbs().maxCoeff());
+    if (!(r <= reach)) {
+      reach = r;
+      widest = source;
+    }
+  };
+  auto set_initial = [&](const std::optional<Aabb>& b, const std::string& source) {
+    initial_bounds = b;
+    if (!options.domain) initial_source = source;
   };
   switch (job.mode_case()) {
     case v1::ActiveJob::kCoat: {
@@ -174,10 +189,11 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
       }
       wire::coat_options(coat, options, path);
       for (int i = 0; i < coat.frames_size(); ++i) {
+        const std::string frame = path + ".coat.frames[" + std::to_string(i) + "]";
         const auto summary =
-            wire::summarize_particle_frame(coat.frames(i), path + ".coat.frames[" + std::to_string(i) + "]",
-                                           context.uploads, context.limits.max_particles);
-        add_region(summary.bounds, coat.kernel_radius() + 4 * options.h);
+            wire::summarize_particle_frame(coat.frames(i), frame, context.uploads, context.limits.max_particles);
+        add_region(summary.bounds, coat.kernel_radius() + 4 * options.h, frame);
+        if (i == 0) set_initial(summary.bounds.padded(coat.kernel_radius()), frame);
       }
       check_frame_count(coat.frames_size(), path + ".coat.frames", context.limits);
       frames_expected = coat.frames_size();
@@ -193,8 +209,9 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
         throw InvalidInput(path + ".bounds", path + ": a morph between unbounded scenes needs " + path + ".bounds: " +
                                                  (from_unbounded.empty() ? to_unbounded : from_unbounded));
       }
-      add_region(from->bounds(), 4 * options.h);
-      add_region(to->bounds(), 4 * options.h);
+      set_initial(from->bounds(), path + ".morph.from");
+      add_region(from->bounds(), 4 * options.h, path + ".morph.from");
+      add_region(to->bounds(), 4 * options.h, path + ".morph.to");
       const MorphOptions morph_options = wire::morph_options(morph, options, path);
       check_frame_count(morph_options.max_frames, path + ".morph.max_frames", context.limits);
       frames_expected = morph_options.max_frames + 1;
@@ -206,16 +223,18 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
       // The initial frame, then `frames` more.
       check_frame_count(std::int64_t{wire::advect_options(advect, path).frames} + 1, path + ".advect.frames",
                         context.limits);
-      add_region(shape->bounds(), 4 * options.h);
+      set_initial(shape->bounds(), path + ".advect.shape");
+      add_region(shape->bounds(), 4 * options.h, path + ".advect.shape");
       if (advect.has_grid()) {
         const auto grid = ActiveRunner::velocity_grid(advect.grid(), path + ".advect.grid", context.uploads);
         const Vec3 far = grid->origin + grid->spacing.cwiseProduct(Vec3(grid->nx - 1, grid->ny - 1, grid->nz - 1));
-        add_region(Aabb{grid->origin, far}, 4 * options.h);
+        add_region(Aabb{grid->origin, far}, 4 * options.h, path + ".advect.grid");
       } else {
         if (advect.enright().has_period()) {
           with_path(path + ".advect.enright", [&] { require_positive("period", advect.enright().period()); });
         }
-        add_region(Aabb{Vec3::Zero(), Vec3::Ones()}, 4 * options.h);  // the Enright field lives in the unit cube
+        // The Enright field lives in the unit cube.
+        add_region(Aabb{Vec3::Zero(), Vec3::Ones()}, 4 * options.h, path + ".advect.enright");
       }
       frames_expected = advect.frames() + 1;
       break;
@@ -225,6 +244,15 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
   }
   if (!region) {
     throw InvalidInput(path + ".bounds", path + ": the shape is unbounded; give " + path + ".bounds");
+  }
+  try {
+    check_grid_reach(initial_bounds, *region, options);
+  } catch (const Error& e) {
+    if (e.kind() != ErrorKind::kResourceLimit) throw Error(e.kind(), path + ".bounds", path + ": " + e.what());
+    // "h": the region leaves the grid's reach; "domain": the initial shape's box is too many blocks to scan.
+    throw Error(e.kind(), path + ".grid_spacing",
+                path + ".grid_spacing (" + format_number(options.h) + ") is too fine for " +
+                    (e.field() == "h" ? widest : initial_source) + ": " + e.what());
   }
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), *region, "spec.output");
   return std::make_unique<ActiveRunner>(job, context.uploads, options,

@@ -693,5 +693,28 @@ TEST(ActiveSurface, ValidatesOptionsAndInputs) {
   EXPECT_THROW(make_particle_target({}, ParticleTargetOptions{}), Error);
 }
 
+// A shape too large for its spacing, by a little or by far more nodes than a 64-bit integer counts (a sphere of 1e8
+// at h = 1e-12 spans 1e19 blocks), centred or off to one side, with or without a domain, is refused as too fine
+// for h, naming h, never taken for a shape without a surface.
+TEST(ActiveSurface, ShapesBeyondTheGridsReachAskForACoarserSpacing) {
+  for (const double radius : {1.0, 1e3, 1e8}) {
+    for (const double h : {radius * 1e-7, radius * 1e-12, 1e-12}) {
+      for (const double offset : {0.0, -3.0 * radius}) {
+        for (const bool domain : {false, true}) {
+          SCOPED_TRACE("radius " + ::testing::PrintToString(radius) + ", h " + ::testing::PrintToString(h) +
+                       ", offset " + ::testing::PrintToString(offset) + (domain ? ", domain" : ""));
+          ActiveSurfaceOptions o = base_options(h);
+          const Vec3 center = Vec3::Constant(offset);
+          if (domain) o.domain = Aabb{center.array() - 2.0 * radius, center.array() + 2.0 * radius};
+          const std::string field = domain ? "domain" : "h";
+          EXPECT_TRUE(testing::throws_error([&] { ActiveSurface s(SphereField(center, radius), o); },
+                                            ErrorKind::kResourceLimit, field))
+              << field;
+        }
+      }
+    }
+  }
+}
+
 }  // namespace
 }  // namespace surfacer

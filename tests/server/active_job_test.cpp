@@ -47,5 +47,37 @@ TEST(ActiveJob, BadModeIsInvalidArgument) {
   EXPECT_NE(status.error_message().find("spec.active.grid_spacing"), std::string::npos);
 }
 
+// A spacing too fine for the region the surface occupies is refused at submit, naming grid_spacing, for morphs and
+// advections, from just past the grid's reach to far past what a 64-bit node count holds; never run and then failed
+// as a shape without a surface.
+TEST(ActiveJob, SpacingTooFineForTheShapeIsRefusedAtSubmit) {
+  LoopbackServer s;
+  for (const double radius : {1.0, 1e4, 1e8}) {
+    for (const double cells_per_radius : {3e6, 1e12, 1e20}) {
+      const std::string sphere = R"({"root": {"sphere": {"radius": )" + std::to_string(radius) + "}}}";
+      const double h = std::max(1e-12, radius / cells_per_radius);
+      for (const bool morph : {true, false}) {
+        SCOPED_TRACE(sphere + " h " + ::testing::PrintToString(h) + (morph ? " morph" : " advect"));
+        v1::JobSpec spec;
+        auto* job = spec.mutable_active();
+        job->set_grid_spacing(h);
+        if (morph) {
+          *job->mutable_morph()->mutable_from() = scene_from_json(sphere);
+          *job->mutable_morph()->mutable_to() = scene_from_json(sphere);
+        } else {
+          *job->mutable_advect()->mutable_shape() = scene_from_json(sphere);
+          job->mutable_advect()->mutable_enright();
+          job->mutable_advect()->set_frames(2);
+          job->mutable_advect()->set_frame_interval(0.1);
+        }
+        const auto status = submit(*s.stub, spec, nullptr);
+        EXPECT_EQ(status.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << status.error_message();
+        EXPECT_NE(status.error_message().find("spec.active.grid_spacing"), std::string::npos) << status.error_message();
+        EXPECT_NE(status.error_message().find("coarsen"), std::string::npos) << status.error_message();
+      }
+    }
+  }
+}
+
 }  // namespace
 }  // namespace surfacer::testing

@@ -188,6 +188,24 @@ std::string owner_of(std::string path) {
   return path;
 }
 
+// Whether `message` names `field` or a message enclosing it below the job ("spec.active.advect.shape" for
+// "spec.active.advect.shape.root.sphere.radius"): a size limit made of a whole scene or frame names that.
+bool names_enclosing(const std::string& message, const std::string& field) {
+  for (std::size_t end = field.size(); end != std::string::npos; end = field.find_last_of(".[", end - 1)) {
+    const std::string prefix = field.substr(0, end);
+    if (std::count(prefix.begin(), prefix.end(), '.') < 3) break;  // "spec.<job>.<mode or list>" is too wide
+    for (std::size_t at = message.find(prefix); at != std::string::npos; at = message.find(prefix, at + 1)) {
+      const std::size_t after = at + prefix.size();
+      if (after == message.size() ||
+          !(std::isalnum(static_cast<unsigned char>(message[after])) || message[after] == '_')) {
+        return true;
+      }
+    }
+    if (end == 0) break;
+  }
+  return false;
+}
+
 // Failures only the run can find: the data has no surface where the job looks for one.
 bool found_by_running(const std::string& message) {
   for (const char* known : {"no triangles", "no surface", "lies outside the domain"}) {
@@ -243,13 +261,14 @@ TEST(SubmitValues, NothingAcceptedFailsForAReasonSubmitCouldHaveSeen) {
       }
       ++refused;
       // Bad values name where they are; sizes over a limit (often made of several fields) name the flag that raises
-      // it, or where they are.
+      // it, or where they are, or the scene or frame they are in.
       const std::string& message = status.error_message();
-      const bool named = status.error_code() == grpc::StatusCode::INVALID_ARGUMENT
-                             ? message.find(owner_of(v.field)) != std::string::npos
-                             : status.error_code() == grpc::StatusCode::RESOURCE_EXHAUSTED &&
-                                   (message.find("--max-") != std::string::npos ||
-                                    message.find(owner_of(v.field)) != std::string::npos);
+      const bool named =
+          status.error_code() == grpc::StatusCode::INVALID_ARGUMENT
+              ? message.find(owner_of(v.field)) != std::string::npos
+              : status.error_code() == grpc::StatusCode::RESOURCE_EXHAUSTED &&
+                    (message.find("--max-") != std::string::npos ||
+                     message.find(owner_of(v.field)) != std::string::npos || names_enclosing(message, v.field));
       if (!named) {
         problems.push_back(v.field + " = " + v.value + ": refused with " + std::to_string(status.error_code()) +
                            " without naming it: " + message);
