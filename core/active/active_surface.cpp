@@ -418,7 +418,7 @@ void active_detail::Engine::covering_blocks(const Aabb& region, std::int64_t lo[
     }
     if (!(block_lo >= -sparse::kCoordLimit) || !(block_hi < sparse::kCoordLimit)) {
       throw ResourceLimit("h", "the surface would span more than 2^23 grid nodes per axis (" +
-                                   format_number(8.0 * (block_hi - block_lo)) + " at h = " + format_number(h) +
+                                   format_number(8.0 * (block_hi - block_lo)) + " nodes at h = " + format_number(h) +
                                    "); coarsen h");
     }
     lo[a] = static_cast<std::int64_t>(block_lo);
