@@ -111,7 +111,8 @@ TEST(Observability, JobTimesAndFrameSecondsHaveSubSecondResolution) {
   const v1::Job job = watch_job(*s.stub, id).final_job;
   ASSERT_EQ(job.state(), v1::JOB_STATE_SUCCEEDED);
   // Whole seconds would leave every nanos field 0 (the odds of that by chance are nil).
-  EXPECT_NE(job.created().nanos() + job.started().nanos() + job.finished().nanos(), 0) << job.DebugString();
+  EXPECT_TRUE(job.created().nanos() != 0 || job.started().nanos() != 0 || job.finished().nanos() != 0)
+      << job.DebugString();
   auto seconds = [](const google::protobuf::Timestamp& t) {
     return static_cast<double>(t.seconds()) + 1e-9 * t.nanos();
   };
