@@ -8,7 +8,10 @@
 
 #include "core/active/schemes.h"
 
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+// Not under ThreadSanitizer: the clones' resolver runs while the program is loaded, before the sanitizer's runtime,
+// and its instrumented code crashes there.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__) && \
+    !defined(__SANITIZE_THREAD__)
 #define SURFACER_KERNEL_CLONES __attribute__((target_clones("avx2", "default")))
 #else
 #define SURFACER_KERNEL_CLONES
