@@ -417,9 +417,11 @@ void active_detail::Engine::covering_blocks(const Aabb& region, std::int64_t lo[
       block_hi = std::min<double>(block_hi, static_cast<double>(dom_hi[a] / 8 + wall_blocks()));
     }
     if (!(block_lo >= -sparse::kCoordLimit) || !(block_hi < sparse::kCoordLimit)) {
-      throw ResourceLimit("h", "the surface would span more than 2^23 grid nodes per axis (" +
-                                   format_number(8.0 * (block_hi - block_lo)) + " nodes at h = " + format_number(h) +
-                                   "); coarsen h");
+      throw ResourceLimit("h", "the surface would reach " +
+                                   format_number(8.0 * std::max(std::abs(block_lo), std::abs(block_hi))) +
+                                   " grid nodes at h = " + format_number(h) + " from the grid's origin (" +
+                                   (has_domain ? "the domain's min corner" : "0, without a domain") +
+                                   ") along an axis, past the 2^23 it addresses; coarsen h");
     }
     lo[a] = static_cast<std::int64_t>(block_lo);
     hi[a] = static_cast<std::int64_t>(block_hi);

@@ -714,6 +714,15 @@ TEST(ActiveSurface, ShapesBeyondTheGridsReachAskForACoarserSpacing) {
       }
     }
   }
+  // Without a domain the grid counts from 0: a small sphere 1e6 away is out of reach at h = 0.1 (1e7 nodes), and a
+  // domain around it, which moves the grid's origin there, brings it back.
+  const SphereField far(Vec3(1e6, 0, 0), 1.0);
+  ActiveSurfaceOptions o = base_options(0.1);
+  EXPECT_TRUE(testing::throws_error([&] { ActiveSurface s(far, o); }, ErrorKind::kResourceLimit, "h",
+                                    "from the grid's origin"));
+  o.domain = Aabb{Vec3(1e6 - 2, -2, -2), Vec3(1e6 + 2, 2, 2)};
+  const ActiveSurface s(far, o);
+  EXPECT_NEAR(s.stats().volume, 4.0 / 3.0 * kPi, 0.1);
 }
 
 }  // namespace
