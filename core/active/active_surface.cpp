@@ -421,7 +421,8 @@ void active_detail::Engine::covering_blocks(const Aabb& region, std::int64_t lo[
                                    format_number(8.0 * std::max(std::abs(block_lo), std::abs(block_hi))) +
                                    " grid nodes at h = " + format_number(h) + " from the grid's origin (" +
                                    (has_domain ? "the domain's min corner" : "0, without a domain") +
-                                   ") along an axis, past the 2^23 it addresses; coarsen h");
+                                   ") along an axis, past the 2^23 it addresses; coarsen h" +
+                                   (has_domain ? "" : ", or give a domain (bounds) around the shape"));
     }
     lo[a] = static_cast<std::int64_t>(block_lo);
     hi[a] = static_cast<std::int64_t>(block_hi);
