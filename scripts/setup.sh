@@ -10,7 +10,8 @@ PACKAGES=(
   libeigen3-dev libopenmesh-dev libdraco-dev draco libmeshoptimizer-dev
   libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev zlib1g-dev libsqlite3-dev libssl-dev
   clang-14 libclang-rt-14-dev  # libFuzzer targets (scripts/fuzz.sh)
-  libopenvdb-dev  # the OpenVDB reference of bench/particles_bench (the bench is built only with it)
+  libopenvdb-dev libboost-dev  # the OpenVDB reference of bench/particles_bench (built only with it; its headers
+                               # include Boost's, which libopenvdb-dev does not depend on)
   pybind11-dev python3-dev python3-numpy python3-pytest  # the Python package (python/) and its tests
   libstb-dev  # PNG previews and plots (core/render/, header-only)
 )
