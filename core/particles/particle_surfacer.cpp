@@ -37,6 +37,12 @@ constexpr int kMaxProjectionRounds = 8;
 // The first radius of a nearest-particle search, in r_outer (Particles::nearest).
 constexpr double kFirstSearch = 1.25;
 constexpr int kMaxNewtonSteps = 16;
+// A cusp is held by a vertex only when its axis is within 60 degrees of the vertex normal (docs/ALGORITHMS.md §1,
+// CHOICE "cusps held"): a cusp seen edge-on belongs to another side of the fluid.
+constexpr double kCuspFacing = 0.5;
+// Rounds of 1-ring sums that carry the cusps' planes to the vertices around them (CHOICE "a start on the cusps'
+// planes"): enough to cover r_outer, at most this many.
+constexpr int kMaxDescentPasses = 16;
 
 // --- Particles ------------------------------------------------------------------------------------------------------
 
@@ -45,13 +51,107 @@ struct Interval {
   double lo = 0.0, hi = 0.0;
 };
 
+// An outer ball near a vertex.
+struct Ball {
+  Vec3 centre;
+  double radius;
+};
+
+// The plane through a cusp perpendicular to its axis, (axis, offset) . (y, -1) = 0; the particles lie on the side
+// axis . y < offset. All zero: no plane. One 4-vector, so that sums of planes are two SIMD adds.
+struct CuspPlane {
+  Eigen::Vector4d equation = Eigen::Vector4d::Zero();
+  Vec3 axis() const { return equation.head<3>(); }
+  double offset() const { return equation[3]; }
+};
+
+// What a held cusp asks of a vertex x + t n: t <= bound, the plane through the cusp.
+struct HeldCusp {
+  double bound = kInf;
+  CuspPlane plane;
+};
+
+// A thread's scratch for band queries.
+struct BandScratch {
+  std::vector<Interval> allowed;
+  // The outer balls within their radius + cell of the vertex: those whose sphere passes within cell of it, and those
+  // deeper around it.
+  std::vector<Ball> spheres, deeper;
+};
+
+// The lowest cusp a vertex x (unit normal n, Voronoi cell within `cell` of x) holds below: a point q where three outer
+// spheres meet and that lies in no outer ball (a vertex of the boundary of their union), within `cell` of x, that
+// owns(q) gives to this vertex, and whose axis (the unit normal of its three centres' plane, on q's side) faces the
+// vertex's outside (axis . n >= kCuspFacing). `spheres` must hold every outer ball whose sphere passes within cell of
+// x (the only ones on which such a q can lie) and `deeper` every other ball within its radius + cell of x: together,
+// all the balls that can contain q. The bound keeps x + t n on the particles' side of the plane through q
+// perpendicular to its axis; the lowest bound over the cusps wins. nullopt when no cusp qualifies.
+template <class Owns>
+std::optional<HeldCusp> lowest_cusp(const Vec3& x, const Vec3& n, double cell, std::span<const Ball> spheres,
+                                    std::span<const Ball> deeper, Owns&& owns) {
+  std::optional<HeldCusp> best;
+  const std::size_t k = spheres.size();
+  const auto inside = [](const Vec3& q, const Ball& ball) {
+    return (q - ball.centre).squaredNorm() < ball.radius * ball.radius * (1.0 - 1e-9);
+  };
+  for (std::size_t a = 0; a < k; ++a) {
+    const Ball& A = spheres[a];
+    for (std::size_t b = a + 1; b < k; ++b) {
+      const Ball& B = spheres[b];
+      const Vec3 ab = B.centre - A.centre;
+      const double dab = ab.norm();
+      if (!(dab > 0.0) || dab >= A.radius + B.radius) continue;  // the spheres do not meet in a circle
+      const Vec3 ex = ab / dab;
+      // Their circle (centre A + u ex, radius rho, in the plane normal to ex) must pass within cell of x.
+      const double u = (A.radius * A.radius - B.radius * B.radius + dab * dab) / (2.0 * dab);
+      const double rho2 = A.radius * A.radius - u * u;
+      if (!(rho2 >= 0.0)) continue;
+      const Vec3 rel = x - A.centre - u * ex;
+      const double axial = rel.dot(ex), radial = std::sqrt(std::max(0.0, rel.squaredNorm() - axial * axial));
+      const double gap = radial - std::sqrt(rho2);
+      if (axial * axial + gap * gap > cell * cell) continue;
+      for (std::size_t c = b + 1; c < k; ++c) {
+        const Ball& C = spheres[c];
+        // The frame of the three centres: A at 0, B on ex, C in the (ex, ey) plane (trilateration).
+        const Vec3 ac = C.centre - A.centre;
+        const double i = ex.dot(ac);
+        const Vec3 off = ac - i * ex;
+        const double j = off.norm();
+        if (!(j > 1e-9 * dab)) continue;  // collinear centres: the spheres meet in a circle or not at all
+        const Vec3 ey = off / j;
+        const double ra2 = A.radius * A.radius;
+        const double v = (ra2 - C.radius * C.radius + i * i + j * j) / (2.0 * j) - (i / j) * u;
+        const double w2 = ra2 - u * u - v * v;
+        if (!(w2 >= 0.0)) continue;
+        const Vec3 foot = A.centre + u * ex + v * ey;
+        const Vec3 ez = ex.cross(ey);
+        for (const double side : {1.0, -1.0}) {
+          const Vec3 axis = side * ez;
+          const double facing = axis.dot(n);
+          if (facing < kCuspFacing) continue;
+          const Vec3 q = foot + side * std::sqrt(w2) * ez;
+          if ((q - x).squaredNorm() > cell * cell) continue;
+          const double bound = (q - x).dot(axis) / facing;
+          if (best && bound >= best->bound) continue;
+          // In another ball? (The three defining spheres pass through q.)
+          bool covered = std::any_of(deeper.begin(), deeper.end(), [&](const Ball& ball) { return inside(q, ball); });
+          for (std::size_t m = 0; m < k && !covered; ++m) covered = m != a && m != b && m != c && inside(q, spheres[m]);
+          if (covered || !owns(q)) continue;
+          best = HeldCusp{bound, CuspPlane{Eigen::Vector4d(axis.x(), axis.y(), axis.z(), axis.dot(q))}};
+        }
+      }
+    }
+  }
+  return best;
+}
+
 struct Particles {
   std::vector<Vec3> positions;
   std::vector<double> inner, outer;            // per particle; empty when uniform
   std::vector<double> slot_inner, slot_outer;  // the same in hash slot order (weighted search)
   bool weighted = false;
   double r_inner = 0.0, r_outer = 0.0;  // uniform radii, or (weighted) the reference r_inner and ratio * it
-  double max_inner = 0.0, max_outer = 0.0;
+  double min_inner = 0.0, max_inner = 0.0, max_outer = 0.0;
   Aabb box;
   SpatialHash hash;
 
@@ -124,13 +224,20 @@ struct Particles {
   // The offsets t (|t| <= reach) for which x + t n stays faithful, as the interval around t = 0 (x itself is faithful
   // up to kBandTolerance). Along the line, the particles' outer balls allow t in a union of intervals and their inner
   // balls forbid t in others; every particle that can matter lies within max_outer + reach of x. Exact.
-  Interval band_interval(const Vec3& x, const Vec3& n, double reach, std::vector<Interval>& scratch) const {
-    std::vector<Interval>& allowed = scratch;
+  // When cell > 0, scratch.spheres and scratch.deeper receive the outer balls lowest_cusp needs.
+  Interval band_interval(const Vec3& x, const Vec3& n, double reach, double cell, BandScratch& scratch) const {
+    std::vector<Interval>& allowed = scratch.allowed;
     allowed.clear();
+    scratch.spheres.clear();
+    scratch.deeper.clear();
     double lo_in = -reach, hi_in = reach;  // bounds from the nearest forbidden (inner) intervals
     auto add = [&](const Vec3& p, double inner, double outer) {
       const Vec3 q = x - p;
-      const double b = n.dot(q), c = q.squaredNorm() - b * b;  // t along the line, c: squared distance of p to it
+      const double q2 = q.squaredNorm();
+      if (cell > 0.0 && q2 <= (outer + cell) * (outer + cell)) {
+        (q2 >= (outer - cell) * (outer - cell) ? scratch.spheres : scratch.deeper).push_back({p, outer});
+      }
+      const double b = n.dot(q), c = q2 - b * b;  // t along the line, c: squared distance of p to it
       const double ro = outer * (1.0 + kBandTolerance), ri = inner * (1.0 - kBandTolerance);
       if (c < ro * ro) {
         const double h = std::sqrt(ro * ro - c);
@@ -149,9 +256,10 @@ struct Particles {
         }
       }
     };
-    // The particles whose outer sphere can meet the segment x + t n, |t| <= reach: a box around the segment.
+    // The particles whose outer sphere can meet the segment x + t n, |t| <= reach, or lies within cell of x: a box
+    // around both.
     const double radius = weighted ? max_outer : r_outer;
-    const Eigen::Array3d half = reach * n.array().abs() + radius;
+    const Eigen::Array3d half = (reach * n.array().abs()).max(cell) + radius;
     const std::span<const Vec3> pts = hash.sorted_points();
     hash.for_each_range(x.array() - half, x.array() + half, [&](std::uint32_t begin, std::uint32_t end) {
       for (std::uint32_t slot = begin; slot < end; ++slot) {
@@ -768,16 +876,17 @@ class Smoother {
     constrain(true);
   }
 
-  // Step 4: B = W^T D^-1 W (through W and D), for moves along the vertex normals, and every vertex's interval of
-  // the band.
+  // Step 4: every vertex's interval of the band along its normal, lowered below the cusps it holds, and the start
+  // moved onto the cusps' planes; then B = W^T D^-1 W (through W and D) of that start, for moves along the normals.
   void build_b(const RunControl& control, ParticleSurfacingStats& stats) {
     x0_.resize(n_);  // copied in parallel: first touched by the threads that use it
     for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
       std::copy(x_.begin() + begin, x_.begin() + end, x0_.begin() + begin);
     });
     normals_ = smoothed_normals();
-    intervals(control);
-    smoothing_.emplace(ring_, ps::cotangent_laplacian(x_, mesh_.triangles, ring_, threads_, control), x0_, normals_,
+    intervals(control, stats);
+    if (!o_.vertex_only_band) descend(control);
+    smoothing_.emplace(ring_, ps::cotangent_laplacian(x0_, mesh_.triangles, ring_, threads_, control), x0_, normals_,
                        blocks_, threads_);
     stats.seam_fraction = n_ > 0 ? static_cast<double>(smoothing_->plan().seams.size()) / static_cast<double>(n_) : 0.0;
     control.report("build_b", 1.0);
@@ -852,22 +961,60 @@ class Smoother {
     return out;
   }
 
-  // Every vertex's interval of offsets along its normal: the band's (exact, once) and the container box's; the
-  // constrained sweeps use their intersection.
-  void intervals(const RunControl& control) {
+  // Every vertex's interval of offsets along its normal: the band's (exact, once), its upper end lowered below the
+  // lowest cusp the vertex holds (unless vertex_only_band), and the container box's; the constrained sweeps use
+  // their intersection. A vertex holds the cusps of its Voronoi cell among its 1-ring, whose reach is its longest
+  // 1-ring edge; the root mean square edge (summed per vertex, then in vertex order) sets the descent's passes.
+  void intervals(const RunControl& control, ParticleSurfacingStats& stats) {
     band_lo_.resize(n_);
     band_hi_.resize(n_);
     lo_.resize(n_);
     hi_.resize(n_);
     container_lo_.resize(n_);
     container_hi_.resize(n_);
-    // From the outer edge of the band to its inner edge.
-    const double reach = P_.weighted ? P_.max_outer : P_.r_outer - P_.r_inner;
+    const bool cusps = !o_.vertex_only_band;
+    if (cusps) cusp_.resize(n_);
+    std::vector<double> edge_sum(cusps ? n_ : 0);
+    // From the outer edge of the band to its inner edge (with per-particle radii, the widest such span: equal radii
+    // give the uniform intervals).
+    const double reach = P_.max_outer - P_.min_inner;
+    std::atomic<std::size_t> cusp_vertices{0};
     for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
       control.check();
-      std::vector<Interval> scratch;
+      BandScratch scratch;
+      std::size_t lowered = 0;
       for (std::size_t i = begin; i < end; ++i) {
-        const Interval band = P_.band_interval(x0_[i], normals_[i], reach, scratch);
+        const Vec3& x = x0_[i];
+        double cell = 0.0;
+        if (cusps) {
+          double sum = 0.0, longest = 0.0;  // squared lengths
+          for (std::uint32_t e = ring_.offsets[i]; e < ring_.offsets[i + 1]; ++e) {
+            const double length2 = (x0_[ring_.cols[e]] - x).squaredNorm();
+            longest = std::max(longest, length2);
+            sum += length2;
+          }
+          cell = std::sqrt(longest);
+          edge_sum[i] = sum;
+        }
+        const Interval band = P_.band_interval(x, normals_[i], reach, cell, scratch);
+        double hi = band.hi;
+        if (cusps) {
+          // Owned by i: no 1-ring neighbour is nearer (a tie gives the cusp to both).
+          const auto owns = [&](const Vec3& q) {
+            const double mine = (q - x).squaredNorm();
+            for (std::uint32_t e = ring_.offsets[i]; e < ring_.offsets[i + 1]; ++e) {
+              if ((q - x0_[ring_.cols[e]]).squaredNorm() < mine) return false;
+            }
+            return true;
+          };
+          const std::optional<HeldCusp> held = lowest_cusp(x, normals_[i], cell, scratch.spheres, scratch.deeper, owns);
+          cusp_[i] = held ? held->plane : CuspPlane{};
+          // A cusp below the inner edge: the vertex waits there (eq. 3.5 does not hold around it).
+          if (held && held->bound < hi) {
+            hi = std::max(band.lo, held->bound);
+            ++lowered;
+          }
+        }
         band_lo_[i] = band.lo;
         band_hi_[i] = band.hi;
         container_lo_[i] = -kInf;
@@ -883,10 +1030,54 @@ class Smoother {
           }
         }
         lo_[i] = std::max(band.lo, container_lo_[i]);
-        hi_[i] = std::min(band.hi, container_hi_[i]);
+        hi_[i] = std::min(hi, container_hi_[i]);
         if (lo_[i] > hi_[i]) lo_[i] = hi_[i] = std::clamp(0.0, container_lo_[i], container_hi_[i]);  // the wall wins
       }
+      cusp_vertices += lowered;
     });
+    stats.cusp_vertices = cusp_vertices.load();
+    if (cusps) {
+      double total = 0.0;
+      for (const double sum : edge_sum) total += sum;
+      const std::size_t entries = ring_.cols.size();
+      rms_edge_ = entries > 0 ? std::sqrt(total / static_cast<double>(entries)) : 0.0;
+    }
+  }
+
+  // The start of the constrained sweeps on the planes of the cusps held (docs/ALGORITHMS.md §1, CHOICE "a start on
+  // the cusps' planes"): every held cusp's plane equation (axis, offset) is summed over `passes` rounds of 1-ring sums,
+  // enough rounds to cover r_outer, and every vertex that some cusp reached moves along its normal onto the summed
+  // plane, clamped into its interval. x0 moves with it, the intervals shift by the move (the same lines), so the sweeps
+  // start at offset 0 again. Sums in a fixed order per vertex: the same start whatever the threads.
+  void descend(const RunControl& control) {
+    if (n_ == 0 || !(rms_edge_ > 0.0)) return;
+    const double outer = P_.weighted ? P_.max_outer : P_.r_outer;
+    const int passes = static_cast<int>(std::clamp(std::ceil(outer / rms_edge_), 1.0, double{kMaxDescentPasses}));
+    Buffer<CuspPlane> next(n_);
+    for (int pass = 0; pass < passes; ++pass) {
+      control.check();
+      for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
+        for (std::size_t i = begin; i < end; ++i) {
+          Eigen::Vector4d sum = cusp_[i].equation;
+          for (std::uint32_t e = ring_.offsets[i]; e < ring_.offsets[i + 1]; ++e) sum += cusp_[ring_.cols[e]].equation;
+          next[i].equation = sum;
+        }
+      });
+      std::swap(cusp_, next);
+    }
+    for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
+      for (std::size_t i = begin; i < end; ++i) {
+        const Vec3 axis = cusp_[i].axis();
+        const double facing = axis.dot(normals_[i]);
+        if (!(facing > 0.0 && facing >= kCuspFacing * axis.norm())) continue;  // none near, or facing away
+        const double move = std::clamp((cusp_[i].offset() - axis.dot(x0_[i])) / facing, lo_[i], hi_[i]);
+        x0_[i] += move * normals_[i];
+        for (Buffer<double>* bound : {&lo_, &hi_, &band_lo_, &band_hi_, &container_lo_, &container_hi_}) {
+          (*bound)[i] -= move;
+        }
+      }
+    });
+    cusp_ = {};
   }
 
   // x = x0 + t n (and the container solid, which wins over the band).
@@ -962,6 +1153,8 @@ class Smoother {
   const std::size_t blocks_;
   Container container_;
   std::vector<Vec3> x0_, normals_;
+  Buffer<CuspPlane> cusp_;  // per vertex, the plane of the lowest cusp it holds (zero: none), until the descent
+  double rms_edge_ = 0.0;   // of the mesh at step 4
   std::optional<ps::OffsetSmoothing> smoothing_;
   Buffer<double> lo_, hi_, band_lo_, band_hi_, container_lo_, container_hi_;
 };
@@ -1024,10 +1217,12 @@ void ParticleSurfacer::State::distance_field(std::span<const Vec3> input, std::s
     P.inner.assign(radii.begin(), radii.end());
     P.outer.resize(radii.size());
     for (std::size_t i = 0; i < radii.size(); ++i) P.outer[i] = ratio * radii[i];
-    P.max_inner = *std::max_element(P.inner.begin(), P.inner.end());
+    const auto [smallest, largest] = std::minmax_element(P.inner.begin(), P.inner.end());
+    P.min_inner = *smallest;
+    P.max_inner = *largest;
     P.max_outer = ratio * P.max_inner;
   } else {
-    P.max_inner = r_inner;
+    P.min_inner = P.max_inner = r_inner;
     P.max_outer = r_outer;
   }
   const double field_band = kFieldBandSpacings * h;

@@ -11,7 +11,9 @@
 //     * r_inner. Closed, oriented, minimum valence >= 5.
 //  3. laplacian_sweeps Gauss-Seidel sweeps on the uniform Laplacian energy (under-relaxed by `relaxation`), then every
 //     vertex projected into the band once.
-//  4. x0 and a unit normal n per vertex fixed; the band along each normal is an exact interval of offsets t.
+//  4. A unit normal n per vertex fixed; the band along each normal is an exact interval of offsets t, its top lowered
+//     below the lowest cusp of the r_outer spheres the vertex holds, and the vertex moved onto the planes of the cusps
+//     around it, which fixes x0 (CHOICEs "cusps held", "a start on the cusps' planes"; not with vertex_only_band).
 //  5. bilaplacian_sweeps projected SOR sweeps on |W (x0 + t n)|^2 over D (B = W^T D^-1 W, eq. 3.2, applied through W),
 //     each offset clamped into its interval: CHOICEs "constrained stages along the normals", "over-relaxed sweeps".
 //  6. polish_sweeps of the same clamped to the container only, then (unless unconstrained_polish) every offset clamped
@@ -24,11 +26,11 @@
 //
 // What to expect (measured in tests/core/particle_surfacer_test.cpp and bench/particles_bench.cpp):
 //  * Marching Tiles puts a vertex on every crossed lattice edge: about 5 vertices per h^2 of surface.
-//  * Square lattices of spacing d (r_inner / d in 0.45..1): the top face's RMS height deviation is 0.6-1.4% of
-//    r_inner with r_outer = 2 d and 1.6-2.7% with the default r_outer = 2 r_inner (0.5-1.7% once the sweeps have
-//    converged), not the 0 a plane allows: the band binds at the vertices only, which mostly miss the outer
-//    spheres' cusps, so the face floats above every admissible plane, held where a vertex lies near a cusp
-//    (docs/ALGORITHMS.md §1, "Flat surfaces").
+//  * Lattices where eq. 3.5 (square) or 3.6 (triangular) holds, in any orientation: a planar face (RMS height
+//    deviation below 0.01% of r_inner on the bench's slabs) on the highest plane the band admits. With
+//    vertex_only_band (the thesis' band) 0.6-2.7% of r_inner, above every admissible plane (docs/ALGORITHMS.md §1,
+//    "Flat surfaces"). Curved fluid ends under the cusps between its particles: droplets enclose 4-15% less than
+//    with the thesis' band, closer to their particles' volume.
 //  * Every final vertex in the band (faithful_after_polish = 1) unless unconstrained_polish or the container says
 //    otherwise; no triangle angle below min_angle_degrees on sheets and droplets (slivers_left counts the rest).
 //
@@ -81,6 +83,9 @@ struct ParticleSurfacingOptions {
   int polish_sweeps = 5;
   // Keep the thesis' unconstrained polish: without the final projection some vertices end outside the band.
   bool unconstrained_polish = false;
+  // Keep the thesis' band at the vertices only: the cusps of the r_outer spheres are not held and the sweeps start
+  // where the Laplacian stage left the vertices (fuller surfaces; faces over lattices are not flat).
+  bool vertex_only_band = false;
   // Triangles with a smaller angle (degrees, in [0, 30]) are repaired at the end by edge flips and collapses
   // (core/mesh/mesh_repair.h); 0 switches the repair off.
   double min_angle_degrees = 1.0;
@@ -125,6 +130,8 @@ struct ParticleSurfacingStats {
   std::int64_t slivers_found = 0, sliver_flips = 0, sliver_collapses = 0, slivers_left = 0;
   double seconds_cleanup = 0.0;
   double seam_fraction = 0.0;  // vertices updated serially in the parallel Gauss-Seidel (see header)
+  // Vertices whose upper bound a cusp of the r_outer spheres lowered (step 4).
+  std::size_t cusp_vertices = 0;
   std::size_t vertices = 0, triangles = 0;
 };
 

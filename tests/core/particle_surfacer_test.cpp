@@ -12,6 +12,7 @@
 #include <string>
 
 #include "core/mesh/mesh_checks.h"
+#include "core/mesh/mesh_repair.h"
 #include "core/particles/smoothing.h"
 #include "core/util/errors.h"
 #include "tests/support/error_expectations.h"
@@ -200,29 +201,168 @@ TEST(ParticleSurfacer, SquareLatticeWithOuterRadiusPerEquation35GivesAPlanarTopF
   const double flat = top_face_rms(surface_particles(particles, {}, o), n, 1.0, 2.0, 2.5);
   o.r_outer = 1.05;
   const double bumpy = top_face_rms(surface_particles(particles, {}, o), n, 1.0, 2.0, 2.5);
-  EXPECT_LT(flat, 0.01 * 1.0);  // < 1% of r_inner
-  EXPECT_GT(bumpy, 2.0 * flat);
+  EXPECT_LT(flat, 0.005 * 1.0);  // < 0.5% of r_inner
   EXPECT_GT(bumpy, 0.015);
   // The default polish keeps it planar.
   o.r_outer.reset();
   o.polish_sweeps = 5;
-  EXPECT_LT(top_face_rms(surface_particles(particles, {}, o), n, 1.0, 2.0, 2.5), 0.01);
+  EXPECT_LT(top_face_rms(surface_particles(particles, {}, o), n, 1.0, 2.0, 2.5), 0.005);
 }
 
-// Across r_inner / d, with r_outer = 2 d (eq. 3.5 holds for every r_inner below 1.87 d), the default pipeline's top
-// face stays within 2 % of r_inner of a plane (measured 0.6-1.4 %: docs/ALGORITHMS.md §1 "Flat surfaces"), and every
-// final vertex is faithful.
+// A slab of particle lattice layers, in any orientation: `layers` layers of n x n particles at spacing d, square
+// (kind 0), triangular layers stacked straight (1) or face-centred cubic stacked on its (111) face (2), rotated by
+// `rotation` about the origin. The top layer is at height `top` in the lattice frame, x and y within [0, width].
+struct LatticeSlab {
+  std::vector<Vec3> particles;
+  Eigen::Matrix3d rotation;
+  double top = 0.0, width_x = 0.0, width_y = 0.0;
+  double plane = 0.0;  // the highest plane the band admits above the top layer (eq. 3.5 / 3.6)
+};
+
+LatticeSlab lattice_slab(int kind, int n, int layers, double d, double r_outer, const Eigen::Matrix3d& rotation) {
+  LatticeSlab s;
+  s.rotation = rotation;
+  const double row = kind == 0 ? d : d * std::sqrt(3.0) / 2.0;
+  const double layer = kind == 2 ? d * std::sqrt(2.0 / 3.0) : d;
+  for (int k = 0; k < layers; ++k) {
+    for (int j = 0; j < n; ++j) {
+      for (int i = 0; i < n; ++i) {
+        Vec3 q(i * d, j * row, k * layer);
+        if (kind > 0) q.x() += (j % 2) * d / 2.0;
+        if (kind == 2) q += Vec3((k % 3) * d / 2.0, (k % 3) * d * std::sqrt(3.0) / 6.0, 0.0);
+        s.top = std::max(s.top, q.z());
+        s.width_x = std::max(s.width_x, q.x());
+        s.width_y = std::max(s.width_y, q.y());
+        s.particles.push_back(rotation * q);
+      }
+    }
+  }
+  // A cusp sits above the circumcentre of a lattice cell: d / sqrt(2) from its particles on a square lattice, d /
+  // sqrt(3) on a triangular one.
+  s.plane = std::sqrt(r_outer * r_outer - d * d / (kind == 0 ? 2.0 : 3.0));
+  return s;
+}
+
+struct Face {
+  int vertices = 0;
+  double mean = 0.0, rms = 0.0;  // height above the top layer
+};
+
+// The vertices above the top layer, at least `inset` inside the slab's sides.
+Face top_face(const Mesh& mesh, const LatticeSlab& slab, double inset) {
+  double sum = 0.0, sum2 = 0.0;
+  Face f;
+  for (const Vec3& world : mesh.vertices) {
+    const Vec3 v = slab.rotation.transpose() * world;
+    if (v.z() > slab.top && v.x() > inset && v.x() < slab.width_x - inset && v.y() > inset &&
+        v.y() < slab.width_y - inset) {
+      sum += v.z() - slab.top;
+      sum2 += (v.z() - slab.top) * (v.z() - slab.top);
+      ++f.vertices;
+    }
+  }
+  if (f.vertices == 0) return f;
+  f.mean = sum / f.vertices;
+  f.rms = std::sqrt(std::max(0.0, sum2 / f.vertices - f.mean * f.mean));
+  return f;
+}
+
+Eigen::Matrix3d rotation_xyz(double ax, double ay, double az) {
+  const double deg = 3.14159265358979323846 / 180.0;
+  return (Eigen::AngleAxisd(az * deg, Vec3::UnitZ()) * Eigen::AngleAxisd(ay * deg, Vec3::UnitY()) *
+          Eigen::AngleAxisd(ax * deg, Vec3::UnitX()))
+      .toRotationMatrix();
+}
+
+// Where eq. 3.5 holds, across r_inner / d and with r_outer = 2 d or the default 2 r_inner, the top face of a square
+// lattice is a plane (RMS < 0.5 % of r_inner), at or below the highest plane the band admits (it rests on the cusps),
+// and every final vertex is faithful (docs/ALGORITHMS.md §1, "Flat surfaces").
 TEST(ParticleSurfacer, SquareLatticesAcrossSpacingsGiveFlatTopFaces) {
-  const int n = 14;
-  const std::vector<Vec3> particles = square_lattice_slab(n, 3, 1.0);
-  for (const double r_inner : {0.45, 0.6, 0.7, 1.0}) {
-    SCOPED_TRACE(r_inner);
-    ParticleSurfacingOptions o = options(r_inner);
-    o.r_outer = 2.0;
+  for (const double r_inner : {0.45, 0.6, 0.7, 0.85, 1.0}) {
+    for (const bool default_outer : {false, true}) {
+      SCOPED_TRACE(::testing::Message() << "r_inner " << r_inner << (default_outer ? ", r_outer 2 r_inner" : ", 2 d"));
+      const double r_outer = default_outer ? 2.0 * r_inner : 2.0;
+      const LatticeSlab slab = lattice_slab(0, 14, 3, 1.0, r_outer, Eigen::Matrix3d::Identity());
+      ParticleSurfacingOptions o = options(r_inner);
+      if (!default_outer) o.r_outer = r_outer;
+      ParticleSurfacingStats stats;
+      const Face face = top_face(surface_particles(slab.particles, {}, o, {}, &stats), slab, 2.5);
+      ASSERT_GT(face.vertices, 50);
+      EXPECT_LT(face.rms, 0.005 * r_inner);
+      // The vertices between the held ones may stand a little above the plane (2e-5 d measured).
+      EXPECT_LE(face.mean, slab.plane + 1e-3 * r_inner);
+      EXPECT_GE(face.mean, slab.plane - 0.02 * r_inner);
+      EXPECT_EQ(stats.faithful_after_polish, 1.0);
+      EXPECT_GT(stats.cusp_vertices, 0u);
+    }
+  }
+}
+
+// Lattices the tests of the method were not built on: square, triangular (eq. 3.6) and face-centred cubic slabs,
+// turned to arbitrary orientations, at spacings and radii where the equations hold.
+TEST(ParticleSurfacer, LatticesInAnyOrientationGiveFlatFaces) {
+  struct Case {
+    int kind;
+    double r_inner, r_outer;
+    Eigen::Matrix3d rotation;
+  };
+  const std::vector<Case> cases = {
+      {0, 0.6, 1.2, rotation_xyz(20, 35, 10)},  {0, 0.8, 1.6, rotation_xyz(33, 0, 0)},
+      {1, 0.6, 1.2, rotation_xyz(17, -25, 40)}, {1, 0.45, 0.9, rotation_xyz(0, 0, 0)},
+      {2, 0.5, 1.0, rotation_xyz(40, 10, 70)},  {2, 0.7, 1.3, rotation_xyz(-10, 20, 30)},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(::testing::Message() << "kind " << c.kind << ", r_inner " << c.r_inner << ", r_outer " << c.r_outer);
+    const LatticeSlab slab = lattice_slab(c.kind, 16, 3, 1.0, c.r_outer, c.rotation);
+    ParticleSurfacingOptions o = options(c.r_inner);
+    o.r_outer = c.r_outer;
     ParticleSurfacingStats stats;
-    const Mesh mesh = surface_particles(particles, {}, o, {}, &stats);
-    EXPECT_LT(top_face_rms(mesh, n, 1.0, 2.0, 2.5), 0.02 * r_inner);
+    const Mesh mesh = surface_particles(slab.particles, {}, o, {}, &stats);
+    const Face face = top_face(mesh, slab, 2.5);
+    ASSERT_GT(face.vertices, 50);
+    EXPECT_LT(face.rms, 0.005 * c.r_inner);
+    EXPECT_NEAR(face.mean, slab.plane, 0.02 * c.r_inner);
     EXPECT_EQ(stats.faithful_after_polish, 1.0);
+    EXPECT_TRUE(mesh_has(check_mesh(mesh), kClosedManifold | kNoDegenerateTriangles | kPositiveVolume));
+  }
+}
+
+// vertex_only_band keeps the thesis' band at the vertices: the face floats above every plane the band admits, held
+// where a vertex happens to lie near a cusp; the default holds every cusp and lays the face on them.
+TEST(ParticleSurfacer, VertexOnlyBandLeavesTheFaceAboveTheCusps) {
+  const LatticeSlab slab = lattice_slab(0, 14, 3, 1.0, 1.2, Eigen::Matrix3d::Identity());
+  ParticleSurfacingOptions o = options(0.6);
+  ParticleSurfacingStats held, free;
+  const Face on_cusps = top_face(surface_particles(slab.particles, {}, o, {}, &held), slab, 2.5);
+  o.vertex_only_band = true;
+  const Face thesis = top_face(surface_particles(slab.particles, {}, o, {}, &free), slab, 2.5);
+  EXPECT_GT(thesis.mean, slab.plane + 0.02);
+  EXPECT_GT(thesis.rms, 0.005 * 0.6);
+  EXPECT_LE(on_cusps.mean, slab.plane + 1e-3 * 0.6);
+  EXPECT_EQ(free.cusp_vertices, 0u);
+  EXPECT_GT(held.cusp_vertices, 0u);
+  EXPECT_EQ(held.faithful_after_polish, 1.0);
+  EXPECT_EQ(free.faithful_after_polish, 1.0);
+}
+
+// Holding the cusps moves a curved fluid's surface in, toward the particles' own volume (N d^3 for particles on a
+// lattice of spacing d), which the band's r_outer start overstates: droplets of every size end closer to it, and
+// still within the band.
+TEST(ParticleSurfacer, HeldCuspsBringDropletVolumesCloserToTheParticles) {
+  for (const double radius : {2.0, 3.5, 6.0}) {
+    SCOPED_TRACE(radius);
+    const std::vector<Vec3> particles = blob(Vec3(0.3, -0.2, 0.1), radius, 1.0, 11);
+    const double particle_volume = static_cast<double>(particles.size());
+    ParticleSurfacingOptions o = options(0.6);
+    ParticleSurfacingStats stats;
+    const MeshReport held = check_mesh(surface_particles(particles, {}, o, {}, &stats));
+    o.vertex_only_band = true;
+    const MeshReport thesis = check_mesh(surface_particles(particles, {}, o));
+    EXPECT_GT(held.volume, particle_volume);  // r_inner = 0.6 d > d / 2: any faithful surface holds more
+    EXPECT_LT(held.volume, thesis.volume);
+    EXPECT_EQ(stats.faithful_after_polish, 1.0);
+    EXPECT_TRUE(mesh_has(held, kClosedManifold | kNoDegenerateTriangles | kPositiveVolume));
+    EXPECT_EQ(held.components, 1);
   }
 }
 
@@ -633,13 +773,30 @@ TEST(ParticleSurfacer, SliverRepairOnSparseRandomParticles) {
     for (Vec3& p : particles) p = Vec3(u(rng), u(rng), u(rng));
     ParticleSurfacingOptions o = options(0.45);
     ParticleSurfacingStats stats;
-    const MeshReport repaired = check_mesh(surface_particles(particles, {}, o, {}, &stats));
+    const Mesh mesh = surface_particles(particles, {}, o, {}, &stats);
+    const MeshReport repaired = check_mesh(mesh);
     o.min_angle_degrees = 0.0;
     const MeshReport raw = check_mesh(surface_particles(particles, {}, o));
     EXPECT_LT(raw.min_angle_degrees, 1.0);
     EXPECT_GT(stats.slivers_found, 0);
-    EXPECT_LT(stats.slivers_left, stats.slivers_found / 2);
+    EXPECT_LT(stats.slivers_left, stats.slivers_found);
     EXPECT_GE(repaired.min_angle_degrees, raw.min_angle_degrees);
+    // What the repair leaves, the valence floor blocked: every sliver left has a corner of valence 5, the
+    // Marching Tiles minimum that no repair may go below (core/mesh/mesh_repair.h).
+    std::vector<std::set<std::uint32_t>> neighbours(mesh.vertices.size());
+    for (const Triangle& t : mesh.triangles) {
+      for (int c = 0; c < 3; ++c) {
+        neighbours[t[c]].insert(t[(c + 1) % 3]);
+        neighbours[t[c]].insert(t[(c + 2) % 3]);
+      }
+    }
+    std::int64_t left = 0;
+    for (const Triangle& t : mesh.triangles) {
+      if (min_angle_degrees(mesh.vertices[t[0]], mesh.vertices[t[1]], mesh.vertices[t[2]]) >= 1.0) continue;
+      ++left;
+      EXPECT_TRUE(neighbours[t[0]].size() == 5 || neighbours[t[1]].size() == 5 || neighbours[t[2]].size() == 5);
+    }
+    EXPECT_EQ(left, stats.slivers_left);
     EXPECT_TRUE(mesh_has(repaired, kClosedManifold | kNoDegenerateTriangles | kPositiveVolume, 5));
     EXPECT_EQ(repaired.components, raw.components);
   }
