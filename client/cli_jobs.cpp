@@ -146,6 +146,9 @@ void add_particles(CLI::App* parent, const std::string& verb, JobFlags& flags, O
       ->type_name("EPS");
   app->add_flag("--unconstrained-polish", p.unconstrained_polish,
                 "keep the thesis' polish: no final projection, so some vertices may end outside [r_inner, r_outer]");
+  app->add_flag("--vertex-only-band", p.vertex_only_band,
+                "keep the thesis' band at the vertices only: the cusps of the r_outer spheres are not held (fuller "
+                "surfaces; faces over particle lattices are not flat)");
   app->add_option("--min-angle", p.min_angle,
                   "repair triangles with a smaller angle, in degrees (0: no repair)" +
                       default_text(kParticleDefaults.min_angle_degrees))

@@ -184,6 +184,7 @@ void build_particles(const ParticlesOptions& p, PreparedJob& prepared, const InM
   if (p.relaxation) job->set_relaxation(*p.relaxation);
   if (p.erosion) job->set_erosion(*p.erosion);
   if (p.unconstrained_polish) job->set_unconstrained_polish(true);
+  if (p.vertex_only_band) job->set_vertex_only_band(true);
   if (p.min_angle) job->set_min_angle_degrees(*p.min_angle);
   if (p.container_box) set_bounds(job->mutable_container()->mutable_box(), *p.container_box);
   if (p.container_scene) *job->mutable_container()->mutable_solid() = scene_of(*p.container_scene, in_memory);

@@ -69,6 +69,7 @@ struct ParticlesOptions {
   std::optional<double> relaxation;
   std::optional<double> erosion;
   bool unconstrained_polish = false;
+  bool vertex_only_band = false;
   std::optional<double> min_angle;
   std::optional<Box> container_box;
   std::optional<std::filesystem::path> container_scene;

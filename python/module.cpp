@@ -333,6 +333,7 @@ JobOptions job_options(const std::string& kind, const py::tuple& inputs, const p
     s["relaxation"] = set(p.relaxation);
     s["erosion"] = set(p.erosion);
     s["unconstrained_polish"] = set(p.unconstrained_polish);
+    s["vertex_only_band"] = set(p.vertex_only_band);
     s["min_angle"] = set(p.min_angle);
     s["container_box"] = set_box(p.container_box, "container_box");
     s["container_scene"] = [&p, &in](py::handle v) { p.container_scene = in.scene(v, "container_scene"); };

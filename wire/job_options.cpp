@@ -75,6 +75,7 @@ ParticleSurfacingOptions particle_options(const v1::ParticlesJob& job, bool norm
   if (job.has_relaxation()) options.relaxation = job.relaxation();
   if (job.has_erosion()) options.erosion = job.erosion();
   if (job.has_unconstrained_polish()) options.unconstrained_polish = job.unconstrained_polish();
+  if (job.has_vertex_only_band()) options.vertex_only_band = job.vertex_only_band();
   if (job.has_min_angle_degrees()) options.min_angle_degrees = job.min_angle_degrees();
   if (job.container().has_box()) options.container_box = to_aabb(job.container().box(), path + ".container.box");
   if (job.container().has_solid()) {

@@ -122,7 +122,7 @@ class Client:
         """Surfaces particle frames (Williams 2008), one mesh per frame. Each frame is an (N,3) array of positions,
         an (N,4) array of positions and radii, or a particle file or pattern (``fluid_{:04d}.bgeo``, with start=
         and end=). Options: r_inner or derive_r_inner=True, r_outer, spacing_factor, sweeps (L, B, P), relaxation,
-        erosion, unconstrained_polish, min_angle, container_box, container_scene (dict or path), min_particles,
+        erosion, unconstrained_polish, vertex_only_band, min_angle, container_box, container_scene (dict or path), min_particles,
         start, end, and every job's."""
         return self._run("particles", (frames,), options)
 

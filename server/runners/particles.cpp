@@ -59,6 +59,7 @@ class ParticlesRunner final : public JobRunner {
     metrics["field_evaluations"] = static_cast<double>(stats.field_evaluations);
     metrics["slivers_found"] = static_cast<double>(stats.slivers_found);
     metrics["slivers_left"] = static_cast<double>(stats.slivers_left);
+    metrics["cusp_vertices"] = static_cast<double>(stats.cusp_vertices);
     sink.emit(index, std::move(frame));
   }
 

@@ -88,6 +88,7 @@ TEST(JobOptions, ParticlesEveryFlag) {
                                  "--erosion",
                                  "0.2",
                                  "--unconstrained-polish",
+                                 "--vertex-only-band",
                                  "--min-angle",
                                  "2.5",
                                  "--container-box",
@@ -118,6 +119,7 @@ TEST(JobOptions, ParticlesEveryFlag) {
   EXPECT_EQ(o.relaxation, 0.5);
   EXPECT_EQ(o.erosion, 0.2);
   EXPECT_TRUE(o.unconstrained_polish);
+  EXPECT_TRUE(o.vertex_only_band);
   EXPECT_EQ(o.min_angle, 2.5);
   EXPECT_EQ(o.container_box, (Box{0, 0, 0, 1, 2, 3}));
   EXPECT_EQ(o.container_scene, fs::path("solid.json"));
@@ -406,9 +408,10 @@ TEST(JobOptions, EveryNewSubcommandHasHelpWithAnExample) {
     EXPECT_NE(h.out.find("surfacer " + args[0] + " "), std::string::npos) << name << "\n" << h.out;
   }
   const ParsedCli particles = parse_cli({"run", "particles", "--help"});
-  for (const char* flag : {"--input", "--start", "--end", "--r-inner", "--derive-r-inner", "--r-outer",
-                           "--spacing-factor", "--sweeps", "--relaxation", "--erosion", "--container-box",
-                           "--container-scene", "--min-particles", "--min-angle", "--unconstrained-polish", "--format", "--normals", "--raw"}) {
+  for (const char* flag :
+       {"--input", "--start", "--end", "--r-inner", "--derive-r-inner", "--r-outer", "--spacing-factor", "--sweeps",
+        "--relaxation", "--erosion", "--container-box", "--container-scene", "--min-particles", "--min-angle",
+        "--unconstrained-polish", "--vertex-only-band", "--format", "--normals", "--raw"}) {
     EXPECT_NE(particles.out.find(flag), std::string::npos) << flag;
   }
   const ParsedCli advect = parse_cli({"run", "active", "advect", "--help"});
@@ -524,6 +527,7 @@ TEST(JobSpecs, ParticlesFieldsAndOneUploadPerFrame) {
   p.relaxation = 0.55;
   p.erosion = 0.05;
   p.unconstrained_polish = true;
+  p.vertex_only_band = true;
   p.min_angle = 0;
   p.container_box = Box{-1, -1, -1, 8, 8, 8};
   p.container_scene = dir / "solid.json";
@@ -545,6 +549,7 @@ TEST(JobSpecs, ParticlesFieldsAndOneUploadPerFrame) {
   EXPECT_DOUBLE_EQ(job.relaxation(), 0.55);
   EXPECT_DOUBLE_EQ(job.erosion(), 0.05);
   EXPECT_TRUE(job.unconstrained_polish());
+  EXPECT_TRUE(job.vertex_only_band());
   ASSERT_TRUE(job.has_min_angle_degrees());
   EXPECT_EQ(job.min_angle_degrees(), 0.0);
   EXPECT_DOUBLE_EQ(job.container().box().max().y(), 8);

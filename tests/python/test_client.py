@@ -56,6 +56,9 @@ def test_particles_polish_and_sliver_options(local_client):
     (thesis,) = local_client.particles([ball], r_inner=0.04, unconstrained_polish=True, min_angle=0)
     assert faithful.stats["metrics"]["faithful_fraction_final"] == 1.0
     assert thesis.stats["metrics"]["faithful_fraction_final"] < 1.0
+    (band,) = local_client.particles([ball], r_inner=0.04, vertex_only_band=True)
+    assert faithful.stats["metrics"]["cusp_vertices"] > 0
+    assert band.stats["metrics"]["cusp_vertices"] == 0
     with pytest.raises(surfacer.JobFailed) as error:
         local_client.particles([ball], r_inner=0.04, min_angle=45)
     assert error.value.code == "INVALID_ARGUMENT" and "min_angle_degrees" in str(error.value)

@@ -166,6 +166,36 @@ TEST(ParticlesJob, UnconstrainedPolishIsTheThesisPolish) {
   EXPECT_LT(faithful_final(true), 1.0);
 }
 
+// The thesis' band on request: no cusp held, a fuller surface; by default the cusps of the r_outer spheres are held
+// (the frame metric counts the vertices they lowered).
+TEST(ParticlesJob, VertexOnlyBandIsTheThesisBand) {
+  LoopbackServer s;
+  const std::vector<Vec3> ball = particle_ball(Vec3(0, 0, 0), 0.3, 0.05, 4);
+  const std::string id_of_ball = upload(*s.stub, as_float32(ball));
+  auto run = [&](bool vertex_only_band) {
+    v1::JobSpec spec;
+    spec.mutable_particles()->add_frames()->set_upload_id(id_of_ball);
+    spec.mutable_particles()->set_r_inner(0.03);
+    if (vertex_only_band) spec.mutable_particles()->set_vertex_only_band(true);
+    std::string id;
+    EXPECT_TRUE(submit(*s.stub, spec, &id).ok());
+    auto result = watch_job(*s.stub, id);
+    EXPECT_EQ(result.frames.size(), 1u) << result.final_job.error().message();
+    return result;
+  };
+  const auto held = run(false), thesis = run(true);
+  ASSERT_EQ(held.frames.size(), 1u);
+  ASSERT_EQ(thesis.frames.size(), 1u);
+  const auto& held_metrics = held.frames.at(0).header.stats().metrics();
+  const auto& thesis_metrics = thesis.frames.at(0).header.stats().metrics();
+  EXPECT_GT(held_metrics.at("cusp_vertices"), 0.0);
+  EXPECT_EQ(thesis_metrics.at("cusp_vertices"), 0.0);
+  EXPECT_EQ(held_metrics.at("faithful_fraction_final"), 1.0);
+  EXPECT_EQ(thesis_metrics.at("faithful_fraction_final"), 1.0);
+  EXPECT_LT(check_mesh(decode_draco(held.frames.at(0).bytes)).volume,
+            check_mesh(decode_draco(thesis.frames.at(0).bytes)).volume);
+}
+
 TEST(ParticlesJob, BadParticlesAndOptionsNameTheField) {
   server::ServerOptions options = LoopbackServer::default_options();
   options.limits.max_particles = 100;
