@@ -47,7 +47,9 @@
 // RMS height deviation about the mean and peak to peak in % of r_inner (target: RMS < 0.5 %), the faithful fraction
 // at the end, the smallest angle and the slivers left; one run each. Fixed size: --particles does not apply. Also the
 // face's mean height above the top layer beside the highest plane the band allows, sqrt(r_outer^2 - d^2 / 2) (eq.
-// 3.5), both in d: a mean above that plane means the face rests on the cusps of the r_outer spheres.
+// 3.5), both in d: a mean above that plane means the face floats above the cusps of the r_outer spheres, held only
+// where a vertex lies near one. Each slab also runs with vertex_only_band (the thesis' band, cusps not held: the
+// path before the cusps were held) in the same run: its RMS and mean height, and the ratio of surfacing seconds.
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -586,11 +588,13 @@ bool bench_flatness(const Config& cfg) {
   std::printf(
       "flatness  60 x 60 x 6 square-lattice slabs, d 0.01, no jitter, r_outer = 2 d or 2 r_inner (the default); top "
       "face: vertices above the top layer, 5 d inside the sides; %d threads, %s Bilaplacian sweeps\n"
-      "  mean/d: the face's mean height above the top layer; plane/d: the highest plane the band allows (eq. 3.5)\n",
+      "  mean/d: the face's mean height above the top layer; plane/d: the highest plane the band allows (eq. 3.5)\n"
+      "  thesis: the same slab with vertex_only_band (the thesis' band, cusps not held), run beside it; s/thesis: the\n"
+      "  ratio of the surfacing seconds\n",
       threads, cfg.flatness_sweeps ? std::to_string(*cfg.flatness_sweeps).c_str() : "default");
-  std::printf("  %9s %8s %9s %10s %9s %8s %8s %11s %7s %8s %10s %9s %7s %8s\n", "r_inner/d", "r_outer", "vertices",
-              "triangles", "top verts", "RMS %ri", "p-p %ri", "RMS < 0.5%", "mean/d", "plane/d", "faithful %",
-              "min angle", "slivers", "seconds");
+  std::printf("  %9s %8s %9s %10s %9s %8s %8s %11s %7s %8s %10s %9s %7s %8s | %8s %8s %8s\n", "r_inner/d", "r_outer",
+              "vertices", "triangles", "top verts", "RMS %ri", "p-p %ri", "RMS < 0.5%", "mean/d", "plane/d",
+              "faithful %", "min angle", "slivers", "seconds", "RMS %ri", "mean/d", "s/thesis");
   bool ok = true;
   for (const bool default_outer : {false, true}) {
     for (const double ratio : kFlatnessRatios) {
@@ -599,22 +603,28 @@ bool bench_flatness(const Config& cfg) {
       if (cfg.flatness_sweeps) set.options.bilaplacian_sweeps = *cfg.flatness_sweeps;
       const char* outer = default_outer ? "2 r_in" : "2 d";
       const auto run = in_child<OursResult>([&] { return run_ours(set, threads, 1, cfg.write_dir); });
-      if (!run) {
+      DataSet thesis_set = set;
+      thesis_set.name += "_vertex_only_band";
+      thesis_set.options.vertex_only_band = true;
+      const auto thesis = in_child<OursResult>([&] { return run_ours(thesis_set, threads, 1, cfg.write_dir); });
+      if (!run || !thesis) {
         std::printf("  %9.2f %8s FAILED\n", ratio, outer);
         ok = false;
         continue;
       }
       const OursResult& r = run->value;
+      const OursResult& t = thesis->value;
       ok = ok && r.mesh.closed_manifold;
       const double r_inner = r.stats.r_inner;
       const double rms = 100.0 * r.top.rms / r_inner, d = kFlatnessSpacing;
       const double plane = std::sqrt(r.stats.r_outer * r.stats.r_outer - d * d / 2.0);
-      std::printf("  %9.2f %8s %9zu %10zu %9zu %8.3f %8.3f %11s %7.3f %8.3f %10.4f %9.2f %7lld %8.3f%s\n", ratio, outer,
-                  r.mesh.vertices, r.mesh.triangles, r.top.vertices, rms, 100.0 * r.top.peak_to_peak / r_inner,
-                  rms < kFlatnessTargetPercent ? "yes" : "no", (r.top.mean - set.top->z_top) / d, plane / d,
-                  100.0 * r.stats.faithful_after_polish, r.mesh.min_angle,
-                  static_cast<long long>(r.stats.slivers_left), r.time.surface,
-                  r.mesh.closed_manifold ? "" : "  mesh NOT closed manifold");
+      std::printf(
+          "  %9.2f %8s %9zu %10zu %9zu %8.3f %8.3f %11s %7.3f %8.3f %10.4f %9.2f %7lld %8.3f | %8.3f %8.3f %8.2f%s\n",
+          ratio, outer, r.mesh.vertices, r.mesh.triangles, r.top.vertices, rms, 100.0 * r.top.peak_to_peak / r_inner,
+          rms < kFlatnessTargetPercent ? "yes" : "no", (r.top.mean - set.top->z_top) / d, plane / d,
+          100.0 * r.stats.faithful_after_polish, r.mesh.min_angle, static_cast<long long>(r.stats.slivers_left),
+          r.time.surface, 100.0 * t.top.rms / r_inner, (t.top.mean - set.top->z_top) / d,
+          r.time.surface / t.time.surface, r.mesh.closed_manifold ? "" : "  mesh NOT closed manifold");
       std::fflush(stdout);
     }
   }
