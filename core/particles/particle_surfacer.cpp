@@ -73,7 +73,8 @@ struct HeldCusp {
 
 // A thread's scratch for band queries.
 struct BandScratch {
-  std::vector<Interval> allowed;
+  std::vector<Interval> allowed, forbidden;
+  std::vector<double> ends;
   // The outer balls within their radius + cell of the vertex: those whose sphere passes within cell of it, and those
   // deeper around it.
   std::vector<Ball> spheres, deeper;
@@ -297,6 +298,62 @@ struct Particles {
     return {std::max({piece.lo, lo_in, -reach}), std::min({piece.hi, hi_in, reach})};
   }
 
+  // The offset t nearest to 0 (|t| <= reach) for which x + t n is faithful: 0 when x is, else an end of a ball's chord
+  // of the line (the nearest faithful point of a union of closed outer chords minus open inner ones is one of their
+  // ends); nullopt when no t within reach is faithful. Exact, like band_interval: the ends are taken on the spheres
+  // themselves, inside the tolerance that band_interval then allows.
+  std::optional<double> faithful_offset(const Vec3& x, const Vec3& n, double reach, BandScratch& scratch) const {
+    std::vector<Interval>& outer_chords = scratch.allowed;
+    std::vector<Interval>& inner_chords = scratch.forbidden;
+    std::vector<double>& ends = scratch.ends;
+    outer_chords.clear();
+    inner_chords.clear();
+    ends.clear();
+    auto add = [&](const Vec3& p, double inner, double outer) {
+      const Vec3 q = x - p;
+      const double b = n.dot(q), c = q.squaredNorm() - b * b;
+      const double ro = outer * (1.0 + kBandTolerance), ri = inner * (1.0 - kBandTolerance);
+      if (c < ro * ro) {
+        const double h = std::sqrt(ro * ro - c);
+        outer_chords.push_back({-b - h, -b + h});
+        const double exact = std::sqrt(std::max(0.0, outer * outer - c));
+        ends.insert(ends.end(), {-b - exact, -b + exact});
+      }
+      if (c < inner * inner) {
+        const double h = std::sqrt(std::max(0.0, ri * ri - c));
+        inner_chords.push_back({-b - h, -b + h});
+        const double exact = std::sqrt(inner * inner - c);
+        ends.insert(ends.end(), {-b - exact, -b + exact});
+      }
+    };
+    const double radius = weighted ? max_outer : r_outer;
+    const Eigen::Array3d half = reach * n.array().abs() + radius;
+    const std::span<const Vec3> pts = hash.sorted_points();
+    hash.for_each_range(x.array() - half, x.array() + half, [&](std::uint32_t begin, std::uint32_t end) {
+      for (std::uint32_t slot = begin; slot < end; ++slot) {
+        if (weighted) {
+          add(pts[slot], slot_inner[slot], slot_outer[slot]);
+        } else {
+          add(pts[slot], r_inner, r_outer);
+        }
+      }
+    });
+    const auto faithful_at = [&](double t) {
+      const auto holds = [t](const Interval& c) { return c.lo <= t && t <= c.hi; };
+      const auto inside = [t](const Interval& c) { return c.lo < t && t < c.hi; };
+      return std::any_of(outer_chords.begin(), outer_chords.end(), holds) &&
+             std::none_of(inner_chords.begin(), inner_chords.end(), inside);
+    };
+    if (faithful_at(0.0)) return 0.0;
+    std::erase_if(ends, [reach](double t) { return !(std::abs(t) <= reach); });
+    std::sort(ends.begin(), ends.end(),
+              [](double a, double b) { return std::abs(a) < std::abs(b) || (std::abs(a) == std::abs(b) && a < b); });
+    for (const double t : ends) {
+      if (faithful_at(t)) return t;
+    }
+    return std::nullopt;
+  }
+
   // Uniform radii: moves x into the faithful band (see the header): out of the nearest inner ball (again while the
   // push lands in another), or toward the nearest particle onto its outer sphere (it stays the nearest on the way).
   void project_uniform(Vec3& x) const {
@@ -310,6 +367,13 @@ struct Particles {
       if (n.distance > r_outer * (1.0 + kBandTolerance)) x = p + (x - p) * (r_outer / n.distance);
       return;
     }
+  }
+  // Whether x is faithful (up to kBandTolerance): a bounded search, which stops at a particle inside r_inner.
+  bool in_band(const Vec3& x) const {
+    if (weighted) return faithful(violation(x));
+    const double lo = r_inner * (1.0 - kBandTolerance), hi = r_outer * (1.0 + kBandTolerance);
+    const double d = hash.bounded_distance(x, hi, lo);
+    return d >= lo && d <= hi;
   }
   double violation_uniform(const Vec3& x) const {
     const double d = nearest(x).distance;
@@ -873,7 +937,11 @@ class Smoother {
       control.report("laplacian", (s + 1.0) / o_.laplacian_sweeps);
     }
     control.check();
-    constrain(true);
+    if (o_.vertex_only_band) {
+      constrain(true);
+    } else {
+      project_along_normals();
+    }
   }
 
   // Step 4: every vertex's interval of the band along its normal, lowered below the cusps it holds, and the start
@@ -883,7 +951,7 @@ class Smoother {
     for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
       std::copy(x_.begin() + begin, x_.begin() + end, x0_.begin() + begin);
     });
-    normals_ = smoothed_normals();
+    if (o_.vertex_only_band) normals_ = smoothed_normals();  // else the projection's (step 3)
     intervals(control, stats);
     if (!o_.vertex_only_band) descend(control);
     smoothing_.emplace(ring_, ps::cotangent_laplacian(x0_, mesh_.triangles, ring_, threads_, control), x0_, normals_,
@@ -975,9 +1043,7 @@ class Smoother {
     const bool cusps = !o_.vertex_only_band;
     if (cusps) cusp_.resize(n_);
     std::vector<double> edge_sum(cusps ? n_ : 0);
-    // From the outer edge of the band to its inner edge (with per-particle radii, the widest such span: equal radii
-    // give the uniform intervals).
-    const double reach = P_.max_outer - P_.min_inner;
+    const double reach = this->reach();
     std::atomic<std::size_t> cusp_vertices{0};
     for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
       control.check();
@@ -1104,6 +1170,35 @@ class Smoother {
     fraction = n_ > 0 ? static_cast<double>(good) / static_cast<double>(n_) : 1.0;
     max_violation = worst;
   }
+
+  // Step 3's projection (docs/ALGORITHMS.md §1, CHOICE "projection along the normals"): the smoothed normals of the
+  // Laplacian surface are fixed, and every vertex moves along its normal to the nearest faithful point of that line,
+  // then into the container.
+  void project_along_normals() {
+    normals_ = smoothed_normals();
+    for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
+      BandScratch scratch;
+      for (std::size_t i = begin; i < end; ++i) {
+        project_along(x_[i], normals_[i], scratch);
+        if (container_.active()) container_.project(x_[i]);
+      }
+    });
+  }
+  // x to the nearest faithful point of the line x + t n, |t| <= reach; without one, the thesis' projection to the
+  // band's nearest point.
+  void project_along(Vec3& x, const Vec3& n, BandScratch& scratch) const {
+    if (P_.in_band(x)) return;  // most vertices: one bounded search instead of the line's chords
+    if (const std::optional<double> t = P_.faithful_offset(x, n, reach(), scratch)) {
+      x += *t * n;
+    } else if (P_.weighted) {
+      P_.project(x);
+    } else {
+      P_.project_uniform(x);
+    }
+  }
+  // From the outer edge of the band to its inner edge (with per-particle radii, the widest such span: equal radii
+  // give the uniform intervals).
+  double reach() const { return P_.max_outer - P_.min_inner; }
 
   // The particle band (when `to_particles`) and the container, on every vertex.
   void constrain(bool to_particles) {

@@ -9,9 +9,10 @@
 //     the nearest particle, is sampled lazily where Marching Tiles visits. Never a dense global grid.
 //  2. Initial mesh: Marching Tiles (core/polygonize/marching_tiles.h) of f = 0, mean sample spacing h = spacing_factor
 //     * r_inner. Closed, oriented, minimum valence >= 5.
-//  3. laplacian_sweeps Gauss-Seidel sweeps on the uniform Laplacian energy (under-relaxed by `relaxation`), then every
-//     vertex projected into the band once.
-//  4. A unit normal n per vertex fixed; the band along each normal is an exact interval of offsets t, its top lowered
+//  3. laplacian_sweeps Gauss-Seidel sweeps on the uniform Laplacian energy (under-relaxed by `relaxation`); then a unit
+//     normal n per vertex is fixed and every vertex outside the band moves along it to the line's nearest faithful
+//     point (CHOICE "projection along the normals"; vertex_only_band: the thesis' projection to the nearest particle).
+//  4. The band along each normal is an exact interval of offsets t, its top lowered
 //     below the lowest cusp of the r_outer spheres the vertex holds, and the vertex moved onto the planes of the cusps
 //     around it, which fixes x0 (CHOICEs "cusps held", "a start on the cusps' planes"; not with vertex_only_band).
 //  5. bilaplacian_sweeps projected SOR sweeps on |W (x0 + t n)|^2 over D (B = W^T D^-1 W, eq. 3.2, applied through W),
@@ -19,8 +20,9 @@
 //  6. polish_sweeps of the same clamped to the container only, then (unless unconstrained_polish) every offset clamped
 //     into its band interval again: every final vertex is faithful (CHOICE "faithful at the end").
 //  7. Optional erosion x <- x - erosion * r_inner * n(x) (area-weighted vertex normal), then the container again.
-//  8. Sliver repair (core/mesh/mesh_repair.h): angles below min_angle_degrees, or triangles collinear on output_grid,
-//     removed by flips and collapses that move no vertex.
+//  8. Closed components spanning less than 2 r_inner that hold no particle (sub-particle bubbles) dropped; sliver
+//     repair (core/mesh/mesh_repair.h): angles below min_angle_degrees, or triangles collinear on output_grid, removed
+//     by flips and collapses, or, where the valence floor blocks both, by moving a vertex within the band.
 //
 // Container snapping wins over faithfulness: vertices held at a wall may be outside [r_inner, r_outer].
 //
@@ -126,12 +128,15 @@ struct ParticleSurfacingStats {
   double max_final_projection = 0.0;
   double max_polish_displacement = 0.0;  // largest vertex move during polish, final projection and erosion
   // The sliver repair: triangles found below min_angle_degrees (or degenerate on output_grid), edges flipped and
-  // collapsed, and the bad triangles left (none unless a repair would break the mesh), and its seconds.
-  std::int64_t slivers_found = 0, sliver_flips = 0, sliver_collapses = 0, slivers_left = 0;
+  // collapsed, vertices moved (within the band), and the bad triangles left (none unless a repair would break the
+  // mesh), and its seconds.
+  std::int64_t slivers_found = 0, sliver_flips = 0, sliver_collapses = 0, sliver_moves = 0, slivers_left = 0;
   double seconds_cleanup = 0.0;
   double seam_fraction = 0.0;  // vertices updated serially in the parallel Gauss-Seidel (see header)
   // Vertices whose upper bound a cusp of the r_outer spheres lowered (step 4).
   std::size_t cusp_vertices = 0;
+  // Closed components spanning less than 2 r_inner that hold no particle, dropped (voids among the outer balls).
+  std::size_t bubbles_dropped = 0;
   std::size_t vertices = 0, triangles = 0;
 };
 
