@@ -124,7 +124,7 @@ class Repair {
       if (again && again->blocked[0] == kDead && again->after > again->before) return apply(t, *again, changed);
       roll_back(mark);  // the raising flips served nothing: the mesh stays as it was
     }
-    return false;
+    return o_.place && relocate(t, changed);
   }
 
  private:
@@ -348,6 +348,88 @@ class Repair {
     ++collapses_;
   }
 
+  // How good a vertex's triangles are, for relocate(): fewer degenerate on the grid first, then fewer below the
+  // angle threshold, then a larger smallest angle among the others.
+  struct Score {
+    int degenerate = 0, bad = 0;
+    double worst = std::numeric_limits<double>::infinity();
+    bool better_than(const Score& o) const {
+      if (degenerate != o.degenerate) return degenerate < o.degenerate;
+      if (bad != o.bad) return bad < o.bad;
+      return worst > o.worst;
+    }
+  };
+  Score score(std::span<const std::uint32_t> triangles) const {
+    Score s;
+    for (const std::uint32_t t : triangles) {
+      const double q = quality(tris_[t]);
+      if (q < 0.0) {
+        ++s.degenerate;
+        continue;
+      }
+      s.bad += q < o_.min_angle_degrees ? 1 : 0;
+      s.worst = std::min(s.worst, q);
+    }
+    return s;
+  }
+
+  // Moves the vertex of t whose move leaves its triangles best (Score), when that is better than now. Each vertex is
+  // proposed at two centroids of its neighbours, projected on its tangent plane (the plane of its area-weighted
+  // normal): the plain one, and one weighted by the length of the edge to each neighbour, which a knot of
+  // near-coincident vertices does not hold back. Each proposal is placed by o_.place and refused when it turns one of
+  // the vertex's triangles away from that normal (a triangle that faced away already may stay so).
+  bool relocate(std::uint32_t t, std::vector<std::uint32_t>& changed) {
+    std::uint32_t best_vertex = kDead;
+    Vec3 best_position = Vec3::Zero();
+    std::optional<Score> best;
+    for (const std::uint32_t v : tris_[t]) {
+      const std::span<const std::uint32_t> around = adj().of(v);
+      Vec3 normal_sum = Vec3::Zero();
+      for (const std::uint32_t s : around) normal_sum += normal(tris_[s]);
+      const std::vector<std::uint32_t> ring = neighbours(v);
+      if (ring.empty() || !(normal_sum.squaredNorm() > 0.0)) continue;
+      const Vec3 n = normal_sum.normalized();
+      const Score before = score(around);
+      std::vector<char> facing(around.size());
+      for (std::size_t i = 0; i < around.size(); ++i) facing[i] = normal(tris_[around[i]]).dot(n) > 0.0;
+      Vec3 plain = Vec3::Zero(), weighted = Vec3::Zero();
+      double length = 0.0;
+      for (const std::uint32_t w : ring) {
+        const double l = (x_[w] - x_[v]).norm();
+        plain += x_[w];
+        weighted += l * x_[w];
+        length += l;
+      }
+      plain /= static_cast<double>(ring.size());
+      const Vec3 old = x_[v];
+      const GridPoint old_snapped = o_.grid ? snapped_[v] : GridPoint{};
+      for (const Vec3& centroid : {plain, length > 0.0 ? Vec3(weighted / length) : plain}) {
+        Vec3 proposal = centroid - (centroid - old).dot(n) * n;
+        if (!o_.place(v, proposal, n)) continue;
+        x_[v] = proposal;
+        if (o_.grid) snapped_[v] = o_.grid->quantize(proposal);
+        bool turned = false;
+        for (std::size_t i = 0; i < around.size(); ++i) {
+          turned = turned || (facing[i] && !(normal(tris_[around[i]]).dot(n) > 0.0));
+        }
+        const Score after = score(around);
+        x_[v] = old;
+        if (o_.grid) snapped_[v] = old_snapped;
+        if (!turned && after.better_than(before) && (!best || after.better_than(*best))) {
+          best_vertex = v;
+          best_position = proposal;
+          best = after;
+        }
+      }
+    }
+    if (best_vertex == kDead) return false;
+    x_[best_vertex] = best_position;
+    if (o_.grid) snapped_[best_vertex] = o_.grid->quantize(best_position);
+    for (const std::uint32_t s : adj().of(best_vertex)) changed.push_back(s);
+    ++moves_;
+    return true;
+  }
+
   // One flip that gives v a neighbour more: an edge of v's link (opposite v in one of its triangles, neither triangle
   // being t or across an edge of t) turned towards v, when it makes no bad triangle. When that flip would take one of
   // its ends below the floor, that end is raised first the same way, `depth` levels deep.
@@ -418,7 +500,7 @@ class Repair {
     tris_.resize(kept);
   }
 
-  std::int64_t flips_ = 0, collapses_ = 0;
+  std::int64_t flips_ = 0, collapses_ = 0, moves_ = 0;
 
  private:
   Mesh& mesh_;
@@ -494,6 +576,7 @@ SliverReport repair_slivers(Mesh& mesh, const SliverOptions& options, const RunC
   for (const std::uint32_t t : candidates) report.remaining += repair.bad(mesh.triangles[t]);
   report.flips = repair.flips_;
   report.collapses = repair.collapses_;
+  report.moves = repair.moves_;
   repair.compact();
   return report;
 }

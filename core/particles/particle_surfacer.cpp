@@ -1003,6 +1003,16 @@ class Smoother {
     control.report("erosion", 1.0);
   }
 
+  // Moves x into the band along n (or, when no point of that line within reach is faithful, to the band's nearest
+  // point), then into the container; for the sliver repair's vertex moves, false when x does not end faithful (a
+  // container wall in the way).
+  bool place_in_band(Vec3& x, const Vec3& n) const {
+    BandScratch scratch;
+    project_along(x, n, scratch);
+    if (container_.active()) container_.project(x);
+    return P_.faithful(P_.weighted ? P_.violation(x) : P_.violation_uniform(x));
+  }
+
   // The figures of the final surface.
   void finish(ParticleSurfacingStats& stats) {
     if (o_.erosion && *o_.erosion > 0.0) {
@@ -1397,10 +1407,15 @@ void ParticleSurfacer::State::smooth(Mesh& mesh, int threads, const RunControl& 
     slivers.min_angle_degrees = o.min_angle_degrees;
     slivers.grid = o.output_grid;
     slivers.threads = threads;
+    // A vertex the repair moves lands in the band again (not after erosion, which leaves it on purpose).
+    if (!(o.erosion && *o.erosion > 0.0)) {
+      slivers.place = [&smoother](std::uint32_t, Vec3& x, const Vec3& n) { return smoother.place_in_band(x, n); };
+    }
     const SliverReport r = repair_slivers(mesh, slivers, control);
     stats.slivers_found = r.candidates;
     stats.sliver_flips = r.flips;
     stats.sliver_collapses = r.collapses;
+    stats.sliver_moves = r.moves;
     stats.slivers_left = r.remaining;
     stats.seconds_cleanup = seconds_since(t0);
     control.report("cleanup", 1.0);

@@ -271,6 +271,51 @@ TEST(MeshRepair, KeepsTheValenceFloor) {
   }
 }
 
+// On an icosahedron every vertex has valence 5: every flip and collapse would take one below the floor. A needle there
+// is repaired only by moving a vertex, and only where `place` allows it (here: back onto the sphere).
+TEST(MeshRepair, MovesAVertexWhereTheValenceFloorBlocksEveryFlipAndCollapse) {
+  for (const double closeness : {1e-2, 1e-4, 1e-6}) {
+    for (std::uint32_t v = 0; v < 12; v += 5) {
+      SCOPED_TRACE(::testing::Message() << "closeness " << closeness << ", vertex " << v);
+      Mesh needle = testing::icosphere(0);
+      const Triangle& t = *std::find_if(needle.triangles.begin(), needle.triangles.end(),
+                                        [v](const Triangle& t) { return t[0] == v || t[1] == v || t[2] == v; });
+      const std::uint32_t w = t[0] == v ? t[1] : t[0];
+      needle.vertices[v] = (needle.vertices[w] + closeness * (needle.vertices[v] - needle.vertices[w])).normalized();
+      ASSERT_GT(count_below(needle, 1.0), 0);
+
+      Mesh fixed_in_place = needle;
+      const SliverReport stuck = repair_slivers(fixed_in_place, {});
+      EXPECT_EQ(stuck.flips + stuck.collapses + stuck.moves, 0);
+      EXPECT_GT(stuck.remaining, 0);
+      EXPECT_EQ(fixed_in_place.vertices, needle.vertices);
+
+      SliverOptions refuse;
+      refuse.place = [](std::uint32_t, Vec3&, const Vec3&) { return false; };
+      Mesh refused = needle;
+      EXPECT_GT(repair_slivers(refused, refuse).remaining, 0);
+      EXPECT_EQ(refused.vertices, needle.vertices);
+
+      SliverOptions on_sphere;
+      on_sphere.place = [](std::uint32_t, Vec3& x, const Vec3& n) {
+        EXPECT_NEAR(n.norm(), 1.0, 1e-12);
+        x.normalize();
+        return true;
+      };
+      Mesh moved = needle;
+      const SliverReport r = repair_slivers(moved, on_sphere);
+      EXPECT_EQ(r.remaining, 0);
+      EXPECT_GT(r.moves, 0);
+      EXPECT_EQ(count_below(moved, 1.0), 0);
+      for (const Vec3& x : moved.vertices) EXPECT_NEAR(x.norm(), 1.0, 1e-12);
+      const MeshReport report = check_mesh(moved);
+      EXPECT_TRUE(testing::mesh_has(report, testing::kClosedManifold | testing::kPositiveVolume));
+      EXPECT_EQ(report.min_valence, 5);
+      EXPECT_EQ(moved.triangles, needle.triangles);  // no flip, no collapse
+    }
+  }
+}
+
 TEST(MeshRepair, StopsWhenCancelled) {
   Mesh m = sphere_with_slivers(2, 8, 1e-4, true, true);
   CancelToken token;
