@@ -765,6 +765,87 @@ double derive_r_inner(std::span<const Vec3> points, int threads, const RunContro
   return mean;
 }
 
+// Whether p lies inside the closed triangle set `faces` of `x`: its winding number (the solid angles its triangles
+// subtend from p, summed: 4 pi inside an outward surface, -4 pi inside an inward one, 0 outside) is away from 0.
+bool encloses(std::span<const Vec3> x, std::span<const Triangle> faces, const Vec3& p) {
+  double solid_angle = 0.0;
+  for (const Triangle& t : faces) {
+    const Vec3 a = x[t[0]] - p, b = x[t[1]] - p, c = x[t[2]] - p;
+    const double la = a.norm(), lb = b.norm(), lc = c.norm();
+    const double det = a.dot(b.cross(c));
+    const double div = la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la;
+    solid_angle += 2.0 * std::atan2(det, div);  // Van Oosterom and Strackee
+  }
+  return std::abs(solid_angle) > 2.0 * 3.14159265358979323846;
+}
+
+// Drops the closed components of the mesh that span less than `span` on every axis and enclose no particle: bubbles,
+// voids among the outer balls, below the size of a particle (docs/ALGORITHMS.md §1, CHOICE "sub-particle bubbles").
+// Returns how many; the other vertices and triangles keep their order.
+std::size_t drop_bubbles(Mesh& mesh, const Particles& P, double span) {
+  const std::size_t nv = mesh.vertices.size();
+  std::vector<std::uint32_t> root(nv);
+  std::iota(root.begin(), root.end(), 0u);
+  const auto find = [&root](std::uint32_t v) {
+    while (root[v] != v) v = root[v] = root[root[v]];
+    return v;
+  };
+  for (const Triangle& t : mesh.triangles) {
+    for (int k = 1; k < 3; ++k) {
+      const std::uint32_t a = find(t[0]), b = find(t[k]);
+      if (a != b) root[std::max(a, b)] = std::min(a, b);
+    }
+  }
+  std::vector<Aabb> box(nv, Aabb::empty());
+  for (std::uint32_t v = 0; v < nv; ++v) box[find(v)].merge(mesh.vertices[v]);
+  // The small components, by root; their triangles gathered in one pass.
+  std::vector<std::int32_t> small(nv, -1);
+  std::vector<std::uint32_t> roots;
+  for (std::uint32_t v = 0; v < nv; ++v) {
+    if (root[v] == v && box[v].valid() && (box[v].size().array() < span).all()) {
+      small[v] = static_cast<std::int32_t>(roots.size());
+      roots.push_back(v);
+    }
+  }
+  if (roots.empty()) return 0;
+  std::vector<std::vector<Triangle>> faces(roots.size());
+  for (const Triangle& t : mesh.triangles) {
+    if (const std::int32_t c = small[find(t[0])]; c >= 0) faces[c].push_back(t);
+  }
+  std::vector<char> drop(roots.size(), 0);
+  std::size_t dropped = 0;
+  const std::span<const Vec3> pts = P.hash.sorted_points();
+  for (std::size_t c = 0; c < roots.size(); ++c) {
+    const Aabb& b = box[roots[c]];
+    bool holds = false;
+    P.hash.for_each_range(b.min.array(), b.max.array(), [&](std::uint32_t begin, std::uint32_t end) {
+      for (std::uint32_t s = begin; s < end && !holds; ++s) {
+        holds = b.contains(pts[s]) && encloses(mesh.vertices, faces[c], pts[s]);
+      }
+    });
+    if (!holds) {
+      drop[c] = 1;
+      ++dropped;
+    }
+  }
+  if (dropped == 0) return 0;
+  std::vector<std::uint32_t> remap(nv, std::numeric_limits<std::uint32_t>::max());
+  std::uint32_t kept = 0;
+  for (std::uint32_t v = 0; v < nv; ++v) {
+    const std::int32_t c = small[find(v)];
+    if (c >= 0 && drop[c]) continue;
+    mesh.vertices[kept] = mesh.vertices[v];
+    remap[v] = kept++;
+  }
+  mesh.vertices.resize(kept);
+  std::erase_if(mesh.triangles,
+                [&](const Triangle& t) { return remap[t[0]] == std::numeric_limits<std::uint32_t>::max(); });
+  for (Triangle& t : mesh.triangles) {
+    for (std::uint32_t& v : t) v = remap[v];
+  }
+  return dropped;
+}
+
 // Union-find over particles whose r_outer balls overlap; returns the kept flags and the number of dropped clusters.
 // Its own spatial hash with cells of the largest reach (2 max r_outer), so a query touches at most 27 cells even for
 // scattered spray.
@@ -1401,6 +1482,7 @@ void ParticleSurfacer::State::smooth(Mesh& mesh, int threads, const RunControl& 
     stats.seconds_erosion = seconds_since(t0);
   }
   smoother.finish(stats);
+  stats.bubbles_dropped = drop_bubbles(mesh, particles, 2.0 * particles.min_inner);
   if (o.min_angle_degrees > 0.0 || o.output_grid) {
     t0 = Clock::now();
     SliverOptions slivers;

@@ -60,6 +60,7 @@ class ParticlesRunner final : public JobRunner {
     metrics["slivers_found"] = static_cast<double>(stats.slivers_found);
     metrics["slivers_left"] = static_cast<double>(stats.slivers_left);
     metrics["cusp_vertices"] = static_cast<double>(stats.cusp_vertices);
+    metrics["bubbles_dropped"] = static_cast<double>(stats.bubbles_dropped);
     sink.emit(index, std::move(frame));
   }
 
