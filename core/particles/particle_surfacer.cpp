@@ -368,12 +368,12 @@ struct Particles {
       return;
     }
   }
-  // Whether x is faithful (up to kBandTolerance): a bounded search, which stops at a particle inside r_inner.
+  // Whether x is faithful (up to kBandTolerance): no particle within r_inner, one within r_outer (the search stops at
+  // the first it finds).
   bool in_band(const Vec3& x) const {
     if (weighted) return faithful(violation(x));
-    const double lo = r_inner * (1.0 - kBandTolerance), hi = r_outer * (1.0 + kBandTolerance);
-    const double d = hash.bounded_distance(x, hi, lo);
-    return d >= lo && d <= hi;
+    return !hash.any_within(x, r_inner * (1.0 - kBandTolerance)) &&
+           hash.any_within(x, std::nextafter(r_outer * (1.0 + kBandTolerance), kInf));
   }
   double violation_uniform(const Vec3& x) const {
     const double d = nearest(x).distance;
