@@ -222,6 +222,24 @@ struct Particles {
   }
   bool faithful(double violation) const { return violation <= kFaithfulTolerance * (weighted ? max_outer : r_outer); }
 
+  // add(p, inner, outer) for every particle whose outer sphere can meet the segment x + t n, |t| <= reach, or lies
+  // within cell of x (and a few more): the particles of a box around both.
+  template <class Add>
+  void for_each_near_line(const Vec3& x, const Vec3& n, double reach, double cell, Add&& add) const {
+    const double radius = weighted ? max_outer : r_outer;
+    const Eigen::Array3d half = (reach * n.array().abs()).max(cell) + radius;
+    const std::span<const Vec3> pts = hash.sorted_points();
+    hash.for_each_range(x.array() - half, x.array() + half, [&](std::uint32_t begin, std::uint32_t end) {
+      for (std::uint32_t slot = begin; slot < end; ++slot) {
+        if (weighted) {
+          add(pts[slot], slot_inner[slot], slot_outer[slot]);
+        } else {
+          add(pts[slot], r_inner, r_outer);
+        }
+      }
+    });
+  }
+
   // The offsets t (|t| <= reach) for which x + t n stays faithful, as the interval around t = 0 (x itself is faithful
   // up to kBandTolerance). Along the line, the particles' outer balls allow t in a union of intervals and their inner
   // balls forbid t in others; every particle that can matter lies within max_outer + reach of x. Exact.
@@ -257,20 +275,7 @@ struct Particles {
         }
       }
     };
-    // The particles whose outer sphere can meet the segment x + t n, |t| <= reach, or lies within cell of x: a box
-    // around both.
-    const double radius = weighted ? max_outer : r_outer;
-    const Eigen::Array3d half = (reach * n.array().abs()).max(cell) + radius;
-    const std::span<const Vec3> pts = hash.sorted_points();
-    hash.for_each_range(x.array() - half, x.array() + half, [&](std::uint32_t begin, std::uint32_t end) {
-      for (std::uint32_t slot = begin; slot < end; ++slot) {
-        if (weighted) {
-          add(pts[slot], slot_inner[slot], slot_outer[slot]);
-        } else {
-          add(pts[slot], r_inner, r_outer);
-        }
-      }
-    });
+    for_each_near_line(x, n, reach, cell, add);
     // The piece of the union of the allowed intervals that holds 0: the intervals holding 0, then grown by every
     // interval that meets it until none does (no sort: a few passes over a short list). Absorbed intervals are
     // swapped to the front.
@@ -326,18 +331,7 @@ struct Particles {
         ends.insert(ends.end(), {-b - exact, -b + exact});
       }
     };
-    const double radius = weighted ? max_outer : r_outer;
-    const Eigen::Array3d half = reach * n.array().abs() + radius;
-    const std::span<const Vec3> pts = hash.sorted_points();
-    hash.for_each_range(x.array() - half, x.array() + half, [&](std::uint32_t begin, std::uint32_t end) {
-      for (std::uint32_t slot = begin; slot < end; ++slot) {
-        if (weighted) {
-          add(pts[slot], slot_inner[slot], slot_outer[slot]);
-        } else {
-          add(pts[slot], r_inner, r_outer);
-        }
-      }
-    });
+    for_each_near_line(x, n, reach, 0.0, add);
     const auto faithful_at = [&](double t) {
       const auto holds = [t](const Interval& c) { return c.lo <= t && t <= c.hi; };
       const auto inside = [t](const Interval& c) { return c.lo < t && t < c.hi; };

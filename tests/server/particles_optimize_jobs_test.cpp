@@ -145,21 +145,29 @@ TEST(ParticlesJob, DerivedRadiusKeepsTheSurfaceInsideTheQuantizationBox) {
   EXPECT_TRUE(check_mesh(decode_draco(result.frames.at(0).bytes)).closed);
 }
 
+// One particles job over an uploaded frame at r_inner, with `set` applied to its spec; its watched result.
+template <class Set>
+auto run_particles_job(LoopbackServer& s, const std::string& upload_id, double r_inner, Set&& set) {
+  v1::JobSpec spec;
+  spec.mutable_particles()->add_frames()->set_upload_id(upload_id);
+  spec.mutable_particles()->set_r_inner(r_inner);
+  set(*spec.mutable_particles());
+  std::string id;
+  EXPECT_TRUE(submit(*s.stub, spec, &id).ok());
+  auto result = watch_job(*s.stub, id);
+  EXPECT_EQ(result.frames.size(), 1u) << result.final_job.error().message();
+  return result;
+}
+
 // The thesis' polish on request: without the final projection some vertices end outside the band, as reported;
 // by default none does.
 TEST(ParticlesJob, UnconstrainedPolishIsTheThesisPolish) {
   LoopbackServer s;
-  const std::vector<Vec3> ball = particle_ball(Vec3(0, 0, 0), 0.3, 0.05, 4);
-  const std::string id_of_ball = upload(*s.stub, as_float32(ball));
+  const std::string ball = upload(*s.stub, as_float32(particle_ball(Vec3(0, 0, 0), 0.3, 0.05, 4)));
   auto faithful_final = [&](bool unconstrained) {
-    v1::JobSpec spec;
-    spec.mutable_particles()->add_frames()->set_upload_id(id_of_ball);
-    spec.mutable_particles()->set_r_inner(0.05);
-    if (unconstrained) spec.mutable_particles()->set_unconstrained_polish(true);
-    std::string id;
-    EXPECT_TRUE(submit(*s.stub, spec, &id).ok());
-    const auto result = watch_job(*s.stub, id);
-    EXPECT_EQ(result.frames.size(), 1u) << result.final_job.error().message();
+    const auto result = run_particles_job(s, ball, 0.05, [&](v1::ParticlesJob& job) {
+      if (unconstrained) job.set_unconstrained_polish(true);
+    });
     return result.frames.empty() ? -1.0 : result.frames.at(0).header.stats().metrics().at("faithful_fraction_final");
   };
   EXPECT_EQ(faithful_final(false), 1.0);
@@ -170,20 +178,9 @@ TEST(ParticlesJob, UnconstrainedPolishIsTheThesisPolish) {
 // (the frame metric counts the vertices they lowered).
 TEST(ParticlesJob, VertexOnlyBandIsTheThesisBand) {
   LoopbackServer s;
-  const std::vector<Vec3> ball = particle_ball(Vec3(0, 0, 0), 0.3, 0.05, 4);
-  const std::string id_of_ball = upload(*s.stub, as_float32(ball));
-  auto run = [&](bool vertex_only_band) {
-    v1::JobSpec spec;
-    spec.mutable_particles()->add_frames()->set_upload_id(id_of_ball);
-    spec.mutable_particles()->set_r_inner(0.03);
-    if (vertex_only_band) spec.mutable_particles()->set_vertex_only_band(true);
-    std::string id;
-    EXPECT_TRUE(submit(*s.stub, spec, &id).ok());
-    auto result = watch_job(*s.stub, id);
-    EXPECT_EQ(result.frames.size(), 1u) << result.final_job.error().message();
-    return result;
-  };
-  const auto held = run(false), thesis = run(true);
+  const std::string ball = upload(*s.stub, as_float32(particle_ball(Vec3(0, 0, 0), 0.3, 0.05, 4)));
+  const auto held = run_particles_job(s, ball, 0.03, [](v1::ParticlesJob&) {});
+  const auto thesis = run_particles_job(s, ball, 0.03, [](v1::ParticlesJob& job) { job.set_vertex_only_band(true); });
   ASSERT_EQ(held.frames.size(), 1u);
   ASSERT_EQ(thesis.frames.size(), 1u);
   const auto& held_metrics = held.frames.at(0).header.stats().metrics();
