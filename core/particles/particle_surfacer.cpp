@@ -790,27 +790,37 @@ std::size_t drop_bubbles(Mesh& mesh, const Particles& P, double span) {
       if (a != b) root[std::max(a, b)] = std::min(a, b);
     }
   }
-  std::vector<Aabb> box(nv, Aabb::empty());
-  for (std::uint32_t v = 0; v < nv; ++v) box[find(v)].merge(mesh.vertices[v]);
-  // The small components, by root; their triangles gathered in one pass.
-  std::vector<std::int32_t> small(nv, -1);
-  std::vector<std::uint32_t> roots;
+  // Components numbered in vertex order (a root is its component's smallest vertex), and their boxes.
+  std::vector<std::uint32_t>& component = root;  // root[v] becomes v's component number
+  std::vector<Aabb> box;
   for (std::uint32_t v = 0; v < nv; ++v) {
-    if (root[v] == v && box[v].valid() && (box[v].size().array() < span).all()) {
-      small[v] = static_cast<std::int32_t>(roots.size());
-      roots.push_back(v);
+    if (root[v] == v) {
+      component[v] = static_cast<std::uint32_t>(box.size());
+      box.push_back(Aabb::empty());
+    } else {
+      component[v] = component[root[v]];  // links point to smaller vertices: root[v] holds its number already
+    }
+    box[component[v]].merge(mesh.vertices[v]);
+  }
+  // The small ones, and their triangles, gathered in one pass.
+  std::vector<std::int32_t> small(box.size(), -1);
+  std::vector<std::uint32_t> smalls;
+  for (std::uint32_t c = 0; c < box.size(); ++c) {
+    if (box[c].valid() && (box[c].size().array() < span).all()) {
+      small[c] = static_cast<std::int32_t>(smalls.size());
+      smalls.push_back(c);
     }
   }
-  if (roots.empty()) return 0;
-  std::vector<std::vector<Triangle>> faces(roots.size());
+  if (smalls.empty()) return 0;
+  std::vector<std::vector<Triangle>> faces(smalls.size());
   for (const Triangle& t : mesh.triangles) {
-    if (const std::int32_t c = small[find(t[0])]; c >= 0) faces[c].push_back(t);
+    if (const std::int32_t c = small[component[t[0]]]; c >= 0) faces[c].push_back(t);
   }
-  std::vector<char> drop(roots.size(), 0);
+  std::vector<char> drop(smalls.size(), 0);
   std::size_t dropped = 0;
   const std::span<const Vec3> pts = P.hash.sorted_points();
-  for (std::size_t c = 0; c < roots.size(); ++c) {
-    const Aabb& b = box[roots[c]];
+  for (std::size_t c = 0; c < smalls.size(); ++c) {
+    const Aabb& b = box[smalls[c]];
     bool holds = false;
     P.hash.for_each_range(b.min.array(), b.max.array(), [&](std::uint32_t begin, std::uint32_t end) {
       for (std::uint32_t s = begin; s < end && !holds; ++s) {
@@ -826,7 +836,7 @@ std::size_t drop_bubbles(Mesh& mesh, const Particles& P, double span) {
   std::vector<std::uint32_t> remap(nv, std::numeric_limits<std::uint32_t>::max());
   std::uint32_t kept = 0;
   for (std::uint32_t v = 0; v < nv; ++v) {
-    const std::int32_t c = small[find(v)];
+    const std::int32_t c = small[component[v]];
     if (c >= 0 && drop[c]) continue;
     mesh.vertices[kept] = mesh.vertices[v];
     remap[v] = kept++;
@@ -1476,9 +1486,10 @@ void ParticleSurfacer::State::smooth(Mesh& mesh, int threads, const RunControl& 
     stats.seconds_erosion = seconds_since(t0);
   }
   smoother.finish(stats);
+  t0 = Clock::now();
+  control.check();
   stats.bubbles_dropped = drop_bubbles(mesh, particles, 2.0 * particles.min_inner);
   if (o.min_angle_degrees > 0.0 || o.output_grid) {
-    t0 = Clock::now();
     SliverOptions slivers;
     slivers.min_angle_degrees = o.min_angle_degrees;
     slivers.grid = o.output_grid;
@@ -1493,9 +1504,9 @@ void ParticleSurfacer::State::smooth(Mesh& mesh, int threads, const RunControl& 
     stats.sliver_collapses = r.collapses;
     stats.sliver_moves = r.moves;
     stats.slivers_left = r.remaining;
-    stats.seconds_cleanup = seconds_since(t0);
-    control.report("cleanup", 1.0);
   }
+  stats.seconds_cleanup = seconds_since(t0);
+  control.report("cleanup", 1.0);
   if (o.normals) mesh.normals = ps::vertex_normals(mesh.vertices, mesh.triangles, threads);
 }
 
