@@ -75,9 +75,14 @@ struct HeldCusp {
 struct BandScratch {
   std::vector<Interval> allowed, forbidden;
   std::vector<double> ends;
+  // The particles whose outer balls meet a line: t along it of the foot (-b) and squared distance c, and their radii.
+  struct Chord {
+    double b, c, inner, outer;
+  };
+  std::vector<Chord> chords;
   // The outer balls within their radius + cell of the vertex: those whose sphere passes within cell of it, and those
-  // deeper around it.
-  std::vector<Ball> spheres, deeper;
+  // deeper around it; and, while they are sorted out, every ball that can be either for a point of the segment.
+  std::vector<Ball> spheres, deeper, near;
 };
 
 // The lowest cusp a vertex x (unit normal n, Voronoi cell within `cell` of x) holds below: a point q where three outer
@@ -222,12 +227,12 @@ struct Particles {
   }
   bool faithful(double violation) const { return violation <= kFaithfulTolerance * (weighted ? max_outer : r_outer); }
 
-  // add(p, inner, outer) for every particle whose outer sphere can meet the segment x + t n, |t| <= reach, or lies
-  // within cell of x (and a few more): the particles of a box around both.
+  // add(p, inner, outer) for every particle whose outer sphere passes within cell of the segment x + t n, |t| <= reach
+  // (and a few more): the particles of a box around it.
   template <class Add>
   void for_each_near_line(const Vec3& x, const Vec3& n, double reach, double cell, Add&& add) const {
     const double radius = weighted ? max_outer : r_outer;
-    const Eigen::Array3d half = (reach * n.array().abs()).max(cell) + radius;
+    const Eigen::Array3d half = reach * n.array().abs() + cell + radius;
     const std::span<const Vec3> pts = hash.sorted_points();
     hash.for_each_range(x.array() - half, x.array() + half, [&](std::uint32_t begin, std::uint32_t end) {
       for (std::uint32_t slot = begin; slot < end; ++slot) {
@@ -240,112 +245,117 @@ struct Particles {
     });
   }
 
-  // The offsets t (|t| <= reach) for which x + t n stays faithful, as the interval around t = 0 (x itself is faithful
-  // up to kBandTolerance). Along the line, the particles' outer balls allow t in a union of intervals and their inner
-  // balls forbid t in others; every particle that can matter lies within max_outer + reach of x. Exact.
-  // When cell > 0, scratch.spheres and scratch.deeper receive the outer balls lowest_cusp needs.
-  Interval band_interval(const Vec3& x, const Vec3& n, double reach, double cell, BandScratch& scratch) const {
+  // The band along the line x + t n (|t| <= reach) at its faithful point nearest to x: that point's offset `at`, and
+  // the offsets around it for which the line stays faithful, as an interval relative to it; nullopt when no point of
+  // the line within reach is faithful. Along the line the particles' outer balls allow t in a union of closed
+  // intervals (chords) and their inner balls forbid t in open ones; every particle that can matter lies within
+  // max_outer + reach of x. `at` is 0 when x is faithful, else an end of one of the chords (the nearest point of such
+  // a union to 0 is one), taken on the sphere itself, inside the tolerance the chords allow. Exact. When cell > 0,
+  // scratch.spheres and scratch.deeper receive the outer balls lowest_cusp needs around the faithful point.
+  struct LineBand {
+    double at = 0.0;
+    Interval band;
+  };
+  std::optional<LineBand> band_on_line(const Vec3& x, const Vec3& n, double reach, double cell,
+                                       BandScratch& scratch) const {
     std::vector<Interval>& allowed = scratch.allowed;
+    std::vector<Interval>& forbidden = scratch.forbidden;
+    std::vector<double>& ends = scratch.ends;
+    std::vector<BandScratch::Chord>& chords = scratch.chords;
+    chords.clear();
     allowed.clear();
+    forbidden.clear();
+    ends.clear();
     scratch.spheres.clear();
     scratch.deeper.clear();
-    double lo_in = -reach, hi_in = reach;  // bounds from the nearest forbidden (inner) intervals
+    scratch.near.clear();
     auto add = [&](const Vec3& p, double inner, double outer) {
       const Vec3 q = x - p;
       const double q2 = q.squaredNorm();
-      if (cell > 0.0 && q2 <= (outer + cell) * (outer + cell)) {
-        (q2 >= (outer - cell) * (outer - cell) ? scratch.spheres : scratch.deeper).push_back({p, outer});
-      }
       const double b = n.dot(q), c = q2 - b * b;  // t along the line, c: squared distance of p to it
+      // A ball within its radius + cell of a point of the line.
+      if (cell > 0.0 && c <= (outer + cell) * (outer + cell)) scratch.near.push_back({p, outer});
       const double ro = outer * (1.0 + kBandTolerance), ri = inner * (1.0 - kBandTolerance);
       if (c < ro * ro) {
         const double h = std::sqrt(ro * ro - c);
         allowed.push_back({-b - h, -b + h});
-      }
-      if (c < ri * ri) {
-        const double h = std::sqrt(ri * ri - c);
-        const double a = -b - h, e = -b + h;  // open interval (a, e) forbidden
-        if (a >= 0.0) {
-          hi_in = std::min(hi_in, a);
-        } else if (e <= 0.0) {
-          lo_in = std::max(lo_in, e);
-        } else {  // 0 inside an inner ball: only a rounding-level violation can get here
-          hi_in = std::min(hi_in, 0.0);
-          lo_in = std::max(lo_in, 0.0);
-        }
+        if (c < ri * ri) forbidden.push_back({-b - std::sqrt(ri * ri - c), -b + std::sqrt(ri * ri - c)});  // open
+        chords.push_back({b, c, inner, outer});
       }
     };
     for_each_near_line(x, n, reach, cell, add);
-    // The piece of the union of the allowed intervals that holds 0: the intervals holding 0, then grown by every
+    const auto faithful_at = [&](double t) {
+      const auto holds = [t](const Interval& c) { return c.lo <= t && t <= c.hi; };
+      const auto inside = [t](const Interval& c) { return c.lo < t && t < c.hi; };
+      return std::any_of(allowed.begin(), allowed.end(), holds) &&
+             std::none_of(forbidden.begin(), forbidden.end(), inside);
+    };
+    LineBand line;
+    if (!faithful_at(0.0)) {
+      // The candidates: the ends of every chord on the spheres themselves (inside the tolerance faithful_at allows).
+      for (const BandScratch::Chord& k : chords) {
+        const double outer = std::sqrt(std::max(0.0, k.outer * k.outer - k.c));
+        ends.insert(ends.end(), {-k.b - outer, -k.b + outer});
+        if (k.c < k.inner * k.inner) {
+          const double inner = std::sqrt(k.inner * k.inner - k.c);
+          ends.insert(ends.end(), {-k.b - inner, -k.b + inner});
+        }
+      }
+      std::erase_if(ends, [reach](double t) { return !(std::abs(t) <= reach); });
+      std::sort(ends.begin(), ends.end(),
+                [](double a, double b) { return std::abs(a) < std::abs(b) || (std::abs(a) == std::abs(b) && a < b); });
+      const auto it = std::find_if(ends.begin(), ends.end(), faithful_at);
+      if (it == ends.end()) return std::nullopt;
+      line.at = *it;
+    }
+    const double at = line.at;
+    // The piece of the union of the allowed intervals that holds `at`: the intervals holding it, then grown by every
     // interval that meets it until none does (no sort: a few passes over a short list). Absorbed intervals are
-    // swapped to the front.
+    // swapped to the front. The nearest forbidden intervals on either side bound it.
     Interval piece{0.0, -1.0};  // empty
     std::size_t absorbed = 0;
     for (std::size_t k = 0; k < allowed.size(); ++k) {
-      if (allowed[k].lo <= 0.0 && allowed[k].hi >= 0.0) {
+      if (allowed[k].lo <= at && allowed[k].hi >= at) {
         piece =
             absorbed == 0 ? allowed[k] : Interval{std::min(piece.lo, allowed[k].lo), std::max(piece.hi, allowed[k].hi)};
         std::swap(allowed[absorbed++], allowed[k]);
       }
     }
-    if (absorbed == 0) return {0.0, 0.0};
-    for (bool grew = true; grew;) {
-      grew = false;
-      for (std::size_t k = absorbed; k < allowed.size(); ++k) {
-        if (allowed[k].lo <= piece.hi && allowed[k].hi >= piece.lo) {
-          piece.lo = std::min(piece.lo, allowed[k].lo);
-          piece.hi = std::max(piece.hi, allowed[k].hi);
-          std::swap(allowed[absorbed++], allowed[k]);
-          grew = true;
+    if (absorbed == 0) {
+      line.band = {0.0, 0.0};
+    } else {
+      for (bool grew = true; grew;) {
+        grew = false;
+        for (std::size_t k = absorbed; k < allowed.size(); ++k) {
+          if (allowed[k].lo <= piece.hi && allowed[k].hi >= piece.lo) {
+            piece.lo = std::min(piece.lo, allowed[k].lo);
+            piece.hi = std::max(piece.hi, allowed[k].hi);
+            std::swap(allowed[absorbed++], allowed[k]);
+            grew = true;
+          }
         }
       }
-    }
-    return {std::max({piece.lo, lo_in, -reach}), std::min({piece.hi, hi_in, reach})};
-  }
-
-  // The offset t nearest to 0 (|t| <= reach) for which x + t n is faithful: 0 when x is, else an end of a ball's chord
-  // of the line (the nearest faithful point of a union of closed outer chords minus open inner ones is one of their
-  // ends); nullopt when no t within reach is faithful. Exact, like band_interval: the ends are taken on the spheres
-  // themselves, inside the tolerance that band_interval then allows.
-  std::optional<double> faithful_offset(const Vec3& x, const Vec3& n, double reach, BandScratch& scratch) const {
-    std::vector<Interval>& outer_chords = scratch.allowed;
-    std::vector<Interval>& inner_chords = scratch.forbidden;
-    std::vector<double>& ends = scratch.ends;
-    outer_chords.clear();
-    inner_chords.clear();
-    ends.clear();
-    auto add = [&](const Vec3& p, double inner, double outer) {
-      const Vec3 q = x - p;
-      const double b = n.dot(q), c = q.squaredNorm() - b * b;
-      const double ro = outer * (1.0 + kBandTolerance), ri = inner * (1.0 - kBandTolerance);
-      if (c < ro * ro) {
-        const double h = std::sqrt(ro * ro - c);
-        outer_chords.push_back({-b - h, -b + h});
-        const double exact = std::sqrt(std::max(0.0, outer * outer - c));
-        ends.insert(ends.end(), {-b - exact, -b + exact});
+      double lo_in = -reach, hi_in = reach;
+      for (const Interval& f : forbidden) {
+        if (f.lo >= at) {
+          hi_in = std::min(hi_in, f.lo);
+        } else if (f.hi <= at) {
+          lo_in = std::max(lo_in, f.hi);
+        } else {  // `at` inside an inner ball: only a rounding-level violation can get here
+          hi_in = std::min(hi_in, at);
+          lo_in = std::max(lo_in, at);
+        }
       }
-      if (c < inner * inner) {
-        const double h = std::sqrt(std::max(0.0, ri * ri - c));
-        inner_chords.push_back({-b - h, -b + h});
-        const double exact = std::sqrt(inner * inner - c);
-        ends.insert(ends.end(), {-b - exact, -b + exact});
-      }
-    };
-    for_each_near_line(x, n, reach, 0.0, add);
-    const auto faithful_at = [&](double t) {
-      const auto holds = [t](const Interval& c) { return c.lo <= t && t <= c.hi; };
-      const auto inside = [t](const Interval& c) { return c.lo < t && t < c.hi; };
-      return std::any_of(outer_chords.begin(), outer_chords.end(), holds) &&
-             std::none_of(inner_chords.begin(), inner_chords.end(), inside);
-    };
-    if (faithful_at(0.0)) return 0.0;
-    std::erase_if(ends, [reach](double t) { return !(std::abs(t) <= reach); });
-    std::sort(ends.begin(), ends.end(),
-              [](double a, double b) { return std::abs(a) < std::abs(b) || (std::abs(a) == std::abs(b) && a < b); });
-    for (const double t : ends) {
-      if (faithful_at(t)) return t;
+      line.band = {std::max({piece.lo, lo_in, -reach}) - at, std::min({piece.hi, hi_in, reach}) - at};
     }
-    return std::nullopt;
+    // The balls lowest_cusp needs around the faithful point.
+    const Vec3 point = x + at * n;
+    for (const Ball& ball : scratch.near) {
+      const double d2 = (point - ball.centre).squaredNorm();
+      if (d2 > (ball.radius + cell) * (ball.radius + cell)) continue;
+      (d2 >= (ball.radius - cell) * (ball.radius - cell) ? scratch.spheres : scratch.deeper).push_back(ball);
+    }
+    return line;
   }
 
   // Uniform radii: moves x into the faithful band (see the header): out of the nearest inner ball (again while the
@@ -361,13 +371,6 @@ struct Particles {
       if (n.distance > r_outer * (1.0 + kBandTolerance)) x = p + (x - p) * (r_outer / n.distance);
       return;
     }
-  }
-  // Whether x is faithful (up to kBandTolerance): no particle within r_inner, one within r_outer (the search stops at
-  // the first it finds).
-  bool in_band(const Vec3& x) const {
-    if (weighted) return faithful(violation(x));
-    return !hash.any_within(x, r_inner * (1.0 - kBandTolerance)) &&
-           hash.any_within(x, std::nextafter(r_outer * (1.0 + kBandTolerance), kInf));
   }
   double violation_uniform(const Vec3& x) const {
     const double d = nearest(x).distance;
@@ -989,7 +992,7 @@ constexpr double kFieldBandSpacings = 1.25;
 // The smoothing stages over one mesh (thesis Fig. 3.2, steps 3-7). The Laplacian stage moves vertices freely (its
 // point is to even out the triangles) and projects them into the band once at its end; from then on every vertex
 // moves along its normal only, x = x0 + t n, and the band becomes one interval of t per vertex, computed exactly once
-// (Particles::band_interval), so the constrained sweeps clamp instead of searching for particles (docs/ALGORITHMS.md
+// (Particles::band_on_line), so the constrained sweeps clamp instead of searching for particles (docs/ALGORITHMS.md
 // §1, CHOICE "constrained stages along the normals").
 class Smoother {
  public:
@@ -1022,21 +1025,16 @@ class Smoother {
       control.report("laplacian", (s + 1.0) / o_.laplacian_sweeps);
     }
     control.check();
-    if (o_.vertex_only_band) {
-      constrain(true);
-    } else {
-      project_along_normals();
-    }
+    // The thesis' projection; else every vertex is brought into the band along its normal in step 4.
+    if (o_.vertex_only_band) constrain(true);
   }
 
-  // Step 4: every vertex's interval of the band along its normal, lowered below the cusps it holds, and the start
-  // moved onto the cusps' planes; then B = W^T D^-1 W (through W and D) of that start, for moves along the normals.
+  // Step 4 (with the end of step 3): the normals fixed; every vertex brought into the band along its normal, its
+  // interval of the band there, lowered below the cusps it holds, and the start moved onto the cusps' planes; then
+  // B = W^T D^-1 W (through W and D) of that start, for moves along the normals.
   void build_b(const RunControl& control, ParticleSurfacingStats& stats) {
-    x0_.resize(n_);  // copied in parallel: first touched by the threads that use it
-    for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
-      std::copy(x_.begin() + begin, x_.begin() + end, x0_.begin() + begin);
-    });
-    if (o_.vertex_only_band) normals_ = smoothed_normals();  // else the projection's (step 3)
+    x0_.resize(n_);  // written in parallel by intervals(): first touched by the threads that use it
+    normals_ = smoothed_normals();
     intervals(control, stats);
     if (!o_.vertex_only_band) descend(control);
     smoothing_.emplace(ring_, ps::cotangent_laplacian(x0_, mesh_.triangles, ring_, threads_, control), x0_, normals_,
@@ -1124,10 +1122,13 @@ class Smoother {
     return out;
   }
 
-  // Every vertex's interval of offsets along its normal: the band's (exact, once), its upper end lowered below the
-  // lowest cusp the vertex holds (unless vertex_only_band), and the container box's; the constrained sweeps use
-  // their intersection. A vertex holds the cusps of its Voronoi cell among its 1-ring, whose reach is its longest
-  // 1-ring edge; the root mean square edge (summed per vertex, then in vertex order) sets the descent's passes.
+  // Every vertex's start x0, its line's faithful point nearest to where step 3 left it (docs/ALGORITHMS.md §1, CHOICE
+  // "projection along the normals"; the thesis' projection when the line has none within reach), then the container;
+  // and its interval of offsets along its normal there: the band's (exact, once), its upper end lowered below the
+  // lowest cusp the vertex holds (unless vertex_only_band), and the container box's; the constrained sweeps use their
+  // intersection. A vertex holds the cusps of its Voronoi cell among its 1-ring (as step 3 left them), within its
+  // longest 1-ring edge of its start; the root mean square edge (summed per vertex, then in vertex order) sets the
+  // descent's passes.
   void intervals(const RunControl& control, ParticleSurfacingStats& stats) {
     band_lo_.resize(n_);
     band_hi_.resize(n_);
@@ -1145,30 +1146,56 @@ class Smoother {
       BandScratch scratch;
       std::size_t lowered = 0;
       for (std::size_t i = begin; i < end; ++i) {
-        const Vec3& x = x0_[i];
+        const Vec3& at = x_[i];  // where step 3 left it
+        const Vec3& n = normals_[i];
         double cell = 0.0;
         if (cusps) {
           double sum = 0.0, longest = 0.0;  // squared lengths
           for (std::uint32_t e = ring_.offsets[i]; e < ring_.offsets[i + 1]; ++e) {
-            const double length2 = (x0_[ring_.cols[e]] - x).squaredNorm();
+            const double length2 = (x_[ring_.cols[e]] - at).squaredNorm();
             longest = std::max(longest, length2);
             sum += length2;
           }
           cell = std::sqrt(longest);
           edge_sum[i] = sum;
         }
-        const Interval band = P_.band_interval(x, normals_[i], reach, cell, scratch);
+        std::optional<Particles::LineBand> line = P_.band_on_line(at, n, reach, cell, scratch);
+        Vec3 x = at;
+        if (line) {
+          x += line->at * n;
+        } else {  // no faithful point of the line within reach: the thesis' projection
+          if (P_.weighted) {
+            P_.project(x);
+          } else {
+            P_.project_uniform(x);
+          }
+          line = P_.band_on_line(x, n, reach, cell, scratch);
+          if (!line || line->at != 0.0) line = Particles::LineBand{0.0, {0.0, 0.0}};  // the band is out of reach
+        }
+        if (container_.active()) {
+          Vec3 inside = x;
+          container_.project(inside);
+          if (inside != x) {  // the wall wins; no cusp is held there
+            x = inside;
+            line = P_.band_on_line(x, n, reach, 0.0, scratch);
+            if (!line || line->at != 0.0) line = Particles::LineBand{0.0, {0.0, 0.0}};
+            scratch.spheres.clear();
+            scratch.deeper.clear();
+          }
+        }
+        x0_[i] = x;
+        const Interval band = line->band;
         double hi = band.hi;
         if (cusps) {
-          // Owned by i: no 1-ring neighbour is nearer (a tie gives the cusp to both).
+          // Owned by i: no 1-ring neighbour is nearer, all as step 3 left them (a tie gives the cusp to both).
           const auto owns = [&](const Vec3& q) {
-            const double mine = (q - x).squaredNorm();
+            const double mine = (q - at).squaredNorm();
             for (std::uint32_t e = ring_.offsets[i]; e < ring_.offsets[i + 1]; ++e) {
-              if ((q - x0_[ring_.cols[e]]).squaredNorm() < mine) return false;
+              if ((q - x_[ring_.cols[e]]).squaredNorm() < mine) return false;
             }
             return true;
           };
-          const std::optional<HeldCusp> held = lowest_cusp(x, normals_[i], cell, scratch.spheres, scratch.deeper, owns);
+          const std::optional<HeldCusp> held = lowest_cusp(x, n, cell, scratch.spheres, scratch.deeper, owns);
           cusp_[i] = held ? held->plane : CuspPlane{};
           // A cusp below the inner edge: the vertex waits there (eq. 3.5 does not hold around it).
           if (held && held->bound < hi) {
@@ -1266,25 +1293,11 @@ class Smoother {
     max_violation = worst;
   }
 
-  // Step 3's projection (docs/ALGORITHMS.md §1, CHOICE "projection along the normals"): the smoothed normals of the
-  // Laplacian surface are fixed, and every vertex moves along its normal to the nearest faithful point of that line,
-  // then into the container.
-  void project_along_normals() {
-    normals_ = smoothed_normals();
-    for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
-      BandScratch scratch;
-      for (std::size_t i = begin; i < end; ++i) {
-        project_along(x_[i], normals_[i], scratch);
-        if (container_.active()) container_.project(x_[i]);
-      }
-    });
-  }
   // x to the nearest faithful point of the line x + t n, |t| <= reach; without one, the thesis' projection to the
   // band's nearest point.
   void project_along(Vec3& x, const Vec3& n, BandScratch& scratch) const {
-    if (P_.in_band(x)) return;  // most vertices: one bounded search instead of the line's chords
-    if (const std::optional<double> t = P_.faithful_offset(x, n, reach(), scratch)) {
-      x += *t * n;
+    if (const std::optional<Particles::LineBand> line = P_.band_on_line(x, n, reach(), 0.0, scratch)) {
+      x += line->at * n;
     } else if (P_.weighted) {
       P_.project(x);
     } else {

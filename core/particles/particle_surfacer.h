@@ -9,12 +9,13 @@
 //     the nearest particle, is sampled lazily where Marching Tiles visits. Never a dense global grid.
 //  2. Initial mesh: Marching Tiles (core/polygonize/marching_tiles.h) of f = 0, mean sample spacing h = spacing_factor
 //     * r_inner. Closed, oriented, minimum valence >= 5.
-//  3. laplacian_sweeps Gauss-Seidel sweeps on the uniform Laplacian energy (under-relaxed by `relaxation`); then a unit
-//     normal n per vertex is fixed and every vertex outside the band moves along it to the line's nearest faithful
-//     point (CHOICE "projection along the normals"; vertex_only_band: the thesis' projection to the nearest particle).
-//  4. The band along each normal is an exact interval of offsets t, its top lowered
-//     below the lowest cusp of the r_outer spheres the vertex holds, and the vertex moved onto the planes of the cusps
-//     around it, which fixes x0 (CHOICEs "cusps held", "a start on the cusps' planes"; not with vertex_only_band).
+//  3. laplacian_sweeps Gauss-Seidel sweeps on the uniform Laplacian energy (under-relaxed by `relaxation`)
+//     (vertex_only_band: then the thesis' projection of every vertex to the band's nearest point).
+//  4. A unit normal n per vertex fixed; every vertex outside the band moved along it to the line's nearest faithful
+//     point (CHOICE "projection along the normals"); the band along each normal an exact interval of offsets t, its
+//     top lowered below the lowest cusp of the r_outer spheres the vertex holds, and the vertex moved onto the planes
+//     of the cusps around it, which fixes x0 (CHOICEs "cusps held", "a start on the cusps' planes"; not with
+//     vertex_only_band).
 //  5. bilaplacian_sweeps projected SOR sweeps on |W (x0 + t n)|^2 over D (B = W^T D^-1 W, eq. 3.2, applied through W),
 //     each offset clamped into its interval: CHOICEs "constrained stages along the normals", "over-relaxed sweeps".
 //  6. polish_sweeps of the same clamped to the container only, then (unless unconstrained_polish) every offset clamped
