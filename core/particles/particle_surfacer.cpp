@@ -81,8 +81,8 @@ struct BandScratch {
   };
   std::vector<Chord> chords;
   // The outer balls within their radius + cell of the vertex: those whose sphere passes within cell of it, and those
-  // deeper around it; and, while they are sorted out, every ball that can be either for a point of the segment.
-  std::vector<Ball> spheres, deeper, near;
+  // deeper around it.
+  std::vector<Ball> spheres, deeper;
 };
 
 // The lowest cusp a vertex x (unit normal n, Voronoi cell within `cell` of x) holds below: a point q where three outer
@@ -227,12 +227,12 @@ struct Particles {
   }
   bool faithful(double violation) const { return violation <= kFaithfulTolerance * (weighted ? max_outer : r_outer); }
 
-  // add(p, inner, outer) for every particle whose outer sphere passes within cell of the segment x + t n, |t| <= reach
-  // (and a few more): the particles of a box around it.
+  // add(p, inner, outer) for every particle whose outer sphere can meet the segment x + t n, |t| <= reach (and a few
+  // more): the particles of a box around it.
   template <class Add>
-  void for_each_near_line(const Vec3& x, const Vec3& n, double reach, double cell, Add&& add) const {
+  void for_each_near_line(const Vec3& x, const Vec3& n, double reach, Add&& add) const {
     const double radius = weighted ? max_outer : r_outer;
-    const Eigen::Array3d half = reach * n.array().abs() + cell + radius;
+    const Eigen::Array3d half = reach * n.array().abs() + radius;
     const std::span<const Vec3> pts = hash.sorted_points();
     hash.for_each_range(x.array() - half, x.array() + half, [&](std::uint32_t begin, std::uint32_t end) {
       for (std::uint32_t slot = begin; slot < end; ++slot) {
@@ -268,13 +268,10 @@ struct Particles {
     ends.clear();
     scratch.spheres.clear();
     scratch.deeper.clear();
-    scratch.near.clear();
     auto add = [&](const Vec3& p, double inner, double outer) {
       const Vec3 q = x - p;
       const double q2 = q.squaredNorm();
       const double b = n.dot(q), c = q2 - b * b;  // t along the line, c: squared distance of p to it
-      // A ball within its radius + cell of a point of the line.
-      if (cell > 0.0 && c <= (outer + cell) * (outer + cell)) scratch.near.push_back({p, outer});
       const double ro = outer * (1.0 + kBandTolerance), ri = inner * (1.0 - kBandTolerance);
       if (c < ro * ro) {
         const double h = std::sqrt(ro * ro - c);
@@ -283,7 +280,7 @@ struct Particles {
         chords.push_back({b, c, inner, outer});
       }
     };
-    for_each_near_line(x, n, reach, cell, add);
+    for_each_near_line(x, n, reach, add);
     const auto faithful_at = [&](double t) {
       const auto holds = [t](const Interval& c) { return c.lo <= t && t <= c.hi; };
       const auto inside = [t](const Interval& c) { return c.lo < t && t < c.hi; };
@@ -302,11 +299,20 @@ struct Particles {
         }
       }
       std::erase_if(ends, [reach](double t) { return !(std::abs(t) <= reach); });
-      std::sort(ends.begin(), ends.end(),
-                [](double a, double b) { return std::abs(a) < std::abs(b) || (std::abs(a) == std::abs(b) && a < b); });
-      const auto it = std::find_if(ends.begin(), ends.end(), faithful_at);
-      if (it == ends.end()) return std::nullopt;
-      line.at = *it;
+      // The nearest first (ties: the lower), without sorting them all: mostly the first is faithful.
+      const auto nearer = [](double a, double b) {
+        return std::abs(a) < std::abs(b) || (std::abs(a) == std::abs(b) && a < b);
+      };
+      for (;;) {
+        if (ends.empty()) return std::nullopt;
+        const auto it = std::min_element(ends.begin(), ends.end(), nearer);
+        if (faithful_at(*it)) {
+          line.at = *it;
+          break;
+        }
+        *it = ends.back();
+        ends.pop_back();
+      }
     }
     const double at = line.at;
     // The piece of the union of the allowed intervals that holds `at`: the intervals holding it, then grown by every
@@ -348,14 +354,24 @@ struct Particles {
       }
       line.band = {std::max({piece.lo, lo_in, -reach}) - at, std::min({piece.hi, hi_in, reach}) - at};
     }
-    // The balls lowest_cusp needs around the faithful point.
-    const Vec3 point = x + at * n;
-    for (const Ball& ball : scratch.near) {
-      const double d2 = (point - ball.centre).squaredNorm();
-      if (d2 > (ball.radius + cell) * (ball.radius + cell)) continue;
-      (d2 >= (ball.radius - cell) * (ball.radius - cell) ? scratch.spheres : scratch.deeper).push_back(ball);
-    }
+    if (cell > 0.0) balls_near(x + at * n, cell, scratch);
     return line;
+  }
+
+  // Into scratch.spheres and scratch.deeper, the outer balls within their radius + cell of x, as lowest_cusp needs
+  // them: those whose sphere passes within cell of x, and the others.
+  void balls_near(const Vec3& x, double cell, BandScratch& scratch) const {
+    const double radius = weighted ? max_outer : r_outer;
+    const std::span<const Vec3> pts = hash.sorted_points();
+    hash.for_each_range(
+        x.array() - (radius + cell), x.array() + (radius + cell), [&](std::uint32_t begin, std::uint32_t end) {
+          for (std::uint32_t slot = begin; slot < end; ++slot) {
+            const double r = weighted ? slot_outer[slot] : r_outer;
+            const double d2 = (x - pts[slot]).squaredNorm();
+            if (d2 > (r + cell) * (r + cell)) continue;
+            (d2 >= (r - cell) * (r - cell) ? scratch.spheres : scratch.deeper).push_back({pts[slot], r});
+          }
+        });
   }
 
   // Uniform radii: moves x into the faithful band (see the header): out of the nearest inner ball (again while the
