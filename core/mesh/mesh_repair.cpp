@@ -348,6 +348,12 @@ class Repair {
     ++collapses_;
   }
 
+  // Vertex v at p, and its grid point.
+  void put(std::uint32_t v, const Vec3& p) {
+    x_[v] = p;
+    if (o_.grid) snapped_[v] = o_.grid->quantize(p);
+  }
+
   // How good a vertex's triangles are, for relocate(): fewer degenerate on the grid first, then fewer below the
   // angle threshold, then a larger smallest angle among the others.
   struct Score {
@@ -402,19 +408,16 @@ class Repair {
       }
       plain /= static_cast<double>(ring.size());
       const Vec3 old = x_[v];
-      const GridPoint old_snapped = o_.grid ? snapped_[v] : GridPoint{};
       for (const Vec3& centroid : {plain, length > 0.0 ? Vec3(weighted / length) : plain}) {
         Vec3 proposal = centroid - (centroid - old).dot(n) * n;
         if (!o_.place(v, proposal, n)) continue;
-        x_[v] = proposal;
-        if (o_.grid) snapped_[v] = o_.grid->quantize(proposal);
+        put(v, proposal);
         bool turned = false;
         for (std::size_t i = 0; i < around.size(); ++i) {
           turned = turned || (facing[i] && !(normal(tris_[around[i]]).dot(n) > 0.0));
         }
         const Score after = score(around);
-        x_[v] = old;
-        if (o_.grid) snapped_[v] = old_snapped;
+        put(v, old);
         if (!turned && after.better_than(before) && (!best || after.better_than(*best))) {
           best_vertex = v;
           best_position = proposal;
@@ -423,8 +426,7 @@ class Repair {
       }
     }
     if (best_vertex == kDead) return false;
-    x_[best_vertex] = best_position;
-    if (o_.grid) snapped_[best_vertex] = o_.grid->quantize(best_position);
+    put(best_vertex, best_position);
     for (const std::uint32_t s : adj().of(best_vertex)) changed.push_back(s);
     ++moves_;
     return true;

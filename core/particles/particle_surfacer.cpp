@@ -276,7 +276,10 @@ struct Particles {
       if (c < ro * ro) {
         const double h = std::sqrt(ro * ro - c);
         allowed.push_back({-b - h, -b + h});
-        if (c < ri * ri) forbidden.push_back({-b - std::sqrt(ri * ri - c), -b + std::sqrt(ri * ri - c)});  // open
+        if (c < ri * ri) {
+          const double hi = std::sqrt(ri * ri - c);
+          forbidden.push_back({-b - hi, -b + hi});  // open
+        }
         chords.push_back({b, c, inner, outer});
       }
     };
@@ -361,17 +364,12 @@ struct Particles {
   // Into scratch.spheres and scratch.deeper, the outer balls within their radius + cell of x, as lowest_cusp needs
   // them: those whose sphere passes within cell of x, and the others.
   void balls_near(const Vec3& x, double cell, BandScratch& scratch) const {
-    const double radius = weighted ? max_outer : r_outer;
-    const std::span<const Vec3> pts = hash.sorted_points();
-    hash.for_each_range(
-        x.array() - (radius + cell), x.array() + (radius + cell), [&](std::uint32_t begin, std::uint32_t end) {
-          for (std::uint32_t slot = begin; slot < end; ++slot) {
-            const double r = weighted ? slot_outer[slot] : r_outer;
-            const double d2 = (x - pts[slot]).squaredNorm();
-            if (d2 > (r + cell) * (r + cell)) continue;
-            (d2 >= (r - cell) * (r - cell) ? scratch.spheres : scratch.deeper).push_back({pts[slot], r});
-          }
-        });
+    hash.for_each_within(x, (weighted ? max_outer : r_outer) + cell,
+                         [&](std::uint32_t index, const Vec3& p, double d2) {
+                           const double r = weighted ? outer[index] : r_outer;
+                           if (d2 > (r + cell) * (r + cell)) return;
+                           (d2 >= (r - cell) * (r - cell) ? scratch.spheres : scratch.deeper).push_back({p, r});
+                         });
   }
 
   // Uniform radii: moves x into the faithful band (see the header): out of the nearest inner ball (again while the
@@ -391,6 +389,15 @@ struct Particles {
   double violation_uniform(const Vec3& x) const {
     const double d = nearest(x).distance;
     return std::max({r_inner - d, d - r_outer, 0.0});
+  }
+
+  // The thesis' projection (see the header) for either kind of radii.
+  void project_any(Vec3& x) const {
+    if (weighted) {
+      project(x);
+    } else {
+      project_uniform(x);
+    }
   }
 
   // Weighted radii: moves x into the faithful band (see the header); returns false when rounds ran out.
@@ -1006,10 +1013,10 @@ namespace {
 constexpr double kFieldBandSpacings = 1.25;
 
 // The smoothing stages over one mesh (thesis Fig. 3.2, steps 3-7). The Laplacian stage moves vertices freely (its
-// point is to even out the triangles) and projects them into the band once at its end; from then on every vertex
-// moves along its normal only, x = x0 + t n, and the band becomes one interval of t per vertex, computed exactly once
-// (Particles::band_on_line), so the constrained sweeps clamp instead of searching for particles (docs/ALGORITHMS.md
-// §1, CHOICE "constrained stages along the normals").
+// point is to even out the triangles), and step 4 brings them into the band along their normals; from then on every
+// vertex moves along its normal only, x = x0 + t n, and the band becomes one interval of t per vertex, computed exactly
+// once (Particles::band_on_line), so the constrained sweeps clamp instead of searching for particles
+// (docs/ALGORITHMS.md §1, CHOICE "constrained stages along the normals").
 class Smoother {
  public:
   // Gauss-Seidel over-relaxation of the constrained and polish sweeps (projected SOR; 1 is the thesis' plain GS).
@@ -1175,32 +1182,31 @@ class Smoother {
           cell = std::sqrt(longest);
           edge_sum[i] = sum;
         }
-        std::optional<Particles::LineBand> line = P_.band_on_line(at, n, reach, cell, scratch);
+        // The band at a point placed otherwise than along the line: empty when that point is not faithful.
+        const auto band_at = [&](const Vec3& y, double cusp_cell) {
+          const std::optional<Particles::LineBand> there = P_.band_on_line(y, n, reach, cusp_cell, scratch);
+          return there && there->at == 0.0 ? there->band : Interval{0.0, 0.0};
+        };
         Vec3 x = at;
-        if (line) {
+        Interval band;
+        if (const std::optional<Particles::LineBand> line = P_.band_on_line(at, n, reach, cell, scratch)) {
           x += line->at * n;
+          band = line->band;
         } else {  // no faithful point of the line within reach: the thesis' projection
-          if (P_.weighted) {
-            P_.project(x);
-          } else {
-            P_.project_uniform(x);
-          }
-          line = P_.band_on_line(x, n, reach, cell, scratch);
-          if (!line || line->at != 0.0) line = Particles::LineBand{0.0, {0.0, 0.0}};  // the band is out of reach
+          P_.project_any(x);
+          band = band_at(x, cell);
         }
         if (container_.active()) {
           Vec3 inside = x;
           container_.project(inside);
           if (inside != x) {  // the wall wins; no cusp is held there
             x = inside;
-            line = P_.band_on_line(x, n, reach, 0.0, scratch);
-            if (!line || line->at != 0.0) line = Particles::LineBand{0.0, {0.0, 0.0}};
+            band = band_at(x, 0.0);
             scratch.spheres.clear();
             scratch.deeper.clear();
           }
         }
         x0_[i] = x;
-        const Interval band = line->band;
         double hi = band.hi;
         if (cusps) {
           // Owned by i: no 1-ring neighbour is nearer, all as step 3 left them (a tie gives the cusp to both).
@@ -1314,10 +1320,8 @@ class Smoother {
   void project_along(Vec3& x, const Vec3& n, BandScratch& scratch) const {
     if (const std::optional<Particles::LineBand> line = P_.band_on_line(x, n, reach(), 0.0, scratch)) {
       x += line->at * n;
-    } else if (P_.weighted) {
-      P_.project(x);
     } else {
-      P_.project_uniform(x);
+      P_.project_any(x);
     }
   }
   // From the outer edge of the band to its inner edge (with per-particle radii, the widest such span: equal radii
@@ -1329,13 +1333,7 @@ class Smoother {
     if (!to_particles && !container_.active()) return;
     for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
       for (std::size_t i = begin; i < end; ++i) {
-        if (to_particles) {
-          if (P_.weighted) {
-            P_.project(x_[i]);
-          } else {
-            P_.project_uniform(x_[i]);
-          }
-        }
+        if (to_particles) P_.project_any(x_[i]);
         if (container_.active()) container_.project(x_[i]);
       }
     });
