@@ -81,32 +81,72 @@ ParticleSurfacingOptions options(double r_inner) {
   return o;
 }
 
-// RMS deviation from the mean height of the vertices above the top layer (z > top) within `margin` of the centre
-// column of an n x n lattice of spacing d.
-double top_face_rms(const Mesh& mesh, int n, double d, double top, double inset) {
-  const double c = (n - 1) * d / 2.0;
-  double sum = 0.0, sum2 = 0.0;
-  int count = 0;
-  for (const Vec3& v : mesh.vertices) {
-    if (v.z() > top && std::abs(v.x() - c) < c - inset && std::abs(v.y() - c) < c - inset) {
-      sum += v.z();
-      sum2 += v.z() * v.z();
-      ++count;
-    }
-  }
-  EXPECT_GT(count, 100);
-  const double mean = sum / count;
-  return std::sqrt(std::max(0.0, sum2 / count - mean * mean));
-}
+// A slab of particle lattice layers, in any orientation: `layers` layers of n x n particles at spacing d, square
+// (kind 0), triangular layers stacked straight (1) or face-centred cubic stacked on its (111) face (2), rotated by
+// `rotation` about the origin. The top layer is at height `top` in the lattice frame, x and y within [0, width].
+struct LatticeSlab {
+  std::vector<Vec3> particles;
+  Eigen::Matrix3d rotation;
+  int kind = 0;
+  double d = 0.0, top = 0.0, width_x = 0.0, width_y = 0.0;
+  // The highest plane the band admits above the top layer (eq. 3.5 / 3.6): a cusp sits above the circumcentre of a
+  // lattice cell, d / sqrt(2) from its particles on a square lattice, d / sqrt(3) on a triangular one.
+  double plane(double r_outer) const { return std::sqrt(r_outer * r_outer - d * d / (kind == 0 ? 2.0 : 3.0)); }
+};
 
-std::vector<Vec3> square_lattice_slab(int n, int layers, double d) {
-  std::vector<Vec3> p;
+LatticeSlab lattice_slab(int kind, int n, int layers, double d,
+                         const Eigen::Matrix3d& rotation = Eigen::Matrix3d::Identity()) {
+  LatticeSlab s;
+  s.kind = kind;
+  s.d = d;
+  s.rotation = rotation;
+  const double row = kind == 0 ? d : d * std::sqrt(3.0) / 2.0;
+  const double layer = kind == 2 ? d * std::sqrt(2.0 / 3.0) : d;
   for (int k = 0; k < layers; ++k) {
     for (int j = 0; j < n; ++j) {
-      for (int i = 0; i < n; ++i) p.emplace_back(i * d, j * d, k * d);
+      for (int i = 0; i < n; ++i) {
+        Vec3 q(i * d, j * row, k * layer);
+        if (kind > 0) q.x() += (j % 2) * d / 2.0;
+        if (kind == 2) q += Vec3((k % 3) * d / 2.0, (k % 3) * d * std::sqrt(3.0) / 6.0, 0.0);
+        s.top = std::max(s.top, q.z());
+        s.width_x = std::max(s.width_x, q.x());
+        s.width_y = std::max(s.width_y, q.y());
+        s.particles.push_back(rotation * q);
+      }
     }
   }
-  return p;
+  return s;
+}
+
+struct Face {
+  int vertices = 0;
+  double mean = 0.0, rms = 0.0;  // height above the top layer
+};
+
+// The vertices above the top layer, at least `inset` inside the slab's sides.
+Face top_face(const Mesh& mesh, const LatticeSlab& slab, double inset) {
+  double sum = 0.0, sum2 = 0.0;
+  Face f;
+  for (const Vec3& world : mesh.vertices) {
+    const Vec3 v = slab.rotation.transpose() * world;
+    if (v.z() > slab.top && v.x() > inset && v.x() < slab.width_x - inset && v.y() > inset &&
+        v.y() < slab.width_y - inset) {
+      sum += v.z() - slab.top;
+      sum2 += (v.z() - slab.top) * (v.z() - slab.top);
+      ++f.vertices;
+    }
+  }
+  if (f.vertices == 0) return f;
+  f.mean = sum / f.vertices;
+  f.rms = std::sqrt(std::max(0.0, sum2 / f.vertices - f.mean * f.mean));
+  return f;
+}
+
+Eigen::Matrix3d rotation_xyz(double ax, double ay, double az) {
+  const double deg = 3.14159265358979323846 / 180.0;
+  return (Eigen::AngleAxisd(az * deg, Vec3::UnitZ()) * Eigen::AngleAxisd(ay * deg, Vec3::UnitY()) *
+          Eigen::AngleAxisd(ax * deg, Vec3::UnitX()))
+      .toRotationMatrix();
 }
 
 // A thin sheet: `layers` layers of particles (spacing d, jitter d/8) on the wavy surface z = a sin(x/3) cos(y/4).
@@ -194,84 +234,23 @@ TEST(ParticleSurfacer, SquareLatticeWithOuterRadiusPerEquation35GivesAPlanarTopF
   // Lattice spacing d = 1, r_inner = d (the thesis' "average inter-particle spacing" choice). Eq. 3.5 asks
   // r_outer^2 >= r_inner^2 + d^2/2 = 1.5; the default r_outer = 2 r_inner satisfies it with room. r_outer = 1.05
   // violates it: no plane fits between the spheres, the surface must follow them.
-  const int n = 14;
-  const std::vector<Vec3> particles = square_lattice_slab(n, 3, 1.0);
+  const LatticeSlab slab = lattice_slab(0, 14, 3, 1.0);
+  const auto rms = [&](const ParticleSurfacingOptions& o) {
+    const Face face = top_face(surface_particles(slab.particles, {}, o), slab, 2.5);
+    EXPECT_GT(face.vertices, 100);
+    return face.rms;
+  };
   ParticleSurfacingOptions o = options(1.0);
   o.polish_sweeps = 0;
-  const double flat = top_face_rms(surface_particles(particles, {}, o), n, 1.0, 2.0, 2.5);
+  const double flat = rms(o);
   o.r_outer = 1.05;
-  const double bumpy = top_face_rms(surface_particles(particles, {}, o), n, 1.0, 2.0, 2.5);
+  const double bumpy = rms(o);
   EXPECT_LT(flat, 0.005 * 1.0);  // < 0.5% of r_inner
   EXPECT_GT(bumpy, 0.015);
   // The default polish keeps it planar.
   o.r_outer.reset();
   o.polish_sweeps = 5;
-  EXPECT_LT(top_face_rms(surface_particles(particles, {}, o), n, 1.0, 2.0, 2.5), 0.005);
-}
-
-// A slab of particle lattice layers, in any orientation: `layers` layers of n x n particles at spacing d, square
-// (kind 0), triangular layers stacked straight (1) or face-centred cubic stacked on its (111) face (2), rotated by
-// `rotation` about the origin. The top layer is at height `top` in the lattice frame, x and y within [0, width].
-struct LatticeSlab {
-  std::vector<Vec3> particles;
-  Eigen::Matrix3d rotation;
-  double top = 0.0, width_x = 0.0, width_y = 0.0;
-  double plane = 0.0;  // the highest plane the band admits above the top layer (eq. 3.5 / 3.6)
-};
-
-LatticeSlab lattice_slab(int kind, int n, int layers, double d, double r_outer, const Eigen::Matrix3d& rotation) {
-  LatticeSlab s;
-  s.rotation = rotation;
-  const double row = kind == 0 ? d : d * std::sqrt(3.0) / 2.0;
-  const double layer = kind == 2 ? d * std::sqrt(2.0 / 3.0) : d;
-  for (int k = 0; k < layers; ++k) {
-    for (int j = 0; j < n; ++j) {
-      for (int i = 0; i < n; ++i) {
-        Vec3 q(i * d, j * row, k * layer);
-        if (kind > 0) q.x() += (j % 2) * d / 2.0;
-        if (kind == 2) q += Vec3((k % 3) * d / 2.0, (k % 3) * d * std::sqrt(3.0) / 6.0, 0.0);
-        s.top = std::max(s.top, q.z());
-        s.width_x = std::max(s.width_x, q.x());
-        s.width_y = std::max(s.width_y, q.y());
-        s.particles.push_back(rotation * q);
-      }
-    }
-  }
-  // A cusp sits above the circumcentre of a lattice cell: d / sqrt(2) from its particles on a square lattice, d /
-  // sqrt(3) on a triangular one.
-  s.plane = std::sqrt(r_outer * r_outer - d * d / (kind == 0 ? 2.0 : 3.0));
-  return s;
-}
-
-struct Face {
-  int vertices = 0;
-  double mean = 0.0, rms = 0.0;  // height above the top layer
-};
-
-// The vertices above the top layer, at least `inset` inside the slab's sides.
-Face top_face(const Mesh& mesh, const LatticeSlab& slab, double inset) {
-  double sum = 0.0, sum2 = 0.0;
-  Face f;
-  for (const Vec3& world : mesh.vertices) {
-    const Vec3 v = slab.rotation.transpose() * world;
-    if (v.z() > slab.top && v.x() > inset && v.x() < slab.width_x - inset && v.y() > inset &&
-        v.y() < slab.width_y - inset) {
-      sum += v.z() - slab.top;
-      sum2 += (v.z() - slab.top) * (v.z() - slab.top);
-      ++f.vertices;
-    }
-  }
-  if (f.vertices == 0) return f;
-  f.mean = sum / f.vertices;
-  f.rms = std::sqrt(std::max(0.0, sum2 / f.vertices - f.mean * f.mean));
-  return f;
-}
-
-Eigen::Matrix3d rotation_xyz(double ax, double ay, double az) {
-  const double deg = 3.14159265358979323846 / 180.0;
-  return (Eigen::AngleAxisd(az * deg, Vec3::UnitZ()) * Eigen::AngleAxisd(ay * deg, Vec3::UnitY()) *
-          Eigen::AngleAxisd(ax * deg, Vec3::UnitX()))
-      .toRotationMatrix();
+  EXPECT_LT(rms(o), 0.005);
 }
 
 // Where eq. 3.5 holds, across r_inner / d and with r_outer = 2 d or the default 2 r_inner, the top face of a square
@@ -282,7 +261,7 @@ TEST(ParticleSurfacer, SquareLatticesAcrossSpacingsGiveFlatTopFaces) {
     for (const bool default_outer : {false, true}) {
       SCOPED_TRACE(::testing::Message() << "r_inner " << r_inner << (default_outer ? ", r_outer 2 r_inner" : ", 2 d"));
       const double r_outer = default_outer ? 2.0 * r_inner : 2.0;
-      const LatticeSlab slab = lattice_slab(0, 14, 3, 1.0, r_outer, Eigen::Matrix3d::Identity());
+      const LatticeSlab slab = lattice_slab(0, 14, 3, 1.0);
       ParticleSurfacingOptions o = options(r_inner);
       if (!default_outer) o.r_outer = r_outer;
       ParticleSurfacingStats stats;
@@ -290,8 +269,8 @@ TEST(ParticleSurfacer, SquareLatticesAcrossSpacingsGiveFlatTopFaces) {
       ASSERT_GT(face.vertices, 50);
       EXPECT_LT(face.rms, 0.005 * r_inner);
       // The vertices between the held ones may stand a little above the plane (2e-5 d measured).
-      EXPECT_LE(face.mean, slab.plane + 1e-3 * r_inner);
-      EXPECT_GE(face.mean, slab.plane - 0.02 * r_inner);
+      EXPECT_LE(face.mean, slab.plane(r_outer) + 1e-3 * r_inner);
+      EXPECT_GE(face.mean, slab.plane(r_outer) - 0.02 * r_inner);
       EXPECT_EQ(stats.faithful_after_polish, 1.0);
       EXPECT_GT(stats.cusp_vertices, 0u);
     }
@@ -313,7 +292,7 @@ TEST(ParticleSurfacer, LatticesInAnyOrientationGiveFlatFaces) {
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(::testing::Message() << "kind " << c.kind << ", r_inner " << c.r_inner << ", r_outer " << c.r_outer);
-    const LatticeSlab slab = lattice_slab(c.kind, 16, 3, 1.0, c.r_outer, c.rotation);
+    const LatticeSlab slab = lattice_slab(c.kind, 16, 3, 1.0, c.rotation);
     ParticleSurfacingOptions o = options(c.r_inner);
     o.r_outer = c.r_outer;
     ParticleSurfacingStats stats;
@@ -321,7 +300,7 @@ TEST(ParticleSurfacer, LatticesInAnyOrientationGiveFlatFaces) {
     const Face face = top_face(mesh, slab, 2.5);
     ASSERT_GT(face.vertices, 50);
     EXPECT_LT(face.rms, 0.005 * c.r_inner);
-    EXPECT_NEAR(face.mean, slab.plane, 0.02 * c.r_inner);
+    EXPECT_NEAR(face.mean, slab.plane(c.r_outer), 0.02 * c.r_inner);
     EXPECT_EQ(stats.faithful_after_polish, 1.0);
     EXPECT_TRUE(mesh_has(check_mesh(mesh), kClosedManifold | kNoDegenerateTriangles | kPositiveVolume));
   }
@@ -330,15 +309,15 @@ TEST(ParticleSurfacer, LatticesInAnyOrientationGiveFlatFaces) {
 // vertex_only_band keeps the thesis' band at the vertices: the face floats above every plane the band admits, held
 // where a vertex happens to lie near a cusp; the default holds every cusp and lays the face on them.
 TEST(ParticleSurfacer, VertexOnlyBandLeavesTheFaceAboveTheCusps) {
-  const LatticeSlab slab = lattice_slab(0, 14, 3, 1.0, 1.2, Eigen::Matrix3d::Identity());
+  const LatticeSlab slab = lattice_slab(0, 14, 3, 1.0);
   ParticleSurfacingOptions o = options(0.6);
   ParticleSurfacingStats held, free;
   const Face on_cusps = top_face(surface_particles(slab.particles, {}, o, {}, &held), slab, 2.5);
   o.vertex_only_band = true;
   const Face thesis = top_face(surface_particles(slab.particles, {}, o, {}, &free), slab, 2.5);
-  EXPECT_GT(thesis.mean, slab.plane + 0.02);
+  EXPECT_GT(thesis.mean, slab.plane(1.2) + 0.02);
   EXPECT_GT(thesis.rms, 0.005 * 0.6);
-  EXPECT_LE(on_cusps.mean, slab.plane + 1e-3 * 0.6);
+  EXPECT_LE(on_cusps.mean, slab.plane(1.2) + 1e-3 * 0.6);
   EXPECT_EQ(free.cusp_vertices, 0u);
   EXPECT_GT(held.cusp_vertices, 0u);
   EXPECT_EQ(held.faithful_after_polish, 1.0);
@@ -947,7 +926,7 @@ TEST(ParticleSurfacer, DropsSmallComponentsWhenAsked) {
 }
 
 TEST(ParticleSurfacer, DerivesInnerRadiusFromNearestNeighbourSpacing) {
-  std::vector<Vec3> particles = square_lattice_slab(8, 4, 0.7);
+  std::vector<Vec3> particles = lattice_slab(0, 8, 4, 0.7).particles;
   for (int i = 0; i < 5; ++i) particles.emplace_back(100.0 + 50.0 * i, 0, 0);  // stray spray is left out of the mean
   ParticleSurfacingOptions o;
   o.derive_r_inner = true;
