@@ -103,7 +103,7 @@ std::string encode_pieces(const Mesh& mesh, const FrameCodecOptions& options, co
                           const RunControl& control) {
   const QuantizationGrid grid = quantization_grid(mesh, options.draco, executor);
   control.check();
-  const MeshPieces cut(mesh, grid, options.max_piece_triangles, executor, control);
+  MeshPieces cut(mesh, grid, options.max_piece_triangles, executor, control);
   const int n = cut.count();
   const bool normals = options.draco.normals && !mesh.normals.empty();
   std::vector<std::string> payloads(n);
@@ -111,7 +111,7 @@ std::string encode_pieces(const Mesh& mesh, const FrameCodecOptions& options, co
   std::atomic<int> done{0};
   executor.for_each(n, [&](int p) {
     control.check();
-    QuantizedPiece piece = cut.piece(p);
+    QuantizedPiece piece = cut.take(p);
     if (!normals) piece.normals.clear();
     payloads[p] = options.codec == FrameCodec::kDracoPieces
                       ? encode_draco_piece(piece, grid.bits, options.draco)

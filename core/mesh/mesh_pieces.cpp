@@ -1,13 +1,15 @@
 // The cut is by triangle index alone, so the pieces, and every byte encoded from them, are the same whatever the
 // number of threads. Local vertex numbers follow first use in the piece (a window over the vertex ids the piece
-// touches, or a sort when the ids are scattered). A vertex is shared when two pieces claim it (a compare-and-swap on
-// its owner); shared vertices on the same grid point are ranked by mesh index, which makes the tags deterministic.
+// touches, or a sort when the ids are scattered; the windows are reused from piece to piece). Every piece writes its
+// number on its vertices and then reads them back: a piece that finds another's number lists the vertex as shared.
+// Shared vertices on the same grid point are ranked by mesh index, which makes the tags deterministic.
 #include "core/mesh/mesh_pieces.h"
 
 #include <algorithm>
 #include <atomic>
 #include <limits>
 #include <memory>
+#include <mutex>
 #include <numeric>
 #include <string>
 
@@ -17,6 +19,8 @@ namespace surfacer {
 namespace {
 
 constexpr std::uint32_t kUnset = std::numeric_limits<std::uint32_t>::max();
+// In MeshPieces::owner_: set on a vertex that more than one piece uses; the low bits then hold its seam tag.
+constexpr std::uint32_t kShared = 0x80000000u;
 
 bool repeated(const Triangle& t) { return t[0] == t[1] || t[1] == t[2] || t[0] == t[2]; }
 
@@ -25,6 +29,33 @@ bool operator<(const std::array<std::uint32_t, 3>& a, const std::array<std::uint
 }
 
 }  // namespace
+
+// Arrays of local vertex numbers, kUnset everywhere between uses, shared by the pieces a cut builds: a piece takes
+// one, numbers its vertices in it and resets the entries it set before giving it back, so no piece clears or
+// faults in a window of its own.
+class MeshPieces::WindowPool {
+ public:
+  std::vector<std::uint32_t> take(std::size_t size) {
+    std::vector<std::uint32_t> window;
+    {
+      const std::lock_guard lock(mutex_);
+      if (!free_.empty()) {
+        window = std::move(free_.back());
+        free_.pop_back();
+      }
+    }
+    if (window.size() < size) window.resize(size, kUnset);
+    return window;
+  }
+  void give_back(std::vector<std::uint32_t> window) {
+    const std::lock_guard lock(mutex_);
+    free_.push_back(std::move(window));
+  }
+
+ private:
+  std::mutex mutex_;
+  std::vector<std::vector<std::uint32_t>> free_;
+};
 
 MeshPieces::MeshPieces(const Mesh& mesh, const QuantizationGrid& grid, std::size_t max_piece_triangles,
                        const Executor& executor, const RunControl& control)
@@ -36,92 +67,18 @@ void MeshPieces::cut(std::size_t max_piece_triangles, const Executor& executor, 
   const std::size_t nf = mesh_.triangles.size();
   const std::size_t nv = mesh_.vertices.size();
   const std::size_t n = std::max<std::size_t>(1, (nf + max_piece_triangles - 1) / max_piece_triangles);
+  if (n >= kShared) throw ResourceLimit("max_piece_triangles", "a frame of more than 2^31 pieces");
   pieces_.assign(n, Piece{});
-  tags_.clear();
-  std::unique_ptr<std::atomic<std::uint32_t>[]> owner;
-  std::vector<std::uint8_t> shared;
-  if (n > 1) {
-    owner.reset(new std::atomic<std::uint32_t>[nv]);
-    for (std::size_t v = 0; v < nv; ++v) owner[v].store(kUnset, std::memory_order_relaxed);
-    shared.assign(nv, 0);
-  }
-  std::vector<std::size_t> owned(n, 0);
+  // Written where a piece claims a vertex, and read only there.
+  owner_ = n > 1 ? std::make_unique_for_overwrite<std::uint32_t[]>(nv) : nullptr;
+  WindowPool windows;
   executor.for_each(static_cast<int>(n), [&](int p) {
     control.check();
-    const std::size_t begin = nf * p / n, end = nf * (p + 1) / n;
-    Piece& piece = pieces_[p];
-    std::uint32_t lo = kUnset, hi = 0;
-    std::size_t count = 0;
-    for (std::size_t t = begin; t < end; ++t) {
-      const Triangle& tri = mesh_.triangles[t];
-      if (repeated(tri)) continue;
-      ++count;
-      for (std::uint32_t v : tri) {
-        lo = std::min(lo, v);
-        hi = std::max(hi, v);
-      }
+    number(nf * p / n, nf * (p + 1) / n, pieces_[p], windows);
+    // Every piece writes its number on its vertices; one of the writes stays.
+    if (n > 1) {
+      for (std::uint32_t v : pieces_[p].globals) std::atomic_ref(owner_[v]).store(p, std::memory_order_relaxed);
     }
-    piece.triangles.reserve(count);
-    if (count == 0) return;
-    const std::size_t window = std::size_t{hi} - lo + 1;
-    if (window <= 8 * 3 * count + 4096) {
-      std::vector<std::uint32_t> local(window, kUnset);
-      for (std::size_t t = begin; t < end; ++t) {
-        const Triangle& tri = mesh_.triangles[t];
-        if (repeated(tri)) continue;
-        Triangle out;
-        for (int c = 0; c < 3; ++c) {
-          std::uint32_t& l = local[tri[c] - lo];
-          if (l == kUnset) {
-            l = static_cast<std::uint32_t>(piece.globals.size());
-            piece.globals.push_back(tri[c]);
-          }
-          out[c] = l;
-        }
-        piece.triangles.push_back(out);
-      }
-    } else {
-      // Vertex ids scattered over the mesh: number them by first use through a sort of (id, corner).
-      std::vector<std::pair<std::uint32_t, std::uint32_t>> corners;  // (vertex, corner in the piece)
-      corners.reserve(3 * count);
-      for (std::size_t t = begin; t < end; ++t) {
-        const Triangle& tri = mesh_.triangles[t];
-        if (repeated(tri)) continue;
-        for (int c = 0; c < 3; ++c) corners.emplace_back(tri[c], static_cast<std::uint32_t>(corners.size()));
-      }
-      std::sort(corners.begin(), corners.end());
-      std::vector<std::size_t> run_start;  // runs of one vertex; each begins with its first corner
-      for (std::size_t i = 0; i < corners.size(); ++i) {
-        if (i == 0 || corners[i].first != corners[i - 1].first) run_start.push_back(i);
-      }
-      run_start.push_back(corners.size());
-      const std::size_t runs = run_start.size() - 1;
-      std::vector<std::pair<std::uint32_t, std::uint32_t>> order(runs);  // (first corner, run)
-      for (std::size_t r = 0; r < runs; ++r) order[r] = {corners[run_start[r]].second, static_cast<std::uint32_t>(r)};
-      std::sort(order.begin(), order.end());
-      std::vector<std::uint32_t> local(corners.size());
-      piece.globals.resize(runs);
-      for (std::size_t l = 0; l < runs; ++l) {
-        const std::size_t r = order[l].second;
-        piece.globals[l] = corners[run_start[r]].first;
-        for (std::size_t i = run_start[r]; i < run_start[r + 1]; ++i)
-          local[corners[i].second] = static_cast<std::uint32_t>(l);
-      }
-      for (std::size_t t = 0; t < count; ++t) {
-        piece.triangles.push_back({local[3 * t], local[3 * t + 1], local[3 * t + 2]});
-      }
-    }
-    if (n == 1) return;
-    std::size_t mine = 0;
-    for (std::uint32_t v : piece.globals) {
-      std::uint32_t expected = kUnset;
-      if (owner[v].compare_exchange_strong(expected, static_cast<std::uint32_t>(p), std::memory_order_relaxed)) {
-        ++mine;
-      } else {
-        std::atomic_ref<std::uint8_t>(shared[v]).store(1, std::memory_order_relaxed);
-      }
-    }
-    owned[p] = mine;
   });
   triangles_ = 0;
   for (const Piece& piece : pieces_) triangles_ += piece.triangles.size();
@@ -129,48 +86,121 @@ void MeshPieces::cut(std::size_t max_piece_triangles, const Executor& executor, 
     vertices_ = pieces_[0].globals.size();
     return;
   }
-  vertices_ = std::accumulate(owned.begin(), owned.end(), std::size_t{0});
-  tag_seams(shared);
-  if (tags_.empty()) cut(std::numeric_limits<std::size_t>::max(), executor, control);  // ranks overflowed
-}
-
-void MeshPieces::tag_seams(const std::vector<std::uint8_t>& shared) {
+  // The piece whose number stayed counts the vertex; the others find another number there: the vertex is shared, and
+  // they list it with its grid point. Plain loads and stores, no read-modify-write per vertex.
   struct Seam {
     std::array<std::uint32_t, 3> key;
     std::uint32_t vertex;
     bool operator<(const Seam& o) const { return key != o.key ? key < o.key : vertex < o.vertex; }
+    bool operator==(const Seam& o) const { return vertex == o.vertex; }
   };
+  std::vector<std::vector<Seam>> listed(n);
+  std::vector<std::size_t> owned(n, 0);
+  executor.for_each(static_cast<int>(n), [&](int p) {
+    control.check();
+    for (std::uint32_t v : pieces_[p].globals) {
+      if (std::atomic_ref(owner_[v]).load(std::memory_order_relaxed) == static_cast<std::uint32_t>(p)) {
+        ++owned[p];
+      } else {
+        listed[p].push_back({grid_.quantize(mesh_.vertices[v]), v});
+      }
+    }
+  });
+  vertices_ = std::accumulate(owned.begin(), owned.end(), std::size_t{0});
+  // Shared vertices on one grid point are ranked by mesh index: the tag, stored in the owner's place.
   std::vector<Seam> seams;
-  for (std::size_t v = 0; v < shared.size(); ++v) {
-    if (shared[v]) seams.push_back({grid_.quantize(mesh_.vertices[v]), static_cast<std::uint32_t>(v)});
-  }
+  for (const auto& l : listed) seams.insert(seams.end(), l.begin(), l.end());
   std::sort(seams.begin(), seams.end());
-  tags_.assign(mesh_.vertices.size(), 0);
+  seams.erase(std::unique(seams.begin(), seams.end()), seams.end());  // listed by several pieces
   std::uint32_t rank = 0;
   for (std::size_t i = 0; i < seams.size(); ++i) {
     rank = i > 0 && seams[i].key == seams[i - 1].key ? rank + 1 : 1;
-    if (rank > std::numeric_limits<std::uint16_t>::max()) {
-      tags_.clear();
+    if (rank > std::numeric_limits<std::uint16_t>::max()) {  // never on real surfaces: one piece, no seams
+      cut(std::numeric_limits<std::size_t>::max(), executor, control);
       return;
     }
-    tags_[seams[i].vertex] = static_cast<std::uint16_t>(rank);
+    owner_[seams[i].vertex] = kShared | rank;
   }
 }
 
-QuantizedPiece MeshPieces::piece(int p) const {
-  const Piece& piece = pieces_.at(p);
+void MeshPieces::number(std::size_t begin, std::size_t end, Piece& piece, WindowPool& windows) const {
+  // The window of vertex ids: a plain min/max over the indices, which vectorizes (repeated triangles only widen it).
+  std::uint32_t lo = kUnset, hi = 0;
+  const std::uint32_t* ids = mesh_.triangles.data()->data();
+  for (std::size_t i = 3 * begin; i < 3 * end; ++i) {
+    lo = std::min(lo, ids[i]);
+    hi = std::max(hi, ids[i]);
+  }
+  std::size_t count = 0;
+  for (std::size_t t = begin; t < end; ++t) count += repeated(mesh_.triangles[t]) ? 0 : 1;
+  piece.triangles.reserve(count);
+  if (count == 0) return;
+  const std::size_t window = std::size_t{hi} - lo + 1;
+  if (window <= 8 * 3 * count + 4096) {
+    std::vector<std::uint32_t> local = windows.take(window);
+    for (std::size_t t = begin; t < end; ++t) {
+      const Triangle& tri = mesh_.triangles[t];
+      if (repeated(tri)) continue;
+      Triangle out;
+      for (int c = 0; c < 3; ++c) {
+        std::uint32_t& l = local[tri[c] - lo];
+        if (l == kUnset) {
+          l = static_cast<std::uint32_t>(piece.globals.size());
+          piece.globals.push_back(tri[c]);
+        }
+        out[c] = l;
+      }
+      piece.triangles.push_back(out);
+    }
+    for (std::uint32_t v : piece.globals) local[v - lo] = kUnset;
+    windows.give_back(std::move(local));
+    return;
+  }
+  // Vertex ids scattered over the mesh: number them by first use through a sort of (id, corner).
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> corners;  // (vertex, corner in the piece)
+  corners.reserve(3 * count);
+  for (std::size_t t = begin; t < end; ++t) {
+    const Triangle& tri = mesh_.triangles[t];
+    if (repeated(tri)) continue;
+    for (int c = 0; c < 3; ++c) corners.emplace_back(tri[c], static_cast<std::uint32_t>(corners.size()));
+  }
+  std::sort(corners.begin(), corners.end());
+  std::vector<std::size_t> run_start;  // runs of one vertex; each begins with its first corner
+  for (std::size_t i = 0; i < corners.size(); ++i) {
+    if (i == 0 || corners[i].first != corners[i - 1].first) run_start.push_back(i);
+  }
+  run_start.push_back(corners.size());
+  const std::size_t runs = run_start.size() - 1;
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> order(runs);  // (first corner, run)
+  for (std::size_t r = 0; r < runs; ++r) order[r] = {corners[run_start[r]].second, static_cast<std::uint32_t>(r)};
+  std::sort(order.begin(), order.end());
+  std::vector<std::uint32_t> local(corners.size());
+  piece.globals.resize(runs);
+  for (std::size_t l = 0; l < runs; ++l) {
+    const std::size_t r = order[l].second;
+    piece.globals[l] = corners[run_start[r]].first;
+    for (std::size_t i = run_start[r]; i < run_start[r + 1]; ++i)
+      local[corners[i].second] = static_cast<std::uint32_t>(l);
+  }
+  for (std::size_t t = 0; t < count; ++t) piece.triangles.push_back({local[3 * t], local[3 * t + 1], local[3 * t + 2]});
+}
+
+QuantizedPiece MeshPieces::take(int p) {
+  Piece& piece = pieces_.at(p);
   QuantizedPiece out;
-  out.positions.resize(piece.globals.size());
-  out.seam_tags.assign(piece.globals.size(), 0);
+  const std::size_t nv = piece.globals.size();
+  out.positions.resize(nv);
+  out.seam_tags.assign(nv, 0);
   const bool normals = !mesh_.normals.empty();
-  if (normals) out.normals.resize(piece.globals.size());
-  for (std::size_t l = 0; l < piece.globals.size(); ++l) {
+  if (normals) out.normals.resize(nv);
+  for (std::size_t l = 0; l < nv; ++l) {
     const std::uint32_t v = piece.globals[l];
     out.positions[l] = grid_.quantize(mesh_.vertices[v]);
-    if (!tags_.empty()) out.seam_tags[l] = tags_[v];
+    if (owner_ && (owner_[v] & kShared)) out.seam_tags[l] = static_cast<std::uint16_t>(owner_[v] & 0xffffu);
     if (normals) out.normals[l] = mesh_.normals[v];
   }
-  out.triangles = piece.triangles;
+  out.triangles = std::move(piece.triangles);
+  piece = Piece{};
   return out;
 }
 

@@ -7,6 +7,7 @@
 
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "core/mesh/mesh.h"
@@ -26,8 +27,8 @@ struct QuantizedPiece {
   std::vector<Vec3> normals;        // empty or one unit normal per vertex
 };
 
-// The pieces of a mesh: cut once (the expensive part runs on `executor` and is cancellable through `control`),
-// then built one by one with piece(p), from any thread.
+// The pieces of a mesh: cut once (on `executor`, cancellable through `control`), then each taken once with take(p),
+// from any thread.
 class MeshPieces {
  public:
   // Triangles with a repeated vertex index are left out (they carry no surface; Draco drops them as well) and so are
@@ -43,8 +44,8 @@ class MeshPieces {
   // Vertices and triangles of the welded mesh (what weld() returns for the pieces).
   std::size_t vertices() const { return vertices_; }
   std::size_t triangles() const { return triangles_; }
-  // Piece p, positions quantized on the grid (normals when the mesh has them).
-  QuantizedPiece piece(int p) const;
+  // Piece p, positions quantized on the grid (normals when the mesh has them). Once per piece: its triangles move out.
+  QuantizedPiece take(int p);
 
  private:
   struct Piece {
@@ -52,12 +53,16 @@ class MeshPieces {
     std::vector<Triangle> triangles;     // local indices
   };
   void cut(std::size_t max_piece_triangles, const Executor& executor, const RunControl& control);
-  void tag_seams(const std::vector<std::uint8_t>& shared);
+  class WindowPool;
+  // Numbers the vertices of triangles [begin, end) in order of first use into `piece`.
+  void number(std::size_t begin, std::size_t end, Piece& piece, WindowPool& windows) const;
 
   const Mesh& mesh_;
   QuantizationGrid grid_;
   std::vector<Piece> pieces_;
-  std::vector<std::uint16_t> tags_;  // per mesh vertex (empty for one piece)
+  // With more than one piece, per vertex that a piece uses: the number of one piece that uses it, or, when several
+  // do, 0x80000000 | its seam tag.
+  std::unique_ptr<std::uint32_t[]> owner_;
   std::size_t vertices_ = 0;
   std::size_t triangles_ = 0;
 };
