@@ -1,5 +1,5 @@
-// The cut is by triangle index alone, so the pieces, and every byte encoded from them, are the same whatever the
-// number of threads. Local vertex numbers follow first use in the piece (a window over the vertex ids the piece
+// The cut is by triangle count and index alone, so the pieces, and every byte encoded from them, are the same whatever
+// the number of threads. Local vertex numbers follow first use in the piece (a window over the vertex ids the piece
 // touches, or a sort when the ids are scattered; the windows are reused from piece to piece). Every piece writes its
 // number on its vertices and then reads them back: a piece that finds another's number lists the vertex as shared.
 // Shared vertices on the same grid point are ranked by mesh index, which makes the tags deterministic.
@@ -21,6 +21,7 @@ namespace {
 constexpr std::uint32_t kUnset = std::numeric_limits<std::uint32_t>::max();
 // In MeshPieces::owner_: set on a vertex that more than one piece uses; the low bits then hold its seam tag.
 constexpr std::uint32_t kShared = 0x80000000u;
+constexpr std::size_t kPieceMultiple = 4;
 
 bool repeated(const Triangle& t) { return t[0] == t[1] || t[1] == t[2] || t[0] == t[2]; }
 
@@ -66,7 +67,10 @@ MeshPieces::MeshPieces(const Mesh& mesh, const QuantizationGrid& grid, std::size
 void MeshPieces::cut(std::size_t max_piece_triangles, const Executor& executor, const RunControl& control) {
   const std::size_t nf = mesh_.triangles.size();
   const std::size_t nv = mesh_.vertices.size();
-  const std::size_t n = std::max<std::size_t>(1, (nf + max_piece_triangles - 1) / max_piece_triangles);
+  // As many pieces as needed, rounded up to a multiple of kPieceMultiple so that they share out evenly over 1, 2 and 4
+  // threads (9 pieces on 2 threads would take 5 rounds for 4.5 rounds of work).
+  std::size_t n = (nf + max_piece_triangles - 1) / max_piece_triangles;
+  n = n <= 1 ? 1 : (n + kPieceMultiple - 1) / kPieceMultiple * kPieceMultiple;
   if (n >= kShared) throw ResourceLimit("max_piece_triangles", "a frame of more than 2^31 pieces");
   pieces_.assign(n, Piece{});
   // Written where a piece claims a vertex, and read only there.

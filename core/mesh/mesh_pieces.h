@@ -1,8 +1,8 @@
 // A frame cut into pieces that encode and decode in parallel, and welded back exactly (docs/ALGORITHMS.md §5
-// "Frames"). The cut depends on the mesh alone: runs of consecutive triangles, as many pieces as needed for at most
-// `max_piece_triangles` each, of equal size. A vertex used by several pieces is written in each of them with a seam
-// tag, which together with its grid point names it uniquely, so the decoder welds the copies whatever order a codec
-// put them in.
+// "Frames"). The cut depends on the mesh alone: runs of consecutive triangles of equal size, as many as needed for at
+// most `max_piece_triangles` each, rounded up to a multiple of 4 when there are several. A vertex used by several
+// pieces is written in each of them with a seam tag, which together with its grid point names it uniquely, so the
+// decoder welds the copies whatever order a codec put them in.
 #pragma once
 
 #include <array>

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cstring>
 #include <limits>
 #include <random>
 
@@ -146,6 +147,39 @@ TEST(FrameCodec, PiecesWeldIntoTheSameSurfaceAsOneDracoMesh) {
         EXPECT_EQ(decoded.normals.size(), c.mesh.normals.empty() ? 0 : decoded.vertices.size());
         for (std::size_t v = 0; v < decoded.normals.size(); ++v) EXPECT_NEAR(decoded.normals[v].norm(), 1.0, 1e-9);
       }
+    }
+  }
+}
+
+// The container's directory (README "Container"): pieces of at most max_piece_triangles, of equal size (within one
+// triangle), one piece for a frame that fits in one, else a multiple of 4 pieces (an even share on 2 and 4 cores).
+TEST(FrameCodec, PiecesAreEvenAndShareOutOverCores) {
+  auto u32_at = [](const std::string& bytes, std::size_t at) {
+    std::uint32_t v = 0;
+    std::memcpy(&v, bytes.data() + at, 4);
+    return v;
+  };
+  for (const Case& c : cases()) {
+    const std::size_t triangles = c.mesh.triangles.size();
+    for (std::size_t piece : {std::size_t{1024}, std::size_t{5000}, std::size_t{30000}, std::size_t{1} << 20}) {
+      SCOPED_TRACE(c.name + ", pieces of " + std::to_string(piece));
+      const std::string bytes =
+          encode_frame(c.mesh, options_for(FrameCodec::kMeshopt, c.box, piece), ThreadExecutor(2));
+      const std::uint32_t count = u32_at(bytes, 24);
+      if (triangles <= piece) {
+        EXPECT_EQ(count, 1u);
+        continue;
+      }
+      EXPECT_EQ(count % 4, 0u);
+      EXPECT_LT(count, (triangles + piece - 1) / piece + 4);  // no more than the rounding needs
+      std::size_t smallest = triangles, largest = 0;
+      for (std::uint32_t p = 0; p < count; ++p) {
+        const std::size_t t = u32_at(bytes, 44 + 12 * p + 8);
+        smallest = std::min(smallest, t);
+        largest = std::max(largest, t);
+      }
+      EXPECT_LE(largest, piece);
+      EXPECT_LE(largest - smallest, 1u);  // the cases have no repeated-index triangles
     }
   }
 }
