@@ -128,17 +128,18 @@ void MeshPieces::cut(std::size_t max_piece_triangles, const Executor& executor, 
 }
 
 void MeshPieces::number(std::size_t begin, std::size_t end, Piece& piece, WindowPool& windows) const {
-  // The window of vertex ids: a plain min/max over the indices, which vectorizes (repeated triangles only widen it).
-  std::uint32_t lo = kUnset, hi = 0;
-  const std::uint32_t* ids = mesh_.triangles.data()->data();
-  for (std::size_t i = 3 * begin; i < 3 * end; ++i) {
-    lo = std::min(lo, ids[i]);
-    hi = std::max(hi, ids[i]);
-  }
   std::size_t count = 0;
   for (std::size_t t = begin; t < end; ++t) count += repeated(mesh_.triangles[t]) ? 0 : 1;
   piece.triangles.reserve(count);
   if (count == 0) return;
+  // The window of vertex ids: a plain min/max over the indices, which vectorizes (repeated triangles only widen it).
+  std::uint32_t lo = kUnset, hi = 0;
+  for (std::size_t t = begin; t < end; ++t) {
+    for (std::uint32_t v : mesh_.triangles[t]) {
+      lo = std::min(lo, v);
+      hi = std::max(hi, v);
+    }
+  }
   const std::size_t window = std::size_t{hi} - lo + 1;
   if (window <= 8 * 3 * count + 4096) {
     std::vector<std::uint32_t> local = windows.take(window);
