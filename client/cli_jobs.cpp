@@ -406,10 +406,12 @@ void add_output_flags(CLI::App* app, OutputFlags& flags) {
                   "input sequence's own frame number (--start 100 writes frame_0100), else the frame index")
       ->type_name("DIR|PATTERN");
   app->add_option("--format", flags.formats,
-                  "files per frame, comma-separated: drc,ply,obj,vtk,vtu (default: .drc for Draco frames, .ply for "
-                  "meshopt and raw ones; vtk = legacy binary, vtu = VTK XML with zlib, for ParaView and Blender)")
+                  "files per frame, comma-separated: drc,ply,obj,vtk,vtu,glb (default: .drc for Draco frames, .ply "
+                  "for meshopt and raw ones; vtk = legacy binary, vtu = VTK XML with zlib, for ParaView and Blender; "
+                  "glb = glTF with Draco pieces, encoded on every core, for Blender, three.js and other glTF readers; "
+                  "up to 16 quantization bits)")
       ->delimiter(',')
-      ->check(CLI::IsMember({"drc", "ply", "obj", "vtk", "vtu"}))
+      ->check(CLI::IsMember({"drc", "ply", "obj", "vtk", "vtu", "glb"}))
       ->type_name("LIST");
   add_report_flags(app, flags.report);
 }

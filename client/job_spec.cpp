@@ -393,6 +393,13 @@ PreparedJob prepare_job(const JobOptions& options, const InMemoryInputs& in_memo
 
 void fit_encoding_to_files(v1::JobSpec& spec, const std::vector<FileFormat>& formats) {
   v1::OutputOptions* output = spec.mutable_output();
+  if (std::find(formats.begin(), formats.end(), FileFormat::kGlb) != formats.end() &&
+      output->encoding() != v1::MESH_ENCODING_PLY && output->quantization_bits() > 16) {
+    throw CliError(ExitCode::kUsage,
+                   "--format glb holds positions of at most 16 bits (glTF's KHR_mesh_quantization), "
+                   "not --quantization-bits " +
+                       std::to_string(output->quantization_bits()) + ": use 16 or fewer, or another --format");
+  }
   const bool draco =
       output->encoding() == v1::MESH_ENCODING_UNSPECIFIED || output->encoding() == v1::MESH_ENCODING_DRACO;
   if (draco && !formats.empty() && std::find(formats.begin(), formats.end(), FileFormat::kDrc) == formats.end()) {

@@ -55,7 +55,8 @@ PreparedJob prepare_job(const JobOptions& options, const InMemoryInputs& in_memo
 // What a `run` that writes `formats` asks of the server (docs/ALGORITHMS.md §5 "Frames"): Draco frames come in
 // pieces, encoded on every core of the server and decoded on every core here, unless a .drc file is to be written
 // (a standard Draco file is one Draco mesh, which the server encodes on one core; welding pieces and encoding them
-// again here would cost more). Other encodings are left alone.
+// again here would cost more); a .glb file holds the pieces as they come. Other encodings are left alone. Throws
+// CliError(kUsage) when .glb files are asked for with more than 16 quantization bits (glTF cannot hold them).
 void fit_encoding_to_files(v1::JobSpec& spec, const std::vector<FileFormat>& formats);
 
 }  // namespace surfacer::client

@@ -166,7 +166,7 @@ struct JobOptions {
   std::optional<int> quantization_bits;
 };
 
-enum class FileFormat { kDrc, kPly, kObj, kVtk, kVtu };
+enum class FileFormat { kDrc, kPly, kObj, kVtk, kVtu, kGlb };
 
 struct FrameOutputOptions {
   std::filesystem::path dir;

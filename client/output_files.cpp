@@ -14,8 +14,8 @@ namespace {
 
 CliError usage(const std::string& message) { return CliError(ExitCode::kUsage, message); }
 
-constexpr FileFormat kAllFormats[] = {FileFormat::kDrc, FileFormat::kPly, FileFormat::kObj, FileFormat::kVtk,
-                                      FileFormat::kVtu};
+constexpr FileFormat kAllFormats[] = {FileFormat::kDrc, FileFormat::kPly, FileFormat::kObj,
+                                      FileFormat::kVtk, FileFormat::kVtu, FileFormat::kGlb};
 
 }  // namespace
 
@@ -38,6 +38,8 @@ const char* file_format_name(FileFormat format) {
       return "vtk";
     case FileFormat::kVtu:
       return "vtu";
+    case FileFormat::kGlb:
+      return "glb";
   }
   return "bin";
 }
@@ -51,7 +53,7 @@ FrameOutputOptions frame_output_options(const std::string& target, const std::ve
     options.dir = target;
     for (const std::string& name : formats) {
       const std::optional<FileFormat> f = file_format_from_name(name);
-      if (!f) throw usage("--format " + name + ": not a file format; use drc, ply, obj, vtk or vtu");
+      if (!f) throw usage("--format " + name + ": not a file format; use drc, ply, obj, vtk, vtu or glb");
       if (std::find(options.formats.begin(), options.formats.end(), *f) == options.formats.end()) {
         options.formats.push_back(*f);
       }
@@ -74,7 +76,7 @@ FrameOutputOptions frame_output_options(const std::string& target, const std::ve
       extension.size() > 1 ? file_format_from_name(std::string_view(extension).substr(1)) : std::nullopt;
   if (!format || is_sequence_pattern(extension)) {
     throw usage("-o " + target +
-                ": a file pattern's extension sets the format; end it in .drc, .ply, .obj, .vtk or .vtu (e.g. -o "
+                ": a file pattern's extension sets the format; end it in .drc, .ply, .obj, .vtk, .vtu or .glb (e.g. -o "
                 "'out/surface_{:04d}.ply')");
   }
   if (!formats.empty()) {

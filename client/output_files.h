@@ -13,7 +13,7 @@
 
 namespace surfacer::client {
 
-// "drc" -> kDrc, ... "vtu" -> kVtu (lower case, no dot); nullopt for anything else.
+// "drc" -> kDrc, ... "glb" -> kGlb (lower case, no dot); nullopt for anything else.
 std::optional<FileFormat> file_format_from_name(std::string_view name);
 const char* file_format_name(FileFormat format);  // "drc", ...
 

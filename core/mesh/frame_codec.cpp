@@ -5,7 +5,9 @@
 #include "core/mesh/frame_codec.h"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
+#include <cstdio>
 #include <cstring>
 #include <limits>
 #include <vector>
@@ -97,6 +99,28 @@ Container read_container(std::string_view bytes) {
     at += e.bytes;
   }
   return c;
+}
+
+// Draco options that put a mesh on `grid`: its cube (Draco takes the origin and longest side, i.e. this grid).
+DracoOptions on_grid(const QuantizationGrid& grid, const Mesh& mesh) {
+  Aabb cube;
+  for (int c = 0; c < 3; ++c) {
+    cube.min[c] = grid.origin[c];
+    cube.max[c] = static_cast<double>(grid.origin[c]) + static_cast<double>(grid.range);
+  }
+  DracoOptions options;
+  options.quantization_bits = grid.bits;
+  options.quantization_bounds = cube;
+  options.normals = !mesh.normals.empty();
+  return options;
+}
+
+// Grid points dequantized in float32 may stick out of the grid's cube by an ulp; clamping moves them by less than a
+// step, so they quantize to the same points.
+Mesh clamped_to(const Mesh& mesh, const Aabb& cube) {
+  Mesh clamped = mesh;
+  for (Vec3& p : clamped.vertices) p = p.cwiseMax(cube.min).cwiseMin(cube.max);
+  return clamped;
 }
 
 std::string encode_pieces(const Mesh& mesh, const FrameCodecOptions& options, const Executor& executor,
@@ -236,20 +260,125 @@ std::string to_standard_draco(std::string_view bytes, FrameCodec codec, const Me
       break;
   }
   const QuantizationGrid grid = read_container(bytes).grid;
-  // The grid's cube: Draco takes its origin and longest side, i.e. this grid. Grid points dequantized in float32
-  // may stick out of it by an ulp; clamping moves them by less than a step, so they quantize to the same points.
-  Aabb cube;
-  for (int c = 0; c < 3; ++c) {
-    cube.min[c] = grid.origin[c];
-    cube.max[c] = static_cast<double>(grid.origin[c]) + static_cast<double>(grid.range);
+  DracoOptions options = on_grid(grid, decoded);
+  return encode_draco(clamped_to(decoded, *options.quantization_bounds), options);
+}
+
+std::string to_gltf(std::string_view bytes, FrameCodec codec, const Mesh* decoded, const Executor& executor) {
+  std::string pieced;
+  if (codec != FrameCodec::kDracoPieces) {
+    if (decoded == nullptr) throw Internal("to_gltf needs the decoded mesh of a frame that is not Draco pieces");
+    FrameCodecOptions options;
+    options.codec = FrameCodec::kDracoPieces;
+    if (codec == FrameCodec::kMeshopt) {
+      options.draco = on_grid(read_container(bytes).grid, *decoded);
+      pieced = encode_frame(clamped_to(*decoded, *options.draco.quantization_bounds), options, executor);
+    } else {
+      options.draco.normals = !decoded->normals.empty();
+      pieced = encode_frame(*decoded, options, executor);
+    }
+    bytes = pieced;
   }
-  DracoOptions options;
-  options.quantization_bits = grid.bits;
-  options.quantization_bounds = cube;
-  options.normals = !decoded.normals.empty();
-  Mesh clamped = decoded;
-  for (Vec3& p : clamped.vertices) p = p.cwiseMax(cube.min).cwiseMin(cube.max);
-  return encode_draco(clamped, options);
+  const Container c = read_container(bytes);
+  if (c.codec != container_codec(FrameCodec::kDracoPieces)) bad("its pieces are not Draco pieces");
+  if (c.grid.bits > 16) {
+    throw InvalidInput("quantization_bits", "quantization_bits (" + std::to_string(c.grid.bits) +
+                                                ") is more than glTF holds: positions of at most 16 bits "
+                                                "(KHR_mesh_quantization); use 16 or fewer, or another file format");
+  }
+  // Each piece's counts, its grid coordinates' bounds and the Draco ids of its attributes.
+  struct Primitive {
+    std::size_t points = 0, triangles = 0;
+    std::array<std::uint32_t, 3> min{}, max{};
+    DracoPieceIds ids;
+  };
+  const int n = static_cast<int>(c.pieces.size());
+  std::vector<Primitive> primitives(n);
+  executor.for_each(n, [&](int p) {
+    const QuantizedPiece piece = decode_draco_piece(c.payloads[p], c.grid.bits, &primitives[p].ids);
+    Primitive& out = primitives[p];
+    out.points = piece.positions.size();
+    out.triangles = piece.triangles.size();
+    out.min.fill(std::numeric_limits<std::uint32_t>::max());
+    for (const auto& q : piece.positions) {
+      for (int a = 0; a < 3; ++a) {
+        out.min[a] = std::min(out.min[a], q[a]);
+        out.max[a] = std::max(out.max[a], q[a]);
+      }
+    }
+  });
+  // JSON: accessors (positions, indices, normals per primitive), one buffer view per piece, one node on the grid.
+  const float delta = c.grid.range / static_cast<float>(c.grid.max_value());
+  std::string accessors, views, meshes;
+  std::string bin;
+  int view = 0, first = 0;  // the next buffer view's index and the primitive's first accessor's
+  for (int p = 0; p < n; ++p) {
+    const Primitive& prim = primitives[p];
+    if (prim.triangles == 0) continue;  // glTF has no empty accessors
+    while (bin.size() % 4 != 0) bin.push_back('\0');
+    views += std::string(views.empty() ? "" : ",") + "{\"buffer\":0,\"byteOffset\":" + std::to_string(bin.size()) +
+             ",\"byteLength\":" + std::to_string(c.payloads[p].size()) + "}";
+    bin += c.payloads[p];
+    auto triple = [](const std::array<std::uint32_t, 3>& v) {
+      return "[" + std::to_string(v[0]) + "," + std::to_string(v[1]) + "," + std::to_string(v[2]) + "]";
+    };
+    accessors += std::string(accessors.empty() ? "" : ",") +
+                 "{\"componentType\":5123,\"type\":\"VEC3\",\"count\":" + std::to_string(prim.points) +
+                 ",\"min\":" + triple(prim.min) + ",\"max\":" + triple(prim.max) +
+                 "},{\"componentType\":5125,\"type\":\"SCALAR\",\"count\":" + std::to_string(3 * prim.triangles) + "}";
+    std::string attributes = "\"POSITION\":" + std::to_string(first);
+    std::string draco_attributes = "\"POSITION\":" + std::to_string(prim.ids.position);
+    if (prim.ids.normal >= 0) {
+      accessors += ",{\"componentType\":5126,\"type\":\"VEC3\",\"count\":" + std::to_string(prim.points) + "}";
+      attributes += ",\"NORMAL\":" + std::to_string(first + 2);
+      draco_attributes += ",\"NORMAL\":" + std::to_string(prim.ids.normal);
+    }
+    meshes += std::string(meshes.empty() ? "" : ",") + "{\"attributes\":{" + attributes +
+              "},\"indices\":" + std::to_string(first + 1) +
+              ",\"extensions\":{\"KHR_draco_mesh_compression\":{\"bufferView\":" + std::to_string(view) +
+              ",\"attributes\":{" + draco_attributes + "}}}}";
+    view += 1;
+    first += prim.ids.normal >= 0 ? 3 : 2;
+  }
+  while (bin.size() % 4 != 0) bin.push_back('\0');
+  auto number = [](float v) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%.9g", static_cast<double>(v));  // float32 round-trips in 9 digits
+    return std::string(text);
+  };
+  std::string node = "{\"translation\":[" + number(c.grid.origin[0]) + "," + number(c.grid.origin[1]) + "," +
+                     number(c.grid.origin[2]) + "],\"scale\":[" + number(delta) + "," + number(delta) + "," +
+                     number(delta) + "]";
+  std::string json = "{\"asset\":{\"version\":\"2.0\",\"generator\":\"surfacer\"},";
+  if (!meshes.empty()) {
+    node += ",\"mesh\":0";
+    json +=
+        "\"extensionsUsed\":[\"KHR_draco_mesh_compression\",\"KHR_mesh_quantization\"],"
+        "\"extensionsRequired\":[\"KHR_draco_mesh_compression\",\"KHR_mesh_quantization\"],"
+        "\"meshes\":[{\"primitives\":[" +
+        meshes + "]}],\"accessors\":[" + accessors + "],\"bufferViews\":[" + views +
+        "],\"buffers\":[{\"byteLength\":" + std::to_string(bin.size()) + "}],";
+  }
+  json += "\"scene\":0,\"scenes\":[{\"nodes\":[0]}],\"nodes\":[" + node + "}]}";
+  while (json.size() % 4 != 0) json.push_back(' ');
+  // GLB: header, JSON chunk, BIN chunk (absent when empty), little-endian.
+  std::string out;
+  const std::uint32_t total = static_cast<std::uint32_t>(12 + 8 + json.size() + (bin.empty() ? 0 : 8 + bin.size()));
+  if (12 + 8 + json.size() + 8 + bin.size() > std::numeric_limits<std::uint32_t>::max()) {
+    throw ResourceLimit("frame", "a glTF file of over 4 GiB");
+  }
+  put(out, std::uint32_t{0x46546C67});  // "glTF"
+  put(out, std::uint32_t{2});
+  put(out, total);
+  put(out, static_cast<std::uint32_t>(json.size()));
+  put(out, std::uint32_t{0x4E4F534A});  // "JSON"
+  out += json;
+  if (!bin.empty()) {
+    put(out, static_cast<std::uint32_t>(bin.size()));
+    put(out, std::uint32_t{0x004E4942});  // "BIN\0"
+    out += bin;
+  }
+  return out;
 }
 
 }  // namespace surfacer

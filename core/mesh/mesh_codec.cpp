@@ -375,7 +375,7 @@ std::string encode_draco_piece(const QuantizedPiece& piece, int grid_bits, const
   return std::string(buffer.data(), buffer.size());
 }
 
-QuantizedPiece decode_draco_piece(std::string_view bytes, int grid_bits) {
+QuantizedPiece decode_draco_piece(std::string_view bytes, int grid_bits, DracoPieceIds* ids) {
   draco::DecoderBuffer buffer;
   buffer.Init(bytes.data(), bytes.size());
   draco::Decoder decoder;
@@ -391,6 +391,7 @@ QuantizedPiece decode_draco_piece(std::string_view bytes, int grid_bits) {
   if (position == nullptr || position->num_components() != 3 || !unsigned_attribute(*position)) {
     throw InvalidInput("frame", "a Draco piece has no integer 3D POSITION attribute");
   }
+  if (ids) ids->position = static_cast<int>(position->unique_id());
   const std::uint32_t max_value = (std::uint32_t{1} << grid_bits) - 1u;
   piece.positions.resize(np);
   for (std::size_t p = 0; p < np; ++p) {
@@ -419,6 +420,7 @@ QuantizedPiece decode_draco_piece(std::string_view bytes, int grid_bits) {
     if (normal->num_components() != 3 || !numeric_attribute(*normal)) {
       throw InvalidInput("frame", "a Draco piece's NORMAL attribute is not numeric 3D");
     }
+    if (ids) ids->normal = static_cast<int>(normal->unique_id());
     piece.normals.resize(np);
     std::array<float, 3> value{};
     for (std::size_t p = 0; p < np; ++p) {

@@ -82,8 +82,13 @@ double draco_max_error(const Aabb& box, int quantization_bits);
 // already), the seam tags as a 16-bit GENERIC attribute when some are non-zero, and the normals as encode_draco
 // writes them (options.normals, options.normal_bits). options.speed applies; its quantization fields do not.
 std::string encode_draco_piece(const QuantizedPiece& piece, int grid_bits, const DracoOptions& options);
+// The Draco attribute ids of a piece's position and normals (-1: none), what glTF's KHR_draco_mesh_compression names.
+struct DracoPieceIds {
+  int position = -1;
+  int normal = -1;
+};
 // Throws InvalidInput("frame") when the bytes are not such a piece (no integer POSITION, coordinates beyond
-// 2^grid_bits - 1).
-QuantizedPiece decode_draco_piece(std::string_view bytes, int grid_bits);
+// 2^grid_bits - 1). Fills `ids` when given.
+QuantizedPiece decode_draco_piece(std::string_view bytes, int grid_bits, DracoPieceIds* ids = nullptr);
 
 }  // namespace surfacer

@@ -1,12 +1,18 @@
 // End to end for the file formats pipelines use: the `surfacer` binary with its in-process server (--local), VTK
 // output, output names that keep the input frame numbers or follow a pattern, and the new particle inputs.
+#include <google/protobuf/struct.pb.h>
+#include <google/protobuf/util/json_util.h>
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
+#include <map>
 #include <random>
 
+#include "core/mesh/mesh_checks.h"
+#include "core/mesh/mesh_codec.h"
 #include "core/mesh/mesh_io.h"
 #include "core/mesh/mesh_vtk.h"
 #include "core/particles/particle_io.h"
@@ -49,6 +55,94 @@ std::string as_json(const std::vector<Vec3>& points) {
   return json + "]\n";
 }
 
+// A .glb read as a glTF reader does, from the spec (glTF 2.0, KHR_draco_mesh_compression, KHR_mesh_quantization):
+// header and chunks, the JSON, every primitive's Draco stream decoded by Draco's own decoder into the accessors
+// it names (whose counts and bounds must agree with it), positions mapped by the node's scale and translation. The
+// primitives are concatenated, then vertices at the same position welded (pieces repeat their seam vertices).
+struct Gltf {
+  Mesh welded;
+  int primitives = 0;
+  std::vector<std::string> required;  // extensionsRequired
+};
+
+Gltf read_glb(const fs::path& path) {
+  const std::string bytes = read_file(path);
+  auto u32 = [&](std::size_t at) {
+    std::uint32_t v = 0;
+    if (at + 4 <= bytes.size()) std::memcpy(&v, bytes.data() + at, 4);
+    return v;
+  };
+  Gltf out;
+  EXPECT_EQ(u32(0), 0x46546C67u) << "magic";
+  EXPECT_EQ(u32(4), 2u) << "version";
+  EXPECT_EQ(u32(8), bytes.size()) << "length";
+  const std::uint32_t json_length = u32(12);
+  EXPECT_EQ(u32(16), 0x4E4F534Au) << "JSON chunk";
+  EXPECT_EQ(json_length % 4, 0u);
+  const std::string json = bytes.substr(20, json_length);
+  const std::size_t bin_at = 20 + json_length + 8;
+  const std::string bin = bin_at <= bytes.size() ? bytes.substr(bin_at, u32(20 + json_length)) : std::string();
+  google::protobuf::Struct doc;
+  EXPECT_TRUE(google::protobuf::util::JsonStringToMessage(json, &doc).ok()) << json;
+  const auto& f = doc.fields();
+  EXPECT_EQ(f.at("asset").struct_value().fields().at("version").string_value(), "2.0");
+  if (f.contains("extensionsRequired")) {
+    for (const auto& e : f.at("extensionsRequired").list_value().values()) out.required.push_back(e.string_value());
+  }
+  const auto& node = f.at("nodes").list_value().values(0).struct_value().fields();
+  Vec3 scale = Vec3::Ones(), translation = Vec3::Zero();
+  for (int a = 0; a < 3; ++a) {
+    scale[a] = node.at("scale").list_value().values(a).number_value();
+    translation[a] = node.at("translation").list_value().values(a).number_value();
+  }
+  if (!node.contains("mesh")) return out;
+  const auto& accessors = f.at("accessors").list_value().values();
+  const auto& views = f.at("bufferViews").list_value().values();
+  std::map<std::array<double, 3>, std::uint32_t> index;  // welding by position
+  auto accessor = [&](double i) -> const auto& { return accessors.at(static_cast<int>(i)).struct_value().fields(); };
+  for (const auto& prim : f.at("meshes")
+                              .list_value()
+                              .values(static_cast<int>(node.at("mesh").number_value()))
+                              .struct_value()
+                              .fields()
+                              .at("primitives")
+                              .list_value()
+                              .values()) {
+    ++out.primitives;
+    const auto& p = prim.struct_value().fields();
+    const auto& draco =
+        p.at("extensions").struct_value().fields().at("KHR_draco_mesh_compression").struct_value().fields();
+    const auto& view = views.at(static_cast<int>(draco.at("bufferView").number_value())).struct_value().fields();
+    const std::string stream = bin.substr(static_cast<std::size_t>(view.at("byteOffset").number_value()),
+                                          static_cast<std::size_t>(view.at("byteLength").number_value()));
+    const Mesh piece = decode_draco(stream);  // Draco's decoder: POSITION as the integer grid coordinates
+    const auto& position = accessor(p.at("attributes").struct_value().fields().at("POSITION").number_value());
+    EXPECT_EQ(position.at("componentType").number_value(), 5123);  // UNSIGNED_SHORT (KHR_mesh_quantization)
+    EXPECT_EQ(position.at("count").number_value(), static_cast<double>(piece.vertices.size()));
+    EXPECT_EQ(accessor(p.at("indices").number_value()).at("count").number_value(), 3.0 * piece.triangles.size());
+    for (int a = 0; a < 3; ++a) {
+      double lo = 1e300, hi = -1e300;
+      for (const Vec3& q : piece.vertices) {
+        lo = std::min(lo, q[a]);
+        hi = std::max(hi, q[a]);
+      }
+      EXPECT_EQ(position.at("min").list_value().values(a).number_value(), lo);
+      EXPECT_EQ(position.at("max").list_value().values(a).number_value(), hi);
+    }
+    if (p.at("attributes").struct_value().fields().contains("NORMAL"))
+      EXPECT_EQ(piece.normals.size(), piece.vertices.size());
+    std::vector<std::uint32_t> ids(piece.vertices.size());
+    for (std::size_t v = 0; v < piece.vertices.size(); ++v) {
+      const Vec3 w = piece.vertices[v].cwiseProduct(scale) + translation;
+      const auto [it, fresh] = index.try_emplace({w.x(), w.y(), w.z()}, static_cast<std::uint32_t>(index.size()));
+      if (fresh) out.welded.vertices.push_back(w);
+      ids[v] = it->second;
+    }
+    for (const Triangle& t : piece.triangles) out.welded.triangles.push_back({ids[t[0]], ids[t[1]], ids[t[2]]});
+  }
+  return out;
+}
+
 class FormatsEndToEnd : public ::testing::Test {
  protected:
   static void SetUpTestSuite() { root_ = fresh_temp_dir("formats_e2e"); }
@@ -81,6 +175,46 @@ TEST_F(FormatsEndToEnd, IsosurfaceWritesVtkAndVtuWithThePlyFramesVertices) {
   // The writers' own bytes for that mesh (the cells are checked by core's round trips).
   EXPECT_EQ(read_file(dir_ / "out" / "frame_0000.vtk"), write_vtk(ply));
   EXPECT_EQ(read_file(dir_ / "out" / "frame_0000.vtu"), write_vtu(ply));
+}
+
+// --format glb: the Draco pieces as received, in a file any glTF reader with Draco takes; the same surface as the
+// .ply of the same frame, whatever encoding the frames came in.
+TEST_F(FormatsEndToEnd, GlbHoldsTheFramesSurfaceInDracoPiecesWhateverTheEncoding) {
+  write_file(dir_ / "gyroid.json",
+             R"({"root": {"intersection": {"children": [{"gyroid": {"period": 1, "thickness": 0.12}},
+                 {"sphere": {"radius": 1.5}}]}}})");
+  int run = 0;
+  for (const std::vector<std::string>& extra : std::vector<std::vector<std::string>>{
+           {}, {"--encoding", "meshopt"}, {"--raw"}, {"--normals", "--quantization-bits", "12"}}) {
+    for (int cells : {40, 150}) {  // one piece; several
+      const fs::path out = dir_ / ("out" + std::to_string(run++));
+      std::vector<std::string> args = {"run",     "isosurface",          "--scene",  (dir_ / "gyroid.json").string(),
+                                       "--cells", std::to_string(cells), "--method", "cubes",
+                                       "-o",      out.string(),          "--format", "glb,ply"};
+      args.insert(args.end(), extra.begin(), extra.end());
+      SCOPED_TRACE(::testing::PrintToString(args));
+      const ProcessResult r = cli(args);
+      ASSERT_EQ(r.code, 0) << r;
+      const Mesh ply = read_mesh(out / "frame_0000.ply");
+      const Gltf glb = read_glb(out / "frame_0000.glb");
+      EXPECT_EQ(glb.required, (std::vector<std::string>{"KHR_draco_mesh_compression", "KHR_mesh_quantization"}));
+      EXPECT_EQ(glb.primitives == 1, cells == 40);
+      const MeshReport a = check_mesh(ply), b = check_mesh(glb.welded);
+      EXPECT_EQ(glb.welded.triangles.size(), ply.triangles.size());
+      EXPECT_TRUE(b.closed && b.oriented && b.vertex_manifold);
+      EXPECT_EQ(b.euler_characteristic, a.euler_characteristic);
+      EXPECT_EQ(b.components, a.components);
+      EXPECT_NEAR(b.area, a.area, 1e-3 * a.area);
+      EXPECT_NEAR(b.volume, a.volume, 1e-3 * std::abs(a.volume));
+    }
+  }
+  // glTF positions are at most 16 bits: refused before the job runs, naming both flags.
+  const ProcessResult r = cli({"run", "isosurface", "--scene", (dir_ / "gyroid.json").string(), "--cells", "20", "-o",
+                               (dir_ / "deep").string(), "--format", "glb", "--quantization-bits", "18"});
+  EXPECT_EQ(r.code, 2) << r;
+  EXPECT_NE(r.err.find("--format glb"), std::string::npos) << r;
+  EXPECT_NE(r.err.find("--quantization-bits 18"), std::string::npos) << r;
+  EXPECT_FALSE(fs::exists(dir_ / "deep" / "frame_0000.glb"));
 }
 
 TEST_F(FormatsEndToEnd, JsonSequenceFromFrame100KeepsItsNumbersUnderAnOutputPattern) {

@@ -78,8 +78,9 @@ TEST(OutputNaming, PatternsNameEachFrameAndTheirExtensionSetsTheFormat) {
 TEST(OutputNaming, BadOutputsAreUsageErrorsNamingTheFlag) {
   EXPECT_NE(usage_error([] { frame_output_options("out/s_{:04d}.ply", {"vtk"}, "run"); }).find("drop --format"),
             std::string::npos);
-  EXPECT_NE(usage_error([] { frame_output_options("out/s_{}.png", {}, "run"); }).find(".drc, .ply, .obj, .vtk or .vtu"),
-            std::string::npos);
+  EXPECT_NE(
+      usage_error([] { frame_output_options("out/s_{}.png", {}, "run"); }).find(".drc, .ply, .obj, .vtk, .vtu or .glb"),
+      std::string::npos);
   EXPECT_NE(usage_error([] { frame_output_options("out/s_{}", {}, "run"); }).find("-o out/s_{}"), std::string::npos);
   EXPECT_NE(usage_error([] { frame_output_options("out_{}/s.ply", {}, "run"); }).find("directory name"),
             std::string::npos);
@@ -99,7 +100,7 @@ TEST(OutputNaming, OutputNumbersAreTheInputsWhenEveryFrameHasOneAndTheyIncrease)
   EXPECT_TRUE(output_numbers({5, 6, 5, 6}).empty());         // two patterns over the same range
 }
 
-TEST(OutputNaming, CommandLineTakesVtkFormatsAndPatterns) {
+TEST(OutputNaming, CommandLineTakesVtkAndGlbFormatsAndPatterns) {
   const fs::path dir = testing::fresh_temp_dir("output_naming_cli");
   testing::write_file(dir / "s.json", R"({"root": {"sphere": {"radius": 1}}})");
   auto run = [&](std::vector<std::string> output) {
@@ -107,10 +108,14 @@ TEST(OutputNaming, CommandLineTakesVtkFormatsAndPatterns) {
     args.insert(args.end(), output.begin(), output.end());
     return testing::parse_cli(args);
   };
-  const testing::ParsedCli formats = run({"-o", "out", "--format", "vtk,vtu"});
+  const testing::ParsedCli formats = run({"-o", "out", "--format", "vtk,vtu,glb"});
   ASSERT_EQ(testing::exit_code_of(formats), ExitCode::kSuccess) << formats.err;
   const auto& output = std::get<RunCommand>(std::get<Invocation>(formats.result).command).output;
-  EXPECT_EQ(output.formats, (std::vector<FileFormat>{FileFormat::kVtk, FileFormat::kVtu}));
+  EXPECT_EQ(output.formats, (std::vector<FileFormat>{FileFormat::kVtk, FileFormat::kVtu, FileFormat::kGlb}));
+  const testing::ParsedCli glb_pattern = run({"-o", "out/f_{:04d}.GLB"});
+  ASSERT_EQ(testing::exit_code_of(glb_pattern), ExitCode::kSuccess) << glb_pattern.err;
+  EXPECT_EQ(std::get<RunCommand>(std::get<Invocation>(glb_pattern.result).command).output.formats,
+            std::vector<FileFormat>{FileFormat::kGlb});
   const testing::ParsedCli pattern = run({"-o", "out/f_{:04d}.vtu"});
   ASSERT_EQ(testing::exit_code_of(pattern), ExitCode::kSuccess) << pattern.err;
   EXPECT_EQ(std::get<RunCommand>(std::get<Invocation>(pattern.result).command).output.pattern, "out/f_{:04d}.vtu");

@@ -246,6 +246,35 @@ TEST(FrameCodec, StandardDracoOfPiecesIsOnTheJobGrid) {
   }
 }
 
+// to_gltf's edges (the end-to-end test reads full files): an empty frame is a scene with one empty node (glTF has no
+// empty accessors); a grid of more than 16 bits is refused naming quantization_bits, whatever the frame's codec.
+TEST(FrameCodec, GltfOfAnEmptyFrameAndOfADeepGrid) {
+  const ThreadExecutor two(2);
+  for (FrameCodec codec : {FrameCodec::kDracoPieces, FrameCodec::kMeshopt, FrameCodec::kDraco, FrameCodec::kPly}) {
+    SCOPED_TRACE(std::string(frame_codec_name(codec)));
+    const Mesh empty;
+    const FrameCodecOptions o = options_for(codec, Aabb{Vec3::Zero(), Vec3::Ones()}, 1024);
+    const std::string bytes = encode_frame(empty, o, two);
+    const std::string glb = to_gltf(bytes, codec, &empty, two);
+    ASSERT_GE(glb.size(), 20u);
+    EXPECT_EQ(glb.substr(0, 4), "glTF");
+    EXPECT_EQ(glb.find("\"meshes\""), std::string::npos);
+    EXPECT_NE(glb.find("\"nodes\":[{"), std::string::npos);
+    if (codec == FrameCodec::kDraco || codec == FrameCodec::kPly) continue;  // encoded again on their own 14 bits
+    const Mesh sphere = testing::icosphere(3);
+    const FrameCodecOptions deep = options_for(codec, Aabb{Vec3::Constant(-1), Vec3::Constant(1)}, 1024, 18);
+    const std::string deep_bytes = encode_frame(sphere, deep, two);
+    const Mesh decoded = decode_frame(deep_bytes, codec, two);
+    try {
+      to_gltf(deep_bytes, codec, &decoded, two);
+      ADD_FAILURE() << "an 18-bit grid was written to glTF";
+    } catch (const Error& e) {
+      EXPECT_EQ(e.field(), "quantization_bits");
+      EXPECT_NE(std::string(e.what()).find("16"), std::string::npos) << e.what();
+    }
+  }
+}
+
 TEST(FrameCodec, CorruptedPiecedFramesAreInvalidInput) {
   const Case c = cases()[2];  // sphere, cubes, 40 cells: several pieces of 1024
   std::mt19937 rng(5);
