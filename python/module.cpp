@@ -783,7 +783,7 @@ class FrameStream {
   std::exception_ptr error_;
 };
 
-// Writes a mesh given as arrays with core's writer (write_mesh: .ply, .obj or .drc by the extension).
+// Writes a mesh given as arrays with core's writer (write_mesh: .ply, .obj, .drc or .glb by the extension).
 void write_mesh_file(const std::string& path,
                      const py::array_t<double, py::array::c_style | py::array::forcecast>& vertices,
                      const py::array_t<std::int64_t, py::array::c_style | py::array::forcecast>& triangles,

@@ -16,6 +16,7 @@
 #include <sstream>
 #include <vector>
 
+#include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_codec.h"
 #include "core/mesh/ply.h"
 #include "core/util/errors.h"
@@ -268,10 +269,19 @@ void check_mesh_writable(const Mesh& mesh, std::string_view format) {
   }
 }
 
-MeshFormat mesh_format_from_path(const std::filesystem::path& path) {
+namespace {
+
+std::string lower_extension(const std::filesystem::path& path) {
   std::string ext = path.extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(),
                  [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return ext;
+}
+
+}  // namespace
+
+MeshFormat mesh_format_from_path(const std::filesystem::path& path) {
+  const std::string ext = lower_extension(path);
   if (ext == ".ply") return MeshFormat::kPly;
   if (ext == ".obj") return MeshFormat::kObj;
   if (ext == ".drc") return MeshFormat::kDraco;
@@ -367,18 +377,25 @@ std::string write_obj(const Mesh& mesh) {
 }
 
 void write_mesh(const std::filesystem::path& path, const Mesh& mesh) {
-  const MeshFormat format = mesh_format_from_path(path);
   std::string bytes;
-  switch (format) {
-    case MeshFormat::kPly:
-      bytes = write_ply(mesh);
-      break;
-    case MeshFormat::kObj:
-      bytes = write_obj(mesh);
-      break;
-    case MeshFormat::kDraco:
-      bytes = encode_draco(mesh, DracoOptions{});
-      break;
+  if (lower_extension(path) == ".glb") {  // Draco pieces on the mesh's own box, encoded on every core
+    FrameCodecOptions options;
+    options.codec = FrameCodec::kDracoPieces;
+    options.draco.normals = !mesh.normals.empty();
+    const ThreadExecutor all(0);
+    bytes = to_gltf(encode_frame(mesh, options, all), FrameCodec::kDracoPieces, nullptr, all);
+  } else {
+    switch (mesh_format_from_path(path)) {
+      case MeshFormat::kPly:
+        bytes = write_ply(mesh);
+        break;
+      case MeshFormat::kObj:
+        bytes = write_obj(mesh);
+        break;
+      case MeshFormat::kDraco:
+        bytes = encode_draco(mesh, DracoOptions{});
+        break;
+    }
   }
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
   if (!out) throw InvalidInput("file", path.string() + ": cannot open for writing: " + std::strerror(errno));

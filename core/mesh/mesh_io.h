@@ -26,7 +26,9 @@ Mesh parse_mesh(std::string_view bytes, MeshFormat format, const std::string& na
 // no normals or one per vertex, every triangle's indices below the vertex count. `format` names the file in messages.
 void check_mesh_writable(const Mesh& mesh, std::string_view format);
 
-// PLY is written binary little-endian (float positions unless `double_precision`); OBJ as text with %.9g.
+// By the extension: .ply, .obj, .drc (one Draco mesh, default options) or .glb (to_gltf of Draco pieces on the
+// mesh's own box with the default bits, encoded on every core). PLY is written binary little-endian (float positions
+// unless `double_precision`); OBJ as text with %.9g.
 void write_mesh(const std::filesystem::path& path, const Mesh& mesh);
 std::string write_obj(const Mesh& mesh);
 std::string write_ply(const Mesh& mesh, bool double_precision = false);

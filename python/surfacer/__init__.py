@@ -41,7 +41,8 @@ class Frame:
     stats: Dict[str, Any]
 
     def write(self, path) -> None:
-        """Writes the mesh with the CLI's own writers, the format by the extension: .ply (binary), .obj or .drc."""
+        """Writes the mesh with the CLI's own writers, the format by the extension: .ply (binary), .obj, .drc or .glb
+        (glTF with Draco pieces, encoded on every core)."""
         _surfacer.write_mesh(os.fspath(path), self.vertices, self.triangles, self.normals)
 
 

@@ -1,6 +1,8 @@
 """The surfacer package end to end: jobs against the in-process server and a real loopback server, numpy in and out,
 errors as exceptions with the gRPC code, cancel, and the job-management calls."""
 
+import json
+import struct
 import threading
 import time
 
@@ -168,3 +170,12 @@ def test_frame_write(local_client, tmp_path):
     frame.write(tmp_path / "ball.obj")
     assert (tmp_path / "ball.ply").read_bytes().startswith(b"ply\n")
     assert sum(1 for line in open(tmp_path / "ball.obj") if line.startswith("f ")) == len(frame.triangles)
+    # glTF: header, JSON chunk, and index accessors for every triangle (the C++ end-to-end test decodes the pieces).
+    frame.write(tmp_path / "ball.glb")
+    data = (tmp_path / "ball.glb").read_bytes()
+    magic, version, length, json_length, json_type = struct.unpack_from("<4sIIII", data)
+    assert (magic, version, length, json_type) == (b"glTF", 2, len(data), 0x4E4F534A)
+    gltf = json.loads(data[20:20 + json_length])
+    assert gltf["extensionsRequired"] == ["KHR_draco_mesh_compression", "KHR_mesh_quantization"]
+    primitives = gltf["meshes"][0]["primitives"]
+    assert sum(gltf["accessors"][p["indices"]]["count"] for p in primitives) == 3 * len(frame.triangles)
