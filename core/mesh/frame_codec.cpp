@@ -15,6 +15,7 @@
 #include "core/mesh/mesh_io.h"
 #include "core/mesh/meshopt_codec.h"
 #include "core/util/errors.h"
+#include "core/util/json.h"
 
 namespace surfacer {
 namespace {
@@ -307,59 +308,76 @@ std::string to_gltf(std::string_view bytes, FrameCodec codec, const Mesh* decode
       }
     }
   });
-  // JSON: accessors (positions, indices, normals per primitive), one buffer view per piece, one node on the grid.
-  const float delta = c.grid.range / static_cast<float>(c.grid.max_value());
-  std::string accessors, views, meshes;
+  // The binary chunk: the pieces with triangles, each 4-byte aligned (glTF has no empty accessors).
+  std::vector<int> kept;
+  std::vector<std::size_t> offsets;
   std::string bin;
-  int view = 0, first = 0;  // the next buffer view's index and the primitive's first accessor's
   for (int p = 0; p < n; ++p) {
-    const Primitive& prim = primitives[p];
-    if (prim.triangles == 0) continue;  // glTF has no empty accessors
+    if (primitives[p].triangles == 0) continue;
     while (bin.size() % 4 != 0) bin.push_back('\0');
-    views += std::string(views.empty() ? "" : ",") + "{\"buffer\":0,\"byteOffset\":" + std::to_string(bin.size()) +
-             ",\"byteLength\":" + std::to_string(c.payloads[p].size()) + "}";
+    kept.push_back(p);
+    offsets.push_back(bin.size());
     bin += c.payloads[p];
-    auto triple = [](const std::array<std::uint32_t, 3>& v) {
-      return "[" + std::to_string(v[0]) + "," + std::to_string(v[1]) + "," + std::to_string(v[2]) + "]";
-    };
-    accessors += std::string(accessors.empty() ? "" : ",") +
-                 "{\"componentType\":5123,\"type\":\"VEC3\",\"count\":" + std::to_string(prim.points) +
-                 ",\"min\":" + triple(prim.min) + ",\"max\":" + triple(prim.max) +
-                 "},{\"componentType\":5125,\"type\":\"SCALAR\",\"count\":" + std::to_string(3 * prim.triangles) + "}";
-    std::string attributes = "\"POSITION\":" + std::to_string(first);
-    std::string draco_attributes = "\"POSITION\":" + std::to_string(prim.ids.position);
-    if (prim.ids.normal >= 0) {
-      accessors += ",{\"componentType\":5126,\"type\":\"VEC3\",\"count\":" + std::to_string(prim.points) + "}";
-      attributes += ",\"NORMAL\":" + std::to_string(first + 2);
-      draco_attributes += ",\"NORMAL\":" + std::to_string(prim.ids.normal);
-    }
-    meshes += std::string(meshes.empty() ? "" : ",") + "{\"attributes\":{" + attributes +
-              "},\"indices\":" + std::to_string(first + 1) +
-              ",\"extensions\":{\"KHR_draco_mesh_compression\":{\"bufferView\":" + std::to_string(view) +
-              ",\"attributes\":{" + draco_attributes + "}}}}";
-    view += 1;
-    first += prim.ids.normal >= 0 ? 3 : 2;
   }
   while (bin.size() % 4 != 0) bin.push_back('\0');
-  auto number = [](float v) {
-    char text[32];
-    std::snprintf(text, sizeof text, "%.9g", static_cast<double>(v));  // float32 round-trips in 9 digits
-    return std::string(text);
-  };
-  std::string node = "{\"translation\":[" + number(c.grid.origin[0]) + "," + number(c.grid.origin[1]) + "," +
-                     number(c.grid.origin[2]) + "],\"scale\":[" + number(delta) + "," + number(delta) + "," +
-                     number(delta) + "]";
-  std::string json = "{\"asset\":{\"version\":\"2.0\",\"generator\":\"surfacer\"},";
-  if (!meshes.empty()) {
-    node += ",\"mesh\":0";
-    json +=
-        "\"extensionsUsed\":[\"KHR_draco_mesh_compression\",\"KHR_mesh_quantization\"],"
-        "\"extensionsRequired\":[\"KHR_draco_mesh_compression\",\"KHR_mesh_quantization\"],"
-        "\"meshes\":[{\"primitives\":[" +
-        meshes + "]}],\"accessors\":[" + accessors + "],\"bufferViews\":[" + views +
-        "],\"buffers\":[{\"byteLength\":" + std::to_string(bin.size()) + "}],";
+  // The JSON: per primitive the accessors POSITION, indices and NORMAL (when the piece has normals) in that order,
+  // and buffer view k for kept piece k; one node maps the grid to the scene.
+  JsonWriter w;
+  w.begin_object().key("asset").begin_object().key("version").value("2.0").key("generator").value("surfacer");
+  w.end_object();
+  if (!kept.empty()) {
+    for (const char* list : {"extensionsUsed", "extensionsRequired"}) {
+      w.key(list).begin_array().value("KHR_draco_mesh_compression").value("KHR_mesh_quantization").end_array();
+    }
+    w.key("meshes").begin_array().begin_object().key("primitives").begin_array();
+    int accessor = 0;
+    for (std::size_t k = 0; k < kept.size(); ++k) {
+      const DracoPieceIds& ids = primitives[kept[k]].ids;
+      w.begin_object().key("attributes").begin_object().key("POSITION").value(accessor);
+      if (ids.normal >= 0) w.key("NORMAL").value(accessor + 2);
+      w.end_object().key("indices").value(accessor + 1);
+      w.key("extensions").begin_object().key("KHR_draco_mesh_compression").begin_object();
+      w.key("bufferView").value(static_cast<int>(k)).key("attributes").begin_object();
+      w.key("POSITION").value(ids.position);
+      if (ids.normal >= 0) w.key("NORMAL").value(ids.normal);
+      w.end_object().end_object().end_object().end_object();
+      accessor += ids.normal >= 0 ? 3 : 2;
+    }
+    w.end_array().end_object().end_array();
+    w.key("accessors").begin_array();
+    for (const int p : kept) {
+      const Primitive& prim = primitives[p];
+      w.begin_object().key("componentType").value(5123).key("type").value("VEC3");  // UNSIGNED_SHORT
+      w.key("count").value(std::uint64_t{prim.points});
+      for (const auto& [name, bound] : {std::pair{"min", &prim.min}, std::pair{"max", &prim.max}}) {
+        w.key(name).begin_array().value((*bound)[0]).value((*bound)[1]).value((*bound)[2]).end_array();
+      }
+      w.end_object();
+      w.begin_object().key("componentType").value(5125).key("type").value("SCALAR");  // UNSIGNED_INT
+      w.key("count").value(std::uint64_t{3 * prim.triangles}).end_object();
+      if (prim.ids.normal >= 0) {
+        w.begin_object().key("componentType").value(5126).key("type").value("VEC3");  // FLOAT
+        w.key("count").value(std::uint64_t{prim.points}).end_object();
+      }
+    }
+    w.end_array().key("bufferViews").begin_array();
+    for (std::size_t k = 0; k < kept.size(); ++k) {
+      w.begin_object().key("buffer").value(0).key("byteOffset").value(std::uint64_t{offsets[k]});
+      w.key("byteLength").value(std::uint64_t{c.payloads[kept[k]].size()}).end_object();
+    }
+    w.end_array().key("buffers").begin_array().begin_object().key("byteLength").value(std::uint64_t{bin.size()});
+    w.end_object().end_array();
   }
-  json += "\"scene\":0,\"scenes\":[{\"nodes\":[0]}],\"nodes\":[" + node + "}]}";
+  // Grid point q lands at q * delta + origin, Draco's dequantization (in float32, as Draco computes it).
+  const double delta = static_cast<double>(c.grid.range / static_cast<float>(c.grid.max_value()));
+  w.key("scene").value(0).key("scenes").begin_array().begin_object().key("nodes").begin_array().value(0);
+  w.end_array().end_object().end_array();
+  w.key("nodes").begin_array().begin_object().key("translation").begin_array();
+  for (const float o : c.grid.origin) w.value(static_cast<double>(o));
+  w.end_array().key("scale").begin_array().value(delta).value(delta).value(delta).end_array();
+  if (!kept.empty()) w.key("mesh").value(0);
+  w.end_object().end_array().end_object();
+  std::string json = w.str();
   while (json.size() % 4 != 0) json.push_back(' ');
   // GLB: header, JSON chunk, BIN chunk (absent when empty), little-endian.
   std::string out;
