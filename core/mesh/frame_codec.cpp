@@ -269,15 +269,11 @@ std::string to_gltf(std::string_view bytes, FrameCodec codec, const Mesh* decode
   std::string pieced;
   if (codec != FrameCodec::kDracoPieces) {
     if (decoded == nullptr) throw Internal("to_gltf needs the decoded mesh of a frame that is not Draco pieces");
+    if (codec != FrameCodec::kMeshopt) return to_gltf(*decoded, executor);
     FrameCodecOptions options;
     options.codec = FrameCodec::kDracoPieces;
-    if (codec == FrameCodec::kMeshopt) {
-      options.draco = on_grid(read_container(bytes).grid, *decoded);
-      pieced = encode_frame(clamped_to(*decoded, *options.draco.quantization_bounds), options, executor);
-    } else {
-      options.draco.normals = !decoded->normals.empty();
-      pieced = encode_frame(*decoded, options, executor);
-    }
+    options.draco = on_grid(read_container(bytes).grid, *decoded);
+    pieced = encode_frame(clamped_to(*decoded, *options.draco.quantization_bounds), options, executor);
     bytes = pieced;
   }
   const Container c = read_container(bytes);
@@ -380,14 +376,13 @@ std::string to_gltf(std::string_view bytes, FrameCodec codec, const Mesh* decode
   std::string json = w.str();
   while (json.size() % 4 != 0) json.push_back(' ');
   // GLB: header, JSON chunk, BIN chunk (absent when empty), little-endian.
+  const std::size_t total = 12 + 8 + json.size() + (bin.empty() ? 0 : 8 + bin.size());
+  if (total > std::numeric_limits<std::uint32_t>::max()) throw ResourceLimit("frame", "a glTF file of over 4 GiB");
   std::string out;
-  const std::uint32_t total = static_cast<std::uint32_t>(12 + 8 + json.size() + (bin.empty() ? 0 : 8 + bin.size()));
-  if (12 + 8 + json.size() + 8 + bin.size() > std::numeric_limits<std::uint32_t>::max()) {
-    throw ResourceLimit("frame", "a glTF file of over 4 GiB");
-  }
+  out.reserve(total);
   put(out, std::uint32_t{0x46546C67});  // "glTF"
   put(out, std::uint32_t{2});
-  put(out, total);
+  put(out, static_cast<std::uint32_t>(total));
   put(out, static_cast<std::uint32_t>(json.size()));
   put(out, std::uint32_t{0x4E4F534A});  // "JSON"
   out += json;
@@ -397,6 +392,13 @@ std::string to_gltf(std::string_view bytes, FrameCodec codec, const Mesh* decode
     out += bin;
   }
   return out;
+}
+
+std::string to_gltf(const Mesh& mesh, const Executor& executor) {
+  FrameCodecOptions options;
+  options.codec = FrameCodec::kDracoPieces;
+  options.draco.normals = !mesh.normals.empty();
+  return to_gltf(encode_frame(mesh, options, executor), FrameCodec::kDracoPieces, nullptr, executor);
 }
 
 }  // namespace surfacer

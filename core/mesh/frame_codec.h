@@ -62,5 +62,7 @@ std::string to_standard_draco(std::string_view bytes, FrameCodec codec, const Me
 // own box with the default bits. Throws InvalidInput("quantization_bits") for a grid of more than 16 bits, which
 // glTF cannot hold, and InvalidInput("frame") for bytes that are not such a frame.
 std::string to_gltf(std::string_view bytes, FrameCodec codec, const Mesh* decoded, const Executor& executor);
+// `mesh` as such a file: Draco pieces on the mesh's own box with the default bits, encoded on `executor`.
+std::string to_gltf(const Mesh& mesh, const Executor& executor);
 
 }  // namespace surfacer

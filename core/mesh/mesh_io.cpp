@@ -378,12 +378,8 @@ std::string write_obj(const Mesh& mesh) {
 
 void write_mesh(const std::filesystem::path& path, const Mesh& mesh) {
   std::string bytes;
-  if (lower_extension(path) == ".glb") {  // Draco pieces on the mesh's own box, encoded on every core
-    FrameCodecOptions options;
-    options.codec = FrameCodec::kDracoPieces;
-    options.draco.normals = !mesh.normals.empty();
-    const ThreadExecutor all(0);
-    bytes = to_gltf(encode_frame(mesh, options, all), FrameCodec::kDracoPieces, nullptr, all);
+  if (lower_extension(path) == ".glb") {
+    bytes = to_gltf(mesh, ThreadExecutor(0));  // encoded on every core
   } else {
     switch (mesh_format_from_path(path)) {
       case MeshFormat::kPly:
