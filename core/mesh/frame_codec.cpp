@@ -1,7 +1,11 @@
 // The pieced frame container (little-endian):
-//   "SFPC", u8 version (1), u8 codec (1: Draco pieces, 2: meshopt pieces), u8 grid bits, u8 flags (bit 0: normals),
+//   "SFPC", u8 version (2), u8 codec (1: Draco pieces, 2: meshopt pieces), u8 grid bits, u8 flags (bit 0: normals),
 //   f32 grid origin x y z, f32 grid range, u32 pieces, u64 vertices and u64 triangles of the welded mesh,
-//   per piece: u32 bytes, u32 vertices, u32 triangles; then the pieces' bytes, in order.
+//   per piece: u32 bytes, u32 vertices, u32 triangles, u32 points (what its decoder finds: a Draco piece may hold a
+//   vertex as one point per fan), u32 min x y z and u32 max x y z of its points' grid coordinates (0 when it has
+//   none), u8 Draco attribute ids of its position and normals (255: none, and for meshopt pieces), u16 0; then the
+//   pieces' bytes, in order. The directory says all a glTF file needs (to_gltf), so nothing is decoded to write one.
+// Version 1 (per piece only bytes, vertices, triangles) is still read: frames an earlier server kept in a job store.
 #include "core/mesh/frame_codec.h"
 
 #include <algorithm>
@@ -21,11 +25,12 @@ namespace surfacer {
 namespace {
 
 constexpr char kMagic[4] = {'S', 'F', 'P', 'C'};
-constexpr std::uint8_t kVersion = 1;
+constexpr std::uint8_t kVersion = 2;
 constexpr std::uint8_t kNormalsFlag = 1;
 constexpr std::size_t kMinPieceTriangles = 1024;
 constexpr std::size_t kHeaderBytes = 4 + 4 + 16 + 4 + 16;
-constexpr std::size_t kDirectoryEntryBytes = 12;
+constexpr std::size_t kDirectoryEntryBytes[3] = {0, 12, 44};  // by version
+constexpr std::uint8_t kNoAttribute = 255;
 
 std::uint8_t container_codec(FrameCodec codec) { return codec == FrameCodec::kDracoPieces ? 1 : 2; }
 
@@ -48,11 +53,33 @@ T get(std::string_view bytes, std::size_t& at) {
   return value;
 }
 
+using GridPoint = std::array<std::uint32_t, 3>;
+
 struct PieceEntry {
-  std::uint32_t bytes, vertices, triangles;
+  std::uint32_t bytes = 0, vertices = 0, triangles = 0;
+  // Version 2 on: what the piece's decoder finds, and its points' bounds on the grid.
+  DracoPieceInfo found;
+  GridPoint min{}, max{};
 };
 
+// The bounds of a piece's points (0 when it has none).
+void set_bounds(const std::vector<GridPoint>& points, PieceEntry& e) {
+  e.min = e.max = GridPoint{};
+  if (points.empty()) return;
+  e.min.fill(std::numeric_limits<std::uint32_t>::max());
+  for (const GridPoint& q : points) {
+    for (int a = 0; a < 3; ++a) {
+      e.min[a] = std::min(e.min[a], q[a]);
+      e.max[a] = std::max(e.max[a], q[a]);
+    }
+  }
+}
+
+std::uint8_t attribute_byte(int id) { return id < 0 ? kNoAttribute : static_cast<std::uint8_t>(id); }
+int attribute_id(std::uint8_t byte) { return byte == kNoAttribute ? -1 : byte; }
+
 struct Container {
+  std::uint8_t version = 0;
   std::uint8_t codec = 0;
   bool normals = false;
   QuantizationGrid grid;
@@ -65,7 +92,8 @@ Container read_container(std::string_view bytes) {
   if (bytes.size() < kHeaderBytes || std::memcmp(bytes.data(), kMagic, 4) != 0) bad("no SFPC header");
   std::size_t at = 4;
   Container c;
-  if (get<std::uint8_t>(bytes, at) != kVersion) bad("unknown version");
+  c.version = get<std::uint8_t>(bytes, at);
+  if (c.version < 1 || c.version > kVersion) bad("unknown version " + std::to_string(c.version));
   c.codec = get<std::uint8_t>(bytes, at);
   c.grid.bits = get<std::uint8_t>(bytes, at);
   const auto flags = get<std::uint8_t>(bytes, at);
@@ -82,13 +110,28 @@ Container read_container(std::string_view bytes) {
   const auto count = get<std::uint32_t>(bytes, at);
   c.vertices = get<std::uint64_t>(bytes, at);
   c.triangles = get<std::uint64_t>(bytes, at);
-  if ((bytes.size() - at) / kDirectoryEntryBytes < count) bad("directory of " + std::to_string(count) + " pieces");
+  if ((bytes.size() - at) / kDirectoryEntryBytes[c.version] < count) {
+    bad("directory of " + std::to_string(count) + " pieces");
+  }
   c.pieces.resize(count);
   std::uint64_t payload = 0, triangles = 0;
   for (PieceEntry& e : c.pieces) {
     e.bytes = get<std::uint32_t>(bytes, at);
     e.vertices = get<std::uint32_t>(bytes, at);
     e.triangles = get<std::uint32_t>(bytes, at);
+    if (c.version >= 2) {
+      e.found.points = get<std::uint32_t>(bytes, at);
+      for (std::uint32_t& m : e.min) m = get<std::uint32_t>(bytes, at);
+      for (std::uint32_t& m : e.max) m = get<std::uint32_t>(bytes, at);
+      e.found.position = attribute_id(get<std::uint8_t>(bytes, at));
+      e.found.normal = attribute_id(get<std::uint8_t>(bytes, at));
+      if (get<std::uint16_t>(bytes, at) != 0) bad("a directory entry with unknown fields");
+      for (int a = 0; a < 3; ++a) {
+        if (e.min[a] > e.max[a] || e.max[a] > c.grid.max_value()) bad("a piece's bounds off the grid");
+      }
+      if (e.found.points < e.vertices) bad("a piece with fewer points than vertices");
+      if (c.codec == 1 && e.triangles > 0 && e.found.position < 0) bad("a Draco piece without a position attribute");
+    }
     payload += e.bytes;
     triangles += e.triangles;
     if (e.vertices > 3ull * e.triangles) bad("a piece with more vertices than its triangles use");
@@ -138,17 +181,23 @@ std::string encode_pieces(const Mesh& mesh, const FrameCodecOptions& options, co
     control.check();
     QuantizedPiece piece = cut.take(p);
     if (!normals) piece.normals.clear();
-    payloads[p] = options.codec == FrameCodec::kDracoPieces
-                      ? encode_draco_piece(piece, grid.bits, options.draco)
-                      : encode_meshopt_piece(piece, grid.bits, options.draco.normal_bits);
+    PieceEntry& e = entries[p];
+    if (options.codec == FrameCodec::kDracoPieces) {
+      payloads[p] = encode_draco_piece(piece, grid.bits, options.draco, &e.found);
+    } else {
+      payloads[p] = encode_meshopt_piece(piece, grid.bits, options.draco.normal_bits);
+      e.found.points = piece.positions.size();
+    }
     if (payloads[p].size() > std::numeric_limits<std::uint32_t>::max()) {
       throw ResourceLimit("max_piece_triangles", "a piece of over 4 GiB");
     }
-    entries[p] = {static_cast<std::uint32_t>(payloads[p].size()), static_cast<std::uint32_t>(piece.positions.size()),
-                  static_cast<std::uint32_t>(piece.triangles.size())};
+    e.bytes = static_cast<std::uint32_t>(payloads[p].size());
+    e.vertices = static_cast<std::uint32_t>(piece.positions.size());
+    e.triangles = static_cast<std::uint32_t>(piece.triangles.size());
+    if (e.found.points > 0) set_bounds(piece.positions, e);
     control.report("encode", static_cast<double>(done.fetch_add(1) + 1) / n);
   });
-  std::size_t total = kHeaderBytes + n * kDirectoryEntryBytes;
+  std::size_t total = kHeaderBytes + n * kDirectoryEntryBytes[kVersion];
   for (const std::string& p : payloads) total += p.size();
   std::string out;
   out.reserve(total);
@@ -166,6 +215,12 @@ std::string encode_pieces(const Mesh& mesh, const FrameCodecOptions& options, co
     put(out, e.bytes);
     put(out, e.vertices);
     put(out, e.triangles);
+    put(out, static_cast<std::uint32_t>(e.found.points));
+    for (std::uint32_t m : e.min) put(out, m);
+    for (std::uint32_t m : e.max) put(out, m);
+    put(out, attribute_byte(e.found.position));
+    put(out, attribute_byte(e.found.normal));
+    put(out, std::uint16_t{0});
   }
   for (const std::string& p : payloads) out += p;
   return out;
@@ -178,8 +233,20 @@ Mesh decode_pieces(std::string_view bytes, FrameCodec codec, const Executor& exe
   std::vector<QuantizedPiece> pieces(n);
   executor.for_each(n, [&](int p) {
     QuantizedPiece& piece = pieces[p];
-    piece = c.codec == 1 ? decode_draco_piece(c.payloads[p], c.grid.bits)
-                         : decode_meshopt_piece(c.payloads[p], c.grid.bits);
+    PieceEntry found;
+    if (c.codec == 1) {
+      piece = decode_draco_piece(c.payloads[p], c.grid.bits, &found.found);
+    } else {
+      piece = decode_meshopt_piece(c.payloads[p], c.grid.bits);
+      found.found.points = piece.positions.size();
+    }
+    if (c.version >= 2) {
+      set_bounds(piece.positions, found);
+      const PieceEntry& e = c.pieces[p];
+      if (found.found != e.found || found.min != e.min || found.max != e.max) {
+        bad("piece " + std::to_string(p) + " does not hold the points the directory says");
+      }
+    }
     // Draco splits a vertex whose triangles in the piece form separate fans into one point per fan (their seam
     // tags weld them back): a Draco piece may hold more vertices than it was given, never fewer.
     const std::size_t nv = piece.positions.size();
@@ -283,27 +350,17 @@ std::string to_gltf(std::string_view bytes, FrameCodec codec, const Mesh* decode
                                                 ") is more than glTF holds: positions of at most 16 bits "
                                                 "(KHR_mesh_quantization); use 16 or fewer, or another file format");
   }
-  // Each piece's counts, its grid coordinates' bounds and the Draco ids of its attributes.
-  struct Primitive {
-    std::size_t points = 0, triangles = 0;
-    std::array<std::uint32_t, 3> min{}, max{};
-    DracoPieceIds ids;
-  };
+  // Each piece's counts, its points' bounds and the Draco ids of its attributes: the directory's, or for a version 1
+  // frame what decoding the pieces finds.
   const int n = static_cast<int>(c.pieces.size());
-  std::vector<Primitive> primitives(n);
-  executor.for_each(n, [&](int p) {
-    const QuantizedPiece piece = decode_draco_piece(c.payloads[p], c.grid.bits, &primitives[p].ids);
-    Primitive& out = primitives[p];
-    out.points = piece.positions.size();
-    out.triangles = piece.triangles.size();
-    out.min.fill(std::numeric_limits<std::uint32_t>::max());
-    for (const auto& q : piece.positions) {
-      for (int a = 0; a < 3; ++a) {
-        out.min[a] = std::min(out.min[a], q[a]);
-        out.max[a] = std::max(out.max[a], q[a]);
-      }
-    }
-  });
+  std::vector<PieceEntry> primitives = c.pieces;
+  if (c.version < 2) {
+    executor.for_each(n, [&](int p) {
+      const QuantizedPiece piece = decode_draco_piece(c.payloads[p], c.grid.bits, &primitives[p].found);
+      if (piece.triangles.size() != c.pieces[p].triangles) bad("piece " + std::to_string(p) + " has other triangles");
+      set_bounds(piece.positions, primitives[p]);
+    });
+  }
   // The binary chunk: the pieces with triangles, each 4-byte aligned (glTF has no empty accessors).
   std::vector<int> kept;
   std::vector<std::size_t> offsets;
@@ -328,7 +385,7 @@ std::string to_gltf(std::string_view bytes, FrameCodec codec, const Mesh* decode
     w.key("meshes").begin_array().begin_object().key("primitives").begin_array();
     int accessor = 0;
     for (std::size_t k = 0; k < kept.size(); ++k) {
-      const DracoPieceIds& ids = primitives[kept[k]].ids;
+      const DracoPieceInfo& ids = primitives[kept[k]].found;
       w.begin_object().key("attributes").begin_object().key("POSITION").value(accessor);
       if (ids.normal >= 0) w.key("NORMAL").value(accessor + 2);
       w.end_object().key("indices").value(accessor + 1);
@@ -342,18 +399,18 @@ std::string to_gltf(std::string_view bytes, FrameCodec codec, const Mesh* decode
     w.end_array().end_object().end_array();
     w.key("accessors").begin_array();
     for (const int p : kept) {
-      const Primitive& prim = primitives[p];
+      const PieceEntry& prim = primitives[p];
       w.begin_object().key("componentType").value(5123).key("type").value("VEC3");  // UNSIGNED_SHORT
-      w.key("count").value(std::uint64_t{prim.points});
+      w.key("count").value(std::uint64_t{prim.found.points});
       for (const auto& [name, bound] : {std::pair{"min", &prim.min}, std::pair{"max", &prim.max}}) {
         w.key(name).begin_array().value((*bound)[0]).value((*bound)[1]).value((*bound)[2]).end_array();
       }
       w.end_object();
       w.begin_object().key("componentType").value(5125).key("type").value("SCALAR");  // UNSIGNED_INT
       w.key("count").value(std::uint64_t{3 * prim.triangles}).end_object();
-      if (prim.ids.normal >= 0) {
+      if (prim.found.normal >= 0) {
         w.begin_object().key("componentType").value(5126).key("type").value("VEC3");  // FLOAT
-        w.key("count").value(std::uint64_t{prim.points}).end_object();
+        w.key("count").value(std::uint64_t{prim.found.points}).end_object();
       }
     }
     w.end_array().key("bufferViews").begin_array();

@@ -336,7 +336,8 @@ bool unsigned_attribute(const draco::PointAttribute& attribute) {
 
 }  // namespace
 
-std::string encode_draco_piece(const QuantizedPiece& piece, int grid_bits, const DracoOptions& options) {
+std::string encode_draco_piece(const QuantizedPiece& piece, int grid_bits, const DracoOptions& options,
+                               DracoPieceInfo* info) {
   // A piece without triangles is written without points, as encode_draco writes an empty frame.
   const std::size_t nv = piece.triangles.empty() ? 0 : piece.positions.size();
   draco::Mesh out;
@@ -369,13 +370,24 @@ std::string encode_draco_piece(const QuantizedPiece& piece, int grid_bits, const
   if (encode_normals) encoder.SetAttributeQuantization(draco::GeometryAttribute::NORMAL, options.normal_bits);
   encoder.SetSpeedOptions(options.speed, options.speed);
   if (piece.triangles.empty()) encoder.SetEncodingMethod(draco::MESH_SEQUENTIAL_ENCODING);
+  encoder.SetTrackEncodedProperties(info != nullptr);
   draco::EncoderBuffer buffer;
   const draco::Status status = encoder.EncodeMeshToBuffer(out, &buffer);
   if (!status.ok()) throw Internal("Draco encoder failed on a piece: " + status.error_msg_string());
+  if (info) {
+    *info = DracoPieceInfo{};
+    info->points = encoder.num_encoded_points();
+    if (const draco::PointAttribute* a = out.GetNamedAttribute(draco::GeometryAttribute::POSITION)) {
+      info->position = static_cast<int>(a->unique_id());
+    }
+    if (const draco::PointAttribute* a = out.GetNamedAttribute(draco::GeometryAttribute::NORMAL)) {
+      info->normal = static_cast<int>(a->unique_id());
+    }
+  }
   return std::string(buffer.data(), buffer.size());
 }
 
-QuantizedPiece decode_draco_piece(std::string_view bytes, int grid_bits, DracoPieceIds* ids) {
+QuantizedPiece decode_draco_piece(std::string_view bytes, int grid_bits, DracoPieceInfo* info) {
   draco::DecoderBuffer buffer;
   buffer.Init(bytes.data(), bytes.size());
   draco::Decoder decoder;
@@ -385,13 +397,17 @@ QuantizedPiece decode_draco_piece(std::string_view bytes, int grid_bits, DracoPi
   }
   const std::unique_ptr<draco::Mesh> in = std::move(decoded).value();
   const std::size_t np = in->num_points();
+  if (info) {
+    *info = DracoPieceInfo{};
+    info->points = np;
+  }
   QuantizedPiece piece;
   if (np == 0 && in->num_faces() == 0) return piece;
   const draco::PointAttribute* position = in->GetNamedAttribute(draco::GeometryAttribute::POSITION);
   if (position == nullptr || position->num_components() != 3 || !unsigned_attribute(*position)) {
     throw InvalidInput("frame", "a Draco piece has no integer 3D POSITION attribute");
   }
-  if (ids) ids->position = static_cast<int>(position->unique_id());
+  if (info) info->position = static_cast<int>(position->unique_id());
   const std::uint32_t max_value = (std::uint32_t{1} << grid_bits) - 1u;
   piece.positions.resize(np);
   for (std::size_t p = 0; p < np; ++p) {
@@ -420,7 +436,7 @@ QuantizedPiece decode_draco_piece(std::string_view bytes, int grid_bits, DracoPi
     if (normal->num_components() != 3 || !numeric_attribute(*normal)) {
       throw InvalidInput("frame", "a Draco piece's NORMAL attribute is not numeric 3D");
     }
-    if (ids) ids->normal = static_cast<int>(normal->unique_id());
+    if (info) info->normal = static_cast<int>(normal->unique_id());
     piece.normals.resize(np);
     std::array<float, 3> value{};
     for (std::size_t p = 0; p < np; ++p) {

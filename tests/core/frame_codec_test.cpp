@@ -174,7 +174,7 @@ TEST(FrameCodec, PiecesAreEvenAndShareOutOverCores) {
       EXPECT_LT(count, (triangles + piece - 1) / piece + 4);  // no more than the rounding needs
       std::size_t smallest = triangles, largest = 0;
       for (std::uint32_t p = 0; p < count; ++p) {
-        const std::size_t t = u32_at(bytes, 44 + 12 * p + 8);
+        const std::size_t t = u32_at(bytes, 44 + 44 * p + 8);  // header, then 44 bytes per piece
         smallest = std::min(smallest, t);
         largest = std::max(largest, t);
       }
@@ -271,6 +271,69 @@ TEST(FrameCodec, GltfOfAnEmptyFrameAndOfADeepGrid) {
     } catch (const Error& e) {
       EXPECT_EQ(e.field(), "quantization_bits");
       EXPECT_NE(std::string(e.what()).find("16"), std::string::npos) << e.what();
+    }
+  }
+}
+
+// The same frame in the version 1 container an earlier server wrote (and a job store may still hold): per piece
+// only bytes, vertices and triangles.
+std::string as_version_1(const std::string& v2) {
+  constexpr std::size_t kHeader = 44, kEntry = 44, kOldEntry = 12;
+  std::uint32_t count = 0;
+  std::memcpy(&count, v2.data() + 24, 4);
+  std::string v1 = v2.substr(0, kHeader);
+  v1[4] = 1;
+  for (std::uint32_t p = 0; p < count; ++p) v1 += v2.substr(kHeader + kEntry * p, kOldEntry);
+  return v1 + v2.substr(kHeader + kEntry * count);
+}
+
+// The directory says what decoding the pieces finds (points, bounds, attribute ids), so to_gltf writes from it alone
+// the same file it writes for a version 1 frame by decoding every piece; and version 1 frames still decode.
+TEST(FrameCodec, GltfFromTheDirectoryIsTheFileDecodingGives) {
+  const ThreadExecutor two(2);
+  std::vector<Case> all = cases();
+  for (const Case& c : all) {
+    for (std::size_t piece : {std::size_t{1024}, std::size_t{1} << 20}) {
+      SCOPED_TRACE(c.name + ", pieces of " + std::to_string(piece));
+      for (int bits : {10, 16}) {
+        FrameCodecOptions o = options_for(FrameCodec::kDracoPieces, c.box, piece, bits);
+        o.draco.normals = !c.mesh.normals.empty();
+        const std::string bytes = encode_frame(c.mesh, o, two);
+        ASSERT_EQ(bytes[4], 2);
+        const std::string old = as_version_1(bytes);
+        EXPECT_EQ(to_gltf(bytes, o.codec, nullptr, two), to_gltf(old, o.codec, nullptr, two)) << bits << " bits";
+        const Mesh decoded = decode_frame(bytes, o.codec, two);
+        const Mesh decoded_old = decode_frame(old, o.codec, two);
+        EXPECT_EQ(decoded.vertices, decoded_old.vertices);
+        EXPECT_EQ(decoded.triangles, decoded_old.triangles);
+      }
+    }
+  }
+}
+
+// A directory that does not say what the pieces hold is refused when they are decoded.
+TEST(FrameCodec, DirectoryThatDisagreesWithItsPiecesIsInvalidInput) {
+  const Case c = cases()[2];  // sphere, cubes, 40 cells: several pieces of 1024
+  for (FrameCodec codec : {FrameCodec::kDracoPieces, FrameCodec::kMeshopt}) {
+    const std::string bytes = encode_frame(c.mesh, options_for(codec, c.box, 1024), ThreadExecutor(2));
+    ASSERT_NO_THROW(decode_frame(bytes, codec, ThreadExecutor(2)));
+    // Piece 1's points (entry offset 12) and its max x (offset 28), each one higher or lower.
+    for (std::size_t field : {std::size_t{12}, std::size_t{28}}) {
+      for (int delta : {-1, 1}) {
+        std::string damaged = bytes;
+        std::uint32_t value = 0;
+        const std::size_t at = 44 + 44 + field;
+        std::memcpy(&value, damaged.data() + at, 4);
+        value += static_cast<std::uint32_t>(delta);
+        std::memcpy(damaged.data() + at, &value, 4);
+        try {
+          decode_frame(damaged, codec, ThreadExecutor(2));
+          ADD_FAILURE() << frame_codec_name(codec) << ": field at " << field << " off by " << delta << " decoded";
+        } catch (const Error& e) {
+          EXPECT_EQ(e.kind(), ErrorKind::kInvalidInput);
+          EXPECT_EQ(e.field(), "frame");
+        }
+      }
     }
   }
 }
