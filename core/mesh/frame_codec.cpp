@@ -3,8 +3,9 @@
 //   f32 grid origin x y z, f32 grid range, u32 pieces, u64 vertices and u64 triangles of the welded mesh,
 //   per piece: u32 bytes, u32 vertices, u32 triangles, u32 points (what its decoder finds: a Draco piece may hold a
 //   vertex as one point per fan), u32 min x y z and u32 max x y z of its points' grid coordinates (0 when it has
-//   none), u8 Draco attribute ids of its position and normals (255: none, and for meshopt pieces), u16 0; then the
-//   pieces' bytes, in order. The directory says all a glTF file needs (to_gltf), so nothing is decoded to write one.
+//   none), u8 Draco attribute ids of its position, normals and seam tags (255: none, and for meshopt pieces), u8 0;
+//   then the pieces' bytes, in order. The directory says all a glTF file needs (to_gltf), so nothing is decoded to
+//   write one.
 // Version 1 (per piece only bytes, vertices, triangles) is still read: frames an earlier server kept in a job store.
 #include "core/mesh/frame_codec.h"
 
@@ -125,7 +126,8 @@ Container read_container(std::string_view bytes) {
       for (std::uint32_t& m : e.max) m = get<std::uint32_t>(bytes, at);
       e.found.position = attribute_id(get<std::uint8_t>(bytes, at));
       e.found.normal = attribute_id(get<std::uint8_t>(bytes, at));
-      if (get<std::uint16_t>(bytes, at) != 0) bad("a directory entry with unknown fields");
+      e.found.seam = attribute_id(get<std::uint8_t>(bytes, at));
+      if (get<std::uint8_t>(bytes, at) != 0) bad("a directory entry with unknown fields");
       for (int a = 0; a < 3; ++a) {
         if (e.min[a] > e.max[a] || e.max[a] > c.grid.max_value()) bad("a piece's bounds off the grid");
       }
@@ -220,7 +222,8 @@ std::string encode_pieces(const Mesh& mesh, const FrameCodecOptions& options, co
     for (std::uint32_t m : e.max) put(out, m);
     put(out, attribute_byte(e.found.position));
     put(out, attribute_byte(e.found.normal));
-    put(out, std::uint16_t{0});
+    put(out, attribute_byte(e.found.seam));
+    put(out, std::uint8_t{0});
   }
   for (const std::string& p : payloads) out += p;
   return out;
@@ -373,8 +376,10 @@ std::string to_gltf(std::string_view bytes, FrameCodec codec, const Mesh* decode
     bin += c.payloads[p];
   }
   while (bin.size() % 4 != 0) bin.push_back('\0');
-  // The JSON: per primitive the accessors POSITION, indices and NORMAL (when the piece has normals) in that order,
-  // and buffer view k for kept piece k; one node maps the grid to the scene.
+  // The JSON: per primitive the accessors POSITION, indices, NORMAL (when the piece has normals) and _SEAM (when it
+  // has seam tags) in that order, and buffer view k for kept piece k; one node maps the grid to the scene. _SEAM (an
+  // application attribute, which other readers pass over) names the seam vertices as the frame's tags do, so a reader
+  // can weld the pieces' copies exactly as the client welds a frame (parse_glb does).
   JsonWriter w;
   w.begin_object().key("asset").begin_object().key("version").value("2.0").key("generator").value("surfacer");
   w.end_object();
@@ -386,15 +391,19 @@ std::string to_gltf(std::string_view bytes, FrameCodec codec, const Mesh* decode
     int accessor = 0;
     for (std::size_t k = 0; k < kept.size(); ++k) {
       const DracoPieceInfo& ids = primitives[kept[k]].found;
+      const int normal = ids.normal >= 0 ? accessor + 2 : -1;
+      const int seam = ids.seam >= 0 ? accessor + (normal >= 0 ? 3 : 2) : -1;
       w.begin_object().key("attributes").begin_object().key("POSITION").value(accessor);
-      if (ids.normal >= 0) w.key("NORMAL").value(accessor + 2);
+      if (normal >= 0) w.key("NORMAL").value(normal);
+      if (seam >= 0) w.key("_SEAM").value(seam);
       w.end_object().key("indices").value(accessor + 1);
       w.key("extensions").begin_object().key("KHR_draco_mesh_compression").begin_object();
       w.key("bufferView").value(static_cast<int>(k)).key("attributes").begin_object();
       w.key("POSITION").value(ids.position);
-      if (ids.normal >= 0) w.key("NORMAL").value(ids.normal);
+      if (normal >= 0) w.key("NORMAL").value(ids.normal);
+      if (seam >= 0) w.key("_SEAM").value(ids.seam);
       w.end_object().end_object().end_object().end_object();
-      accessor += ids.normal >= 0 ? 3 : 2;
+      accessor += 2 + (normal >= 0 ? 1 : 0) + (seam >= 0 ? 1 : 0);
     }
     w.end_array().end_object().end_array();
     w.key("accessors").begin_array();
@@ -410,6 +419,10 @@ std::string to_gltf(std::string_view bytes, FrameCodec codec, const Mesh* decode
       w.key("count").value(std::uint64_t{3 * prim.triangles}).end_object();
       if (prim.found.normal >= 0) {
         w.begin_object().key("componentType").value(5126).key("type").value("VEC3");  // FLOAT
+        w.key("count").value(std::uint64_t{prim.found.points}).end_object();
+      }
+      if (prim.found.seam >= 0) {
+        w.begin_object().key("componentType").value(5123).key("type").value("SCALAR");  // UNSIGNED_SHORT
         w.key("count").value(std::uint64_t{prim.found.points}).end_object();
       }
     }

@@ -383,6 +383,9 @@ std::string encode_draco_piece(const QuantizedPiece& piece, int grid_bits, const
     if (const draco::PointAttribute* a = out.GetNamedAttribute(draco::GeometryAttribute::NORMAL)) {
       info->normal = static_cast<int>(a->unique_id());
     }
+    if (const draco::PointAttribute* a = out.GetNamedAttribute(draco::GeometryAttribute::GENERIC)) {
+      info->seam = static_cast<int>(a->unique_id());
+    }
   }
   return std::string(buffer.data(), buffer.size());
 }
@@ -424,6 +427,7 @@ QuantizedPiece decode_draco_piece(std::string_view bytes, int grid_bits, DracoPi
     if (tags->num_components() != 1 || !unsigned_attribute(*tags)) {
       throw InvalidInput("frame", "a Draco piece's seam tags are not one unsigned integer per point");
     }
+    if (info) info->seam = static_cast<int>(tags->unique_id());
     for (std::size_t p = 0; p < np; ++p) {
       if (!tags->ConvertValue<std::uint16_t, 1>(tags->mapped_index(draco::PointIndex(static_cast<std::uint32_t>(p))),
                                                 &piece.seam_tags[p])) {

@@ -79,11 +79,12 @@ double draco_max_error(const Aabb& box, int quantization_bits);
 
 // What a Draco piece holds for its decoder: its points (Draco writes a vertex whose triangles in the piece form
 // separate fans as one point per fan, so there may be more points than the piece's vertices) and the Draco attribute
-// ids of its position and normals (-1: none), which glTF's KHR_draco_mesh_compression names.
+// ids of its position, normals and seam tags (-1: none), which glTF's KHR_draco_mesh_compression names.
 struct DracoPieceInfo {
   std::size_t points = 0;
   int position = -1;
   int normal = -1;
+  int seam = -1;
   bool operator==(const DracoPieceInfo&) const = default;
 };
 // One piece of a frame (core/mesh/mesh_pieces.h) as Draco bytes: the grid coordinates as an integer POSITION
