@@ -189,7 +189,7 @@ void add_optimize(CLI::App* parent, const std::string& verb, JobFlags& flags, Ou
       ->required()
       ->type_name("FILE");
   CLI::Option* mesh =
-      app->add_option("--start-mesh", o.start_mesh, "start mesh file (.ply, .obj or .drc), uploaded as is")
+      app->add_option("--start-mesh", o.start_mesh, "start mesh file (.ply, .obj, .drc or .glb), uploaded as is")
           ->type_name("FILE");
   app->add_option(
          "--start-cells", o.start_cells,

@@ -18,6 +18,7 @@
 
 #include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_codec.h"
+#include "core/mesh/mesh_gltf.h"
 #include "core/mesh/ply.h"
 #include "core/util/errors.h"
 #include "core/util/text.h"
@@ -285,7 +286,9 @@ MeshFormat mesh_format_from_path(const std::filesystem::path& path) {
   if (ext == ".ply") return MeshFormat::kPly;
   if (ext == ".obj") return MeshFormat::kObj;
   if (ext == ".drc") return MeshFormat::kDraco;
-  throw InvalidInput("file", path.string() + ": unknown mesh file extension '" + ext + "'; use .ply, .obj or .drc");
+  if (ext == ".glb") return MeshFormat::kGlb;
+  throw InvalidInput("file",
+                     path.string() + ": unknown mesh file extension '" + ext + "'; use .ply, .obj, .drc or .glb");
 }
 
 Mesh parse_mesh(std::string_view bytes, MeshFormat format, const std::string& name_for_errors,
@@ -302,6 +305,8 @@ Mesh parse_mesh(std::string_view bytes, MeshFormat format, const std::string& na
         if (e.kind() != ErrorKind::kInvalidInput) throw Error(e.kind(), e.field(), name_for_errors + ": " + e.what());
         throw InvalidInput("file", name_for_errors + ": " + e.what());
       }
+    case MeshFormat::kGlb:
+      return parse_glb(bytes, name_for_errors, limits);
   }
   throw Internal("parse_mesh: unknown format");
 }
@@ -378,20 +383,19 @@ std::string write_obj(const Mesh& mesh) {
 
 void write_mesh(const std::filesystem::path& path, const Mesh& mesh) {
   std::string bytes;
-  if (lower_extension(path) == ".glb") {
-    bytes = to_gltf(mesh, ThreadExecutor(0));  // encoded on every core
-  } else {
-    switch (mesh_format_from_path(path)) {
-      case MeshFormat::kPly:
-        bytes = write_ply(mesh);
-        break;
-      case MeshFormat::kObj:
-        bytes = write_obj(mesh);
-        break;
-      case MeshFormat::kDraco:
-        bytes = encode_draco(mesh, DracoOptions{});
-        break;
-    }
+  switch (mesh_format_from_path(path)) {
+    case MeshFormat::kPly:
+      bytes = write_ply(mesh);
+      break;
+    case MeshFormat::kObj:
+      bytes = write_obj(mesh);
+      break;
+    case MeshFormat::kDraco:
+      bytes = encode_draco(mesh, DracoOptions{});
+      break;
+    case MeshFormat::kGlb:
+      bytes = to_gltf(mesh, ThreadExecutor(0));  // encoded on every core
+      break;
   }
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
   if (!out) throw InvalidInput("file", path.string() + ": cannot open for writing: " + std::strerror(errno));

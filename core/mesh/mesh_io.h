@@ -1,5 +1,6 @@
 // Mesh files: PLY (ASCII and binary little/big endian, float or double), OBJ (v/f, polygons fan-triangulated),
-// Draco (.drc). Reading throws InvalidInput naming the file and the line or byte offset of the problem.
+// Draco (.drc), binary glTF (.glb: read by core/mesh/mesh_gltf.h, written as Draco pieces by to_gltf). Reading throws
+// InvalidInput naming the file and the line or byte offset of the problem.
 #pragma once
 
 #include <filesystem>
@@ -11,9 +12,9 @@
 
 namespace surfacer {
 
-enum class MeshFormat { kPly, kObj, kDraco };
+enum class MeshFormat { kPly, kObj, kDraco, kGlb };
 
-// Format from the extension (.ply, .obj, .drc); throws InvalidInput otherwise.
+// Format from the extension (.ply, .obj, .drc, .glb); throws InvalidInput otherwise.
 MeshFormat mesh_format_from_path(const std::filesystem::path& path);
 
 // PLY and OBJ allocate in proportion to the bytes present (never for a count a header declares); Draco within

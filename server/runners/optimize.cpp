@@ -24,6 +24,7 @@ std::int64_t optimize_frame_count(const MeshOptimizerOptions& options) {
 MeshFormat sniff_mesh_format(const std::string& bytes) {
   if (bytes.rfind("ply", 0) == 0) return MeshFormat::kPly;
   if (bytes.rfind("DRACO", 0) == 0) return MeshFormat::kDraco;
+  if (bytes.rfind("glTF", 0) == 0) return MeshFormat::kGlb;
   return MeshFormat::kObj;
 }
 

@@ -197,23 +197,29 @@ TEST_F(CliJobsEndToEnd, OptimizeWritesSnapshotsAndIterationsCsvWithFallingError)
   EXPECT_NE(r.err.find("iterations.csv"), std::string::npos) << r;
 }
 
+// From a lossless PLY, and from the .glb the CLI writes (Draco pieces, read back welded through their seam tags).
 TEST_F(CliJobsEndToEnd, OptimizeFromAnUploadedStartMesh) {
   ProcessResult start = cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--method", "cubes",
-                             "--cells", "20", "--raw", "-o", (dir_ / "start").string()});
+                             "--cells", "20", "--raw", "--format", "ply,glb", "-o", (dir_ / "start").string()});
   ASSERT_EQ(start.code, 0) << start;
-  ProcessResult r = cli({"run", "optimize", "--scene", (root_ / "cube.json").string(), "--start-mesh",
-                         (dir_ / "start" / "frame_0000.ply").string(), "--iterations", "10", "-o",
-                         (dir_ / "opt").string(), "--format", "ply"});
-  ASSERT_EQ(r.code, 0) << r;
-  EXPECT_NE(r.err.find("uploaded 1/1: start mesh"), std::string::npos) << r;
-  const auto rows = csv_rows(read_file(dir_ / "opt" / "iterations.csv"));
-  ASSERT_GE(rows.size(), 2u);
-  const fs::path last = dir_ / "opt" / ("frame_000" + std::to_string(rows.size() - 2) + ".ply");
-  EXPECT_TRUE(mesh_file_has(last, kClosedFrame));
-  // Pulled from the sphere (radius 0.5) toward the cube (corners at 0.87 from the centre).
-  double max_norm = 0;
-  for (const Vec3& v : read_mesh(last).vertices) max_norm = std::max(max_norm, v.norm());
-  EXPECT_GT(max_norm, 0.55);
+  for (const char* format : {"ply", "glb"}) {
+    SCOPED_TRACE(format);
+    const fs::path out = dir_ / (std::string("opt_") + format);
+    ProcessResult r = cli({"run", "optimize", "--scene", (root_ / "cube.json").string(), "--start-mesh",
+                           (dir_ / "start" / (std::string("frame_0000.") + format)).string(), "--iterations", "10",
+                           "-o", out.string(), "--format", "ply"});
+    ASSERT_EQ(r.code, 0) << r;
+    EXPECT_NE(r.err.find("uploaded 1/1: start mesh"), std::string::npos) << r;
+    const auto rows = csv_rows(read_file(out / "iterations.csv"));
+    ASSERT_GE(rows.size(), 2u);
+    EXPECT_TRUE(mesh_file_has(out / "frame_0000.ply", kClosedFrame));  // the start mesh as the server read it
+    const fs::path last = out / ("frame_000" + std::to_string(rows.size() - 2) + ".ply");
+    EXPECT_TRUE(mesh_file_has(last, kClosedFrame));
+    // Pulled from the sphere (radius 0.5) toward the cube (corners at 0.87 from the centre).
+    double max_norm = 0;
+    for (const Vec3& v : read_mesh(last).vertices) max_norm = std::max(max_norm, v.norm());
+    EXPECT_GT(max_norm, 0.55);
+  }
 }
 
 // The CLI validates a --start-mesh before uploading it: a ~140-byte Draco file declaring 200 M triangles took it to

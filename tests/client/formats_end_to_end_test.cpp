@@ -129,8 +129,9 @@ Gltf read_glb(const fs::path& path) {
       EXPECT_EQ(position.at("min").list_value().values(a).number_value(), lo);
       EXPECT_EQ(position.at("max").list_value().values(a).number_value(), hi);
     }
-    if (p.at("attributes").struct_value().fields().contains("NORMAL"))
+    if (p.at("attributes").struct_value().fields().contains("NORMAL")) {
       EXPECT_EQ(piece.normals.size(), piece.vertices.size());
+    }
     std::vector<std::uint32_t> ids(piece.vertices.size());
     for (std::size_t v = 0; v < piece.vertices.size(); ++v) {
       const Vec3 w = piece.vertices[v].cwiseProduct(scale) + translation;

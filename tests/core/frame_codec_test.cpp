@@ -10,31 +10,14 @@
 #include "core/mesh/mesh_checks.h"
 #include "core/polygonize/polygonize.h"
 #include "core/util/errors.h"
+#include "tests/support/mesh_expectations.h"
 #include "tests/support/test_meshes.h"
 
 namespace surfacer {
 namespace {
 
 using GridPoint = std::array<std::uint32_t, 3>;
-
-// The mesh's triangles as sorted triples of grid points (each in its smallest rotation, so the orientation is kept):
-// equal for two meshes with the same quantized surface whatever their vertex and corner order.
-std::vector<std::array<GridPoint, 3>> quantized_triangles(const Mesh& m, const QuantizationGrid& grid) {
-  std::vector<std::array<GridPoint, 3>> out;
-  for (const Triangle& t : m.triangles) {
-    if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) continue;
-    std::array<GridPoint, 3> q = {grid.quantize(m.vertices[t[0]]), grid.quantize(m.vertices[t[1]]),
-                                  grid.quantize(m.vertices[t[2]])};
-    std::array<GridPoint, 3> best = q;
-    for (int r = 1; r < 3; ++r) {
-      std::rotate(q.begin(), q.begin() + 1, q.end());
-      best = std::min(best, q);
-    }
-    out.push_back(best);
-  }
-  std::sort(out.begin(), out.end());
-  return out;
-}
+using testing::quantized_triangles;
 
 Mesh polygonized(const FieldPtr& field, Polygonizer method, int cells, bool normals = false) {
   PolygonizeOptions options;

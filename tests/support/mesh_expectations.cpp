@@ -1,5 +1,6 @@
 #include "tests/support/mesh_expectations.h"
 
+#include <algorithm>
 #include <exception>
 #include <sstream>
 
@@ -7,6 +8,25 @@
 #include "tests/support/process.h"
 
 namespace surfacer::testing {
+
+std::vector<std::array<std::array<std::uint32_t, 3>, 3>> quantized_triangles(const Mesh& m,
+                                                                             const QuantizationGrid& grid) {
+  using GridPoint = std::array<std::uint32_t, 3>;
+  std::vector<std::array<GridPoint, 3>> out;
+  for (const Triangle& t : m.triangles) {
+    if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) continue;
+    std::array<GridPoint, 3> q = {grid.quantize(m.vertices[t[0]]), grid.quantize(m.vertices[t[1]]),
+                                  grid.quantize(m.vertices[t[2]])};
+    std::array<GridPoint, 3> best = q;
+    for (int r = 1; r < 3; ++r) {
+      std::rotate(q.begin(), q.begin() + 1, q.end());
+      best = std::min(best, q);
+    }
+    out.push_back(best);
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
 
 namespace fs = std::filesystem;
 

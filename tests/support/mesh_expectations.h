@@ -5,12 +5,21 @@
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <filesystem>
+#include <vector>
 
 #include "core/mesh/mesh.h"
 #include "core/mesh/mesh_checks.h"
+#include "core/mesh/quantization.h"
 
 namespace surfacer::testing {
+
+// The mesh's triangles as sorted triples of grid points (each in its smallest rotation, so the orientation is kept):
+// equal for two meshes with the same quantized surface whatever their vertex and corner order. Triangles with a
+// repeated index are left out.
+std::vector<std::array<std::array<std::uint32_t, 3>, 3>> quantized_triangles(const Mesh& m,
+                                                                             const QuantizationGrid& grid);
 
 // What a test may require of a mesh; combine with |.
 enum MeshProperty : unsigned {
@@ -32,7 +41,7 @@ inline constexpr unsigned kOpenManifold = kOpen | kEdgeManifold | kVertexManifol
 // otherwise a failure naming each one that does not hold, with the report's figures.
 ::testing::AssertionResult mesh_has(const MeshReport& report, unsigned properties, int min_valence = 0);
 
-// The mesh in `file` (read_mesh: .ply, .obj, .drc) has triangles and `properties`; its report in *report.
+// The mesh in `file` (read_mesh: .ply, .obj, .drc, .glb) has triangles and `properties`; its report in *report.
 ::testing::AssertionResult mesh_file_has(const std::filesystem::path& file, unsigned properties,
                                          MeshReport* report = nullptr);
 

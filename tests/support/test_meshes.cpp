@@ -317,4 +317,62 @@ std::optional<Aabb> TwoSpheresField::bounds() const {
   return Aabb{a.min.cwiseMin(b.min), a.max.cwiseMax(b.max)};
 }
 
+std::string glb_file(const std::string& json, const std::string& bin) {
+  auto u32 = [](std::string& out, std::uint32_t v) {
+    for (int i = 0; i < 4; ++i) out.push_back(static_cast<char>(v >> (8 * i)));
+  };
+  std::string j = json, b = bin;
+  while (j.size() % 4 != 0) j.push_back(' ');
+  while (b.size() % 4 != 0) b.push_back('\0');
+  std::string out;
+  u32(out, 0x46546C67);
+  u32(out, 2);
+  u32(out, static_cast<std::uint32_t>(12 + 8 + j.size() + (b.empty() ? 0 : 8 + b.size())));
+  u32(out, static_cast<std::uint32_t>(j.size()));
+  u32(out, 0x4E4F534A);
+  out += j;
+  if (!b.empty()) {
+    u32(out, static_cast<std::uint32_t>(b.size()));
+    u32(out, 0x004E4942);
+    out += b;
+  }
+  return out;
+}
+
+std::string plain_glb(const Mesh& mesh, const std::string& nodes, const std::string& roots, int index_type, int mode) {
+  std::string bin;
+  auto put = [&bin](const void* p, std::size_t n) { bin.append(static_cast<const char*>(p), n); };
+  for (const Vec3& v : mesh.vertices) {
+    const float xyz[4] = {static_cast<float>(v.x()), static_cast<float>(v.y()), static_cast<float>(v.z()), 0.0f};
+    put(xyz, 16);
+  }
+  const std::size_t index_offset = bin.size();
+  const int index_bytes = index_type == 5121 ? 1 : index_type == 5123 ? 2 : 4;
+  for (const Triangle& t : mesh.triangles) {
+    for (std::uint32_t v : t) put(&v, index_bytes);  // little-endian: the low bytes first
+  }
+  const std::string n = std::to_string(mesh.vertices.size());
+  std::string json = R"({"asset":{"version":"2.0"},"buffers":[{"byteLength":)" + std::to_string(bin.size()) +
+                     R"(}],"bufferViews":[{"buffer":0,"byteLength":)" + std::to_string(index_offset) +
+                     R"(,"byteStride":16},{"buffer":0,"byteOffset":)" + std::to_string(index_offset) +
+                     R"(,"byteLength":)" + std::to_string(bin.size() - index_offset) + R"(}],"accessors":[)" +
+                     R"({"bufferView":0,"componentType":5126,"type":"VEC3","count":)" + n + "}";
+  std::string primitives;
+  if (mode == 4) {
+    json += R"(,{"bufferView":1,"componentType":)" + std::to_string(index_type) + R"(,"type":"SCALAR","count":)" +
+            std::to_string(3 * mesh.triangles.size()) + "}";
+    primitives = R"({"attributes":{"POSITION":0},"indices":1})";
+  } else {
+    for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+      json += R"(,{"bufferView":1,"byteOffset":)" + std::to_string(3 * index_bytes * t) + R"(,"componentType":)" +
+              std::to_string(index_type) + R"(,"type":"SCALAR","count":3})";
+      primitives += std::string(t > 0 ? "," : "") + R"({"attributes":{"POSITION":0},"indices":)" +
+                    std::to_string(t + 1) + R"(,"mode":)" + std::to_string(mode) + "}";
+    }
+  }
+  json += R"(],"meshes":[{"primitives":[)" + primitives + R"(]}],"nodes":)" + nodes + R"(,"scenes":[{"nodes":)" +
+          roots + R"(}],"scene":0})";
+  return glb_file(json, bin);
+}
+
 }  // namespace surfacer::testing

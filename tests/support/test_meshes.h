@@ -36,6 +36,15 @@ Mesh double_tetrahedron();
 // icosphere(1) with triangle 0 reversed: closed and manifold but not oriented.
 Mesh flipped_triangle();
 
+// A binary glTF file of the JSON text `json` and the binary chunk `bin` (both padded as the format asks).
+std::string glb_file(const std::string& json, const std::string& bin);
+// `mesh` in a .glb with plain accessors, as another exporter writes it: float positions at a byte stride of 16,
+// indices of glTF componentType `index_type` (5121, 5123 or 5125), primitive `mode` (4: as they are; 6: each
+// triangle as a fan of its own, in a primitive per triangle), mesh 0 instanced by `nodes` (a JSON array of glTF
+// nodes) from the scene's roots `roots` (a JSON array of node indices).
+std::string plain_glb(const Mesh& mesh, const std::string& nodes, const std::string& roots, int index_type = 5125,
+                      int mode = 4);
+
 // A Draco edgebreaker stream of icosphere(1) whose connectivity header declares `faces` triangles (and as many
 // traversal symbols) instead of 80: a decompression bomb of about 200 bytes, since Draco allocates its corner table
 // for the declared count (about 12 bytes per triangle) before it reads a symbol.

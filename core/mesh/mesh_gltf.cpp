@@ -1,0 +1,504 @@
+#include "core/mesh/mesh_gltf.h"
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <limits>
+#include <numeric>
+#include <tuple>
+#include <vector>
+
+#include "core/util/errors.h"
+#include "core/util/json_read.h"
+
+namespace surfacer {
+namespace {
+
+constexpr std::uint32_t kMagic = 0x46546C67;      // "glTF"
+constexpr std::uint32_t kJsonChunk = 0x4E4F534A;  // "JSON"
+constexpr std::uint32_t kBinChunk = 0x004E4942;   // "BIN\0"
+constexpr int kFloat = 5126, kUnsignedInt = 5125;
+// How a vertex is welded: by position (other programs' files), by position and seam tag (1 .. 65535), or never
+// (kAlone: in our own files, whose pieces tag every vertex another piece has, an untagged vertex is in no other
+// piece, even where it shares its point with another vertex).
+constexpr std::uint32_t kByPosition = 0, kAlone = 0x10000;
+
+std::uint32_t u32_at(std::string_view bytes, std::size_t at) {
+  std::uint32_t v = 0;
+  std::memcpy(&v, bytes.data() + at, 4);  // glTF is little-endian, as are the targets (x86-64, aarch64)
+  return v;
+}
+
+int component_bytes(int type) {
+  switch (type) {
+    case 5120:  // BYTE
+    case 5121:  // UNSIGNED_BYTE
+      return 1;
+    case 5122:  // SHORT
+    case 5123:  // UNSIGNED_SHORT
+      return 2;
+    case kUnsignedInt:
+    case kFloat:
+      return 4;
+    default:
+      return 0;
+  }
+}
+
+// An integer component as glTF's normalized value (the spec's conversions: signed values clamp at -1).
+double normalized(int type, double v) {
+  switch (type) {
+    case 5120:
+      return std::max(v / 127.0, -1.0);
+    case 5121:
+      return v / 255.0;
+    case 5122:
+      return std::max(v / 32767.0, -1.0);
+    case 5123:
+      return v / 65535.0;
+    default:
+      return v;
+  }
+}
+
+struct Accessor {
+  std::size_t count = 0;
+  int components = 0;
+  int type = 0;  // componentType
+  bool normalized = false;
+  const char* base = nullptr;
+  std::size_t stride = 0;
+
+  double get(std::size_t i, int c) const {
+    const char* p = base + i * stride + static_cast<std::size_t>(c) * component_bytes(type);
+    double v = 0.0;
+    switch (type) {
+      case 5120: {
+        std::int8_t x;
+        std::memcpy(&x, p, 1);
+        v = x;
+        break;
+      }
+      case 5121: {
+        std::uint8_t x;
+        std::memcpy(&x, p, 1);
+        v = x;
+        break;
+      }
+      case 5122: {
+        std::int16_t x;
+        std::memcpy(&x, p, 2);
+        v = x;
+        break;
+      }
+      case 5123: {
+        std::uint16_t x;
+        std::memcpy(&x, p, 2);
+        v = x;
+        break;
+      }
+      case kUnsignedInt: {
+        std::uint32_t x;
+        std::memcpy(&x, p, 4);
+        v = x;
+        break;
+      }
+      case kFloat: {
+        float x;
+        std::memcpy(&x, p, 4);
+        v = x;
+        break;
+      }
+    }
+    return normalized ? surfacer::normalized(type, v) : v;
+  }
+};
+
+class GlbReader {
+ public:
+  GlbReader(std::string_view bytes, const std::string& name, const MeshReadLimits& limits)
+      : bytes_(bytes), name_(name), limits_(limits) {}
+
+  Mesh read() {
+    if (bytes_.size() < 20 || u32_at(bytes_, 0) != kMagic) bad("no glTF binary header (a .gltf text file is not read)");
+    if (u32_at(bytes_, 4) != 2) bad("glTF version " + std::to_string(u32_at(bytes_, 4)) + ", not 2");
+    if (u32_at(bytes_, 8) > bytes_.size()) bad("the header states more bytes than the file has");
+    const std::string_view file = bytes_.substr(0, u32_at(bytes_, 8));
+    std::string_view json;
+    for (std::size_t at = 12; at + 8 <= file.size();) {
+      const std::uint32_t length = u32_at(file, at), type = u32_at(file, at + 4);
+      if (length > file.size() - at - 8) bad("a chunk runs past the end of the file");
+      const std::string_view data = file.substr(at + 8, length);
+      if (at == 12 && type != kJsonChunk) bad("the first chunk is not JSON");
+      if (type == kJsonChunk && at == 12) json = data;
+      if (type == kBinChunk && at > 12 && bin_.data() == nullptr) bin_ = data;
+      at += 8 + std::size_t{length};
+    }
+    if (json.data() == nullptr) bad("no JSON chunk");
+    root_ = parse_json(json, "file", name_);
+    if (!root_.is_object()) bad("the JSON is not an object");
+    const JsonValue* asset = root_.find("asset");
+    const JsonValue* version = asset ? asset->find("version") : nullptr;
+    if (version == nullptr || version->kind != JsonValue::Kind::kString || version->string.substr(0, 2) != "2.") {
+      bad("asset.version is not 2.x");
+    }
+    const JsonValue* generator = asset->find("generator");
+    ours_ = generator && generator->kind == JsonValue::Kind::kString && generator->string == "surfacer";
+    for (const JsonValue& r : list("extensionsRequired").items) {
+      if (r.string != "KHR_draco_mesh_compression" && r.string != "KHR_mesh_quantization") {
+        bad("it requires the extension " + r.string + ", which is not read");
+      }
+    }
+    collect();
+    return weld();
+  }
+
+ private:
+  [[noreturn]] void bad(const std::string& what) const { throw InvalidInput("file", name_ + ": " + what); }
+
+  // root_[key] as an array (an empty one when absent).
+  const JsonValue& list(const char* key) const {
+    static const JsonValue kEmpty = [] {
+      JsonValue v;
+      v.kind = JsonValue::Kind::kArray;
+      return v;
+    }();
+    const JsonValue* v = root_.find(key);
+    if (v == nullptr) return kEmpty;
+    if (!v->is_array()) bad(std::string(key) + " is not an array");
+    return *v;
+  }
+
+  // A non-negative integer (an index below `below` when given).
+  std::size_t integer(const JsonValue* v, const std::string& what,
+                      std::size_t below = std::numeric_limits<std::size_t>::max()) const {
+    if (v == nullptr || !v->is_number() || v->number < 0 || v->number != std::floor(v->number) || v->number >= 9.0e15 ||
+        static_cast<std::size_t>(v->number) >= below) {
+      bad(what + " is missing or not " + (below == std::numeric_limits<std::size_t>::max() ? "a count" : "an index"));
+    }
+    return static_cast<std::size_t>(v->number);
+  }
+
+  const JsonValue& item(const char* key, std::size_t index, const std::string& what) const {
+    const JsonValue& all = list(key);
+    if (index >= all.items.size() || !all.items[index].is_object()) bad(what + " names a missing entry of " + key);
+    return all.items[index];
+  }
+
+  // The bytes of buffer view `index`.
+  std::string_view view(std::size_t index, std::size_t* stride, const std::string& what) const {
+    const JsonValue& v = item("bufferViews", index, what);
+    const std::string where = what + " (bufferView " + std::to_string(index) + ")";
+    const std::size_t buffer = integer(v.find("buffer"), where + ".buffer");
+    const JsonValue& b = item("buffers", buffer, where);
+    if (buffer != 0 || b.find("uri") != nullptr) {
+      bad(where + " is in a buffer outside the file's binary chunk; pack the file as one self-contained .glb");
+    }
+    const std::size_t offset = v.find("byteOffset") ? integer(v.find("byteOffset"), where + ".byteOffset") : 0;
+    const std::size_t length = integer(v.find("byteLength"), where + ".byteLength");
+    if (offset > bin_.size() || length > bin_.size() - offset) bad(where + " runs past the binary chunk");
+    if (stride) *stride = v.find("byteStride") ? integer(v.find("byteStride"), where + ".byteStride") : 0;
+    return bin_.substr(offset, length);
+  }
+
+  // The accessor's data; with `with_data` false only its count and how to read its values (a Draco-compressed
+  // primitive's accessors have no data of their own).
+  Accessor accessor(std::size_t index, const std::string& what, bool with_data = true) const {
+    const JsonValue& a = item("accessors", index, what);
+    const std::string where = what + " (accessor " + std::to_string(index) + ")";
+    if (a.find("sparse")) bad(where + " is sparse, which is not read");
+    Accessor out;
+    out.count = integer(a.find("count"), where + ".count");
+    out.type = static_cast<int>(integer(a.find("componentType"), where + ".componentType"));
+    if (component_bytes(out.type) == 0) bad(where + " has componentType " + std::to_string(out.type));
+    const JsonValue* type = a.find("type");
+    const std::string t = type ? type->string : "";
+    out.components = t == "SCALAR" ? 1 : t == "VEC2" ? 2 : t == "VEC3" ? 3 : t == "VEC4" ? 4 : 0;
+    if (out.components == 0) bad(where + " has type '" + t + "'");
+    const JsonValue* norm = a.find("normalized");
+    out.normalized = norm && norm->kind == JsonValue::Kind::kBool && norm->boolean;
+    if (!with_data) return out;
+    if (!a.find("bufferView")) bad(where + " has no bufferView");
+    std::size_t stride = 0;
+    const std::string_view data = view(integer(a.find("bufferView"), where + ".bufferView"), &stride, where);
+    const std::size_t element = static_cast<std::size_t>(out.components) * component_bytes(out.type);
+    out.stride = stride == 0 ? element : stride;
+    if (out.stride < element) bad(where + " has a byteStride smaller than its elements");
+    const std::size_t offset = a.find("byteOffset") ? integer(a.find("byteOffset"), where + ".byteOffset") : 0;
+    if (offset > data.size()) bad(where + " starts past its bufferView");
+    if (out.count > 0 && (out.count - 1 > (data.size() - offset) / out.stride ||
+                          (out.count - 1) * out.stride + element > data.size() - offset)) {
+      bad(where + " runs past its bufferView");
+    }
+    out.base = data.data() + offset;
+    return out;
+  }
+
+  // The roots of the scene to read, checked.
+  std::vector<std::size_t> roots() const {
+    const JsonValue& nodes = list("nodes");
+    const JsonValue& scenes = list("scenes");
+    std::vector<std::size_t> out;
+    if (!scenes.items.empty()) {
+      const std::size_t s = root_.find("scene") ? integer(root_.find("scene"), "scene", scenes.items.size()) : 0;
+      const JsonValue* listed = scenes.items[s].find("nodes");
+      if (listed == nullptr) return out;
+      if (!listed->is_array()) bad("scene " + std::to_string(s) + ".nodes is not an array");
+      for (const JsonValue& n : listed->items) out.push_back(integer(&n, "a scene node", nodes.items.size()));
+      return out;
+    }
+    std::vector<bool> child(nodes.items.size(), false);
+    for (const JsonValue& n : nodes.items) {
+      if (const JsonValue* c = n.find("children"); c && c->is_array()) {
+        for (const JsonValue& i : c->items) child[integer(&i, "a child node", nodes.items.size())] = true;
+      }
+    }
+    for (std::size_t n = 0; n < nodes.items.size(); ++n) {
+      if (!child[n]) out.push_back(n);
+    }
+    return out;
+  }
+
+  Eigen::Matrix4d local(const JsonValue& node, const std::string& where) const {
+    auto numbers = [&](const char* key, std::size_t n) {
+      std::vector<double> out;
+      const JsonValue* v = node.find(key);
+      if (v == nullptr) return out;
+      if (!v->is_array() || v->items.size() != n) bad(where + "." + key + " is not " + std::to_string(n) + " numbers");
+      for (const JsonValue& x : v->items) {
+        if (!x.is_number()) bad(where + "." + key + " is not " + std::to_string(n) + " numbers");
+        out.push_back(x.number);
+      }
+      return out;
+    };
+    Eigen::Matrix4d m = Eigen::Matrix4d::Identity();
+    if (const std::vector<double> mat = numbers("matrix", 16); !mat.empty()) {
+      for (int i = 0; i < 16; ++i) m(i % 4, i / 4) = mat[i];  // column-major
+      return m;
+    }
+    if (const std::vector<double> s = numbers("scale", 3); !s.empty()) {
+      m = Eigen::Vector4d(s[0], s[1], s[2], 1.0).asDiagonal();
+    }
+    if (const std::vector<double> r = numbers("rotation", 4); !r.empty()) {
+      Eigen::Quaterniond q(r[3], r[0], r[1], r[2]);  // glTF stores x, y, z, w
+      if (!(q.norm() > 0.0)) bad(where + ".rotation is not a rotation");
+      q.normalize();
+      Eigen::Matrix4d rotation = Eigen::Matrix4d::Identity();
+      rotation.topLeftCorner<3, 3>() = q.toRotationMatrix();
+      m = rotation * m;
+    }
+    if (const std::vector<double> t = numbers("translation", 3); !t.empty()) {
+      Eigen::Matrix4d translation = Eigen::Matrix4d::Identity();
+      translation.topRightCorner<3, 1>() = Eigen::Vector3d(t[0], t[1], t[2]);
+      m = translation * m;
+    }
+    return m;
+  }
+
+  // Every node under the roots, each once (glTF's nodes form trees), with its world transform.
+  void collect() {
+    const JsonValue& nodes = list("nodes");
+    std::vector<bool> seen(nodes.items.size(), false);
+    std::vector<std::pair<std::size_t, Eigen::Matrix4d>> stack;
+    for (std::size_t r : roots()) stack.emplace_back(r, Eigen::Matrix4d::Identity());
+    while (!stack.empty()) {
+      const auto [n, parent] = stack.back();
+      stack.pop_back();
+      const std::string where = "node " + std::to_string(n);
+      if (seen[n]) bad(where + " is reached twice (glTF's nodes form trees)");
+      seen[n] = true;
+      const JsonValue& node = nodes.items[n];
+      if (!node.is_object()) bad(where + " is not an object");
+      const Eigen::Matrix4d world = parent * local(node, where);
+      if (!world.allFinite()) bad(where + " has a transform that is not finite");
+      if (const JsonValue* m = node.find("mesh")) add_mesh(integer(m, where + ".mesh"), world, where);
+      if (const JsonValue* c = node.find("children")) {
+        if (!c->is_array()) bad(where + ".children is not an array");
+        for (const JsonValue& i : c->items)
+          stack.emplace_back(integer(&i, where + ".children", nodes.items.size()), world);
+      }
+    }
+  }
+
+  void add_mesh(std::size_t index, const Eigen::Matrix4d& world, const std::string& node) {
+    const JsonValue& mesh = item("meshes", index, node + ".mesh");
+    const JsonValue* primitives = mesh.find("primitives");
+    if (primitives == nullptr || !primitives->is_array()) bad("mesh " + std::to_string(index) + " has no primitives");
+    const bool mirrored = world.topLeftCorner<3, 3>().determinant() < 0.0;
+    for (std::size_t p = 0; p < primitives->items.size(); ++p) {
+      const JsonValue& prim = primitives->items[p];
+      const std::string where = "mesh " + std::to_string(index) + " primitive " + std::to_string(p);
+      if (!prim.is_object()) bad(where + " is not an object");
+      const std::size_t mode = prim.find("mode") ? integer(prim.find("mode"), where + ".mode") : 4;
+      if (mode < 4 || mode > 6) {
+        bad(where + " has mode " + std::to_string(mode) +
+            " (points or lines); only triangles (4, 5, 6) make a surface");
+      }
+      const JsonValue* attributes = prim.find("attributes");
+      const std::size_t position_index =
+          integer(attributes ? attributes->find("POSITION") : nullptr, where + ".attributes.POSITION");
+      const JsonValue* extensions = prim.find("extensions");
+      const JsonValue* draco = extensions ? extensions->find("KHR_draco_mesh_compression") : nullptr;
+      const Accessor position = accessor(position_index, where + " POSITION", draco == nullptr);
+      if (position.components != 3 || position.type == kUnsignedInt) bad(where + " has a POSITION that is not a VEC3");
+      std::vector<Vec3> points;
+      std::vector<std::uint32_t> weld;  // per point: kByPosition, a seam tag or kAlone
+      std::vector<std::size_t> indices;
+      const JsonValue* seam = attributes->find("_SEAM");
+      if (draco != nullptr) {
+        if (mode != 4) bad(where + " is Draco-compressed with mode " + std::to_string(mode));
+        const std::string_view data =
+            view(integer(draco->find("bufferView"), where + " Draco bufferView"), nullptr, where + " Draco stream");
+        const JsonValue* ids = draco->find("attributes");
+        Mesh decoded;
+        try {
+          if (seam != nullptr) {  // the pieces of a frame: grid coordinates and seam tags
+            DracoPieceInfo info;
+            QuantizedPiece piece = decode_draco_piece(data, 16, &info);
+            if (ids == nullptr || info.seam < 0 || info.position < 0 ||
+                integer(ids->find("_SEAM"), where + " Draco _SEAM") != static_cast<std::size_t>(info.seam) ||
+                integer(ids->find("POSITION"), where + " Draco POSITION") != static_cast<std::size_t>(info.position)) {
+              bad(where + ": the Draco stream's attributes are not the ones the primitive names");
+            }
+            for (const auto& q : piece.positions) decoded.vertices.emplace_back(q[0], q[1], q[2]);
+            for (std::uint16_t tag : piece.seam_tags) weld.push_back(tag == 0 ? kAlone : tag);
+            decoded.triangles = std::move(piece.triangles);
+          } else {
+            decoded = decode_draco(data, limits_);
+          }
+        } catch (const Error& e) {
+          if (e.kind() != ErrorKind::kInvalidInput)
+            throw Error(e.kind(), e.field(), name_ + ": " + where + ": " + e.what());
+          bad(where + ": " + e.what());
+        }
+        // Draco gives the stored values; the accessor says how to read them.
+        for (Vec3& v : decoded.vertices) {
+          if (position.normalized) {
+            for (int c = 0; c < 3; ++c) v[c] = normalized(position.type, v[c]);
+          }
+        }
+        points = std::move(decoded.vertices);
+        indices.reserve(3 * decoded.triangles.size());
+        for (const Triangle& t : decoded.triangles) indices.insert(indices.end(), t.begin(), t.end());
+      } else {
+        points.resize(position.count);
+        for (std::size_t i = 0; i < position.count; ++i) {
+          points[i] = Vec3(position.get(i, 0), position.get(i, 1), position.get(i, 2));
+        }
+        if (const JsonValue* idx = prim.find("indices")) {
+          const Accessor a = accessor(integer(idx, where + ".indices"), where + " indices");
+          if (a.components != 1 || a.type == kFloat || a.type == 5120 || a.type == 5122 || a.normalized) {
+            bad(where + " has indices that are not unsigned integers");
+          }
+          indices.resize(a.count);
+          for (std::size_t i = 0; i < a.count; ++i) indices[i] = static_cast<std::size_t>(a.get(i, 0));
+        } else {
+          indices.resize(points.size());
+          std::iota(indices.begin(), indices.end(), std::size_t{0});
+        }
+        if (seam != nullptr) {  // a .glb of pieces decompressed by another tool keeps the tags as plain data
+          const Accessor a = accessor(integer(seam, where + ".attributes._SEAM"), where + " _SEAM");
+          if (a.components != 1 || a.type != 5123 || a.normalized || a.count != points.size()) {
+            bad(where + " has a _SEAM that is not one unsigned short per vertex");
+          }
+          for (std::size_t i = 0; i < a.count; ++i) {
+            const auto tag = static_cast<std::uint32_t>(a.get(i, 0));
+            weld.push_back(tag == 0 ? kAlone : tag);
+          }
+        }
+      }
+      if (weld.empty()) weld.assign(points.size(), ours_ ? kAlone : kByPosition);
+      for (std::size_t i : indices) {
+        if (i >= points.size())
+          bad(where + " uses vertex " + std::to_string(i) + " of " + std::to_string(points.size()));
+      }
+      const std::size_t n = indices.size();
+      const std::size_t triangles = mode == 4 ? n / 3 : (n >= 3 ? n - 2 : 0);
+      if (static_cast<double>(triangles_.size()) + static_cast<double>(triangles) >
+          static_cast<double>(limits_.max_triangles)) {
+        throw ResourceLimit("max_triangles", name_ + ": more than " + std::to_string(limits_.max_triangles) +
+                                                 " triangles (the largest mesh accepted here)");
+      }
+      const std::size_t base = vertices_.size();
+      if (base + points.size() > std::numeric_limits<std::uint32_t>::max()) bad("more than 2^32 - 1 vertices");
+      for (const Vec3& p : points) {
+        const Eigen::Vector4d w = world * Eigen::Vector4d(p.x(), p.y(), p.z(), 1.0);
+        const Vec3 v = w.head<3>();
+        if (!v.allFinite()) bad(where + " has a position that is not finite");
+        vertices_.push_back(v);
+      }
+      weld_.insert(weld_.end(), weld.begin(), weld.end());
+      auto add = [&](std::size_t a, std::size_t b, std::size_t c) {
+        Triangle t{static_cast<std::uint32_t>(base + a), static_cast<std::uint32_t>(base + b),
+                   static_cast<std::uint32_t>(base + c)};
+        if (mirrored) std::swap(t[1], t[2]);
+        triangles_.push_back(t);
+      };
+      triangles_.reserve(triangles_.size() + triangles);
+      for (std::size_t t = 0; t < triangles; ++t) {
+        if (mode == 4) {
+          add(indices[3 * t], indices[3 * t + 1], indices[3 * t + 2]);
+        } else if (mode == 5) {  // strip: every other triangle is reversed to keep one orientation
+          if (t % 2 == 0) {
+            add(indices[t], indices[t + 1], indices[t + 2]);
+          } else {
+            add(indices[t + 1], indices[t], indices[t + 2]);
+          }
+        } else {  // fan
+          add(indices[0], indices[t + 1], indices[t + 2]);
+        }
+      }
+    }
+  }
+
+  // One vertex per distinct (point, weld class), but every kAlone vertex on its own; in the order of first
+  // appearance.
+  Mesh weld() {
+    const std::size_t n = vertices_.size();
+    std::vector<std::uint32_t> first(n);  // each vertex's first copy
+    std::vector<std::uint32_t> order;
+    for (std::size_t v = 0; v < n; ++v) {
+      first[v] = static_cast<std::uint32_t>(v);
+      if (weld_[v] != kAlone) order.push_back(static_cast<std::uint32_t>(v));
+    }
+    auto key = [&](std::uint32_t i) {
+      return std::tuple(vertices_[i].x(), vertices_[i].y(), vertices_[i].z(), weld_[i]);
+    };
+    std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) { return key(a) < key(b); });
+    for (std::size_t i = 1; i < order.size(); ++i) {
+      if (key(order[i]) == key(order[i - 1])) first[order[i]] = first[order[i - 1]];
+    }
+    std::vector<std::uint32_t> id(n, std::numeric_limits<std::uint32_t>::max());
+    Mesh mesh;
+    for (std::size_t v = 0; v < n; ++v) {
+      if (first[v] != v) continue;
+      id[v] = static_cast<std::uint32_t>(mesh.vertices.size());
+      mesh.vertices.push_back(vertices_[v]);
+    }
+    mesh.triangles = std::move(triangles_);
+    for (Triangle& t : mesh.triangles) {
+      for (std::uint32_t& v : t) v = id[first[v]];
+    }
+    return mesh;
+  }
+
+  std::string_view bytes_;
+  const std::string& name_;
+  const MeshReadLimits& limits_;
+  std::string_view bin_;
+  JsonValue root_;
+  bool ours_ = false;  // written by to_gltf (asset.generator "surfacer"): welded through _SEAM only
+  std::vector<Vec3> vertices_;
+  std::vector<std::uint32_t> weld_;  // per vertex, its weld class
+  std::vector<Triangle> triangles_;
+};
+
+}  // namespace
+
+Mesh parse_glb(std::string_view bytes, const std::string& name, const MeshReadLimits& limits) {
+  return GlbReader(bytes, name, limits).read();
+}
+
+}  // namespace surfacer

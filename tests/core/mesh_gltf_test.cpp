@@ -1,0 +1,198 @@
+#include "core/mesh/mesh_gltf.h"
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <cmath>
+#include <filesystem>
+#include <string>
+
+#include "core/mesh/frame_codec.h"
+#include "core/mesh/mesh_io.h"
+#include "core/polygonize/polygonize.h"
+#include "core/util/errors.h"
+#include "tests/support/files.h"
+#include "tests/support/mesh_expectations.h"
+#include "tests/support/test_meshes.h"
+
+namespace surfacer {
+namespace {
+
+using testing::kClosedManifold;
+using testing::kPositiveVolume;
+using testing::mesh_has;
+using testing::plain_glb;
+using testing::quantized_triangles;
+
+Mesh polygonized(const FieldPtr& field, Polygonizer method, int cells, bool normals) {
+  PolygonizeOptions options;
+  options.method = method;
+  options.cells = cells;
+  options.normals = normals;
+  options.threads = 2;
+  const FieldPtr fields[] = {field};
+  return polygonize(*field, resolve_grid(fields, options));
+}
+
+// The .glb the CLI writes for a frame (to_gltf) reads back as the frame's mesh: the same triangles on the job's
+// grid, and as many vertices (the pieces' copies of a seam vertex weld into one, distinct vertices on one grid point
+// stay apart), whatever the codec, the pieces and the grid.
+TEST(MeshGltf, TheCliGlbOfAFrameReadsBackAsItsMesh) {
+  const ThreadExecutor two(2);
+  const FieldPtr gyroid = make_csg(CsgOp::kIntersection, {make_gyroid(1.0, 0.12), make_sphere(Vec3::Zero(), 1.5)});
+  const FieldPtr sphere = make_sphere(Vec3(0.1, -0.2, 0.05), 1.0);
+  const Aabb box{Vec3::Constant(-2), Vec3::Constant(2)};
+  struct Case {
+    const char* name;
+    Mesh mesh;
+  };
+  const Case cases[] = {
+      {"gyroid cubes 48", polygonized(gyroid, Polygonizer::kCubes, 48, false)},
+      {"gyroid tiles 40", polygonized(gyroid, Polygonizer::kTiles, 40, false)},
+      {"sphere tiles 32 with normals", polygonized(sphere, Polygonizer::kTiles, 32, true)},
+  };
+  for (const Case& c : cases) {
+    for (FrameCodec codec : {FrameCodec::kDracoPieces, FrameCodec::kMeshopt, FrameCodec::kDraco}) {
+      for (int bits : {8, 14}) {
+        SCOPED_TRACE(std::string(c.name) + ", " + std::string(frame_codec_name(codec)) + ", " + std::to_string(bits) +
+                     " bits");
+        FrameCodecOptions o;
+        o.codec = codec;
+        o.draco.quantization_bits = bits;
+        o.draco.quantization_bounds = box;
+        o.draco.normals = !c.mesh.normals.empty();
+        o.max_piece_triangles = 2048;
+        const std::string bytes = encode_frame(c.mesh, o, two);
+        const Mesh frame = decode_frame(bytes, codec, two);
+        const Mesh read = parse_glb(to_gltf(bytes, codec, &frame, two), "frame.glb");
+        // A one-mesh Draco frame goes into glTF on the mesh's own box at the default bits: compare on that grid.
+        const QuantizationGrid grid = codec == FrameCodec::kDraco ? quantization_grid(frame, DracoOptions{}, two)
+                                                                  : QuantizationGrid::of(box, bits);
+        EXPECT_EQ(read.vertices.size(), frame.vertices.size());
+        EXPECT_EQ(quantized_triangles(read, grid), quantized_triangles(frame, grid));
+        const MeshReport a = check_mesh(read), b = check_mesh(frame);
+        EXPECT_EQ(a.closed, b.closed);
+        EXPECT_EQ(a.vertex_manifold, b.vertex_manifold);
+        EXPECT_EQ(a.oriented, b.oriented);
+        EXPECT_EQ(a.euler_characteristic, b.euler_characteristic);
+        EXPECT_EQ(a.components, b.components);
+      }
+    }
+  }
+}
+
+// write_mesh and read_mesh round-trip a .glb file on disk (as the CLI's --start-mesh reads it).
+TEST(MeshGltf, WriteMeshAndReadMeshRoundTrip) {
+  const std::filesystem::path dir = testing::fresh_temp_dir("mesh_gltf");
+  for (const Mesh& mesh : {testing::icosphere(4), testing::torus_mesh(1.0, 0.3, 48, 24)}) {
+    const std::filesystem::path file = dir / "mesh.glb";
+    write_mesh(file, mesh);
+    const Mesh read = read_mesh(file);
+    EXPECT_EQ(read.vertices.size(), mesh.vertices.size());
+    EXPECT_EQ(read.triangles.size(), mesh.triangles.size());
+    const MeshReport a = check_mesh(read), b = check_mesh(mesh);
+    EXPECT_TRUE(mesh_has(a, kClosedManifold | kPositiveVolume));
+    EXPECT_EQ(a.euler_characteristic, b.euler_characteristic);
+    EXPECT_NEAR(a.volume, b.volume, 1e-3 * b.volume);
+  }
+}
+
+// Another exporter's file: plain accessors (strided float positions, indices of every unsigned type), triangles or
+// fans, and nodes whose transforms (translation, rotation, scale, matrix, nesting, a mirror) place the instances.
+TEST(MeshGltf, PlainAccessorsModesAndNodeTransforms) {
+  const Mesh cube = testing::unit_cube();
+  const double kHalf = std::sqrt(0.5);
+  // Node 0: the cube moved by (10, 0, 0); node 1: rotated 90 degrees about z, its child node 2 scaled by 2 and
+  // mirrored in x; node 3: a matrix moving the cube by (0, 0, -5).
+  const std::string nodes = R"([{"mesh":0,"translation":[10,0,0]},{"rotation":[0,0,)" + std::to_string(kHalf) + "," +
+                            std::to_string(kHalf) + R"(],"children":[2]},{"mesh":0,"scale":[-2,2,2]},)" +
+                            R"({"mesh":0,"matrix":[1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,-5,1]}])";
+  for (int index_type : {5121, 5123, 5125}) {
+    for (int mode : {4, 6}) {
+      SCOPED_TRACE("indices " + std::to_string(index_type) + ", mode " + std::to_string(mode));
+      const Mesh read = parse_glb(plain_glb(cube, nodes, "[0,1,3]", index_type, mode), "plain.glb");
+      ASSERT_EQ(read.triangles.size(), 3 * cube.triangles.size());
+      ASSERT_EQ(read.vertices.size(), 3 * cube.vertices.size());  // three cubes apart: nothing welds
+      const MeshReport r = check_mesh(read);
+      EXPECT_TRUE(mesh_has(r, kClosedManifold | kPositiveVolume)) << "a mirrored instance must stay outward";
+      EXPECT_EQ(r.components, 3);
+      EXPECT_NEAR(r.volume, 1.0 + 8.0 + 1.0, 1e-6);
+      Aabb box = Aabb::empty();
+      for (const Vec3& p : read.vertices) box.merge(p);
+      // Cube 1 is [0,1]^3 mirrored to [-2,0] x [0,2] x [0,2], then rotated: x' = -y, y' = x -> [-2,0] x [-2,0].
+      EXPECT_TRUE(box.min.isApprox(Vec3(-2, -2, -5), 1e-6)) << box.min.transpose();
+      EXPECT_TRUE(box.max.isApprox(Vec3(11, 1, 2), 1e-6)) << box.max.transpose();
+    }
+  }
+  // Without scenes every root node is read; a copy of a vertex (a split at a texture seam) welds.
+  Mesh split = cube;
+  split.vertices.push_back(split.vertices[split.triangles[0][0]]);
+  split.triangles[0][0] = static_cast<std::uint32_t>(split.vertices.size() - 1);
+  std::string file = plain_glb(split, R"([{"mesh":0}])", "[0]");
+  const Mesh welded = parse_glb(file, "split.glb");
+  EXPECT_EQ(welded.vertices.size(), cube.vertices.size());
+  EXPECT_TRUE(mesh_has(check_mesh(welded), kClosedManifold));
+}
+
+void expect_refused(const std::string& bytes, const std::string& words, const MeshReadLimits& limits = {}) {
+  try {
+    parse_glb(bytes, "bad.glb", limits);
+    ADD_FAILURE() << "read: " << words;
+  } catch (const Error& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("bad.glb"), std::string::npos) << what;
+    EXPECT_NE(what.find(words), std::string::npos) << what;
+  }
+}
+
+TEST(MeshGltf, RefusesWhatItDoesNotReadNamingWhy) {
+  const Mesh cube = testing::unit_cube();
+  const std::string good = plain_glb(cube, R"([{"mesh":0}])", "[0]");
+  ASSERT_NO_THROW(parse_glb(good, "good.glb"));
+  auto replaced = [&](const std::string& from, const std::string& to) {
+    std::string json(good.begin() + 20, good.begin() + 20 + (good[12] & 0xff) + ((good[13] & 0xff) << 8));
+    const std::size_t at = json.find(from);
+    EXPECT_NE(at, std::string::npos) << from;
+    json.replace(at, from.size(), to);
+    const std::size_t bin_at = 20 + (good[12] & 0xff) + ((good[13] & 0xff) << 8);
+    const std::string bin = good.substr(bin_at + 8);
+    return testing::glb_file(json, bin);
+  };
+  expect_refused("solid cube\n", "no glTF binary header");
+  expect_refused(good.substr(0, good.size() / 2), "more bytes than the file has");
+  std::string v1 = good;
+  v1[4] = 1;
+  expect_refused(v1, "version 1");
+  expect_refused(replaced(R"("asset":)", R"("asset" )"), "not JSON: expected ':'");
+  expect_refused(replaced(R"("version":"2.0")", R"("version":"1.0")"), "asset.version is not 2.x");
+  expect_refused(replaced(R"({"mesh":0})", R"({"mesh":0,"children":[0]})"), "reached twice");
+  expect_refused(replaced(R"("indices":1)", R"("indices":1,"mode":1)"), "mode 1");
+  expect_refused(replaced(R"("buffer":0,"byteOffset")", R"("buffer":1,"byteOffset")"), "missing entry of buffers");
+  expect_refused(replaced(R"("buffers":[{)", R"("buffers":[{"uri":"cube.bin",)"), "outside the file");
+  expect_refused(replaced(R"("componentType":5126,)", R"("sparse":{},"componentType":5126,)"), "sparse");
+  expect_refused(replaced(R"("type":"VEC3","count":8)", R"("type":"VEC3","count":9)"), "runs past its bufferView");
+  expect_refused(replaced(R"("asset")", R"("extensionsRequired":["KHR_texture_transform"],"asset")"),
+                 "KHR_texture_transform");
+  expect_refused(replaced(R"({"mesh":0})", R"({"mesh":0,"matrix":[1,0,0,1]})"), "matrix is not 16 numbers");
+  expect_refused(replaced(R"({"mesh":0})", R"({"mesh":0,"scale":[1e308,1e308,1e308],"children":[1]},{"mesh":0,)"
+                                           R"("scale":[1e308,1,1]})"),
+                 "not finite");
+  // An index past the vertices: the cube's first index (0) made 200.
+  std::string far = good;
+  const std::size_t bin = 20 + (good[12] & 0xff) + ((good[13] & 0xff) << 8) + 8;
+  far[bin + 16 * cube.vertices.size() + 4 * 0] = static_cast<char>(200);
+  expect_refused(far, "uses vertex 200");
+  // Many instances of one mesh past the triangles a caller accepts.
+  MeshReadLimits limits;
+  limits.max_triangles = 30;
+  try {
+    parse_glb(plain_glb(cube, R"([{"mesh":0},{"mesh":0},{"mesh":0}])", "[0,1,2]"), "many.glb", limits);
+    ADD_FAILURE() << "36 triangles read under a limit of 30";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::kResourceLimit);
+    EXPECT_EQ(e.field(), "max_triangles");
+  }
+}
+
+}  // namespace
+}  // namespace surfacer
