@@ -1,12 +1,17 @@
 // Fuzz target: uploaded meshes (an optimize job's start mesh, the CLI's --start-mesh and --raw frames) through
-// core/mesh_io's PLY and OBJ readers and core/mesh_codec's Draco decoder.
+// core/mesh_io's PLY and OBJ readers and core/mesh_codec's Draco decoder, and the pieced frames a server sends (what
+// the CLI and the Python package decode) through core/mesh/frame_codec.
 // Input: one selector byte, then the file bytes: 0 PLY, 1 OBJ, 2 Draco (parse_mesh), 3 decode_draco directly,
-// 4 the server's format sniffing (server/optimize_job.cpp: "ply" prefix -> PLY, "DRACO" -> Draco, else OBJ).
-// Every mesh read is then written as double-precision PLY and read back: it must survive unchanged.
+// 4 the server's format sniffing (server/optimize_job.cpp: "ply" prefix -> PLY, "DRACO" -> Draco, else OBJ),
+// 5 a Draco-pieces frame (decode_frame, then to_gltf of the same bytes), 6 a meshopt frame (decode_frame),
+// 7 binary glTF (parse_mesh, as a .glb start mesh; sniffing "glTF" reaches it too).
+// Every mesh read is then written as double-precision PLY and read back: it must survive unchanged. A .glb written
+// from a frame has glTF's header with its own length.
 // Expected failures are surfacer::Error; anything else escaping, a crash, UB or a violated property is a bug.
 #include <cstdint>
 #include <string>
 
+#include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_codec.h"
 #include "core/mesh/mesh_io.h"
 #include "core/util/errors.h"
@@ -19,6 +24,7 @@ namespace {
 MeshFormat sniff(std::string_view bytes) {
   if (bytes.substr(0, 3) == "ply") return MeshFormat::kPly;
   if (bytes.substr(0, 5) == "DRACO") return MeshFormat::kDraco;
+  if (bytes.substr(0, 4) == "glTF") return MeshFormat::kGlb;
   return MeshFormat::kObj;
 }
 
@@ -40,13 +46,24 @@ void check_mesh(const Mesh& mesh) {
   }
 }
 
+void check_glb(const std::string& glb) {
+  auto u32 = [&](std::size_t at) {
+    return std::uint32_t{static_cast<std::uint8_t>(glb[at])} |
+           std::uint32_t{static_cast<std::uint8_t>(glb[at + 1])} << 8 |
+           std::uint32_t{static_cast<std::uint8_t>(glb[at + 2])} << 16 |
+           std::uint32_t{static_cast<std::uint8_t>(glb[at + 3])} << 24;
+  };
+  require(glb.size() >= 20 && glb.substr(0, 4) == "glTF", "a .glb without glTF's header");
+  require(u32(4) == 2 && u32(8) == glb.size(), "a .glb whose header states another version or length");
+}
+
 }  // namespace
 }  // namespace surfacer::fuzz
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   using namespace surfacer;
   if (size == 0) return 0;
-  const std::uint8_t selector = data[0] % 5;
+  const std::uint8_t selector = data[0] % 8;
   const std::string_view bytes = fuzz::as_view(data + 1, size - 1);
   Mesh mesh;
   try {
@@ -63,6 +80,23 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
       case 3:
         mesh = decode_draco(bytes);
         break;
+      case 7:
+        mesh = parse_mesh(bytes, MeshFormat::kGlb, "fuzz.glb");
+        break;
+      case 5:
+      case 6: {
+        const FrameCodec codec = selector == 5 ? FrameCodec::kDracoPieces : FrameCodec::kMeshopt;
+        const ThreadExecutor one(1);
+        if (codec == FrameCodec::kDracoPieces) {
+          try {  // from the directory alone, so it may succeed where decoding fails, and the other way round
+            fuzz::check_glb(to_gltf(bytes, codec, nullptr, one));
+          } catch (const Error& e) {
+            fuzz::require(e.what()[0] != '\0', "an Error without a message");
+          }
+        }
+        mesh = decode_frame(bytes, codec, one);
+        break;
+      }
       default:
         mesh = parse_mesh(bytes, fuzz::sniff(bytes), "upload");
         break;

@@ -3,7 +3,8 @@
 
 Seeds are small valid (and a few nearly valid) inputs of every format each target decodes, built from
 examples/scenes/ and from the file layouts the tests write (tests/core/particle_io_test.cpp, mesh_io_test.cpp).
-Draco seeds need `draco_encoder` (Debian package `draco`). Files not named seed_* (crash inputs saved as
+Draco seeds need `draco_encoder` (Debian package `draco`), pieced-frame seeds the build's fuzz/fuzz_frame_seeds
+(SURFACER_BUILD_DIR, default build/). Files not named seed_* (crash inputs saved as
 regressions) are left alone. Run from anywhere: python3 fuzz/make_seeds.py
 """
 import gzip
@@ -443,6 +444,12 @@ def meshes():
             write(d, name, b"\x02" + data)
             write(d, name + "_direct", b"\x03" + data)
         write(d, "sniff_drc", b"\x04" + data)
+    # Pieced frames (selectors 5 and 6): only our own encoder writes them.
+    seeds = pathlib.Path(os.environ.get("SURFACER_BUILD_DIR", ROOT / "build")) / "fuzz" / "fuzz_frame_seeds"
+    if not seeds.exists():
+        print("make_seeds: %s not built (cmake --build build); no pieced-frame seeds" % seeds)
+        return
+    subprocess.run([str(seeds), str(d)], check=True, stdout=subprocess.DEVNULL)
 
 
 # --- frame_assembler / upload_assembler -----------------------------------------------------------------------------
