@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <map>
 #include <numeric>
 #include <tuple>
 #include <vector>
@@ -322,133 +323,161 @@ class GlbReader {
     }
   }
 
+  // A primitive's triangles over the points they use, in the file's coordinates.
+  struct Part {
+    std::vector<Vec3> points;
+    std::vector<std::uint32_t> weld;  // per point: kByPosition, a seam tag or kAlone
+    std::vector<Triangle> triangles;
+  };
+
+  // Primitive p of mesh `index`, read and decoded once however many nodes instance it.
+  const Part& part(std::size_t index, std::size_t p, const JsonValue& prim, const std::string& where) {
+    if (const auto it = parts_.find({index, p}); it != parts_.end()) return it->second;
+    if (!prim.is_object()) bad(where + " is not an object");
+    const std::size_t mode = prim.find("mode") ? integer(prim.find("mode"), where + ".mode") : 4;
+    if (mode < 4 || mode > 6) {
+      bad(where + " has mode " + std::to_string(mode) + " (points or lines); only triangles (4, 5, 6) make a surface");
+    }
+    const JsonValue* attributes = prim.find("attributes");
+    const std::size_t position_index =
+        integer(attributes ? attributes->find("POSITION") : nullptr, where + ".attributes.POSITION");
+    const JsonValue* extensions = prim.find("extensions");
+    const JsonValue* draco = extensions ? extensions->find("KHR_draco_mesh_compression") : nullptr;
+    const Accessor position = accessor(position_index, where + " POSITION", draco == nullptr);
+    if (position.components != 3 || position.type == kUnsignedInt) bad(where + " has a POSITION that is not a VEC3");
+    std::vector<Vec3> points;
+    std::vector<std::uint32_t> weld;  // per point: kByPosition, a seam tag or kAlone
+    std::vector<std::size_t> indices;
+    const JsonValue* seam = attributes->find("_SEAM");
+    if (draco != nullptr) {
+      if (mode != 4) bad(where + " is Draco-compressed with mode " + std::to_string(mode));
+      const std::string_view data =
+          view(integer(draco->find("bufferView"), where + " Draco bufferView"), nullptr, where + " Draco stream");
+      const JsonValue* ids = draco->find("attributes");
+      Mesh decoded;
+      try {
+        if (seam != nullptr) {  // the pieces of a frame: grid coordinates and seam tags
+          DracoPieceInfo info;
+          QuantizedPiece piece = decode_draco_piece(data, 16, &info);
+          if (ids == nullptr || info.seam < 0 || info.position < 0 ||
+              integer(ids->find("_SEAM"), where + " Draco _SEAM") != static_cast<std::size_t>(info.seam) ||
+              integer(ids->find("POSITION"), where + " Draco POSITION") != static_cast<std::size_t>(info.position)) {
+            bad(where + ": the Draco stream's attributes are not the ones the primitive names");
+          }
+          for (const auto& q : piece.positions) decoded.vertices.emplace_back(q[0], q[1], q[2]);
+          for (std::uint16_t tag : piece.seam_tags) weld.push_back(tag == 0 ? kAlone : tag);
+          decoded.triangles = std::move(piece.triangles);
+        } else {
+          decoded = decode_draco(data, limits_);
+        }
+      } catch (const Error& e) {
+        if (e.kind() != ErrorKind::kInvalidInput)
+          throw Error(e.kind(), e.field(), name_ + ": " + where + ": " + e.what());
+        bad(where + ": " + e.what());
+      }
+      // Draco gives the stored values; the accessor says how to read them.
+      for (Vec3& v : decoded.vertices) {
+        if (position.normalized) {
+          for (int c = 0; c < 3; ++c) v[c] = normalized(position.type, v[c]);
+        }
+      }
+      points = std::move(decoded.vertices);
+      indices.reserve(3 * decoded.triangles.size());
+      for (const Triangle& t : decoded.triangles) indices.insert(indices.end(), t.begin(), t.end());
+    } else {
+      points.resize(position.count);
+      for (std::size_t i = 0; i < position.count; ++i) {
+        points[i] = Vec3(position.get(i, 0), position.get(i, 1), position.get(i, 2));
+      }
+      if (const JsonValue* idx = prim.find("indices")) {
+        const Accessor a = accessor(integer(idx, where + ".indices"), where + " indices");
+        if (a.components != 1 || a.type == kFloat || a.type == 5120 || a.type == 5122 || a.normalized) {
+          bad(where + " has indices that are not unsigned integers");
+        }
+        indices.resize(a.count);
+        for (std::size_t i = 0; i < a.count; ++i) indices[i] = static_cast<std::size_t>(a.get(i, 0));
+      } else {
+        indices.resize(points.size());
+        std::iota(indices.begin(), indices.end(), std::size_t{0});
+      }
+      if (seam != nullptr) {  // a .glb of pieces decompressed by another tool keeps the tags as plain data
+        const Accessor a = accessor(integer(seam, where + ".attributes._SEAM"), where + " _SEAM");
+        if (a.components != 1 || a.type != 5123 || a.normalized || a.count != points.size()) {
+          bad(where + " has a _SEAM that is not one unsigned short per vertex");
+        }
+        for (std::size_t i = 0; i < a.count; ++i) {
+          const auto tag = static_cast<std::uint32_t>(a.get(i, 0));
+          weld.push_back(tag == 0 ? kAlone : tag);
+        }
+      }
+    }
+    if (weld.empty()) weld.assign(points.size(), ours_ ? kAlone : kByPosition);
+    for (std::size_t i : indices) {
+      if (i >= points.size()) bad(where + " uses vertex " + std::to_string(i) + " of " + std::to_string(points.size()));
+    }
+    // The triangles, and only the points they use (a file may list points no triangle of the primitive uses).
+    Part out;
+    std::vector<std::uint32_t> local(points.size(), std::numeric_limits<std::uint32_t>::max());
+    auto add = [&](std::size_t a, std::size_t b, std::size_t c) {
+      Triangle t;
+      const std::size_t corners[3] = {a, b, c};
+      for (int k = 0; k < 3; ++k) {
+        std::uint32_t& l = local[corners[k]];
+        if (l == std::numeric_limits<std::uint32_t>::max()) {
+          l = static_cast<std::uint32_t>(out.points.size());
+          out.points.push_back(points[corners[k]]);
+          out.weld.push_back(weld[corners[k]]);
+        }
+        t[k] = l;
+      }
+      out.triangles.push_back(t);
+    };
+    const std::size_t n = indices.size();
+    const std::size_t triangles = mode == 4 ? n / 3 : (n >= 3 ? n - 2 : 0);
+    out.triangles.reserve(triangles);
+    for (std::size_t t = 0; t < triangles; ++t) {
+      if (mode == 4) {
+        add(indices[3 * t], indices[3 * t + 1], indices[3 * t + 2]);
+      } else if (mode == 5) {  // strip: every other triangle is reversed to keep one orientation
+        if (t % 2 == 0) {
+          add(indices[t], indices[t + 1], indices[t + 2]);
+        } else {
+          add(indices[t + 1], indices[t], indices[t + 2]);
+        }
+      } else {  // fan
+        add(indices[0], indices[t + 1], indices[t + 2]);
+      }
+    }
+    return parts_.emplace(std::pair{index, p}, std::move(out)).first->second;
+  }
+
   void add_mesh(std::size_t index, const Eigen::Matrix4d& world, const std::string& node) {
     const JsonValue& mesh = item("meshes", index, node + ".mesh");
     const JsonValue* primitives = mesh.find("primitives");
     if (primitives == nullptr || !primitives->is_array()) bad("mesh " + std::to_string(index) + " has no primitives");
     const bool mirrored = world.topLeftCorner<3, 3>().determinant() < 0.0;
     for (std::size_t p = 0; p < primitives->items.size(); ++p) {
-      const JsonValue& prim = primitives->items[p];
       const std::string where = "mesh " + std::to_string(index) + " primitive " + std::to_string(p);
-      if (!prim.is_object()) bad(where + " is not an object");
-      const std::size_t mode = prim.find("mode") ? integer(prim.find("mode"), where + ".mode") : 4;
-      if (mode < 4 || mode > 6) {
-        bad(where + " has mode " + std::to_string(mode) +
-            " (points or lines); only triangles (4, 5, 6) make a surface");
-      }
-      const JsonValue* attributes = prim.find("attributes");
-      const std::size_t position_index =
-          integer(attributes ? attributes->find("POSITION") : nullptr, where + ".attributes.POSITION");
-      const JsonValue* extensions = prim.find("extensions");
-      const JsonValue* draco = extensions ? extensions->find("KHR_draco_mesh_compression") : nullptr;
-      const Accessor position = accessor(position_index, where + " POSITION", draco == nullptr);
-      if (position.components != 3 || position.type == kUnsignedInt) bad(where + " has a POSITION that is not a VEC3");
-      std::vector<Vec3> points;
-      std::vector<std::uint32_t> weld;  // per point: kByPosition, a seam tag or kAlone
-      std::vector<std::size_t> indices;
-      const JsonValue* seam = attributes->find("_SEAM");
-      if (draco != nullptr) {
-        if (mode != 4) bad(where + " is Draco-compressed with mode " + std::to_string(mode));
-        const std::string_view data =
-            view(integer(draco->find("bufferView"), where + " Draco bufferView"), nullptr, where + " Draco stream");
-        const JsonValue* ids = draco->find("attributes");
-        Mesh decoded;
-        try {
-          if (seam != nullptr) {  // the pieces of a frame: grid coordinates and seam tags
-            DracoPieceInfo info;
-            QuantizedPiece piece = decode_draco_piece(data, 16, &info);
-            if (ids == nullptr || info.seam < 0 || info.position < 0 ||
-                integer(ids->find("_SEAM"), where + " Draco _SEAM") != static_cast<std::size_t>(info.seam) ||
-                integer(ids->find("POSITION"), where + " Draco POSITION") != static_cast<std::size_t>(info.position)) {
-              bad(where + ": the Draco stream's attributes are not the ones the primitive names");
-            }
-            for (const auto& q : piece.positions) decoded.vertices.emplace_back(q[0], q[1], q[2]);
-            for (std::uint16_t tag : piece.seam_tags) weld.push_back(tag == 0 ? kAlone : tag);
-            decoded.triangles = std::move(piece.triangles);
-          } else {
-            decoded = decode_draco(data, limits_);
-          }
-        } catch (const Error& e) {
-          if (e.kind() != ErrorKind::kInvalidInput)
-            throw Error(e.kind(), e.field(), name_ + ": " + where + ": " + e.what());
-          bad(where + ": " + e.what());
-        }
-        // Draco gives the stored values; the accessor says how to read them.
-        for (Vec3& v : decoded.vertices) {
-          if (position.normalized) {
-            for (int c = 0; c < 3; ++c) v[c] = normalized(position.type, v[c]);
-          }
-        }
-        points = std::move(decoded.vertices);
-        indices.reserve(3 * decoded.triangles.size());
-        for (const Triangle& t : decoded.triangles) indices.insert(indices.end(), t.begin(), t.end());
-      } else {
-        points.resize(position.count);
-        for (std::size_t i = 0; i < position.count; ++i) {
-          points[i] = Vec3(position.get(i, 0), position.get(i, 1), position.get(i, 2));
-        }
-        if (const JsonValue* idx = prim.find("indices")) {
-          const Accessor a = accessor(integer(idx, where + ".indices"), where + " indices");
-          if (a.components != 1 || a.type == kFloat || a.type == 5120 || a.type == 5122 || a.normalized) {
-            bad(where + " has indices that are not unsigned integers");
-          }
-          indices.resize(a.count);
-          for (std::size_t i = 0; i < a.count; ++i) indices[i] = static_cast<std::size_t>(a.get(i, 0));
-        } else {
-          indices.resize(points.size());
-          std::iota(indices.begin(), indices.end(), std::size_t{0});
-        }
-        if (seam != nullptr) {  // a .glb of pieces decompressed by another tool keeps the tags as plain data
-          const Accessor a = accessor(integer(seam, where + ".attributes._SEAM"), where + " _SEAM");
-          if (a.components != 1 || a.type != 5123 || a.normalized || a.count != points.size()) {
-            bad(where + " has a _SEAM that is not one unsigned short per vertex");
-          }
-          for (std::size_t i = 0; i < a.count; ++i) {
-            const auto tag = static_cast<std::uint32_t>(a.get(i, 0));
-            weld.push_back(tag == 0 ? kAlone : tag);
-          }
-        }
-      }
-      if (weld.empty()) weld.assign(points.size(), ours_ ? kAlone : kByPosition);
-      for (std::size_t i : indices) {
-        if (i >= points.size())
-          bad(where + " uses vertex " + std::to_string(i) + " of " + std::to_string(points.size()));
-      }
-      const std::size_t n = indices.size();
-      const std::size_t triangles = mode == 4 ? n / 3 : (n >= 3 ? n - 2 : 0);
-      if (static_cast<double>(triangles_.size()) + static_cast<double>(triangles) >
+      const Part& part = this->part(index, p, primitives->items[p], where);
+      // Each instance adds its triangles and at most three points per triangle: the limit bounds both.
+      if (static_cast<double>(triangles_.size()) + static_cast<double>(part.triangles.size()) >
           static_cast<double>(limits_.max_triangles)) {
         throw ResourceLimit("max_triangles", name_ + ": more than " + std::to_string(limits_.max_triangles) +
                                                  " triangles (the largest mesh accepted here)");
       }
       const std::size_t base = vertices_.size();
-      if (base + points.size() > std::numeric_limits<std::uint32_t>::max()) bad("more than 2^32 - 1 vertices");
-      for (const Vec3& p : points) {
-        const Eigen::Vector4d w = world * Eigen::Vector4d(p.x(), p.y(), p.z(), 1.0);
+      if (base + part.points.size() > std::numeric_limits<std::uint32_t>::max()) bad("more than 2^32 - 1 vertices");
+      for (const Vec3& q : part.points) {
+        const Eigen::Vector4d w = world * Eigen::Vector4d(q.x(), q.y(), q.z(), 1.0);
         const Vec3 v = w.head<3>();
-        if (!v.allFinite()) bad(where + " has a position that is not finite");
+        if (!v.allFinite()) bad(where + " has a position that is not finite in " + node);
         vertices_.push_back(v);
       }
-      weld_.insert(weld_.end(), weld.begin(), weld.end());
-      auto add = [&](std::size_t a, std::size_t b, std::size_t c) {
-        Triangle t{static_cast<std::uint32_t>(base + a), static_cast<std::uint32_t>(base + b),
-                   static_cast<std::uint32_t>(base + c)};
+      weld_.insert(weld_.end(), part.weld.begin(), part.weld.end());
+      for (Triangle t : part.triangles) {
+        for (std::uint32_t& v : t) v += static_cast<std::uint32_t>(base);
         if (mirrored) std::swap(t[1], t[2]);
         triangles_.push_back(t);
-      };
-      triangles_.reserve(triangles_.size() + triangles);
-      for (std::size_t t = 0; t < triangles; ++t) {
-        if (mode == 4) {
-          add(indices[3 * t], indices[3 * t + 1], indices[3 * t + 2]);
-        } else if (mode == 5) {  // strip: every other triangle is reversed to keep one orientation
-          if (t % 2 == 0) {
-            add(indices[t], indices[t + 1], indices[t + 2]);
-          } else {
-            add(indices[t + 1], indices[t], indices[t + 2]);
-          }
-        } else {  // fan
-          add(indices[0], indices[t + 1], indices[t + 2]);
-        }
       }
     }
   }
@@ -493,6 +522,7 @@ class GlbReader {
   std::vector<Vec3> vertices_;
   std::vector<std::uint32_t> weld_;  // per vertex, its weld class
   std::vector<Triangle> triangles_;
+  std::map<std::pair<std::size_t, std::size_t>, Part> parts_;  // by (mesh, primitive)
 };
 
 }  // namespace
