@@ -8,7 +8,6 @@
 #include <string>
 
 #include "core/mesh/frame_codec.h"
-#include "core/polygonize/polygonize.h"
 #include "core/scene/scene.h"
 #include "tests/support/test_meshes.h"
 
@@ -20,14 +19,6 @@ int main(int argc, char** argv) {
   }
   const std::string dir = argv[1];
   const FieldPtr sphere = make_sphere(Vec3(0.1, -0.2, 0.05), 1.0);
-  const FieldPtr fields[] = {sphere};
-  auto mesh_of = [&](int cells, bool normals) {
-    PolygonizeOptions o;
-    o.method = Polygonizer::kCubes;
-    o.cells = cells;
-    o.normals = normals;
-    return polygonize(*sphere, resolve_grid(fields, o));
-  };
   struct Seed {
     const char* name;
     FrameCodec codec;
@@ -44,7 +35,7 @@ int main(int argc, char** argv) {
       {"meshopt_normals", FrameCodec::kMeshopt, 6, true, 10},
   };
   for (const Seed& s : seeds) {
-    const Mesh mesh = mesh_of(s.cells, s.normals);
+    const Mesh mesh = testing::polygonized(sphere, Polygonizer::kCubes, s.cells, s.normals);
     FrameCodecOptions o;
     o.codec = s.codec;
     o.draco.quantization_bits = s.bits;

@@ -17,17 +17,8 @@ namespace surfacer {
 namespace {
 
 using GridPoint = std::array<std::uint32_t, 3>;
+using testing::polygonized;
 using testing::quantized_triangles;
-
-Mesh polygonized(const FieldPtr& field, Polygonizer method, int cells, bool normals = false) {
-  PolygonizeOptions options;
-  options.method = method;
-  options.cells = cells;
-  options.normals = normals;
-  options.threads = 2;
-  const FieldPtr fields[] = {field};
-  return polygonize(*field, resolve_grid(fields, options));
-}
 
 std::size_t referenced_vertices(const Mesh& m) {
   std::vector<bool> used(m.vertices.size(), false);

@@ -10,10 +10,13 @@
 #include <set>
 
 #include "core/util/errors.h"
+#include "tests/support/mesh_expectations.h"
 #include "tests/support/test_meshes.h"
 
 namespace surfacer {
 namespace {
+
+using testing::expect_same_topology;
 
 TEST(MeshChecks, UnitCube) {
   const MeshReport r = check_mesh(testing::unit_cube());
@@ -269,21 +272,6 @@ MeshReport reference_topology(const Mesh& m) {
   r.vertex_manifold = fans && r.edge_manifold;
   r.euler_characteristic = referenced - static_cast<std::int64_t>(edges.size()) + faces;
   return r;
-}
-
-void expect_same_topology(const MeshReport& a, const MeshReport& b, const std::string& what) {
-  SCOPED_TRACE(what);
-  EXPECT_EQ(a.closed, b.closed);
-  EXPECT_EQ(a.edge_manifold, b.edge_manifold);
-  EXPECT_EQ(a.vertex_manifold, b.vertex_manifold);
-  EXPECT_EQ(a.oriented, b.oriented);
-  EXPECT_EQ(a.euler_characteristic, b.euler_characteristic);
-  EXPECT_EQ(a.components, b.components);
-  EXPECT_EQ(a.boundary_edges, b.boundary_edges);
-  EXPECT_EQ(a.non_manifold_edges, b.non_manifold_edges);
-  EXPECT_EQ(a.valence_histogram, b.valence_histogram);
-  EXPECT_EQ(a.min_valence, b.min_valence);
-  EXPECT_EQ(a.max_valence, b.max_valence);
 }
 
 // Meshes with every kind of defect, from clean to badly broken: triangles removed (boundaries), flipped

@@ -22,17 +22,8 @@ using testing::kClosedManifold;
 using testing::kPositiveVolume;
 using testing::mesh_has;
 using testing::plain_glb;
+using testing::polygonized;
 using testing::quantized_triangles;
-
-Mesh polygonized(const FieldPtr& field, Polygonizer method, int cells, bool normals) {
-  PolygonizeOptions options;
-  options.method = method;
-  options.cells = cells;
-  options.normals = normals;
-  options.threads = 2;
-  const FieldPtr fields[] = {field};
-  return polygonize(*field, resolve_grid(fields, options));
-}
 
 // The .glb the CLI writes for a frame (to_gltf) reads back as the frame's mesh: the same triangles on the job's
 // grid, and as many vertices (the pieces' copies of a seam vertex weld into one, distinct vertices on one grid point
@@ -70,12 +61,7 @@ TEST(MeshGltf, TheCliGlbOfAFrameReadsBackAsItsMesh) {
                                                                   : QuantizationGrid::of(box, bits);
         EXPECT_EQ(read.vertices.size(), frame.vertices.size());
         EXPECT_EQ(quantized_triangles(read, grid), quantized_triangles(frame, grid));
-        const MeshReport a = check_mesh(read), b = check_mesh(frame);
-        EXPECT_EQ(a.closed, b.closed);
-        EXPECT_EQ(a.vertex_manifold, b.vertex_manifold);
-        EXPECT_EQ(a.oriented, b.oriented);
-        EXPECT_EQ(a.euler_characteristic, b.euler_characteristic);
-        EXPECT_EQ(a.components, b.components);
+        testing::expect_same_topology(check_mesh(read), check_mesh(frame), "the .glb read back and the frame");
       }
     }
   }

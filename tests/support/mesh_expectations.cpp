@@ -9,6 +9,21 @@
 
 namespace surfacer::testing {
 
+void expect_same_topology(const MeshReport& a, const MeshReport& b, const std::string& what) {
+  SCOPED_TRACE(what);
+  EXPECT_EQ(a.closed, b.closed);
+  EXPECT_EQ(a.edge_manifold, b.edge_manifold);
+  EXPECT_EQ(a.vertex_manifold, b.vertex_manifold);
+  EXPECT_EQ(a.oriented, b.oriented);
+  EXPECT_EQ(a.euler_characteristic, b.euler_characteristic);
+  EXPECT_EQ(a.components, b.components);
+  EXPECT_EQ(a.boundary_edges, b.boundary_edges);
+  EXPECT_EQ(a.non_manifold_edges, b.non_manifold_edges);
+  EXPECT_EQ(a.valence_histogram, b.valence_histogram);
+  EXPECT_EQ(a.min_valence, b.min_valence);
+  EXPECT_EQ(a.max_valence, b.max_valence);
+}
+
 std::vector<std::array<std::array<std::uint32_t, 3>, 3>> quantized_triangles(const Mesh& m,
                                                                              const QuantizationGrid& grid) {
   using GridPoint = std::array<std::uint32_t, 3>;

@@ -21,6 +21,10 @@ namespace surfacer::testing {
 std::vector<std::array<std::array<std::uint32_t, 3>, 3>> quantized_triangles(const Mesh& m,
                                                                              const QuantizationGrid& grid);
 
+// Every topological figure of two reports is the same (closed, manifold, oriented, Euler, components, boundary and
+// non-manifold edges, valences); `what` names the pair in failures.
+void expect_same_topology(const MeshReport& a, const MeshReport& b, const std::string& what);
+
 // What a test may require of a mesh; combine with |.
 enum MeshProperty : unsigned {
   kClosed = 1u << 0,                 // no boundary edges

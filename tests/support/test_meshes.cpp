@@ -317,6 +317,16 @@ std::optional<Aabb> TwoSpheresField::bounds() const {
   return Aabb{a.min.cwiseMin(b.min), a.max.cwiseMax(b.max)};
 }
 
+Mesh polygonized(const FieldPtr& field, Polygonizer method, int cells, bool normals) {
+  PolygonizeOptions options;
+  options.method = method;
+  options.cells = cells;
+  options.normals = normals;
+  options.threads = 2;
+  const FieldPtr fields[] = {field};
+  return polygonize(*field, resolve_grid(fields, options));
+}
+
 std::string glb_file(const std::string& json, const std::string& bin) {
   auto u32 = [](std::string& out, std::uint32_t v) {
     for (int i = 0; i < 4; ++i) out.push_back(static_cast<char>(v >> (8 * i)));

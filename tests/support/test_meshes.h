@@ -9,6 +9,7 @@
 #include <string>
 
 #include "core/mesh/mesh.h"
+#include "core/polygonize/polygonize.h"
 #include "core/scene/scene.h"
 
 namespace surfacer::testing {
@@ -35,6 +36,9 @@ Mesh bowtie();
 Mesh double_tetrahedron();
 // icosphere(1) with triangle 0 reversed: closed and manifold but not oriented.
 Mesh flipped_triangle();
+
+// {field = 0} polygonized on 2 threads with `cells` cells along the longest axis of the field's padded bounds.
+Mesh polygonized(const FieldPtr& field, Polygonizer method, int cells, bool normals = false);
 
 // A binary glTF file of the JSON text `json` and the binary chunk `bin` (both padded as the format asks).
 std::string glb_file(const std::string& json, const std::string& bin);
