@@ -64,6 +64,14 @@ double normalized(int type, double v) {
   }
 }
 
+// A little-endian value at p, unaligned (glTF is little-endian, as are the targets).
+template <class T>
+double load(const char* p) {
+  T x;
+  std::memcpy(&x, p, sizeof x);
+  return static_cast<double>(x);
+}
+
 struct Accessor {
   std::size_t count = 0;
   int components = 0;
@@ -76,42 +84,24 @@ struct Accessor {
     const char* p = base + i * stride + static_cast<std::size_t>(c) * component_bytes(type);
     double v = 0.0;
     switch (type) {
-      case 5120: {
-        std::int8_t x;
-        std::memcpy(&x, p, 1);
-        v = x;
+      case 5120:
+        v = load<std::int8_t>(p);
         break;
-      }
-      case 5121: {
-        std::uint8_t x;
-        std::memcpy(&x, p, 1);
-        v = x;
+      case 5121:
+        v = load<std::uint8_t>(p);
         break;
-      }
-      case 5122: {
-        std::int16_t x;
-        std::memcpy(&x, p, 2);
-        v = x;
+      case 5122:
+        v = load<std::int16_t>(p);
         break;
-      }
-      case 5123: {
-        std::uint16_t x;
-        std::memcpy(&x, p, 2);
-        v = x;
+      case 5123:
+        v = load<std::uint16_t>(p);
         break;
-      }
-      case kUnsignedInt: {
-        std::uint32_t x;
-        std::memcpy(&x, p, 4);
-        v = x;
+      case kUnsignedInt:
+        v = load<std::uint32_t>(p);
         break;
-      }
-      case kFloat: {
-        float x;
-        std::memcpy(&x, p, 4);
-        v = x;
+      case kFloat:
+        v = load<float>(p);
         break;
-      }
     }
     return normalized ? surfacer::normalized(type, v) : v;
   }
