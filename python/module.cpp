@@ -580,6 +580,32 @@ struct DecodedFrame {
   v1::FrameStats stats;
 };
 
+// (vertices (N,3) float64, triangles (M,3) int32, normals (N,3) float64 or None) of a mesh.
+py::tuple mesh_arrays(const Mesh& mesh) {
+  const auto n = static_cast<py::ssize_t>(mesh.vertices.size());
+  const auto m = static_cast<py::ssize_t>(mesh.triangles.size());
+  py::array_t<double> vertices({n, py::ssize_t{3}});
+  auto v = vertices.mutable_unchecked<2>();
+  for (py::ssize_t i = 0; i < n; ++i) {
+    for (int k = 0; k < 3; ++k) v(i, k) = mesh.vertices[static_cast<std::size_t>(i)][k];
+  }
+  py::array_t<std::int32_t> triangles({m, py::ssize_t{3}});
+  auto t = triangles.mutable_unchecked<2>();
+  for (py::ssize_t i = 0; i < m; ++i) {
+    for (int k = 0; k < 3; ++k) t(i, k) = static_cast<std::int32_t>(mesh.triangles[static_cast<std::size_t>(i)][k]);
+  }
+  py::object normals = py::none();
+  if (!mesh.normals.empty()) {
+    py::array_t<double> array({n, py::ssize_t{3}});
+    auto a = array.mutable_unchecked<2>();
+    for (py::ssize_t i = 0; i < n; ++i) {
+      for (int k = 0; k < 3; ++k) a(i, k) = mesh.normals[static_cast<std::size_t>(i)][k];
+    }
+    normals = array;
+  }
+  return py::make_tuple(vertices, triangles, normals);
+}
+
 // The frames of one job, received by a JobWatcher on a helper thread (started by the first next()) and decoded
 // there; at most kQueued frames wait for Python, so a slow consumer slows the stream instead of filling memory.
 class FrameStream {
@@ -739,29 +765,8 @@ class FrameStream {
   }
 
   static py::tuple frame_tuple(const DecodedFrame& frame) {
-    const Mesh& mesh = frame.mesh;
-    const auto n = static_cast<py::ssize_t>(mesh.vertices.size());
-    const auto m = static_cast<py::ssize_t>(mesh.triangles.size());
-    py::array_t<double> vertices({n, py::ssize_t{3}});
-    auto v = vertices.mutable_unchecked<2>();
-    for (py::ssize_t i = 0; i < n; ++i) {
-      for (int k = 0; k < 3; ++k) v(i, k) = mesh.vertices[static_cast<std::size_t>(i)][k];
-    }
-    py::array_t<std::int32_t> triangles({m, py::ssize_t{3}});
-    auto t = triangles.mutable_unchecked<2>();
-    for (py::ssize_t i = 0; i < m; ++i) {
-      for (int k = 0; k < 3; ++k) t(i, k) = static_cast<std::int32_t>(mesh.triangles[static_cast<std::size_t>(i)][k]);
-    }
-    py::object normals = py::none();
-    if (!mesh.normals.empty()) {
-      py::array_t<double> array({n, py::ssize_t{3}});
-      auto a = array.mutable_unchecked<2>();
-      for (py::ssize_t i = 0; i < n; ++i) {
-        for (int k = 0; k < 3; ++k) a(i, k) = mesh.normals[static_cast<std::size_t>(i)][k];
-      }
-      normals = array;
-    }
-    return py::make_tuple(frame.index, vertices, triangles, normals, to_python(frame.stats));
+    const py::tuple arrays = mesh_arrays(frame.mesh);
+    return py::make_tuple(frame.index, arrays[0], arrays[1], arrays[2], to_python(frame.stats));
   }
 
   std::shared_ptr<Connection> connection_;
@@ -782,6 +787,20 @@ class FrameStream {
   WatchResult result_;
   std::exception_ptr error_;
 };
+
+// Reads a mesh file with core's reader (read_mesh: .ply, .obj, .drc or .glb by the extension) as arrays.
+py::tuple read_mesh_file(const std::string& path) {
+  Mesh mesh;
+  {
+    py::gil_scoped_release release;
+    try {
+      mesh = surfacer::read_mesh(path);
+    } catch (const Error& e) {
+      throw CliError(ExitCode::kUsage, e.what());
+    }
+  }
+  return mesh_arrays(mesh);
+}
 
 // Writes a mesh given as arrays with core's writer (write_mesh: .ply, .obj, .drc or .glb by the extension).
 void write_mesh_file(const std::string& path,
@@ -861,6 +880,7 @@ PYBIND11_MODULE(_surfacer, m) {
       .def("health", &Client::health, py::arg("service"))
       .def("server_info", &Client::server_info);
 
+  m.def("read_mesh", &read_mesh_file, py::arg("path"));
   m.def("write_mesh", &write_mesh_file, py::arg("path"), py::arg("vertices"), py::arg("triangles"),
         py::arg("normals") = py::none());
 

@@ -21,8 +21,8 @@ import numpy as np
 from . import _surfacer
 from ._errors import Cancelled, Error, IntegrityError, JobFailed, Unreachable, UsageError
 
-__all__ = ["Client", "Job", "Frame", "Error", "UsageError", "Unreachable", "JobFailed", "Cancelled",
-           "IntegrityError"]
+__all__ = ["Client", "Job", "Frame", "Mesh", "read_mesh", "Error", "UsageError", "Unreachable", "JobFailed",
+           "Cancelled", "IntegrityError"]
 
 
 @dataclass(frozen=True)
@@ -44,6 +44,27 @@ class Frame:
         """Writes the mesh with the CLI's own writers, the format by the extension: .ply (binary), .obj, .drc or .glb
         (glTF with Draco pieces, encoded on every core)."""
         _surfacer.write_mesh(os.fspath(path), self.vertices, self.triangles, self.normals)
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """A triangle mesh read from a file (``read_mesh``): vertices (N,3) float64; triangles (M,3) int32, counter-clockwise
+    seen from outside; normals (N,3) float64 when the file has them, else None."""
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    normals: Optional[np.ndarray]
+
+    def write(self, path) -> None:
+        """Writes the mesh as ``Frame.write`` does."""
+        _surfacer.write_mesh(os.fspath(path), self.vertices, self.triangles, self.normals)
+
+
+def read_mesh(path) -> Mesh:
+    """Reads a mesh file with the CLI's own readers, the format by the extension: .ply, .obj, .drc or .glb (binary
+    glTF: every triangle primitive of its scene; a .glb the CLI or ``Frame.write`` wrote reads back as the frame's
+    mesh, its pieces welded). A file that is not such a mesh raises surfacer.UsageError naming what is wrong."""
+    return Mesh(*_surfacer.read_mesh(os.fspath(path)))
 
 
 class Job:

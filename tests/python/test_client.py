@@ -179,3 +179,24 @@ def test_frame_write(local_client, tmp_path):
     assert gltf["extensionsRequired"] == ["KHR_draco_mesh_compression", "KHR_mesh_quantization"]
     primitives = gltf["meshes"][0]["primitives"]
     assert sum(gltf["accessors"][p["indices"]]["count"] for p in primitives) == 3 * len(frame.triangles)
+
+
+def test_read_mesh_gives_back_what_frame_write_wrote(local_client, tmp_path):
+    (frame,) = local_client.isosurface(sphere_scene(), cells=24, normals=True)
+    for name in ("ball.ply", "ball.glb", "ball.drc", "ball.obj"):
+        frame.write(tmp_path / name)
+        mesh = surfacer.read_mesh(tmp_path / name)
+        assert mesh.triangles.shape == frame.triangles.shape, name
+        assert mesh.triangles.dtype == np.int32 and mesh.vertices.dtype == np.float64
+        # The same surface: every vertex within a quantization step of the frame's bounds, and (but for Draco's one
+        # mesh, which may split or merge points) as many vertices, the .glb's pieces welded back.
+        assert np.allclose(mesh.vertices.min(axis=0), frame.vertices.min(axis=0), atol=1e-3), name
+        assert np.allclose(mesh.vertices.max(axis=0), frame.vertices.max(axis=0), atol=1e-3), name
+        if name != "ball.drc":
+            assert len(mesh.vertices) == len(frame.vertices), name
+    again = tmp_path / "again.ply"
+    surfacer.read_mesh(tmp_path / "ball.glb").write(again)
+    assert len(surfacer.read_mesh(again).triangles) == len(frame.triangles)
+    (tmp_path / "broken.glb").write_bytes(b"glTF\x02\x00\x00\x00")
+    with pytest.raises(surfacer.UsageError, match="broken.glb"):
+        surfacer.read_mesh(tmp_path / "broken.glb")
