@@ -316,6 +316,7 @@ class GlbReader {
   // A primitive's triangles over the points they use, in the file's coordinates.
   struct Part {
     std::vector<Vec3> points;
+    std::vector<Vec3> normals;        // one per point, or none
     std::vector<std::uint32_t> weld;  // per point: kByPosition, a seam tag or kAlone
     std::vector<Triangle> triangles;
   };
@@ -337,6 +338,7 @@ class GlbReader {
     if (position.components != 3 || position.type == kUnsignedInt) bad(where + " has a POSITION that is not a VEC3");
     std::vector<Vec3> points;
     std::vector<std::uint32_t> weld;  // per point: kByPosition, a seam tag or kAlone
+    std::vector<Vec3> normals;
     std::vector<std::size_t> indices;
     const JsonValue* seam = attributes->find("_SEAM");
     if (draco != nullptr) {
@@ -357,6 +359,7 @@ class GlbReader {
           for (const auto& q : piece.positions) decoded.vertices.emplace_back(q[0], q[1], q[2]);
           for (std::uint16_t tag : piece.seam_tags) weld.push_back(tag == 0 ? kAlone : tag);
           decoded.triangles = std::move(piece.triangles);
+          decoded.normals = std::move(piece.normals);
         } else {
           decoded = decode_draco(data, limits_);
         }
@@ -372,6 +375,7 @@ class GlbReader {
         }
       }
       points = std::move(decoded.vertices);
+      normals = std::move(decoded.normals);
       indices.reserve(3 * decoded.triangles.size());
       for (const Triangle& t : decoded.triangles) indices.insert(indices.end(), t.begin(), t.end());
     } else {
@@ -389,6 +393,14 @@ class GlbReader {
       } else {
         indices.resize(points.size());
         std::iota(indices.begin(), indices.end(), std::size_t{0});
+      }
+      if (const JsonValue* normal = attributes->find("NORMAL")) {
+        const Accessor a = accessor(integer(normal, where + ".attributes.NORMAL"), where + " NORMAL");
+        if (a.components != 3 || a.type == kUnsignedInt || a.count != points.size()) {
+          bad(where + " has a NORMAL that is not one VEC3 per vertex");
+        }
+        normals.resize(a.count);
+        for (std::size_t i = 0; i < a.count; ++i) normals[i] = Vec3(a.get(i, 0), a.get(i, 1), a.get(i, 2));
       }
       if (seam != nullptr) {  // a .glb of pieces decompressed by another tool keeps the tags as plain data
         const Accessor a = accessor(integer(seam, where + ".attributes._SEAM"), where + " _SEAM");
@@ -417,6 +429,7 @@ class GlbReader {
           l = static_cast<std::uint32_t>(out.points.size());
           out.points.push_back(points[corners[k]]);
           out.weld.push_back(weld[corners[k]]);
+          if (!normals.empty()) out.normals.push_back(normals[corners[k]]);
         }
         t[k] = l;
       }
@@ -445,7 +458,11 @@ class GlbReader {
     const JsonValue& mesh = item("meshes", index, node + ".mesh");
     const JsonValue* primitives = mesh.find("primitives");
     if (primitives == nullptr || !primitives->is_array()) bad("mesh " + std::to_string(index) + " has no primitives");
-    const bool mirrored = world.topLeftCorner<3, 3>().determinant() < 0.0;
+    const Eigen::Matrix3d linear = world.topLeftCorner<3, 3>();
+    const bool mirrored = linear.determinant() < 0.0;
+    // Normals go through the inverse transpose (a singular transform flattens the surface: its normals are kept).
+    const Eigen::Matrix3d normal_map =
+        std::abs(linear.determinant()) > 0.0 ? Eigen::Matrix3d(linear.inverse().transpose()) : linear;
     for (std::size_t p = 0; p < primitives->items.size(); ++p) {
       const std::string where = "mesh " + std::to_string(index) + " primitive " + std::to_string(p);
       const Part& part = this->part(index, p, primitives->items[p], where);
@@ -464,6 +481,12 @@ class GlbReader {
         vertices_.push_back(v);
       }
       weld_.insert(weld_.end(), part.weld.begin(), part.weld.end());
+      if (part.normals.empty()) all_normals_ = false;
+      for (const Vec3& n : part.normals) {
+        const Vec3 m = normal_map * n;
+        const double length = m.norm();
+        normals_.push_back(length > 0.0 && std::isfinite(length) ? Vec3(m / length) : Vec3::Zero());
+      }
       for (Triangle t : part.triangles) {
         for (std::uint32_t& v : t) v += static_cast<std::uint32_t>(base);
         if (mirrored) std::swap(t[1], t[2]);
@@ -491,10 +514,12 @@ class GlbReader {
     }
     std::vector<std::uint32_t> id(n, std::numeric_limits<std::uint32_t>::max());
     Mesh mesh;
+    const bool normals = all_normals_ && n > 0;
     for (std::size_t v = 0; v < n; ++v) {
       if (first[v] != v) continue;
       id[v] = static_cast<std::uint32_t>(mesh.vertices.size());
       mesh.vertices.push_back(vertices_[v]);
+      if (normals) mesh.normals.push_back(normals_[v]);  // a welded vertex takes its first copy's normal
     }
     mesh.triangles = std::move(triangles_);
     for (Triangle& t : mesh.triangles) {
@@ -511,6 +536,8 @@ class GlbReader {
   bool ours_ = false;  // written by to_gltf (asset.generator "surfacer"): welded through _SEAM only
   std::vector<Vec3> vertices_;
   std::vector<std::uint32_t> weld_;  // per vertex, its weld class
+  std::vector<Vec3> normals_;        // per vertex of the primitives that have normals
+  bool all_normals_ = true;          // every primitive has them: the mesh gets normals
   std::vector<Triangle> triangles_;
   std::map<std::pair<std::size_t, std::size_t>, Part> parts_;  // by (mesh, primitive)
 };

@@ -17,8 +17,8 @@ namespace surfacer {
 // KHR_draco_mesh_compression. Vertices at exactly the same point become one vertex, since exporters split vertices
 // at texture and normal seams; but in our own files (asset.generator "surfacer") only the pieces' copies of a seam
 // vertex, named by their _SEAM tags, become one, as the client welds a frame, so distinct vertices that quantized
-// onto one point stay apart. Either way a closed surface reads back closed. Normals, texture coordinates and
-// materials are not read.
+// onto one point stay apart. Either way a closed surface reads back closed. Normals (NORMAL, through each node's
+// inverse transpose, unit length) when every primitive has them; texture coordinates and materials are not read.
 // Throws InvalidInput("file") naming `name` and what is wrong where: anything not such a file, points or lines,
 // sparse accessors, buffers outside the file (a uri), non-finite positions or transforms; ResourceLimit
 // ("max_triangles") past limits.max_triangles (checked before the triangles are allocated, so a small file that

@@ -62,6 +62,18 @@ TEST(MeshGltf, TheCliGlbOfAFrameReadsBackAsItsMesh) {
         EXPECT_EQ(read.vertices.size(), frame.vertices.size());
         EXPECT_EQ(quantized_triangles(read, grid), quantized_triangles(frame, grid));
         testing::expect_same_topology(check_mesh(read), check_mesh(frame), "the .glb read back and the frame");
+        if (c.mesh.normals.empty()) {
+          EXPECT_TRUE(read.normals.empty());
+          continue;
+        }
+        // The sphere's normals come back unit and outward (within Draco's normal quantization).
+        ASSERT_EQ(read.normals.size(), read.vertices.size());
+        double worst = 1.0;
+        for (std::size_t v = 0; v < read.vertices.size(); ++v) {
+          EXPECT_NEAR(read.normals[v].norm(), 1.0, 1e-6);
+          worst = std::min(worst, read.normals[v].dot((read.vertices[v] - Vec3(0.1, -0.2, 0.05)).normalized()));
+        }
+        EXPECT_GT(worst, 0.95);
       }
     }
   }
@@ -118,6 +130,25 @@ TEST(MeshGltf, PlainAccessorsModesAndNodeTransforms) {
   const Mesh welded = parse_glb(file, "split.glb");
   EXPECT_EQ(welded.vertices.size(), cube.vertices.size());
   EXPECT_TRUE(mesh_has(check_mesh(welded), kClosedManifold));
+}
+
+// Normals go through each node's inverse transpose: a unit sphere with radial normals, scaled by (2, 1, -0.5) (a
+// mirror) and moved, is an ellipsoid whose normal at p is along (x / 4, y, z / 0.25) from its centre, outward.
+TEST(MeshGltf, NormalsGoThroughTheInverseTranspose) {
+  Mesh sphere = testing::icosphere(3);
+  for (const Vec3& p : sphere.vertices) sphere.normals.push_back(p.normalized());
+  const Vec3 centre(1, 2, 3);
+  for (int mode : {4, 6}) {
+    const Mesh read = parse_glb(
+        plain_glb(sphere, R"([{"mesh":0,"translation":[1,2,3],"scale":[2,1,-0.5]}])", "[0]", 5125, mode), "e.glb");
+    ASSERT_EQ(read.normals.size(), read.vertices.size());
+    for (std::size_t v = 0; v < read.vertices.size(); ++v) {
+      const Vec3 p = read.vertices[v] - centre;
+      const Vec3 expected = Vec3(p.x() / 4, p.y(), p.z() / 0.25).normalized();
+      EXPECT_GT(read.normals[v].dot(expected), 1.0 - 1e-6) << v;
+    }
+    EXPECT_TRUE(mesh_has(check_mesh(read), kClosedManifold | kPositiveVolume));
+  }
 }
 
 void expect_refused(const std::string& bytes, const std::string& words, const MeshReadLimits& limits = {}) {

@@ -356,28 +356,41 @@ std::string plain_glb(const Mesh& mesh, const std::string& nodes, const std::str
     const float xyz[4] = {static_cast<float>(v.x()), static_cast<float>(v.y()), static_cast<float>(v.z()), 0.0f};
     put(xyz, 16);
   }
+  const std::size_t normal_offset = bin.size();
+  for (const Vec3& n : mesh.normals) {
+    const float xyz[3] = {static_cast<float>(n.x()), static_cast<float>(n.y()), static_cast<float>(n.z())};
+    put(xyz, 12);
+  }
   const std::size_t index_offset = bin.size();
   const int index_bytes = index_type == 5121 ? 1 : index_type == 5123 ? 2 : 4;
   for (const Triangle& t : mesh.triangles) {
     for (std::uint32_t v : t) put(&v, index_bytes);  // little-endian: the low bytes first
   }
   const std::string n = std::to_string(mesh.vertices.size());
+  auto view = [](std::size_t offset, std::size_t length, const char* extra) {
+    return R"({"buffer":0,"byteOffset":)" + std::to_string(offset) + R"(,"byteLength":)" + std::to_string(length) +
+           extra + "}";
+  };
   std::string json = R"({"asset":{"version":"2.0"},"buffers":[{"byteLength":)" + std::to_string(bin.size()) +
-                     R"(}],"bufferViews":[{"buffer":0,"byteLength":)" + std::to_string(index_offset) +
-                     R"(,"byteStride":16},{"buffer":0,"byteOffset":)" + std::to_string(index_offset) +
-                     R"(,"byteLength":)" + std::to_string(bin.size() - index_offset) + R"(}],"accessors":[)" +
+                     R"(}],"bufferViews":[)" + view(0, normal_offset, R"(,"byteStride":16)") + "," +
+                     view(index_offset, bin.size() - index_offset, "") + "," +
+                     view(normal_offset, index_offset - normal_offset, "") + R"(],"accessors":[)" +
                      R"({"bufferView":0,"componentType":5126,"type":"VEC3","count":)" + n + "}";
+  const bool normals = !mesh.normals.empty();
+  if (normals) json += R"(,{"bufferView":2,"componentType":5126,"type":"VEC3","count":)" + n + "}";
+  const std::string attributes = normals ? R"({"POSITION":0,"NORMAL":1})" : R"({"POSITION":0})";
+  const std::size_t first_index = normals ? 2 : 1;
   std::string primitives;
   if (mode == 4) {
     json += R"(,{"bufferView":1,"componentType":)" + std::to_string(index_type) + R"(,"type":"SCALAR","count":)" +
             std::to_string(3 * mesh.triangles.size()) + "}";
-    primitives = R"({"attributes":{"POSITION":0},"indices":1})";
+    primitives = R"({"attributes":)" + attributes + R"(,"indices":)" + std::to_string(first_index) + "}";
   } else {
     for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
       json += R"(,{"bufferView":1,"byteOffset":)" + std::to_string(3 * index_bytes * t) + R"(,"componentType":)" +
               std::to_string(index_type) + R"(,"type":"SCALAR","count":3})";
-      primitives += std::string(t > 0 ? "," : "") + R"({"attributes":{"POSITION":0},"indices":)" +
-                    std::to_string(t + 1) + R"(,"mode":)" + std::to_string(mode) + "}";
+      primitives += std::string(t > 0 ? "," : "") + R"({"attributes":)" + attributes + R"(,"indices":)" +
+                    std::to_string(first_index + t) + R"(,"mode":)" + std::to_string(mode) + "}";
     }
   }
   json += R"(],"meshes":[{"primitives":[)" + primitives + R"(]}],"nodes":)" + nodes + R"(,"scenes":[{"nodes":)" +

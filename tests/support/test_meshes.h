@@ -42,10 +42,10 @@ Mesh polygonized(const FieldPtr& field, Polygonizer method, int cells, bool norm
 
 // A binary glTF file of the JSON text `json` and the binary chunk `bin` (both padded as the format asks).
 std::string glb_file(const std::string& json, const std::string& bin);
-// `mesh` in a .glb with plain accessors, as another exporter writes it: float positions at a byte stride of 16,
-// indices of glTF componentType `index_type` (5121, 5123 or 5125), primitive `mode` (4: as they are; 6: each
-// triangle as a fan of its own, in a primitive per triangle), mesh 0 instanced by `nodes` (a JSON array of glTF
-// nodes) from the scene's roots `roots` (a JSON array of node indices).
+// `mesh` in a .glb with plain accessors, as another exporter writes it: float positions at a byte stride of 16, float
+// normals when the mesh has them, indices of glTF componentType `index_type` (5121, 5123 or 5125), primitive `mode` (4:
+// as they are; 6: each triangle as a fan of its own, in a primitive per triangle), mesh 0 instanced by `nodes` (a JSON
+// array of glTF nodes) from the scene's roots `roots` (a JSON array of node indices).
 std::string plain_glb(const Mesh& mesh, const std::string& nodes, const std::string& roots, int index_type = 5125,
                       int mode = 4);
 
