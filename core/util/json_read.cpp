@@ -19,8 +19,8 @@ namespace {
 
 class JsonReader {
  public:
-  JsonReader(std::string_view text, const std::string& field, const std::string& what)
-      : text_(text), field_(field), what_(what) {}
+  JsonReader(std::string_view text, const std::string& field, const std::string& what, std::size_t max_values)
+      : text_(text), field_(field), what_(what), max_values_(max_values) {}
 
   JsonValue document() {
     JsonValue v = value(0);
@@ -62,6 +62,7 @@ class JsonReader {
 
   JsonValue value(int depth) {
     if (depth >= kMaxJsonDepth) fail("nested deeper than " + std::to_string(kMaxJsonDepth));
+    if (++values_ > max_values_) fail("more than " + std::to_string(max_values_) + " values");
     space();
     if (at_ >= text_.size()) fail("unexpected end");
     JsonValue v;
@@ -229,13 +230,15 @@ class JsonReader {
   std::string_view text_;
   const std::string& field_;
   const std::string& what_;
+  const std::size_t max_values_;
+  std::size_t values_ = 0;
   std::size_t at_ = 0;
 };
 
 }  // namespace
 
-JsonValue parse_json(std::string_view text, const std::string& field, const std::string& what) {
-  return JsonReader(text, field, what).document();
+JsonValue parse_json(std::string_view text, const std::string& field, const std::string& what, std::size_t max_values) {
+  return JsonReader(text, field, what, max_values).document();
 }
 
 }  // namespace surfacer

@@ -1,8 +1,10 @@
 // Reading JSON (RFC 8259) into a small tree: the JSON inside files we read (a .glb's JSON chunk). The input is
-// untrusted: whatever is not JSON, and nesting deeper than kMaxJsonDepth, throws InvalidInput(field) naming `what`
-// and the byte where reading stopped. The tree takes memory in proportion to the text.
+// untrusted: whatever is not JSON, nesting deeper than kMaxJsonDepth and more than max_values values (each takes
+// about 100 bytes in the tree, 50 times the 2 bytes of text "0," takes) throw InvalidInput(field) naming `what` and
+// the byte where reading stopped.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <string>
 #include <string_view>
@@ -11,6 +13,7 @@
 namespace surfacer {
 
 inline constexpr int kMaxJsonDepth = 64;
+inline constexpr std::size_t kMaxJsonValues = std::size_t{1} << 20;  // ~100 MB of tree
 
 struct JsonMember;
 
@@ -35,6 +38,7 @@ struct JsonMember {
   JsonValue value;
 };
 
-JsonValue parse_json(std::string_view text, const std::string& field, const std::string& what);
+JsonValue parse_json(std::string_view text, const std::string& field, const std::string& what,
+                     std::size_t max_values = kMaxJsonValues);
 
 }  // namespace surfacer

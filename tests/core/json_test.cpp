@@ -1,5 +1,6 @@
 // core/util/json.h: what it writes is JSON that an independent parser (Python's json module) reads back to the same
-// values, whatever the strings hold.
+// values, whatever the strings hold. core/util/json_read.h: reads what the writer writes, and refuses what is not
+// JSON or would take too much memory, naming the place.
 #include "core/util/json.h"
 
 #include <gtest/gtest.h>
@@ -7,6 +8,8 @@
 #include <cmath>
 #include <limits>
 
+#include "core/util/errors.h"
+#include "core/util/json_read.h"
 #include "tests/support/json_check.h"
 
 namespace surfacer {
@@ -74,6 +77,55 @@ TEST(JsonWriter, QuoteAlone) {
   EXPECT_EQ(json_quote(""), "\"\"");
   EXPECT_EQ(json_quote("a\"b"), "\"a\\\"b\"");
   EXPECT_EQ(json_quote(std::string("\0", 1)), "\"\\u0000\"");
+}
+
+TEST(JsonReader, ReadsWhatTheWriterWrites) {
+  JsonWriter w;
+  w.begin_object().key("a").begin_array().value(1).value(-2.5e-3).value(true).value(false).end_array();
+  w.key("s").value(std::string("tab\t quote\" slash\\ e\xC3\xA9 \x01")).key("o").begin_object().end_object();
+  w.key("n").begin_array().end_array().end_object();
+  const JsonValue v = parse_json(w.str(), "f", "test");
+  ASSERT_TRUE(v.is_object());
+  const JsonValue* a = v.find("a");
+  ASSERT_TRUE(a && a->is_array() && a->items.size() == 4);
+  EXPECT_EQ(a->items[0].number, 1.0);
+  EXPECT_EQ(a->items[1].number, -2.5e-3);
+  EXPECT_TRUE(a->items[2].boolean);
+  EXPECT_EQ(a->items[3].kind, JsonValue::Kind::kBool);
+  EXPECT_FALSE(a->items[3].boolean);
+  EXPECT_EQ(v.find("s")->string, "tab\t quote\" slash\\ e\xC3\xA9 \x01");
+  EXPECT_TRUE(v.find("o")->is_object());
+  EXPECT_TRUE(v.find("n")->items.empty());
+  EXPECT_EQ(v.find("missing"), nullptr);
+  // Escapes the writer does not use: \u with a surrogate pair, \/.
+  EXPECT_EQ(parse_json(R"(["\ud83d\ude00\/x"])", "f", "t").items[0].string, "\xF0\x9F\x98\x80/x");
+}
+
+TEST(JsonReader, RefusesWhatIsNotJsonOrTooLargeNamingWhere) {
+  auto refused = [](const std::string& text, const std::string& words, std::size_t max_values = kMaxJsonValues) {
+    try {
+      parse_json(text, "file", "x.glb", max_values);
+      ADD_FAILURE() << "read: " << text.substr(0, 40);
+    } catch (const Error& e) {
+      EXPECT_EQ(e.field(), "file");
+      const std::string what = e.what();
+      EXPECT_NE(what.find("x.glb: not JSON"), std::string::npos) << what;
+      EXPECT_NE(what.find(words), std::string::npos) << what;
+    }
+  };
+  refused("", "unexpected end");
+  refused("{\"a\":1,}", "expected a member name at byte 7");
+  refused("[1 2]", "expected ']'");
+  refused("[01]", "expected ']'");
+  refused("[1.]", "digits after '.'");
+  refused("\"abc", "unterminated string");
+  refused("\"a\x01\"", "control character");
+  refused("\"\\q\"", "bad escape");
+  refused("[1e999]", "out of range");
+  refused("{} x", "text after the JSON value");
+  refused(std::string(100, '[') + std::string(100, ']'), "nested deeper than 64");
+  refused("[1,2,3,4]", "more than 4 values", 4);
+  EXPECT_NO_THROW(parse_json("[1,2,3]", "file", "x.glb", 4));
 }
 
 }  // namespace
