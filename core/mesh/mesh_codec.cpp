@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <limits>
 #include <memory>
 #include <new>
@@ -336,6 +337,25 @@ bool unsigned_attribute(const draco::PointAttribute& attribute) {
 
 }  // namespace
 
+namespace {
+
+// The vertices of an edgebreaker stream as Draco's bitstream 2.2 states them ahead of its connectivity (the
+// "DRACO" header, version, mesh and edgebreaker bytes, flags without metadata, the traversal byte, then a varint):
+// the points its decoder makes when every attribute is per vertex, as a piece's are. Nullopt for any other stream.
+std::optional<std::size_t> edgebreaker_vertices(std::string_view bytes) {
+  constexpr unsigned char kHeader[] = {'D', 'R', 'A', 'C', 'O', 2, 2, 1, 1, 0, 0};
+  if (bytes.size() < sizeof kHeader + 2 || std::memcmp(bytes.data(), kHeader, sizeof kHeader) != 0) return std::nullopt;
+  std::size_t value = 0;
+  for (std::size_t at = sizeof kHeader + 1, shift = 0; at < bytes.size() && shift < 35; ++at, shift += 7) {
+    const auto byte = static_cast<unsigned char>(bytes[at]);
+    value |= static_cast<std::size_t>(byte & 0x7F) << shift;
+    if ((byte & 0x80) == 0) return value;
+  }
+  return std::nullopt;
+}
+
+}  // namespace
+
 std::string encode_draco_piece(const QuantizedPiece& piece, int grid_bits, const DracoOptions& options,
                                DracoPieceInfo* info) {
   // A piece without triangles is written without points, as encode_draco writes an empty frame.
@@ -370,13 +390,21 @@ std::string encode_draco_piece(const QuantizedPiece& piece, int grid_bits, const
   if (encode_normals) encoder.SetAttributeQuantization(draco::GeometryAttribute::NORMAL, options.normal_bits);
   encoder.SetSpeedOptions(options.speed, options.speed);
   if (piece.triangles.empty()) encoder.SetEncodingMethod(draco::MESH_SEQUENTIAL_ENCODING);
-  encoder.SetTrackEncodedProperties(info != nullptr);
   draco::EncoderBuffer buffer;
-  const draco::Status status = encoder.EncodeMeshToBuffer(out, &buffer);
+  draco::Status status = encoder.EncodeMeshToBuffer(out, &buffer);
   if (!status.ok()) throw Internal("Draco encoder failed on a piece: " + status.error_msg_string());
+  std::optional<std::size_t> points =
+      nv == 0 ? std::optional<std::size_t>(0) : edgebreaker_vertices(std::string_view(buffer.data(), buffer.size()));
+  if (info && !points) {  // a bitstream we do not parse: Draco's own count, which walks every vertex's fan again
+    encoder.SetTrackEncodedProperties(true);
+    buffer.Clear();
+    status = encoder.EncodeMeshToBuffer(out, &buffer);
+    if (!status.ok()) throw Internal("Draco encoder failed on a piece: " + status.error_msg_string());
+    points = encoder.num_encoded_points();
+  }
   if (info) {
     *info = DracoPieceInfo{};
-    info->points = encoder.num_encoded_points();
+    info->points = *points;
     if (const draco::PointAttribute* a = out.GetNamedAttribute(draco::GeometryAttribute::POSITION)) {
       info->position = static_cast<int>(a->unique_id());
     }
