@@ -9,6 +9,7 @@
 #include <utility>
 
 #include "core/mesh/mesh_codec.h"
+#include "core/util/format.h"
 
 namespace surfacer::testing {
 
@@ -373,10 +374,28 @@ std::string plain_glb(const Mesh& mesh, const std::string& nodes, const std::str
   };
   std::string json = R"({"asset":{"version":"2.0"},"buffers":[{"byteLength":)" + std::to_string(bin.size()) +
                      R"(}],"bufferViews":[)" + view(0, normal_offset, R"(,"byteStride":16)") + "," +
-                     view(index_offset, bin.size() - index_offset, "") + "," +
-                     view(normal_offset, index_offset - normal_offset, "") + R"(],"accessors":[)" +
-                     R"({"bufferView":0,"componentType":5126,"type":"VEC3","count":)" + n + "}";
+                     view(index_offset, bin.size() - index_offset, "");
   const bool normals = !mesh.normals.empty();
+  if (normals) {  // glTF has no empty views
+    json += ',';
+    json += view(normal_offset, index_offset - normal_offset, "");
+  }
+  // POSITION states its bounds, as glTF asks (of the float32 values written).
+  Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::max()), hi = -lo;
+  for (const Vec3& v : mesh.vertices) {
+    lo = lo.cwiseMin(v.cast<float>());
+    hi = hi.cwiseMax(v.cast<float>());
+  }
+  auto triple = [](const Eigen::Vector3f& x) {
+    std::string out(1, '[');
+    for (int a = 0; a < 3; ++a) {
+      if (a > 0) out += ',';
+      out += format_number(x[a]);
+    }
+    return out + ']';
+  };
+  json += R"(],"accessors":[{"bufferView":0,"componentType":5126,"type":"VEC3","count":)" + n + R"(,"min":)" +
+          triple(lo) + R"(,"max":)" + triple(hi) + "}";
   if (normals) json += R"(,{"bufferView":2,"componentType":5126,"type":"VEC3","count":)" + n + "}";
   const std::string attributes = normals ? R"({"POSITION":0,"NORMAL":1})" : R"({"POSITION":0})";
   const std::size_t first_index = normals ? 2 : 1;
