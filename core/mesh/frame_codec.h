@@ -55,13 +55,14 @@ std::string to_standard_draco(std::string_view bytes, FrameCodec codec, const Me
 
 // The frame as a binary glTF 2.0 file (.glb, the CLI's --format glb): one node whose scale and translation map the
 // grid to the scene, holding one mesh with one primitive per piece; each primitive is its piece's own Draco stream
-// (KHR_draco_mesh_compression) with the grid coordinates as 16-bit integer positions (KHR_mesh_quantization). A
-// Draco-pieces frame goes in as received, the accessors' counts and bounds taken from its directory (a version 1
-// frame, from an earlier server, has its pieces decoded on `executor` for them); other
-// frames are first encoded as Draco pieces on `executor` from `decoded` (decode_frame of the same bytes; unused,
-// and may be null, for Draco pieces): meshopt pieces on their own grid, a one-mesh Draco or PLY frame on the mesh's
-// own box with the default bits. Throws InvalidInput("quantization_bits") for a grid of more than 16 bits, which
-// glTF cannot hold, and InvalidInput("frame") for bytes that are not such a frame.
+// (KHR_draco_mesh_compression) with the grid coordinates as 16-bit integer positions (KHR_mesh_quantization) and
+// the seam tags as the application attribute _SEAM (what parse_glb welds by, core/mesh/mesh_gltf.h). A Draco-pieces
+// frame goes in as received, the accessors' counts and bounds taken from its directory (a version 1 frame, from an
+// earlier server, has its pieces decoded on `executor` for them); other frames are first encoded as Draco pieces on
+// `executor` from `decoded` (decode_frame of the same bytes; unused, and may be null, for Draco pieces): meshopt pieces
+// on their own grid, a one-mesh Draco or PLY frame on the mesh's own box with the default bits. Throws
+// InvalidInput("quantization_bits") for a grid of more than 16 bits, which glTF cannot hold, and InvalidInput("frame")
+// for bytes that are not such a frame.
 std::string to_gltf(std::string_view bytes, FrameCodec codec, const Mesh* decoded, const Executor& executor);
 // `mesh` as such a file: Draco pieces on the mesh's own box with the default bits, encoded on `executor`.
 std::string to_gltf(const Mesh& mesh, const Executor& executor);
