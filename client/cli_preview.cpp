@@ -10,7 +10,7 @@ namespace surfacer::client {
 CLI::App* add_preview_command(CLI::App& app, PreviewFlags& flags) {
   CLI::App* preview = app.add_subcommand(
       "preview", "Render shaded PNG pictures of frame files (no server needed), one camera for the whole sequence");
-  preview->add_option("frames", flags.frames, "mesh files (.drc .ply .obj), e.g. out/frame_*.ply")
+  preview->add_option("frames", flags.frames, "mesh files (.drc .ply .obj .glb), e.g. out/frame_*.ply")
       ->type_name("FRAME...");
   preview->add_option("-o,--output", flags.dir, "directory for <frame>.png (created)")->type_name("DIR");
   preview->add_option("--size", flags.size, "picture size in pixels (default 480x360)")->type_name("WxH");

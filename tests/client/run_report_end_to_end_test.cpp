@@ -187,16 +187,18 @@ TEST_F(RunReportEndToEnd, PreviewCommandPicturesFramesParticlesAndTheOptimizePlo
   write_mesh(dir_ / "a.ply", sphere);
   write_mesh(dir_ / "b.obj", sphere);
   write_file(dir_ / "c.drc", encode_draco(sphere, DracoOptions{}));
+  write_mesh(dir_ / "d.glb", sphere);
   for (const std::string size : {"480x360", "64x64", "300x120"}) {
     SCOPED_TRACE(size);
     const fs::path pics = dir_ / ("pics_" + size);
-    const ProcessResult r = cli({"preview", (dir_ / "a.ply").string(), (dir_ / "b.obj").string(),
-                                 (dir_ / "c.drc").string(), "-o", pics.string(), "--size", size});
+    const ProcessResult r =
+        cli({"preview", (dir_ / "a.ply").string(), (dir_ / "b.obj").string(), (dir_ / "c.drc").string(),
+             (dir_ / "d.glb").string(), "-o", pics.string(), "--size", size});
     ASSERT_EQ(r.code, 0) << r;
-    EXPECT_EQ(count_lines(r.out), 3) << r;
+    EXPECT_EQ(count_lines(r.out), 4) << r;
     const int w = std::stoi(size.substr(0, size.find('x')));
     const int h = std::stoi(size.substr(size.find('x') + 1));
-    for (const char* name : {"a.png", "b.png", "c.png"}) {
+    for (const char* name : {"a.png", "b.png", "c.png", "d.png"}) {
       const Image image = read_png(pics / name);
       ASSERT_EQ(image.width, w) << name;
       ASSERT_EQ(image.height, h) << name;
