@@ -12,11 +12,12 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
-#include <cstdio>
 #include <cstring>
 #include <limits>
+#include <utility>
 #include <vector>
 
+#include "core/mesh/mesh_gltf.h"
 #include "core/mesh/mesh_io.h"
 #include "core/mesh/meshopt_codec.h"
 #include "core/util/errors.h"
@@ -409,20 +410,20 @@ std::string to_gltf(std::string_view bytes, FrameCodec codec, const Mesh* decode
     w.key("accessors").begin_array();
     for (const int p : kept) {
       const PieceEntry& prim = primitives[p];
-      w.begin_object().key("componentType").value(5123).key("type").value("VEC3");  // UNSIGNED_SHORT
+      w.begin_object().key("componentType").value(gltf::kUnsignedShort).key("type").value("VEC3");
       w.key("count").value(std::uint64_t{prim.found.points});
       for (const auto& [name, bound] : {std::pair{"min", &prim.min}, std::pair{"max", &prim.max}}) {
         w.key(name).begin_array().value((*bound)[0]).value((*bound)[1]).value((*bound)[2]).end_array();
       }
       w.end_object();
-      w.begin_object().key("componentType").value(5125).key("type").value("SCALAR");  // UNSIGNED_INT
+      w.begin_object().key("componentType").value(gltf::kUnsignedInt).key("type").value("SCALAR");
       w.key("count").value(std::uint64_t{3 * prim.triangles}).end_object();
       if (prim.found.normal >= 0) {
-        w.begin_object().key("componentType").value(5126).key("type").value("VEC3");  // FLOAT
+        w.begin_object().key("componentType").value(gltf::kFloat).key("type").value("VEC3");
         w.key("count").value(std::uint64_t{prim.found.points}).end_object();
       }
       if (prim.found.seam >= 0) {
-        w.begin_object().key("componentType").value(5123).key("type").value("SCALAR");  // UNSIGNED_SHORT
+        w.begin_object().key("componentType").value(gltf::kUnsignedShort).key("type").value("SCALAR");
         w.key("count").value(std::uint64_t{prim.found.points}).end_object();
       }
     }
@@ -443,25 +444,7 @@ std::string to_gltf(std::string_view bytes, FrameCodec codec, const Mesh* decode
   w.end_array().key("scale").begin_array().value(delta).value(delta).value(delta).end_array();
   if (!kept.empty()) w.key("mesh").value(0);
   w.end_object().end_array().end_object();
-  std::string json = w.str();
-  while (json.size() % 4 != 0) json.push_back(' ');
-  // GLB: header, JSON chunk, BIN chunk (absent when empty), little-endian.
-  const std::size_t total = 12 + 8 + json.size() + (bin.empty() ? 0 : 8 + bin.size());
-  if (total > std::numeric_limits<std::uint32_t>::max()) throw ResourceLimit("frame", "a glTF file of over 4 GiB");
-  std::string out;
-  out.reserve(total);
-  put(out, std::uint32_t{0x46546C67});  // "glTF"
-  put(out, std::uint32_t{2});
-  put(out, static_cast<std::uint32_t>(total));
-  put(out, static_cast<std::uint32_t>(json.size()));
-  put(out, std::uint32_t{0x4E4F534A});  // "JSON"
-  out += json;
-  if (!bin.empty()) {
-    put(out, static_cast<std::uint32_t>(bin.size()));
-    put(out, std::uint32_t{0x004E4942});  // "BIN\0"
-    out += bin;
-  }
-  return out;
+  return pack_glb(w.str(), std::move(bin));
 }
 
 std::string to_gltf(const Mesh& mesh, const Executor& executor) {

@@ -20,7 +20,7 @@ namespace {
 constexpr std::uint32_t kMagic = 0x46546C67;      // "glTF"
 constexpr std::uint32_t kJsonChunk = 0x4E4F534A;  // "JSON"
 constexpr std::uint32_t kBinChunk = 0x004E4942;   // "BIN\0"
-constexpr int kFloat = 5126, kUnsignedInt = 5125;
+using gltf::kByte, gltf::kFloat, gltf::kShort, gltf::kUnsignedByte, gltf::kUnsignedInt, gltf::kUnsignedShort;
 // How a vertex is welded: by position (other programs' files), by position and seam tag (1 .. 65535), or never
 // (kAlone: in our own files, whose pieces tag every vertex another piece has, an untagged vertex is in no other
 // piece, even where it shares its point with another vertex).
@@ -34,11 +34,11 @@ std::uint32_t u32_at(std::string_view bytes, std::size_t at) {
 
 int component_bytes(int type) {
   switch (type) {
-    case 5120:  // BYTE
-    case 5121:  // UNSIGNED_BYTE
+    case kByte:
+    case kUnsignedByte:
       return 1;
-    case 5122:  // SHORT
-    case 5123:  // UNSIGNED_SHORT
+    case kShort:
+    case kUnsignedShort:
       return 2;
     case kUnsignedInt:
     case kFloat:
@@ -51,13 +51,13 @@ int component_bytes(int type) {
 // An integer component as glTF's normalized value (the spec's conversions: signed values clamp at -1).
 double normalized(int type, double v) {
   switch (type) {
-    case 5120:
+    case kByte:
       return std::max(v / 127.0, -1.0);
-    case 5121:
+    case kUnsignedByte:
       return v / 255.0;
-    case 5122:
+    case kShort:
       return std::max(v / 32767.0, -1.0);
-    case 5123:
+    case kUnsignedShort:
       return v / 65535.0;
     default:
       return v;
@@ -84,16 +84,16 @@ struct Accessor {
     const char* p = base + i * stride + static_cast<std::size_t>(c) * component_bytes(type);
     double v = 0.0;
     switch (type) {
-      case 5120:
+      case kByte:
         v = load<std::int8_t>(p);
         break;
-      case 5121:
+      case kUnsignedByte:
         v = load<std::uint8_t>(p);
         break;
-      case 5122:
+      case kShort:
         v = load<std::int16_t>(p);
         break;
-      case 5123:
+      case kUnsignedShort:
         v = load<std::uint16_t>(p);
         break;
       case kUnsignedInt:
@@ -385,7 +385,7 @@ class GlbReader {
       }
       if (const JsonValue* idx = prim.find("indices")) {
         const Accessor a = accessor(integer(idx, where + ".indices"), where + " indices");
-        if (a.components != 1 || a.type == kFloat || a.type == 5120 || a.type == 5122 || a.normalized) {
+        if (a.components != 1 || a.type == kFloat || a.type == kByte || a.type == kShort || a.normalized) {
           bad(where + " has indices that are not unsigned integers");
         }
         indices.resize(a.count);
@@ -404,7 +404,7 @@ class GlbReader {
       }
       if (seam != nullptr) {  // a .glb of pieces decompressed by another tool keeps the tags as plain data
         const Accessor a = accessor(integer(seam, where + ".attributes._SEAM"), where + " _SEAM");
-        if (a.components != 1 || a.type != 5123 || a.normalized || a.count != points.size()) {
+        if (a.components != 1 || a.type != kUnsignedShort || a.normalized || a.count != points.size()) {
           bad(where + " has a _SEAM that is not one unsigned short per vertex");
         }
         for (std::size_t i = 0; i < a.count; ++i) {
@@ -543,6 +543,28 @@ class GlbReader {
 };
 
 }  // namespace
+
+std::string pack_glb(std::string json, std::string bin) {
+  while (json.size() % 4 != 0) json.push_back(' ');
+  while (bin.size() % 4 != 0) bin.push_back('\0');
+  const std::size_t total = 12 + 8 + json.size() + (bin.empty() ? 0 : 8 + bin.size());
+  if (total > std::numeric_limits<std::uint32_t>::max()) throw ResourceLimit("frame", "a glTF file of over 4 GiB");
+  std::string out;
+  out.reserve(total);
+  auto u32 = [&out](std::uint32_t v) { out.append(reinterpret_cast<const char*>(&v), 4); };  // little-endian targets
+  u32(kMagic);
+  u32(2);
+  u32(static_cast<std::uint32_t>(total));
+  u32(static_cast<std::uint32_t>(json.size()));
+  u32(kJsonChunk);
+  out += json;
+  if (!bin.empty()) {
+    u32(static_cast<std::uint32_t>(bin.size()));
+    u32(kBinChunk);
+    out += bin;
+  }
+  return out;
+}
 
 Mesh parse_glb(std::string_view bytes, const std::string& name, const MeshReadLimits& limits) {
   return GlbReader(bytes, name, limits).read();

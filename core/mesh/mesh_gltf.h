@@ -1,5 +1,5 @@
-// Reading binary glTF 2.0 (.glb) as one triangle mesh: a start mesh or any mesh input, the .glb files the CLI writes
-// (core/mesh/frame_codec.h, to_gltf) included. Writing is to_gltf's.
+// Binary glTF 2.0 (.glb): reading one as a triangle mesh (a start mesh or any mesh input, the .glb files the CLI writes
+// included), and the container and numbers that reading and writing (core/mesh/frame_codec.h, to_gltf) share.
 #pragma once
 
 #include <string>
@@ -9,6 +9,20 @@
 #include "core/mesh/mesh_codec.h"
 
 namespace surfacer {
+
+// glTF's accessor component types.
+namespace gltf {
+inline constexpr int kByte = 5120;
+inline constexpr int kUnsignedByte = 5121;
+inline constexpr int kShort = 5122;
+inline constexpr int kUnsignedShort = 5123;
+inline constexpr int kUnsignedInt = 5125;
+inline constexpr int kFloat = 5126;
+}  // namespace gltf
+
+// A .glb of the JSON text `json` and the binary chunk `bin`: the JSON padded with spaces and the binary with zeros to
+// whole 4-byte words, no BIN chunk when `bin` is empty. Throws ResourceLimit("frame") for a file of over 4 GiB.
+std::string pack_glb(std::string json, std::string bin);
 
 // The triangles of every mesh the file's scene instances (its `scene`, else the first, else every root node),
 // through the nodes' transforms (a matrix, or translation, rotation and scale; a mirroring transform keeps the

@@ -173,7 +173,7 @@ TEST(MeshGltf, RefusesWhatItDoesNotReadNamingWhy) {
     json.replace(at, from.size(), to);
     const std::size_t bin_at = 20 + (good[12] & 0xff) + ((good[13] & 0xff) << 8);
     const std::string bin = good.substr(bin_at + 8);
-    return testing::glb_file(json, bin);
+    return pack_glb(json, bin);
   };
   expect_refused("solid cube\n", "no glTF binary header");
   expect_refused(good.substr(0, good.size() / 2), "more bytes than the file has");

@@ -9,6 +9,7 @@
 #include <utility>
 
 #include "core/mesh/mesh_codec.h"
+#include "core/mesh/mesh_gltf.h"
 #include "core/util/format.h"
 
 namespace surfacer::testing {
@@ -328,28 +329,6 @@ Mesh polygonized(const FieldPtr& field, Polygonizer method, int cells, bool norm
   return polygonize(*field, resolve_grid(fields, options));
 }
 
-std::string glb_file(const std::string& json, const std::string& bin) {
-  auto u32 = [](std::string& out, std::uint32_t v) {
-    for (int i = 0; i < 4; ++i) out.push_back(static_cast<char>(v >> (8 * i)));
-  };
-  std::string j = json, b = bin;
-  while (j.size() % 4 != 0) j.push_back(' ');
-  while (b.size() % 4 != 0) b.push_back('\0');
-  std::string out;
-  u32(out, 0x46546C67);
-  u32(out, 2);
-  u32(out, static_cast<std::uint32_t>(12 + 8 + j.size() + (b.empty() ? 0 : 8 + b.size())));
-  u32(out, static_cast<std::uint32_t>(j.size()));
-  u32(out, 0x4E4F534A);
-  out += j;
-  if (!b.empty()) {
-    u32(out, static_cast<std::uint32_t>(b.size()));
-    u32(out, 0x004E4942);
-    out += b;
-  }
-  return out;
-}
-
 std::string plain_glb(const Mesh& mesh, const std::string& nodes, const std::string& roots, int index_type, int mode) {
   std::string bin;
   auto put = [&bin](const void* p, std::size_t n) { bin.append(static_cast<const char*>(p), n); };
@@ -414,7 +393,7 @@ std::string plain_glb(const Mesh& mesh, const std::string& nodes, const std::str
   }
   json += R"(],"meshes":[{"primitives":[)" + primitives + R"(]}],"nodes":)" + nodes + R"(,"scenes":[{"nodes":)" +
           roots + R"(}],"scene":0})";
-  return glb_file(json, bin);
+  return pack_glb(json, bin);
 }
 
 }  // namespace surfacer::testing

@@ -40,8 +40,6 @@ Mesh flipped_triangle();
 // {field = 0} polygonized on 2 threads with `cells` cells along the longest axis of the field's padded bounds.
 Mesh polygonized(const FieldPtr& field, Polygonizer method, int cells, bool normals = false);
 
-// A binary glTF file of the JSON text `json` and the binary chunk `bin` (both padded as the format asks).
-std::string glb_file(const std::string& json, const std::string& bin);
 // `mesh` in a .glb with plain accessors, as another exporter writes it: float positions at a byte stride of 16, float
 // normals when the mesh has them, indices of glTF componentType `index_type` (5121, 5123 or 5125), primitive `mode` (4:
 // as they are; 6: each triangle as a fan of its own, in a primitive per triangle), mesh 0 instanced by `nodes` (a JSON
