@@ -582,28 +582,18 @@ struct DecodedFrame {
 
 // (vertices (N,3) float64, triangles (M,3) int32, normals (N,3) float64 or None) of a mesh.
 py::tuple mesh_arrays(const Mesh& mesh) {
-  const auto n = static_cast<py::ssize_t>(mesh.vertices.size());
-  const auto m = static_cast<py::ssize_t>(mesh.triangles.size());
-  py::array_t<double> vertices({n, py::ssize_t{3}});
-  auto v = vertices.mutable_unchecked<2>();
-  for (py::ssize_t i = 0; i < n; ++i) {
-    for (int k = 0; k < 3; ++k) v(i, k) = mesh.vertices[static_cast<std::size_t>(i)][k];
-  }
-  py::array_t<std::int32_t> triangles({m, py::ssize_t{3}});
-  auto t = triangles.mutable_unchecked<2>();
-  for (py::ssize_t i = 0; i < m; ++i) {
-    for (int k = 0; k < 3; ++k) t(i, k) = static_cast<std::int32_t>(mesh.triangles[static_cast<std::size_t>(i)][k]);
-  }
-  py::object normals = py::none();
-  if (!mesh.normals.empty()) {
-    py::array_t<double> array({n, py::ssize_t{3}});
-    auto a = array.mutable_unchecked<2>();
-    for (py::ssize_t i = 0; i < n; ++i) {
-      for (int k = 0; k < 3; ++k) a(i, k) = mesh.normals[static_cast<std::size_t>(i)][k];
+  auto rows = [](const auto& items, auto element) {
+    using T = decltype(element);
+    py::array_t<T> array({static_cast<py::ssize_t>(items.size()), py::ssize_t{3}});
+    auto a = array.template mutable_unchecked<2>();
+    for (py::ssize_t i = 0; i < a.shape(0); ++i) {
+      for (int k = 0; k < 3; ++k) a(i, k) = static_cast<T>(items[static_cast<std::size_t>(i)][k]);
     }
-    normals = array;
-  }
-  return py::make_tuple(vertices, triangles, normals);
+    return array;
+  };
+  py::object normals = py::none();
+  if (!mesh.normals.empty()) normals = rows(mesh.normals, double{});
+  return py::make_tuple(rows(mesh.vertices, double{}), rows(mesh.triangles, std::int32_t{}), normals);
 }
 
 // The frames of one job, received by a JobWatcher on a helper thread (started by the first next()) and decoded

@@ -123,7 +123,7 @@ class GlbReader {
       if (length > file.size() - at - 8) bad("a chunk runs past the end of the file");
       const std::string_view data = file.substr(at + 8, length);
       if (at == 12 && type != kJsonChunk) bad("the first chunk is not JSON");
-      if (type == kJsonChunk && at == 12) json = data;
+      if (at == 12) json = data;
       if (type == kBinChunk && at > 12 && bin_.data() == nullptr) bin_ = data;
       at += 8 + std::size_t{length};
     }
