@@ -208,10 +208,9 @@ std::vector<std::filesystem::path> FrameWriter::write(const ReceivedFrame& frame
         converted = write_vtu(decoded(), codec == FrameCodec::kPly);
         bytes = converted;
         break;
-      case FileFormat::kGlb:  // Draco pieces as received; other frames encoded as pieces here, on every core
+      case FileFormat::kGlb:  // pieced frames as received; one-mesh frames encoded as Draco pieces here, on every core
         try {
-          converted =
-              to_gltf(frame.bytes, codec, codec == FrameCodec::kDracoPieces ? nullptr : &decoded(), decode_executor_);
+          converted = to_gltf(frame.bytes, codec, decoded, decode_executor_);
         } catch (const Error& e) {
           if (e.kind() != ErrorKind::kInvalidInput || e.field() != "quantization_bits") throw;
           throw CliError(ExitCode::kUsage, "frame " + std::to_string(frame.index) + ": --format glb: " + e.what());

@@ -46,10 +46,8 @@ int main(int argc, char** argv) {
     const char selector = s.codec == FrameCodec::kDracoPieces ? 5 : 6;  // fuzz_mesh.cpp's selectors
     std::ofstream(dir + "/seed_frame_" + s.name, std::ios::binary) << selector << bytes;
     std::printf("seed_frame_%s: %zu triangles, %zu bytes\n", s.name, mesh.triangles.size(), bytes.size() + 1);
-    if (s.codec == FrameCodec::kDracoPieces) {
-      const std::string glb = to_gltf(bytes, s.codec, nullptr, ThreadExecutor(1));
-      std::ofstream(dir + "/seed_glb_" + s.name, std::ios::binary) << char{7} << glb;
-    }
+    const std::string glb = to_gltf(bytes, s.codec, {}, ThreadExecutor(1));  // pieced frames: nothing decoded
+    std::ofstream(dir + "/seed_glb_" + s.name, std::ios::binary) << char{7} << glb;
   }
   const Mesh cube = testing::unit_cube();
   const std::string nodes = R"([{"mesh":0,"translation":[1,2,3],"rotation":[0,0,0.6,0.8],"children":[1]},)"

@@ -3,12 +3,13 @@
 // the CLI and the Python package decode) through core/mesh/frame_codec.
 // Input: one selector byte, then the file bytes: 0 PLY, 1 OBJ, 2 Draco (parse_mesh), 3 decode_draco directly,
 // 4 the server's format sniffing (server/optimize_job.cpp: "ply" prefix -> PLY, "DRACO" -> Draco, else OBJ),
-// 5 a Draco-pieces frame (decode_frame, then to_gltf of the same bytes), 6 a meshopt frame (decode_frame),
+// 5 a Draco-pieces frame, 6 a meshopt frame (each to_gltf, then decode_frame of the same bytes),
 // 7 binary glTF (parse_mesh, as a .glb start mesh; sniffing "glTF" reaches it too).
 // Every mesh read is then written as double-precision PLY and read back: it must survive unchanged. A .glb written
 // from a frame has glTF's header with its own length.
 // Expected failures are surfacer::Error; anything else escaping, a crash, UB or a violated property is a bug.
 #include <cstdint>
+#include <optional>
 #include <string>
 
 #include "core/mesh/frame_codec.h"
@@ -87,12 +88,15 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
       case 6: {
         const FrameCodec codec = selector == 5 ? FrameCodec::kDracoPieces : FrameCodec::kMeshopt;
         const ThreadExecutor one(1);
-        if (codec == FrameCodec::kDracoPieces) {
-          try {  // from the directory alone, so it may succeed where decoding fails, and the other way round
-            fuzz::check_glb(to_gltf(bytes, codec, nullptr, one));
-          } catch (const Error& e) {
-            fuzz::require(e.what()[0] != '\0', "an Error without a message");
-          }
+        std::optional<Mesh> decoded;  // what to_gltf asks for a version 1 meshopt frame
+        auto decode = [&]() -> const Mesh& {
+          if (!decoded) decoded = decode_frame(bytes, codec, one);
+          return *decoded;
+        };
+        try {  // from the directory alone, so it may succeed where decoding fails, and the other way round
+          fuzz::check_glb(to_gltf(bytes, codec, decode, one));
+        } catch (const Error& e) {
+          fuzz::require(e.what()[0] != '\0', "an Error without a message");
         }
         mesh = decode_frame(bytes, codec, one);
         break;

@@ -13,6 +13,7 @@
 #include <array>
 #include <atomic>
 #include <cstring>
+#include <functional>
 #include <limits>
 #include <utility>
 #include <vector>
@@ -267,6 +268,233 @@ Mesh decode_pieces(std::string_view bytes, FrameCodec codec, const Executor& exe
   return mesh;
 }
 
+void check_gltf_bits(const Container& c) {
+  if (c.grid.bits > 16) {
+    throw InvalidInput("quantization_bits", "quantization_bits (" + std::to_string(c.grid.bits) +
+                                                ") is more than glTF holds: positions of at most 16 bits "
+                                                "(KHR_mesh_quantization); use 16 or fewer, or another file format");
+  }
+}
+
+// What every .glb of a frame begins with: the asset and, when it has a mesh, the extensions it needs.
+void begin_gltf(JsonWriter& w, bool has_mesh, const char* compression) {
+  w.begin_object().key("asset").begin_object().key("version").value("2.0").key("generator").value("surfacer");
+  w.end_object();
+  if (has_mesh) {
+    for (const char* list : {"extensionsUsed", "extensionsRequired"}) {
+      w.key(list).begin_array().value(compression).value("KHR_mesh_quantization").end_array();
+    }
+  }
+}
+
+// ... and ends with: one node whose scale and translation put grid point q at q * delta + origin, Draco's
+// dequantization (in float32, as Draco computes it).
+std::string end_gltf(JsonWriter& w, const QuantizationGrid& grid, bool has_mesh, std::string bin) {
+  const double delta = static_cast<double>(grid.range / static_cast<float>(grid.max_value()));
+  w.key("scene").value(0).key("scenes").begin_array().begin_object().key("nodes").begin_array().value(0);
+  w.end_array().end_object().end_array();
+  w.key("nodes").begin_array().begin_object().key("translation").begin_array();
+  for (const float o : grid.origin) w.value(static_cast<double>(o));
+  w.end_array().key("scale").begin_array().value(delta).value(delta).value(delta).end_array();
+  if (has_mesh) w.key("mesh").value(0);
+  w.end_object().end_array().end_object();
+  return pack_glb(w.str(), std::move(bin));
+}
+
+void write_bounds(JsonWriter& w, const PieceEntry& e) {
+  for (const auto& [name, bound] : {std::pair{"min", &e.min}, std::pair{"max", &e.max}}) {
+    w.key(name).begin_array().value((*bound)[0]).value((*bound)[1]).value((*bound)[2]).end_array();
+  }
+}
+
+// Appends `data` to the binary chunk at a 4-byte boundary; returns its offset.
+std::size_t append_aligned(std::string& bin, std::string_view data) {
+  while (bin.size() % 4 != 0) bin.push_back('\0');
+  const std::size_t offset = bin.size();
+  bin += data;
+  return offset;
+}
+
+// A Draco-pieces frame as a .glb: one KHR_draco_mesh_compression primitive per piece, its stream as received.
+std::string draco_gltf(const Container& c, const Executor& executor) {
+  if (c.codec != container_codec(FrameCodec::kDracoPieces)) bad("its pieces are not Draco pieces");
+  check_gltf_bits(c);
+  // Each piece's counts, its points' bounds and the Draco ids of its attributes: the directory's, or for a version 1
+  // frame what decoding the pieces finds.
+  const int n = static_cast<int>(c.pieces.size());
+  std::vector<PieceEntry> primitives = c.pieces;
+  if (c.version < 2) {
+    executor.for_each(n, [&](int p) {
+      const QuantizedPiece piece = decode_draco_piece(c.payloads[p], c.grid.bits, &primitives[p].found);
+      if (piece.triangles.size() != c.pieces[p].triangles) bad("piece " + std::to_string(p) + " has other triangles");
+      set_bounds(piece.positions, primitives[p]);
+    });
+  }
+  // The binary chunk: the pieces with triangles (glTF has no empty accessors).
+  std::vector<int> kept;
+  std::vector<std::size_t> offsets;
+  std::string bin;
+  for (int p = 0; p < n; ++p) {
+    if (primitives[p].triangles == 0) continue;
+    kept.push_back(p);
+    offsets.push_back(append_aligned(bin, c.payloads[p]));
+  }
+  append_aligned(bin, {});  // the buffer's byteLength is the padded chunk's
+  // The JSON: per primitive the accessors POSITION, indices, NORMAL (when the piece has normals) and _SEAM (when it
+  // has seam tags) in that order, and buffer view k for kept piece k. _SEAM (an application attribute, which other
+  // readers pass over) names the seam vertices as the frame's tags do, so a reader can weld the pieces' copies
+  // exactly as the client welds a frame (parse_glb does).
+  JsonWriter w;
+  begin_gltf(w, !kept.empty(), "KHR_draco_mesh_compression");
+  if (!kept.empty()) {
+    w.key("meshes").begin_array().begin_object().key("primitives").begin_array();
+    int accessor = 0;
+    for (std::size_t k = 0; k < kept.size(); ++k) {
+      const DracoPieceInfo& ids = primitives[kept[k]].found;
+      const int normal = ids.normal >= 0 ? accessor + 2 : -1;
+      const int seam = ids.seam >= 0 ? accessor + (normal >= 0 ? 3 : 2) : -1;
+      w.begin_object().key("attributes").begin_object().key("POSITION").value(accessor);
+      if (normal >= 0) w.key("NORMAL").value(normal);
+      if (seam >= 0) w.key("_SEAM").value(seam);
+      w.end_object().key("indices").value(accessor + 1);
+      w.key("extensions").begin_object().key("KHR_draco_mesh_compression").begin_object();
+      w.key("bufferView").value(static_cast<int>(k)).key("attributes").begin_object();
+      w.key("POSITION").value(ids.position);
+      if (normal >= 0) w.key("NORMAL").value(ids.normal);
+      if (seam >= 0) w.key("_SEAM").value(ids.seam);
+      w.end_object().end_object().end_object().end_object();
+      accessor += 2 + (normal >= 0 ? 1 : 0) + (seam >= 0 ? 1 : 0);
+    }
+    w.end_array().end_object().end_array();
+    w.key("accessors").begin_array();
+    for (const int p : kept) {
+      const PieceEntry& prim = primitives[p];
+      w.begin_object().key("componentType").value(gltf::kUnsignedShort).key("type").value("VEC3");
+      w.key("count").value(std::uint64_t{prim.found.points});
+      write_bounds(w, prim);
+      w.end_object();
+      w.begin_object().key("componentType").value(gltf::kUnsignedInt).key("type").value("SCALAR");
+      w.key("count").value(std::uint64_t{3 * prim.triangles}).end_object();
+      if (prim.found.normal >= 0) {
+        w.begin_object().key("componentType").value(gltf::kFloat).key("type").value("VEC3");
+        w.key("count").value(std::uint64_t{prim.found.points}).end_object();
+      }
+      if (prim.found.seam >= 0) {
+        w.begin_object().key("componentType").value(gltf::kUnsignedShort).key("type").value("SCALAR");
+        w.key("count").value(std::uint64_t{prim.found.points}).end_object();
+      }
+    }
+    w.end_array().key("bufferViews").begin_array();
+    for (std::size_t k = 0; k < kept.size(); ++k) {
+      w.begin_object().key("buffer").value(0).key("byteOffset").value(std::uint64_t{offsets[k]});
+      w.key("byteLength").value(std::uint64_t{c.payloads[kept[k]].size()}).end_object();
+    }
+    w.end_array().key("buffers").begin_array().begin_object().key("byteLength").value(std::uint64_t{bin.size()});
+    w.end_object().end_array();
+  }
+  return end_gltf(w, c.grid, !kept.empty(), std::move(bin));
+}
+
+// A meshopt frame as a .glb: one primitive per piece whose buffer views are the piece's meshoptimizer streams as
+// received (EXT_meshopt_compression). Its 8-byte vertices (x, y, z, tag) are read whole as _SEAM, a VEC4 whose last
+// component is the tag (glTF aligns attributes on 4 bytes, so the tag at byte 6 cannot be an accessor of its own),
+// and their first three components as POSITION. Normals are the one stream laid out again, for the extension's
+// OCTAHEDRAL filter.
+std::string meshopt_gltf(const Container& c, const Executor& executor) {
+  check_gltf_bits(c);
+  const int n = static_cast<int>(c.pieces.size());
+  std::vector<MeshoptStreams> streams(n);
+  std::vector<std::string> normals(n);
+  executor.for_each(n, [&](int p) {
+    streams[p] = meshopt_streams(c.payloads[p]);
+    const PieceEntry& e = c.pieces[p];
+    if (streams[p].vertices != e.vertices || streams[p].triangles != e.triangles ||
+        (streams[p].normal_bits > 0) != c.normals) {
+      bad("piece " + std::to_string(p) + " does not hold what the directory says");
+    }
+    normals[p] = gltf_octahedral_normals(streams[p]);
+  });
+  // A buffer view: its stream in the binary chunk, its decoded bytes in the fallback buffer (which has none: the
+  // extension is required).
+  struct View {
+    std::size_t offset, length, fallback_offset, stride, count;
+    const char* mode;
+    const char* filter;  // nullptr: none
+    int target;
+  };
+  std::vector<View> views;
+  std::string bin;
+  std::size_t fallback = 0;
+  auto add_view = [&](std::string_view stream, std::size_t stride, std::size_t count, const char* mode,
+                      const char* filter, int target) {
+    views.push_back({0, stream.size(), fallback, stride, count, mode, filter, target});
+    views.back().offset = append_aligned(bin, stream);
+    fallback += stride * count;  // 8 or 4 bytes a value: stays 4-byte aligned
+  };
+  std::vector<int> kept;
+  for (int p = 0; p < n; ++p) {
+    if (c.pieces[p].triangles == 0) continue;
+    kept.push_back(p);
+    add_view(streams[p].vertex, 8, streams[p].vertices, "ATTRIBUTES", nullptr, 34962);
+    add_view(streams[p].index, 4, 3 * std::size_t{streams[p].triangles}, "TRIANGLES", nullptr, 34963);
+    if (c.normals) add_view(normals[p], 8, streams[p].vertices, "ATTRIBUTES", "OCTAHEDRAL", 34962);
+  }
+  append_aligned(bin, {});  // the buffer's byteLength is the padded chunk's
+  // Per primitive the accessors POSITION, indices, _SEAM and NORMAL (with normals), over its buffer views: vertices,
+  // triangles and normals. _SEAM's tags name the seam vertices as the frame's do (see draco_gltf).
+  JsonWriter w;
+  begin_gltf(w, !kept.empty(), "EXT_meshopt_compression");
+  if (!kept.empty()) {
+    const int per = c.normals ? 4 : 3;  // accessors per primitive
+    const int views_per = c.normals ? 3 : 2;
+    w.key("meshes").begin_array().begin_object().key("primitives").begin_array();
+    for (std::size_t k = 0; k < kept.size(); ++k) {
+      const int a = static_cast<int>(k) * per;
+      w.begin_object().key("attributes").begin_object().key("POSITION").value(a).key("_SEAM").value(a + 2);
+      if (c.normals) w.key("NORMAL").value(a + 3);
+      w.end_object().key("indices").value(a + 1).end_object();
+    }
+    w.end_array().end_object().end_array();
+    w.key("accessors").begin_array();
+    for (std::size_t k = 0; k < kept.size(); ++k) {
+      const PieceEntry& e = c.pieces[kept[k]];
+      const int v = static_cast<int>(k) * views_per;
+      w.begin_object().key("bufferView").value(v).key("componentType").value(gltf::kUnsignedShort);
+      w.key("type").value("VEC3").key("count").value(std::uint64_t{e.vertices});
+      write_bounds(w, e);
+      w.end_object();
+      w.begin_object().key("bufferView").value(v + 1).key("componentType").value(gltf::kUnsignedInt);
+      w.key("type").value("SCALAR").key("count").value(std::uint64_t{3 * std::uint64_t{e.triangles}}).end_object();
+      w.begin_object().key("bufferView").value(v).key("componentType").value(gltf::kUnsignedShort);
+      w.key("type").value("VEC4").key("count").value(std::uint64_t{e.vertices}).end_object();
+      if (c.normals) {
+        w.begin_object().key("bufferView").value(v + 2).key("componentType").value(gltf::kShort);
+        w.key("normalized").value(true).key("type").value("VEC3");
+        w.key("count").value(std::uint64_t{e.vertices}).end_object();
+      }
+    }
+    w.end_array().key("bufferViews").begin_array();
+    for (const View& view : views) {
+      w.begin_object().key("buffer").value(1).key("byteOffset").value(std::uint64_t{view.fallback_offset});
+      w.key("byteLength").value(std::uint64_t{view.stride * view.count});
+      if (view.target == 34962) w.key("byteStride").value(std::uint64_t{view.stride});
+      w.key("target").value(view.target);
+      w.key("extensions").begin_object().key("EXT_meshopt_compression").begin_object();
+      w.key("buffer").value(0).key("byteOffset").value(std::uint64_t{view.offset});
+      w.key("byteLength").value(std::uint64_t{view.length}).key("byteStride").value(std::uint64_t{view.stride});
+      w.key("mode").value(view.mode).key("count").value(std::uint64_t{view.count});
+      if (view.filter) w.key("filter").value(view.filter);
+      w.end_object().end_object().end_object();
+    }
+    w.end_array().key("buffers").begin_array();
+    w.begin_object().key("byteLength").value(std::uint64_t{bin.size()}).end_object();
+    w.begin_object().key("byteLength").value(std::uint64_t{fallback}).key("extensions").begin_object();
+    w.key("EXT_meshopt_compression").begin_object().key("fallback").value(true).end_object().end_object();
+    w.end_object().end_array();
+  }
+  return end_gltf(w, c.grid, !kept.empty(), std::move(bin));
+}
+
 }  // namespace
 
 std::string_view frame_codec_name(FrameCodec codec) {
@@ -336,122 +564,32 @@ std::string to_standard_draco(std::string_view bytes, FrameCodec codec, const Me
   return encode_draco(clamped_to(decoded, *options.quantization_bounds), options);
 }
 
-std::string to_gltf(std::string_view bytes, FrameCodec codec, const Mesh* decoded, const Executor& executor) {
-  std::string pieced;
-  if (codec != FrameCodec::kDracoPieces) {
-    if (decoded == nullptr) throw Internal("to_gltf needs the decoded mesh of a frame that is not Draco pieces");
-    if (codec != FrameCodec::kMeshopt) return to_gltf(*decoded, executor);
+std::string to_gltf(std::string_view bytes, FrameCodec codec, const std::function<const Mesh&()>& decoded,
+                    const Executor& executor) {
+  auto mesh = [&]() -> const Mesh& {
+    if (!decoded) throw Internal("to_gltf needs the decoded mesh of this frame");
+    return decoded();
+  };
+  if (codec == FrameCodec::kDracoPieces) return draco_gltf(read_container(bytes), executor);
+  if (codec == FrameCodec::kMeshopt) {
+    const Container c = read_container(bytes);
+    if (c.codec != container_codec(FrameCodec::kMeshopt)) bad("its pieces are not meshopt pieces");
+    if (c.version >= 2) return meshopt_gltf(c, executor);
+    // A version 1 frame (kept by an earlier server) has no bounds in its directory: Draco pieces of its mesh.
     FrameCodecOptions options;
     options.codec = FrameCodec::kDracoPieces;
-    options.draco = on_grid(read_container(bytes).grid, *decoded);
-    pieced = encode_frame(clamped_to(*decoded, *options.draco.quantization_bounds), options, executor);
-    bytes = pieced;
+    options.draco = on_grid(c.grid, mesh());
+    const std::string pieced = encode_frame(clamped_to(mesh(), *options.draco.quantization_bounds), options, executor);
+    return draco_gltf(read_container(pieced), executor);
   }
-  const Container c = read_container(bytes);
-  if (c.codec != container_codec(FrameCodec::kDracoPieces)) bad("its pieces are not Draco pieces");
-  if (c.grid.bits > 16) {
-    throw InvalidInput("quantization_bits", "quantization_bits (" + std::to_string(c.grid.bits) +
-                                                ") is more than glTF holds: positions of at most 16 bits "
-                                                "(KHR_mesh_quantization); use 16 or fewer, or another file format");
-  }
-  // Each piece's counts, its points' bounds and the Draco ids of its attributes: the directory's, or for a version 1
-  // frame what decoding the pieces finds.
-  const int n = static_cast<int>(c.pieces.size());
-  std::vector<PieceEntry> primitives = c.pieces;
-  if (c.version < 2) {
-    executor.for_each(n, [&](int p) {
-      const QuantizedPiece piece = decode_draco_piece(c.payloads[p], c.grid.bits, &primitives[p].found);
-      if (piece.triangles.size() != c.pieces[p].triangles) bad("piece " + std::to_string(p) + " has other triangles");
-      set_bounds(piece.positions, primitives[p]);
-    });
-  }
-  // The binary chunk: the pieces with triangles, each 4-byte aligned (glTF has no empty accessors).
-  std::vector<int> kept;
-  std::vector<std::size_t> offsets;
-  std::string bin;
-  for (int p = 0; p < n; ++p) {
-    if (primitives[p].triangles == 0) continue;
-    while (bin.size() % 4 != 0) bin.push_back('\0');
-    kept.push_back(p);
-    offsets.push_back(bin.size());
-    bin += c.payloads[p];
-  }
-  while (bin.size() % 4 != 0) bin.push_back('\0');
-  // The JSON: per primitive the accessors POSITION, indices, NORMAL (when the piece has normals) and _SEAM (when it
-  // has seam tags) in that order, and buffer view k for kept piece k; one node maps the grid to the scene. _SEAM (an
-  // application attribute, which other readers pass over) names the seam vertices as the frame's tags do, so a reader
-  // can weld the pieces' copies exactly as the client welds a frame (parse_glb does).
-  JsonWriter w;
-  w.begin_object().key("asset").begin_object().key("version").value("2.0").key("generator").value("surfacer");
-  w.end_object();
-  if (!kept.empty()) {
-    for (const char* list : {"extensionsUsed", "extensionsRequired"}) {
-      w.key(list).begin_array().value("KHR_draco_mesh_compression").value("KHR_mesh_quantization").end_array();
-    }
-    w.key("meshes").begin_array().begin_object().key("primitives").begin_array();
-    int accessor = 0;
-    for (std::size_t k = 0; k < kept.size(); ++k) {
-      const DracoPieceInfo& ids = primitives[kept[k]].found;
-      const int normal = ids.normal >= 0 ? accessor + 2 : -1;
-      const int seam = ids.seam >= 0 ? accessor + (normal >= 0 ? 3 : 2) : -1;
-      w.begin_object().key("attributes").begin_object().key("POSITION").value(accessor);
-      if (normal >= 0) w.key("NORMAL").value(normal);
-      if (seam >= 0) w.key("_SEAM").value(seam);
-      w.end_object().key("indices").value(accessor + 1);
-      w.key("extensions").begin_object().key("KHR_draco_mesh_compression").begin_object();
-      w.key("bufferView").value(static_cast<int>(k)).key("attributes").begin_object();
-      w.key("POSITION").value(ids.position);
-      if (normal >= 0) w.key("NORMAL").value(ids.normal);
-      if (seam >= 0) w.key("_SEAM").value(ids.seam);
-      w.end_object().end_object().end_object().end_object();
-      accessor += 2 + (normal >= 0 ? 1 : 0) + (seam >= 0 ? 1 : 0);
-    }
-    w.end_array().end_object().end_array();
-    w.key("accessors").begin_array();
-    for (const int p : kept) {
-      const PieceEntry& prim = primitives[p];
-      w.begin_object().key("componentType").value(gltf::kUnsignedShort).key("type").value("VEC3");
-      w.key("count").value(std::uint64_t{prim.found.points});
-      for (const auto& [name, bound] : {std::pair{"min", &prim.min}, std::pair{"max", &prim.max}}) {
-        w.key(name).begin_array().value((*bound)[0]).value((*bound)[1]).value((*bound)[2]).end_array();
-      }
-      w.end_object();
-      w.begin_object().key("componentType").value(gltf::kUnsignedInt).key("type").value("SCALAR");
-      w.key("count").value(std::uint64_t{3 * prim.triangles}).end_object();
-      if (prim.found.normal >= 0) {
-        w.begin_object().key("componentType").value(gltf::kFloat).key("type").value("VEC3");
-        w.key("count").value(std::uint64_t{prim.found.points}).end_object();
-      }
-      if (prim.found.seam >= 0) {
-        w.begin_object().key("componentType").value(gltf::kUnsignedShort).key("type").value("SCALAR");
-        w.key("count").value(std::uint64_t{prim.found.points}).end_object();
-      }
-    }
-    w.end_array().key("bufferViews").begin_array();
-    for (std::size_t k = 0; k < kept.size(); ++k) {
-      w.begin_object().key("buffer").value(0).key("byteOffset").value(std::uint64_t{offsets[k]});
-      w.key("byteLength").value(std::uint64_t{c.payloads[kept[k]].size()}).end_object();
-    }
-    w.end_array().key("buffers").begin_array().begin_object().key("byteLength").value(std::uint64_t{bin.size()});
-    w.end_object().end_array();
-  }
-  // Grid point q lands at q * delta + origin, Draco's dequantization (in float32, as Draco computes it).
-  const double delta = static_cast<double>(c.grid.range / static_cast<float>(c.grid.max_value()));
-  w.key("scene").value(0).key("scenes").begin_array().begin_object().key("nodes").begin_array().value(0);
-  w.end_array().end_object().end_array();
-  w.key("nodes").begin_array().begin_object().key("translation").begin_array();
-  for (const float o : c.grid.origin) w.value(static_cast<double>(o));
-  w.end_array().key("scale").begin_array().value(delta).value(delta).value(delta).end_array();
-  if (!kept.empty()) w.key("mesh").value(0);
-  w.end_object().end_array().end_object();
-  return pack_glb(w.str(), std::move(bin));
+  return to_gltf(mesh(), executor);
 }
 
 std::string to_gltf(const Mesh& mesh, const Executor& executor) {
   FrameCodecOptions options;
   options.codec = FrameCodec::kDracoPieces;
   options.draco.normals = !mesh.normals.empty();
-  return to_gltf(encode_frame(mesh, options, executor), FrameCodec::kDracoPieces, nullptr, executor);
+  return draco_gltf(read_container(encode_frame(mesh, options, executor)), executor);
 }
 
 }  // namespace surfacer

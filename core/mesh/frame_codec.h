@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstddef>
+#include <functional>
 #include <string>
 #include <string_view>
 
@@ -54,16 +55,18 @@ Mesh decode_frame(std::string_view bytes, FrameCodec codec, const Executor& exec
 std::string to_standard_draco(std::string_view bytes, FrameCodec codec, const Mesh& decoded);
 
 // The frame as a binary glTF 2.0 file (.glb, the CLI's --format glb): one node whose scale and translation map the
-// grid to the scene, holding one mesh with one primitive per piece; each primitive is its piece's own Draco stream
-// (KHR_draco_mesh_compression) with the grid coordinates as 16-bit integer positions (KHR_mesh_quantization) and
-// the seam tags as the application attribute _SEAM (what parse_glb welds by, core/mesh/mesh_gltf.h). A Draco-pieces
-// frame goes in as received, the accessors' counts and bounds taken from its directory (a version 1 frame, from an
-// earlier server, has its pieces decoded on `executor` for them); other frames are first encoded as Draco pieces on
-// `executor` from `decoded` (decode_frame of the same bytes; unused, and may be null, for Draco pieces): meshopt pieces
-// on their own grid, a one-mesh Draco or PLY frame on the mesh's own box with the default bits. Throws
-// InvalidInput("quantization_bits") for a grid of more than 16 bits, which glTF cannot hold, and InvalidInput("frame")
-// for bytes that are not such a frame.
-std::string to_gltf(std::string_view bytes, FrameCodec codec, const Mesh* decoded, const Executor& executor);
+// grid to the scene, holding one mesh with one primitive per piece, positions as 16-bit grid coordinates
+// (KHR_mesh_quantization) and the seam tags as the application attribute _SEAM (what parse_glb welds by,
+// core/mesh/mesh_gltf.h). A pieced frame goes in as received, the accessors' counts and bounds taken from its
+// directory: each Draco piece's stream as a KHR_draco_mesh_compression primitive, each meshopt piece's streams as
+// EXT_meshopt_compression buffer views (its normals, if any, are laid out again for that extension's OCTAHEDRAL
+// filter). Nothing is decoded, except the pieces of a version 1 Draco frame (from an earlier server: their bounds)
+// and a version 1 meshopt frame, which becomes Draco pieces of `decoded()`, as does a one-mesh Draco or PLY frame
+// (on the mesh's own box with the default bits). `decoded` (decode_frame of the same bytes) is called only then.
+// Throws InvalidInput("quantization_bits") for a grid of more than 16 bits, which glTF cannot hold, and
+// InvalidInput("frame") for bytes that are not such a frame.
+std::string to_gltf(std::string_view bytes, FrameCodec codec, const std::function<const Mesh&()>& decoded,
+                    const Executor& executor);
 // `mesh` as such a file: Draco pieces on the mesh's own box with the default bits, encoded on `executor`.
 std::string to_gltf(const Mesh& mesh, const Executor& executor);
 

@@ -1,5 +1,7 @@
 #include "core/mesh/mesh_gltf.h"
 
+#include <meshoptimizer.h>
+
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
@@ -138,7 +140,8 @@ class GlbReader {
     const JsonValue* generator = asset->find("generator");
     ours_ = generator && generator->kind == JsonValue::Kind::kString && generator->string == "surfacer";
     for (const JsonValue& r : list("extensionsRequired").items) {
-      if (r.string != "KHR_draco_mesh_compression" && r.string != "KHR_mesh_quantization") {
+      if (r.string != "KHR_draco_mesh_compression" && r.string != "KHR_mesh_quantization" &&
+          r.string != "EXT_meshopt_compression") {
         bad("it requires the extension " + r.string + ", which is not read");
       }
     }
@@ -178,10 +181,20 @@ class GlbReader {
     return all.items[index];
   }
 
-  // The bytes of buffer view `index`.
+  // The bytes of buffer view `index`: a range of the binary chunk, or what EXT_meshopt_compression decodes.
   std::string_view view(std::size_t index, std::size_t* stride, const std::string& what) const {
     const JsonValue& v = item("bufferViews", index, what);
     const std::string where = what + " (bufferView " + std::to_string(index) + ")";
+    if (stride) *stride = v.find("byteStride") ? integer(v.find("byteStride"), where + ".byteStride") : 0;
+    const JsonValue* extensions = v.find("extensions");
+    if (const JsonValue* meshopt = extensions ? extensions->find("EXT_meshopt_compression") : nullptr) {
+      return decompressed(index, v, *meshopt, where);
+    }
+    return range(v, where);
+  }
+
+  // The range of the binary chunk that `v` (a buffer view or its EXT_meshopt_compression object) names.
+  std::string_view range(const JsonValue& v, const std::string& where) const {
     const std::size_t buffer = integer(v.find("buffer"), where + ".buffer");
     const JsonValue& b = item("buffers", buffer, where);
     if (buffer != 0 || b.find("uri") != nullptr) {
@@ -190,8 +203,59 @@ class GlbReader {
     const std::size_t offset = v.find("byteOffset") ? integer(v.find("byteOffset"), where + ".byteOffset") : 0;
     const std::size_t length = integer(v.find("byteLength"), where + ".byteLength");
     if (offset > bin_.size() || length > bin_.size() - offset) bad(where + " runs past the binary chunk");
-    if (stride) *stride = v.find("byteStride") ? integer(v.find("byteStride"), where + ".byteStride") : 0;
     return bin_.substr(offset, length);
+  }
+
+  // Buffer view `index` decoded by meshoptimizer as the extension's object `m` says, once. The decoded size is
+  // bounded before anything is allocated: by what the compressed bytes can hold at the codecs' best (an attribute
+  // block spends at least a byte per 64 values of each byte of the element, a triangle or index at least a byte),
+  // and by limits.max_triangles (no primitive needs more than three points or indices a triangle).
+  std::string_view decompressed(std::size_t index, const JsonValue& v, const JsonValue& m,
+                                const std::string& where) const {
+    if (const auto it = decompressed_.find(index); it != decompressed_.end()) return it->second;
+    const std::string at = where + " EXT_meshopt_compression";
+    const std::string_view data = range(m, at);
+    const std::size_t stride = integer(m.find("byteStride"), at + ".byteStride");
+    const std::size_t count = integer(m.find("count"), at + ".count");
+    auto text = [&](const char* key, const char* absent) {
+      const JsonValue* x = m.find(key);
+      if (x == nullptr) return std::string(absent);
+      if (x->kind != JsonValue::Kind::kString) bad(at + "." + key + " is not a string");
+      return x->string;
+    };
+    const std::string mode = text("mode", ""), filter = text("filter", "NONE");
+    const bool attributes = mode == "ATTRIBUTES";
+    if (attributes ? (stride == 0 || stride % 4 != 0 || stride > 256) : (stride != 2 && stride != 4)) {
+      bad(at + " has byteStride " + std::to_string(stride) + ", which its mode '" + mode + "' does not allow");
+    }
+    if (!attributes && mode != "TRIANGLES" && mode != "INDICES") bad(at + " has mode '" + mode + "'");
+    if (mode == "TRIANGLES" && count % 3 != 0) bad(at + " has a count of triangle indices not divisible by 3");
+    if (filter != "NONE" && (filter != "OCTAHEDRAL" || !attributes || (stride != 4 && stride != 8))) {
+      bad(at + " has filter '" + filter + "' with mode '" + mode + "' and byteStride " + std::to_string(stride) +
+          "; only NONE, and OCTAHEDRAL over 4 or 8 bytes (normals), are read");
+    }
+    if (v.find("byteStride") && integer(v.find("byteStride"), where + ".byteStride") != stride) {
+      bad(where + " has another byteStride than its EXT_meshopt_compression");
+    }
+    if (integer(v.find("byteLength"), where + ".byteLength") != stride * count) {
+      bad(where + ".byteLength is not byteStride times count of its EXT_meshopt_compression");
+    }
+    const std::size_t most = attributes ? 64 : mode == "TRIANGLES" ? 12 : 4;
+    if (stride * count > most * data.size() + 4096)
+      bad(at + " claims more data than its " + std::to_string(data.size()) + " bytes hold");
+    if (static_cast<double>(count) > 3.0 * static_cast<double>(limits_.max_triangles) + 3.0) {
+      throw ResourceLimit("max_triangles", name_ + ": " + at + " holds " + std::to_string(count) +
+                                               " values, more than a mesh of " + std::to_string(limits_.max_triangles) +
+                                               " triangles (the largest accepted here) needs");
+    }
+    std::string out(stride * count, '\0');
+    const auto* in = reinterpret_cast<const unsigned char*>(data.data());
+    const int failed = attributes            ? meshopt_decodeVertexBuffer(out.data(), count, stride, in, data.size())
+                       : mode == "TRIANGLES" ? meshopt_decodeIndexBuffer(out.data(), count, stride, in, data.size())
+                                             : meshopt_decodeIndexSequence(out.data(), count, stride, in, data.size());
+    if (failed != 0) bad(at + " does not decode as meshoptimizer " + mode + " data");
+    if (filter == "OCTAHEDRAL") meshopt_decodeFilterOct(out.data(), count, stride);
+    return decompressed_.emplace(index, std::move(out)).first->second;
   }
 
   // The accessor's data; with `with_data` false only its count and how to read its values (a Draco-compressed
@@ -402,13 +466,16 @@ class GlbReader {
         normals.resize(a.count);
         for (std::size_t i = 0; i < a.count; ++i) normals[i] = Vec3(a.get(i, 0), a.get(i, 1), a.get(i, 2));
       }
-      if (seam != nullptr) {  // a .glb of pieces decompressed by another tool keeps the tags as plain data
+      // Meshopt pieces (and Draco pieces decompressed by another tool) keep the tags as plain data: a SCALAR, or the
+      // last component of a VEC4 (meshopt's 8-byte vertices x, y, z, tag: glTF aligns attributes on 4 bytes).
+      if (seam != nullptr) {
         const Accessor a = accessor(integer(seam, where + ".attributes._SEAM"), where + " _SEAM");
-        if (a.components != 1 || a.type != kUnsignedShort || a.normalized || a.count != points.size()) {
-          bad(where + " has a _SEAM that is not one unsigned short per vertex");
+        if ((a.components != 1 && a.components != 4) || a.type != kUnsignedShort || a.normalized ||
+            a.count != points.size()) {
+          bad(where + " has a _SEAM that is not one unsigned short (or the last of a VEC4) per vertex");
         }
         for (std::size_t i = 0; i < a.count; ++i) {
-          const auto tag = static_cast<std::uint32_t>(a.get(i, 0));
+          const auto tag = static_cast<std::uint32_t>(a.get(i, a.components - 1));
           weld.push_back(tag == 0 ? kAlone : tag);
         }
       }
@@ -540,6 +607,7 @@ class GlbReader {
   bool all_normals_ = true;          // every primitive has them: the mesh gets normals
   std::vector<Triangle> triangles_;
   std::map<std::pair<std::size_t, std::size_t>, Part> parts_;  // by (mesh, primitive)
+  mutable std::map<std::size_t, std::string> decompressed_;    // EXT_meshopt_compression buffer views, by index
 };
 
 }  // namespace

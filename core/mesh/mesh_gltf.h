@@ -27,16 +27,17 @@ std::string pack_glb(std::string json, std::string bin);
 // The triangles of every mesh the file's scene instances (its `scene`, else the first, else every root node),
 // through the nodes' transforms (a matrix, or translation, rotation and scale; a mirroring transform keeps the
 // triangles' outward side), as one mesh. Primitives of mode 4 (triangles), 5 (strip) and 6 (fan), indexed or not,
-// with POSITION as floats or (normalized) integers (KHR_mesh_quantization), or compressed by
-// KHR_draco_mesh_compression. Vertices at exactly the same point become one vertex, since exporters split vertices
-// at texture and normal seams; but in our own files (asset.generator "surfacer") only the pieces' copies of a seam
-// vertex, named by their _SEAM tags, become one, as the client welds a frame, so distinct vertices that quantized
-// onto one point stay apart. Either way a closed surface reads back closed. Normals (NORMAL, through each node's
-// inverse transpose, unit length) when every primitive has them; texture coordinates and materials are not read.
-// Throws InvalidInput("file") naming `name` and what is wrong where: anything not such a file, points or lines,
-// sparse accessors, buffers outside the file (a uri), non-finite positions or transforms; ResourceLimit
-// ("max_triangles") past limits.max_triangles (checked before the triangles are allocated, so a small file that
-// instances a mesh many times cannot exhaust memory).
+// with POSITION as floats or (normalized) integers (KHR_mesh_quantization), compressed by
+// KHR_draco_mesh_compression or in buffer views compressed by EXT_meshopt_compression (filters NONE and OCTAHEDRAL).
+// Vertices at exactly the same point become one vertex, since exporters split vertices at texture and normal seams; but
+// in our own files (asset.generator "surfacer") only the pieces' copies of a seam vertex, named by their _SEAM tags,
+// become one, as the client welds a frame, so distinct vertices that quantized onto one point stay apart. Either way a
+// closed surface reads back closed. Normals (NORMAL, through each node's inverse transpose, unit length) when every
+// primitive has them; texture coordinates and materials are not read. Throws InvalidInput("file") naming `name` and
+// what is wrong where: anything not such a file, points or lines, sparse accessors, buffers outside the file (a uri),
+// non-finite positions or transforms, meshopt views that do not decode or claim more than their bytes can hold;
+// ResourceLimit("max_triangles") past limits.max_triangles (checked before the triangles or a meshopt view are
+// allocated, so a small file that instances a mesh many times cannot exhaust memory).
 Mesh parse_glb(std::string_view bytes, const std::string& name, const MeshReadLimits& limits = {});
 
 }  // namespace surfacer

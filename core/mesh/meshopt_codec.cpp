@@ -101,6 +101,11 @@ Vec3 from_octahedral(double x, double y) {
   return len > 0.0 ? Vec3(n / len) : n;
 }
 
+// An octahedral normal as stored: x and y on normal_bits bits.
+struct Normal {
+  std::int16_t x, y;
+};
+
 // Grid x, y, z and the seam tag: one meshopt vertex.
 template <class T>
 struct PackedVertex {
@@ -157,9 +162,6 @@ std::string encode_meshopt_piece(const QuantizedPiece& piece, int grid_bits, int
   if (normals) {
     const int bits = std::clamp(normal_bits, 2, 16);
     const double scale = std::ldexp(1.0, bits - 1) - 1.0;
-    struct Normal {
-      std::int16_t x, y;
-    };
     std::vector<Normal> values(nv);
     for (std::size_t v = 0; v < nv; ++v) {
       const auto o = octahedral(piece.normals[v]);
@@ -172,52 +174,80 @@ std::string encode_meshopt_piece(const QuantizedPiece& piece, int grid_bits, int
   return out;
 }
 
-QuantizedPiece decode_meshopt_piece(std::string_view bytes, int grid_bits) {
+MeshoptStreams meshopt_streams(std::string_view bytes) {
   Reader in{bytes};
-  const std::size_t nv = in.u32();
-  const std::size_t nt = in.u32();
+  MeshoptStreams s;
+  s.vertices = in.u32();
+  s.triangles = in.u32();
   const std::uint8_t flags = in.u8();
   if (flags & ~kNormalsFlag) bad("has unknown flags");
-  const std::string_view vertex_stream = in.stream();
-  const std::string_view index_stream = in.stream();
-  // Bounds before allocating: a vertex takes at least 1/16 byte of its stream, a triangle at least half a byte.
-  if (nv > 16 * vertex_stream.size() + 256 || nt > 2 * index_stream.size() + 16 || nv > 3 * nt) {
+  s.vertex = in.stream();
+  s.index = in.stream();
+  // Bounds before anyone allocates: a vertex takes at least 1/16 byte of its stream, a triangle at least half a byte.
+  const std::size_t nv = s.vertices, nt = s.triangles;
+  if (nv > 16 * s.vertex.size() + 256 || nt > 2 * s.index.size() + 16 || nv > 3 * nt) {
     bad("claims " + std::to_string(nv) + " vertices and " + std::to_string(nt) + " triangles its streams cannot hold");
   }
+  if (flags & kNormalsFlag) {
+    s.normal = in.stream();
+    s.normal_bits = in.u8();
+    if (s.normal_bits < 2 || s.normal_bits > 16) bad("has normals of " + std::to_string(s.normal_bits) + " bits");
+  }
+  if (in.at != bytes.size()) bad("has trailing bytes");
+  return s;
+}
+
+QuantizedPiece decode_meshopt_piece(std::string_view bytes, int grid_bits) {
+  const MeshoptStreams s = meshopt_streams(bytes);
+  const std::size_t nv = s.vertices, nt = s.triangles;
   QuantizedPiece piece;
   const std::uint32_t max_value = (std::uint32_t{1} << grid_bits) - 1u;
   if (grid_bits <= 16) {
-    unpack_vertices<std::uint16_t>(piece, nv, vertex_stream, max_value);
+    unpack_vertices<std::uint16_t>(piece, nv, s.vertex, max_value);
   } else {
-    unpack_vertices<std::uint32_t>(piece, nv, vertex_stream, max_value);
+    unpack_vertices<std::uint32_t>(piece, nv, s.vertex, max_value);
   }
   piece.triangles.resize(nt);
-  if (nt > 0 && meshopt_decodeIndexBuffer(
-                    reinterpret_cast<std::uint32_t*>(piece.triangles.data()), 3 * nt, sizeof(std::uint32_t),
-                    reinterpret_cast<const unsigned char*>(index_stream.data()), index_stream.size()) != 0) {
+  if (nt > 0 &&
+      meshopt_decodeIndexBuffer(reinterpret_cast<std::uint32_t*>(piece.triangles.data()), 3 * nt, sizeof(std::uint32_t),
+                                reinterpret_cast<const unsigned char*>(s.index.data()), s.index.size()) != 0) {
     bad("has a malformed index stream");
   }
   for (const Triangle& t : piece.triangles) {
     if (t[0] >= nv || t[1] >= nv || t[2] >= nv) bad("has a triangle that uses a missing vertex");
   }
-  if (flags & kNormalsFlag) {
-    const std::string_view normal_stream = in.stream();
-    const int bits = in.u8();
-    if (bits < 2 || bits > 16) bad("has normals of " + std::to_string(bits) + " bits");
-    struct Normal {
-      std::int16_t x, y;
-    };
+  if (s.normal_bits > 0) {
     std::vector<Normal> values;
-    decode_vertices(values, nv, normal_stream, "normal");
-    const double scale = std::ldexp(1.0, bits - 1) - 1.0;
+    decode_vertices(values, nv, s.normal, "normal");
+    const double scale = std::ldexp(1.0, s.normal_bits - 1) - 1.0;
     piece.normals.resize(nv);
     for (std::size_t v = 0; v < nv; ++v) {
       piece.normals[v] =
           from_octahedral(std::clamp(values[v].x / scale, -1.0, 1.0), std::clamp(values[v].y / scale, -1.0, 1.0));
     }
   }
-  if (in.at != bytes.size()) bad("has trailing bytes");
   return piece;
+}
+
+std::string gltf_octahedral_normals(const MeshoptStreams& streams) {
+  if (streams.normal_bits == 0) return {};
+  std::vector<Normal> values;
+  decode_vertices(values, streams.vertices, streams.normal, "normal");
+  // The filter's K is 4..16 bits: fewer stored bits are rounded onto 4.
+  const int bits = std::max(streams.normal_bits, 4);
+  const int one = (1 << (bits - 1)) - 1;
+  const double rescale = static_cast<double>(one) / ((1 << (streams.normal_bits - 1)) - 1);
+  struct FilterInput {
+    std::int16_t x, y, one, unused;
+  };
+  std::vector<FilterInput> filtered(values.size());
+  for (std::size_t v = 0; v < values.size(); ++v) {
+    filtered[v] = {static_cast<std::int16_t>(std::lround(values[v].x * rescale)),
+                   static_cast<std::int16_t>(std::lround(values[v].y * rescale)), static_cast<std::int16_t>(one), 0};
+  }
+  std::vector<unsigned char> stream;
+  const std::size_t size = encode_vertices(stream, filtered, filtered.size());
+  return std::string(reinterpret_cast<const char*>(stream.data()), size);
 }
 
 }  // namespace surfacer

@@ -2,6 +2,7 @@
 // EXT_meshopt_compression: fast to encode and decode (GB/s), about three times the size of Draco.
 #pragma once
 
+#include <cstdint>
 #include <string>
 #include <string_view>
 
@@ -17,5 +18,19 @@ std::string encode_meshopt_piece(const QuantizedPiece& piece, int grid_bits, int
 // Throws InvalidInput("frame") for bytes that are not such a piece (truncated streams, counts the bytes cannot hold,
 // indices out of range, coordinates beyond 2^grid_bits - 1).
 QuantizedPiece decode_meshopt_piece(std::string_view bytes, int grid_bits);
+
+// The streams of such a piece as they lie in its bytes, nothing decoded: what a glTF file with
+// EXT_meshopt_compression holds as its buffer views (to_gltf). Throws like decode_meshopt_piece for bytes that are
+// not laid out as a piece.
+struct MeshoptStreams {
+  std::uint32_t vertices = 0, triangles = 0;
+  std::string_view vertex, index, normal;  // normal: empty when the piece has no normals
+  int normal_bits = 0;
+};
+MeshoptStreams meshopt_streams(std::string_view bytes);
+// The piece's normals as glTF's EXT_meshopt_compression reads them with its OCTAHEDRAL filter: 4 x i16 per vertex
+// (octahedral x and y on K = max(normal_bits, 4) bits, K-bit 1.0, 0), meshopt vertex codec. The stored x and y are
+// that encoding already (rounded onto 4 bits when normal_bits < 4, the filter's least K): only the layout changes.
+std::string gltf_octahedral_normals(const MeshoptStreams& streams);
 
 }  // namespace surfacer

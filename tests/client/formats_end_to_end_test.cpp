@@ -3,6 +3,7 @@
 #include <google/protobuf/struct.pb.h>
 #include <google/protobuf/util/json_util.h>
 #include <gtest/gtest.h>
+#include <meshoptimizer.h>
 
 #include <cmath>
 #include <cstdio>
@@ -55,15 +56,85 @@ std::string as_json(const std::vector<Vec3>& points) {
   return json + "]\n";
 }
 
-// A .glb read as a glTF reader does, from the spec (glTF 2.0, KHR_draco_mesh_compression, KHR_mesh_quantization):
-// header and chunks, the JSON, every primitive's Draco stream decoded by Draco's own decoder into the accessors
-// it names (whose counts and bounds must agree with it), positions mapped by the node's scale and translation. The
-// primitives are concatenated, then vertices at the same position welded (pieces repeat their seam vertices).
+// A .glb read as a glTF reader does, from the spec (glTF 2.0, KHR_draco_mesh_compression, EXT_meshopt_compression,
+// KHR_mesh_quantization): header and chunks, the JSON, every primitive's Draco stream decoded by Draco's own decoder
+// into the accessors it names, or its meshopt buffer views by meshoptimizer's (the accessors' counts and bounds must
+// agree with what they hold), positions mapped by the node's scale and translation. The primitives are concatenated,
+// then vertices at the same position welded (pieces repeat their seam vertices).
 struct Gltf {
   Mesh welded;
   int primitives = 0;
   std::vector<std::string> required;  // extensionsRequired
 };
+
+using JsonFields = google::protobuf::Map<std::string, google::protobuf::Value>;
+using JsonList = google::protobuf::RepeatedPtrField<google::protobuf::Value>;
+
+std::size_t as_size(const google::protobuf::Value& v) { return static_cast<std::size_t>(v.number_value()); }
+
+// A KHR_draco_mesh_compression primitive by Draco's decoder: POSITION as the integer grid coordinates.
+Mesh draco_primitive(const JsonFields& p, const JsonList& views, const std::string& bin) {
+  const auto& draco =
+      p.at("extensions").struct_value().fields().at("KHR_draco_mesh_compression").struct_value().fields();
+  const auto& view = views.at(static_cast<int>(draco.at("bufferView").number_value())).struct_value().fields();
+  return decode_draco(bin.substr(as_size(view.at("byteOffset")), as_size(view.at("byteLength"))));
+}
+
+// A buffer view compressed by EXT_meshopt_compression, decoded by meshoptimizer as its mode and filter say.
+std::string meshopt_view(const JsonFields& view, const std::string& bin) {
+  const auto& m = view.at("extensions").struct_value().fields().at("EXT_meshopt_compression").struct_value().fields();
+  EXPECT_EQ(m.at("buffer").number_value(), 0);
+  const std::string stream = bin.substr(as_size(m.at("byteOffset")), as_size(m.at("byteLength")));
+  const std::size_t count = as_size(m.at("count")), stride = as_size(m.at("byteStride"));
+  EXPECT_EQ(as_size(view.at("byteLength")), count * stride);
+  std::string out(count * stride, '\0');
+  const auto* in = reinterpret_cast<const unsigned char*>(stream.data());
+  const std::string mode = m.at("mode").string_value();
+  const int failed = mode == "ATTRIBUTES" ? meshopt_decodeVertexBuffer(out.data(), count, stride, in, stream.size())
+                                          : meshopt_decodeIndexBuffer(out.data(), count, stride, in, stream.size());
+  EXPECT_EQ(failed, 0) << mode;
+  if (m.contains("filter") && m.at("filter").string_value() == "OCTAHEDRAL") {
+    meshopt_decodeFilterOct(out.data(), count, stride);
+  }
+  return out;
+}
+
+// An EXT_meshopt_compression primitive: POSITION (unsigned short grid coordinates, strided), its indices and, when
+// it has them, normals (normalized shorts); the Mesh's normals are only counted.
+template <class Accessor>
+Mesh meshopt_primitive(const JsonFields& p, Accessor accessor, const JsonList& views, const std::string& bin) {
+  auto data = [&](const auto& a, std::size_t* stride) {
+    const auto& view = views.at(static_cast<int>(a.at("bufferView").number_value())).struct_value().fields();
+    *stride = view.contains("byteStride") ? as_size(view.at("byteStride")) : 4;
+    return meshopt_view(view, bin);
+  };
+  const auto& attributes = p.at("attributes").struct_value().fields();
+  const auto& position = accessor(attributes.at("POSITION").number_value());
+  EXPECT_EQ(position.at("componentType").number_value(), 5123);
+  std::size_t stride = 0;
+  const std::string points = data(position, &stride);
+  Mesh piece;
+  for (std::size_t v = 0; v < as_size(position.at("count")); ++v) {
+    std::uint16_t q[3];
+    std::memcpy(q, points.data() + v * stride, sizeof q);
+    piece.vertices.emplace_back(q[0], q[1], q[2]);
+  }
+  const std::string indices = data(accessor(p.at("indices").number_value()), &stride);
+  piece.triangles.resize(indices.size() / 12);
+  std::memcpy(piece.triangles.data(), indices.data(), 12 * piece.triangles.size());
+  if (attributes.contains("NORMAL")) {
+    const auto& normal = accessor(attributes.at("NORMAL").number_value());
+    EXPECT_EQ(normal.at("componentType").number_value(), 5122);  // SHORT, normalized
+    const std::string normals = data(normal, &stride);
+    for (std::size_t v = 0; v < as_size(normal.at("count")); ++v) {
+      std::int16_t n[3];
+      std::memcpy(n, normals.data() + v * stride, sizeof n);
+      piece.normals.push_back(Vec3(n[0], n[1], n[2]) / 32767.0);
+      EXPECT_NEAR(piece.normals.back().norm(), 1.0, 1e-3);
+    }
+  }
+  return piece;
+}
 
 Gltf read_glb(const fs::path& path) {
   const std::string bytes = read_file(path);
@@ -110,13 +181,9 @@ Gltf read_glb(const fs::path& path) {
                               .values()) {
     ++out.primitives;
     const auto& p = prim.struct_value().fields();
-    const auto& draco =
-        p.at("extensions").struct_value().fields().at("KHR_draco_mesh_compression").struct_value().fields();
-    const auto& view = views.at(static_cast<int>(draco.at("bufferView").number_value())).struct_value().fields();
-    const std::string stream = bin.substr(static_cast<std::size_t>(view.at("byteOffset").number_value()),
-                                          static_cast<std::size_t>(view.at("byteLength").number_value()));
-    const Mesh piece = decode_draco(stream);  // Draco's decoder: POSITION as the integer grid coordinates
     const auto& position = accessor(p.at("attributes").struct_value().fields().at("POSITION").number_value());
+    const Mesh piece =
+        p.contains("extensions") ? draco_primitive(p, views, bin) : meshopt_primitive(p, accessor, views, bin);
     EXPECT_EQ(position.at("componentType").number_value(), 5123);  // UNSIGNED_SHORT (KHR_mesh_quantization)
     EXPECT_EQ(position.at("count").number_value(), static_cast<double>(piece.vertices.size()));
     EXPECT_EQ(accessor(p.at("indices").number_value()).at("count").number_value(), 3.0 * piece.triangles.size());
@@ -178,15 +245,19 @@ TEST_F(FormatsEndToEnd, IsosurfaceWritesVtkAndVtuWithThePlyFramesVertices) {
   EXPECT_EQ(read_file(dir_ / "out" / "frame_0000.vtu"), write_vtu(ply));
 }
 
-// --format glb: the Draco pieces as received, in a file any glTF reader with Draco takes; the same surface as the
-// .ply of the same frame, whatever encoding the frames came in.
-TEST_F(FormatsEndToEnd, GlbHoldsTheFramesSurfaceInDracoPiecesWhateverTheEncoding) {
+// --format glb: the pieces as received (Draco's or meshoptimizer's streams), in a file any glTF reader with those
+// extensions takes; the same surface as the .ply of the same frame, whatever encoding the frames came in.
+TEST_F(FormatsEndToEnd, GlbHoldsTheFramesSurfaceWhateverTheEncoding) {
   write_file(dir_ / "gyroid.json",
              R"({"root": {"intersection": {"children": [{"gyroid": {"period": 1, "thickness": 0.12}},
                  {"sphere": {"radius": 1.5}}]}}})");
   int run = 0;
-  for (const std::vector<std::string>& extra : std::vector<std::vector<std::string>>{
-           {}, {"--encoding", "meshopt"}, {"--raw"}, {"--normals", "--quantization-bits", "12"}}) {
+  for (const std::vector<std::string>& extra :
+       std::vector<std::vector<std::string>>{{},
+                                             {"--encoding", "meshopt"},
+                                             {"--raw"},
+                                             {"--normals", "--quantization-bits", "12"},
+                                             {"--encoding", "meshopt", "--normals"}}) {
     for (int cells : {40, 150}) {  // one piece; several
       const fs::path out = dir_ / ("out" + std::to_string(run++));
       std::vector<std::string> args = {"run",     "isosurface",          "--scene",  (dir_ / "gyroid.json").string(),
@@ -198,7 +269,10 @@ TEST_F(FormatsEndToEnd, GlbHoldsTheFramesSurfaceInDracoPiecesWhateverTheEncoding
       ASSERT_EQ(r.code, 0) << r;
       const Mesh ply = read_mesh(out / "frame_0000.ply");
       const Gltf glb = read_glb(out / "frame_0000.glb");
-      EXPECT_EQ(glb.required, (std::vector<std::string>{"KHR_draco_mesh_compression", "KHR_mesh_quantization"}));
+      const bool meshopt = extra.size() >= 2 && extra[1] == "meshopt";
+      EXPECT_EQ(glb.required,
+                (std::vector<std::string>{meshopt ? "EXT_meshopt_compression" : "KHR_draco_mesh_compression",
+                                          "KHR_mesh_quantization"}));
       EXPECT_EQ(glb.primitives == 1, cells == 40);
       const MeshReport a = check_mesh(ply), b = check_mesh(glb.welded);
       EXPECT_EQ(glb.welded.triangles.size(), ply.triangles.size());

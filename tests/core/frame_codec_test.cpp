@@ -5,9 +5,11 @@
 #include <algorithm>
 #include <cstring>
 #include <limits>
+#include <map>
 #include <random>
 
 #include "core/mesh/mesh_checks.h"
+#include "core/mesh/mesh_gltf.h"
 #include "core/polygonize/polygonize.h"
 #include "core/util/errors.h"
 #include "tests/support/mesh_expectations.h"
@@ -229,7 +231,8 @@ TEST(FrameCodec, GltfOfAnEmptyFrameAndOfADeepGrid) {
     const Mesh empty;
     const FrameCodecOptions o = options_for(codec, Aabb{Vec3::Zero(), Vec3::Ones()}, 1024);
     const std::string bytes = encode_frame(empty, o, two);
-    const std::string glb = to_gltf(bytes, codec, &empty, two);
+    const std::string glb = to_gltf(
+        bytes, codec, [&]() -> const Mesh& { return empty; }, two);
     ASSERT_GE(glb.size(), 20u);
     EXPECT_EQ(glb.substr(0, 4), "glTF");
     EXPECT_EQ(glb.find("\"meshes\""), std::string::npos);
@@ -240,7 +243,8 @@ TEST(FrameCodec, GltfOfAnEmptyFrameAndOfADeepGrid) {
     const std::string deep_bytes = encode_frame(sphere, deep, two);
     const Mesh decoded = decode_frame(deep_bytes, codec, two);
     try {
-      to_gltf(deep_bytes, codec, &decoded, two);
+      to_gltf(
+          deep_bytes, codec, [&]() -> const Mesh& { return decoded; }, two);
       ADD_FAILURE() << "an 18-bit grid was written to glTF";
     } catch (const Error& e) {
       EXPECT_EQ(e.field(), "quantization_bits");
@@ -261,6 +265,60 @@ std::string as_version_1(const std::string& v2) {
   return v1 + v2.substr(kHeader + kEntry * count);
 }
 
+// A meshopt frame's .glb holds its streams as received (EXT_meshopt_compression): written without decoding anything,
+// it reads back as the frame's mesh, vertex for vertex, normals included (through the extension's OCTAHEDRAL filter).
+// A version 1 meshopt frame (no bounds in its directory) becomes Draco pieces of its decoded mesh, which read back
+// as the same triangles.
+TEST(FrameCodec, MeshoptGltfHoldsTheFramesStreams) {
+  const ThreadExecutor two(2);
+  for (const Case& c : cases()) {
+    for (std::size_t piece : {std::size_t{1024}, std::size_t{1} << 20}) {
+      SCOPED_TRACE(c.name + ", pieces of " + std::to_string(piece));
+      FrameCodecOptions o = options_for(FrameCodec::kMeshopt, c.box, piece, 12);
+      o.draco.normals = !c.mesh.normals.empty();
+      const std::string bytes = encode_frame(c.mesh, o, two);
+      const Mesh frame = decode_frame(bytes, o.codec, two);
+      const std::string glb = to_gltf(
+          bytes, o.codec,
+          [&]() -> const Mesh& {
+            ADD_FAILURE() << "a version 2 meshopt frame was decoded to write its .glb";
+            return frame;
+          },
+          two);
+      const bool has_mesh = !frame.triangles.empty();
+      EXPECT_EQ(glb.find("EXT_meshopt_compression") != std::string::npos, has_mesh);
+      EXPECT_EQ(glb.find("KHR_draco_mesh_compression"), std::string::npos);
+      const std::string old_glb = to_gltf(
+          as_version_1(bytes), o.codec, [&]() -> const Mesh& { return frame; }, two);
+      EXPECT_EQ(old_glb.find("KHR_draco_mesh_compression") != std::string::npos, has_mesh);
+      const QuantizationGrid grid = QuantizationGrid::of(c.box, 12);
+      for (const std::string* file : {&glb, &old_glb}) {
+        SCOPED_TRACE(file == &glb ? "meshopt .glb" : "Draco .glb of a version 1 frame");
+        const Mesh read = parse_glb(*file, "frame.glb");
+        // Draco writes a vertex whose triangles form several fans (the bowties) as one point per fan.
+        if (file == &glb) {
+          EXPECT_EQ(read.vertices.size(), frame.vertices.size());
+        } else {
+          EXPECT_GE(read.vertices.size(), frame.vertices.size());
+        }
+        EXPECT_EQ(quantized_triangles(read, grid), quantized_triangles(frame, grid));
+        ASSERT_EQ(read.normals.size(), frame.normals.size());
+        if (frame.normals.empty()) continue;
+        // Each vertex's normal, found by its grid point where only one vertex lies there.
+        std::map<GridPoint, std::vector<Vec3>> at;
+        for (std::size_t v = 0; v < frame.vertices.size(); ++v)
+          at[grid.quantize(frame.vertices[v])].push_back(frame.normals[v]);
+        double worst = 0.0;
+        for (std::size_t v = 0; v < read.vertices.size(); ++v) {
+          const auto& n = at[grid.quantize(read.vertices[v])];
+          if (n.size() == 1) worst = std::max(worst, (read.normals[v] - n[0]).norm());
+        }
+        EXPECT_LT(worst, 2e-3);  // 10-bit octahedral normals, decoded in float32 or double
+      }
+    }
+  }
+}
+
 // The directory says what decoding the pieces finds (points, bounds, attribute ids), so to_gltf writes from it alone
 // the same file it writes for a version 1 frame by decoding every piece; and version 1 frames still decode.
 TEST(FrameCodec, GltfFromTheDirectoryIsTheFileDecodingGives) {
@@ -275,7 +333,7 @@ TEST(FrameCodec, GltfFromTheDirectoryIsTheFileDecodingGives) {
         const std::string bytes = encode_frame(c.mesh, o, two);
         ASSERT_EQ(bytes[4], 2);
         const std::string old = as_version_1(bytes);
-        EXPECT_EQ(to_gltf(bytes, o.codec, nullptr, two), to_gltf(old, o.codec, nullptr, two)) << bits << " bits";
+        EXPECT_EQ(to_gltf(bytes, o.codec, {}, two), to_gltf(old, o.codec, {}, two)) << bits << " bits";
         const Mesh decoded = decode_frame(bytes, o.codec, two);
         const Mesh decoded_old = decode_frame(old, o.codec, two);
         EXPECT_EQ(decoded.vertices, decoded_old.vertices);

@@ -55,7 +55,9 @@ TEST(MeshGltf, TheCliGlbOfAFrameReadsBackAsItsMesh) {
         o.max_piece_triangles = 2048;
         const std::string bytes = encode_frame(c.mesh, o, two);
         const Mesh frame = decode_frame(bytes, codec, two);
-        const Mesh read = parse_glb(to_gltf(bytes, codec, &frame, two), "frame.glb");
+        const Mesh read = parse_glb(to_gltf(
+                                        bytes, codec, [&]() -> const Mesh& { return frame; }, two),
+                                    "frame.glb");
         // A one-mesh Draco frame goes into glTF on the mesh's own box at the default bits: compare on that grid.
         const QuantizationGrid grid = codec == FrameCodec::kDraco ? quantization_grid(frame, DracoOptions{}, two)
                                                                   : QuantizationGrid::of(box, bits);
@@ -162,19 +164,21 @@ void expect_refused(const std::string& bytes, const std::string& words, const Me
   }
 }
 
+// `glb` with the first `from` in its JSON replaced by `to`.
+std::string json_replaced(const std::string& glb, const std::string& from, const std::string& to) {
+  const std::size_t json_size = (glb[12] & 0xff) + ((glb[13] & 0xff) << 8) + ((glb[14] & 0xff) << 16);
+  std::string json = glb.substr(20, json_size);
+  const std::size_t at = json.find(from);
+  EXPECT_NE(at, std::string::npos) << from;
+  if (at != std::string::npos) json.replace(at, from.size(), to);
+  return pack_glb(json, glb.size() > 20 + json_size ? glb.substr(20 + json_size + 8) : std::string());
+}
+
 TEST(MeshGltf, RefusesWhatItDoesNotReadNamingWhy) {
   const Mesh cube = testing::unit_cube();
   const std::string good = plain_glb(cube, R"([{"mesh":0}])", "[0]");
   ASSERT_NO_THROW(parse_glb(good, "good.glb"));
-  auto replaced = [&](const std::string& from, const std::string& to) {
-    std::string json(good.begin() + 20, good.begin() + 20 + (good[12] & 0xff) + ((good[13] & 0xff) << 8));
-    const std::size_t at = json.find(from);
-    EXPECT_NE(at, std::string::npos) << from;
-    json.replace(at, from.size(), to);
-    const std::size_t bin_at = 20 + (good[12] & 0xff) + ((good[13] & 0xff) << 8);
-    const std::string bin = good.substr(bin_at + 8);
-    return pack_glb(json, bin);
-  };
+  auto replaced = [&](const std::string& from, const std::string& to) { return json_replaced(good, from, to); };
   expect_refused("solid cube\n", "no glTF binary header");
   expect_refused(good.substr(0, good.size() / 2), "more bytes than the file has");
   std::string v1 = good;
@@ -209,6 +213,65 @@ TEST(MeshGltf, RefusesWhatItDoesNotReadNamingWhy) {
     EXPECT_EQ(e.kind(), ErrorKind::kResourceLimit);
     EXPECT_EQ(e.field(), "max_triangles");
   }
+}
+
+// A meshopt frame's .glb (EXT_meshopt_compression) whose buffer views say something the extension does not allow,
+// or whose streams do not decode, is refused naming the place; its decoded size is bounded before it is allocated.
+TEST(MeshGltf, RefusesMeshoptBufferViewsNamingWhy) {
+  const ThreadExecutor two(2);
+  FrameCodecOptions o;
+  o.codec = FrameCodec::kMeshopt;
+  o.draco.quantization_bounds = Aabb{Vec3::Constant(-1.5), Vec3::Constant(1.5)};
+  o.max_piece_triangles = 1024;
+  o.draco.normals = true;
+  Mesh sphere = testing::icosphere(3);
+  sphere.normals = sphere.vertices;  // unit sphere: radial normals
+  const std::string good = to_gltf(encode_frame(sphere, o, two), o.codec, {}, two);
+  const Mesh read = parse_glb(good, "good.glb");
+  EXPECT_EQ(read.triangles.size(), sphere.triangles.size());
+  auto refused = [&](const std::string& glb, const std::string& words, const MeshReadLimits& limits = {}) {
+    try {
+      parse_glb(glb, "bad.glb", limits);
+      ADD_FAILURE() << "read: " << words;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(words), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("bad.glb"), std::string::npos) << e.what();
+    }
+  };
+  refused(json_replaced(good, R"("filter":"OCTAHEDRAL")", R"("filter":"QUATERNION")"), "filter 'QUATERNION'");
+  refused(json_replaced(good, R"("mode":"TRIANGLES")", R"("mode":"LINES")"), "mode 'LINES'");
+  refused(json_replaced(good, R"("byteStride":4,"mode":"TRIANGLES")", R"("byteStride":3,"mode":"TRIANGLES")"),
+          "byteStride 3");
+  refused(json_replaced(good, R"("byteStride":8,"target")", R"("byteStride":12,"target")"), "another byteStride");
+  refused(json_replaced(good, R"("buffer":0,"byteOffset")", R"("buffer":1,"byteOffset")"), "outside the file");
+  // A count that disagrees with the view's length, and one that claims more than the bytes can hold.
+  const std::size_t at = good.find(R"("mode":"TRIANGLES","count":)");
+  ASSERT_NE(at, std::string::npos);
+  const std::size_t digits = at + std::string(R"("mode":"TRIANGLES","count":)").size();
+  const std::string count = good.substr(digits, good.find('}', digits) - digits);
+  refused(json_replaced(good, R"("TRIANGLES","count":)" + count, R"("TRIANGLES","count":)" + count + "0"),
+          "not byteStride times count");
+  const std::string huge =
+      json_replaced(json_replaced(good, R"("TRIANGLES","count":)" + count, R"("TRIANGLES","count":300000000)"),
+                    R"("byteLength":)" + std::to_string(4 * std::stoul(count)) + ",", R"("byteLength":1200000000,)");
+  refused(huge, "claims more data than");
+  MeshReadLimits limits;
+  limits.max_triangles = 100;
+  try {
+    parse_glb(good, "small.glb", limits);
+    ADD_FAILURE() << "pieces of 320 triangles read under a limit of 100";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::kResourceLimit) << e.what();
+    EXPECT_EQ(e.field(), "max_triangles");
+  }
+  // A stream whose bytes are not meshoptimizer's: the first triangle stream's header byte (0xe1) changed.
+  const std::size_t offset_at = good.rfind(R"("byteOffset":)", at) + std::string(R"("byteOffset":)").size();
+  const std::size_t bin = 20 + ((good[12] & 0xff) | (good[13] & 0xff) << 8) + 8;
+  std::string broken = good;
+  const std::size_t header = bin + std::stoul(good.substr(offset_at, good.find(',', offset_at) - offset_at));
+  ASSERT_EQ(static_cast<unsigned char>(broken[header]), 0xe1);
+  broken[header] = 0x00;
+  refused(broken, "does not decode");
 }
 
 }  // namespace
