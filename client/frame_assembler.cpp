@@ -57,6 +57,7 @@ std::optional<ReceivedFrame> FrameAssembler::on_chunk(const v1::FrameChunk& chun
               where + "more bytes than FrameHeader.total_bytes (" + std::to_string(pending.header.total_bytes()) + ")");
   }
   pending.bytes += chunk.data();
+  pending.crc = crc32_concat(pending.crc, crc, chunk.data().size());  // each byte is read once
   ++pending.chunks;
   const bool should_be_last = pending.chunks == pending.header.num_chunks();
   if (chunk.last() != should_be_last) {
@@ -76,10 +77,9 @@ ReceivedFrame FrameAssembler::finish(int index, Pending& pending) {
     integrity(index, "received " + std::to_string(pending.bytes.size()) + " bytes, FrameHeader.total_bytes is " +
                          std::to_string(header.total_bytes()));
   }
-  const std::uint32_t crc = crc32_of(pending.bytes);
-  if (crc != header.crc32()) {
-    integrity(index,
-              "whole-frame CRC-32 mismatch: computed " + hex32(crc) + ", FrameHeader says " + hex32(header.crc32()));
+  if (pending.crc != header.crc32()) {
+    integrity(index, "whole-frame CRC-32 mismatch: computed " + hex32(pending.crc) + ", FrameHeader says " +
+                         hex32(header.crc32()));
   }
   ReceivedFrame frame;
   frame.index = index;

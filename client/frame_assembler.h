@@ -39,6 +39,7 @@ class FrameAssembler {
     v1::FrameHeader header;
     std::string bytes;
     int chunks = 0;
+    std::uint32_t crc = 0;  // of `bytes`, from the chunks' CRCs as each was checked
   };
   ReceivedFrame finish(int index, Pending& pending);
 

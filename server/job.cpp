@@ -240,7 +240,8 @@ bool Job::next_event(WatchCursor& cursor, v1::JobEvent& event) const {
     chunk->set_frame_index(cursor.current->header.frame_index());
     chunk->set_chunk_index(cursor.next_chunk);
     chunk->set_data(bytes.data() + offset, size);
-    chunk->set_crc32(crc32_of(bytes.data() + offset, size));
+    const auto& crcs = cursor.current->chunk_crcs;
+    chunk->set_crc32(crcs.empty() ? crc32_of(bytes.data() + offset, size) : crcs.at(cursor.next_chunk));
     ++cursor.next_chunk;
     const bool last = cursor.next_chunk >= cursor.current->header.num_chunks();
     chunk->set_last(last);
@@ -341,7 +342,14 @@ void Job::emit(int frame_index, FrameOutput output) {
   h.set_encoding(output.encoding);
   h.set_total_bytes(bytes->size());
   h.set_num_chunks(static_cast<int>((bytes->size() + wire::kMaxChunkBytes - 1) / wire::kMaxChunkBytes));
-  h.set_crc32(crc32_of(bytes->data(), bytes->size()));
+  // Each byte is read once: the chunks' CRCs, which the stream sends, combine into the frame's.
+  std::uint32_t crc = 0;
+  for (std::size_t offset = 0; offset < bytes->size(); offset += wire::kMaxChunkBytes) {
+    const std::size_t size = std::min(wire::kMaxChunkBytes, bytes->size() - offset);
+    record->chunk_crcs.push_back(crc32_of(bytes->data() + offset, size));
+    crc = crc32_concat(crc, record->chunk_crcs.back(), size);
+  }
+  h.set_crc32(crc);
   *h.mutable_stats() = std::move(output.stats);
   const auto size = static_cast<std::int64_t>(bytes->size());
   if (usage_ && !usage_->try_add(owner_, size, max_stored_bytes_)) {

@@ -42,6 +42,9 @@ struct FrameRecord {
   v1::FrameHeader header;
   // The frame's bytes when held in memory; null when they live in the durable store (read when streamed).
   std::shared_ptr<const std::string> bytes;
+  // The CRC-32 of each chunk (wire::kMaxChunkBytes) as the frame was made; empty for a frame read back from a store
+  // after a restart, whose chunks' CRCs are computed as they are sent.
+  std::vector<std::uint32_t> chunk_crcs;
 };
 
 // Where a WatchJob stream is in a job's event sequence.

@@ -16,4 +16,8 @@ std::uint32_t crc32_of(const void* data, std::size_t size, std::uint32_t previou
   return static_cast<std::uint32_t>(crc);
 }
 
+std::uint32_t crc32_concat(std::uint32_t a, std::uint32_t b, std::size_t b_size) {
+  return static_cast<std::uint32_t>(::crc32_combine64(a, b, static_cast<z_off64_t>(b_size)));
+}
+
 }  // namespace surfacer

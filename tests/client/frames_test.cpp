@@ -74,6 +74,21 @@ TEST(Crc32, MatchesZlibCheckValue) {
   EXPECT_EQ(crc32_of(""), 0u);
 }
 
+// A frame's CRC from its chunks' (what a server computes once): the same as over the whole, for every split.
+TEST(Crc32, ChunksConcatenateIntoTheWhole) {
+  std::string bytes(5000, '\0');
+  for (std::size_t i = 0; i < bytes.size(); ++i) bytes[i] = static_cast<char>(i * 31 + i / 7);
+  for (std::size_t chunk : {std::size_t{1}, std::size_t{3}, std::size_t{1000}, std::size_t{4096}, bytes.size()}) {
+    std::uint32_t crc = 0;
+    for (std::size_t at = 0; at < bytes.size(); at += chunk) {
+      const std::string_view piece = std::string_view(bytes).substr(at, chunk);
+      crc = crc32_concat(crc, crc32_of(piece), piece.size());
+    }
+    EXPECT_EQ(crc, crc32_of(bytes)) << "chunks of " << chunk;
+  }
+  EXPECT_EQ(crc32_concat(crc32_of("12345"), crc32_of(""), 0), crc32_of("12345"));
+}
+
 TEST(FrameAssembler, ReassemblesChunksInOrder) {
   std::string bytes(2500, '\0');
   for (std::size_t i = 0; i < bytes.size(); ++i) bytes[i] = static_cast<char>(i * 7);
