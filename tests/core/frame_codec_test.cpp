@@ -272,10 +272,15 @@ std::string as_version_1(const std::string& v2) {
 TEST(FrameCodec, MeshoptGltfHoldsTheFramesStreams) {
   const ThreadExecutor two(2);
   for (const Case& c : cases()) {
-    for (std::size_t piece : {std::size_t{1024}, std::size_t{1} << 20}) {
-      SCOPED_TRACE(c.name + ", pieces of " + std::to_string(piece));
+    // 3-bit normals are below the OCTAHEDRAL filter's least 4 bits: rounded onto them.
+    for (const auto& [piece, normal_bits] :
+         {std::pair{std::size_t{1024}, 10}, std::pair{std::size_t{1} << 20, 10}, std::pair{std::size_t{1024}, 3}}) {
+      if (normal_bits != 10 && c.mesh.normals.empty()) continue;
+      SCOPED_TRACE(c.name + ", pieces of " + std::to_string(piece) + ", normals of " + std::to_string(normal_bits) +
+                   " bits");
       FrameCodecOptions o = options_for(FrameCodec::kMeshopt, c.box, piece, 12);
       o.draco.normals = !c.mesh.normals.empty();
+      o.draco.normal_bits = normal_bits;
       const std::string bytes = encode_frame(c.mesh, o, two);
       const Mesh frame = decode_frame(bytes, o.codec, two);
       const std::string glb = to_gltf(
@@ -313,7 +318,9 @@ TEST(FrameCodec, MeshoptGltfHoldsTheFramesStreams) {
           const auto& n = at[grid.quantize(read.vertices[v])];
           if (n.size() == 1) worst = std::max(worst, (read.normals[v] - n[0]).norm());
         }
-        EXPECT_LT(worst, 2e-3);  // 10-bit octahedral normals, decoded in float32 or double
+        // The meshopt .glb holds the frame's own octahedral values (decoded in float32 rather than double), but 3-bit
+        // ones move by up to 1/14 per coordinate onto 4 bits; Draco encodes the decoded normals again on 10 bits.
+        EXPECT_LT(worst, file != &glb ? 5e-3 : normal_bits == 3 ? 0.25 : 1e-4);
       }
     }
   }
