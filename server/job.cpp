@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <string_view>
 
 #include "core/util/crc32.h"
 #include "core/util/errors.h"
@@ -26,6 +27,14 @@ constexpr int kGrpcCancelled = 1;
 
 bool is_terminal(v1::JobState s) {
   return s == v1::JOB_STATE_SUCCEEDED || s == v1::JOB_STATE_FAILED || s == v1::JOB_STATE_CANCELLED;
+}
+
+// A frame's chunks: runs of wire::kMaxChunkBytes, the last one shorter.
+int chunk_count(std::size_t bytes) {
+  return static_cast<int>((bytes + wire::kMaxChunkBytes - 1) / wire::kMaxChunkBytes);
+}
+std::string_view chunk_of(std::string_view bytes, int chunk) {
+  return bytes.substr(static_cast<std::size_t>(chunk) * wire::kMaxChunkBytes, wire::kMaxChunkBytes);
 }
 
 }  // namespace
@@ -233,15 +242,13 @@ bool Job::next_event(WatchCursor& cursor, v1::JobEvent& event) const {
   if (cursor.done) return false;
   // 1. The rest of the frame in flight, so that a frame's chunks stay contiguous. Frame records are immutable.
   if (cursor.current) {
-    const std::string& bytes = *cursor.current_bytes;
-    const std::size_t offset = static_cast<std::size_t>(cursor.next_chunk) * wire::kMaxChunkBytes;
-    const std::size_t size = std::min(wire::kMaxChunkBytes, bytes.size() - offset);
+    const std::string_view data = chunk_of(*cursor.current_bytes, cursor.next_chunk);
     auto* chunk = event.mutable_chunk();
     chunk->set_frame_index(cursor.current->header.frame_index());
     chunk->set_chunk_index(cursor.next_chunk);
-    chunk->set_data(bytes.data() + offset, size);
+    chunk->set_data(data.data(), data.size());
     const auto& crcs = cursor.current->chunk_crcs;
-    chunk->set_crc32(crcs.empty() ? crc32_of(bytes.data() + offset, size) : crcs.at(cursor.next_chunk));
+    chunk->set_crc32(crcs.empty() ? crc32_of(data) : crcs.at(cursor.next_chunk));
     ++cursor.next_chunk;
     const bool last = cursor.next_chunk >= cursor.current->header.num_chunks();
     chunk->set_last(last);
@@ -341,13 +348,13 @@ void Job::emit(int frame_index, FrameOutput output) {
   h.set_frame_index(frame_index);
   h.set_encoding(output.encoding);
   h.set_total_bytes(bytes->size());
-  h.set_num_chunks(static_cast<int>((bytes->size() + wire::kMaxChunkBytes - 1) / wire::kMaxChunkBytes));
+  h.set_num_chunks(chunk_count(bytes->size()));
   // Each byte is read once: the chunks' CRCs, which the stream sends, combine into the frame's.
   std::uint32_t crc = 0;
-  for (std::size_t offset = 0; offset < bytes->size(); offset += wire::kMaxChunkBytes) {
-    const std::size_t size = std::min(wire::kMaxChunkBytes, bytes->size() - offset);
-    record->chunk_crcs.push_back(crc32_of(bytes->data() + offset, size));
-    crc = crc32_concat(crc, record->chunk_crcs.back(), size);
+  for (int c = 0; c < h.num_chunks(); ++c) {
+    const std::string_view data = chunk_of(*bytes, c);
+    record->chunk_crcs.push_back(crc32_of(data));
+    crc = crc32_concat(crc, record->chunk_crcs.back(), data.size());
   }
   h.set_crc32(crc);
   *h.mutable_stats() = std::move(output.stats);
