@@ -111,7 +111,7 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
   JobFlags run_flags;
   OutputFlags run_output;
   CLI::App* run = app.add_subcommand("run", "Submit a job, watch it, and write its frames as they arrive");
-  run->add_option("--spec", run_flags.job.spec, "a whole surfacer.v1.JobSpec in protobuf JSON (any job type)")
+  run->add_option("--spec", run_flags.job.spec_file, "a whole surfacer.v1.JobSpec in protobuf JSON (any job type)")
       ->type_name("FILE");
   add_job_common_flags(run, run_flags.job);
   add_output_flags(run, run_output);
@@ -135,7 +135,7 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
   // submit
   JobFlags submit_flags;
   CLI::App* submit = app.add_subcommand("submit", "Submit a job, print its id and exit (fetch frames with `watch`)");
-  submit->add_option("--spec", submit_flags.job.spec, "a whole surfacer.v1.JobSpec in protobuf JSON (any job type)")
+  submit->add_option("--spec", submit_flags.job.spec_file, "a whole surfacer.v1.JobSpec in protobuf JSON (any job type)")
       ->type_name("FILE");
   add_job_common_flags(submit, submit_flags.job);
   submit->require_subcommand(0, 1);

@@ -4,7 +4,7 @@
 #pragma once
 
 #include <CLI/CLI.hpp>
-#include <array>
+#include <filesystem>
 #include <optional>
 #include <string>
 #include <vector>
@@ -26,31 +26,18 @@ struct OutputFlags {
   ReportFlags report;
 };
 
-// Variables CLI11 writes into for one `run` or `submit` command and its job-type subcommands.
+// What CLI11 writes into for one `run` or `submit` command and its job-type subcommands. The job's option fields go
+// straight into job.spec (client/job_fields.h), its inputs into the paths below.
 struct JobFlags {
-  JobOptions job;  // --spec and the output overrides
+  JobOptions job;  // --spec, --name, the output fields, and every job-type field the flags set
 
-  IsosurfaceOptions iso;
-  std::optional<std::string> iso_bounds;
-
-  ParticlesOptions particles;
-  std::optional<std::string> sweeps;
-  std::optional<std::string> container_box;
-
-  OptimizeOptions optimize;
-  std::optional<std::string> start_bounds;
-  std::optional<std::string> flows;
-
-  ActiveOptions active;  // the parameters every mode shares; `mode` is filled by finish_job()
-  std::optional<std::string> active_bounds;
-  ActiveCoatOptions coat;
-  ActiveMorphOptions morph;
-  ActiveAdvectOptions advect;
+  std::vector<std::filesystem::path> scenes;  // isosurface --scene (repeated)
+  std::filesystem::path scene;                // optimize and advect --scene
+  std::filesystem::path from;                 // morph
+  std::filesystem::path to;
+  ParticleInputOptions particle_inputs;  // particles and coat --input, --start, --end
   bool enright = false;
-  std::optional<std::string> velocity_grid;
-  std::optional<std::string> velocity_origin;
-  std::optional<std::string> velocity_spacing;
-  std::optional<std::string> velocity_dims;
+  std::optional<std::filesystem::path> velocity_grid;
 
   CLI::App* isosurface = nullptr;
   CLI::App* particles_app = nullptr;
@@ -69,18 +56,8 @@ void add_job_common_flags(CLI::App* app, JobOptions& job);
 // named by `verb`). `output` is null for `submit` (no output flags).
 void add_job_types(CLI::App* parent, const std::string& verb, JobFlags& flags, OutputFlags* output);
 
-// The job to submit, after the checks CLI11 cannot express (exactly one job; flags that need or exclude each other;
-// list values). Throws CliError(kUsage) naming the flag.
+// The job to submit, after the checks CLI11 cannot express (exactly one job; inputs that need or exclude each other)
+// and the server's own check of the options (wire::check_job_options). Throws CliError(kUsage) naming the flag.
 JobOptions finish_job(JobFlags& flags, const std::string& verb);
-
-// "1,2,3" -> numbers; CliError(kUsage) naming `flag` unless there are exactly `count` of them.
-std::vector<double> parse_numbers(const std::string& text, std::size_t count, const std::string& flag,
-                                  const std::string& example);
-// x0,y0,z0,x1,y1,z1 with min < max on every axis.
-Box parse_box(const std::string& text, const std::string& flag);
-// "5,15,5" -> Laplacian, Bilaplacian and polish sweep counts (integers >= 0).
-std::array<int, 3> parse_sweeps(const std::string& text);
-// "d,n" -> the flows on (the others off); at least one of d, n, t.
-FlowSet parse_flows(const std::string& text);
 
 }  // namespace surfacer::client

@@ -7,11 +7,13 @@
 #include <sstream>
 
 #include "client/exit_codes.h"
+#include "client/job_fields.h"
 #include "client/output_files.h"
 #include "client/particle_files.h"
 #include "core/mesh/mesh_io.h"
 #include "core/util/errors.h"
 #include "core/util/format.h"
+#include "wire/job_options.h"
 #include "wire/protocol.h"
 #include "wire/request_limits.h"
 
@@ -90,23 +92,6 @@ ParticleInputFiles particle_inputs_of(const ParticleInputOptions& input, const I
   return frames;
 }
 
-void set_vec3(v1::Vec3* v, double x, double y, double z) {
-  v->set_x(x);
-  v->set_y(y);
-  v->set_z(z);
-}
-
-void set_bounds(v1::Bounds* bounds, const Box& b) {
-  set_vec3(bounds->mutable_min(), b[0], b[1], b[2]);
-  set_vec3(bounds->mutable_max(), b[3], b[4], b[5]);
-}
-
-v1::Polygonizer polygonizer(const std::string& name, const std::string& flag) {
-  if (name == "cubes") return v1::POLYGONIZER_CUBES;
-  if (name == "tiles") return v1::POLYGONIZER_TILES;
-  throw CliError(ExitCode::kUsage, flag + " must be cubes or tiles, not " + name);
-}
-
 std::string first_and_more(const std::vector<std::filesystem::path>& files, const char* unit) {
   if (files.empty()) return "";
   std::string name = files.front().stem().string();
@@ -153,51 +138,68 @@ void add_particle_frames(PreparedJob& job, const std::vector<std::filesystem::pa
   }
 }
 
-void build_isosurface(const IsosurfaceOptions& iso, v1::JobSpec& spec, const InMemoryInputs& in_memory) {
-  v1::IsosurfaceJob* job = spec.mutable_isosurface();
-  for (const auto& path : iso.scenes) *job->add_scenes() = scene_of(path, in_memory);
-  if (iso.bounds) set_bounds(job->mutable_bounds(), *iso.bounds);
-  if (iso.cell_size) job->set_cell_size(*iso.cell_size);
-  if (iso.cells) job->set_cells(*iso.cells);
-  if (iso.method) job->set_method(polygonizer(*iso.method, "--method"));
-  spec.set_name(first_and_more(iso.scenes, ""));
+// Frame i of the job's particle frames (particles or active coat).
+v1::ParticleFrame* particle_frame(v1::JobSpec& spec, int i) {
+  return spec.has_particles() ? spec.mutable_particles()->mutable_frames(i)
+                              : spec.mutable_active()->mutable_coat()->mutable_frames(i);
 }
 
-void build_particles(const ParticlesOptions& p, PreparedJob& prepared, const InMemoryInputs& in_memory) {
+// The particle frames of `options` (particles, active coat): one empty frame per file in the spec, one pending upload
+// each; a frame without radii needs r_inner or derive_r_inner, checked as each is read (wire::require_r_inner_frame).
+std::vector<std::filesystem::path> add_particles(const JobOptions& options, PreparedJob& prepared,
+                                                 const InMemoryInputs& in_memory) {
   v1::JobSpec& spec = prepared.spec;
-  v1::ParticlesJob* job = spec.mutable_particles();
-  const ParticleInputFiles inputs = particle_inputs_of(p.input, in_memory);
+  const ParticleInputFiles inputs = particle_inputs_of(options.particles, in_memory);
   const auto& files = inputs.files;
   prepared.frame_numbers = output_numbers(inputs.numbers);
-  for (std::size_t i = 0; i < files.size(); ++i) job->add_frames();
-  add_particle_frames(
-      prepared, files, [](v1::JobSpec& s, int i) { return s.mutable_particles()->mutable_frames(i); }, in_memory);
-  if (p.r_inner) job->set_r_inner(*p.r_inner);
-  job->set_derive_r_inner(p.derive_r_inner);
-  if (p.r_outer) job->set_r_outer(*p.r_outer);
-  if (p.spacing_factor) job->set_spacing_factor(*p.spacing_factor);
-  if (p.sweeps) {
-    job->set_laplacian_sweeps((*p.sweeps)[0]);
-    job->set_bilaplacian_sweeps((*p.sweeps)[1]);
-    job->set_polish_sweeps((*p.sweeps)[2]);
+  for (std::size_t i = 0; i < files.size(); ++i) {
+    if (spec.has_particles()) {
+      spec.mutable_particles()->add_frames();
+    } else {
+      spec.mutable_active()->mutable_coat()->add_frames();
+    }
   }
-  if (p.relaxation) job->set_relaxation(*p.relaxation);
-  if (p.erosion) job->set_erosion(*p.erosion);
-  if (p.unconstrained_polish) job->set_unconstrained_polish(true);
-  if (p.vertex_only_band) job->set_vertex_only_band(true);
-  if (p.min_angle) job->set_min_angle_degrees(*p.min_angle);
-  if (p.container_box) set_bounds(job->mutable_container()->mutable_box(), *p.container_box);
-  if (p.container_scene) *job->mutable_container()->mutable_solid() = scene_of(*p.container_scene, in_memory);
-  if (p.min_particles) job->set_min_particles_per_component(*p.min_particles);
-  spec.set_name(first_and_more(files, "frames"));
+  const std::string r_inner_name = name_of_field(options.names, "spec.particles.r_inner", options.keywords);
+  for (std::size_t i = 0; i < files.size(); ++i) {
+    const int index = static_cast<int>(i);
+    const std::filesystem::path& file = files[i];
+    const auto it = in_memory.particles.find(file.string());
+    const ParticleFrame* frame = it == in_memory.particles.end() ? nullptr : &it->second;  // outlives the upload
+    PendingUpload upload;
+    upload.description = "particle frame " + std::to_string(index) + " (" + file.string() + ")";
+    upload.frame = index;
+    upload.read = [file, frame, index, r_inner_name](v1::JobSpec& spec, const InputLimits& limits) {
+      ParticleRecords records =
+          frame != nullptr ? pack_particle_records(*frame, file.string(), limits) : read_particle_records(file, limits);
+      if (spec.has_particles()) {
+        try {
+          wire::require_r_inner_frame(spec.particles(), static_cast<std::size_t>(index), records.with_radius);
+        } catch (const Error& e) {
+          throw CliError(ExitCode::kUsage, r_inner_name + ": " + e.what() + ": " + file.string());
+        }
+      }
+      particle_frame(spec, index)->set_with_radius(records.with_radius);
+      UploadData data;
+      data.name = file.filename().string();
+      data.bytes = std::move(records.bytes);
+      data.particles = records.count;
+      data.detail = std::to_string(records.count) + " particles" + (records.with_radius ? " with radii" : "");
+      return data;
+    };
+    upload.set_id = [index](v1::JobSpec& spec, const std::string& id) {
+      particle_frame(spec, index)->set_upload_id(id);
+    };
+    prepared.uploads.push_back(std::move(upload));
+  }
+  return files;
 }
 
-void build_optimize(const OptimizeOptions& o, PreparedJob& prepared, const InMemoryInputs& in_memory) {
+void build_optimize(const JobOptions& options, PreparedJob& prepared, const InMemoryInputs& in_memory) {
   v1::JobSpec& spec = prepared.spec;
   v1::OptimizeJob* job = spec.mutable_optimize();
-  *job->mutable_scene() = scene_of(o.scene, in_memory);
-  if (o.start_mesh) {
-    const std::filesystem::path file = *o.start_mesh;
+  *job->mutable_scene() = scene_of(options.scenes.at(0), in_memory);
+  if (options.start_mesh) {
+    const std::filesystem::path file = *options.start_mesh;
     require_file(file, "--start-mesh");
     MeshFormat format = MeshFormat::kPly;
     try {
@@ -224,114 +226,83 @@ void build_optimize(const OptimizeOptions& o, PreparedJob& prepared, const InMem
     upload.set_id = [](v1::JobSpec& s, const std::string& id) { s.mutable_optimize()->set_mesh_upload_id(id); };
     prepared.uploads.push_back(std::move(upload));
   } else {
-    v1::Polygonize* start = job->mutable_polygonize();  // set even when empty: the server's start defaults
-    if (o.start_method) start->set_method(polygonizer(*o.start_method, "--start-method"));
-    if (o.start_bounds) set_bounds(start->mutable_bounds(), *o.start_bounds);
-    if (o.start_cells) start->set_cells(*o.start_cells);
+    job->mutable_polygonize();  // set even when empty: the server's start defaults
   }
-  if (o.flows) {
-    job->set_d_flow(o.flows->d);
-    job->set_n_flow(o.flows->n);
-    job->set_t_flow(o.flows->t);
-  }
-  if (o.c_d) job->set_c_d(*o.c_d);
-  if (o.c_n) job->set_c_n(*o.c_n);
-  if (o.c_t) job->set_c_t(*o.c_t);
-  if (o.step_bound) job->set_step_bound(*o.step_bound);
-  job->set_modified_flows(o.modified_flows);
-  if (o.t_flow_iterations) job->set_t_flow_iterations(*o.t_flow_iterations);
-  if (o.iterations) job->set_max_iterations(*o.iterations);
-  if (o.tolerance) job->set_tolerance(*o.tolerance);
-  if (o.subdivide) job->set_subdivision_threshold(*o.subdivide);
-  if (o.triangle_budget) job->set_triangle_budget(*o.triangle_budget);
-  if (o.snapshot_every) job->set_snapshot_every(*o.snapshot_every);
-  spec.set_name(o.scene.stem().string());
+  spec.set_name(options.scenes.at(0).stem().string());
 }
 
-void build_active(const ActiveOptions& a, PreparedJob& prepared, const InMemoryInputs& in_memory) {
-  v1::JobSpec& spec = prepared.spec;
-  v1::ActiveJob* job = spec.mutable_active();
-  job->set_grid_spacing(a.grid_spacing);
-  if (a.bounds) set_bounds(job->mutable_bounds(), *a.bounds);
-  if (a.alpha) job->set_alpha(*a.alpha);
-  if (a.beta) job->set_beta(*a.beta);
-  if (a.gamma) job->set_gamma(*a.gamma);
-  if (a.delta) job->set_delta(*a.delta);
-  if (a.cfl) job->set_cfl(*a.cfl);
-  if (a.polygonizer) job->set_polygonizer(polygonizer(*a.polygonizer, "--polygonizer"));
+// The velocity grid's values: a file whose size the grid's dimensions fix, uploaded as is.
+void add_velocity_grid(const std::filesystem::path& file, PreparedJob& prepared) {
+  const v1::VelocityGrid& g = prepared.spec.active().advect().grid();
+  require_file(file, "--velocity-grid");
+  const std::uint64_t nodes = static_cast<std::uint64_t>(std::max(g.nx(), 0)) *
+                              static_cast<std::uint64_t>(std::max(g.ny(), 0)) *
+                              static_cast<std::uint64_t>(std::max(g.nz(), 0));
+  const std::uint64_t expected = nodes * 3 * sizeof(float);
+  std::error_code ec;
+  const std::uintmax_t size = std::filesystem::file_size(file, ec);
+  const std::string dims = std::to_string(g.nx()) + "," + std::to_string(g.ny()) + "," + std::to_string(g.nz());
+  if (ec || size != expected) {
+    throw CliError(ExitCode::kUsage, "--velocity-grid " + file.string() + ": " +
+                                         (ec ? ec.message()
+                                             : "has " + std::to_string(size) + " bytes; --velocity-dims " + dims +
+                                                   " needs " + std::to_string(nodes) +
+                                                   " nodes x 3 float32 = " + std::to_string(expected) + " bytes"));
+  }
+  PendingUpload upload;
+  upload.description = "velocity grid (" + file.string() + ")";
+  const std::string detail =
+      std::to_string(g.nx()) + "x" + std::to_string(g.ny()) + "x" + std::to_string(g.nz()) + " nodes";
+  upload.read = [file, expected, detail](v1::JobSpec&, const InputLimits&) {
+    UploadData data;
+    data.name = file.filename().string();
+    data.file = file;
+    data.file_bytes = expected;
+    data.detail = detail;
+    return data;
+  };
+  upload.set_id = [](v1::JobSpec& s, const std::string& id) {
+    s.mutable_active()->mutable_advect()->mutable_grid()->set_upload_id(id);
+  };
+  prepared.uploads.push_back(std::move(upload));
+}
 
-  if (const auto* coat = std::get_if<ActiveCoatOptions>(&a.mode)) {
-    v1::ActiveCoat* c = job->mutable_coat();
-    const ParticleInputFiles inputs = particle_inputs_of(coat->input, in_memory);
-    const auto& files = inputs.files;
-    prepared.frame_numbers = output_numbers(inputs.numbers);
-    for (std::size_t i = 0; i < files.size(); ++i) c->add_frames();
-    add_particle_frames(
-        prepared, files, [](v1::JobSpec& s, int i) { return s.mutable_active()->mutable_coat()->mutable_frames(i); },
-        in_memory);
-    c->set_kernel_radius(coat->kernel_radius);
-    if (coat->iso) c->set_iso(*coat->iso);
-    if (coat->substeps) c->set_substeps_per_frame(*coat->substeps);
-    spec.set_name("coat " + first_and_more(files, "frames"));
-  } else if (const auto* morph = std::get_if<ActiveMorphOptions>(&a.mode)) {
-    v1::ActiveMorph* m = job->mutable_morph();
-    *m->mutable_from() = scene_of(morph->from, in_memory);
-    *m->mutable_to() = scene_of(morph->to, in_memory);
-    if (morph->tolerance) m->set_tolerance(*morph->tolerance);
-    if (morph->max_frames) m->set_max_frames(*morph->max_frames);
-    if (morph->frame_time) m->set_frame_time(*morph->frame_time);
-    spec.set_name("morph " + morph->from.stem().string() + " -> " + morph->to.stem().string());
-  } else {
-    const auto& advect = std::get<ActiveAdvectOptions>(a.mode);
-    v1::ActiveAdvect* m = job->mutable_advect();
-    *m->mutable_shape() = scene_of(advect.scene, in_memory);
-    m->set_frame_interval(advect.frame_interval);
-    m->set_frames(advect.frames);
-    if (advect.velocity_grid) {
-      const VelocityGridOptions& g = *advect.velocity_grid;
-      v1::VelocityGrid* grid = m->mutable_grid();
-      set_vec3(grid->mutable_origin(), g.origin[0], g.origin[1], g.origin[2]);
-      set_vec3(grid->mutable_spacing(), g.spacing[0], g.spacing[1], g.spacing[2]);
-      grid->set_nx(g.dims[0]);
-      grid->set_ny(g.dims[1]);
-      grid->set_nz(g.dims[2]);
-      require_file(g.file, "--velocity-grid");
-      const std::uint64_t nodes = static_cast<std::uint64_t>(g.dims[0]) * static_cast<std::uint64_t>(g.dims[1]) *
-                                  static_cast<std::uint64_t>(g.dims[2]);
-      const std::uint64_t expected = nodes * 3 * sizeof(float);
-      std::error_code ec;
-      const std::uintmax_t size = std::filesystem::file_size(g.file, ec);
-      if (ec || size != expected) {
-        throw CliError(
-            ExitCode::kUsage,
-            "--velocity-grid " + g.file.string() + ": " +
-                (ec ? ec.message()
-                    : "has " + std::to_string(size) + " bytes; --velocity-dims " + std::to_string(g.dims[0]) + "," +
-                          std::to_string(g.dims[1]) + "," + std::to_string(g.dims[2]) + " needs " +
-                          std::to_string(nodes) + " nodes x 3 float32 = " + std::to_string(expected) + " bytes"));
+// The job's inputs read into its spec (scenes) or made pending uploads, and its default name.
+void build_inputs(const JobOptions& options, PreparedJob& prepared, const InMemoryInputs& in_memory) {
+  v1::JobSpec& spec = prepared.spec;
+  switch (spec.kind_case()) {
+    case v1::JobSpec::kIsosurface:
+      for (const auto& path : options.scenes) *spec.mutable_isosurface()->add_scenes() = scene_of(path, in_memory);
+      spec.set_name(first_and_more(options.scenes, ""));
+      break;
+    case v1::JobSpec::kParticles: {
+      if (options.container_scene) {
+        *spec.mutable_particles()->mutable_container()->mutable_solid() = scene_of(*options.container_scene, in_memory);
       }
-      PendingUpload upload;
-      upload.description = "velocity grid (" + g.file.string() + ")";
-      const std::filesystem::path file = g.file;
-      const std::string detail =
-          std::to_string(g.dims[0]) + "x" + std::to_string(g.dims[1]) + "x" + std::to_string(g.dims[2]) + " nodes";
-      upload.read = [file, expected, detail](v1::JobSpec&, const InputLimits&) {
-        UploadData data;
-        data.name = file.filename().string();
-        data.file = file;
-        data.file_bytes = expected;
-        data.detail = detail;
-        return data;
-      };
-      upload.set_id = [](v1::JobSpec& s, const std::string& id) {
-        s.mutable_active()->mutable_advect()->mutable_grid()->set_upload_id(id);
-      };
-      prepared.uploads.push_back(std::move(upload));
-    } else {
-      v1::EnrightVelocity* enright = m->mutable_enright();
-      if (advect.enright_period) enright->set_period(*advect.enright_period);
+      spec.set_name(first_and_more(add_particles(options, prepared, in_memory), "frames"));
+      break;
     }
-    spec.set_name("advect " + advect.scene.stem().string());
+    case v1::JobSpec::kOptimize:
+      build_optimize(options, prepared, in_memory);
+      break;
+    case v1::JobSpec::kActive: {
+      v1::ActiveJob* job = spec.mutable_active();
+      if (job->has_coat()) {
+        spec.set_name("coat " + first_and_more(add_particles(options, prepared, in_memory), "frames"));
+      } else if (job->has_morph()) {
+        *job->mutable_morph()->mutable_from() = scene_of(options.scenes.at(0), in_memory);
+        *job->mutable_morph()->mutable_to() = scene_of(options.scenes.at(1), in_memory);
+        spec.set_name("morph " + options.scenes.at(0).stem().string() + " -> " + options.scenes.at(1).stem().string());
+      } else {
+        *job->mutable_advect()->mutable_shape() = scene_of(options.scenes.at(0), in_memory);
+        if (options.velocity_grid) add_velocity_grid(*options.velocity_grid, prepared);
+        spec.set_name("advect " + options.scenes.at(0).stem().string());
+      }
+      break;
+    }
+    case v1::JobSpec::KIND_NOT_SET:
+      throw CliError(ExitCode::kUsage,
+                     "no job given: use a job type (isosurface, particles, optimize, active) or --spec FILE");
   }
 }
 
@@ -349,40 +320,61 @@ v1::JobSpec read_job_spec_file(const std::filesystem::path& path) {
   return parse_json_file<v1::JobSpec>(path, "job spec file", "spec");
 }
 
+void check_job(const JobOptions& options) {
+  const v1::JobSpec& spec = options.spec;
+  if (spec.has_active() && spec.active().has_advect()) {
+    // A velocity grid is a file and its geometry (origin, spacing, dims), given together.
+    const bool python = options.keywords;
+    const std::string file = python ? "velocity_grid" : "--velocity-grid";
+    if (options.velocity_grid) {
+      for (const char* part : {"origin", "spacing", "nx"}) {
+        if (options.names.count(std::string("spec.active.advect.grid.") + part) == 0) {
+          throw CliError(ExitCode::kUsage, file + (python ? " needs velocity_origin, velocity_spacing and "
+                                                            "velocity_dims"
+                                                          : " needs --velocity-origin x,y,z, --velocity-spacing "
+                                                            "dx,dy,dz and --velocity-dims nx,ny,nz"));
+        }
+      }
+    } else if (spec.active().advect().has_grid()) {
+      throw CliError(ExitCode::kUsage, names_below(options.names, "spec.active.advect.grid") +
+                                           " describes a velocity grid: give its values with " + file);
+    }
+  }
+  if (spec.has_active() && spec.active().advect().has_grid()) {
+    // The grid's geometry, as far as the client can tell before the values are read.
+    const v1::VelocityGrid& g = spec.active().advect().grid();
+    for (double s : {g.spacing().x(), g.spacing().y(), g.spacing().z()}) {
+      if (!(s > 0)) throw CliError(ExitCode::kUsage, "--velocity-spacing: every spacing must be > 0");
+    }
+    for (int n : {g.nx(), g.ny(), g.nz()}) {
+      if (n < 2 || n > 100000) throw CliError(ExitCode::kUsage, "--velocity-dims: node counts are 2 to 100000");
+    }
+  }
+  try {
+    wire::check_job_options(spec);
+  } catch (const Error& e) {
+    if (e.kind() != ErrorKind::kInvalidInput) throw;
+    const std::string name = name_of_field(options.names, e.field(), options.keywords);
+    throw CliError(ExitCode::kUsage, (name.empty() ? "" : name + ": ") + e.what());
+  }
+}
+
 PreparedJob prepare_job(const JobOptions& options, const InMemoryInputs& in_memory) {
   PreparedJob prepared;
   v1::JobSpec& spec = prepared.spec;
-  if (options.spec) {
-    spec = read_job_spec_file(*options.spec);
-  } else if (options.isosurface) {
-    build_isosurface(*options.isosurface, spec, in_memory);
-  } else if (options.particles) {
-    build_particles(*options.particles, prepared, in_memory);
-  } else if (options.optimize) {
-    build_optimize(*options.optimize, prepared, in_memory);
-  } else if (options.active) {
-    build_active(*options.active, prepared, in_memory);
+  if (options.spec_file) {
+    spec = read_job_spec_file(*options.spec_file);
+    spec.mutable_output()->MergeFrom(options.spec.output());  // the output flags override the file's
   } else {
-    throw CliError(ExitCode::kUsage,
-                   "no job given: use a job type (isosurface, particles, optimize, active) or "
-                   "--spec FILE");
+    check_job(options);
+    spec = options.spec;
+    build_inputs(options, prepared, in_memory);
   }
-
   if (options.name) {
     spec.set_name(*options.name);
   } else if (spec.name().size() > wire::kMaxNameBytes) {
     spec.set_name(utf8_prefix(spec.name(), wire::kMaxNameBytes));  // a name made from long file names
   }
-  v1::OutputOptions* output = spec.mutable_output();
-  if (options.encoding == "raw") output->set_encoding(v1::MESH_ENCODING_PLY);
-  if (options.encoding == "meshopt") output->set_encoding(v1::MESH_ENCODING_MESHOPT);
-  if (options.encoding == "draco") output->set_encoding(v1::MESH_ENCODING_DRACO);
-  if (options.encoding && *options.encoding != "raw" && *options.encoding != "meshopt" &&
-      *options.encoding != "draco") {
-    throw CliError(ExitCode::kUsage, "--encoding must be draco, meshopt or raw, not " + *options.encoding);
-  }
-  if (options.normals) output->set_normals(true);
-  if (options.quantization_bits) output->set_quantization_bits(*options.quantization_bits);
   try {
     wire::check_request_limits(spec, "spec");
   } catch (const Error& e) {

@@ -43,13 +43,17 @@ struct InMemoryInputs {
 // a.json"). Throws CliError(kUsage).
 v1::Scene parse_scene_json(const std::string& text, const std::string& where);
 
-// The job of `options`: `options.spec` read from its file, or built from the one job type set, then the output
-// overrides (name, encoding, normals, quantization bits) applied. Scene files are read and sequence patterns expanded
-// here, and every input file is checked to exist (and a velocity grid's size against its dimensions), so usage
-// errors come before connecting; the input files themselves are read by the pending uploads. Range checks of
-// values beyond the flags' own are the server's (it answers INVALID_ARGUMENT naming the field).
-// Inputs named by a key of `in_memory` come from there (its particle frames are read by the uploads: keep it until
-// they are done). Throws CliError(kUsage).
+// Checks the options of `options.spec` with the server's own wire::check_job_options() (every range, default and
+// combination is core's, stated once). Throws CliError(kUsage) with the server's message, prefixed by the field's
+// name as the user gave it ("--r-outer: spec.particles.r_outer (0.05) must exceed r_inner (0.1); ...").
+void check_job(const JobOptions& options);
+
+// The job of `options`: `options.spec_file` read (the output fields of `options.spec` override its own), or
+// `options.spec` checked (check_job) with its inputs read in: scene files are parsed into it and sequence patterns
+// expanded, and every other input becomes a pending upload (checked to exist, a velocity grid's size against its
+// dimensions), so usage errors come before connecting. A particle frame without radii is refused as it is read when
+// the job has neither r_inner nor derive_r_inner. Inputs named by a key of `in_memory` come from there (its particle
+// frames are read by the uploads: keep it until they are done). Throws CliError(kUsage).
 PreparedJob prepare_job(const JobOptions& options, const InMemoryInputs& in_memory = {});
 
 // What a `run` that writes `formats` asks of the server (docs/ALGORITHMS.md §5 "Frames"): Draco frames come in

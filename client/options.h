@@ -5,10 +5,13 @@
 #include <array>
 #include <cstdint>
 #include <filesystem>
+#include <map>
 #include <optional>
 #include <string>
 #include <variant>
 #include <vector>
+
+#include "surfacer/v1/surfacer.pb.h"
 
 namespace surfacer::client {
 
@@ -39,17 +42,6 @@ struct ConnectOptions {
   bool local() const { return !server.has_value(); }
 };
 
-using Box = std::array<double, 6>;  // x0,y0,z0,x1,y1,z1 (min < max on every axis)
-using Triple = std::array<double, 3>;
-
-struct IsosurfaceOptions {
-  std::vector<std::filesystem::path> scenes;  // one frame per scene, in order
-  std::optional<int> cells;                   // cells along the longest axis; default 128 when cell_size is unset
-  std::optional<double> cell_size;
-  std::optional<Box> bounds;
-  std::optional<std::string> method;  // "cubes" or "tiles"; unset: the server's default (tiles)
-};
-
 // Particle frames from files: each input is one file or a sequence pattern (`fluid_{}.bgeo`, `fluid_{:04d}.ply`)
 // expanded over [start, end]; frames are the inputs' files in order (frame i = the i-th file).
 struct ParticleInputOptions {
@@ -58,112 +50,27 @@ struct ParticleInputOptions {
   std::optional<int> end;
 };
 
-// `particles` job (Williams 2008). Unset values take the server's defaults.
-struct ParticlesOptions {
-  ParticleInputOptions input;
-  std::optional<double> r_inner;  // exactly one of r_inner / derive_r_inner
-  bool derive_r_inner = false;
-  std::optional<double> r_outer;
-  std::optional<double> spacing_factor;
-  std::optional<std::array<int, 3>> sweeps;  // Laplacian, Bilaplacian, polish
-  std::optional<double> relaxation;
-  std::optional<double> erosion;
-  bool unconstrained_polish = false;
-  bool vertex_only_band = false;
-  std::optional<double> min_angle;
-  std::optional<Box> container_box;
-  std::optional<std::filesystem::path> container_scene;
-  std::optional<int> min_particles;
-};
-
-// Which flows an `optimize` job runs (--flows d,n,t).
-struct FlowSet {
-  bool d = true;
-  bool n = true;
-  bool t = true;
-};
-
-// `optimize` job (Ohtake-Belyaev-Pasko 2002): a start mesh file, or the server polygonizes the scene.
-struct OptimizeOptions {
-  std::filesystem::path scene;
-  std::optional<std::filesystem::path> start_mesh;  // .ply/.obj/.drc, uploaded as is
-  std::optional<int> start_cells;
-  std::optional<std::string> start_method;  // "cubes" or "tiles"
-  std::optional<Box> start_bounds;
-  std::optional<int> iterations;
-  std::optional<double> tolerance;
-  std::optional<int> snapshot_every;
-  std::optional<FlowSet> flows;
-  std::optional<double> c_d;
-  std::optional<double> c_n;
-  std::optional<double> c_t;
-  std::optional<double> step_bound;
-  bool modified_flows = false;
-  std::optional<int> t_flow_iterations;
-  std::optional<double> subdivide;  // adaptive subdivision threshold
-  std::optional<std::int64_t> triangle_budget;
-};
-
-// `active coat`: a skin over a particle sequence.
-struct ActiveCoatOptions {
-  ParticleInputOptions input;
-  double kernel_radius = 0;
-  std::optional<double> iso;
-  std::optional<int> substeps;
-};
-
-// `active morph`: scene `from` into scene `to`.
-struct ActiveMorphOptions {
-  std::filesystem::path from;
-  std::filesystem::path to;
-  std::optional<double> tolerance;
-  std::optional<int> max_frames;
-  std::optional<double> frame_time;
-};
-
-// A sampled velocity field file: raw little-endian float32 x y z per node, x fastest.
-struct VelocityGridOptions {
-  std::filesystem::path file;
-  Triple origin{};
-  Triple spacing{};
-  std::array<int, 3> dims{};
-};
-
-// `active advect`: a scene carried by the Enright field or an uploaded velocity grid.
-struct ActiveAdvectOptions {
-  std::filesystem::path scene;
-  std::optional<double> enright_period;  // used when `velocity_grid` is unset (Enright); unset: server default
-  std::optional<VelocityGridOptions> velocity_grid;
-  double frame_interval = 0;
-  int frames = 0;
-};
-
-// `active` job (Desbrun-Cani 1998): one mode plus the engine's parameters.
-struct ActiveOptions {
-  std::variant<ActiveCoatOptions, ActiveMorphOptions, ActiveAdvectOptions> mode;
-  double grid_spacing = 0;
-  std::optional<Box> bounds;
-  std::optional<double> alpha;
-  std::optional<double> beta;
-  std::optional<double> gamma;
-  std::optional<double> delta;
-  std::optional<double> cfl;
-  std::optional<std::string> polygonizer;  // "tiles" or "cubes"
-};
-
-// What to submit: a whole JobSpec from JSON (`spec`), or one job type's own options; the output overrides apply
-// to all.
+// What to submit: a whole JobSpec from a file (`spec_file`), or one job type. Its options are the proto's own fields,
+// set in `spec` as the user gave them (flags and Python keywords are derived from the field names:
+// client/job_fields.h); nothing is defaulted or range-checked here (prepare_job() checks `spec` with the server's own
+// wire::check_job_options()). The inputs below are files (or in-memory stand-ins) that prepare_job() reads into
+// `spec` or uploads.
 struct JobOptions {
-  std::optional<std::filesystem::path> spec;
-  std::optional<IsosurfaceOptions> isosurface;
-  std::optional<ParticlesOptions> particles;
-  std::optional<OptimizeOptions> optimize;
-  std::optional<ActiveOptions> active;
-  std::optional<std::string> name;
-  // --encoding: "draco", "meshopt" or "raw" (lossless PLY; --raw is its alias); unset: the server's default (Draco).
-  std::optional<std::string> encoding;
-  bool normals = false;  // per-vertex normals in every frame
-  std::optional<int> quantization_bits;
+  std::optional<std::filesystem::path> spec_file;
+  v1::JobSpec spec;
+  // How the user named each field set (request path "spec.particles.r_outer" -> "--r-outer" or "r_outer"), so an
+  // error names it their way; fields not in it are named as the CLI spells them, or as Python keywords with
+  // `keywords`.
+  std::map<std::string, std::string> names;
+  bool keywords = false;
+  std::optional<std::string> name;  // --name; unset: made from the inputs' file names
+
+  // isosurface: one frame per scene; optimize and active advect: the one scene; active morph: from, to.
+  std::vector<std::filesystem::path> scenes;
+  ParticleInputOptions particles;                        // particles, active coat
+  std::optional<std::filesystem::path> container_scene;  // particles: container.solid
+  std::optional<std::filesystem::path> start_mesh;       // optimize: uploaded (else polygonized by the server)
+  std::optional<std::filesystem::path> velocity_grid;    // active advect: the values, uploaded (geometry in `spec`)
 };
 
 enum class FileFormat { kDrc, kPly, kObj, kVtk, kVtu, kGlb };

@@ -1,7 +1,8 @@
 // surfacer._surfacer: the C++ client library (client/) as a Python extension. Jobs are built by prepare_job() from the
-// CLI's own option structs, inputs uploaded by upload_inputs(), frames received by JobWatcher (CRC checks, reconnect
-// and resume) and decoded by decode_frame(): the Python package adds only the mapping of keyword arguments onto those
-// structs and the conversion of arrays and dicts. The public API (classes, docstrings) is python/surfacer/__init__.py.
+// job's proto fields set through the CLI's own option table (client/job_fields.h), inputs uploaded by upload_inputs(),
+// frames received by JobWatcher (CRC checks, reconnect and resume) and decoded by decode_frame(): the Python package
+// adds only the mapping of keyword arguments onto that table and the conversion of arrays and dicts. The public API
+// (classes, docstrings) is python/surfacer/__init__.py.
 #include <google/protobuf/descriptor.h>
 #include <google/protobuf/reflection.h>
 #include <google/protobuf/timestamp.pb.h>
@@ -24,10 +25,10 @@
 #include <thread>
 #include <vector>
 
-#include "client/cli_jobs.h"
 #include "client/commands.h"
 #include "client/connection.h"
 #include "client/health.h"
+#include "client/job_fields.h"
 #include "client/job_spec.h"
 #include "client/progress.h"
 #include "client/security.h"
@@ -163,9 +164,9 @@ py::object to_python(const google::protobuf::Message& message) {
   return out;
 }
 
-// ---- keyword arguments onto the CLI's option structs ---------------------------------------------------------------
+// ---- keyword arguments onto the job's proto fields ------------------------------------------------------------------
 
-using Setter = std::function<void(py::handle value)>;
+using Setter = std::function<void(py::handle value, const std::string& keyword)>;
 using Setters = std::map<std::string, Setter>;
 
 std::string text_of(py::handle value) { return py::str(value).cast<std::string>(); }
@@ -173,28 +174,34 @@ std::string text_of(py::handle value) { return py::str(value).cast<std::string>(
 bool is_path_like(py::handle value) { return py::isinstance<py::str>(value) || py::hasattr(value, "__fspath__"); }
 std::string path_of(py::handle value) { return py::module_::import("os").attr("fspath")(value).cast<std::string>(); }
 
-// "1,2,3" from a sequence of numbers, for the CLI's value parsers (parse_box, parse_sweeps): one set of checks.
-std::string joined(py::handle value, const std::string& keyword) {
-  if (py::isinstance<py::str>(value) || !py::isinstance<py::sequence>(value)) {
-    throw py::type_error(keyword + " must be a sequence of numbers, not " + text_of(py::repr(value)));
+// A keyword's value as the text the option table parses (client/job_fields.h): bools "true"/"false", numbers in full
+// precision, sequences of numbers "1,2,3", strings (enum names, "d,n" flow lists) as they are; a list of strings is
+// joined ("flows": ["d", "n"]).
+std::string table_text(py::handle value, const std::string& keyword) {
+  if (py::isinstance<py::bool_>(value)) return value.cast<bool>() ? "true" : "false";
+  if (py::isinstance<py::str>(value)) return value.cast<std::string>();
+  if (py::isinstance<py::int_>(value)) return text_of(value);
+  if (py::isinstance<py::float_>(value)) return format_number(value.cast<double>());
+  if (py::isinstance<py::sequence>(value) || py::isinstance<py::array>(value)) {
+    std::string text;
+    for (py::handle item : value) {
+      if (!text.empty()) text += ",";
+      text += py::isinstance<py::str>(item) ? item.cast<std::string>() : format_number(item.cast<double>());
+    }
+    return text;
   }
-  std::string text;
-  for (py::handle item : value) {
-    if (!text.empty()) text += ",";
-    text += format_number(item.cast<double>());
-  }
-  return text;
+  throw py::type_error(keyword + "=" + text_of(py::repr(value)) + " has the wrong type");
 }
 
-template <typename T>
-Setter set(std::optional<T>& target) {
-  return [&target](py::handle v) { target = v.cast<T>(); };
-}
-Setter set(bool& target) {
-  return [&target](py::handle v) { target = v.cast<bool>(); };
-}
-Setter set_box(std::optional<Box>& target, const std::string& keyword) {
-  return [&target, keyword](py::handle v) { target = parse_box(joined(v, keyword), keyword); };
+// Every field of `table` under its keyword and its aliases' (client/job_fields.h), setting it in job.spec.
+void add_table(Setters& s, JobOptions& job, JobTable table) {
+  for (const JobField& field : job_fields(table)) {
+    const Setter set = [&job, table, &field](py::handle value, const std::string& name) {
+      set_job_field(job.spec, table, field, table_text(value, name), name, job.names);
+    };
+    s[keyword(spelling(field))] = set;
+    for (const std::string& alias : field.aliases) s[keyword(alias)] = set;
+  }
 }
 
 // Applies `kwargs` through `setters`; an unknown keyword is a TypeError naming it, None leaves the default.
@@ -209,7 +216,7 @@ void apply(const py::dict& kwargs, const Setters& setters, const std::string& fu
     }
     if (value.is_none()) continue;
     try {
-      it->second(value);
+      it->second(value, name);
     } catch (const py::cast_error&) {
       throw py::type_error(function + "(): " + name + "=" + text_of(py::repr(value)) + " has the wrong type");
     }
@@ -217,7 +224,7 @@ void apply(const py::dict& kwargs, const Setters& setters, const std::string& fu
 }
 
 // Inputs of one call: scenes and particle frames given as dicts and arrays are kept here, under keys that stand for
-// them in the options structs ("scene[0]", "frame[2]").
+// them in the options ("scene[0]", "frame[2]").
 struct Inputs {
   InMemoryInputs memory;
 
@@ -272,31 +279,31 @@ struct Inputs {
 
 // name, encoding, normals, quantization_bits: every job type's output options.
 void add_common(Setters& s, JobOptions& job) {
-  s["name"] = set(job.name);
-  s["encoding"] = set(job.encoding);
-  s["normals"] = set(job.normals);
-  s["quantization_bits"] = set(job.quantization_bits);
+  s["name"] = [&job](py::handle v, const std::string&) { job.name = v.cast<std::string>(); };
+  s["encoding"] = [&job](py::handle v, const std::string&) {
+    const std::string name = v.cast<std::string>();
+    if (name != "draco" && name != "meshopt" && name != "raw") {
+      throw CliError(ExitCode::kUsage, "encoding must be draco, meshopt or raw, not " + name);
+    }
+    job.spec.mutable_output()->set_encoding(name == "raw"       ? v1::MESH_ENCODING_PLY
+                                            : name == "meshopt" ? v1::MESH_ENCODING_MESHOPT
+                                                                : v1::MESH_ENCODING_DRACO);
+  };
+  s["normals"] = [&job](py::handle v, const std::string&) { job.spec.mutable_output()->set_normals(v.cast<bool>()); };
+  s["quantization_bits"] = [&job](py::handle v, const std::string& name) {
+    job.spec.mutable_output()->set_quantization_bits(v.cast<int>());
+    job.names["spec.output.quantization_bits"] = name;
+  };
 }
 
 void add_particle_range(Setters& s, ParticleInputOptions& input) {
-  s["start"] = set(input.start);
-  s["end"] = set(input.end);
-}
-
-// grid_spacing, bounds, alpha, beta, gamma, delta, cfl, polygonizer: every active mode's engine options.
-void add_active(Setters& s, ActiveOptions& a) {
-  s["grid_spacing"] = [&a](py::handle v) { a.grid_spacing = v.cast<double>(); };
-  s["bounds"] = set_box(a.bounds, "bounds");
-  s["alpha"] = set(a.alpha);
-  s["beta"] = set(a.beta);
-  s["gamma"] = set(a.gamma);
-  s["delta"] = set(a.delta);
-  s["cfl"] = set(a.cfl);
-  s["polygonizer"] = set(a.polygonizer);
+  s["start"] = [&input](py::handle v, const std::string&) { input.start = v.cast<int>(); };
+  s["end"] = [&input](py::handle v, const std::string&) { input.end = v.cast<int>(); };
 }
 
 // The JobOptions of a call of `kind` with its positional `inputs` and keyword `kwargs`, dicts and arrays kept in
-// `in`. Python types are read here; values are checked where the CLI checks them (prepare_job, the server).
+// `in`. Keywords are the job's proto fields (client/job_fields.h, as the CLI's flags); values are checked by
+// prepare_job with the server's own checks.
 JobOptions job_options(const std::string& kind, const py::tuple& inputs, const py::dict& kwargs, Inputs& in) {
   const auto need = [&](std::size_t count, const char* what) {
     if (inputs.size() != count) {
@@ -304,101 +311,71 @@ JobOptions job_options(const std::string& kind, const py::tuple& inputs, const p
     }
   };
   JobOptions job;
+  job.keywords = true;
   Setters s;
   add_common(s, job);
   if (kind == "isosurface") {
     need(1, "one positional argument: a scene or a list of scenes (dicts or paths)");
-    IsosurfaceOptions& iso = job.isosurface.emplace();
-    s["cells"] = set(iso.cells);
-    s["cell_size"] = set(iso.cell_size);
-    s["bounds"] = set_box(iso.bounds, "bounds");
-    s["method"] = set(iso.method);
+    table_message(job.spec, JobTable::kIsosurface);
+    add_table(s, job, JobTable::kIsosurface);
     apply(kwargs, s, kind);
     py::handle scenes = inputs[0];
     if (py::isinstance<py::dict>(scenes) || is_path_like(scenes)) {
-      iso.scenes.push_back(in.scene(scenes, "scene[0]"));
+      job.scenes.push_back(in.scene(scenes, "scene[0]"));
     } else {
       for (py::handle scene : scenes)
-        iso.scenes.push_back(in.scene(scene, "scene[" + std::to_string(iso.scenes.size()) + "]"));
+        job.scenes.push_back(in.scene(scene, "scene[" + std::to_string(job.scenes.size()) + "]"));
     }
   } else if (kind == "particles") {
     need(1, "one positional argument: a list of frames ((N,3) arrays or file paths/patterns)");
-    ParticlesOptions& p = job.particles.emplace();
-    add_particle_range(s, p.input);
-    s["r_inner"] = set(p.r_inner);
-    s["derive_r_inner"] = set(p.derive_r_inner);
-    s["r_outer"] = set(p.r_outer);
-    s["spacing_factor"] = set(p.spacing_factor);
-    s["sweeps"] = [&p](py::handle v) { p.sweeps = parse_sweeps(joined(v, "sweeps")); };
-    s["relaxation"] = set(p.relaxation);
-    s["erosion"] = set(p.erosion);
-    s["unconstrained_polish"] = set(p.unconstrained_polish);
-    s["vertex_only_band"] = set(p.vertex_only_band);
-    s["min_angle"] = set(p.min_angle);
-    s["container_box"] = set_box(p.container_box, "container_box");
-    s["container_scene"] = [&p, &in](py::handle v) { p.container_scene = in.scene(v, "container_scene"); };
-    s["min_particles"] = set(p.min_particles);
+    table_message(job.spec, JobTable::kParticles);
+    add_table(s, job, JobTable::kParticles);
+    add_particle_range(s, job.particles);
+    const Setter container = [&job, &in](py::handle v, const std::string& name) {
+      job.container_scene = in.scene(v, name);
+    };
+    s["container_solid"] = container;
+    s["container_scene"] = container;
     apply(kwargs, s, kind);
-    p.input.inputs = in.particle_inputs(inputs[0]);
+    job.particles.inputs = in.particle_inputs(inputs[0]);
   } else if (kind == "optimize") {
     need(1, "one positional argument: the scene (a dict or a path)");
-    OptimizeOptions& o = job.optimize.emplace();
-    s["start_mesh"] = [&o](py::handle v) { o.start_mesh = path_of(v); };
-    s["start_cells"] = set(o.start_cells);
-    s["start_method"] = set(o.start_method);
-    s["start_bounds"] = set_box(o.start_bounds, "start_bounds");
-    s["iterations"] = set(o.iterations);
-    s["tolerance"] = set(o.tolerance);
-    s["snapshot_every"] = set(o.snapshot_every);
-    s["flows"] = [&o](py::handle v) {
-      o.flows = parse_flows(py::isinstance<py::str>(v) ? v.cast<std::string>()
-                                                       : py::str(",").attr("join")(v).cast<std::string>());
-    };
-    s["c_d"] = set(o.c_d);
-    s["c_n"] = set(o.c_n);
-    s["c_t"] = set(o.c_t);
-    s["step_bound"] = set(o.step_bound);
-    s["modified_flows"] = set(o.modified_flows);
-    s["t_flow_iterations"] = set(o.t_flow_iterations);
-    s["subdivide"] = set(o.subdivide);
-    s["triangle_budget"] = set(o.triangle_budget);
+    table_message(job.spec, JobTable::kOptimize);
+    add_table(s, job, JobTable::kOptimize);
+    s["start_mesh"] = [&job](py::handle v, const std::string&) { job.start_mesh = path_of(v); };
     apply(kwargs, s, kind);
-    o.scene = in.scene(inputs[0], "scene");
+    if (job.start_mesh && job.spec.optimize().has_polygonize()) {
+      throw CliError(ExitCode::kUsage, "start_mesh and " + names_below(job.names, "spec.optimize.polygonize") +
+                                           " both give the start mesh: give one");
+    }
+    job.scenes.push_back(in.scene(inputs[0], "scene"));
   } else if (kind == "active_coat") {
     need(1, "one positional argument: a list of particle frames ((N,3) arrays or file paths/patterns)");
-    ActiveOptions& a = job.active.emplace();
-    ActiveCoatOptions coat;
-    add_active(s, a);
-    add_particle_range(s, coat.input);
-    s["kernel_radius"] = [&coat](py::handle v) { coat.kernel_radius = v.cast<double>(); };
-    s["iso"] = set(coat.iso);
-    s["substeps"] = set(coat.substeps);
+    table_message(job.spec, JobTable::kCoat);
+    add_table(s, job, JobTable::kActive);
+    add_table(s, job, JobTable::kCoat);
+    add_particle_range(s, job.particles);
     apply(kwargs, s, kind);
-    coat.input.inputs = in.particle_inputs(inputs[0]);
-    a.mode = coat;
+    job.particles.inputs = in.particle_inputs(inputs[0]);
   } else if (kind == "active_morph") {
     need(2, "two positional arguments: the scenes to morph from and to (dicts or paths)");
-    ActiveOptions& a = job.active.emplace();
-    ActiveMorphOptions morph;
-    add_active(s, a);
-    s["tolerance"] = set(morph.tolerance);
-    s["max_frames"] = set(morph.max_frames);
-    s["frame_time"] = set(morph.frame_time);
+    table_message(job.spec, JobTable::kMorph);
+    add_table(s, job, JobTable::kActive);
+    add_table(s, job, JobTable::kMorph);
     apply(kwargs, s, kind);
-    morph.from = in.scene(inputs[0], "from");
-    morph.to = in.scene(inputs[1], "to");
-    a.mode = morph;
+    job.scenes.push_back(in.scene(inputs[0], "from"));
+    job.scenes.push_back(in.scene(inputs[1], "to"));
   } else if (kind == "active_advect") {
     need(1, "one positional argument: the scene to advect (a dict or a path)");
-    ActiveOptions& a = job.active.emplace();
-    ActiveAdvectOptions advect;
-    add_active(s, a);
-    s["enright_period"] = set(advect.enright_period);
-    s["frame_interval"] = [&advect](py::handle v) { advect.frame_interval = v.cast<double>(); };
-    s["frames"] = [&advect](py::handle v) { advect.frames = v.cast<int>(); };
+    table_message(job.spec, JobTable::kAdvect);
+    add_table(s, job, JobTable::kActive);
+    add_table(s, job, JobTable::kAdvect);
+    s["velocity_grid"] = [&job](py::handle v, const std::string&) { job.velocity_grid = path_of(v); };
     apply(kwargs, s, kind);
-    advect.scene = in.scene(inputs[0], "scene");
-    a.mode = advect;
+    if (!job.velocity_grid && !job.spec.active().advect().has_grid()) {
+      job.spec.mutable_active()->mutable_advect()->mutable_enright();
+    }
+    job.scenes.push_back(in.scene(inputs[0], "scene"));
   } else {
     throw py::value_error("unknown job kind '" + kind +
                           "': isosurface, particles, optimize, active_coat, active_morph or active_advect");

@@ -3,6 +3,7 @@
 #include "core/util/checks.h"
 #include "core/util/errors.h"
 #include "wire/enums.h"
+#include "wire/output.h"
 #include "wire/scene.h"
 
 namespace surfacer::wire {
@@ -62,8 +63,7 @@ PolygonizeOptions start_polygonize_options(const v1::Polygonize& start, const st
   return polygonize_request(start, default_start_polygonize(), path);
 }
 
-ParticleSurfacingOptions particle_options(const v1::ParticlesJob& job, bool normals, const UploadLookup& uploads,
-                                          const std::string& path) {
+ParticleSurfacingOptions particle_options(const v1::ParticlesJob& job, bool normals, const std::string& path) {
   ParticleSurfacingOptions options;
   if (job.has_r_inner()) options.r_inner = job.r_inner();
   options.derive_r_inner = job.derive_r_inner();
@@ -78,13 +78,25 @@ ParticleSurfacingOptions particle_options(const v1::ParticlesJob& job, bool norm
   if (job.has_vertex_only_band()) options.vertex_only_band = job.vertex_only_band();
   if (job.has_min_angle_degrees()) options.min_angle_degrees = job.min_angle_degrees();
   if (job.container().has_box()) options.container_box = to_aabb(job.container().box(), path + ".container.box");
-  if (job.container().has_solid()) {
-    options.container_solid = field_from_scene(job.container().solid(), path + ".container.solid", uploads);
-  }
   options.min_particles_per_component = job.min_particles_per_component();
   options.normals = normals;
   with_path(path, [&] { validate(options); });
   return options;
+}
+
+FieldPtr container_solid(const v1::ParticlesJob& job, const UploadLookup& uploads, const std::string& path) {
+  if (!job.container().has_solid()) return nullptr;
+  return field_from_scene(job.container().solid(), path + ".container.solid", uploads);
+}
+
+void require_r_inner_frame(const v1::ParticlesJob& job, std::size_t index, bool frame_has_radii) {
+  try {
+    require_r_inner_source(frame_has_radii, job.has_r_inner(), job.derive_r_inner());
+  } catch (const Error& e) {
+    const Error placed = at_path(e, "spec.particles");
+    throw Error(placed.kind(), placed.field(),
+                std::string(placed.what()) + " (frame " + std::to_string(index) + " has none)");
+  }
 }
 
 Aabb particles_job_box(const v1::ParticlesJob& job, std::span<const ParticleSummary> frames,
@@ -95,11 +107,7 @@ Aabb particles_job_box(const v1::ParticlesJob& job, std::span<const ParticleSumm
   for (std::size_t i = 0; i < frames.size(); ++i) {
     box = i == 0 ? frames[i].bounds : merged(box, frames[i].bounds);
     max_radius = std::max(max_radius, frames[i].max_radius);
-    if (frames[i].max_radius == 0.0 && !job.has_r_inner() && !job.derive_r_inner()) {
-      throw InvalidInput(path + ".r_inner", path + ".r_inner is required: frame " + std::to_string(i) +
-                                                " has no per-particle radii; give r_inner (e.g. the simulation's "
-                                                "particle radius) or set derive_r_inner");
-    }
+    require_r_inner_frame(job, i, frames[i].max_radius > 0.0);
   }
   const std::optional<double> r_inner = job.has_r_inner() ? std::optional<double>(job.r_inner()) : std::nullopt;
   const std::optional<double> r_outer = job.has_r_outer() ? std::optional<double>(job.r_outer()) : std::nullopt;
@@ -222,6 +230,36 @@ AdvectOptions advect_options(const v1::ActiveAdvect& advect, const std::string& 
   out.frames = advect.frames();
   validate_mode(path, "advect", {}, [&] { validate(out); });
   return out;
+}
+
+void check_job_options(const v1::JobSpec& spec) {
+  const bool normals = spec.output().normals();
+  switch (spec.kind_case()) {
+    case v1::JobSpec::kIsosurface:
+      isosurface_options(spec.isosurface(), normals, "spec.isosurface");
+      break;
+    case v1::JobSpec::kParticles:
+      particle_options(spec.particles(), normals, "spec.particles");
+      break;
+    case v1::JobSpec::kOptimize:
+      optimizer_options(spec.optimize(), normals, "spec.optimize");
+      if (spec.optimize().has_polygonize()) {
+        start_polygonize_options(spec.optimize().polygonize(), "spec.optimize.polygonize");
+      }
+      break;
+    case v1::JobSpec::kActive: {
+      const v1::ActiveJob& job = spec.active();
+      const ActiveSurfaceOptions options = active_options(job, normals, "spec.active");
+      if (job.has_coat()) coat_options(job.coat(), options, "spec.active");
+      if (job.has_morph()) morph_options(job.morph(), options, "spec.active");
+      if (job.has_advect()) advect_options(job.advect(), "spec.active");
+      break;
+    }
+    case v1::JobSpec::KIND_NOT_SET:
+      break;
+  }
+  // The output's codec, bits and box; the job's own box is the runners' (any valid box serves the check).
+  frame_encoding(spec.output(), Aabb{Vec3::Zero(), Vec3::Ones()}, "spec.output");
 }
 
 }  // namespace surfacer::wire

@@ -33,15 +33,19 @@ std::vector<FieldPtr> isosurface_fields(const v1::IsosurfaceJob& job, const Uplo
                                         const std::string& path);
 // OptimizeJob.polygonize: the start mesh the job makes itself (defaults: default_start_polygonize()).
 PolygonizeOptions start_polygonize_options(const v1::Polygonize& start, const std::string& path);
-// ParticlesJob: radii, sweeps, relaxation, erosion, container (its solid is a scene: uploads are looked up).
-ParticleSurfacingOptions particle_options(const v1::ParticlesJob& job, bool normals, const UploadLookup& uploads,
-                                          const std::string& path);
+// ParticlesJob: radii, sweeps, relaxation, erosion, container box. The container's solid is a scene (its uploads are
+// looked up): container_solid() builds it, null when the job has none.
+ParticleSurfacingOptions particle_options(const v1::ParticlesJob& job, bool normals, const std::string& path);
+FieldPtr container_solid(const v1::ParticlesJob& job, const UploadLookup& uploads, const std::string& path);
 // The quantization box of a particles job (core particle_sequence_box over the union of the frames' summaries, with
 // the job's radii and container box). `first_frame` gives frame 0's positions, needed only when r_inner is derived.
 // Throws InvalidInput("spec.particles.r_inner") when a frame has no radii and the job gives neither r_inner nor
-// derive_r_inner.
+// derive_r_inner (require_r_inner_frame).
 Aabb particles_job_box(const v1::ParticlesJob& job, std::span<const ParticleSummary> frames,
                        const std::function<std::vector<Vec3>()>& first_frame);
+
+// Frame `index` of a particles job: core's require_r_inner_source at "spec.particles.r_inner", naming the frame.
+void require_r_inner_frame(const v1::ParticlesJob& job, std::size_t index, bool frame_has_radii);
 
 // OptimizeJob: flows, coefficients, schedule, subdivision, snapshots.
 MeshOptimizerOptions optimizer_options(const v1::OptimizeJob& job, bool normals, const std::string& path);
@@ -53,5 +57,12 @@ ActiveSurfaceOptions active_options(const v1::ActiveJob& job, bool normals, cons
 CoatOptions coat_options(const v1::ActiveCoat& coat, const ActiveSurfaceOptions& options, const std::string& path);
 MorphOptions morph_options(const v1::ActiveMorph& morph, const ActiveSurfaceOptions& options, const std::string& path);
 AdvectOptions advect_options(const v1::ActiveAdvect& advect, const std::string& path);
+
+// Every engine option of `spec` and its output options, checked by the functions above and frame_encoding() as the
+// job runners check them at submit, without the data: scenes, particle frames, start meshes and velocity grids are the
+// runners' to check. The client calls it before it reads or uploads anything, so a bad value is refused with the
+// server's own message (the field at its request path, "spec.particles.r_outer (0.05) must exceed r_inner (0.1);
+// ..."). Throws InvalidInput.
+void check_job_options(const v1::JobSpec& spec);
 
 }  // namespace surfacer::wire

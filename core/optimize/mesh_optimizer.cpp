@@ -177,6 +177,11 @@ void validate(const MeshOptimizerOptions& o) {
                                                 ") must be >= 0; leave it unset to switch the T-flow off when E_d "
                                                 "stabilises");
   }
+  if (o.t_flow_iterations && !o.t_flow) {
+    throw InvalidInput("t_flow_iterations",
+                       "t_flow_iterations sets how long the T-flow runs, but t_flow is off: turn t_flow on or leave "
+                       "t_flow_iterations unset");
+  }
   if (o.tolerance && !(*o.tolerance > 0.0 && *o.tolerance < 1.0)) {
     throw InvalidInput("tolerance", "tolerance (" + format_number(*o.tolerance) +
                                         ") must be in (0, 1): a relative change of E_d and E_n, e.g. 1e-3");

@@ -940,6 +940,11 @@ void validate(const ParticleSurfacingOptions& o) {
     require_box("output_grid.box", o.output_grid->box);
     require_count("output_grid.bits", o.output_grid->bits, 1, 30);
   }
+  if (o.r_inner && o.derive_r_inner) {
+    throw InvalidInput("derive_r_inner", "derive_r_inner and r_inner (" + format_number(*o.r_inner) +
+                                             ") are both set; give one (r_inner, or derive_r_inner to estimate it "
+                                             "from the particle spacing)");
+  }
   if (o.r_inner) require_length("r_inner", *o.r_inner, "a radius in scene units");
   if (o.r_outer) require_length("r_outer", *o.r_outer, "a radius in scene units");
   if (o.r_inner && o.r_outer && !(*o.r_outer > *o.r_inner)) {
@@ -984,6 +989,13 @@ void validate(const ParticleSurfacingOptions& o) {
     throw InvalidInput("threads",
                        "threads (" + std::to_string(o.threads) + ") must be >= 0; 0 uses every hardware thread");
   }
+}
+
+void require_r_inner_source(bool frame_has_radii, bool has_r_inner, bool derive_r_inner) {
+  if (frame_has_radii || has_r_inner || derive_r_inner) return;
+  throw InvalidInput("r_inner",
+                     "r_inner is required: set it (e.g. the simulation's particle radius), ask for derive_r_inner, "
+                     "or give per-particle radii");
 }
 
 // --- The surfacer ---------------------------------------------------------------------------------------------------
@@ -1394,11 +1406,7 @@ void ParticleSurfacer::State::check_inputs(std::span<const Vec3> input, std::spa
                          "radius " + std::to_string(i) + " (" + format_number(radii[i]) + ") must be finite and > 0");
     }
   }
-  if (radii.empty() && !options.r_inner && !options.derive_r_inner) {
-    throw InvalidInput("r_inner",
-                       "r_inner is required: set it (e.g. the simulation's particle radius), ask for "
-                       "derive_r_inner, or give per-particle radii");
-  }
+  require_r_inner_source(!radii.empty(), options.r_inner.has_value(), options.derive_r_inner);
 }
 
 void ParticleSurfacer::State::distance_field(std::span<const Vec3> input, std::span<const double> radii, int threads,

@@ -144,6 +144,11 @@ struct ParticleSurfacingStats {
 // Throws InvalidInput naming the option ("r_inner", "r_outer", "spacing_factor", "laplacian_sweeps", ...) with the fix.
 void validate(const ParticleSurfacingOptions& options);
 
+// Throws InvalidInput("r_inner") when a frame without per-particle radii would have no r_inner: the options give
+// neither r_inner nor derive_r_inner. The one statement of "r_inner is required": the surfacer, the server's submit
+// check (wire) and the client's upload of each frame call it.
+void require_r_inner_source(bool frame_has_radii, bool has_r_inner, bool derive_r_inner);
+
 // Keeps validated options and scratch buffers (spatial hash, matrices) between frames; not thread-safe: use one per
 // worker. Throws InvalidInput from the constructor for bad options (message names the option and the fix).
 class ParticleSurfacer {

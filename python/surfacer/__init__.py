@@ -143,22 +143,27 @@ class Client:
     def particles(self, frames, **options) -> Job:
         """Surfaces particle frames (Williams 2008), one mesh per frame. Each frame is an (N,3) array of positions,
         an (N,4) array of positions and radii, or a particle file or pattern (``fluid_{:04d}.bgeo``, with start=
-        and end=). Options: r_inner or derive_r_inner=True, r_outer, spacing_factor, sweeps (L, B, P), relaxation,
-        erosion, unconstrained_polish, vertex_only_band, min_angle, container_box, container_scene (dict or path), min_particles,
-        start, end, and every job's."""
+        and end=). Options (surfacer.v1.ParticlesJob's fields): r_inner or derive_r_inner=True, r_outer,
+        spacing_factor, laplacian_sweeps, bilaplacian_sweeps, polish_sweeps (or sweeps=(L, B, P)), relaxation,
+        erosion, unconstrained_polish, vertex_only_band, min_angle_degrees (alias min_angle), container_box,
+        container_solid (dict or path; alias container_scene), min_particles_per_component (alias min_particles),
+        start, end, and every job's. Values are checked with the server's own checks before anything is
+        submitted (UsageError naming the keyword)."""
         return self._run("particles", (frames,), options)
 
     def optimize(self, scene, **options) -> Job:
         """Optimizes a mesh toward the scene's surface (Ohtake-Belyaev-Pasko 2002): snapshot frames, the last one the
-        result. Options: start_mesh (a .ply/.obj/.drc path) or start_cells, start_method, start_bounds; iterations,
-        tolerance, snapshot_every, flows ("d,n,t" or a list), c_d, c_n, c_t, step_bound, modified_flows,
-        t_flow_iterations, subdivide, triangle_budget, and every job's."""
+        result. Options (surfacer.v1.OptimizeJob's fields): start_mesh (a .ply/.obj/.drc/.glb path) or
+        polygonize_cells, polygonize_cell_size, polygonize_method, polygonize_bounds (aliases start_cells,
+        start_method, start_bounds); max_iterations (alias iterations), tolerance, snapshot_every, flows ("d,n,t" or a
+        list), c_d, c_n, c_t, step_bound, modified_flows, t_flow_iterations, subdivision_threshold (alias
+        subdivide), triangle_budget, and every job's."""
         return self._run("optimize", (scene,), options)
 
     def active_coat(self, frames, **options) -> Job:
         """A skin coating a particle sequence (Desbrun-Cani 1998). Options: kernel_radius and grid_spacing
-        (required), iso, substeps, start, end, bounds, alpha, beta, gamma, delta, cfl, polygonizer, and every
-        job's."""
+        (required), iso, substeps_per_frame (alias substeps), start, end, bounds, alpha, beta, gamma, delta, cfl,
+        polygonizer, and every job's."""
         return self._run("active_coat", (frames,), options)
 
     def active_morph(self, a, b, **options) -> Job:
@@ -167,8 +172,9 @@ class Client:
         return self._run("active_morph", (a, b), options)
 
     def active_advect(self, scene, **options) -> Job:
-        """Advects a scene by the Enright test field. Options: grid_spacing, frame_interval, frames (required),
-        enright_period, bounds, alpha, beta, gamma, delta, cfl, polygonizer, and every job's."""
+        """Advects a scene by the Enright test field, or by a sampled one: velocity_grid (a raw float32 file) with
+        velocity_origin, velocity_spacing and velocity_dims. Options: grid_spacing, frame_interval, frames
+        (required), enright_period (alias period), bounds, beta, gamma, delta, cfl, polygonizer, and every job's."""
         return self._run("active_advect", (scene,), options)
 
     def _run(self, kind, inputs, options) -> Job:

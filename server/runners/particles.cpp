@@ -82,7 +82,8 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
     throw InvalidInput(path + ".frames", path + ".frames is empty; give at least one particle frame");
   }
   check_frame_count(job.frames_size(), path + ".frames", context.limits);
-  ParticleSurfacingOptions options = wire::particle_options(job, spec.output().normals(), context.uploads, path);
+  ParticleSurfacingOptions options = wire::particle_options(job, spec.output().normals(), path);
+  options.container_solid = wire::container_solid(job, context.uploads, path);
 
   // Every frame is checked now (so bad data fails the submit, not a frame later), and the quantization box is the
   // union of the frames' particles, padded by how far the surface can reach.

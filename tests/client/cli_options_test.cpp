@@ -23,10 +23,11 @@ TEST(CliOptions, RunIsosurfaceDefaults) {
   const Invocation& inv = ok(p);
   EXPECT_TRUE(inv.connect.local());
   const auto& run = std::get<RunCommand>(inv.command);
-  ASSERT_TRUE(run.job.isosurface);
-  EXPECT_EQ(run.job.isosurface->scenes.size(), 1u);
-  EXPECT_FALSE(run.job.isosurface->cells);  // the 128 default is applied when building the spec
-  EXPECT_FALSE(run.job.encoding);
+  ASSERT_TRUE(run.job.spec.has_isosurface());
+  EXPECT_EQ(run.job.scenes.size(), 1u);
+  // The 128 default is the server's: the CLI sends no resolution.
+  EXPECT_EQ(run.job.spec.isosurface().resolution_case(), v1::IsosurfaceJob::RESOLUTION_NOT_SET);
+  EXPECT_EQ(run.job.spec.output().encoding(), v1::MESH_ENCODING_UNSPECIFIED);
   EXPECT_EQ(run.output.dir, "out");
   EXPECT_TRUE(run.output.formats.empty());
 }
@@ -41,16 +42,16 @@ TEST(CliOptions, RunIsosurfaceAllFlags) {
   EXPECT_EQ(inv.connect.server, "host:1234");
   EXPECT_DOUBLE_EQ(inv.connect.timeout_seconds, 2.0);
   const auto& run = std::get<RunCommand>(inv.command);
-  ASSERT_TRUE(run.job.isosurface);
-  EXPECT_EQ(run.job.isosurface->scenes.size(), 2u);
-  EXPECT_EQ(run.job.isosurface->cell_size, 0.05);
-  ASSERT_TRUE(run.job.isosurface->bounds);
-  EXPECT_EQ((*run.job.isosurface->bounds)[0], -1.0);
-  EXPECT_EQ((*run.job.isosurface->bounds)[5], 3.0);
-  EXPECT_EQ(run.job.isosurface->method, "cubes");
+  ASSERT_TRUE(run.job.spec.has_isosurface());
+  EXPECT_EQ(run.job.scenes.size(), 2u);
+  EXPECT_EQ(run.job.spec.isosurface().cell_size(), 0.05);
+  ASSERT_TRUE(run.job.spec.isosurface().has_bounds());
+  EXPECT_EQ(run.job.spec.isosurface().bounds().min().x(), -1.0);
+  EXPECT_EQ(run.job.spec.isosurface().bounds().max().z(), 3.0);
+  EXPECT_EQ(run.job.spec.isosurface().method(), v1::POLYGONIZER_CUBES);
   EXPECT_EQ(run.output.formats, (std::vector<FileFormat>{FileFormat::kPly, FileFormat::kObj}));
-  EXPECT_TRUE(run.job.normals);
-  EXPECT_EQ(run.job.quantization_bits, 12);
+  EXPECT_TRUE(run.job.spec.output().normals());
+  EXPECT_EQ(run.job.spec.output().quantization_bits(), 12);
   EXPECT_EQ(run.job.name, "demo");
 }
 
@@ -59,8 +60,8 @@ TEST(CliOptions, GlobalOptionsBeforeSubcommand) {
   const Invocation& inv = ok(p);
   EXPECT_EQ(inv.connect.server, "h:1");
   const auto& run = std::get<RunCommand>(inv.command);
-  EXPECT_EQ(run.job.spec, "job.json");
-  EXPECT_FALSE(run.job.isosurface);
+  EXPECT_EQ(run.job.spec_file, "job.json");
+  EXPECT_FALSE(run.job.spec.has_isosurface());
 }
 
 TEST(CliOptions, ServerFromEnvironmentUnlessLocal) {
@@ -94,7 +95,7 @@ TEST(CliOptions, OtherSubcommands) {
   EXPECT_EQ(std::get<StatusCommand>(ok(parse_cli({"status", "j-2"})).command).job_id, "j-2");
   EXPECT_TRUE(std::holds_alternative<HealthCommand>(ok(parse_cli({"health"})).command));
   auto submit = std::get<SubmitCommand>(ok(parse_cli({"submit", "isosurface", "--scene", "a.json", "--raw"})).command);
-  EXPECT_EQ(submit.job.encoding, "raw");
+  EXPECT_EQ(submit.job.spec.output().encoding(), v1::MESH_ENCODING_PLY);
 }
 
 TEST(CliOptions, UsageErrorsExitTwo) {

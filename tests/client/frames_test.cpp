@@ -278,10 +278,17 @@ TEST(JobSpec, BuildsIsosurfaceFromSceneFiles) {
   const fs::path dir = fresh_temp_dir("client_spec");
   write_file(dir / "ball.json", R"({"name": "ball", "root": {"sphere": {"radius": 0.5}}})");
   JobOptions options;
-  options.isosurface =
-      IsosurfaceOptions{{dir / "ball.json", dir / "ball.json"}, {}, {}, {{-1, -1, -1, 1, 1, 1}}, "cubes"};
-  options.encoding = "raw";
-  options.normals = true;
+  options.scenes = {dir / "ball.json", dir / "ball.json"};
+  v1::IsosurfaceJob* iso = options.spec.mutable_isosurface();
+  iso->mutable_bounds()->mutable_min()->set_x(-1);
+  iso->mutable_bounds()->mutable_min()->set_y(-1);
+  iso->mutable_bounds()->mutable_min()->set_z(-1);
+  iso->mutable_bounds()->mutable_max()->set_x(1);
+  iso->mutable_bounds()->mutable_max()->set_y(1);
+  iso->mutable_bounds()->mutable_max()->set_z(1);
+  iso->set_method(v1::POLYGONIZER_CUBES);
+  options.spec.mutable_output()->set_encoding(v1::MESH_ENCODING_PLY);
+  options.spec.mutable_output()->set_normals(true);
   v1::JobSpec spec = prepare_job(options).spec;
   ASSERT_TRUE(spec.has_isosurface());
   EXPECT_EQ(spec.isosurface().scenes_size(), 2);
@@ -294,10 +301,10 @@ TEST(JobSpec, BuildsIsosurfaceFromSceneFiles) {
   EXPECT_TRUE(spec.output().normals());
   EXPECT_EQ(spec.name(), "ball (+1 more)");
 
-  options.isosurface->cell_size = 0.1;
+  options.spec.mutable_isosurface()->set_cell_size(0.1);
   options.name = "named";
-  options.encoding.reset();
-  options.quantization_bits = 11;
+  options.spec.mutable_output()->clear_encoding();
+  options.spec.mutable_output()->set_quantization_bits(11);
   spec = prepare_job(options).spec;
   EXPECT_DOUBLE_EQ(spec.isosurface().cell_size(), 0.1);
   EXPECT_EQ(spec.name(), "named");
@@ -310,12 +317,12 @@ TEST(JobSpec, WholeSpecFromJsonWithOverrides) {
   write_file(dir / "job.json", R"({"name": "from file", "output": {"quantizationBits": 9},
              "isosurface": {"scenes": [{"root": {"torus": {"majorRadius": 1, "minorRadius": 0.25}}}], "cells": 40}})");
   JobOptions options;
-  options.spec = dir / "job.json";
+  options.spec_file = dir / "job.json";
   v1::JobSpec spec = prepare_job(options).spec;
   EXPECT_EQ(spec.name(), "from file");
   EXPECT_EQ(spec.isosurface().cells(), 40);
   EXPECT_EQ(spec.output().quantization_bits(), 9);
-  options.encoding = "raw";
+  options.spec.mutable_output()->set_encoding(v1::MESH_ENCODING_PLY);
   EXPECT_EQ(prepare_job(options).spec.output().encoding(), v1::MESH_ENCODING_PLY);
   fs::remove_all(dir);
 }

@@ -10,6 +10,7 @@
 
 #include "client/cli.h"
 #include "client/cli_jobs.h"
+#include "client/job_fields.h"
 #include "client/job_spec.h"
 #include "client/particle_files.h"
 #include "tests/support/cli_parse.h"
@@ -58,10 +59,13 @@ TEST(JobOptions, IsosurfaceMethodTilesOrCubes) {
   for (const char* method : {"tiles", "cubes"}) {
     const JobOptions job =
         run_job(parse_cli({"run", "isosurface", "--scene", "a.json", "--method", method, "-o", "d"}));
-    ASSERT_TRUE(job.isosurface);
-    EXPECT_EQ(job.isosurface->method, method);
+    ASSERT_TRUE(job.spec.has_isosurface());
+    EXPECT_EQ(job.spec.isosurface().method(),
+              std::string(method) == "tiles" ? v1::POLYGONIZER_TILES : v1::POLYGONIZER_CUBES);
+    EXPECT_EQ(job.scenes, (std::vector<fs::path>{"a.json"}));
   }
-  EXPECT_FALSE(run_job(parse_cli({"run", "isosurface", "--scene", "a.json", "-o", "d"})).isosurface->method);
+  EXPECT_EQ(run_job(parse_cli({"run", "isosurface", "--scene", "a.json", "-o", "d"})).spec.isosurface().method(),
+            v1::POLYGONIZER_UNSPECIFIED);
 }
 
 TEST(JobOptions, ParticlesEveryFlag) {
@@ -106,42 +110,92 @@ TEST(JobOptions, ParticlesEveryFlag) {
                                  "--name",
                                  "splash"});
   const JobOptions job = run_job(p);
-  ASSERT_TRUE(job.particles);
-  const ParticlesOptions& o = *job.particles;
-  EXPECT_EQ(o.input.inputs, (std::vector<std::string>{"f_{:04d}.xyz", "extra.ply"}));
-  EXPECT_EQ(o.input.start, 2);
-  EXPECT_EQ(o.input.end, 5);
-  EXPECT_EQ(o.r_inner, 0.1);
-  EXPECT_FALSE(o.derive_r_inner);
-  EXPECT_EQ(o.r_outer, 0.25);
-  EXPECT_EQ(o.spacing_factor, 0.7);
-  EXPECT_EQ(o.sweeps, (std::array<int, 3>{4, 20, 3}));
-  EXPECT_EQ(o.relaxation, 0.5);
-  EXPECT_EQ(o.erosion, 0.2);
-  EXPECT_TRUE(o.unconstrained_polish);
-  EXPECT_TRUE(o.vertex_only_band);
-  EXPECT_EQ(o.min_angle, 2.5);
-  EXPECT_EQ(o.container_box, (Box{0, 0, 0, 1, 2, 3}));
-  EXPECT_EQ(o.container_scene, fs::path("solid.json"));
-  EXPECT_EQ(o.min_particles, 12);
-  EXPECT_TRUE(job.normals);
-  EXPECT_EQ(job.encoding, "raw");
+  ASSERT_TRUE(job.spec.has_particles());
+  const v1::ParticlesJob& o = job.spec.particles();
+  EXPECT_EQ(job.particles.inputs, (std::vector<std::string>{"f_{:04d}.xyz", "extra.ply"}));
+  EXPECT_EQ(job.particles.start, 2);
+  EXPECT_EQ(job.particles.end, 5);
+  EXPECT_EQ(o.r_inner(), 0.1);
+  EXPECT_FALSE(o.derive_r_inner());
+  EXPECT_EQ(o.r_outer(), 0.25);
+  EXPECT_EQ(o.spacing_factor(), 0.7);
+  EXPECT_EQ(o.laplacian_sweeps(), 4);
+  EXPECT_EQ(o.bilaplacian_sweeps(), 20);
+  EXPECT_EQ(o.polish_sweeps(), 3);
+  EXPECT_EQ(o.relaxation(), 0.5);
+  EXPECT_EQ(o.erosion(), 0.2);
+  EXPECT_TRUE(o.unconstrained_polish());
+  EXPECT_TRUE(o.vertex_only_band());
+  EXPECT_EQ(o.min_angle_degrees(), 2.5);
+  EXPECT_EQ(o.container().box().min().x(), 0);
+  EXPECT_EQ(o.container().box().max().z(), 3);
+  EXPECT_EQ(job.container_scene, fs::path("solid.json"));
+  EXPECT_EQ(o.min_particles_per_component(), 12);
+  EXPECT_TRUE(job.spec.output().normals());
+  EXPECT_EQ(job.spec.output().encoding(), v1::MESH_ENCODING_PLY);
   EXPECT_EQ(job.name, "splash");
   const auto& run = std::get<RunCommand>(std::get<Invocation>(p.result).command);
   EXPECT_EQ(run.output.dir, "out");
   EXPECT_EQ(run.output.formats, (std::vector<FileFormat>{FileFormat::kPly, FileFormat::kObj}));
 }
 
+// Flags are the proto's field names; the older spellings stay accepted and set the same fields.
+TEST(JobOptions, ProtoNamesAndTheirAliasesSetTheSameFields) {
+  const std::vector<std::string> base = {"run", "particles", "--input", "a.xyz", "--r-inner", "0.1", "-o", "d"};
+  const std::vector<std::pair<std::vector<std::string>, std::vector<std::string>>> pairs = {
+      {{"--min-angle-degrees", "3"}, {"--min-angle", "3"}},
+      {{"--min-particles-per-component", "7"}, {"--min-particles", "7"}},
+      {{"--laplacian-sweeps", "1", "--bilaplacian-sweeps", "2", "--polish-sweeps", "3"}, {"--sweeps", "1,2,3"}},
+  };
+  for (const auto& [proto, alias] : pairs) {
+    std::vector<std::string> a = base, b = base;
+    a.insert(a.end(), proto.begin(), proto.end());
+    b.insert(b.end(), alias.begin(), alias.end());
+    EXPECT_EQ(run_job(parse_cli(a)).spec.SerializeAsString(), run_job(parse_cli(b)).spec.SerializeAsString())
+        << joined(a) << " vs " << joined(b);
+  }
+  const std::vector<std::string> o = {"run", "optimize", "--scene", "c.json", "-o", "d"};
+  const std::vector<std::pair<std::vector<std::string>, std::vector<std::string>>> optimize = {
+      {{"--max-iterations", "9"}, {"--iterations", "9"}},
+      {{"--subdivision-threshold", "0.5"}, {"--subdivide", "0.5"}},
+      {{"--polygonize-cells", "12", "--polygonize-method", "cubes"},
+       {"--start-cells", "12", "--start-method", "cubes"}},
+  };
+  for (const auto& [proto, alias] : optimize) {
+    std::vector<std::string> a = o, b = o;
+    a.insert(a.end(), proto.begin(), proto.end());
+    b.insert(b.end(), alias.begin(), alias.end());
+    EXPECT_EQ(run_job(parse_cli(a)).spec.SerializeAsString(), run_job(parse_cli(b)).spec.SerializeAsString())
+        << joined(a) << " vs " << joined(b);
+  }
+  // Every table field has a flag in --help under its proto name.
+  for (const auto& [command, table] :
+       std::vector<std::pair<std::vector<std::string>, JobTable>>{{{"run", "isosurface"}, JobTable::kIsosurface},
+                                                                  {{"run", "particles"}, JobTable::kParticles},
+                                                                  {{"run", "optimize"}, JobTable::kOptimize},
+                                                                  {{"run", "active", "coat"}, JobTable::kActive},
+                                                                  {{"run", "active", "coat"}, JobTable::kCoat},
+                                                                  {{"run", "active", "morph"}, JobTable::kMorph},
+                                                                  {{"run", "active", "advect"}, JobTable::kAdvect}}) {
+    std::vector<std::string> args = command;
+    args.push_back("--help");
+    const ParsedCli help = parse_cli(args);
+    for (const JobField& field : job_fields(table)) {
+      EXPECT_NE(help.out.find(cli_flag(spelling(field))), std::string::npos) << joined(args) << field.path;
+    }
+  }
+}
+
 TEST(JobOptions, ParticlesDeriveRInnerAndSubmit) {
   const JobOptions job = run_job(parse_cli({"run", "particles", "--input", "a.bgeo", "--derive-r-inner", "-o", "d"}));
-  ASSERT_TRUE(job.particles);
-  EXPECT_TRUE(job.particles->derive_r_inner);
-  EXPECT_FALSE(job.particles->r_inner);
+  ASSERT_TRUE(job.spec.has_particles());
+  EXPECT_TRUE(job.spec.particles().derive_r_inner());
+  EXPECT_FALSE(job.spec.particles().has_r_inner());
   const ParsedCli s = parse_cli({"--server", "h:1", "submit", "particles", "--input", "a.bgeo", "--r-inner", "0.5"});
   ASSERT_TRUE(std::holds_alternative<Invocation>(s.result)) << s.err;
   const auto& submit = std::get<SubmitCommand>(std::get<Invocation>(s.result).command);
-  ASSERT_TRUE(submit.job.particles);
-  EXPECT_EQ(submit.job.particles->r_inner, 0.5);
+  ASSERT_TRUE(submit.job.spec.has_particles());
+  EXPECT_EQ(submit.job.spec.particles().r_inner(), 0.5);
 }
 
 TEST(JobOptions, OptimizeEveryFlag) {
@@ -164,7 +218,7 @@ TEST(JobOptions, OptimizeEveryFlag) {
                                             "--flows",
                                             "d,n",
                                             "--c-d",
-                                            "1.5",
+                                            "1",
                                             "--c-n",
                                             "0.5",
                                             "--c-t",
@@ -178,34 +232,34 @@ TEST(JobOptions, OptimizeEveryFlag) {
                                             "500000",
                                             "-o",
                                             "out"}));
-  ASSERT_TRUE(job.optimize);
-  const OptimizeOptions& o = *job.optimize;
-  EXPECT_EQ(o.scene, fs::path("cube.json"));
-  EXPECT_FALSE(o.start_mesh);
-  EXPECT_EQ(o.start_cells, 24);
-  EXPECT_EQ(o.start_method, "tiles");
-  EXPECT_EQ(o.start_bounds, (Box{-2, -2, -2, 2, 2, 2}));
-  EXPECT_EQ(o.iterations, 20);
-  EXPECT_EQ(o.tolerance, 1e-4);
-  EXPECT_EQ(o.snapshot_every, 5);
-  ASSERT_TRUE(o.flows);
-  EXPECT_TRUE(o.flows->d);
-  EXPECT_TRUE(o.flows->n);
-  EXPECT_FALSE(o.flows->t);
-  EXPECT_EQ(o.c_d, 1.5);
-  EXPECT_EQ(o.c_n, 0.5);
-  EXPECT_EQ(o.c_t, 0.25);
-  EXPECT_EQ(o.step_bound, 0.3);
-  EXPECT_TRUE(o.modified_flows);
-  EXPECT_EQ(o.subdivide, 0.01);
-  EXPECT_EQ(o.triangle_budget, 500000);
+  ASSERT_TRUE(job.spec.has_optimize());
+  const v1::OptimizeJob& o = job.spec.optimize();
+  EXPECT_EQ(job.scenes, (std::vector<fs::path>{"cube.json"}));
+  EXPECT_FALSE(job.start_mesh);
+  EXPECT_EQ(o.polygonize().cells(), 24);
+  EXPECT_EQ(o.polygonize().method(), v1::POLYGONIZER_TILES);
+  EXPECT_EQ(o.polygonize().bounds().min().x(), -2);
+  EXPECT_EQ(o.polygonize().bounds().max().z(), 2);
+  EXPECT_EQ(o.max_iterations(), 20);
+  EXPECT_EQ(o.tolerance(), 1e-4);
+  EXPECT_EQ(o.snapshot_every(), 5);
+  EXPECT_TRUE(o.has_d_flow() && o.d_flow());
+  EXPECT_TRUE(o.has_n_flow() && o.n_flow());
+  EXPECT_TRUE(o.has_t_flow() && !o.t_flow());
+  EXPECT_EQ(o.c_d(), 1);
+  EXPECT_EQ(o.c_n(), 0.5);
+  EXPECT_EQ(o.c_t(), 0.25);
+  EXPECT_EQ(o.step_bound(), 0.3);
+  EXPECT_TRUE(o.modified_flows());
+  EXPECT_EQ(o.subdivision_threshold(), 0.01);
+  EXPECT_EQ(o.triangle_budget(), 500000);
 
   const JobOptions mesh = run_job(parse_cli(
       {"run", "optimize", "--scene", "c.json", "--start-mesh", "m.drc", "--t-flow-iterations", "7", "-o", "out"}));
-  ASSERT_TRUE(mesh.optimize);
-  EXPECT_EQ(mesh.optimize->start_mesh, fs::path("m.drc"));
-  EXPECT_EQ(mesh.optimize->t_flow_iterations, 7);
-  EXPECT_FALSE(mesh.optimize->flows);
+  ASSERT_TRUE(mesh.spec.has_optimize());
+  EXPECT_EQ(mesh.start_mesh, fs::path("m.drc"));
+  EXPECT_EQ(mesh.spec.optimize().t_flow_iterations(), 7);
+  EXPECT_FALSE(mesh.spec.optimize().has_d_flow());
 }
 
 TEST(JobOptions, ActiveModes) {
@@ -235,51 +289,50 @@ TEST(JobOptions, ActiveModes) {
                                              "0.5",
                                              "--delta",
                                              "2",
-                                             "--cfl",
-                                             "0.4",
                                              "--polygonizer",
                                              "cubes",
                                              "-o",
                                              "d"}));
-  ASSERT_TRUE(coat.active);
-  const ActiveOptions& a = *coat.active;
-  ASSERT_TRUE(std::holds_alternative<ActiveCoatOptions>(a.mode));
-  const auto& c = std::get<ActiveCoatOptions>(a.mode);
-  EXPECT_EQ(c.input.inputs, (std::vector<std::string>{"p_{}.xyz"}));
-  EXPECT_EQ(c.input.end, 9);
-  EXPECT_EQ(c.kernel_radius, 0.3);
-  EXPECT_EQ(c.iso, 0.4);
-  EXPECT_EQ(c.substeps, 3);
-  EXPECT_EQ(a.grid_spacing, 0.05);
-  EXPECT_EQ(a.bounds, (Box{-1, -1, -1, 1, 1, 1}));
-  EXPECT_EQ(a.alpha, 1.0);
-  EXPECT_EQ(a.beta, 0.01);
-  EXPECT_EQ(a.gamma, 0.5);
-  EXPECT_EQ(a.delta, 2.0);
-  EXPECT_EQ(a.cfl, 0.4);
-  EXPECT_EQ(a.polygonizer, "cubes");
+  ASSERT_TRUE(coat.spec.has_active());
+  const v1::ActiveJob& a = coat.spec.active();
+  ASSERT_EQ(a.mode_case(), v1::ActiveJob::kCoat);
+  EXPECT_EQ(coat.particles.inputs, (std::vector<std::string>{"p_{}.xyz"}));
+  EXPECT_EQ(coat.particles.end, 9);
+  EXPECT_EQ(a.coat().kernel_radius(), 0.3);
+  EXPECT_EQ(a.coat().iso(), 0.4);
+  EXPECT_EQ(a.coat().substeps_per_frame(), 3);
+  EXPECT_EQ(a.grid_spacing(), 0.05);
+  EXPECT_EQ(a.bounds().min().y(), -1);
+  EXPECT_EQ(a.bounds().max().z(), 1);
+  EXPECT_EQ(a.alpha(), 1.0);
+  EXPECT_EQ(a.beta(), 0.01);
+  EXPECT_EQ(a.gamma(), 0.5);
+  EXPECT_EQ(a.delta(), 2.0);
+  EXPECT_EQ(a.polygonizer(), v1::POLYGONIZER_CUBES);
+  const JobOptions cfl = run_job(parse_cli({"run", "active", "morph", "--from", "a.json", "--to", "b.json", "--cfl",
+                                            "0.4", "--grid-spacing", "0.02", "-o", "d"}));
+  EXPECT_EQ(cfl.spec.active().cfl(), 0.4);
 
   const JobOptions morph =
       run_job(parse_cli({"run", "active", "morph", "--from", "a.json", "--to", "b.json", "--tolerance", "1e-3",
                          "--max-frames", "50", "--frame-time", "0.1", "--grid-spacing", "0.02", "-o", "d"}));
-  ASSERT_TRUE(morph.active);
-  const auto& m = std::get<ActiveMorphOptions>(morph.active->mode);
-  EXPECT_EQ(m.from, fs::path("a.json"));
-  EXPECT_EQ(m.to, fs::path("b.json"));
-  EXPECT_EQ(m.tolerance, 1e-3);
-  EXPECT_EQ(m.max_frames, 50);
-  EXPECT_EQ(m.frame_time, 0.1);
+  ASSERT_EQ(morph.spec.active().mode_case(), v1::ActiveJob::kMorph);
+  const v1::ActiveMorph& m = morph.spec.active().morph();
+  EXPECT_EQ(morph.scenes, (std::vector<fs::path>{"a.json", "b.json"}));
+  EXPECT_EQ(m.tolerance(), 1e-3);
+  EXPECT_EQ(m.max_frames(), 50);
+  EXPECT_EQ(m.frame_time(), 0.1);
 
   const JobOptions enright =
       run_job(parse_cli({"run", "active", "advect", "--scene", "s.json", "--enright", "--period", "2",
                          "--frame-interval", "0.25", "--frames", "8", "--grid-spacing", "0.01", "-o", "d"}));
-  ASSERT_TRUE(enright.active);
-  const auto& e = std::get<ActiveAdvectOptions>(enright.active->mode);
-  EXPECT_EQ(e.scene, fs::path("s.json"));
-  EXPECT_EQ(e.enright_period, 2.0);
-  EXPECT_FALSE(e.velocity_grid);
-  EXPECT_EQ(e.frame_interval, 0.25);
-  EXPECT_EQ(e.frames, 8);
+  ASSERT_EQ(enright.spec.active().mode_case(), v1::ActiveJob::kAdvect);
+  const v1::ActiveAdvect& e = enright.spec.active().advect();
+  EXPECT_EQ(enright.scenes, (std::vector<fs::path>{"s.json"}));
+  EXPECT_EQ(e.enright().period(), 2.0);
+  EXPECT_FALSE(enright.velocity_grid);
+  EXPECT_EQ(e.frame_interval(), 0.25);
+  EXPECT_EQ(e.frames(), 8);
 
   const JobOptions grid = run_job(parse_cli({"run",
                                              "active",
@@ -301,13 +354,14 @@ TEST(JobOptions, ActiveModes) {
                                              "0.05",
                                              "-o",
                                              "d"}));
-  ASSERT_TRUE(grid.active);
-  const auto& g = std::get<ActiveAdvectOptions>(grid.active->mode);
-  ASSERT_TRUE(g.velocity_grid);
-  EXPECT_EQ(g.velocity_grid->file, fs::path("v.raw"));
-  EXPECT_EQ(g.velocity_grid->origin, (Triple{-1, -2, -3}));
-  EXPECT_EQ(g.velocity_grid->spacing, (Triple{0.5, 0.25, 0.125}));
-  EXPECT_EQ(g.velocity_grid->dims, (std::array<int, 3>{5, 9, 17}));
+  const v1::VelocityGrid& g = grid.spec.active().advect().grid();
+  EXPECT_EQ(grid.velocity_grid, fs::path("v.raw"));
+  EXPECT_EQ(g.origin().x(), -1);
+  EXPECT_EQ(g.origin().z(), -3);
+  EXPECT_EQ(g.spacing().y(), 0.25);
+  EXPECT_EQ(g.nx(), 5);
+  EXPECT_EQ(g.ny(), 9);
+  EXPECT_EQ(g.nz(), 17);
 }
 
 TEST(JobOptions, BadFlagsAreUsageErrorsNamingTheFlag) {
@@ -322,7 +376,6 @@ TEST(JobOptions, BadFlagsAreUsageErrorsNamingTheFlag) {
                                            "0.1", "--frames", "3",      "--grid-spacing", "0.1",    "-o",
                                            "d"};
   const std::vector<std::pair<std::vector<std::string>, std::string>> cases = {
-      {p, "--r-inner"},  // neither --r-inner nor --derive-r-inner
       {with(p, {"--r-inner", "0.1", "--derive-r-inner"}), "--derive-r-inner"},
       {with(p, {"--r-inner", "abc"}), "--r-inner"},
       {with(p, {"--r-inner", "-1"}), "--r-inner"},
@@ -344,7 +397,8 @@ TEST(JobOptions, BadFlagsAreUsageErrorsNamingTheFlag) {
       {with(o, {"--start-bounds", "0,0,0,1,1,-1"}), "--start-bounds"},
       {with(o, {"--flows", "d,x"}), "--flows"},
       {with(o, {"--flows", "d,n", "--t-flow-iterations", "5"}), "--t-flow-iterations"},
-      {with(o, {"--iterations", "0"}), "--iterations"},
+      {with(o, {"--iterations", "-1"}), "--iterations"},
+      {with(o, {"--c-d", "1.5"}), "--c-d"},  // core's range (0, 1], checked before anything is submitted
       {with(o, {"--snapshot-every", "many"}), "--snapshot-every"},
       {with(o, {"--triangle-budget", "-5"}), "--triangle-budget"},
       {{"run", "optimize", "--iterations", "5", "-o", "d"}, "--scene"},
@@ -421,17 +475,66 @@ TEST(JobOptions, EveryNewSubcommandHasHelpWithAnExample) {
   }
 }
 
-TEST(JobOptions, ValueParsers) {
-  EXPECT_EQ(parse_box("-1,-2,-3,1,2,3", "--bounds"), (Box{-1, -2, -3, 1, 2, 3}));
-  EXPECT_EQ(parse_sweeps("0,15,5"), (std::array<int, 3>{0, 15, 5}));
-  const FlowSet t = parse_flows("t");
-  EXPECT_FALSE(t.d);
-  EXPECT_FALSE(t.n);
-  EXPECT_TRUE(t.t);
-  EXPECT_THROW(parse_flows(""), CliError);
-  EXPECT_THROW(parse_numbers("1,2,", 3, "--x", "1,2,3"), CliError);
-  EXPECT_THROW(parse_numbers("1,nan,3", 3, "--x", "1,2,3"), CliError);
-  EXPECT_EQ(parse_numbers("1e-3,2,3", 3, "--x", "1,2,3")[0], 1e-3);
+// The table's values from text: the syntax of each proto type, errors naming the spelling given.
+TEST(JobOptions, TableValuesFromText) {
+  const auto field = [](JobTable table, const std::string& path) -> const JobField& {
+    for (const JobField& f : job_fields(table)) {
+      if (f.path == path) return f;
+    }
+    throw std::logic_error("no field " + path);
+  };
+  v1::JobSpec spec;
+  std::map<std::string, std::string> names;
+  set_job_field(spec, JobTable::kIsosurface, field(JobTable::kIsosurface, "bounds"), "-1,-2,-3,1,2,3", "--bounds",
+                names);
+  EXPECT_EQ(spec.isosurface().bounds().min().y(), -2);
+  EXPECT_EQ(spec.isosurface().bounds().max().z(), 3);
+  EXPECT_EQ(names.at("spec.isosurface.bounds"), "--bounds");
+  set_job_field(spec, JobTable::kIsosurface, field(JobTable::kIsosurface, "cells"), "40", "--cells", names);
+  EXPECT_EQ(spec.isosurface().cells(), 40);
+  // A second member of a oneof the user set is refused, naming both.
+  try {
+    set_job_field(spec, JobTable::kIsosurface, field(JobTable::kIsosurface, "cell_size"), "0.1", "--cell-size", names);
+    ADD_FAILURE() << "cells and cell_size were both taken";
+  } catch (const CliError& e) {
+    EXPECT_NE(std::string(e.what()).find("--cells"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("--cell-size"), std::string::npos) << e.what();
+  }
+  const JobField& flows = field(JobTable::kOptimize, "flows");
+  set_job_field(spec, JobTable::kOptimize, flows, "t", "--flows", names);
+  EXPECT_FALSE(spec.optimize().d_flow());
+  EXPECT_FALSE(spec.optimize().n_flow());
+  EXPECT_TRUE(spec.optimize().t_flow());
+  for (const char* bad : {"", "d,x", "dn"}) {
+    EXPECT_THROW(set_job_field(spec, JobTable::kOptimize, flows, bad, "--flows", names), CliError) << bad;
+  }
+  const JobField& box = field(JobTable::kParticles, "container.box");
+  for (const char* bad : {"1,2,", "1,nan,3,4,5,6", "1,2,3,4,5", "a,b,c,d,e,f"}) {
+    try {
+      set_job_field(spec, JobTable::kParticles, box, bad, "container_box", names);
+      ADD_FAILURE() << bad;
+    } catch (const CliError& e) {
+      EXPECT_EQ(e.code(), ExitCode::kUsage);
+      EXPECT_NE(std::string(e.what()).find("container_box"), std::string::npos) << e.what();
+    }
+  }
+  set_job_field(spec, JobTable::kParticles, box, "0,0,0,1,1,1", "container_box", names);  // as Python names it
+  const JobField& cells = field(JobTable::kIsosurface, "cells");
+  for (const char* bad : {"1.5", "x", "99999999999"}) {
+    EXPECT_THROW(set_job_field(spec, JobTable::kIsosurface, cells, bad, "--cells", names), CliError) << bad;
+  }
+  EXPECT_THROW(set_job_field(spec, JobTable::kIsosurface, field(JobTable::kIsosurface, "method"), "unspecified",
+                             "--method", names),
+               CliError);
+  // Spellings: flag and keyword of a path and of an alias.
+  EXPECT_EQ(cli_flag("container.box"), "--container-box");
+  EXPECT_EQ(keyword("container.box"), "container_box");
+  EXPECT_EQ(cli_flag("min-angle"), "--min-angle");
+  EXPECT_EQ(keyword("min-angle"), "min_angle");
+  EXPECT_EQ(name_of_field(names, "spec.particles.container.box.min.x", false), "container_box");
+  EXPECT_EQ(name_of_field({}, "spec.particles.min_angle_degrees", false), "--min-angle-degrees");
+  EXPECT_EQ(name_of_field({}, "spec.active.coat.substeps_per_frame", true), "substeps_per_frame");
+  EXPECT_EQ(name_of_field({}, "spec.particles.laplacian_sweeps", false), "--laplacian-sweeps");
 }
 
 // ---------------------------------------------------------------------------------------------------------------
@@ -517,23 +620,36 @@ TEST(JobSpecs, ParticlesFieldsAndOneUploadPerFrame) {
   write_file(dir / "p_1.xyz", "0 0 0 0.1\n");
   write_file(dir / "last.xyz", "5 5 5\n6 6 6\n7 7 7\n");
   write_file(dir / "solid.json", kCube);
-  JobOptions options;
-  ParticlesOptions p;
-  p.input = {{(dir / "p_{}.xyz").string(), (dir / "last.xyz").string()}, {}, {}};
-  p.r_inner = 0.1;
-  p.r_outer = 0.3;
-  p.spacing_factor = 0.75;
-  p.sweeps = {{3, 21, 2}};
-  p.relaxation = 0.55;
-  p.erosion = 0.05;
-  p.unconstrained_polish = true;
-  p.vertex_only_band = true;
-  p.min_angle = 0;
-  p.container_box = Box{-1, -1, -1, 8, 8, 8};
-  p.container_scene = dir / "solid.json";
-  p.min_particles = 4;
-  options.particles = p;
-  options.normals = true;
+  JobOptions options = run_job(parse_cli({"run",
+                                          "particles",
+                                          "--input",
+                                          (dir / "p_{}.xyz").string(),
+                                          "--input",
+                                          (dir / "last.xyz").string(),
+                                          "--r-inner",
+                                          "0.1",
+                                          "--r-outer",
+                                          "0.3",
+                                          "--spacing-factor",
+                                          "0.75",
+                                          "--sweeps",
+                                          "3,21,2",
+                                          "--relaxation",
+                                          "0.55",
+                                          "--erosion",
+                                          "0.05",
+                                          "--unconstrained-polish",
+                                          "--vertex-only-band",
+                                          "--min-angle",
+                                          "0",
+                                          "--container-box=-1,-1,-1,8,8,8",
+                                          "--container-scene",
+                                          (dir / "solid.json").string(),
+                                          "--min-particles",
+                                          "4",
+                                          "--normals",
+                                          "-o",
+                                          "d"}));
   PreparedJob prepared = prepare_job(options);
   v1::JobSpec& spec = prepared.spec;
   ASSERT_TRUE(spec.has_particles());
@@ -574,38 +690,68 @@ TEST(JobSpecs, ParticlesFieldsAndOneUploadPerFrame) {
   EXPECT_EQ(prepared.uploads[2].read(spec, {}).particles, 3);
   EXPECT_NE(prepared.uploads[2].description.find("last.xyz"), std::string::npos);
 
-  options.particles->r_inner.reset();
-  options.particles->derive_r_inner = true;
-  options.particles->sweeps.reset();
-  options.particles->input.inputs = {(dir / "last.xyz").string()};
+  options =
+      run_job(parse_cli({"run", "particles", "--input", (dir / "last.xyz").string(), "--derive-r-inner", "-o", "d"}));
   const v1::ParticlesJob derived = prepare_job(options).spec.particles();
   EXPECT_TRUE(derived.derive_r_inner());
   EXPECT_FALSE(derived.has_r_inner());
   EXPECT_FALSE(derived.has_bilaplacian_sweeps());  // the server's default
+
+  // Neither r_inner nor derive_r_inner: a frame with radii is surfaced with them, one without is refused as it is
+  // read, naming the flag and the file (core's one statement of the rule).
+  options = run_job(parse_cli({"run", "particles", "--input", (dir / "p_{}.xyz").string(), "-o", "d"}));
+  prepared = prepare_job(options);
+  ASSERT_EQ(prepared.uploads.size(), 2u);
+  EXPECT_NO_THROW(prepared.uploads[1].read(prepared.spec, {}));
+  try {
+    prepared.uploads[0].read(prepared.spec, {});
+    ADD_FAILURE() << "a frame without radii was taken without r_inner";
+  } catch (const CliError& e) {
+    EXPECT_EQ(e.code(), ExitCode::kUsage);
+    const std::string what = e.what();
+    EXPECT_NE(what.find("--r-inner"), std::string::npos) << what;
+    EXPECT_NE(what.find("derive_r_inner"), std::string::npos) << what;
+    EXPECT_NE(what.find("p_0.xyz"), std::string::npos) << what;
+  }
   fs::remove_all(dir);
 }
 
 TEST(JobSpecs, OptimizeFromPolygonizationOrUploadedMesh) {
   const fs::path dir = fresh_temp_dir("jobopts_optimize_spec");
   write_file(dir / "cube.json", kCube);
-  JobOptions options;
-  OptimizeOptions o;
-  o.scene = dir / "cube.json";
-  o.start_cells = 24;
-  o.start_method = "tiles";
-  o.start_bounds = Box{-2, -2, -2, 2, 2, 2};
-  o.iterations = 20;
-  o.tolerance = 1e-5;
-  o.snapshot_every = 5;
-  o.flows = FlowSet{true, true, false};
-  o.c_d = 1;
-  o.c_n = 0.5;
-  o.c_t = 0.1;
-  o.step_bound = 0.2;
-  o.modified_flows = true;
-  o.subdivide = 0.02;
-  o.triangle_budget = 100000;
-  options.optimize = o;
+  const std::string cube = (dir / "cube.json").string();
+  JobOptions options = run_job(parse_cli({"run",
+                                          "optimize",
+                                          "--scene",
+                                          cube,
+                                          "--start-cells",
+                                          "24",
+                                          "--start-method",
+                                          "tiles",
+                                          "--start-bounds=-2,-2,-2,2,2,2",
+                                          "--iterations",
+                                          "20",
+                                          "--tolerance",
+                                          "1e-5",
+                                          "--snapshot-every",
+                                          "5",
+                                          "--flows",
+                                          "d,n",
+                                          "--c-d",
+                                          "1",
+                                          "--c-n",
+                                          "0.5",
+                                          "--c-t",
+                                          "0.1",
+                                          "--step-bound",
+                                          "0.2",
+                                          "--modified-flows",
+                                          "--subdivide",
+                                          "0.02",
+                                          "--triangle-budget",
+                                          "100000",
+                                          "-o",
+                                          "d"}));
   PreparedJob prepared = prepare_job(options);
   EXPECT_TRUE(prepared.uploads.empty());
   const v1::OptimizeJob& job = prepared.spec.optimize();
@@ -631,9 +777,7 @@ TEST(JobSpecs, OptimizeFromPolygonizationOrUploadedMesh) {
   EXPECT_EQ(prepared.spec.name(), "cube");
 
   // Defaults: an empty Polygonize (the server's start), flows unset.
-  OptimizeOptions bare;
-  bare.scene = dir / "cube.json";
-  options.optimize = bare;
+  options = run_job(parse_cli({"run", "optimize", "--scene", cube, "-o", "d"}));
   const v1::OptimizeJob plain = prepare_job(options).spec.optimize();
   EXPECT_EQ(plain.start_case(), v1::OptimizeJob::kPolygonize);
   EXPECT_EQ(plain.polygonize().method(), v1::POLYGONIZER_UNSPECIFIED);
@@ -643,9 +787,10 @@ TEST(JobSpecs, OptimizeFromPolygonizationOrUploadedMesh) {
   // A start mesh is one upload of the file's bytes as they are.
   const std::string obj = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
   write_file(dir / "tet.obj", obj);
-  bare.start_mesh = dir / "tet.obj";
-  options.optimize = bare;
-  prepared = prepare_job(options);
+  const auto with_mesh = [&](const fs::path& mesh) {
+    return run_job(parse_cli({"run", "optimize", "--scene", cube, "--start-mesh", mesh.string(), "-o", "d"}));
+  };
+  prepared = prepare_job(with_mesh(dir / "tet.obj"));
   ASSERT_EQ(prepared.uploads.size(), 1u);
   UploadData data = prepared.uploads[0].read(prepared.spec, {});
   EXPECT_EQ(data.bytes, obj);
@@ -655,9 +800,7 @@ TEST(JobSpecs, OptimizeFromPolygonizationOrUploadedMesh) {
 
   // A bad mesh fails when read (before any job is queued), naming the file and the line.
   write_file(dir / "bad.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n");
-  bare.start_mesh = dir / "bad.obj";
-  options.optimize = bare;
-  prepared = prepare_job(options);
+  prepared = prepare_job(with_mesh(dir / "bad.obj"));
   try {
     prepared.uploads[0].read(prepared.spec, {});
     ADD_FAILURE() << "bad.obj was accepted";
@@ -667,13 +810,9 @@ TEST(JobSpecs, OptimizeFromPolygonizationOrUploadedMesh) {
     EXPECT_NE(std::string(e.what()).find("4"), std::string::npos) << e.what();
   }
   // Missing file or unknown extension: at once.
-  bare.start_mesh = dir / "none.ply";
-  options.optimize = bare;
-  EXPECT_THROW(prepare_job(options), CliError);
+  EXPECT_THROW(prepare_job(with_mesh(dir / "none.ply")), CliError);
   write_file(dir / "mesh.stl", "solid");
-  bare.start_mesh = dir / "mesh.stl";
-  options.optimize = bare;
-  EXPECT_THROW(prepare_job(options), CliError);
+  EXPECT_THROW(prepare_job(with_mesh(dir / "mesh.stl")), CliError);
   fs::remove_all(dir);
 }
 
@@ -683,25 +822,28 @@ TEST(JobSpecs, ActiveModes) {
   write_file(dir / "cube.json", kCube);
   write_file(dir / "c_0.xyz", "0 0 0\n");
   write_file(dir / "c_1.xyz", "0.1 0 0\n0.2 0 0\n");
+  const std::string ball = (dir / "ball.json").string();
+  const std::vector<std::string> common = {"--grid-spacing",
+                                           "0.05",
+                                           "--bounds=-1,-1,-1,1,1,1",
+                                           "--alpha",
+                                           "1",
+                                           "--beta",
+                                           "0.02",
+                                           "--gamma",
+                                           "0.3",
+                                           "--delta",
+                                           "0.4",
+                                           "-o",
+                                           "d"};
+  const auto active = [&](std::vector<std::string> args) {
+    args.insert(args.begin(), {"run", "active"});
+    args.insert(args.end(), common.begin(), common.end());
+    return run_job(parse_cli(args));
+  };
 
-  JobOptions options;
-  ActiveOptions a;
-  a.grid_spacing = 0.05;
-  a.bounds = Box{-1, -1, -1, 1, 1, 1};
-  a.alpha = 1;
-  a.beta = 0.02;
-  a.gamma = 0.3;
-  a.delta = 0.4;
-  a.cfl = 0.5;
-  a.polygonizer = "tiles";
-  ActiveCoatOptions coat;
-  coat.input = {{(dir / "c_{}.xyz").string()}, {}, {}};
-  coat.kernel_radius = 0.3;
-  coat.iso = 0.45;
-  coat.substeps = 4;
-  a.mode = coat;
-  options.active = a;
-  PreparedJob prepared = prepare_job(options);
+  PreparedJob prepared = prepare_job(active({"coat", "--input", (dir / "c_{}.xyz").string(), "--kernel-radius", "0.3",
+                                             "--iso", "0.45", "--substeps", "4", "--polygonizer", "tiles"}));
   const v1::ActiveJob& job = prepared.spec.active();
   EXPECT_DOUBLE_EQ(job.grid_spacing(), 0.05);
   EXPECT_DOUBLE_EQ(job.bounds().max().x(), 1);
@@ -709,7 +851,6 @@ TEST(JobSpecs, ActiveModes) {
   EXPECT_DOUBLE_EQ(job.beta(), 0.02);
   EXPECT_DOUBLE_EQ(job.gamma(), 0.3);
   EXPECT_DOUBLE_EQ(job.delta(), 0.4);
-  EXPECT_DOUBLE_EQ(job.cfl(), 0.5);
   EXPECT_EQ(job.polygonizer(), v1::POLYGONIZER_TILES);
   ASSERT_EQ(job.mode_case(), v1::ActiveJob::kCoat);
   EXPECT_EQ(job.coat().frames_size(), 2);
@@ -721,16 +862,8 @@ TEST(JobSpecs, ActiveModes) {
   prepared.uploads[1].set_id(prepared.spec, "u-c1");
   EXPECT_EQ(job.coat().frames(1).upload_id(), "u-c1");
 
-  ActiveMorphOptions morph;
-  morph.from = dir / "ball.json";
-  morph.to = dir / "cube.json";
-  morph.tolerance = 0.01;
-  morph.max_frames = 12;
-  morph.frame_time = 0.5;
-  a.mode = morph;
-  a.polygonizer.reset();
-  options.active = a;
-  prepared = prepare_job(options);
+  prepared = prepare_job(active({"morph", "--from", ball, "--to", (dir / "cube.json").string(), "--tolerance", "0.01",
+                                 "--max-frames", "12", "--frame-time", "0.5", "--cfl", "0.5"}));
   EXPECT_TRUE(prepared.uploads.empty());
   const v1::ActiveMorph& m = prepared.spec.active().morph();
   EXPECT_DOUBLE_EQ(m.from().root().sphere().radius(), 0.5);
@@ -738,16 +871,27 @@ TEST(JobSpecs, ActiveModes) {
   EXPECT_DOUBLE_EQ(m.tolerance(), 0.01);
   EXPECT_EQ(m.max_frames(), 12);
   EXPECT_DOUBLE_EQ(m.frame_time(), 0.5);
+  EXPECT_DOUBLE_EQ(prepared.spec.active().cfl(), 0.5);
   EXPECT_EQ(prepared.spec.active().polygonizer(), v1::POLYGONIZER_UNSPECIFIED);
 
-  ActiveAdvectOptions advect;
-  advect.scene = dir / "ball.json";
-  advect.enright_period = 3;
-  advect.frame_interval = 0.25;
-  advect.frames = 6;
-  a.mode = advect;
-  options.active = a;
-  prepared = prepare_job(options);
+  // alpha has no target to track in advect: refused with the server's message.
+  std::vector<std::string> advect = {"advect", "--scene",          ball,   "--enright", "--period",
+                                     "3",      "--frame-interval", "0.25", "--frames",  "6"};
+  const ParsedCli tracked = parse_cli([&] {
+    std::vector<std::string> args = {"run", "active"};
+    args.insert(args.end(), advect.begin(), advect.end());
+    args.insert(args.end(), common.begin(), common.end());
+    return args;
+  }());
+  EXPECT_EQ(exit_code_of(tracked), ExitCode::kUsage);
+  EXPECT_NE(tracked.err.find("spec.active.alpha"), std::string::npos) << tracked.err;
+
+  const auto advect_job = [&](std::vector<std::string> args) {
+    args.insert(args.begin(), {"run", "active", "advect", "--scene", ball, "--frame-interval", "0.25", "--frames", "6",
+                               "--grid-spacing", "0.05", "-o", "d"});
+    return run_job(parse_cli(args));
+  };
+  prepared = prepare_job(advect_job({"--enright", "--period", "3"}));
   EXPECT_TRUE(prepared.uploads.empty());
   const v1::ActiveAdvect& e = prepared.spec.active().advect();
   ASSERT_EQ(e.velocity_case(), v1::ActiveAdvect::kEnright);
@@ -757,12 +901,15 @@ TEST(JobSpecs, ActiveModes) {
   EXPECT_DOUBLE_EQ(e.shape().root().sphere().radius(), 0.5);
 
   // A velocity grid: its size is checked against the dimensions at once; the file is streamed when uploaded.
-  advect.enright_period.reset();
-  advect.velocity_grid = VelocityGridOptions{dir / "v.raw", {-1, -1, -1}, {1, 1, 1}, {3, 3, 2}};
   write_file(dir / "v.raw", std::string(3 * 3 * 2 * 12, '\0'));
-  a.mode = advect;
-  options.active = a;
-  prepared = prepare_job(options);
+  const std::vector<std::string> grid_flags = {"--velocity-grid",
+                                               (dir / "v.raw").string(),
+                                               "--velocity-origin=-1,-1,-1",
+                                               "--velocity-spacing",
+                                               "1,1,1",
+                                               "--velocity-dims",
+                                               "3,3,2"};
+  prepared = prepare_job(advect_job(grid_flags));
   const v1::VelocityGrid& grid = prepared.spec.active().advect().grid();
   EXPECT_EQ(grid.nx(), 3);
   EXPECT_EQ(grid.nz(), 2);
@@ -776,7 +923,7 @@ TEST(JobSpecs, ActiveModes) {
   EXPECT_EQ(prepared.spec.active().advect().grid().upload_id(), "u-v");
   write_file(dir / "v.raw", std::string(100, '\0'));
   try {
-    prepare_job(options);
+    prepare_job(advect_job(grid_flags));
     ADD_FAILURE() << "a 100-byte grid passed";
   } catch (const CliError& err) {
     EXPECT_EQ(err.code(), ExitCode::kUsage);
@@ -788,13 +935,14 @@ TEST(JobSpecs, ActiveModes) {
 TEST(JobSpecs, IsosurfaceMethod) {
   const fs::path dir = fresh_temp_dir("jobopts_iso_method");
   write_file(dir / "ball.json", kBall);
-  JobOptions options;
-  options.isosurface = IsosurfaceOptions{{dir / "ball.json"}, {}, {}, {}, "tiles"};
-  EXPECT_EQ(prepare_job(options).spec.isosurface().method(), v1::POLYGONIZER_TILES);
-  options.isosurface->method = "cubes";
-  EXPECT_EQ(prepare_job(options).spec.isosurface().method(), v1::POLYGONIZER_CUBES);
-  options.isosurface->method.reset();
-  EXPECT_EQ(prepare_job(options).spec.isosurface().method(), v1::POLYGONIZER_UNSPECIFIED);
+  const auto iso = [&](std::vector<std::string> extra) {
+    std::vector<std::string> args = {"run", "isosurface", "--scene", (dir / "ball.json").string(), "-o", "d"};
+    args.insert(args.end(), extra.begin(), extra.end());
+    return prepare_job(run_job(parse_cli(args))).spec.isosurface();
+  };
+  EXPECT_EQ(iso({"--method", "tiles"}).method(), v1::POLYGONIZER_TILES);
+  EXPECT_EQ(iso({"--method", "cubes"}).method(), v1::POLYGONIZER_CUBES);
+  EXPECT_EQ(iso({}).method(), v1::POLYGONIZER_UNSPECIFIED);
   fs::remove_all(dir);
 }
 
@@ -816,14 +964,16 @@ TEST(InMemoryInputs, ScenesAndParticleFramesStandInForFiles) {
   memory.particles["frame[0]"].positions = {Vec3(0, 0, 0), Vec3(0.5, 0, 0), Vec3(0, 0.5, 0)};
 
   JobOptions iso;
-  iso.isosurface.emplace().scenes = {"scene[0]", dir / "cube.json"};
+  iso.spec.mutable_isosurface();
+  iso.scenes = {"scene[0]", dir / "cube.json"};
   const PreparedJob scenes = prepare_job(iso, memory);
   ASSERT_EQ(scenes.spec.isosurface().scenes_size(), 2);
   EXPECT_EQ(scenes.spec.isosurface().scenes(0).name(), "ball");
   EXPECT_EQ(scenes.spec.isosurface().scenes(1).name(), "cube");
 
   JobOptions particles;
-  particles.particles.emplace().input.inputs = {"frame[0]", (dir / "b.xyz").string()};
+  particles.spec.mutable_particles()->set_r_inner(0.1);
+  particles.particles.inputs = {"frame[0]", (dir / "b.xyz").string()};
   const PreparedJob frames = prepare_job(particles, memory);
   ASSERT_EQ(frames.uploads.size(), 2u);
   v1::JobSpec spec = frames.spec;

@@ -274,10 +274,8 @@ TEST_F(LocalUploadTest, PendingParticleFramesAreUploadedInOrder) {
   write_file(dir / "drop_0.xyz", "0 0 0\n0.1 0 0\n");
   write_file(dir / "drop_1.xyz", "0 0 0 0.05\n0.1 0 0 0.05\n0.2 0 0 0.05\n");
   JobOptions options;
-  ParticlesOptions particles;
-  particles.input = {{(dir / "drop_{}.xyz").string()}, {}, {}};
-  particles.r_inner = 0.05;
-  options.particles = particles;
+  options.spec.mutable_particles()->set_r_inner(0.05);
+  options.particles.inputs = {(dir / "drop_{}.xyz").string()};
   PreparedJob prepared = prepare_job(options);
   std::ostringstream log;
   ProgressDisplay progress(log, false);

@@ -61,7 +61,7 @@ def test_particles_polish_and_sliver_options(local_client):
     (band,) = local_client.particles([ball], r_inner=0.04, vertex_only_band=True)
     assert faithful.stats["metrics"]["cusp_vertices"] > 0
     assert band.stats["metrics"]["cusp_vertices"] == 0
-    with pytest.raises(surfacer.JobFailed) as error:
+    with pytest.raises(surfacer.UsageError) as error:  # core's range, checked before anything is submitted
         local_client.particles([ball], r_inner=0.04, min_angle=45)
     assert error.value.code == "INVALID_ARGUMENT" and "min_angle_degrees" in str(error.value)
 
@@ -78,7 +78,8 @@ def test_bad_option_names_the_field(local_client):
         list(local_client.isosurface(sphere_scene(), cells=-1))
     assert error.value.code == "INVALID_ARGUMENT"
     assert "cells" in str(error.value)
-    assert isinstance(error.value, surfacer.JobFailed)
+    # Checked on this side with the server's own checks, before anything is submitted.
+    assert isinstance(error.value, surfacer.UsageError)
 
 
 def test_bad_scene_is_a_usage_error(local_client):
