@@ -1612,23 +1612,6 @@ Mesh initial_particle_surface(std::span<const Vec3> particles, std::span<const d
   return ParticleSurfacer(options).initial_surface(particles, radii, control, stats);
 }
 
-double estimate_particle_spacing(std::span<const Vec3> points) {
-  constexpr std::size_t kSamples = 128;
-  if (points.size() < 2) return 0.0;
-  const std::size_t step = std::max<std::size_t>(1, points.size() / kSamples);
-  double sum = 0.0;
-  int count = 0;
-  for (std::size_t i = 0; i < points.size(); i += step) {
-    double best = std::numeric_limits<double>::infinity();
-    for (std::size_t j = 0; j < points.size(); ++j) {
-      if (j != i) best = std::min(best, (points[j] - points[i]).squaredNorm());
-    }
-    sum += std::sqrt(best);
-    ++count;
-  }
-  return sum / count;
-}
-
 Aabb particle_sequence_box(const Aabb& particle_bounds, double max_radius, std::optional<double> r_inner,
                            std::optional<double> r_outer, const std::function<std::vector<Vec3>()>& first_frame,
                            const std::optional<Aabb>& container) {
@@ -1641,7 +1624,8 @@ Aabb particle_sequence_box(const Aabb& particle_bounds, double max_radius, std::
   } else if (r_inner) {
     pad = r_outer.value_or(ParticleSurfacingOptions::kDefaultOuterRatio * *r_inner);
   } else {
-    const double spacing = estimate_particle_spacing(first_frame());
+    // The spacing derive_r_inner finds, the one the frames are surfaced with (the one estimator of it).
+    const double spacing = derive_r_inner(first_frame(), 0, {});
     pad = kDerivedPadSafety * ratio * std::max(spacing, 1e-6 * std::max(box.size().maxCoeff(), 1.0));
   }
   box = box.padded(1.5 * pad);

@@ -184,15 +184,13 @@ Mesh initial_particle_surface(std::span<const Vec3> particles, std::span<const d
                               const ParticleSurfacingOptions& options, const RunControl& control = {},
                               ParticleSurfacingStats* stats = nullptr);
 
-// Mean distance from a sample of up to 128 particles to their nearest neighbour (brute force over all particles).
-double estimate_particle_spacing(std::span<const Vec3> points);
-
 // The box every surfaced frame of a particle sequence fits in (a Draco quantization box shared by all frames, so
 // that every frame uses one grid): the union of the particles' bounds, padded by 1.5 times how far the surface can
 // reach. That reach is r_outer / r_inner times the largest particle radius; or r_outer (default 2 r_inner); or,
-// when r_inner is derived per frame, 3 times the r_outer implied by the particle spacing of the first frame
-// (`first_frame` is called only then). Clipped to `container` when given. The server and the scale-out client
-// both use it, so a sequence split across servers is quantized exactly as on one server.
+// when r_inner is derived per frame, 3 times the r_outer implied by the first frame's derived r_inner (the surfacer's
+// own estimate of the particle spacing; `first_frame` is called only then). Clipped to `container` when given. The
+// server and the scale-out client both use it, so a sequence split across servers is quantized exactly as on one
+// server.
 Aabb particle_sequence_box(const Aabb& particle_bounds, double max_radius, std::optional<double> r_inner,
                            std::optional<double> r_outer, const std::function<std::vector<Vec3>()>& first_frame,
                            const std::optional<Aabb>& container);
