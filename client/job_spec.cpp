@@ -10,6 +10,7 @@
 #include "client/job_fields.h"
 #include "client/output_files.h"
 #include "client/particle_files.h"
+#include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_io.h"
 #include "core/util/errors.h"
 #include "core/util/format.h"
@@ -386,11 +387,13 @@ PreparedJob prepare_job(const JobOptions& options, const InMemoryInputs& in_memo
 void fit_encoding_to_files(v1::JobSpec& spec, const std::vector<FileFormat>& formats) {
   v1::OutputOptions* output = spec.mutable_output();
   if (std::find(formats.begin(), formats.end(), FileFormat::kGlb) != formats.end() &&
-      output->encoding() != v1::MESH_ENCODING_PLY && output->quantization_bits() > 16) {
-    throw CliError(ExitCode::kUsage,
-                   "--format glb holds positions of at most 16 bits (glTF's KHR_mesh_quantization), "
-                   "not --quantization-bits " +
-                       std::to_string(output->quantization_bits()) + ": use 16 or fewer, or another --format");
+      output->encoding() != v1::MESH_ENCODING_PLY) {
+    try {
+      check_gltf_quantization_bits(output->quantization_bits());
+    } catch (const Error& e) {
+      throw CliError(ExitCode::kUsage, "--format glb with --quantization-bits " +
+                                           std::to_string(output->quantization_bits()) + ": " + e.what());
+    }
   }
   const bool draco =
       output->encoding() == v1::MESH_ENCODING_UNSPECIFIED || output->encoding() == v1::MESH_ENCODING_DRACO;

@@ -268,13 +268,7 @@ Mesh decode_pieces(std::string_view bytes, FrameCodec codec, const Executor& exe
   return mesh;
 }
 
-void check_gltf_bits(const Container& c) {
-  if (c.grid.bits > 16) {
-    throw InvalidInput("quantization_bits", "quantization_bits (" + std::to_string(c.grid.bits) +
-                                                ") is more than glTF holds: positions of at most 16 bits "
-                                                "(KHR_mesh_quantization); use 16 or fewer, or another file format");
-  }
-}
+void check_gltf_bits(const Container& c) { check_gltf_quantization_bits(c.grid.bits); }
 
 // What every .glb of a frame begins with: the asset and, when it has a mesh, the extensions it needs.
 void begin_gltf(JsonWriter& w, bool has_mesh, const char* compression) {
@@ -562,6 +556,16 @@ std::string to_standard_draco(std::string_view bytes, FrameCodec codec, const Me
   const QuantizationGrid grid = read_container(bytes).grid;
   DracoOptions options = on_grid(grid, decoded);
   return encode_draco(clamped_to(decoded, *options.quantization_bounds), options);
+}
+
+void check_gltf_quantization_bits(int bits) {
+  if (bits > kMaxGltfQuantizationBits) {
+    throw InvalidInput("quantization_bits",
+                       "quantization_bits (" + std::to_string(bits) +
+                           ") is more than glTF holds: positions of at most " +
+                           std::to_string(kMaxGltfQuantizationBits) + " bits (KHR_mesh_quantization); use " +
+                           std::to_string(kMaxGltfQuantizationBits) + " or fewer, or another file format");
+  }
 }
 
 std::string to_gltf(std::string_view bytes, FrameCodec codec, const std::function<const Mesh&()>& decoded,

@@ -67,6 +67,11 @@ std::string to_standard_draco(std::string_view bytes, FrameCodec codec, const Me
 // InvalidInput("frame") for bytes that are not such a frame.
 std::string to_gltf(std::string_view bytes, FrameCodec codec, const std::function<const Mesh&()>& decoded,
                     const Executor& executor);
+// The most position bits glTF holds (KHR_mesh_quantization's 16-bit integers), and its check: throws
+// InvalidInput("quantization_bits") naming the fix for more. to_gltf() and the client's choice of a run's encoding both
+// call it.
+inline constexpr int kMaxGltfQuantizationBits = 16;
+void check_gltf_quantization_bits(int bits);
 // `mesh` as such a file: Draco pieces on the mesh's own box with the default bits, encoded on `executor`.
 std::string to_gltf(const Mesh& mesh, const Executor& executor);
 
