@@ -145,7 +145,18 @@ void Job::fail_restore(int grpc_code, const std::string& message) {
 
 void Job::persist() const {
   if (!store_) return;
-  const v1::Job job = snapshot();
+  v1::Job job;
+  {
+    std::lock_guard lock(mutex_);
+    snapshot_locked(job);
+    // A job being cancelled is CANCELLED in the store at once: its running tasks stop at their cancel token and it
+    // settles so in memory a moment later, but a restart in between (kill -9 right after CancelJob answered) must not
+    // resume it.
+    if (cancel_requested_ && !is_terminal(state_)) {
+      job.set_state(v1::JOB_STATE_CANCELLED);
+      *job.mutable_finished() = now_timestamp();
+    }
+  }
   try {
     store_->update_job(job);
     persist_pending_ = false;
@@ -517,7 +528,11 @@ bool Job::cancel(const std::string& reason) {
   }
   cancel_.cancel();
   log_event(LogLevel::kInfo, "job_cancel", {{"job", id_}, {"reason", reason}});
-  if (finished) finished_hooks();
+  if (finished) {
+    finished_hooks();  // persists the terminal state
+  } else {
+    persist();  // CANCELLED in the store before CancelJob answers (persist())
+  }
   notify();
   return finished;
 }

@@ -110,6 +110,46 @@ TEST(DurableStore, KillNineMidJobResumesFromTheLastFinishedFrame) {
   EXPECT_EQ(tail.frames.begin()->first, 5);
 }
 
+// CancelJob's OK means the cancel is in the store: a kill -9 right after it does not bring the job back. Whether the
+// job was queued behind another or running, and whichever frame it was on.
+TEST(DurableStore, ACancelIsDurableBeforeItIsAcknowledged) {
+  for (const bool queued : {false, true}) {
+    const fs::path dir = fresh_temp_dir(queued ? "durable-cancel-queued" : "durable-cancel-running");
+    const fs::path data = dir / "data";
+    const int frames = 8;
+    std::string id, other;
+    {
+      ServerProcess p(dir, 1, {"--data-dir", data.string()});
+      ASSERT_GT(p.port(), 0) << p.log();
+      auto stub = make_stub(p.address());
+      if (queued) ASSERT_TRUE(submit(*stub, sphere_sequence(frames, 150), &other).ok());  // holds the one worker
+      ASSERT_TRUE(submit(*stub, sphere_sequence(frames, 150), &id).ok());
+      const auto until = std::chrono::steady_clock::now() + 60s;
+      const std::string& busy = queued ? other : id;
+      while (std::chrono::steady_clock::now() < until && get_job(*stub, busy).frames_done() < 1) {
+        std::this_thread::sleep_for(5ms);
+      }
+      grpc::ClientContext context;
+      v1::CancelJobRequest request;
+      request.set_job_id(id);
+      v1::Job answer;
+      ASSERT_TRUE(stub->CancelJob(&context, request, &answer).ok());
+      p.kill_now();
+      ASSERT_LT(answer.frames_done(), frames) << "the job finished before the cancel: make frames slower";
+    }
+    ServerProcess p(dir, 1, {"--data-dir", data.string()});
+    ASSERT_GT(p.port(), 0) << p.log();
+    auto stub = make_stub(p.address());
+    const v1::Job job = get_job(*stub, id);
+    EXPECT_EQ(job.state(), v1::JOB_STATE_CANCELLED) << (queued ? "queued: " : "running: ") << p.log();
+    EXPECT_EQ(job.error().code(), static_cast<int>(grpc::StatusCode::CANCELLED));
+    // Nothing of it runs after the restart, and a watcher gets its terminal state.
+    const auto r = watch_job(*stub, id, 0);
+    EXPECT_EQ(r.final_job.state(), v1::JOB_STATE_CANCELLED);
+    EXPECT_EQ(p.log().find("event=job_started job=" + id), std::string::npos) << p.log();
+  }
+}
+
 TEST(DurableStore, AServerStoppingPastItsDrainDeadlineLeavesUnfinishedJobsToTheNext) {
   const fs::path dir = fresh_temp_dir("durable-suspend");
   const int frames = 8;
