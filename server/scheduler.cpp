@@ -11,10 +11,17 @@ namespace surfacer::server {
 
 Scheduler::Scheduler(WorkerPool& pool, int max_queued_jobs) : pool_(pool), max_queued_jobs_(max_queued_jobs) {}
 
-void Scheduler::submit(std::shared_ptr<Job> job) {
+void Scheduler::submit(std::shared_ptr<Job> job, const std::function<void(int active)>& check_owner) {
   const int tasks = job->runner().task_count();
   {
     std::lock_guard lock(mutex_);
+    if (check_owner) {
+      int active = 0;
+      for (const auto& [id, other] : jobs_) {
+        if (other->owner() == job->owner() && !other->terminal()) ++active;
+      }
+      check_owner(active);
+    }
     int queued = 0;
     for (const auto& p : pending_) {
       if (p.job->state() == v1::JOB_STATE_QUEUED) ++queued;

@@ -4,6 +4,7 @@
 
 #include <chrono>
 #include <deque>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -21,8 +22,10 @@ class Scheduler {
  public:
   Scheduler(WorkerPool& pool, int max_queued_jobs);
 
-  // Throws surfacer::Error(kResourceLimit) when max_queued_jobs jobs are already waiting.
-  void submit(std::shared_ptr<Job> job);
+  // Throws surfacer::Error(kResourceLimit) when max_queued_jobs jobs are already waiting. `check_owner` (when set) is
+  // called with the number of the job's owner's unfinished jobs under the same lock that adds the job, so a quota it
+  // enforces by throwing holds however many submits race (the job is not added then).
+  void submit(std::shared_ptr<Job> job, const std::function<void(int active)>& check_owner = {});
   // A job restored from the store: runs `tasks` (finished jobs: none; they are only kept for watching).
   void resume(std::shared_ptr<Job> job, std::vector<int> tasks);
   std::shared_ptr<Job> find(const std::string& id) const;

@@ -330,12 +330,16 @@ void SurfacerService::submit(const v1::SubmitJobRequest& request, const Tenant& 
     if (!state_.uploads->owned_by(id, tenant.name)) throw wire::unknown_upload(id, path);
     uploads.push_back(id);
   }
-  if (tenant.max_running_jobs > 0 && state_.scheduler->active_jobs(tenant.name) >= tenant.max_running_jobs) {
-    throw ResourceLimit("quota.running", "tenant '" + tenant.name + "' already has " +
-                                             std::to_string(tenant.max_running_jobs) +
-                                             " queued or running jobs (its quota); wait for one to finish, or raise "
-                                             "running= for its token in the server's --tokens-file");
-  }
+  // The running= quota: checked now (before the spec's work), and again where the job is added, atomically with it.
+  const auto check_running = [&tenant](int active) {
+    if (tenant.max_running_jobs > 0 && active >= tenant.max_running_jobs) {
+      throw ResourceLimit("quota.running", "tenant '" + tenant.name + "' already has " +
+                                               std::to_string(tenant.max_running_jobs) +
+                                               " queued or running jobs (its quota); wait for one to finish, or "
+                                               "raise running= for its token in the server's --tokens-file");
+    }
+  };
+  check_running(state_.scheduler->active_jobs(tenant.name));
   JobContext job_context{state_.options.limits, *state_.uploads, state_.worker_threads, state_.executor};
   JobInit init;
   init.id = random_id("j-");
@@ -350,7 +354,7 @@ void SurfacerService::submit(const v1::SubmitJobRequest& request, const Tenant& 
   auto job = std::make_shared<Job>(std::move(init));
   if (state_.store) state_.store->put_job(job->id(), tenant.name, request.spec(), job->snapshot());
   try {
-    state_.scheduler->submit(job);
+    state_.scheduler->submit(job, check_running);
   } catch (...) {
     if (state_.store) state_.store->delete_job(job->id());
     throw;

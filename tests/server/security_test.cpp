@@ -3,9 +3,11 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <filesystem>
 #include <fstream>
 #include <thread>
+#include <vector>
 
 #include "server/upload_assembler.h"
 #include "tests/server/test_client.h"
@@ -137,6 +139,41 @@ TEST(Security, AnotherTenantCanNeitherWatchListNorCancelAJob) {
   const auto status = submit(*s.stub, spec, &id, kAlice);
   EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
   EXPECT_NE(status.error_message().find("no upload"), std::string::npos) << status.error_message();
+}
+
+// The running= quota holds under concurrent submits: it is checked where the job is added, atomically with it.
+TEST(Security, RunningQuotaHoldsUnderConcurrentSubmits) {
+  LoopbackServer s(secured());
+  // Many scenes: checking the spec at submit takes long enough for the submits to overlap.
+  const std::vector<v1::Scene> scenes(
+      400, scene_from_json(R"({"root": {"torus": {"major_radius": 1, "minor_radius": 0.2}}})"));
+  const v1::JobSpec spec = isosurface_spec(scenes, 64);
+  for (int round = 0; round < 5; ++round) {
+    constexpr int kClients = 24;
+    std::vector<std::string> ids(kClients);
+    std::vector<grpc::StatusCode> codes(kClients, grpc::StatusCode::UNKNOWN);
+    std::atomic<int> ready{0};
+    std::vector<std::thread> clients;
+    for (int c = 0; c < kClients; ++c) {
+      clients.emplace_back([&, c] {
+        ++ready;
+        while (ready.load() < kClients) std::this_thread::yield();
+        codes[c] = submit(*s.stub, spec, &ids[c], kAlice).error_code();
+      });
+    }
+    for (auto& t : clients) t.join();
+    int accepted = 0;
+    for (int c = 0; c < kClients; ++c) {
+      if (codes[c] == grpc::StatusCode::OK) {
+        ++accepted;
+        cancel_job(*s.stub, ids[c], kAlice);
+        watch_job(*s.stub, ids[c], 0, kAlice);
+      } else {
+        EXPECT_EQ(codes[c], grpc::StatusCode::RESOURCE_EXHAUSTED) << "round " << round;
+      }
+    }
+    EXPECT_EQ(accepted, 1) << "round " << round << ": alice's running=1 let " << accepted << " jobs in";
+  }
 }
 
 TEST(Security, QuotasOnRunningJobsAndStoredBytes) {
