@@ -952,11 +952,12 @@ void validate(const ParticleSurfacingOptions& o) {
                                       format_number(*o.r_inner) + "); the default is " +
                                       format_number(ParticleSurfacingOptions::kDefaultOuterRatio) + " x r_inner");
   }
-  if (!(std::isfinite(o.spacing_factor) && o.spacing_factor > 0.0 && o.spacing_factor <= 10.0)) {
-    throw InvalidInput("spacing_factor",
-                       "spacing_factor (" + format_number(o.spacing_factor) +
-                           ") must be in (0, 10]; the thesis uses 0.8 (samples 0.8 r_inner apart), the default is " +
-                           format_number(defaults.spacing_factor));
+  if (!(std::isfinite(o.spacing_factor) && o.spacing_factor >= ParticleSurfacingOptions::kMinSpacingFactor &&
+        o.spacing_factor <= 10.0)) {
+    throw InvalidInput("spacing_factor", "spacing_factor (" + format_number(o.spacing_factor) + ") must be in [" +
+                                             format_number(ParticleSurfacingOptions::kMinSpacingFactor) +
+                                             ", 10]; the thesis uses 0.8 (samples 0.8 r_inner apart), the default is " +
+                                             format_number(defaults.spacing_factor));
   }
   const std::pair<const char*, int> sweeps[] = {{"laplacian_sweeps", o.laplacian_sweeps},
                                                 {"bilaplacian_sweeps", o.bilaplacian_sweeps},

@@ -80,7 +80,10 @@ struct ParticleSurfacingOptions {
   // needs r_outer^2 >= r_inner^2 + d^2 / 2 (thesis eq. 3.5; triangular lattice: + d^2 / 3, eq. 3.6).
   std::optional<double> r_outer;
   static constexpr double kDefaultOuterRatio = 2.0;
-  double spacing_factor = 0.8;  // Marching Tiles mean sample spacing / r_inner, in (0, 10]
+  // Marching Tiles mean sample spacing / r_inner, in [kMinSpacingFactor, 10]. The floor bounds the initial tiling's
+  // work per particle before it starts: its blocks near each particle grow as (r_outer / spacing)^3.
+  double spacing_factor = 0.8;
+  static constexpr double kMinSpacingFactor = 0.1;
   int laplacian_sweeps = 5;     // >= 0 each
   int bilaplacian_sweeps = 15;  // over-relaxed: 15 reach a lower energy than 25 plain ones (docs/ALGORITHMS.md §1)
   int polish_sweeps = 5;

@@ -1001,9 +1001,19 @@ TEST(ParticleSurfacer, RejectsBadOptionsAndInputsWithTheFieldName) {
     EXPECT_EQ(e.field(), "r_outer");
     EXPECT_NE(std::string(e.what()).find("must exceed r_inner"), std::string::npos) << e.what();
   }
+  // Below the floor the initial tiling's work per particle has no bound known before it starts (1e-6 spun for
+  // minutes in the seeding, past cancel).
+  for (double factor : {0.0, 1e-6, 0.099, 10.5}) {
+    o = options(1.0);
+    o.spacing_factor = factor;
+    expect_invalid(o, "spacing_factor");
+  }
   o = options(1.0);
-  o.spacing_factor = 0.0;
-  expect_invalid(o, "spacing_factor");
+  o.spacing_factor = ParticleSurfacingOptions::kMinSpacingFactor;
+  EXPECT_NO_THROW(validate(o));
+  o.r_inner = 1.0;
+  o.derive_r_inner = true;
+  expect_invalid(o, "derive_r_inner");
   o = options(1.0);
   o.bilaplacian_sweeps = -1;
   expect_invalid(o, "bilaplacian_sweeps");

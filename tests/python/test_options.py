@@ -23,7 +23,7 @@ CASES = [
      "spec.particles.min_angle_degrees (45)"),
     ("particles", {"r_inner": 0.1, "spacing_factor": 0}, ["--r-inner", "0.1", "--spacing-factor", "0"],
      {"particles": {"rInner": 0.1, "spacingFactor": 0}},
-     "spec.particles.spacing_factor (0) must be in (0, 10]"),
+     "spec.particles.spacing_factor (0) must be in [0.1, 10]"),
     ("particles", {"r_inner": 0.1, "sweeps": (5, -1, 5)}, ["--r-inner", "0.1", "--sweeps", "5,-1,5"],
      {"particles": {"rInner": 0.1, "laplacianSweeps": 5, "bilaplacianSweeps": -1, "polishSweeps": 5}},
      "spec.particles.bilaplacian_sweeps (-1) must be in 0..100000"),
