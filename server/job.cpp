@@ -435,7 +435,7 @@ void Job::task_succeeded(int task) {
     --running_;
     ++tasks_done_;
     ++tasks_settled_;
-    progress_.set_fraction(static_cast<double>(tasks_done_) / std::max(1, tasks_total_));
+    advance_fraction_locked(static_cast<double>(tasks_done_) / std::max(1, tasks_total_));
     ++progress_version_;
     finished = settle_locked();
   }
@@ -498,6 +498,12 @@ bool Job::settle_locked() {
   return true;
 }
 
+void Job::advance_fraction_locked(double fraction) {
+  // Tasks run in parallel and each reports its own stage's fraction: the job's is the furthest reached, so a watcher
+  // never sees it go back (a task starting at 0 after another reported 0.6 of its frame).
+  progress_.set_fraction(std::max(progress_.fraction(), std::min(1.0, fraction)));
+}
+
 void Job::set_progress(int frame_index, std::string_view stage, double fraction) {
   const auto now = std::chrono::steady_clock::now();
   {
@@ -509,7 +515,7 @@ void Job::set_progress(int frame_index, std::string_view stage, double fraction)
     progress_.set_stage(std::string(stage));
     progress_.set_frame_index(frame_index);
     const double per_task = 1.0 / std::max(1, tasks_total_);
-    progress_.set_fraction(std::min(1.0, tasks_done_ * per_task + std::clamp(fraction, 0.0, 1.0) * per_task));
+    advance_fraction_locked(tasks_done_ * per_task + std::clamp(fraction, 0.0, 1.0) * per_task);
     ++progress_version_;
   }
   notify();

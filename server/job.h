@@ -132,6 +132,8 @@ class Job : public FrameSink {
  private:
   void snapshot_locked(v1::Job& job) const;
   void bump_state_locked();
+  // Sets the progress fraction to `fraction` (clamped to 1) unless it is behind the one already reported.
+  void advance_fraction_locked(double fraction);
   void finish_locked(v1::JobState state);
   // Finishes the job when nothing more can happen: cancelled with no task running, or every task settled.
   // Returns true when it did.

@@ -179,6 +179,25 @@ TEST(Service, CancelStopsARunningJobWithinHalfASecond) {
   EXPECT_EQ(result.states.back(), v1::JOB_STATE_CANCELLED);
 }
 
+// Frames surfaced in parallel report their own stages; the job's fraction a watcher sees never goes back.
+TEST(Service, ProgressNeverGoesBackward) {
+  for (const int workers : {1, 2}) {
+    auto options = LoopbackServer::default_options();
+    options.workers = workers;
+    LoopbackServer s(options);
+    std::string id;
+    const std::vector<v1::Scene> scenes(6, scene_from_json(R"({"root": {"sphere": {"radius": 1}}})"));
+    ASSERT_TRUE(submit(*s.stub, isosurface_spec(scenes, 160), &id).ok());
+    const auto r = watch_job(*s.stub, id);
+    ASSERT_EQ(r.final_job.state(), v1::JOB_STATE_SUCCEEDED) << r.final_job.error().message();
+    ASSERT_GE(r.fractions.size(), 2u) << "too few progress events to tell";
+    for (std::size_t i = 1; i < r.fractions.size(); ++i) {
+      EXPECT_GE(r.fractions[i], r.fractions[i - 1]) << "event " << i << " of " << r.fractions.size();
+    }
+    EXPECT_LE(r.fractions.back(), 1.0);
+  }
+}
+
 TEST(Service, WatchFromFrameSkipsEarlierFrames) {
   LoopbackServer s;
   auto a = scene_from_json(kSphere);

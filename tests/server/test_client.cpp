@@ -34,6 +34,7 @@ WatchResult watch_job(v1::Surfacer::Stub& stub, const std::string& job_id, int f
         break;
       case v1::JobEvent::kProgress:
         ++result.progress_events;
+        result.fractions.push_back(event.progress().fraction());
         break;
       case v1::JobEvent::kFrame: {
         const int index = event.frame().frame_index();

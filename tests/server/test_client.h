@@ -27,7 +27,8 @@ struct WatchResult {
   std::map<int, ReceivedFrame> frames;
   std::vector<int> frame_order;  // frame indices in arrival order
   int progress_events = 0;
-  std::string integrity_error;  // empty when every chunk and frame checksum matched
+  std::vector<double> fractions;  // each progress event's fraction, in order
+  std::string integrity_error;    // empty when every chunk and frame checksum matched
 };
 
 // Watches `job_id` to the end, reassembling frames and verifying chunk indices, sizes and CRC-32s.
