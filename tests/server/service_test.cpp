@@ -187,7 +187,7 @@ TEST(Service, ProgressNeverGoesBackward) {
     LoopbackServer s(options);
     std::string id;
     const std::vector<v1::Scene> scenes(6, scene_from_json(R"({"root": {"sphere": {"radius": 1}}})"));
-    ASSERT_TRUE(submit(*s.stub, isosurface_spec(scenes, 160), &id).ok());
+    ASSERT_TRUE(submit(*s.stub, isosurface_spec(scenes, 96), &id).ok());
     const auto r = watch_job(*s.stub, id);
     ASSERT_EQ(r.final_job.state(), v1::JOB_STATE_SUCCEEDED) << r.final_job.error().message();
     ASSERT_GE(r.fractions.size(), 2u) << "too few progress events to tell";
