@@ -8,7 +8,9 @@
 #include <cstdio>
 #include <cstdlib>
 #include <iostream>
+#include <sstream>
 #include <string>
+#include <vector>
 
 #include "client/cli_jobs.h"
 #include "client/cli_preview.h"
@@ -26,6 +28,64 @@ void drop_grpc_log(gpr_log_func_args*) {}
 
 void print_grpc_log(gpr_log_func_args* args) {
   std::fprintf(stderr, "surfacer: grpc: %s (%s:%d)\n", args->message, args->file, args->line);
+}
+
+// Edit distance (insertions, deletions, substitutions, adjacent transpositions) between two short words.
+std::size_t edit_distance(const std::string& a, const std::string& b) {
+  std::vector<std::vector<std::size_t>> d(a.size() + 1, std::vector<std::size_t>(b.size() + 1));
+  for (std::size_t i = 0; i <= a.size(); ++i) d[i][0] = i;
+  for (std::size_t j = 0; j <= b.size(); ++j) d[0][j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i) {
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      d[i][j] = std::min({d[i - 1][j] + 1, d[i][j - 1] + 1, d[i - 1][j - 1] + (a[i - 1] == b[j - 1] ? 0 : 1)});
+      if (i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1])
+        d[i][j] = std::min(d[i][j], d[i - 2][j - 2] + 1);
+    }
+  }
+  return d[a.size()][b.size()];
+}
+
+// "; did you mean --cells?" for the words of `message` (CLI11's "The following arguments were not expected: ...")
+// that are close to a flag or a subcommand of the deepest command parsed so far; empty when none is.
+std::string suggestion(const CLI::App& app, const std::string& message) {
+  const CLI::App* deepest = &app;
+  for (bool deeper = true; deeper;) {
+    deeper = false;
+    for (const CLI::App* sub : deepest->get_subcommands([](const CLI::App*) { return true; })) {
+      if (sub->parsed()) {
+        deepest = sub;
+        deeper = true;
+        break;
+      }
+    }
+  }
+  std::vector<std::string> known;
+  for (const CLI::Option* option : deepest->get_options()) {
+    for (const std::string& name : option->get_lnames()) known.push_back("--" + name);
+  }
+  for (const CLI::App* sub : deepest->get_subcommands([](const CLI::App*) { return true; })) {
+    known.push_back(sub->get_name());
+  }
+  const std::string marker = "not expected: ";
+  const std::size_t at = message.find(marker);
+  if (at == std::string::npos) return "";
+  std::string out;
+  std::istringstream words(message.substr(at + marker.size()));
+  for (std::string word; words >> word;) {
+    const std::string stem = word.substr(0, word.find('='));
+    const std::string* best = nullptr;
+    std::size_t best_distance = std::max<std::size_t>(2, stem.size() / 4) + 1;
+    for (const std::string& name : known) {
+      if (stem.starts_with("-") != name.starts_with("-")) continue;  // flags for flags, subcommands for words
+      const std::size_t distance = edit_distance(stem, name);
+      if (distance < best_distance) {
+        best_distance = distance;
+        best = &name;
+      }
+    }
+    if (best != nullptr && *best != stem) out += (out.empty() ? "; did you mean " : ", or ") + *best + " for " + stem;
+  }
+  return out.empty() ? "" : out + "?";
 }
 
 FrameOutputOptions finish_output(const OutputFlags& flags, const std::string& command) {
@@ -135,7 +195,8 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
   // submit
   JobFlags submit_flags;
   CLI::App* submit = app.add_subcommand("submit", "Submit a job, print its id and exit (fetch frames with `watch`)");
-  submit->add_option("--spec", submit_flags.job.spec_file, "a whole surfacer.v1.JobSpec in protobuf JSON (any job type)")
+  submit
+      ->add_option("--spec", submit_flags.job.spec_file, "a whole surfacer.v1.JobSpec in protobuf JSON (any job type)")
       ->type_name("FILE");
   add_job_common_flags(submit, submit_flags.job);
   submit->require_subcommand(0, 1);
@@ -258,6 +319,7 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
             message + ")";
       }
     }
+    message += suggestion(app, message);
     err << "surfacer: error: " << message << "\nRun `surfacer --help` or `surfacer COMMAND --help` for usage.\n";
     return ExitCode::kUsage;
   } catch (const CliError& e) {

@@ -85,6 +85,26 @@ TEST(CliOptions, ServerKindFlagsRefusedWithTheOtherKind) {
   EXPECT_NE(local.err.find("--allow-insecure"), std::string::npos) << local.err;
 }
 
+// A mistyped flag or subcommand is named with the nearest one the command has; words far from all get none.
+TEST(CliOptions, MistypedFlagsAndSubcommandsGetASuggestion) {
+  const std::vector<std::pair<std::vector<std::string>, std::string>> cases = {
+      {{"run", "isosurface", "--scene", "a.json", "--cell", "64", "-o", "d"}, "did you mean --cells for --cell?"},
+      {{"run", "isosurfce", "--scene", "a.json", "-o", "d"}, "did you mean isosurface for isosurfce?"},
+      {{"run", "particles", "--input", "a", "--r-iner", "0.1", "-o", "d"}, "--r-inner for --r-iner"},
+      {{"run", "particles", "--input", "a", "--r-inner", "0.1", "--min-angel=3", "-o", "d"},
+       "--min-angle for --min-angel"},
+      {{"run", "optimize", "--scene", "a.json", "--iteratoins", "5", "-o", "d"}, "--iterations for --iteratoins"},
+  };
+  for (const auto& [args, expected] : cases) {
+    const auto p = parse_cli(args);
+    EXPECT_EQ(exit_code_of(p), ExitCode::kUsage);
+    EXPECT_NE(p.err.find(expected), std::string::npos) << p.err;
+  }
+  const auto far = parse_cli({"run", "isosurface", "--scene", "a.json", "--zzzzzzzz", "-o", "d"});
+  EXPECT_EQ(exit_code_of(far), ExitCode::kUsage);
+  EXPECT_EQ(far.err.find("did you mean"), std::string::npos) << far.err;
+}
+
 TEST(CliOptions, OtherSubcommands) {
   auto watch = std::get<WatchCommand>(ok(parse_cli({"watch", "j-7", "--from-frame", "3", "-o", "d"})).command);
   EXPECT_EQ(watch.job_id, "j-7");
