@@ -274,6 +274,7 @@ std::variant<Invocation, ExitCode> parse_command_line(int argc, const char* cons
                            "command");
       }
     }
+    if (connect.server) check_server_ports(*connect.server);
     check_workers(connect);
     connect.security = load_security(security, env_token, connect.server.has_value());
 

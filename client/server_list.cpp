@@ -37,6 +37,26 @@ bool split_host_port(const std::string& text, std::string* host, std::string* po
 
 bool is_server_list(const std::string& server) { return server.find(',') != std::string::npos; }
 
+void check_server_ports(const std::string& server) {
+  const std::string addresses = is_dns_name(server) ? server.substr(std::string(kDnsPrefix).size()) : server;
+  std::size_t pos = 0;
+  while (pos <= addresses.size()) {
+    const std::size_t comma = addresses.find(',', pos);
+    const std::string entry(trim(addresses.substr(pos, comma == std::string::npos ? std::string::npos : comma - pos)));
+    std::string host;
+    std::string port;
+    if (split_host_port(entry, &host, &port)) {
+      const bool in_range = port.size() <= 5 && std::stoi(port) >= 1 && std::stoi(port) <= 65535;
+      if (!in_range) {
+        throw CliError(ExitCode::kUsage, "--server \"" + server + "\": port " + port +
+                                             " is not a TCP port (1 to 65535), e.g. --server localhost:50051");
+      }
+    }
+    if (comma == std::string::npos) break;
+    pos = comma + 1;
+  }
+}
+
 bool is_dns_name(const std::string& server) { return server.rfind(kDnsPrefix, 0) == 0; }
 
 std::vector<std::string> parse_server_list(const std::string& server) {

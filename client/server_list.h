@@ -12,6 +12,10 @@ namespace surfacer::client {
 bool is_server_list(const std::string& server);
 // True for "dns:///NAME:PORT" (the system resolver, not a "dns://AUTHORITY/..." target).
 bool is_dns_name(const std::string& server);
+// Refuses a HOST:PORT whose port is not 1..65535 (gRPC would otherwise connect to the port modulo 65536), in a single
+// address, each entry of a list, or a dns:/// name. Throws CliError(kUsage) naming --server. Other forms (unix:PATH)
+// pass unchecked.
+void check_server_ports(const std::string& server);
 
 // The entries of a comma-separated list, trimmed, each HOST:PORT ("[v6]:PORT" for IPv6), duplicates removed in
 // order. Throws CliError(kUsage) naming --server for an empty entry or one without a port.

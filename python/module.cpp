@@ -32,6 +32,7 @@
 #include "client/job_spec.h"
 #include "client/progress.h"
 #include "client/security.h"
+#include "client/server_list.h"
 #include "client/summary.h"
 #include "client/upload.h"
 #include "client/watch.h"
@@ -444,6 +445,7 @@ class Client {
     options.server = server;
     if (timeout) options.timeout_seconds = *timeout;
     options.workers = workers;
+    if (options.server) check_server_ports(*options.server);
     check_workers(options);
     SecurityFlags flags;
     flags.token = token;

@@ -105,6 +105,19 @@ TEST(CliOptions, MistypedFlagsAndSubcommandsGetASuggestion) {
   EXPECT_EQ(far.err.find("did you mean"), std::string::npos) << far.err;
 }
 
+// A port outside 1..65535 is refused before connecting (gRPC would take it modulo 65536), in every address form.
+TEST(CliOptions, ServerPortsOutOfRangeAreUsageErrors) {
+  for (const char* server : {"127.0.0.1:99999", "127.0.0.1:0", "[::1]:65536", "dns:///host:123456", "a:1,b:70000"}) {
+    const auto p = parse_cli({"--server", server, "run", "--spec", "job.json", "-o", "d"});
+    EXPECT_EQ(exit_code_of(p), ExitCode::kUsage) << server;
+    EXPECT_NE(p.err.find("is not a TCP port"), std::string::npos) << server << ": " << p.err;
+  }
+  for (const char* server : {"127.0.0.1:65535", "[::1]:1", "host:50051,other:50052"}) {
+    EXPECT_EQ(exit_code_of(parse_cli({"--server", server, "run", "--spec", "job.json", "-o", "d"})), ExitCode::kSuccess)
+        << server;
+  }
+}
+
 TEST(CliOptions, OtherSubcommands) {
   auto watch = std::get<WatchCommand>(ok(parse_cli({"watch", "j-7", "--from-frame", "3", "-o", "d"})).command);
   EXPECT_EQ(watch.job_id, "j-7");
