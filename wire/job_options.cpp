@@ -113,7 +113,13 @@ Aabb particles_job_box(const v1::ParticlesJob& job, std::span<const ParticleSumm
   const std::optional<double> r_outer = job.has_r_outer() ? std::optional<double>(job.r_outer()) : std::nullopt;
   std::optional<Aabb> container;
   if (job.container().has_box()) container = to_aabb(job.container().box(), path + ".container.box");
-  return particle_sequence_box(box, max_radius, r_inner, r_outer, first_frame, container);
+  try {
+    return particle_sequence_box(box, max_radius, r_inner, r_outer, first_frame, container);
+  } catch (const Error& e) {
+    // Deriving r_inner for the box reads frame 0: what it refuses there is that frame's.
+    if (e.kind() == ErrorKind::kInvalidInput && e.field() == "r_inner") throw at_path(e, path + ".frames[0]");
+    throw;
+  }
 }
 
 MeshOptimizerOptions optimizer_options(const v1::OptimizeJob& job, bool normals, const std::string& path) {

@@ -712,6 +712,11 @@ double derive_r_inner(std::span<const Vec3> points, int threads, const RunContro
   }
   const Aabb box = Aabb::of(points);
   const Vec3 extent = box.max - box.min;
+  if (!(extent.maxCoeff() > 0.0)) {
+    throw InvalidInput("r_inner", "cannot derive r_inner: all " + std::to_string(points.size()) +
+                                      " particles are at one position; set r_inner (e.g. the simulation's particle "
+                                      "radius)");
+  }
   const double floor_extent = std::max(extent.maxCoeff() * 1e-3, 1e-300);
   double volume = 1.0;
   for (int a = 0; a < 3; ++a) volume *= std::max(extent[a], floor_extent);

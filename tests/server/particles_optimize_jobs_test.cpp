@@ -227,6 +227,19 @@ TEST(ParticlesJob, BadParticlesAndOptionsNameTheField) {
   for (int i = 0; i < 3 * 101; ++i) frame->add_positions(static_cast<float>(i));
   expect(spec, grpc::StatusCode::RESOURCE_EXHAUSTED, "--max-particles");
 
+  // derive_r_inner with particles that all coincide (or one particle): refused at submit, naming the frame, not
+  // failed later with a zero cell size.
+  spec.mutable_particles()->clear_r_inner();
+  spec.mutable_particles()->set_derive_r_inner(true);
+  for (const int n : {1, 2, 50}) {
+    frame->clear_positions();
+    for (int i = 0; i < 3 * n; ++i) frame->add_positions(0.25f);
+    expect(spec, grpc::StatusCode::INVALID_ARGUMENT, "spec.particles.frames[0]");
+    expect(spec, grpc::StatusCode::INVALID_ARGUMENT, "set r_inner");
+  }
+  spec.mutable_particles()->set_derive_r_inner(false);
+  spec.mutable_particles()->set_r_inner(0.05);
+
   frame->clear_positions();
   frame->set_upload_id(upload(*s.stub, std::string(10, 'x')));  // not whole float32 records
   expect(spec, grpc::StatusCode::INVALID_ARGUMENT, "upload_id");
