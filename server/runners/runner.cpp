@@ -1,7 +1,10 @@
 #include "server/runners/runner.h"
 
+#include <algorithm>
+
 #include "core/polygonize/polygonize.h"
 #include "core/util/errors.h"
+#include "core/util/format.h"
 
 namespace surfacer::server {
 
@@ -15,9 +18,12 @@ void check_frame_count(std::int64_t count, const std::string& field_path, const 
 
 void check_grid_cells(const PolygonizeGrid& grid, const std::string& path, const Limits& limits) {
   if (grid.cell_count > static_cast<double>(limits.max_grid_cells)) {
-    throw ResourceLimit("max_grid_cells", path + ": the grid has " + std::to_string(grid.cells[0]) + " x " +
-                                              std::to_string(grid.cells[1]) + " x " + std::to_string(grid.cells[2]) +
-                                              " cells, over the server's limit of " +
+    // An axis of more than 1e9 cells is held at 1e9 in `cells`: then only the product says how many were asked for.
+    const bool held = *std::max_element(grid.cells.begin(), grid.cells.end()) >= 1000000000;
+    const std::string size = held ? format_number(grid.cell_count)
+                                  : std::to_string(grid.cells[0]) + " x " + std::to_string(grid.cells[1]) + " x " +
+                                        std::to_string(grid.cells[2]);
+    throw ResourceLimit("max_grid_cells", path + ": the grid has " + size + " cells, over the server's limit of " +
                                               std::to_string(limits.max_grid_cells) +
                                               "; use fewer cells or start the server with a larger "
                                               "--max-grid-cells");

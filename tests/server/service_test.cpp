@@ -243,6 +243,9 @@ TEST(Service, BadInputGetsNamedFieldsAndTheServerKeepsServing) {
          grpc::StatusCode::INVALID_ARGUMENT, "half_size");
   expect(isosurface_spec({scene_from_json(kSphere)}, -5), grpc::StatusCode::INVALID_ARGUMENT, "spec.isosurface.cells");
   expect(isosurface_spec({scene_from_json(kSphere)}, 200), grpc::StatusCode::RESOURCE_EXHAUSTED, "--max-grid-cells");
+  expect(isosurface_spec({scene_from_json(kSphere)}, 200), grpc::StatusCode::RESOURCE_EXHAUSTED, "204 x 204 x 204");
+  // More cells along an axis than the grid holds: the count asked for, not the held 1e9 per axis.
+  expect(isosurface_spec({scene_from_json(kSphere)}, 2147483647), grpc::StatusCode::RESOURCE_EXHAUSTED, "e+27 cells");
   expect(isosurface_spec({}, 16), grpc::StatusCode::INVALID_ARGUMENT, "spec.isosurface.scenes");
   expect(isosurface_spec({scene_from_json(R"({"root": {}})")}, 16), grpc::StatusCode::INVALID_ARGUMENT,
          "scenes[0].root");
