@@ -148,6 +148,16 @@ FrameWriter::FrameWriter(FrameOutputOptions options) : options_(std::move(option
     throw CliError(ExitCode::kUsage, "cannot create the output directory " + options_.dir.string() + ": " +
                                          (ec ? ec.message() : std::string("not a directory")));
   }
+  // Before any job runs: a directory that takes no files (read-only, a pseudo file system) is found now.
+  const std::filesystem::path probe = options_.dir / (".surfacer-write-check-" + std::to_string(::getpid()));
+  const int fd = ::open(probe.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
+  if (fd < 0) {
+    throw CliError(ExitCode::kUsage, "cannot write in the output directory " + options_.dir.string() + ": " +
+                                         std::generic_category().message(errno) +
+                                         "; give -o a directory you can write to");
+  }
+  ::close(fd);
+  std::filesystem::remove(probe, ec);
 }
 
 std::vector<std::filesystem::path> FrameWriter::write(const ReceivedFrame& frame) {

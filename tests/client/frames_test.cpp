@@ -213,6 +213,22 @@ TEST(FrameWriter, RawPlyAsReceivedAndConvertedToObj) {
   fs::remove_all(dir);
 }
 
+// An output directory that takes no files is refused when the writer is made, before any job runs (/proc takes none,
+// whoever runs the test), and the check leaves nothing behind in one that does.
+TEST(FrameWriter, ADirectoryThatTakesNoFilesIsAUsageErrorAtOnce) {
+  try {
+    FrameWriter writer(FrameOutputOptions{"/proc", {}});
+    ADD_FAILURE() << "/proc was taken as an output directory";
+  } catch (const CliError& e) {
+    EXPECT_EQ(e.code(), ExitCode::kUsage);
+    EXPECT_NE(std::string(e.what()).find("cannot write in the output directory /proc"), std::string::npos) << e.what();
+  }
+  const fs::path dir = fresh_temp_dir("frame_writer_probe");
+  { FrameWriter writer(FrameOutputOptions{dir, {}}); }
+  EXPECT_TRUE(fs::is_empty(dir));
+  fs::remove_all(dir);
+}
+
 TEST(FrameWriter, DefaultFormatFollowsEncoding) {
   const fs::path dir = fresh_temp_dir("client_writer_default");
   FrameWriter writer(FrameOutputOptions{dir, {}});
