@@ -19,6 +19,7 @@
 #include "client/interrupt.h"
 #include "client/job_spec.h"
 #include "client/json_output.h"
+#include "client/output_files.h"
 #include "client/preview.h"
 #include "client/progress.h"
 #include "client/run_report.h"
@@ -218,6 +219,7 @@ ExitCode run_run(const ConnectOptions& connect, const RunCommand& run, const Rep
   PreparedJob prepared = prepare_job(run.job);  // usage errors before connecting
   RunCommand command = run;
   command.output.frame_numbers = prepared.frame_numbers;  // output names keep the input files' frame numbers
+  check_one_file(command.output, frames_before_run(prepared.spec));
   fit_encoding_to_files(prepared.spec, command.output.formats);
   if (connect.server && (is_server_list(*connect.server) || is_dns_name(*connect.server))) {
     const std::vector<std::string> servers =

@@ -384,6 +384,14 @@ PreparedJob prepare_job(const JobOptions& options, const InMemoryInputs& in_memo
   return prepared;
 }
 
+std::optional<int> frames_before_run(const v1::JobSpec& spec) {
+  if (spec.has_isosurface()) return spec.isosurface().scenes_size();
+  if (spec.has_particles()) return spec.particles().frames_size();
+  if (spec.has_optimize()) return spec.optimize().snapshot_every() > 0 ? std::nullopt : std::optional<int>(1);
+  if (spec.has_active() && spec.active().has_coat()) return spec.active().coat().frames_size();
+  return std::nullopt;
+}
+
 void fit_encoding_to_files(v1::JobSpec& spec, const std::vector<FileFormat>& formats) {
   v1::OutputOptions* output = spec.mutable_output();
   if (std::find(formats.begin(), formats.end(), FileFormat::kGlb) != formats.end() &&

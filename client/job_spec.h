@@ -6,6 +6,7 @@
 
 #include <filesystem>
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -55,6 +56,10 @@ void check_job(const JobOptions& options);
 // the job has neither r_inner nor derive_r_inner. Inputs named by a key of `in_memory` come from there (its particle
 // frames are read by the uploads: keep it until they are done). Throws CliError(kUsage).
 PreparedJob prepare_job(const JobOptions& options, const InMemoryInputs& in_memory = {});
+
+// How many frames the job writes, when that is known before it runs: one per scene or particle frame, one for an
+// optimize job without snapshots; nullopt otherwise (optimize snapshots, morph and advect frames).
+std::optional<int> frames_before_run(const v1::JobSpec& spec);
 
 // What a `run` that writes `formats` asks of the server (docs/ALGORITHMS.md §5 "Frames"): Draco frames come in
 // pieces, encoded on every core of the server and decoded on every core here, unless a .drc file is to be written

@@ -84,6 +84,9 @@ struct FrameOutputOptions {
   // instead of DIR/frame_NNNN.<ext>; `dir` is then the pattern's directory (stats.csv goes there) and `formats` the
   // format of its extension.
   std::optional<std::string> pattern = std::nullopt;
+  // -o FILE.ext (no placeholder, not an existing directory): a job of one frame written to that one file; `dir` is
+  // its directory and `formats` the format of its extension.
+  std::optional<std::filesystem::path> file = std::nullopt;
   // The number in frame i's file name: frame_numbers[i] (the input files' own frame numbers), or i past its end.
   std::vector<int> frame_numbers = {};
 };

@@ -49,6 +49,25 @@ FrameOutputOptions frame_output_options(const std::string& target, const std::ve
   if (target.empty())
     throw usage(command + " needs an output directory: -o DIR (or a file pattern: -o 'out/f_{:04d}.ply')");
   FrameOutputOptions options;
+  const std::filesystem::path path(target);
+  std::string extension = path.extension().string();
+  std::transform(extension.begin(), extension.end(), extension.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  const std::optional<FileFormat> format =
+      extension.size() > 1 ? file_format_from_name(std::string_view(extension).substr(1)) : std::nullopt;
+  std::error_code ec;
+  if (!is_sequence_pattern(target) && format && !std::filesystem::is_directory(path, ec)) {
+    // -o out/mesh.ply: the one frame of the job in that file (a job of several frames is refused before it runs).
+    if (!formats.empty()) {
+      throw usage("--format with -o " + target +
+                  ": the file's extension sets its format; drop --format, or write several formats with -o DIR "
+                  "--format LIST");
+    }
+    options.dir = path.has_parent_path() ? path.parent_path() : std::filesystem::path(".");
+    options.formats = {*format};
+    options.file = path;
+    return options;
+  }
   if (!is_sequence_pattern(target)) {
     options.dir = target;
     for (const std::string& name : formats) {
@@ -60,7 +79,6 @@ FrameOutputOptions frame_output_options(const std::string& target, const std::ve
     }
     return options;
   }
-  const std::filesystem::path path(target);
   if (is_sequence_pattern(path.parent_path().string())) {
     throw usage("-o " + target + ": the frame placeholder must be in the file name, not in a directory name");
   }
@@ -69,11 +87,6 @@ FrameOutputOptions frame_output_options(const std::string& target, const std::ve
   } catch (const Error& e) {
     throw usage("-o " + target + ": " + e.what());
   }
-  std::string extension = path.extension().string();
-  std::transform(extension.begin(), extension.end(), extension.begin(),
-                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
-  const std::optional<FileFormat> format =
-      extension.size() > 1 ? file_format_from_name(std::string_view(extension).substr(1)) : std::nullopt;
   if (!format || is_sequence_pattern(extension)) {
     throw usage("-o " + target +
                 ": a file pattern's extension sets the format; end it in .drc, .ply, .obj, .vtk, .vtu or .glb (e.g. -o "
@@ -96,7 +109,20 @@ int output_frame_number(const FrameOutputOptions& options, int index) {
              : index;
 }
 
+void check_one_file(const FrameOutputOptions& options, std::optional<int> frames) {
+  if (!options.file || frames == 1) return;
+  const std::filesystem::path& f = *options.file;
+  const std::string example = (f.parent_path() / (f.stem().string() + "_{:04d}" + f.extension().string())).string();
+  throw usage("-o " + f.string() + " names one file, but the job writes " +
+              (frames ? std::to_string(*frames) + " frames" : std::string("several frames")) +
+              ": give a frame placeholder, e.g. -o '" + example + "', or a directory");
+}
+
 std::filesystem::path frame_file_path(const FrameOutputOptions& options, int index, FileFormat format) {
+  if (options.file) {
+    check_one_file(options, index == 0 ? 1 : index + 1);
+    return *options.file;
+  }
   const int number = output_frame_number(options, index);
   if (options.pattern) return expand_sequence(*options.pattern, number, number).front();
   char name[48];

@@ -19,10 +19,16 @@ const char* file_format_name(FileFormat format);  // "drc", ...
 
 // The output of `command` ("run", "watch") from -o TARGET and --format NAMES (already checked to be format names).
 // A TARGET with a placeholder ({} or {:04d}, as in input patterns) is a pattern: its extension must name a format
-// and --format must not be given; the placeholder may not be in a directory name. Throws CliError(kUsage) naming -o
-// or --format and the fix.
+// and --format must not be given; the placeholder may not be in a directory name. A TARGET without one whose
+// extension names a format and that is not an existing directory is one file (FrameOutputOptions::file). Throws
+// CliError(kUsage) naming -o or --format and the fix.
 FrameOutputOptions frame_output_options(const std::string& target, const std::vector<std::string>& formats,
                                         const std::string& command);
+
+// With -o FILE.ext (options.file), throws CliError(kUsage) asking for a placeholder unless the job writes exactly one
+// frame (`frames`: the count when known before the job runs, nullopt for "several": optimize snapshots, active
+// frames). Does nothing for -o DIR and patterns.
+void check_one_file(const FrameOutputOptions& options, std::optional<int> frames);
 
 // The number frame `index` carries in its file name (options.frame_numbers, else the index).
 int output_frame_number(const FrameOutputOptions& options, int index);

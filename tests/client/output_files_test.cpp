@@ -75,6 +75,30 @@ TEST(OutputNaming, PatternsNameEachFrameAndTheirExtensionSetsTheFormat) {
   }
 }
 
+// -o FILE.ext without a placeholder is one file for a one-frame job; a job of several frames is refused before it
+// runs, asking for a placeholder; an existing directory of that name stays a directory.
+TEST(OutputNaming, AFileNameIsTheOneFrameOfAOneFrameJob) {
+  const FrameOutputOptions o = frame_output_options("out/mesh.ply", {}, "run");
+  ASSERT_TRUE(o.file);
+  EXPECT_EQ(o.dir, std::filesystem::path("out"));
+  EXPECT_EQ(o.formats, (std::vector<FileFormat>{FileFormat::kPly}));
+  EXPECT_EQ(frame_file_path(o, 0, FileFormat::kPly), std::filesystem::path("out/mesh.ply"));
+  EXPECT_NO_THROW(check_one_file(o, 1));
+  EXPECT_NE(usage_error([&] { check_one_file(o, 3); }).find("-o 'out/mesh_{:04d}.ply'"), std::string::npos);
+  EXPECT_NE(usage_error([&] { check_one_file(o, std::nullopt); }).find("several frames"), std::string::npos);
+  EXPECT_NE(usage_error([&] { frame_file_path(o, 1, FileFormat::kPly); }).find("placeholder"), std::string::npos);
+  EXPECT_NE(usage_error([] { frame_output_options("out/mesh.vtu", {"ply"}, "run"); }).find("drop --format"),
+            std::string::npos);
+  // Not a mesh extension, or a directory that exists: a directory, as before.
+  EXPECT_FALSE(frame_output_options("out/run.1", {}, "run").file);
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() / "surfacer_out_as_dir.ply";
+  std::filesystem::create_directories(dir);
+  EXPECT_FALSE(frame_output_options(dir.string(), {}, "run").file);
+  std::filesystem::remove_all(dir);
+  FrameOutputOptions d = frame_output_options("out", {}, "run");
+  EXPECT_NO_THROW(check_one_file(d, 5));
+}
+
 TEST(OutputNaming, BadOutputsAreUsageErrorsNamingTheFlag) {
   EXPECT_NE(usage_error([] { frame_output_options("out/s_{:04d}.ply", {"vtk"}, "run"); }).find("drop --format"),
             std::string::npos);
