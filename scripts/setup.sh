@@ -14,6 +14,7 @@ PACKAGES=(
                                # include Boost's, which libopenvdb-dev does not depend on)
   pybind11-dev python3-dev python3-numpy python3-pytest  # the Python package (python/) and its tests
   libstb-dev  # PNG previews and plots (core/render/, header-only)
+  python3-vtk9 python3-meshio  # the real VTK and meshio, reading our .vtk/.vtu in tests (tests/python/test_readers.py)
 )
 missing=()
 for p in "${PACKAGES[@]}"; do

@@ -68,7 +68,8 @@ std::string legacy(const Mesh& mesh, bool double_precision) {
   for (std::size_t t = 0; t < triangles; ++t) append_raw<std::int32_t>(out, kVtkTriangle, true);
   out += "\n";
   if (!mesh.normals.empty()) {
-    out += "POINT_DATA " + std::to_string(mesh.vertices.size()) + "\nNORMALS Normals float\n";
+    // VECTORS rather than NORMALS: VTK reads both, meshio (and the readers built on it) only VECTORS.
+    out += "POINT_DATA " + std::to_string(mesh.vertices.size()) + "\nVECTORS Normals float\n";
     out += vectors(mesh.normals, false, true);
     out += "\n";
   }

@@ -1,6 +1,7 @@
 // Mesh files for VTK-based tools (ParaView, VisIt, meshio and the Blender sequence loaders built on it):
 //   .vtk  legacy VTK 4.2, BINARY (big-endian, as the format requires), DATASET UNSTRUCTURED_GRID of triangles
-//         (cell type 5); per-vertex normals as POINT_DATA NORMALS "Normals".
+//         (cell type 5); per-vertex normals as POINT_DATA VECTORS "Normals" (VTK and meshio both read VECTORS;
+//         meshio refuses a NORMALS section).
 //   .vtu  VTK XML UnstructuredGrid, one Piece, every DataArray inline "binary" (base64) compressed with zlib
 //         (compressor="vtkZLibDataCompressor", header_type="UInt64", blocks of 1 MiB): what VTK and meshio write by
 //         default, and still well-formed XML; normals as the PointData array "Normals".

@@ -171,7 +171,7 @@ TEST(MeshVtk, LegacyRoundTrip) {
       EXPECT_EQ(points.positions, as_stored(mesh.vertices, double_precision));
       EXPECT_EQ(legacy_triangles(vtk, mesh.triangles.size()), mesh.triangles);
       if (!mesh.normals.empty()) {
-        const std::string_view normals = after_line(vtk, "NORMALS");
+        const std::string_view normals = after_line(vtk, "VECTORS");  // VECTORS Normals float
         ASSERT_GE(normals.size(), 12 * mesh.normals.size());
         expect_packed_normals(normals.data(), mesh.normals, true);
       } else {

@@ -1,0 +1,56 @@
+"""Our mesh files read back by the real third-party readers a user opens them with: VTK 9 (ParaView's library) and
+meshio (the Blender sequence loaders' library), both from Debian (python3-vtk9, python3-meshio, installed by
+scripts/setup.sh). Frames are written by the `surfacer` CLI (CTest sets SURFACER_CLI_BINARY)."""
+
+import os
+import subprocess
+
+import meshio
+import numpy as np
+import pytest
+from vtkmodules.util.numpy_support import vtk_to_numpy
+from vtkmodules.vtkIOLegacy import vtkUnstructuredGridReader
+from vtkmodules.vtkIOXML import vtkXMLUnstructuredGridReader
+
+import surfacer
+
+from conftest import SCENES
+
+
+def cli():
+    binary = os.environ.get("SURFACER_CLI_BINARY")
+    if not binary:
+        pytest.skip("SURFACER_CLI_BINARY is not set (CTest sets it)")
+    return binary
+
+
+def vtk_read(path):
+    reader = vtkXMLUnstructuredGridReader() if path.suffix == ".vtu" else vtkUnstructuredGridReader()
+    reader.SetFileName(str(path))
+    reader.Update()
+    return reader.GetOutput()
+
+
+@pytest.mark.parametrize("scene,encoding", [("torus", "draco"), ("csg_block", "raw"), ("gyroid_in_sphere", "meshopt")])
+def test_vtk_and_meshio_read_our_vtk_and_vtu_with_normals(scene, encoding, tmp_path):
+    out = tmp_path / "out"
+    subprocess.run([cli(), "run", "isosurface", "--scene", str(SCENES / (scene + ".json")), "--cells", "24",
+                    "--normals", "--encoding", encoding, "-o", str(out), "--format", "ply,vtk,vtu"],
+                   check=True, capture_output=True, timeout=120)
+    reference = surfacer.read_mesh(out / "frame_0000.ply")
+    assert reference.normals is not None and len(reference.triangles) > 100
+    for suffix in (".vtk", ".vtu"):
+        path = out / ("frame_0000" + suffix)
+        grid = vtk_read(path)
+        assert grid.GetNumberOfPoints() == len(reference.vertices), path
+        assert grid.GetNumberOfCells() == len(reference.triangles), path
+        points = vtk_to_numpy(grid.GetPoints().GetData()).astype(np.float64)
+        np.testing.assert_allclose(points, reference.vertices, atol=1e-6, err_msg=str(path))
+        normals = vtk_to_numpy(grid.GetPointData().GetArray("Normals"))
+        np.testing.assert_allclose(normals, reference.normals, atol=1e-6, err_msg=str(path))
+
+        mesh = meshio.read(str(path))
+        np.testing.assert_allclose(mesh.points, reference.vertices, atol=1e-6, err_msg=str(path))
+        assert mesh.cells[0].type == "triangle"
+        np.testing.assert_array_equal(mesh.cells[0].data, reference.triangles)
+        np.testing.assert_allclose(mesh.point_data["Normals"], reference.normals, atol=1e-6, err_msg=str(path))
