@@ -16,6 +16,7 @@
 #include "core/mesh/mesh_io.h"
 #include "core/mesh/mesh_vtk.h"
 #include "core/util/errors.h"
+#include "core/util/json.h"
 #include "wire/output.h"
 
 namespace surfacer::client {
@@ -84,6 +85,53 @@ std::string frame_file_name(int index, FileFormat format) {
   char buf[32];
   std::snprintf(buf, sizeof buf, "frame_%04d.%s", index, file_format_name(format));
   return buf;
+}
+
+namespace {
+
+// `text` with XML's five special characters escaped, for an attribute value.
+std::string xml_attribute(const std::string& text) {
+  std::string out;
+  for (const char c : text) {
+    switch (c) {
+      case '&':
+        out += "&amp;";
+        break;
+      case '<':
+        out += "&lt;";
+        break;
+      case '>':
+        out += "&gt;";
+        break;
+      case '"':
+        out += "&quot;";
+        break;
+      case '\'':
+        out += "&apos;";
+        break;
+      default:
+        out += c;
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+std::string pvd_collection(const std::vector<std::pair<double, std::string>>& frames) {
+  std::string out = "<?xml version=\"1.0\"?>\n<VTKFile type=\"Collection\" version=\"0.1\">\n  <Collection>\n";
+  for (const auto& [time, file] : frames) {
+    out += "    <DataSet timestep=\"" + format_number(time) + "\" part=\"0\" file=\"" + xml_attribute(file) + "\"/>\n";
+  }
+  return out + "  </Collection>\n</VTKFile>\n";
+}
+
+std::string file_series(const std::vector<std::pair<double, std::string>>& frames) {
+  JsonWriter w;
+  w.begin_object().key("file-series-version").value("1.0").key("files").begin_array();
+  for (const auto& [time, file] : frames) w.begin_object().key("name").value(file).key("time").value(time).end_object();
+  w.end_array().end_object();
+  return w.str() + "\n";
 }
 
 std::string stats_csv(const std::map<int, v1::FrameStats>& stats) {
@@ -236,7 +284,33 @@ std::vector<std::filesystem::path> FrameWriter::write(const ReceivedFrame& frame
   write_file_atomically(options_.dir / "stats.csv", stats_csv(stats_));
   if (kind_ == "optimize" || frame.stats.iteration() != 0) iterations_ = true;
   if (iterations_) write_file_atomically(options_.dir / "iterations.csv", iterations_csv(stats_));
+  write_time_series();
   return written;
+}
+
+void FrameWriter::write_time_series() const {
+  if (options_.file) return;  // one frame
+  // The files' base name: "frames" in a directory, the pattern's name without its placeholder.
+  std::string base = "frames";
+  if (options_.pattern) {
+    const std::string stem = std::filesystem::path(*options_.pattern).stem().string();
+    base = stem.substr(0, stem.find('{')) + stem.substr(stem.find('}') + 1);
+    while (!base.empty() && (base.back() == '_' || base.back() == '-' || base.back() == '.')) base.pop_back();
+    if (base.empty()) base = "frames";
+  }
+  for (const FileFormat format : {FileFormat::kVtu, FileFormat::kVtk}) {
+    if (std::find(options_.formats.begin(), options_.formats.end(), format) == options_.formats.end()) continue;
+    std::vector<std::pair<double, std::string>> frames;  // (time = the frame's number, file relative to the dir)
+    for (const auto& [index, files] : files_) {
+      const std::filesystem::path file = frame_file_path(options_, index, format);
+      frames.emplace_back(output_frame_number(options_, index), file.filename().string());
+    }
+    if (format == FileFormat::kVtu) {
+      write_file_atomically(options_.dir / (base + ".pvd"), pvd_collection(frames));
+    } else {
+      write_file_atomically(options_.dir / (base + ".vtk.series"), file_series(frames));
+    }
+  }
 }
 
 FileFormat default_format(FrameCodec codec) {

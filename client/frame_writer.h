@@ -39,6 +39,11 @@ std::string iterations_csv(const std::map<int, v1::FrameStats>& stats);
 // The file a frame is written as when no format is asked for: .drc for Draco (one mesh or pieces), .ply otherwise.
 FileFormat default_format(FrameCodec codec);
 
+// A ParaView/VTK XML Collection (.pvd) of `frames` (time, file name relative to the .pvd), and the same as ParaView's
+// file-series JSON (.series), which also takes legacy .vtk files.
+std::string pvd_collection(const std::vector<std::pair<double, std::string>>& frames);
+std::string file_series(const std::vector<std::pair<double, std::string>>& frames);
+
 class FrameWriter {
  public:
   // Creates the directory; CliError(kUsage) when that fails.
@@ -67,6 +72,13 @@ class FrameWriter {
   bool wrote_iterations() const { return iterations_; }
 
  private:
+  // ParaView's time series beside a .vtu or .vtk sequence, rewritten as each frame arrives: BASE.pvd (a VTK XML
+  // Collection of the .vtu files) and BASE.vtk.series (ParaView's file-series JSON for the legacy files), each frame at
+  // time = its number in the file names (the input's frame numbers, else the index), so ParaView shows frames 100..104
+  // as times 100..104. BASE is "frames" in a directory, or the pattern's name without its placeholder. None for -o
+  // FILE.
+  void write_time_series() const;
+
   FrameOutputOptions options_;
   ThreadExecutor decode_executor_;  // every core
   std::map<int, v1::FrameStats> stats_;
