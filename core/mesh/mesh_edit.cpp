@@ -102,6 +102,9 @@ struct MeshEditor::Impl {
     state[static_cast<std::size_t>(vh.idx())] = ok ? kLoaded : kUnusable;
     return ok;
   }
+  bool loaded(std::uint32_t v) const {
+    return local_vertex[v] != kAbsent && state[static_cast<std::size_t>(local_vertex[v])] == kLoaded;
+  }
   bool load_all(std::initializer_list<std::uint32_t> vs) {
     for (const std::uint32_t v : vs) {
       if (!load(v)) return false;
@@ -117,7 +120,7 @@ struct MeshEditor::Impl {
   std::uint32_t global(TriMesh::VertexHandle vh) const { return global_vertex[static_cast<std::size_t>(vh.idx())]; }
   std::uint32_t global(TriMesh::FaceHandle fh) const { return global_face[static_cast<std::size_t>(fh.idx())]; }
 
-  // The site across directed edge (u, v) of t: the face of v -> u and its vertex opposite the edge.
+  // The site across directed edge (u, v) of t: the face of v -> u and its vertex opposite the edge. u must be loaded.
   std::optional<Across> across(std::uint32_t t, std::uint32_t u, std::uint32_t v, TriMesh::HalfedgeHandle& uv) {
     uv = halfedge(u, v);
     if (!uv.is_valid() || mesh.face_handle(uv) != TriMesh::FaceHandle(local_face[t])) return std::nullopt;
@@ -132,19 +135,63 @@ MeshEditor::MeshEditor(std::vector<Triangle>& triangles, const VertexTriangles& 
 
 MeshEditor::~MeshEditor() = default;
 
-std::optional<std::vector<std::uint32_t>> MeshEditor::triangles_around(std::uint32_t v) {
-  if (!impl_->load(v)) return std::nullopt;
+std::vector<std::uint32_t> MeshEditor::triangles_around(std::uint32_t v) const {
+  if (!impl_->loaded(v)) {
+    const auto row = impl_->entry.of(v);
+    return {row.begin(), row.end()};
+  }
   std::vector<std::uint32_t> out;
   const TriMesh& m = impl_->mesh;
   for (auto it = m.cvf_iter(TriMesh::VertexHandle(impl_->local_vertex[v])); it.is_valid(); ++it) {
     out.push_back(impl_->global(*it));
   }
+  std::sort(out.begin(), out.end());
   return out;
 }
 
-std::optional<std::vector<std::uint32_t>> MeshEditor::neighbours(std::uint32_t v) {
-  if (!impl_->load(v)) return std::nullopt;
+std::size_t MeshEditor::triangle_count(std::uint32_t v) const {
+  if (!impl_->loaded(v)) return impl_->entry.of(v).size();
+  std::size_t count = 0;
+  const TriMesh& m = impl_->mesh;
+  for (auto it = m.cvf_iter(TriMesh::VertexHandle(impl_->local_vertex[v])); it.is_valid(); ++it) ++count;
+  return count;
+}
+
+std::optional<MeshEditor::Across> MeshEditor::across(std::uint32_t t, std::uint32_t u, std::uint32_t v) const {
+  if (impl_->loaded(u)) {
+    TriMesh::HalfedgeHandle uv;
+    return impl_->across(t, u, v, uv);
+  }
+  // u's entry fan is exact: the triangles on (u, v) other than t, exactly one of them holding v -> u.
+  Across found;
+  int count = 0;
+  for (const std::uint32_t s : impl_->entry.of(u)) {
+    if (s == t) continue;
+    const Triangle& q = triangles_[s];
+    for (int k = 0; k < 3; ++k) {
+      if (q[k] == v && q[(k + 1) % 3] == u) {
+        found = Across{s, q[(k + 2) % 3]};
+        ++count;
+      }
+      if (q[k] == u && q[(k + 1) % 3] == v) ++count;  // a second triangle along u -> v: not manifold here
+    }
+  }
+  if (count != 1 || found.triangle == kNone) return std::nullopt;
+  return found;
+}
+
+std::vector<std::uint32_t> MeshEditor::neighbours(std::uint32_t v) const {
   std::vector<std::uint32_t> out;
+  if (!impl_->loaded(v)) {
+    for (const std::uint32_t s : impl_->entry.of(v)) {
+      for (const std::uint32_t w : triangles_[s]) {
+        if (w != v) out.push_back(w);
+      }
+    }
+    std::sort(out.begin(), out.end());
+    out.erase(std::unique(out.begin(), out.end()), out.end());
+    return out;
+  }
   const TriMesh& m = impl_->mesh;
   for (auto it = m.cvv_iter(TriMesh::VertexHandle(impl_->local_vertex[v])); it.is_valid(); ++it) {
     out.push_back(impl_->global(*it));
@@ -153,17 +200,20 @@ std::optional<std::vector<std::uint32_t>> MeshEditor::neighbours(std::uint32_t v
   return out;
 }
 
-std::optional<int> MeshEditor::edge_triangle_count(std::uint32_t u, std::uint32_t w) {
-  if (!impl_->load_all({u, w})) return std::nullopt;
-  const TriMesh::HalfedgeHandle h = impl_->halfedge(u, w);
-  if (!h.is_valid()) return 0;
-  const TriMesh& m = impl_->mesh;
-  return (m.is_boundary(h) ? 0 : 1) + (m.is_boundary(m.opposite_halfedge_handle(h)) ? 0 : 1);
+int MeshEditor::edge_triangle_count(std::uint32_t u, std::uint32_t w) const {
+  int count = 0;
+  for (const std::uint32_t s : triangles_around(u)) {
+    const Triangle& q = triangles_[s];
+    count += q[0] == w || q[1] == w || q[2] == w;
+  }
+  return count;
 }
 
-std::optional<bool> MeshEditor::on_boundary(std::uint32_t v) {
-  if (!impl_->load(v)) return std::nullopt;
-  return impl_->mesh.is_boundary(TriMesh::VertexHandle(impl_->local_vertex[v]));
+bool MeshEditor::on_boundary(std::uint32_t v) const {
+  for (const std::uint32_t w : neighbours(v)) {
+    if (edge_triangle_count(v, w) == 1) return true;
+  }
+  return false;
 }
 
 std::optional<MeshEditor::Across> MeshEditor::flip_site(std::uint32_t t, std::uint32_t u, std::uint32_t v) {
@@ -188,30 +238,60 @@ void MeshEditor::flip(std::uint32_t t, std::uint32_t u, std::uint32_t v) {
   triangles_[site.triangle] = Triangle{site.vertex, v, x};
 }
 
-std::optional<MeshEditor::Across> MeshEditor::collapse_site(std::uint32_t t, std::uint32_t a, std::uint32_t b) {
+// Edge (keep, gone) of t in t's direction: (keep, gone) itself when t holds keep -> gone, else (gone, keep).
+static std::pair<std::uint32_t, std::uint32_t> directed_in(const Triangle& tri, std::uint32_t keep,
+                                                           std::uint32_t gone) {
+  for (int k = 0; k < 3; ++k) {
+    if (tri[k] == keep && tri[(k + 1) % 3] == gone) return {keep, gone};
+  }
+  return {gone, keep};
+}
+
+void MeshEditor::undo_flip(std::uint32_t t, std::uint32_t t2, const Triangle& old_t, const Triangle& old_t2) {
+  // t = (u, y, x), t2 = (y, v, x) after the flip: flipping (y, x) back leaves t's face with y and u, which is old
+  // t2's side, so the two triangles trade faces.
+  const Triangle now = triangles_[t];
+  TriMesh::HalfedgeHandle yx;
+  impl_->across(t, now[1], now[2], yx);
+  impl_->mesh.flip(impl_->mesh.edge_handle(yx));
+  std::int32_t& ft = impl_->local_face[t];
+  std::int32_t& ft2 = impl_->local_face[t2];
+  std::swap(ft, ft2);
+  impl_->global_face[static_cast<std::size_t>(ft)] = t;
+  impl_->global_face[static_cast<std::size_t>(ft2)] = t2;
+  triangles_[t] = old_t;
+  triangles_[t2] = old_t2;
+}
+
+std::optional<MeshEditor::Across> MeshEditor::collapse_site(std::uint32_t t, std::uint32_t keep, std::uint32_t gone) {
   const Triangle& tri = triangles_[t];
-  const std::uint32_t c = tri[0] != a && tri[0] != b ? tri[0] : tri[1] != a && tri[1] != b ? tri[1] : tri[2];
-  if (!impl_->load_all({a, b, c})) return std::nullopt;
+  const std::uint32_t c = tri[0] != keep && tri[0] != gone   ? tri[0]
+                          : tri[1] != keep && tri[1] != gone ? tri[1]
+                                                             : tri[2];
+  if (!impl_->load_all({keep, gone, c})) return std::nullopt;
+  const auto [a, b] = directed_in(tri, keep, gone);
   TriMesh::HalfedgeHandle ab;
   const std::optional<Across> site = impl_->across(t, a, b, ab);
   if (!site || !impl_->load(site->vertex)) return std::nullopt;
-  // OpenMesh collapses a halfedge's from-vertex into its to-vertex: b -> a.
-  if (!impl_->mesh.is_collapse_ok(impl_->mesh.opposite_halfedge_handle(ab))) return std::nullopt;
+  // OpenMesh collapses a halfedge's from-vertex into its to-vertex.
+  const TriMesh::HalfedgeHandle h = a == gone ? ab : impl_->mesh.opposite_halfedge_handle(ab);
+  if (!impl_->mesh.is_collapse_ok(h)) return std::nullopt;
   return site;
 }
 
-void MeshEditor::collapse(std::uint32_t t, std::uint32_t a, std::uint32_t b) {
+void MeshEditor::collapse(std::uint32_t t, std::uint32_t keep, std::uint32_t gone) {
+  const auto [a, b] = directed_in(triangles_[t], keep, gone);
   TriMesh::HalfedgeHandle ab;
   const Across site = *impl_->across(t, a, b, ab);
   TriMesh& m = impl_->mesh;
-  for (auto it = m.vf_iter(TriMesh::VertexHandle(impl_->local_vertex[b])); it.is_valid(); ++it) {
+  for (auto it = m.vf_iter(TriMesh::VertexHandle(impl_->local_vertex[gone])); it.is_valid(); ++it) {
     const std::uint32_t f = impl_->global(*it);
     if (f == t || f == site.triangle) continue;
     for (std::uint32_t& w : triangles_[f]) {
-      if (w == b) w = a;
+      if (w == gone) w = keep;
     }
   }
-  m.collapse(m.opposite_halfedge_handle(ab));
+  m.collapse(a == gone ? ab : m.opposite_halfedge_handle(ab));
   triangles_[t] = Triangle{kNone, kNone, kNone};
   triangles_[site.triangle] = Triangle{kNone, kNone, kNone};
 }

@@ -135,16 +135,20 @@ class Cleaner {
   }
 
   // --- Flips ---------------------------------------------------------------------------------------------------
-  // For t = (x, u, v) rotated so that k is x's corner: the triangle t2 = (v, u, y) across (u, v), when the editor
-  // may flip (u, v) (two consistently oriented triangles, the edge (x, y) is new) and (x, y) carries no midpoint
-  // record.
-  bool flippable(std::int32_t t, int k, std::int32_t& t2, std::uint32_t& y) {
+  // For t = (x, u, v) rotated so that k is x's corner: the triangle t2 = (v, u, y) across (u, v), when (u, v) has
+  // exactly these two consistently oriented triangles, y != x and (x, y) carries no midpoint record. The editor's
+  // flip_site (the edge (x, y) is new) is asked last, by the callers, once the cheaper tests pass: it loads the
+  // neighbourhood into the TriMesh.
+  bool flippable(std::int32_t t, int k, std::int32_t& t2, std::uint32_t& y) const {
     const std::uint32_t x = tris_[t][k], u = tris_[t][(k + 1) % 3], v = tris_[t][(k + 2) % 3];
-    const std::optional<MeshEditor::Across> site = editor_->flip_site(static_cast<std::uint32_t>(t), u, v);
+    const std::optional<MeshEditor::Across> site = editor_->across(static_cast<std::uint32_t>(t), u, v);
     if (!site) return false;
     t2 = static_cast<std::int32_t>(site->triangle);
     y = site->vertex;
-    return h_.midpoints.count(edge_key(x, y)) == 0;
+    return y != x && h_.midpoints.count(edge_key(x, y)) == 0;
+  }
+  bool flip_valid(std::int32_t t, int k) {
+    return editor_->flip_site(static_cast<std::uint32_t>(t), tris_[t][(k + 1) % 3], tris_[t][(k + 2) % 3]).has_value();
   }
 
   // Replaces t = (x, u, v) and t2 = (v, u, y) by (u, y, x) and (y, v, x).
@@ -170,7 +174,7 @@ class Cleaner {
     const std::uint32_t x = tris_[t][k], u = tris_[t][(k + 1) % 3], v = tris_[t][(k + 2) % 3];
     const Triangle a{u, y, x}, b{y, v, x};
     if (!(std::min(largest_cos(a), largest_cos(b)) > std::min(old_cos, largest_cos(tris_[t2])))) return false;
-    if (score(a) < o_.min_cos || score(b) < o_.min_cos) return false;
+    if (score(a) < o_.min_cos || score(b) < o_.min_cos || !flip_valid(t, k)) return false;
     apply_flip(t, t2, k);
     return true;
   }
@@ -192,7 +196,7 @@ class Cleaner {
       const double before = energy(tris_[t], m_[t]) + energy(tris_[t2], m_[t2]);
       const double gain = before - energy(a, field_normal(a)) - energy(b, field_normal(b));
       if (!(gain > 0.01 * before) || gain <= best_gain) continue;
-      if (score(a) < o_.min_cos || score(b) < o_.min_cos) continue;
+      if (score(a) < o_.min_cos || score(b) < o_.min_cos || !flip_valid(t, k)) continue;
       best_gain = gain;
       best = k;
       best_t2 = t2;
@@ -212,12 +216,11 @@ class Cleaner {
     const std::optional<MeshEditor::Across> site = editor_->collapse_site(static_cast<std::uint32_t>(t), a, b);
     if (!site) return false;
     const auto t2 = static_cast<std::int32_t>(site->triangle);
-    const std::vector<std::uint32_t> nb = *editor_->neighbours(b);  // a and b are usable: collapse_site loaded them
-    for (std::uint32_t y : nb) {
+    for (std::uint32_t y : editor_->neighbours(b)) {
       if (y != a && h_.midpoints.count(edge_key(a, y)) != 0) return false;
     }
-    std::vector<std::uint32_t> around = *editor_->triangles_around(a);
-    const std::vector<std::uint32_t> around_b = *editor_->triangles_around(b);
+    std::vector<std::uint32_t> around = editor_->triangles_around(a);
+    const std::vector<std::uint32_t> around_b = editor_->triangles_around(b);
     around.insert(around.end(), around_b.begin(), around_b.end());
     std::sort(around.begin(), around.end());
     around.erase(std::unique(around.begin(), around.end()), around.end());

@@ -305,7 +305,8 @@ struct MeshOptimizer::State {
         const double g2 = out.g[v].squaredNorm();
         const double d2 = g2 > 0.0 ? out.f[v] * out.f[v] / g2 : out.f[v] * out.f[v];
         double ap = 0.0;
-        for (std::uint32_t i = topology.faces.offsets[v]; i < topology.faces.offsets[v + 1]; ++i) ap += area[topology.faces.triangles[i]];
+        for (std::uint32_t i = topology.faces.offsets[v]; i < topology.faces.offsets[v + 1]; ++i)
+          ap += area[topology.faces.triangles[i]];
         acc.ed += ap * d2;
         acc.area += ap;
         acc.max_d = std::max(acc.max_d, std::sqrt(d2));
@@ -430,7 +431,8 @@ struct MeshOptimizer::State {
         for (std::uint32_t i = topo.vv_offset[v]; i < topo.vv_offset[v + 1]; ++i) u += p[topo.vv[i]];
         u = u / static_cast<double>(k) - p[v];
         Vec3 n = Vec3::Zero();
-        for (std::uint32_t i = topo.faces.offsets[v]; i < topo.faces.offsets[v + 1]; ++i) n += cross_of(p, tris[topo.faces.triangles[i]]);
+        for (std::uint32_t i = topo.faces.offsets[v]; i < topo.faces.offsets[v + 1]; ++i)
+          n += cross_of(p, tris[topo.faces.triangles[i]]);
         const double len = n.norm();
         if (!(len > 0.0)) continue;
         n /= len;
@@ -460,7 +462,8 @@ struct MeshOptimizer::State {
         }
         Vec3 step = -options.c_d * f * g / (g.squaredNorm() + kGradientEpsilon);
         double ap = 0.0;
-        for (std::uint32_t i = topo.faces.offsets[v]; i < topo.faces.offsets[v + 1]; ++i) ap += area[topo.faces.triangles[i]];
+        for (std::uint32_t i = topo.faces.offsets[v]; i < topo.faces.offsets[v + 1]; ++i)
+          ap += area[topo.faces.triangles[i]];
         const double bound = options.step_bound * std::sqrt(ap);
         const double len = step.norm();
         if (!std::isfinite(len)) continue;
@@ -675,8 +678,7 @@ struct MeshOptimizer::State {
       optimizer_detail::CleanupOptions co;
       co.min_cos = kMinCos;
       co.degenerate_cross = degenerate_cross();
-      cleanup =
-          optimizer_detail::repair_connectivity(p, tris, new_h, m_final, topo.faces, field, co, control);
+      cleanup = optimizer_detail::repair_connectivity(p, tris, new_h, m_final, topo.faces, field, co, control);
     }
     const bool reconnected = cleanup.flips + cleanup.collapses > 0;
     Topology new_topo;

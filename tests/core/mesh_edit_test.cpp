@@ -140,14 +140,15 @@ void random_edits(Mesh mesh, unsigned seed) {
       EXPECT_TRUE(neighbours_of(mesh, v).empty());
       ++collapses;
     }
-    // The editor's view of the vertices it touched matches the flat list.
-    for (const std::uint32_t w : {u, x, y}) {
-      if (neighbours_of(mesh, w).empty()) continue;
-      const std::optional<std::vector<std::uint32_t>> n = editor.neighbours(w);
-      ASSERT_TRUE(n.has_value());
-      EXPECT_EQ(*n, neighbours_of(mesh, w)) << "vertex " << w;
-      EXPECT_EQ(editor.edge_triangle_count(w, (*n)[0]), std::optional<int>(2));
-      EXPECT_EQ(editor.on_boundary(w), std::optional<bool>(false));
+    // The editor's view of the vertices it touched (loaded) and of one it did not matches the flat list.
+    for (const std::uint32_t w : {u, x, y, static_cast<std::uint32_t>(rng() % mesh.vertices.size())}) {
+      const std::vector<std::uint32_t> n = editor.neighbours(w);
+      EXPECT_EQ(n, neighbours_of(mesh, w)) << "vertex " << w;
+      if (n.empty()) continue;
+      EXPECT_EQ(editor.triangle_count(w), n.size());
+      EXPECT_EQ(editor.triangles_around(w).size(), n.size());
+      EXPECT_EQ(editor.edge_triangle_count(w, n[0]), 2);
+      EXPECT_FALSE(editor.on_boundary(w));
     }
     const MeshReport now = check_mesh(live(mesh));
     ASSERT_TRUE(mesh_has(now, kClosedManifold)) << "after step " << step;
@@ -174,13 +175,14 @@ TEST(MeshEdit, BoundaryEdgesAreCountedAndNeverFlipped) {
   int interior = 0;
   for (int k = 0; k < 3; ++k) {
     const std::uint32_t u = t[k], v = t[(k + 1) % 3];
-    const std::optional<int> count = editor.edge_triangle_count(u, v);
-    ASSERT_TRUE(count.has_value());
-    EXPECT_TRUE(*count == 1 || *count == 2);
-    interior += *count == 2;
-    EXPECT_EQ(editor.flip_site(0, u, v).has_value(), *count == 2);  // the diagonal flips, a boundary edge never
-    EXPECT_FALSE(editor.collapse_site(0, u, v).has_value());        // every vertex is on the boundary
-    EXPECT_EQ(editor.on_boundary(u), std::optional<bool>(true));
+    const int count = editor.edge_triangle_count(u, v);
+    EXPECT_TRUE(count == 1 || count == 2);
+    interior += count == 2;
+    EXPECT_EQ(editor.across(0, u, v).has_value(), count == 2);
+    EXPECT_EQ(editor.flip_site(0, u, v).has_value(), count == 2);  // the diagonal flips, a boundary edge never
+    EXPECT_FALSE(editor.collapse_site(0, u, v).has_value());       // every vertex is on the boundary
+    EXPECT_TRUE(editor.on_boundary(u));
+    EXPECT_EQ(editor.edge_triangle_count(u, v), count);  // the same once loaded
   }
   EXPECT_EQ(interior, 1);
 }
@@ -189,8 +191,9 @@ TEST(MeshEdit, AVertexAtANonManifoldEdgeIsLeftAlone) {
   Mesh m = testing::non_manifold_edge();  // three triangles on edge (0, 1)
   const VertexTriangles adjacency = vertex_triangles(m.vertices.size(), m.triangles);
   MeshEditor editor(m.triangles, adjacency, m.vertices.size());
-  EXPECT_FALSE(editor.neighbours(0).has_value());
-  EXPECT_FALSE(editor.edge_triangle_count(0, 1).has_value());
+  EXPECT_EQ(editor.neighbours(0).size(), 4u);  // queries still answer, from the flat list
+  EXPECT_EQ(editor.edge_triangle_count(0, 1), 3);
+  EXPECT_FALSE(editor.across(0, 0, 1).has_value());
   const std::vector<Triangle> before = m.triangles;
   for (std::uint32_t t = 0; t < before.size(); ++t) {
     for (int k = 0; k < 3; ++k) {
@@ -198,6 +201,7 @@ TEST(MeshEdit, AVertexAtANonManifoldEdgeIsLeftAlone) {
       EXPECT_FALSE(editor.collapse_site(t, before[t][k], before[t][(k + 1) % 3]).has_value());
     }
   }
+  EXPECT_EQ(editor.edge_triangle_count(0, 1), 3);  // vertex 0 unusable, its fan answered from the flat list
   EXPECT_EQ(m.triangles, before);
 }
 
