@@ -154,7 +154,8 @@ class Repair {
     const Triangle n1{u, y, x}, n2{y, v, x};
     const Vec3 before = normal(tri) + normal(other);
     if (!(normal(n1).dot(before) > 0.0) || !(normal(n2).dot(before) > 0.0)) return std::nullopt;
-    if (!edit().flip_site(t, u, v)) return std::nullopt;  // last: it loads the neighbourhood; (x, y) must be new
+    const std::vector<std::uint32_t> nx = neighbours(x);  // (x, y) must be new; the editor decides in allowed()
+    if (std::binary_search(nx.begin(), nx.end(), y)) return std::nullopt;
     Move m;
     m.kind = Move::Kind::kFlip;
     m.edge = k;
@@ -178,8 +179,7 @@ class Repair {
     if (!site || site->vertex == c) return std::nullopt;
     const std::uint32_t t2 = site->triangle, d = site->vertex;
     const std::vector<std::uint32_t> na = neighbours(a), nb = neighbours(b);
-    // The link condition from the rings at hand; the editor's collapse_site decides (allowed(), when the move is
-    // about to be taken: it loads the neighbourhood and is_collapse_ok costs far more than the rest).
+    // The link condition from the rings at hand; the editor decides in allowed().
     std::vector<std::uint32_t> common;
     std::set_intersection(na.begin(), na.end(), nb.begin(), nb.end(), std::back_inserter(common));
     if (common.size() != 2) return std::nullopt;
@@ -208,11 +208,12 @@ class Repair {
     return m;
   }
 
-  // Whether the editor allows the move (the flips were asked in evaluate_flip already).
+  // Whether the editor allows the move (is_flip_ok, is_collapse_ok), asked only of a move about to be taken or
+  // raised for: it loads the neighbourhood into the TriMesh, which costs far more than the evaluation.
   bool allowed(std::uint32_t t, const Move& m) const {
-    if (m.kind == Move::Kind::kFlip) return true;
     const Triangle& tri = tris_[t];
     const std::uint32_t a = tri[m.edge], b = tri[(m.edge + 1) % 3];
+    if (m.kind == Move::Kind::kFlip) return edit().flip_site(t, a, b).has_value();
     return edit().collapse_site(t, m.keep_first ? a : b, m.keep_first ? b : a).has_value();
   }
 
@@ -365,7 +366,7 @@ class Repair {
       const std::uint32_t other = across(s, p, q);
       if (other == kDead || is_near(other)) continue;
       std::optional<Move> m = evaluate_flip(s, k);
-      if (!m || !(m->after >= o_.min_angle_degrees)) continue;
+      if (!m || !(m->after >= o_.min_angle_degrees) || !allowed(s, *m)) continue;
       if (m->blocked[0] != kDead) {
         if (depth == 0) continue;
         bool raised = true;
@@ -380,7 +381,7 @@ class Repair {
         const int k2 = opposite(s, p2, q2);
         if (p2 != p || q2 != q) continue;
         m = evaluate_flip(s, k2);
-        if (!m || m->blocked[0] != kDead || !(m->after >= o_.min_angle_degrees)) continue;
+        if (!m || m->blocked[0] != kDead || !(m->after >= o_.min_angle_degrees) || !allowed(s, *m)) continue;
       }
       apply_flip(s, k, changed);
       return true;
