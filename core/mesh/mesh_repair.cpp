@@ -8,16 +8,16 @@
 #include <optional>
 #include <span>
 #include <tuple>
-#include <unordered_map>
 #include <vector>
 
+#include "core/mesh/mesh_edit.h"
 #include "core/util/parallel.h"
 
 namespace surfacer {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
-constexpr std::uint32_t kDead = std::numeric_limits<std::uint32_t>::max();
+constexpr std::uint32_t kDead = MeshEditor::kNone;  // a removed triangle, or no vertex
 using GridPoint = std::array<std::uint32_t, 3>;
 
 // Collinear (or repeated) grid points, exactly: coordinates below 2^30, so the cross product fits in 64 bits.
@@ -29,49 +29,6 @@ bool degenerate(const GridPoint& a, const GridPoint& b, const GridPoint& c) {
   }
   return u[1] * v[2] == u[2] * v[1] && u[2] * v[0] == u[0] * v[2] && u[0] * v[1] == u[1] * v[0];
 }
-
-// The vertex -> triangles adjacency: compressed rows built once, and the lists of the vertices a repair changed.
-class Adjacency {
- public:
-  Adjacency(std::size_t vertices, const std::vector<Triangle>& triangles) : offsets_(vertices + 1, 0) {
-    for (const Triangle& t : triangles) {
-      for (const std::uint32_t v : t) ++offsets_[v + 1];
-    }
-    for (std::size_t v = 0; v < vertices; ++v) offsets_[v + 1] += offsets_[v];
-    list_.resize(offsets_[vertices]);
-    std::vector<std::uint32_t> fill(offsets_.begin(), offsets_.end() - 1);
-    for (std::size_t t = 0; t < triangles.size(); ++t) {
-      for (const std::uint32_t v : triangles[t]) list_[fill[v]++] = static_cast<std::uint32_t>(t);
-    }
-  }
-
-  // Valid until the next change of v's list.
-  std::span<const std::uint32_t> of(std::uint32_t v) const {
-    const auto it = changed_.find(v);
-    if (it != changed_.end()) return it->second;
-    return std::span<const std::uint32_t>(list_).subspan(offsets_[v], offsets_[v + 1] - offsets_[v]);
-  }
-  void add(std::uint32_t v, std::uint32_t t) {
-    std::vector<std::uint32_t>& l = editable(v);
-    l.push_back(t);
-  }
-  void remove(std::uint32_t v, std::uint32_t t) {
-    std::vector<std::uint32_t>& l = editable(v);
-    l.erase(std::remove(l.begin(), l.end(), t), l.end());
-  }
-  void set(std::uint32_t v, std::vector<std::uint32_t> l) { changed_[v] = std::move(l); }
-
- private:
-  std::vector<std::uint32_t>& editable(std::uint32_t v) {
-    const auto it = changed_.find(v);
-    if (it != changed_.end()) return it->second;
-    const std::span<const std::uint32_t> base = of(v);
-    return changed_.emplace(v, std::vector<std::uint32_t>(base.begin(), base.end())).first->second;
-  }
-
-  std::vector<std::uint32_t> offsets_, list_;
-  std::unordered_map<std::uint32_t, std::vector<std::uint32_t>> changed_;
-};
 
 // A candidate repair of one bad triangle: flip one of its edges, or collapse one onto one of its ends.
 struct Move {
@@ -105,13 +62,17 @@ class Repair {
   // Records the triangles it changed.
   bool repair(std::uint32_t t, std::vector<std::uint32_t>& changed) {
     if (!bad(tris_[t])) return false;
-    if (!adjacency_) adjacency_.emplace(x_.size(), tris_);  // built at the first bad triangle only
+    if (!editor_) {  // built at the first bad triangle only
+      adjacency_ = vertex_triangles(x_.size(), tris_);
+      editor_.emplace(tris_, adjacency_, x_.size());
+    }
     undo_.clear();
     std::vector<Move> moves = candidates(t);
     for (const Move& m : moves) {
-      if (m.blocked[0] == kDead) return apply(t, m, changed);
+      if (m.blocked[0] == kDead && allowed(t, m)) return apply(t, m, changed);
     }
     for (const Move& m : moves) {
+      if (!allowed(t, m)) continue;
       const std::size_t mark = undo_.size();
       bool raised = true;
       for (const std::uint32_t v : m.blocked) {
@@ -121,7 +82,9 @@ class Repair {
       const std::optional<Move> again = !raised                       ? std::nullopt
                                         : m.kind == Move::Kind::kFlip ? evaluate_flip(t, m.edge)
                                                                       : evaluate_collapse(t, m.edge, m.keep_first);
-      if (again && again->blocked[0] == kDead && again->after > again->before) return apply(t, *again, changed);
+      if (again && again->blocked[0] == kDead && again->after > again->before && allowed(t, *again)) {
+        return apply(t, *again, changed);
+      }
       roll_back(mark);  // the raising flips served nothing: the mesh stays as it was
     }
     return o_.place && relocate(t, changed);
@@ -145,7 +108,7 @@ class Repair {
     return min_angle_degrees(x_[t[0]], x_[t[1]], x_[t[2]]);
   }
   Vec3 normal(const Triangle& t) const { return (x_[t[1]] - x_[t[0]]).cross(x_[t[2]] - x_[t[0]]); }
-  std::size_t valence(std::uint32_t v) const { return adj().of(v).size(); }
+  std::size_t valence(std::uint32_t v) const { return edit().triangle_count(v); }
   // A vertex may lose one neighbour when it stays at or above the floor, or was below it already.
   bool may_lose(std::uint32_t v) const {
     const std::size_t val = valence(v);
@@ -154,45 +117,11 @@ class Repair {
   // The other triangle of directed edge (a, b) of triangle t (the one holding b -> a), or kDead when there is none
   // or the edge is not manifold.
   std::uint32_t across(std::uint32_t t, std::uint32_t a, std::uint32_t b) const {
-    std::uint32_t found = kDead;
-    int count = 0;
-    for (const std::uint32_t s : adj().of(a)) {
-      if (s == t) continue;
-      const Triangle& q = tris_[s];
-      for (int k = 0; k < 3; ++k) {
-        if (q[k] == b && q[(k + 1) % 3] == a) {
-          found = s;
-          ++count;
-        }
-        if (q[k] == a && q[(k + 1) % 3] == b) ++count;  // a second triangle along a -> b: not manifold here
-      }
-    }
-    return count == 1 ? found : kDead;
+    const std::optional<MeshEditor::Across> site = edit().across(t, a, b);
+    return site ? site->triangle : kDead;
   }
-  bool has_edge(std::uint32_t a, std::uint32_t b) const {
-    for (const std::uint32_t s : adj().of(a)) {
-      const Triangle& q = tris_[s];
-      if (q[0] == b || q[1] == b || q[2] == b) return true;
-    }
-    return false;
-  }
-  static std::uint32_t third(const Triangle& q, std::uint32_t a, std::uint32_t b) {
-    for (const std::uint32_t w : q) {
-      if (w != a && w != b) return w;
-    }
-    return kDead;
-  }
-  std::vector<std::uint32_t> neighbours(std::uint32_t v) const {
-    std::vector<std::uint32_t> out;
-    for (const std::uint32_t s : adj().of(v)) {
-      for (const std::uint32_t w : tris_[s]) {
-        if (w != v) out.push_back(w);
-      }
-    }
-    std::sort(out.begin(), out.end());
-    out.erase(std::unique(out.begin(), out.end()), out.end());
-    return out;
-  }
+  std::vector<std::uint32_t> neighbours(std::uint32_t v) const { return edit().neighbours(v); }
+  std::vector<std::uint32_t> around(std::uint32_t v) const { return edit().triangles_around(v); }
 
   // Every valid move for t, improving ones only, best first (ties in a fixed order: deterministic).
   std::vector<Move> candidates(std::uint32_t t) const {
@@ -218,14 +147,15 @@ class Repair {
   std::optional<Move> evaluate_flip(std::uint32_t t, int k) const {
     const Triangle& tri = tris_[t];
     const std::uint32_t u = tri[k], v = tri[(k + 1) % 3], x = tri[(k + 2) % 3];
-    const std::uint32_t t2 = across(t, u, v);
-    if (t2 == kDead) return std::nullopt;
-    const Triangle& other = tris_[t2];
-    const std::uint32_t y = third(other, u, v);
-    if (y == kDead || y == x || has_edge(x, y)) return std::nullopt;
+    const std::optional<MeshEditor::Across> site = edit().across(t, u, v);
+    if (!site || site->vertex == x) return std::nullopt;
+    const Triangle& other = tris_[site->triangle];
+    const std::uint32_t y = site->vertex;
     const Triangle n1{u, y, x}, n2{y, v, x};
     const Vec3 before = normal(tri) + normal(other);
     if (!(normal(n1).dot(before) > 0.0) || !(normal(n2).dot(before) > 0.0)) return std::nullopt;
+    const std::vector<std::uint32_t> nx = neighbours(x);  // (x, y) must be new; the editor decides in allowed()
+    if (std::binary_search(nx.begin(), nx.end(), y)) return std::nullopt;
     Move m;
     m.kind = Move::Kind::kFlip;
     m.edge = k;
@@ -244,24 +174,24 @@ class Repair {
   std::optional<Move> evaluate_collapse(std::uint32_t t, int k, bool keep_first) const {
     const Triangle& tri = tris_[t];
     const std::uint32_t a = tri[k], b = tri[(k + 1) % 3], c = tri[(k + 2) % 3];
-    const std::uint32_t t2 = across(t, a, b);
-    if (t2 == kDead) return std::nullopt;
-    const std::uint32_t d = third(tris_[t2], a, b);
-    if (d == kDead || d == c) return std::nullopt;
+    const std::uint32_t keep = keep_first ? a : b, gone = keep_first ? b : a;
+    const std::optional<MeshEditor::Across> site = edit().across(t, a, b);
+    if (!site || site->vertex == c) return std::nullopt;
+    const std::uint32_t t2 = site->triangle, d = site->vertex;
     const std::vector<std::uint32_t> na = neighbours(a), nb = neighbours(b);
+    // The link condition from the rings at hand; the editor decides in allowed().
     std::vector<std::uint32_t> common;
     std::set_intersection(na.begin(), na.end(), nb.begin(), nb.end(), std::back_inserter(common));
     if (common.size() != 2) return std::nullopt;
     const std::size_t merged = na.size() + nb.size() - 4, floor = static_cast<std::size_t>(o_.min_valence);
     if (merged < floor && std::max(na.size(), nb.size()) >= floor) return std::nullopt;
-    const std::uint32_t keep = keep_first ? a : b, gone = keep_first ? b : a;
     Move m;
     m.kind = Move::Kind::kCollapse;
     m.edge = k;
     m.keep_first = keep_first;
     m.before = std::min(quality(tri), quality(tris_[t2]));
     m.after = std::numeric_limits<double>::infinity();
-    for (const std::uint32_t s : adj().of(gone)) {
+    for (const std::uint32_t s : around(gone)) {
       if (s == t || s == t2) continue;
       Triangle moved = tris_[s];
       for (std::uint32_t& w : moved) {
@@ -278,6 +208,15 @@ class Repair {
     return m;
   }
 
+  // Whether the editor allows the move (is_flip_ok, is_collapse_ok), asked only of a move about to be taken or
+  // raised for: it loads the neighbourhood into the TriMesh, which costs far more than the evaluation.
+  bool allowed(std::uint32_t t, const Move& m) const {
+    const Triangle& tri = tris_[t];
+    const std::uint32_t a = tri[m.edge], b = tri[(m.edge + 1) % 3];
+    if (m.kind == Move::Kind::kFlip) return edit().flip_site(t, a, b).has_value();
+    return edit().collapse_site(t, m.keep_first ? a : b, m.keep_first ? b : a).has_value();
+  }
+
   bool apply(std::uint32_t t, const Move& m, std::vector<std::uint32_t>& changed) {
     if (m.kind == Move::Kind::kFlip) {
       apply_flip(t, m.edge, changed);
@@ -289,16 +228,10 @@ class Repair {
 
   void apply_flip(std::uint32_t t, int k, std::vector<std::uint32_t>& changed) {
     const Triangle tri = tris_[t];
-    const std::uint32_t u = tri[k], v = tri[(k + 1) % 3], x = tri[(k + 2) % 3];
+    const std::uint32_t u = tri[k], v = tri[(k + 1) % 3];
     const std::uint32_t t2 = across(t, u, v);
-    const std::uint32_t y = third(tris_[t2], u, v);
     undo_.push_back({t, t2, tris_[t], tris_[t2]});
-    tris_[t] = Triangle{u, y, x};
-    tris_[t2] = Triangle{y, v, x};
-    adj().remove(u, t2);
-    adj().remove(v, t);
-    adj().add(x, t2);
-    adj().add(y, t);
+    edit().flip(t, u, v);
     changed.push_back(t);
     changed.push_back(t2);
     ++flips_;
@@ -309,41 +242,20 @@ class Repair {
     while (undo_.size() > mark) {
       const FlipRecord r = undo_.back();
       undo_.pop_back();
-      const Triangle now = tris_[r.t];  // (u, y, x)
-      const std::uint32_t u = now[0], y = now[1], x = now[2], v = tris_[r.t2][1];
-      tris_[r.t] = r.old_t;
-      tris_[r.t2] = r.old_t2;
-      adj().remove(x, r.t2);
-      adj().remove(y, r.t);
-      adj().add(u, r.t2);
-      adj().add(v, r.t);
+      edit().undo_flip(r.t, r.t2, r.old_t, r.old_t2);
       --flips_;
     }
   }
 
   void apply_collapse(std::uint32_t t, int k, bool keep_first, std::vector<std::uint32_t>& changed) {
     const Triangle tri = tris_[t];
-    const std::uint32_t a = tri[k], b = tri[(k + 1) % 3], c = tri[(k + 2) % 3];
-    const std::uint32_t t2 = across(t, a, b);
-    const std::uint32_t d = third(tris_[t2], a, b);
+    const std::uint32_t a = tri[k], b = tri[(k + 1) % 3];
     const std::uint32_t keep = keep_first ? a : b, gone = keep_first ? b : a;
-    const std::span<const std::uint32_t> keep_now = adj().of(keep);
-    std::vector<std::uint32_t> keep_list(keep_now.begin(), keep_now.end());
-    std::erase_if(keep_list, [&](std::uint32_t s) { return s == t || s == t2; });
-    for (const std::uint32_t s : adj().of(gone)) {
-      if (s == t || s == t2) continue;
-      for (std::uint32_t& w : tris_[s]) {
-        if (w == gone) w = keep;
-      }
-      keep_list.push_back(s);
-      changed.push_back(s);
+    const std::uint32_t t2 = across(t, a, b);
+    for (const std::uint32_t s : around(gone)) {
+      if (s != t && s != t2) changed.push_back(s);
     }
-    adj().set(keep, std::move(keep_list));
-    adj().set(gone, {});
-    adj().remove(c, t);
-    adj().remove(d, t2);
-    tris_[t] = Triangle{kDead, kDead, kDead};
-    tris_[t2] = Triangle{kDead, kDead, kDead};
+    edit().collapse(t, keep, gone);
     dead_vertices_.push_back(gone);
     ++collapses_;
   }
@@ -389,15 +301,15 @@ class Repair {
     Vec3 best_position = Vec3::Zero();
     std::optional<Score> best;
     for (const std::uint32_t v : tris_[t]) {
-      const std::span<const std::uint32_t> around = adj().of(v);
+      const std::vector<std::uint32_t> fan = around(v);
       Vec3 normal_sum = Vec3::Zero();
-      for (const std::uint32_t s : around) normal_sum += normal(tris_[s]);
+      for (const std::uint32_t s : fan) normal_sum += normal(tris_[s]);
       const std::vector<std::uint32_t> ring = neighbours(v);
       if (ring.empty() || !(normal_sum.squaredNorm() > 0.0)) continue;
       const Vec3 n = normal_sum.normalized();
-      const Score before = score(around);
-      std::vector<char> facing(around.size());
-      for (std::size_t i = 0; i < around.size(); ++i) facing[i] = normal(tris_[around[i]]).dot(n) > 0.0;
+      const Score before = score(fan);
+      std::vector<char> facing(fan.size());
+      for (std::size_t i = 0; i < fan.size(); ++i) facing[i] = normal(tris_[fan[i]]).dot(n) > 0.0;
       Vec3 plain = Vec3::Zero(), weighted = Vec3::Zero();
       double length = 0.0;
       for (const std::uint32_t w : ring) {
@@ -413,10 +325,10 @@ class Repair {
         if (!o_.place(v, proposal, n)) continue;
         put(v, proposal);
         bool turned = false;
-        for (std::size_t i = 0; i < around.size(); ++i) {
-          turned = turned || (facing[i] && !(normal(tris_[around[i]]).dot(n) > 0.0));
+        for (std::size_t i = 0; i < fan.size(); ++i) {
+          turned = turned || (facing[i] && !(normal(tris_[fan[i]]).dot(n) > 0.0));
         }
-        const Score after = score(around);
+        const Score after = score(fan);
         put(v, old);
         if (!turned && after.better_than(before) && (!best || after.better_than(*best))) {
           best_vertex = v;
@@ -427,7 +339,7 @@ class Repair {
     }
     if (best_vertex == kDead) return false;
     put(best_vertex, best_position);
-    for (const std::uint32_t s : adj().of(best_vertex)) changed.push_back(s);
+    for (const std::uint32_t s : around(best_vertex)) changed.push_back(s);
     ++moves_;
     return true;
   }
@@ -447,16 +359,14 @@ class Repair {
       q = tri[(k + 1) % 3];
       return k;
     };
-    const std::span<const std::uint32_t> around = adj().of(v);
-    const std::vector<std::uint32_t> triangles(around.begin(), around.end());
-    for (const std::uint32_t s : triangles) {
+    for (const std::uint32_t s : around(v)) {
       if (is_near(s)) continue;
       std::uint32_t p = kDead, q = kDead;
       const int k = opposite(s, p, q);
       const std::uint32_t other = across(s, p, q);
       if (other == kDead || is_near(other)) continue;
       std::optional<Move> m = evaluate_flip(s, k);
-      if (!m || !(m->after >= o_.min_angle_degrees)) continue;
+      if (!m || !(m->after >= o_.min_angle_degrees) || !allowed(s, *m)) continue;
       if (m->blocked[0] != kDead) {
         if (depth == 0) continue;
         bool raised = true;
@@ -471,7 +381,7 @@ class Repair {
         const int k2 = opposite(s, p2, q2);
         if (p2 != p || q2 != q) continue;
         m = evaluate_flip(s, k2);
-        if (!m || m->blocked[0] != kDead || !(m->after >= o_.min_angle_degrees)) continue;
+        if (!m || m->blocked[0] != kDead || !(m->after >= o_.min_angle_degrees) || !allowed(s, *m)) continue;
       }
       apply_flip(s, k, changed);
       return true;
@@ -510,9 +420,9 @@ class Repair {
   std::vector<Triangle>& tris_;
   const SliverOptions& o_;
   const double tan_min_angle_ = std::tan(o_.min_angle_degrees * kPi / 180.0);
-  std::optional<Adjacency> adjacency_;
-  Adjacency& adj() { return *adjacency_; }
-  const Adjacency& adj() const { return *adjacency_; }
+  VertexTriangles adjacency_;                 // of the triangles on entry, for the editor
+  mutable std::optional<MeshEditor> editor_;  // its queries load neighbourhoods: logically const
+  MeshEditor& edit() const { return *editor_; }
   std::vector<GridPoint> snapped_;
   std::vector<std::uint32_t> dead_vertices_;
   struct FlipRecord {

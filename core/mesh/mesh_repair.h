@@ -51,7 +51,8 @@ struct SliverReport {
 // none of its triangles turns over and the worst of them gets better; the best of its three vertices moves. Without
 // `place` positions never move, so a vertex faithful to its data stays so; collapsed vertices are removed (the
 // others keep their order) and normals, when present, follow their vertices (a moved vertex keeps its normal). Only
-// edges with exactly two triangles are touched. Cost: one parallel scan of the triangles when nothing is bad; the
+// edges with exactly two triangles are touched, and no vertex at a non-manifold edge. The flips and collapses go
+// through MeshEditor (core/mesh/mesh_edit.h). Cost: one parallel scan of the triangles when nothing is bad; the
 // adjacency is built at the first bad triangle. control.check() once per pass.
 SliverReport repair_slivers(Mesh& mesh, const SliverOptions& options, const RunControl& control = {});
 

@@ -1,36 +1,30 @@
 // Cap flips, normal-improving flips and needle collapses (core/optimize/cleanup.h).
 //
 // Sequential: the changes are few and local, and each one changes what its neighbours see. Nothing global is built:
-// triangles are found through the vertex -> triangle adjacency given on entry, copied into a per-vertex overlay only
-// for the vertices whose fans change, and only the candidates (caps, needles, deviating triangles) and the triangles
-// changed in a pass are visited.
+// the flips and collapses go through MeshEditor (core/mesh/mesh_edit.h), whose TriMesh holds only the fans of the
+// vertices the candidates reach, and only the candidates (caps, needles, deviating triangles) and the triangles changed
+// in a pass are visited. The rules here (midpoint records, field-facing scores, caps, green pairs) are the predicates
+// on top of its topological checks.
 #include "core/optimize/cleanup.h"
 
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <unordered_map>
+#include <optional>
 #include <unordered_set>
 
+#include "core/mesh/mesh_edit.h"
 #include "core/scene/scene.h"
 
 namespace surfacer::optimizer_detail {
 namespace {
 
-std::uint64_t edge_key(std::uint32_t a, std::uint32_t b) {
-  if (a > b) std::swap(a, b);
-  return (static_cast<std::uint64_t>(a) << 32) | b;
-}
-
-bool contains(const Triangle& t, std::uint32_t v) { return t[0] == v || t[1] == v || t[2] == v; }
-
 class Cleaner {
  public:
   Cleaner(std::vector<Vec3>& p, std::vector<Triangle>& tris, RedGreenHierarchy& h, std::vector<Vec3>& m,
-          std::span<const std::uint32_t> vt_offset, std::span<const std::uint32_t> vt, const Field& field,
-          const CleanupOptions& o)
-      : p_(p), tris_(tris), h_(h), m_(m), vt_offset_(vt_offset), vt_(vt), field_(field), o_(o) {
+          const VertexTriangles& adjacency, const Field& field, const CleanupOptions& o)
+      : p_(p), tris_(tris), h_(h), m_(m), adjacency_(adjacency), field_(field), o_(o) {
     cap_cos_ = std::cos(o.cap_angle_degrees * 3.14159265358979323846 / 180.0);
   }
 
@@ -41,12 +35,12 @@ class Cleaner {
     }
     CleanupCounts counts;
     if (candidates.empty()) return counts;
-    deleted_.assign(tris_.size(), 0);
+    editor_.emplace(tris_, adjacency_, p_.size());
     for (int pass = 0; pass < o_.max_passes && !candidates.empty(); ++pass) {
       control.check();
       touched_.clear();
       for (std::int32_t t : candidates) {
-        if (deleted_[t]) continue;
+        if (removed(t)) continue;
         if (try_flip(t) || try_deviation_flip(t)) {
           ++counts.flips;
         } else if (try_collapse(t)) {
@@ -58,10 +52,10 @@ class Cleaner {
       // triangles it changed.
       std::vector<std::int32_t> next;
       for (std::int32_t t : candidates) {
-        if (!deleted_[t] && problem(t)) next.push_back(t);
+        if (!removed(t) && problem(t)) next.push_back(t);
       }
       for (std::int32_t t : touched_) {
-        if (!deleted_[t] && problem(t)) next.push_back(t);
+        if (!removed(t) && problem(t)) next.push_back(t);
       }
       std::sort(next.begin(), next.end());
       next.erase(std::unique(next.begin(), next.end()), next.end());
@@ -122,44 +116,7 @@ class Cleaner {
     return len <= o_.degenerate_cross ? 0.0 : 0.5 * len * (n / len - m).squaredNorm();
   }
 
-  // --- Adjacency -----------------------------------------------------------------------------------------------
-  // The live triangles around v (copied from the entry adjacency on first use).
-  std::vector<std::int32_t>& fan(std::uint32_t v) {
-    auto [it, inserted] = fans_.try_emplace(v);
-    if (inserted) {
-      for (std::uint32_t i = vt_offset_[v]; i < vt_offset_[v + 1]; ++i)
-        it->second.push_back(static_cast<std::int32_t>(vt_[i]));
-    }
-    return it->second;
-  }
-  // Number of triangles on edge (u, w) (up to 3) and the first two of them.
-  int edge_triangles(std::uint32_t u, std::uint32_t w, std::int32_t& t0, std::int32_t& t1) {
-    int count = 0;
-    for (std::int32_t t : fan(u)) {
-      if (!contains(tris_[t], w)) continue;
-      (count == 0 ? t0 : t1) = t;
-      if (++count > 2) break;
-    }
-    return count;
-  }
-  bool edge_exists(std::uint32_t u, std::uint32_t w) {
-    std::int32_t t0, t1;
-    return edge_triangles(u, w, t0, t1) > 0;
-  }
-  std::vector<std::uint32_t> neighbours(std::uint32_t v) {
-    std::vector<std::uint32_t> out;
-    for (std::int32_t t : fan(v)) {
-      for (std::uint32_t w : tris_[t]) {
-        if (w != v) out.push_back(w);
-      }
-    }
-    std::sort(out.begin(), out.end());
-    out.erase(std::unique(out.begin(), out.end()), out.end());
-    return out;
-  }
-  static void erase_value(std::vector<std::int32_t>& list, std::int32_t value) {
-    list.erase(std::remove(list.begin(), list.end(), value), list.end());
-  }
+  bool removed(std::int32_t t) const { return tris_[t][0] == MeshEditor::kNone; }
 
   // A green pair with a changed child is dissolved (both children become plain triangles).
   void dissolve(std::int32_t t) {
@@ -178,34 +135,30 @@ class Cleaner {
   }
 
   // --- Flips ---------------------------------------------------------------------------------------------------
-  // For t = (x, u, v) rotated so that k is x's corner: the triangle t2 = (v, u, y) across (u, v), if (u, v) has
-  // exactly these two triangles, they are oriented consistently, and the flipped edge (x, y) is new and carries no
-  // midpoint record.
-  bool flippable(std::int32_t t, int k, std::int32_t& t2, std::uint32_t& y) {
+  // For t = (x, u, v) rotated so that k is x's corner: the triangle t2 = (v, u, y) across (u, v), when (u, v) has
+  // exactly these two consistently oriented triangles, y != x and (x, y) carries no midpoint record. The editor's
+  // flip_site (the edge (x, y) is new) is asked last, by the callers, once the cheaper tests pass: it loads the
+  // neighbourhood into the TriMesh.
+  bool flippable(std::int32_t t, int k, std::int32_t& t2, std::uint32_t& y) const {
     const std::uint32_t x = tris_[t][k], u = tris_[t][(k + 1) % 3], v = tris_[t][(k + 2) % 3];
-    std::int32_t s0 = -1, s1 = -1;
-    if (edge_triangles(u, v, s0, s1) != 2) return false;
-    t2 = s0 == t ? s1 : s0;
-    int j = 0;
-    while (j < 3 && !(tris_[t2][j] == v && tris_[t2][(j + 1) % 3] == u)) ++j;
-    if (j == 3) return false;
-    y = tris_[t2][(j + 2) % 3];
-    return y != x && !edge_exists(x, y) && h_.midpoints.count(edge_key(x, y)) == 0;
+    const std::optional<MeshEditor::Across> site = editor_->across(static_cast<std::uint32_t>(t), u, v);
+    if (!site) return false;
+    t2 = static_cast<std::int32_t>(site->triangle);
+    y = site->vertex;
+    return y != x && h_.midpoints.count(edge_key(x, y)) == 0;
+  }
+  bool flip_valid(std::int32_t t, int k) {
+    return editor_->flip_site(static_cast<std::uint32_t>(t), tris_[t][(k + 1) % 3], tris_[t][(k + 2) % 3]).has_value();
   }
 
   // Replaces t = (x, u, v) and t2 = (v, u, y) by (u, y, x) and (y, v, x).
-  void apply_flip(std::int32_t t, std::int32_t t2, int k, std::uint32_t y) {
-    const std::uint32_t x = tris_[t][k], u = tris_[t][(k + 1) % 3], v = tris_[t][(k + 2) % 3];
+  void apply_flip(std::int32_t t, std::int32_t t2, int k) {
+    const std::uint32_t u = tris_[t][(k + 1) % 3], v = tris_[t][(k + 2) % 3];
     dissolve(t);
     dissolve(t2);
-    tris_[t] = Triangle{u, y, x};
-    tris_[t2] = Triangle{y, v, x};
+    editor_->flip(static_cast<std::uint32_t>(t), u, v);
     m_[t] = field_normal(tris_[t]);
     m_[t2] = field_normal(tris_[t2]);
-    erase_value(fan(u), t2);
-    erase_value(fan(v), t);
-    fan(x).push_back(t2);
-    fan(y).push_back(t);
     touched_.push_back(t);
     touched_.push_back(t2);
   }
@@ -221,8 +174,8 @@ class Cleaner {
     const std::uint32_t x = tris_[t][k], u = tris_[t][(k + 1) % 3], v = tris_[t][(k + 2) % 3];
     const Triangle a{u, y, x}, b{y, v, x};
     if (!(std::min(largest_cos(a), largest_cos(b)) > std::min(old_cos, largest_cos(tris_[t2])))) return false;
-    if (score(a) < o_.min_cos || score(b) < o_.min_cos) return false;
-    apply_flip(t, t2, k, y);
+    if (score(a) < o_.min_cos || score(b) < o_.min_cos || !flip_valid(t, k)) return false;
+    apply_flip(t, t2, k);
     return true;
   }
 
@@ -233,7 +186,6 @@ class Cleaner {
     double best_gain = 0.0;
     int best = -1;
     std::int32_t best_t2 = -1;
-    std::uint32_t best_y = 0;
     for (int k = 0; k < 3; ++k) {
       std::int32_t t2;
       std::uint32_t y;
@@ -244,14 +196,13 @@ class Cleaner {
       const double before = energy(tris_[t], m_[t]) + energy(tris_[t2], m_[t2]);
       const double gain = before - energy(a, field_normal(a)) - energy(b, field_normal(b));
       if (!(gain > 0.01 * before) || gain <= best_gain) continue;
-      if (score(a) < o_.min_cos || score(b) < o_.min_cos) continue;
+      if (score(a) < o_.min_cos || score(b) < o_.min_cos || !flip_valid(t, k)) continue;
       best_gain = gain;
       best = k;
       best_t2 = t2;
-      best_y = y;
     }
     if (best < 0) return false;
-    apply_flip(t, best_t2, best, best_y);
+    apply_flip(t, best_t2, best);
     return true;
   }
 
@@ -259,44 +210,24 @@ class Cleaner {
   bool try_collapse(std::int32_t t) {
     const int k = needle_edge(tris_[t]);
     if (k < 0) return false;
-    const std::uint32_t a = tris_[t][k], b = tris_[t][(k + 1) % 3], c = tris_[t][(k + 2) % 3];
-    std::int32_t s0 = -1, s1 = -1;
-    if (edge_triangles(a, b, s0, s1) != 2) return false;
-    const std::int32_t t2 = s0 == t ? s1 : s0;
-    std::uint32_t d = c;
-    for (std::uint32_t w : tris_[t2]) {
-      if (w != a && w != b) d = w;
-    }
-    if (d == c) return false;
-    // Link condition: a and b share exactly the two opposite vertices.
-    const std::vector<std::uint32_t> na = neighbours(a), nb = neighbours(b);
-    std::vector<std::uint32_t> common;
-    std::set_intersection(na.begin(), na.end(), nb.begin(), nb.end(), std::back_inserter(common));
-    if (common.size() != 2 || !((common[0] == c && common[1] == d) || (common[0] == d && common[1] == c))) {
-      return false;
-    }
-    // Every edge at a and b has one or two triangles; not both on the boundary (an interior edge between two
-    // boundary vertices: collapsing it would pinch the boundary); no new edge (a, y) carries a midpoint record.
-    bool a_on_boundary = false, b_on_boundary = false;
-    for (const auto& [v, others] : {std::pair{a, &na}, std::pair{b, &nb}}) {
-      for (std::uint32_t w : *others) {
-        std::int32_t e0, e1;
-        const int count = edge_triangles(v, w, e0, e1);
-        if (count > 2) return false;
-        if (count == 1) (v == a ? a_on_boundary : b_on_boundary) = true;
-      }
-    }
-    if (a_on_boundary && b_on_boundary) return false;
-    for (std::uint32_t y : nb) {
+    const std::uint32_t a = tris_[t][k], b = tris_[t][(k + 1) % 3];
+    // The editor's link condition (a and b share exactly the two opposite vertices; not both on the boundary, which
+    // would pinch it), then: no new edge (a, y) carries a midpoint record.
+    const std::optional<MeshEditor::Across> site = editor_->collapse_site(static_cast<std::uint32_t>(t), a, b);
+    if (!site) return false;
+    const auto t2 = static_cast<std::int32_t>(site->triangle);
+    for (std::uint32_t y : editor_->neighbours(b)) {
       if (y != a && h_.midpoints.count(edge_key(a, y)) != 0) return false;
     }
-    std::vector<std::int32_t> around = fan(a);
-    around.insert(around.end(), fan(b).begin(), fan(b).end());
+    std::vector<std::uint32_t> around = editor_->triangles_around(a);
+    const std::vector<std::uint32_t> around_b = editor_->triangles_around(b);
+    around.insert(around.end(), around_b.begin(), around_b.end());
     std::sort(around.begin(), around.end());
     around.erase(std::unique(around.begin(), around.end()), around.end());
     std::vector<std::int32_t> changed;
     std::vector<double> floor;
-    for (std::int32_t f : around) {
+    for (const std::uint32_t uf : around) {
+      const auto f = static_cast<std::int32_t>(uf);
       if (f == t || f == t2) continue;
       changed.push_back(f);
       floor.push_back(std::min(o_.min_cos, score(tris_[f])));
@@ -324,17 +255,12 @@ class Cleaner {
       p_[a] = pa;
       return false;
     }
-    for (std::int32_t f : around) dissolve(f);
-    deleted_[t] = deleted_[t2] = 1;
+    for (const std::uint32_t f : around) dissolve(static_cast<std::int32_t>(f));
+    editor_->collapse(static_cast<std::uint32_t>(t), a, b);
     for (std::int32_t f : changed) {
-      tris_[f] = renamed(f);
       m_[f] = field_normal(tris_[f]);
       touched_.push_back(f);
     }
-    fan(a) = changed;
-    fan(b).clear();
-    erase_value(fan(c), t);
-    erase_value(fan(d), t2);
     dead_.insert(b);
     return true;
   }
@@ -344,7 +270,7 @@ class Cleaner {
     if (dead_.empty()) return;
     std::size_t out = 0;
     for (std::size_t t = 0; t < tris_.size(); ++t) {
-      if (deleted_[t]) continue;
+      if (removed(t)) continue;
       tris_[out] = tris_[t];
       m_[out] = m_[t];
       h_.green_group[out] = h_.green_group[t];
@@ -368,12 +294,11 @@ class Cleaner {
   std::vector<Triangle>& tris_;
   RedGreenHierarchy& h_;
   std::vector<Vec3>& m_;
-  std::span<const std::uint32_t> vt_offset_, vt_;
+  const VertexTriangles& adjacency_;
   const Field& field_;
   const CleanupOptions& o_;
   double cap_cos_ = -1.0;
-  std::unordered_map<std::uint32_t, std::vector<std::int32_t>> fans_;
-  std::vector<std::uint8_t> deleted_;
+  std::optional<MeshEditor> editor_;  // made at the first candidate
   std::vector<std::int32_t> touched_;
   std::unordered_set<std::uint32_t> dead_;
   std::vector<std::array<std::int32_t, 2>> group_children_;
@@ -383,9 +308,9 @@ class Cleaner {
 
 CleanupCounts repair_connectivity(std::vector<Vec3>& positions, std::vector<Triangle>& triangles,
                                   RedGreenHierarchy& hierarchy, std::vector<Vec3>& field_normals,
-                                  std::span<const std::uint32_t> vt_offset, std::span<const std::uint32_t> vt,
-                                  const Field& field, const CleanupOptions& options, const RunControl& control) {
-  Cleaner cleaner(positions, triangles, hierarchy, field_normals, vt_offset, vt, field, options);
+                                  const VertexTriangles& adjacency, const Field& field, const CleanupOptions& options,
+                                  const RunControl& control) {
+  Cleaner cleaner(positions, triangles, hierarchy, field_normals, adjacency, field, options);
   return cleaner.run(control);
 }
 

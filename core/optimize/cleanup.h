@@ -3,10 +3,10 @@
 #pragma once
 
 #include <cstdint>
-#include <span>
 #include <vector>
 
 #include "core/mesh/mesh.h"
+#include "core/mesh/mesh_edit.h"
 #include "core/optimize/refine.h"
 #include "core/util/run_control.h"
 
@@ -48,11 +48,12 @@ struct CleanupCounts {
 // Only edges with at most two triangles are touched. A green pair with a changed child is dissolved (its children
 // become plain triangles). Orientation, closedness and manifoldness are kept.
 // `field_normals` holds m(C_T) for every triangle on entry and is kept in step (same order, recomputed where changed).
-// (vt_offset, vt): the vertex -> triangle adjacency of `triangles` on entry (compressed rows, vt_offset has
-// positions.size() + 1 entries). Calls control.check() once per pass.
+// `adjacency`: the vertex -> triangle adjacency of `triangles` on entry (over positions.size() vertices). The edits go
+// through MeshEditor (core/mesh/mesh_edit.h): a vertex at a non-manifold edge is left alone. Calls control.check() once
+// per pass.
 CleanupCounts repair_connectivity(std::vector<Vec3>& positions, std::vector<Triangle>& triangles,
                                   RedGreenHierarchy& hierarchy, std::vector<Vec3>& field_normals,
-                                  std::span<const std::uint32_t> vt_offset, std::span<const std::uint32_t> vt,
-                                  const Field& field, const CleanupOptions& options, const RunControl& control);
+                                  const VertexTriangles& adjacency, const Field& field, const CleanupOptions& options,
+                                  const RunControl& control);
 
 }  // namespace surfacer::optimizer_detail

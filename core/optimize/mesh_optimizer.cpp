@@ -16,6 +16,7 @@
 #include <type_traits>
 #include <utility>
 
+#include "core/mesh/mesh_edit.h"
 #include "core/optimize/cleanup.h"
 #include "core/optimize/refine.h"
 #include "core/scene/scene.h"
@@ -67,25 +68,16 @@ void for_chunks(std::size_t n, int threads, const RunControl& control, Body&& bo
 
 // Vertex adjacency in compressed rows.
 struct Topology {
-  std::vector<std::uint32_t> vt_offset, vt;  // vertex -> incident triangles
+  VertexTriangles faces;                     // vertex -> incident triangles
   std::vector<std::uint32_t> vv_offset, vv;  // vertex -> distinct neighbours
   std::vector<std::uint8_t> interior;        // every edge at the vertex has exactly two triangles
 
   std::size_t degree(std::size_t v) const { return vv_offset[v + 1] - vv_offset[v]; }
 
   void build(std::size_t vertex_count, const std::vector<Triangle>& tris, int threads, const RunControl& control) {
-    vt_offset.assign(vertex_count + 1, 0);
-    for (const Triangle& t : tris) {
-      for (std::uint32_t v : t) ++vt_offset[v + 1];
-    }
-    for (std::size_t v = 0; v < vertex_count; ++v) vt_offset[v + 1] += vt_offset[v];
-    vt.resize(vt_offset.back());
-    {
-      std::vector<std::uint32_t> fill(vt_offset.begin(), vt_offset.end() - 1);
-      for (std::size_t t = 0; t < tris.size(); ++t) {
-        for (std::uint32_t v : tris[t]) vt[fill[v]++] = static_cast<std::uint32_t>(t);
-      }
-    }
+    faces = vertex_triangles(vertex_count, tris);
+    const std::vector<std::uint32_t>& vt_offset = faces.offsets;
+    const std::vector<std::uint32_t>& vt = faces.triangles;
     // Neighbours: the other two corners of each incident triangle, sorted; an edge shared by exactly two incident
     // triangles appears twice.
     std::vector<std::uint32_t> counts(vertex_count, 0);
@@ -313,12 +305,13 @@ struct MeshOptimizer::State {
     for_chunks(nv, threads, control, [&](std::size_t begin, std::size_t end) {
       VertPartial acc;
       for (std::size_t v = begin; v < end; ++v) {
-        if (topology.vt_offset[v] == topology.vt_offset[v + 1]) continue;
+        if (topology.faces.offsets[v] == topology.faces.offsets[v + 1]) continue;
         out.f[v] = field.value_and_gradient(p[v], out.g[v]);
         const double g2 = out.g[v].squaredNorm();
         const double d2 = g2 > 0.0 ? out.f[v] * out.f[v] / g2 : out.f[v] * out.f[v];
         double ap = 0.0;
-        for (std::uint32_t i = topology.vt_offset[v]; i < topology.vt_offset[v + 1]; ++i) ap += area[topology.vt[i]];
+        for (std::uint32_t i = topology.faces.offsets[v]; i < topology.faces.offsets[v + 1]; ++i)
+          ap += area[topology.faces.triangles[i]];
         acc.ed += ap * d2;
         acc.area += ap;
         acc.max_d = std::max(acc.max_d, std::sqrt(d2));
@@ -420,8 +413,8 @@ struct MeshOptimizer::State {
       if (moved.empty()) break;
       if (m_to != nullptr) {
         for (std::uint32_t v : moved) {
-          for (std::uint32_t i = topo.vt_offset[v]; i < topo.vt_offset[v + 1]; ++i) {
-            const std::uint32_t t = topo.vt[i];
+          for (std::uint32_t i = topo.faces.offsets[v]; i < topo.faces.offsets[v + 1]; ++i) {
+            const std::uint32_t t = topo.faces.triangles[i];
             (*m_to)[t] = unit_gradient(field, centroid_of(to, tris[t]));
           }
         }
@@ -443,7 +436,8 @@ struct MeshOptimizer::State {
         for (std::uint32_t i = topo.vv_offset[v]; i < topo.vv_offset[v + 1]; ++i) u += p[topo.vv[i]];
         u = u / static_cast<double>(k) - p[v];
         Vec3 n = Vec3::Zero();
-        for (std::uint32_t i = topo.vt_offset[v]; i < topo.vt_offset[v + 1]; ++i) n += cross_of(p, tris[topo.vt[i]]);
+        for (std::uint32_t i = topo.faces.offsets[v]; i < topo.faces.offsets[v + 1]; ++i)
+          n += cross_of(p, tris[topo.faces.triangles[i]]);
         const double len = n.norm();
         if (!(len > 0.0)) continue;
         n /= len;
@@ -462,7 +456,7 @@ struct MeshOptimizer::State {
     });
     for_chunks(p.size(), threads, control, [&](std::size_t b, std::size_t e) {
       for (std::size_t v = b; v < e; ++v) {
-        if (topo.vt_offset[v] == topo.vt_offset[v + 1]) continue;
+        if (topo.faces.offsets[v] == topo.faces.offsets[v + 1]) continue;
         double f;
         Vec3 g;
         if (cached) {
@@ -473,7 +467,8 @@ struct MeshOptimizer::State {
         }
         Vec3 step = -options.c_d * f * g / (g.squaredNorm() + kGradientEpsilon);
         double ap = 0.0;
-        for (std::uint32_t i = topo.vt_offset[v]; i < topo.vt_offset[v + 1]; ++i) ap += area[topo.vt[i]];
+        for (std::uint32_t i = topo.faces.offsets[v]; i < topo.faces.offsets[v + 1]; ++i)
+          ap += area[topo.faces.triangles[i]];
         const double bound = options.step_bound * std::sqrt(ap);
         const double len = step.norm();
         if (!std::isfinite(len)) continue;
@@ -501,10 +496,10 @@ struct MeshOptimizer::State {
       for (std::size_t v = b; v < e; ++v) {
         Vec3 sum = Vec3::Zero();
         double weight = 0.0;
-        for (std::uint32_t i = topo.vt_offset[v]; i < topo.vt_offset[v + 1]; ++i) {
-          const Triangle& tri = tris[topo.vt[i]];
+        for (std::uint32_t i = topo.faces.offsets[v]; i < topo.faces.offsets[v + 1]; ++i) {
+          const Triangle& tri = tris[topo.faces.triangles[i]];
           const double a = 0.5 * cross_of(p, tri).norm();
-          const Vec3& mt = m[topo.vt[i]];
+          const Vec3& mt = m[topo.faces.triangles[i]];
           sum += a * (centroid_of(p, tri) - p[v]).dot(mt) * mt;
           weight += a;
         }
@@ -524,19 +519,19 @@ struct MeshOptimizer::State {
         const std::size_t deg = topo.degree(v);
         if (deg == 0) continue;
         double ap = 0.0;
-        for (std::uint32_t i = topo.vt_offset[v]; i < topo.vt_offset[v + 1]; ++i) {
-          ap += 0.5 * cross_of(p, tris[topo.vt[i]]).norm();
+        for (std::uint32_t i = topo.faces.offsets[v]; i < topo.faces.offsets[v + 1]; ++i) {
+          ap += 0.5 * cross_of(p, tris[topo.faces.triangles[i]]).norm();
         }
         const double inv_deg = 1.0 / static_cast<double>(deg);
         const double bound = options.c_n * options.step_bound * std::sqrt(ap) * inv_deg;
         // E(x) and its gradient with the neighbours at p and m frozen.
         auto energy = [&](const Vec3& x, Vec3* grad) {
           double sum = 0.0;
-          for (std::uint32_t i = topo.vt_offset[v]; i < topo.vt_offset[v + 1]; ++i) {
-            const auto [a, c] = others(tris[topo.vt[i]], static_cast<std::uint32_t>(v));
+          for (std::uint32_t i = topo.faces.offsets[v]; i < topo.faces.offsets[v + 1]; ++i) {
+            const auto [a, c] = others(tris[topo.faces.triangles[i]], static_cast<std::uint32_t>(v));
             const Vec3 n = (p[a] - x).cross(p[c] - x);
             const double len = n.norm();
-            const Vec3& mt = m[topo.vt[i]];
+            const Vec3& mt = m[topo.faces.triangles[i]];
             sum += 0.5 * (len - n.dot(mt));
             if (grad != nullptr && len > tiny) *grad += 0.5 * (n / len - mt).cross(p[c] - p[a]);
           }
@@ -688,8 +683,7 @@ struct MeshOptimizer::State {
       optimizer_detail::CleanupOptions co;
       co.min_cos = kMinCos;
       co.degenerate_cross = degenerate_cross();
-      cleanup =
-          optimizer_detail::repair_connectivity(p, tris, new_h, m_final, topo.vt_offset, topo.vt, field, co, control);
+      cleanup = optimizer_detail::repair_connectivity(p, tris, new_h, m_final, topo.faces, field, co, control);
     }
     const bool reconnected = cleanup.flips + cleanup.collapses > 0;
     Topology new_topo;

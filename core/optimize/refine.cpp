@@ -12,15 +12,9 @@
 #include <algorithm>
 #include <array>
 
+#include "core/mesh/mesh_edit.h"
+
 namespace surfacer::optimizer_detail {
-namespace {
-
-std::uint64_t edge_key(std::uint32_t a, std::uint32_t b) {
-  if (a > b) std::swap(a, b);
-  return (static_cast<std::uint64_t>(a) << 32) | b;
-}
-
-}  // namespace
 
 void refine_red_green(std::vector<Vec3>& vertices, std::vector<Triangle>& triangles, RedGreenHierarchy& hierarchy,
                       const std::vector<std::uint8_t>& requested, const RunControl& control) {
