@@ -14,6 +14,8 @@ PACKAGES=(
                                # include Boost's, which libopenvdb-dev does not depend on)
   pybind11-dev python3-dev python3-numpy python3-pytest  # the Python package (python/) and its tests
   libstb-dev  # PNG previews and plots (core/render/, header-only)
+  liblz4-dev liblzma-dev  # LZ4 and LZMA blocks of VTK XML particle files (core/particles/particle_io_vtk.cpp)
+  python3-vtk9 python3-meshio  # VTK's own XML writers and meshio for tests/core/vtk_writer_files_test.py
 )
 missing=()
 for p in "${PACKAGES[@]}"; do
