@@ -589,7 +589,7 @@ class XmlReader {
         return static_cast<std::uint64_t>(produced) == want ? "" : "lz4: too short";
       }
       case Compressor::kLzma: {
-        std::uint64_t memlimit = std::uint64_t{1} << 30;  // decoder dictionary; VTK's presets need at most 64 MiB
+        std::uint64_t memlimit = std::uint64_t{1} << 27;  // decoder memory: VTK's presets (up to 9) need < 70 MiB
         std::size_t in_pos = 0, out_pos = 0;
         const lzma_ret rc = lzma_stream_buffer_decode(
             &memlimit, 0, nullptr, reinterpret_cast<const std::uint8_t*>(block.data()), &in_pos, block.size(),
