@@ -24,7 +24,7 @@ void set_examples(CLI::App* app, const std::string& verb, const std::vector<std:
 CLI::Option* add_particle_inputs(CLI::App* app, ParticleInputOptions& input) {
   CLI::Option* opt =
       app->add_option("--input", input.inputs,
-                      "particle file (.xyz .txt .csv .ply .vtk .vtu .bin .bgeo .json, gzip allowed) or sequence "
+                      "particle file (.xyz .txt .csv .ply .vtk .vtu .vtp .bin .bgeo .json, gzip allowed) or sequence "
                       "pattern (fluid_{}.bgeo: any zero padding; fluid_{:04d}.ply: exactly 4 digits); repeat to "
                       "append; frame i = the i-th file")
           ->required()

@@ -14,7 +14,9 @@ PACKAGES=(
                                # include Boost's, which libopenvdb-dev does not depend on)
   pybind11-dev python3-dev python3-numpy python3-pytest  # the Python package (python/) and its tests
   libstb-dev  # PNG previews and plots (core/render/, header-only)
-  python3-vtk9 python3-meshio  # the real VTK and meshio, reading our .vtk/.vtu in tests (tests/python/test_readers.py)
+  liblz4-dev liblzma-dev  # LZ4 and LZMA blocks of VTK XML particle files (core/particles/particle_io_vtk.cpp)
+  python3-vtk9 python3-meshio  # the real VTK and meshio in tests: VTK's own XML writers for the particle readers
+                               # (tests/core/vtk_writer_files_test.py), reading our .vtk/.vtu (tests/python/test_readers.py)
 )
 missing=()
 for p in "${PACKAGES[@]}"; do

@@ -531,12 +531,12 @@ ParticleFormat particle_format_from_path(const std::filesystem::path& path) {
   if (ext == ".xyz" || ext == ".txt" || ext == ".csv") return ParticleFormat::kXyz;
   if (ext == ".ply") return ParticleFormat::kPly;
   if (ext == ".vtk") return ParticleFormat::kVtk;
-  if (ext == ".vtu") return ParticleFormat::kVtu;
+  if (ext == ".vtu" || ext == ".vtp") return ParticleFormat::kVtu;  // VTK XML UnstructuredGrid or PolyData
   if (ext == ".bin") return ParticleFormat::kBin;
   if (ext == ".bgeo" || ext == ".bhclassic") return ParticleFormat::kBgeo;
   if (ext == ".json") return ParticleFormat::kJson;
   throw InvalidInput("file", path.string() + ": unknown particle file extension '" + ext +
-                                 "'; use .xyz, .txt, .csv, .ply, .vtk, .vtu, .bin, .bgeo, .bhclassic or .json "
+                                 "'; use .xyz, .txt, .csv, .ply, .vtk, .vtu, .vtp, .bin, .bgeo, .bhclassic or .json "
                                  "(optionally .gz)");
 }
 

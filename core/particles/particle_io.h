@@ -11,13 +11,14 @@
 //                   x, y, z of any scalar type and an optional radius or pscale; other properties/elements skipped.
 //   .vtk            VTK legacy, DATASET POLYDATA or UNSTRUCTURED_GRID, ASCII or BINARY (big-endian): the POINTS
 //                   (any numeric type); radii from a POINT_DATA SCALARS or FIELD array named radius or pscale.
-//   .vtu            VTK XML UnstructuredGrid/PolyData: <Points><DataArray> of every <Piece>, format "ascii", inline
+//   .vtu .vtp       VTK XML UnstructuredGrid/PolyData: <Points><DataArray> of every <Piece>, format "ascii", inline
 //                   "binary" (base64) or "appended" (<AppendedData encoding="raw"> or "base64"), with a UInt32 or
-//                   UInt64 header, little- or big-endian, uncompressed or compressed with zlib
-//                   (compressor="vtkZLibDataCompressor": VTK's default is appended raw zlib, meshio's inline binary
-//                   zlib), any numeric type; radii from a PointData DataArray named radius or pscale. Compressed
+//                   UInt64 header, little- or big-endian, uncompressed or compressed with zlib, LZ4 or LZMA
+//                   (vtkZLibDataCompressor, vtkLZ4DataCompressor, vtkLZMADataCompressor: VTK's default is appended
+//                   base64 zlib, meshio's inline binary zlib), any numeric type; child elements after the values
+//                   (<InformationKey>) skipped; radii from a PointData DataArray named radius or pscale. Compressed
 //                   arrays inflate to at most ParticleReadLimits::max_bytes in all, and a block that claims more than
-//                   zlib can produce from its bytes (1032:1) is refused before anything is allocated for it.
+//                   zlib (1032:1) or LZ4 (255:1) can produce from its bytes is refused before anything is allocated.
 //   .json           splashsurf's JSON: a list of [x, y, z] lists, e.g. [[0, 0, 0], [0.1, 0, 0]].
 //   .bin            raw little-endian float32 x y z triples, no header.
 //   .bgeo .bhclassic  Houdini classic binary geometry (magic "Bgeo", version 5; as written by Partio and

@@ -1,4 +1,6 @@
 // VTK legacy (.vtk) and VTK XML (.vtu) point positions for core/particles/particle_io.h.
+#include <lz4.h>
+#include <lzma.h>
 #include <zlib.h>
 
 #include <algorithm>
@@ -301,13 +303,18 @@ class XmlReader {
           fail(name_, where(tag->begin), "bad header_type '" + header + "'");
         header_size_ = header == "UInt64" ? 8 : 4;
         if (const auto compressor = tag->attribute("compressor"); compressor && !compressor->empty()) {
-          if (*compressor != "vtkZLibDataCompressor") {
+          if (*compressor == "vtkZLibDataCompressor") {
+            compressor_ = Compressor::kZlib;
+          } else if (*compressor == "vtkLZ4DataCompressor") {
+            compressor_ = Compressor::kLz4;
+          } else if (*compressor == "vtkLZMADataCompressor") {
+            compressor_ = Compressor::kLzma;
+          } else {
             fail(name_, where(tag->begin),
                  "compressor \"" + std::string(compressor->substr(0, 60)) +
-                     "\" is not supported; write the file with zlib (vtkZLibDataCompressor, VTK's and meshio's "
-                     "default) or uncompressed");
+                     "\" is not supported; write the file uncompressed or with zlib (vtkZLibDataCompressor, VTK's "
+                     "and meshio's default), LZ4 (vtkLZ4DataCompressor) or LZMA (vtkLZMADataCompressor)");
           }
-          compressed_ = true;
         }
       } else if (tag->name == "Piece") {
         if (!saw_file) fail(name_, where(tag->begin), "<Piece> outside <VTKFile>");
@@ -358,7 +365,9 @@ class XmlReader {
           if (!tag->self_closing) {
             const std::size_t close = text_.find("</DataArray>", tag->end);
             if (close == std::string_view::npos) fail(name_, where(tag->begin), "DataArray is not closed");
-            array.content = text_.substr(tag->end, close - tag->end);
+            // The values end at the first child element (VTK writes <InformationKey> elements after them).
+            const std::size_t values_end = std::min(close, text_.find('<', tag->end));
+            array.content = text_.substr(tag->end, values_end - tag->end);
             array.content_at = tag->end;
             pos = close;
           }
@@ -423,7 +432,8 @@ class XmlReader {
    public:
     Payload(std::string_view bytes, bool base64, const XmlReader& reader, std::string where)
         : bytes_(bytes), base64_(base64), reader_(reader), where_(std::move(where)) {}
-    // The next n bytes (n is checked against what is left before anything is decoded or copied).
+    // The next n bytes (n is checked against what is left before anything is decoded or copied). In base64 the n
+    // bytes are one encoded unit: ceil(n / 3) groups of four characters, the last one padded.
     std::string take(std::uint64_t n, const std::string& what) {
       const std::uint64_t need = base64_ ? (n + 2) / 3 * 4 : n;
       if (need > bytes_.size() - pos_) {
@@ -434,6 +444,26 @@ class XmlReader {
       std::string out = base64_ ? reader_.base64(bytes_.substr(pos_, need), 0) : std::string(bytes_.substr(pos_, n));
       out.resize(static_cast<std::size_t>(n));
       pos_ += static_cast<std::size_t>(need);
+      return out;
+    }
+    // n1 + n2 bytes written as one base64 unit or as two (the first one padded): VTK encodes an uncompressed array's
+    // header and data as one unit, a compressed array's block header and its blocks as two.
+    std::string take_two(std::uint64_t n1, std::uint64_t n2, const std::string& what) {
+      if (base64_ && n1 % 3 != 0) {
+        const std::uint64_t need1 = (n1 + 2) / 3 * 4;
+        if (need1 <= bytes_.size() - pos_ && bytes_[pos_ + static_cast<std::size_t>(need1) - 1] == '=') {
+          std::string out = take(n1, what);
+          return out + take(n2, what);
+        }
+      }
+      if (n2 > std::numeric_limits<std::uint64_t>::max() - n1) fail(reader_.name_, where_, "oversized " + what);
+      return take(n1 + n2, what);
+    }
+    // The next n bytes without consuming them (in base64 also the first n bytes of a longer unit).
+    std::string peek(std::uint64_t n, const std::string& what) {
+      const std::size_t pos = pos_;
+      std::string out = take(n, what);
+      pos_ = pos;
       return out;
     }
     std::uint64_t left() const { return base64_ ? (bytes_.size() - pos_) / 4 * 3 : bytes_.size() - pos_; }
@@ -454,28 +484,31 @@ class XmlReader {
   }
 
   // The uncompressed bytes of one binary array: a byte-count header and the data, or (compressed) VTK's block
-  // header (blocks, block size, size of a partial last block or 0, each block's compressed size) and zlib blocks.
-  // `expected` bytes are what the array must hold; nothing is allocated for a size the bytes present cannot back.
+  // header (blocks, block size, size of a partial last block or 0, each block's compressed size) and the compressed
+  // blocks. Base64 units are as VTK writes them: header and data as one unit when uncompressed; the block header as one
+  // unit and all the blocks as the next when compressed. `expected` bytes are what the array must hold; nothing is
+  // allocated for a size the bytes present cannot back.
   std::string payload_bytes(Payload& in, std::uint64_t expected) {
-    if (!compressed_) {
-      const std::uint64_t declared = header_word(in.take(header_size_, "DataArray header"), 0);
+    if (compressor_ == Compressor::kNone) {
+      const std::string all = in.take_two(header_size_, expected, "binary DataArray");
+      const std::uint64_t declared = header_word(all, 0);
       if (declared != expected) {
         fail(name_, in.where(),
              "binary DataArray header says " + std::to_string(declared) + " bytes, expected " +
                  std::to_string(expected));
       }
-      return in.take(expected, "binary DataArray");
+      return all.substr(header_size_);
     }
-    const std::string head = in.take(3 * header_size_, "compressed DataArray header");
+    const std::string head = in.peek(3 * header_size_, "compressed DataArray header");
     const std::uint64_t blocks = header_word(head, 0), block_size = header_word(head, 1),
                         last_size = header_word(head, 2);
     if (blocks > in.left() / header_size_) {
-      fail(name_, in.where(),
-           "compressed DataArray declares " + std::to_string(blocks) +
-               " blocks; the file is "
-               "too short for their sizes");
+      fail(
+          name_, in.where(),
+          "compressed DataArray declares " + std::to_string(blocks) + " blocks; the file is too short for their sizes");
     }
-    const std::string sizes = in.take(blocks * header_size_, "compressed DataArray block sizes");
+    const std::uint64_t header_bytes = (3 + blocks) * header_size_;
+    const std::string header = in.peek(header_bytes, "compressed DataArray block sizes");
     bool fits = last_size <= block_size;
     std::uint64_t total = 0;
     if (blocks > 0) {
@@ -490,17 +523,21 @@ class XmlReader {
                " bytes in all");
     }
     inflated_ += total;
-    // zlib inflates at most 1032 bytes per compressed byte (plus its header): a block that claims more is a lie,
-    // refused before its output is allocated.
+    // zlib inflates at most 1032 bytes per compressed byte (plus its header), LZ4 at most 255: a block that claims
+    // more is a lie, refused before its output is allocated. LZMA has no such bound; the limit on all inflated bytes
+    // below holds it.
+    const std::uint64_t ratio = compressor_ == Compressor::kZlib ? 1032 : compressor_ == Compressor::kLz4 ? 255 : 0;
     std::uint64_t compressed_total = 0;
     for (std::uint64_t b = 0; b < blocks; ++b) {
-      const std::uint64_t size = header_word(sizes, static_cast<std::size_t>(b));
+      const std::uint64_t size = header_word(header, static_cast<std::size_t>(3 + b));
       const std::uint64_t out = b + 1 == blocks && last_size != 0 ? last_size : block_size;
-      if (size > in.left() || out > size * 1032 + 64) {
+      if (size > in.left() || (ratio != 0 && out > size * ratio + 64)) {
         fail(name_, in.where(),
              "compressed block " + std::to_string(b) + " of " + std::to_string(blocks) + " claims " +
                  std::to_string(size) + " bytes inflating to " + std::to_string(out) +
-                 (size > in.left() ? ", more than the file holds" : ", more than zlib can produce"));
+                 (size > in.left() ? ", more than the file holds"
+                                   : std::string(", more than ") + (compressor_ == Compressor::kZlib ? "zlib" : "LZ4") +
+                                         " can produce"));
       }
       compressed_total += size;
       if (compressed_total > in.left()) {
@@ -512,23 +549,58 @@ class XmlReader {
                                       std::to_string(inflated_) + " bytes, more than " +
                                       std::to_string(max_inflated_bytes_) + " (the limit)");
     }
+    const std::string data = in.take_two(header_bytes, compressed_total, "compressed DataArray")
+                                 .substr(static_cast<std::size_t>(header_bytes));
     std::string out(static_cast<std::size_t>(total), '\0');
-    std::uint64_t done = 0;
+    std::uint64_t done = 0, at = 0;
     for (std::uint64_t b = 0; b < blocks; ++b) {
-      const std::uint64_t size = header_word(sizes, static_cast<std::size_t>(b));
-      const std::string block = in.take(size, "compressed block " + std::to_string(b));
+      const std::uint64_t size = header_word(header, static_cast<std::size_t>(3 + b));
       const std::uint64_t want = b + 1 == blocks && last_size != 0 ? last_size : block_size;
-      uLongf produced = static_cast<uLongf>(want);
-      const int rc = uncompress(reinterpret_cast<Bytef*>(out.data() + done), &produced,
-                                reinterpret_cast<const Bytef*>(block.data()), static_cast<uLong>(block.size()));
-      if (rc != Z_OK || produced != want) {
+      const std::string error = inflate_block(std::string_view(data).substr(at, size), out.data() + done, want);
+      if (!error.empty()) {
         fail(name_, in.where(),
              "compressed block " + std::to_string(b) + " of " + std::to_string(blocks) + " does not inflate to its " +
-                 std::to_string(want) + " bytes (zlib: " + (rc == Z_OK ? "too short" : zError(rc)) + ")");
+                 std::to_string(want) + " bytes (" + error + ")");
       }
+      at += size;
       done += want;
     }
     return out;
+  }
+
+  // Decompresses one block into exactly `want` bytes at `out`; returns "" or what went wrong.
+  std::string inflate_block(std::string_view block, char* out, std::uint64_t want) const {
+    switch (compressor_) {
+      case Compressor::kZlib: {
+        uLongf produced = static_cast<uLongf>(want);
+        const int rc = uncompress(reinterpret_cast<Bytef*>(out), &produced,
+                                  reinterpret_cast<const Bytef*>(block.data()), static_cast<uLong>(block.size()));
+        if (rc != Z_OK) return std::string("zlib: ") + zError(rc);
+        return produced == want ? "" : "zlib: too short";
+      }
+      case Compressor::kLz4: {
+        if (block.size() > static_cast<std::size_t>(std::numeric_limits<int>::max()) ||
+            want > static_cast<std::uint64_t>(std::numeric_limits<int>::max())) {
+          return "lz4: block over 2 GB";
+        }
+        const int produced =
+            LZ4_decompress_safe(block.data(), out, static_cast<int>(block.size()), static_cast<int>(want));
+        if (produced < 0) return "lz4: malformed block";
+        return static_cast<std::uint64_t>(produced) == want ? "" : "lz4: too short";
+      }
+      case Compressor::kLzma: {
+        std::uint64_t memlimit = std::uint64_t{1} << 27;  // decoder memory: VTK's presets (up to 9) need < 70 MiB
+        std::size_t in_pos = 0, out_pos = 0;
+        const lzma_ret rc = lzma_stream_buffer_decode(
+            &memlimit, 0, nullptr, reinterpret_cast<const std::uint8_t*>(block.data()), &in_pos, block.size(),
+            reinterpret_cast<std::uint8_t*>(out), &out_pos, static_cast<std::size_t>(want));
+        if (rc != LZMA_OK) return "lzma: " + std::string(rc == LZMA_BUF_ERROR ? "too long or truncated" : "malformed");
+        return out_pos == want ? "" : "lzma: too short";
+      }
+      case Compressor::kNone:
+        break;
+    }
+    return "not compressed";
   }
 
   std::vector<double> decode(const ArrayRef& array) {
@@ -704,7 +776,8 @@ class XmlReader {
   std::uint64_t max_inflated_bytes_;
   std::uint64_t inflated_ = 0;  // bytes the compressed arrays decoded so far inflated to
   bool big_endian_ = false;
-  bool compressed_ = false;
+  enum class Compressor { kNone, kZlib, kLz4, kLzma };
+  Compressor compressor_ = Compressor::kNone;
   std::size_t header_size_ = 4;
   std::optional<std::size_t> appended_at_;  // first byte after <AppendedData ...> _
   bool appended_base64_ = false;
