@@ -54,11 +54,18 @@ namespace {
 
 using sparse::apron_at;
 using sparse::apron_side;
+using sparse::kBlockMask;
 using sparse::kBlockNodes;
+using sparse::kBlockSize;
 using sparse::local_index;
+using sparse::local_x;
+using sparse::local_y;
+using sparse::local_z;
 using sparse::neighbor_slot;
 
 constexpr double kInterfaceSlack = 0.5;
+constexpr double kMinBandWidth = 2.0, kMaxBandWidth = 8.0;  // ActiveSurfaceOptions::band_width, grid spacings
+constexpr int kMaxCflRetries = 8;  // shorter retries of an advecting step that breaks the CFL bound
 constexpr double kInf = std::numeric_limits<double>::infinity();
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
@@ -81,15 +88,15 @@ void validate(const ActiveSurfaceOptions& o) {
       throw InvalidInput("domain", "domain must be a finite box with min < max on every axis");
     }
     for (int a = 0; a < 3; ++a) {
-      if ((d.max[a] - d.min[a]) / o.h > double(sparse::kCoordLimit) * 8.0) {
+      if ((d.max[a] - d.min[a]) / o.h > double(sparse::kCoordLimit) * kBlockSize) {
         throw ResourceLimit("domain", "domain spans more than 2^23 nodes per axis; coarsen h or shrink the domain");
       }
     }
   }
-  if (!(o.band_width >= 2.0) || !(o.band_width <= 8.0)) {
-    throw InvalidInput("band_width", "band_width (" + format_number(o.band_width) +
-                                         ") must be in [2, 8] grid spacings; the default is " +
-                                         format_number(defaults.band_width));
+  if (!(o.band_width >= kMinBandWidth) || !(o.band_width <= kMaxBandWidth)) {
+    throw InvalidInput("band_width", "band_width (" + format_number(o.band_width) + ") must be in [" +
+                                         format_number(kMinBandWidth) + ", " + format_number(kMaxBandWidth) +
+                                         "] grid spacings; the default is " + format_number(defaults.band_width));
   }
   const std::pair<const char*, double> coeffs[] = {
       {"alpha", o.alpha}, {"beta", o.beta}, {"gamma", o.gamma}, {"delta", o.delta}};
@@ -149,17 +156,17 @@ void active_detail::Engine::update_topology(const RunControl& control) {
     constexpr std::ptrdiff_t S = apron_side<G>();
     float* ap = scratch(0, S * S * S);
     grid.gather<G>(b, kChanF, ap);
-    unsigned char bits[8 * 8 * 8];
+    unsigned char bits[kBlockNodes];
     active_detail::band_bits<S>(ap, bits);
     unsigned char any = 0;
-    for (int i = 0; i < 512; ++i) any |= bits[i];
+    for (int i = 0; i < kBlockNodes; ++i) any |= bits[i];
     is_band[b] = any != 0;
   });
 
   // Allocate the 26 neighbours of every band block (in block order, so the result is deterministic).
   std::int64_t block_hi[3];
   const int wall_blocks = this->wall_blocks();
-  for (int a = 0; a < 3; ++a) block_hi[a] = has_domain ? dom_hi[a] / 8 + wall_blocks : sparse::kCoordLimit - 1;
+  for (int a = 0; a < 3; ++a) block_hi[a] = has_domain ? dom_hi[a] / kBlockSize + wall_blocks : sparse::kCoordLimit - 1;
   // Collect first, so that exceeding max_blocks leaves the state untouched.
   struct NewBlock {
     sparse::BlockCoord coord;
@@ -182,8 +189,9 @@ void active_detail::Engine::update_topology(const RunControl& control) {
           if (!inside || grid.find(n[0], n[1], n[2]) >= 0) continue;
           if (!pending.insert(sparse::pack_coord(n[0], n[1], n[2])).second) continue;
           // Parent node nearest to the new block.
-          const int px = dx < 0 ? 0 : (dx > 0 ? 7 : 3), py = dy < 0 ? 0 : (dy > 0 ? 7 : 3),
-                    pz = dz < 0 ? 0 : (dz > 0 ? 7 : 3);
+          constexpr int kMid = kBlockSize / 2 - 1;
+          const int px = dx < 0 ? 0 : (dx > 0 ? kBlockMask : kMid), py = dy < 0 ? 0 : (dy > 0 ? kBlockMask : kMid),
+                    pz = dz < 0 ? 0 : (dz > 0 ? kBlockMask : kMid);
           fresh.push_back({n, grid.data(b, kChanF)[local_index(px, py, pz)] > 0.0f ? 1.0f : -1.0f});
         }
   }
@@ -236,9 +244,9 @@ void active_detail::Engine::update_topology(const RunControl& control) {
     list.clear();
     bool any_band = false;
     const sparse::BlockCoord& c = grid.coord(b);
-    for (int z = 0; z < 8; ++z)
-      for (int y = 0; y < 8; ++y)
-        for (int x = 0; x < 8; ++x) {
+    for (int z = 0; z < kBlockSize; ++z)
+      for (int y = 0; y < kBlockSize; ++y)
+        for (int x = 0; x < kBlockSize; ++x) {
           const unsigned char* q = bits + (x + 1) + R * ((y + 1) + R * (z + 1));
           any_band |= *q != 0;
           if (*q | q[1] | q[-1] | q[R] | q[-R] | q[R * R] | q[-R * R]) {
@@ -302,9 +310,9 @@ void active_detail::Engine::reinitialize(const RunControl& control) {
           cls[r] = iface ? (keep ? 1 : 2) : 0;
           dval[r] = static_cast<float>(keep ? d0 : d0 / g);
         }
-    for (int z = 0; z < 8; ++z)
-      for (int y = 0; y < 8; ++y)
-        for (int x = 0; x < 8; ++x) {
+    for (int z = 0; z < kBlockSize; ++z)
+      for (int y = 0; y < kBlockSize; ++y)
+        for (int x = 0; x < kBlockSize; ++x) {
           const int r = (x + 1) + R * ((y + 1) + R * (z + 1));
           float v = kNaN;
           if (cls[r] != 0) {
@@ -338,9 +346,9 @@ void active_detail::Engine::reinitialize(const RunControl& control) {
       const sparse::BlockCoord& c = grid.coord(b);
       const std::ptrdiff_t st[3] = {1, S, S * S};
       const auto minmod = [](double a, double b) { return a * b <= 0.0 ? 0.0 : (std::abs(a) < std::abs(b) ? a : b); };
-      for (int z = 0; z < 8; ++z)
-        for (int y = 0; y < 8; ++y)
-          for (int x = 0; x < 8; ++x) {
+      for (int z = 0; z < kBlockSize; ++z)
+        for (int y = 0; y < kBlockSize; ++y)
+          for (int x = 0; x < kBlockSize; ++x) {
             const int i = local_index(x, y, z);
             const float* p = ap + apron_at<G>(x, y, z);
             // Saturated with saturated 6-neighbours of the same value: Godunov leaves it saturated.
@@ -410,15 +418,15 @@ void active_detail::Engine::covering_blocks(const Aabb& region, std::int64_t lo[
   for (int a = 0; a < 3; ++a) {
     // One block of margin: a solid touching the domain closes in the wall blocks just outside it. In double until
     // the range check: a shape of 1e8 at h = 1e-12 is 1e19 blocks, past what std::int64_t holds.
-    double block_lo = std::floor((region.min[a] - origin[a]) * inv_h / 8.0) - 1.0;
-    double block_hi = std::floor((region.max[a] - origin[a]) * inv_h / 8.0) + 1.0;
+    double block_lo = std::floor((region.min[a] - origin[a]) * inv_h / kBlockSize) - 1.0;
+    double block_hi = std::floor((region.max[a] - origin[a]) * inv_h / kBlockSize) + 1.0;
     if (has_domain) {
       block_lo = std::max<double>(block_lo, -wall_blocks());
-      block_hi = std::min<double>(block_hi, static_cast<double>(dom_hi[a] / 8 + wall_blocks()));
+      block_hi = std::min<double>(block_hi, static_cast<double>(dom_hi[a] / kBlockSize + wall_blocks()));
     }
     if (!(block_lo >= -sparse::kCoordLimit) || !(block_hi < sparse::kCoordLimit)) {
       throw ResourceLimit("h", "the surface would reach " +
-                                   format_number(8.0 * std::max(std::abs(block_lo), std::abs(block_hi))) +
+                                   format_number(kBlockSize * std::max(std::abs(block_lo), std::abs(block_hi))) +
                                    " grid nodes at h = " + format_number(h) + " from the grid's origin (" +
                                    (has_domain ? "the domain's min corner" : "0, without a domain") +
                                    ") along an axis, past the 2^23 it addresses; coarsen h" +
@@ -496,9 +504,9 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
     const sparse::BlockCoord c{static_cast<int>(lo[0] + i % dims[0]), static_cast<int>(lo[1] + (i / dims[0]) % dims[1]),
                                static_cast<int>(lo[2] + i / (dims[0] * dims[1]))};
     bool any_in = false, any_out = false;
-    for (int z = 0; z <= 8; ++z)
-      for (int y = 0; y <= 8; ++y)
-        for (int x = 0; x <= 8; ++x) {
+    for (int z = 0; z <= kBlockSize; ++z)
+      for (int y = 0; y <= kBlockSize; ++y)
+        for (int x = 0; x <= kBlockSize; ++x) {
           (sample(c, x, y, z) < 0.0 ? any_in : any_out) = true;
           if (any_in && any_out) {
             surface[i] = 1;
@@ -517,7 +525,8 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
           const sparse::BlockCoord n{c[0] + dx, c[1] + dy, c[2] + dz};
           if (has_domain) {
             bool inside = true;
-            for (int a = 0; a < 3; ++a) inside &= n[a] >= -wall_blocks() && n[a] <= dom_hi[a] / 8 + wall_blocks();
+            for (int a = 0; a < 3; ++a)
+              inside &= n[a] >= -wall_blocks() && n[a] <= dom_hi[a] / kBlockSize + wall_blocks();
             if (!inside) continue;
           }
           if (grid.find(n[0], n[1], n[2]) >= 0) continue;
@@ -541,9 +550,9 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
     if ((b & 15) == 0) control.check();
     const sparse::BlockCoord& c = grid.coord(b);
     float* f = grid.data(b, kChanF);
-    for (int z = 0; z < 8; ++z)
-      for (int y = 0; y < 8; ++y)
-        for (int x = 0; x < 8; ++x) {
+    for (int z = 0; z < kBlockSize; ++z)
+      for (int y = 0; y < kBlockSize; ++y)
+        for (int x = 0; x < kBlockSize; ++x) {
           float v = wall_potential(c, x, y, z);  // nodes outside the domain hold the wall's ramp
           if (node_in_domain(c, x, y, z)) {
             const float wall = v;
@@ -595,9 +604,9 @@ void active_detail::Engine::extend_speed(const RunControl& control) {
     float* s = grid.data(b, kChanSpeed);
     std::fill_n(s, kBlockNodes, kNaN);
     for (const std::uint16_t i : active[b]) {
-      const int x = i & 7, y = (i >> 3) & 7, z = i >> 6;
+      const int x = local_x(i), y = local_y(i), z = local_z(i);
       const int lc[3] = {x, y, z};
-      const int st[3] = {1, 8, 64};
+      const int st[3] = {1, kBlockSize, sparse::kBlockRows};
       double sum = 0.0;
       int n = 0;
       for (int a = 0; a < 3; ++a) {
@@ -614,7 +623,7 @@ void active_detail::Engine::extend_speed(const RunControl& control) {
         if (lc[a] == 0) {
           const int off[3] = {a == 0 ? -1 : 0, a == 1 ? -1 : 0, a == 2 ? -1 : 0};
           owner = grid.neighbor(b, neighbor_slot(off[0], off[1], off[2]));
-          j = i + 7 * st[a];
+          j = i + kBlockMask * st[a];
         }
         if (owner >= 0 && !edge_speed[owner].empty()) {
           const float e = edge_speed[owner][j * 3 + a];
@@ -648,7 +657,7 @@ void active_detail::Engine::extend_speed(const RunControl& control) {
       grid.gather<G>(b, kChanSpeed, ap, &nan_fill);
       for (const std::uint16_t i : active[b]) {
         if (!std::isnan(s[i])) continue;
-        const float* p = ap + apron_at<G>(i & 7, (i >> 3) & 7, i >> 6);
+        const float* p = ap + apron_at<G>(local_x(i), local_y(i), local_z(i));
         const float nbv[6] = {p[1], p[-1], p[S], p[-S], p[S * S], p[-S * S]};
         double sum = 0.0;
         int n = 0;
@@ -680,7 +689,7 @@ void active_detail::Engine::extend_speed(const RunControl& control) {
     const sparse::BlockCoord& c = grid.coord(b);
     for (const std::uint16_t i : active[b]) {
       if (!std::isnan(s[i])) continue;
-      const int x = i & 7, y = (i >> 3) & 7, z = i >> 6;
+      const int x = local_x(i), y = local_y(i), z = local_z(i);
       double v = gterm;
       if (target && opt.alpha > 0.0) v += -opt.alpha * target->value(node_position(c, x, y, z));
       if (opt.beta > 0.0) {
@@ -710,7 +719,7 @@ void active_detail::Engine::stage_rate(int b, int in_ch, double t_stage, float* 
                          grid.data(b, velocity_cache + 2)};
       for (const std::uint16_t i : active[b]) {
         if (std::isnan(cache[0][i])) {
-          const Vec3 v = separable.spatial(node_position(c, i & 7, (i >> 3) & 7, i >> 6));
+          const Vec3 v = separable.spatial(node_position(c, local_x(i), local_y(i), local_z(i)));
           for (int a = 0; a < 3; ++a) cache[a][i] = static_cast<float>(v[a]);
         }
         const Vec3 v = scale * Vec3(cache[0][i], cache[1][i], cache[2][i]);
@@ -719,7 +728,7 @@ void active_detail::Engine::stage_rate(int b, int in_ch, double t_stage, float* 
       }
     } else {
       for (const std::uint16_t i : active[b]) {
-        const Vec3 v = velocity(node_position(c, i & 7, (i >> 3) & 7, i >> 6), t_stage);
+        const Vec3 v = velocity(node_position(c, local_x(i), local_y(i), local_z(i)), t_stage);
         u[i] = static_cast<float>(v.x());
         u[kBlockNodes + i] = static_cast<float>(v.y());
         u[2 * kBlockNodes + i] = static_cast<float>(v.z());
@@ -788,7 +797,7 @@ double active_detail::Engine::stable_dt(double vmax) const {
 
 // TVD-RK3 from the stage-1 rates (kChanA, or advect_rate_channel() when advecting), into kChanA: Shu-Osher's three
 // stages, the result clamped to [-1, 1] and cut by the domain wall. An advecting step whose stage-2 speed breaks the
-// CFL bound is retried shorter (at most 8 times). Returns the dt taken.
+// CFL bound is retried shorter (at most kMaxCflRetries times). Returns the dt taken.
 double active_detail::Engine::runge_kutta(double dt, const RunControl& control) {
   const bool advect = advecting();
   const int nb = grid.block_count();
@@ -827,7 +836,8 @@ double active_detail::Engine::runge_kutta(double dt, const RunControl& control) 
     if (advect) {
       // No block left (the surface vanished under the grid's resolution): no speed at all.
       const double v2 = nb == 0 ? 0.0 : *std::max_element(block_max_speed.begin(), block_max_speed.end());
-      if (v2 * dt > h && attempt < 8) {  // beyond the CFL limit of 1 at t + dt: retry with the larger speed
+      if (v2 * dt > h &&
+          attempt < kMaxCflRetries) {  // beyond the CFL limit of 1 at t + dt: retry with the larger speed
         dt = std::min(dt, cfl * h / v2);
         continue;
       }
@@ -846,7 +856,7 @@ double active_detail::Engine::runge_kutta(double dt, const RunControl& control) 
       for (const std::uint16_t i : active[b]) {
         float v = f[i] * (1.0f / 3.0f) + (2.0f / 3.0f) * (in[i] + dt_f * rate[i]);
         v = std::clamp(v, -1.0f, 1.0f);
-        if (has_domain) v = std::min(v, wall_potential(c, i & 7, (i >> 3) & 7, i >> 6));
+        if (has_domain) v = std::min(v, wall_potential(c, local_x(i), local_y(i), local_z(i)));
         out[i] = v;
       }
     });

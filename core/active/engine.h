@@ -83,7 +83,7 @@ struct Engine {
   // Validates opt and derives the grid geometry (h, ramp, origin, domain) from it.
   void configure();
   // Blocks beyond the domain's last node holding the wall's outer ramp.
-  int wall_blocks() const { return static_cast<int>(std::ceil((ramp + 1.0) / 8.0)); }
+  int wall_blocks() const { return static_cast<int>(std::ceil((ramp + 1.0) / sparse::kBlockSize)); }
   // The blocks [lo, hi] per axis that cover `region`, with one block of margin, clipped to the domain's wall blocks;
   // throws ResourceLimit("h") when they leave the grid's block coordinates.
   void covering_blocks(const Aabb& region, std::int64_t lo[3], std::int64_t hi[3]) const;
@@ -125,11 +125,13 @@ struct Engine {
 
   // --- helpers ---
   Vec3 node_position(const sparse::BlockCoord& b, int x, int y, int z) const {
-    return origin + h * Vec3(8.0 * b[0] + x, 8.0 * b[1] + y, 8.0 * b[2] + z);
+    return origin + h * Vec3(double(sparse::kBlockSize) * b[0] + x, double(sparse::kBlockSize) * b[1] + y,
+                             double(sparse::kBlockSize) * b[2] + z);
   }
   bool node_in_domain(const sparse::BlockCoord& b, int x, int y, int z) const {
     if (!has_domain) return true;
-    const std::int64_t g[3] = {8LL * b[0] + x, 8LL * b[1] + y, 8LL * b[2] + z};
+    const std::int64_t g[3] = {std::int64_t{sparse::kBlockSize} * b[0] + x, std::int64_t{sparse::kBlockSize} * b[1] + y,
+                               std::int64_t{sparse::kBlockSize} * b[2] + z};
     for (int a = 0; a < 3; ++a) {
       if (g[a] < 0 || g[a] > dom_hi[a]) return false;
     }
@@ -140,7 +142,8 @@ struct Engine {
   // so the solid is cut off at the box with a regular ramp (not a jump, which reinitialization would erode).
   float wall_potential(const sparse::BlockCoord& b, int x, int y, int z) const {
     if (!has_domain) return 1.0f;
-    const std::int64_t g[3] = {8LL * b[0] + x, 8LL * b[1] + y, 8LL * b[2] + z};
+    const std::int64_t g[3] = {std::int64_t{sparse::kBlockSize} * b[0] + x, std::int64_t{sparse::kBlockSize} * b[1] + y,
+                               std::int64_t{sparse::kBlockSize} * b[2] + z};
     double out2 = 0.0, inside = -1e300;
     for (int a = 0; a < 3; ++a) {
       const double q = std::max(-0.5 - static_cast<double>(g[a]), static_cast<double>(g[a] - dom_hi[a]) - 0.5);
@@ -155,7 +158,8 @@ struct Engine {
     if (!has_domain) return false;
     const double reach = ramp + 1.0;
     for (int a = 0; a < 3; ++a) {
-      if (8.0 * b[a] - reach < 0.0 || 8.0 * b[a] + 7.0 + reach > static_cast<double>(dom_hi[a])) return true;
+      const double first = double(sparse::kBlockSize) * b[a], last = first + sparse::kBlockMask;
+      if (first - reach < 0.0 || last + reach > static_cast<double>(dom_hi[a])) return true;
     }
     return false;
   }
@@ -163,9 +167,9 @@ struct Engine {
     const sparse::BlockCoord& c = grid.coord(block);
     if (!near_wall(c)) return;
     float* f = grid.data(block, channel);
-    for (int z = 0; z < 8; ++z)
-      for (int y = 0; y < 8; ++y)
-        for (int x = 0; x < 8; ++x)
+    for (int z = 0; z < sparse::kBlockSize; ++z)
+      for (int y = 0; y < sparse::kBlockSize; ++y)
+        for (int x = 0; x < sparse::kBlockSize; ++x)
           f[sparse::local_index(x, y, z)] = std::min(f[sparse::local_index(x, y, z)], wall_potential(c, x, y, z));
   }
 

@@ -9,6 +9,7 @@
 //   other nodes' f as f32 in node order (most of a block outside the ramp is saturated, so this is about half the
 //   raw 2 KB per block on the test shapes)
 //   u64 FNV-1a of everything before it
+#include <climits>
 #include <cmath>
 #include <cstring>
 #include <string>
@@ -26,7 +27,7 @@ namespace {
 
 constexpr char kMagic[4] = {'S', 'A', 'C', 'T'};
 constexpr std::uint32_t kVersion = 1;
-constexpr int kMaskBytes = sparse::kBlockNodes / 8;
+constexpr int kMaskBytes = sparse::kBlockNodes / CHAR_BIT;
 
 [[noreturn]] void bad_state(const std::string& why) {
   throw InvalidInput("state", "active surface checkpoint is not valid (" + why + "); start the run over");
