@@ -165,8 +165,9 @@ void active_detail::Engine::update_topology(const RunControl& control) {
 
   // Allocate the 26 neighbours of every band block (in block order, so the result is deterministic).
   std::int64_t block_hi[3];
-  const int wall_blocks = this->wall_blocks();
-  for (int a = 0; a < 3; ++a) block_hi[a] = has_domain ? dom_hi[a] / kBlockSize + wall_blocks : sparse::kCoordLimit - 1;
+  const int wall_blocks = frame.wall_blocks();
+  for (int a = 0; a < 3; ++a)
+    block_hi[a] = frame.has_domain() ? frame.last_node(a) / kBlockSize + wall_blocks : sparse::kCoordLimit - 1;
   // Collect first, so that exceeding max_blocks leaves the state untouched.
   struct NewBlock {
     sparse::BlockCoord coord;
@@ -183,7 +184,7 @@ void active_detail::Engine::update_topology(const RunControl& control) {
           const sparse::BlockCoord n{c[0] + dx, c[1] + dy, c[2] + dz};
           bool inside = true;
           for (int a = 0; a < 3; ++a) {
-            const std::int64_t lo = has_domain ? -wall_blocks : -sparse::kCoordLimit;
+            const std::int64_t lo = frame.has_domain() ? -wall_blocks : -sparse::kCoordLimit;
             if (n[a] < lo || n[a] > block_hi[a]) inside = false;
           }
           if (!inside || grid.find(n[0], n[1], n[2]) >= 0) continue;
@@ -251,7 +252,7 @@ void active_detail::Engine::update_topology(const RunControl& control) {
           any_band |= *q != 0;
           if (*q | q[1] | q[-1] | q[R] | q[-R] | q[R * R] | q[-R * R]) {
             // Nodes outside the domain hold the wall's ramp and are never updated.
-            if (!has_domain || node_in_domain(c, x, y, z))
+            if (!frame.has_domain() || frame.node_in_domain(c, x, y, z))
               list.push_back(static_cast<std::uint16_t>(local_index(x, y, z)));
           }
         }
@@ -267,7 +268,7 @@ void active_detail::Engine::update_topology(const RunControl& control) {
 void active_detail::Engine::reinitialize(const RunControl& control) {
   control.check();
   const int nb = grid.block_count();
-  const float ramp_f = static_cast<float>(ramp);
+  const float ramp_f = static_cast<float>(frame.band_width());
   // Frozen potential in B; subcell distance estimates of the interface nodes in Speed (NaN elsewhere).
   parallel_for(nb, threads, [&](int b) { std::copy_n(grid.data(b, kChanF), kBlockNodes, grid.data(b, kChanB)); });
   parallel_for(nb, threads, [&](int b) {
@@ -288,9 +289,9 @@ void active_detail::Engine::reinitialize(const RunControl& control) {
           const bool in = *p > 0.0f;
           bool iface = false;
           double g2 = 0.0;
-          const double d0 = -ramp * p[0];
+          const double d0 = -frame.band_width() * p[0];
           for (int a = 0; a < 3; ++a) {
-            const double dp = -ramp * p[st[a]], dm = -ramp * p[-st[a]];
+            const double dp = -frame.band_width() * p[st[a]], dm = -frame.band_width() * p[-st[a]];
             const bool cross_p = (p[st[a]] > 0.0f) != in, cross_m = (p[-st[a]] > 0.0f) != in;
             iface |= cross_p || cross_m;
             const double fwd = dp - d0, bwd = d0 - dm;
@@ -332,7 +333,7 @@ void active_detail::Engine::reinitialize(const RunControl& control) {
   const double dtau = 0.5;
   // Kept nodes reach a node beyond the interface; the rest of the ramp (ramp - 1 nodes) needs 2 (ramp - 1)
   // pseudo-time steps of 1/2 to be swept, plus two to settle.
-  const int iterations = static_cast<int>(std::ceil(2.0 * (ramp - 1.0))) + 2;
+  const int iterations = static_cast<int>(std::ceil(2.0 * (frame.band_width() - 1.0))) + 2;
   for (int it = 0; it < iterations; ++it) {
     control.check();
     parallel_for(nb, threads, [&](int b) {
@@ -354,10 +355,10 @@ void active_detail::Engine::reinitialize(const RunControl& control) {
             // Saturated with saturated 6-neighbours of the same value: Godunov leaves it saturated.
             if ((p[0] == 1.0f || p[0] == -1.0f) && p[1] == p[0] && p[-1] == p[0] && p[S] == p[0] && p[-S] == p[0] &&
                 p[S * S] == p[0] && p[-S * S] == p[0] && std::isnan(dsub[i])) {
-              out[i] = has_domain ? std::min(p[0], wall_potential(c, x, y, z)) : p[0];
+              out[i] = frame.has_domain() ? std::min(p[0], frame.wall_potential(c, x, y, z)) : p[0];
               continue;
             }
-            const double d = -ramp * p[0];
+            const double d = -frame.band_width() * p[0];
             const double sgn = f0[i] > 0.0f ? -1.0 : 1.0;  // sign of d0
             double next;
             if (!std::isnan(dsub[i])) {
@@ -369,7 +370,8 @@ void active_detail::Engine::reinitialize(const RunControl& control) {
               double g2 = 0.0;
               for (int a = 0; a < 3; ++a) {
                 const std::ptrdiff_t t = st[a];
-                const double m2 = -ramp * p[-2 * t], m1 = -ramp * p[-t], p1 = -ramp * p[t], p2 = -ramp * p[2 * t];
+                const double m2 = -frame.band_width() * p[-2 * t], m1 = -frame.band_width() * p[-t],
+                             p1 = -frame.band_width() * p[t], p2 = -frame.band_width() * p[2 * t];
                 const double c0 = p1 - 2.0 * d + m1;
                 const double bm = (d - m1) + 0.5 * minmod(d - 2.0 * m1 + m2, c0);  // backward
                 const double fp = (p1 - d) - 0.5 * minmod(c0, p2 - 2.0 * p1 + d);  // forward
@@ -386,7 +388,7 @@ void active_detail::Engine::reinitialize(const RunControl& control) {
             }
             float fv = static_cast<float>(-next / ramp_f);
             fv = std::clamp(fv, -1.0f, 1.0f);
-            if (has_domain) fv = std::min(fv, wall_potential(c, x, y, z));
+            if (frame.has_domain()) fv = std::min(fv, frame.wall_potential(c, x, y, z));
             out[i] = fv;
           }
     });
@@ -402,35 +404,27 @@ void active_detail::Engine::reinitialize(const RunControl& control) {
 void active_detail::Engine::configure() {
   validate(opt);
   threads = resolve_threads(opt.threads);
-  h = opt.h;
-  inv_h = 1.0 / h;
-  ramp = opt.band_width;
-  has_domain = opt.domain.has_value();
-  if (has_domain) {
-    origin = opt.domain->min;
-    for (int a = 0; a < 3; ++a) {
-      dom_hi[a] = static_cast<std::int64_t>(std::floor((opt.domain->max[a] - opt.domain->min[a]) / h + 1e-9));
-    }
-  }
+  frame = active_detail::GridFrame(opt.h, opt.band_width, opt.domain);
 }
 
 void active_detail::Engine::covering_blocks(const Aabb& region, std::int64_t lo[3], std::int64_t hi[3]) const {
   for (int a = 0; a < 3; ++a) {
     // One block of margin: a solid touching the domain closes in the wall blocks just outside it. In double until
     // the range check: a shape of 1e8 at h = 1e-12 is 1e19 blocks, past what std::int64_t holds.
-    double block_lo = std::floor((region.min[a] - origin[a]) * inv_h / kBlockSize) - 1.0;
-    double block_hi = std::floor((region.max[a] - origin[a]) * inv_h / kBlockSize) + 1.0;
-    if (has_domain) {
-      block_lo = std::max<double>(block_lo, -wall_blocks());
-      block_hi = std::min<double>(block_hi, static_cast<double>(dom_hi[a] / kBlockSize + wall_blocks()));
+    double block_lo = std::floor((region.min[a] - frame.origin()[a]) * frame.inv_spacing() / kBlockSize) - 1.0;
+    double block_hi = std::floor((region.max[a] - frame.origin()[a]) * frame.inv_spacing() / kBlockSize) + 1.0;
+    if (frame.has_domain()) {
+      block_lo = std::max<double>(block_lo, -frame.wall_blocks());
+      block_hi = std::min<double>(block_hi, static_cast<double>(frame.last_node(a) / kBlockSize + frame.wall_blocks()));
     }
     if (!(block_lo >= -sparse::kCoordLimit) || !(block_hi < sparse::kCoordLimit)) {
       throw ResourceLimit("h", "the surface would reach " +
                                    format_number(kBlockSize * std::max(std::abs(block_lo), std::abs(block_hi))) +
-                                   " grid nodes at h = " + format_number(h) + " from the grid's origin (" +
-                                   (has_domain ? "the domain's min corner" : "0, without a domain") +
+                                   " grid nodes at h = " + format_number(frame.spacing()) +
+                                   " from the grid's origin (" +
+                                   (frame.has_domain() ? "the domain's min corner" : "0, without a domain") +
                                    ") along an axis, past the 2^23 it addresses; coarsen h" +
-                                   (has_domain ? "" : ", or give a domain (bounds) around the shape"));
+                                   (frame.has_domain() ? "" : ", or give a domain (bounds) around the shape"));
     }
     lo[a] = static_cast<std::int64_t>(block_lo);
     hi[a] = static_cast<std::int64_t>(block_hi);
@@ -438,20 +432,20 @@ void active_detail::Engine::covering_blocks(const Aabb& region, std::int64_t lo[
 }
 
 Aabb active_detail::Engine::initial_region(const std::optional<Aabb>& shape_bounds) const {
-  if (!shape_bounds && !has_domain) {
+  if (!shape_bounds && !frame.has_domain()) {
     throw InvalidInput("domain", "the initial shape is unbounded (it has no bounds); set options.domain to confine it");
   }
   Aabb region;
   if (shape_bounds) {
-    const double pad = (ramp + 2.0) * h;
+    const double pad = (frame.band_width() + 2.0) * frame.spacing();
     region = Aabb{shape_bounds->min.array() - pad, shape_bounds->max.array() + pad};
     if (!region.min.allFinite() || !region.max.allFinite()) {
-      if (!has_domain) {
+      if (!frame.has_domain()) {
         throw InvalidInput("domain", "the initial shape's bounds are not finite; set options.domain to confine it");
       }
       region = *opt.domain;
     }
-    if (has_domain) region.intersect(*opt.domain);
+    if (frame.has_domain()) region.intersect(*opt.domain);
   } else {
     region = *opt.domain;
   }
@@ -495,8 +489,8 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
 
   // Pass 1: blocks whose 9^3 nodes (the block and the first node of its + neighbours) see both signs.
   auto sample = [&](const sparse::BlockCoord& c, int x, int y, int z) -> double {
-    if (!node_in_domain(c, x, y, z)) return kInf;  // beyond the wall: outside
-    return shape.value(node_position(c, x, y, z));
+    if (!frame.node_in_domain(c, x, y, z)) return kInf;  // beyond the wall: outside
+    return shape.value(frame.node_position(c, x, y, z));
   };
   std::vector<char> surface(candidates, 0);
   parallel_for(static_cast<int>(candidates), threads, [&](int i) {
@@ -523,12 +517,7 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
       for (int dy = -1; dy <= 1; ++dy)
         for (int dx = -1; dx <= 1; ++dx) {
           const sparse::BlockCoord n{c[0] + dx, c[1] + dy, c[2] + dz};
-          if (has_domain) {
-            bool inside = true;
-            for (int a = 0; a < 3; ++a)
-              inside &= n[a] >= -wall_blocks() && n[a] <= dom_hi[a] / kBlockSize + wall_blocks();
-            if (!inside) continue;
-          }
+          if (!frame.block_in_reach(n)) continue;
           if (grid.find(n[0], n[1], n[2]) >= 0) continue;
           if (grid.block_count() >= opt.max_blocks) {
             throw ResourceLimit("max_blocks", "the initial surface needs more than max_blocks (" +
@@ -545,7 +534,7 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
   grid.rebuild_neighbors();
 
   // Pass 2: f = clamp(-value / (|grad value| w h)) on the allocated blocks.
-  const double scale = 1.0 / (ramp * h);
+  const double scale = 1.0 / (frame.band_width() * frame.spacing());
   parallel_for(grid.block_count(), threads, [&](int b) {
     if ((b & 15) == 0) control.check();
     const sparse::BlockCoord& c = grid.coord(b);
@@ -553,11 +542,11 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
     for (int z = 0; z < kBlockSize; ++z)
       for (int y = 0; y < kBlockSize; ++y)
         for (int x = 0; x < kBlockSize; ++x) {
-          float v = wall_potential(c, x, y, z);  // nodes outside the domain hold the wall's ramp
-          if (node_in_domain(c, x, y, z)) {
+          float v = frame.wall_potential(c, x, y, z);  // nodes outside the domain hold the wall's ramp
+          if (frame.node_in_domain(c, x, y, z)) {
             const float wall = v;
             Vec3 g;
-            const double val = shape.value_and_gradient(node_position(c, x, y, z), g);
+            const double val = shape.value_and_gradient(frame.node_position(c, x, y, z), g);
             const double gn = g.norm();
             double fv;
             if (gn > 1e-12 && std::isfinite(gn)) {
@@ -639,7 +628,7 @@ void active_detail::Engine::extend_speed(const RunControl& control) {
   // Outer layers: mean of assigned 6-neighbours, one layer per pass (Jacobi).
   // Active nodes lie within about ramp + 2 nodes of the surface, which along a diagonal is up to sqrt(3) times as
   // many 6-neighbour hops; the passes stop early once nothing changes.
-  const int layers = static_cast<int>(std::ceil((ramp + 2.0) * std::sqrt(3.0))) + 1;
+  const int layers = static_cast<int>(std::ceil((frame.band_width() + 2.0) * std::sqrt(3.0))) + 1;
   const float nan_fill = kNaN;
   for (int layer = 0; layer < layers; ++layer) {
     control.check();
@@ -691,10 +680,10 @@ void active_detail::Engine::extend_speed(const RunControl& control) {
       if (!std::isnan(s[i])) continue;
       const int x = local_x(i), y = local_y(i), z = local_z(i);
       double v = gterm;
-      if (target && opt.alpha > 0.0) v += -opt.alpha * target->value(node_position(c, x, y, z));
+      if (target && opt.alpha > 0.0) v += -opt.alpha * target->value(frame.node_position(c, x, y, z));
       if (opt.beta > 0.0) {
-        const double kmax = opt.max_curvature * inv_h;
-        const double k = active_detail::curvature(ap + apron_at<G>(x, y, z), 1, S, S * S, inv_h);
+        const double kmax = opt.max_curvature * frame.inv_spacing();
+        const double k = active_detail::curvature(ap + apron_at<G>(x, y, z), 1, S, S * S, frame.inv_spacing());
         v -= opt.beta * std::clamp(k, -kmax, kmax);
       }
       s[i] = static_cast<float>(v);
@@ -704,7 +693,7 @@ void active_detail::Engine::extend_speed(const RunControl& control) {
 
 void active_detail::Engine::stage_rate(int b, int in_ch, double t_stage, float* rate, double* max_speed) {
   const bool advect = advecting();
-  const float inv_h_f = static_cast<float>(inv_h);
+  const float inv_h_f = static_cast<float>(frame.inv_spacing());
   constexpr std::size_t kApron = active_detail::kApronSide;
   float* ap = scratch(1, kApron * kApron * kApron);
   grid.gather<3>(b, in_ch, ap);
@@ -719,7 +708,7 @@ void active_detail::Engine::stage_rate(int b, int in_ch, double t_stage, float* 
                          grid.data(b, velocity_cache + 2)};
       for (const std::uint16_t i : active[b]) {
         if (std::isnan(cache[0][i])) {
-          const Vec3 v = separable.spatial(node_position(c, local_x(i), local_y(i), local_z(i)));
+          const Vec3 v = separable.spatial(frame.node_position(c, local_x(i), local_y(i), local_z(i)));
           for (int a = 0; a < 3; ++a) cache[a][i] = static_cast<float>(v[a]);
         }
         const Vec3 v = scale * Vec3(cache[0][i], cache[1][i], cache[2][i]);
@@ -728,7 +717,7 @@ void active_detail::Engine::stage_rate(int b, int in_ch, double t_stage, float* 
       }
     } else {
       for (const std::uint16_t i : active[b]) {
-        const Vec3 v = velocity(node_position(c, local_x(i), local_y(i), local_z(i)), t_stage);
+        const Vec3 v = velocity(frame.node_position(c, local_x(i), local_y(i), local_z(i)), t_stage);
         u[i] = static_cast<float>(v.x());
         u[kBlockNodes + i] = static_cast<float>(v.y());
         u[2 * kBlockNodes + i] = static_cast<float>(v.z());
@@ -772,9 +761,9 @@ double active_detail::Engine::stable_dt(double vmax) const {
   const bool advect = advecting();
   const double cfl = opt.cfl ? *opt.cfl : 1.0;
   double dt_stable = kInf;
-  if (vmax > 0.0) dt_stable = cfl * h / vmax;
+  if (vmax > 0.0) dt_stable = cfl * frame.spacing() / vmax;
   if (!advect || advect_controls()) {
-    if (opt.beta > 0.0) dt_stable = std::min(dt_stable, cfl * h * h / (6.0 * opt.beta));
+    if (opt.beta > 0.0) dt_stable = std::min(dt_stable, cfl * frame.spacing() * frame.spacing() / (6.0 * opt.beta));
     // The controllers are stiff too: tracking relaxes the distance to the target at the rate alpha |grad g|, volume
     // control the volume at delta A / V0, area control the area at about gamma mean|kappa| A / A0; an explicit
     // step must stay below the inverse rates. (last_measures is the sub-step's own: extend_speed measured it.)
@@ -836,9 +825,9 @@ double active_detail::Engine::runge_kutta(double dt, const RunControl& control) 
     if (advect) {
       // No block left (the surface vanished under the grid's resolution): no speed at all.
       const double v2 = nb == 0 ? 0.0 : *std::max_element(block_max_speed.begin(), block_max_speed.end());
-      if (v2 * dt > h &&
+      if (v2 * dt > frame.spacing() &&
           attempt < kMaxCflRetries) {  // beyond the CFL limit of 1 at t + dt: retry with the larger speed
-        dt = std::min(dt, cfl * h / v2);
+        dt = std::min(dt, cfl * frame.spacing() / v2);
         continue;
       }
     }
@@ -856,7 +845,7 @@ double active_detail::Engine::runge_kutta(double dt, const RunControl& control) 
       for (const std::uint16_t i : active[b]) {
         float v = f[i] * (1.0f / 3.0f) + (2.0f / 3.0f) * (in[i] + dt_f * rate[i]);
         v = std::clamp(v, -1.0f, 1.0f);
-        if (has_domain) v = std::min(v, wall_potential(c, local_x(i), local_y(i), local_z(i)));
+        if (frame.has_domain()) v = std::min(v, frame.wall_potential(c, local_x(i), local_y(i), local_z(i)));
         out[i] = v;
       }
     });
@@ -905,7 +894,7 @@ double active_detail::Engine::step(double dt_limit, const RunControl& control) {
   last_max_speed = vmax;
   last_max_dfdt = rmax;
   double dt = std::min(dt_limit, stable_dt(vmax));
-  if (!std::isfinite(dt)) dt = cfl * h;  // nothing moves: any step leaves f unchanged
+  if (!std::isfinite(dt)) dt = cfl * frame.spacing();  // nothing moves: any step leaves f unchanged
 
   dt = runge_kutta(dt, control);
   last_dt = dt;

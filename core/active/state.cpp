@@ -42,11 +42,11 @@ std::string ActiveSurface::save_state() const {
   const int nb = m.grid.block_count();
   state_blob::Writer w(kMagic, kVersion);
   w.out.reserve(256 + static_cast<std::size_t>(nb) * (12 + 2 * kMaskBytes + 1024));
-  w.put(m.h);
-  w.put(m.ramp);
-  w.put<std::uint8_t>(m.has_domain ? 1 : 0);
-  for (int a = 0; a < 3; ++a) w.put(m.origin[a]);
-  for (int a = 0; a < 3; ++a) w.put(m.dom_hi[a]);
+  w.put(m.frame.spacing());
+  w.put(m.frame.band_width());
+  w.put<std::uint8_t>(m.frame.has_domain() ? 1 : 0);
+  for (int a = 0; a < 3; ++a) w.put(m.frame.origin()[a]);
+  for (int a = 0; a < 3; ++a) w.put(m.frame.last_node(a));
   for (const double v : {m.time, m.area0, m.volume0, m.last_dt, m.last_max_dfdt, m.last_max_speed}) w.put(v);
   w.put<std::int32_t>(m.steps_since_reinit);
   w.put(m.last_node_steps);
@@ -90,8 +90,11 @@ ActiveSurface ActiveSurface::from_state(std::string_view state, const ActiveSurf
   for (int a = 0; a < 3; ++a) origin[a] = r.get<double>();
   std::int64_t dom_hi[3];
   for (auto& d : dom_hi) d = r.get<std::int64_t>();
-  if (h != m.h || ramp != m.ramp || has_domain != m.has_domain || origin != m.origin ||
-      (has_domain && (dom_hi[0] != m.dom_hi[0] || dom_hi[1] != m.dom_hi[1] || dom_hi[2] != m.dom_hi[2]))) {
+  const active_detail::GridFrame& frame = m.frame;
+  if (h != frame.spacing() || ramp != frame.band_width() || has_domain != frame.has_domain() ||
+      origin != frame.origin() ||
+      (has_domain &&
+       (dom_hi[0] != frame.last_node(0) || dom_hi[1] != frame.last_node(1) || dom_hi[2] != frame.last_node(2)))) {
     bad_state("saved with another grid (h, band_width or domain differ from the options)");
   }
   for (double* v : {&m.time, &m.area0, &m.volume0, &m.last_dt, &m.last_max_dfdt, &m.last_max_speed}) {

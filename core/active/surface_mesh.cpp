@@ -125,7 +125,7 @@ double active_detail::Engine::missing_sign(std::int64_t gx, std::int64_t gy, std
 }
 
 double active_detail::Engine::trilinear(const Vec3& p, Vec3* gradient) const {
-  const Vec3 u = (p - origin) * inv_h;
+  const Vec3 u = (p - frame.origin()) * frame.inv_spacing();
   if (!u.allFinite()) {
     if (gradient != nullptr) *gradient = Vec3::Zero();
     return -1.0;
@@ -157,7 +157,7 @@ double active_detail::Engine::trilinear(const Vec3& p, Vec3* gradient) const {
     v += w * c[k];
     grad += dw * c[k];
   }
-  if (gradient != nullptr) *gradient = grad * inv_h;
+  if (gradient != nullptr) *gradient = grad * frame.inv_spacing();
   return v;
 }
 
@@ -177,8 +177,8 @@ ActiveMeasures active_detail::Engine::measure(std::vector<std::vector<float>>* e
     }
   }
   if (nb == 0) return {};
-  const Vec3 ref = node_position(grid.coord(0), 0, 0, 0);
-  const double kmax = opt.max_curvature * inv_h;
+  const Vec3 ref = frame.node_position(grid.coord(0), 0, 0, 0);
+  const double kmax = opt.max_curvature * frame.inv_spacing();
   const bool want_target = target && opt.alpha > 0.0;
   const bool want_kappa = opt.beta > 0.0 || opt.gamma > 0.0;
   std::vector<BlockMeasure> parts(nb);
@@ -197,7 +197,7 @@ ActiveMeasures active_detail::Engine::measure(std::vector<std::vector<float>>* e
       const double t = v0 / (v0 - v1);
       Vec3 q(base[0] + x, base[1] + y, base[2] + z);
       q[axis] += t;
-      return Vec3(origin + h * q);
+      return Vec3(frame.origin() + frame.spacing() * q);
     };
     BlockMeasure& part = parts[b];
     if (sample) {
@@ -220,8 +220,10 @@ ActiveMeasures active_detail::Engine::measure(std::vector<std::vector<float>>* e
                 if (std::isfinite(gn)) part.max_grad = std::max(part.max_grad, gn);
               }
               if (want_kappa) {
-                const double k0 = std::clamp(active_detail::curvature(p, 1, S, S * S, inv_h), -kmax, kmax);
-                const double k1 = std::clamp(active_detail::curvature(p + st[a], 1, S, S * S, inv_h), -kmax, kmax);
+                const double k0 =
+                    std::clamp(active_detail::curvature(p, 1, S, S * S, frame.inv_spacing()), -kmax, kmax);
+                const double k1 =
+                    std::clamp(active_detail::curvature(p + st[a], 1, S, S * S, frame.inv_spacing()), -kmax, kmax);
                 const double k = (1.0 - t) * k0 + t * k1;
                 s -= opt.beta * k;
                 part.sum_abs_kappa += std::abs(k);
@@ -303,7 +305,7 @@ Mesh active_detail::Engine::cubes_mesh(bool normals, const RunControl& control) 
             Vec3 q(double(kBlockSize) * bc[0] + x, double(kBlockSize) * bc[1] + y, double(kBlockSize) * bc[2] + z);
             q[a] += t;
             map[local_index(x, y, z) * 3 + a] = static_cast<std::int32_t>(verts[b].size());
-            verts[b].push_back(origin + h * q);
+            verts[b].push_back(frame.origin() + frame.spacing() * q);
             if (normals) {
               // -grad f by central differences at both ends, interpolated.
               auto grad = [&](const float* c) { return Vec3(c[1] - c[-1], c[S] - c[-S], c[S * S] - c[-S * S]); };
@@ -399,7 +401,7 @@ Mesh active_detail::Engine::tiles_mesh(bool normals, const RunControl& control) 
             if ((p[0] > 0.0f) == (p[st[a]] > 0.0f)) continue;
             Vec3 q(double(kBlockSize) * bc[0] + x, double(kBlockSize) * bc[1] + y, double(kBlockSize) * bc[2] + z);
             q[a] += double(p[0]) / (double(p[0]) - double(p[st[a]]));
-            sum += origin + h * q;
+            sum += frame.origin() + frame.spacing() * q;
             ++n;
           }
         }
@@ -409,19 +411,19 @@ Mesh active_detail::Engine::tiles_mesh(bool normals, const RunControl& control) 
   Aabb box = Aabb::empty();
   for (int b = 0; b < nb; ++b) {
     const sparse::BlockCoord& bc = grid.coord(b);
-    box.merge(Aabb{node_position(bc, 0, 0, 0), node_position(bc, kBlockSize, kBlockSize, kBlockSize)});
+    box.merge(Aabb{frame.node_position(bc, 0, 0, 0), frame.node_position(bc, kBlockSize, kBlockSize, kBlockSize)});
     if (!std::isnan(block_seed[b][0])) seeds.push_back(block_seed[b]);
   }
   if (seeds.empty()) return {};
   PotentialField field(*this, box);
   MarchingTilesOptions o;
   o.bounds = box;
-  o.spacing = h;
+  o.spacing = frame.spacing();
   o.normals = normals;
   o.threads = opt.threads;
   o.seeds = seeds;
   // Every crossing lies in its band block: within the block's half-diagonal of the seed (plus a lattice cell).
-  o.seed_radius = (4.0 * std::sqrt(3.0) + 2.0) * h;
+  o.seed_radius = (4.0 * std::sqrt(3.0) + 2.0) * frame.spacing();
   return marching_tiles(field, o, control);
 }
 
