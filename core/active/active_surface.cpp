@@ -571,9 +571,8 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
   if (active_count() == 0) {
     throw InvalidInput("initial_shape", "the initial shape has no surface inside the domain");
   }
-  last_measures = measure(nullptr, control);
-  area0 = last_measures.area;
-  volume0 = last_measures.volume;
+  measures.set_last(measure(nullptr, control));
+  measures.set_reference(measures.last().area, measures.last().volume);
 }
 
 // ------------------------------------------------------------------------------------------------------------------
@@ -582,10 +581,8 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
 // The normal speed over the active nodes (normal-speed modes): sampled where the surface crosses grid edges
 // (tracking and tension at the crossings, plus the area and volume terms), then extended outward layer by layer.
 void active_detail::Engine::extend_speed(const RunControl& control) {
-  last_measures = measure(&edge_speed, control);
-  double gterm = 0.0;
-  if (opt.gamma > 0.0 && area0 > 0.0) gterm += opt.gamma * (area0 - last_measures.area) / area0;
-  if (opt.delta > 0.0 && volume0 > 0.0) gterm += opt.delta * (volume0 - last_measures.volume) / volume0;
+  measures.set_last(measure(&edge_speed, control));
+  const double gterm = measures.speed(opt.gamma, opt.delta);
   const int nb = grid.block_count();
   // Level 0: mean over the crossed incident edges.
   const float gterm_f = static_cast<float>(gterm);
@@ -766,17 +763,12 @@ double active_detail::Engine::stable_dt(double vmax) const {
     if (opt.beta > 0.0) dt_stable = std::min(dt_stable, cfl * frame.spacing() * frame.spacing() / (6.0 * opt.beta));
     // The controllers are stiff too: tracking relaxes the distance to the target at the rate alpha |grad g|, volume
     // control the volume at delta A / V0, area control the area at about gamma mean|kappa| A / A0; an explicit
-    // step must stay below the inverse rates. (last_measures is the sub-step's own: extend_speed measured it.)
-    const ActiveMeasures& m = last_measures;
+    // step must stay below the inverse rates. (measures.last() is the sub-step's own: extend_speed measured it.)
+    const ActiveMeasures& m = measures.last();
     if (target && opt.alpha > 0.0 && m.max_target_gradient > 0.0) {
       dt_stable = std::min(dt_stable, cfl / (opt.alpha * m.max_target_gradient));
     }
-    if (opt.delta > 0.0 && volume0 > 0.0 && m.area > 0.0) {
-      dt_stable = std::min(dt_stable, cfl * volume0 / (opt.delta * m.area));
-    }
-    if (opt.gamma > 0.0 && area0 > 0.0 && m.area > 0.0 && m.mean_abs_curvature > 0.0) {
-      dt_stable = std::min(dt_stable, cfl * area0 / (opt.gamma * m.mean_abs_curvature * m.area));
-    }
+    dt_stable = std::min(dt_stable, measures.stable_dt(opt.gamma, opt.delta, cfl));
   }
   // A time-dependent velocity may grow within the step: at most double the previous step, and the stages below
   // reject the step when the velocity they see breaks the CFL bound.
@@ -964,8 +956,7 @@ void ActiveSurface::set_reference_measures(double area, double volume) {
   if (!(volume > 0.0) || !std::isfinite(volume)) {
     throw InvalidInput("volume", "reference volume must be finite and > 0");
   }
-  impl_->area0 = area;
-  impl_->volume0 = volume;
+  impl_->measures.set_reference(area, volume);
 }
 
 double ActiveSurface::time() const { return impl_->time; }

@@ -11,6 +11,7 @@
 
 #include "core/active/active_surface.h"
 #include "core/active/grid_frame.h"
+#include "core/active/measure_control.h"
 #include "core/active/sparse_grid.h"
 
 namespace surfacer {
@@ -22,15 +23,6 @@ enum ActiveChannel : int {
   kChanB = 2,      // Runge-Kutta stage / frozen potential during reinitialization
   kChanSpeed = 3,  // extended normal speed (NaN: not assigned) / reinitialization distance estimates
   kChanCount = 4,
-};
-
-struct ActiveMeasures {
-  double area = 0.0;
-  double volume = 0.0;
-  std::int64_t crossings = 0;  // crossed grid edges (surface sample points)
-  // Filled when sampling speeds: max |grad g| of the target at the sample points, and the mean |kappa| there.
-  double max_target_gradient = 0.0;
-  double mean_abs_curvature = 0.0;
 };
 
 namespace active_detail {
@@ -61,16 +53,14 @@ struct Engine {
   // Where an advecting step keeps its stage-1 rate (a rejected step restarts from it).
   int advect_rate_channel() const { return advect_controls() ? advect_rate : static_cast<int>(kChanSpeed); }
   double time = 0.0;
-  double area0 = 0.0, volume0 = 0.0;
+  MeasureControl measures;  // A0, V0 and the last measures (area and volume control)
   int steps_since_reinit = 0;
-  bool reinit_due = false;
 
   // Last sub-step.
   double last_dt = 0.0;
   std::int64_t last_node_steps = 0;  // active nodes updated
   double last_max_dfdt = 0.0;
   double last_max_speed = 0.0;
-  ActiveMeasures last_measures;
 
   // Restored from a checkpoint and not stepped since: set_velocity() then keeps last_dt (the saved run's velocity
   // is assumed), so the next step is bounded as in the uninterrupted run.

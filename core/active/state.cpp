@@ -47,10 +47,13 @@ std::string ActiveSurface::save_state() const {
   w.put<std::uint8_t>(m.frame.has_domain() ? 1 : 0);
   for (int a = 0; a < 3; ++a) w.put(m.frame.origin()[a]);
   for (int a = 0; a < 3; ++a) w.put(m.frame.last_node(a));
-  for (const double v : {m.time, m.area0, m.volume0, m.last_dt, m.last_max_dfdt, m.last_max_speed}) w.put(v);
+  for (const double v : {m.time, m.measures.reference_area(), m.measures.reference_volume(), m.last_dt, m.last_max_dfdt,
+                         m.last_max_speed}) {
+    w.put(v);
+  }
   w.put<std::int32_t>(m.steps_since_reinit);
   w.put(m.last_node_steps);
-  const ActiveMeasures& lm = m.last_measures;
+  const ActiveMeasures& lm = m.measures.last();
   for (const double v : {lm.area, lm.volume, lm.max_target_gradient, lm.mean_abs_curvature}) w.put(v);
   w.put(lm.crossings);
   w.put<std::uint64_t>(static_cast<std::uint64_t>(nb));
@@ -97,16 +100,19 @@ ActiveSurface ActiveSurface::from_state(std::string_view state, const ActiveSurf
        (dom_hi[0] != frame.last_node(0) || dom_hi[1] != frame.last_node(1) || dom_hi[2] != frame.last_node(2)))) {
     bad_state("saved with another grid (h, band_width or domain differ from the options)");
   }
-  for (double* v : {&m.time, &m.area0, &m.volume0, &m.last_dt, &m.last_max_dfdt, &m.last_max_speed}) {
+  double area0 = 0.0, volume0 = 0.0;
+  for (double* v : {&m.time, &area0, &volume0, &m.last_dt, &m.last_max_dfdt, &m.last_max_speed}) {
     *v = r.get<double>();
     if (!std::isfinite(*v)) bad_state("a non-finite run figure");
   }
+  m.measures.set_reference(area0, volume0);
   m.steps_since_reinit = r.get<std::int32_t>();
   if (m.steps_since_reinit < 0 || m.last_dt < 0.0) bad_state("run figures out of range");
   m.last_node_steps = r.get<std::int64_t>();
-  ActiveMeasures& lm = m.last_measures;
+  ActiveMeasures lm;
   for (double* v : {&lm.area, &lm.volume, &lm.max_target_gradient, &lm.mean_abs_curvature}) *v = r.get<double>();
   lm.crossings = r.get<std::int64_t>();
+  m.measures.set_last(lm);
 
   const auto nb = r.get<std::uint64_t>();
   if (nb == 0 || nb > r.remaining() / (3 * sizeof(std::int32_t) + 2 * kMaskBytes)) {
