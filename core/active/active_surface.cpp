@@ -677,9 +677,7 @@ void active_detail::Engine::extend_speed(const RunControl& control) {
       if (!std::isnan(s[i])) continue;
       const int x = local_x(i), y = local_y(i), z = local_z(i);
       double v = gterm;
-      if (const Field* tracked = motion.tracked(opt.alpha)) {
-        v += -opt.alpha * tracked->value(frame.node_position(c, x, y, z));
-      }
+      if (target && opt.alpha > 0.0) v += -opt.alpha * target->value(frame.node_position(c, x, y, z));
       if (opt.beta > 0.0) {
         const double kmax = opt.max_curvature * frame.inv_spacing();
         const double k = active_detail::curvature(ap + apron_at<G>(x, y, z), 1, S, S * S, frame.inv_spacing());
@@ -701,13 +699,13 @@ void active_detail::Engine::stage_rate(int b, int in_ch, double t_stage, float* 
     std::fill_n(u, 3 * kBlockNodes, 0.0f);
     const sparse::BlockCoord& c = grid.coord(b);
     double ms = 0.0;
-    if (motion.separable()) {
-      const double scale = motion.time_scale(t_stage);
+    if (separable.spatial) {
+      const double scale = separable.time_scale ? separable.time_scale(t_stage) : 1.0;
       float* cache[3] = {grid.data(b, velocity_cache), grid.data(b, velocity_cache + 1),
                          grid.data(b, velocity_cache + 2)};
       for (const std::uint16_t i : active[b]) {
         if (std::isnan(cache[0][i])) {
-          const Vec3 v = motion.spatial(frame.node_position(c, local_x(i), local_y(i), local_z(i)));
+          const Vec3 v = separable.spatial(frame.node_position(c, local_x(i), local_y(i), local_z(i)));
           for (int a = 0; a < 3; ++a) cache[a][i] = static_cast<float>(v[a]);
         }
         const Vec3 v = scale * Vec3(cache[0][i], cache[1][i], cache[2][i]);
@@ -716,7 +714,7 @@ void active_detail::Engine::stage_rate(int b, int in_ch, double t_stage, float* 
       }
     } else {
       for (const std::uint16_t i : active[b]) {
-        const Vec3 v = motion.velocity(frame.node_position(c, local_x(i), local_y(i), local_z(i)), t_stage);
+        const Vec3 v = velocity(frame.node_position(c, local_x(i), local_y(i), local_z(i)), t_stage);
         u[i] = static_cast<float>(v.x());
         u[kBlockNodes + i] = static_cast<float>(v.y());
         u[2 * kBlockNodes + i] = static_cast<float>(v.z());
@@ -767,7 +765,7 @@ double active_detail::Engine::stable_dt(double vmax) const {
     // control the volume at delta A / V0, area control the area at about gamma mean|kappa| A / A0; an explicit
     // step must stay below the inverse rates. (measures.last() is the sub-step's own: extend_speed measured it.)
     const ActiveMeasures& m = measures.last();
-    if (motion.tracked(opt.alpha) != nullptr && m.max_target_gradient > 0.0) {
+    if (target && opt.alpha > 0.0 && m.max_target_gradient > 0.0) {
       dt_stable = std::min(dt_stable, cfl / (opt.alpha * m.max_target_gradient));
     }
     dt_stable = std::min(dt_stable, measures.stable_dt(opt.gamma, opt.delta, cfl));
@@ -927,7 +925,7 @@ ActiveSurface::~ActiveSurface() = default;
 ActiveSurface::ActiveSurface(ActiveSurface&&) noexcept = default;
 ActiveSurface& ActiveSurface::operator=(ActiveSurface&&) noexcept = default;
 
-void ActiveSurface::set_target(FieldPtr target) { impl_->motion.set_target(std::move(target)); }
+void ActiveSurface::set_target(FieldPtr target) { impl_->target = std::move(target); }
 void active_detail::Engine::clear_velocity_cache() {
   if (velocity_cache < 0) {
     velocity_cache = grid.channels();
@@ -940,13 +938,15 @@ void active_detail::Engine::clear_velocity_cache() {
 }
 
 void ActiveSurface::set_velocity(VelocityFn velocity) {
-  impl_->motion.set_velocity(std::move(velocity));
+  impl_->separable = {};
+  impl_->velocity = std::move(velocity);
   if (!impl_->restored) impl_->last_dt = 0.0;
 }
 
 void ActiveSurface::set_velocity(SeparableVelocity velocity) {
   if (!velocity.spatial) throw InvalidInput("velocity", "a separable velocity needs its spatial part u(x)");
-  impl_->motion.set_velocity(std::move(velocity));
+  impl_->velocity = {};
+  impl_->separable = std::move(velocity);
   impl_->clear_velocity_cache();
   if (!impl_->restored) impl_->last_dt = 0.0;
 }

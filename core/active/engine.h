@@ -14,7 +14,6 @@
 #include "core/active/active_surface.h"
 #include "core/active/grid_frame.h"
 #include "core/active/measure_control.h"
-#include "core/active/motion.h"
 #include "core/active/sparse_grid.h"
 
 namespace surfacer {
@@ -40,16 +39,17 @@ struct Engine {
   std::vector<char> band;                          // per block: holds a band node (|f| < 1 or at a sign change)
   std::vector<std::vector<float>> edge_speed;      // per block (band blocks): speed per (node, axis), NaN: none
 
-  Motion motion;            // the target and the velocity
-  int velocity_cache = -1;  // first of the 3 channels caching a separable velocity's spatial(x) (NaN: not evaluated)
-  bool advecting() const { return motion.advecting(); }
+  FieldPtr target;
+  VelocityFn velocity;          // general advection velocity, called per active node per stage
+  SeparableVelocity separable;  // or u = time_scale(t) spatial(x), spatial cached per node
+  int velocity_cache = -1;      // first of the 3 channels caching spatial(x) (NaN: not evaluated), or -1
+  bool advecting() const { return static_cast<bool>(velocity) || static_cast<bool>(separable.spatial); }
   void clear_velocity_cache();
   // Advecting with a normal speed on top (alpha with a target, beta, gamma or delta > 0): the extended normal speed
   // of those terms is then in kChanSpeed, as in the normal-speed modes, and the stage-1 rate in the extra channel
   // `advect_rate` (added on first use).
   bool advect_controls() const {
-    return advecting() &&
-           (motion.tracked(opt.alpha) != nullptr || opt.beta > 0.0 || opt.gamma > 0.0 || opt.delta > 0.0);
+    return advecting() && ((target && opt.alpha > 0.0) || opt.beta > 0.0 || opt.gamma > 0.0 || opt.delta > 0.0);
   }
   int advect_rate = -1;
   // Where an advecting step keeps its stage-1 rate (a rejected step restarts from it).

@@ -179,8 +179,7 @@ ActiveMeasures active_detail::Engine::measure(std::vector<std::vector<float>>* e
   if (nb == 0) return {};
   const Vec3 ref = frame.node_position(grid.coord(0), 0, 0, 0);
   const double kmax = opt.max_curvature * frame.inv_spacing();
-  const Field* tracked = motion.tracked(opt.alpha);
-  const bool want_target = tracked != nullptr;
+  const bool want_target = target && opt.alpha > 0.0;
   const bool want_kappa = opt.beta > 0.0 || opt.gamma > 0.0;
   std::vector<BlockMeasure> parts(nb);
   parallel_for(nb, threads, [&](int b) {
@@ -216,7 +215,7 @@ ActiveMeasures active_detail::Engine::measure(std::vector<std::vector<float>>* e
               double s = 0.0;
               if (want_target) {
                 Vec3 grad;
-                s -= opt.alpha * tracked->value_and_gradient(vertex(x, y, z, a, v0, v1), grad);
+                s -= opt.alpha * target->value_and_gradient(vertex(x, y, z, a, v0, v1), grad);
                 const double gn = grad.norm();
                 if (std::isfinite(gn)) part.max_grad = std::max(part.max_grad, gn);
               }
