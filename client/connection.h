@@ -13,8 +13,8 @@
 
 #include "client/exit_codes.h"
 #include "client/options.h"
+#include "client/rpc_error.h"  // rpc_error, status_code_name: how callers report a failed call
 #include "surfacer/v1/surfacer.grpc.pb.h"
-#include "wire/status.h"
 
 namespace surfacer::server {
 class InProcessServer;
@@ -62,17 +62,9 @@ class Connection {
   std::optional<v1::ServerInfo> server_info_;
 };
 
-// "INVALID_ARGUMENT", "UNAVAILABLE", ... for a grpc::StatusCode.
-inline std::string status_code_name(grpc::StatusCode code) {
-  return std::string(wire::status_code_name(static_cast<int>(code)));
-}
 // Asks the server to cancel `job_id`, waiting at most `within` for the answer. Best effort (a client giving up on a
 // job it started): returns whether the server answered OK.
 bool cancel_job(Connection& connection, const std::string& job_id,
                 std::chrono::milliseconds within = std::chrono::seconds(5));
-
-// "<context>: CODE: message" as a CliError: UNAVAILABLE and DEADLINE_EXCEEDED -> kUnreachable, CANCELLED ->
-// kCancelled, everything else -> kJobFailed.
-CliError rpc_error(const std::string& context, const grpc::Status& status);
 
 }  // namespace surfacer::client

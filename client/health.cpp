@@ -1,19 +1,11 @@
 #include "client/health.h"
 
-#include <google/protobuf/io/coded_stream.h>
-#include <google/protobuf/io/zero_copy_stream_impl_lite.h>
-#include <google/protobuf/wire_format_lite.h>
 #include <grpcpp/client_context.h>
-#include <grpcpp/generic/generic_stub.h>
-#include <grpcpp/support/byte_buffer.h>
 
-#include <future>
-
-#include "client/connection.h"
+#include "client/rpc_error.h"
+#include "grpc/health/v1/health.grpc.pb.h"
 
 namespace surfacer::client {
-
-using google::protobuf::internal::WireFormatLite;
 
 std::string health_status_name(HealthStatus status) {
   switch (status) {
@@ -29,60 +21,25 @@ std::string health_status_name(HealthStatus status) {
   return "UNKNOWN";
 }
 
-std::string encode_health_request(const std::string& service) {
-  std::string bytes;
-  if (service.empty()) return bytes;  // proto3: default values are not encoded
-  google::protobuf::io::StringOutputStream stream(&bytes);
-  google::protobuf::io::CodedOutputStream out(&stream);
-  out.WriteTag(WireFormatLite::MakeTag(1, WireFormatLite::WIRETYPE_LENGTH_DELIMITED));
-  out.WriteVarint32(static_cast<std::uint32_t>(service.size()));
-  out.WriteString(service);
-  out.Trim();
-  return bytes;
-}
-
-bool decode_health_response(const std::string& bytes, HealthStatus* status) {
-  google::protobuf::io::CodedInputStream in(reinterpret_cast<const std::uint8_t*>(bytes.data()),
-                                            static_cast<int>(bytes.size()));
-  std::uint64_t value = 0;  // absent field: UNKNOWN
-  while (std::uint32_t tag = in.ReadTag()) {
-    if (WireFormatLite::GetTagFieldNumber(tag) == 1 &&
-        WireFormatLite::GetTagWireType(tag) == WireFormatLite::WIRETYPE_VARINT) {
-      if (!in.ReadVarint64(&value)) return false;
-    } else if (!WireFormatLite::SkipField(&in, tag)) {
-      return false;
-    }
+HealthStatus health_status_from(int serving_status) {
+  if (serving_status < 0 || serving_status > static_cast<int>(HealthStatus::kServiceUnknown)) {
+    return HealthStatus::kUnknown;
   }
-  if (!in.ConsumedEntireMessage()) return false;
-  *status = value <= 3 ? static_cast<HealthStatus>(value) : HealthStatus::kUnknown;
-  return true;
+  return static_cast<HealthStatus>(serving_status);
 }
 
 HealthStatus check_health(const std::shared_ptr<grpc::Channel>& channel, const std::string& service,
                           std::chrono::system_clock::time_point deadline) {
-  grpc::GenericStub stub(channel);
+  const auto stub = grpc::health::v1::Health::NewStub(channel);
   grpc::ClientContext context;
   context.set_deadline(deadline);
-  const std::string request_bytes = encode_health_request(service);
-  grpc::Slice slice(request_bytes);
-  grpc::ByteBuffer request(&slice, 1);
-  grpc::ByteBuffer response;
-  std::promise<grpc::Status> done;
-  stub.UnaryCall(&context, "/grpc.health.v1.Health/Check", grpc::StubOptions(), &request, &response,
-                 [&done](grpc::Status status) { done.set_value(std::move(status)); });
-  const grpc::Status status = done.get_future().get();
+  grpc::health::v1::HealthCheckRequest request;
+  request.set_service(service);
+  grpc::health::v1::HealthCheckResponse response;
+  const grpc::Status status = stub->Check(&context, request, &response);
   if (status.error_code() == grpc::StatusCode::NOT_FOUND) return HealthStatus::kServiceUnknown;
   if (!status.ok()) throw rpc_error("health check", status);
-
-  std::vector<grpc::Slice> slices;
-  if (!response.Dump(&slices).ok()) throw CliError(ExitCode::kIntegrity, "health check: unreadable response");
-  std::string bytes;
-  for (const auto& s : slices) bytes.append(reinterpret_cast<const char*>(s.begin()), s.size());
-  HealthStatus result = HealthStatus::kUnknown;
-  if (!decode_health_response(bytes, &result)) {
-    throw CliError(ExitCode::kIntegrity, "health check: malformed grpc.health.v1.HealthCheckResponse");
-  }
-  return result;
+  return health_status_from(response.status());
 }
 
 }  // namespace surfacer::client

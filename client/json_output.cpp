@@ -2,8 +2,8 @@
 
 #include <google/protobuf/util/time_util.h>
 
-#include "client/connection.h"
-#include "client/progress.h"
+#include "client/job_state.h"
+#include "client/rpc_error.h"
 #include "client/summary.h"
 
 namespace surfacer::client {

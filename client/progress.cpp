@@ -22,13 +22,6 @@ double seconds_since(std::chrono::steady_clock::time_point start) {
 
 }  // namespace
 
-std::string state_name(v1::JobState state) {
-  std::string name = v1::JobState_Name(state);
-  const std::string prefix = "JOB_STATE_";
-  if (name.rfind(prefix, 0) == 0) name = name.substr(prefix.size());
-  return name.empty() ? "STATE_" + std::to_string(static_cast<int>(state)) : name;
-}
-
 std::string frame_summary(const ReceivedFrame& frame, int frames_total) {
   const v1::FrameStats& s = frame.stats;
   std::string text = "frame " + std::to_string(frame.index);

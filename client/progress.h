@@ -14,6 +14,7 @@
 
 #include "client/eta.h"
 #include "client/frame_assembler.h"
+#include "client/job_state.h"  // state_name, which the state lines print
 #include "client/options.h"
 #include "surfacer/v1/surfacer.pb.h"
 
@@ -69,7 +70,5 @@ class ProgressDisplay {
 // "frame 3/10: 124512 triangles, closed, 0.21 s"; with the iteration and a few metrics when the frame has them:
 // "frame 2: 8312 triangles, closed, iteration 10, e_d 1.2e-07, e_n 0.0031, 0.05 s".
 std::string frame_summary(const ReceivedFrame& frame, int frames_total);
-// "RUNNING" for JOB_STATE_RUNNING.
-std::string state_name(v1::JobState state);
 
 }  // namespace surfacer::client

@@ -54,11 +54,18 @@ namespace {
 
 using sparse::apron_at;
 using sparse::apron_side;
+using sparse::kBlockMask;
 using sparse::kBlockNodes;
+using sparse::kBlockSize;
 using sparse::local_index;
+using sparse::local_x;
+using sparse::local_y;
+using sparse::local_z;
 using sparse::neighbor_slot;
 
 constexpr double kInterfaceSlack = 0.5;
+constexpr double kMinBandWidth = 2.0, kMaxBandWidth = 8.0;  // ActiveSurfaceOptions::band_width, grid spacings
+constexpr int kMaxCflRetries = 8;  // shorter retries of an advecting step that breaks the CFL bound
 constexpr double kInf = std::numeric_limits<double>::infinity();
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
@@ -81,15 +88,15 @@ void validate(const ActiveSurfaceOptions& o) {
       throw InvalidInput("domain", "domain must be a finite box with min < max on every axis");
     }
     for (int a = 0; a < 3; ++a) {
-      if ((d.max[a] - d.min[a]) / o.h > double(sparse::kCoordLimit) * 8.0) {
+      if ((d.max[a] - d.min[a]) / o.h > double(sparse::kCoordLimit) * kBlockSize) {
         throw ResourceLimit("domain", "domain spans more than 2^23 nodes per axis; coarsen h or shrink the domain");
       }
     }
   }
-  if (!(o.band_width >= 2.0) || !(o.band_width <= 8.0)) {
-    throw InvalidInput("band_width", "band_width (" + format_number(o.band_width) +
-                                         ") must be in [2, 8] grid spacings; the default is " +
-                                         format_number(defaults.band_width));
+  if (!(o.band_width >= kMinBandWidth) || !(o.band_width <= kMaxBandWidth)) {
+    throw InvalidInput("band_width", "band_width (" + format_number(o.band_width) + ") must be in [" +
+                                         format_number(kMinBandWidth) + ", " + format_number(kMaxBandWidth) +
+                                         "] grid spacings; the default is " + format_number(defaults.band_width));
   }
   const std::pair<const char*, double> coeffs[] = {
       {"alpha", o.alpha}, {"beta", o.beta}, {"gamma", o.gamma}, {"delta", o.delta}};
@@ -149,17 +156,18 @@ void active_detail::Engine::update_topology(const RunControl& control) {
     constexpr std::ptrdiff_t S = apron_side<G>();
     float* ap = scratch(0, S * S * S);
     grid.gather<G>(b, kChanF, ap);
-    unsigned char bits[8 * 8 * 8];
+    unsigned char bits[kBlockNodes];
     active_detail::band_bits<S>(ap, bits);
     unsigned char any = 0;
-    for (int i = 0; i < 512; ++i) any |= bits[i];
+    for (int i = 0; i < kBlockNodes; ++i) any |= bits[i];
     is_band[b] = any != 0;
   });
 
   // Allocate the 26 neighbours of every band block (in block order, so the result is deterministic).
   std::int64_t block_hi[3];
-  const int wall_blocks = this->wall_blocks();
-  for (int a = 0; a < 3; ++a) block_hi[a] = has_domain ? dom_hi[a] / 8 + wall_blocks : sparse::kCoordLimit - 1;
+  const int wall_blocks = frame.wall_blocks();
+  for (int a = 0; a < 3; ++a)
+    block_hi[a] = frame.has_domain() ? frame.last_node(a) / kBlockSize + wall_blocks : sparse::kCoordLimit - 1;
   // Collect first, so that exceeding max_blocks leaves the state untouched.
   struct NewBlock {
     sparse::BlockCoord coord;
@@ -176,14 +184,15 @@ void active_detail::Engine::update_topology(const RunControl& control) {
           const sparse::BlockCoord n{c[0] + dx, c[1] + dy, c[2] + dz};
           bool inside = true;
           for (int a = 0; a < 3; ++a) {
-            const std::int64_t lo = has_domain ? -wall_blocks : -sparse::kCoordLimit;
+            const std::int64_t lo = frame.has_domain() ? -wall_blocks : -sparse::kCoordLimit;
             if (n[a] < lo || n[a] > block_hi[a]) inside = false;
           }
           if (!inside || grid.find(n[0], n[1], n[2]) >= 0) continue;
           if (!pending.insert(sparse::pack_coord(n[0], n[1], n[2])).second) continue;
           // Parent node nearest to the new block.
-          const int px = dx < 0 ? 0 : (dx > 0 ? 7 : 3), py = dy < 0 ? 0 : (dy > 0 ? 7 : 3),
-                    pz = dz < 0 ? 0 : (dz > 0 ? 7 : 3);
+          constexpr int kMid = kBlockSize / 2 - 1;
+          const int px = dx < 0 ? 0 : (dx > 0 ? kBlockMask : kMid), py = dy < 0 ? 0 : (dy > 0 ? kBlockMask : kMid),
+                    pz = dz < 0 ? 0 : (dz > 0 ? kBlockMask : kMid);
           fresh.push_back({n, grid.data(b, kChanF)[local_index(px, py, pz)] > 0.0f ? 1.0f : -1.0f});
         }
   }
@@ -236,14 +245,14 @@ void active_detail::Engine::update_topology(const RunControl& control) {
     list.clear();
     bool any_band = false;
     const sparse::BlockCoord& c = grid.coord(b);
-    for (int z = 0; z < 8; ++z)
-      for (int y = 0; y < 8; ++y)
-        for (int x = 0; x < 8; ++x) {
+    for (int z = 0; z < kBlockSize; ++z)
+      for (int y = 0; y < kBlockSize; ++y)
+        for (int x = 0; x < kBlockSize; ++x) {
           const unsigned char* q = bits + (x + 1) + R * ((y + 1) + R * (z + 1));
           any_band |= *q != 0;
           if (*q | q[1] | q[-1] | q[R] | q[-R] | q[R * R] | q[-R * R]) {
             // Nodes outside the domain hold the wall's ramp and are never updated.
-            if (!has_domain || node_in_domain(c, x, y, z))
+            if (!frame.has_domain() || frame.node_in_domain(c, x, y, z))
               list.push_back(static_cast<std::uint16_t>(local_index(x, y, z)));
           }
         }
@@ -259,7 +268,7 @@ void active_detail::Engine::update_topology(const RunControl& control) {
 void active_detail::Engine::reinitialize(const RunControl& control) {
   control.check();
   const int nb = grid.block_count();
-  const float ramp_f = static_cast<float>(ramp);
+  const float ramp_f = static_cast<float>(frame.band_width());
   // Frozen potential in B; subcell distance estimates of the interface nodes in Speed (NaN elsewhere).
   parallel_for(nb, threads, [&](int b) { std::copy_n(grid.data(b, kChanF), kBlockNodes, grid.data(b, kChanB)); });
   parallel_for(nb, threads, [&](int b) {
@@ -280,9 +289,9 @@ void active_detail::Engine::reinitialize(const RunControl& control) {
           const bool in = *p > 0.0f;
           bool iface = false;
           double g2 = 0.0;
-          const double d0 = -ramp * p[0];
+          const double d0 = -frame.band_width() * p[0];
           for (int a = 0; a < 3; ++a) {
-            const double dp = -ramp * p[st[a]], dm = -ramp * p[-st[a]];
+            const double dp = -frame.band_width() * p[st[a]], dm = -frame.band_width() * p[-st[a]];
             const bool cross_p = (p[st[a]] > 0.0f) != in, cross_m = (p[-st[a]] > 0.0f) != in;
             iface |= cross_p || cross_m;
             const double fwd = dp - d0, bwd = d0 - dm;
@@ -302,9 +311,9 @@ void active_detail::Engine::reinitialize(const RunControl& control) {
           cls[r] = iface ? (keep ? 1 : 2) : 0;
           dval[r] = static_cast<float>(keep ? d0 : d0 / g);
         }
-    for (int z = 0; z < 8; ++z)
-      for (int y = 0; y < 8; ++y)
-        for (int x = 0; x < 8; ++x) {
+    for (int z = 0; z < kBlockSize; ++z)
+      for (int y = 0; y < kBlockSize; ++y)
+        for (int x = 0; x < kBlockSize; ++x) {
           const int r = (x + 1) + R * ((y + 1) + R * (z + 1));
           float v = kNaN;
           if (cls[r] != 0) {
@@ -324,7 +333,7 @@ void active_detail::Engine::reinitialize(const RunControl& control) {
   const double dtau = 0.5;
   // Kept nodes reach a node beyond the interface; the rest of the ramp (ramp - 1 nodes) needs 2 (ramp - 1)
   // pseudo-time steps of 1/2 to be swept, plus two to settle.
-  const int iterations = static_cast<int>(std::ceil(2.0 * (ramp - 1.0))) + 2;
+  const int iterations = static_cast<int>(std::ceil(2.0 * (frame.band_width() - 1.0))) + 2;
   for (int it = 0; it < iterations; ++it) {
     control.check();
     parallel_for(nb, threads, [&](int b) {
@@ -338,18 +347,18 @@ void active_detail::Engine::reinitialize(const RunControl& control) {
       const sparse::BlockCoord& c = grid.coord(b);
       const std::ptrdiff_t st[3] = {1, S, S * S};
       const auto minmod = [](double a, double b) { return a * b <= 0.0 ? 0.0 : (std::abs(a) < std::abs(b) ? a : b); };
-      for (int z = 0; z < 8; ++z)
-        for (int y = 0; y < 8; ++y)
-          for (int x = 0; x < 8; ++x) {
+      for (int z = 0; z < kBlockSize; ++z)
+        for (int y = 0; y < kBlockSize; ++y)
+          for (int x = 0; x < kBlockSize; ++x) {
             const int i = local_index(x, y, z);
             const float* p = ap + apron_at<G>(x, y, z);
             // Saturated with saturated 6-neighbours of the same value: Godunov leaves it saturated.
             if ((p[0] == 1.0f || p[0] == -1.0f) && p[1] == p[0] && p[-1] == p[0] && p[S] == p[0] && p[-S] == p[0] &&
                 p[S * S] == p[0] && p[-S * S] == p[0] && std::isnan(dsub[i])) {
-              out[i] = has_domain ? std::min(p[0], wall_potential(c, x, y, z)) : p[0];
+              out[i] = frame.has_domain() ? std::min(p[0], frame.wall_potential(c, x, y, z)) : p[0];
               continue;
             }
-            const double d = -ramp * p[0];
+            const double d = -frame.band_width() * p[0];
             const double sgn = f0[i] > 0.0f ? -1.0 : 1.0;  // sign of d0
             double next;
             if (!std::isnan(dsub[i])) {
@@ -361,7 +370,8 @@ void active_detail::Engine::reinitialize(const RunControl& control) {
               double g2 = 0.0;
               for (int a = 0; a < 3; ++a) {
                 const std::ptrdiff_t t = st[a];
-                const double m2 = -ramp * p[-2 * t], m1 = -ramp * p[-t], p1 = -ramp * p[t], p2 = -ramp * p[2 * t];
+                const double m2 = -frame.band_width() * p[-2 * t], m1 = -frame.band_width() * p[-t],
+                             p1 = -frame.band_width() * p[t], p2 = -frame.band_width() * p[2 * t];
                 const double c0 = p1 - 2.0 * d + m1;
                 const double bm = (d - m1) + 0.5 * minmod(d - 2.0 * m1 + m2, c0);  // backward
                 const double fp = (p1 - d) - 0.5 * minmod(c0, p2 - 2.0 * p1 + d);  // forward
@@ -378,7 +388,7 @@ void active_detail::Engine::reinitialize(const RunControl& control) {
             }
             float fv = static_cast<float>(-next / ramp_f);
             fv = std::clamp(fv, -1.0f, 1.0f);
-            if (has_domain) fv = std::min(fv, wall_potential(c, x, y, z));
+            if (frame.has_domain()) fv = std::min(fv, frame.wall_potential(c, x, y, z));
             out[i] = fv;
           }
     });
@@ -394,35 +404,27 @@ void active_detail::Engine::reinitialize(const RunControl& control) {
 void active_detail::Engine::configure() {
   validate(opt);
   threads = resolve_threads(opt.threads);
-  h = opt.h;
-  inv_h = 1.0 / h;
-  ramp = opt.band_width;
-  has_domain = opt.domain.has_value();
-  if (has_domain) {
-    origin = opt.domain->min;
-    for (int a = 0; a < 3; ++a) {
-      dom_hi[a] = static_cast<std::int64_t>(std::floor((opt.domain->max[a] - opt.domain->min[a]) / h + 1e-9));
-    }
-  }
+  frame = active_detail::GridFrame(opt.h, opt.band_width, opt.domain);
 }
 
 void active_detail::Engine::covering_blocks(const Aabb& region, std::int64_t lo[3], std::int64_t hi[3]) const {
   for (int a = 0; a < 3; ++a) {
     // One block of margin: a solid touching the domain closes in the wall blocks just outside it. In double until
     // the range check: a shape of 1e8 at h = 1e-12 is 1e19 blocks, past what std::int64_t holds.
-    double block_lo = std::floor((region.min[a] - origin[a]) * inv_h / 8.0) - 1.0;
-    double block_hi = std::floor((region.max[a] - origin[a]) * inv_h / 8.0) + 1.0;
-    if (has_domain) {
-      block_lo = std::max<double>(block_lo, -wall_blocks());
-      block_hi = std::min<double>(block_hi, static_cast<double>(dom_hi[a] / 8 + wall_blocks()));
+    double block_lo = std::floor((region.min[a] - frame.origin()[a]) * frame.inv_spacing() / kBlockSize) - 1.0;
+    double block_hi = std::floor((region.max[a] - frame.origin()[a]) * frame.inv_spacing() / kBlockSize) + 1.0;
+    if (frame.has_domain()) {
+      block_lo = std::max<double>(block_lo, -frame.wall_blocks());
+      block_hi = std::min<double>(block_hi, static_cast<double>(frame.last_node(a) / kBlockSize + frame.wall_blocks()));
     }
     if (!(block_lo >= -sparse::kCoordLimit) || !(block_hi < sparse::kCoordLimit)) {
       throw ResourceLimit("h", "the surface would reach " +
-                                   format_number(8.0 * std::max(std::abs(block_lo), std::abs(block_hi))) +
-                                   " grid nodes at h = " + format_number(h) + " from the grid's origin (" +
-                                   (has_domain ? "the domain's min corner" : "0, without a domain") +
+                                   format_number(kBlockSize * std::max(std::abs(block_lo), std::abs(block_hi))) +
+                                   " grid nodes at h = " + format_number(frame.spacing()) +
+                                   " from the grid's origin (" +
+                                   (frame.has_domain() ? "the domain's min corner" : "0, without a domain") +
                                    ") along an axis, past the 2^23 it addresses; coarsen h" +
-                                   (has_domain ? "" : ", or give a domain (bounds) around the shape"));
+                                   (frame.has_domain() ? "" : ", or give a domain (bounds) around the shape"));
     }
     lo[a] = static_cast<std::int64_t>(block_lo);
     hi[a] = static_cast<std::int64_t>(block_hi);
@@ -430,20 +432,20 @@ void active_detail::Engine::covering_blocks(const Aabb& region, std::int64_t lo[
 }
 
 Aabb active_detail::Engine::initial_region(const std::optional<Aabb>& shape_bounds) const {
-  if (!shape_bounds && !has_domain) {
+  if (!shape_bounds && !frame.has_domain()) {
     throw InvalidInput("domain", "the initial shape is unbounded (it has no bounds); set options.domain to confine it");
   }
   Aabb region;
   if (shape_bounds) {
-    const double pad = (ramp + 2.0) * h;
+    const double pad = (frame.band_width() + 2.0) * frame.spacing();
     region = Aabb{shape_bounds->min.array() - pad, shape_bounds->max.array() + pad};
     if (!region.min.allFinite() || !region.max.allFinite()) {
-      if (!has_domain) {
+      if (!frame.has_domain()) {
         throw InvalidInput("domain", "the initial shape's bounds are not finite; set options.domain to confine it");
       }
       region = *opt.domain;
     }
-    if (has_domain) region.intersect(*opt.domain);
+    if (frame.has_domain()) region.intersect(*opt.domain);
   } else {
     region = *opt.domain;
   }
@@ -487,8 +489,8 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
 
   // Pass 1: blocks whose 9^3 nodes (the block and the first node of its + neighbours) see both signs.
   auto sample = [&](const sparse::BlockCoord& c, int x, int y, int z) -> double {
-    if (!node_in_domain(c, x, y, z)) return kInf;  // beyond the wall: outside
-    return shape.value(node_position(c, x, y, z));
+    if (!frame.node_in_domain(c, x, y, z)) return kInf;  // beyond the wall: outside
+    return shape.value(frame.node_position(c, x, y, z));
   };
   std::vector<char> surface(candidates, 0);
   parallel_for(static_cast<int>(candidates), threads, [&](int i) {
@@ -496,9 +498,9 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
     const sparse::BlockCoord c{static_cast<int>(lo[0] + i % dims[0]), static_cast<int>(lo[1] + (i / dims[0]) % dims[1]),
                                static_cast<int>(lo[2] + i / (dims[0] * dims[1]))};
     bool any_in = false, any_out = false;
-    for (int z = 0; z <= 8; ++z)
-      for (int y = 0; y <= 8; ++y)
-        for (int x = 0; x <= 8; ++x) {
+    for (int z = 0; z <= kBlockSize; ++z)
+      for (int y = 0; y <= kBlockSize; ++y)
+        for (int x = 0; x <= kBlockSize; ++x) {
           (sample(c, x, y, z) < 0.0 ? any_in : any_out) = true;
           if (any_in && any_out) {
             surface[i] = 1;
@@ -515,11 +517,7 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
       for (int dy = -1; dy <= 1; ++dy)
         for (int dx = -1; dx <= 1; ++dx) {
           const sparse::BlockCoord n{c[0] + dx, c[1] + dy, c[2] + dz};
-          if (has_domain) {
-            bool inside = true;
-            for (int a = 0; a < 3; ++a) inside &= n[a] >= -wall_blocks() && n[a] <= dom_hi[a] / 8 + wall_blocks();
-            if (!inside) continue;
-          }
+          if (!frame.block_in_reach(n)) continue;
           if (grid.find(n[0], n[1], n[2]) >= 0) continue;
           if (grid.block_count() >= opt.max_blocks) {
             throw ResourceLimit("max_blocks", "the initial surface needs more than max_blocks (" +
@@ -536,19 +534,19 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
   grid.rebuild_neighbors();
 
   // Pass 2: f = clamp(-value / (|grad value| w h)) on the allocated blocks.
-  const double scale = 1.0 / (ramp * h);
+  const double scale = 1.0 / (frame.band_width() * frame.spacing());
   parallel_for(grid.block_count(), threads, [&](int b) {
     if ((b & 15) == 0) control.check();
     const sparse::BlockCoord& c = grid.coord(b);
     float* f = grid.data(b, kChanF);
-    for (int z = 0; z < 8; ++z)
-      for (int y = 0; y < 8; ++y)
-        for (int x = 0; x < 8; ++x) {
-          float v = wall_potential(c, x, y, z);  // nodes outside the domain hold the wall's ramp
-          if (node_in_domain(c, x, y, z)) {
+    for (int z = 0; z < kBlockSize; ++z)
+      for (int y = 0; y < kBlockSize; ++y)
+        for (int x = 0; x < kBlockSize; ++x) {
+          float v = frame.wall_potential(c, x, y, z);  // nodes outside the domain hold the wall's ramp
+          if (frame.node_in_domain(c, x, y, z)) {
             const float wall = v;
             Vec3 g;
-            const double val = shape.value_and_gradient(node_position(c, x, y, z), g);
+            const double val = shape.value_and_gradient(frame.node_position(c, x, y, z), g);
             const double gn = g.norm();
             double fv;
             if (gn > 1e-12 && std::isfinite(gn)) {
@@ -573,9 +571,8 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
   if (active_count() == 0) {
     throw InvalidInput("initial_shape", "the initial shape has no surface inside the domain");
   }
-  last_measures = measure(nullptr, control);
-  area0 = last_measures.area;
-  volume0 = last_measures.volume;
+  measures.set_last(measure(nullptr, control));
+  measures.set_reference(measures.last().area, measures.last().volume);
 }
 
 // ------------------------------------------------------------------------------------------------------------------
@@ -584,10 +581,8 @@ void active_detail::Engine::init(const Field& shape, const RunControl& control) 
 // The normal speed over the active nodes (normal-speed modes): sampled where the surface crosses grid edges
 // (tracking and tension at the crossings, plus the area and volume terms), then extended outward layer by layer.
 void active_detail::Engine::extend_speed(const RunControl& control) {
-  last_measures = measure(&edge_speed, control);
-  double gterm = 0.0;
-  if (opt.gamma > 0.0 && area0 > 0.0) gterm += opt.gamma * (area0 - last_measures.area) / area0;
-  if (opt.delta > 0.0 && volume0 > 0.0) gterm += opt.delta * (volume0 - last_measures.volume) / volume0;
+  measures.set_last(measure(&edge_speed, control));
+  const double gterm = measures.speed(opt.gamma, opt.delta);
   const int nb = grid.block_count();
   // Level 0: mean over the crossed incident edges.
   const float gterm_f = static_cast<float>(gterm);
@@ -595,9 +590,9 @@ void active_detail::Engine::extend_speed(const RunControl& control) {
     float* s = grid.data(b, kChanSpeed);
     std::fill_n(s, kBlockNodes, kNaN);
     for (const std::uint16_t i : active[b]) {
-      const int x = i & 7, y = (i >> 3) & 7, z = i >> 6;
+      const int x = local_x(i), y = local_y(i), z = local_z(i);
       const int lc[3] = {x, y, z};
-      const int st[3] = {1, 8, 64};
+      const int st[3] = {1, kBlockSize, sparse::kBlockRows};
       double sum = 0.0;
       int n = 0;
       for (int a = 0; a < 3; ++a) {
@@ -614,7 +609,7 @@ void active_detail::Engine::extend_speed(const RunControl& control) {
         if (lc[a] == 0) {
           const int off[3] = {a == 0 ? -1 : 0, a == 1 ? -1 : 0, a == 2 ? -1 : 0};
           owner = grid.neighbor(b, neighbor_slot(off[0], off[1], off[2]));
-          j = i + 7 * st[a];
+          j = i + kBlockMask * st[a];
         }
         if (owner >= 0 && !edge_speed[owner].empty()) {
           const float e = edge_speed[owner][j * 3 + a];
@@ -630,7 +625,7 @@ void active_detail::Engine::extend_speed(const RunControl& control) {
   // Outer layers: mean of assigned 6-neighbours, one layer per pass (Jacobi).
   // Active nodes lie within about ramp + 2 nodes of the surface, which along a diagonal is up to sqrt(3) times as
   // many 6-neighbour hops; the passes stop early once nothing changes.
-  const int layers = static_cast<int>(std::ceil((ramp + 2.0) * std::sqrt(3.0))) + 1;
+  const int layers = static_cast<int>(std::ceil((frame.band_width() + 2.0) * std::sqrt(3.0))) + 1;
   const float nan_fill = kNaN;
   for (int layer = 0; layer < layers; ++layer) {
     control.check();
@@ -648,7 +643,7 @@ void active_detail::Engine::extend_speed(const RunControl& control) {
       grid.gather<G>(b, kChanSpeed, ap, &nan_fill);
       for (const std::uint16_t i : active[b]) {
         if (!std::isnan(s[i])) continue;
-        const float* p = ap + apron_at<G>(i & 7, (i >> 3) & 7, i >> 6);
+        const float* p = ap + apron_at<G>(local_x(i), local_y(i), local_z(i));
         const float nbv[6] = {p[1], p[-1], p[S], p[-S], p[S * S], p[-S * S]};
         double sum = 0.0;
         int n = 0;
@@ -680,12 +675,12 @@ void active_detail::Engine::extend_speed(const RunControl& control) {
     const sparse::BlockCoord& c = grid.coord(b);
     for (const std::uint16_t i : active[b]) {
       if (!std::isnan(s[i])) continue;
-      const int x = i & 7, y = (i >> 3) & 7, z = i >> 6;
+      const int x = local_x(i), y = local_y(i), z = local_z(i);
       double v = gterm;
-      if (target && opt.alpha > 0.0) v += -opt.alpha * target->value(node_position(c, x, y, z));
+      if (target && opt.alpha > 0.0) v += -opt.alpha * target->value(frame.node_position(c, x, y, z));
       if (opt.beta > 0.0) {
-        const double kmax = opt.max_curvature * inv_h;
-        const double k = active_detail::curvature(ap + apron_at<G>(x, y, z), 1, S, S * S, inv_h);
+        const double kmax = opt.max_curvature * frame.inv_spacing();
+        const double k = active_detail::curvature(ap + apron_at<G>(x, y, z), 1, S, S * S, frame.inv_spacing());
         v -= opt.beta * std::clamp(k, -kmax, kmax);
       }
       s[i] = static_cast<float>(v);
@@ -695,7 +690,7 @@ void active_detail::Engine::extend_speed(const RunControl& control) {
 
 void active_detail::Engine::stage_rate(int b, int in_ch, double t_stage, float* rate, double* max_speed) {
   const bool advect = advecting();
-  const float inv_h_f = static_cast<float>(inv_h);
+  const float inv_h_f = static_cast<float>(frame.inv_spacing());
   constexpr std::size_t kApron = active_detail::kApronSide;
   float* ap = scratch(1, kApron * kApron * kApron);
   grid.gather<3>(b, in_ch, ap);
@@ -710,7 +705,7 @@ void active_detail::Engine::stage_rate(int b, int in_ch, double t_stage, float* 
                          grid.data(b, velocity_cache + 2)};
       for (const std::uint16_t i : active[b]) {
         if (std::isnan(cache[0][i])) {
-          const Vec3 v = separable.spatial(node_position(c, i & 7, (i >> 3) & 7, i >> 6));
+          const Vec3 v = separable.spatial(frame.node_position(c, local_x(i), local_y(i), local_z(i)));
           for (int a = 0; a < 3; ++a) cache[a][i] = static_cast<float>(v[a]);
         }
         const Vec3 v = scale * Vec3(cache[0][i], cache[1][i], cache[2][i]);
@@ -719,7 +714,7 @@ void active_detail::Engine::stage_rate(int b, int in_ch, double t_stage, float* 
       }
     } else {
       for (const std::uint16_t i : active[b]) {
-        const Vec3 v = velocity(node_position(c, i & 7, (i >> 3) & 7, i >> 6), t_stage);
+        const Vec3 v = velocity(frame.node_position(c, local_x(i), local_y(i), local_z(i)), t_stage);
         u[i] = static_cast<float>(v.x());
         u[kBlockNodes + i] = static_cast<float>(v.y());
         u[2 * kBlockNodes + i] = static_cast<float>(v.z());
@@ -763,22 +758,17 @@ double active_detail::Engine::stable_dt(double vmax) const {
   const bool advect = advecting();
   const double cfl = opt.cfl ? *opt.cfl : 1.0;
   double dt_stable = kInf;
-  if (vmax > 0.0) dt_stable = cfl * h / vmax;
+  if (vmax > 0.0) dt_stable = cfl * frame.spacing() / vmax;
   if (!advect || advect_controls()) {
-    if (opt.beta > 0.0) dt_stable = std::min(dt_stable, cfl * h * h / (6.0 * opt.beta));
+    if (opt.beta > 0.0) dt_stable = std::min(dt_stable, cfl * frame.spacing() * frame.spacing() / (6.0 * opt.beta));
     // The controllers are stiff too: tracking relaxes the distance to the target at the rate alpha |grad g|, volume
     // control the volume at delta A / V0, area control the area at about gamma mean|kappa| A / A0; an explicit
-    // step must stay below the inverse rates. (last_measures is the sub-step's own: extend_speed measured it.)
-    const ActiveMeasures& m = last_measures;
+    // step must stay below the inverse rates. (measures.last() is the sub-step's own: extend_speed measured it.)
+    const ActiveMeasures& m = measures.last();
     if (target && opt.alpha > 0.0 && m.max_target_gradient > 0.0) {
       dt_stable = std::min(dt_stable, cfl / (opt.alpha * m.max_target_gradient));
     }
-    if (opt.delta > 0.0 && volume0 > 0.0 && m.area > 0.0) {
-      dt_stable = std::min(dt_stable, cfl * volume0 / (opt.delta * m.area));
-    }
-    if (opt.gamma > 0.0 && area0 > 0.0 && m.area > 0.0 && m.mean_abs_curvature > 0.0) {
-      dt_stable = std::min(dt_stable, cfl * area0 / (opt.gamma * m.mean_abs_curvature * m.area));
-    }
+    dt_stable = std::min(dt_stable, measures.stable_dt(opt.gamma, opt.delta, cfl));
   }
   // A time-dependent velocity may grow within the step: at most double the previous step, and the stages below
   // reject the step when the velocity they see breaks the CFL bound.
@@ -788,7 +778,7 @@ double active_detail::Engine::stable_dt(double vmax) const {
 
 // TVD-RK3 from the stage-1 rates (kChanA, or advect_rate_channel() when advecting), into kChanA: Shu-Osher's three
 // stages, the result clamped to [-1, 1] and cut by the domain wall. An advecting step whose stage-2 speed breaks the
-// CFL bound is retried shorter (at most 8 times). Returns the dt taken.
+// CFL bound is retried shorter (at most kMaxCflRetries times). Returns the dt taken.
 double active_detail::Engine::runge_kutta(double dt, const RunControl& control) {
   const bool advect = advecting();
   const int nb = grid.block_count();
@@ -827,8 +817,9 @@ double active_detail::Engine::runge_kutta(double dt, const RunControl& control) 
     if (advect) {
       // No block left (the surface vanished under the grid's resolution): no speed at all.
       const double v2 = nb == 0 ? 0.0 : *std::max_element(block_max_speed.begin(), block_max_speed.end());
-      if (v2 * dt > h && attempt < 8) {  // beyond the CFL limit of 1 at t + dt: retry with the larger speed
-        dt = std::min(dt, cfl * h / v2);
+      if (v2 * dt > frame.spacing() &&
+          attempt < kMaxCflRetries) {  // beyond the CFL limit of 1 at t + dt: retry with the larger speed
+        dt = std::min(dt, cfl * frame.spacing() / v2);
         continue;
       }
     }
@@ -846,7 +837,7 @@ double active_detail::Engine::runge_kutta(double dt, const RunControl& control) 
       for (const std::uint16_t i : active[b]) {
         float v = f[i] * (1.0f / 3.0f) + (2.0f / 3.0f) * (in[i] + dt_f * rate[i]);
         v = std::clamp(v, -1.0f, 1.0f);
-        if (has_domain) v = std::min(v, wall_potential(c, i & 7, (i >> 3) & 7, i >> 6));
+        if (frame.has_domain()) v = std::min(v, frame.wall_potential(c, local_x(i), local_y(i), local_z(i)));
         out[i] = v;
       }
     });
@@ -895,7 +886,7 @@ double active_detail::Engine::step(double dt_limit, const RunControl& control) {
   last_max_speed = vmax;
   last_max_dfdt = rmax;
   double dt = std::min(dt_limit, stable_dt(vmax));
-  if (!std::isfinite(dt)) dt = cfl * h;  // nothing moves: any step leaves f unchanged
+  if (!std::isfinite(dt)) dt = cfl * frame.spacing();  // nothing moves: any step leaves f unchanged
 
   dt = runge_kutta(dt, control);
   last_dt = dt;
@@ -965,8 +956,7 @@ void ActiveSurface::set_reference_measures(double area, double volume) {
   if (!(volume > 0.0) || !std::isfinite(volume)) {
     throw InvalidInput("volume", "reference volume must be finite and > 0");
   }
-  impl_->area0 = area;
-  impl_->volume0 = volume;
+  impl_->measures.set_reference(area, volume);
 }
 
 double ActiveSurface::time() const { return impl_->time; }

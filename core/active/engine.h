@@ -1,6 +1,8 @@
 // The engine behind ActiveSurface (core/active/active_surface.h): its working state and steps. Internal to core/active:
 // shared by active_surface.cpp (topology, reinitialization, stepping), surface_mesh.cpp (polygonization and
-// measures) and state.cpp (checkpoints); ActiveSurface holds one privately.
+// measures) and state.cpp (checkpoints); ActiveSurface holds one privately. Its parts with state of their own:
+// GridFrame (where the grid lies, the domain wall), Motion (target and velocity), MeasureControl (area and volume
+// control).
 #pragma once
 
 #include <algorithm>
@@ -10,6 +12,8 @@
 #include <vector>
 
 #include "core/active/active_surface.h"
+#include "core/active/grid_frame.h"
+#include "core/active/measure_control.h"
 #include "core/active/sparse_grid.h"
 
 namespace surfacer {
@@ -23,25 +27,12 @@ enum ActiveChannel : int {
   kChanCount = 4,
 };
 
-struct ActiveMeasures {
-  double area = 0.0;
-  double volume = 0.0;
-  std::int64_t crossings = 0;  // crossed grid edges (surface sample points)
-  // Filled when sampling speeds: max |grad g| of the target at the sample points, and the mean |kappa| there.
-  double max_target_gradient = 0.0;
-  double mean_abs_curvature = 0.0;
-};
-
 namespace active_detail {
 
 struct Engine {
   ActiveSurfaceOptions opt;
   int threads = 1;
-  double h = 0.0, inv_h = 0.0;
-  double ramp = 3.0;  // band_width: f = clamp(-d / (ramp h))
-  Vec3 origin = Vec3::Zero();
-  bool has_domain = false;
-  std::int64_t dom_hi[3] = {0, 0, 0};  // last node index inside the domain per axis (the first is 0)
+  GridFrame frame;  // spacing, origin, ramp, domain and wall (set by configure())
 
   sparse::SparseBlockGrid grid{kChanCount};
   std::vector<std::vector<std::uint16_t>> active;  // per block: local indices of active nodes, ascending
@@ -64,16 +55,14 @@ struct Engine {
   // Where an advecting step keeps its stage-1 rate (a rejected step restarts from it).
   int advect_rate_channel() const { return advect_controls() ? advect_rate : static_cast<int>(kChanSpeed); }
   double time = 0.0;
-  double area0 = 0.0, volume0 = 0.0;
+  MeasureControl measures;  // A0, V0 and the last measures (area and volume control)
   int steps_since_reinit = 0;
-  bool reinit_due = false;
 
   // Last sub-step.
   double last_dt = 0.0;
   std::int64_t last_node_steps = 0;  // active nodes updated
   double last_max_dfdt = 0.0;
   double last_max_speed = 0.0;
-  ActiveMeasures last_measures;
 
   // Restored from a checkpoint and not stepped since: set_velocity() then keeps last_dt (the saved run's velocity
   // is assumed), so the next step is bounded as in the uninterrupted run.
@@ -82,8 +71,6 @@ struct Engine {
   // --- engine (active_surface.cpp) ---
   // Validates opt and derives the grid geometry (h, ramp, origin, domain) from it.
   void configure();
-  // Blocks beyond the domain's last node holding the wall's outer ramp.
-  int wall_blocks() const { return static_cast<int>(std::ceil((ramp + 1.0) / 8.0)); }
   // The blocks [lo, hi] per axis that cover `region`, with one block of margin, clipped to the domain's wall blocks;
   // throws ResourceLimit("h") when they leave the grid's block coordinates.
   void covering_blocks(const Aabb& region, std::int64_t lo[3], std::int64_t hi[3]) const;
@@ -124,49 +111,15 @@ struct Engine {
   int max_block_x = 0;  // largest block x coordinate (updated with the topology)
 
   // --- helpers ---
-  Vec3 node_position(const sparse::BlockCoord& b, int x, int y, int z) const {
-    return origin + h * Vec3(8.0 * b[0] + x, 8.0 * b[1] + y, 8.0 * b[2] + z);
-  }
-  bool node_in_domain(const sparse::BlockCoord& b, int x, int y, int z) const {
-    if (!has_domain) return true;
-    const std::int64_t g[3] = {8LL * b[0] + x, 8LL * b[1] + y, 8LL * b[2] + z};
-    for (int a = 0; a < 3; ++a) {
-      if (g[a] < 0 || g[a] > dom_hi[a]) return false;
-    }
-    return true;
-  }
-  // The domain wall as a potential: clamp(-d_wall / (ramp h)) with d_wall the signed distance (grid units) to the box
-  // of nodes inside the domain grown by half a cell; +1 without a domain. The potential is min(f, wall) everywhere,
-  // so the solid is cut off at the box with a regular ramp (not a jump, which reinitialization would erode).
-  float wall_potential(const sparse::BlockCoord& b, int x, int y, int z) const {
-    if (!has_domain) return 1.0f;
-    const std::int64_t g[3] = {8LL * b[0] + x, 8LL * b[1] + y, 8LL * b[2] + z};
-    double out2 = 0.0, inside = -1e300;
-    for (int a = 0; a < 3; ++a) {
-      const double q = std::max(-0.5 - static_cast<double>(g[a]), static_cast<double>(g[a] - dom_hi[a]) - 0.5);
-      if (q > 0.0) out2 += q * q;
-      inside = std::max(inside, q);
-    }
-    const double d = out2 > 0.0 ? std::sqrt(out2) : inside;
-    return static_cast<float>(std::clamp(-d / ramp, -1.0, 1.0));
-  }
-  // Whether block b holds nodes whose wall potential is below 1.
-  bool near_wall(const sparse::BlockCoord& b) const {
-    if (!has_domain) return false;
-    const double reach = ramp + 1.0;
-    for (int a = 0; a < 3; ++a) {
-      if (8.0 * b[a] - reach < 0.0 || 8.0 * b[a] + 7.0 + reach > static_cast<double>(dom_hi[a])) return true;
-    }
-    return false;
-  }
+  // f = min(f, wall potential) over block `block`'s channel (GridFrame::wall_potential).
   void apply_wall(int block, int channel) {
     const sparse::BlockCoord& c = grid.coord(block);
-    if (!near_wall(c)) return;
+    if (!frame.near_wall(c)) return;
     float* f = grid.data(block, channel);
-    for (int z = 0; z < 8; ++z)
-      for (int y = 0; y < 8; ++y)
-        for (int x = 0; x < 8; ++x)
-          f[sparse::local_index(x, y, z)] = std::min(f[sparse::local_index(x, y, z)], wall_potential(c, x, y, z));
+    for (int z = 0; z < sparse::kBlockSize; ++z)
+      for (int y = 0; y < sparse::kBlockSize; ++y)
+        for (int x = 0; x < sparse::kBlockSize; ++x)
+          f[sparse::local_index(x, y, z)] = std::min(f[sparse::local_index(x, y, z)], frame.wall_potential(c, x, y, z));
   }
 
   // Whether block `b` has a band block among the offsets {0, 1}^3 (it then may own crossed cubes).

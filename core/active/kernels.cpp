@@ -61,6 +61,8 @@ SURFACER_ALWAYS_INLINE void weno_row(const float* f, std::ptrdiff_t st, v8f& dm,
 }
 
 constexpr std::ptrdiff_t kS = kApronSide;
+constexpr std::ptrdiff_t kRow = sparse::kBlockSize;  // a row of a block along x: one v8f
+static_assert(sizeof(v8f) == kRow * sizeof(float), "a block row is one 8-float vector");
 
 const float* row_start(const float* ap, std::ptrdiff_t y, std::ptrdiff_t z) {
   return ap + 3 + kS * ((y + 3) + kS * (z + 3));
@@ -71,9 +73,9 @@ const float* row_start(const float* ap, std::ptrdiff_t y, std::ptrdiff_t z) {
 SURFACER_KERNEL_CLONES void normal_rate_block(const float* ap, const float* speed, float inv_h, float* rate) {
   const std::ptrdiff_t strides[3] = {1, kS, kS * kS};
   const v8f zero = {0, 0, 0, 0, 0, 0, 0, 0}, one = {1, 1, 1, 1, 1, 1, 1, 1};
-  for (std::ptrdiff_t r = 0; r < 64; ++r) {
-    const float* row = row_start(ap, r & 7, r >> 3);
-    const v8f s = SURFACER_LOAD8(speed + 8 * r);
+  for (std::ptrdiff_t r = 0; r < sparse::kBlockRows; ++r) {
+    const float* row = row_start(ap, r & sparse::kBlockMask, r >> sparse::kBlockLog2);
+    const v8f s = SURFACER_LOAD8(speed + kRow * r);
     const v8f sigma = s > 0.0f ? one : -one;
     v8f g2 = zero;
     for (const std::ptrdiff_t st : strides) {
@@ -84,11 +86,11 @@ SURFACER_KERNEL_CLONES void normal_rate_block(const float* ap, const float* spee
       const v8f a2 = a * a, b2 = b * b;
       g2 += a2 > b2 ? a2 : b2;
     }
-    float tmp[8];
+    float tmp[kRow];
     SURFACER_STORE8(tmp, g2);
-    for (int k = 0; k < 8; ++k) tmp[k] = std::sqrt(tmp[k]);
+    for (int k = 0; k < kRow; ++k) tmp[k] = std::sqrt(tmp[k]);
     const v8f g = SURFACER_LOAD8(tmp);
-    SURFACER_STORE8(rate + 8 * r, s * g * inv_h);
+    SURFACER_STORE8(rate + kRow * r, s * g * inv_h);
   }
 }
 
@@ -96,16 +98,16 @@ SURFACER_KERNEL_CLONES void advect_rate_block(const float* ap, const float* ux, 
                                               float inv_h, float* rate) {
   const std::ptrdiff_t strides[3] = {1, kS, kS * kS};
   const float* u[3] = {ux, uy, uz};
-  for (std::ptrdiff_t r = 0; r < 64; ++r) {
-    const float* row = row_start(ap, r & 7, r >> 3);
+  for (std::ptrdiff_t r = 0; r < sparse::kBlockRows; ++r) {
+    const float* row = row_start(ap, r & sparse::kBlockMask, r >> sparse::kBlockLog2);
     v8f acc = {0, 0, 0, 0, 0, 0, 0, 0};
     for (int a = 0; a < 3; ++a) {
       v8f dm, dp;
       weno_row(row, strides[a], dm, dp);
-      const v8f ua = SURFACER_LOAD8(u[a] + 8 * r);
+      const v8f ua = SURFACER_LOAD8(u[a] + kRow * r);
       acc -= ua * (ua > 0.0f ? dm : dp);
     }
-    SURFACER_STORE8(rate + 8 * r, acc * inv_h);
+    SURFACER_STORE8(rate + kRow * r, acc * inv_h);
   }
 }
 

@@ -28,7 +28,11 @@ ActiveFrame make_frame(const ActiveSurface& surface, const ActiveFrameStats& sta
 enum class Mode : std::uint8_t { kCoat = 1, kMorph = 2, kAdvect = 3 };
 constexpr char kModeMagic[4] = {'S', 'A', 'M', 'D'};
 constexpr std::uint32_t kModeVersion = 1;
-constexpr std::size_t kModeHeader = sizeof(kModeMagic) + sizeof(std::uint32_t) + 1 + sizeof(std::int32_t);
+// Byte offsets of the header's fields.
+constexpr std::size_t kModeVersionAt = sizeof(kModeMagic);
+constexpr std::size_t kModeAt = kModeVersionAt + sizeof(std::uint32_t);
+constexpr std::size_t kModeNextFrameAt = kModeAt + sizeof(Mode);
+constexpr std::size_t kModeHeader = kModeNextFrameAt + sizeof(std::int32_t);
 
 void validate_checkpoints(const ActiveCheckpoints& c) {
   if (c.every < 1) {
@@ -41,10 +45,10 @@ void checkpoint(const ActiveCheckpoints& c, Mode mode, int next_frame, const Act
   if (!c.save || next_frame % c.every != 0) return;
   std::string state(kModeHeader, '\0');
   std::memcpy(state.data(), kModeMagic, sizeof(kModeMagic));
-  std::memcpy(state.data() + 4, &kModeVersion, sizeof(kModeVersion));
-  state[8] = static_cast<char>(mode);
+  std::memcpy(state.data() + kModeVersionAt, &kModeVersion, sizeof(kModeVersion));
+  state[kModeAt] = static_cast<char>(mode);
   const std::int32_t next = next_frame;
-  std::memcpy(state.data() + 9, &next, sizeof(next));
+  std::memcpy(state.data() + kModeNextFrameAt, &next, sizeof(next));
   state += surface.save_state();
   c.save(next_frame, std::move(state));
 }
@@ -65,11 +69,11 @@ Resumed resume(const ActiveCheckpoints& c, Mode mode, int last_frame, const Acti
     bad("not an active-surface mode checkpoint");
   }
   std::uint32_t version;
-  std::memcpy(&version, state.data() + 4, sizeof(version));
+  std::memcpy(&version, state.data() + kModeVersionAt, sizeof(version));
   if (version != kModeVersion) bad("version " + std::to_string(version));
-  if (static_cast<Mode>(state[8]) != mode) bad("saved by another mode");
+  if (static_cast<Mode>(state[kModeAt]) != mode) bad("saved by another mode");
   std::int32_t next;
-  std::memcpy(&next, state.data() + 9, sizeof(next));
+  std::memcpy(&next, state.data() + kModeNextFrameAt, sizeof(next));
   if (next < 1 || next > last_frame) {
     bad("next frame " + std::to_string(next) + " is outside 1.." + std::to_string(last_frame));
   }
@@ -131,7 +135,7 @@ Vec3 VelocityGrid::operator()(const Vec3& p) const {
     t[a] = u - i0[a];
   }
   Vec3 r = Vec3::Zero();
-  for (int k = 0; k < 8; ++k) {
+  for (int k = 0; k < 8; ++k) {  // the cell's 2^3 corners
     double w = 1.0;
     std::size_t idx = 0;
     for (int a = 2; a >= 0; --a) {

@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "core/active/sparse_grid.h"
+
 #if defined(__GNUC__)
 #define SURFACER_ALWAYS_INLINE inline __attribute__((always_inline))
 #else
@@ -30,7 +32,7 @@ inline double curvature(const float* f, int sx, int sy, int sz, double inv_h) {
   return -num / (g2 * std::sqrt(g2)) * inv_h;
 }
 
-inline constexpr int kApronSide = 14;  // 8 + 2 * 3: a block with the 3-node WENO apron
+inline constexpr int kApronSide = sparse::apron_side<3>();  // a block with the 3-node WENO apron
 
 // Band bits over a dense apron of side S (G >= 1 ghost nodes): band[i] = |f| < 1 or a 6-neighbour has the other
 // sign, for the (S - 2)^3 interior positions (index (x + 1) + (S - 2) ((y + 1) + (S - 2) (z + 1)) for apron-interior
@@ -56,9 +58,9 @@ inline void band_bits(const float* __restrict ap, unsigned char* __restrict band
 }
 
 // --- Dense block kernels (core/active/kernels.cpp) ---------------------------------------------------------
-// They run over all 512 nodes of a block (x fastest) from its 3-node apron (side kApronSide); callers keep the
-// results of active nodes. Derivatives are one-sided HJ-WENO5 (Jiang & Peng 2000) with WENO-Z weights (Borges et al.
-// 2008), taken on grid-unit differences (values O(1), so WENO's epsilon 1e-6 stays meaningful in float).
+// They run over all sparse::kBlockNodes nodes of a block (x fastest) from its 3-node apron (side kApronSide); callers
+// keep the results of active nodes. Derivatives are one-sided HJ-WENO5 (Jiang & Peng 2000) with WENO-Z weights (Borges
+// et al. 2008), taken on grid-unit differences (values O(1), so WENO's epsilon 1e-6 stays meaningful in float).
 
 // Normal speed: rate = s |grad f| (units of f per time) with Godunov's Hamiltonian for phi_t + s |grad phi| = 0,
 // phi = -f: with sigma = sign(s), per axis max(min(sigma D-f, 0)^2, max(sigma D+f, 0)^2).

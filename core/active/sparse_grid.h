@@ -21,13 +21,24 @@
 
 namespace surfacer::sparse {
 
-inline constexpr int kBlockSize = 8;
-inline constexpr int kBlockNodes = 512;
+inline constexpr int kBlockLog2 = 3;
+inline constexpr int kBlockSize = 1 << kBlockLog2;          // nodes along each edge of a block
+inline constexpr int kBlockMask = kBlockSize - 1;           // g & kBlockMask: a node's local coordinate in its block
+inline constexpr int kBlockRows = kBlockSize * kBlockSize;  // rows of kBlockSize nodes along x
+inline constexpr int kBlockNodes = kBlockRows * kBlockSize;
 inline constexpr int kCoordLimit = 1 << 20;  // block coordinates lie in [-kCoordLimit, kCoordLimit)
 
 using BlockCoord = std::array<int, 3>;
 
 inline constexpr int local_index(int x, int y, int z) { return x + kBlockSize * (y + kBlockSize * z); }
+// The local x, y, z of local_index i.
+inline constexpr int local_x(int i) { return i & kBlockMask; }
+inline constexpr int local_y(int i) { return (i >> kBlockLog2) & kBlockMask; }
+inline constexpr int local_z(int i) { return i >> (2 * kBlockLog2); }
+// The block holding global node coordinate g (floor division by kBlockSize).
+inline constexpr int block_of(std::int64_t g) {
+  return static_cast<int>(g >= 0 ? g / kBlockSize : -((-g + kBlockMask) / kBlockSize));
+}
 
 inline std::uint64_t pack_coord(int x, int y, int z) {
   const auto u = [](int v) { return static_cast<std::uint64_t>(v + kCoordLimit) & 0x1fffffu; };
@@ -37,11 +48,11 @@ inline std::uint64_t pack_coord(int x, int y, int z) {
 // Index of the neighbour offset (dx, dy, dz) in {-1, 0, 1}^3 within a 27-entry table; 13 is the block itself.
 inline constexpr int neighbor_slot(int dx, int dy, int dz) { return (dx + 1) + 3 * (dy + 1) + 9 * (dz + 1); }
 
-// The side S = 8 + 2G of an apron gathered with G ghost nodes (SparseBlockGrid::gather), and the index in it of a
-// block's local node (x, y, z) (x, y, z in [-G, 8 + G)).
+// The side S = kBlockSize + 2G of an apron gathered with G ghost nodes (SparseBlockGrid::gather), and the index in it
+// of a block's local node (x, y, z) (x, y, z in [-G, kBlockSize + G)).
 template <int G>
 constexpr int apron_side() {
-  return 8 + 2 * G;
+  return kBlockSize + 2 * G;
 }
 template <int G>
 constexpr int apron_at(int x, int y, int z) {
@@ -106,7 +117,8 @@ void SparseBlockGrid::gather(int block, int channel, float* out, const float* mi
   static_assert(G >= 1 && G <= kBlockSize);
   constexpr int S = kBlockSize + 2 * G;
   const float* self = data(block, channel);
-  // Per axis the apron splits into three ranges: [-G, 0) from the -1 neighbour, [0, 8) own, [8, 8 + G) from +1.
+  // Per axis the apron splits into three ranges: [-G, 0) from the -1 neighbour, [0, kBlockSize) own, [kBlockSize,
+  // kBlockSize + G) from +1.
   constexpr int lo[3] = {-G, 0, kBlockSize};
   constexpr int len[3] = {G, kBlockSize, G};
   for (int dz = -1; dz <= 1; ++dz) {
@@ -120,15 +132,17 @@ void SparseBlockGrid::gather(int block, int channel, float* out, const float* mi
             const int x0 = lo[dx + 1], x1 = x0 + len[dx + 1];
             if (src != nullptr) {
               // Local coordinates inside the neighbour: wrap by the block size.
-              const float* srow = src + local_index((x0 + kBlockSize) & 7, (y + kBlockSize) & 7, (z + kBlockSize) & 7);
+              const float* srow = src + local_index((x0 + kBlockSize) & kBlockMask, (y + kBlockSize) & kBlockMask,
+                                                    (z + kBlockSize) & kBlockMask);
               for (int k = 0; k < x1 - x0; ++k) row[x0 + k] = srow[k];
             } else if (missing != nullptr) {
               for (int x = x0; x < x1; ++x) row[x] = *missing;
             } else {
-              const int cy = y < 0 ? 0 : (y > 7 ? 7 : y), cz = z < 0 ? 0 : (z > 7 ? 7 : z);
+              const int cy = y < 0 ? 0 : (y > kBlockMask ? kBlockMask : y),
+                        cz = z < 0 ? 0 : (z > kBlockMask ? kBlockMask : z);
               const float* own = self + local_index(0, cy, cz);
               for (int x = x0; x < x1; ++x) {
-                const int cx = x < 0 ? 0 : (x > 7 ? 7 : x);
+                const int cx = x < 0 ? 0 : (x > kBlockMask ? kBlockMask : x);
                 row[x] = own[cx] > 0.0f ? 1.0f : -1.0f;
               }
             }

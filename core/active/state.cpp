@@ -9,6 +9,7 @@
 //   other nodes' f as f32 in node order (most of a block outside the ramp is saturated, so this is about half the
 //   raw 2 KB per block on the test shapes)
 //   u64 FNV-1a of everything before it
+#include <climits>
 #include <cmath>
 #include <cstring>
 #include <string>
@@ -26,7 +27,7 @@ namespace {
 
 constexpr char kMagic[4] = {'S', 'A', 'C', 'T'};
 constexpr std::uint32_t kVersion = 1;
-constexpr int kMaskBytes = sparse::kBlockNodes / 8;
+constexpr int kMaskBytes = sparse::kBlockNodes / CHAR_BIT;
 
 [[noreturn]] void bad_state(const std::string& why) {
   throw InvalidInput("state", "active surface checkpoint is not valid (" + why + "); start the run over");
@@ -41,15 +42,18 @@ std::string ActiveSurface::save_state() const {
   const int nb = m.grid.block_count();
   state_blob::Writer w(kMagic, kVersion);
   w.out.reserve(256 + static_cast<std::size_t>(nb) * (12 + 2 * kMaskBytes + 1024));
-  w.put(m.h);
-  w.put(m.ramp);
-  w.put<std::uint8_t>(m.has_domain ? 1 : 0);
-  for (int a = 0; a < 3; ++a) w.put(m.origin[a]);
-  for (int a = 0; a < 3; ++a) w.put(m.dom_hi[a]);
-  for (const double v : {m.time, m.area0, m.volume0, m.last_dt, m.last_max_dfdt, m.last_max_speed}) w.put(v);
+  w.put(m.frame.spacing());
+  w.put(m.frame.band_width());
+  w.put<std::uint8_t>(m.frame.has_domain() ? 1 : 0);
+  for (int a = 0; a < 3; ++a) w.put(m.frame.origin()[a]);
+  for (int a = 0; a < 3; ++a) w.put(m.frame.last_node(a));
+  for (const double v : {m.time, m.measures.reference_area(), m.measures.reference_volume(), m.last_dt, m.last_max_dfdt,
+                         m.last_max_speed}) {
+    w.put(v);
+  }
   w.put<std::int32_t>(m.steps_since_reinit);
   w.put(m.last_node_steps);
-  const ActiveMeasures& lm = m.last_measures;
+  const ActiveMeasures& lm = m.measures.last();
   for (const double v : {lm.area, lm.volume, lm.max_target_gradient, lm.mean_abs_curvature}) w.put(v);
   w.put(lm.crossings);
   w.put<std::uint64_t>(static_cast<std::uint64_t>(nb));
@@ -89,20 +93,26 @@ ActiveSurface ActiveSurface::from_state(std::string_view state, const ActiveSurf
   for (int a = 0; a < 3; ++a) origin[a] = r.get<double>();
   std::int64_t dom_hi[3];
   for (auto& d : dom_hi) d = r.get<std::int64_t>();
-  if (h != m.h || ramp != m.ramp || has_domain != m.has_domain || origin != m.origin ||
-      (has_domain && (dom_hi[0] != m.dom_hi[0] || dom_hi[1] != m.dom_hi[1] || dom_hi[2] != m.dom_hi[2]))) {
+  const active_detail::GridFrame& frame = m.frame;
+  if (h != frame.spacing() || ramp != frame.band_width() || has_domain != frame.has_domain() ||
+      origin != frame.origin() ||
+      (has_domain &&
+       (dom_hi[0] != frame.last_node(0) || dom_hi[1] != frame.last_node(1) || dom_hi[2] != frame.last_node(2)))) {
     bad_state("saved with another grid (h, band_width or domain differ from the options)");
   }
-  for (double* v : {&m.time, &m.area0, &m.volume0, &m.last_dt, &m.last_max_dfdt, &m.last_max_speed}) {
+  double area0 = 0.0, volume0 = 0.0;
+  for (double* v : {&m.time, &area0, &volume0, &m.last_dt, &m.last_max_dfdt, &m.last_max_speed}) {
     *v = r.get<double>();
     if (!std::isfinite(*v)) bad_state("a non-finite run figure");
   }
+  m.measures.set_reference(area0, volume0);
   m.steps_since_reinit = r.get<std::int32_t>();
   if (m.steps_since_reinit < 0 || m.last_dt < 0.0) bad_state("run figures out of range");
   m.last_node_steps = r.get<std::int64_t>();
-  ActiveMeasures& lm = m.last_measures;
+  ActiveMeasures lm;
   for (double* v : {&lm.area, &lm.volume, &lm.max_target_gradient, &lm.mean_abs_curvature}) *v = r.get<double>();
   lm.crossings = r.get<std::int64_t>();
+  m.measures.set_last(lm);
 
   const auto nb = r.get<std::uint64_t>();
   if (nb == 0 || nb > r.remaining() / (3 * sizeof(std::int32_t) + 2 * kMaskBytes)) {

@@ -31,11 +31,15 @@ namespace {
 
 using sparse::apron_at;
 using sparse::apron_side;
+using sparse::block_of;
+using sparse::kBlockMask;
 using sparse::kBlockNodes;
+using sparse::kBlockSize;
 using sparse::local_index;
 using sparse::neighbor_slot;
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+constexpr int kCubeCorners = 8;  // corner c of a grid cube at offset (c & 1, (c >> 1) & 1, c >> 2)
 
 float* mesh_scratch(std::size_t size) {
   thread_local std::vector<float> buffer;
@@ -110,10 +114,10 @@ double PotentialField::value_and_gradient(const Vec3& p, Vec3& gradient) const {
 // allocated node along +x (blocks are allocated around the whole band, so that node is saturated with the region's
 // sign); outside when no block follows.
 double active_detail::Engine::missing_sign(std::int64_t gx, std::int64_t gy, std::int64_t gz) const {
-  const auto bdiv = [](std::int64_t v) { return static_cast<int>(v >= 0 ? v / 8 : -((-v + 7) / 8)); };
-  const int by = bdiv(gy), bz = bdiv(gz);
-  const int ly = static_cast<int>(gy - 8LL * by), lz = static_cast<int>(gz - 8LL * bz);
-  for (int bx = bdiv(gx) + 1; bx <= max_block_x; ++bx) {
+  const int by = block_of(gy), bz = block_of(gz);
+  const int ly = static_cast<int>(gy - std::int64_t{kBlockSize} * by),
+            lz = static_cast<int>(gz - std::int64_t{kBlockSize} * bz);
+  for (int bx = block_of(gx) + 1; bx <= max_block_x; ++bx) {
     const int b = grid.find(bx, by, bz);
     if (b >= 0) return grid.data(b, kChanF)[local_index(0, ly, lz)] > 0.0f ? 1.0 : -1.0;
   }
@@ -121,28 +125,27 @@ double active_detail::Engine::missing_sign(std::int64_t gx, std::int64_t gy, std
 }
 
 double active_detail::Engine::trilinear(const Vec3& p, Vec3* gradient) const {
-  const Vec3 u = (p - origin) * inv_h;
+  const Vec3 u = (p - frame.origin()) * frame.inv_spacing();
   if (!u.allFinite()) {
     if (gradient != nullptr) *gradient = Vec3::Zero();
     return -1.0;
   }
   const Vec3 fl = u.array().floor();
-  double c[8];
-  for (int k = 0; k < 8; ++k) {
+  double c[kCubeCorners];
+  for (int k = 0; k < kCubeCorners; ++k) {
     std::int64_t g[3];
     for (int a = 0; a < 3; ++a) g[a] = static_cast<std::int64_t>(fl[a]) + ((k >> a) & 1);
-    const auto bdiv = [](std::int64_t v) { return static_cast<int>(v >= 0 ? v / 8 : -((-v + 7) / 8)); };
-    const int bx = bdiv(g[0]), by = bdiv(g[1]), bz = bdiv(g[2]);
+    const int bx = block_of(g[0]), by = block_of(g[1]), bz = block_of(g[2]);
     const int b = grid.find(bx, by, bz);
-    c[k] = b >= 0
-               ? grid.data(b, kChanF)[local_index(static_cast<int>(g[0] - 8LL * bx), static_cast<int>(g[1] - 8LL * by),
-                                                  static_cast<int>(g[2] - 8LL * bz))]
-               : missing_sign(g[0], g[1], g[2]);
+    c[k] = b >= 0 ? grid.data(
+                        b, kChanF)[local_index(static_cast<int>(g[0] & kBlockMask), static_cast<int>(g[1] & kBlockMask),
+                                               static_cast<int>(g[2] & kBlockMask))]
+                  : missing_sign(g[0], g[1], g[2]);
   }
   const Vec3 t = u - fl;
   double v = 0.0;
   Vec3 grad = Vec3::Zero();
-  for (int k = 0; k < 8; ++k) {
+  for (int k = 0; k < kCubeCorners; ++k) {
     double w = 1.0;
     Vec3 dw = Vec3::Ones();
     for (int a = 0; a < 3; ++a) {
@@ -154,7 +157,7 @@ double active_detail::Engine::trilinear(const Vec3& p, Vec3* gradient) const {
     v += w * c[k];
     grad += dw * c[k];
   }
-  if (gradient != nullptr) *gradient = grad * inv_h;
+  if (gradient != nullptr) *gradient = grad * frame.inv_spacing();
   return v;
 }
 
@@ -174,8 +177,8 @@ ActiveMeasures active_detail::Engine::measure(std::vector<std::vector<float>>* e
     }
   }
   if (nb == 0) return {};
-  const Vec3 ref = node_position(grid.coord(0), 0, 0, 0);
-  const double kmax = opt.max_curvature * inv_h;
+  const Vec3 ref = frame.node_position(grid.coord(0), 0, 0, 0);
+  const double kmax = opt.max_curvature * frame.inv_spacing();
   const bool want_target = target && opt.alpha > 0.0;
   const bool want_kappa = opt.beta > 0.0 || opt.gamma > 0.0;
   std::vector<BlockMeasure> parts(nb);
@@ -189,20 +192,20 @@ ActiveMeasures active_detail::Engine::measure(std::vector<std::vector<float>>* e
     float* ap = mesh_scratch(S * S * S);
     grid.gather<G>(b, kChanF, ap);
     const sparse::BlockCoord& bc = grid.coord(b);
-    const double base[3] = {8.0 * bc[0], 8.0 * bc[1], 8.0 * bc[2]};
+    const double base[3] = {double(kBlockSize) * bc[0], double(kBlockSize) * bc[1], double(kBlockSize) * bc[2]};
     auto vertex = [&](int x, int y, int z, int axis, double v0, double v1) {
       const double t = v0 / (v0 - v1);
       Vec3 q(base[0] + x, base[1] + y, base[2] + z);
       q[axis] += t;
-      return Vec3(origin + h * q);
+      return Vec3(frame.origin() + frame.spacing() * q);
     };
     BlockMeasure& part = parts[b];
     if (sample) {
       std::vector<float>& out = (*edges)[b];
       const std::ptrdiff_t st[3] = {1, S, S * S};
-      for (int z = 0; z < 8; ++z)
-        for (int y = 0; y < 8; ++y)
-          for (int x = 0; x < 8; ++x) {
+      for (int z = 0; z < kBlockSize; ++z)
+        for (int y = 0; y < kBlockSize; ++y)
+          for (int x = 0; x < kBlockSize; ++x) {
             const float* p = ap + apron_at<G>(x, y, z);
             for (int a = 0; a < 3; ++a) {
               const float v0 = p[0], v1 = p[st[a]];
@@ -217,8 +220,10 @@ ActiveMeasures active_detail::Engine::measure(std::vector<std::vector<float>>* e
                 if (std::isfinite(gn)) part.max_grad = std::max(part.max_grad, gn);
               }
               if (want_kappa) {
-                const double k0 = std::clamp(active_detail::curvature(p, 1, S, S * S, inv_h), -kmax, kmax);
-                const double k1 = std::clamp(active_detail::curvature(p + st[a], 1, S, S * S, inv_h), -kmax, kmax);
+                const double k0 =
+                    std::clamp(active_detail::curvature(p, 1, S, S * S, frame.inv_spacing()), -kmax, kmax);
+                const double k1 =
+                    std::clamp(active_detail::curvature(p + st[a], 1, S, S * S, frame.inv_spacing()), -kmax, kmax);
                 const double k = (1.0 - t) * k0 + t * k1;
                 s -= opt.beta * k;
                 part.sum_abs_kappa += std::abs(k);
@@ -228,12 +233,12 @@ ActiveMeasures active_detail::Engine::measure(std::vector<std::vector<float>>* e
           }
     }
     if (cubes) {
-      for (int z = 0; z < 8; ++z)
-        for (int y = 0; y < 8; ++y)
-          for (int x = 0; x < 8; ++x) {
-            float v[8];
+      for (int z = 0; z < kBlockSize; ++z)
+        for (int y = 0; y < kBlockSize; ++y)
+          for (int x = 0; x < kBlockSize; ++x) {
+            float v[kCubeCorners];
             int cs = 0;
-            for (int c = 0; c < 8; ++c) {
+            for (int c = 0; c < kCubeCorners; ++c) {
               v[c] = ap[apron_at<G>(x + (c & 1), y + ((c >> 1) & 1), z + (c >> 2))];
               cs |= (v[c] > 0.0f) << c;
             }
@@ -289,18 +294,18 @@ Mesh active_detail::Engine::cubes_mesh(bool normals, const RunControl& control) 
     std::vector<std::int32_t>& map = ids[b];
     map.assign(std::size_t{3} * kBlockNodes, -1);
     const std::ptrdiff_t st[3] = {1, S, S * S};
-    for (int z = 0; z < 8; ++z)
-      for (int y = 0; y < 8; ++y)
-        for (int x = 0; x < 8; ++x) {
+    for (int z = 0; z < kBlockSize; ++z)
+      for (int y = 0; y < kBlockSize; ++y)
+        for (int x = 0; x < kBlockSize; ++x) {
           const float* p = ap + apron_at<G>(x, y, z);
           for (int a = 0; a < 3; ++a) {
             const float v0 = p[0], v1 = p[st[a]];
             if ((v0 > 0.0f) == (v1 > 0.0f)) continue;
             const double t = double(v0) / (double(v0) - double(v1));
-            Vec3 q(8.0 * bc[0] + x, 8.0 * bc[1] + y, 8.0 * bc[2] + z);
+            Vec3 q(double(kBlockSize) * bc[0] + x, double(kBlockSize) * bc[1] + y, double(kBlockSize) * bc[2] + z);
             q[a] += t;
             map[local_index(x, y, z) * 3 + a] = static_cast<std::int32_t>(verts[b].size());
-            verts[b].push_back(origin + h * q);
+            verts[b].push_back(frame.origin() + frame.spacing() * q);
             if (normals) {
               // -grad f by central differences at both ends, interpolated.
               auto grad = [&](const float* c) { return Vec3(c[1] - c[-1], c[S] - c[-S], c[S * S] - c[-S * S]); };
@@ -332,11 +337,11 @@ Mesh active_detail::Engine::cubes_mesh(bool normals, const RunControl& control) 
     (void)S;
     float* ap = mesh_scratch(std::size_t{apron_side<G>()} * apron_side<G>() * apron_side<G>());
     grid.gather<G>(b, kChanF, ap);
-    for (int z = 0; z < 8; ++z)
-      for (int y = 0; y < 8; ++y)
-        for (int x = 0; x < 8; ++x) {
+    for (int z = 0; z < kBlockSize; ++z)
+      for (int y = 0; y < kBlockSize; ++y)
+        for (int x = 0; x < kBlockSize; ++x) {
           int cs = 0;
-          for (int c = 0; c < 8; ++c) {
+          for (int c = 0; c < kCubeCorners; ++c) {
             cs |= (ap[apron_at<G>(x + (c & 1), y + ((c >> 1) & 1), z + (c >> 2))] > 0.0f) << c;
           }
           if (cs == 0 || cs == 255) continue;
@@ -345,11 +350,12 @@ Mesh active_detail::Engine::cubes_mesh(bool normals, const RunControl& control) 
             for (int j = 0; j < 3; ++j) {
               const CubeEdge ce = cube_edge(mc::kTriangles[cs][3 * k + j]);
               int lx = x + ce.dx, ly = y + ce.dy, lz = z + ce.dz;
-              const int ox = lx >> 3, oy = ly >> 3, oz = lz >> 3;  // 0 or 1
+              const int ox = lx >> sparse::kBlockLog2, oy = ly >> sparse::kBlockLog2,
+                        oz = lz >> sparse::kBlockLog2;  // 0 or 1
               const int owner = grid.neighbor(b, neighbor_slot(ox, oy, oz));
-              lx &= 7;
-              ly &= 7;
-              lz &= 7;
+              lx &= kBlockMask;
+              ly &= kBlockMask;
+              lz &= kBlockMask;
               const std::int32_t local =
                   owner >= 0 && !ids[owner].empty() ? ids[owner][local_index(lx, ly, lz) * 3 + ce.axis] : -1;
               if (local < 0) throw Internal("active surface: a crossed grid edge has no vertex (band bookkeeping)");
@@ -387,15 +393,15 @@ Mesh active_detail::Engine::tiles_mesh(bool normals, const RunControl& control) 
     const std::ptrdiff_t st[3] = {1, S, S * S};
     Vec3 sum = Vec3::Zero();
     int n = 0;
-    for (int z = 0; z < 8; ++z)
-      for (int y = 0; y < 8; ++y)
-        for (int x = 0; x < 8; ++x) {
+    for (int z = 0; z < kBlockSize; ++z)
+      for (int y = 0; y < kBlockSize; ++y)
+        for (int x = 0; x < kBlockSize; ++x) {
           const float* p = ap + apron_at<G>(x, y, z);
           for (int a = 0; a < 3; ++a) {
             if ((p[0] > 0.0f) == (p[st[a]] > 0.0f)) continue;
-            Vec3 q(8.0 * bc[0] + x, 8.0 * bc[1] + y, 8.0 * bc[2] + z);
+            Vec3 q(double(kBlockSize) * bc[0] + x, double(kBlockSize) * bc[1] + y, double(kBlockSize) * bc[2] + z);
             q[a] += double(p[0]) / (double(p[0]) - double(p[st[a]]));
-            sum += origin + h * q;
+            sum += frame.origin() + frame.spacing() * q;
             ++n;
           }
         }
@@ -405,19 +411,19 @@ Mesh active_detail::Engine::tiles_mesh(bool normals, const RunControl& control) 
   Aabb box = Aabb::empty();
   for (int b = 0; b < nb; ++b) {
     const sparse::BlockCoord& bc = grid.coord(b);
-    box.merge(Aabb{node_position(bc, 0, 0, 0), node_position(bc, 8, 8, 8)});
+    box.merge(Aabb{frame.node_position(bc, 0, 0, 0), frame.node_position(bc, kBlockSize, kBlockSize, kBlockSize)});
     if (!std::isnan(block_seed[b][0])) seeds.push_back(block_seed[b]);
   }
   if (seeds.empty()) return {};
   PotentialField field(*this, box);
   MarchingTilesOptions o;
   o.bounds = box;
-  o.spacing = h;
+  o.spacing = frame.spacing();
   o.normals = normals;
   o.threads = opt.threads;
   o.seeds = seeds;
   // Every crossing lies in its band block: within the block's half-diagonal of the seed (plus a lattice cell).
-  o.seed_radius = (4.0 * std::sqrt(3.0) + 2.0) * h;
+  o.seed_radius = (4.0 * std::sqrt(3.0) + 2.0) * frame.spacing();
   return marching_tiles(field, o, control);
 }
 

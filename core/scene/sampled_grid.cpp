@@ -24,11 +24,11 @@ class SampledGrid final : public SceneField {
       : origin_(desc.origin),
         spacing_(desc.spacing),
         inv_spacing_(desc.spacing.cwiseInverse()),
-        n_{desc.nx, desc.ny, desc.nz},
+        dims_{desc.nx, desc.ny, desc.nz},
         sign_(desc.potential ? -1.0 : 1.0),
         iso_(desc.iso),
         values_(values.begin(), values.end()) {
-    for (int i = 0; i < 3; ++i) max_corner_[i] = origin_[i] + spacing_[i] * (n_[i] - 1);
+    for (int i = 0; i < 3; ++i) max_corner_[i] = origin_[i] + spacing_[i] * (dims_[i] - 1);
     compute_slice_minima();
     compute_lipschitz();
   }
@@ -50,13 +50,13 @@ class SampledGrid final : public SceneField {
     double f[3];
     for (int i = 0; i < 3; ++i) {
       const double u = (q[i] - origin_[i]) * inv_spacing_[i];
-      const std::int64_t c = std::clamp<std::int64_t>(static_cast<std::int64_t>(std::floor(u)), 0, n_[i] - 2);
+      const std::int64_t c = std::clamp<std::int64_t>(static_cast<std::int64_t>(std::floor(u)), 0, dims_[i] - 2);
       cell[i] = c;
       // In [0, 1] also when rounding puts u a hair past the last sample: a weight of 1 + 1e-16 on a sample of 1e30
       // would move the value by 1e14.
       f[i] = std::clamp(u - static_cast<double>(c), 0.0, 1.0);
     }
-    const std::int64_t sx = 1, sy = n_[0], sz = std::int64_t{n_[0]} * n_[1];
+    const std::int64_t sx = 1, sy = dims_[0], sz = std::int64_t{dims_[0]} * dims_[1];
     const std::int64_t base = cell[0] + sy * cell[1] + sz * cell[2];
     const double c000 = values_[base], c100 = values_[base + sx];
     const double c010 = values_[base + sy], c110 = values_[base + sx + sy];
@@ -89,11 +89,11 @@ class SampledGrid final : public SceneField {
   // The smallest normalized value in each slice of samples across each axis, and on the grid's boundary.
   void compute_slice_minima() {
     const double inf = std::numeric_limits<double>::infinity();
-    for (int a = 0; a < 3; ++a) slice_min_[a].assign(static_cast<std::size_t>(n_[a]), inf);
+    for (int a = 0; a < 3; ++a) slice_min_[a].assign(static_cast<std::size_t>(dims_[a]), inf);
     std::int64_t index = 0;
-    for (std::int64_t k = 0; k < n_[2]; ++k) {
-      for (std::int64_t j = 0; j < n_[1]; ++j) {
-        for (std::int64_t i = 0; i < n_[0]; ++i, ++index) {
+    for (std::int64_t k = 0; k < dims_[2]; ++k) {
+      for (std::int64_t j = 0; j < dims_[1]; ++j) {
+        for (std::int64_t i = 0; i < dims_[0]; ++i, ++index) {
           const double v = normalized(index);
           const std::int64_t ijk[3] = {i, j, k};
           for (int a = 0; a < 3; ++a) {
@@ -122,23 +122,23 @@ class SampledGrid final : public SceneField {
       const auto last = std::find_if(m.rbegin(), m.rend(), at_or_below);
       const std::int64_t lo = first - m.begin(), hi = (m.rend() - last) - 1;
       box.min[a] = origin_[a] + spacing_[a] * static_cast<double>(std::max<std::int64_t>(lo - 1, 0));
-      box.max[a] = origin_[a] + spacing_[a] * static_cast<double>(std::min<std::int64_t>(hi + 1, n_[a] - 1));
+      box.max[a] = origin_[a] + spacing_[a] * static_cast<double>(std::min<std::int64_t>(hi + 1, dims_[a] - 1));
     }
     return box.padded(std::max(0.0, level - boundary_min_));
   }
   double sublevel_limit() const override { return std::numeric_limits<double>::infinity(); }
 
   void compute_lipschitz() {
-    const std::int64_t stride[3] = {1, n_[0], std::int64_t{n_[0]} * n_[1]};
+    const std::int64_t stride[3] = {1, dims_[0], std::int64_t{dims_[0]} * dims_[1]};
     double sum2 = 1.0;
     for (int a = 0; a < 3; ++a) {
       double worst = 0.0;
       std::int64_t index = 0;
-      for (std::int64_t k = 0; k < n_[2]; ++k) {
-        for (std::int64_t j = 0; j < n_[1]; ++j) {
-          for (std::int64_t i = 0; i < n_[0]; ++i, ++index) {
+      for (std::int64_t k = 0; k < dims_[2]; ++k) {
+        for (std::int64_t j = 0; j < dims_[1]; ++j) {
+          for (std::int64_t i = 0; i < dims_[0]; ++i, ++index) {
             const std::int64_t ijk[3] = {i, j, k};
-            if (ijk[a] + 1 >= n_[a]) continue;
+            if (ijk[a] + 1 >= dims_[a]) continue;
             const double d = static_cast<double>(values_[index + stride[a]]) - static_cast<double>(values_[index]);
             worst = std::max(worst, std::abs(d));
           }
@@ -151,7 +151,7 @@ class SampledGrid final : public SceneField {
   }
 
   Vec3 origin_, spacing_, inv_spacing_, max_corner_;
-  std::int64_t n_[3];
+  std::int64_t dims_[3];
   double sign_;  // +1: signed distance (inside below iso); -1: potential (inside above iso)
   double iso_;
   std::vector<float> values_;

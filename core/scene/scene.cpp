@@ -100,37 +100,40 @@ Aabb disk_box(const Vec3& c, const Vec3& u, double r) {
 class Sphere final : public TemplatedField<Sphere> {
  public:
   std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
-  Sphere(const Vec3& c, double r) : c_(c), r_(r) {}
+  Sphere(const Vec3& c, double r) : center_(c), radius_(r) {}
   template <class T>
   T eval(const V3<T>& p) const {
-    return length(p - c_) - r_;
+    return length(p - center_) - radius_;
   }
   // Exact signed distances: {value <= level} is the solid grown by level.
   std::optional<Aabb> sublevel_bounds(double level) const override {
-    return Aabb{c_.array() - r_, c_.array() + r_}.padded(level);
+    return Aabb{center_.array() - radius_, center_.array() + radius_}.padded(level);
   }
 
  private:
-  Vec3 c_;
-  double r_;
+  Vec3 center_;
+  double radius_;
 };
 
 // Rounded box with outer half extents h and edge radius r (r = 0: sharp box). Quilez, "sdRoundBox".
 class RoundedBox final : public TemplatedField<RoundedBox> {
  public:
   std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
-  RoundedBox(const Vec3& c, const Vec3& h, double r) : c_(c), h_(h), r_(r) {}
+  RoundedBox(const Vec3& c, const Vec3& h, double r) : center_(c), half_size_(h), radius_(r) {}
   template <class T>
   T eval(const V3<T>& p) const {
-    const V3<T> d = p - c_;
-    return box_like(std::array<T, 3>{tabs(d.x) - (h_.x() - r_), tabs(d.y) - (h_.y() - r_), tabs(d.z) - (h_.z() - r_)}) -
-           r_;
+    const V3<T> d = p - center_;
+    return box_like(std::array<T, 3>{tabs(d.x) - (half_size_.x() - radius_), tabs(d.y) - (half_size_.y() - radius_),
+                                     tabs(d.z) - (half_size_.z() - radius_)}) -
+           radius_;
   }
-  std::optional<Aabb> sublevel_bounds(double level) const override { return Aabb{c_ - h_, c_ + h_}.padded(level); }
+  std::optional<Aabb> sublevel_bounds(double level) const override {
+    return Aabb{center_ - half_size_, center_ + half_size_}.padded(level);
+  }
 
  private:
-  Vec3 c_, h_;
-  double r_;
+  Vec3 center_, half_size_;
+  double radius_;
 };
 
 // Capped cylinder: a 2-D box in (radial distance, axial offset from the middle).
@@ -138,21 +141,26 @@ class Cylinder final : public TemplatedField<Cylinder> {
  public:
   std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
   Cylinder(const Vec3& a, const Vec3& b, double r)
-      : a_(a), b_(b), m_((a + b) * 0.5), u_((b - a).normalized()), half_(0.5 * (b - a).norm()), r_(r) {}
+      : end0_(a),
+        end1_(b),
+        middle_((a + b) * 0.5),
+        axis_((b - a).normalized()),
+        half_(0.5 * (b - a).norm()),
+        radius_(r) {}
   template <class T>
   T eval(const V3<T>& p) const {
-    const V3<T> w = p - m_;
-    const T y = dot(w, u_);
-    const T radial = length(w - scaled(u_, y));
-    return box_like(std::array<T, 2>{radial - r_, tabs(y) - half_});
+    const V3<T> w = p - middle_;
+    const T y = dot(w, axis_);
+    const T radial = length(w - scaled(axis_, y));
+    return box_like(std::array<T, 2>{radial - radius_, tabs(y) - half_});
   }
   std::optional<Aabb> sublevel_bounds(double level) const override {
-    return merged(disk_box(a_, u_, r_), disk_box(b_, u_, r_)).padded(level);
+    return merged(disk_box(end0_, axis_, radius_), disk_box(end1_, axis_, radius_)).padded(level);
   }
 
  private:
-  Vec3 a_, b_, m_, u_;
-  double half_, r_;
+  Vec3 end0_, end1_, middle_, axis_;
+  double half_, radius_;
 };
 
 // Capped truncated cone. In the half-plane (r = radial distance >= 0, y = axial coordinate from a) the solid is
@@ -164,7 +172,7 @@ class Cone final : public TemplatedField<Cone> {
  public:
   std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
   Cone(const Vec3& a, const Vec3& b, double ra, double rb)
-      : a_(a), b_(b), u_((b - a).normalized()), len_((b - a).norm()), ra_(ra), rb_(rb) {
+      : end0_(a), end1_(b), axis_((b - a).normalized()), len_((b - a).norm()), ra_(ra), rb_(rb) {
     const double side = std::hypot(len_, ra_ - rb_);
     nr_ = len_ / side;  // outward side normal (r, y components)
     ny_ = (ra_ - rb_) / side;
@@ -174,9 +182,9 @@ class Cone final : public TemplatedField<Cone> {
   }
   template <class T>
   T eval(const V3<T>& p) const {
-    const V3<T> w = p - a_;
-    const T y = dot(w, u_);
-    const T r = length(w - scaled(u_, y));
+    const V3<T> w = p - end0_;
+    const T y = dot(w, axis_);
+    const T r = length(w - scaled(axis_, y));
     const T d_bottom = -y;
     const T d_top = y - len_;
     const T d_side = (r - ra_) * nr_ + y * ny_;
@@ -190,11 +198,11 @@ class Cone final : public TemplatedField<Cone> {
     return tmin(tmin(bottom, top), side);
   }
   std::optional<Aabb> sublevel_bounds(double level) const override {
-    return merged(disk_box(a_, u_, ra_), disk_box(b_, u_, rb_)).padded(level);
+    return merged(disk_box(end0_, axis_, ra_), disk_box(end1_, axis_, rb_)).padded(level);
   }
 
  private:
-  Vec3 a_, b_, u_;
+  Vec3 end0_, end1_, axis_;
   double len_, ra_, rb_;
   double nr_ = 0, ny_ = 0, er_ = 0, ey_ = 0, inv_ee_ = 0;
 };
@@ -203,59 +211,59 @@ class Torus final : public TemplatedField<Torus> {
  public:
   std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
   Torus(const Vec3& c, const Vec3& axis, double major, double minor)
-      : c_(c), n_(axis.normalized()), major_(major), minor_(minor) {}
+      : center_(c), axis_(axis.normalized()), major_(major), minor_(minor) {}
   template <class T>
   T eval(const V3<T>& p) const {
-    const V3<T> w = p - c_;
-    const T h = dot(w, n_);
-    const T rho = length(w - scaled(n_, h));
+    const V3<T> w = p - center_;
+    const T h = dot(w, axis_);
+    const T rho = length(w - scaled(axis_, h));
     return length2(rho - major_, h) - minor_;
   }
   std::optional<Aabb> sublevel_bounds(double level) const override {
-    return disk_box(c_, n_, major_).padded(minor_ + level);
+    return disk_box(center_, axis_, major_).padded(minor_ + level);
   }
 
  private:
-  Vec3 c_, n_;
+  Vec3 center_, axis_;
   double major_, minor_;
 };
 
 class Plane final : public TemplatedField<Plane> {
  public:
   std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
-  Plane(const Vec3& normal, double offset) : n_(normal.normalized()), offset_(offset / normal.norm()) {}
+  Plane(const Vec3& normal, double offset) : normal_(normal.normalized()), offset_(offset / normal.norm()) {}
   template <class T>
   T eval(const V3<T>& p) const {
-    return dot(p, n_) - offset_;
+    return dot(p, normal_) - offset_;
   }
   std::optional<Aabb> sublevel_bounds(double) const override { return std::nullopt; }
   double sublevel_limit() const override { return -std::numeric_limits<double>::infinity(); }
 
  private:
-  Vec3 n_;
+  Vec3 normal_;
   double offset_;
 };
 
 class Capsule final : public TemplatedField<Capsule> {
  public:
   std::optional<double> lipschitz_bound() const override { return 1.0; }  // exact signed distance
-  Capsule(const Vec3& a, const Vec3& b, double r) : a_(a), b_(b), ba_(b - a), r_(r) {
+  Capsule(const Vec3& a, const Vec3& b, double r) : end0_(a), end1_(b), ba_(b - a), radius_(r) {
     const double baba = ba_.squaredNorm();
     inv_baba_ = baba > 0.0 ? 1.0 / baba : 0.0;
   }
   template <class T>
   T eval(const V3<T>& p) const {
-    const V3<T> w = p - a_;
+    const V3<T> w = p - end0_;
     const T t = tclamp(dot(w, ba_) * inv_baba_, 0.0, 1.0);
-    return length(w - scaled(ba_, t)) - r_;
+    return length(w - scaled(ba_, t)) - radius_;
   }
   std::optional<Aabb> sublevel_bounds(double level) const override {
-    return Aabb{a_.cwiseMin(b_), a_.cwiseMax(b_)}.padded(r_ + level);
+    return Aabb{end0_.cwiseMin(end1_), end0_.cwiseMax(end1_)}.padded(radius_ + level);
   }
 
  private:
-  Vec3 a_, b_, ba_;
-  double r_, inv_baba_;
+  Vec3 end0_, end1_, ba_;
+  double radius_, inv_baba_;
 };
 
 // Gyroid sheet |g|/k - thickness/2, g = sin(kx)cos(ky) + sin(ky)cos(kz) + sin(kz)cos(kx), k = 2 pi / period.
@@ -265,27 +273,32 @@ class Gyroid final : public TemplatedField<Gyroid> {
   // |grad g|^2 / k^2 = sum over the three cyclic terms of (cos x cos y - sin x sin z)^2 <= (cos^2 y + sin^2 z)
   // (Cauchy-Schwarz), and those sum to 3: |grad (|g| / k)| <= sqrt(3).
   std::optional<double> lipschitz_bound() const override { return std::sqrt(3.0); }
-  Gyroid(double period, double thickness) : k_(2.0 * std::numbers::pi / period), half_thickness_(0.5 * thickness) {}
+  Gyroid(double period, double thickness)
+      : wavenumber_(2.0 * std::numbers::pi / period), half_thickness_(0.5 * thickness) {}
   template <class T>
   T eval(const V3<T>& p) const {
     using std::cos;
     using std::sin;
-    const T x = p.x * k_, y = p.y * k_, z = p.z * k_;
+    const T x = p.x * wavenumber_, y = p.y * wavenumber_, z = p.z * wavenumber_;
     const T g = sin(x) * cos(y) + sin(y) * cos(z) + sin(z) * cos(x);
-    return tabs(g) * (1.0 / k_) - half_thickness_;
+    return tabs(g) * (1.0 / wavenumber_) - half_thickness_;
   }
   std::optional<Aabb> sublevel_bounds(double) const override { return std::nullopt; }
   double sublevel_limit() const override { return -std::numeric_limits<double>::infinity(); }
 
  private:
-  double k_, half_thickness_;
+  double wavenumber_, half_thickness_;
 };
 
 // --- CSG -----------------------------------------------------------------------------------------------------
 class Csg final : public SceneField {
  public:
   Csg(CsgOp op, std::vector<FieldPtr> children, const CsgOptions& options)
-      : op_(op), blend_(options.blend), k_(options.radius), children_(std::move(children)), limit_(compute_limit()) {}
+      : op_(op),
+        blend_(options.blend),
+        blend_radius_(options.radius),
+        children_(std::move(children)),
+        limit_(compute_limit()) {}
 
   double value(const Vec3& p) const override {
     double v = children_[0]->value(p);
@@ -395,8 +408,8 @@ class Csg final : public SceneField {
         return value_of(s) > 0.0 ? 2.0 * a * (b / (s + r)) : s - r;
       }
       case CsgBlend::kSmooth: {
-        const T h = tmax(T(k_) - tabs(a - b), T(0.0)) * (1.0 / k_);
-        return tmin(a, b) - h * h * (kSmoothBlendDepth * k_);
+        const T h = tmax(T(blend_radius_) - tabs(a - b), T(0.0)) * (1.0 / blend_radius_);
+        return tmin(a, b) - h * h * (kSmoothBlendDepth * blend_radius_);
       }
     }
     return a;
@@ -414,8 +427,8 @@ class Csg final : public SceneField {
         return value_of(s) < 0.0 ? 2.0 * a * (b / (s - r)) : s + r;
       }
       case CsgBlend::kSmooth: {
-        const T h = tmax(T(k_) - tabs(a - b), T(0.0)) * (1.0 / k_);
-        return tmax(a, b) + h * h * (kSmoothBlendDepth * k_);
+        const T h = tmax(T(blend_radius_) - tabs(a - b), T(0.0)) * (1.0 / blend_radius_);
+        return tmax(a, b) + h * h * (kSmoothBlendDepth * blend_radius_);
       }
     }
     return a;
@@ -443,7 +456,7 @@ class Csg final : public SceneField {
   //     children are asked below V, and B's below W.
   // Either way one call per child.
   std::optional<Aabb> smooth_union_bounds(double level) const {
-    const double d = kSmoothBlendDepth * k_;
+    const double d = kSmoothBlendDepth * blend_radius_;
     const double all = level + smooth_union_depth();
     std::vector<bool> in_u(children_.size(), false);
     std::size_t u = 0;
@@ -453,7 +466,7 @@ class Csg final : public SceneField {
         ++u;
       }
     }
-    const double v = level + static_cast<double>(u > 0 ? u - 1 : 0) * d, w = v + 2.0 * (k_ + d);
+    const double v = level + static_cast<double>(u > 0 ? u - 1 : 0) * d, w = v + 2.0 * (blend_radius_ + d);
     std::optional<Aabb> box;
     for (std::size_t i = 0; i < children_.size(); ++i) {
       const std::optional<Aabb> b = children_[i]->sublevel_bounds(u == 0 ? all : (in_u[i] ? v : w));
@@ -465,7 +478,7 @@ class Csg final : public SceneField {
 
   // How far below its children smooth_union_bounds() asks when no child is in U: min(n - 1, 5) d.
   double smooth_union_depth() const {
-    return static_cast<double>(std::min<std::size_t>(children_.size() - 1, 5)) * kSmoothBlendDepth * k_;
+    return static_cast<double>(std::min<std::size_t>(children_.size() - 1, 5)) * kSmoothBlendDepth * blend_radius_;
   }
 
   double sublevel_limit() const override { return limit_; }
@@ -493,7 +506,7 @@ class Csg final : public SceneField {
 
   CsgOp op_;
   CsgBlend blend_;
-  double k_;
+  double blend_radius_;
   std::vector<FieldPtr> children_;
   double limit_;  // sublevel_limit(), from the children's
 };
@@ -502,7 +515,12 @@ class Csg final : public SceneField {
 class Transform final : public SceneField {
  public:
   Transform(FieldPtr child, const Eigen::Matrix3d& a, const Vec3& t, double factor)
-      : child_(std::move(child)), a_(a), inv_(a.inverse()), inv_t_(inv_.transpose()), t_(t), factor_(factor) {
+      : child_(std::move(child)),
+        linear_(a),
+        inv_(a.inverse()),
+        inv_t_(inv_.transpose()),
+        translation_(t),
+        factor_(factor) {
     inv_norm_ = Eigen::JacobiSVD<Eigen::Matrix3d>(inv_).singularValues()(0);  // spectral norm of A^-1
   }
 
@@ -513,11 +531,11 @@ class Transform final : public SceneField {
     return *l * factor_ * inv_norm_;
   }
 
-  double value(const Vec3& p) const override { return factor_ * child_->value(inv_ * (p - t_)); }
+  double value(const Vec3& p) const override { return factor_ * child_->value(inv_ * (p - translation_)); }
 
   double value_and_gradient(const Vec3& p, Vec3& gradient) const override {
     Vec3 g;
-    const double v = child_->value_and_gradient(inv_ * (p - t_), g);
+    const double v = child_->value_and_gradient(inv_ * (p - translation_), g);
     gradient = factor_ * (inv_t_ * g);
     return factor_ * v;
   }
@@ -532,15 +550,15 @@ class Transform final : public SceneField {
     for (int corner = 0; corner < 8; ++corner) {
       const Vec3 c((corner & 1) ? b->max.x() : b->min.x(), (corner & 2) ? b->max.y() : b->min.y(),
                    (corner & 4) ? b->max.z() : b->min.z());
-      out.merge(Vec3(a_ * c + t_));
+      out.merge(Vec3(linear_ * c + translation_));
     }
     return out;
   }
 
  private:
   FieldPtr child_;
-  Eigen::Matrix3d a_, inv_, inv_t_;
-  Vec3 t_;
+  Eigen::Matrix3d linear_, inv_, inv_t_;
+  Vec3 translation_;
   double factor_;  // s when A = s R, else 1
   double inv_norm_ = 1.0;
 };

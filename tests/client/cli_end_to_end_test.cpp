@@ -272,6 +272,13 @@ TEST_F(CliEndToEnd, HealthPrintsServing) {
   EXPECT_EQ(local.out, "SERVING\n") << local;
 }
 
+TEST_F(CliEndToEnd, HealthOfAnUnknownServicePrintsServiceUnknownAndExitsUnreachable) {
+  ProcessResult r = cli({"health", "--service", "no.such.Service"});
+  EXPECT_EQ(r.code, 3) << r;  // kUnreachable: not SERVING
+  EXPECT_EQ(r.out, "SERVICE_UNKNOWN\n") << r;
+  EXPECT_NE(r.err.find("not serving service \"no.such.Service\" (health: SERVICE_UNKNOWN)"), std::string::npos) << r;
+}
+
 // The frame encodings: whatever travels on the wire (one Draco mesh, Draco pieces, meshopt pieces), the files on
 // disk are standard and hold the same surface on the job's quantization grid.
 struct Surface {

@@ -1,4 +1,4 @@
-// Frame reassembly and verification, output files, stats.csv, job specs from JSON, health message encoding.
+// Frame reassembly and verification, output files, stats.csv, job specs from JSON, health statuses.
 #include <gtest/gtest.h>
 #include <zlib.h>
 
@@ -359,18 +359,15 @@ TEST(JobSpec, MalformedOrMissingFilesNameTheFile) {
   fs::remove_all(dir);
 }
 
-TEST(Health, EncodesRequestAndDecodesResponse) {
-  EXPECT_EQ(encode_health_request(""), "");
-  EXPECT_EQ(encode_health_request("surfacer.v1.Surfacer"), std::string("\x0a\x14surfacer.v1.Surfacer", 22));
-  HealthStatus status = HealthStatus::kUnknown;
-  ASSERT_TRUE(decode_health_response(std::string("\x08\x01", 2), &status));
-  EXPECT_EQ(status, HealthStatus::kServing);
-  ASSERT_TRUE(decode_health_response(std::string("\x12\x01x\x08\x02", 5), &status));  // unknown field skipped
-  EXPECT_EQ(status, HealthStatus::kNotServing);
-  ASSERT_TRUE(decode_health_response("", &status));
-  EXPECT_EQ(status, HealthStatus::kUnknown);
-  EXPECT_FALSE(decode_health_response(std::string("\x08", 1), &status));
+TEST(Health, NamesServingStatusesAndKeepsUnknownNumbersUnknown) {
+  EXPECT_EQ(health_status_from(0), HealthStatus::kUnknown);
+  EXPECT_EQ(health_status_from(1), HealthStatus::kServing);
+  EXPECT_EQ(health_status_from(2), HealthStatus::kNotServing);
+  EXPECT_EQ(health_status_from(3), HealthStatus::kServiceUnknown);
+  EXPECT_EQ(health_status_from(4), HealthStatus::kUnknown);  // a newer server's value
+  EXPECT_EQ(health_status_from(-1), HealthStatus::kUnknown);
   EXPECT_EQ(health_status_name(HealthStatus::kServing), "SERVING");
+  EXPECT_EQ(health_status_name(HealthStatus::kServiceUnknown), "SERVICE_UNKNOWN");
 }
 
 }  // namespace
