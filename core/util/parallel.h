@@ -1,5 +1,4 @@
-// Minimal fork-join helpers over std::thread for core's data-parallel loops (no pool: each call starts and joins
-// its threads, which costs ~20 us per thread and is negligible next to the work it is meant for).
+// Fork-join helpers for core's data-parallel loops, on one process-wide pool of threads (core/util/thread_pool.h).
 #pragma once
 
 #include <algorithm>
@@ -15,6 +14,8 @@
 #include <utility>
 #include <vector>
 
+#include "core/util/thread_pool.h"
+
 namespace surfacer {
 
 // The number of worker threads to use for `requested` (0: std::thread::hardware_concurrency(), at least 1).
@@ -23,10 +24,11 @@ inline int resolve_threads(int requested) {
   return std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
 }
 
-// Runs body(item) for every item in [0, items) on min(threads, items) threads (the caller's thread is one of them).
-// Items are handed out in increasing order from a shared counter, so results must be stored per item (not appended)
-// for the outcome to be independent of scheduling. The first exception thrown stops the hand-out of further items
-// (items already running finish) and is rethrown after all threads have joined.
+// Runs body(item) for every item in [0, items) on up to min(threads, items) threads: the caller's thread and free
+// threads of the process-wide pool (core/util/thread_pool.h); when none is free the caller runs every item itself,
+// so calls may nest. Items are handed out in increasing order from a shared counter, so results must be stored per
+// item (not appended) for the outcome to be independent of scheduling. The first exception thrown stops the hand-out
+// of further items (items already running finish) and is rethrown once every started item has returned.
 template <class Body>
 void parallel_for(int items, int threads, Body&& body) {
   if (items <= 0) return;
@@ -39,7 +41,7 @@ void parallel_for(int items, int threads, Body&& body) {
   std::atomic<bool> failed{false};
   std::exception_ptr error;
   std::mutex error_mutex;
-  auto work = [&] {
+  auto work = [&]() noexcept {
     while (!failed.load(std::memory_order_relaxed)) {
       const int i = next.fetch_add(1, std::memory_order_relaxed);
       if (i >= items) return;
@@ -52,11 +54,7 @@ void parallel_for(int items, int threads, Body&& body) {
       }
     }
   };
-  std::vector<std::thread> pool;
-  pool.reserve(workers - 1);
-  for (int t = 1; t < workers; ++t) pool.emplace_back(work);
-  work();
-  for (auto& thread : pool) thread.join();
+  run_with_helpers(workers - 1, WorkRef(work));
   if (error) std::rethrow_exception(error);
 }
 
