@@ -121,6 +121,16 @@ void VelocityGrid::validate() const {
                                      " floats; expected 3 * nx * ny * nz = " + std::to_string(expected) +
                                      " (u, v, w per point, x fastest)");
   }
+  // As a scene's sampled grid: a NaN or infinite velocity would carry the surface nowhere (empty frames).
+  for (std::size_t i = 0; i < values.size(); ++i) {
+    if (!std::isfinite(values[i])) {
+      const std::size_t node = i / 3;
+      throw InvalidInput("values", "velocity grid value " + std::to_string(i) + " (component " + "uvw"[i % 3] +
+                                       " of node " + std::to_string(node % nx) + "," + std::to_string(node / nx % ny) +
+                                       "," + std::to_string(node / nx / ny) + ") is " +
+                                       (std::isnan(values[i]) ? "NaN" : "infinite") + "; give finite velocities");
+    }
+  }
 }
 
 Vec3 VelocityGrid::operator()(const Vec3& p) const {

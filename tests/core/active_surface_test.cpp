@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <functional>
+#include <limits>
 #include <map>
 #include <string>
 #include <thread>
@@ -639,6 +640,16 @@ TEST(ActiveSurface, VelocityGridIsTrilinear) {
   EXPECT_LT((steady.spatial(Vec3(0.1, 0.3, -0.2)) - linear(Vec3(0.1, 0.3, -0.2))).norm(), 1e-5);
   grid->values.pop_back();
   EXPECT_TRUE(testing::throws_invalid_input([&] { make_velocity_fn(grid); }, "values"));
+  // A NaN or infinite velocity anywhere is refused, as a scene grid's is (it would carry the surface nowhere).
+  grid->values.push_back(0.0f);
+  for (const std::size_t at : {std::size_t{0}, grid->values.size() / 2, grid->values.size() - 1}) {
+    for (const float bad : {std::numeric_limits<float>::quiet_NaN(), std::numeric_limits<float>::infinity()}) {
+      auto broken = std::make_shared<VelocityGrid>(*grid);
+      broken->values[at] = bad;
+      EXPECT_TRUE(testing::throws_invalid_input([&] { make_velocity_fn(broken); }, "values")) << at;
+    }
+  }
+  EXPECT_NO_THROW(make_velocity_fn(grid));
 }
 
 TEST(ActiveSurface, ValidatesOptionsAndInputs) {
