@@ -1,8 +1,7 @@
 // The engine behind ActiveSurface (core/active/active_surface.h): its working state and steps. Internal to core/active:
 // shared by active_surface.cpp (topology, reinitialization, stepping), surface_mesh.cpp (polygonization and
 // measures) and state.cpp (checkpoints); ActiveSurface holds one privately. Its parts with state of their own:
-// GridFrame (where the grid lies, the domain wall), Motion (target and velocity), MeasureControl (area and volume
-// control).
+// GridFrame (where the grid lies, the domain wall) and MeasureControl (area and volume control).
 #pragma once
 
 #include <algorithm>
