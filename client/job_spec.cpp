@@ -110,35 +110,6 @@ void require_file(const std::filesystem::path& path, const std::string& flag) {
   }
 }
 
-// One pending upload per particle file; `frame_of(spec, i)` is the i-th ParticleFrame of the spec.
-void add_particle_frames(PreparedJob& job, const std::vector<std::filesystem::path>& files,
-                         v1::ParticleFrame* (*frame_of)(v1::JobSpec&, int), const InMemoryInputs& in_memory) {
-  for (std::size_t i = 0; i < files.size(); ++i) {
-    const int index = static_cast<int>(i);
-    const std::filesystem::path& file = files[i];
-    const auto it = in_memory.particles.find(file.string());
-    const ParticleFrame* frame = it == in_memory.particles.end() ? nullptr : &it->second;  // outlives the upload
-    PendingUpload upload;
-    upload.description = "particle frame " + std::to_string(index) + " (" + file.string() + ")";
-    upload.frame = index;
-    upload.read = [file, frame, index, frame_of](v1::JobSpec& spec, const InputLimits& limits) {
-      ParticleRecords records =
-          frame != nullptr ? pack_particle_records(*frame, file.string(), limits) : read_particle_records(file, limits);
-      frame_of(spec, index)->set_with_radius(records.with_radius);
-      UploadData data;
-      data.name = file.filename().string();
-      data.bytes = std::move(records.bytes);
-      data.particles = records.count;
-      data.detail = std::to_string(records.count) + " particles" + (records.with_radius ? " with radii" : "");
-      return data;
-    };
-    upload.set_id = [index, frame_of](v1::JobSpec& spec, const std::string& id) {
-      frame_of(spec, index)->set_upload_id(id);
-    };
-    job.uploads.push_back(std::move(upload));
-  }
-}
-
 // Frame i of the job's particle frames (particles or active coat).
 v1::ParticleFrame* particle_frame(v1::JobSpec& spec, int i) {
   return spec.has_particles() ? spec.mutable_particles()->mutable_frames(i)
