@@ -312,16 +312,6 @@ void check_job(const JobOptions& options) {
                                            " describes a velocity grid: give its values with " + file);
     }
   }
-  if (spec.has_active() && spec.active().advect().has_grid()) {
-    // The grid's geometry, as far as the client can tell before the values are read.
-    const v1::VelocityGrid& g = spec.active().advect().grid();
-    for (double s : {g.spacing().x(), g.spacing().y(), g.spacing().z()}) {
-      if (!(s > 0)) throw CliError(ExitCode::kUsage, "--velocity-spacing: every spacing must be > 0");
-    }
-    for (int n : {g.nx(), g.ny(), g.nz()}) {
-      if (n < 2 || n > 100000) throw CliError(ExitCode::kUsage, "--velocity-dims: node counts are 2 to 100000");
-    }
-  }
   try {
     wire::check_job_options(spec);
   } catch (const Error& e) {

@@ -238,6 +238,17 @@ AdvectOptions advect_options(const v1::ActiveAdvect& advect, const std::string& 
   return out;
 }
 
+VelocityGrid velocity_grid_geometry(const v1::VelocityGrid& grid, const std::string& path) {
+  VelocityGrid out;
+  out.origin = to_vec3(grid.origin());
+  out.spacing = to_vec3(grid.spacing());
+  out.nx = grid.nx();
+  out.ny = grid.ny();
+  out.nz = grid.nz();
+  with_path(path, [&] { out.validate_geometry(); });
+  return out;
+}
+
 void check_job_options(const v1::JobSpec& spec) {
   const bool normals = spec.output().normals();
   switch (spec.kind_case()) {
@@ -258,7 +269,10 @@ void check_job_options(const v1::JobSpec& spec) {
       const ActiveSurfaceOptions options = active_options(job, normals, "spec.active");
       if (job.has_coat()) coat_options(job.coat(), options, "spec.active");
       if (job.has_morph()) morph_options(job.morph(), options, "spec.active");
-      if (job.has_advect()) advect_options(job.advect(), "spec.active");
+      if (job.has_advect()) {
+        advect_options(job.advect(), "spec.active");
+        if (job.advect().has_grid()) velocity_grid_geometry(job.advect().grid(), "spec.active.advect.grid");
+      }
       break;
     }
     case v1::JobSpec::KIND_NOT_SET:

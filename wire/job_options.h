@@ -58,6 +58,10 @@ CoatOptions coat_options(const v1::ActiveCoat& coat, const ActiveSurfaceOptions&
 MorphOptions morph_options(const v1::ActiveMorph& morph, const ActiveSurfaceOptions& options, const std::string& path);
 AdvectOptions advect_options(const v1::ActiveAdvect& advect, const std::string& path);
 
+// A VelocityGrid (path "spec.active.advect.grid") with its origin, spacing and dimensions, checked by core's
+// validate_geometry(); its values are an upload, for the caller to read. Throws InvalidInput at `path`.
+VelocityGrid velocity_grid_geometry(const v1::VelocityGrid& grid, const std::string& path);
+
 // Every engine option of `spec` and its output options, checked by the functions above and frame_encoding() as the
 // job runners check them at submit, without the data: scenes, particle frames, start meshes and velocity grids are the
 // runners' to check. The client calls it before it reads or uploads anything, so a bad value is refused with the

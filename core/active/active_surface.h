@@ -231,7 +231,13 @@ struct VelocityGrid {
   int nx = 0, ny = 0, nz = 0;   // >= 2 each
   std::vector<float> values;    // 3 * nx * ny * nz floats: (u, v, w) per point, x fastest
 
-  // Throws InvalidInput("spacing" / "nx" / "values") when the description is inconsistent.
+  // At most this many points per axis (a bound on the grid before its values are read).
+  static constexpr int kMaxPointsPerAxis = 100000;
+  // Throws InvalidInput("spacing" / "origin" / "nx") for a spacing that is not finite and > 0, an origin that is not
+  // finite, or an axis with fewer than 2 or more than kMaxPointsPerAxis points: what can be checked before the values.
+  void validate_geometry() const;
+  // validate_geometry(), then InvalidInput("values") for a count other than 3 * nx * ny * nz or a value that is not
+  // finite.
   void validate() const;
   Vec3 operator()(const Vec3& p) const;
 };

@@ -1,4 +1,5 @@
 // Velocity fields, particle targets and the one-shot coat / morph / advect helpers of core/active/active_surface.h.
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <optional>
@@ -106,15 +107,20 @@ SeparableVelocity enright_separable_velocity(double period) {
   return v;
 }
 
-void VelocityGrid::validate() const {
+void VelocityGrid::validate_geometry() const {
   if (!spacing.allFinite() || !(spacing.array() > 0.0).all()) {
     throw InvalidInput("spacing", "velocity grid spacing must be finite and > 0 on every axis");
   }
   if (!origin.allFinite()) throw InvalidInput("origin", "velocity grid origin must be finite");
-  if (nx < 2 || ny < 2 || nz < 2) {
-    throw InvalidInput("nx", "velocity grid needs >= 2 points per axis (nx, ny, nz = " + std::to_string(nx) + ", " +
-                                 std::to_string(ny) + ", " + std::to_string(nz) + ")");
+  if (std::min({nx, ny, nz}) < 2 || std::max({nx, ny, nz}) > kMaxPointsPerAxis) {
+    throw InvalidInput("nx", "velocity grid needs 2 to " + std::to_string(kMaxPointsPerAxis) +
+                                 " points per axis (nx, ny, nz = " + std::to_string(nx) + ", " + std::to_string(ny) +
+                                 ", " + std::to_string(nz) + ")");
   }
+}
+
+void VelocityGrid::validate() const {
+  validate_geometry();
   const std::size_t expected = std::size_t{3} * nx * ny * nz;
   if (values.size() != expected) {
     throw InvalidInput("values", "velocity grid has " + std::to_string(values.size()) +

@@ -124,12 +124,7 @@ class ActiveRunner final : public JobRunner {
 
   static std::shared_ptr<const VelocityGrid> velocity_grid(const v1::VelocityGrid& g, const std::string& path,
                                                            const wire::UploadLookup& uploads) {
-    auto grid = std::make_shared<VelocityGrid>();
-    grid->origin = wire::to_vec3(g.origin());
-    grid->spacing = wire::to_vec3(g.spacing());
-    grid->nx = g.nx();
-    grid->ny = g.ny();
-    grid->nz = g.nz();
+    auto grid = std::make_shared<VelocityGrid>(wire::velocity_grid_geometry(g, path));
     const auto blob = uploads.get(g.upload_id(), path + ".upload_id");
     if (blob->bytes.size() % sizeof(float) != 0) {
       throw InvalidInput(path + ".upload_id", path + ".upload_id: the upload is not a whole number of float32 values");
