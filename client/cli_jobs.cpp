@@ -212,23 +212,17 @@ void add_output_flags(CLI::App* app, OutputFlags& flags) {
 
 void add_job_common_flags(CLI::App* app, JobOptions& job) {
   app->add_option("--name", job.name, "free text shown by `surfacer list` (default: the first input's file name)");
-  const auto set_encoding = [&job](const std::string& name) {
-    v1::OutputOptions* output = job.spec.mutable_output();
-    output->set_encoding(name == "raw"       ? v1::MESH_ENCODING_PLY
-                         : name == "meshopt" ? v1::MESH_ENCODING_MESHOPT
-                                             : v1::MESH_ENCODING_DRACO);
-    job.names["spec.output.encoding"] = name == "raw" ? "--raw" : "--encoding";
-  };
   CLI::Option* encoding =
-      app->add_option_function<std::string>("--encoding", set_encoding,
-                                            "frames on the wire: draco (the default: small; standard .drc files), "
-                                            "meshopt (meshoptimizer's codecs: ~10x faster to encode and decode, ~3x "
-                                            "larger: for fast networks) or raw (lossless binary PLY, double "
-                                            "precision)")
+      app->add_option_function<std::string>(
+             "--encoding", [&job](const std::string& codec) { set_encoding(job, codec, "--encoding"); },
+             "frames on the wire: draco (the default: small; standard .drc files), "
+             "meshopt (meshoptimizer's codecs: ~10x faster to encode and decode, ~3x "
+             "larger: for fast networks) or raw (lossless binary PLY, double "
+             "precision)")
           ->check(CLI::IsMember({"draco", "meshopt", "raw"}))
           ->type_name("CODEC");
   app->add_flag_callback(
-         "--raw", [set_encoding] { set_encoding("raw"); }, "the same as --encoding raw")
+         "--raw", [&job] { set_encoding(job, "raw", "--raw"); }, "the same as --encoding raw")
       ->excludes(encoding);
   app->add_flag_callback(
       "--normals", [&job] { job.spec.mutable_output()->set_normals(true); }, "per-vertex normals in every frame");

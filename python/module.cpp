@@ -281,15 +281,7 @@ struct Inputs {
 // name, encoding, normals, quantization_bits: every job type's output options.
 void add_common(Setters& s, JobOptions& job) {
   s["name"] = [&job](py::handle v, const std::string&) { job.name = v.cast<std::string>(); };
-  s["encoding"] = [&job](py::handle v, const std::string&) {
-    const std::string name = v.cast<std::string>();
-    if (name != "draco" && name != "meshopt" && name != "raw") {
-      throw CliError(ExitCode::kUsage, "encoding must be draco, meshopt or raw, not " + name);
-    }
-    job.spec.mutable_output()->set_encoding(name == "raw"       ? v1::MESH_ENCODING_PLY
-                                            : name == "meshopt" ? v1::MESH_ENCODING_MESHOPT
-                                                                : v1::MESH_ENCODING_DRACO);
-  };
+  s["encoding"] = [&job](py::handle v, const std::string& name) { set_encoding(job, v.cast<std::string>(), name); };
   s["normals"] = [&job](py::handle v, const std::string&) { job.spec.mutable_output()->set_normals(v.cast<bool>()); };
   s["quantization_bits"] = [&job](py::handle v, const std::string& name) {
     job.spec.mutable_output()->set_quantization_bits(v.cast<int>());
