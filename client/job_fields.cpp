@@ -516,6 +516,22 @@ google::protobuf::Message& table_message(v1::JobSpec& spec, JobTable table) {
   return spec;
 }
 
+bool takes_words(JobTable table, const JobField& field) {
+  if (field.member_set) return true;
+  if (!field.parts.empty()) return false;
+  v1::JobSpec spec;
+  const pb::Message* message = &table_message(spec, table);
+  const pb::FieldDescriptor* fd = nullptr;
+  for (std::size_t pos = 0;;) {
+    const std::size_t dot = field.path.find('.', pos);
+    fd = message->GetDescriptor()->FindFieldByName(field.path.substr(pos, dot == std::string::npos ? dot : dot - pos));
+    if (fd == nullptr || dot == std::string::npos) break;
+    message = &message->GetReflection()->GetMessage(*message, fd);
+    pos = dot + 1;
+  }
+  return fd != nullptr && fd->cpp_type() == pb::FieldDescriptor::CPPTYPE_ENUM;
+}
+
 std::string cli_flag(const std::string& spelling) {
   std::string flag = "--" + spelling;
   std::replace(flag.begin(), flag.end(), '_', '-');

@@ -62,6 +62,9 @@ std::string spelling(const JobField& field);
 std::string table_path(JobTable table);
 google::protobuf::Message& table_message(v1::JobSpec& spec, JobTable table);
 
+// Whether `field` (one of `table`'s) takes words rather than numbers: an enum ("tiles") or a set of names ("d,n").
+bool takes_words(JobTable table, const JobField& field);
+
 // The CLI flag and the Python keyword of a spelling ("min_angle_degrees" or "min-angle" -> "--min-angle-degrees" /
 // "--min-angle", and "min_angle_degrees" / "min_angle").
 std::string cli_flag(const std::string& spelling);

@@ -178,18 +178,26 @@ std::string path_of(py::handle value) { return py::module_::import("os").attr("f
 // A keyword's value as the text the option table parses (client/job_fields.h): bools "true"/"false", numbers in full
 // precision, sequences of numbers "1,2,3", strings (enum names, "d,n" flow lists) as they are; a list of strings is
 // joined ("flows": ["d", "n"]).
-std::string table_text(py::handle value, const std::string& keyword) {
+std::string table_text(py::handle value, const std::string& keyword, bool words) {
   if (py::isinstance<py::bool_>(value)) return value.cast<bool>() ? "true" : "false";
-  if (py::isinstance<py::str>(value)) return value.cast<std::string>();
+  if (py::isinstance<py::str>(value)) {
+    if (!words) throw py::type_error(keyword + "=" + text_of(py::repr(value)) + " has the wrong type (a number)");
+    return value.cast<std::string>();
+  }
   if (py::isinstance<py::int_>(value)) return text_of(value);
   if (py::isinstance<py::float_>(value)) return format_number(value.cast<double>());
+  if (py::isinstance<py::bytes>(value) || py::isinstance<py::dict>(value)) {
+    throw py::type_error(keyword + "=" + text_of(py::repr(value)) + " has the wrong type");
+  }
   if (py::isinstance<py::sequence>(value) || py::isinstance<py::array>(value)) {
     std::string text;
-    for (py::handle item : value) {
-      if (!text.empty()) text += ",";
-      text += py::isinstance<py::str>(item) ? item.cast<std::string>() : format_number(item.cast<double>());
-    }
+    for (py::handle item : value) text += (text.empty() ? "" : ",") + table_text(item, keyword, words);
     return text;
+  }
+  // numpy scalars: whole numbers by __index__, the others by __float__ (at full precision).
+  if (py::hasattr(value, "__index__")) return text_of(py::int_(py::reinterpret_borrow<py::object>(value)));
+  if (py::hasattr(value, "__float__")) {
+    return format_number(py::float_(py::reinterpret_borrow<py::object>(value)).cast<double>());
   }
   throw py::type_error(keyword + "=" + text_of(py::repr(value)) + " has the wrong type");
 }
@@ -197,8 +205,9 @@ std::string table_text(py::handle value, const std::string& keyword) {
 // Every field of `table` under its keyword and its aliases' (client/job_fields.h), setting it in job.spec.
 void add_table(Setters& s, JobOptions& job, JobTable table) {
   for (const JobField& field : job_fields(table)) {
-    const Setter set = [&job, table, &field](py::handle value, const std::string& name) {
-      set_job_field(job.spec, table, field, table_text(value, name), name, job.names);
+    const bool words = takes_words(table, field);
+    const Setter set = [&job, table, &field, words](py::handle value, const std::string& name) {
+      set_job_field(job.spec, table, field, table_text(value, name, words), name, job.names);
     };
     s[keyword(spelling(field))] = set;
     for (const std::string& alias : field.aliases) s[keyword(alias)] = set;

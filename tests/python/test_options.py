@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 
+import numpy as np
 import pytest
 
 import surfacer
@@ -91,3 +92,21 @@ def test_keywords_are_proto_names_and_old_spellings_still_work(local_client):
     with pytest.raises(TypeError) as error:
         local_client.particles([ball], r_inner=0.04, min_angel=3)
     assert "min_angel" in str(error.value) and "min_angle_degrees" in str(error.value)
+
+
+@pytest.mark.parametrize("cells", [np.int64(12), np.int32(12), np.uint16(12), 12])
+def test_numpy_values_are_accepted_where_numbers_are(local_client, cells):
+    """Pipelines pass numpy scalars and arrays (a bounds array, a cell count from arithmetic); they mean their value."""
+    bounds = np.array([-1.5, -1.5, -1.5, 1.5, 1.5, 1.5])
+    (plain,) = local_client.isosurface([sphere_scene()], cells=12, bounds=[-1.5, -1.5, -1.5, 1.5, 1.5, 1.5])
+    (numpy_frame,) = local_client.isosurface([sphere_scene()], cells=cells, bounds=bounds)
+    assert np.array_equal(plain.vertices, numpy_frame.vertices)
+    assert np.array_equal(plain.triangles, numpy_frame.triangles)
+
+
+@pytest.mark.parametrize("keyword,value", [("cells", "16"), ("cells", b"16"), ("bounds", "-1,-1,-1,1,1,1"),
+                                           ("max_triangles", "1000")])
+def test_a_string_for_a_number_is_a_type_error_naming_the_keyword(local_client, keyword, value):
+    with pytest.raises(TypeError) as error:
+        local_client.isosurface([sphere_scene()], **{keyword: value})
+    assert keyword in str(error.value)
