@@ -110,10 +110,10 @@ void require_file(const std::filesystem::path& path, const std::string& flag) {
   }
 }
 
-// Frame i of the job's particle frames (particles or active coat).
-v1::ParticleFrame* particle_frame(v1::JobSpec& spec, int i) {
-  return spec.has_particles() ? spec.mutable_particles()->mutable_frames(i)
-                              : spec.mutable_active()->mutable_coat()->mutable_frames(i);
+// The job's particle frames (particles or active coat).
+google::protobuf::RepeatedPtrField<v1::ParticleFrame>& particle_frames(v1::JobSpec& spec) {
+  return spec.has_particles() ? *spec.mutable_particles()->mutable_frames()
+                              : *spec.mutable_active()->mutable_coat()->mutable_frames();
 }
 
 // The particle frames of `options` (particles, active coat): one empty frame per file in the spec, one pending upload
@@ -124,13 +124,7 @@ std::vector<std::filesystem::path> add_particles(const JobOptions& options, Prep
   const ParticleInputFiles inputs = particle_inputs_of(options.particles, in_memory);
   const auto& files = inputs.files;
   prepared.frame_numbers = output_numbers(inputs.numbers);
-  for (std::size_t i = 0; i < files.size(); ++i) {
-    if (spec.has_particles()) {
-      spec.mutable_particles()->add_frames();
-    } else {
-      spec.mutable_active()->mutable_coat()->add_frames();
-    }
-  }
+  for (std::size_t i = 0; i < files.size(); ++i) particle_frames(spec).Add();
   const std::string r_inner_name = name_of_field(options.names, "spec.particles.r_inner", options.keywords);
   for (std::size_t i = 0; i < files.size(); ++i) {
     const int index = static_cast<int>(i);
@@ -150,7 +144,7 @@ std::vector<std::filesystem::path> add_particles(const JobOptions& options, Prep
           throw CliError(ExitCode::kUsage, r_inner_name + ": " + e.what() + ": " + file.string());
         }
       }
-      particle_frame(spec, index)->set_with_radius(records.with_radius);
+      particle_frames(spec)[index].set_with_radius(records.with_radius);
       UploadData data;
       data.name = file.filename().string();
       data.bytes = std::move(records.bytes);
@@ -159,7 +153,7 @@ std::vector<std::filesystem::path> add_particles(const JobOptions& options, Prep
       return data;
     };
     upload.set_id = [index](v1::JobSpec& spec, const std::string& id) {
-      particle_frame(spec, index)->set_upload_id(id);
+      particle_frames(spec)[index].set_upload_id(id);
     };
     prepared.uploads.push_back(std::move(upload));
   }
