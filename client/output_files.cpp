@@ -56,19 +56,10 @@ FrameOutputOptions frame_output_options(const std::string& target, const std::ve
   const std::optional<FileFormat> format =
       extension.size() > 1 ? file_format_from_name(std::string_view(extension).substr(1)) : std::nullopt;
   std::error_code ec;
-  if (!is_sequence_pattern(target) && format && !std::filesystem::is_directory(path, ec)) {
-    // -o out/mesh.ply: the one frame of the job in that file (a job of several frames is refused before it runs).
-    if (!formats.empty()) {
-      throw usage("--format with -o " + target +
-                  ": the file's extension sets its format; drop --format, or write several formats with -o DIR "
-                  "--format LIST");
-    }
-    options.dir = path.has_parent_path() ? path.parent_path() : std::filesystem::path(".");
-    options.formats = {*format};
-    options.file = path;
-    return options;
-  }
-  if (!is_sequence_pattern(target)) {
+  const bool pattern = is_sequence_pattern(target);
+  // -o out/mesh.ply: the one frame of the job in that file (a job of several frames is refused before it runs).
+  const bool one_file = !pattern && format && !std::filesystem::is_directory(path, ec);
+  if (!pattern && !one_file) {
     options.dir = target;
     for (const std::string& name : formats) {
       const std::optional<FileFormat> f = file_format_from_name(name);
@@ -79,27 +70,33 @@ FrameOutputOptions frame_output_options(const std::string& target, const std::ve
     }
     return options;
   }
-  if (is_sequence_pattern(path.parent_path().string())) {
-    throw usage("-o " + target + ": the frame placeholder must be in the file name, not in a directory name");
+  if (pattern) {
+    if (is_sequence_pattern(path.parent_path().string())) {
+      throw usage("-o " + target + ": the frame placeholder must be in the file name, not in a directory name");
+    }
+    try {
+      expand_sequence(target, 0, 0);  // the placeholder's syntax
+    } catch (const Error& e) {
+      throw usage("-o " + target + ": " + e.what());
+    }
+    if (!format || is_sequence_pattern(extension)) {
+      throw usage("-o " + target +
+                  ": a file pattern's extension sets the format; end it in .drc, .ply, .obj, .vtk, .vtu or .glb (e.g. "
+                  "-o 'out/surface_{:04d}.ply')");
+    }
   }
-  try {
-    expand_sequence(target, 0, 0);  // the placeholder's syntax
-  } catch (const Error& e) {
-    throw usage("-o " + target + ": " + e.what());
-  }
-  if (!format || is_sequence_pattern(extension)) {
-    throw usage("-o " + target +
-                ": a file pattern's extension sets the format; end it in .drc, .ply, .obj, .vtk, .vtu or .glb (e.g. -o "
-                "'out/surface_{:04d}.ply')");
-  }
+  // A pattern or one file: the extension sets the one format.
   if (!formats.empty()) {
-    throw usage("--format with -o " + target +
-                ": the pattern's extension sets the one format; drop --format, or write several formats with -o DIR "
-                "--format LIST");
+    throw usage("--format with -o " + target + ": the " + (pattern ? "pattern's" : "file's") +
+                " extension sets the one format; drop --format, or write several formats with -o DIR --format LIST");
   }
   options.dir = path.has_parent_path() ? path.parent_path() : std::filesystem::path(".");
   options.formats = {*format};
-  options.pattern = target;
+  if (pattern) {
+    options.pattern = target;
+  } else {
+    options.file = path;
+  }
   return options;
 }
 
