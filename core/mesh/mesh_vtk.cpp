@@ -11,6 +11,7 @@
 #include <string_view>
 
 #include "core/mesh/mesh_io.h"
+#include "core/util/base64.h"
 #include "core/util/errors.h"
 
 namespace surfacer {
@@ -77,29 +78,6 @@ std::string legacy(const Mesh& mesh, bool double_precision) {
 }
 
 // --- XML -------------------------------------------------------------------------------------------------------------
-
-void append_base64(std::string& out, std::string_view bytes) {
-  static constexpr char kDigits[] = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-  out.reserve(out.size() + (bytes.size() + 2) / 3 * 4);
-  std::size_t i = 0;
-  for (; i + 2 < bytes.size(); i += 3) {
-    const unsigned v = static_cast<unsigned char>(bytes[i]) << 16 | static_cast<unsigned char>(bytes[i + 1]) << 8 |
-                       static_cast<unsigned char>(bytes[i + 2]);
-    out += kDigits[v >> 18];
-    out += kDigits[(v >> 12) & 63];
-    out += kDigits[(v >> 6) & 63];
-    out += kDigits[v & 63];
-  }
-  if (i < bytes.size()) {
-    const bool two = i + 1 < bytes.size();
-    const unsigned v =
-        static_cast<unsigned char>(bytes[i]) << 16 | (two ? static_cast<unsigned char>(bytes[i + 1]) << 8 : 0u);
-    out += kDigits[v >> 18];
-    out += kDigits[(v >> 12) & 63];
-    out += two ? kDigits[(v >> 6) & 63] : '=';
-    out += '=';
-  }
-}
 
 // One DataArray's content in VTK's compressed binary layout: the header (UInt64 little-endian: number of blocks,
 // uncompressed block size, uncompressed size of a partial last block or 0, then each block's compressed size) and
