@@ -13,6 +13,7 @@
 #include "client/exit_codes.h"
 #include "client/output_files.h"
 #include "core/mesh/frame_codec.h"
+#include "core/mesh/mesh_gltf.h"
 #include "core/mesh/mesh_io.h"
 #include "core/mesh/mesh_vtk.h"
 #include "core/util/errors.h"
@@ -273,6 +274,10 @@ std::vector<std::filesystem::path> FrameWriter::write(const ReceivedFrame& frame
           if (e.kind() != ErrorKind::kInvalidInput || e.field() != "quantization_bits") throw;
           throw CliError(ExitCode::kUsage, "frame " + std::to_string(frame.index) + ": --format glb: " + e.what());
         }
+        bytes = converted;
+        break;
+      case FileFormat::kGltf:
+        converted = write_gltf(decoded());
         bytes = converted;
         break;
     }

@@ -73,7 +73,7 @@ struct JobOptions {
   std::optional<std::filesystem::path> velocity_grid;    // active advect: the values, uploaded (geometry in `spec`)
 };
 
-enum class FileFormat { kDrc, kPly, kObj, kVtk, kVtu, kGlb };
+enum class FileFormat { kDrc, kPly, kObj, kVtk, kVtu, kGlb, kGltf };
 
 struct FrameOutputOptions {
   std::filesystem::path dir;

@@ -758,7 +758,7 @@ class FrameStream {
   std::exception_ptr error_;
 };
 
-// Reads a mesh file with core's reader (read_mesh: .ply, .obj, .drc or .glb by the extension) as arrays.
+// Reads a mesh file with core's reader (read_mesh: .ply, .obj, .drc, .glb or .gltf by the extension) as arrays.
 py::tuple read_mesh_file(const std::string& path) {
   Mesh mesh;
   {
@@ -772,7 +772,7 @@ py::tuple read_mesh_file(const std::string& path) {
   return mesh_arrays(mesh);
 }
 
-// Writes a mesh given as arrays with core's writer (write_mesh: .ply, .obj, .drc or .glb by the extension).
+// Writes a mesh given as arrays with core's writer (write_mesh: .ply, .obj, .drc, .glb or .gltf by the extension).
 void write_mesh_file(const std::string& path,
                      const py::array_t<double, py::array::c_style | py::array::forcecast>& vertices,
                      const py::array_t<std::int64_t, py::array::c_style | py::array::forcecast>& triangles,

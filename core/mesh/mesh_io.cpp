@@ -278,8 +278,9 @@ MeshFormat mesh_format_from_path(const std::filesystem::path& path) {
   if (ext == ".obj") return MeshFormat::kObj;
   if (ext == ".drc") return MeshFormat::kDraco;
   if (ext == ".glb") return MeshFormat::kGlb;
-  throw InvalidInput("file",
-                     path.string() + ": unknown mesh file extension '" + ext + "'; use .ply, .obj, .drc or .glb");
+  if (ext == ".gltf") return MeshFormat::kGltf;
+  throw InvalidInput("file", path.string() + ": unknown mesh file extension '" + ext +
+                                 "'; use .ply, .obj, .drc, .glb or .gltf");
 }
 
 Mesh parse_mesh(std::string_view bytes, MeshFormat format, const std::string& name_for_errors,
@@ -297,6 +298,7 @@ Mesh parse_mesh(std::string_view bytes, MeshFormat format, const std::string& na
         throw InvalidInput("file", name_for_errors + ": " + e.what());
       }
     case MeshFormat::kGlb:
+    case MeshFormat::kGltf:
       return parse_glb(bytes, name_for_errors, limits);
   }
   throw Internal("parse_mesh: unknown format");
@@ -386,6 +388,9 @@ void write_mesh(const std::filesystem::path& path, const Mesh& mesh) {
       break;
     case MeshFormat::kGlb:
       bytes = to_gltf(mesh, ThreadExecutor(0));  // encoded on every core
+      break;
+    case MeshFormat::kGltf:
+      bytes = write_gltf(mesh);
       break;
   }
   std::ofstream out(path, std::ios::binary | std::ios::trunc);

@@ -41,8 +41,8 @@ class Frame:
     stats: Dict[str, Any]
 
     def write(self, path) -> None:
-        """Writes the mesh with the CLI's own writers, the format by the extension: .ply (binary), .obj, .drc or .glb
-        (glTF with Draco pieces, encoded on every core)."""
+        """Writes the mesh with the CLI's own writers, the format by the extension: .ply (binary), .obj, .drc, .glb
+        (glTF with Draco pieces, encoded on every core) or .gltf (plain glTF, for readers without Draco)."""
         _surfacer.write_mesh(os.fspath(path), self.vertices, self.triangles, self.normals)
 
 
@@ -61,9 +61,9 @@ class Mesh:
 
 
 def read_mesh(path) -> Mesh:
-    """Reads a mesh file with the CLI's own readers, the format by the extension: .ply, .obj, .drc or .glb (binary
-    glTF: every triangle primitive of its scene; a .glb the CLI or ``Frame.write`` wrote reads back as the frame's
-    mesh, its pieces welded). A file that is not such a mesh raises surfacer.UsageError naming what is wrong."""
+    """Reads a mesh file with the CLI's own readers, the format by the extension: .ply, .obj, .drc, .glb or .gltf
+    (every triangle primitive of its scene; a .gltf's buffer embedded as a data URI; a .glb the CLI or
+    ``Frame.write`` wrote reads back as the frame's mesh, its pieces welded). A file that is not such a mesh raises surfacer.UsageError naming what is wrong."""
     return Mesh(*_surfacer.read_mesh(os.fspath(path)))
 
 
@@ -153,7 +153,7 @@ class Client:
 
     def optimize(self, scene, **options) -> Job:
         """Optimizes a mesh toward the scene's surface (Ohtake-Belyaev-Pasko 2002): snapshot frames, the last one the
-        result. Options (surfacer.v1.OptimizeJob's fields): start_mesh (a .ply/.obj/.drc/.glb path) or
+        result. Options (surfacer.v1.OptimizeJob's fields): start_mesh (a .ply/.obj/.drc/.glb/.gltf path) or
         polygonize_cells, polygonize_cell_size, polygonize_method, polygonize_bounds (aliases start_cells,
         start_method, start_bounds); max_iterations (alias iterations), tolerance, snapshot_every, flows ("d,n,t" or a
         list), c_d, c_n, c_t, step_bound, modified_flows, t_flow_iterations, subdivision_threshold (alias

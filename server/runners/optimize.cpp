@@ -25,6 +25,7 @@ MeshFormat sniff_mesh_format(const std::string& bytes) {
   if (bytes.rfind("ply", 0) == 0) return MeshFormat::kPly;
   if (bytes.rfind("DRACO", 0) == 0) return MeshFormat::kDraco;
   if (bytes.rfind("glTF", 0) == 0) return MeshFormat::kGlb;
+  if (bytes.rfind("{", 0) == 0) return MeshFormat::kGltf;
   return MeshFormat::kObj;
 }
 

@@ -56,6 +56,43 @@ def test_vtk_and_meshio_read_our_vtk_and_vtu_with_normals(scene, encoding, tmp_p
         np.testing.assert_allclose(mesh.point_data["Normals"], reference.normals, atol=1e-6, err_msg=str(path))
 
 
+@pytest.mark.parametrize("scene,encoding,normals", [("torus", "draco", True), ("csg_block", "raw", False),
+                                                    ("gyroid_in_sphere", "meshopt", True)])
+def test_vtk_reads_our_plain_gltf(scene, encoding, normals, tmp_path):
+    """--format gltf is for readers without Draco (Debian's Blender, VTK): VTK's own glTF reader gets the frame."""
+    from vtkmodules.vtkIOGeometry import vtkGLTFReader
+    out = tmp_path / "out"
+    subprocess.run([cli(), "run", "isosurface", "--scene", str(SCENES / (scene + ".json")), "--cells", "24",
+                    "--encoding", encoding, "-o", str(out), "--format", "ply,gltf"] + (["--normals"] if normals else []),
+                   check=True, capture_output=True, timeout=120)
+    reference = surfacer.read_mesh(out / "frame_0000.ply")
+    reader = vtkGLTFReader()
+    reader.SetFileName(str(out / "frame_0000.gltf"))
+    reader.Update()
+    blocks = reader.GetOutput()
+    iterator = blocks.NewIterator()
+    iterator.InitTraversal()
+    meshes = []
+    while not iterator.IsDoneWithTraversal():
+        meshes.append(iterator.GetCurrentDataObject())
+        iterator.GoToNextItem()
+    assert len(meshes) == 1
+    mesh = meshes[0]
+    assert mesh.GetNumberOfPoints() == len(reference.vertices)
+    assert mesh.GetNumberOfCells() == len(reference.triangles)
+    points = vtk_to_numpy(mesh.GetPoints().GetData()).astype(np.float64)
+    np.testing.assert_allclose(points, reference.vertices, atol=1e-6)
+    polys = vtk_to_numpy(mesh.GetPolys().GetConnectivityArray()).reshape(-1, 3)
+    np.testing.assert_array_equal(polys, reference.triangles)
+    if normals:
+        np.testing.assert_allclose(vtk_to_numpy(mesh.GetPointData().GetNormals()), reference.normals, atol=1e-6)
+    else:
+        assert mesh.GetPointData().GetNormals() is None
+    # And our own reader (Python's read_mesh, the CLI's --start-mesh) takes it back.
+    again = surfacer.read_mesh(out / "frame_0000.gltf")
+    assert len(again.triangles) == len(reference.triangles)
+
+
 def test_pvd_gives_paraview_the_input_frame_numbers_as_times(tmp_path):
     """The .pvd is a VTK XML Collection (ParaView's reader; Debian's VTK 9.1 has no Python binding of it, so the XML
     is read here and each data set it names is read by VTK's own reader)."""
