@@ -201,14 +201,18 @@ void add_output_flags(CLI::App* app, OutputFlags& flags) {
                   "input sequence's own frame number (--start 100 writes frame_0100), else the frame index")
       ->type_name("DIR|PATTERN");
   app->add_option("--format", flags.formats,
-                  "files per frame, comma-separated: drc,ply,obj,vtk,vtu,glb,gltf (default: .drc for Draco frames, "
+                  "files per frame, comma-separated: drc,ply,obj,vtk,vtu,glb,gltf,vdb (default: .drc for Draco frames, "
                   ".ply for meshopt and raw ones; vtk = legacy binary, vtu = VTK XML with zlib, for ParaView; glb = "
                   "glTF with Draco pieces, encoded on every core, for three.js and glTF readers with Draco, up to 16 "
                   "quantization bits; gltf = plain glTF, uncompressed, for readers without Draco such as Debian's "
-                  "Blender and VTK)")
+                  "Blender and VTK; vdb = OpenVDB narrow-band level set, for Houdini, Blender volumes and OpenVDB)")
       ->delimiter(',')
       ->check(CLI::IsMember(file_format_names()))
       ->type_name("LIST");
+  app->add_option("--vdb-voxel-size", flags.vdb_voxel_size,
+                  "voxel edge of .vdb files in scene units (default: each frame's mean edge length)")
+      ->check(CLI::PositiveNumber)
+      ->type_name("H");
   add_report_flags(app, flags.report);
 }
 

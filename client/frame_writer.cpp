@@ -12,6 +12,7 @@
 
 #include "client/exit_codes.h"
 #include "client/output_files.h"
+#include "client/vdb_writer.h"
 #include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_gltf.h"
 #include "core/mesh/mesh_io.h"
@@ -278,6 +279,10 @@ std::vector<std::filesystem::path> FrameWriter::write(const ReceivedFrame& frame
         break;
       case FileFormat::kGltf:
         converted = write_gltf(decoded());
+        bytes = converted;
+        break;
+      case FileFormat::kVdb:
+        converted = write_vdb(decoded(), options_.vdb_voxel_size);
         bytes = converted;
         break;
     }

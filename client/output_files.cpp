@@ -15,7 +15,7 @@ namespace {
 CliError usage(const std::string& message) { return CliError(ExitCode::kUsage, message); }
 
 constexpr FileFormat kAllFormats[] = {FileFormat::kDrc, FileFormat::kPly, FileFormat::kObj, FileFormat::kVtk,
-                                      FileFormat::kVtu, FileFormat::kGlb, FileFormat::kGltf};
+                                      FileFormat::kVtu, FileFormat::kGlb, FileFormat::kGltf, FileFormat::kVdb};
 
 }  // namespace
 
@@ -48,6 +48,8 @@ const char* file_format_name(FileFormat format) {
       return "glb";
     case FileFormat::kGltf:
       return "gltf";
+    case FileFormat::kVdb:
+      return "vdb";
   }
   return "bin";
 }

@@ -11,9 +11,11 @@
 #include <pybind11/stl.h>
 
 #include <atomic>
+#include <cctype>
 #include <condition_variable>
 #include <cstdlib>
 #include <deque>
+#include <filesystem>
 #include <functional>
 #include <iostream>
 #include <map>
@@ -27,6 +29,7 @@
 
 #include "client/commands.h"
 #include "client/connection.h"
+#include "client/frame_writer.h"
 #include "client/health.h"
 #include "client/job_fields.h"
 #include "client/job_spec.h"
@@ -35,6 +38,7 @@
 #include "client/server_list.h"
 #include "client/summary.h"
 #include "client/upload.h"
+#include "client/vdb_writer.h"
 #include "client/watch.h"
 #include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_io.h"
@@ -772,11 +776,13 @@ py::tuple read_mesh_file(const std::string& path) {
   return mesh_arrays(mesh);
 }
 
-// Writes a mesh given as arrays with core's writer (write_mesh: .ply, .obj, .drc, .glb or .gltf by the extension).
+// Writes a mesh given as arrays with core's writer (write_mesh: .ply, .obj, .drc, .glb or .gltf by the extension), or
+// the client's .vdb writer (voxel_size 0: the mesh's mean edge length).
 void write_mesh_file(const std::string& path,
                      const py::array_t<double, py::array::c_style | py::array::forcecast>& vertices,
                      const py::array_t<std::int64_t, py::array::c_style | py::array::forcecast>& triangles,
-                     const std::optional<py::array_t<double, py::array::c_style | py::array::forcecast>>& normals) {
+                     const std::optional<py::array_t<double, py::array::c_style | py::array::forcecast>>& normals,
+                     double voxel_size) {
   const auto rows = [](const auto& array, const char* what) {
     if (array.ndim() != 2 || array.shape(1) != 3) throw py::value_error(std::string(what) + " must be an (N,3) array");
     return array.shape(0);
@@ -806,7 +812,13 @@ void write_mesh_file(const std::string& path,
   }
   py::gil_scoped_release release;
   try {
-    surfacer::write_mesh(path, mesh);
+    std::string extension = std::filesystem::path(path).extension().string();
+    for (char& c : extension) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    if (extension == ".vdb") {
+      write_file_atomically(path, write_vdb(mesh, voxel_size));
+    } else {
+      surfacer::write_mesh(path, mesh);
+    }
   } catch (const Error& e) {
     throw CliError(ExitCode::kUsage, e.what());
   }
@@ -852,7 +864,7 @@ PYBIND11_MODULE(_surfacer, m) {
 
   m.def("read_mesh", &read_mesh_file, py::arg("path"));
   m.def("write_mesh", &write_mesh_file, py::arg("path"), py::arg("vertices"), py::arg("triangles"),
-        py::arg("normals") = py::none());
+        py::arg("normals") = py::none(), py::arg("voxel_size") = 0.0);
 
   py::class_<FrameStream>(m, "FrameStream")
       .def_property_readonly("job_id", &FrameStream::job_id)

@@ -40,10 +40,12 @@ class Frame:
     normals: Optional[np.ndarray]
     stats: Dict[str, Any]
 
-    def write(self, path) -> None:
+    def write(self, path, vdb_voxel_size: Optional[float] = None) -> None:
         """Writes the mesh with the CLI's own writers, the format by the extension: .ply (binary), .obj, .drc, .glb
-        (glTF with Draco pieces, encoded on every core) or .gltf (plain glTF, for readers without Draco)."""
-        _surfacer.write_mesh(os.fspath(path), self.vertices, self.triangles, self.normals)
+        (glTF with Draco pieces, encoded on every core), .gltf (plain glTF, for readers without Draco) or .vdb (an
+        OpenVDB narrow-band level set named "surface", voxels of edge vdb_voxel_size, by default the mean edge
+        length)."""
+        _surfacer.write_mesh(os.fspath(path), self.vertices, self.triangles, self.normals, vdb_voxel_size or 0.0)
 
 
 @dataclass(frozen=True)
@@ -55,9 +57,9 @@ class Mesh:
     triangles: np.ndarray
     normals: Optional[np.ndarray]
 
-    def write(self, path) -> None:
+    def write(self, path, vdb_voxel_size: Optional[float] = None) -> None:
         """Writes the mesh as ``Frame.write`` does."""
-        _surfacer.write_mesh(os.fspath(path), self.vertices, self.triangles, self.normals)
+        _surfacer.write_mesh(os.fspath(path), self.vertices, self.triangles, self.normals, vdb_voxel_size or 0.0)
 
 
 def read_mesh(path) -> Mesh:
