@@ -1,6 +1,8 @@
 // surfacer-server: the Surfacer gRPC service on a port.
 #include <CLI/CLI.hpp>
+#include <chrono>
 #include <csignal>
+#include <cstdlib>
 #include <fstream>
 #include <iostream>
 #include <thread>
@@ -13,6 +15,13 @@ using surfacer::server::LogLevel;
 using surfacer::server::ServerOptions;
 using surfacer::server::ShutdownMode;
 using surfacer::server::SurfacerServer;
+
+namespace {
+// After a second SIGTERM/SIGINT the shutdown has this long to end before the process exits regardless, with
+// kForcedExitCode.
+constexpr std::chrono::milliseconds kSecondSignalGrace{2000};
+constexpr int kForcedExitCode = 2;
+}  // namespace
 
 int main(int argc, char** argv) {
   ServerOptions options;
@@ -73,7 +82,7 @@ int main(int argc, char** argv) {
                  "cannot use TLS; it carries no job data)");
   app.add_option("--drain-seconds", drain_seconds,
                  "on SIGTERM/SIGINT, let running jobs finish this long before cancelling them (a second signal "
-                 "cancels at once)")
+                 "cancels them at once, and exits within 2 s even if one does not stop)")
       ->capture_default_str();
   app.add_flag("-v,--verbose", verbose, "debug logs");
   app.set_version_flag("--version", "surfacer-server " + std::string(surfacer::build_version()),
@@ -110,11 +119,20 @@ int main(int argc, char** argv) {
     int sig = 0;
     sigwait(&signals, &sig);
     surfacer::server::log_event(LogLevel::kInfo, "signal", {{"signal", sig == SIGTERM ? "SIGTERM" : "SIGINT"}});
+    // The second signal cancels every job; the shutdown then normally ends within a fraction of a second. A job
+    // that does not stop (or anything else that holds the shutdown) must not keep the process alive: after
+    // kSecondSignalGrace it exits at once. Nothing is lost that a crash would keep: the store is crash-safe.
     std::thread second([&] {
       int again = 0;
       sigwait(&signals, &again);
-      surfacer::server::log_event(LogLevel::kWarn, "signal_again", {{"action", "cancel running jobs"}});
+      surfacer::server::log_event(
+          LogLevel::kWarn, "signal_again",
+          {{"action", "cancel running jobs; exit within " + std::to_string(kSecondSignalGrace.count()) + " ms"}});
       server->cancel_jobs("server shutting down (second signal)");
+      std::this_thread::sleep_for(kSecondSignalGrace);
+      surfacer::server::log_event(LogLevel::kError, "exit_forced",
+                                  {{"reason", "the shutdown did not end after the second signal"}});
+      std::_Exit(kForcedExitCode);
     });
     second.detach();
     server->shutdown(ShutdownMode::kDrain, std::chrono::milliseconds(static_cast<long long>(drain_seconds * 1000.0)));
