@@ -43,6 +43,9 @@ constexpr double kCuspFacing = 0.5;
 // Particles closer than this (in r_inner) to an earlier one are merged into it (docs/ALGORITHMS.md §1, CHOICE
 // "coincident particles merged").
 constexpr double kCoincidentTolerance = 1e-6;
+// A vertex with more outer spheres than this passing near it holds no cusp (docs/ALGORITHMS.md §1, CHOICE "coincident
+// particles merged"): the search is cubic in them.
+constexpr std::size_t kMaxCuspSpheres = 96;
 // Rounds of 1-ring sums that carry the cusps' planes to the vertices around them (CHOICE "a start on the cusps'
 // planes"): enough to cover r_outer, at most this many.
 constexpr int kMaxDescentPasses = 16;
@@ -1217,7 +1220,7 @@ class Smoother {
       BandScratch scratch;
       std::size_t lowered = 0;
       for (std::size_t i = begin; i < end; ++i) {
-        if (((i - begin) & 1023) == 1023) control.check();
+        if (((i - begin) & 63) == 63) control.check();
         const Vec3& at = x_[i];  // where step 3 left it
         const Vec3& n = normals_[i];
         double cell = 0.0;
@@ -1266,7 +1269,11 @@ class Smoother {
             }
             return true;
           };
-          const std::optional<HeldCusp> held = lowest_cusp(x, n, cell, scratch.spheres, scratch.deeper, owns);
+          // The search is cubic in the spheres around the vertex: past kMaxCuspSpheres (a cluster far denser than
+          // any fluid, CHOICE "coincident particles merged") the vertex holds none.
+          const std::optional<HeldCusp> held = scratch.spheres.size() <= kMaxCuspSpheres
+                                                   ? lowest_cusp(x, n, cell, scratch.spheres, scratch.deeper, owns)
+                                                   : std::nullopt;
           cusp_[i] = held ? held->plane : CuspPlane{};
           // A cusp below the inner edge: the vertex waits there (eq. 3.5 does not hold around it).
           if (held && held->bound < hi) {

@@ -1113,6 +1113,23 @@ TEST(ParticleSurfacer, NearCoincidentParticlesCostWhatOneCosts) {
   }
 }
 
+// A cluster too wide to merge (5,000 particles within 1e-4 r_inner, mostly farther apart than the merge tolerance) but
+// far denser than any fluid: no vertex searches the cusps of more than kMaxCuspSpheres spheres (this ran for more
+// than ten minutes).
+TEST(ParticleSurfacer, DenseClusterBeyondTheMergeToleranceStaysFast) {
+  std::mt19937 rng(2);
+  std::uniform_real_distribution<double> offset(0.0, 1e-6);
+  std::vector<Vec3> cloud(5000);
+  for (Vec3& p : cloud) p = Vec3(0.5 + offset(rng), 0.5 + offset(rng), 0.5 + offset(rng));
+  const auto t0 = std::chrono::steady_clock::now();
+  ParticleSurfacingStats stats;
+  const Mesh mesh = surface_particles(cloud, {}, options(0.01), {}, &stats);
+  EXPECT_LT(seconds_since(t0), 5.0);
+  EXPECT_GT(stats.seeds, 1000u);  // mostly not merged
+  EXPECT_TRUE(mesh_has(check_mesh(mesh), kClosedManifold));
+  EXPECT_EQ(stats.faithful_after_polish, 1.0);
+}
+
 // Cancel takes effect within a sweep with thousands of particles at one point, in every stage.
 TEST(ParticleSurfacer, CancelIsPromptWithCoincidentParticles) {
   const std::vector<Vec3> particles(8000, Vec3(0.1, 0.2, 0.3));
