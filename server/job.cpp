@@ -276,15 +276,33 @@ bool Job::next_event(WatchCursor& cursor, v1::JobEvent& event) const {
   if (cursor.done) return false;
   // 1. The rest of the frame in flight, so that a frame's chunks stay contiguous. Frame records are immutable.
   if (cursor.current) {
-    const std::string_view data = chunk_of(*cursor.current_bytes, cursor.next_chunk);
+    const v1::FrameHeader& header = cursor.current->header;
     auto* chunk = event.mutable_chunk();
-    chunk->set_frame_index(cursor.current->header.frame_index());
+    chunk->set_frame_index(header.frame_index());
     chunk->set_chunk_index(cursor.next_chunk);
-    chunk->set_data(data.data(), data.size());
     const auto& crcs = cursor.current->chunk_crcs;
-    chunk->set_crc32(crcs.empty() ? crc32_of(data) : crcs.at(cursor.next_chunk));
+    const bool last = cursor.next_chunk + 1 >= header.num_chunks();
+    if (cursor.current_bytes) {
+      const std::string_view data = chunk_of(*cursor.current_bytes, cursor.next_chunk);
+      chunk->set_data(data.data(), data.size());
+      chunk->set_crc32(crcs.empty() ? crc32_of(data) : crcs.at(cursor.next_chunk));
+    } else {
+      // A stored frame: this chunk alone is read, and checked before it is sent (against its recorded CRC-32, or,
+      // after a restart, the chunks so far against the frame's on the last one).
+      const std::uint64_t offset = static_cast<std::uint64_t>(cursor.next_chunk) * wire::kMaxChunkBytes;
+      const std::size_t length = static_cast<std::size_t>(
+          std::min<std::uint64_t>(wire::kMaxChunkBytes, header.total_bytes() - std::min(offset, header.total_bytes())));
+      std::string data = store_->read_frame_range(id_, header, offset, length);
+      const std::uint32_t crc = crc32_of(data);
+      cursor.crc_so_far = crc32_concat(cursor.crc_so_far, crc, data.size());
+      if ((!crcs.empty() && crcs.at(cursor.next_chunk) != crc) || (last && cursor.crc_so_far != header.crc32())) {
+        throw std::runtime_error("frame " + std::to_string(header.frame_index()) + " of job " + id_ +
+                                 " is damaged on disk (CRC-32 mismatch)");
+      }
+      chunk->set_crc32(crc);
+      chunk->set_data(std::move(data));
+    }
     ++cursor.next_chunk;
-    const bool last = cursor.next_chunk >= cursor.current->header.num_chunks();
     chunk->set_last(last);
     if (last) {
       cursor.current.reset();
@@ -307,12 +325,8 @@ bool Job::next_event(WatchCursor& cursor, v1::JobEvent& event) const {
     *event.mutable_frame() = record->header;
     if (record->header.num_chunks() > 0) {
       cursor.next_chunk = 0;
-      if (record->bytes) {
-        cursor.current_bytes = record->bytes;
-      } else {
-        lock.unlock();  // read from the store without holding the job
-        cursor.current_bytes = std::make_shared<const std::string>(store_->read_frame(id_, record->header));
-      }
+      cursor.current_bytes = record->bytes;  // null: read chunk by chunk from the store
+      cursor.crc_so_far = 0;
       cursor.current = std::move(record);
     }
     return true;

@@ -55,7 +55,10 @@ struct WatchCursor {
   std::uint64_t progress_version_sent = 0;
   std::size_t next_frame = 0;  // index into the completion-ordered frame list
   std::shared_ptr<const FrameRecord> current;
+  // The frame's bytes when held in memory (shared by every stream); null when they are read from the store one
+  // chunk at a time, so a stream never holds more than a chunk of them.
   std::shared_ptr<const std::string> current_bytes;
+  std::uint32_t crc_so_far = 0;  // CRC-32 of the chunks sent of a stored frame without recorded chunk CRCs
   int next_chunk = 0;
   bool done = false;  // the terminal state has been produced
 };

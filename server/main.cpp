@@ -9,6 +9,7 @@
 
 #include "core/util/version.h"
 #include "server/log.h"
+#include "server/memory_budget.h"
 #include "server/server.h"
 
 using surfacer::server::LogLevel;
@@ -21,10 +22,16 @@ namespace {
 // kForcedExitCode.
 constexpr std::chrono::milliseconds kSecondSignalGrace{2000};
 constexpr int kForcedExitCode = 2;
+// The smallest --memory-budget: room for a few uploads being received and watch streams at once.
+constexpr std::int64_t kMinMemoryBudget = std::int64_t{64} << 20;
 }  // namespace
 
 int main(int argc, char** argv) {
   ServerOptions options;
+  // Half the machine's RAM (the rest for the jobs themselves), or the built-in value when it cannot be read.
+  if (const std::int64_t ram = surfacer::server::physical_memory_bytes(); ram > 0) {
+    options.limits.memory_budget_bytes = ram / 2;
+  }
   std::string port_file;
   double drain_seconds = 30.0;
   bool verbose = false;
@@ -48,6 +55,33 @@ int main(int argc, char** argv) {
   app.add_option("--max-upload-bytes", options.limits.max_upload_bytes, "largest single upload, in bytes")
       ->capture_default_str();
   app.add_option("--max-frames", options.limits.max_frames, "most frames in one job")->capture_default_str();
+  std::string memory_budget = std::to_string(options.limits.memory_budget_bytes);
+  app.add_option("--memory-budget", memory_budget,
+                 "memory, whole server, that uploads being received (and, without --data-dir, uploads kept) and "
+                 "WatchJob streams' buffers may hold: bytes, or with K/M/G/T (6G, 512M); beyond it they are refused "
+                 "with RESOURCE_EXHAUSTED (default: half the machine's RAM)")
+      ->capture_default_str()
+      ->check([](const std::string& text) -> std::string {
+        std::int64_t bytes = 0;
+        if (!surfacer::server::parse_byte_size(text, bytes)) {
+          return "'" + text + "' is not a size: give bytes, or a number with K, M, G or T (6G, 512M)";
+        }
+        if (bytes < kMinMemoryBudget) {
+          return text + " (" + std::to_string(bytes) + " bytes) is below the minimum of " +
+                 std::to_string(kMinMemoryBudget) + " bytes (64M); the default is half the machine's RAM";
+        }
+        return {};
+      });
+  app.add_option("--max-watchers-per-job", options.max_watchers_per_job,
+                 "WatchJob streams open at once on one job beyond this are refused with RESOURCE_EXHAUSTED")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  double upload_idle_seconds = std::chrono::duration<double>(options.upload_idle_timeout).count();
+  app.add_option("--upload-idle-timeout", upload_idle_seconds,
+                 "seconds an upload may wait for its next chunk; then it is ended (DEADLINE_EXCEEDED) and its "
+                 "bytes are freed")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   bool memory_only = false;
   double retain_hours = 24.0 * 7;
   app.add_option("--data-dir", options.data_dir,
@@ -90,6 +124,15 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   if (verbose) surfacer::server::set_log_level(LogLevel::kDebug);
   options.keep_finished = std::chrono::seconds(static_cast<long long>(retain_hours * 3600.0));
+  surfacer::server::parse_byte_size(memory_budget, options.limits.memory_budget_bytes);  // checked above
+  options.upload_idle_timeout = std::chrono::milliseconds(static_cast<long long>(upload_idle_seconds * 1000.0));
+  if (const std::int64_t ram = surfacer::server::physical_memory_bytes();
+      ram > 0 && options.limits.memory_budget_bytes > ram) {
+    surfacer::server::log_event(LogLevel::kWarn, "memory_budget",
+                                {{"bytes", std::to_string(options.limits.memory_budget_bytes)},
+                                 {"note", "above the machine's RAM (" + std::to_string(ram) +
+                                              " bytes); the budget cannot keep the server within memory"}});
+  }
   if (options.data_dir.empty() && !memory_only) {
     surfacer::server::log_event(LogLevel::kWarn, "memory_only",
                                 {{"note", "jobs are lost on restart; give --data-dir for a durable store"}});

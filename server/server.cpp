@@ -18,6 +18,7 @@
 #include "server/clock.h"
 #include "server/job.h"
 #include "server/log.h"
+#include "server/memory_budget.h"
 #include "server/metrics_http.h"
 #include "server/runners/runner.h"
 #include "server/scheduler.h"
@@ -99,6 +100,7 @@ struct SurfacerServer::Impl {
         uploads(store.get()),
         scheduler(pool, options.max_queued_jobs),
         metrics(registry),
+        memory(options.limits.memory_budget_bytes),
         service(state) {
     state.options = options;
     state.worker_threads = threads;
@@ -110,6 +112,7 @@ struct SurfacerServer::Impl {
     state.usage = &usage;
     state.hooks = &hooks;
     state.metrics = &metrics;
+    state.memory = &memory;
     register_metrics();
   }
 
@@ -133,6 +136,7 @@ struct SurfacerServer::Impl {
   Scheduler scheduler;
   MetricsRegistry registry;
   ServerMetrics metrics;
+  MemoryBudget memory;
   ServiceState state;
   SurfacerService service;
   std::unique_ptr<grpc::Server> grpc_server;
