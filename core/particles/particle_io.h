@@ -24,6 +24,13 @@
 //   .bgeo .bhclassic  Houdini classic binary geometry (magic "Bgeo", version 5; as written by Partio and
 //                   SPlisHSPlasH): the point positions, radii from a float point attribute named pscale or radius.
 //
+// Attributes (ParticleFrame::attributes): every other per-point array of 1 to 4 numbers is kept under its name, as
+// float32: VTK legacy POINT_DATA SCALARS, VECTORS, NORMALS and FIELD arrays; VTK XML PointData DataArrays (kept when
+// every <Piece> has them); PLY vertex properties (NAME_x, NAME_y, NAME_z ... in a row make one vector NAME); BGEO
+// float and int point attributes; named columns of .xyz/.csv text. Arrays of other sizes (tensors), string arrays,
+// .json and .bin carry none. Values are converted to float32 as they are and not checked: whoever uses an array checks
+// it (the client, before it uploads the arrays named by --interpolate).
+//
 // Every problem (unreadable file, unknown extension, bad syntax, wrong counts, truncation, non-finite coordinates,
 // unsupported variant) throws surfacer::Error(kInvalidInput, "file") whose message starts with the file name and names
 // the line (text) or byte offset (binary; offsets of gzip data are into the inflated bytes), e.g.
@@ -48,7 +55,15 @@ namespace surfacer {
 struct ParticleFrame {
   std::vector<Vec3> positions;
   std::vector<double> radii;  // empty, or one per position (as stored; not validated here)
+  // The file's other per-particle arrays of 1 to Attribute::kMaxComponents numbers (velocity, density, ...), one
+  // element per position each, under the file's names, in file order (see "Attributes" above).
+  std::vector<Attribute> attributes;
 };
+
+// The attribute named `name` of `frame`, or nullptr.
+const Attribute* find_attribute(const ParticleFrame& frame, std::string_view name);
+// "velocity (3), density (1)", or "none": the attributes a frame has, for messages.
+std::string attribute_list(const ParticleFrame& frame);
 
 enum class ParticleFormat { kXyz, kPly, kVtk, kVtu, kBin, kBgeo, kJson };
 
