@@ -38,6 +38,14 @@ class ParticlesRunner final : public JobRunner {
     ParticleSurfacingStats stats;
     Mesh mesh = surface_particles(data.positions, data.radii, options, control, &stats);
     control.check();
+    timer.add("distance_field", stats.seconds_distance_field);
+    timer.add("polygonize", stats.seconds_polygonize);
+    timer.add("laplacian", stats.seconds_laplacian);
+    timer.add("build_b", stats.seconds_build_b);
+    timer.add("bilaplacian", stats.seconds_bilaplacian);
+    timer.add("polish", stats.seconds_polish);
+    if (options.erosion) timer.add("erosion", stats.seconds_erosion);
+    timer.add("cleanup", stats.seconds_cleanup);
     if (!interpolate_[index].empty()) {
       std::vector<Attribute> carried;
       for (const std::string& name : interpolate_[index]) {
@@ -52,14 +60,6 @@ class ParticlesRunner final : public JobRunner {
         mesh.attributes = interpolate_attributes(data.positions, carried, mesh.vertices, support, control);
       });
     }
-    timer.add("distance_field", stats.seconds_distance_field);
-    timer.add("polygonize", stats.seconds_polygonize);
-    timer.add("laplacian", stats.seconds_laplacian);
-    timer.add("build_b", stats.seconds_build_b);
-    timer.add("bilaplacian", stats.seconds_bilaplacian);
-    timer.add("polish", stats.seconds_polish);
-    if (options.erosion) timer.add("erosion", stats.seconds_erosion);
-    timer.add("cleanup", stats.seconds_cleanup);
     FrameOutput frame = frame_maker_.make(mesh, timer, control);
     auto& metrics = *frame.stats.mutable_metrics();
     metrics["particles"] = static_cast<double>(stats.particles);
