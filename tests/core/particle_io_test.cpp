@@ -964,5 +964,21 @@ TEST(ParticleIo, BgeoKeepsFloatAndVectorPointAttributes) {
   EXPECT_EQ(find_attribute(back, "pscale"), nullptr);  // the radius
 }
 
+TEST(ParticleIo, JsonObjectOfArraysCarriesRadiiAndAttributes) {
+  const ParticleFrame f = parse_particles(
+      "{\"positions\": [[0, 0, 0], [1, 0, 0]], \"radius\": [0.5, 0.25], \"velocity\": [[1, 2, 3], [4, 5, 6]],\n"
+      " \"density\": [1000, 999]}",
+      ParticleFormat::kJson, "p.json");
+  ASSERT_EQ(f.positions.size(), 2u);
+  EXPECT_EQ(f.positions[1], Vec3(1, 0, 0));
+  EXPECT_EQ(f.radii, (std::vector<double>{0.5, 0.25}));
+  expect_attribute(f, "velocity", 3, {1, 2, 3, 4, 5, 6});
+  expect_attribute(f, "density", 1, {1000, 999});
+  for (const char* bad : {"{\"density\": [1]}", "{\"positions\": [[0, 0, 0]], \"density\": [1, 2]}",
+                          "{\"positions\": [[0, 0]]}", "{\"positions\": [[0, 0, 0]], \"v\": [[1, 2], [3]]}"}) {
+    EXPECT_THROW(parse_particles(bad, ParticleFormat::kJson, "bad.json"), Error) << bad;
+  }
+}
+
 }  // namespace
 }  // namespace surfacer
