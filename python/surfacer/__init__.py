@@ -13,7 +13,7 @@ unknown keyword is a TypeError.
 """
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Dict, Iterator, List, Optional
 
 import numpy as np
@@ -32,34 +32,40 @@ class Frame:
     vertices: (N,3) float64; triangles: (M,3) int32 indices into vertices, counter-clockwise seen from outside;
     normals: (N,3) float64 unit normals when the job asked for them (``normals=True``), else None; stats: the
     server's FrameStats as a dict (vertices, triangles, check (closed, edge_manifold, ...), timings, metrics,
-    iteration)."""
+    iteration); attributes: the particle attributes carried onto the vertices (``interpolate=[...]``), by name, each
+    a float32 array of (N,) for a scalar or (N,k) for a vector."""
 
     index: int
     vertices: np.ndarray
     triangles: np.ndarray
     normals: Optional[np.ndarray]
     stats: Dict[str, Any]
+    attributes: Dict[str, np.ndarray] = field(default_factory=dict)
 
     def write(self, path, vdb_voxel_size: Optional[float] = None) -> None:
-        """Writes the mesh with the CLI's own writers, the format by the extension: .ply (binary), .obj, .drc, .glb
-        (glTF with Draco pieces, encoded on every core), .gltf (plain glTF, for readers without Draco) or .vdb (an
-        OpenVDB narrow-band level set named "surface", voxels of edge vdb_voxel_size, by default the mean edge
-        length)."""
-        _surfacer.write_mesh(os.fspath(path), self.vertices, self.triangles, self.normals, vdb_voxel_size or 0.0)
+        """Writes the mesh with the CLI's own writers, the format by the extension: .ply (binary; attributes as vertex
+        properties), .obj, .drc, .glb (glTF with Draco pieces, encoded on every core), .gltf (plain glTF, for readers
+        without Draco) or .vdb (an OpenVDB narrow-band level set named "surface", voxels of edge vdb_voxel_size, by
+        default the mean edge length)."""
+        _surfacer.write_mesh(os.fspath(path), self.vertices, self.triangles, self.normals, self.attributes,
+                             vdb_voxel_size or 0.0)
 
 
 @dataclass(frozen=True)
 class Mesh:
     """A triangle mesh read from a file (``read_mesh``): vertices (N,3) float64; triangles (M,3) int32, counter-clockwise
-    seen from outside; normals (N,3) float64 when the file has them, else None."""
+    seen from outside; normals (N,3) float64 when the file has them, else None; attributes: other per-vertex
+    properties of a .ply (``Frame.attributes``)."""
 
     vertices: np.ndarray
     triangles: np.ndarray
     normals: Optional[np.ndarray]
+    attributes: Dict[str, np.ndarray] = field(default_factory=dict)
 
     def write(self, path, vdb_voxel_size: Optional[float] = None) -> None:
         """Writes the mesh as ``Frame.write`` does."""
-        _surfacer.write_mesh(os.fspath(path), self.vertices, self.triangles, self.normals, vdb_voxel_size or 0.0)
+        _surfacer.write_mesh(os.fspath(path), self.vertices, self.triangles, self.normals, self.attributes,
+                             vdb_voxel_size or 0.0)
 
 
 def read_mesh(path) -> Mesh:
