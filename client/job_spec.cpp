@@ -375,7 +375,10 @@ void fit_encoding_to_files(v1::JobSpec& spec, const std::vector<FileFormat>& for
   v1::OutputOptions* output = spec.mutable_output();
   if (spec.has_particles() && spec.particles().interpolate_size() > 0) {
     for (FileFormat format : formats) {
-      if (format != FileFormat::kObj && format != FileFormat::kGlb) continue;
+      if (format == FileFormat::kPly || format == FileFormat::kVtk || format == FileFormat::kVtu ||
+          format == FileFormat::kDrc) {
+        continue;
+      }
       throw CliError(ExitCode::kUsage, std::string("--interpolate with --format ") + file_format_name(format) +
                                            ": only ply, vtk, vtu and drc files carry the interpolated attributes");
     }
