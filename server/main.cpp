@@ -28,10 +28,7 @@ constexpr std::int64_t kMinMemoryBudget = std::int64_t{64} << 20;
 
 int main(int argc, char** argv) {
   ServerOptions options;
-  // Half the machine's RAM (the rest for the jobs themselves), or the built-in value when it cannot be read.
-  if (const std::int64_t ram = surfacer::server::physical_memory_bytes(); ram > 0) {
-    options.limits.memory_budget_bytes = ram / 2;
-  }
+  options.limits.memory_budget_bytes = surfacer::server::default_memory_budget();
   std::string port_file;
   double drain_seconds = 30.0;
   bool verbose = false;

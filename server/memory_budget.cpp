@@ -8,6 +8,7 @@
 #include <utility>
 
 #include "core/util/errors.h"
+#include "server/options.h"
 
 namespace surfacer::server {
 
@@ -70,6 +71,11 @@ std::int64_t physical_memory_bytes() {
   const long page_size = ::sysconf(_SC_PAGE_SIZE);
   if (pages <= 0 || page_size <= 0) return 0;
   return static_cast<std::int64_t>(pages) * static_cast<std::int64_t>(page_size);
+}
+
+std::int64_t default_memory_budget() {
+  const std::int64_t ram = physical_memory_bytes();
+  return ram > 0 ? ram / 2 : Limits{}.memory_budget_bytes;
 }
 
 bool parse_byte_size(const std::string& text, std::int64_t& bytes) {

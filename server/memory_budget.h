@@ -63,6 +63,9 @@ class MemoryBudget {
 
 // The machine's physical memory in bytes (sysconf), or 0 when it cannot be read.
 std::int64_t physical_memory_bytes();
+// The default --memory-budget: half the machine's physical memory (the rest is for the jobs themselves), or
+// Limits' built-in value when the memory cannot be read.
+std::int64_t default_memory_budget();
 
 // Parses a size: a whole number of bytes, or one followed by K, M, G or T (powers of 1024; an optional trailing
 // "B" or "iB", any case), e.g. "6G", "512M", "1048576". Returns false for anything else, zero or negative sizes,

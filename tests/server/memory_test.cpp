@@ -1,11 +1,10 @@
 // The server's memory bounds, through a real loopback port: WatchJob streams that never read hold a chunk each, not
 // a frame; finished uploads with a durable store live on disk, not in RAM; uploads left idle are ended; uploads and
 // watch streams draw from the memory budget (--memory-budget) and are refused beyond it. Memory is read from
-// /proc/self/status (the server runs in this process).
+// /proc/<pid>/status of a surfacer-server process.
 #include <gtest/gtest.h>
 
 #include <chrono>
-#include <fstream>
 #include <memory>
 #include <string>
 #include <thread>
@@ -15,6 +14,7 @@
 #include "server/memory_budget.h"
 #include "tests/server/test_client.h"
 #include "tests/support/files.h"
+#include "tests/support/server_process.h"
 
 namespace surfacer {
 namespace {
@@ -26,22 +26,6 @@ using testing::submit;
 using testing::watch_job;
 
 constexpr std::int64_t kMiB = std::int64_t{1} << 20;
-
-// This process's resident memory (VmRSS), in bytes.
-std::int64_t resident_bytes() {
-  std::ifstream in("/proc/self/status");
-  std::string key;
-  while (in >> key) {
-    if (key == "VmRSS:") {
-      std::int64_t kb = 0;
-      in >> kb;
-      return kb * 1024;
-    }
-    in.ignore(1 << 12, '\n');
-  }
-  ADD_FAILURE() << "no VmRSS in /proc/self/status";
-  return 0;
-}
 
 // A gyroid sheet clipped to a sphere, PLY (uncompressed): one frame of about 6 MB x (cells / 32)^2.
 v1::JobSpec big_raw_frame(int cells) {
@@ -110,21 +94,29 @@ TEST(MemoryBudget, ParsesSizes) {
   }
 }
 
-// 16 streams that never read one stored frame of tens of MB: each held its own copy of the frame (16 x the frame);
-// now each holds a chunk or two.
+// The surfacer-server binary with a data directory; its resident memory is read from /proc/<pid>/status.
+std::int64_t server_resident(const testing::ServerProcess& server) {
+  const auto bytes = server.resident_bytes();
+  EXPECT_TRUE(bytes.has_value()) << "the server is not running:\n" << server.log();
+  return static_cast<std::int64_t>(bytes.value_or(0));
+}
+
+// 16 streams that never read one stored frame of about 50 MB: each held its own copy of the frame (server RSS
+// +16 x the frame, 800 MB); now each holds a chunk or two.
 TEST(MemoryBounds, WatchStreamsThatNeverReadHoldAChunkNotTheFrame) {
-  auto options = LoopbackServer::default_options();
-  options.data_dir = testing::fresh_temp_dir("memory-watch").string();
-  LoopbackServer s(options);
+  const auto dir = testing::fresh_temp_dir("memory-watch");
+  testing::ServerProcess server(dir, 2, {"--data-dir", (dir / "data").string()});
+  ASSERT_NE(server.port(), 0) << server.log();
+  auto stub = testing::make_stub(server.address());
   std::string id;
-  ASSERT_TRUE(submit(*s.stub, big_raw_frame(90), &id).ok());
-  const auto first = watch_job(*s.stub, id);
+  ASSERT_TRUE(submit(*stub, big_raw_frame(90), &id).ok());
+  const auto first = watch_job(*stub, id);
   ASSERT_EQ(first.final_job.state(), v1::JOB_STATE_SUCCEEDED) << first.status.error_message();
   ASSERT_EQ(first.frames.size(), 1u);
   const auto frame_bytes = static_cast<std::int64_t>(first.frames.begin()->second.bytes.size());
   ASSERT_GT(frame_bytes, 20 * kMiB) << "the test needs a frame of tens of MB";
 
-  const std::int64_t before = resident_bytes();
+  const std::int64_t before = server_resident(server);
   constexpr int kStreams = 16;
   std::vector<std::unique_ptr<grpc::ClientContext>> contexts;
   std::vector<std::unique_ptr<grpc::ClientReader<v1::JobEvent>>> readers;
@@ -132,17 +124,17 @@ TEST(MemoryBounds, WatchStreamsThatNeverReadHoldAChunkNotTheFrame) {
   request.set_job_id(id);
   for (int i = 0; i < kStreams; ++i) {
     contexts.push_back(std::make_unique<grpc::ClientContext>());
-    readers.push_back(s.stub->WatchJob(contexts.back().get(), request));
+    readers.push_back(stub->WatchJob(contexts.back().get(), request));
   }
   std::this_thread::sleep_for(std::chrono::milliseconds(1500));  // the server reads as far as the streams let it
-  const std::int64_t grown = resident_bytes() - before;
+  const std::int64_t grown = server_resident(server) - before;
   for (auto& context : contexts) context->TryCancel();
   for (auto& reader : readers) reader->Finish();
-  // Old: >= kStreams x frame_bytes. Now: a few MiB per stream (a chunk, gRPC's copy and its windows, both ends).
-  EXPECT_LT(grown, kStreams * 8 * kMiB) << "RSS grew by " << grown / kMiB << " MiB for " << kStreams
-                                    << " streams of one " << frame_bytes / kMiB << " MiB frame";
-  std::printf("frame %lld MiB, %d never-read streams: RSS +%lld MiB\n", static_cast<long long>(frame_bytes / kMiB),
-              kStreams, static_cast<long long>(grown / kMiB));
+  // Now: a few MiB per stream (a chunk, gRPC's copy of it and its window).
+  EXPECT_LT(grown, kStreams * 6 * kMiB) << "server RSS grew by " << grown / kMiB << " MiB for " << kStreams
+                                        << " streams of one " << frame_bytes / kMiB << " MiB frame";
+  std::printf("frame %lld MiB, %d never-read streams: server RSS +%lld MiB\n",
+              static_cast<long long>(frame_bytes / kMiB), kStreams, static_cast<long long>(grown / kMiB));
 }
 
 TEST(MemoryBounds, WatchStreamsPerJobAreCapped) {
@@ -179,23 +171,25 @@ TEST(MemoryBounds, WatchStreamsPerJobAreCapped) {
   r2->Finish();
 }
 
-// Four 64 MiB uploads to a server with a data directory: each stayed in RAM (RSS +256 MiB); now each is on disk only.
+// Four 64 MiB uploads to a server with a data directory: each stayed in RAM (server RSS +256 MiB); now each is on
+// disk only.
 TEST(MemoryBounds, FinishedUploadsWithADataDirLiveOnDisk) {
-  auto options = LoopbackServer::default_options();
-  options.data_dir = testing::fresh_temp_dir("memory-uploads").string();
-  LoopbackServer s(options);
+  const auto dir = testing::fresh_temp_dir("memory-uploads");
+  testing::ServerProcess server(dir, 1, {"--data-dir", (dir / "data").string()});
+  ASSERT_NE(server.port(), 0) << server.log();
+  auto stub = testing::make_stub(server.address());
+  ASSERT_TRUE(try_upload(*stub, std::string(kMiB, 'w')).ok());  // warm-up: channel and threads
+  const std::int64_t before = server_resident(server);
   const std::string bytes(64 * kMiB, 'u');
-  ASSERT_TRUE(try_upload(*s.stub, std::string(kMiB, 'w')).ok());  // warm-up: channel and threads
-  const std::int64_t before = resident_bytes();
   for (int i = 0; i < 4; ++i) {
     v1::UploadResponse response;
-    const grpc::Status status = try_upload(*s.stub, bytes, &response);
+    const grpc::Status status = try_upload(*stub, bytes, &response);
     ASSERT_TRUE(status.ok()) << status.error_message();
     EXPECT_EQ(response.bytes(), bytes.size());
   }
-  const std::int64_t grown = resident_bytes() - before;
-  EXPECT_LT(grown, 128 * kMiB) << "RSS grew by " << grown / kMiB << " MiB after 4 uploads of 64 MiB";
-  std::printf("4 uploads of 64 MiB with --data-dir: RSS +%lld MiB\n", static_cast<long long>(grown / kMiB));
+  const std::int64_t grown = server_resident(server) - before;
+  EXPECT_LT(grown, 128 * kMiB) << "server RSS grew by " << grown / kMiB << " MiB after 4 uploads of 64 MiB";
+  std::printf("4 uploads of 64 MiB with --data-dir: server RSS +%lld MiB\n", static_cast<long long>(grown / kMiB));
 }
 
 // Uploads being received, and uploads kept in memory without a store, draw from the budget; a refusal names it, and
