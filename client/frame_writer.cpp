@@ -89,41 +89,10 @@ std::string frame_file_name(int index, FileFormat format) {
   return buf;
 }
 
-namespace {
-
-// `text` with XML's five special characters escaped, for an attribute value.
-std::string xml_attribute(const std::string& text) {
-  std::string out;
-  for (const char c : text) {
-    switch (c) {
-      case '&':
-        out += "&amp;";
-        break;
-      case '<':
-        out += "&lt;";
-        break;
-      case '>':
-        out += "&gt;";
-        break;
-      case '"':
-        out += "&quot;";
-        break;
-      case '\'':
-        out += "&apos;";
-        break;
-      default:
-        out += c;
-    }
-  }
-  return out;
-}
-
-}  // namespace
-
 std::string pvd_collection(const std::vector<std::pair<double, std::string>>& frames) {
   std::string out = "<?xml version=\"1.0\"?>\n<VTKFile type=\"Collection\" version=\"0.1\">\n  <Collection>\n";
   for (const auto& [time, file] : frames) {
-    out += "    <DataSet timestep=\"" + format_number(time) + "\" part=\"0\" file=\"" + xml_attribute(file) + "\"/>\n";
+    out += "    <DataSet timestep=\"" + format_number(time) + "\" part=\"0\" file=\"" + xml_escape(file) + "\"/>\n";
   }
   return out + "  </Collection>\n</VTKFile>\n";
 }

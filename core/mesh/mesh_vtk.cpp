@@ -68,28 +68,6 @@ std::string legacy_name(const std::string& name) {
   return out;
 }
 
-std::string xml_escape(const std::string& text) {
-  std::string out;
-  for (char c : text) {
-    switch (c) {
-      case '&':
-        out += "&amp;";
-        break;
-      case '<':
-        out += "&lt;";
-        break;
-      case '>':
-        out += "&gt;";
-        break;
-      case '"':
-        out += "&quot;";
-        break;
-      default:
-        out += c;
-    }
-  }
-  return out;
-}
 
 // --- Legacy ----------------------------------------------------------------------------------------------------------
 
@@ -229,5 +207,31 @@ std::string xml(const Mesh& mesh, bool double_precision) {
 std::string write_vtk(const Mesh& mesh, bool double_precision) { return legacy(mesh, double_precision); }
 
 std::string write_vtu(const Mesh& mesh, bool double_precision) { return xml(mesh, double_precision); }
+
+std::string xml_escape(std::string_view text) {
+  std::string out;
+  for (const char c : text) {
+    switch (c) {
+      case '&':
+        out += "&amp;";
+        break;
+      case '<':
+        out += "&lt;";
+        break;
+      case '>':
+        out += "&gt;";
+        break;
+      case '"':
+        out += "&quot;";
+        break;
+      case '\'':
+        out += "&apos;";
+        break;
+      default:
+        out += c;
+    }
+  }
+  return out;
+}
 
 }  // namespace surfacer
