@@ -17,6 +17,7 @@
 #include <new>
 #include <optional>
 
+#include "core/mesh/mesh_io.h"
 #include "core/util/allocation_budget.h"
 #include "core/util/checks.h"
 #include "core/util/errors.h"
@@ -154,13 +155,8 @@ int add_float3_attribute(draco::Mesh& out, draco::GeometryAttribute::Type type, 
 constexpr const char* kAttributeNameKey = "name";
 
 void add_named_attributes(draco::Mesh& out, const Mesh& mesh) {
+  check_attributes(mesh);
   for (const Attribute& a : mesh.attributes) {
-    if (a.components < 1 || a.components > Attribute::kMaxComponents ||
-        a.values.size() != mesh.vertices.size() * static_cast<std::size_t>(a.components)) {
-      throw InvalidInput("attributes", "mesh attribute " + a.name + " has " + std::to_string(a.values.size()) +
-                                           " values of " + std::to_string(a.components) + " components for " +
-                                           std::to_string(mesh.vertices.size()) + " vertices");
-    }
     auto attribute = std::make_unique<draco::PointAttribute>();
     attribute->Init(draco::GeometryAttribute::GENERIC, static_cast<std::int8_t>(a.components), draco::DT_FLOAT32, false,
                     mesh.vertices.size());

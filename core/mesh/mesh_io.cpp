@@ -266,14 +266,7 @@ std::string read_file(const std::filesystem::path& path) {
 
 }  // namespace
 
-void check_mesh_writable(const Mesh& mesh, std::string_view format) {
-  if (mesh.vertices.size() > static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max())) {
-    throw InvalidInput("vertices", "mesh has too many vertices for a " + std::string(format) + " file (max 2^31 - 1)");
-  }
-  if (!mesh.normals.empty() && mesh.normals.size() != mesh.vertices.size()) {
-    throw InvalidInput("normals", "mesh has " + std::to_string(mesh.normals.size()) + " normals for " +
-                                      std::to_string(mesh.vertices.size()) + " vertices");
-  }
+void check_attributes(const Mesh& mesh) {
   for (const Attribute& a : mesh.attributes) {
     if (a.components < 1 || a.components > Attribute::kMaxComponents ||
         a.values.size() != mesh.vertices.size() * static_cast<std::size_t>(a.components)) {
@@ -282,6 +275,17 @@ void check_mesh_writable(const Mesh& mesh, std::string_view format) {
                                            std::to_string(mesh.vertices.size()) + " vertices");
     }
   }
+}
+
+void check_mesh_writable(const Mesh& mesh, std::string_view format) {
+  if (mesh.vertices.size() > static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max())) {
+    throw InvalidInput("vertices", "mesh has too many vertices for a " + std::string(format) + " file (max 2^31 - 1)");
+  }
+  if (!mesh.normals.empty() && mesh.normals.size() != mesh.vertices.size()) {
+    throw InvalidInput("normals", "mesh has " + std::to_string(mesh.normals.size()) + " normals for " +
+                                      std::to_string(mesh.vertices.size()) + " vertices");
+  }
+  check_attributes(mesh);
   for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
     for (std::uint32_t v : mesh.triangles[t]) {
       if (v >= mesh.vertices.size()) {

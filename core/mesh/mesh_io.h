@@ -27,6 +27,9 @@ Mesh parse_mesh(std::string_view bytes, MeshFormat format, const std::string& na
 // Throws InvalidInput unless every mesh file can hold `mesh`: at most 2^31 - 1 vertices (files index with int32),
 // no normals or one per vertex, every triangle's indices below the vertex count. `format` names the file in messages.
 void check_mesh_writable(const Mesh& mesh, std::string_view format);
+// Throws InvalidInput("attributes") unless every Mesh::attributes entry has 1..kMaxComponents components and one row
+// per vertex (check_mesh_writable and the Draco encoder call it).
+void check_attributes(const Mesh& mesh);
 
 // By the extension: .ply, .obj, .drc (one Draco mesh, default options), .glb (to_gltf of Draco pieces on the
 // mesh's own box with the default bits, encoded on every core) or .gltf (plain, uncompressed: write_gltf). PLY is written binary little-endian (float positions
