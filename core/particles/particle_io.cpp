@@ -415,6 +415,7 @@ ParticleFrame parse_xyz(std::string_view text, const std::string& name) {
       }
     }
   }
+  named_values.resize(named.size());  // a header without data rows names columns that have no values
   for (std::size_t a = 0; a < named.size(); ++a) {
     if (named[a].second >= 0) keep_attribute(frame, named[a].first, 1, named_values[a]);
   }

@@ -953,6 +953,15 @@ TEST(ParticleIo, XyzHeaderColumnsBecomeAttributes) {
       parse_particles("x,y,z,density,tag\n0,0,0,2.5,a\n1,0,0,3.5,b\n", ParticleFormat::kXyz, "p.csv");
   expect_attribute(f, "density", 1, {2.5, 3.5});
   EXPECT_EQ(find_attribute(f, "tag"), nullptr);  // not numbers
+  // A header whose extra columns have no rows under them (found by fuzz_particles: it indexed past the values).
+  for (const char* text : {"x,y,z,density\n", "id,Z,y,x,psc0+AppendedDataale,0.25,9\n"}) {
+    try {
+      const ParticleFrame empty = parse_particles(text, ParticleFormat::kXyz, "h.csv");
+      EXPECT_TRUE(empty.positions.empty());
+    } catch (const Error& e) {
+      EXPECT_EQ(e.kind(), ErrorKind::kInvalidInput) << e.what();
+    }
+  }
 }
 
 TEST(ParticleIo, BgeoKeepsFloatAndVectorPointAttributes) {
