@@ -531,21 +531,72 @@ google::protobuf::Message& table_message(v1::JobSpec& spec, JobTable table) {
   return spec;
 }
 
-bool takes_words(JobTable table, const JobField& field) {
-  if (field.member_set) return true;
-  if (!field.parts.empty()) return false;
+namespace {
+
+// The descriptor of the field at `path` below `table`'s message; null when there is none (a shorthand's own name).
+const pb::FieldDescriptor* field_descriptor(JobTable table, const std::string& path) {
   v1::JobSpec spec;
   const pb::Message* message = &table_message(spec, table);
   const pb::FieldDescriptor* fd = nullptr;
   for (std::size_t pos = 0;;) {
-    const std::size_t dot = field.path.find('.', pos);
-    fd = message->GetDescriptor()->FindFieldByName(field.path.substr(pos, dot == std::string::npos ? dot : dot - pos));
+    const std::size_t dot = path.find('.', pos);
+    fd = message->GetDescriptor()->FindFieldByName(path.substr(pos, dot == std::string::npos ? dot : dot - pos));
     if (fd == nullptr || dot == std::string::npos) break;
     message = &message->GetReflection()->GetMessage(*message, fd);
     pos = dot + 1;
   }
+  return fd;
+}
+
+// The Python annotation of one proto field's keyword value.
+std::string python_field_type(const pb::FieldDescriptor& fd) {
+  switch (fd.cpp_type()) {
+    case pb::FieldDescriptor::CPPTYPE_DOUBLE:
+    case pb::FieldDescriptor::CPPTYPE_FLOAT:
+      return "float";
+    case pb::FieldDescriptor::CPPTYPE_INT32:
+    case pb::FieldDescriptor::CPPTYPE_INT64:
+    case pb::FieldDescriptor::CPPTYPE_UINT32:
+    case pb::FieldDescriptor::CPPTYPE_UINT64:
+      return "int";
+    case pb::FieldDescriptor::CPPTYPE_BOOL:
+      return "bool";
+    case pb::FieldDescriptor::CPPTYPE_ENUM: {
+      std::string names;
+      const pb::EnumDescriptor* e = fd.enum_type();
+      for (int i = 0; i < e->value_count(); ++i) {
+        if (e->value(i)->number() == 0) continue;  // UNSPECIFIED: the default, not a value a user gives
+        names += (names.empty() ? "" : ", ") + ("\"" + short_enum_name(*e->value(i)) + "\"");
+      }
+      return "Literal[" + names + "]";
+    }
+    case pb::FieldDescriptor::CPPTYPE_MESSAGE:  // Bounds and Vec3: x0,y0,z0,x1,y1,z1 and x,y,z
+      return "Sequence[float]";
+    default:
+      return "str";
+  }
+}
+
+}  // namespace
+
+bool takes_words(JobTable table, const JobField& field) {
+  if (field.member_set) return true;
+  if (!field.parts.empty()) return false;
+  const pb::FieldDescriptor* fd = field_descriptor(table, field.path);
   return fd != nullptr &&
          (fd->cpp_type() == pb::FieldDescriptor::CPPTYPE_ENUM || fd->cpp_type() == pb::FieldDescriptor::CPPTYPE_STRING);
+}
+
+std::string python_type(JobTable table, const JobField& field) {
+  if (field.member_set) return "Union[str, Sequence[str]]";
+  if (!field.parts.empty()) {
+    const pb::FieldDescriptor* part = field_descriptor(table, field.parts.front());
+    return "Sequence[" + (part ? python_field_type(*part) : std::string("float")) + "]";
+  }
+  const pb::FieldDescriptor* fd = field_descriptor(table, field.path);
+  if (fd == nullptr) throw std::logic_error("job field table: no field " + field.path);
+  const std::string type = python_field_type(*fd);
+  return fd->is_repeated() ? "Union[" + type + ", Sequence[" + type + "]]" : type;
 }
 
 std::string cli_flag(const std::string& spelling) {

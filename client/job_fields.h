@@ -65,6 +65,10 @@ google::protobuf::Message& table_message(v1::JobSpec& spec, JobTable table);
 // Whether `field` (one of `table`'s) takes words rather than numbers: an enum ("tiles") or a set of names ("d,n").
 bool takes_words(JobTable table, const JobField& field);
 
+// The annotation of `field`'s Python keyword in the package's type stubs, from its proto type: "float", "int", "bool",
+// Literal["tiles", "cubes"] for an enum, "Sequence[float]" for Bounds and Vec3, "Sequence[int]" for a shorthand of
+// whole numbers, "Union[str, Sequence[str]]" for a set of names or a repeated string field.
+std::string python_type(JobTable table, const JobField& field);
 // The CLI flag and the Python keyword of a spelling ("min_angle_degrees" or "min-angle" -> "--min-angle-degrees" /
 // "--min-angle", and "min_angle_degrees" / "min_angle").
 std::string cli_flag(const std::string& spelling);

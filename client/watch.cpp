@@ -100,6 +100,7 @@ WatchResult JobWatcher::run() {
         case v1::JobEvent::kProgress:
           if (event.progress().frames_total() > 0) frames_total = event.progress().frames_total();
           if (!quiet_) progress_.on_progress(event.progress());
+          if (on_progress_) on_progress_(event.progress());
           break;
         case v1::JobEvent::kFrame:
           if (auto frame = assembler.on_header(event.frame())) {

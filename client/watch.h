@@ -35,6 +35,8 @@ struct ReconnectPolicy {
 
 // Where a watcher puts each verified frame (FrameWriter::write by default).
 using FrameHandler = std::function<void(const ReceivedFrame& frame)>;
+// Called with every Progress event of the stream, quiet or not (Python's progress= callable).
+using ProgressHandler = std::function<void(const v1::Progress& progress)>;
 
 class JobWatcher {
  public:
@@ -50,6 +52,8 @@ class JobWatcher {
   // state's frames_total, which for open-ended jobs may be below the bound announced while running), kUnreachable
   // (reconnecting failed), kCancelled (stop() was called), or rpc_error() for other stream errors (e.g. NOT_FOUND).
   WatchResult run();
+  // Before run(): `handler` sees every Progress event, in the order the server sent them.
+  void set_progress_handler(ProgressHandler handler) { on_progress_ = std::move(handler); }
   // Thread-safe: ends the stream now; run() throws CliError(kCancelled).
   void stop();
 
@@ -62,6 +66,7 @@ class JobWatcher {
   int from_frame_;
   FrameWriter* writer_ = nullptr;  // null with a FrameHandler
   FrameHandler on_frame_;
+  ProgressHandler on_progress_;
   ProgressDisplay& progress_;
   bool quiet_ = false;
   ReconnectPolicy policy_;

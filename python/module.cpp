@@ -172,7 +172,12 @@ py::object to_python(const google::protobuf::Message& message) {
 // ---- keyword arguments onto the job's proto fields ------------------------------------------------------------------
 
 using Setter = std::function<void(py::handle value, const std::string& keyword)>;
-using Setters = std::map<std::string, Setter>;
+// A keyword: how it sets the job, and its value's annotation in the package's type stubs (python/gen_stubs.py).
+struct Keyword {
+  Setter set;
+  std::string type;
+};
+using Setters = std::map<std::string, Keyword>;
 
 std::string text_of(py::handle value) { return py::str(value).cast<std::string>(); }
 
@@ -213,8 +218,9 @@ void add_table(Setters& s, JobOptions& job, JobTable table) {
     const Setter set = [&job, table, &field, words](py::handle value, const std::string& name) {
       set_job_field(job.spec, table, field, table_text(value, name, words), name, job.names);
     };
-    s[keyword(spelling(field))] = set;
-    for (const std::string& alias : field.aliases) s[keyword(alias)] = set;
+    const std::string type = python_type(table, field);
+    s[keyword(spelling(field))] = {set, type};
+    for (const std::string& alias : field.aliases) s[keyword(alias)] = {set, type};
   }
 }
 
@@ -230,7 +236,7 @@ void apply(const py::dict& kwargs, const Setters& setters, const std::string& fu
     }
     if (value.is_none()) continue;
     try {
-      it->second(value, name);
+      it->second.set(value, name);
     } catch (const py::cast_error&) {
       throw py::type_error(function + "(): " + name + "=" + text_of(py::repr(value)) + " has the wrong type");
     }
@@ -331,23 +337,80 @@ struct Inputs {
 
 // name, encoding, normals, quantization_bits: every job type's output options.
 void add_common(Setters& s, JobOptions& job) {
-  s["name"] = [&job](py::handle v, const std::string&) { job.name = v.cast<std::string>(); };
-  s["encoding"] = [&job](py::handle v, const std::string& name) { set_encoding(job, v.cast<std::string>(), name); };
-  s["normals"] = [&job](py::handle v, const std::string&) { job.spec.mutable_output()->set_normals(v.cast<bool>()); };
-  s["quantization_bits"] = [&job](py::handle v, const std::string& name) {
-    job.spec.mutable_output()->set_quantization_bits(v.cast<int>());
-    job.names["spec.output.quantization_bits"] = name;
-  };
+  s["name"] = {[&job](py::handle v, const std::string&) { job.name = v.cast<std::string>(); }, "str"};
+  s["encoding"] = {[&job](py::handle v, const std::string& name) { set_encoding(job, v.cast<std::string>(), name); },
+                   "Literal[\"draco\", \"meshopt\", \"raw\"]"};
+  s["normals"] = {
+      [&job](py::handle v, const std::string&) { job.spec.mutable_output()->set_normals(v.cast<bool>()); }, "bool"};
+  s["quantization_bits"] = {[&job](py::handle v, const std::string& name) {
+                              job.spec.mutable_output()->set_quantization_bits(v.cast<int>());
+                              job.names["spec.output.quantization_bits"] = name;
+                            },
+                            "int"};
 }
 
 void add_particle_range(Setters& s, ParticleInputOptions& input) {
-  s["start"] = [&input](py::handle v, const std::string&) { input.start = v.cast<int>(); };
-  s["end"] = [&input](py::handle v, const std::string&) { input.end = v.cast<int>(); };
+  s["start"] = {[&input](py::handle v, const std::string&) { input.start = v.cast<int>(); }, "int"};
+  s["end"] = {[&input](py::handle v, const std::string&) { input.end = v.cast<int>(); }, "int"};
+}
+
+constexpr const char* kPathType = "Union[str, os.PathLike[str]]";
+constexpr const char* kSceneType = "Union[Dict[str, Any], str, os.PathLike[str]]";
+
+// The keywords of a call of `kind` (every one but the positional inputs), setting `job`; scenes given as dicts are
+// kept in `in`. Keywords are the job's proto fields (client/job_fields.h, as the CLI's flags) and a few of the
+// client's own (inputs, frame range, output).
+Setters job_setters(const std::string& kind, JobOptions& job, Inputs& in) {
+  Setters s;
+  add_common(s, job);
+  if (kind == "isosurface") {
+    table_message(job.spec, JobTable::kIsosurface);
+    add_table(s, job, JobTable::kIsosurface);
+  } else if (kind == "particles") {
+    table_message(job.spec, JobTable::kParticles);
+    add_table(s, job, JobTable::kParticles);
+    add_particle_range(s, job.particles);
+    const Setter container = [&job, &in](py::handle v, const std::string& name) {
+      job.container_scene = in.scene(v, name);
+    };
+    s["container_solid"] = {container, kSceneType};
+    s["container_scene"] = {container, kSceneType};
+  } else if (kind == "optimize") {
+    table_message(job.spec, JobTable::kOptimize);
+    add_table(s, job, JobTable::kOptimize);
+    s["start_mesh"] = {[&job](py::handle v, const std::string&) { job.start_mesh = path_of(v); }, kPathType};
+  } else if (kind == "active_coat") {
+    table_message(job.spec, JobTable::kCoat);
+    add_table(s, job, JobTable::kActive);
+    add_table(s, job, JobTable::kCoat);
+    add_particle_range(s, job.particles);
+  } else if (kind == "active_morph") {
+    table_message(job.spec, JobTable::kMorph);
+    add_table(s, job, JobTable::kActive);
+    add_table(s, job, JobTable::kMorph);
+  } else if (kind == "active_advect") {
+    table_message(job.spec, JobTable::kAdvect);
+    add_table(s, job, JobTable::kActive);
+    add_table(s, job, JobTable::kAdvect);
+    s["velocity_grid"] = {[&job](py::handle v, const std::string&) { job.velocity_grid = path_of(v); }, kPathType};
+  } else {
+    throw py::value_error("unknown job kind '" + kind +
+                          "': isosurface, particles, optimize, active_coat, active_morph or active_advect");
+  }
+  return s;
+}
+
+// The keywords of `kind` as [(keyword, annotation)], sorted: what the type stubs list (python/gen_stubs.py).
+std::vector<std::pair<std::string, std::string>> job_keywords(const std::string& kind) {
+  JobOptions job;
+  Inputs in;
+  std::vector<std::pair<std::string, std::string>> out;
+  for (const auto& [name, k] : job_setters(kind, job, in)) out.emplace_back(name, k.type);
+  return out;
 }
 
 // The JobOptions of a call of `kind` with its positional `inputs` and keyword `kwargs`, dicts and arrays kept in
-// `in`. Keywords are the job's proto fields (client/job_fields.h, as the CLI's flags); values are checked by
-// prepare_job with the server's own checks.
+// `in`. Values are checked by prepare_job with the server's own checks.
 JobOptions job_options(const std::string& kind, const py::tuple& inputs, const py::dict& kwargs, Inputs& in) {
   const auto need = [&](std::size_t count, const char* what) {
     if (inputs.size() != count) {
@@ -356,12 +419,9 @@ JobOptions job_options(const std::string& kind, const py::tuple& inputs, const p
   };
   JobOptions job;
   job.keywords = true;
-  Setters s;
-  add_common(s, job);
+  const Setters s = job_setters(kind, job, in);
   if (kind == "isosurface") {
     need(1, "one positional argument: a scene or a list of scenes (dicts or paths)");
-    table_message(job.spec, JobTable::kIsosurface);
-    add_table(s, job, JobTable::kIsosurface);
     apply(kwargs, s, kind);
     py::handle scenes = inputs[0];
     if (py::isinstance<py::dict>(scenes) || is_path_like(scenes)) {
@@ -372,21 +432,10 @@ JobOptions job_options(const std::string& kind, const py::tuple& inputs, const p
     }
   } else if (kind == "particles") {
     need(1, "one positional argument: a list of frames ((N,3) arrays or file paths/patterns)");
-    table_message(job.spec, JobTable::kParticles);
-    add_table(s, job, JobTable::kParticles);
-    add_particle_range(s, job.particles);
-    const Setter container = [&job, &in](py::handle v, const std::string& name) {
-      job.container_scene = in.scene(v, name);
-    };
-    s["container_solid"] = container;
-    s["container_scene"] = container;
     apply(kwargs, s, kind);
     job.particles.inputs = in.particle_inputs(inputs[0]);
   } else if (kind == "optimize") {
     need(1, "one positional argument: the scene (a dict or a path)");
-    table_message(job.spec, JobTable::kOptimize);
-    add_table(s, job, JobTable::kOptimize);
-    s["start_mesh"] = [&job](py::handle v, const std::string&) { job.start_mesh = path_of(v); };
     apply(kwargs, s, kind);
     if (job.start_mesh && job.spec.optimize().has_polygonize()) {
       throw CliError(ExitCode::kUsage, "start_mesh and " + names_below(job.names, "spec.optimize.polygonize") +
@@ -395,34 +444,20 @@ JobOptions job_options(const std::string& kind, const py::tuple& inputs, const p
     job.scenes.push_back(in.scene(inputs[0], "scene"));
   } else if (kind == "active_coat") {
     need(1, "one positional argument: a list of particle frames ((N,3) arrays or file paths/patterns)");
-    table_message(job.spec, JobTable::kCoat);
-    add_table(s, job, JobTable::kActive);
-    add_table(s, job, JobTable::kCoat);
-    add_particle_range(s, job.particles);
     apply(kwargs, s, kind);
     job.particles.inputs = in.particle_inputs(inputs[0]);
   } else if (kind == "active_morph") {
     need(2, "two positional arguments: the scenes to morph from and to (dicts or paths)");
-    table_message(job.spec, JobTable::kMorph);
-    add_table(s, job, JobTable::kActive);
-    add_table(s, job, JobTable::kMorph);
     apply(kwargs, s, kind);
     job.scenes.push_back(in.scene(inputs[0], "from"));
     job.scenes.push_back(in.scene(inputs[1], "to"));
   } else if (kind == "active_advect") {
     need(1, "one positional argument: the scene to advect (a dict or a path)");
-    table_message(job.spec, JobTable::kAdvect);
-    add_table(s, job, JobTable::kActive);
-    add_table(s, job, JobTable::kAdvect);
-    s["velocity_grid"] = [&job](py::handle v, const std::string&) { job.velocity_grid = path_of(v); };
     apply(kwargs, s, kind);
     if (!job.velocity_grid && !job.spec.active().advect().has_grid()) {
       job.spec.mutable_active()->mutable_advect()->mutable_enright();
     }
     job.scenes.push_back(in.scene(inputs[0], "scene"));
-  } else {
-    throw py::value_error("unknown job kind '" + kind +
-                          "': isosurface, particles, optimize, active_coat, active_morph or active_advect");
   }
   return job;
 }
@@ -639,8 +674,18 @@ class FrameStream {
  public:
   static constexpr std::size_t kQueued = 4;
 
-  FrameStream(std::shared_ptr<Connection> connection, std::string job_id, int from_frame, bool owns_job)
-      : connection_(std::move(connection)), job_id_(std::move(job_id)), from_frame_(from_frame), owns_job_(owns_job) {}
+  // Progress events kept for the callable between two calls of next(); beyond this many the oldest are dropped.
+  static constexpr std::size_t kProgressQueued = 256;
+
+  // `progress` (None or a callable(frame, stage, fraction)) is called on the iterating thread, from next(), with
+  // every Progress event received since the previous call: it runs only while the frames are iterated.
+  FrameStream(std::shared_ptr<Connection> connection, std::string job_id, int from_frame, bool owns_job,
+              py::object progress)
+      : connection_(std::move(connection)),
+        job_id_(std::move(job_id)),
+        from_frame_(from_frame),
+        owns_job_(owns_job),
+        progress_callable_(std::move(progress)) {}
 
   ~FrameStream() {
     py::gil_scoped_release release;
@@ -673,6 +718,7 @@ class FrameStream {
           finished = finished_;
         }
       }
+      report_progress();
       if (frame) return frame_tuple(*frame);
       if (finished) finish();
       if (PyErr_CheckSignals() != 0) {
@@ -713,6 +759,13 @@ class FrameStream {
     watcher_ = std::make_unique<JobWatcher>(
         *connection_, job_id_, from_frame_, [this](const ReceivedFrame& frame) { receive(frame); }, progress_,
         ReconnectPolicy{}, /*quiet=*/true);
+    if (!progress_callable_.is_none()) {
+      watcher_->set_progress_handler([this](const v1::Progress& progress) {
+        std::lock_guard lock(mutex_);
+        if (progress_queue_.size() == kProgressQueued) progress_queue_.pop_front();
+        progress_queue_.push_back(progress);
+      });
+    }
     thread_ = std::thread([this] { run(); });
   }
 
@@ -791,6 +844,17 @@ class FrameStream {
     if (thread_.joinable()) thread_.join();
   }
 
+  // With the GIL: calls the progress callable with the events received so far (its exception propagates).
+  void report_progress() {
+    if (progress_callable_.is_none()) return;
+    std::deque<v1::Progress> events;
+    {
+      std::lock_guard lock(mutex_);
+      events.swap(progress_queue_);
+    }
+    for (const v1::Progress& p : events) progress_callable_(p.frame_index(), p.stage(), p.fraction());
+  }
+
   static py::tuple frame_tuple(const DecodedFrame& frame) {
     const py::tuple arrays = mesh_arrays(frame.mesh);
     return py::make_tuple(frame.index, arrays[0], arrays[1], arrays[2], to_python(frame.stats), arrays[3]);
@@ -808,6 +872,8 @@ class FrameStream {
   mutable std::mutex mutex_;
   std::condition_variable cv_;
   std::deque<DecodedFrame> queue_;
+  std::deque<v1::Progress> progress_queue_;
+  py::object progress_callable_;
   bool started_ = false;
   bool closed_ = false;
   bool finished_ = false;
@@ -922,10 +988,10 @@ PYBIND11_MODULE(_surfacer, m) {
       .def("submit", &Client::submit, py::arg("kind"), py::arg("inputs"), py::arg("options"))
       .def(
           "stream",
-          [](Client& client, const std::string& job_id, int from_frame, bool owns_job) {
-            return std::make_unique<FrameStream>(client.shared(), job_id, from_frame, owns_job);
+          [](Client& client, const std::string& job_id, int from_frame, bool owns_job, py::object progress) {
+            return std::make_unique<FrameStream>(client.shared(), job_id, from_frame, owns_job, std::move(progress));
           },
-          py::arg("job_id"), py::arg("from_frame"), py::arg("owns_job"))
+          py::arg("job_id"), py::arg("from_frame"), py::arg("owns_job"), py::arg("progress") = py::none())
       .def("status", &Client::status, py::arg("job_id"))
       .def("list", &Client::list, py::arg("states"))
       .def("cancel", &Client::cancel, py::arg("job_id"))
@@ -933,6 +999,8 @@ PYBIND11_MODULE(_surfacer, m) {
       .def("server_info", &Client::server_info);
 
   m.def("read_mesh", &read_mesh_file, py::arg("path"));
+  m.def("job_keywords", &job_keywords, py::arg("kind"),
+        "The keyword options of a job kind as [(keyword, annotation)] (what the type stubs list).");
   m.def("write_mesh", &write_mesh_file, py::arg("path"), py::arg("vertices"), py::arg("triangles"),
         py::arg("normals") = py::none(), py::arg("attributes") = py::none(), py::arg("voxel_size") = 0.0);
 

@@ -15,6 +15,7 @@ PACKAGES=(
                                # headers include Boost's, which libopenvdb-dev does not depend on)
   python3-openvdb  # pyopenvdb reads our .vdb files back in tests/python/test_readers.py
   pybind11-dev python3-dev python3-numpy python3-pytest  # the Python package (python/) and its tests
+  python3-pip python3-venv python3-setuptools python3-wheel  # `pip install .` of the package (setup.py) and its test
   libstb-dev  # PNG previews and plots (core/render/, header-only)
   liblz4-dev liblzma-dev  # LZ4 and LZMA blocks of VTK XML particle files (core/particles/particle_io_vtk.cpp)
   python3-vtk9 python3-meshio  # the real VTK and meshio in tests: VTK's own XML writers for the particle readers

@@ -9,12 +9,15 @@ This is the `surfacer` CLI's own client library (C++, in the extension module `s
 uploaded in CRC-checked chunks, frames are verified, a broken stream is reopened from the first missing frame, and
 frames are decoded (Draco, meshopt, PLY) in C++. Keyword options are those of `surfacer run <type>` with dashes as
 underscores (``--r-inner`` is ``r_inner=``); an option left out (or None) takes the engine's default, and an
-unknown keyword is a TypeError.
+unknown keyword is a TypeError. The package's type stubs (``__init__.pyi``) list every keyword of every job method
+with its type. Every job method also takes ``progress=``, a callable ``progress(frame, stage, fraction)`` called
+with each progress event of the job (frame index, stage name such as "polygonize", fraction of the whole job in
+0..1) while its frames are iterated, from the iterating thread; an exception it raises ends the iteration.
 """
 
 import os
 from dataclasses import dataclass, field
-from typing import Any, Dict, Iterator, List, Optional
+from typing import Any, Callable, Dict, Iterator, List, Optional
 
 import numpy as np
 
@@ -120,6 +123,12 @@ class Job:
         return "<surfacer.Job %s>" % self.id
 
 
+def _progress_callable(progress):
+    if progress is not None and not callable(progress):
+        raise TypeError("progress=%r is not callable: give a function progress(frame, stage, fraction)" % (progress,))
+    return progress
+
+
 class Client:
     """A connection to a Surfacer server.
 
@@ -186,8 +195,9 @@ class Client:
         return self._run("active_advect", (scene,), options)
 
     def _run(self, kind, inputs, options) -> Job:
+        progress = _progress_callable(options.pop("progress", None))
         job_id = self._client.submit(kind, inputs, options)
-        return Job(self._client.stream(job_id, 0, True))
+        return Job(self._client.stream(job_id, 0, True, progress))
 
     # -- jobs by id ------------------------------------------------------------------------------------------------
 
@@ -196,9 +206,11 @@ class Client:
         "active_coat", "active_morph" or "active_advect"; inputs and options as for the method of that name."""
         return self._client.submit(kind, inputs, options)
 
-    def watch(self, job_id: str, from_frame: int = 0) -> Job:
-        """The frames of a job from frame ``from_frame`` on (also those already finished)."""
-        return Job(self._client.stream(job_id, from_frame, False))
+    def watch(self, job_id: str, from_frame: int = 0,
+              progress: Optional[Callable[[int, str, float], Any]] = None) -> Job:
+        """The frames of a job from frame ``from_frame`` on (also those already finished); ``progress`` as for the
+        job methods."""
+        return Job(self._client.stream(job_id, from_frame, False, _progress_callable(progress)))
 
     def status(self, job_id: str) -> Dict[str, Any]:
         """The job as a dict: id, name, kind, state ("JOB_STATE_RUNNING", ...), frames_total, frames_done,
