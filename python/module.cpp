@@ -895,7 +895,8 @@ py::tuple read_mesh_file(const std::string& path) {
   return mesh_arrays(mesh);
 }
 
-// Writes a mesh given as arrays with core's writer (write_mesh: .ply, .obj, .drc, .glb or .gltf by the extension), or
+// Writes a mesh given as arrays with core's writer (write_mesh: .ply, .obj, .drc, .glb, .gltf, .vtk or .vtu by the
+// extension), or
 // the client's .vdb writer (voxel_size 0: the mesh's mean edge length).
 void write_mesh_file(const std::string& path,
                      const py::array_t<double, py::array::c_style | py::array::forcecast>& vertices,

@@ -14,11 +14,13 @@
 #include <limits>
 #include <optional>
 #include <sstream>
+#include <stdexcept>
 #include <vector>
 
 #include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_codec.h"
 #include "core/mesh/mesh_gltf.h"
+#include "core/mesh/mesh_vtk.h"
 #include "core/mesh/ply.h"
 #include "core/util/errors.h"
 #include "core/util/text.h"
@@ -296,10 +298,19 @@ void check_mesh_writable(const Mesh& mesh, std::string_view format) {
   }
 }
 
-MeshFormat mesh_format_from_path(const std::filesystem::path& path) {
+namespace {
+
+std::string lower_extension(const std::filesystem::path& path) {
   std::string ext = path.extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(),
                  [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return ext;
+}
+
+}  // namespace
+
+MeshFormat mesh_format_from_path(const std::filesystem::path& path) {
+  const std::string ext = lower_extension(path);
   if (ext == ".ply") return MeshFormat::kPly;
   if (ext == ".obj") return MeshFormat::kObj;
   if (ext == ".drc") return MeshFormat::kDraco;
@@ -410,25 +421,33 @@ std::string write_obj(const Mesh& mesh) {
   return out;
 }
 
-void write_mesh(const std::filesystem::path& path, const Mesh& mesh) {
-  std::string bytes;
+namespace {
+
+// The bytes of `mesh` in the file format of `path`'s extension (write_mesh).
+std::string mesh_file_bytes(const std::filesystem::path& path, const Mesh& mesh) {
+  const std::string ext = lower_extension(path);
+  // .vtk and .vtu are written only: positions in double precision, as the Mesh holds them.
+  if (ext == ".vtk") return write_vtk(mesh, /*double_precision=*/true);
+  if (ext == ".vtu") return write_vtu(mesh, /*double_precision=*/true);
   switch (mesh_format_from_path(path)) {
     case MeshFormat::kPly:
-      bytes = write_ply(mesh);
-      break;
+      return write_ply(mesh);
     case MeshFormat::kObj:
-      bytes = write_obj(mesh);
-      break;
+      return write_obj(mesh);
     case MeshFormat::kDraco:
-      bytes = encode_draco(mesh, DracoOptions{});
-      break;
+      return encode_draco(mesh, DracoOptions{});
     case MeshFormat::kGlb:
-      bytes = to_gltf(mesh, ThreadExecutor(0));  // encoded on every core
-      break;
+      return to_gltf(mesh, ThreadExecutor(0));  // encoded on every core
     case MeshFormat::kGltf:
-      bytes = write_gltf(mesh);
-      break;
+      return write_gltf(mesh);
   }
+  throw std::logic_error("mesh_file_bytes: unhandled format");
+}
+
+}  // namespace
+
+void write_mesh(const std::filesystem::path& path, const Mesh& mesh) {
+  const std::string bytes = mesh_file_bytes(path, mesh);
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
   if (!out) throw InvalidInput("file", path.string() + ": cannot open for writing: " + std::strerror(errno));
   out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));

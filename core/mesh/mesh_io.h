@@ -32,8 +32,9 @@ void check_mesh_writable(const Mesh& mesh, std::string_view format);
 void check_attributes(const Mesh& mesh);
 
 // By the extension: .ply, .obj, .drc (one Draco mesh, default options), .glb (to_gltf of Draco pieces on the
-// mesh's own box with the default bits, encoded on every core) or .gltf (plain, uncompressed: write_gltf). PLY is written binary little-endian (float positions
-// unless `double_precision`); OBJ as text with %.9g.
+// mesh's own box with the default bits, encoded on every core), .gltf (plain, uncompressed: write_gltf), or .vtk /
+// .vtu (write_vtk / write_vtu in double precision; these two are written, not read). PLY is written binary
+// little-endian (float positions unless `double_precision`); OBJ as text with %.9g.
 void write_mesh(const std::filesystem::path& path, const Mesh& mesh);
 std::string write_obj(const Mesh& mesh);
 std::string write_ply(const Mesh& mesh, bool double_precision = false);

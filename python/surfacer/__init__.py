@@ -48,8 +48,9 @@ class Frame:
     def write(self, path, vdb_voxel_size: Optional[float] = None) -> None:
         """Writes the mesh with the CLI's own writers, the format by the extension: .ply (binary; attributes as vertex
         properties), .obj, .drc, .glb (glTF with Draco pieces, encoded on every core), .gltf (plain glTF, for readers
-        without Draco) or .vdb (an OpenVDB narrow-band level set named "surface", voxels of edge vdb_voxel_size, by
-        default the mean edge length)."""
+        without Draco), .vtk or .vtu (VTK unstructured grids for ParaView, positions in double precision, normals
+        and attributes as point arrays) or .vdb (an OpenVDB narrow-band level set named "surface", voxels of edge
+        vdb_voxel_size, by default the mean edge length)."""
         _surfacer.write_mesh(os.fspath(path), self.vertices, self.triangles, self.normals, self.attributes,
                              vdb_voxel_size or 0.0)
 

@@ -56,6 +56,26 @@ def test_vtk_and_meshio_read_our_vtk_and_vtu_with_normals(scene, encoding, tmp_p
         np.testing.assert_allclose(mesh.point_data["Normals"], reference.normals, atol=1e-6, err_msg=str(path))
 
 
+@pytest.mark.parametrize("cells", [12, 32])
+def test_frame_write_vtk_and_vtu_are_read_by_vtk_and_meshio_exactly(local_client, cells, tmp_path):
+    frame = next(iter(local_client.isosurface(str(SCENES / "torus.json"), cells=cells, encoding="raw",
+                                              normals=True)))
+    attributes = {"height": frame.vertices[:, 2].astype(np.float32)}
+    mesh = surfacer.Mesh(frame.vertices, frame.triangles, frame.normals, attributes)
+    for suffix in (".vtk", ".vtu"):
+        path = tmp_path / ("mesh" + suffix)
+        mesh.write(path)
+        grid = vtk_read(path)
+        assert grid.GetNumberOfCells() == len(frame.triangles), path
+        points = vtk_to_numpy(grid.GetPoints().GetData())
+        assert points.dtype == np.float64, path  # double precision, as the frame's raw positions
+        np.testing.assert_array_equal(points, frame.vertices, err_msg=str(path))
+        read = meshio.read(str(path))
+        np.testing.assert_array_equal(read.cells[0].data, frame.triangles)
+        np.testing.assert_allclose(read.point_data["Normals"], frame.normals, atol=1e-6, err_msg=str(path))
+        np.testing.assert_array_equal(read.point_data["height"].reshape(-1), attributes["height"])
+
+
 @pytest.mark.parametrize("scene,encoding,normals", [("torus", "draco", True), ("csg_block", "raw", False),
                                                     ("gyroid_in_sphere", "meshopt", True)])
 def test_vtk_reads_our_plain_gltf(scene, encoding, normals, tmp_path):
