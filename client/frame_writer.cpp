@@ -238,6 +238,11 @@ std::vector<std::filesystem::path> FrameWriter::write(const ReceivedFrame& frame
         bytes = converted;
         break;
       case FileFormat::kGlb:  // pieced frames as received; one-mesh frames encoded as Draco pieces here, on every core
+        if (codec == FrameCodec::kPly) {  // raw frames: plain binary glTF, for readers without Draco
+          converted = write_glb(decoded());
+          bytes = converted;
+          break;
+        }
         try {
           converted = to_gltf(frame.bytes, codec, decoded, decode_executor_);
         } catch (const Error& e) {

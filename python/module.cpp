@@ -340,8 +340,8 @@ void add_common(Setters& s, JobOptions& job) {
   s["name"] = {[&job](py::handle v, const std::string&) { job.name = v.cast<std::string>(); }, "str"};
   s["encoding"] = {[&job](py::handle v, const std::string& name) { set_encoding(job, v.cast<std::string>(), name); },
                    "Literal[\"draco\", \"meshopt\", \"raw\"]"};
-  s["normals"] = {
-      [&job](py::handle v, const std::string&) { job.spec.mutable_output()->set_normals(v.cast<bool>()); }, "bool"};
+  s["normals"] = {[&job](py::handle v, const std::string&) { job.spec.mutable_output()->set_normals(v.cast<bool>()); },
+                  "bool"};
   s["quantization_bits"] = {[&job](py::handle v, const std::string& name) {
                               job.spec.mutable_output()->set_quantization_bits(v.cast<int>());
                               job.names["spec.output.quantization_bits"] = name;

@@ -666,13 +666,17 @@ std::string pack_glb(std::string json, std::string bin) {
   return out;
 }
 
-std::string write_gltf(const Mesh& mesh) {
-  check_mesh_writable(mesh, ".gltf");
+namespace {
+
+// `mesh` as plain glTF (write_gltf, write_glb): the JSON text, and the binary buffer either embedded in it as a
+// base64 data URI (`embed`) or returned in `bin` for a .glb's BIN chunk.
+std::string plain_gltf(const Mesh& mesh, bool embed, std::string& bin) {
+  check_mesh_writable(mesh, embed ? ".gltf" : ".glb");
   const std::string asset = R"("asset": {"version": "2.0", "generator": "surfacer"})";
+  bin.clear();
   if (mesh.triangles.empty()) return "{" + asset + R"(, "scene": 0, "scenes": [{"nodes": []}]})" + "\n";
   const std::size_t n = mesh.vertices.size();
   const bool normals = !mesh.normals.empty();
-  std::string bin;
   bin.reserve(n * (normals ? 24 : 12) + mesh.triangles.size() * 12);
   auto put = [&bin](auto value) { bin.append(reinterpret_cast<const char*>(&value), sizeof value); };
   std::array<float, 3> lo{}, hi{};
@@ -723,10 +727,28 @@ std::string write_gltf(const Mesh& mesh) {
     json += R"(, {"buffer": 0, "byteOffset": )" + std::to_string(positions_bytes) + R"(, "byteLength": )" +
             std::to_string(indices_offset - positions_bytes) + R"(, "target": 34962})";
   }
-  json += R"(], "buffers": [{"byteLength": )" + length + R"(, "uri": "data:application/octet-stream;base64,)";
-  append_base64(json, bin);
-  json += "\"}]}\n";
+  json += R"(], "buffers": [{"byteLength": )" + length;
+  if (embed) {
+    json += R"(, "uri": "data:application/octet-stream;base64,)";
+    append_base64(json, bin);
+    json += "\"";
+    bin.clear();
+  }
+  json += "}]}\n";
   return json;
+}
+
+}  // namespace
+
+std::string write_gltf(const Mesh& mesh) {
+  std::string bin;
+  return plain_gltf(mesh, /*embed=*/true, bin);
+}
+
+std::string write_glb(const Mesh& mesh) {
+  std::string bin;
+  std::string json = plain_gltf(mesh, /*embed=*/false, bin);
+  return pack_glb(std::move(json), std::move(bin));
 }
 
 Mesh parse_glb(std::string_view bytes, const std::string& name, const MeshReadLimits& limits) {

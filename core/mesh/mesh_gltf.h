@@ -47,5 +47,8 @@ Mesh parse_glb(std::string_view bytes, const std::string& name, const MeshReadLi
 // extension, for readers without Draco or meshoptimizer (Debian's Blender, VTK's vtkGLTFReader). Positions are
 // rounded to float. An empty mesh is a scene with no nodes. Throws InvalidInput as check_mesh_writable.
 std::string write_gltf(const Mesh& mesh);
+// The same as a plain .glb (binary glTF, the buffer in its BIN chunk): what --encoding raw --format glb writes, for
+// glTF readers without Draco that want one binary file.
+std::string write_glb(const Mesh& mesh);
 
 }  // namespace surfacer

@@ -316,8 +316,8 @@ MeshFormat mesh_format_from_path(const std::filesystem::path& path) {
   if (ext == ".drc") return MeshFormat::kDraco;
   if (ext == ".glb") return MeshFormat::kGlb;
   if (ext == ".gltf") return MeshFormat::kGltf;
-  throw InvalidInput("file", path.string() + ": unknown mesh file extension '" + ext +
-                                 "'; use .ply, .obj, .drc, .glb or .gltf");
+  throw InvalidInput(
+      "file", path.string() + ": unknown mesh file extension '" + ext + "'; use .ply, .obj, .drc, .glb or .gltf");
 }
 
 Mesh parse_mesh(std::string_view bytes, MeshFormat format, const std::string& name_for_errors,

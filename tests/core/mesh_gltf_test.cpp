@@ -5,6 +5,7 @@
 #include <Eigen/Geometry>
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <string>
 
 #include "core/mesh/frame_codec.h"
@@ -97,31 +98,41 @@ TEST(MeshGltf, WriteMeshAndReadMeshRoundTrip) {
   }
 }
 
-// A plain .gltf (JSON with its buffer as a data URI) reads back as the mesh: the same triangles, the vertices rounded
-// to float, unit normals along the mesh's own; an empty mesh is an empty scene.
+// A plain .gltf (JSON with its buffer as a data URI) and a plain .glb (write_glb: the buffer in the BIN chunk) read
+// back as the mesh: the same triangles, the vertices rounded to float, unit normals along the mesh's own; an empty mesh
+// is an empty scene.
 TEST(MeshGltf, PlainGltfRoundTripsThroughWriteMeshAndReadMesh) {
   const std::filesystem::path dir = testing::fresh_temp_dir("mesh_gltf_plain");
   const FieldPtr sphere = make_sphere(Vec3(0.3, -0.2, 0.1), 1.0);
   const Mesh with_normals = polygonized(sphere, Polygonizer::kTiles, 24, true);
   ASSERT_FALSE(with_normals.normals.empty());
   for (const Mesh& mesh : {testing::icosphere(3), testing::torus_mesh(1.0, 0.3, 48, 24), with_normals, Mesh{}}) {
-    const std::filesystem::path file = dir / "mesh.gltf";
-    write_mesh(file, mesh);
-    const Mesh read = read_mesh(file);
-    // The reader numbers vertices in the order the triangles use them: compare corner by corner.
-    ASSERT_EQ(read.vertices.size(), mesh.triangles.empty() ? 0 : mesh.vertices.size());
-    ASSERT_EQ(read.triangles.size(), mesh.triangles.size());
-    ASSERT_EQ(read.normals.empty(), mesh.normals.empty() || mesh.triangles.empty());
-    for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
-      for (int k = 0; k < 3; ++k) {
-        const std::uint32_t a = read.triangles[t][k], b = mesh.triangles[t][k];
-        ASSERT_EQ(read.vertices[a], mesh.vertices[b].cast<float>().cast<double>()) << t;
-        if (read.normals.empty()) continue;
-        EXPECT_NEAR(read.normals[a].norm(), 1.0, 1e-6);
-        EXPECT_GT(read.normals[a].dot(mesh.normals[b].normalized()), 1.0 - 1e-6);
+    for (const bool binary : {false, true}) {
+      const std::filesystem::path file = dir / (binary ? "mesh.glb" : "mesh.gltf");
+      if (binary) {
+        const std::string bytes = write_glb(mesh);
+        ASSERT_EQ(bytes.find("extensionsUsed"), std::string::npos);
+        std::ofstream(file, std::ios::binary) << bytes;
+      } else {
+        write_mesh(file, mesh);
       }
+      const Mesh read = read_mesh(file);
+      // The reader numbers vertices in the order the triangles use them: compare corner by corner.
+      ASSERT_EQ(read.vertices.size(), mesh.triangles.empty() ? 0 : mesh.vertices.size());
+      ASSERT_EQ(read.triangles.size(), mesh.triangles.size());
+      ASSERT_EQ(read.normals.empty(), mesh.normals.empty() || mesh.triangles.empty());
+      for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+        for (int k = 0; k < 3; ++k) {
+          const std::uint32_t a = read.triangles[t][k], b = mesh.triangles[t][k];
+          ASSERT_EQ(read.vertices[a], mesh.vertices[b].cast<float>().cast<double>()) << t;
+          if (read.normals.empty()) continue;
+          EXPECT_NEAR(read.normals[a].norm(), 1.0, 1e-6);
+          EXPECT_GT(read.normals[a].dot(mesh.normals[b].normalized()), 1.0 - 1e-6);
+        }
+      }
+      if (!mesh.triangles.empty())
+        testing::expect_same_topology(check_mesh(read), check_mesh(mesh), binary ? "the .glb" : "the .gltf");
     }
-    if (!mesh.triangles.empty()) testing::expect_same_topology(check_mesh(read), check_mesh(mesh), "the .gltf");
   }
   // What a .gltf reader must not take: a buffer in another file, a data URI that is not base64.
   const std::string good = write_gltf(testing::unit_cube());

@@ -76,18 +76,22 @@ def test_frame_write_vtk_and_vtu_are_read_by_vtk_and_meshio_exactly(local_client
         np.testing.assert_array_equal(read.point_data["height"].reshape(-1), attributes["height"])
 
 
-@pytest.mark.parametrize("scene,encoding,normals", [("torus", "draco", True), ("csg_block", "raw", False),
-                                                    ("gyroid_in_sphere", "meshopt", True)])
-def test_vtk_reads_our_plain_gltf(scene, encoding, normals, tmp_path):
-    """--format gltf is for readers without Draco (Debian's Blender, VTK): VTK's own glTF reader gets the frame."""
+@pytest.mark.parametrize("scene,encoding,normals,suffix", [
+    ("torus", "draco", True, "gltf"), ("csg_block", "raw", False, "gltf"), ("gyroid_in_sphere", "meshopt", True, "gltf"),
+    ("torus", "raw", True, "glb"), ("csg_block", "raw", False, "glb")])
+def test_vtk_reads_our_plain_gltf(scene, encoding, normals, suffix, tmp_path):
+    """--format gltf, and --format glb of raw frames, are for readers without Draco (Debian's Blender, VTK): VTK's own
+    glTF reader gets the frame."""
     from vtkmodules.vtkIOGeometry import vtkGLTFReader
     out = tmp_path / "out"
     subprocess.run([cli(), "run", "isosurface", "--scene", str(SCENES / (scene + ".json")), "--cells", "24",
-                    "--encoding", encoding, "-o", str(out), "--format", "ply,gltf"] + (["--normals"] if normals else []),
-                   check=True, capture_output=True, timeout=120)
+                    "--encoding", encoding, "-o", str(out), "--format", "ply," + suffix] +
+                   (["--normals"] if normals else []), check=True, capture_output=True, timeout=120)
     reference = surfacer.read_mesh(out / "frame_0000.ply")
+    path = out / ("frame_0000." + suffix)
+    assert b"extensionsUsed" not in path.read_bytes()[:4096]  # no compression extension a reader could lack
     reader = vtkGLTFReader()
-    reader.SetFileName(str(out / "frame_0000.gltf"))
+    reader.SetFileName(str(path))
     reader.Update()
     blocks = reader.GetOutput()
     iterator = blocks.NewIterator()
@@ -109,7 +113,7 @@ def test_vtk_reads_our_plain_gltf(scene, encoding, normals, tmp_path):
     else:
         assert mesh.GetPointData().GetNormals() is None
     # And our own reader (Python's read_mesh, the CLI's --start-mesh) takes it back.
-    again = surfacer.read_mesh(out / "frame_0000.gltf")
+    again = surfacer.read_mesh(path)
     assert len(again.triangles) == len(reference.triangles)
 
 
