@@ -3,6 +3,7 @@
 #include <openvdb/io/Stream.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/MeshToVolume.h>
+#include <openvdb/tools/VolumeToMesh.h>
 
 #include <Eigen/Geometry>
 #include <cmath>
@@ -17,6 +18,11 @@ namespace surfacer::client {
 namespace {
 
 constexpr float kHalfWidth = 3.0f;  // voxels each side of the surface: OpenVDB's LEVEL_SET_HALF_WIDTH
+
+void initialize_openvdb() {
+  static std::once_flag initialized;
+  std::call_once(initialized, [] { openvdb::initialize(); });
+}
 
 double surface_area(const Mesh& mesh) {
   double area = 0.0;
@@ -37,8 +43,7 @@ double default_vdb_voxel_size(const Mesh& mesh) {
 }
 
 std::string write_vdb(const Mesh& mesh, double voxel_size) {
-  static std::once_flag initialized;
-  std::call_once(initialized, [] { openvdb::initialize(); });
+  initialize_openvdb();
   if (voxel_size == 0.0) voxel_size = default_vdb_voxel_size(mesh);
   if (mesh.triangles.empty()) voxel_size = voxel_size > 0.0 ? voxel_size : 1.0;
   if (!std::isfinite(voxel_size) || voxel_size <= 0.0) {
@@ -47,11 +52,11 @@ std::string write_vdb(const Mesh& mesh, double voxel_size) {
   // The band holds about (area / h^2) x (2 x half width) voxels.
   const double voxels = surface_area(mesh) / (voxel_size * voxel_size) * 2.0 * kHalfWidth;
   if (voxels > kMaxVdbVoxels) {
-    throw CliError(ExitCode::kUsage,
-                   "--vdb-voxel-size " + format_number(voxel_size) + ": the surface's band would hold about " +
-                       format_number(voxels) + " voxels, over the " + format_number(kMaxVdbVoxels) +
-                       " a .vdb may; use a voxel size of at least " +
-                       format_number(voxel_size * std::sqrt(voxels / kMaxVdbVoxels)));
+    throw CliError(ExitCode::kUsage, "--vdb-voxel-size " + format_number(voxel_size) +
+                                         ": the surface's band would hold about " + format_number(voxels) +
+                                         " voxels, over the " + format_number(kMaxVdbVoxels) +
+                                         " a .vdb may; use a voxel size of at least " +
+                                         format_number(voxel_size * std::sqrt(voxels / kMaxVdbVoxels)));
   }
   std::vector<openvdb::Vec3s> points;
   points.reserve(mesh.vertices.size());
@@ -74,6 +79,55 @@ std::string write_vdb(const Mesh& mesh, double voxel_size) {
   std::ostringstream out(std::ios_base::binary);
   openvdb::io::Stream(out).write({grid});
   return std::move(out).str();
+}
+
+Mesh read_vdb(const std::string& path) {
+  initialize_openvdb();
+  openvdb::GridPtrVecPtr grids;
+  try {
+    openvdb::io::File file(path);
+    file.open(/*delayLoad=*/false);
+    grids = file.getGrids();
+    file.close();
+  } catch (const openvdb::Exception& e) {
+    throw CliError(ExitCode::kUsage, path + ": not a readable OpenVDB file (" + e.what() + ")");
+  }
+  openvdb::FloatGrid::Ptr grid;
+  for (const openvdb::GridBase::Ptr& base : *grids) {
+    const openvdb::FloatGrid::Ptr candidate = openvdb::gridPtrCast<openvdb::FloatGrid>(base);
+    if (!candidate) continue;
+    if (candidate->getName() == "surface") {
+      grid = candidate;
+      break;
+    }
+    if (!grid && candidate->getGridClass() == openvdb::GRID_LEVEL_SET) grid = candidate;
+  }
+  if (!grid) {
+    throw CliError(ExitCode::kUsage, path + ": no FloatGrid named \"surface\" or of class level set in the file (" +
+                                         std::to_string(grids->size()) + " grids)");
+  }
+  std::vector<openvdb::Vec3s> points;
+  std::vector<openvdb::Vec3I> triangles;
+  std::vector<openvdb::Vec4I> quads;
+  openvdb::tools::volumeToMesh(*grid, points, triangles, quads, /*isovalue=*/0.0, /*adaptivity=*/0.0);
+  Mesh mesh;
+  mesh.vertices.reserve(points.size());
+  for (const openvdb::Vec3s& p : points) mesh.vertices.emplace_back(p.x(), p.y(), p.z());
+  mesh.triangles.reserve(triangles.size() + 2 * quads.size());
+  // OpenVDB orders polygons clockwise seen from outside (negative inside): reverse them.
+  for (const openvdb::Vec3I& t : triangles) mesh.triangles.push_back({t[0], t[2], t[1]});
+  for (const openvdb::Vec4I& q : quads) {
+    const double d02 = (mesh.vertices[q[0]] - mesh.vertices[q[2]]).squaredNorm();
+    const double d13 = (mesh.vertices[q[1]] - mesh.vertices[q[3]]).squaredNorm();
+    if (d02 <= d13) {
+      mesh.triangles.push_back({q[0], q[2], q[1]});
+      mesh.triangles.push_back({q[0], q[3], q[2]});
+    } else {
+      mesh.triangles.push_back({q[1], q[3], q[2]});
+      mesh.triangles.push_back({q[1], q[0], q[3]});
+    }
+  }
+  return mesh;
 }
 
 }  // namespace surfacer::client

@@ -1,5 +1,6 @@
 // OpenVDB (.vdb) files of frames: the narrow-band signed distance to the surface that Houdini, Blender and OpenVDB's
-// own tools render, collide against and combine. Only client/vdb_writer.cpp includes OpenVDB (slow headers).
+// own tools render, collide against and combine; and such files read back as meshes. Only client/vdb_writer.cpp
+// includes OpenVDB (slow headers).
 #pragma once
 
 #include <string>
@@ -21,5 +22,11 @@ double default_vdb_voxel_size(const Mesh& mesh);
 // be). A mesh without triangles gives an empty grid of that class. Throws CliError(kUsage) naming --vdb-voxel-size
 // for a size that is not finite and > 0, or whose band would pass kMaxVdbVoxels (before any voxel is made).
 std::string write_vdb(const Mesh& mesh, double voxel_size);
+
+// The zero level set of a .vdb file's level set as a closed triangle mesh (OpenVDB's volumeToMesh, no adaptivity,
+// quads split along their shorter diagonal, outward-facing): the FloatGrid named "surface" (what write_vdb writes),
+// else the first FloatGrid of class level set. Positions in scene units through the grid's transform. Throws
+// CliError(kUsage) naming `path` when the file does not read as OpenVDB or holds no such grid.
+Mesh read_vdb(const std::string& path);
 
 }  // namespace surfacer::client

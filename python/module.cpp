@@ -881,13 +881,21 @@ class FrameStream {
   std::exception_ptr error_;
 };
 
-// Reads a mesh file with core's reader (read_mesh: .ply, .obj, .drc, .glb or .gltf by the extension) as arrays.
+// Whether `path` names an OpenVDB file (.vdb, any case): the client's reader and writer, not core's.
+bool is_vdb(const std::string& path) {
+  std::string extension = std::filesystem::path(path).extension().string();
+  for (char& c : extension) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return extension == ".vdb";
+}
+
+// Reads a mesh file with core's reader (read_mesh: .ply, .obj, .drc, .glb or .gltf by the extension), or the zero level
+// set of a .vdb's level set (read_vdb), as arrays.
 py::tuple read_mesh_file(const std::string& path) {
   Mesh mesh;
   {
     py::gil_scoped_release release;
     try {
-      mesh = surfacer::read_mesh(path);
+      mesh = is_vdb(path) ? read_vdb(path) : surfacer::read_mesh(path);
     } catch (const Error& e) {
       throw CliError(ExitCode::kUsage, e.what());
     }
@@ -949,9 +957,7 @@ void write_mesh_file(const std::string& path,
   }
   py::gil_scoped_release release;
   try {
-    std::string extension = std::filesystem::path(path).extension().string();
-    for (char& c : extension) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-    if (extension == ".vdb") {
+    if (is_vdb(path)) {
       write_file_atomically(path, write_vdb(mesh, voxel_size));
     } else {
       surfacer::write_mesh(path, mesh);

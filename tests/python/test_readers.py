@@ -191,3 +191,45 @@ def test_pvd_gives_paraview_the_input_frame_numbers_as_times(tmp_path):
     assert [(f["name"], f["time"]) for f in series["files"]] == [
         ("frame_0100.vtk", 100), ("frame_0101.vtk", 101), ("frame_0102.vtk", 102)]
     assert all((tmp_path / "legacy" / f["name"]).exists() for f in series["files"])
+
+
+def signed_volume(mesh):
+    v = mesh.vertices[mesh.triangles]
+    return float(np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0)
+
+
+@pytest.mark.parametrize("voxel", [0.02, 0.05, 0.1])
+def test_read_mesh_takes_a_vdb_written_by_pyopenvdb_back_as_its_zero_level_set(voxel, tmp_path):
+    """A level set another program wrote (OpenVDB's own createLevelSetSphere): read_mesh gives its zero level set,
+    closed, outward-facing, every vertex within a voxel of the sphere."""
+    import pyopenvdb
+    from conftest import assert_closed
+    center, radius = np.array([0.3, -0.2, 0.1]), 0.7
+    grid = pyopenvdb.createLevelSetSphere(radius=radius, center=tuple(center), voxelSize=voxel)
+    grid.name = "ball"
+    path = tmp_path / "ball.vdb"
+    pyopenvdb.write(str(path), grids=[grid])
+    mesh = surfacer.read_mesh(path)
+    assert_closed(mesh)
+    distance = np.abs(np.linalg.norm(mesh.vertices - center, axis=1) - radius)
+    assert distance.max() <= voxel, distance.max()
+    np.testing.assert_allclose(signed_volume(mesh), 4 / 3 * np.pi * radius ** 3, rtol=3 * voxel / radius)
+
+
+@pytest.mark.parametrize("cells,voxel", [(24, None), (48, 0.03)])
+def test_frame_write_vdb_reads_back_as_the_frame(local_client, cells, voxel, tmp_path):
+    frame = next(iter(local_client.isosurface(str(SCENES / "torus.json"), cells=cells, encoding="raw")))
+    path = tmp_path / "torus.vdb"
+    frame.write(path, vdb_voxel_size=voxel)
+    mesh = surfacer.read_mesh(path)
+    from conftest import assert_closed
+    assert_closed(mesh)
+    edges = np.linalg.norm(frame.vertices[frame.triangles[:, 0]] - frame.vertices[frame.triangles[:, 1]], axis=1)
+    h = voxel or float(edges.mean())
+    # Distance to the torus (major 1, minor 0.35 about z): every vertex within a voxel of the surface.
+    ring = np.hypot(np.hypot(mesh.vertices[:, 0], mesh.vertices[:, 1]) - 1.0, mesh.vertices[:, 2])
+    assert np.abs(ring - 0.35).max() <= h + 0.02
+    np.testing.assert_allclose(signed_volume(mesh), frame.stats["check"]["volume"], rtol=0.08)
+    with pytest.raises(surfacer.UsageError, match="OpenVDB"):
+        (tmp_path / "not.vdb").write_bytes(b"not a vdb file")
+        surfacer.read_mesh(tmp_path / "not.vdb")
