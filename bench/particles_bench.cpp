@@ -3,13 +3,14 @@
 // each voxel size and thread count) happens in a forked child that generates its own particles, so the peak RSS the
 // parent reads from wait4 is that run's alone.
 //
-//   particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness] [--threads T]
-//                   [--flatness-sweeps N] [--write DIR]
+//   particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness|scale] [--threads T]
+//                   [--flatness-sweeps N] [--scale-sizes M,M,...] [--write DIR]
 //
 //   --particles N   block size (default 500000): the 100 x 50 x 100 block scaled by cbrt(N / 500000) per axis
 //   --repeat R      repetitions of each of our timed runs (default 3); seconds are the minimum over them
 //   --vdb-repeat R  the same for OpenVDB's runs (default 1: one takes 10-30 s on the 500 k block, 2 cores)
-//   --section S     block or flatness only (default both)
+//   --section S     block, flatness or scale only (default block and flatness; scale runs only when asked)
+//   --scale-sizes L the scale section's block sizes in millions of particles (default 0.5,2,13.5,50)
 //   --threads T     one thread count for both sides (default: 1, then 2)
 //   --flatness-sweeps N  Bilaplacian sweeps of the flatness slabs (default: the option's default); many (e.g. 1000)
 //                   show where the sweeps converge to
@@ -17,6 +18,14 @@
 //
 // --particles, --repeat and --vdb-repeat are the block's, --flatness-sweeps the flatness slabs'; with the other
 // --section alone they would change nothing, so they are refused (exit 2, as any bad flag).
+//
+// scale: the block at each --scale-sizes (same lattice, jitter and radii, scaled per axis), once each at the largest
+// thread count: seconds end to end (surfacing + Draco encode as in block), CPU seconds, peak RSS, bytes per particle
+// (peak RSS / particles), triangles, particles/s and particles/s per core, with OpenVDB beside it at voxel = our mean
+// edge (equal resolution, (b) of block) up to 13.5 M, and splashsurf's published figure as a constant line (their
+// 13.35 M frame, coarse cubes and no smoothing, 2.47 s on 14 cores). A size whose peak, projected from the largest
+// size run so far (bytes per particle x particles), would pass 90 % of the physical memory is not run: the line says
+// so with the projection (a 50 M frame needs < 200 bytes per particle on 24 GB).
 //
 // Exits 1 when a run fails, or when one of our meshes is not a closed, oriented manifold or differs between thread
 // counts; timings are never checked.
@@ -94,7 +103,8 @@ struct Config {
   int repeat = 3;
   int vdb_repeat = 1;  // an OpenVDB run of the 500 k block takes 10-30 s
   std::vector<int> threads = {1, 2};
-  bool block = true, flatness = true;
+  bool block = true, flatness = true, scale = false;
+  std::vector<double> scale_millions = {0.5, 2.0, 13.5, 50.0};
   std::optional<int> flatness_sweeps;
   std::string write_dir;
 };
@@ -153,7 +163,7 @@ DataSet block_set(std::size_t particles) {
 }
 
 constexpr std::array<double, 4> kFlatnessRatios = {0.45, 0.6, 0.7, 1.0};  // r_inner / d
-constexpr double kFlatnessSpacing = 0.01;                                   // d
+constexpr double kFlatnessSpacing = 0.01;                                 // d
 
 // r_outer = 2 d, or (default_outer) the default 2 r_inner.
 DataSet flatness_set(double ratio, bool default_outer) {
@@ -632,9 +642,77 @@ bool bench_flatness(const Config& cfg) {
   return ok;
 }
 
+// splashsurf's published throughput (their README: a 13.35 M-particle frame in 2.47 s on 14 cores, coarse cubes, no
+// smoothing), in particles per second per core.
+constexpr double kSplashsurfParticlesPerCoreSecond = 13.35e6 / 2.47 / 14.0;
+constexpr double kScaleMemoryShare = 0.9;          // of the physical memory a projected run may take
+constexpr double kScaleOpenVdbMaxMillions = 13.5;  // OpenVDB beside ours up to this size
+
+double physical_memory_mb() {
+  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
+  return pages > 0 && page > 0 ? static_cast<double>(pages) * static_cast<double>(page) / (1024.0 * 1024.0) : 0.0;
+}
+
+bool bench_scale(const Config& cfg) {
+  const int threads = *std::max_element(cfg.threads.begin(), cfg.threads.end());
+  const double ram_mb = physical_memory_mb();
+  std::printf(
+      "scale  the block (d %.3g, jitter +-0.1 d, r_inner 0.6 d) at growing sizes, %d threads, one run each; "
+      "B/part = peak RSS / particles; physical memory %.1f GB\n",
+      kBlockSpacing, threads, ram_mb / 1024.0);
+  std::printf("  %-10s %-8s %10s %9s %8s %8s %8s %7s %10s %9s %11s\n", "particles", "who", "triangles", "tri/part",
+              "e2e s", "cpu s", "peak MB", "B/part", "Mpart/s", "per core", "vs splash");
+  bool ok = true;
+  double bytes_per_particle = 0.0;  // of the largest size run so far
+  for (const double millions : cfg.scale_millions) {
+    const DataSet set = block_set(static_cast<std::size_t>(millions * 1e6));
+    const std::array<int, 3> n = block_dims(static_cast<std::size_t>(millions * 1e6));
+    const double particles = static_cast<double>(n[0]) * n[1] * n[2];
+    const double projected_mb = bytes_per_particle * particles / (1024.0 * 1024.0);
+    if (bytes_per_particle > 0.0 && projected_mb > kScaleMemoryShare * ram_mb) {
+      std::printf("  %-10.4g %-8s not run: projected peak %.1f GB (%.0f B/part) > %.0f %% of %.1f GB\n",
+                  particles * 1e-6, "ours", projected_mb / 1024.0, bytes_per_particle, 100.0 * kScaleMemoryShare,
+                  ram_mb / 1024.0);
+      continue;
+    }
+    const auto run = in_child<OursResult>([&] { return run_ours(set, threads, 1, cfg.write_dir); });
+    if (!run) {
+      std::printf("  %-10.4g %-8s FAILED\n", particles * 1e-6, "ours");
+      ok = false;
+      continue;
+    }
+    const OursResult& r = run->value;
+    ok = ok && r.mesh.closed_manifold;
+    bytes_per_particle = run->peak_mb * 1024.0 * 1024.0 / particles;
+    const auto row = [&](const char* who, const Timing& t, std::size_t triangles, double peak_mb) {
+      const double rate = particles / t.end_to_end;
+      std::printf("  %-10.4g %-8s %10zu %9.2f %8.3f %8.3f %8.0f %7.0f %10.3f %9.3f %10.2fx\n", particles * 1e-6, who,
+                  triangles, static_cast<double>(triangles) / particles, t.end_to_end, t.cpu, peak_mb,
+                  peak_mb * 1024.0 * 1024.0 / particles, rate * 1e-6, rate * 1e-6 / threads,
+                  rate / threads / kSplashsurfParticlesPerCoreSecond);
+    };
+    row("ours", r.time, r.mesh.triangles, run->peak_mb);
+    if (millions <= kScaleOpenVdbMaxMillions) {
+      const auto vdb =
+          in_child<VdbResult>([&] { return run_openvdb(set, r.stats.r_outer, r.mesh.mean_edge, threads, 1); });
+      if (vdb) {
+        row("OpenVDB", vdb->value.time, vdb->value.mesh.triangles, vdb->peak_mb);
+      } else {
+        std::printf("  %-10.4g %-8s FAILED\n", particles * 1e-6, "OpenVDB");
+      }
+    }
+    std::fflush(stdout);
+  }
+  std::printf(
+      "  splashsurf (published): %.3f M particles/s per core (13.35 M in 2.47 s on 14 cores, coarse cubes, no "
+      "smoothing); vs splash = our particles/s per core / theirs\n\n",
+      kSplashsurfParticlesPerCoreSecond * 1e-6);
+  return ok;
+}
+
 constexpr const char* kUsage =
-    "usage: particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness] [--threads T]\n"
-    "                       [--flatness-sweeps N] [--write DIR]\n";
+    "usage: particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness|scale]\n"
+    "                       [--threads T] [--flatness-sweeps N] [--scale-sizes M,M,...] [--write DIR]\n";
 
 }  // namespace
 }  // namespace surfacer
@@ -642,7 +720,8 @@ constexpr const char* kUsage =
 int main(int argc, char** argv) {
   using namespace surfacer;
   Config cfg;
-  std::string block_flag, flatness_flag;  // the last flag given that only the block, only the flatness slabs use
+  // The last flag given that only the block, only the flatness slabs, only the scale section use.
+  std::string block_flag, flatness_flag, scale_flag;
   bench::Args args(argc, argv, "particles_bench", kUsage);
   while (args.next()) {
     const std::string& flag = args.flag();
@@ -656,16 +735,32 @@ int main(int argc, char** argv) {
       cfg.vdb_repeat = args.integer(1);
       block_flag = flag;
     } else if (flag == "--section") {
-      const std::string section = args.value("block or flatness");
-      if (section != "block" && section != "flatness")
-        args.error("--section is block or flatness, got '" + section + "'");
+      const std::string section = args.value("block, flatness or scale");
+      if (section != "block" && section != "flatness" && section != "scale")
+        args.error("--section is block, flatness or scale, got '" + section + "'");
       cfg.block = section == "block";
       cfg.flatness = section == "flatness";
+      cfg.scale = section == "scale";
     } else if (flag == "--threads") {
       cfg.threads = {args.integer(1)};
     } else if (flag == "--flatness-sweeps") {
       cfg.flatness_sweeps = args.integer(0);
       flatness_flag = flag;
+    } else if (flag == "--scale-sizes") {
+      cfg.scale_millions.clear();
+      const std::string list = args.value("millions of particles, comma-separated (0.5,2,13.5)");
+      for (std::size_t at = 0; at <= list.size();) {
+        const std::size_t comma = std::min(list.find(',', at), list.size());
+        char* end = nullptr;
+        const std::string item = list.substr(at, comma - at);
+        const double m = std::strtod(item.c_str(), &end);
+        if (item.empty() || *end != '\0' || !(m >= 1e-5 && m <= 1e4)) {
+          args.error("--scale-sizes: '" + item + "' is not a size in millions of particles (1e-5 .. 1e4)");
+        }
+        cfg.scale_millions.push_back(m);
+        at = comma + 1;
+      }
+      scale_flag = flag;
     } else if (flag == "--write") {
       cfg.write_dir = args.value("a directory");
     } else {
@@ -675,6 +770,7 @@ int main(int argc, char** argv) {
   // The flatness slabs have a fixed size and run once, on our side only; the block keeps the default sweeps.
   if (!cfg.block && !block_flag.empty()) args.error(block_flag + " applies to the block only");
   if (!cfg.flatness && !flatness_flag.empty()) args.error(flatness_flag + " applies to the flatness slabs only");
+  if (!cfg.scale && !scale_flag.empty()) args.error(scale_flag + " applies to --section scale only");
   double load[3] = {0, 0, 0};
   if (getloadavg(load, 3) < 0) load[0] = -1;
   std::printf(
@@ -685,6 +781,7 @@ int main(int argc, char** argv) {
   bool ok = true;
   if (cfg.block) ok = bench_block(cfg) && ok;
   if (cfg.flatness) ok = bench_flatness(cfg) && ok;
+  if (cfg.scale) ok = bench_scale(cfg) && ok;
   if (getloadavg(load, 3) >= 0) std::printf("load average %.2f at the end\n", load[0]);
   return ok ? 0 : 1;
 }
