@@ -1,7 +1,8 @@
 // Fuzz target: particle frames, every reader in core/particle_io (from memory; gzip is detected by its magic bytes
 // in every format) and the server's decoding of uploaded and inline frames (wire/particle_frames).
 // Input: one selector byte, then the file or upload bytes:
-//   0 xyz/csv text, 1 PLY, 2 VTK legacy, 3 VTU, 4 raw float32, 5 BGEO, 9 JSON (core::parse_particles)
+//   0 xyz/csv text, 1 PLY, 2 VTK legacy, 3 VTU, 4 raw float32, 5 BGEO, 9 JSON (core::parse_particles; VTK also
+//   as a mesh with its surface cells, core::parse_vtk_mesh)
 //   6 upload of float32 x y z records, 7 of x y z r records (with_radius), 8 a serialized v1::ParticleFrame with
 //   inline positions/radii (wire::summarize_particle_frame + load_particle_frame)
 // Expected failures are surfacer::Error; anything else escaping, a crash, UB or a violated property is a bug.
@@ -59,6 +60,13 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
                                                     ParticleFormat::kVtu, ParticleFormat::kBin, ParticleFormat::kBgeo};
       const ParticleFormat format = selector == 9 ? ParticleFormat::kJson : kFormats[selector];
       fuzz::check_frame(parse_particles(bytes, format, "fuzz"));
+      if (format == ParticleFormat::kVtk || format == ParticleFormat::kVtu) {
+        const Mesh mesh = parse_vtk_mesh(bytes, format, "fuzz");
+        for (const Triangle& t : mesh.triangles) {
+          for (const std::uint32_t v : t) fuzz::require(v < mesh.vertices.size(), "a triangle names a missing vertex");
+        }
+        fuzz::require(mesh.normals.empty() || mesh.normals.size() == mesh.vertices.size(), "normals count");
+      }
     } else if (selector <= 7) {
       wire::MemoryUploads uploads;
       auto blob = std::make_shared<wire::UploadBlob>();

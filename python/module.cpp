@@ -42,6 +42,7 @@
 #include "client/watch.h"
 #include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_io.h"
+#include "core/particles/particle_io.h"
 #include "core/util/errors.h"
 #include "core/util/format.h"
 #include "wire/output.h"
@@ -881,21 +882,26 @@ class FrameStream {
   std::exception_ptr error_;
 };
 
-// Whether `path` names an OpenVDB file (.vdb, any case): the client's reader and writer, not core's.
-bool is_vdb(const std::string& path) {
+std::string lower_extension(const std::string& path) {
   std::string extension = std::filesystem::path(path).extension().string();
   for (char& c : extension) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return extension == ".vdb";
+  return extension;
 }
 
-// Reads a mesh file with core's reader (read_mesh: .ply, .obj, .drc, .glb or .gltf by the extension), or the zero level
-// set of a .vdb's level set (read_vdb), as arrays.
+// Whether `path` names an OpenVDB file (.vdb, any case): the client's reader and writer, not core's.
+bool is_vdb(const std::string& path) { return lower_extension(path) == ".vdb"; }
+
+// Reads a mesh file with core's reader (read_mesh: .ply, .obj, .drc, .glb or .gltf by the extension), VTK's surface
+// cells (read_vtk_mesh: .vtk, .vtu, .vtp), or the zero level set of a .vdb's level set (read_vdb), as arrays.
 py::tuple read_mesh_file(const std::string& path) {
   Mesh mesh;
   {
     py::gil_scoped_release release;
     try {
-      mesh = is_vdb(path) ? read_vdb(path) : surfacer::read_mesh(path);
+      const std::string extension = lower_extension(path);
+      mesh = extension == ".vdb"                                                 ? read_vdb(path)
+             : extension == ".vtk" || extension == ".vtu" || extension == ".vtp" ? read_vtk_mesh(path)
+                                                                                 : surfacer::read_mesh(path);
     } catch (const Error& e) {
       throw CliError(ExitCode::kUsage, e.what());
     }

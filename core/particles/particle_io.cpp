@@ -613,16 +613,16 @@ ParticleFormat particle_format_from_path(const std::filesystem::path& path) {
 namespace {
 
 ParticleFrame parse_format(std::string_view bytes, ParticleFormat format, const std::string& name,
-                           const ParticleReadLimits& limits) {
+                           const ParticleReadLimits& limits, bool surface_cells) {
   switch (format) {
     case ParticleFormat::kXyz:
       return parse_xyz(bytes, name);
     case ParticleFormat::kPly:
       return parse_ply_points(bytes, name);
     case ParticleFormat::kVtk:
-      return parse_vtk_points(bytes, name);
+      return parse_vtk_points(bytes, name, surface_cells);
     case ParticleFormat::kVtu:
-      return parse_vtu_points(bytes, name, limits.max_bytes);
+      return parse_vtu_points(bytes, name, limits.max_bytes, surface_cells);
     case ParticleFormat::kBin:
       return parse_bin(bytes, name);
     case ParticleFormat::kBgeo:
@@ -638,10 +638,9 @@ ParticleFrame parse_format(std::string_view bytes, ParticleFormat format, const 
                                   std::to_string(max_particles) + " (the limit)");
 }
 
-}  // namespace
-
-ParticleFrame parse_particles(std::string_view bytes, ParticleFormat format, const std::string& name_for_errors,
-                              const ParticleReadLimits& limits) {
+// parse_particles, and (surface_cells) the surface cells of VTK files (read_vtk_mesh).
+ParticleFrame parse_file_data(std::string_view bytes, ParticleFormat format, const std::string& name_for_errors,
+                              const ParticleReadLimits& limits, bool surface_cells) {
   std::string inflated;
   if (is_gzip(bytes)) {
     inflated = gunzip(bytes, name_for_errors, limits.max_bytes);
@@ -653,14 +652,15 @@ ParticleFrame parse_particles(std::string_view bytes, ParticleFormat format, con
   if (format == ParticleFormat::kBin && bytes.size() / 12 > static_cast<std::uint64_t>(limits.max_particles)) {
     too_many_particles(name_for_errors, bytes.size() / 12, limits.max_particles);
   }
-  ParticleFrame frame = parse_format(bytes, format, name_for_errors, limits);
+  ParticleFrame frame = parse_format(bytes, format, name_for_errors, limits, surface_cells);
   if (frame.positions.size() > static_cast<std::uint64_t>(limits.max_particles)) {
     too_many_particles(name_for_errors, frame.positions.size(), limits.max_particles);
   }
   return frame;
 }
 
-ParticleFrame read_particles(const std::filesystem::path& path, const ParticleReadLimits& limits) {
+// read_particles, and (surface_cells) the surface cells of VTK files (read_vtk_mesh).
+ParticleFrame read_file(const std::filesystem::path& path, const ParticleReadLimits& limits, bool surface_cells) {
   const ParticleFormat format = particle_format_from_path(path);
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InvalidInput("file", path.string() + ": cannot open for reading: " + std::strerror(errno));
@@ -684,7 +684,61 @@ ParticleFrame read_particles(const std::filesystem::path& path, const ParticleRe
   in.seekg(0);
   std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   if (in.bad()) throw InvalidInput("file", path.string() + ": read error");
-  return parse_particles(bytes, format, path.string(), limits);
+  return parse_file_data(bytes, format, path.string(), limits, surface_cells);
+}
+
+}  // namespace
+
+ParticleFrame parse_particles(std::string_view bytes, ParticleFormat format, const std::string& name_for_errors,
+                              const ParticleReadLimits& limits) {
+  return parse_file_data(bytes, format, name_for_errors, limits, /*surface_cells=*/false);
+}
+
+ParticleFrame read_particles(const std::filesystem::path& path, const ParticleReadLimits& limits) {
+  return read_file(path, limits, /*surface_cells=*/false);
+}
+
+namespace {
+
+void require_vtk(ParticleFormat format, const std::string& name) {
+  if (format != ParticleFormat::kVtk && format != ParticleFormat::kVtu) {
+    throw InvalidInput("file", name + ": not a VTK file; read .vtk, .vtu or .vtp files as meshes");
+  }
+}
+
+// The mesh of a VTK file read with its surface cells (read_vtk_mesh).
+Mesh vtk_mesh(ParticleFrame frame, const std::string& name) {
+  if (frame.triangles.empty()) {
+    throw InvalidInput("file", name + ": no triangle, quad, polygon or triangle-strip cells (" +
+                                   std::to_string(frame.positions.size()) + " points): not a surface mesh");
+  }
+  Mesh mesh;
+  mesh.vertices = std::move(frame.positions);
+  mesh.triangles = std::move(frame.triangles);
+  for (Attribute& attribute : frame.attributes) {
+    if (attribute.name == "Normals" && attribute.components == 3 && mesh.normals.empty()) {
+      mesh.normals.resize(mesh.vertices.size());
+      for (std::size_t v = 0; v < mesh.normals.size(); ++v) {
+        mesh.normals[v] = Vec3(attribute.values[3 * v], attribute.values[3 * v + 1], attribute.values[3 * v + 2]);
+      }
+    } else {
+      mesh.attributes.push_back(std::move(attribute));
+    }
+  }
+  return mesh;
+}
+
+}  // namespace
+
+Mesh read_vtk_mesh(const std::filesystem::path& path, const ParticleReadLimits& limits) {
+  require_vtk(particle_format_from_path(path), path.string());
+  return vtk_mesh(read_file(path, limits, /*surface_cells=*/true), path.string());
+}
+
+Mesh parse_vtk_mesh(std::string_view bytes, ParticleFormat format, const std::string& name_for_errors,
+                    const ParticleReadLimits& limits) {
+  require_vtk(format, name_for_errors);
+  return vtk_mesh(parse_file_data(bytes, format, name_for_errors, limits, /*surface_cells=*/true), name_for_errors);
 }
 
 std::vector<std::filesystem::path> expand_sequence(const std::string& pattern, int start, int end) {

@@ -60,6 +60,10 @@ struct ParticleFrame {
   // The file's other per-particle arrays of 1 to Attribute::kMaxComponents numbers (velocity, density, ...), one
   // element per position each, under the file's names, in file order (see "Attributes" above).
   std::vector<Attribute> attributes;
+  // The file's surface triangles, indices into positions: the polygon, quad, triangle and triangle-strip cells of a
+  // VTK file (.vtk, .vtu, .vtp; polygons fanned, strips split, vertex, line and 3D cells, and cells without types,
+  // skipped), counter-clockwise as stored. Read by read_vtk_mesh only: empty from read_particles.
+  std::vector<Triangle> triangles;
 };
 
 // The attribute named `name` of `frame`, or nullptr.
@@ -81,6 +85,15 @@ ParticleFrame read_particles(const std::filesystem::path& path, const ParticleRe
 // The same from bytes in memory (gzip accepted); `name_for_errors` prefixes every message.
 ParticleFrame parse_particles(std::string_view bytes, ParticleFormat format, const std::string& name_for_errors,
                               const ParticleReadLimits& limits = {});
+
+// A VTK file (.vtk legacy, .vtu, .vtp; gzip allowed) as a triangle mesh: its points and ParticleFrame::triangles, its
+// point array "Normals" (3 components) as normals, its other point arrays as Mesh::attributes. Throws as
+// read_particles does, InvalidInput("file") naming the file for one without a triangle cell or with a cell that names
+// a point the file does not have.
+Mesh read_vtk_mesh(const std::filesystem::path& path, const ParticleReadLimits& limits = {});
+// The same from bytes in memory (`format` kVtk or kVtu, gzip accepted); `name_for_errors` prefixes every message.
+Mesh parse_vtk_mesh(std::string_view bytes, ParticleFormat format, const std::string& name_for_errors,
+                    const ParticleReadLimits& limits = {});
 
 // Frame file names from a pattern with one placeholder "{}" (the frame number as is) or "{:Nd}" / "{:0Nd}"
 // (zero-padded to N digits; N in 1..18), for frames start..end inclusive, e.g.

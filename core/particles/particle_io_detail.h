@@ -61,9 +61,13 @@ void check_finite(const Vec3& p, const std::string& name, const std::string& whe
 std::size_t capped_reserve(std::int64_t declared, std::size_t bytes_left, std::size_t min_bytes_each);
 
 ParticleFrame parse_ply_points(std::string_view bytes, const std::string& name);
-ParticleFrame parse_vtk_points(std::string_view bytes, const std::string& name);
+// With `surface_cells`, the VTK readers also read the files' surface cells into ParticleFrame::triangles
+// (read_vtk_mesh); particle reading leaves them (a particle file's per-point vertex cells would cost as much as its
+// points).
+ParticleFrame parse_vtk_points(std::string_view bytes, const std::string& name, bool surface_cells = false);
 ParticleFrame parse_json_points(std::string_view bytes, const std::string& name);
 // Compressed arrays may inflate to at most `max_inflated_bytes` in all (ResourceLimit past it).
-ParticleFrame parse_vtu_points(std::string_view bytes, const std::string& name, std::uint64_t max_inflated_bytes);
+ParticleFrame parse_vtu_points(std::string_view bytes, const std::string& name, std::uint64_t max_inflated_bytes,
+                               bool surface_cells = false);
 
 }  // namespace surfacer::particle_io_detail

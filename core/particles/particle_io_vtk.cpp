@@ -1,4 +1,5 @@
-// VTK legacy (.vtk) and VTK XML (.vtu) point positions for core/particles/particle_io.h.
+// VTK legacy (.vtk) and VTK XML (.vtu, .vtp) point positions, point arrays and surface cells for
+// core/particles/particle_io.h.
 #include <lz4.h>
 #include <lzma.h>
 #include <zlib.h>
@@ -7,6 +8,7 @@
 #include <cctype>
 #include <cmath>
 #include <limits>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -22,11 +24,84 @@ std::string upper(std::string_view s) {
   return out;
 }
 
+// --- Cells ----------------------------------------------------------------------------------------------------------
+
+// VTK's cell types that hold surface triangles (vtkCellType.h).
+constexpr int kVtkTriangle = 5;
+constexpr int kVtkTriangleStrip = 6;
+constexpr int kVtkPolygon = 7;
+constexpr int kVtkQuad = 9;
+
+// One list of cells as a file stores it: cell c's point ids are connectivity[offsets[c] .. offsets[c + 1]) (offsets
+// start at 0), its VTK type types[c], or `type` for every cell when there are no types (legacy POLYGONS, XML Polys).
+struct CellList {
+  std::vector<double> offsets, connectivity, types;
+  int type = kVtkPolygon;
+  std::int64_t first_point = 0;  // of the piece: ids are the piece's own
+};
+
+// A legacy cell list ("k i0 .. ik-1" per cell, n cells) as offsets and connectivity.
+void split_cell_list(const std::vector<double>& list, std::int64_t n, CellList& cells, const std::string& name,
+                     const std::string& where) {
+  cells.offsets.assign(1, 0.0);
+  std::size_t at = 0;
+  for (std::int64_t c = 0; c < n; ++c) {
+    const double k = at < list.size() ? list[at] : -1.0;
+    if (!(k >= 0 && k == std::floor(k) && k <= static_cast<double>(list.size() - at - 1))) {
+      fail(name, where, "cell " + std::to_string(c) + " of " + std::to_string(n) + " does not fit in the cell list");
+    }
+    cells.connectivity.insert(cells.connectivity.end(), list.begin() + static_cast<std::ptrdiff_t>(at + 1),
+                              list.begin() + static_cast<std::ptrdiff_t>(at + 1 + static_cast<std::size_t>(k)));
+    cells.offsets.push_back(static_cast<double>(cells.connectivity.size()));
+    at += 1 + static_cast<std::size_t>(k);
+  }
+}
+
+// Appends the triangles of `cells` (of a piece of `points` points) to `out`: polygons, quads and triangles fanned from
+// their first point, strips split with every other triangle turned so that all keep the strip's side; other cell types
+// are skipped.
+void append_triangles(const CellList& cells, std::int64_t points, std::vector<Triangle>& out, const std::string& name,
+                      const std::string& where) {
+  const std::size_t n = cells.offsets.empty() ? 0 : cells.offsets.size() - 1;
+  if (!cells.types.empty() && cells.types.size() != n) {
+    fail(name, where,
+         "the cell types hold " + std::to_string(cells.types.size()) + " values for " + std::to_string(n) + " cells");
+  }
+  const auto id = [&](double v) {
+    if (!(v >= 0 && v < static_cast<double>(points) && v == std::floor(v))) {
+      fail(name, where, "a cell names point " + format_number(v) + ", not one of the " + std::to_string(points));
+    }
+    return static_cast<std::uint32_t>(cells.first_point + static_cast<std::int64_t>(v));
+  };
+  for (std::size_t c = 0; c < n; ++c) {
+    const double b = cells.offsets[c], e = cells.offsets[c + 1];
+    if (!(b >= 0 && b <= e && e <= static_cast<double>(cells.connectivity.size()))) {
+      fail(name, where,
+           "cell " + std::to_string(c) + "'s offsets (" + format_number(b) + ", " + format_number(e) +
+               ") do not lie within the " + std::to_string(cells.connectivity.size()) + " point ids");
+    }
+    const auto lo = static_cast<std::size_t>(b), hi = static_cast<std::size_t>(e);
+    const double stored = cells.types.empty() ? cells.type : cells.types[c];
+    const int type = stored >= 0 && stored < 256 ? static_cast<int>(stored) : -1;
+    if (hi - lo < 3) continue;
+    const std::vector<double>& ids = cells.connectivity;
+    if (type == kVtkTriangle || type == kVtkPolygon || type == kVtkQuad) {
+      for (std::size_t i = lo + 1; i + 1 < hi; ++i) out.push_back({id(ids[lo]), id(ids[i]), id(ids[i + 1])});
+    } else if (type == kVtkTriangleStrip) {
+      for (std::size_t i = lo; i + 2 < hi; ++i) {
+        const bool odd = (i - lo) % 2 == 1;
+        out.push_back({id(ids[odd ? i + 1 : i]), id(ids[odd ? i : i + 1]), id(ids[i + 2])});
+      }
+    }
+  }
+}
+
 // --- Legacy ----------------------------------------------------------------------------------------------------------
 
 class LegacyReader {
  public:
-  LegacyReader(std::string_view bytes, const std::string& name) : c_{bytes, name}, name_(name) {}
+  LegacyReader(std::string_view bytes, const std::string& name, bool surface_cells)
+      : c_{bytes, name}, name_(name), surface_cells_(surface_cells) {}
 
   ParticleFrame read() {
     const std::string_view first = c_.rest_of_line();
@@ -74,19 +149,28 @@ class LegacyReader {
                  key == "CELLS") {
         const std::int64_t n = c_.count("cell count");
         const std::int64_t size = c_.count("cell list size");
+        // Surface cells are kept (ParticleFrame::triangles); vertices and lines are read past.
+        const bool keep = surface_cells_ && (key == "POLYGONS" || key == "TRIANGLE_STRIPS" || key == "CELLS");
+        CellList cells;
+        cells.type = key == "TRIANGLE_STRIPS" ? kVtkTriangleStrip : kVtkPolygon;
         const std::size_t save_pos = c_.pos, save_line = c_.line;
         const std::optional<std::string_view> next = c_.next();
         if (next && upper(*next) == "OFFSETS") {  // VTK 5.1: OFFSETS <type> n values, CONNECTIVITY <type> size values
-          read_values(n, 1, scalar(c_.expect("offsets type")), "OFFSETS", nullptr);
+          read_values(n, 1, scalar(c_.expect("offsets type")), "OFFSETS", keep ? &cells.offsets : nullptr);
           if (upper(c_.expect("CONNECTIVITY")) != "CONNECTIVITY") fail(name_, where(c_.pos), "expected CONNECTIVITY");
-          read_values(size, 1, scalar(c_.expect("connectivity type")), "CONNECTIVITY", nullptr);
+          read_values(size, 1, scalar(c_.expect("connectivity type")), "CONNECTIVITY",
+                      keep ? &cells.connectivity : nullptr);
         } else {
           c_.pos = save_pos;
           c_.line = save_line;
-          read_values(size, 1, Scalar::kI32, key, nullptr);
+          read_values(size, 1, Scalar::kI32, key, keep ? &values : nullptr);
+          if (keep) split_cell_list(values, n, cells, name_, where(at));
         }
+        if (keep) (key == "CELLS" ? unstructured_ : cell_lists_).push_back(std::move(cells));
       } else if (key == "CELL_TYPES") {
-        read_values(c_.count("cell count"), 1, Scalar::kI32, "CELL_TYPES", nullptr);
+        const std::int64_t n = c_.count("cell count");
+        std::vector<double>* types = unstructured_.empty() ? nullptr : &unstructured_.back().types;
+        read_values(n, 1, Scalar::kI32, "CELL_TYPES", types);
       } else if (key == "POINT_DATA" || key == "CELL_DATA") {
         point_data = key == "POINT_DATA";
         attribute_count = c_.count("attribute count");
@@ -182,6 +266,13 @@ class LegacyReader {
     }
     // Arrays of another length (a FIELD before the POINTS that turned out not to be per point) are no attributes.
     std::erase_if(frame.attributes, [&](const Attribute& a) { return a.count() != static_cast<std::size_t>(points); });
+    for (const std::vector<CellList>* lists : {&cell_lists_, &unstructured_}) {
+      for (const CellList& cells : *lists) {
+        // CELLS without CELL_TYPES: their kinds are unknown, so they make no triangles (points are still read).
+        if (lists == &unstructured_ && cells.types.empty()) continue;
+        append_triangles(cells, points, frame.triangles, name_, where(c_.pos));
+      }
+    }
     return std::move(frame);
   }
 
@@ -256,6 +347,9 @@ class LegacyReader {
   TextCursor c_;
   const std::string& name_;
   bool binary_ = false;
+  const bool surface_cells_;
+  std::vector<CellList> cell_lists_;    // POLYGONS and TRIANGLE_STRIPS
+  std::vector<CellList> unstructured_;  // CELLS, with their CELL_TYPES
 };
 
 // --- XML (.vtu) --------------------------------------------------------------------------------------------------
@@ -287,18 +381,26 @@ struct ArrayRef {
   std::size_t content_at = 0;           // ... and where it starts
   std::optional<std::uint64_t> offset;  // appended arrays: offset into the appended data
   std::vector<double> values;           // inline arrays: decoded as soon as they are met
+  // A cell array (connectivity, offsets or types of a piece's Cells, Polys or Strips): which, and the index of its
+  // piece's cell list. Decoded after the scan (connectivity's count is the last offset).
+  std::string_view cell_array;
+  int cell_list = -1;
 };
 
 class XmlReader {
  public:
-  XmlReader(std::string_view text, const std::string& name, std::uint64_t max_inflated_bytes)
-      : text_(text), name_(name), max_inflated_bytes_(max_inflated_bytes) {}
+  XmlReader(std::string_view text, const std::string& name, std::uint64_t max_inflated_bytes, bool surface_cells)
+      : text_(text), name_(name), max_inflated_bytes_(max_inflated_bytes), surface_cells_(surface_cells) {}
 
   ParticleFrame read() {
     std::vector<ArrayRef> arrays;
     std::vector<std::string_view> stack;
     std::int64_t piece_points = -1;  // -1 outside a <Piece>
     std::int64_t piece_points_read = 0;
+    std::int64_t points_before = 0;  // of the pieces before this one
+    // Per piece, its Polys, Strips and Cells (the index of each in cell_lists_, or -1 when it has none).
+    std::map<std::string_view, int> piece_lists;
+    std::map<std::string_view, std::int64_t> piece_cells;
     bool piece_radius = false;
     bool saw_file = false, any_radius = false, any_piece_without_radius = false;
     std::size_t pos = 0;
@@ -318,6 +420,7 @@ class XmlReader {
                      std::to_string(piece_points_read));
           }
           (piece_radius ? any_radius : any_piece_without_radius) = true;
+          points_before += piece_points;
           piece_points = -1;
         }
         continue;
@@ -364,9 +467,43 @@ class XmlReader {
         piece_points = static_cast<std::int64_t>(n);
         piece_points_read = 0;
         piece_radius = false;
+        piece_lists.clear();
+        piece_cells.clear();
+        for (const auto& [section, count] : {std::pair<std::string_view, std::string_view>{"Cells", "NumberOfCells"},
+                                             {"Polys", "NumberOfPolys"},
+                                             {"Strips", "NumberOfStrips"}}) {
+          double cells = 0.0;
+          if (const auto a = tag->attribute(count);
+              a && (!parse_double(*a, cells) || cells < 0 || cells != std::floor(cells) || cells > 4.0e9)) {
+            fail(name_, where(tag->begin), "Piece has no valid " + std::string(count));
+          }
+          piece_cells[section] = static_cast<std::int64_t>(cells);
+        }
       } else if (tag->name == "AppendedData") {
         appended(*tag);
         break;  // raw bytes follow, up to the end of the file
+      } else if (surface_cells_ && tag->name == "DataArray" && !stack.empty() && piece_cells.count(stack.back()) != 0 &&
+                 piece_points >= 0) {
+        const std::string_view section = stack.back();
+        const std::string_view which = tag->attribute("Name").value_or("");
+        if (which == "connectivity" || which == "offsets" || (which == "types" && section == "Cells")) {
+          auto [list, fresh] = piece_lists.try_emplace(section, static_cast<int>(cell_lists_.size()));
+          if (fresh) {
+            cell_lists_.push_back(CellList{});
+            cell_lists_.back().type = section == "Strips" ? kVtkTriangleStrip : kVtkPolygon;
+            cell_lists_.back().first_point = points_before;
+            cell_points_.push_back(piece_points);
+            cell_counts_.push_back(piece_cells[section]);
+            cell_sections_.push_back(section);
+          }
+          ArrayRef array;
+          array.tag = *tag;
+          array.cell_array = which;
+          array.cell_list = list->second;
+          array.count = which == "connectivity" ? 0 : piece_cells[section];  // connectivity's: its last offset
+          locate(array, pos);
+          arrays.push_back(std::move(array));
+        }
       } else if (tag->name == "DataArray" && !stack.empty() &&
                  (stack.back() == "Points" ||
                   // The piece's first radius (or pscale) array; a second one is other data, not more radii.
@@ -393,23 +530,7 @@ class XmlReader {
           if (attribute) array.attribute = std::string(tag->attribute("Name").value_or(""));
           array.components = components;
           array.count = piece_points * components;
-          if (is_appended) {
-            double offset = -1.0;
-            if (!parse_double(tag->attribute("offset").value_or(""), offset) || offset < 0 ||
-                offset != std::floor(offset) || offset > 1e18) {
-              fail(name_, where(tag->begin), "appended DataArray has no valid offset");
-            }
-            array.offset = static_cast<std::uint64_t>(offset);
-          }
-          if (!tag->self_closing) {
-            const std::size_t close = text_.find("</DataArray>", tag->end);
-            if (close == std::string_view::npos) fail(name_, where(tag->begin), "DataArray is not closed");
-            // The values end at the first child element (VTK writes <InformationKey> elements after them).
-            const std::size_t values_end = std::min(close, text_.find('<', tag->end));
-            array.content = text_.substr(tag->end, values_end - tag->end);
-            array.content_at = tag->end;
-            pos = close;
-          }
+          locate(array, pos);
           if (!is_appended) array.values = decode(array);
           arrays.push_back(std::move(array));
           if (points) {
@@ -433,7 +554,40 @@ class XmlReader {
       std::vector<double> values;
     };
     std::vector<Collected> attributes;
+    // Cell arrays: offsets first (VTK's end offsets, one per cell), then the connectivity they span and the types.
+    for (const std::string_view which : {"offsets", "connectivity", "types"}) {
+      for (ArrayRef& array : arrays) {
+        if (array.cell_array != which) continue;
+        CellList& cells = cell_lists_[static_cast<std::size_t>(array.cell_list)];
+        if (which == "connectivity") {
+          const double last = cells.offsets.size() > 1 ? cells.offsets.back() : 0.0;
+          // (the decoder checks the count against the bytes present; this keeps it an integer it can multiply)
+          if (!(last >= 0 && last <= 1e12)) {
+            fail(name_, where(array.tag.begin), "cell offsets end at " + format_number(last));
+          }
+          array.count = static_cast<std::int64_t>(last);
+        }
+        std::vector<double> values = decode(array);
+        if (which == "offsets") {
+          cells.offsets.assign(1, 0.0);
+          cells.offsets.insert(cells.offsets.end(), values.begin(), values.end());
+        } else {
+          (which == "connectivity" ? cells.connectivity : cells.types) = std::move(values);
+        }
+      }
+    }
+    for (std::size_t k = 0; k < cell_lists_.size(); ++k) {
+      const CellList& cells = cell_lists_[k];
+      if (cell_counts_[k] > 0 && cells.offsets.size() != static_cast<std::size_t>(cell_counts_[k]) + 1) {
+        fail(name_, where(text_.size()),
+             "a piece declares " + std::to_string(cell_counts_[k]) + " cells without their offsets array");
+      }
+      // Cells without types: their kinds are unknown, so they make no triangles (points are still read).
+      if (cell_sections_[k] == "Cells" && cells.types.empty()) continue;
+      append_triangles(cells, cell_points_[k], frame.triangles, name_, where(text_.size()));
+    }
     for (ArrayRef& array : arrays) {
+      if (array.cell_list >= 0) continue;
       const std::vector<double> values = array.offset ? decode(array) : std::move(array.values);
       if (array.points) {
         for (std::size_t i = 0; i + 2 < values.size(); i += 3) {
@@ -484,6 +638,29 @@ class XmlReader {
       if (!parse_double(*a, nc)) return false;
     }
     return nc >= 1 && nc <= Attribute::kMaxComponents && nc == std::floor(nc);
+  }
+
+  // Where an array's values lie: the appended data's offset, or the inline text up to the first child element; moves
+  // `pos` past an inline array.
+  void locate(ArrayRef& array, std::size_t& pos) const {
+    const Tag& tag = array.tag;
+    if (tag.attribute("format").value_or("ascii") == "appended") {
+      double offset = -1.0;
+      if (!parse_double(tag.attribute("offset").value_or(""), offset) || offset < 0 || offset != std::floor(offset) ||
+          offset > 1e18) {
+        fail(name_, where(tag.begin), "appended DataArray has no valid offset");
+      }
+      array.offset = static_cast<std::uint64_t>(offset);
+    }
+    if (!tag.self_closing) {
+      const std::size_t close = text_.find("</DataArray>", tag.end);
+      if (close == std::string_view::npos) fail(name_, where(tag.begin), "DataArray is not closed");
+      // The values end at the first child element (VTK writes <InformationKey> elements after them).
+      const std::size_t values_end = std::min(close, text_.find('<', tag.end));
+      array.content = text_.substr(tag.end, values_end - tag.end);
+      array.content_at = tag.end;
+      pos = close;
+    }
   }
 
   // <AppendedData encoding="raw|base64">, then optional white space and '_': the data starts after the '_'.
@@ -853,16 +1030,22 @@ class XmlReader {
   std::size_t header_size_ = 4;
   std::optional<std::size_t> appended_at_;  // first byte after <AppendedData ...> _
   bool appended_base64_ = false;
+  const bool surface_cells_;
+  // The pieces' cell lists, with each one's piece's points, declared cells and section (Cells, Polys or Strips).
+  std::vector<CellList> cell_lists_;
+  std::vector<std::int64_t> cell_points_, cell_counts_;
+  std::vector<std::string_view> cell_sections_;
 };
 
 }  // namespace
 
-ParticleFrame parse_vtk_points(std::string_view bytes, const std::string& name) {
-  return LegacyReader(bytes, name).read();
+ParticleFrame parse_vtk_points(std::string_view bytes, const std::string& name, bool surface_cells) {
+  return LegacyReader(bytes, name, surface_cells).read();
 }
 
-ParticleFrame parse_vtu_points(std::string_view bytes, const std::string& name, std::uint64_t max_inflated_bytes) {
-  return XmlReader(bytes, name, max_inflated_bytes).read();
+ParticleFrame parse_vtu_points(std::string_view bytes, const std::string& name, std::uint64_t max_inflated_bytes,
+                               bool surface_cells) {
+  return XmlReader(bytes, name, max_inflated_bytes, surface_cells).read();
 }
 
 }  // namespace surfacer::particle_io_detail

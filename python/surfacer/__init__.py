@@ -75,7 +75,9 @@ class Mesh:
 def read_mesh(path) -> Mesh:
     """Reads a mesh file with the CLI's own readers, the format by the extension: .ply, .obj, .drc, .glb or .gltf
     (every triangle primitive of its scene; a .gltf's buffer embedded as a data URI; a .glb the CLI or
-    ``Frame.write`` wrote reads back as the frame's mesh, its pieces welded), or .vdb (the zero level set of the
+    ``Frame.write`` wrote reads back as the frame's mesh, its pieces welded), .vtk, .vtu or .vtp (VTK's files in
+    every mode the particle readers take: the triangle, quad, polygon and triangle-strip cells, a "Normals" point
+    array as normals, the other point arrays as attributes), or .vdb (the zero level set of the
     FloatGrid "surface", else of the first level-set grid, meshed by OpenVDB's volumeToMesh: closed and
     outward-facing, vertices on the voxels' edges, so within about a voxel of the surface written). A file that is
     not such a mesh raises surfacer.UsageError naming what is wrong."""

@@ -989,5 +989,68 @@ TEST(ParticleIo, JsonObjectOfArraysCarriesRadiiAndAttributes) {
   }
 }
 
+
+// VTK files as meshes (parse_vtk_mesh): legacy polygons in both cell-list layouts, unstructured cells by type, XML
+// pieces with their own point numbering; particle reading leaves the cells.
+TEST(ParticleIo, VtkSurfaceCellsAsMesh) {
+  // A unit square as a quad (split in two) and a triangle above it, in the pre-5.1 cell list.
+  const std::string legacy =
+      "# vtk DataFile Version 4.2\nsquare\nASCII\nDATASET POLYDATA\nPOINTS 5 float\n"
+      "0 0 0 1 0 0 1 1 0 0 1 0 0.5 0.5 1\nPOLYGONS 2 9\n4 0 1 2 3\n3 0 1 4\nVERTICES 1 2\n1 4\n";
+  const Mesh a = parse_vtk_mesh(legacy, ParticleFormat::kVtk, "square.vtk");
+  ASSERT_EQ(a.triangles.size(), 3u);
+  EXPECT_EQ(a.triangles[0], (Triangle{0, 1, 2}));
+  EXPECT_EQ(a.triangles[1], (Triangle{0, 2, 3}));
+  EXPECT_EQ(a.triangles[2], (Triangle{0, 1, 4}));
+  EXPECT_TRUE(parse_particles(legacy, ParticleFormat::kVtk, "square.vtk").triangles.empty());
+  // VTK 5.1 layout, unstructured: a triangle (5), a line (3, skipped), a quad (9); a tetrahedron (10) skipped.
+  const std::string unstructured =
+      "# vtk DataFile Version 5.1\ncells\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 5 double\n"
+      "0 0 0 1 0 0 1 1 0 0 1 0 0 0 1\nCELLS 5 13\nOFFSETS vtktypeint64\n0 3 5 9 13\n"
+      "CONNECTIVITY vtktypeint64\n0 1 2 0 4 0 1 2 3 0 1 2 4\nCELL_TYPES 4\n5 3 9 10\n";
+  const Mesh b = parse_vtk_mesh(unstructured, ParticleFormat::kVtk, "cells.vtk");
+  ASSERT_EQ(b.triangles.size(), 3u);
+  EXPECT_EQ(b.triangles[1], (Triangle{0, 1, 2}));
+  // XML: two pieces, each numbering its points from 0; the second piece's triangle is shifted.
+  const std::string xml =
+      "<VTKFile type=\"PolyData\"><PolyData>"
+      "<Piece NumberOfPoints=\"3\" NumberOfPolys=\"1\"><Points><DataArray type=\"Float32\" "
+      "NumberOfComponents=\"3\" format=\"ascii\">0 0 0 1 0 0 0 1 0</DataArray></Points><Polys>"
+      "<DataArray type=\"Int32\" Name=\"connectivity\" format=\"ascii\">0 1 2</DataArray>"
+      "<DataArray type=\"Int32\" Name=\"offsets\" format=\"ascii\">3</DataArray></Polys></Piece>"
+      "<Piece NumberOfPoints=\"3\" NumberOfStrips=\"1\"><Points><DataArray type=\"Float32\" "
+      "NumberOfComponents=\"3\" format=\"ascii\">0 0 1 1 0 1 0 1 1</DataArray></Points><Strips>"
+      "<DataArray type=\"Int32\" Name=\"connectivity\" format=\"ascii\">2 0 1</DataArray>"
+      "<DataArray type=\"Int32\" Name=\"offsets\" format=\"ascii\">3</DataArray></Strips></Piece>"
+      "</PolyData></VTKFile>";
+  const Mesh c = parse_vtk_mesh(xml, ParticleFormat::kVtu, "two.vtp");
+  ASSERT_EQ(c.vertices.size(), 6u);
+  ASSERT_EQ(c.triangles.size(), 2u);
+  EXPECT_EQ(c.triangles[0], (Triangle{0, 1, 2}));
+  EXPECT_EQ(c.triangles[1], (Triangle{5, 3, 4}));
+  // What is refused, naming the file: a cell naming a missing point, offsets past the connectivity, no surface cells.
+  const auto refused = [](const std::string& text, ParticleFormat format, const std::string& words) {
+    try {
+      parse_vtk_mesh(text, format, "bad.vtk");
+      ADD_FAILURE() << "read: " << words;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(words), std::string::npos) << e.what();
+      EXPECT_EQ(std::string(e.what()).rfind("bad.vtk: ", 0), 0u) << e.what();
+    }
+  };
+  std::string missing = legacy;
+  missing.replace(missing.find("3 0 1 4"), 7, "3 0 1 9");
+  refused(missing, ParticleFormat::kVtk, "names point 9, not one of the 5");
+  std::string short_list = legacy;
+  short_list.replace(short_list.find("POLYGONS 2 9\n4 0 1 2 3\n3 0 1 4"), 30, "POLYGONS 2 9\n4 0 1 2 3\n7 0 1 4");
+  EXPECT_THROW(parse_vtk_mesh(short_list, ParticleFormat::kVtk, "bad.vtk"), Error);
+  std::string past = xml;
+  past.replace(past.find(">3</DataArray></Polys>"), 22, ">4</DataArray></Polys>");
+  EXPECT_THROW(parse_vtk_mesh(past, ParticleFormat::kVtu, "bad.vtk"), Error);
+  refused("# vtk DataFile Version 4.2\np\nASCII\nDATASET POLYDATA\nPOINTS 1 float\n0 0 0\n", ParticleFormat::kVtk,
+          "no triangle, quad, polygon or triangle-strip cells");
+  EXPECT_THROW(parse_vtk_mesh("1 2 3\n", ParticleFormat::kXyz, "bad.vtk"), Error);
+}
+
 }  // namespace
 }  // namespace surfacer

@@ -233,3 +233,115 @@ def test_frame_write_vdb_reads_back_as_the_frame(local_client, cells, voxel, tmp
     with pytest.raises(surfacer.UsageError, match="OpenVDB"):
         (tmp_path / "not.vdb").write_bytes(b"not a vdb file")
         surfacer.read_mesh(tmp_path / "not.vdb")
+
+
+def vtk_sphere(strips=False):
+    """A closed triangulated sphere (VTK's own source) with point normals; optionally as triangle strips."""
+    from vtkmodules.vtkFiltersCore import vtkStripper
+    from vtkmodules.vtkFiltersSources import vtkSphereSource
+    source = vtkSphereSource()
+    source.SetThetaResolution(24)
+    source.SetPhiResolution(16)
+    source.SetRadius(0.7)
+    source.SetCenter(0.2, -0.1, 0.3)
+    source.Update()
+    if not strips:
+        return source.GetOutput()
+    stripper = vtkStripper()
+    stripper.SetInputData(source.GetOutput())
+    stripper.Update()
+    return stripper.GetOutput()
+
+
+def write_vtk_file(data, path, mode):
+    """Writes `data` (vtkPolyData) with VTK's own writers: legacy (.vtk, ascii or binary, file version 4.2 or 5.1) or
+    XML (.vtp PolyData / .vtu UnstructuredGrid; ascii, binary, appended raw or base64, with a compressor)."""
+    from vtkmodules.vtkFiltersCore import vtkAppendFilter
+    from vtkmodules.vtkIOLegacy import vtkPolyDataWriter, vtkUnstructuredGridWriter
+    from vtkmodules.vtkIOXML import vtkXMLPolyDataWriter, vtkXMLUnstructuredGridWriter
+    if path.suffix in (".vtu",) or (path.suffix == ".vtk" and "grid" in mode):
+        append = vtkAppendFilter()
+        append.SetInputData(data)
+        append.Update()
+        data = append.GetOutput()
+    if path.suffix == ".vtk":
+        writer = vtkUnstructuredGridWriter() if "grid" in mode else vtkPolyDataWriter()
+        writer.SetFileTypeToBinary() if "binary" in mode else writer.SetFileTypeToASCII()
+        if "4.2" in mode:
+            writer.SetFileVersion(42)
+    else:
+        writer = vtkXMLUnstructuredGridWriter() if path.suffix == ".vtu" else vtkXMLPolyDataWriter()
+        if "ascii" in mode:
+            writer.SetDataModeToAscii()
+        elif "binary" in mode:
+            writer.SetDataModeToBinary()
+        else:
+            writer.SetDataModeToAppended()
+            writer.SetEncodeAppendedData("base64" in mode)
+        compressors = {"zlib": writer.SetCompressorTypeToZLib, "lz4": writer.SetCompressorTypeToLZ4,
+                       "lzma": writer.SetCompressorTypeToLZMA}
+        compressor = next((c for c in compressors if c in mode), None)
+        compressors[compressor]() if compressor else writer.SetCompressorTypeToNone()
+    writer.SetInputData(data)
+    writer.SetFileName(str(path))
+    assert writer.Write() == 1
+
+
+@pytest.mark.parametrize("suffix,mode", [
+    (".vtk", "ascii"), (".vtk", "binary"), (".vtk", "ascii 4.2"), (".vtk", "binary 4.2"), (".vtk", "binary grid"),
+    (".vtk", "ascii grid 4.2"), (".vtp", "ascii"), (".vtp", "binary zlib"), (".vtp", "appended raw"),
+    (".vtp", "appended base64 zlib"), (".vtp", "appended raw lz4"), (".vtu", "appended base64 lzma"),
+    (".vtu", "binary"), (".vtu", "ascii")])
+def test_read_mesh_takes_the_surfaces_vtk_writes_in_every_mode(suffix, mode, tmp_path):
+    sphere = vtk_sphere()
+    path = tmp_path / ("sphere" + suffix)
+    write_vtk_file(sphere, path, mode)
+    mesh = surfacer.read_mesh(path)
+    points = vtk_to_numpy(sphere.GetPoints().GetData()).astype(np.float64)
+    triangles = vtk_to_numpy(sphere.GetPolys().GetConnectivityArray()).reshape(-1, 3)
+    if "ascii" in mode:  # VTK writes ASCII values with 6 to 9 significant digits
+        np.testing.assert_allclose(mesh.vertices, points, atol=1e-6)
+    else:
+        np.testing.assert_array_equal(mesh.vertices, points)
+    np.testing.assert_array_equal(mesh.triangles, triangles)
+    np.testing.assert_allclose(mesh.normals, vtk_to_numpy(sphere.GetPointData().GetNormals()), atol=1e-6)
+    from conftest import assert_closed
+    assert_closed(mesh)
+
+
+def test_read_mesh_splits_strips_and_quads_and_reads_meshio_files(tmp_path):
+    from conftest import assert_closed
+    from vtkmodules.vtkFiltersSources import vtkPlaneSource
+    plain = vtk_sphere()
+    stripped = vtk_sphere(strips=True)
+    assert stripped.GetNumberOfStrips() > 0
+    for suffix in (".vtp", ".vtk"):
+        write_vtk_file(stripped, tmp_path / ("strips" + suffix), "binary")
+        mesh = surfacer.read_mesh(tmp_path / ("strips" + suffix))
+        assert_closed(mesh)  # every strip triangle keeps the surface's side: closed and one orientation
+        assert len(mesh.triangles) == plain.GetNumberOfPolys()
+        np.testing.assert_allclose(signed_volume(mesh), signed_volume(surfacer.Mesh(
+            vtk_to_numpy(plain.GetPoints().GetData()).astype(np.float64),
+            vtk_to_numpy(plain.GetPolys().GetConnectivityArray()).reshape(-1, 3), None)), rtol=1e-9)
+    plane = vtkPlaneSource()
+    plane.SetResolution(5, 4)
+    plane.Update()
+    write_vtk_file(plane.GetOutput(), tmp_path / "quads.vtp", "appended raw")
+    quads = surfacer.read_mesh(tmp_path / "quads.vtp")
+    assert len(quads.triangles) == 2 * 5 * 4
+    area = 0.5 * np.linalg.norm(np.cross(quads.vertices[quads.triangles[:, 1]] - quads.vertices[quads.triangles[:, 0]],
+                                         quads.vertices[quads.triangles[:, 2]] - quads.vertices[quads.triangles[:, 0]]),
+                                axis=1)
+    np.testing.assert_allclose(area.sum(), 1.0, rtol=1e-6)  # the unit plane, every quad covered once
+    triangles = vtk_to_numpy(plain.GetPolys().GetConnectivityArray()).reshape(-1, 3)
+    points = vtk_to_numpy(plain.GetPoints().GetData()).astype(np.float64)
+    meshio.write(str(tmp_path / "meshio.vtu"), meshio.Mesh(points, [("triangle", triangles)],
+                                                           point_data={"height": points[:, 2]}))
+    read = surfacer.read_mesh(tmp_path / "meshio.vtu")
+    np.testing.assert_array_equal(read.triangles, triangles)
+    np.testing.assert_array_equal(read.vertices, points)
+    np.testing.assert_allclose(read.attributes["height"], points[:, 2].astype(np.float32))
+    # A file without surface cells (particles) is not a mesh: the message says so.
+    meshio.write(str(tmp_path / "points.vtu"), meshio.Mesh(points, [("vertex", np.arange(len(points))[:, None])]))
+    with pytest.raises(surfacer.UsageError, match="no triangle"):
+        surfacer.read_mesh(tmp_path / "points.vtu")
