@@ -19,12 +19,12 @@
 #include "core/mesh/mesh_edit.h"
 #include "core/optimize/cleanup.h"
 #include "core/optimize/refine.h"
-#include "core/util/triangle_limit.h"
 #include "core/scene/scene.h"
 #include "core/util/checks.h"
 #include "core/util/errors.h"
 #include "core/util/parallel.h"
 #include "core/util/state_blob.h"
+#include "core/util/triangle_limit.h"
 
 namespace surfacer {
 namespace {
@@ -595,7 +595,11 @@ struct MeshOptimizer::State {
       if (delta[t] > *options.subdivision_threshold) order.push_back(static_cast<std::uint32_t>(t));
     }
     if (order.empty()) return 0;
-    std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) { return delta[a] > delta[b]; });
+    std::size_t comparisons = 0;  // a sort of millions: it checks for cancel too
+    std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
+      if ((++comparisons & ((std::size_t{1} << 20) - 1)) == 0) control.check();
+      return delta[a] > delta[b];
+    });
     // The option's budget and the caller's limit (control.triangles: a server's --max-triangles), whichever is less.
     const auto budget =
         std::min(options.triangle_budget.value_or(std::numeric_limits<std::int64_t>::max()), max_triangles(control));
@@ -606,7 +610,8 @@ struct MeshOptimizer::State {
       for (std::size_t i = 0; i < count; ++i) request[order[i]] = 1;
       std::vector<Vec3> trial_p = p;
       std::vector<Triangle> trial_t = tris;
-      optimizer_detail::RedGreenHierarchy trial_h = h;
+      optimizer_detail::RedGreenHierarchy trial_h;
+      trial_h.assign(h, control);
       if (optimizer_detail::refine_red_green(trial_p, trial_t, trial_h, request, control, budget,
                                              &reserved_triangles)) {
         const auto added = static_cast<std::int64_t>(trial_t.size()) - static_cast<std::int64_t>(tris.size());
@@ -683,7 +688,7 @@ struct MeshOptimizer::State {
     const bool subdivision_due =
         options.subdivision_threshold && k % options.subdivision_interval == 0 && k < options.max_iterations;
     optimizer_detail::RedGreenHierarchy new_h;
-    if (options.repair_connectivity || subdivision_due) new_h = hierarchy;
+    if (options.repair_connectivity || subdivision_due) new_h.assign(hierarchy, control);
     optimizer_detail::CleanupCounts cleanup;
     if (options.repair_connectivity) {
       optimizer_detail::CleanupOptions co;

@@ -23,6 +23,19 @@ constexpr std::size_t kCheckMask = (std::size_t{1} << 16) - 1;  // control.check
 
 }  // namespace
 
+void RedGreenHierarchy::assign(const RedGreenHierarchy& other, const RunControl& control) {
+  control.check();
+  green_group = other.green_group;
+  green_parents = other.green_parents;
+  midpoints.clear();
+  midpoints.reserve(other.midpoints.size());
+  std::size_t copied = 0;
+  for (const auto& entry : other.midpoints) {
+    if ((copied++ & kCheckMask) == 0) control.check();
+    midpoints.insert(entry);
+  }
+}
+
 bool refine_red_green(std::vector<Vec3>& vertices, std::vector<Triangle>& triangles, RedGreenHierarchy& hierarchy,
                       const std::vector<std::uint8_t>& requested, const RunControl& control, std::int64_t max_triangles,
                       std::int64_t* reserved) {

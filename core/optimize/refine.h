@@ -24,6 +24,9 @@ struct RedGreenHierarchy {
     green_parents.clear();
     midpoints.clear();
   }
+  // Becomes a copy of `other`, calling control.check() every 2^16 midpoints: a plain copy of a map of millions of
+  // entries takes seconds that a cancel could not interrupt. Throws Cancelled (this is then partly copied).
+  void assign(const RedGreenHierarchy& other, const RunControl& control);
 };
 
 // Splits every triangle with requested[t] != 0 into four at its edge midpoints (red) and closes the neighbourhood:
