@@ -60,8 +60,8 @@ MemoryReservation MemoryBudget::reserve(std::int64_t bytes, const std::string& w
                         what + " needs " + std::to_string(bytes) + " more bytes of memory but the server's memory "
                         "budget (--memory-budget " + std::to_string(limit_) + " bytes) has " +
                         std::to_string(std::max<std::int64_t>(0, limit_ - used)) +
-                        " free (held by uploads being received and WatchJob streams); retry when those finish, or "
-                        "start the server with a larger --memory-budget");
+                        " free (held by running jobs' meshes, uploads being received and WatchJob streams); retry when those "
+                        "finish, or start the server with a larger --memory-budget");
   }
   return MemoryReservation(this, bytes);
 }

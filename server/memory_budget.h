@@ -1,5 +1,6 @@
-// The server-wide memory budget (--memory-budget): bytes that uploads being received (and uploads kept in memory
-// without a --data-dir) and WatchJob streams' send buffers hold. Each holder reserves its bytes before it allocates
+// The server-wide memory budget (--memory-budget): bytes that running jobs' meshes (server/runners/runner.h,
+// TaskMemory), uploads being received (and uploads kept in memory without a --data-dir) and WatchJob streams' send
+// buffers hold. Each holder reserves its bytes before it allocates
 // them and gives them back when it frees them; a reservation that does not fit is refused, so memory stays bounded
 // however many clients send or watch at once.
 #pragma once

@@ -91,7 +91,8 @@ std::shared_ptr<grpc::ServerCredentials> server_credentials(const ServerOptions&
 
 struct SurfacerServer::Impl {
   explicit Impl(const ServerOptions& options)
-      : threads(options.workers > 0 ? options.workers
+      : memory(options.limits.memory_budget_bytes),
+        threads(options.workers > 0 ? options.workers
                                     : std::max(1, static_cast<int>(std::thread::hardware_concurrency()))),
         pool(threads),
         executor(pool),
@@ -100,7 +101,6 @@ struct SurfacerServer::Impl {
         uploads(store.get()),
         scheduler(pool, options.max_queued_jobs),
         metrics(registry),
-        memory(options.limits.memory_budget_bytes),
         service(state) {
     state.options = options;
     state.worker_threads = threads;
@@ -125,6 +125,8 @@ struct SurfacerServer::Impl {
   void retry_pending_writes();
   void janitor_loop();
 
+  // First: destroyed last, after the workers and uploads that hold reservations on it.
+  MemoryBudget memory;
   int threads;
   WorkerPool pool;
   PoolExecutor executor;
@@ -136,7 +138,6 @@ struct SurfacerServer::Impl {
   Scheduler scheduler;
   MetricsRegistry registry;
   ServerMetrics metrics;
-  MemoryBudget memory;
   ServiceState state;
   SurfacerService service;
   std::unique_ptr<grpc::Server> grpc_server;
@@ -214,8 +215,8 @@ void SurfacerServer::Impl::register_metrics() {
   registry.gauge_callback("surfacer_memory_budget_bytes", "The memory budget (--memory-budget)",
                           [this] { return static_cast<double>(memory.limit()); });
   registry.gauge_callback("surfacer_memory_budget_used_bytes",
-                          "Bytes of the memory budget held by uploads being received or kept in memory and by "
-                          "WatchJob streams",
+                          "Bytes of the memory budget held by running jobs' meshes, by uploads being received or "
+                          "kept in memory and by WatchJob streams",
                           [this] { return static_cast<double>(memory.used()); });
   registry.gauge_callback("surfacer_stored_bytes", "Bytes of frames and uploads held (store or memory)", [this] {
     double total = static_cast<double>(uploads.total_bytes());
@@ -248,7 +249,7 @@ void SurfacerServer::Impl::restore() {
     grpc::Status failure;
     if (!finished) {
       try {
-        JobContext context{state.options.limits, uploads, threads, &executor};
+        JobContext context{state.options.limits, uploads, threads, &executor, &memory};
         init.runner = make_job_runner(stored.spec, context);
       } catch (...) {
         failure = status_from_exception(std::current_exception());

@@ -24,6 +24,7 @@
 #include "core/util/errors.h"
 #include "core/util/parallel.h"
 #include "core/util/state_blob.h"
+#include "core/util/triangle_limit.h"
 
 namespace surfacer {
 namespace {
@@ -254,6 +255,8 @@ struct MeshOptimizer::State {
   bool t_active = false;
   int t_done = 0;
   bool converged = false;
+  // Triangles control.triangles' hook has covered for the refinement (the caller's reservation only grows).
+  mutable std::int64_t reserved_triangles = 0;
 
   State(const Field& f, Mesh start, const MeshOptimizerOptions& o)
       : field(f), options(o), threads(resolve_threads(o.threads)), mesh(std::move(start)) {}
@@ -592,17 +595,25 @@ struct MeshOptimizer::State {
       if (delta[t] > *options.subdivision_threshold) order.push_back(static_cast<std::uint32_t>(t));
     }
     if (order.empty()) return 0;
-    std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) { return delta[a] > delta[b]; });
-    const auto budget = options.triangle_budget.value_or(std::numeric_limits<std::int64_t>::max());
-    // Request the worst `count` triangles; halve the request until the closed result fits the budget.
+    std::size_t comparisons = 0;  // a sort of millions: it checks for cancel too
+    std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
+      if ((++comparisons & ((std::size_t{1} << 20) - 1)) == 0) control.check();
+      return delta[a] > delta[b];
+    });
+    // The option's budget and the caller's limit (control.triangles: a server's --max-triangles), whichever is less.
+    const auto budget =
+        std::min(options.triangle_budget.value_or(std::numeric_limits<std::int64_t>::max()), max_triangles(control));
+    // Request the worst `count` triangles; halve the request until the closed result fits the budget. A trial stops
+    // at the first pass whose result would not fit, before building it.
     for (std::size_t count = order.size(); count > 0; count /= 2) {
       std::vector<std::uint8_t> request(tris.size(), 0);
       for (std::size_t i = 0; i < count; ++i) request[order[i]] = 1;
       std::vector<Vec3> trial_p = p;
       std::vector<Triangle> trial_t = tris;
-      optimizer_detail::RedGreenHierarchy trial_h = h;
-      optimizer_detail::refine_red_green(trial_p, trial_t, trial_h, request, control);
-      if (static_cast<std::int64_t>(trial_t.size()) <= budget) {
+      optimizer_detail::RedGreenHierarchy trial_h;
+      trial_h.assign(h, control);
+      if (optimizer_detail::refine_red_green(trial_p, trial_t, trial_h, request, control, budget,
+                                             &reserved_triangles)) {
         const auto added = static_cast<std::int64_t>(trial_t.size()) - static_cast<std::int64_t>(tris.size());
         p = std::move(trial_p);
         tris = std::move(trial_t);
@@ -677,7 +688,7 @@ struct MeshOptimizer::State {
     const bool subdivision_due =
         options.subdivision_threshold && k % options.subdivision_interval == 0 && k < options.max_iterations;
     optimizer_detail::RedGreenHierarchy new_h;
-    if (options.repair_connectivity || subdivision_due) new_h = hierarchy;
+    if (options.repair_connectivity || subdivision_due) new_h.assign(hierarchy, control);
     optimizer_detail::CleanupCounts cleanup;
     if (options.repair_connectivity) {
       optimizer_detail::CleanupOptions co;

@@ -55,8 +55,11 @@
 // keeps the mesh conforming: a triangle with two or more split edges is split red, one with one split edge is
 // bisected (green). Green pairs are never split again: when one must be refined, the pair is merged back into its
 // parent, which is split red instead (Bank–Sherman–Weiser red–green refinement), so angles do not degrade. The
-// refined mesh stays closed and manifold when the start mesh is. With `triangle_budget` the round is cut to the
-// triangles with the largest δ that fit (halving the request until the closed result fits); never beyond it. New
+// refined mesh stays closed and manifold when the start mesh is. With `triangle_budget`, or the step's
+// control.triangles (core/util/triangle_limit.h: a server's --max-triangles), the smaller, the round is cut to the
+// triangles with the largest δ that fit (halving the request until the closed result fits); never beyond it: a trial
+// stops at its first red-green pass whose result would not fit, before building it, and the hook of control.triangles
+// reserves each pass's triangles before they are built. New
 // vertices start at edge midpoints; the flows take them to the surface in the following iterations. Children are
 // coplanar with their parent, so a child whose centroid lies on another face than its parent's centroid could face
 // against ∇f there (not seen on the test shapes); the guard then keeps it from getting worse.

@@ -13,11 +13,37 @@
 #include <array>
 
 #include "core/mesh/mesh_edit.h"
+#include "core/util/triangle_limit.h"
 
 namespace surfacer::optimizer_detail {
 
-void refine_red_green(std::vector<Vec3>& vertices, std::vector<Triangle>& triangles, RedGreenHierarchy& hierarchy,
-                      const std::vector<std::uint8_t>& requested, const RunControl& control) {
+namespace {
+
+constexpr std::size_t kCheckMask = (std::size_t{1} << 16) - 1;  // control.check() every 2^16 items
+
+}  // namespace
+
+void RedGreenHierarchy::assign(const RedGreenHierarchy& other, const RunControl& control) {
+  control.check();
+  green_group = other.green_group;
+  green_parents = other.green_parents;
+  midpoints.clear();
+  midpoints.reserve(other.midpoints.size());
+  std::size_t copied = 0;
+  for (const auto& entry : other.midpoints) {
+    if ((copied++ & kCheckMask) == 0) control.check();
+    midpoints.insert(entry);
+  }
+}
+
+bool refine_red_green(std::vector<Vec3>& vertices, std::vector<Triangle>& triangles, RedGreenHierarchy& hierarchy,
+                      const std::vector<std::uint8_t>& requested, const RunControl& control, std::int64_t max_triangles,
+                      std::int64_t* reserved) {
+  std::int64_t reserved_here = 0;
+  std::int64_t& covered = reserved != nullptr ? *reserved : reserved_here;
+  const auto tick = [&](std::size_t i) {
+    if ((i & kCheckMask) == 0) control.check();
+  };
   auto& midpoints = hierarchy.midpoints;
   auto midpoint_of = [&](std::uint32_t a, std::uint32_t b) -> std::int64_t {
     const auto it = midpoints.find(edge_key(a, b));
@@ -41,6 +67,7 @@ void refine_red_green(std::vector<Vec3>& vertices, std::vector<Triangle>& triang
     {
       std::vector<std::int64_t> placed(hierarchy.green_parents.size(), -1);
       for (std::size_t t = 0; t < triangles.size(); ++t) {
+        tick(t);
         const std::int32_t g = hierarchy.green_group[t];
         if (g < 0) {
           level.push_back(triangles[t]);
@@ -59,15 +86,23 @@ void refine_red_green(std::vector<Vec3>& vertices, std::vector<Triangle>& triang
     // 2. Edges of the parent-level mesh: sort (key, corner) pairs; edge id per corner; triangles per edge.
     std::vector<std::pair<std::uint64_t, std::uint32_t>> corners(3 * n);
     for (std::size_t t = 0; t < n; ++t) {
+      tick(t);
       for (int k = 0; k < 3; ++k) {
         corners[3 * t + k] = {edge_key(level[t][k], level[t][(k + 1) % 3]), static_cast<std::uint32_t>(3 * t + k)};
       }
     }
-    std::sort(corners.begin(), corners.end());
+    {
+      std::size_t comparisons = 0;  // the sort of 3n corners is the longest step: it checks too
+      std::sort(corners.begin(), corners.end(), [&](const auto& a, const auto& b) {
+        if ((++comparisons & ((std::size_t{1} << 20) - 1)) == 0) control.check();
+        return a < b;
+      });
+    }
     std::vector<std::uint32_t> corner_edge(3 * n);
     std::vector<std::uint64_t> edge_keys;
     std::vector<std::uint32_t> edge_begin;  // into `corners`
     for (std::size_t i = 0; i < corners.size(); ++i) {
+      tick(i);
       if (i == 0 || corners[i].first != corners[i - 1].first) {
         edge_keys.push_back(corners[i].first);
         edge_begin.push_back(static_cast<std::uint32_t>(i));
@@ -79,6 +114,7 @@ void refine_red_green(std::vector<Vec3>& vertices, std::vector<Triangle>& triang
 
     std::vector<std::uint8_t> split(edges, 0);
     for (std::size_t e = 0; e < edges; ++e) {
+      tick(e);
       const auto a = static_cast<std::uint32_t>(edge_keys[e] >> 32);
       const auto b = static_cast<std::uint32_t>(edge_keys[e] & 0xffffffffu);
       const std::int64_t m = midpoint_of(a, b);
@@ -106,7 +142,8 @@ void refine_red_green(std::vector<Vec3>& vertices, std::vector<Triangle>& triang
     for (std::size_t t = 0; t < n; ++t) {
       if (!red[t]) work.push_back(static_cast<std::uint32_t>(t));
     }
-    while (!work.empty()) {
+    for (std::size_t popped = 0; !work.empty(); ++popped) {
+      tick(popped);
       const std::uint32_t t = work.back();
       work.pop_back();
       if (red[t]) continue;
@@ -117,12 +154,25 @@ void refine_red_green(std::vector<Vec3>& vertices, std::vector<Triangle>& triang
       }
     }
 
-    // 4. Split.
+    // 4. Split, when the result fits: a red triangle makes 4, one with a split edge 2.
+    std::int64_t result = 0;
+    for (std::size_t t = 0; t < n; ++t) {
+      tick(t);
+      if (red[t]) {
+        result += 4;
+      } else {
+        const int count = split[corner_edge[3 * t]] + split[corner_edge[3 * t + 1]] + split[corner_edge[3 * t + 2]];
+        result += count == 0 ? 1 : 2;
+      }
+    }
+    if (result > max_triangles) return false;
+    reserve_triangles(control, result, covered);
     std::vector<Triangle> out;
     std::vector<std::int32_t> out_group;
     std::vector<Triangle> parents;
     out.reserve(n + 3 * static_cast<std::size_t>(std::count(red.begin(), red.end(), 1)) + 16);
     for (std::size_t t = 0; t < n; ++t) {
+      tick(t);
       const Triangle& tri = level[t];
       if (red[t]) {
         const std::uint32_t a = tri[0], b = tri[1], c = tri[2];
@@ -164,13 +214,15 @@ void refine_red_green(std::vector<Vec3>& vertices, std::vector<Triangle>& triang
 
     // 5. Conforming when no remaining edge carries a midpoint.
     bool conforming = true;
-    for (const Triangle& tri : triangles) {
+    for (std::size_t t = 0; t < triangles.size(); ++t) {
+      tick(t);
+      const Triangle& tri = triangles[t];
       for (int k = 0; k < 3 && conforming; ++k) {
         if (midpoint_of(tri[k], tri[(k + 1) % 3]) >= 0) conforming = false;
       }
       if (!conforming) break;
     }
-    if (conforming) return;
+    if (conforming) return true;
     request.assign(triangles.size(), 0);
   }
 }

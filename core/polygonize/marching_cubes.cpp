@@ -32,6 +32,7 @@
 #include "core/scene/scene.h"
 #include "core/util/errors.h"
 #include "core/util/parallel.h"
+#include "core/util/triangle_limit.h"
 
 namespace surfacer {
 namespace {
@@ -286,12 +287,14 @@ class SlabMesher {
   using Value = typename Source::Value;
 
  public:
-  SlabMesher(const Grid& grid, const Source& source, bool normals, const RunControl& control, Progress& progress)
+  SlabMesher(const Grid& grid, const Source& source, bool normals, const RunControl& control, Progress& progress,
+             TriangleCounter& triangles)
       : grid_(grid),
         source_(source),
         normals_(normals),
         control_(control),
         progress_(progress),
+        triangles_(triangles),
         px_(grid.points[0]),
         py_(grid.points[1]) {
     for (Layer& layer : layers_) {
@@ -445,6 +448,7 @@ class SlabMesher {
       const int begin = same_first ? std::min({r[0]->lo, r[1]->lo, r[2]->lo, r[3]->lo}) : 0;
       const int end = same_last ? std::max({r[0]->hi, r[1]->hi, r[2]->hi, r[3]->hi}) : nx;
       if (begin >= end) continue;
+      const std::size_t row_start = tris.size();
 
       const std::size_t off0 = static_cast<std::size_t>(j) * px_, off1 = off0 + px_;
       const std::uint8_t* b0 = bottom.inside.data() + off0;
@@ -495,6 +499,7 @@ class SlabMesher {
         const unsigned cube = column[i] | (column[i + 1] << 1);
         if (cube != 0 && cube != 255) emit(i);
       }
+      triangles_.add(static_cast<std::int64_t>(tris.size() - row_start));
     }
   }
 
@@ -503,6 +508,7 @@ class SlabMesher {
   const bool normals_;
   const RunControl& control_;
   Progress& progress_;
+  TriangleCounter& triangles_;  // every slab's, against control.triangles
   const int px_, py_;
   Layer layers_[2];
   std::vector<std::uint32_t> zid_;    // [j * px + i]: edge (i, j, k) - (i, j, k + 1) of the current cell layer
@@ -553,11 +559,12 @@ Mesh run(const Grid& grid, const Source& source, const MarchingCubesOptions& opt
   const int slabs = threads == 1 ? 1 : std::min(nz, threads * 2);
   std::vector<SlabOutput> out(slabs);
   Progress progress;
+  TriangleCounter triangles(control, "marching cubes", "use fewer cells (a larger cell size)");
   control.report("polygonize", 0.0);
   parallel_for(slabs, threads, [&](int s) {
     const int k0 = static_cast<int>(static_cast<std::int64_t>(nz) * s / slabs);
     const int k1 = static_cast<int>(static_cast<std::int64_t>(nz) * (s + 1) / slabs);
-    SlabMesher<Source> mesher(grid, source, options.normals, control, progress);
+    SlabMesher<Source> mesher(grid, source, options.normals, control, progress, triangles);
     out[s] = mesher.run(k0, k1);
   });
   return merge(out, options.normals, threads);
@@ -572,6 +579,14 @@ Mesh marching_cubes(const Field& field, const MarchingCubesOptions& options, con
   if (options.sparse) source.lipschitz = field.lipschitz_bound();
   if (source.lipschitz && !(*source.lipschitz >= 0.0 && std::isfinite(*source.lipschitz))) source.lipschitz.reset();
   return run(grid, source, options, control);
+}
+
+std::int64_t marching_cubes_fixed_bytes(const MarchingCubesOptions& options) {
+  // Per point of a z-layer: two layers of (double sample, inside byte, x-edge id, y-edge id) and a z-edge id.
+  constexpr std::int64_t kBytesPerLayerPoint = 2 * (8 + 1 + 4 + 4) + 4;
+  const std::int64_t layer = (std::int64_t{options.cells[0]} + 1) * (std::int64_t{options.cells[1]} + 1);
+  const std::int64_t slabs = std::min<std::int64_t>(resolve_threads(options.threads), options.cells[2]);
+  return slabs * layer * kBytesPerLayerPoint;
 }
 
 Mesh marching_cubes_samples(std::span<const float> samples, const MarchingCubesOptions& options,

@@ -48,7 +48,18 @@ struct MarchingCubesOptions {
 //   falls back to the edge direction from its inside to its outside end.
 // * Errors: InvalidInput fields "bounds" (min < max, finite), "cells" (1..2^24 each), "threads" (>= 0), "samples"
 //   (size); ResourceLimit "cells" when a z-layer exceeds 2^31 points or the mesh 2^31 vertices per slab.
+// * Triangles: control.triangles (core/util/triangle_limit.h) is obeyed as they are produced (counted every cell
+//   row of every slab): past its max_triangles the run stops with ResourceLimit naming it and the count reached, and
+//   its hook reserves their memory before they are made.
+// * Memory: fixed, marching_cubes_fixed_bytes() (per slab running at once -- one per thread -- two z-layers of
+//   samples, inside bits, row ranges and x/y-edge vertex ids plus one layer of z-edge ids: 38 bytes per point of a
+//   z-layer); per triangle, 12 bytes in its slab plus its share of the vertices (a closed mesh has about half as
+//   many vertices as triangles: 12 bytes per triangle, 24 with normals), all copied once more into the mesh at the
+//   end, so 48 bytes per triangle (72 with normals) at the peak.
 Mesh marching_cubes(const Field& field, const MarchingCubesOptions& options, const RunControl& control = {});
+
+// The fixed working memory of marching_cubes (above), in bytes, for valid options.
+std::int64_t marching_cubes_fixed_bytes(const MarchingCubesOptions& options);
 
 // The same over pre-sampled values (x fastest, (cells+1) per axis points), for dense-grid throughput.
 Mesh marching_cubes_samples(std::span<const float> samples, const MarchingCubesOptions& options,

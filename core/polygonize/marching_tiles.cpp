@@ -61,6 +61,7 @@
 #include "core/scene/scene.h"
 #include "core/util/errors.h"
 #include "core/util/parallel.h"
+#include "core/util/triangle_limit.h"
 
 namespace surfacer {
 namespace {
@@ -1027,6 +1028,18 @@ Mesh merge(const Lattice& lat, std::vector<BlockOutput>& blocks, bool normals, s
 
 }  // namespace
 
+std::int64_t marching_tiles_fixed_bytes(const MarchingTilesOptions& options) {
+  constexpr double kBytesPerBlock = 128.0;  // keys in the frontier and the seen set; the sign scan's corners
+  const Lattice lat = make_lattice(options);
+  const double blocks =
+      static_cast<double>(lat.blocks[0]) * static_cast<double>(lat.blocks[1]) * static_cast<double>(lat.blocks[2]);
+  // A worker's scratch: the struct, the padded values, the slot and ring tables (the touched lists stay smaller).
+  constexpr double kScratchBytes =
+      sizeof(Scratch) + sizeof(double) * kPadCells * 8.0 + sizeof(std::uint32_t) * (kSlots + 3.0 * kRingSlots);
+  const double scratch = static_cast<double>(std::min(resolve_threads(options.threads), 64)) * kScratchBytes;
+  return static_cast<std::int64_t>(std::min(4.0e18, blocks * kBytesPerBlock + scratch));
+}
+
 Mesh marching_tiles(const Field& field, const MarchingTilesOptions& options, const RunControl& control) {
   validate(options);
   const Lattice lat = make_lattice(options);
@@ -1060,6 +1073,7 @@ Mesh marching_tiles(const Field& field, const MarchingTilesOptions& options, con
   std::unordered_set<std::uint64_t> seen(frontier.begin(), frontier.end());
   std::vector<BlockOutput> done;
   Progress progress(control);
+  TriangleCounter triangles(control, "marching tiles", "use a larger spacing (fewer cells)");
   std::atomic<std::int64_t> finished{0};
   std::int64_t scheduled = static_cast<std::int64_t>(frontier.size());
   while (!frontier.empty()) {
@@ -1069,6 +1083,7 @@ Mesh marching_tiles(const Field& field, const MarchingTilesOptions& options, con
       BlockMesher mesher = mesher_proto;
       BlockOutput out;  // filled here, moved once: outputs side by side in `round` would share cache lines
       mesher.run(frontier[item], scratch[worker], out);
+      triangles.add(static_cast<std::int64_t>(out.triangles.size()));
       round[item] = std::move(out);
       progress.update(finished.fetch_add(1, std::memory_order_relaxed) + 1, scheduled);
     });

@@ -65,6 +65,16 @@ struct MarchingTilesOptions {
 //   control.report("polygonize", fraction) is non-decreasing, 0 first and 1 last.
 // * Errors: InvalidInput fields "bounds", "spacing", "threads", "seed_radius", "seeds[i]", "search" (kLipschitz for a
 //   field without a bound); ResourceLimit "spacing".
+// * Triangles: control.triangles (core/util/triangle_limit.h) is obeyed as they are produced (counted every block):
+//   past its max_triangles the run stops with ResourceLimit naming it and the count reached, and its hook reserves
+//   their memory before they are made.
+// * Memory: fixed, marching_tiles_fixed_bytes() (~0.3 MB of scratch per thread, and per block of 8^3 lattice cells
+//   in bounds at most 128 bytes for the sets of blocks found and visited and the sign scan's corners); per triangle
+//   about 60 bytes in its block's output (vertices, their slots, triangles, references to the neighbours' vertices)
+//   and the merge's arrays, then 36 bytes (48 with normals) in the mesh, both held during the merge.
 Mesh marching_tiles(const Field& field, const MarchingTilesOptions& options, const RunControl& control = {});
+
+// The fixed working memory of marching_tiles (above), in bytes, for valid options.
+std::int64_t marching_tiles_fixed_bytes(const MarchingTilesOptions& options);
 
 }  // namespace surfacer

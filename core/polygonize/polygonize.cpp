@@ -81,22 +81,37 @@ PolygonizeGrid resolve_grid(std::span<const FieldPtr> fields, const PolygonizeOp
   return grid;
 }
 
-Mesh polygonize(const Field& field, const PolygonizeGrid& grid, const RunControl& control) {
-  if (grid.method == Polygonizer::kCubes) {
-    MarchingCubesOptions options;
-    options.bounds = grid.bounds;
-    options.cells = grid.cells;
-    options.normals = grid.normals;
-    options.threads = grid.threads;
-    options.sparse = true;  // the same mesh as dense; skips samples the field's Lipschitz bound rules out
-    return marching_cubes(field, options, control);
-  }
+namespace {
+
+MarchingCubesOptions cubes_options(const PolygonizeGrid& grid) {
+  MarchingCubesOptions options;
+  options.bounds = grid.bounds;
+  options.cells = grid.cells;
+  options.normals = grid.normals;
+  options.threads = grid.threads;
+  options.sparse = true;  // the same mesh as dense; skips samples the field's Lipschitz bound rules out
+  return options;
+}
+
+MarchingTilesOptions tiles_options(const PolygonizeGrid& grid) {
   MarchingTilesOptions options;
   options.bounds = grid.bounds;
   options.spacing = grid.h;
   options.normals = grid.normals;
   options.threads = grid.threads;
-  return marching_tiles(field, options, control);
+  return options;
+}
+
+}  // namespace
+
+Mesh polygonize(const Field& field, const PolygonizeGrid& grid, const RunControl& control) {
+  if (grid.method == Polygonizer::kCubes) return marching_cubes(field, cubes_options(grid), control);
+  return marching_tiles(field, tiles_options(grid), control);
+}
+
+std::int64_t polygonize_fixed_bytes(const PolygonizeGrid& grid) {
+  if (grid.method == Polygonizer::kCubes) return marching_cubes_fixed_bytes(cubes_options(grid));
+  return marching_tiles_fixed_bytes(tiles_options(grid));
 }
 
 }  // namespace surfacer

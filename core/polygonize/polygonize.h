@@ -64,6 +64,12 @@ PolygonizeGrid resolve_grid(std::span<const FieldPtr> fields, const PolygonizeOp
 // Mesh of {f = 0} on `grid` with the chosen polygonizer: welded, oriented outward, closed where the surface stays
 // inside the grid, deterministic whatever grid.threads. Marching Cubes runs sparse (the same mesh as dense, skipping
 // samples the field's Lipschitz bound rules out). Throws what the polygonizer throws (Cancelled when control fires).
+// Obeys control.triangles as the triangles are produced (core/util/triangle_limit.h; the polygonizers' headers give
+// their memory per triangle).
 Mesh polygonize(const Field& field, const PolygonizeGrid& grid, const RunControl& control = {});
+
+// The working memory polygonize(field, grid) holds besides its triangles, in bytes, known before the work
+// (marching_cubes_fixed_bytes / marching_tiles_fixed_bytes).
+std::int64_t polygonize_fixed_bytes(const PolygonizeGrid& grid);
 
 }  // namespace surfacer

@@ -10,6 +10,8 @@
 
 namespace surfacer {
 
+struct TriangleLimit;  // core/util/triangle_limit.h
+
 class CancelToken {
  public:
   void cancel() { flag_.store(true, std::memory_order_relaxed); }
@@ -26,6 +28,9 @@ using ProgressFn = std::function<void(std::string_view stage, double fraction)>;
 struct RunControl {
   const CancelToken* cancel = nullptr;
   ProgressFn progress;
+  // The most triangles a mesh built under this control may hold, and the hook reserving their memory
+  // (core/util/triangle_limit.h); null: no bound. Must outlive the calls it is passed to.
+  const TriangleLimit* triangles = nullptr;
 
   bool cancelled() const { return cancel != nullptr && cancel->cancelled(); }
   // Throws Error(kCancelled) when the token fired.

@@ -19,13 +19,14 @@ namespace {
 class ActiveRunner final : public JobRunner {
  public:
   ActiveRunner(v1::ActiveJob job, const wire::UploadLookup& uploads, ActiveSurfaceOptions options, FrameMaker frames,
-               const Limits& limits, int frames_expected)
+               const Limits& limits, int frames_expected, MemoryBudget* memory)
       : job_(std::move(job)),
         uploads_(uploads),
         options_(options),
         frames_(std::move(frames)),
         limits_(limits),
-        frames_expected_(frames_expected) {}
+        frames_expected_(frames_expected),
+        memory_(memory) {}
 
   std::string kind() const override { return "active"; }
   int task_count() const override { return 1; }
@@ -33,7 +34,10 @@ class ActiveRunner final : public JobRunner {
 
   void resume_from(int, int, std::string state) override { resume_state_ = std::move(state); }
 
-  void run_task(int, FrameSink& sink, const RunControl& control) override {
+  void run_task(int, FrameSink& sink, const RunControl& job_control) override {
+    // Each frame's mesh is held to --max-triangles as it is polygonized; the largest one's memory stays reserved.
+    TaskMemory memory(limits_, memory_, "active surface", TaskMemory::kPolygonizeBytesPerTriangle);
+    const RunControl control = memory.control(job_control);
     // After a restart: continue from the last checkpoint (the mode's blob carries its next frame); a blob this build
     // cannot read starts over, and Job::emit drops the frames already stored.
     std::string resume = std::move(resume_state_);
@@ -142,6 +146,7 @@ class ActiveRunner final : public JobRunner {
   FrameMaker frames_;
   Limits limits_;
   int frames_expected_;
+  MemoryBudget* memory_;
   std::string resume_state_;
 };
 
@@ -252,7 +257,7 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), *region, "spec.output");
   return std::make_unique<ActiveRunner>(job, context.uploads, options,
                                         FrameMaker(encoding, context.limits.max_triangles, context.executor),
-                                        context.limits, frames_expected);
+                                        context.limits, frames_expected, context.memory);
 }
 
 }  // namespace surfacer::server

@@ -10,8 +10,13 @@ namespace {
 
 class IsosurfaceRunner final : public JobRunner {
  public:
-  IsosurfaceRunner(std::vector<FieldPtr> fields, PolygonizeGrid grid, FrameMaker frames, int worker_threads)
-      : fields_(std::move(fields)), grid_(grid), frames_(std::move(frames)), worker_threads_(worker_threads) {}
+  IsosurfaceRunner(std::vector<FieldPtr> fields, PolygonizeGrid grid, FrameMaker frames, const JobContext& context)
+      : fields_(std::move(fields)),
+        grid_(grid),
+        frames_(std::move(frames)),
+        worker_threads_(context.worker_threads),
+        limits_(context.limits),
+        memory_(context.memory) {}
 
   std::string kind() const override { return "isosurface"; }
   int task_count() const override { return static_cast<int>(fields_.size()); }
@@ -21,10 +26,14 @@ class IsosurfaceRunner final : public JobRunner {
     // A single frame gets every core; a sequence runs its frames in parallel, one thread each.
     PolygonizeGrid grid = grid_;
     grid.threads = fields_.size() == 1 ? worker_threads_ : 1;
+    TaskMemory memory(limits_, memory_, "isosurface frame " + std::to_string(index),
+                      TaskMemory::kPolygonizeBytesPerTriangle);
+    memory.reserve_fixed(polygonize_fixed_bytes(grid));
+    const RunControl task = memory.control(control);
     StageTimer timer;
-    const Mesh mesh = timer.run("polygonize", [&] { return polygonize(*fields_[index], grid, control); });
+    const Mesh mesh = timer.run("polygonize", [&] { return polygonize(*fields_[index], grid, task); });
     control.check();
-    sink.emit(index, frames_.make(mesh, timer, control));
+    sink.emit(index, frames_.make(mesh, timer, task));
   }
 
  private:
@@ -32,6 +41,8 @@ class IsosurfaceRunner final : public JobRunner {
   PolygonizeGrid grid_;
   FrameMaker frames_;
   int worker_threads_;
+  Limits limits_;
+  MemoryBudget* memory_;
 };
 
 }  // namespace
@@ -48,9 +59,8 @@ std::unique_ptr<JobRunner> make_isosurface_runner(const v1::JobSpec& spec, const
   const PolygonizeGrid grid = with_path(path, [&] { return resolve_grid(fields, options); });
   check_grid_cells(grid, path, context.limits);
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), grid.bounds, "spec.output");
-  return std::make_unique<IsosurfaceRunner>(std::move(fields), grid,
-                                            FrameMaker(encoding, context.limits.max_triangles, context.executor),
-                                            context.worker_threads);
+  return std::make_unique<IsosurfaceRunner>(
+      std::move(fields), grid, FrameMaker(encoding, context.limits.max_triangles, context.executor), context);
 }
 
 }  // namespace surfacer::server

@@ -32,13 +32,15 @@ MeshFormat sniff_mesh_format(const std::string& bytes) {
 class OptimizeRunner final : public JobRunner {
  public:
   OptimizeRunner(FieldPtr field, std::optional<Mesh> start, PolygonizeGrid start_grid, MeshOptimizerOptions options,
-                 FrameMaker frames, int threads)
+                 FrameMaker frames, const JobContext& context)
       : field_(std::move(field)),
         start_(std::move(start)),
         start_grid_(start_grid),
         options_(options),
         frames_(std::move(frames)),
-        threads_(threads) {}
+        threads_(context.worker_threads),
+        limits_(context.limits),
+        memory_(context.memory) {}
 
   std::string kind() const override { return "optimize"; }
   int task_count() const override { return 1; }
@@ -49,7 +51,11 @@ class OptimizeRunner final : public JobRunner {
     resume_state_ = std::move(state);
   }
 
-  void run_task(int, FrameSink& sink, const RunControl& control) override {
+  void run_task(int, FrameSink& sink, const RunControl& job_control) override {
+    // The start mesh's polygonization and every subdivision round are held to --max-triangles as they build, and
+    // reserve their memory first.
+    TaskMemory memory(limits_, memory_, "optimize", TaskMemory::kMeshWorkBytesPerTriangle);
+    const RunControl control = memory.control(job_control);
     MeshOptimizerOptions options = options_;
     options.threads = threads_;
     StageTimer start_timer;
@@ -68,6 +74,7 @@ class OptimizeRunner final : public JobRunner {
       Mesh start = start_ ? std::move(*start_) : start_timer.run("polygonize", [&] {
         PolygonizeGrid grid = start_grid_;
         grid.threads = threads_;
+        memory.reserve_fixed(polygonize_fixed_bytes(grid));
         return polygonize(*field_, grid, control);
       });
       resumed.emplace(*field_, std::move(start), options);
@@ -75,6 +82,8 @@ class OptimizeRunner final : public JobRunner {
     }
     start_.reset();
     MeshOptimizer& optimizer = *resumed;
+    std::int64_t covered = 0;  // an uploaded or resumed start mesh: its triangles' memory
+    reserve_triangles(control, static_cast<std::int64_t>(optimizer.mesh().triangles.size()), covered);
     int frame = resume_frame_;
     CheckpointPacer pacer;
     // A checkpoint is taken right after a frame, so its state is the emitted snapshot's.
@@ -130,6 +139,8 @@ class OptimizeRunner final : public JobRunner {
   MeshOptimizerOptions options_;
   FrameMaker frames_;
   int threads_;
+  Limits limits_;
+  MemoryBudget* memory_;
   int resume_frame_ = 0;
   std::string resume_state_;
 };
@@ -189,7 +200,7 @@ std::unique_ptr<JobRunner> make_optimize_runner(const v1::JobSpec& spec, const J
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), box, "spec.output");
   return std::make_unique<OptimizeRunner>(std::move(field), std::move(start), grid, options,
                                           FrameMaker(encoding, context.limits.max_triangles, context.executor),
-                                          context.worker_threads);
+                                          context);
 }
 
 }  // namespace surfacer::server

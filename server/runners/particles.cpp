@@ -14,14 +14,15 @@ class ParticlesRunner final : public JobRunner {
  public:
   ParticlesRunner(std::vector<v1::ParticleFrame> frames, std::vector<std::vector<std::string>> interpolate,
                   const wire::UploadLookup& uploads, ParticleSurfacingOptions options, FrameMaker frame_maker,
-                  const Limits& limits, int worker_threads)
+                  const Limits& limits, int worker_threads, MemoryBudget* memory)
       : frames_(std::move(frames)),
         interpolate_(std::move(interpolate)),
         uploads_(uploads),
         options_(std::move(options)),
         frame_maker_(std::move(frame_maker)),
         limits_(limits),
-        worker_threads_(worker_threads) {}
+        worker_threads_(worker_threads),
+        memory_(memory) {}
 
   std::string kind() const override { return "particles"; }
   int task_count() const override { return static_cast<int>(frames_.size()); }
@@ -36,7 +37,10 @@ class ParticlesRunner final : public JobRunner {
     // A single frame gets every core; a sequence runs its frames in parallel, one thread each.
     options.threads = frames_.size() == 1 ? worker_threads_ : 1;
     ParticleSurfacingStats stats;
-    Mesh mesh = surface_particles(data.positions, data.radii, options, control, &stats);
+    TaskMemory memory(limits_, memory_, "particles frame " + std::to_string(index),
+                      TaskMemory::kMeshWorkBytesPerTriangle);
+    const RunControl task = memory.control(control);
+    Mesh mesh = surface_particles(data.positions, data.radii, options, task, &stats);
     control.check();
     timer.add("distance_field", stats.seconds_distance_field);
     timer.add("polygonize", stats.seconds_polygonize);
@@ -60,7 +64,7 @@ class ParticlesRunner final : public JobRunner {
         mesh.attributes = interpolate_attributes(data.positions, carried, mesh.vertices, support, control);
       });
     }
-    FrameOutput frame = frame_maker_.make(mesh, timer, control);
+    FrameOutput frame = frame_maker_.make(mesh, timer, task);
     auto& metrics = *frame.stats.mutable_metrics();
     metrics["particles"] = static_cast<double>(stats.particles);
     metrics["particles_used"] = static_cast<double>(stats.particles_used);
@@ -89,6 +93,7 @@ class ParticlesRunner final : public JobRunner {
   FrameMaker frame_maker_;
   Limits limits_;
   int worker_threads_;
+  MemoryBudget* memory_;
 };
 
 }  // namespace
@@ -127,9 +132,10 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), box, "spec.output");
   // The sliver repair also removes triangles that would be degenerate once quantized on the job's grid.
   options.output_grid = encoding.grid();
-  return std::make_unique<ParticlesRunner>(
-      std::move(frames), std::move(interpolate), context.uploads, std::move(options),
-      FrameMaker(encoding, context.limits.max_triangles, context.executor), context.limits, context.worker_threads);
+  return std::make_unique<ParticlesRunner>(std::move(frames), std::move(interpolate), context.uploads,
+                                           std::move(options),
+                                           FrameMaker(encoding, context.limits.max_triangles, context.executor),
+                                           context.limits, context.worker_threads, context.memory);
 }
 
 }  // namespace surfacer::server

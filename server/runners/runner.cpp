@@ -8,6 +8,47 @@
 
 namespace surfacer::server {
 
+TaskMemory::TaskMemory(const Limits& limits, MemoryBudget* budget, std::string what, std::int64_t bytes_per_triangle)
+    : budget_(budget), what_(std::move(what)), bytes_per_triangle_(bytes_per_triangle) {
+  limit_.max_triangles = limits.max_triangles;
+  limit_.name = "--max-triangles";
+  if (budget_ != nullptr) limit_.reserve = [this](std::int64_t triangles) { reserve_triangles(triangles); };
+}
+
+void TaskMemory::reserve_fixed(std::int64_t bytes) {
+  std::lock_guard lock(mutex_);
+  fixed_bytes_ += std::max<std::int64_t>(bytes, 0);
+  grow_locked();
+}
+
+void TaskMemory::reserve_triangles(std::int64_t triangles) {
+  std::lock_guard lock(mutex_);
+  triangles_ = std::max(triangles_, triangles);
+  grow_locked();
+}
+
+void TaskMemory::grow_locked() {
+  if (budget_ == nullptr) return;
+  const std::int64_t bytes = fixed_bytes_ + triangles_ * bytes_per_triangle_;
+  const std::string what = what_ + " (a mesh of up to " + std::to_string(triangles_) + " triangles)";
+  if (reservation_.bytes() == 0) {
+    reservation_ = budget_->reserve(bytes, what);
+  } else {
+    reservation_.grow_to(bytes, what);
+  }
+}
+
+RunControl TaskMemory::control(const RunControl& base) const {
+  RunControl control = base;
+  control.triangles = &limit_;
+  return control;
+}
+
+std::int64_t TaskMemory::reserved_bytes() const {
+  std::lock_guard lock(mutex_);
+  return reservation_.bytes();
+}
+
 void check_frame_count(std::int64_t count, const std::string& field_path, const Limits& limits) {
   if (count > limits.max_frames) {
     throw ResourceLimit("max_frames", field_path + " asks for " + std::to_string(count) +

@@ -4,11 +4,15 @@
 // the server (its limits, its workers) and cuts the job into tasks.
 #pragma once
 
+#include <cstdint>
 #include <memory>
+#include <mutex>
 #include <string>
 
 #include "core/util/parallel.h"
 #include "core/util/run_control.h"
+#include "core/util/triangle_limit.h"
+#include "server/memory_budget.h"
 #include "server/options.h"
 #include "surfacer/v1/surfacer.pb.h"
 
@@ -63,6 +67,54 @@ struct JobContext {
   int worker_threads = 1;
   // Where frames are checked and encoded (the worker pool); null: on the task's own thread.
   const Executor* executor = nullptr;
+  // The server's memory budget (--memory-budget) that tasks building meshes draw from (TaskMemory); null: none.
+  MemoryBudget* memory = nullptr;
+};
+
+// The memory one task that builds meshes may hold. Its meshes are held to --max-triangles as they are built
+// (RunControl::triangles, core/util/triangle_limit.h), and before their triangles are made it reserves from the
+// server's memory budget kBytesPerTriangle per triangle of its largest mesh (in chunks as the mesh grows) plus the
+// fixed working memory a stage states before its work (reserve_fixed). A task that cannot get its reservation fails
+// with RESOURCE_EXHAUSTED naming --memory-budget and leaves the other jobs alone. Everything is given back when the
+// object is destroyed (at the end of the task). Not movable (control() points into it).
+class TaskMemory {
+ public:
+  // A task's peak resident memory per triangle of its largest mesh, every stage included: the one estimate of it.
+  // Measured as peak RSS growth of a surfacer-server over the output's triangles (gyroid_in_sphere at 256-400 cells,
+  // torus optimized to 1.4-5.7 M triangles, drop_in_pool particles): isosurface 126 (cubes) and 142 (tiles) bytes
+  // with Draco frames, 55-80 with PLY; optimize with subdivision 265; particles 240.
+  // Polygonizing (isosurface, active surfaces): the polygonizer's output and merge, the mesh, the frame's checks and
+  // encoding.
+  static constexpr std::int64_t kPolygonizeBytesPerTriangle = 192;
+  // Working on the mesh (optimize, particles): also the engine's per-vertex and per-triangle arrays, adjacency and
+  // the refinement's trial copy, or the smoothing's matrices.
+  static constexpr std::int64_t kMeshWorkBytesPerTriangle = 384;
+
+  // `what` names the task in a refusal ("isosurface frame 3"); bytes_per_triangle: one of the two above; budget
+  // null: nothing is reserved.
+  TaskMemory(const Limits& limits, MemoryBudget* budget, std::string what, std::int64_t bytes_per_triangle);
+  TaskMemory(const TaskMemory&) = delete;
+  TaskMemory& operator=(const TaskMemory&) = delete;
+
+  // Adds `bytes` (>= 0) of working memory besides the triangles (e.g. polygonize_fixed_bytes), reserved now. Throws
+  // ResourceLimit("memory_budget") when the budget cannot give it.
+  void reserve_fixed(std::int64_t bytes);
+  // `base` with this task's triangle limit and reservation hook.
+  RunControl control(const RunControl& base) const;
+  std::int64_t reserved_bytes() const;
+
+ private:
+  void reserve_triangles(std::int64_t triangles);
+  void grow_locked();
+
+  MemoryBudget* budget_;
+  std::string what_;
+  std::int64_t bytes_per_triangle_;
+  TriangleLimit limit_;
+  mutable std::mutex mutex_;
+  MemoryReservation reservation_;
+  std::int64_t fixed_bytes_ = 0;
+  std::int64_t triangles_ = 0;  // the most any hook call asked for
 };
 
 // Throws ResourceLimit naming --max-grid-cells when the grid of a polygonization requested at `path` is larger.

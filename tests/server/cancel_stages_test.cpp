@@ -86,6 +86,16 @@ v1::JobSpec slow_polygonize() {
                          1000);
 }
 
+// The unit sphere intersected with a fine gyroid sheet at 1000 cells: hundreds of millions of triangles, so the
+// polygonization runs until --max-triangles stops it (seconds at the default) unless cancelled.
+v1::JobSpec dense_polygonize(v1::Polygonizer method) {
+  v1::JobSpec spec = isosurface_spec({scene_from_json(R"({"root": {"intersection": {"children": [
+      {"gyroid": {"period": 0.02, "thickness": 0.004}}, {"sphere": {"radius": 1.0}}]}}})")},
+                                     1000);
+  spec.mutable_isosurface()->set_method(method);
+  return spec;
+}
+
 v1::JobSpec particles(v1::Surfacer::Stub& stub) {
   v1::JobSpec spec;
   auto* job = spec.mutable_particles();
@@ -130,6 +140,8 @@ std::vector<StageCase> stage_cases() {
   auto iso = [](v1::JobSpec spec) { return [spec](v1::Surfacer::Stub&) { return spec; }; };
   return {
       {"isosurface_polygonize", "polygonize", iso(slow_polygonize())},
+      {"isosurface_polygonize_dense_cubes", "polygonize", iso(dense_polygonize(v1::POLYGONIZER_CUBES))},
+      {"isosurface_polygonize_dense_tiles", "polygonize", iso(dense_polygonize(v1::POLYGONIZER_TILES))},
       {"isosurface_check", "check", iso(big_frame(v1::MESH_ENCODING_DRACO))},
       {"isosurface_encode_draco", "encode", iso(big_frame(v1::MESH_ENCODING_DRACO))},
       {"isosurface_encode_draco_pieces", "encode", iso(big_frame(v1::MESH_ENCODING_DRACO_PIECES))},

@@ -1,0 +1,162 @@
+// Jobs that build meshes are bounded before the work: polygonization stops as soon as its triangles pass
+// --max-triangles (RESOURCE_EXHAUSTED naming the flag, the count reached and the fix) instead of building the whole
+// mesh and counting it; a task's mesh memory is reserved from --memory-budget as it grows, so a job past the budget
+// fails naming it while a job alongside goes on; a cancel during optimize's subdivision frees the worker quickly.
+// Memory is read from /proc/<pid>/status of a surfacer-server process.
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <string>
+#include <thread>
+
+#include "tests/server/test_client.h"
+#include "tests/support/files.h"
+#include "tests/support/server_process.h"
+
+namespace surfacer::testing {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+constexpr std::int64_t kMiB = std::int64_t{1} << 20;
+
+// The unit sphere intersected with a gyroid sheet: dense (hundreds of millions of triangles at 1000 cells for a
+// period of 0.02).
+v1::JobSpec gyroid_in_sphere(double period, double thickness, int cells, v1::Polygonizer method) {
+  v1::JobSpec spec = isosurface_spec({scene_from_json(R"({"root": {"intersection": {"children": [
+      {"gyroid": {"period": )" + std::to_string(period) +
+                                                      R"(, "thickness": )" + std::to_string(thickness) + R"(}},
+      {"sphere": {"radius": 1.0}}]}}})")},
+                                     cells);
+  spec.mutable_isosurface()->set_method(method);
+  return spec;
+}
+
+// Runs `spec` to its end on `stub`; the final job.
+v1::Job run_job(v1::Surfacer::Stub& stub, const v1::JobSpec& spec) {
+  std::string id;
+  const grpc::Status submitted = submit(stub, spec, &id);
+  EXPECT_TRUE(submitted.ok()) << submitted.error_message();
+  return watch_job(stub, id).final_job;
+}
+
+// The issue's case and more: every cells/limit pair fails with the limit's message, and the server's peak RSS stays
+// far below what the meshes would take (the 1000-cell one passed 6 GB before it was killed).
+TEST(MeshLimits, DensePolygonizationStopsAtMaxTrianglesWithBoundedMemory) {
+  const auto dir = fresh_temp_dir("mesh-limits-dense");
+  for (const std::int64_t limit : {100'000, 1'000'000}) {
+    ServerProcess server(dir, 2, {"--max-triangles", std::to_string(limit)});
+    ASSERT_NE(server.port(), 0) << server.log();
+    auto stub = make_stub(server.address());
+    for (const int cells : {400, 1000}) {
+      for (const v1::Polygonizer method : {v1::POLYGONIZER_CUBES, v1::POLYGONIZER_TILES}) {
+        SCOPED_TRACE("limit " + std::to_string(limit) + " cells " + std::to_string(cells) + " method " +
+                     std::to_string(method));
+        const v1::Job job = run_job(*stub, gyroid_in_sphere(0.02, 0.004, cells, method));
+        ASSERT_EQ(job.state(), v1::JOB_STATE_FAILED);
+        const std::string& message = job.error().message();
+        EXPECT_EQ(job.error().code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << message;
+        EXPECT_NE(message.find("--max-triangles"), std::string::npos) << message;
+        EXPECT_NE(message.find("stopped at "), std::string::npos) << message;  // the count reached
+        EXPECT_NE(message.find(std::to_string(limit)), std::string::npos) << message;
+        EXPECT_NE(message.find("fewer cells"), std::string::npos) << message;
+      }
+    }
+    const std::optional<std::uint64_t> peak = server.peak_rss_bytes();
+    ASSERT_TRUE(peak.has_value());
+    // About 200 bytes per triangle of the limit plus the polygonizers' slabs and the server itself.
+    EXPECT_LT(static_cast<std::int64_t>(*peak), 256 * kMiB + limit * 400)
+        << "peak RSS " << (*peak >> 20) << " MiB under --max-triangles " << limit;
+    std::printf("--max-triangles %lld: server peak RSS %llu MiB over 4 dense jobs\n", static_cast<long long>(limit),
+                static_cast<unsigned long long>(*peak >> 20));
+  }
+}
+
+// A job whose mesh does not fit the memory budget fails naming --memory-budget; a job running alongside, which got
+// its reservation first, is not disturbed and succeeds; and the budget's bytes come back.
+TEST(MeshLimits, AJobPastTheMemoryBudgetFailsWhileOneAlongsideSucceeds) {
+  auto options = LoopbackServer::default_options();
+  options.workers = 2;
+  for (const std::int64_t budget : {64 * kMiB, 160 * kMiB}) {
+    SCOPED_TRACE("budget " + std::to_string(budget >> 20) + " MiB");
+    options.limits.memory_budget_bytes = budget;
+    LoopbackServer s(options);
+    // Alongside: a small optimization that runs for a while once its mesh is made (and reserved).
+    v1::JobSpec small;
+    *small.mutable_optimize()->mutable_scene() = scene_from_json(R"({"root": {"sphere": {"radius": 1}}})");
+    small.mutable_optimize()->mutable_polygonize()->set_cells(24);
+    small.mutable_optimize()->set_max_iterations(400);
+    small.mutable_optimize()->set_tolerance(1e-12);  // never met: every iteration runs
+    std::string small_id;
+    ASSERT_TRUE(submit(*s.stub, small, &small_id).ok());
+    const auto until = Clock::now() + std::chrono::seconds(30);
+    while (get_job(*s.stub, small_id).progress().stage() != "optimize" && Clock::now() < until) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    ASSERT_EQ(get_job(*s.stub, small_id).progress().stage(), "optimize");
+
+    for (const v1::Polygonizer method : {v1::POLYGONIZER_CUBES, v1::POLYGONIZER_TILES}) {
+      const v1::Job big = run_job(*s.stub, gyroid_in_sphere(0.05, 0.01, 400, method));
+      ASSERT_EQ(big.state(), v1::JOB_STATE_FAILED) << method;
+      EXPECT_EQ(big.error().code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << big.error().message();
+      EXPECT_NE(big.error().message().find("--memory-budget"), std::string::npos) << big.error().message();
+      EXPECT_NE(big.error().message().find("isosurface frame 0"), std::string::npos) << big.error().message();
+    }
+    EXPECT_NE(get_job(*s.stub, small_id).state(), v1::JOB_STATE_FAILED);
+    const v1::Job done = watch_job(*s.stub, small_id).final_job;
+    EXPECT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED) << done.error().message();
+    // Everything was given back: a job as large as the budget allows runs now.
+    const v1::Job after = run_job(*s.stub, gyroid_in_sphere(0.5, 0.1, 48, v1::POLYGONIZER_CUBES));
+    EXPECT_EQ(after.state(), v1::JOB_STATE_SUCCEEDED) << after.error().message();
+  }
+}
+
+// Optimize with subdivision everywhere (threshold 1e-12) and a large budget, cancelled at several moments of its
+// run (in flows, in red-green refinement, in the trial copies): the job queued behind it starts within a bound.
+TEST(MeshLimits, CancelDuringOptimizeSubdivisionFreesTheWorker) {
+  auto options = LoopbackServer::default_options();
+  options.workers = 1;
+  for (const int delay_ms : {300, 900, 1700, 2600}) {
+    SCOPED_TRACE("cancel " + std::to_string(delay_ms) + " ms into optimize");
+    LoopbackServer s(options);
+    v1::JobSpec spec;
+    auto* job = spec.mutable_optimize();
+    *job->mutable_scene() =
+        scene_from_json(R"({"root": {"torus": {"major_radius": 0.6, "minor_radius": 0.25, "axis": {"z": 1}}}})");
+    job->mutable_polygonize()->set_cells(160);
+    job->set_max_iterations(1000);
+    job->set_subdivision_threshold(1e-12);
+    job->set_triangle_budget(50'000'000);
+    std::string slow, next;
+    ASSERT_TRUE(submit(*s.stub, spec, &slow).ok());
+    ASSERT_TRUE(
+        submit(*s.stub, isosurface_spec({scene_from_json(R"({"root": {"sphere": {"radius": 1}}})")}, 8), &next).ok());
+    const auto until = Clock::now() + std::chrono::seconds(60);
+    while (get_job(*s.stub, slow).progress().stage() != "optimize" && Clock::now() < until) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(delay_ms));
+    if (get_job(*s.stub, slow).state() != v1::JOB_STATE_RUNNING) {
+      ADD_FAILURE() << "the job ended before the cancel: " << get_job(*s.stub, slow).error().message();
+      continue;
+    }
+    const auto cancelled_at = Clock::now();
+    {
+      grpc::ClientContext context;
+      v1::CancelJobRequest cancel;
+      cancel.set_job_id(slow);
+      v1::Job reply;
+      ASSERT_TRUE(s.stub->CancelJob(&context, cancel, &reply).ok());
+    }
+    while (get_job(*s.stub, next).state() == v1::JOB_STATE_QUEUED &&
+           Clock::now() < cancelled_at + std::chrono::seconds(60)) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(2));
+    }
+    const double latency = std::chrono::duration<double>(Clock::now() - cancelled_at).count();
+    EXPECT_LT(latency, 1.0) << "the next job started " << latency << " s after the cancel";
+    EXPECT_EQ(get_job(*s.stub, slow).state(), v1::JOB_STATE_CANCELLED);
+    std::printf("optimize cancelled %d ms in: next job started after %.3f s\n", delay_ms, latency);
+  }
+}
+
+}  // namespace
+}  // namespace surfacer::testing
