@@ -246,7 +246,8 @@ TEST_F(FormatsEndToEnd, IsosurfaceWritesVtkAndVtuWithThePlyFramesVertices) {
 }
 
 // --format glb: the pieces as received (Draco's or meshoptimizer's streams), in a file any glTF reader with those
-// extensions takes; the same surface as the .ply of the same frame, whatever encoding the frames came in.
+// extensions takes, or for raw frames plain glTF that every reader takes; the same surface as the .ply of the same
+// frame, whatever encoding the frames came in.
 TEST_F(FormatsEndToEnd, GlbHoldsTheFramesSurfaceWhateverTheEncoding) {
   write_file(dir_ / "gyroid.json",
              R"({"root": {"intersection": {"children": [{"gyroid": {"period": 1, "thickness": 0.12}},
@@ -268,6 +269,19 @@ TEST_F(FormatsEndToEnd, GlbHoldsTheFramesSurfaceWhateverTheEncoding) {
       const ProcessResult r = cli(args);
       ASSERT_EQ(r.code, 0) << r;
       const Mesh ply = read_mesh(out / "frame_0000.ply");
+      if (extra == std::vector<std::string>{"--raw"}) {
+        // Raw frames: plain binary glTF, no compression extension, the frame's triangles with float positions.
+        EXPECT_EQ(read_file(out / "frame_0000.glb").find("extensionsRequired"), std::string::npos);
+        const Mesh plain = read_mesh(out / "frame_0000.glb");
+        ASSERT_EQ(plain.triangles.size(), ply.triangles.size());
+        for (std::size_t t = 0; t < ply.triangles.size(); ++t) {
+          for (int k = 0; k < 3; ++k) {
+            ASSERT_EQ(plain.vertices[plain.triangles[t][k]],
+                      ply.vertices[ply.triangles[t][k]].cast<float>().cast<double>());
+          }
+        }
+        continue;
+      }
       const Gltf glb = read_glb(out / "frame_0000.glb");
       const bool meshopt = extra.size() >= 2 && extra[1] == "meshopt";
       EXPECT_EQ(glb.required,
