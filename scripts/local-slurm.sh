@@ -31,12 +31,21 @@ PIDS=(slurmd slurmctld munged) # stop order; start is the reverse
 pid_of() { cat "$DIR/$1.pid" 2>/dev/null || true; }
 
 stop_all() {
-  local name pid waited
+  local name pid
+  # Jobs first, so that no slurmstepd or job process outlives the daemons (every job of this cluster is ours).
+  pid=$(pid_of slurmctld)
+  if [ -n "$pid" ] && kill -0 "$pid" 2>/dev/null && [ -f "$DIR/slurm.conf" ]; then
+    SLURM_CONF=$DIR/slurm.conf scancel --full --user="$(id -un)" 2>/dev/null || true
+    for _ in $(seq 1 50); do
+      [ -z "$(SLURM_CONF=$DIR/slurm.conf squeue --noheader 2>/dev/null)" ] && break
+      sleep 0.2
+    done
+  fi
   for name in "${PIDS[@]}"; do
     pid=$(pid_of "$name")
     [ -n "$pid" ] && kill -0 "$pid" 2>/dev/null || continue
     kill -TERM "$pid" 2>/dev/null || true
-    for waited in $(seq 1 100); do
+    for _ in $(seq 1 100); do
       kill -0 "$pid" 2>/dev/null || break
       sleep 0.1
     done

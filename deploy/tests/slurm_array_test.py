@@ -86,7 +86,8 @@ def main() -> int:
             submit = subprocess.run([sbatch_script, *small], env=env, cwd=tmp, capture_output=True, text=True,
                                     timeout=120)
             logs = "".join(f"--- {p.name}\n{p.read_text()}" for p in sorted(tmp.glob("task-*.out")))
-            expect(submit.returncode == 0, f"the array exited {submit.returncode}:\n{submit.stdout}{submit.stderr}{logs}")
+            expect(submit.returncode == 0,
+                   f"the array exited {submit.returncode}:\n{submit.stdout}{submit.stderr}{logs}")
             tasks = sorted(tmp.glob("task-*.out"))
             expect(len(tasks) == 3, f"{len(tasks)} task logs, expected 3 (array 0-2 for {TOTAL} frames, "
                                     f"{PER_TASK} per task)")
