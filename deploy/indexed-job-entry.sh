@@ -1,11 +1,14 @@
 #!/usr/bin/env bash
-# One pod of a Kubernetes Indexed Job (deploy/k8s/job/particles-indexed-job.yaml): surfaces its share of a long
-# particle frame sequence with the in-process server (`surfacer --local`) and writes the frames under their GLOBAL
-# numbers, so the union of all pods' output is exactly what one `surfacer run particles` over the whole sequence
-# would name by input frame number.
+# One pod of a Kubernetes Indexed Job (deploy/k8s/job/particles-indexed-job.yaml) or one task of a Slurm job array
+# (deploy/slurm/surfacer-array.sbatch): surfaces its share of a long particle frame sequence with the in-process
+# server (`surfacer --local`) and writes the frames under their GLOBAL numbers, so the union of all pods' output is
+# exactly what one `surfacer run particles` over the whole sequence would name by input frame number.
 #
 # Environment (every number a non-negative integer):
 #   JOB_COMPLETION_INDEX  this pod's index, 0..JOB_COMPLETIONS-1 (set by Kubernetes for completionMode: Indexed)
+#   SLURM_ARRAY_TASK_ID   the index when JOB_COMPLETION_INDEX is unset (set by Slurm in each task of an array;
+#                         the sbatch script passes FRAMES_PER_POD, so a resubmitted subset of the array keeps its
+#                         ranges)
 #   JOB_COMPLETIONS       the Job's spec.completions (needed unless FRAMES_PER_POD is given)
 #   FRAMES_TOTAL          number of frames in the sequence
 #   FRAME_FIRST           number of the first frame in INPUT_PATTERN (default 0)
@@ -45,7 +48,12 @@ require_uint() {
   echo $((10#$value))
 }
 
-INDEX=$(require_uint JOB_COMPLETION_INDEX)
+if [ -n "${JOB_COMPLETION_INDEX:-}" ] || [ -z "${SLURM_ARRAY_TASK_ID:-}" ]; then
+  INDEX_VAR=JOB_COMPLETION_INDEX
+else
+  INDEX_VAR=SLURM_ARRAY_TASK_ID
+fi
+INDEX=$(require_uint "$INDEX_VAR")
 TOTAL=$(require_uint FRAMES_TOTAL)
 FIRST=$(require_uint FRAME_FIRST 0)
 [ "$TOTAL" -gt 0 ] || die_env "FRAMES_TOTAL (0) must be > 0"
@@ -57,13 +65,13 @@ if [ -n "${FRAMES_PER_POD:-}" ]; then
     [ $((PER_POD * COMPLETIONS)) -ge "$TOTAL" ] ||
       die_env "FRAMES_PER_POD ($PER_POD) x JOB_COMPLETIONS ($COMPLETIONS) < FRAMES_TOTAL ($TOTAL): frames" \
         "$((PER_POD * COMPLETIONS))..$((TOTAL - 1)) would never be surfaced; raise completions or FRAMES_PER_POD"
-    [ "$INDEX" -lt "$COMPLETIONS" ] || die_env "JOB_COMPLETION_INDEX ($INDEX) must be < JOB_COMPLETIONS ($COMPLETIONS)"
+    [ "$INDEX" -lt "$COMPLETIONS" ] || die_env "$INDEX_VAR ($INDEX) must be < JOB_COMPLETIONS ($COMPLETIONS)"
   fi
 else
   [ -n "${JOB_COMPLETIONS:-}" ] || die_env "set JOB_COMPLETIONS (the Job's spec.completions) or FRAMES_PER_POD"
   COMPLETIONS=$(require_uint JOB_COMPLETIONS)
   [ "$COMPLETIONS" -gt 0 ] || die_env "JOB_COMPLETIONS (0) must be > 0"
-  [ "$INDEX" -lt "$COMPLETIONS" ] || die_env "JOB_COMPLETION_INDEX ($INDEX) must be < JOB_COMPLETIONS ($COMPLETIONS)"
+  [ "$INDEX" -lt "$COMPLETIONS" ] || die_env "$INDEX_VAR ($INDEX) must be < JOB_COMPLETIONS ($COMPLETIONS)"
   PER_POD=$(((TOTAL + COMPLETIONS - 1) / COMPLETIONS))
 fi
 [ -n "${INPUT_PATTERN:-}" ] || die_env "INPUT_PATTERN is not set (e.g. /input/fluid_{:04d}.bgeo)"

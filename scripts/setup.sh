@@ -20,6 +20,7 @@ PACKAGES=(
   liblz4-dev liblzma-dev  # LZ4 and LZMA blocks of VTK XML particle files (core/particles/particle_io_vtk.cpp)
   python3-vtk9 python3-meshio  # the real VTK and meshio in tests: VTK's own XML writers for the particle readers
                                # (tests/core/vtk_writer_files_test.py), reading our .vtk/.vtu (tests/python/test_readers.py)
+  slurm-wlm munge  # a single-host Slurm (scripts/local-slurm.sh) that runs deploy/slurm/'s job array in CTest
 )
 missing=()
 for p in "${PACKAGES[@]}"; do
