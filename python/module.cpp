@@ -329,7 +329,7 @@ struct Inputs {
   }
 };
 
-// name, encoding, normals, quantization_bits: every job type's output options.
+// name, encoding, normals, quantization_bits, decimate: every job type's output options.
 void add_common(Setters& s, JobOptions& job) {
   s["name"] = [&job](py::handle v, const std::string&) { job.name = v.cast<std::string>(); };
   s["encoding"] = [&job](py::handle v, const std::string& name) { set_encoding(job, v.cast<std::string>(), name); };
@@ -337,6 +337,10 @@ void add_common(Setters& s, JobOptions& job) {
   s["quantization_bits"] = [&job](py::handle v, const std::string& name) {
     job.spec.mutable_output()->set_quantization_bits(v.cast<int>());
     job.names["spec.output.quantization_bits"] = name;
+  };
+  s["decimate"] = [&job](py::handle v, const std::string& name) {
+    job.spec.mutable_output()->set_decimate(v.cast<double>());
+    job.names["spec.output.decimate"] = name;
   };
 }
 
