@@ -9,7 +9,8 @@
 //   --particles N   block size (default 500000): the 100 x 50 x 100 block scaled by cbrt(N / 500000) per axis
 //   --repeat R      repetitions of each of our timed runs (default 3); seconds are the minimum over them
 //   --vdb-repeat R  the same for OpenVDB's runs (default 1: one takes 10-30 s on the 500 k block, 2 cores)
-//   --section S     block or flatness only (default both)
+//   --section S     block or flatness only (default both), or decimate: the block (--particles) and droplets
+//                   decimated at TOL = 0.1 r_inner (docs/ALGORITHMS.md §5, CHOICE "Decimation")
 //   --threads T     one thread count for both sides (default: 1, then 2)
 //   --flatness-sweeps N  Bilaplacian sweeps of the flatness slabs (default: the option's default); many (e.g. 1000)
 //                   show where the sweeps converge to
@@ -73,6 +74,7 @@
 
 #include "bench/bench_args.h"
 #include "bench/openvdb_reference.h"
+#include "core/mesh/decimate.h"
 #include "core/mesh/mesh_checks.h"
 #include "core/mesh/mesh_codec.h"
 #include "core/mesh/mesh_io.h"
@@ -94,7 +96,7 @@ struct Config {
   int repeat = 3;
   int vdb_repeat = 1;  // an OpenVDB run of the 500 k block takes 10-30 s
   std::vector<int> threads = {1, 2};
-  bool block = true, flatness = true;
+  bool block = true, flatness = true, decimate = false;
   std::optional<int> flatness_sweeps;
   std::string write_dir;
 };
@@ -632,8 +634,75 @@ bool bench_flatness(const Config& cfg) {
   return ok;
 }
 
+// Droplets: balls of radius 2-6 d of jittered lattice particles (spacing d, jitter +-d/6), 12 d apart on a
+// 5 x 5 x 5 grid (seed 3).
+std::vector<Vec3> droplet_particles(double d) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::vector<Vec3> p;
+  for (int k = 0; k < 125; ++k) {
+    const Vec3 c = Vec3(k % 5, (k / 5) % 5, k / 25) * 16.0 * d;
+    const double radius = d * (2.0 + 4.0 * u(rng));
+    const int n = static_cast<int>(radius / d);
+    for (int z = -n; z <= n; ++z)
+      for (int y = -n; y <= n; ++y)
+        for (int x = -n; x <= n; ++x) {
+          const double jx = u(rng), jy = u(rng), jz = u(rng);
+          const Vec3 q = c + Vec3(x, y, z) * d + (Vec3(jx, jy, jz) - Vec3::Constant(0.5)) * (d / 3);
+          if ((q - c).norm() <= radius) p.push_back(q);
+        }
+  }
+  return p;
+}
+
+// --section decimate: the block and the droplets surfaced (min_angle_degrees = the decimation's 10), then decimated
+// at TOL = 0.1 r_inner under the particle band rule; prints the triangle ratio, min angle, faithful fraction,
+// closed/manifold and the seconds of surfacing and decimation (one run each, max threads).
+bool bench_decimate(const Config& cfg) {
+  bool ok = true;
+  const int threads = *std::max_element(cfg.threads.begin(), cfg.threads.end());
+  struct Named {
+    const char* name;
+    std::vector<Vec3> particles;
+  };
+  const Named sets[] = {{"block", lattice(block_dims(cfg.particles), kBlockSpacing, 0.1 * kBlockSpacing, 7)},
+                        {"droplets", droplet_particles(kBlockSpacing)}};
+  std::printf("decimate: TOL = 0.1 r_inner, r_inner 0.6 d, d %.3g, %d threads for the surfacing\n", kBlockSpacing,
+              threads);
+  for (const Named& set : sets) {
+    ParticleSurfacingOptions options;
+    options.r_inner = 0.6 * kBlockSpacing;
+    options.threads = threads;
+    options.min_angle_degrees = DecimateOptions{}.min_angle_degrees;
+    ParticleSurfacingStats stats;
+    const auto t0 = std::chrono::steady_clock::now();
+    const Mesh mesh = surface_particles(set.particles, {}, options, {}, &stats);
+    const double surfacing = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const SurfacePointRule rule = particle_band_rule(set.particles, {}, stats.r_inner, stats.r_outer);
+    DecimateStats dstats;
+    const Mesh out = decimate(mesh, {.tolerance = 0.1 * stats.r_inner}, rule, {}, &dstats);
+    std::size_t faithful = 0;
+    for (const Vec3& v : out.vertices) faithful += rule(v) ? 1 : 0;
+    const MeshReport before = check_mesh(mesh), after = check_mesh(out);
+    const bool closed = after.closed && after.edge_manifold && after.vertex_manifold && after.oriented;
+    ok = ok && closed && faithful == out.vertices.size();
+    std::printf(
+        "  %-8s %zu particles: %zu -> %zu triangles (%.2fx), min angle %.2f -> %.2f deg, faithful %.4f %%, closed "
+        "manifold %s; surfacing %.3f s, decimate %.3f s\n",
+        set.name, set.particles.size(), mesh.triangles.size(), out.triangles.size(),
+        static_cast<double>(mesh.triangles.size()) / static_cast<double>(std::max<std::size_t>(1, out.triangles.size())),
+        before.min_angle_degrees, after.min_angle_degrees,
+        100.0 * static_cast<double>(faithful) / static_cast<double>(std::max<std::size_t>(1, out.vertices.size())),
+        closed ? "yes" : "NO", surfacing, dstats.seconds);
+    std::fflush(stdout);
+  }
+  std::printf("\n");
+  return ok;
+}
+
 constexpr const char* kUsage =
-    "usage: particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness] [--threads T]\n"
+    "usage: particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness|decimate]\n"
+    "                       [--threads T]\n"
     "                       [--flatness-sweeps N] [--write DIR]\n";
 
 }  // namespace
@@ -656,11 +725,12 @@ int main(int argc, char** argv) {
       cfg.vdb_repeat = args.integer(1);
       block_flag = flag;
     } else if (flag == "--section") {
-      const std::string section = args.value("block or flatness");
-      if (section != "block" && section != "flatness")
-        args.error("--section is block or flatness, got '" + section + "'");
+      const std::string section = args.value("block, flatness or decimate");
+      if (section != "block" && section != "flatness" && section != "decimate")
+        args.error("--section is block, flatness or decimate, got '" + section + "'");
       cfg.block = section == "block";
       cfg.flatness = section == "flatness";
+      cfg.decimate = section == "decimate";
     } else if (flag == "--threads") {
       cfg.threads = {args.integer(1)};
     } else if (flag == "--flatness-sweeps") {
@@ -673,7 +743,7 @@ int main(int argc, char** argv) {
     }
   }
   // The flatness slabs have a fixed size and run once, on our side only; the block keeps the default sweeps.
-  if (!cfg.block && !block_flag.empty()) args.error(block_flag + " applies to the block only");
+  if (!cfg.block && !cfg.decimate && !block_flag.empty()) args.error(block_flag + " applies to the block only");
   if (!cfg.flatness && !flatness_flag.empty()) args.error(flatness_flag + " applies to the flatness slabs only");
   double load[3] = {0, 0, 0};
   if (getloadavg(load, 3) < 0) load[0] = -1;
@@ -685,6 +755,7 @@ int main(int argc, char** argv) {
   bool ok = true;
   if (cfg.block) ok = bench_block(cfg) && ok;
   if (cfg.flatness) ok = bench_flatness(cfg) && ok;
+  if (cfg.decimate) ok = bench_decimate(cfg) && ok;
   if (getloadavg(load, 3) >= 0) std::printf("load average %.2f at the end\n", load[0]);
   return ok ? 0 : 1;
 }

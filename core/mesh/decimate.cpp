@@ -160,8 +160,8 @@ Mesh decimate(const Mesh& mesh, const DecimateOptions& options, const SurfacePoi
     // Binary modules run in the order added and stop at the first refusal: the cheap ones first.
     decimater.add(quadric);
     decimater.add(normals);
-    decimater.add(rules);
     decimater.add(hausdorff);
+    decimater.add(rules);
     // The quadric orders the collapses only; the Hausdorff module bounds the error.
     // The quadric (area-weighted, so not a distance) orders the collapses only; the Hausdorff module bounds the error.
     decimater.module(quadric).unset_max_err();
@@ -231,10 +231,9 @@ SurfacePointRule particle_band_rule(std::span<const Vec3> particles, std::span<c
   constexpr double kRelative = 1e-9;  // as the surfacer's faithful fraction
   if (radii.empty()) {
     const double inner = r_inner * (1.0 - kRelative), outer = r_outer * (1.0 + kRelative);
-    return [hash, inner, outer](const Vec3& x) {
-      const double d = hash->bounded_distance(x, outer, inner);
-      return d >= inner && d <= outer;
-    };
+    // Two searches that stop at the first particle found: one in the outer ball (most often in x's own cell), none in
+    // the inner one.
+    return [hash, inner, outer](const Vec3& x) { return hash->any_within(x, outer) && !hash->any_within(x, inner); };
   }
   return [hash, radii, ratio, largest_outer](const Vec3& x) {
     bool inside_outer = false, outside_inner = true;
