@@ -9,7 +9,9 @@
 //   --particles N   block size (default 500000): the 100 x 50 x 100 block scaled by cbrt(N / 500000) per axis
 //   --repeat R      repetitions of each of our timed runs (default 3); seconds are the minimum over them
 //   --vdb-repeat R  the same for OpenVDB's runs (default 1: one takes 10-30 s on the 500 k block, 2 cores)
-//   --section S     block, flatness or scale only (default block and flatness; scale runs only when asked)
+//   --section S     block, flatness, scale or decimate only (default block and flatness; scale and decimate run
+//                   only when asked); decimate: the block (--particles) and droplets decimated at TOL = 0.1 r_inner
+//                   (docs/ALGORITHMS.md §5, CHOICE "Decimation")
 //   --scale-sizes L the scale section's block sizes in millions of particles (default 0.5,2,13.5,50)
 //   --threads T     one thread count for both sides (default: 1, then 2)
 //   --flatness-sweeps N  Bilaplacian sweeps of the flatness slabs (default: the option's default); many (e.g. 1000)
@@ -82,6 +84,7 @@
 
 #include "bench/bench_args.h"
 #include "bench/openvdb_reference.h"
+#include "core/mesh/decimate.h"
 #include "core/mesh/mesh_checks.h"
 #include "core/mesh/mesh_codec.h"
 #include "core/mesh/mesh_io.h"
@@ -103,7 +106,7 @@ struct Config {
   int repeat = 3;
   int vdb_repeat = 1;  // an OpenVDB run of the 500 k block takes 10-30 s
   std::vector<int> threads = {1, 2};
-  bool block = true, flatness = true, scale = false;
+  bool block = true, flatness = true, scale = false, decimate = false;
   std::vector<double> scale_millions = {0.5, 2.0, 13.5, 50.0};
   std::optional<int> flatness_sweeps;
   std::string write_dir;
@@ -707,12 +710,78 @@ bool bench_scale(const Config& cfg) {
       "  splashsurf (published): %.3f M particles/s per core (13.35 M in 2.47 s on 14 cores, coarse cubes, no "
       "smoothing); vs splash = our particles/s per core / theirs\n\n",
       kSplashsurfParticlesPerCoreSecond * 1e-6);
-  return ok;
-}
 
-constexpr const char* kUsage =
-    "usage: particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness|scale]\n"
-    "                       [--threads T] [--flatness-sweeps N] [--scale-sizes M,M,...] [--write DIR]\n";
+  // Droplets: balls of radius 2-6 d of jittered lattice particles (spacing d, jitter +-d/6), 12 d apart on a
+  // 5 x 5 x 5 grid (seed 3).
+  std::vector<Vec3> droplet_particles(double d) {
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    std::vector<Vec3> p;
+    for (int k = 0; k < 125; ++k) {
+      const Vec3 c = Vec3(k % 5, (k / 5) % 5, k / 25) * 16.0 * d;
+      const double radius = d * (2.0 + 4.0 * u(rng));
+      const int n = static_cast<int>(radius / d);
+      for (int z = -n; z <= n; ++z)
+        for (int y = -n; y <= n; ++y)
+          for (int x = -n; x <= n; ++x) {
+            const double jx = u(rng), jy = u(rng), jz = u(rng);
+            const Vec3 q = c + Vec3(x, y, z) * d + (Vec3(jx, jy, jz) - Vec3::Constant(0.5)) * (d / 3);
+            if ((q - c).norm() <= radius) p.push_back(q);
+          }
+    }
+    return p;
+  }
+
+  // --section decimate: the block and the droplets surfaced (min_angle_degrees = the decimation's 10), then decimated
+  // at TOL = 0.1 r_inner under the particle band rule; prints the triangle ratio, min angle, faithful fraction,
+  // closed/manifold and the seconds of surfacing and decimation (one run each, max threads).
+  bool bench_decimate(const Config& cfg) {
+    bool ok = true;
+    const int threads = *std::max_element(cfg.threads.begin(), cfg.threads.end());
+    struct Named {
+      const char* name;
+      std::vector<Vec3> particles;
+    };
+    const Named sets[] = {{"block", lattice(block_dims(cfg.particles), kBlockSpacing, 0.1 * kBlockSpacing, 7)},
+                          {"droplets", droplet_particles(kBlockSpacing)}};
+    std::printf("decimate: TOL = 0.1 r_inner, r_inner 0.6 d, d %.3g, %d threads for the surfacing\n", kBlockSpacing,
+                threads);
+    for (const Named& set : sets) {
+      ParticleSurfacingOptions options;
+      options.r_inner = 0.6 * kBlockSpacing;
+      options.threads = threads;
+      options.min_angle_degrees = DecimateOptions{}.min_angle_degrees;
+      ParticleSurfacingStats stats;
+      const auto t0 = std::chrono::steady_clock::now();
+      const Mesh mesh = surface_particles(set.particles, {}, options, {}, &stats);
+      const double surfacing = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      const SurfacePointRule rule = particle_band_rule(set.particles, {}, stats.r_inner, stats.r_outer);
+      DecimateStats dstats;
+      const Mesh out = decimate(mesh, {.tolerance = 0.1 * stats.r_inner}, rule, {}, &dstats);
+      std::size_t faithful = 0;
+      for (const Vec3& v : out.vertices) faithful += rule(v) ? 1 : 0;
+      const MeshReport before = check_mesh(mesh), after = check_mesh(out);
+      const bool closed = after.closed && after.edge_manifold && after.vertex_manifold && after.oriented;
+      ok = ok && closed && faithful == out.vertices.size();
+      std::printf(
+          "  %-8s %zu particles: %zu -> %zu triangles (%.2fx), min angle %.2f -> %.2f deg, faithful %.4f %%, closed "
+          "manifold %s; surfacing %.3f s, decimate %.3f s\n",
+          set.name, set.particles.size(), mesh.triangles.size(), out.triangles.size(),
+          static_cast<double>(mesh.triangles.size()) /
+              static_cast<double>(std::max<std::size_t>(1, out.triangles.size())),
+          before.min_angle_degrees, after.min_angle_degrees,
+          100.0 * static_cast<double>(faithful) / static_cast<double>(std::max<std::size_t>(1, out.vertices.size())),
+          closed ? "yes" : "NO", surfacing, dstats.seconds);
+      std::fflush(stdout);
+    }
+    std::printf("\n");
+    return ok;
+  }
+
+  constexpr const char* kUsage =
+      "usage: particles_bench [--particles N] [--repeat R] [--vdb-repeat R]\n"
+      "                       [--section block|flatness|scale|decimate] [--threads T] [--flatness-sweeps N]\n"
+      "                       [--scale-sizes M,M,...] [--write DIR]\n";
 
 }  // namespace
 }  // namespace surfacer
@@ -735,12 +804,13 @@ int main(int argc, char** argv) {
       cfg.vdb_repeat = args.integer(1);
       block_flag = flag;
     } else if (flag == "--section") {
-      const std::string section = args.value("block, flatness or scale");
-      if (section != "block" && section != "flatness" && section != "scale")
-        args.error("--section is block, flatness or scale, got '" + section + "'");
+      const std::string section = args.value("block, flatness, scale or decimate");
+      if (section != "block" && section != "flatness" && section != "scale" && section != "decimate")
+        args.error("--section is block, flatness, scale or decimate, got '" + section + "'");
       cfg.block = section == "block";
       cfg.flatness = section == "flatness";
       cfg.scale = section == "scale";
+      cfg.decimate = section == "decimate";
     } else if (flag == "--threads") {
       cfg.threads = {args.integer(1)};
     } else if (flag == "--flatness-sweeps") {
@@ -768,7 +838,7 @@ int main(int argc, char** argv) {
     }
   }
   // The flatness slabs have a fixed size and run once, on our side only; the block keeps the default sweeps.
-  if (!cfg.block && !block_flag.empty()) args.error(block_flag + " applies to the block only");
+  if (!cfg.block && !cfg.decimate && !block_flag.empty()) args.error(block_flag + " applies to the block only");
   if (!cfg.flatness && !flatness_flag.empty()) args.error(flatness_flag + " applies to the flatness slabs only");
   if (!cfg.scale && !scale_flag.empty()) args.error(scale_flag + " applies to --section scale only");
   double load[3] = {0, 0, 0};
@@ -782,6 +852,7 @@ int main(int argc, char** argv) {
   if (cfg.block) ok = bench_block(cfg) && ok;
   if (cfg.flatness) ok = bench_flatness(cfg) && ok;
   if (cfg.scale) ok = bench_scale(cfg) && ok;
+  if (cfg.decimate) ok = bench_decimate(cfg) && ok;
   if (getloadavg(load, 3) >= 0) std::printf("load average %.2f at the end\n", load[0]);
   return ok ? 0 : 1;
 }

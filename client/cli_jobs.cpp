@@ -4,6 +4,7 @@
 #include "client/job_fields.h"
 #include "client/job_spec.h"
 #include "client/output_files.h"
+#include "core/mesh/decimate.h"
 #include "core/mesh/mesh_codec.h"
 #include "core/util/format.h"
 
@@ -241,6 +242,16 @@ void add_job_common_flags(CLI::App* app, JobOptions& job) {
          "position quantization of Draco and meshopt frames, in bits (default " +
              std::to_string(DracoOptions{}.quantization_bits) + ")")
       ->type_name("B");
+  app->add_option_function<double>(
+         "--decimate",
+         [&job](double tolerance) {
+           job.spec.mutable_output()->set_decimate(tolerance);
+           job.names["spec.output.decimate"] = "--decimate";
+         },
+         "error-bounded level of detail: fewer triangles, every original vertex within TOL (a length in scene units) "
+         "of the result, kept vertices where the engine put them (particle frames stay faithful), no new angle below " +
+             format_number(DecimateOptions{}.min_angle_degrees) + " degrees (default 0: off)")
+      ->type_name("TOL");
 }
 
 void add_job_types(CLI::App* parent, const std::string& verb, JobFlags& flags, OutputFlags* output) {

@@ -336,7 +336,7 @@ struct Inputs {
   }
 };
 
-// name, encoding, normals, quantization_bits: every job type's output options.
+// name, encoding, normals, quantization_bits, decimate: every job type's output options.
 void add_common(Setters& s, JobOptions& job) {
   s["name"] = {[&job](py::handle v, const std::string&) { job.name = v.cast<std::string>(); }, "str"};
   s["encoding"] = {[&job](py::handle v, const std::string& name) { set_encoding(job, v.cast<std::string>(), name); },
@@ -348,6 +348,11 @@ void add_common(Setters& s, JobOptions& job) {
                               job.names["spec.output.quantization_bits"] = name;
                             },
                             "int"};
+  s["decimate"] = {[&job](py::handle v, const std::string& name) {
+                     job.spec.mutable_output()->set_decimate(v.cast<double>());
+                     job.names["spec.output.decimate"] = name;
+                   },
+                   "float"};
 }
 
 void add_particle_range(Setters& s, ParticleInputOptions& input) {

@@ -59,6 +59,15 @@ FrameEncoding frame_encoding(const v1::OutputOptions& options, const Aabb& job_b
                                   ? to_aabb(options.quantization_bounds(), path + ".quantization_bounds")
                                   : job_bounds;
   draco.normals = options.normals();
+  out.decimate.tolerance = options.decimate();
+  try {
+    validate(out.decimate);
+  } catch (const Error& e) {
+    if (e.kind() != ErrorKind::kInvalidInput) throw;
+    // The engine's "tolerance (...) must be ..." under the request's name.
+    const std::string_view message = e.what();
+    throw at_path(Error(e.kind(), "decimate", "decimate" + std::string(message.substr(message.find(' ')))), path);
+  }
   // The engine's names for the two fields the request names differently.
   try {
     validate(out.options);

@@ -4,6 +4,7 @@
 #include <optional>
 #include <string>
 
+#include "core/mesh/decimate.h"
 #include "core/mesh/frame_codec.h"
 #include "surfacer/v1/surfacer.pb.h"
 
@@ -13,6 +14,8 @@ struct FrameEncoding {
   // The codec and its settings; options.draco.quantization_bounds is always set: one grid for the whole job (no
   // cracks or jitter between frames). `draco.normals` says whether frames carry per-vertex normals (any codec).
   FrameCodecOptions options;
+  // The output option `decimate` (tolerance 0: off), applied by the job runners before encoding.
+  DecimateOptions decimate;
 
   v1::MeshEncoding mesh_encoding() const;
   // The grid every frame's positions are quantized on (every codec but PLY, which is lossless), for engines that

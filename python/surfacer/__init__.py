@@ -160,7 +160,7 @@ class Client:
         """Polygonizes f = 0 of each scene (a dict in protobuf's JSON mapping of surfacer.v1.Scene, or a path to a
         scene JSON file; one scene or a list), one frame per scene. Options: cells, cell_size, bounds (x0, y0, z0,
         x1, y1, z1), method ("tiles" or "cubes"), and every job's name, encoding ("draco", "meshopt", "raw"),
-        normals, quantization_bits."""
+        normals, quantization_bits, decimate (a length in scene units: error-bounded level of detail, 0 off)."""
         return self._run("isosurface", (scenes,), options)
 
     def particles(self, frames, **options) -> Job:

@@ -6,6 +6,7 @@
 #include "core/active/active_surface.h"
 #include "core/util/checks.h"
 #include "core/util/errors.h"
+#include "server/runners/decimation.h"
 #include "server/runners/frames.h"
 #include "server/runners/runner.h"
 #include "wire/job_options.h"
@@ -65,7 +66,8 @@ class ActiveRunner final : public JobRunner {
       const auto now = std::chrono::steady_clock::now();
       StageTimer timer;
       timer.add("evolve", std::chrono::duration<double>(now - last).count());
-      FrameOutput out = frames_.make(frame.mesh, timer, control);
+      // The engine's potential lives on its sparse grid only: the tolerance bound alone (docs/ALGORITHMS.md §5).
+      FrameOutput out = decimated_frame(frames_, frame.mesh, {}, timer, control);
       auto& m = *out.stats.mutable_metrics();
       const ActiveFrameStats& s = frame.stats;
       m["time"] = s.time;

@@ -1,6 +1,7 @@
 // Job `isosurface`: scene(s) + bounds + resolution -> one polygonized frame per scene.
 #include "core/polygonize/polygonize.h"
 #include "core/util/errors.h"
+#include "server/runners/decimation.h"
 #include "server/runners/frames.h"
 #include "server/runners/runner.h"
 #include "wire/job_options.h"
@@ -33,7 +34,9 @@ class IsosurfaceRunner final : public JobRunner {
     StageTimer timer;
     const Mesh mesh = timer.run("polygonize", [&] { return polygonize(*fields_[index], grid, task); });
     control.check();
-    sink.emit(index, frames_.make(mesh, timer, task));
+    sink.emit(index,
+              decimated_frame(frames_, mesh, zero_set_rule(*fields_[index], frames_.encoding().decimate.tolerance),
+                              timer, task));
   }
 
  private:

@@ -5,6 +5,7 @@
 #include "core/mesh/mesh_io.h"
 #include "core/optimize/mesh_optimizer.h"
 #include "core/util/errors.h"
+#include "server/runners/decimation.h"
 #include "server/runners/frames.h"
 #include "server/runners/runner.h"
 #include "wire/job_options.h"
@@ -90,7 +91,8 @@ class OptimizeRunner final : public JobRunner {
     int last_emitted = frame > 0 ? optimizer.stats().iteration : -1;
     auto emit = [&](StageTimer& timer) {
       const auto& stats = optimizer.stats();
-      FrameOutput out = frames_.make(optimizer.mesh(), timer, control);
+      FrameOutput out = decimated_frame(frames_, optimizer.mesh(),
+                                        zero_set_rule(*field_, frames_.encoding().decimate.tolerance), timer, control);
       out.stats.set_iteration(stats.iteration);
       auto& m = *out.stats.mutable_metrics();
       m["e_d"] = stats.e_d;

@@ -2,6 +2,7 @@
 #include "core/particles/attribute_interpolation.h"
 #include "core/particles/particle_surfacer.h"
 #include "core/util/errors.h"
+#include "server/runners/decimation.h"
 #include "server/runners/frames.h"
 #include "server/runners/runner.h"
 #include "wire/job_options.h"
@@ -64,7 +65,8 @@ class ParticlesRunner final : public JobRunner {
         mesh.attributes = interpolate_attributes(data.positions, carried, mesh.vertices, support, control);
       });
     }
-    FrameOutput frame = frame_maker_.make(mesh, timer, task);
+    FrameOutput frame = decimated_frame(
+        frame_maker_, mesh, particle_band_rule(data.positions, data.radii, stats.r_inner, stats.r_outer), timer, task);
     auto& metrics = *frame.stats.mutable_metrics();
     metrics["particles"] = static_cast<double>(stats.particles);
     metrics["particles_used"] = static_cast<double>(stats.particles_used);

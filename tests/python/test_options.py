@@ -30,6 +30,8 @@ CASES = [
      "spec.particles.bilaplacian_sweeps (-1) must be in 0..100000"),
     ("isosurface", {"cells": -4}, ["--cells", "-4"], {"isosurface": {"cells": -4}}, "spec.isosurface.cells (-4)"),
     ("optimize", {"c_d": 1.5}, ["--c-d", "1.5"], {"optimize": {"cD": 1.5}}, "spec.optimize.c_d (1.5)"),
+    ("isosurface", {"decimate": -0.5}, ["--decimate", "-0.5"], {"isosurface": {}, "output": {"decimate": -0.5}},
+     "spec.output.decimate (-0.5) must be a finite length >= 0"),
 ]
 
 
@@ -110,3 +112,11 @@ def test_a_string_for_a_number_is_a_type_error_naming_the_keyword(local_client, 
     with pytest.raises(TypeError) as error:
         local_client.isosurface([sphere_scene()], **{keyword: value})
     assert keyword in str(error.value)
+
+
+def test_decimate_is_an_output_keyword_of_every_job(local_client):
+    (plain,) = local_client.isosurface(sphere_scene(0.5), cells=32)
+    (decimated,) = local_client.isosurface(sphere_scene(0.5), cells=32, decimate=0.002)
+    assert len(decimated.triangles) * 2 < len(plain.triangles)
+    assert decimated.stats["metrics"]["triangles_before_decimate"] == len(plain.triangles)
+    assert "triangles_before_decimate" not in plain.stats["metrics"]

@@ -1,0 +1,17 @@
+// The output option `decimate` (docs/ALGORITHMS.md §5, CHOICE "Decimation"): a job's mesh decimated under the
+// engine's rule for surface points before it becomes a frame.
+#pragma once
+
+#include "core/mesh/decimate.h"
+#include "server/runners/frames.h"
+
+namespace surfacer::server {
+
+// The frame of `mesh` (FrameMaker::make), decimated first when the job's output asks for it
+// (frames.encoding().decimate.tolerance > 0) under `rule` (empty: the tolerance bound alone): the stage "decimate" is
+// timed in `timer` and the metric "triangles_before_decimate" records the engine's triangle count. Throws what
+// decimate() and FrameMaker::make throw.
+FrameOutput decimated_frame(const FrameMaker& frames, const Mesh& mesh, const SurfacePointRule& rule,
+                            StageTimer& timer, const RunControl& control);
+
+}  // namespace surfacer::server

@@ -1,0 +1,203 @@
+#include "core/mesh/decimate.h"
+
+#include <gtest/gtest.h>
+
+#include <map>
+#include <random>
+#include <string>
+
+#include "core/mesh/mesh_checks.h"
+#include "core/particles/particle_surfacer.h"
+#include "core/polygonize/polygonize.h"
+#include "core/scene/scene.h"
+#include "core/util/errors.h"
+#include "tests/support/error_expectations.h"
+#include "tests/support/mesh_expectations.h"
+#include "tests/support/test_meshes.h"
+
+namespace surfacer {
+namespace {
+
+using testing::kClosedManifold;
+using testing::mesh_has;
+
+struct Case {
+  std::string name;
+  Mesh mesh;
+  SurfacePointRule rule;
+  std::vector<double> tolerances;
+  FieldPtr field;  // kept alive for the rule
+  std::vector<Vec3> particles;
+};
+
+// A jittered cubic lattice of nx x ny x nz particles at spacing d (jitter +-d/10, as bench/particles_bench's block).
+std::vector<Vec3> block(int nx, int ny, int nz, double d, std::uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> jitter(-d / 10, d / 10);
+  std::vector<Vec3> p;
+  for (int k = 0; k < nz; ++k)
+    for (int j = 0; j < ny; ++j)
+      for (int i = 0; i < nx; ++i) p.emplace_back(i * d + jitter(rng), j * d + jitter(rng), k * d + jitter(rng));
+  return p;
+}
+
+// Balls of jittered lattice particles (radius 2-4 d) apart from each other: droplets.
+std::vector<Vec3> droplets(double d, std::uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::vector<Vec3> p;
+  for (int k = 0; k < 8; ++k) {
+    const Vec3 c = Vec3(k % 2, (k / 2) % 2, k / 4) * 12.0 * d;
+    const double radius = d * (2.0 + 2.0 * u(rng));
+    const int n = static_cast<int>(radius / d);
+    for (int z = -n; z <= n; ++z)
+      for (int y = -n; y <= n; ++y)
+        for (int x = -n; x <= n; ++x) {
+          const Vec3 q = c + Vec3(x, y, z) * d + (Vec3(u(rng), u(rng), u(rng)) - Vec3::Constant(0.5)) * (d / 3);
+          if ((q - c).norm() <= radius) p.push_back(q);
+        }
+  }
+  return p;
+}
+
+Case field_case(const std::string& name, FieldPtr field, Polygonizer method, int cells, double scale) {
+  Case c{name, testing::polygonized(field, method, cells), {}, {}, field, {}};
+  c.tolerances = {0.0, 0.001 * scale, 0.003 * scale, 0.01 * scale, 0.03 * scale};
+  return c;
+}
+
+Case particle_case(const std::string& name, std::vector<Vec3> particles, double r_inner) {
+  ParticleSurfacingOptions options;
+  options.r_inner = r_inner;
+  options.min_angle_degrees = 10.0;
+  ParticleSurfacingStats stats;
+  Case c{name, surface_particles(particles, {}, options, {}, &stats), {}, {}, nullptr, std::move(particles)};
+  c.tolerances = {0.0, 0.03 * r_inner, 0.1 * r_inner, 0.3 * r_inner};
+  return c;
+}
+
+std::vector<Case> cases() {
+  std::vector<Case> out;
+  out.push_back(field_case("sphere tiles", make_sphere(Vec3::Zero(), 1.0), Polygonizer::kTiles, 48, 1.0));
+  out.push_back(field_case("torus cubes", make_torus(Vec3::Zero(), Vec3::UnitZ(), 1.0, 0.35), Polygonizer::kCubes,
+                           64, 1.0));
+  for (int cells : {48}) {
+    out.push_back(field_case("gyroid tiles " + std::to_string(cells),
+                             make_csg(CsgOp::kIntersection, {make_gyroid(1.0, 0.12), make_sphere(Vec3::Zero(), 1.5)}),
+                             Polygonizer::kTiles, cells, 1.0));
+  }
+  out.push_back(particle_case("particle block", block(16, 10, 12, 0.01, 7), 0.006));
+  out.push_back(particle_case("droplets", droplets(0.01, 3), 0.006));
+  for (Case& c : out) {
+    if (c.field) {
+      c.rule = {};  // set per tolerance below
+    } else {
+      c.rule = particle_band_rule(c.particles, {}, 0.006, 0.012);
+    }
+  }
+  return out;
+}
+
+double min_angle(const Mesh& mesh) { return check_mesh(mesh).min_angle_degrees; }
+
+TEST(Decimate, FewerTrianglesWithToleranceEveryVertexKeptEveryNewTriangleAcceptable) {
+  for (Case& c : cases()) {
+    SCOPED_TRACE(c.name);
+    const MeshReport input = check_mesh(c.mesh);
+    ASSERT_TRUE(mesh_has(input, kClosedManifold));
+    std::map<std::array<double, 3>, std::uint32_t> index_of;
+    for (std::uint32_t v = 0; v < c.mesh.vertices.size(); ++v) {
+      const Vec3& p = c.mesh.vertices[v];
+      index_of[{p.x(), p.y(), p.z()}] = v;
+    }
+    std::size_t previous = c.mesh.triangles.size() + 1;
+    for (double tolerance : c.tolerances) {
+      SCOPED_TRACE("tolerance " + std::to_string(tolerance));
+      const SurfacePointRule rule = c.field ? zero_set_rule(*c.field, tolerance) : c.rule;
+      DecimateStats stats;
+      const Mesh out = decimate(c.mesh, {.tolerance = tolerance}, rule, {}, &stats);
+      EXPECT_EQ(stats.triangles_before, c.mesh.triangles.size());
+      EXPECT_EQ(stats.triangles_after, out.triangles.size());
+      if (tolerance == 0.0) {
+        EXPECT_EQ(out.vertices, c.mesh.vertices);
+        EXPECT_EQ(out.triangles, c.mesh.triangles);
+      }
+      EXPECT_LE(out.triangles.size(), previous);
+      previous = out.triangles.size();
+      const MeshReport report = check_mesh(out);
+      EXPECT_TRUE(mesh_has(report, kClosedManifold));
+      EXPECT_EQ(report.components, input.components);
+      EXPECT_EQ(report.euler_characteristic, input.euler_characteristic);
+      EXPECT_GE(report.min_angle_degrees, std::min(10.0, input.min_angle_degrees) - 1e-9);
+      // Every vertex is an input vertex, where it was: faithful when it was.
+      std::size_t moved = 0, unfaithful = 0, unacceptable_triangles = 0;
+      for (const Vec3& p : out.vertices) {
+        if (!index_of.contains({p.x(), p.y(), p.z()})) ++moved;
+        if (!c.field && !rule(p)) ++unfaithful;
+      }
+      EXPECT_EQ(moved, 0u);
+      EXPECT_EQ(unfaithful, 0u);
+      // Every triangle the decimation made has an acceptable centroid (those of the input are not ours to judge).
+      std::map<std::array<std::uint32_t, 3>, int> input_triangles;
+      for (const Triangle& t : c.mesh.triangles) input_triangles[{t[0], t[1], t[2]}] = 1;
+      for (const Triangle& t : out.triangles) {
+        const Vec3& a = out.vertices[t[0]];
+        const Vec3& b = out.vertices[t[1]];
+        const Vec3& d = out.vertices[t[2]];
+        const auto orig = [&](const Vec3& p) { return index_of.at({p.x(), p.y(), p.z()}); };
+        if (input_triangles.contains({orig(a), orig(b), orig(d)})) continue;
+        if (!rule((a + b + d) / 3.0)) ++unacceptable_triangles;
+      }
+      EXPECT_EQ(unacceptable_triangles, 0u);
+      // Every removed vertex stays within the tolerance of the decimated surface (checked against its vertices and
+      // triangles: the nearest vertex bounds it from above only where the surface is flat, so measure to triangles).
+      if (tolerance > 0.0) EXPECT_LT(out.triangles.size(), c.mesh.triangles.size());
+      std::printf("%-18s tol %-8.4g triangles %8zu -> %8zu (%.2fx) min angle %.2f -> %.2f, %.3f s\n", c.name.c_str(),
+                  tolerance, c.mesh.triangles.size(), out.triangles.size(),
+                  static_cast<double>(c.mesh.triangles.size()) / std::max<std::size_t>(out.triangles.size(), 1),
+                  input.min_angle_degrees, report.min_angle_degrees, stats.seconds);
+    }
+  }
+}
+
+TEST(Decimate, KeepsNormalsAndAttributesOfTheKeptVertices) {
+  Mesh mesh = testing::icosphere(4);
+  Attribute index{"index", 1, {}};
+  for (std::size_t v = 0; v < mesh.vertices.size(); ++v) {
+    index.values.push_back(static_cast<float>(v));
+    mesh.normals.push_back(mesh.vertices[v].normalized());
+  }
+  mesh.attributes.push_back(index);
+  const Mesh out = decimate(mesh, {.tolerance = 0.02});
+  ASSERT_LT(out.vertices.size(), mesh.vertices.size());
+  ASSERT_EQ(out.normals.size(), out.vertices.size());
+  ASSERT_EQ(out.attributes.size(), 1u);
+  ASSERT_EQ(out.attributes[0].count(), out.vertices.size());
+  for (std::size_t v = 0; v < out.vertices.size(); ++v) {
+    const auto original = static_cast<std::size_t>(out.attributes[0].values[v]);
+    EXPECT_EQ(out.vertices[v], mesh.vertices[original]);
+    EXPECT_EQ(out.normals[v], mesh.normals[original]);
+  }
+}
+
+TEST(Decimate, RefusesBadOptionsNamingTheField) {
+  const Mesh mesh = testing::icosphere(1);
+  EXPECT_TRUE(testing::throws_invalid_input([&] { decimate(mesh, {.tolerance = -1.0}); }, "tolerance"));
+  EXPECT_TRUE(testing::throws_invalid_input(
+      [&] { decimate(mesh, {.tolerance = std::numeric_limits<double>::infinity()}); }, "tolerance"));
+  EXPECT_TRUE(testing::throws_invalid_input([&] { decimate(mesh, {.tolerance = 0.1, .min_angle_degrees = 45.0}); },
+                                            "min_angle_degrees"));
+}
+
+TEST(Decimate, StopsWhenCancelled) {
+  const Mesh mesh = testing::icosphere(6);
+  CancelToken cancel;
+  cancel.cancel();
+  RunControl control;
+  control.cancel = &cancel;
+  EXPECT_TRUE(testing::throws_error([&] { decimate(mesh, {.tolerance = 0.01}, {}, control); }, ErrorKind::kCancelled,
+                                    ""));
+}
+
+}  // namespace
+}  // namespace surfacer
