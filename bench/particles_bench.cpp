@@ -710,78 +710,80 @@ bool bench_scale(const Config& cfg) {
       "  splashsurf (published): %.3f M particles/s per core (13.35 M in 2.47 s on 14 cores, coarse cubes, no "
       "smoothing); vs splash = our particles/s per core / theirs\n\n",
       kSplashsurfParticlesPerCoreSecond * 1e-6);
+  return ok;
+}
 
-  // Droplets: balls of radius 2-6 d of jittered lattice particles (spacing d, jitter +-d/6), 12 d apart on a
-  // 5 x 5 x 5 grid (seed 3).
-  std::vector<Vec3> droplet_particles(double d) {
-    std::mt19937 rng(3);
-    std::uniform_real_distribution<double> u(0.0, 1.0);
-    std::vector<Vec3> p;
-    for (int k = 0; k < 125; ++k) {
-      const Vec3 c = Vec3(k % 5, (k / 5) % 5, k / 25) * 16.0 * d;
-      const double radius = d * (2.0 + 4.0 * u(rng));
-      const int n = static_cast<int>(radius / d);
-      for (int z = -n; z <= n; ++z)
-        for (int y = -n; y <= n; ++y)
-          for (int x = -n; x <= n; ++x) {
-            const double jx = u(rng), jy = u(rng), jz = u(rng);
-            const Vec3 q = c + Vec3(x, y, z) * d + (Vec3(jx, jy, jz) - Vec3::Constant(0.5)) * (d / 3);
-            if ((q - c).norm() <= radius) p.push_back(q);
-          }
-    }
-    return p;
+// Droplets: balls of radius 2-6 d of jittered lattice particles (spacing d, jitter +-d/6), 12 d apart on a
+// 5 x 5 x 5 grid (seed 3).
+std::vector<Vec3> droplet_particles(double d) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::vector<Vec3> p;
+  for (int k = 0; k < 125; ++k) {
+    const Vec3 c = Vec3(k % 5, (k / 5) % 5, k / 25) * 16.0 * d;
+    const double radius = d * (2.0 + 4.0 * u(rng));
+    const int n = static_cast<int>(radius / d);
+    for (int z = -n; z <= n; ++z)
+      for (int y = -n; y <= n; ++y)
+        for (int x = -n; x <= n; ++x) {
+          const double jx = u(rng), jy = u(rng), jz = u(rng);
+          const Vec3 q = c + Vec3(x, y, z) * d + (Vec3(jx, jy, jz) - Vec3::Constant(0.5)) * (d / 3);
+          if ((q - c).norm() <= radius) p.push_back(q);
+        }
   }
+  return p;
+}
 
-  // --section decimate: the block and the droplets surfaced (min_angle_degrees = the decimation's 10), then decimated
-  // at TOL = 0.1 r_inner under the particle band rule; prints the triangle ratio, min angle, faithful fraction,
-  // closed/manifold and the seconds of surfacing and decimation (one run each, max threads).
-  bool bench_decimate(const Config& cfg) {
-    bool ok = true;
-    const int threads = *std::max_element(cfg.threads.begin(), cfg.threads.end());
-    struct Named {
-      const char* name;
-      std::vector<Vec3> particles;
-    };
-    const Named sets[] = {{"block", lattice(block_dims(cfg.particles), kBlockSpacing, 0.1 * kBlockSpacing, 7)},
-                          {"droplets", droplet_particles(kBlockSpacing)}};
-    std::printf("decimate: TOL = 0.1 r_inner, r_inner 0.6 d, d %.3g, %d threads for the surfacing\n", kBlockSpacing,
-                threads);
-    for (const Named& set : sets) {
-      ParticleSurfacingOptions options;
-      options.r_inner = 0.6 * kBlockSpacing;
-      options.threads = threads;
-      options.min_angle_degrees = DecimateOptions{}.min_angle_degrees;
-      ParticleSurfacingStats stats;
-      const auto t0 = std::chrono::steady_clock::now();
-      const Mesh mesh = surface_particles(set.particles, {}, options, {}, &stats);
-      const double surfacing = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      const SurfacePointRule rule = particle_band_rule(set.particles, {}, stats.r_inner, stats.r_outer);
-      DecimateStats dstats;
-      const Mesh out = decimate(mesh, {.tolerance = 0.1 * stats.r_inner}, rule, {}, &dstats);
-      std::size_t faithful = 0;
-      for (const Vec3& v : out.vertices) faithful += rule(v) ? 1 : 0;
-      const MeshReport before = check_mesh(mesh), after = check_mesh(out);
-      const bool closed = after.closed && after.edge_manifold && after.vertex_manifold && after.oriented;
-      ok = ok && closed && faithful == out.vertices.size();
-      std::printf(
-          "  %-8s %zu particles: %zu -> %zu triangles (%.2fx), min angle %.2f -> %.2f deg, faithful %.4f %%, closed "
-          "manifold %s; surfacing %.3f s, decimate %.3f s\n",
-          set.name, set.particles.size(), mesh.triangles.size(), out.triangles.size(),
-          static_cast<double>(mesh.triangles.size()) /
-              static_cast<double>(std::max<std::size_t>(1, out.triangles.size())),
-          before.min_angle_degrees, after.min_angle_degrees,
-          100.0 * static_cast<double>(faithful) / static_cast<double>(std::max<std::size_t>(1, out.vertices.size())),
-          closed ? "yes" : "NO", surfacing, dstats.seconds);
-      std::fflush(stdout);
-    }
-    std::printf("\n");
-    return ok;
+// --section decimate: the block and the droplets surfaced (min_angle_degrees = the decimation's 10), then decimated
+// at TOL = 0.1 r_inner under the particle band rule; prints the triangle ratio, min angle, faithful fraction,
+// closed/manifold and the seconds of surfacing and decimation (one run each, max threads).
+bool bench_decimate(const Config& cfg) {
+  bool ok = true;
+  const int threads = *std::max_element(cfg.threads.begin(), cfg.threads.end());
+  struct Named {
+    const char* name;
+    std::vector<Vec3> particles;
+  };
+  const Named sets[] = {{"block", lattice(block_dims(cfg.particles), kBlockSpacing, 0.1 * kBlockSpacing, 7)},
+                        {"droplets", droplet_particles(kBlockSpacing)}};
+  std::printf("decimate: TOL = 0.1 r_inner, r_inner 0.6 d, d %.3g, %d threads for the surfacing\n", kBlockSpacing,
+              threads);
+  for (const Named& set : sets) {
+    ParticleSurfacingOptions options;
+    options.r_inner = 0.6 * kBlockSpacing;
+    options.threads = threads;
+    options.min_angle_degrees = DecimateOptions{}.min_angle_degrees;
+    ParticleSurfacingStats stats;
+    const auto t0 = std::chrono::steady_clock::now();
+    const Mesh mesh = surface_particles(set.particles, {}, options, {}, &stats);
+    const double surfacing = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const SurfacePointRule rule = particle_band_rule(set.particles, {}, stats.r_inner, stats.r_outer);
+    DecimateStats dstats;
+    const Mesh out = decimate(mesh, {.tolerance = 0.1 * stats.r_inner}, rule, {}, &dstats);
+    std::size_t faithful = 0;
+    for (const Vec3& v : out.vertices) faithful += rule(v) ? 1 : 0;
+    const MeshReport before = check_mesh(mesh), after = check_mesh(out);
+    const bool closed = after.closed && after.edge_manifold && after.vertex_manifold && after.oriented;
+    ok = ok && closed && faithful == out.vertices.size();
+    std::printf(
+        "  %-8s %zu particles: %zu -> %zu triangles (%.2fx), min angle %.2f -> %.2f deg, faithful %.4f %%, closed "
+        "manifold %s; surfacing %.3f s, decimate %.3f s\n",
+        set.name, set.particles.size(), mesh.triangles.size(), out.triangles.size(),
+        static_cast<double>(mesh.triangles.size()) /
+            static_cast<double>(std::max<std::size_t>(1, out.triangles.size())),
+        before.min_angle_degrees, after.min_angle_degrees,
+        100.0 * static_cast<double>(faithful) / static_cast<double>(std::max<std::size_t>(1, out.vertices.size())),
+        closed ? "yes" : "NO", surfacing, dstats.seconds);
+    std::fflush(stdout);
   }
+  std::printf("\n");
+  return ok;
+}
 
-  constexpr const char* kUsage =
-      "usage: particles_bench [--particles N] [--repeat R] [--vdb-repeat R]\n"
-      "                       [--section block|flatness|scale|decimate] [--threads T] [--flatness-sweeps N]\n"
-      "                       [--scale-sizes M,M,...] [--write DIR]\n";
+constexpr const char* kUsage =
+    "usage: particles_bench [--particles N] [--repeat R] [--vdb-repeat R]\n"
+    "                       [--section block|flatness|scale|decimate] [--threads T] [--flatness-sweeps N]\n"
+    "                       [--scale-sizes M,M,...] [--write DIR]\n";
 
 }  // namespace
 }  // namespace surfacer
