@@ -684,7 +684,8 @@ class FrameStream {
   static constexpr std::size_t kProgressQueued = 256;
 
   // `progress` (None or a callable(frame, stage, fraction)) is called on the iterating thread, from next(), with
-  // every Progress event received since the previous call: it runs only while the frames are iterated.
+  // every Progress event received since the previous call (it runs only while the frames are iterated), and once
+  // more with stage "done" and fraction 1 when the job succeeded.
   FrameStream(std::shared_ptr<Connection> connection, std::string job_id, int from_frame, bool owns_job,
               py::object progress)
       : connection_(std::move(connection)),
@@ -824,6 +825,11 @@ class FrameStream {
     const std::string reason = job_error_text(job);
     switch (job.state()) {
       case v1::JOB_STATE_SUCCEEDED:
+        // A job may finish before its stream sent any progress: the callable always hears the end, once.
+        if (!progress_callable_.is_none() && !progress_done_) {
+          progress_done_ = true;
+          progress_callable_(std::max(0, job.frames_total() - 1), "done", 1.0);
+        }
         throw py::stop_iteration();
       case v1::JOB_STATE_CANCELLED:
         throw CliError(ExitCode::kCancelled,
@@ -880,6 +886,7 @@ class FrameStream {
   std::deque<DecodedFrame> queue_;
   std::deque<v1::Progress> progress_queue_;
   py::object progress_callable_;
+  bool progress_done_ = false;  // the final ("done", 1.0) call was made
   bool started_ = false;
   bool closed_ = false;
   bool finished_ = false;

@@ -12,7 +12,8 @@ underscores (``--r-inner`` is ``r_inner=``); an option left out (or None) takes 
 unknown keyword is a TypeError. The package's type stubs (``__init__.pyi``) list every keyword of every job method
 with its type. Every job method also takes ``progress=``, a callable ``progress(frame, stage, fraction)`` called
 with each progress event of the job (frame index, stage name such as "polygonize", fraction of the whole job in
-0..1) while its frames are iterated, from the iterating thread; an exception it raises ends the iteration.
+0..1) while its frames are iterated, from the iterating thread, and once more as ``progress(last frame, "done", 1.0)``
+when the job succeeded (a fast job may send no other event); an exception it raises ends the iteration.
 """
 
 import os

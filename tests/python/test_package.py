@@ -62,7 +62,9 @@ def test_progress_callable_sees_every_frame_in_order(local_client):
     scenes = [sphere_scene(0.5 + 0.1 * k) for k in range(3)]
     events = []
     frames = list(local_client.isosurface(scenes, cells=24, progress=lambda f, s, x: events.append((f, s, x))))
-    assert len(frames) == 3 and events
+    assert len(frames) == 3
+    assert events[-1] == (2, "done", 1.0)  # the end, heard once, even when the job outran its stream
+    assert sum(1 for e in events if e[1] == "done") == 1
     for frame, stage, fraction in events:
         assert 0 <= frame < 3 and isinstance(stage, str) and stage and 0.0 <= fraction <= 1.0
     fractions = [x for _, _, x in events]
@@ -94,7 +96,7 @@ def test_pip_installs_offline_into_a_fresh_venv_and_runs_a_job(tmp_path):
         "assert os.path.realpath(surfacer.__file__).startswith(os.path.realpath(%r)), surfacer.__file__\n"
         "stages = []\n"
         "frames = list(surfacer.Client().isosurface(%r, cells=20, progress=lambda f, s, x: stages.append(s)))\n"
-        "assert len(frames) == 1 and len(frames[0].triangles) > 0 and stages\n"
+        "assert len(frames) == 1 and len(frames[0].triangles) > 0 and stages[-1] == 'done'\n"
         "print(len(frames[0].triangles))\n" % (str(venv), str(SCENES / "torus.json")))
     run = subprocess.run([str(python), "-c", script], cwd=tmp_path, env=env, capture_output=True, text=True,
                          timeout=120)
