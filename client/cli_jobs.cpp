@@ -233,25 +233,7 @@ void add_job_common_flags(CLI::App* app, JobOptions& job) {
       ->excludes(encoding);
   app->add_flag_callback(
       "--normals", [&job] { job.spec.mutable_output()->set_normals(true); }, "per-vertex normals in every frame");
-  app->add_option_function<int>(
-         "--quantization-bits",
-         [&job](int bits) {
-           job.spec.mutable_output()->set_quantization_bits(bits);
-           job.names["spec.output.quantization_bits"] = "--quantization-bits";
-         },
-         "position quantization of Draco and meshopt frames, in bits (default " +
-             std::to_string(DracoOptions{}.quantization_bits) + ")")
-      ->type_name("B");
-  app->add_option_function<double>(
-         "--decimate",
-         [&job](double tolerance) {
-           job.spec.mutable_output()->set_decimate(tolerance);
-           job.names["spec.output.decimate"] = "--decimate";
-         },
-         "error-bounded level of detail: fewer triangles, every original vertex within TOL (a length in scene units) "
-         "of the result, kept vertices where the engine put them (particle frames stay faithful), no new angle below " +
-             format_number(DecimateOptions{}.min_angle_degrees) + " degrees (default 0: off)")
-      ->type_name("TOL");
+  add_table_flags(app, JobTable::kOutput, job);  // --quantization-bits, --quantization-bounds, --decimate
 }
 
 void add_job_types(CLI::App* parent, const std::string& verb, JobFlags& flags, OutputFlags* output) {

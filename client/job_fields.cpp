@@ -10,6 +10,8 @@
 
 #include "client/exit_codes.h"
 #include "core/active/active_surface.h"
+#include "core/mesh/decimate.h"
+#include "core/mesh/mesh_codec.h"
 #include "core/optimize/mesh_optimizer.h"
 #include "core/particles/particle_surfacer.h"
 #include "core/polygonize/polygonize.h"
@@ -46,6 +48,28 @@ std::vector<JobField> isosurface_fields() {
        .help = "polygonizer: tiles (Marching Tiles, every vertex of valence >= 5) or cubes (Marching Cubes)",
        .value_name = "NAME",
        .default_value = [=] { return std::string(polygonizer_name(defaults.method)); }},
+  };
+}
+
+std::vector<JobField> output_fields() {
+  const DracoOptions draco;
+  return {
+      {.path = "quantization_bits",
+       .help = "position quantization of Draco and meshopt frames, in bits",
+       .value_name = "B",
+       .default_value = [=] { return whole(draco.quantization_bits); }},
+      {.path = "quantization_bounds",
+       .help = "the box every frame's positions are quantized on: x0,y0,z0,x1,y1,z1 (default: the job's bounds); give "
+               "the whole sequence's box to make frames surfaced in parts (a Slurm array, Kubernetes pods) identical "
+               "to one run's",
+       .value_name = "BOX"},
+      {.path = "decimate",
+       .help = "error-bounded level of detail: fewer triangles, every original vertex within TOL (a length in scene "
+               "units) of the result, kept vertices where the engine put them (particle frames stay faithful), no "
+               "new angle below " +
+               number(DecimateOptions{}.min_angle_degrees) + " degrees",
+       .value_name = "TOL",
+       .default_value = [] { return std::string("0: off"); }},
   };
 }
 
@@ -470,6 +494,7 @@ const std::vector<JobField>& job_fields(JobTable table) {
   static const std::vector<JobField> coat = coat_fields();
   static const std::vector<JobField> morph = morph_fields();
   static const std::vector<JobField> advect = advect_fields();
+  static const std::vector<JobField> output = output_fields();
   switch (table) {
     case JobTable::kIsosurface:
       return isosurface;
@@ -485,6 +510,8 @@ const std::vector<JobField>& job_fields(JobTable table) {
       return morph;
     case JobTable::kAdvect:
       return advect;
+    case JobTable::kOutput:
+      return output;
   }
   return isosurface;
 }
@@ -507,6 +534,8 @@ std::string table_path(JobTable table) {
       return "spec.active.morph";
     case JobTable::kAdvect:
       return "spec.active.advect";
+    case JobTable::kOutput:
+      return "spec.output";
   }
   return "spec";
 }
@@ -527,6 +556,8 @@ google::protobuf::Message& table_message(v1::JobSpec& spec, JobTable table) {
       return *spec.mutable_active()->mutable_morph();
     case JobTable::kAdvect:
       return *spec.mutable_active()->mutable_advect();
+    case JobTable::kOutput:
+      return *spec.mutable_output();
   }
   return spec;
 }
@@ -655,7 +686,7 @@ std::string name_of_field(const std::map<std::string, std::string>& names, const
     path.resize(cut);
   }
   for (JobTable table : {JobTable::kCoat, JobTable::kMorph, JobTable::kAdvect, JobTable::kIsosurface,
-                         JobTable::kParticles, JobTable::kOptimize, JobTable::kActive}) {
+                         JobTable::kParticles, JobTable::kOptimize, JobTable::kActive, JobTable::kOutput}) {
     const std::string base = table_path(table) + ".";
     if (!request_path.starts_with(base)) continue;
     // Fields first, then the shorthands that set them.

@@ -31,8 +31,8 @@ class JobSpec;
 namespace surfacer::client {
 
 // The job messages with options, as the CLI's subcommands name them; the active job's common fields (kActive) sit
-// beside the fields of its mode.
-enum class JobTable { kIsosurface, kParticles, kOptimize, kActive, kCoat, kMorph, kAdvect };
+// beside the fields of its mode; kOutput is spec.output (surfacer.v1.OutputOptions), every job type's.
+enum class JobTable { kIsosurface, kParticles, kOptimize, kActive, kCoat, kMorph, kAdvect, kOutput };
 
 struct JobField {
   // The field below the table's message ("r_inner", "polygonize.cells"); for a shorthand, its own name.

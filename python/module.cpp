@@ -336,23 +336,15 @@ struct Inputs {
   }
 };
 
-// name, encoding, normals, quantization_bits, decimate: every job type's output options.
+// name, encoding, normals, and the output table (quantization_bits, quantization_bounds, decimate): every job type's
+// output options.
 void add_common(Setters& s, JobOptions& job) {
   s["name"] = {[&job](py::handle v, const std::string&) { job.name = v.cast<std::string>(); }, "str"};
   s["encoding"] = {[&job](py::handle v, const std::string& name) { set_encoding(job, v.cast<std::string>(), name); },
                    "Literal[\"draco\", \"meshopt\", \"raw\"]"};
   s["normals"] = {[&job](py::handle v, const std::string&) { job.spec.mutable_output()->set_normals(v.cast<bool>()); },
                   "bool"};
-  s["quantization_bits"] = {[&job](py::handle v, const std::string& name) {
-                              job.spec.mutable_output()->set_quantization_bits(v.cast<int>());
-                              job.names["spec.output.quantization_bits"] = name;
-                            },
-                            "int"};
-  s["decimate"] = {[&job](py::handle v, const std::string& name) {
-                     job.spec.mutable_output()->set_decimate(v.cast<double>());
-                     job.names["spec.output.decimate"] = name;
-                   },
-                   "float"};
+  add_table(s, job, JobTable::kOutput);  // quantization_bits, quantization_bounds, decimate
 }
 
 void add_particle_range(Setters& s, ParticleInputOptions& input) {

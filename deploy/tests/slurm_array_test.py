@@ -9,8 +9,9 @@ Exit status: 0 passed, 1 failed, 77 skipped (not root, or the Slurm daemons coul
 scripts/setup.sh installs slurm-wlm and munge; the reason and the daemons' logs are printed).
 
 The sequence is the Indexed Job test's: five particle frames numbered 10..14, here split by FRAMES_PER_TASK=2 into an
-array of three tasks (10-11, 12-13, 14). Frames travel raw (lossless PLY): Draco and meshopt frames are quantized on
-one grid per job, the union of its frames' boxes, which differs between a task's range and the whole sequence.
+array of three tasks (10-11, 12-13, 14). Frames are the default Draco .drc files: each task quantizes them on the box
+given by --quantization-bounds (the whole sequence's particles padded by more than r_outer), so every task's frames
+are the whole run's bit for bit. (Without it each task's grid would be its own range's box, one quantization step off.)
 """
 import os
 import shutil
@@ -25,8 +26,16 @@ from indexed_job_test import FIRST, TOTAL, write_frames  # noqa: E402  (the same
 
 PER_TASK = 2
 R_INNER = "0.06"
-FORMAT_ARGS = ["--encoding", "raw", "--format", "ply"]
 SKIP = 77
+
+
+def sequence_box(inputs: Path, pad: float) -> str:
+    """The box of every particle of the sequence, padded by `pad`, as --quantization-bounds takes it."""
+    points = [tuple(float(v) for v in line.split()) for p in sorted(inputs.glob("drop_*.xyz"))
+              for line in p.read_text().splitlines() if line.strip()]
+    lo = [min(p[a] for p in points) - pad for a in range(3)]
+    hi = [max(p[a] for p in points) + pad for a in range(3)]
+    return ",".join(f"{v:.6f}" for v in lo + hi)
 
 
 def frames_in(directory: Path) -> dict[str, bytes]:
@@ -60,6 +69,7 @@ def main() -> int:
         cluster, inputs, out, ref = tmp / "cluster", tmp / "input", tmp / "out", tmp / "ref"
         inputs.mkdir()
         write_frames(inputs)
+        format_args = ["--quantization-bounds", sequence_box(inputs, 4 * float(R_INNER)), "--format", "drc"]
         started = subprocess.run([local_slurm, "start", str(cluster)], capture_output=True, text=True, timeout=90)
         if started.returncode != 0:
             subprocess.run([local_slurm, "stop", str(cluster)], timeout=60)
@@ -78,7 +88,7 @@ def main() -> int:
                 "FRAMES_PER_TASK": str(PER_TASK),
                 "R_INNER": R_INNER,
                 "OUT_DIR": str(out),
-                "SURFACER_ARGS": " ".join(FORMAT_ARGS),
+                "SURFACER_ARGS": " ".join(format_args),
             }
             # The cluster's node may be small: one core and a little memory per task, so the three tasks run at once
             # on two cores or queue on one. --wait returns when every task has ended, with the highest exit status.
@@ -94,11 +104,11 @@ def main() -> int:
 
             local = subprocess.run([cli, "--local", "--workers", "2", "run", "particles", "--input",
                                     env["INPUT_PATTERN"], "--start", str(FIRST), "--end", str(FIRST + TOTAL - 1),
-                                    "--r-inner", R_INNER, "-o", str(ref), *FORMAT_ARGS],
+                                    "--r-inner", R_INNER, "-o", str(ref), *format_args],
                                    cwd=tmp, capture_output=True, text=True, timeout=120)
             expect(local.returncode == 0, f"the local run exited {local.returncode}:\n{local.stderr}")
             expected = frames_in(ref) if ref.exists() else {}
-            expect(sorted(expected) == [f"frame_{k:04d}.ply" for k in range(FIRST, FIRST + TOTAL)],
+            expect(sorted(expected) == [f"frame_{k:04d}.drc" for k in range(FIRST, FIRST + TOTAL)],
                    f"the local run wrote {sorted(expected)}")
             written = frames_in(out) if out.exists() else {}
             expect(sorted(written) == sorted(expected),
@@ -115,7 +125,7 @@ def main() -> int:
             # it redoes frames 12-13 and publishes the same bytes; the other tasks' frames are untouched.
             stale = out / ".part-1"
             stale.mkdir(parents=True, exist_ok=True)
-            (stale / "frame_0012.ply").write_text("half a frame from a killed attempt")
+            (stale / "frame_0012.drc").write_text("half a frame from a killed attempt")
             before = {name: (out / name).stat().st_mtime_ns for name in written}
             retry = subprocess.run(["sbatch", "--array=1", *small, sbatch_script],
                                    env=dict(env, SURFACER_ENTRY=os.path.join(deploy, "indexed-job-entry.sh")),
@@ -125,7 +135,7 @@ def main() -> int:
             expect(again == written, "the retried task changed the frames: "
                    f"{sorted(k for k in set(again) | set(written) if again.get(k) != written.get(k))}")
             rewritten = sorted(n for n in again if (out / n).stat().st_mtime_ns != before.get(n))
-            expect(rewritten == ["frame_0012.ply", "frame_0013.ply"],
+            expect(rewritten == ["frame_0012.drc", "frame_0013.drc"],
                    f"the retried task 1 rewrote {rewritten}, expected its own frames 12-13")
             expect(not stale.exists(), "the retried task left its part directory behind")
         finally:

@@ -32,6 +32,9 @@ CASES = [
     ("optimize", {"c_d": 1.5}, ["--c-d", "1.5"], {"optimize": {"cD": 1.5}}, "spec.optimize.c_d (1.5)"),
     ("isosurface", {"decimate": -0.5}, ["--decimate", "-0.5"], {"isosurface": {}, "output": {"decimate": -0.5}},
      "spec.output.decimate (-0.5) must be a finite length >= 0"),
+    ("isosurface", {"quantization_bounds": (1, 0, 0, 0, 1, 1)}, ["--quantization-bounds", "1,0,0,0,1,1"],
+     {"isosurface": {}, "output": {"quantizationBounds": {"min": {"x": 1}, "max": {"y": 1, "z": 1}}}},
+     "spec.output.quantization_bounds.min.x (1) must be < spec.output.quantization_bounds.max.x (0)"),
 ]
 
 
