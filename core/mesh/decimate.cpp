@@ -98,17 +98,6 @@ class CancelObserver : public OpenMesh::Decimater::Observer {
 
 }  // namespace
 
-void validate(const DecimateOptions& options) {
-  if (!std::isfinite(options.tolerance) || options.tolerance < 0.0) {
-    throw InvalidInput("tolerance", "tolerance (" + format_number(options.tolerance) +
-                                        ") must be a finite length >= 0 in scene units (0: no decimation)");
-  }
-  if (!(options.min_angle_degrees >= 0.0 && options.min_angle_degrees <= 30.0)) {
-    throw InvalidInput("min_angle_degrees",
-                       "min_angle_degrees (" + format_number(options.min_angle_degrees) + ") must be in [0, 30]");
-  }
-}
-
 Mesh decimate(const Mesh& mesh, const DecimateOptions& options, const SurfacePointRule& acceptable,
               const RunControl& control, DecimateStats* stats) {
   validate(options);
