@@ -33,9 +33,11 @@ constexpr int kVtkPolygon = 7;
 constexpr int kVtkQuad = 9;
 
 // One list of cells as a file stores it: cell c's point ids are connectivity[offsets[c] .. offsets[c + 1]) (offsets
-// start at 0), its VTK type types[c], or `type` for every cell when there are no types (legacy POLYGONS, XML Polys).
+// start at 0), its VTK type types[c] when the list is `typed` (legacy CELLS, XML Cells), else `type` for every cell
+// (legacy POLYGONS and TRIANGLE_STRIPS, XML Polys and Strips).
 struct CellList {
   std::vector<double> offsets, connectivity, types;
+  bool typed = false;
   int type = kVtkPolygon;
   std::int64_t first_point = 0;  // of the piece: ids are the piece's own
 };
@@ -59,9 +61,10 @@ void split_cell_list(const std::vector<double>& list, std::int64_t n, CellList& 
 
 // Appends the triangles of `cells` (of a piece of `points` points) to `out`: polygons, quads and triangles fanned from
 // their first point, strips split with every other triangle turned so that all keep the strip's side; other cell types
-// are skipped.
+// are skipped, and so is a typed list without its types (their kinds are unknown; the points are still read).
 void append_triangles(const CellList& cells, std::int64_t points, std::vector<Triangle>& out, const std::string& name,
                       const std::string& where) {
+  if (cells.typed && cells.types.empty()) return;
   const std::size_t n = cells.offsets.empty() ? 0 : cells.offsets.size() - 1;
   if (!cells.types.empty() && cells.types.size() != n) {
     fail(name, where,
@@ -152,6 +155,7 @@ class LegacyReader {
         // Surface cells are kept (ParticleFrame::triangles); vertices and lines are read past.
         const bool keep = surface_cells_ && (key == "POLYGONS" || key == "TRIANGLE_STRIPS" || key == "CELLS");
         CellList cells;
+        cells.typed = key == "CELLS";
         cells.type = key == "TRIANGLE_STRIPS" ? kVtkTriangleStrip : kVtkPolygon;
         const std::size_t save_pos = c_.pos, save_line = c_.line;
         const std::optional<std::string_view> next = c_.next();
@@ -166,10 +170,13 @@ class LegacyReader {
           read_values(size, 1, Scalar::kI32, key, keep ? &values : nullptr);
           if (keep) split_cell_list(values, n, cells, name_, where(at));
         }
-        if (keep) (key == "CELLS" ? unstructured_ : cell_lists_).push_back(std::move(cells));
+        if (keep) cell_lists_.push_back(std::move(cells));
       } else if (key == "CELL_TYPES") {
         const std::int64_t n = c_.count("cell count");
-        std::vector<double>* types = unstructured_.empty() ? nullptr : &unstructured_.back().types;
+        // The types of the last CELLS read (none when reading points only).
+        const auto cells =
+            std::find_if(cell_lists_.rbegin(), cell_lists_.rend(), [](const CellList& c) { return c.typed; });
+        std::vector<double>* types = cells == cell_lists_.rend() ? nullptr : &cells->types;
         read_values(n, 1, Scalar::kI32, "CELL_TYPES", types);
       } else if (key == "POINT_DATA" || key == "CELL_DATA") {
         point_data = key == "POINT_DATA";
@@ -266,13 +273,7 @@ class LegacyReader {
     }
     // Arrays of another length (a FIELD before the POINTS that turned out not to be per point) are no attributes.
     std::erase_if(frame.attributes, [&](const Attribute& a) { return a.count() != static_cast<std::size_t>(points); });
-    for (const std::vector<CellList>* lists : {&cell_lists_, &unstructured_}) {
-      for (const CellList& cells : *lists) {
-        // CELLS without CELL_TYPES: their kinds are unknown, so they make no triangles (points are still read).
-        if (lists == &unstructured_ && cells.types.empty()) continue;
-        append_triangles(cells, points, frame.triangles, name_, where(c_.pos));
-      }
-    }
+    for (const CellList& cells : cell_lists_) append_triangles(cells, points, frame.triangles, name_, where(c_.pos));
     return std::move(frame);
   }
 
@@ -348,8 +349,7 @@ class LegacyReader {
   const std::string& name_;
   bool binary_ = false;
   const bool surface_cells_;
-  std::vector<CellList> cell_lists_;    // POLYGONS and TRIANGLE_STRIPS
-  std::vector<CellList> unstructured_;  // CELLS, with their CELL_TYPES
+  std::vector<CellList> cell_lists_;  // POLYGONS, TRIANGLE_STRIPS and CELLS (with their CELL_TYPES)
 };
 
 // --- XML (.vtu) --------------------------------------------------------------------------------------------------
@@ -398,7 +398,7 @@ class XmlReader {
     std::int64_t piece_points = -1;  // -1 outside a <Piece>
     std::int64_t piece_points_read = 0;
     std::int64_t points_before = 0;  // of the pieces before this one
-    // Per piece, its Polys, Strips and Cells (the index of each in cell_lists_, or -1 when it has none).
+    // Per piece, its Polys, Strips and Cells that have arrays: the index of each in cell_lists_.
     std::map<std::string_view, int> piece_lists;
     std::map<std::string_view, std::int64_t> piece_cells;
     bool piece_radius = false;
@@ -489,12 +489,13 @@ class XmlReader {
         if (which == "connectivity" || which == "offsets" || (which == "types" && section == "Cells")) {
           auto [list, fresh] = piece_lists.try_emplace(section, static_cast<int>(cell_lists_.size()));
           if (fresh) {
-            cell_lists_.push_back(CellList{});
-            cell_lists_.back().type = section == "Strips" ? kVtkTriangleStrip : kVtkPolygon;
-            cell_lists_.back().first_point = points_before;
-            cell_points_.push_back(piece_points);
-            cell_counts_.push_back(piece_cells[section]);
-            cell_sections_.push_back(section);
+            PieceCells piece;
+            piece.cells.typed = section == "Cells";
+            piece.cells.type = section == "Strips" ? kVtkTriangleStrip : kVtkPolygon;
+            piece.cells.first_point = points_before;
+            piece.points = piece_points;
+            piece.declared = piece_cells[section];
+            cell_lists_.push_back(std::move(piece));
           }
           ArrayRef array;
           array.tag = *tag;
@@ -558,7 +559,7 @@ class XmlReader {
     for (const std::string_view which : {"offsets", "connectivity", "types"}) {
       for (ArrayRef& array : arrays) {
         if (array.cell_array != which) continue;
-        CellList& cells = cell_lists_[static_cast<std::size_t>(array.cell_list)];
+        CellList& cells = cell_lists_[static_cast<std::size_t>(array.cell_list)].cells;
         if (which == "connectivity") {
           const double last = cells.offsets.size() > 1 ? cells.offsets.back() : 0.0;
           // (the decoder checks the count against the bytes present; this keeps it an integer it can multiply)
@@ -576,15 +577,12 @@ class XmlReader {
         }
       }
     }
-    for (std::size_t k = 0; k < cell_lists_.size(); ++k) {
-      const CellList& cells = cell_lists_[k];
-      if (cell_counts_[k] > 0 && cells.offsets.size() != static_cast<std::size_t>(cell_counts_[k]) + 1) {
+    for (const PieceCells& piece : cell_lists_) {
+      if (piece.declared > 0 && piece.cells.offsets.size() != static_cast<std::size_t>(piece.declared) + 1) {
         fail(name_, where(text_.size()),
-             "a piece declares " + std::to_string(cell_counts_[k]) + " cells without their offsets array");
+             "a piece declares " + std::to_string(piece.declared) + " cells without their offsets array");
       }
-      // Cells without types: their kinds are unknown, so they make no triangles (points are still read).
-      if (cell_sections_[k] == "Cells" && cells.types.empty()) continue;
-      append_triangles(cells, cell_points_[k], frame.triangles, name_, where(text_.size()));
+      append_triangles(piece.cells, piece.points, frame.triangles, name_, where(text_.size()));
     }
     for (ArrayRef& array : arrays) {
       if (array.cell_list >= 0) continue;
@@ -1031,10 +1029,12 @@ class XmlReader {
   std::optional<std::size_t> appended_at_;  // first byte after <AppendedData ...> _
   bool appended_base64_ = false;
   const bool surface_cells_;
-  // The pieces' cell lists, with each one's piece's points, declared cells and section (Cells, Polys or Strips).
-  std::vector<CellList> cell_lists_;
-  std::vector<std::int64_t> cell_points_, cell_counts_;
-  std::vector<std::string_view> cell_sections_;
+  // One cell list (Cells, Polys or Strips) of a piece, with the piece's points and the cells it declares.
+  struct PieceCells {
+    CellList cells;
+    std::int64_t points = 0, declared = 0;
+  };
+  std::vector<PieceCells> cell_lists_;
 };
 
 }  // namespace
