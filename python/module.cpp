@@ -886,12 +886,6 @@ class FrameStream {
   std::exception_ptr error_;
 };
 
-std::string lower_extension(const std::string& path) {
-  std::string extension = std::filesystem::path(path).extension().string();
-  for (char& c : extension) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return extension;
-}
-
 // Whether `path` names an OpenVDB file (.vdb, any case): the client's reader and writer, not core's.
 bool is_vdb(const std::string& path) { return lower_extension(path) == ".vdb"; }
 

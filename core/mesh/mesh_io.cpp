@@ -298,16 +298,12 @@ void check_mesh_writable(const Mesh& mesh, std::string_view format) {
   }
 }
 
-namespace {
-
 std::string lower_extension(const std::filesystem::path& path) {
   std::string ext = path.extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(),
                  [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
   return ext;
 }
-
-}  // namespace
 
 MeshFormat mesh_format_from_path(const std::filesystem::path& path) {
   const std::string ext = lower_extension(path);

@@ -15,6 +15,10 @@ namespace surfacer {
 
 enum class MeshFormat { kPly, kObj, kDraco, kGlb, kGltf };
 
+// The file name's extension in lower case, with its dot (".ply"; "" without one): what the readers and writers choose
+// by.
+std::string lower_extension(const std::filesystem::path& path);
+
 // Format from the extension (.ply, .obj, .drc, .glb, .gltf); throws InvalidInput otherwise.
 MeshFormat mesh_format_from_path(const std::filesystem::path& path);
 
