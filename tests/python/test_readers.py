@@ -235,13 +235,13 @@ def test_frame_write_vdb_reads_back_as_the_frame(local_client, cells, voxel, tmp
         surfacer.read_mesh(tmp_path / "not.vdb")
 
 
-def vtk_sphere(strips=False):
+def vtk_sphere(strips=False, resolution=(24, 16)):
     """A closed triangulated sphere (VTK's own source) with point normals; optionally as triangle strips."""
     from vtkmodules.vtkFiltersCore import vtkStripper
     from vtkmodules.vtkFiltersSources import vtkSphereSource
     source = vtkSphereSource()
-    source.SetThetaResolution(24)
-    source.SetPhiResolution(16)
+    source.SetThetaResolution(resolution[0])
+    source.SetPhiResolution(resolution[1])
     source.SetRadius(0.7)
     source.SetCenter(0.2, -0.1, 0.3)
     source.Update()
@@ -293,7 +293,8 @@ def write_vtk_file(data, path, mode):
     (".vtp", "appended base64 zlib"), (".vtp", "appended raw lz4"), (".vtu", "appended base64 lzma"),
     (".vtu", "binary"), (".vtu", "ascii")])
 def test_read_mesh_takes_the_surfaces_vtk_writes_in_every_mode(suffix, mode, tmp_path):
-    sphere = vtk_sphere()
+    # 65 k triangles: compressed arrays span many of VTK's 32 KiB blocks.
+    sphere = vtk_sphere(resolution=(256, 128))
     path = tmp_path / ("sphere" + suffix)
     write_vtk_file(sphere, path, mode)
     mesh = surfacer.read_mesh(path)
