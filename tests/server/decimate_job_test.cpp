@@ -4,35 +4,26 @@
 
 #include <algorithm>
 #include <cmath>
-#include <random>
 
 #include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_checks.h"
 #include "tests/server/test_client.h"
 #include "tests/support/mesh_expectations.h"
+#include "tests/support/test_meshes.h"
 #include "wire/output.h"
 
 namespace surfacer::testing {
 namespace {
 
-// Particle ball of spacing d, jittered, as inline positions of `frame`; returns the particles.
+// Particle ball of spacing d, jittered (particle_ball), as inline float32 positions of `frame` with a density
+// attribute (attribute 0) that varies across the ball; returns the particles as stored.
 std::vector<Vec3> add_ball(v1::ParticleFrame& frame, double radius, double d, unsigned seed) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> jitter(-0.15 * d, 0.15 * d);
-  std::vector<Vec3> points;
-  const int n = static_cast<int>(std::ceil(radius / d));
-  for (int i = -n; i <= n; ++i)
-    for (int j = -n; j <= n; ++j)
-      for (int k = -n; k <= n; ++k) {
-        const Vec3 p = Vec3(i, j, k) * d;
-        if (p.norm() > radius) continue;
-        const Vec3 q = p + Vec3(jitter(rng), jitter(rng), jitter(rng));
-        const Vec3 stored = q.cast<float>().cast<double>();
-        points.push_back(stored);
-        for (int a = 0; a < 3; ++a) frame.add_positions(static_cast<float>(q[a]));
-        auto* density = frame.mutable_attributes(0);
-        density->add_values(static_cast<float>(1.0 + p.x()));
-      }
+  std::vector<Vec3> points = particle_ball(Vec3::Zero(), radius, d, seed);
+  for (Vec3& q : points) {
+    q = q.cast<float>().cast<double>();
+    for (int a = 0; a < 3; ++a) frame.add_positions(static_cast<float>(q[a]));
+    frame.mutable_attributes(0)->add_values(static_cast<float>(1.0 + q.x()));
+  }
   return points;
 }
 

@@ -3,7 +3,6 @@
 
 #include <Eigen/Geometry>
 #include <cmath>
-#include <random>
 
 #include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_checks.h"
@@ -25,21 +24,6 @@ std::string as_float32(const std::vector<Vec3>& points) {
     f[3 * i + 2] = static_cast<float>(points[i].z());
   }
   return bytes;
-}
-
-// A jittered ball of particles of spacing d, centred at c.
-std::vector<Vec3> particle_ball(const Vec3& c, double radius, double d, unsigned seed) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> jitter(-0.15 * d, 0.15 * d);
-  std::vector<Vec3> points;
-  const int n = static_cast<int>(std::ceil(radius / d));
-  for (int i = -n; i <= n; ++i)
-    for (int j = -n; j <= n; ++j)
-      for (int k = -n; k <= n; ++k) {
-        const Vec3 p = Vec3(i, j, k) * d;
-        if (p.norm() <= radius) points.push_back(c + p + Vec3(jitter(rng), jitter(rng), jitter(rng)));
-      }
-  return points;
 }
 
 TEST(ParticlesJob, EachFrameIsAClosedSurfaceFaithfulToItsParticles) {

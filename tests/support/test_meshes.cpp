@@ -5,6 +5,7 @@
 #include <limits>
 #include <map>
 #include <numbers>
+#include <random>
 #include <unordered_map>
 #include <utility>
 
@@ -394,6 +395,20 @@ std::string plain_glb(const Mesh& mesh, const std::string& nodes, const std::str
   json += R"(],"meshes":[{"primitives":[)" + primitives + R"(]}],"nodes":)" + nodes + R"(,"scenes":[{"nodes":)" +
           roots + R"(}],"scene":0})";
   return pack_glb(json, bin);
+}
+
+std::vector<Vec3> particle_ball(const Vec3& c, double radius, double d, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> jitter(-0.15 * d, 0.15 * d);
+  std::vector<Vec3> points;
+  const int n = static_cast<int>(std::ceil(radius / d));
+  for (int i = -n; i <= n; ++i)
+    for (int j = -n; j <= n; ++j)
+      for (int k = -n; k <= n; ++k) {
+        const Vec3 p = Vec3(i, j, k) * d;
+        if (p.norm() <= radius) points.push_back(c + p + Vec3(jitter(rng), jitter(rng), jitter(rng)));
+      }
+  return points;
 }
 
 }  // namespace surfacer::testing

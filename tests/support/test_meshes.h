@@ -67,6 +67,9 @@ std::optional<std::size_t> nearest_vertex(const Mesh& mesh, const Vec3& p);
 double nearest_point_distance(const std::vector<Vec3>& points, const Vec3& x);
 // Mean of the vertices (zero for none).
 Vec3 centroid(const Mesh& mesh);
+// Particles of a cubic lattice of spacing d within `radius` of c, each jittered uniformly by +-0.15 d per axis
+// (std::mt19937 seeded with `seed`): a droplet.
+std::vector<Vec3> particle_ball(const Vec3& c, double radius, double d, unsigned seed);
 
 // --- Exact volumes ---------------------------------------------------------------------------------------------
 
