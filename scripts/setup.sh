@@ -8,6 +8,7 @@ PACKAGES=(
   build-essential cmake ninja-build ccache pkg-config python3 python3-yaml openssl
   libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   grpc-proto  # grpc/health/v1/health.proto, generated into the client's health stub (proto/CMakeLists.txt)
+  prometheus-cpp-dev  # the server's metrics registry and text exposition (server/metrics.cpp)
   libeigen3-dev libopenmesh-dev libdraco-dev draco libmeshoptimizer-dev
   libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev zlib1g-dev libsqlite3-dev libssl-dev
   clang-14 libclang-rt-14-dev  # libFuzzer targets (scripts/fuzz.sh)

@@ -1,9 +1,18 @@
 #include "server/metrics.h"
 
+#include <prometheus/check_names.h>
+#include <prometheus/counter.h>
+#include <prometheus/family.h>
+#include <prometheus/gauge.h>
+#include <prometheus/histogram.h>
+#include <prometheus/registry.h>
+#include <prometheus/text_serializer.h>
+
 #include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <stdexcept>
+#include <type_traits>
 #include <utility>
 
 #include "core/util/format.h"
@@ -29,94 +38,66 @@ std::string escape(std::string_view text, bool quote) {
   return out;
 }
 
-const char* type_name(MetricType type) {
-  switch (type) {
-    case MetricType::kCounter:
-      return "counter";
-    case MetricType::kGauge:
-      return "gauge";
-    case MetricType::kHistogram:
-      return "histogram";
-  }
-  return "untyped";
+// A label value as it may reach prometheus-cpp, whose TextSerializer escapes \, " and newline but copies every other
+// byte: invalid UTF-8 bytes become U+FFFD, so the exposition stays valid UTF-8.
+std::string sanitize_label_value(std::string_view value) {
+  std::string out;
+  out.reserve(value.size());
+  append_utf8_escaped(out, value, [](std::string& o, char c) { o += c; });
+  return out;
 }
 
-// Appends `<name><suffix>{l1="v1",...,le="<le>"} <value>\n`.
-void append_sample(std::string& out, std::string_view name, std::string_view suffix,
-                   const std::vector<std::string>& label_names, std::span<const std::string> label_values,
-                   std::string_view le, std::string_view value) {
-  out += name;
-  out += suffix;
-  if (!label_names.empty() || !le.empty()) {
-    out += '{';
-    for (std::size_t i = 0; i < label_names.size(); ++i) {
-      if (i > 0) out += ',';
-      out += label_names[i];
-      out += "=\"";
-      out += escape_label_value(label_values[i]);
-      out += '"';
-    }
-    if (!le.empty()) {
-      if (!label_names.empty()) out += ',';
-      out += "le=\"";
-      out += le;
-      out += '"';
-    }
-    out += '}';
-  }
-  out += ' ';
-  out += value;
-  out += '\n';
+std::string joined(const std::vector<std::string>& parts) {
+  std::string out;
+  for (const std::string& part : parts) out += (out.empty() ? "" : ",") + part;
+  return out;
 }
 
 // A gauge family whose samples come from a callback at render time.
 class CallbackGaugeFamily final : public detail::FamilyBase {
  public:
-  CallbackGaugeFamily(std::string name, std::string help, MetricType type, std::vector<std::string> label_names,
+  CallbackGaugeFamily(std::string name, std::string help, std::vector<std::string> label_names,
                       std::function<std::vector<LabelledValue>()> sample)
-      : FamilyBase(std::move(name), std::move(help), type, std::move(label_names)), sample_(std::move(sample)) {}
+      : FamilyBase(std::move(name), std::move(help), prometheus::MetricType::Gauge, std::move(label_names)),
+        sample_(std::move(sample)) {}
 
  private:
-  void render_samples(std::string& out) const override {
-    std::vector<LabelledValue> values = sample_();
-    for (const LabelledValue& v : values) check_arity(v.label_values.size());
-    std::sort(values.begin(), values.end(), [](const LabelledValue& a, const LabelledValue& b) {
-      return detail::LabelsLess{}(a.label_values, b.label_values);
-    });
-    for (std::size_t i = 0; i < values.size(); ++i) {
-      if (i > 0 && values[i].label_values == values[i - 1].label_values) {
-        std::string tuple;
-        for (const std::string& value : values[i].label_values) tuple += (tuple.empty() ? "" : ",") + value;
-        throw std::invalid_argument("metric " + quote(name()) + ": the callback returned the label values {" + tuple +
-                                    "} more than once; return each tuple once");
+  std::vector<prometheus::ClientMetric> collect_samples() const override {
+    std::vector<prometheus::ClientMetric> samples;
+    for (const LabelledValue& value : sample_()) {
+      check_arity(value.label_values.size());
+      prometheus::ClientMetric& sample = samples.emplace_back();
+      for (std::size_t i = 0; i < value.label_values.size(); ++i) {
+        sample.label.push_back({label_names()[i], sanitize_label_value(value.label_values[i])});
       }
-      append_sample(out, name(), "", label_names(), values[i].label_values, "", format_metric_value(values[i].value));
+      sample.gauge.value = value.value;
     }
+    return samples;
   }
 
   std::function<std::vector<LabelledValue>()> sample_;
 };
 
-void validate_family(const std::string& name, const std::string& help, MetricType type,
+void validate_family(const std::string& name, const std::string& help, prometheus::MetricType type,
                      const std::vector<std::string>& label_names) {
-  if (!valid_metric_name(name)) {
+  if (!prometheus::CheckMetricName(name)) {
     throw std::invalid_argument("metric name " + quote(name) +
-                                " is invalid: use letters, digits, '_' and ':', not starting with a digit");
+                                " is invalid: use letters, digits, '_' and ':', not starting with a digit or '__'");
   }
   if (help.empty()) {
     throw std::invalid_argument("metric " + quote(name) + ": help text is empty; say what it measures");
   }
   for (std::size_t i = 0; i < label_names.size(); ++i) {
     const std::string& label = label_names[i];
-    if (!valid_label_name(label)) {
-      throw std::invalid_argument("metric " + quote(name) + ": label name " + quote(label) +
-                                  " is invalid: use letters, digits and '_', not starting with a digit");
-    }
     if (label.starts_with("__")) {
       throw std::invalid_argument("metric " + quote(name) + ": label name " + quote(label) +
                                   " starts with '__', which is reserved for Prometheus");
     }
-    if (type == MetricType::kHistogram && label == "le") {
+    if (!prometheus::CheckLabelName(label)) {
+      throw std::invalid_argument("metric " + quote(name) + ": label name " + quote(label) +
+                                  " is invalid: use letters, digits and '_', not starting with a digit");
+    }
+    if (type == prometheus::MetricType::Histogram && label == "le") {
       throw std::invalid_argument("metric " + quote(name) +
                                   ": label name 'le' is reserved for histogram buckets; choose another name");
     }
@@ -157,64 +138,36 @@ std::string escape_label_value(std::string_view value) { return escape(value, /*
 
 std::string escape_help(std::string_view help) { return escape(help, /*quote=*/false); }
 
-bool valid_metric_name(std::string_view name) {
-  if (name.empty()) return false;
-  for (std::size_t i = 0; i < name.size(); ++i) {
-    const char c = name[i];
-    const bool alpha = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || c == '_' || c == ':';
-    const bool digit = c >= '0' && c <= '9';
-    if (!alpha && !(digit && i > 0)) return false;
-  }
-  return true;
-}
-
-bool valid_label_name(std::string_view name) {
-  if (name.empty()) return false;
-  for (std::size_t i = 0; i < name.size(); ++i) {
-    const char c = name[i];
-    const bool alpha = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || c == '_';
-    const bool digit = c >= '0' && c <= '9';
-    if (!alpha && !(digit && i > 0)) return false;
-  }
-  return true;
-}
-
 // --- Metrics --------------------------------------------------------------------------------------------------
 
 void Counter::inc(double amount) {
+  // prometheus::Counter ignores a negative amount and adds NaN; both are caller bugs worth an exception.
   if (!(amount >= 0.0)) {
     throw std::invalid_argument("Counter::inc: amount " + format_metric_value(amount) +
                                 " must be >= 0 (counters only go up; use a Gauge for values that go down)");
   }
-  value_.fetch_add(amount, std::memory_order_relaxed);
+  counter_.Increment(amount);
 }
 
-Histogram::Histogram(std::shared_ptr<const std::vector<double>> bounds)
-    : bounds_(std::move(bounds)), counts_(new std::atomic<std::uint64_t>[bounds_->size() + 1]) {
-  for (std::size_t i = 0; i <= bounds_->size(); ++i) counts_[i].store(0, std::memory_order_relaxed);
-}
+double Counter::value() const { return counter_.Value(); }
 
-void Histogram::observe(double value) {
-  const std::vector<double>& bounds = *bounds_;
-  const std::size_t bucket =
-      std::isnan(value)
-          ? bounds.size()
-          : static_cast<std::size_t>(std::lower_bound(bounds.begin(), bounds.end(), value) - bounds.begin());
-  counts_[bucket].fetch_add(1, std::memory_order_relaxed);
-  sum_.fetch_add(value, std::memory_order_relaxed);
-}
+void Gauge::set(double value) { gauge_.Set(value); }
+
+void Gauge::add(double delta) { gauge_.Increment(delta); }
+
+double Gauge::value() const { return gauge_.Value(); }
+
+void Histogram::observe(double value) { histogram_.Observe(value); }
 
 Histogram::Snapshot Histogram::snapshot() const {
+  const prometheus::ClientMetric collected = histogram_.Collect();
   Snapshot snapshot;
-  snapshot.bounds = *bounds_;
-  snapshot.cumulative.resize(bounds_->size() + 1);
-  std::uint64_t total = 0;
-  for (std::size_t i = 0; i <= bounds_->size(); ++i) {
-    total += counts_[i].load(std::memory_order_relaxed);
-    snapshot.cumulative[i] = total;
+  for (const prometheus::ClientMetric::Bucket& bucket : collected.histogram.bucket) {
+    if (std::isfinite(bucket.upper_bound)) snapshot.bounds.push_back(bucket.upper_bound);
+    snapshot.cumulative.push_back(bucket.cumulative_count);
   }
-  snapshot.count = total;
-  snapshot.sum = sum_.load(std::memory_order_relaxed);
+  snapshot.count = collected.histogram.sample_count;
+  snapshot.sum = collected.histogram.sample_sum;
   return snapshot;
 }
 
@@ -251,35 +204,56 @@ std::vector<double> linear_buckets(double start, double width, int count) {
 
 // --- Families -------------------------------------------------------------------------------------------------
 
-void detail::FamilyBase::render(std::string& out) const {
-  std::string samples;
-  render_samples(samples);  // first, so that a throwing callback leaves `out` untouched
-  out += "# HELP ";
-  out += name_;
-  out += ' ';
-  out += escape_help(help_);
-  out += "\n# TYPE ";
-  out += name_;
-  out += ' ';
-  out += type_name(type_);
-  out += '\n';
-  out += samples;
+prometheus::MetricFamily detail::FamilyBase::collect() const {
+  prometheus::MetricFamily family;
+  family.name = name_;
+  family.help = escape_help(help_);
+  family.type = type_;
+  family.metric = collect_samples();
+  // prometheus::Labels is a std::map, so a collected sample's labels come sorted by name: put them back in
+  // declaration order, the order the samples are then sorted by.
+  for (prometheus::ClientMetric& sample : family.metric) {
+    std::vector<prometheus::ClientMetric::Label> ordered;
+    ordered.reserve(label_names_.size());
+    for (const std::string& label : label_names_) {
+      const auto it = std::find_if(sample.label.begin(), sample.label.end(),
+                                   [&](const prometheus::ClientMetric::Label& l) { return l.name == label; });
+      if (it != sample.label.end()) ordered.push_back(std::move(*it));
+    }
+    sample.label = std::move(ordered);
+  }
+  const auto values_less = [](const prometheus::ClientMetric& a, const prometheus::ClientMetric& b) {
+    return std::lexicographical_compare(a.label.begin(), a.label.end(), b.label.begin(), b.label.end(),
+                                        [](const prometheus::ClientMetric::Label& x,
+                                           const prometheus::ClientMetric::Label& y) { return x.value < y.value; });
+  };
+  std::sort(family.metric.begin(), family.metric.end(), values_less);
+  // Only a callback can repeat a tuple (a prometheus::Family keeps one metric per label set).
+  for (std::size_t i = 1; i < family.metric.size(); ++i) {
+    if (!values_less(family.metric[i - 1], family.metric[i])) {
+      std::vector<std::string> values;
+      for (const prometheus::ClientMetric::Label& label : family.metric[i].label) values.push_back(label.value);
+      throw std::invalid_argument("metric " + quote(name_) + ": the callback returned the label values {" +
+                                  joined(values) + "} more than once; return each tuple once");
+    }
+  }
+  return family;
 }
 
 void detail::FamilyBase::check_arity(std::size_t values) const {
   if (values != label_names_.size()) {
-    std::string names;
-    for (const std::string& label : label_names_) names += (names.empty() ? "" : ",") + label;
     throw std::invalid_argument("metric " + quote(name_) + ": got " + std::to_string(values) +
-                                " label values, expected " + std::to_string(label_names_.size()) + " {" + names + "}");
+                                " label values, expected " + std::to_string(label_names_.size()) + " {" +
+                                joined(label_names_) + "}");
   }
 }
 
 template <class Metric>
-MetricFamily<Metric>::MetricFamily(std::string name, std::string help, MetricType type,
-                                   std::vector<std::string> label_names,
-                                   std::shared_ptr<const std::vector<double>> bounds)
-    : FamilyBase(std::move(name), std::move(help), type, std::move(label_names)), bounds_(std::move(bounds)) {}
+MetricFamily<Metric>::MetricFamily(std::string name, std::string help, std::vector<std::string> label_names,
+                                   prometheus::Family<typename Metric::Library>& family, std::vector<double> bounds)
+    : FamilyBase(std::move(name), std::move(help), Metric::kType, std::move(label_names)),
+      family_(family),
+      bounds_(std::move(bounds)) {}
 
 template <class Metric>
 Metric& MetricFamily<Metric>::with(std::initializer_list<std::string_view> label_values) {
@@ -298,34 +272,28 @@ Metric& MetricFamily<Metric>::with_span(std::span<const std::string_view> label_
   std::lock_guard lock(mutex_);
   auto it = children_.find(label_values);
   if (it == children_.end()) {
-    std::unique_ptr<Metric> metric;
-    if constexpr (std::is_same_v<Metric, Histogram>) {
-      metric = std::make_unique<Histogram>(bounds_);
-    } else {
-      metric = std::make_unique<Metric>();
+    prometheus::Labels labels;
+    for (std::size_t i = 0; i < label_values.size(); ++i) {
+      labels.emplace(label_names()[i], sanitize_label_value(label_values[i]));
     }
-    it = children_.emplace(std::vector<std::string>(label_values.begin(), label_values.end()), std::move(metric)).first;
+    typename Metric::Library* metric = nullptr;
+    if constexpr (std::is_same_v<Metric, Histogram>) {
+      metric = &family_.Add(labels, bounds_);
+    } else {
+      metric = &family_.Add(labels);
+    }
+    it = children_
+             .emplace(std::vector<std::string>(label_values.begin(), label_values.end()),
+                      std::make_unique<Metric>(*metric))
+             .first;
   }
   return *it->second;
 }
 
 template <class Metric>
-void MetricFamily<Metric>::render_samples(std::string& out) const {
-  std::lock_guard lock(mutex_);
-  for (const auto& [label_values, metric] : children_) {
-    if constexpr (std::is_same_v<Metric, Histogram>) {
-      const Histogram::Snapshot snapshot = metric->snapshot();
-      for (std::size_t i = 0; i < snapshot.bounds.size(); ++i) {
-        append_sample(out, name(), "_bucket", label_names(), label_values, format_metric_value(snapshot.bounds[i]),
-                      std::to_string(snapshot.cumulative[i]));
-      }
-      append_sample(out, name(), "_bucket", label_names(), label_values, "+Inf", std::to_string(snapshot.count));
-      append_sample(out, name(), "_sum", label_names(), label_values, "", format_metric_value(snapshot.sum));
-      append_sample(out, name(), "_count", label_names(), label_values, "", std::to_string(snapshot.count));
-    } else {
-      append_sample(out, name(), "", label_names(), label_values, "", format_metric_value(metric->value()));
-    }
-  }
+std::vector<prometheus::ClientMetric> MetricFamily<Metric>::collect_samples() const {
+  std::vector<prometheus::MetricFamily> collected = family_.Collect();  // none until a sample exists
+  return collected.empty() ? std::vector<prometheus::ClientMetric>{} : std::move(collected.front().metric);
 }
 
 template class MetricFamily<Counter>;
@@ -334,16 +302,18 @@ template class MetricFamily<Histogram>;
 
 // --- Registry -------------------------------------------------------------------------------------------------
 
-template <class Family, class... Args>
-Family& MetricsRegistry::add(const std::string& name, const std::string& help, MetricType type,
-                             const std::vector<std::string>& label_names, Args&&... args) {
+MetricsRegistry::MetricsRegistry() : registry_(std::make_unique<prometheus::Registry>()) {}
+
+MetricsRegistry::~MetricsRegistry() = default;
+
+detail::FamilyBase& MetricsRegistry::add(const std::string& name, const std::string& help, prometheus::MetricType type,
+                                         const std::vector<std::string>& label_names,
+                                         const std::function<std::unique_ptr<detail::FamilyBase>()>& make) {
   validate_family(name, help, type, label_names);
   std::vector<std::string> series{name};
-  if (type == MetricType::kHistogram) {
+  if (type == prometheus::MetricType::Histogram) {
     for (const char* suffix : {"_bucket", "_sum", "_count"}) series.push_back(name + suffix);
   }
-  auto family = std::make_unique<Family>(name, help, type, label_names, std::forward<Args>(args)...);
-  Family& ref = *family;
   std::lock_guard lock(mutex_);
   for (const std::string& s : series) {
     if (std::find(series_names_.begin(), series_names_.end(), s) != series_names_.end()) {
@@ -351,21 +321,27 @@ Family& MetricsRegistry::add(const std::string& name, const std::string& help, M
                                   " is already registered; metric names must be unique");
     }
   }
+  families_.push_back(make());
   series_names_.insert(series_names_.end(), series.begin(), series.end());
-  families_.push_back(std::move(family));
-  return ref;
+  return *families_.back();
 }
 
 CounterFamily& MetricsRegistry::counter(const std::string& name, const std::string& help,
                                         const std::vector<std::string>& label_names) {
-  CounterFamily& family = add<CounterFamily>(name, help, MetricType::kCounter, label_names, nullptr);
+  auto& family = static_cast<CounterFamily&>(add(name, help, Counter::kType, label_names, [&] {
+    auto& library = prometheus::BuildCounter().Name(name).Help(help).Register(*registry_);
+    return std::make_unique<CounterFamily>(name, help, label_names, library, std::vector<double>{});
+  }));
   if (label_names.empty()) family.with();
   return family;
 }
 
 GaugeFamily& MetricsRegistry::gauge(const std::string& name, const std::string& help,
                                     const std::vector<std::string>& label_names) {
-  GaugeFamily& family = add<GaugeFamily>(name, help, MetricType::kGauge, label_names, nullptr);
+  auto& family = static_cast<GaugeFamily&>(add(name, help, Gauge::kType, label_names, [&] {
+    auto& library = prometheus::BuildGauge().Name(name).Help(help).Register(*registry_);
+    return std::make_unique<GaugeFamily>(name, help, label_names, library, std::vector<double>{});
+  }));
   if (label_names.empty()) family.with();
   return family;
 }
@@ -374,15 +350,17 @@ HistogramFamily& MetricsRegistry::histogram(const std::string& name, const std::
                                             const std::vector<double>& buckets,
                                             const std::vector<std::string>& label_names) {
   validate_buckets(name, buckets);
-  HistogramFamily& family = add<HistogramFamily>(name, help, MetricType::kHistogram, label_names,
-                                                 std::make_shared<const std::vector<double>>(buckets));
+  auto& family = static_cast<HistogramFamily&>(add(name, help, Histogram::kType, label_names, [&] {
+    auto& library = prometheus::BuildHistogram().Name(name).Help(help).Register(*registry_);
+    return std::make_unique<HistogramFamily>(name, help, label_names, library, buckets);
+  }));
   if (label_names.empty()) family.with();
   return family;
 }
 
 void MetricsRegistry::gauge_callback(const std::string& name, const std::string& help, std::function<double()> sample) {
   if (!sample) throw std::invalid_argument("metric " + quote(name) + ": the callback is empty");
-  add<CallbackGaugeFamily>(name, help, MetricType::kGauge, {}, [sample = std::move(sample)] {
+  gauge_callback_family(name, help, {}, [sample = std::move(sample)] {
     return std::vector<LabelledValue>{{{}, sample()}};
   });
 }
@@ -391,7 +369,8 @@ void MetricsRegistry::gauge_callback_family(const std::string& name, const std::
                                             const std::vector<std::string>& label_names,
                                             std::function<std::vector<LabelledValue>()> sample) {
   if (!sample) throw std::invalid_argument("metric " + quote(name) + ": the callback is empty");
-  add<CallbackGaugeFamily>(name, help, MetricType::kGauge, label_names, std::move(sample));
+  add(name, help, prometheus::MetricType::Gauge, label_names,
+      [&] { return std::make_unique<CallbackGaugeFamily>(name, help, label_names, std::move(sample)); });
 }
 
 std::string MetricsRegistry::render() const {
@@ -401,9 +380,11 @@ std::string MetricsRegistry::render() const {
     families.reserve(families_.size());
     for (const auto& family : families_) families.push_back(family.get());
   }
-  std::string out;
-  for (const detail::FamilyBase* family : families) family->render(out);
-  return out;
+  // Family by family in registration order (prometheus::Registry::Collect() would group them by type).
+  std::vector<prometheus::MetricFamily> collected;
+  collected.reserve(families.size());
+  for (const detail::FamilyBase* family : families) collected.push_back(family->collect());
+  return prometheus::TextSerializer().Serialize(collected);
 }
 
 }  // namespace surfacer::server

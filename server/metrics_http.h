@@ -17,6 +17,12 @@
 // connections, or the server holds max_connections, one of that peer's (or of all) is closed for it: an answered one
 // still lingering, else the oldest idle one (no byte of a request yet), else the oldest with part of a request, else
 // the oldest being answered.
+//
+// Why not prometheus-cpp's pull Exposer (civetweb), which would replace this file: civetweb serves each connection on
+// one of its num_threads worker threads (2 by default in Exposer) for as long as the connection stays open, up to its
+// request_timeout_ms, and has no bound per peer, so a client holding a few idle connections locks every scrape out:
+// the case the per-peer bound above exists for. Exposer also serves registered collectables only, so /healthz with its
+// 503 while draining would need a second HTTP server. What this server sends is prometheus-cpp's text (render()).
 #pragma once
 
 #include <atomic>

@@ -429,6 +429,26 @@ TEST(MetricsFormat, EscapingRoundTrips) {
   EXPECT_EQ(escape_label_value("\xed\xa0\x80"), "\xEF\xBF\xBD\xEF\xBF\xBD\xEF\xBF\xBD");  // a surrogate
 }
 
+// Label values reach the exposition as valid UTF-8 (each invalid byte U+FFFD), so two values that differ only in
+// invalid bytes are one series: one sample carrying both increments, never a duplicate series.
+TEST(MetricsFormat, InvalidUtf8LabelValuesShareOneSeries) {
+  MetricsRegistry registry;
+  auto& family = registry.counter("names_total", "Names seen", {"name"});
+  family.with({std::string("a\xff")}).inc();
+  family.with({std::string("a\xfe")}).inc(2);
+  registry.gauge_callback_family("callback_names", "Names from a callback", {"name"}, [] {
+    return std::vector<LabelledValue>{{{std::string("b\xc3")}, 4}};
+  });
+  const std::string text = registry.render();
+  const Exposition exposition = parse_or_fail(text);
+  const ParsedFamily* counted = exposition.find("names_total");
+  ASSERT_NE(counted, nullptr);
+  ASSERT_EQ(counted->samples.size(), 1u) << text;
+  EXPECT_EQ(counted->samples[0].label("name"), "a\xEF\xBF\xBD");
+  EXPECT_EQ(counted->samples[0].value, 3);
+  EXPECT_TRUE(contains_line(text, "callback_names{name=\"b\xEF\xBF\xBD\"} 4")) << text;
+}
+
 TEST(MetricsFormat, OrderIsDeterministic) {
   std::vector<std::vector<std::string>> tuples;
   for (const char* method : {"SubmitJob", "WatchJob", "GetJob", "Upload"}) {
