@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <limits>
 
 #include "core/util/parallel.h"
 
@@ -113,8 +114,9 @@ void assemble_cotangent(std::span<const Vec3> x, std::span<const Triangle> trian
                         const RunControl& control, StoreW&& store_w, Buffer<double>& w_diag, Buffer<double>& inv_area) {
   const std::size_t n = ring.rows();
   // The triangles of every vertex (its corners, 3 * triangle + corner), so that each vertex assembles its own row of W
-  // from the cotangents of its triangles, computed where they are needed (each triangle's thrice: cheaper than a
-  // per-triangle table the size of the mesh).
+  // from the cotangents of its triangles, computed where they are needed: a per-triangle table would be the largest
+  // array of the stage, and a small per-worker cache of recent triangles finds most of them (a triangle's three
+  // vertices are mostly near in index).
   std::vector<std::uint32_t> corner_offsets;
   Buffer<std::uint32_t> corner_list;
   rows_by_items(n, triangles.size(), threads, corner_offsets, corner_list,
@@ -133,6 +135,18 @@ void assemble_cotangent(std::span<const Vec3> x, std::span<const Triangle> trian
   parallel_for(row_chunks, threads, [&](int c) {
     const auto [begin, end] = chunk_range(n, row_chunks, c);
     std::vector<double> row;
+    // Direct-mapped by triangle index; the same values as computed afresh (corner_of is a function of the triangle).
+    constexpr std::size_t kCacheSlots = 2048;
+    std::vector<std::uint32_t> cached(kCacheSlots, std::numeric_limits<std::uint32_t>::max());
+    std::vector<Corner> cache(kCacheSlots);
+    auto corner = [&](std::uint32_t t) -> const Corner& {
+      const std::size_t slot = t % kCacheSlots;
+      if (cached[slot] != t) {
+        cached[slot] = t;
+        cache[slot] = corner_of(x, triangles[t]);
+      }
+      return cache[slot];
+    };
     for (std::size_t i = begin; i < end; ++i) {
       const std::uint32_t r0 = ring.offsets[i], r1 = ring.offsets[i + 1];
       row.assign(r1 - r0, 0.0);
@@ -147,7 +161,7 @@ void assemble_cotangent(std::span<const Vec3> x, std::span<const Triangle> trian
       for (std::uint32_t q = corner_offsets[i]; q < corner_offsets[i + 1]; ++q) {
         const std::uint32_t t = corner_list[q] / 3, k = corner_list[q] % 3;
         const Triangle& tri = triangles[t];
-        const Corner cn = corner_of(x, tri);
+        const Corner& cn = corner(t);
         area += cn.area;
         const std::uint32_t next = tri[(k + 1) % 3], prev = tri[(k + 2) % 3];
         // Edge (i, next) is opposite corner prev; edge (i, prev) is opposite corner next.
