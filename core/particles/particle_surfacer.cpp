@@ -1105,14 +1105,17 @@ class Smoother {
 
   // Step 4 (with the end of step 3): the normals fixed; every vertex brought into the band along its normal, its
   // interval of the band there, lowered below the cusps it holds, and the start moved onto the cusps' planes; then
-  // B = W^T D^-1 W (through W and D) of that start, for moves along the normals.
+  // B = W^T D^-1 W (through W and D) of that start, for moves along the normals. From here until place() the mesh's
+  // vertex array holds the start x0: where step 3 left the vertices is not needed again, and is freed.
   void build_b(const RunControl& control, ParticleSurfacingStats& stats) {
-    x0_.resize(n_);  // written in parallel by intervals(): first touched by the threads that use it
     normals_ = smoothed_normals();
-    intervals(control, stats);
+    {
+      std::vector<Vec3> start(n_);  // written in parallel by intervals(): first touched by the threads that use it
+      intervals(start, control, stats);
+      x_.swap(start);
+    }
     if (!o_.vertex_only_band) descend(control);
-    smoothing_.emplace(ring_, ps::cotangent_laplacian(x0_, mesh_.triangles, ring_, threads_, control), x0_, normals_,
-                       blocks_, threads_);
+    smoothing_.emplace(ring_, mesh_.triangles, x_, normals_, blocks_, threads_, control);
     stats.seam_fraction = n_ > 0 ? static_cast<double>(smoothing_->plan().seams.size()) / static_cast<double>(n_) : 0.0;
     control.report("build_b", 1.0);
   }
@@ -1131,7 +1134,7 @@ class Smoother {
   // final projection: every offset back into its interval, a move along the normal (docs/ALGORITHMS.md §1, CHOICE
   // "faithful at the end").
   void polish(const RunControl& control, ParticleSurfacingStats& stats) {
-    const std::vector<double> before(smoothing_->offsets().begin(), smoothing_->offsets().end());
+    offsets_.assign(smoothing_->offsets().begin(), smoothing_->offsets().end());  // before the sweeps
     for (int s = 0; s < o_.polish_sweeps; ++s) {
       control.check();
       smoothing_->sweep(container_lo_, container_hi_, kOverRelaxation, threads_);
@@ -1141,9 +1144,17 @@ class Smoother {
     if (!o_.unconstrained_polish) stats.max_final_projection = smoothing_->clamp(lo_, hi_);
     const std::span<const double> t = smoothing_->offsets();
     for (std::size_t i = 0; i < n_; ++i) {
-      stats.max_polish_displacement = std::max(stats.max_polish_displacement, std::abs(t[i] - before[i]));
+      stats.max_polish_displacement = std::max(stats.max_polish_displacement, std::abs(t[i] - offsets_[i]));
     }
+    std::copy(t.begin(), t.end(), offsets_.begin());
     place();
+    // What the sweeps needed goes before the cleanup stage: the final offsets and the band are all that is read later.
+    smoothing_.reset();
+    normals_ = {};
+    lo_ = {};
+    hi_ = {};
+    container_lo_ = {};
+    container_hi_ = {};
   }
 
   // Step 7, when asked for.
@@ -1203,13 +1214,15 @@ class Smoother {
   // intersection. A vertex holds the cusps of its Voronoi cell among its 1-ring (as step 3 left them), within its
   // longest 1-ring edge of its start; the root mean square edge (summed per vertex, then in vertex order) sets the
   // descent's passes.
-  void intervals(const RunControl& control, ParticleSurfacingStats& stats) {
+  void intervals(std::vector<Vec3>& x0, const RunControl& control, ParticleSurfacingStats& stats) {
     band_lo_.resize(n_);
     band_hi_.resize(n_);
     lo_.resize(n_);
     hi_.resize(n_);
-    container_lo_.resize(n_);
-    container_hi_.resize(n_);
+    if (container_.box) {  // else every vertex's container interval is the whole line, and none is stored
+      container_lo_.resize(n_);
+      container_hi_.resize(n_);
+    }
     const bool cusps = !o_.vertex_only_band;
     if (cusps) cusp_.resize(n_);
     std::vector<double> edge_sum(cusps ? n_ : 0);
@@ -1258,7 +1271,7 @@ class Smoother {
             scratch.deeper.clear();
           }
         }
-        x0_[i] = x;
+        x0[i] = x;
         double hi = band.hi;
         if (cusps) {
           // Owned by i: no 1-ring neighbour is nearer, all as step 3 left them (a tie gives the cusp to both).
@@ -1283,21 +1296,22 @@ class Smoother {
         }
         band_lo_[i] = band.lo;
         band_hi_[i] = band.hi;
-        container_lo_[i] = -kInf;
-        container_hi_[i] = kInf;
+        double container_lo = -kInf, container_hi = kInf;
         if (container_.box) {
           for (int a = 0; a < 3; ++a) {
             const double na = normals_[i][a];
             if (na == 0.0) continue;
-            double t0 = (container_.box->min[a] - x0_[i][a]) / na, t1 = (container_.box->max[a] - x0_[i][a]) / na;
+            double t0 = (container_.box->min[a] - x[a]) / na, t1 = (container_.box->max[a] - x[a]) / na;
             if (t0 > t1) std::swap(t0, t1);
-            container_lo_[i] = std::max(container_lo_[i], std::min(t0, 0.0));
-            container_hi_[i] = std::min(container_hi_[i], std::max(t1, 0.0));
+            container_lo = std::max(container_lo, std::min(t0, 0.0));
+            container_hi = std::min(container_hi, std::max(t1, 0.0));
           }
+          container_lo_[i] = container_lo;
+          container_hi_[i] = container_hi;
         }
-        lo_[i] = std::max(band.lo, container_lo_[i]);
-        hi_[i] = std::min(hi, container_hi_[i]);
-        if (lo_[i] > hi_[i]) lo_[i] = hi_[i] = std::clamp(0.0, container_lo_[i], container_hi_[i]);  // the wall wins
+        lo_[i] = std::max(band.lo, container_lo);
+        hi_[i] = std::min(hi, container_hi);
+        if (lo_[i] > hi_[i]) lo_[i] = hi_[i] = std::clamp(0.0, container_lo, container_hi);  // the wall wins
       }
       cusp_vertices += lowered;
     });
@@ -1336,10 +1350,10 @@ class Smoother {
         const Vec3 axis = cusp_[i].axis();
         const double facing = axis.dot(normals_[i]);
         if (!(facing > 0.0 && facing >= kCuspFacing * axis.norm())) continue;  // none near, or facing away
-        const double move = std::clamp((cusp_[i].offset() - axis.dot(x0_[i])) / facing, lo_[i], hi_[i]);
-        x0_[i] += move * normals_[i];
+        const double move = std::clamp((cusp_[i].offset() - axis.dot(x_[i])) / facing, lo_[i], hi_[i]);
+        x_[i] += move * normals_[i];
         for (Buffer<double>* bound : {&lo_, &hi_, &band_lo_, &band_hi_, &container_lo_, &container_hi_}) {
-          (*bound)[i] -= move;
+          if (!bound->empty()) (*bound)[i] -= move;  // the container's are empty without a box (the whole line)
         }
       }
     });
@@ -1350,7 +1364,7 @@ class Smoother {
   void place() {
     const std::span<const double> t = smoothing_->offsets();
     for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
-      for (std::size_t i = begin; i < end; ++i) x_[i] = x0_[i] + t[i] * normals_[i];
+      for (std::size_t i = begin; i < end; ++i) x_[i] += t[i] * normals_[i];  // x0 + t n
     });
     if (container_.solid != nullptr) constrain(false);
   }
@@ -1359,7 +1373,7 @@ class Smoother {
   // whose offset lies in its band interval is faithful (up to rounding); one outside it is off by its distance to the
   // interval along its normal, at least as far as it is from the band.
   void faithfulness(double& fraction, double& max_violation) const {
-    const std::span<const double> t = smoothing_->offsets();
+    const std::span<const double> t = smoothing_ ? smoothing_->offsets() : std::span<const double>(offsets_);
     std::size_t good = 0;
     double worst = 0.0;
     for (std::size_t i = 0; i < n_; ++i) {
@@ -1425,10 +1439,11 @@ class Smoother {
   const ps::Graph ring_;
   const std::size_t blocks_;
   Container container_;
-  std::vector<Vec3> x0_, normals_;
+  std::vector<Vec3> normals_;
   Buffer<CuspPlane> cusp_;  // per vertex, the plane of the lowest cusp it holds (zero: none), until the descent
   double rms_edge_ = 0.0;   // of the mesh at step 4
   std::optional<ps::OffsetSmoothing> smoothing_;
+  std::vector<double> offsets_;  // polish: the offsets before its sweeps, then the final ones (the smoothing is gone)
   Buffer<double> lo_, hi_, band_lo_, band_hi_, container_lo_, container_hi_;
 };
 

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <limits>
 
 #include "core/util/parallel.h"
 
@@ -82,38 +83,40 @@ Graph one_ring(std::size_t vertices, std::span<const Triangle> triangles, int th
   return g;
 }
 
-Cotangent cotangent_laplacian(std::span<const Vec3> x, std::span<const Triangle> triangles, const Graph& ring,
-                              int threads, const RunControl& control) {
-  const std::size_t n = ring.rows();
-  // Cotangents of the three angles and the area of every triangle (parallel).
-  struct Corner {
-    double cot[3];  // at corners 0, 1, 2 (opposite edges 12, 20, 01)
-    double area;
-  };
-  Buffer<Corner> corners(triangles.size());
-  const int chunks = static_cast<int>(std::min<std::size_t>(64, triangles.size() / 4096 + 1));
-  parallel_for(chunks, threads, [&](int c) {
-    const auto [begin, end] = chunk_range(triangles.size(), chunks, c);
-    for (std::size_t t = begin; t < end; ++t) {
-      const Triangle& tri = triangles[t];
-      Corner& out = corners[t];
-      const Vec3 e01 = x[tri[1]] - x[tri[0]], e02 = x[tri[2]] - x[tri[0]], e12 = x[tri[2]] - x[tri[1]];
-      const double cross = e01.cross(e02).norm();
-      out.area = 0.5 * cross;
-      const double scale = std::max({e01.squaredNorm(), e02.squaredNorm(), e12.squaredNorm()});
-      if (!(cross > kDegenerateRelativeArea * scale) || tri[0] == tri[1] || tri[1] == tri[2] || tri[0] == tri[2]) {
-        out.cot[0] = out.cot[1] = out.cot[2] = 0.0;
-        continue;
-      }
-      auto clamp = [](double v) { return std::clamp(v, -kMaxCotangent, kMaxCotangent); };
-      out.cot[0] = clamp(e01.dot(e02) / cross);
-      out.cot[1] = clamp(-e01.dot(e12) / cross);
-      out.cot[2] = clamp(e02.dot(e12) / cross);
-    }
-  });
-  control.check();
+namespace {
 
-  // The triangles of every vertex (its corners, 3 * triangle + corner), so that each vertex assembles its own row of W.
+// The cotangents of a triangle's three angles and its area.
+struct Corner {
+  double cot[3];  // at corners 0, 1, 2 (opposite edges 12, 20, 01)
+  double area;
+};
+Corner corner_of(std::span<const Vec3> x, const Triangle& tri) {
+  Corner out;
+  const Vec3 e01 = x[tri[1]] - x[tri[0]], e02 = x[tri[2]] - x[tri[0]], e12 = x[tri[2]] - x[tri[1]];
+  const double cross = e01.cross(e02).norm();
+  out.area = 0.5 * cross;
+  const double scale = std::max({e01.squaredNorm(), e02.squaredNorm(), e12.squaredNorm()});
+  if (!(cross > kDegenerateRelativeArea * scale) || tri[0] == tri[1] || tri[1] == tri[2] || tri[0] == tri[2]) {
+    out.cot[0] = out.cot[1] = out.cot[2] = 0.0;
+    return out;
+  }
+  auto clamp = [](double v) { return std::clamp(v, -kMaxCotangent, kMaxCotangent); };
+  out.cot[0] = clamp(e01.dot(e02) / cross);
+  out.cot[1] = clamp(-e01.dot(e12) / cross);
+  out.cot[2] = clamp(e02.dot(e12) / cross);
+  return out;
+}
+
+// W's off-diagonal entries through store_w(e, value) (ring.cols order, each once), its diagonal and the inverse vertex
+// areas into w_diag and inv_area (resized to the rows), as cotangent_laplacian() states.
+template <class StoreW>
+void assemble_cotangent(std::span<const Vec3> x, std::span<const Triangle> triangles, const Graph& ring, int threads,
+                        const RunControl& control, StoreW&& store_w, Buffer<double>& w_diag, Buffer<double>& inv_area) {
+  const std::size_t n = ring.rows();
+  // The triangles of every vertex (its corners, 3 * triangle + corner), so that each vertex assembles its own row of W
+  // from the cotangents of its triangles, computed where they are needed: a per-triangle table would be the largest
+  // array of the stage, and a small per-worker cache of recent triangles finds most of them (a triangle's three
+  // vertices are mostly near in index).
   std::vector<std::uint32_t> corner_offsets;
   Buffer<std::uint32_t> corner_list;
   rows_by_items(n, triangles.size(), threads, corner_offsets, corner_list,
@@ -124,60 +127,80 @@ Cotangent cotangent_laplacian(std::span<const Vec3> x, std::span<const Triangle>
                 });
   control.check();
 
-  // W (aligned with ring.cols), its diagonal and the inverse vertex areas, row by row in parallel. Corner k of a
-  // triangle is at vertex i; the angle at the next corner is opposite edge (i, previous) and vice versa.
-  Cotangent cot;
-  cot.w.resize(ring.cols.size());  // each row zeroes its own entries below
-  cot.w_diag.resize(n);
-  cot.inv_area.resize(n);
-  Buffer<double>& w = cot.w;
-  Buffer<double>& w_diag = cot.w_diag;
-  Buffer<double>& inv_area = cot.inv_area;
+  // Row by row in parallel. Corner k of a triangle is at vertex i; the angle at the next corner is opposite edge (i,
+  // previous) and vice versa. A row sums in double, in corner order, and is rounded to float once.
+  w_diag.resize(n);
+  inv_area.resize(n);
   const int row_chunks = static_cast<int>(std::min<std::size_t>(256, n / 2048 + 1));
-  auto row_range = [&](int c) { return chunk_range(n, row_chunks, c); };
   parallel_for(row_chunks, threads, [&](int c) {
-    const auto [begin, end] = row_range(c);
+    const auto [begin, end] = chunk_range(n, row_chunks, c);
+    std::vector<double> row;
+    // Direct-mapped by triangle index; the same values as computed afresh (corner_of is a function of the triangle).
+    constexpr std::size_t kCacheSlots = 2048;
+    std::vector<std::uint32_t> cached(kCacheSlots, std::numeric_limits<std::uint32_t>::max());
+    std::vector<Corner> cache(kCacheSlots);
+    auto corner = [&](std::uint32_t t) -> const Corner& {
+      const std::size_t slot = t % kCacheSlots;
+      if (cached[slot] != t) {
+        cached[slot] = t;
+        cache[slot] = corner_of(x, triangles[t]);
+      }
+      return cache[slot];
+    };
     for (std::size_t i = begin; i < end; ++i) {
       const std::uint32_t r0 = ring.offsets[i], r1 = ring.offsets[i + 1];
-      std::fill(w.begin() + r0, w.begin() + r1, 0.0);
-      w_diag[i] = 0.0;
+      row.assign(r1 - r0, 0.0);
+      double diag = 0.0;
       auto col = [&](std::uint32_t j) {
         for (std::uint32_t e = r0; e < r1; ++e) {
-          if (ring.cols[e] == j) return e;
+          if (ring.cols[e] == j) return e - r0;
         }
-        return r1;  // not a neighbour (a triangle with a repeated index)
+        return r1 - r0;  // not a neighbour (a triangle with a repeated index)
       };
       double area = 0.0;
       for (std::uint32_t q = corner_offsets[i]; q < corner_offsets[i + 1]; ++q) {
         const std::uint32_t t = corner_list[q] / 3, k = corner_list[q] % 3;
         const Triangle& tri = triangles[t];
-        const Corner& cn = corners[t];
+        const Corner& cn = corner(t);
         area += cn.area;
         const std::uint32_t next = tri[(k + 1) % 3], prev = tri[(k + 2) % 3];
         // Edge (i, next) is opposite corner prev; edge (i, prev) is opposite corner next.
         const double half_next = 0.5 * cn.cot[(k + 2) % 3], half_prev = 0.5 * cn.cot[(k + 1) % 3];
         if (next != i && half_next != 0.0) {
           const std::uint32_t e = col(next);
-          if (e < r1) w[e] -= half_next;
-          w_diag[i] += half_next;
+          if (e < row.size()) row[e] -= half_next;
+          diag += half_next;
         }
         if (prev != i && half_prev != 0.0) {
           const std::uint32_t e = col(prev);
-          if (e < r1) w[e] -= half_prev;
-          w_diag[i] += half_prev;
+          if (e < row.size()) row[e] -= half_prev;
+          diag += half_prev;
         }
       }
+      for (std::uint32_t e = r0; e < r1; ++e) store_w(e, static_cast<float>(row[e - r0]));
+      w_diag[i] = diag;
       inv_area[i] = area > 0.0 ? 1.0 / area : 0.0;
     }
   });
   control.check();
+}
+
+}  // namespace
+
+Cotangent cotangent_laplacian(std::span<const Vec3> x, std::span<const Triangle> triangles, const Graph& ring,
+                              int threads, const RunControl& control) {
+  Cotangent cot;
+  cot.w.resize(ring.cols.size());
+  assemble_cotangent(
+      x, triangles, ring, threads, control, [&](std::uint32_t e, float w) { cot.w[e] = w; }, cot.w_diag,
+      cot.inv_area);
   return cot;
 }
 
 SparseMatrix bilaplacian(std::span<const Vec3> x, std::span<const Triangle> triangles, const Graph& ring, int threads,
                          const RunControl& control) {
   const Cotangent cot = cotangent_laplacian(x, triangles, ring, threads, control);
-  const Buffer<double>& w = cot.w;
+  const Buffer<float>& w = cot.w;
   const Buffer<double>& w_diag = cot.w_diag;
   const Buffer<double>& inv_area = cot.inv_area;
   const std::size_t n = ring.rows();
@@ -351,20 +374,42 @@ OffsetSmoothing::OffsetSmoothing(const Graph& ring, Cotangent cotangent, std::sp
       plan_(plan_two_ring_sweeps(ring, blocks, threads)),
       t_(ring.rows(), 0.0),
       z_(ring.rows()) {
+  entries_.resize(cotangent.w.size());
+  pack([&](std::uint32_t e) { return cotangent.w[e]; }, threads);
+}
+
+OffsetSmoothing::OffsetSmoothing(const Graph& ring, std::span<const Triangle> triangles, std::span<const Vec3> x0,
+                                 std::span<const Vec3> normals, std::size_t blocks, int threads,
+                                 const RunControl& control)
+    : ring_(ring),
+      x0_(x0),
+      normals_(normals),
+      plan_(plan_two_ring_sweeps(ring, blocks, threads)),
+      t_(ring.rows(), 0.0),
+      z_(ring.rows()) {
+  entries_.resize(ring.cols.size());
+  assemble_cotangent(
+      x0, triangles, ring, threads, control, [&](std::uint32_t e, float w) { entries_[e].w = w; }, w_diag_,
+      inv_area_);
+  pack([&](std::uint32_t e) { return entries_[e].w; }, threads);
+}
+
+template <class W>
+void OffsetSmoothing::pack(W&& w_of, int threads) {
+  const Graph& ring = ring_;
   const std::size_t n = ring.rows();
   rows_.resize(n);
-  entries_.resize(cotangent.w.size());
   for_chunks(n, threads, [&](std::size_t begin, std::size_t end) {
     for (std::size_t i = begin; i < end; ++i) {
       const double c_diag = w_diag_[i] * inv_area_[i];
       double d = w_diag_[i] * c_diag;
       for (std::uint32_t e = ring.offsets[i]; e < ring.offsets[i + 1]; ++e) {
-        const double w = static_cast<float>(cotangent.w[e]), c = w * inv_area_[ring.cols[e]];  // W as sweeps see it
+        const double w = w_of(e), c = w * inv_area_[ring.cols[e]];
         entries_[e] = {static_cast<float>(c), static_cast<float>(w)};
         d += w * c;
       }
       // inv_diag 0: a vertex without area does not move.
-      rows_[i] = {normals[i].cast<float>(), static_cast<float>(c_diag), static_cast<float>(w_diag_[i]),
+      rows_[i] = {normals_[i].cast<float>(), static_cast<float>(c_diag), static_cast<float>(w_diag_[i]),
                   d > 0.0 ? static_cast<float>(1.0 / d) : 0.0f};
     }
   });

@@ -44,9 +44,10 @@ inline constexpr double kDegenerateRelativeArea = 1e-12;
 // W and D of B = W^T D^-1 W (Williams 2008 eq. 3.2) for the mesh (x, triangles) with 1-ring `ring`: W_ij =
 // -(cot a_ij + cot b_ij) / 2 over the (one or two) triangles sharing edge ij, aligned with ring.cols; W_ii = -sum_j
 // W_ij; 1 / D_kk with D_kk the sum of the areas of the triangles incident to k (0 where that sum is 0: such a vertex
-// has an all-zero W row). Every vertex assembles its own row, in parallel: deterministic whatever `threads`.
+// has an all-zero W row). Every vertex assembles its own row, in parallel: deterministic whatever `threads`. The
+// off-diagonal W_ij are summed in double and stored as float, as the sweeps read them (see SparseMatrix).
 struct Cotangent {
-  Buffer<double> w;
+  Buffer<float> w;
   Buffer<double> w_diag;
   Buffer<double> inv_area;
 };
@@ -90,6 +91,9 @@ class OffsetSmoothing {
   // x0 and normals must outlive the smoothing (they are not copied).
   OffsetSmoothing(const Graph& ring, Cotangent cotangent, std::span<const Vec3> x0, std::span<const Vec3> normals,
                   std::size_t blocks, int threads = 1);
+  // The same for W = cotangent_laplacian(x0, triangles, ring), assembled in place: W is never held twice.
+  OffsetSmoothing(const Graph& ring, std::span<const Triangle> triangles, std::span<const Vec3> x0,
+                  std::span<const Vec3> normals, std::size_t blocks, int threads, const RunControl& control = {});
   // One sweep of projected SOR, t_i <- clamp(t_i - omega (dE/dt_i) / (d2E/dt_i^2), lo_i, hi_i) (no clamp when the
   // bounds are empty; omega in (0, 2), 1 is plain Gauss-Seidel), in plan() order: block interiors in parallel, then
   // the seams. Never increases the energy; byte-identical results whatever `threads`.
@@ -104,6 +108,9 @@ class OffsetSmoothing {
 
  private:
   void update_z(int threads);
+  // rows_ and entries_ from W (w_of(e), ring entry e), w_diag_, inv_area_ and the normals; entries_ sized.
+  template <class W>
+  void pack(W&& w_of, int threads);
 
   // What one update reads, packed so that a sweep streams two arrays besides t and the bounds: per vertex its normal,
   // W_ii / D_ii, W_ii and 1 / B_ii; per ring entry W_ik / D_kk and W_ik (aligned with ring.cols).
