@@ -22,9 +22,9 @@ class IsosurfaceRunner final : public JobRunner {
     PolygonizeGrid grid = grid_;
     grid.threads = fields_.size() == 1 ? worker_threads_ : 1;
     StageTimer timer;
-    const Mesh mesh = timer.run("polygonize", [&] { return polygonize(*fields_[index], grid, control); });
+    Mesh mesh = timer.run("polygonize", [&] { return polygonize(*fields_[index], grid, control); });
     control.check();
-    sink.emit(index, frames_.make(mesh, timer, control));
+    sink.emit(index, frames_.make(std::move(mesh), timer, control));
   }
 
  private:

@@ -33,7 +33,7 @@ class ParticlesRunner final : public JobRunner {
     // A single frame gets every core; a sequence runs its frames in parallel, one thread each.
     options.threads = frames_.size() == 1 ? worker_threads_ : 1;
     ParticleSurfacingStats stats;
-    const Mesh mesh = surface_particles(data.positions, data.radii, options, control, &stats);
+    Mesh mesh = surface_particles(data.positions, data.radii, options, control, &stats);
     control.check();
     timer.add("distance_field", stats.seconds_distance_field);
     timer.add("polygonize", stats.seconds_polygonize);
@@ -43,7 +43,7 @@ class ParticlesRunner final : public JobRunner {
     timer.add("polish", stats.seconds_polish);
     if (options.erosion) timer.add("erosion", stats.seconds_erosion);
     timer.add("cleanup", stats.seconds_cleanup);
-    FrameOutput frame = frame_maker_.make(mesh, timer, control);
+    FrameOutput frame = frame_maker_.make(std::move(mesh), timer, control);
     auto& metrics = *frame.stats.mutable_metrics();
     metrics["particles"] = static_cast<double>(stats.particles);
     metrics["particles_used"] = static_cast<double>(stats.particles_used);
