@@ -89,7 +89,9 @@ std::string suggestion(const CLI::App& app, const std::string& message) {
 }
 
 FrameOutputOptions finish_output(const OutputFlags& flags, const std::string& command) {
-  return frame_output_options(flags.dir.value_or(""), flags.formats, command);
+  FrameOutputOptions options = frame_output_options(flags.dir.value_or(""), flags.formats, command);
+  options.vdb_voxel_size = flags.vdb_voxel_size;
+  return options;
 }
 
 }  // namespace

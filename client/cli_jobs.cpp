@@ -3,6 +3,7 @@
 #include "client/exit_codes.h"
 #include "client/job_fields.h"
 #include "client/job_spec.h"
+#include "client/output_files.h"
 #include "core/mesh/mesh_codec.h"
 #include "core/util/format.h"
 
@@ -111,7 +112,7 @@ void add_optimize(CLI::App* parent, const std::string& verb, JobFlags& flags, Ou
       ->required()
       ->type_name("FILE");
   app->add_option("--start-mesh", flags.job.start_mesh,
-                  "start mesh file (.ply, .obj, .drc or .glb), uploaded as is (instead of polygonize.*)")
+                  "start mesh file (.ply, .obj, .drc, .glb or .gltf), uploaded as is (instead of polygonize.*)")
       ->type_name("FILE");
   add_table_flags(app, JobTable::kOptimize, flags.job);
   add_job_common_flags(app, flags.job);
@@ -200,13 +201,18 @@ void add_output_flags(CLI::App* app, OutputFlags& flags) {
                   "input sequence's own frame number (--start 100 writes frame_0100), else the frame index")
       ->type_name("DIR|PATTERN");
   app->add_option("--format", flags.formats,
-                  "files per frame, comma-separated: drc,ply,obj,vtk,vtu,glb (default: .drc for Draco frames, .ply "
-                  "for meshopt and raw ones; vtk = legacy binary, vtu = VTK XML with zlib, for ParaView and Blender; "
-                  "glb = glTF with Draco pieces, encoded on every core, for Blender, three.js and other glTF readers; "
-                  "up to 16 quantization bits)")
+                  "files per frame, comma-separated: drc,ply,obj,vtk,vtu,glb,gltf,vdb (default: .drc for Draco frames, "
+                  ".ply for meshopt and raw ones; vtk = legacy binary, vtu = VTK XML with zlib, for ParaView; glb = "
+                  "glTF with Draco pieces, encoded on every core, for three.js and glTF readers with Draco, up to 16 "
+                  "quantization bits; gltf = plain glTF, uncompressed, for readers without Draco such as Debian's "
+                  "Blender and VTK; vdb = OpenVDB narrow-band level set, for Houdini, Blender volumes and OpenVDB)")
       ->delimiter(',')
-      ->check(CLI::IsMember({"drc", "ply", "obj", "vtk", "vtu", "glb"}))
+      ->check(CLI::IsMember(file_format_names()))
       ->type_name("LIST");
+  app->add_option("--vdb-voxel-size", flags.vdb_voxel_size,
+                  "voxel edge of .vdb files in scene units (default: each frame's mean edge length)")
+      ->check(CLI::PositiveNumber)
+      ->type_name("H");
   add_report_flags(app, flags.report);
 }
 

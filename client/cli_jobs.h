@@ -23,6 +23,7 @@ inline constexpr const char* kGlobalNote =
 struct OutputFlags {
   std::optional<std::string> dir;
   std::vector<std::string> formats;
+  double vdb_voxel_size = 0.0;
   ReportFlags report;
 };
 

@@ -9,6 +9,7 @@
 #include "client/health.h"
 #include "client/security.h"
 #include "server/in_process.h"
+#include "wire/protocol.h"
 
 namespace surfacer::client {
 namespace {
@@ -98,9 +99,33 @@ std::chrono::system_clock::time_point Connection::unary_deadline() const {
          std::chrono::seconds(20);
 }
 
+namespace {
+
+// What a job spec holds many of, for the message that refuses one too large to send: "2000000 scenes".
+std::string bulk_of(const v1::JobSpec& spec) {
+  if (spec.has_isosurface()) return std::to_string(spec.isosurface().scenes_size()) + " scenes";
+  if (spec.has_particles()) return std::to_string(spec.particles().frames_size()) + " particle frames";
+  if (spec.has_active() && spec.active().has_coat()) {
+    return std::to_string(spec.active().coat().frames_size()) + " particle frames";
+  }
+  return "its options";
+}
+
+}  // namespace
+
 grpc::Status Connection::submit(const v1::JobSpec& spec, v1::SubmitJobResponse& response) {
   v1::SubmitJobRequest request;
   *request.mutable_spec() = spec;
+  if (const std::size_t bytes = request.ByteSizeLong(); bytes > wire::kMaxMessageBytes) {
+    // The server would see only gRPC's "larger than max"; say what is large and how to split it.
+    std::string frames;
+    if (const auto& info = server_info(); info && info->limits().max_frames() > 0) {
+      frames = " (the server takes at most " + std::to_string(info->limits().max_frames()) + " frames per job)";
+    }
+    return {grpc::StatusCode::RESOURCE_EXHAUSTED,
+            "not sent: the job spec is " + std::to_string(bytes) + " bytes with " + bulk_of(spec) + ", over the " +
+                std::to_string(wire::kMaxMessageBytes) + " a request may carry: split it into several jobs" + frames};
+  }
   grpc::ClientContext context;
   context.set_deadline(unary_deadline());
   return stub_->SubmitJob(&context, request, &response);

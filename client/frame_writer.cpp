@@ -12,7 +12,9 @@
 
 #include "client/exit_codes.h"
 #include "client/output_files.h"
+#include "client/vdb_writer.h"
 #include "core/mesh/frame_codec.h"
+#include "core/mesh/mesh_gltf.h"
 #include "core/mesh/mesh_io.h"
 #include "core/mesh/mesh_vtk.h"
 #include "core/util/errors.h"
@@ -87,41 +89,10 @@ std::string frame_file_name(int index, FileFormat format) {
   return buf;
 }
 
-namespace {
-
-// `text` with XML's five special characters escaped, for an attribute value.
-std::string xml_attribute(const std::string& text) {
-  std::string out;
-  for (const char c : text) {
-    switch (c) {
-      case '&':
-        out += "&amp;";
-        break;
-      case '<':
-        out += "&lt;";
-        break;
-      case '>':
-        out += "&gt;";
-        break;
-      case '"':
-        out += "&quot;";
-        break;
-      case '\'':
-        out += "&apos;";
-        break;
-      default:
-        out += c;
-    }
-  }
-  return out;
-}
-
-}  // namespace
-
 std::string pvd_collection(const std::vector<std::pair<double, std::string>>& frames) {
   std::string out = "<?xml version=\"1.0\"?>\n<VTKFile type=\"Collection\" version=\"0.1\">\n  <Collection>\n";
   for (const auto& [time, file] : frames) {
-    out += "    <DataSet timestep=\"" + format_number(time) + "\" part=\"0\" file=\"" + xml_attribute(file) + "\"/>\n";
+    out += "    <DataSet timestep=\"" + format_number(time) + "\" part=\"0\" file=\"" + xml_escape(file) + "\"/>\n";
   }
   return out + "  </Collection>\n</VTKFile>\n";
 }
@@ -273,6 +244,14 @@ std::vector<std::filesystem::path> FrameWriter::write(const ReceivedFrame& frame
           if (e.kind() != ErrorKind::kInvalidInput || e.field() != "quantization_bits") throw;
           throw CliError(ExitCode::kUsage, "frame " + std::to_string(frame.index) + ": --format glb: " + e.what());
         }
+        bytes = converted;
+        break;
+      case FileFormat::kGltf:
+        converted = write_gltf(decoded());
+        bytes = converted;
+        break;
+      case FileFormat::kVdb:
+        converted = write_vdb(decoded(), options_.vdb_voxel_size);
         bytes = converted;
         break;
     }

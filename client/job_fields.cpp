@@ -112,6 +112,10 @@ std::vector<JobField> particles_fields() {
        .value_name = "N",
        .aliases = {"min-particles"},
        .default_value = [=] { return whole(defaults.min_particles_per_component); }},
+      {.path = "interpolate",
+       .help = "particle attributes to carry onto the surface's vertices, by name (velocity,density), or all: "
+               "interpolated from the particles within r_outer and written under the same names",
+       .value_name = "NAMES"},
   };
 }
 
@@ -337,6 +341,17 @@ void set_vec3(pb::Message& vec, const std::vector<double>& v, std::size_t at) {
 // Sets the scalar or Bounds/Vec3 field `fd` of `message` from `text`.
 void set_value(pb::Message& message, const pb::FieldDescriptor* fd, const std::string& text, const std::string& name) {
   const pb::Reflection* r = message.GetReflection();
+  if (fd->is_repeated()) {
+    if (fd->cpp_type() != pb::FieldDescriptor::CPPTYPE_STRING) {
+      throw usage(name + ": the field " + fd->full_name() + " cannot be set from the command line");
+    }
+    r->ClearField(&message, fd);
+    for (const std::string& item : split(text)) {
+      if (item.empty()) throw usage(name + " \"" + text + "\" has an empty name");
+      r->AddString(&message, fd, item);
+    }
+    return;
+  }
   switch (fd->cpp_type()) {
     case pb::FieldDescriptor::CPPTYPE_DOUBLE:
     case pb::FieldDescriptor::CPPTYPE_FLOAT: {
@@ -529,7 +544,8 @@ bool takes_words(JobTable table, const JobField& field) {
     message = &message->GetReflection()->GetMessage(*message, fd);
     pos = dot + 1;
   }
-  return fd != nullptr && fd->cpp_type() == pb::FieldDescriptor::CPPTYPE_ENUM;
+  return fd != nullptr &&
+         (fd->cpp_type() == pb::FieldDescriptor::CPPTYPE_ENUM || fd->cpp_type() == pb::FieldDescriptor::CPPTYPE_STRING);
 }
 
 std::string cli_flag(const std::string& spelling) {

@@ -135,8 +135,17 @@ std::vector<std::filesystem::path> add_particles(const JobOptions& options, Prep
     upload.description = "particle frame " + std::to_string(index) + " (" + file.string() + ")";
     upload.frame = index;
     upload.read = [file, frame, index, r_inner_name](v1::JobSpec& spec, const InputLimits& limits) {
-      ParticleRecords records =
-          frame != nullptr ? pack_particle_records(*frame, file.string(), limits) : read_particle_records(file, limits);
+      std::vector<std::string> attributes;
+      if (spec.has_particles())
+        attributes.assign(spec.particles().interpolate().begin(), spec.particles().interpolate().end());
+      ParticleRecords records = frame != nullptr ? pack_particle_records(*frame, file.string(), limits, attributes)
+                                                 : read_particle_records(file, limits, attributes);
+      particle_frames(spec)[index].clear_attributes();
+      for (const auto& [attribute, components] : records.attributes) {
+        v1::ParticleAttribute* a = particle_frames(spec)[index].add_attributes();
+        a->set_name(attribute);
+        a->set_components(components);
+      }
       if (spec.has_particles()) {
         try {
           wire::require_r_inner_frame(spec.particles(), static_cast<std::size_t>(index), records.with_radius);
@@ -336,6 +345,11 @@ PreparedJob prepare_job(const JobOptions& options, const InMemoryInputs& in_memo
     spec = options.spec;
     build_inputs(options, prepared, in_memory);
   }
+  // Interpolated attributes travel in raw frames (the one encoding that carries them): the default when none is given.
+  if (spec.has_particles() && spec.particles().interpolate_size() > 0 &&
+      spec.output().encoding() == v1::MESH_ENCODING_UNSPECIFIED) {
+    spec.mutable_output()->set_encoding(v1::MESH_ENCODING_PLY);
+  }
   if (options.name) {
     spec.set_name(*options.name);
   } else if (spec.name().size() > wire::kMaxNameBytes) {
@@ -359,6 +373,16 @@ std::optional<int> frames_before_run(const v1::JobSpec& spec) {
 
 void fit_encoding_to_files(v1::JobSpec& spec, const std::vector<FileFormat>& formats) {
   v1::OutputOptions* output = spec.mutable_output();
+  if (spec.has_particles() && spec.particles().interpolate_size() > 0) {
+    for (FileFormat format : formats) {
+      if (format == FileFormat::kPly || format == FileFormat::kVtk || format == FileFormat::kVtu ||
+          format == FileFormat::kDrc) {
+        continue;
+      }
+      throw CliError(ExitCode::kUsage, std::string("--interpolate with --format ") + file_format_name(format) +
+                                           ": only ply, vtk, vtu and drc files carry the interpolated attributes");
+    }
+  }
   if (std::find(formats.begin(), formats.end(), FileFormat::kGlb) != formats.end() &&
       output->encoding() != v1::MESH_ENCODING_PLY) {
     try {

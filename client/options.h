@@ -73,7 +73,7 @@ struct JobOptions {
   std::optional<std::filesystem::path> velocity_grid;    // active advect: the values, uploaded (geometry in `spec`)
 };
 
-enum class FileFormat { kDrc, kPly, kObj, kVtk, kVtu, kGlb };
+enum class FileFormat { kDrc, kPly, kObj, kVtk, kVtu, kGlb, kGltf, kVdb };
 
 struct FrameOutputOptions {
   std::filesystem::path dir;
@@ -89,6 +89,8 @@ struct FrameOutputOptions {
   std::optional<std::filesystem::path> file = std::nullopt;
   // The number in frame i's file name: frame_numbers[i] (the input files' own frame numbers), or i past its end.
   std::vector<int> frame_numbers = {};
+  // Voxel edge of .vdb files in scene units; 0: each frame's mean edge length (client/vdb_writer.h).
+  double vdb_voxel_size = 0.0;
 };
 
 // How `run` and `watch` report (client/run_report.h): --progress, --json, --preview.

@@ -14,10 +14,16 @@ namespace {
 
 CliError usage(const std::string& message) { return CliError(ExitCode::kUsage, message); }
 
-constexpr FileFormat kAllFormats[] = {FileFormat::kDrc, FileFormat::kPly, FileFormat::kObj,
-                                      FileFormat::kVtk, FileFormat::kVtu, FileFormat::kGlb};
+constexpr FileFormat kAllFormats[] = {FileFormat::kDrc, FileFormat::kPly, FileFormat::kObj, FileFormat::kVtk,
+                                      FileFormat::kVtu, FileFormat::kGlb, FileFormat::kGltf, FileFormat::kVdb};
 
 }  // namespace
+
+std::vector<std::string> file_format_names() {
+  std::vector<std::string> names;
+  for (FileFormat f : kAllFormats) names.emplace_back(file_format_name(f));
+  return names;
+}
 
 std::optional<FileFormat> file_format_from_name(std::string_view name) {
   for (FileFormat f : kAllFormats) {
@@ -40,6 +46,10 @@ const char* file_format_name(FileFormat format) {
       return "vtu";
     case FileFormat::kGlb:
       return "glb";
+    case FileFormat::kGltf:
+      return "gltf";
+    case FileFormat::kVdb:
+      return "vdb";
   }
   return "bin";
 }

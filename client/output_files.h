@@ -16,6 +16,7 @@ namespace surfacer::client {
 // "drc" -> kDrc, ... "glb" -> kGlb (lower case, no dot); nullopt for anything else.
 std::optional<FileFormat> file_format_from_name(std::string_view name);
 const char* file_format_name(FileFormat format);  // "drc", ...
+std::vector<std::string> file_format_names();      // every format's name, in --format's order
 
 // The output of `command` ("run", "watch") from -o TARGET and --format NAMES (already checked to be format names).
 // A TARGET with a placeholder ({} or {:04d}, as in input patterns) is a pattern: its extension must name a format

@@ -226,7 +226,8 @@ std::vector<fs::path> expand_particle_inputs(const ParticleInputOptions& options
   return expand_particle_sequence(options, flag).files;
 }
 
-ParticleRecords read_particle_records(const fs::path& path, const InputLimits& limits) {
+ParticleRecords read_particle_records(const fs::path& path, const InputLimits& limits,
+                                      const std::vector<std::string>& attributes) {
   const std::string name = path.string();
   const bool limited =
       limits.max_particles != InputLimits{}.max_particles || limits.max_upload_bytes != InputLimits{}.max_upload_bytes;
@@ -244,10 +245,11 @@ ParticleRecords read_particle_records(const fs::path& path, const InputLimits& l
   } catch (const std::bad_alloc&) {
     throw usage(name + ": reading it needs more memory than there is");
   }
-  return pack_particle_records(frame, name, limits);
+  return pack_particle_records(frame, name, limits, attributes);
 }
 
-ParticleRecords pack_particle_records(const ParticleFrame& frame, const std::string& name, const InputLimits& limits) {
+ParticleRecords pack_particle_records(const ParticleFrame& frame, const std::string& name, const InputLimits& limits,
+                                      const std::vector<std::string>& attributes) {
   const std::string server_limits = server_limits_text(limits);
   if (frame.positions.empty()) throw usage(name + ": no particles; every frame needs at least one");
   if (static_cast<std::uint64_t>(frame.positions.size()) > static_cast<std::uint64_t>(limits.max_particles)) {
@@ -258,8 +260,26 @@ ParticleRecords pack_particle_records(const ParticleFrame& frame, const std::str
     throw usage(name + ": " + std::to_string(frame.radii.size()) + " radii for " +
                 std::to_string(frame.positions.size()) + " particles; give one per particle or none");
   }
+  std::vector<const Attribute*> packed;
+  if (attributes.size() == 1 && attributes[0] == "all") {
+    for (const Attribute& a : frame.attributes) packed.push_back(&a);
+  } else {
+    for (const std::string& attribute : attributes) {
+      const Attribute* a = find_attribute(frame, attribute);
+      if (a == nullptr) {
+        throw usage(name + ": no attribute \"" + attribute + "\" to interpolate; the file has " +
+                    attribute_list(frame));
+      }
+      if (a->count() != frame.positions.size()) {
+        throw usage(name + ": attribute " + attribute + " has " + std::to_string(a->count()) + " values for " +
+                    std::to_string(frame.positions.size()) + " particles");
+      }
+      packed.push_back(a);
+    }
+  }
   ParticleRecords records;
   records.with_radius = with_radius;
+  for (const Attribute* a : packed) records.attributes.emplace_back(a->name, a->components);
   records.count = static_cast<std::int64_t>(frame.positions.size());
   records.bytes.reserve(frame.positions.size() * (with_radius ? 16 : 12));
   for (std::size_t i = 0; i < frame.positions.size(); ++i) {
@@ -279,6 +299,17 @@ ParticleRecords pack_particle_records(const ParticleFrame& frame, const std::str
                     "; radii must be finite and >= 0");
       }
       put_float(records.bytes, r);
+    }
+    for (const Attribute* a : packed) {
+      const std::size_t c = static_cast<std::size_t>(a->components);
+      for (std::size_t k = 0; k < c; ++k) {
+        const double v = a->values[i * c + k];
+        if (!fits_float(v)) {
+          throw usage(name + ": attribute " + a->name + " of particle " + std::to_string(i) +
+                      " is not finite or does not fit in float32");
+        }
+        put_float(records.bytes, v);
+      }
     }
   }
   if (records.bytes.size() > static_cast<std::uint64_t>(limits.max_upload_bytes)) {

@@ -8,6 +8,7 @@
 #include <limits>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "client/options.h"
@@ -43,9 +44,10 @@ struct InputLimits {
 
 // One frame as upload records.
 struct ParticleRecords {
-  std::string bytes;  // float32 LE records: x y z (or x y z r when with_radius)
+  std::string bytes;  // float32 LE records: x y z (or x y z r when with_radius), then the attributes' values
   bool with_radius = false;
   std::int64_t count = 0;
+  std::vector<std::pair<std::string, int>> attributes;  // name and components, in record order
 };
 
 // Reads a particle file (any format of core/particles/particle_io.h) and packs it. Throws CliError(kUsage) whose
@@ -54,12 +56,17 @@ struct ParticleRecords {
 // the server would refuse (more particles than `limits` allow, records over its upload limit) is refused as early as
 // its content shows it: gzip data stops inflating at 12 bytes per accepted particle (.bin) or 256 (other formats:
 // text lines or records with many columns), at most 16 GiB; the message names the limit and the server flag.
-ParticleRecords read_particle_records(const std::filesystem::path& path, const InputLimits& limits = {});
+//
+// `attributes` names the file's attributes to pack after x y z [r] (ParticlesJob.interpolate; {"all"}: every one);
+// a name the file lacks is refused naming the file and the attributes it has, and so is a value that is not finite
+// in float32.
+ParticleRecords read_particle_records(const std::filesystem::path& path, const InputLimits& limits = {},
+                                      const std::vector<std::string>& attributes = {});
 
 // Packs a frame already in memory (what read_particle_records does after reading), with the same checks and
 // messages, `name` standing for the file: an empty frame, radii that are not one per particle or are negative,
 // values that do not fit in float32, more particles or bytes than `limits` allow. Throws CliError(kUsage).
 ParticleRecords pack_particle_records(const ParticleFrame& frame, const std::string& name,
-                                      const InputLimits& limits = {});
+                                      const InputLimits& limits = {}, const std::vector<std::string>& attributes = {});
 
 }  // namespace surfacer::client

@@ -537,10 +537,14 @@ void pin_particles_from_inputs(PreparedJob& prepared) {
     if (pending != nullptr) {
       const UploadData data = pending->read(scratch, InputLimits{});  // before connecting: each server checks its own
       const bool with_radius = scratch.particles().frames(g).with_radius();
-      const std::size_t record = (with_radius ? 4 : 3) * sizeof(float);
+      std::size_t floats = with_radius ? 4 : 3;
+      for (const v1::ParticleAttribute& a : scratch.particles().frames(g).attributes()) {
+        floats += static_cast<std::size_t>(a.components());
+      }
+      const std::size_t record = floats * sizeof(float);
       for (std::size_t at = 0; at + record <= data.bytes.size(); at += record) {
         float v[4] = {0, 0, 0, 0};
-        std::memcpy(v, data.bytes.data() + at, record);
+        std::memcpy(v, data.bytes.data() + at, (with_radius ? 4 : 3) * sizeof(float));
         visit(v[0], v[1], v[2], v[3]);
       }
     } else {

@@ -26,6 +26,7 @@ MeshFormat sniff(std::string_view bytes) {
   if (bytes.substr(0, 3) == "ply") return MeshFormat::kPly;
   if (bytes.substr(0, 5) == "DRACO") return MeshFormat::kDraco;
   if (bytes.substr(0, 4) == "glTF") return MeshFormat::kGlb;
+  if (bytes.substr(0, 1) == "{") return MeshFormat::kGltf;
   return MeshFormat::kObj;
 }
 

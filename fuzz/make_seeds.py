@@ -504,12 +504,27 @@ def upload_ops():
     write(d, "raw_bad_crc", bytes([1]) + put("H", False, 4096) + raw2 + bytes([0, 0, 0, 2]) + b"ok" + bytes([0, 1, 2]))
 
 
+# --- http_request_head ---------------------------------------------------------------------------------------------
+
+def http_heads():
+    """What the metrics endpoint reads from a connection: scrapes and probes, and a few malformed heads."""
+    d = reset("http_request_head")
+    write(d, "get_metrics", "GET /metrics HTTP/1.1\r\nHost: localhost:9090\r\nUser-Agent: Prometheus/2.45\r\n"
+                            "Accept: text/plain;version=0.0.4\r\n\r\n")
+    write(d, "head_healthz_lf", "HEAD /healthz?probe=1 HTTP/1.0\n\n")
+    write(d, "http2", "GET /metrics HTTP/2.0\r\n\r\n")
+    write(d, "bad_header", "GET /metrics HTTP/1.1\r\nno colon\r\n\r\n")
+    write(d, "post_body", "POST /metrics HTTP/1.1\r\nContent-Length: 3\r\n\r\nabc")
+    write(d, "partial", "GET /met")
+
+
 if __name__ == "__main__":
     scenes()
     particles()
     meshes()
     frame_ops()
     upload_ops()
+    http_heads()
     for t in sorted(CORPUS.iterdir()):
         files = list(t.iterdir())
         print("%-18s %3d files, %6d bytes" % (t.name, len(files), sum(f.stat().st_size for f in files)))

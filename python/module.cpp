@@ -11,9 +11,11 @@
 #include <pybind11/stl.h>
 
 #include <atomic>
+#include <cctype>
 #include <condition_variable>
 #include <cstdlib>
 #include <deque>
+#include <filesystem>
 #include <functional>
 #include <iostream>
 #include <map>
@@ -27,6 +29,7 @@
 
 #include "client/commands.h"
 #include "client/connection.h"
+#include "client/frame_writer.h"
 #include "client/health.h"
 #include "client/job_fields.h"
 #include "client/job_spec.h"
@@ -35,6 +38,7 @@
 #include "client/server_list.h"
 #include "client/summary.h"
 #include "client/upload.h"
+#include "client/vdb_writer.h"
 #include "client/watch.h"
 #include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_io.h"
@@ -250,11 +254,60 @@ struct Inputs {
     return key;
   }
 
-  // One input per item: (N,3) positions, (N,4) positions and radii, or a file or pattern (fluid_{:04d}.bgeo). A
-  // single array or path is one input.
+  // A dict frame {"positions": (N,3) or (N,4) array, "radii": (N,) optional, NAME: (N,) or (N,k) array, ...}: every
+  // other key an attribute of k = 1..4 components (interpolate= names the ones carried onto the mesh).
+  ParticleFrame dict_frame(const py::dict& item, const std::string& key) {
+    if (!item.contains("positions")) throw py::type_error(key + " is a dict without \"positions\"");
+    ParticleFrame frame = array_frame(item["positions"], key + "[\"positions\"]");
+    const std::size_t n = frame.positions.size();
+    for (auto [k, value] : item) {
+      const std::string name = py::str(k).cast<std::string>();
+      if (name == "positions") continue;
+      const auto array = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(value);
+      const bool ok = array && (array.ndim() == 1 || array.ndim() == 2) &&
+                      static_cast<std::size_t>(array.shape(0)) == n &&
+                      (array.ndim() == 1 || (array.shape(1) >= 1 && array.shape(1) <= Attribute::kMaxComponents));
+      if (!ok) {
+        throw py::type_error(key + "[\"" + name + "\"] must be an (N,) or (N,k) array, k in 1.." +
+                             std::to_string(Attribute::kMaxComponents) + ", with N = " + std::to_string(n) +
+                             " (one row per particle)");
+      }
+      const int components = array.ndim() == 1 ? 1 : static_cast<int>(array.shape(1));
+      const double* data = array.data();
+      if (name == "radii" && components == 1) {
+        frame.radii.assign(data, data + n);
+        continue;
+      }
+      Attribute attribute{name, components, {}};
+      attribute.values.assign(data, data + n * static_cast<std::size_t>(components));
+      frame.attributes.push_back(std::move(attribute));
+    }
+    return frame;
+  }
+
+  static ParticleFrame array_frame(py::handle item, const std::string& key) {
+    const auto array = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(item);
+    if (!array || array.ndim() != 2 || (array.shape(1) != 3 && array.shape(1) != 4)) {
+      const std::string got =
+          array ? "an array of shape " + text_of(array.attr("shape")) : text_of(py::repr(py::type::of(item)));
+      throw py::type_error(key + " must be an (N,3) array of positions, an (N,4) array of positions and radii, " +
+                           "a dict {\"positions\": P, NAME: values, ...} or a particle file or pattern, not " + got);
+    }
+    ParticleFrame frame;
+    const auto a = array.unchecked<2>();
+    frame.positions.reserve(static_cast<std::size_t>(a.shape(0)));
+    for (py::ssize_t k = 0; k < a.shape(0); ++k) frame.positions.emplace_back(a(k, 0), a(k, 1), a(k, 2));
+    if (a.shape(1) == 4) {
+      for (py::ssize_t k = 0; k < a.shape(0); ++k) frame.radii.push_back(a(k, 3));
+    }
+    return frame;
+  }
+
+  // One input per item: (N,3) positions, (N,4) positions and radii, a dict frame (dict_frame), or a file or pattern
+  // (fluid_{:04d}.bgeo). A single array, dict or path is one input.
   std::vector<std::string> particle_inputs(py::handle frames) {
     std::vector<py::handle> items;
-    if (py::isinstance<py::array>(frames) || is_path_like(frames)) {
+    if (py::isinstance<py::array>(frames) || is_path_like(frames) || py::isinstance<py::dict>(frames)) {
       items.push_back(frames);
     } else {
       for (py::handle item : frames) items.push_back(item);
@@ -266,20 +319,9 @@ struct Inputs {
         inputs.push_back(path_of(items[i]));
         continue;
       }
-      const auto array = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(items[i]);
-      if (!array || array.ndim() != 2 || (array.shape(1) != 3 && array.shape(1) != 4)) {
-        const std::string got =
-            array ? "an array of shape " + text_of(array.attr("shape")) : text_of(py::repr(py::type::of(items[i])));
-        throw py::type_error(key + " must be an (N,3) array of positions, an (N,4) array of positions and radii, " +
-                             "or a particle file or pattern, not " + got);
-      }
-      ParticleFrame frame;
-      const auto a = array.unchecked<2>();
-      frame.positions.reserve(static_cast<std::size_t>(a.shape(0)));
-      for (py::ssize_t k = 0; k < a.shape(0); ++k) frame.positions.emplace_back(a(k, 0), a(k, 1), a(k, 2));
-      if (a.shape(1) == 4) {
-        for (py::ssize_t k = 0; k < a.shape(0); ++k) frame.radii.push_back(a(k, 3));
-      }
+      ParticleFrame frame = py::isinstance<py::dict>(items[i])
+                                ? dict_frame(py::reinterpret_borrow<py::dict>(items[i]), key)
+                                : array_frame(items[i], key);
       memory.particles[key] = std::move(frame);
       inputs.push_back(key);
     }
@@ -561,6 +603,20 @@ struct DecodedFrame {
 };
 
 // (vertices (N,3) float64, triangles (M,3) int32, normals (N,3) float64 or None) of a mesh.
+// Mesh::attributes as {name: float32 array}, (N,) for a scalar, (N,k) for k components.
+py::dict attribute_arrays(const Mesh& mesh) {
+  py::dict out;
+  for (const Attribute& a : mesh.attributes) {
+    const auto n = static_cast<py::ssize_t>(a.count());
+    py::array_t<float> array =
+        a.components == 1 ? py::array_t<float>({n}) : py::array_t<float>({n, static_cast<py::ssize_t>(a.components)});
+    std::copy(a.values.begin(), a.values.end(), array.mutable_data());
+    out[py::str(a.name)] = array;
+  }
+  return out;
+}
+
+// (vertices, triangles, normals or None, attributes): a mesh as numpy arrays.
 py::tuple mesh_arrays(const Mesh& mesh) {
   auto rows = [](const auto& items, auto element) {
     using T = decltype(element);
@@ -573,7 +629,8 @@ py::tuple mesh_arrays(const Mesh& mesh) {
   };
   py::object normals = py::none();
   if (!mesh.normals.empty()) normals = rows(mesh.normals, double{});
-  return py::make_tuple(rows(mesh.vertices, double{}), rows(mesh.triangles, std::int32_t{}), normals);
+  return py::make_tuple(rows(mesh.vertices, double{}), rows(mesh.triangles, std::int32_t{}), normals,
+                        attribute_arrays(mesh));
 }
 
 // The frames of one job, received by a JobWatcher on a helper thread (started by the first next()) and decoded
@@ -736,7 +793,7 @@ class FrameStream {
 
   static py::tuple frame_tuple(const DecodedFrame& frame) {
     const py::tuple arrays = mesh_arrays(frame.mesh);
-    return py::make_tuple(frame.index, arrays[0], arrays[1], arrays[2], to_python(frame.stats));
+    return py::make_tuple(frame.index, arrays[0], arrays[1], arrays[2], to_python(frame.stats), arrays[3]);
   }
 
   std::shared_ptr<Connection> connection_;
@@ -758,7 +815,7 @@ class FrameStream {
   std::exception_ptr error_;
 };
 
-// Reads a mesh file with core's reader (read_mesh: .ply, .obj, .drc or .glb by the extension) as arrays.
+// Reads a mesh file with core's reader (read_mesh: .ply, .obj, .drc, .glb or .gltf by the extension) as arrays.
 py::tuple read_mesh_file(const std::string& path) {
   Mesh mesh;
   {
@@ -772,11 +829,13 @@ py::tuple read_mesh_file(const std::string& path) {
   return mesh_arrays(mesh);
 }
 
-// Writes a mesh given as arrays with core's writer (write_mesh: .ply, .obj, .drc or .glb by the extension).
+// Writes a mesh given as arrays with core's writer (write_mesh: .ply, .obj, .drc, .glb or .gltf by the extension), or
+// the client's .vdb writer (voxel_size 0: the mesh's mean edge length).
 void write_mesh_file(const std::string& path,
                      const py::array_t<double, py::array::c_style | py::array::forcecast>& vertices,
                      const py::array_t<std::int64_t, py::array::c_style | py::array::forcecast>& triangles,
-                     const std::optional<py::array_t<double, py::array::c_style | py::array::forcecast>>& normals) {
+                     const std::optional<py::array_t<double, py::array::c_style | py::array::forcecast>>& normals,
+                     const std::optional<py::dict>& attributes, double voxel_size) {
   const auto rows = [](const auto& array, const char* what) {
     if (array.ndim() != 2 || array.shape(1) != 3) throw py::value_error(std::string(what) + " must be an (N,3) array");
     return array.shape(0);
@@ -804,9 +863,32 @@ void write_mesh_file(const std::string& path,
     }
     for (py::ssize_t i = 0; i < a.shape(0); ++i) mesh.normals.emplace_back(a(i, 0), a(i, 1), a(i, 2));
   }
+  if (attributes) {
+    for (auto [key, value] : *attributes) {
+      const std::string name = py::str(key).cast<std::string>();
+      const auto array = py::array_t<float, py::array::c_style | py::array::forcecast>::ensure(value);
+      const bool ok = array &&
+                      (array.ndim() == 1 ||
+                       (array.ndim() == 2 && array.shape(1) >= 1 && array.shape(1) <= Attribute::kMaxComponents)) &&
+                      static_cast<std::size_t>(array.shape(0)) == mesh.vertices.size();
+      if (!ok) {
+        throw py::value_error("attributes[\"" + name + "\"] must be an (N,) or (N,k) array, k in 1.." +
+                              std::to_string(Attribute::kMaxComponents) + ", one row per vertex");
+      }
+      Attribute attribute{name, array.ndim() == 1 ? 1 : static_cast<int>(array.shape(1)), {}};
+      attribute.values.assign(array.data(), array.data() + array.size());
+      mesh.attributes.push_back(std::move(attribute));
+    }
+  }
   py::gil_scoped_release release;
   try {
-    surfacer::write_mesh(path, mesh);
+    std::string extension = std::filesystem::path(path).extension().string();
+    for (char& c : extension) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    if (extension == ".vdb") {
+      write_file_atomically(path, write_vdb(mesh, voxel_size));
+    } else {
+      surfacer::write_mesh(path, mesh);
+    }
   } catch (const Error& e) {
     throw CliError(ExitCode::kUsage, e.what());
   }
@@ -852,7 +934,7 @@ PYBIND11_MODULE(_surfacer, m) {
 
   m.def("read_mesh", &read_mesh_file, py::arg("path"));
   m.def("write_mesh", &write_mesh_file, py::arg("path"), py::arg("vertices"), py::arg("triangles"),
-        py::arg("normals") = py::none());
+        py::arg("normals") = py::none(), py::arg("attributes") = py::none(), py::arg("voxel_size") = 0.0);
 
   py::class_<FrameStream>(m, "FrameStream")
       .def_property_readonly("job_id", &FrameStream::job_id)

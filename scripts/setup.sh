@@ -11,8 +11,9 @@ PACKAGES=(
   libeigen3-dev libopenmesh-dev libdraco-dev draco libmeshoptimizer-dev
   libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev zlib1g-dev libsqlite3-dev libssl-dev
   clang-14 libclang-rt-14-dev  # libFuzzer targets (scripts/fuzz.sh)
-  libopenvdb-dev libboost-dev  # the OpenVDB reference of bench/particles_bench (built only with it; its headers
-                               # include Boost's, which libopenvdb-dev does not depend on)
+  libopenvdb-dev libboost-dev  # the client's .vdb writer and the OpenVDB reference of bench/particles_bench (its
+                               # headers include Boost's, which libopenvdb-dev does not depend on)
+  python3-openvdb  # pyopenvdb reads our .vdb files back in tests/python/test_readers.py
   pybind11-dev python3-dev python3-numpy python3-pytest  # the Python package (python/) and its tests
   libstb-dev  # PNG previews and plots (core/render/, header-only)
   liblz4-dev liblzma-dev  # LZ4 and LZMA blocks of VTK XML particle files (core/particles/particle_io_vtk.cpp)

@@ -3,6 +3,7 @@
 #include <chrono>
 
 #include "server/log.h"
+#include "server/memory_budget.h"
 #include "server/server.h"
 
 namespace surfacer::server {
@@ -12,6 +13,7 @@ std::unique_ptr<InProcessServer> InProcessServer::start(int workers) {
   ServerOptions options;
   options.listen = "";
   options.workers = workers;
+  options.limits.memory_budget_bytes = default_memory_budget();
   return std::unique_ptr<InProcessServer>(new InProcessServer(SurfacerServer::start(options)));
 }
 

@@ -24,6 +24,7 @@ namespace {
 constexpr auto kProgressInterval = std::chrono::milliseconds(100);
 constexpr auto kStageChangeInterval = std::chrono::milliseconds(10);
 constexpr int kGrpcCancelled = 1;
+constexpr int kGrpcAborted = 10;
 
 bool is_terminal(v1::JobState s) {
   return s == v1::JOB_STATE_SUCCEEDED || s == v1::JOB_STATE_FAILED || s == v1::JOB_STATE_CANCELLED;
@@ -77,6 +78,7 @@ std::int64_t Job::stored_bytes() const {
 std::vector<int> Job::restore(const StoredJob& stored) {
   std::set<int> done(stored.tasks_done.begin(), stored.tasks_done.end());
   std::vector<int> todo;
+  bool interrupted = false;
   {
     std::lock_guard lock(mutex_);
     const v1::Job& snap = stored.snapshot;
@@ -124,10 +126,28 @@ std::vector<int> Job::restore(const StoredJob& stored) {
       // Every task had finished before the restart, but not the job's own record.
       if (todo.empty()) settle_locked();
     }
+    interrupted_runs_ = snap.interrupted_runs();
+    if (!is_terminal(state_) && snap.state() == v1::JOB_STATE_RUNNING) {
+      interrupted = true;
+      if (++interrupted_runs_ >= kMaxInterruptedRuns) {
+        error_.set_code(kGrpcAborted);
+        error_.set_message("not resumed: the server stopped " + std::to_string(interrupted_runs_) +
+                           " times while this job was running (a crash, kill or power loss; the server's log has "
+                           "each start's store_opened event); if that cause is gone, submit it again");
+        finish_locked(v1::JOB_STATE_FAILED);
+        todo.clear();
+      }
+    }
     bump_state_locked();
   }
   if (usage_) usage_->add(owner_, stored_bytes());
-  if (todo.empty() && !is_terminal(stored.snapshot.state())) persist();
+  if (interrupted) {
+    log_event(is_terminal(state()) ? LogLevel::kWarn : LogLevel::kInfo, "job_interrupted",
+              {{"job", id_}, {"interrupted_runs", std::to_string(interrupted_runs_)}, {"state",
+                                                                                        v1::JobState_Name(state())}});
+  }
+  // The store holds it as QUEUED from here (and its count) until a task starts: a crash before then is not counted.
+  if (interrupted || (todo.empty() && !is_terminal(stored.snapshot.state()))) persist();
   return todo;
 }
 
@@ -155,6 +175,8 @@ void Job::persist() const {
     if (cancel_requested_ && !is_terminal(state_)) {
       job.set_state(v1::JOB_STATE_CANCELLED);
       *job.mutable_finished() = now_timestamp();
+    } else if (suspended_ && !is_terminal(state_)) {
+      job.set_state(v1::JOB_STATE_QUEUED);  // suspended cleanly: not an interrupted run (restore())
     }
   }
   try {
@@ -221,6 +243,7 @@ void Job::snapshot_locked(v1::Job& job) const {
   *job.mutable_created() = created_;
   if (started_.seconds() != 0 || started_.nanos() != 0) *job.mutable_started() = started_;
   if (finished_.seconds() != 0 || finished_.nanos() != 0) *job.mutable_finished() = finished_;
+  job.set_interrupted_runs(interrupted_runs_);
 }
 
 v1::Job Job::snapshot() const {
@@ -253,15 +276,33 @@ bool Job::next_event(WatchCursor& cursor, v1::JobEvent& event) const {
   if (cursor.done) return false;
   // 1. The rest of the frame in flight, so that a frame's chunks stay contiguous. Frame records are immutable.
   if (cursor.current) {
-    const std::string_view data = chunk_of(*cursor.current_bytes, cursor.next_chunk);
+    const v1::FrameHeader& header = cursor.current->header;
     auto* chunk = event.mutable_chunk();
-    chunk->set_frame_index(cursor.current->header.frame_index());
+    chunk->set_frame_index(header.frame_index());
     chunk->set_chunk_index(cursor.next_chunk);
-    chunk->set_data(data.data(), data.size());
     const auto& crcs = cursor.current->chunk_crcs;
-    chunk->set_crc32(crcs.empty() ? crc32_of(data) : crcs.at(cursor.next_chunk));
+    const bool last = cursor.next_chunk + 1 >= header.num_chunks();
+    if (cursor.current_bytes) {
+      const std::string_view data = chunk_of(*cursor.current_bytes, cursor.next_chunk);
+      chunk->set_data(data.data(), data.size());
+      chunk->set_crc32(crcs.empty() ? crc32_of(data) : crcs.at(cursor.next_chunk));
+    } else {
+      // A stored frame: this chunk alone is read, and checked before it is sent (against its recorded CRC-32, or,
+      // after a restart, the chunks so far against the frame's on the last one).
+      const std::uint64_t offset = static_cast<std::uint64_t>(cursor.next_chunk) * wire::kMaxChunkBytes;
+      const std::size_t length = static_cast<std::size_t>(
+          std::min<std::uint64_t>(wire::kMaxChunkBytes, header.total_bytes() - std::min(offset, header.total_bytes())));
+      std::string data = store_->read_frame_range(id_, header, offset, length);
+      const std::uint32_t crc = crc32_of(data);
+      cursor.crc_so_far = crc32_concat(cursor.crc_so_far, crc, data.size());
+      if ((!crcs.empty() && crcs.at(cursor.next_chunk) != crc) || (last && cursor.crc_so_far != header.crc32())) {
+        throw std::runtime_error("frame " + std::to_string(header.frame_index()) + " of job " + id_ +
+                                 " is damaged on disk (CRC-32 mismatch)");
+      }
+      chunk->set_crc32(crc);
+      chunk->set_data(std::move(data));
+    }
     ++cursor.next_chunk;
-    const bool last = cursor.next_chunk >= cursor.current->header.num_chunks();
     chunk->set_last(last);
     if (last) {
       cursor.current.reset();
@@ -284,12 +325,8 @@ bool Job::next_event(WatchCursor& cursor, v1::JobEvent& event) const {
     *event.mutable_frame() = record->header;
     if (record->header.num_chunks() > 0) {
       cursor.next_chunk = 0;
-      if (record->bytes) {
-        cursor.current_bytes = record->bytes;
-      } else {
-        lock.unlock();  // read from the store without holding the job
-        cursor.current_bytes = std::make_shared<const std::string>(store_->read_frame(id_, record->header));
-      }
+      cursor.current_bytes = record->bytes;  // null: read chunk by chunk from the store
+      cursor.crc_so_far = 0;
       cursor.current = std::move(record);
     }
     return true;
@@ -417,6 +454,7 @@ void Job::suspend() {
     if (is_terminal(state_)) return;
     suspended_ = true;
   }
+  persist();
   cancel_.cancel();
   log_event(LogLevel::kInfo, "job_suspended", {{"job", id_}, {"note", "resumes when a server opens this data dir"}});
 }

@@ -55,7 +55,10 @@ struct WatchCursor {
   std::uint64_t progress_version_sent = 0;
   std::size_t next_frame = 0;  // index into the completion-ordered frame list
   std::shared_ptr<const FrameRecord> current;
+  // The frame's bytes when held in memory (shared by every stream); null when they are read from the store one
+  // chunk at a time, so a stream never holds more than a chunk of them.
   std::shared_ptr<const std::string> current_bytes;
+  std::uint32_t crc_so_far = 0;  // CRC-32 of the chunks sent of a stored frame without recorded chunk CRCs
   int next_chunk = 0;
   bool done = false;  // the terminal state has been produced
 };
@@ -75,6 +78,10 @@ struct JobInit {
 
 class Job : public FrameSink {
  public:
+  // A job that was running when its server stopped uncleanly this many times is FAILED at the next start instead of
+  // resumed (v1::Job.interrupted_runs).
+  static constexpr int kMaxInterruptedRuns = 3;
+
   explicit Job(JobInit init);
   Job(std::string id, std::string name, std::unique_ptr<JobRunner> runner);
 
@@ -100,7 +107,9 @@ class Job : public FrameSink {
   bool next_event(WatchCursor& cursor, v1::JobEvent& event) const;
 
   // Takes the persisted state of a job found in the store at start-up: its frames, finished tasks and, for a
-  // finished job, its final state. Returns the tasks still to run (none for a finished job).
+  // finished job, its final state. A job the store holds as RUNNING was interrupted (its server did not suspend it):
+  // that is counted, durably before anything runs, and the kMaxInterruptedRuns-th time fails it. Returns the tasks
+  // still to run (none for a finished job).
   std::vector<int> restore(const StoredJob& stored);
   // Fails a job that cannot be resumed (its runner could not be rebuilt after a restart).
   void fail_restore(int grpc_code, const std::string& message);
@@ -125,8 +134,9 @@ class Job : public FrameSink {
   void set_progress(int frame_index, std::string_view stage, double fraction);
   // Requests cancellation; returns true when this call finished the job (nothing was running).
   bool cancel(const std::string& reason);
-  // The server is stopping with a durable store: running tasks stop (as on cancel) but the job keeps its state, so
-  // the next server on the same data directory resumes it. No transition is recorded after this.
+  // The server is stopping with a durable store: running tasks stop (as on cancel) and the store holds the job as
+  // QUEUED (not interrupted), so the next server on the same data directory resumes it. No transition is recorded
+  // after this.
   void suspend();
 
  private:
@@ -168,6 +178,7 @@ class Job : public FrameSink {
   int tasks_settled_ = 0;  // succeeded, failed or skipped
   bool cancel_requested_ = false;
   bool suspended_ = false;
+  int interrupted_runs_ = 0;
   std::string cancel_reason_;
   std::vector<std::shared_ptr<const FrameRecord>> frames_;  // in completion order
   std::set<int> frame_indices_;

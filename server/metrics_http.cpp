@@ -5,6 +5,7 @@
 #include <netdb.h>
 #include <netinet/in.h>
 #include <poll.h>
+#include <sys/ioctl.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
@@ -16,6 +17,7 @@
 #include <vector>
 
 #include "core/util/format.h"
+#include "server/http_request_head.h"
 #include "server/log.h"
 
 namespace surfacer::server {
@@ -94,11 +96,6 @@ std::string format_address(const sockaddr_storage& storage, int& port) {
   return std::string(text) + ":" + std::to_string(port);
 }
 
-bool is_token_char(char c) {
-  if ((c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9')) return true;
-  return std::string_view("!#$%&'*+-.^_`|~").find(c) != std::string_view::npos;
-}
-
 std::string response(int status, std::string_view reason, std::string_view content_type, std::string_view body,
                      bool head_only, std::string_view extra_headers = {}) {
   std::string out = "HTTP/1.1 ";
@@ -125,24 +122,64 @@ std::string error_response(int status, std::string_view reason, std::string_view
   return response(status, reason, kTextContentType, body, false);
 }
 
-// Where the request head ends (index just past the blank line), or npos when it has not arrived yet.
-std::size_t head_end(std::string_view data) {
-  for (std::size_t i = data.find('\n'); i != std::string_view::npos; i = data.find('\n', i + 1)) {
-    if (i + 1 < data.size() && data[i + 1] == '\n') return i + 2;
-    if (i + 2 < data.size() && data[i + 1] == '\r' && data[i + 2] == '\n') return i + 3;
+// The address a connection comes from, without its port: connections are limited per peer.
+using PeerKey = std::string;
+
+PeerKey peer_key(const sockaddr_storage& storage) {
+  if (storage.ss_family == AF_INET6) {
+    const auto& a = reinterpret_cast<const sockaddr_in6&>(storage);
+    return PeerKey(reinterpret_cast<const char*>(&a.sin6_addr), sizeof a.sin6_addr);
   }
-  return std::string_view::npos;
+  if (storage.ss_family == AF_INET) {
+    const auto& a = reinterpret_cast<const sockaddr_in&>(storage);
+    return PeerKey(reinterpret_cast<const char*>(&a.sin_addr), sizeof a.sin_addr);
+  }
+  return {};
 }
 
 struct Connection {
   enum class Phase { kReading, kWriting, kLingering };
   int fd = -1;
   Phase phase = Phase::kReading;
+  PeerKey peer;
+  std::uint64_t serial = 0;  // accept order: smaller is older
   std::string in;
   std::string out;
   std::size_t sent = 0;
   Clock::time_point deadline;
 };
+
+// Which open connection (of `peer` only, unless null) gives way to a new one, by kind: answered ones (lingering),
+// then idle ones (waiting for a request head of which no byte has come, not even unread in the socket), then
+// those with part of a request, then those being answered; the oldest of the first kind present. nullptr when there
+// is none.
+Connection* eviction_victim(std::vector<Connection>& connections, const PeerKey* peer) {
+  const auto rank = [](const Connection& c) {
+    switch (c.phase) {
+      case Connection::Phase::kLingering:
+        return 0;
+      case Connection::Phase::kReading: {
+        int pending = 0;
+        const bool idle = c.in.empty() && ioctl(c.fd, FIONREAD, &pending) == 0 && pending == 0;
+        return idle ? 1 : 2;
+      }
+      case Connection::Phase::kWriting:
+        return 3;
+    }
+    return 3;
+  };
+  Connection* victim = nullptr;
+  int victim_rank = 0;
+  for (Connection& c : connections) {
+    if (c.fd < 0 || (peer != nullptr && c.peer != *peer)) continue;
+    const int r = rank(c);
+    if (victim == nullptr || r < victim_rank || (r == victim_rank && c.serial < victim->serial)) {
+      victim = &c;
+      victim_rank = r;
+    }
+  }
+  return victim;
+}
 
 }  // namespace
 
@@ -155,6 +192,11 @@ std::unique_ptr<MetricsHttpServer> MetricsHttpServer::start(const MetricsRegistr
   if (options.max_connections < 1) {
     throw std::runtime_error("metrics endpoint: max_connections (" + std::to_string(options.max_connections) +
                              ") must be at least 1; the default is 64");
+  }
+  if (options.max_connections_per_peer < 1) {
+    throw std::runtime_error("metrics endpoint: max_connections_per_peer (" +
+                             std::to_string(options.max_connections_per_peer) +
+                             ") must be at least 1; the default is 8");
   }
   const HostPort host_port = parse_address(address);
   const std::string quoted = quote(address);
@@ -186,7 +228,9 @@ std::unique_ptr<MetricsHttpServer> MetricsHttpServer::start(const MetricsRegistr
       close(fd);
       continue;
     }
-    if (listen(fd, 64) != 0) {
+    // A deep accept queue: a burst of connections (an attacker's) waits there for accept_all() instead of having its
+    // SYNs dropped, which would delay the scrapes behind it by the client's 1 s SYN retransmission.
+    if (listen(fd, SOMAXCONN) != 0) {
       failure = "listen(): " + errno_text(errno);
       close(fd);
       continue;
@@ -234,45 +278,11 @@ void MetricsHttpServer::stop() {
 }
 
 std::string MetricsHttpServer::respond(std::string_view head) const {
-  const std::size_t line_end = head.find('\n');
-  std::string_view line = head.substr(0, line_end);
-  if (line.ends_with('\r')) line.remove_suffix(1);
-  const std::size_t space1 = line.find(' ');
-  const std::size_t space2 = space1 == std::string_view::npos ? space1 : line.find(' ', space1 + 1);
-  if (space2 == std::string_view::npos || line.find(' ', space2 + 1) != std::string_view::npos) {
-    return error_response(400, "Bad Request", "expected a request line 'METHOD /path HTTP/1.1'");
-  }
-  const std::string_view method = line.substr(0, space1);
-  const std::string_view target = line.substr(space1 + 1, space2 - space1 - 1);
-  const std::string_view version = line.substr(space2 + 1);
-  if (method.empty() || !std::all_of(method.begin(), method.end(), is_token_char)) {
-    return error_response(400, "Bad Request", "malformed method");
-  }
-  if (!target.starts_with('/') || std::any_of(target.begin(), target.end(), [](char c) {
-        return static_cast<unsigned char>(c) <= 0x20 || c == 0x7f;
-      })) {
-    return error_response(400, "Bad Request", "the request target must be a path starting with '/'");
-  }
-  if (!version.starts_with("HTTP/")) return error_response(400, "Bad Request", "malformed HTTP version");
-  if (version != "HTTP/1.1" && version != "HTTP/1.0") {
-    return error_response(505, "HTTP Version Not Supported", "use HTTP/1.1 or HTTP/1.0");
-  }
-  // Header lines: "name: value" with a token name. Their content is not needed.
-  for (std::size_t start = line_end + 1; start < head.size();) {
-    std::size_t end = head.find('\n', start);
-    if (end == std::string_view::npos) end = head.size();
-    std::string_view header = head.substr(start, end - start);
-    start = end + 1;
-    if (header.ends_with('\r')) header.remove_suffix(1);
-    if (header.empty()) break;
-    const std::size_t colon = header.find(':');
-    if (colon == 0 || colon == std::string_view::npos ||
-        !std::all_of(header.begin(), header.begin() + static_cast<std::ptrdiff_t>(colon), is_token_char)) {
-      return error_response(400, "Bad Request", "malformed header line");
-    }
-  }
-
-  const std::string_view path = target.substr(0, target.find('?'));
+  const RequestHead request = parse_request_head(head);
+  if (request.error_status == 505) return error_response(505, "HTTP Version Not Supported", request.error);
+  if (request.error_status != 0) return error_response(400, "Bad Request", request.error);
+  const std::string_view method = request.method;
+  const std::string_view path = request.path;
   if (path != "/metrics" && path != "/healthz") {
     return error_response(404, "Not Found", "this server has /metrics and /healthz");
   }
@@ -333,7 +343,7 @@ void MetricsHttpServer::run() {
         return;
       }
     }
-    const std::size_t end = head_end(c.in);
+    const std::size_t end = request_head_end(c.in);
     if (end != std::string::npos && end <= options_.max_request_bytes) {
       start_writing(c, respond(std::string_view(c.in).substr(0, end)), now);
     } else if (c.in.size() > options_.max_request_bytes || end != std::string::npos) {
@@ -379,9 +389,14 @@ void MetricsHttpServer::run() {
       return;
     }
   };
+  std::uint64_t accepted = 0;
+  // Never refuses: a peer at its limit, or a full table, closes the connection that eviction_victim() picks.
   const auto accept_all = [&](Clock::time_point now) {
     for (;;) {
-      const int fd = accept4(listen_fd_, nullptr, nullptr, SOCK_NONBLOCK | SOCK_CLOEXEC);
+      sockaddr_storage from{};
+      socklen_t from_length = sizeof from;
+      const int fd =
+          accept4(listen_fd_, reinterpret_cast<sockaddr*>(&from), &from_length, SOCK_NONBLOCK | SOCK_CLOEXEC);
       if (fd < 0) {
         if (errno == EINTR || errno == ECONNABORTED) continue;
         if (errno == EMFILE || errno == ENFILE || errno == ENOBUFS || errno == ENOMEM) {
@@ -390,13 +405,21 @@ void MetricsHttpServer::run() {
         }
         return;
       }
-      if (connections.size() >= static_cast<std::size_t>(options_.max_connections)) {
-        close(fd);
-        continue;
-      }
       Connection c;
       c.fd = fd;
+      c.peer = peer_key(from);
+      c.serial = accepted++;
       c.deadline = now + options_.read_timeout;
+      const auto same_peer = std::count_if(connections.begin(), connections.end(),
+                                           [&](const Connection& o) { return o.fd >= 0 && o.peer == c.peer; });
+      if (same_peer >= options_.max_connections_per_peer) {
+        close_connection(*eviction_victim(connections, &c.peer));
+      }
+      std::erase_if(connections, [](const Connection& o) { return o.fd < 0; });
+      if (connections.size() >= static_cast<std::size_t>(options_.max_connections)) {
+        close_connection(*eviction_victim(connections, nullptr));
+        std::erase_if(connections, [](const Connection& o) { return o.fd < 0; });
+      }
       connections.push_back(std::move(c));
     }
   };
@@ -407,10 +430,12 @@ void MetricsHttpServer::run() {
       for (Connection& c : connections) {
         if (now < c.deadline) continue;
         if (c.phase == Connection::Phase::kReading) {
-          start_writing(c, error_response(408, "Request Timeout", "the request head did not arrive in time"), now);
-        } else {
-          close_connection(c);
+          // One attempt to say why, then the connection is closed: an idle client holds no slot beyond read_timeout.
+          const std::string timeout = error_response(408, "Request Timeout", "the request head did not arrive in time");
+          while (send(c.fd, timeout.data(), timeout.size(), MSG_NOSIGNAL) < 0 && errno == EINTR) {
+          }
         }
+        close_connection(c);
       }
       std::erase_if(connections, [](const Connection& c) { return c.fd < 0; });
 

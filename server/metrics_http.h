@@ -6,9 +6,17 @@
 //                      (500 with the error text if a callback throws)
 //   GET|HEAD /healthz  200 "ok", or 503 "unavailable" while options.healthy() returns false
 //   other paths        404;  other methods 405 (with `Allow: GET, HEAD`)
-//   malformed request  400;  request head over max_request_bytes 431;  head not complete within read_timeout 408
+//   malformed request  400;  request head over max_request_bytes 431
+//   head not complete within read_timeout: one attempt to send 408, then the connection is closed
 //
-// Every response closes the connection (`Connection: close`). The query string is ignored.
+// Every response closes the connection (`Connection: close`). The query string is ignored. The request head is parsed
+// by server/http_request_head.h.
+//
+// Idle clients cannot lock scrapes out: a connection holds its slot at most read_timeout before its request head is
+// complete, and a new connection is never refused: when its peer address already holds max_connections_per_peer
+// connections, or the server holds max_connections, one of that peer's (or of all) is closed for it: an answered one
+// still lingering, else the oldest idle one (no byte of a request yet), else the oldest with part of a request, else
+// the oldest being answered.
 #pragma once
 
 #include <atomic>
@@ -26,14 +34,17 @@
 namespace surfacer::server {
 
 struct MetricsHttpOptions {
-  // The whole request head (request line and headers) must arrive within this time of accepting the connection.
-  std::chrono::milliseconds read_timeout{5000};
+  // The whole request head (request line and headers) must arrive within this time of accepting the connection
+  // (a scraper sends it at once).
+  std::chrono::milliseconds read_timeout{2000};
   // A response not fully sent within this time is abandoned (the connection is closed).
   std::chrono::milliseconds write_timeout{10000};
   // Larger request heads answer 431.
   std::size_t max_request_bytes = 8192;
-  // Connections beyond this are accepted and closed at once.
+  // Open connections, in all and from one peer address (any port); a new one beyond either closes an older one (see
+  // above). >= 1 each.
   int max_connections = 64;
+  int max_connections_per_peer = 8;
   // /healthz answers 503 while this returns false (e.g. while draining). Empty: always healthy. Called on the
   // server thread; must be thread-safe and fast.
   std::function<bool()> healthy;

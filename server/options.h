@@ -15,6 +15,7 @@ struct Limits {
   std::int64_t max_triangles = 50'000'000;                // --max-triangles (per frame)
   std::int64_t max_upload_bytes = std::int64_t{4} << 30;  // --max-upload-bytes (per upload)
   std::int64_t max_frames = 100'000;                      // --max-frames (per job)
+  std::int64_t memory_budget_bytes = std::int64_t{4} << 30;  // --memory-budget (bytes, whole server)
 };
 
 struct ServerOptions {
@@ -31,6 +32,12 @@ struct ServerOptions {
   std::int64_t retain_bytes = 0;
   // How often retention runs.
   std::chrono::milliseconds retention_interval = std::chrono::seconds(60);
+
+  // WatchJob streams open at once on one job beyond this answer RESOURCE_EXHAUSTED (--max-watchers-per-job).
+  int max_watchers_per_job = 32;
+  // An upload whose next chunk does not arrive within this is ended (DEADLINE_EXCEEDED) and its bytes freed
+  // (--upload-idle-timeout).
+  std::chrono::milliseconds upload_idle_timeout = std::chrono::minutes(10);
 
   // Durable store (--data-dir): SQLite + files. Empty: memory only (jobs are lost on restart).
   std::string data_dir;

@@ -18,6 +18,7 @@
 #include "server/clock.h"
 #include "server/job.h"
 #include "server/log.h"
+#include "server/memory_budget.h"
 #include "server/metrics_http.h"
 #include "server/runners/runner.h"
 #include "server/scheduler.h"
@@ -99,6 +100,7 @@ struct SurfacerServer::Impl {
         uploads(store.get()),
         scheduler(pool, options.max_queued_jobs),
         metrics(registry),
+        memory(options.limits.memory_budget_bytes),
         service(state) {
     state.options = options;
     state.worker_threads = threads;
@@ -110,6 +112,7 @@ struct SurfacerServer::Impl {
     state.usage = &usage;
     state.hooks = &hooks;
     state.metrics = &metrics;
+    state.memory = &memory;
     register_metrics();
   }
 
@@ -133,6 +136,7 @@ struct SurfacerServer::Impl {
   Scheduler scheduler;
   MetricsRegistry registry;
   ServerMetrics metrics;
+  MemoryBudget memory;
   ServiceState state;
   SurfacerService service;
   std::unique_ptr<grpc::Server> grpc_server;
@@ -207,6 +211,12 @@ void SurfacerServer::Impl::register_metrics() {
   registry.gauge_callback("surfacer_workers", "Worker threads", [this] { return static_cast<double>(threads); });
   registry.gauge_callback("surfacer_serving", "1 while accepting jobs, 0 while draining or stopped",
                           [this] { return state.accepting.load() ? 1.0 : 0.0; });
+  registry.gauge_callback("surfacer_memory_budget_bytes", "The memory budget (--memory-budget)",
+                          [this] { return static_cast<double>(memory.limit()); });
+  registry.gauge_callback("surfacer_memory_budget_used_bytes",
+                          "Bytes of the memory budget held by uploads being received or kept in memory and by "
+                          "WatchJob streams",
+                          [this] { return static_cast<double>(memory.used()); });
   registry.gauge_callback("surfacer_stored_bytes", "Bytes of frames and uploads held (store or memory)", [this] {
     double total = static_cast<double>(uploads.total_bytes());
     for (const auto& job : scheduler.list()) total += static_cast<double>(job->stored_bytes());

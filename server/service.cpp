@@ -5,13 +5,18 @@
 
 #include <algorithm>
 #include <charconv>
+#include <condition_variable>
 #include <mutex>
 #include <optional>
+#include <set>
+#include <thread>
+#include <unordered_map>
 
 #include "core/util/errors.h"
 #include "core/util/format.h"
 #include "core/util/version.h"
 #include "server/log.h"
+#include "server/memory_budget.h"
 #include "server/runners/runner.h"
 #include "server/server_metrics.h"
 #include "server/status_map.h"
@@ -24,7 +29,96 @@
 #include "wire/uploads.h"
 
 namespace surfacer::server {
+
+// Uploads being received, for ending those whose client went quiet (--upload-idle-timeout). Its thread starts with
+// the first upload (the server's options are final by then) and looks a few times per timeout.
+class OpenUploads {
+ public:
+  class Session {
+   public:
+    virtual ~Session() = default;
+    // Marks the upload ended and frees its bytes if nothing arrived since `cutoff`; returns whether it did. Called
+    // under the registry's lock, so it must not finish the call: finish_expired() does, after the lock is let go.
+    virtual bool expire_if_idle(std::chrono::steady_clock::time_point cutoff) = 0;
+    virtual void finish_expired() = 0;
+  };
+
+  explicit OpenUploads(const ServiceState& state) : state_(state) {}
+  ~OpenUploads() {
+    {
+      std::lock_guard lock(mutex_);
+      stop_ = true;
+    }
+    wake_.notify_all();
+    if (thread_.joinable()) thread_.join();
+  }
+
+  void add(Session* session) {
+    std::lock_guard lock(mutex_);
+    sessions_.insert(session);
+    if (!thread_.joinable()) thread_ = std::thread([this] { loop(); });
+  }
+  // Called from the session's OnDone: after it returns, the registry never touches the session again.
+  void remove(Session* session) {
+    std::lock_guard lock(mutex_);
+    sessions_.erase(session);
+  }
+
+ private:
+  void loop() {
+    const std::chrono::milliseconds timeout = state_.options.upload_idle_timeout;
+    const auto period = std::clamp<std::chrono::milliseconds>(timeout / 4, std::chrono::milliseconds(10),
+                                                              std::chrono::milliseconds(1000));
+    std::unique_lock lock(mutex_);
+    while (!stop_) {
+      wake_.wait_for(lock, period, [this] { return stop_; });
+      if (stop_) break;
+      const auto cutoff = std::chrono::steady_clock::now() - timeout;
+      std::vector<Session*> expired;
+      for (Session* session : sessions_) {
+        if (session->expire_if_idle(cutoff)) expired.push_back(session);
+      }
+      // A session marked expired gets no OnDone before its Finish, so it stays alive until finish_expired().
+      lock.unlock();
+      for (Session* session : expired) session->finish_expired();
+      lock.lock();
+    }
+  }
+
+  const ServiceState& state_;
+  std::mutex mutex_;
+  std::condition_variable wake_;
+  std::set<Session*> sessions_;
+  bool stop_ = false;
+  std::thread thread_;
+};
+
+// How many WatchJob streams each job has open (--max-watchers-per-job).
+class WatchSlots {
+ public:
+  // Takes a slot on `job_id` unless `max` are taken.
+  bool try_take(const std::string& job_id, int max) {
+    std::lock_guard lock(mutex_);
+    int& open = open_[job_id];
+    if (open >= max) return false;
+    ++open;
+    return true;
+  }
+  void give_back(const std::string& job_id) {
+    std::lock_guard lock(mutex_);
+    auto it = open_.find(job_id);
+    if (it != open_.end() && --it->second <= 0) open_.erase(it);
+  }
+
+ private:
+  std::mutex mutex_;
+  std::unordered_map<std::string, int> open_;
+};
+
 namespace {
+
+// What one WatchJob stream holds at most: the chunk in its event and gRPC's serialized copy of it.
+constexpr std::int64_t kWatchStreamBytes = 2 * static_cast<std::int64_t>(wire::kMaxChunkBytes);
 
 // A reactor that only reports an error.
 class FailedWrite final : public grpc::ServerWriteReactor<v1::JobEvent> {
@@ -75,9 +169,14 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::JobEvent>,
                            public JobListener,
                            public std::enable_shared_from_this<WatchReactor> {
  public:
-  static WatchReactor* start(std::shared_ptr<Job> job, const v1::WatchJobRequest& request, ServerMetrics* metrics) {
+  // `slots`: where the stream's slot on its job was taken (given back when the stream ends); `buffers`: its share
+  // of the memory budget.
+  static WatchReactor* start(std::shared_ptr<Job> job, const v1::WatchJobRequest& request, ServerMetrics* metrics,
+                             WatchSlots* slots, MemoryReservation buffers) {
     auto reactor = std::shared_ptr<WatchReactor>(new WatchReactor(std::move(job), request));
     reactor->metrics_ = metrics;
+    reactor->slots_ = slots;
+    reactor->buffers_ = std::move(buffers);
     if (metrics) metrics->watchers.inc();
     reactor->self_ = reactor;
     reactor->job_->add_listener(reactor);
@@ -103,6 +202,8 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::JobEvent>,
   }
   void OnDone() override {
     if (metrics_) metrics_->watchers.dec();
+    if (slots_) slots_->give_back(job_->id());
+    buffers_.release();
     auto keep = std::move(self_);  // may destroy this when the last notification has returned
   }
 
@@ -148,6 +249,8 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::JobEvent>,
   std::shared_ptr<Job> job_;
   std::shared_ptr<WatchReactor> self_;
   ServerMetrics* metrics_ = nullptr;
+  WatchSlots* slots_ = nullptr;
+  MemoryReservation buffers_;
   std::mutex mutex_;
   WatchCursor cursor_;
   v1::JobEvent event_;  // stable while a write is in flight
@@ -159,7 +262,7 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::JobEvent>,
 // Reassembles a client-streamed upload (UploadAssembler), then stores it under the caller's tenant. Only a stream
 // the client closed normally is stored, and only if the client can learn its id: an upload whose call ends
 // cancelled (client cancel, deadline, a message gRPC refused) is forgotten again, wherever it was kept.
-class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
+class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk>, public OpenUploads::Session {
  public:
   // The smaller of --max-upload-bytes and what the tenant's stored-bytes quota has left.
   static std::int64_t limit(const ServiceState& state, const Tenant& tenant) {
@@ -171,18 +274,25 @@ class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
   }
 
   UploadReactor(ServiceState& state, grpc::CallbackServerContext& context, const Tenant& tenant,
-                v1::UploadResponse* response)
+                v1::UploadResponse* response, OpenUploads& open_uploads)
       : state_(state),
         context_(context),
         tenant_(tenant),
         response_(response),
-        assembler_(limit(state, tenant), hint(state, tenant)) {
+        open_uploads_(open_uploads),
+        assembler_(limit(state, tenant), hint(state, tenant), state.memory) {
+    open_uploads_.add(this);
     StartRead(&chunk_);
   }
 
   void OnReadDone(bool ok) override {
+    std::unique_lock lock(mutex_);
+    if (finished_) return;  // ended as idle meanwhile
+    last_activity_ = std::chrono::steady_clock::now();
     if (!ok) {
       // The stream ended: closed by the client, or cancelled (then nothing is stored).
+      finished_ = true;
+      lock.unlock();
       if (context_.IsCancelled()) {
         Finish(grpc::Status(grpc::StatusCode::CANCELLED, "upload cancelled; nothing was stored"));
       } else {
@@ -191,13 +301,35 @@ class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
       return;
     }
     if (const grpc::Status status = assembler_.add(chunk_); !status.ok()) {
+      finished_ = true;
+      lock.unlock();
       Finish(status);
       return;
     }
     StartRead(&chunk_);
   }
 
+  bool expire_if_idle(std::chrono::steady_clock::time_point cutoff) override {
+    std::unique_lock lock(mutex_, std::try_to_lock);  // busy with a chunk: not idle
+    if (!lock.owns_lock() || finished_ || last_activity_ > cutoff) return false;
+    finished_ = true;
+    const auto seconds = std::chrono::duration<double>(state_.options.upload_idle_timeout).count();
+    expired_ = grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED,
+                            "upload: no chunk arrived for " + format_number(seconds) +
+                                " s (the server's --upload-idle-timeout), so the upload was ended and the " +
+                                std::to_string(assembler_.bytes()) +
+                                " bytes received were dropped; nothing was stored. Send the upload again without "
+                                "pausing between chunks, or start the server with a larger --upload-idle-timeout");
+    assembler_.abandon(expired_);
+    return true;
+  }
+  void finish_expired() override {
+    log_event(LogLevel::kInfo, "upload_idle", {{"tenant", tenant_.name}, {"error", expired_.error_message()}});
+    Finish(expired_);
+  }
+
   void OnDone() override {
+    open_uploads_.remove(this);
     // The reply never reached the client: it cannot know the id, so the upload must not stay.
     if (!stored_id_.empty() && context_.IsCancelled()) {
       const std::int64_t bytes = state_.uploads->remove(stored_id_);
@@ -225,6 +357,7 @@ class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
       return;
     }
     std::shared_ptr<UploadBlob> blob = assembler_.take();
+    MemoryReservation held = assembler_.take_reservation();
     const auto size = static_cast<std::int64_t>(blob->bytes.size());
     if (state_.usage && !state_.usage->try_add(tenant_.name, size, tenant_.max_stored_bytes)) {
       Finish(grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED, "upload: " + hint(state_, tenant_)));
@@ -234,7 +367,7 @@ class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
       response_->set_bytes(blob->bytes.size());
       response_->set_crc32(blob->crc32);
       const std::string name = blob->name;
-      stored_id_ = state_.uploads->add(std::move(blob), tenant_.name);
+      stored_id_ = state_.uploads->add(std::move(blob), tenant_.name, std::move(held));
       response_->set_upload_id(stored_id_);
       if (state_.metrics) state_.metrics->bytes_in.inc(static_cast<double>(size));
       log_event(LogLevel::kInfo, "upload",
@@ -253,7 +386,12 @@ class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk> {
   grpc::CallbackServerContext& context_;
   const Tenant tenant_;
   v1::UploadResponse* response_;
+  OpenUploads& open_uploads_;
+  std::mutex mutex_;  // the assembler and the fields below, shared with the idle check
   UploadAssembler assembler_;
+  std::chrono::steady_clock::time_point last_activity_ = std::chrono::steady_clock::now();
+  bool finished_ = false;  // Finish is called (or, expired, about to be) by whoever set this
+  grpc::Status expired_;
   v1::UploadChunk chunk_;
   std::string stored_id_;  // set once the upload is stored
 };
@@ -293,6 +431,11 @@ const Tenant* tenant_or_finish(const ServiceState& state, const grpc::CallbackSe
   return tenant;
 }
 }  // namespace
+
+SurfacerService::SurfacerService(ServiceState& state)
+    : state_(state), open_uploads_(std::make_unique<OpenUploads>(state)), watch_slots_(std::make_unique<WatchSlots>()) {}
+
+SurfacerService::~SurfacerService() = default;
 
 grpc::ServerUnaryReactor* SurfacerService::SubmitJob(grpc::CallbackServerContext* context,
                                                      const grpc::ByteBuffer* request_bytes,
@@ -369,7 +512,7 @@ grpc::ServerReadReactor<v1::UploadChunk>* SurfacerService::Upload(grpc::Callback
   grpc::Status auth_status;
   const Tenant* tenant = authenticate(state_, *context, auth_status);
   if (!tenant) return new FailedRead(auth_status);
-  return new UploadReactor(state_, *context, *tenant, response);
+  return new UploadReactor(state_, *context, *tenant, response, *open_uploads_);
 }
 
 grpc::ServerWriteReactor<v1::JobEvent>* SurfacerService::WatchJob(grpc::CallbackServerContext* context,
@@ -383,7 +526,24 @@ grpc::ServerWriteReactor<v1::JobEvent>* SurfacerService::WatchJob(grpc::Callback
     return new FailedWrite(grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
                                         "from_frame (" + std::to_string(request->from_frame()) + ") must be >= 0"));
   }
-  return WatchReactor::start(std::move(job), *request, state_.metrics);
+  const int max_watchers = state_.options.max_watchers_per_job;
+  if (!watch_slots_->try_take(job->id(), max_watchers)) {
+    return new FailedWrite(grpc::Status(
+        grpc::StatusCode::RESOURCE_EXHAUSTED,
+        "job " + job->id() + " already has " + std::to_string(max_watchers) +
+            " WatchJob streams open (the server's --max-watchers-per-job); close one (a client that stopped "
+            "reading still holds its stream), or start the server with a larger --max-watchers-per-job"));
+  }
+  MemoryReservation buffers;
+  if (state_.memory) {
+    try {
+      buffers = state_.memory->reserve(kWatchStreamBytes, "a WatchJob stream");
+    } catch (...) {
+      watch_slots_->give_back(job->id());
+      return new FailedWrite(status_from_exception(std::current_exception()));
+    }
+  }
+  return WatchReactor::start(std::move(job), *request, state_.metrics, watch_slots_.get(), std::move(buffers));
 }
 
 grpc::ServerUnaryReactor* SurfacerService::GetJob(grpc::CallbackServerContext* context,

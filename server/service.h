@@ -3,6 +3,7 @@
 #pragma once
 
 #include <atomic>
+#include <memory>
 
 #include "server/auth.h"
 #include "server/job.h"
@@ -13,8 +14,11 @@
 
 namespace surfacer::server {
 
+class MemoryBudget;
 class Store;
 struct ServerMetrics;
+class OpenUploads;
+class WatchSlots;
 
 struct ServiceState {
   ServerOptions options;
@@ -28,6 +32,7 @@ struct ServiceState {
   Usage* usage = nullptr;
   const JobHooks* hooks = nullptr;
   ServerMetrics* metrics = nullptr;
+  MemoryBudget* memory = nullptr;  // --memory-budget: uploads being received and watch streams draw from it
   std::atomic<bool> accepting{true};
 };
 
@@ -37,7 +42,8 @@ const Tenant* authenticate(const ServiceState& state, const grpc::CallbackServer
 // SubmitJob takes its request as bytes and parses it itself (a scene nested too deep gets a clear error).
 class SurfacerService final : public v1::Surfacer::WithRawCallbackMethod_SubmitJob<v1::Surfacer::CallbackService> {
  public:
-  explicit SurfacerService(ServiceState& state) : state_(state) {}
+  explicit SurfacerService(ServiceState& state);
+  ~SurfacerService() override;
 
   grpc::ServerUnaryReactor* SubmitJob(grpc::CallbackServerContext* context, const grpc::ByteBuffer* request,
                                       grpc::ByteBuffer* response) override;
@@ -61,6 +67,8 @@ class SurfacerService final : public v1::Surfacer::WithRawCallbackMethod_SubmitJ
   void list_jobs(const v1::ListJobsRequest& request, const Tenant& tenant, v1::ListJobsResponse& response) const;
 
   ServiceState& state_;
+  std::unique_ptr<OpenUploads> open_uploads_;  // ends uploads left idle (--upload-idle-timeout)
+  std::unique_ptr<WatchSlots> watch_slots_;    // WatchJob streams per job (--max-watchers-per-job)
 };
 
 }  // namespace surfacer::server

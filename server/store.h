@@ -74,9 +74,11 @@ class Store {
   // `control` is checked between them: a cancel leaves nothing stored and throws Cancelled.
   void put_frame(const std::string& job_id, const v1::FrameHeader& header, const std::string& bytes,
                  const RunControl& control = {});
-  // Reads a stored frame's bytes back, checking size and CRC-32. Throws std::runtime_error when it is gone
-  // (retention) or damaged.
-  std::string read_frame(const std::string& job_id, const v1::FrameHeader& header) const;
+  // Reads `length` bytes at `offset` of a stored frame (one chunk of a WatchJob stream, so a stream holds a chunk,
+  // never the whole frame), checking the file's size against the header; the caller checks the CRC-32s. Throws
+  // std::runtime_error when the frame is gone (retention), has the wrong size, or the range lies outside it.
+  std::string read_frame_range(const std::string& job_id, const v1::FrameHeader& header, std::uint64_t offset,
+                               std::size_t length) const;
   void put_task_done(const std::string& job_id, int task);
   // Replaces the task's resumable state (FrameSink::checkpoint), atomically.
   void put_checkpoint(const std::string& job_id, int task, int next_frame, const std::string& state);

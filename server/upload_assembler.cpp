@@ -4,6 +4,7 @@
 #include <string>
 
 #include "core/util/crc32.h"
+#include "server/status_map.h"
 #include "wire/protocol.h"
 
 namespace surfacer::server {
@@ -11,13 +12,27 @@ namespace {
 constexpr std::uint64_t kReserveAtMost = std::uint64_t{4} << 20;
 }  // namespace
 
-UploadAssembler::UploadAssembler(std::int64_t max_bytes, std::string limit_hint)
-    : max_bytes_(std::max<std::int64_t>(0, max_bytes)), limit_hint_(std::move(limit_hint)) {}
+UploadAssembler::UploadAssembler(std::int64_t max_bytes, std::string limit_hint, MemoryBudget* budget)
+    : max_bytes_(std::max<std::int64_t>(0, max_bytes)), limit_hint_(std::move(limit_hint)), budget_(budget) {
+  if (budget_) reservation_ = budget_->reserve(0, "upload");
+}
 
 grpc::Status UploadAssembler::fail(grpc::Status status) {
   error_ = status;
   blob_.reset();
+  reservation_.release();
   return status;
+}
+
+grpc::Status UploadAssembler::grow_buffer(std::uint64_t capacity) {
+  try {
+    reservation_.grow_to(static_cast<std::int64_t>(capacity),
+                         "an upload being received (" + std::to_string(blob_->bytes.size()) + " bytes so far)");
+  } catch (...) {
+    return fail(status_from_exception(std::current_exception()));
+  }
+  blob_->bytes.reserve(capacity);
+  return grpc::Status::OK;
 }
 
 grpc::Status UploadAssembler::over_limit(std::uint64_t bytes) const {
@@ -54,7 +69,11 @@ grpc::Status UploadAssembler::add(const v1::UploadChunk& chunk) {
     if (expected_ > static_cast<std::uint64_t>(max_bytes_)) return fail(over_limit(expected_));
     // The announced size is the client's word: reserve no more than a few chunks up front (the string grows as
     // data arrives), so a tiny first chunk announcing gigabytes costs nothing.
-    if (expected_ > 0) blob_->bytes.reserve(std::min<std::uint64_t>(expected_, kReserveAtMost));
+    if (expected_ > 0) {
+      if (grpc::Status status = grow_buffer(std::min<std::uint64_t>(expected_, kReserveAtMost)); !status.ok()) {
+        return status;
+      }
+    }
   }
   const std::string& data = chunk.data();
   if (chunk.has_crc32() && crc32_of(data.data(), data.size()) != chunk.crc32()) {
@@ -65,6 +84,13 @@ grpc::Status UploadAssembler::add(const v1::UploadChunk& chunk) {
   if (expected_ != 0 && total > expected_) {
     return fail({grpc::StatusCode::DATA_LOSS,
                  "total_bytes: the first chunk announced " + std::to_string(expected_) + " bytes but more arrived"});
+  }
+  if (total > blob_->bytes.capacity()) {
+    // Grown here rather than by the string, so that the budget holds the buffer's real size: doubling (as the
+    // string would), but never past the announced total.
+    std::uint64_t capacity = std::max<std::uint64_t>(total, 2 * blob_->bytes.capacity());
+    if (expected_ != 0) capacity = std::min(capacity, expected_);
+    if (grpc::Status status = grow_buffer(capacity); !status.ok()) return status;
   }
   crc_ = crc32_of(data.data(), data.size(), crc_);
   blob_->bytes += data;

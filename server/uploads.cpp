@@ -34,12 +34,16 @@ void UploadStore::restore() {
   }
 }
 
-std::string UploadStore::add(std::shared_ptr<const UploadBlob> blob, const std::string& owner) {
+std::string UploadStore::add(std::shared_ptr<const UploadBlob> blob, const std::string& owner,
+                             MemoryReservation held) {
   std::string id = random_id("u-");
   if (store_) store_->put_upload(id, owner, *blob);
   Entry e;
   e.info = {id, owner, static_cast<std::int64_t>(blob->bytes.size()), std::chrono::system_clock::now()};
-  e.blob = std::move(blob);
+  if (!store_) {
+    e.blob = std::move(blob);
+    e.held = std::move(held);
+  }
   std::lock_guard lock(mutex_);
   total_bytes_ += e.info.bytes;
   entries_.emplace(id, std::move(e));
@@ -52,8 +56,14 @@ std::shared_ptr<const UploadBlob> UploadStore::get(const std::string& id, const 
     std::lock_guard lock(mutex_);
     auto it = entries_.find(id);
     if (it != entries_.end()) {
-      if (!it->second.blob && store_) it->second.blob = store_->load_upload(id);
       blob = it->second.blob;
+      if (!blob && store_) {
+        blob = it->second.loaded.lock();
+        if (!blob) {
+          blob = store_->load_upload(id);
+          it->second.loaded = blob;
+        }
+      }
     }
   }
   if (!blob) throw wire::unknown_upload(id, field);

@@ -1,5 +1,6 @@
-// Uploaded inputs (sampled grids, particles, meshes), named by id and owned by the tenant that sent them. Kept in
-// memory, and in the durable store when there is one (then loaded back on demand after a restart).
+// Uploaded inputs (sampled grids, particles, meshes), named by id and owned by the tenant that sent them. Without a
+// durable store they are kept in memory (drawing from the memory budget until removed); with one they live on disk
+// only, and are read back while a job uses them (the bytes are freed when no job holds them any more).
 #pragma once
 
 #include <chrono>
@@ -10,6 +11,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "server/memory_budget.h"
 #include "wire/uploads.h"
 
 namespace surfacer::server {
@@ -30,8 +32,9 @@ class UploadStore final : public wire::UploadLookup {
   explicit UploadStore(Store* store = nullptr);
   // Registers what the durable store holds (at start-up; the bytes are read when first used).
   void restore();
-  // Returns the new id. Throws surfacer::ResourceLimit("data_dir") when the store cannot write it.
-  std::string add(std::shared_ptr<const UploadBlob> blob, const std::string& owner = "");
+  // Returns the new id. Throws surfacer::ResourceLimit("data_dir") when the store cannot write it. `held`: the
+  // memory-budget bytes of the blob; kept as long as the blob is kept in memory (released at once with a store).
+  std::string add(std::shared_ptr<const UploadBlob> blob, const std::string& owner = "", MemoryReservation held = {});
   // Throws surfacer::Error(kInvalidInput) naming `field` when the id is unknown.
   std::shared_ptr<const UploadBlob> get(const std::string& id, const std::string& field) const override;
   // Whether `id` exists and belongs to `owner`.
@@ -44,7 +47,9 @@ class UploadStore final : public wire::UploadLookup {
  private:
   struct Entry {
     UploadInfo info;
-    mutable std::shared_ptr<const UploadBlob> blob;  // null until loaded from the store
+    std::shared_ptr<const UploadBlob> blob;          // memory only: the bytes
+    MemoryReservation held;                          // memory only: their share of the memory budget
+    mutable std::weak_ptr<const UploadBlob> loaded;  // with a store: the bytes while a job holds them
   };
   Store* const store_;
   mutable std::mutex mutex_;

@@ -6,7 +6,12 @@
 
 namespace surfacer::wire {
 
-// The largest payload of one UploadChunk or FrameChunk: every message stays far under gRPC's 4 MiB default.
+// The largest message either side accepts: gRPC's default receive limit, which neither side raises. Bulk data goes
+// in chunks and uploads; a JobSpec larger than this (say a million inline scenes) is refused by the client before
+// it is sent, since the server could only answer with gRPC's own "larger than max".
+inline constexpr std::size_t kMaxMessageBytes = std::size_t{4} << 20;
+
+// The largest payload of one UploadChunk or FrameChunk: every message stays far under kMaxMessageBytes.
 inline constexpr std::size_t kMaxChunkBytes = std::size_t{1} << 20;
 
 // Free text a request carries (JobSpec.name, Scene.name, UploadChunk.name): at most this many bytes, so that

@@ -6,6 +6,7 @@
 #include <draco/core/decoder_buffer.h>
 #include <draco/core/encoder_buffer.h>
 #include <draco/mesh/mesh.h>
+#include <draco/metadata/geometry_metadata.h>
 
 #include <algorithm>
 #include <cmath>
@@ -16,6 +17,7 @@
 #include <new>
 #include <optional>
 
+#include "core/mesh/mesh_io.h"
 #include "core/util/allocation_budget.h"
 #include "core/util/checks.h"
 #include "core/util/errors.h"
@@ -148,6 +150,24 @@ int add_float3_attribute(draco::Mesh& out, draco::GeometryAttribute::Type type, 
   return out.AddAttribute(std::move(attribute));
 }
 
+// Mesh::attributes as Draco GENERIC float32 attributes (not quantized: the values survive bit for bit), each named
+// by its attribute metadata entry kAttributeNameKey.
+constexpr const char* kAttributeNameKey = "name";
+
+void add_named_attributes(draco::Mesh& out, const Mesh& mesh) {
+  check_attributes(mesh);
+  for (const Attribute& a : mesh.attributes) {
+    auto attribute = std::make_unique<draco::PointAttribute>();
+    attribute->Init(draco::GeometryAttribute::GENERIC, static_cast<std::int8_t>(a.components), draco::DT_FLOAT32, false,
+                    mesh.vertices.size());
+    if (!a.values.empty()) attribute->buffer()->Write(0, a.values.data(), a.values.size() * sizeof(float));
+    const int id = out.AddAttribute(std::move(attribute));
+    auto metadata = std::make_unique<draco::AttributeMetadata>();
+    metadata->AddEntryString(kAttributeNameKey, a.name);
+    out.AddAttributeMetadata(id, std::move(metadata));
+  }
+}
+
 }  // namespace
 
 QuantizationGrid quantization_grid(const Mesh& mesh, const DracoOptions& options) {
@@ -186,6 +206,7 @@ DracoEncoder::DracoEncoder(const Mesh& mesh, const DracoOptions& options) : stat
     out.set_num_points(static_cast<draco::PointIndex::ValueType>(mesh.vertices.size()));
     add_float3_attribute(out, draco::GeometryAttribute::POSITION, mesh.vertices, options.quantization_bounds);
     if (encode_normals) add_float3_attribute(out, draco::GeometryAttribute::NORMAL, mesh.normals, std::nullopt);
+    add_named_attributes(out, mesh);
   }
   // else: an empty frame. Draco's decoder rejects a mesh whose attributes have no values, so an empty mesh is
   // written without points or attributes (sequential coder; edgebreaker refuses meshes without faces).
@@ -274,6 +295,25 @@ Mesh decode_draco_stream(std::string_view bytes) {
       const double len = n.norm();
       mesh.normals[p] = len > 0.0 ? Vec3(n / len) : n;
     }
+  }
+  // GENERIC attributes named by metadata (add_named_attributes) of 1 to 4 components: Mesh::attributes.
+  for (int id = 0; id < in->num_attributes() && np > 0; ++id) {
+    const draco::PointAttribute* generic = in->attribute(id);
+    const draco::AttributeMetadata* metadata = in->GetAttributeMetadataByAttributeId(id);
+    std::string name;
+    if (generic == nullptr || generic->attribute_type() != draco::GeometryAttribute::GENERIC || metadata == nullptr ||
+        !metadata->GetEntryString(kAttributeNameKey, &name) || name.empty() || !numeric_attribute(*generic) ||
+        generic->num_components() < 1 || generic->num_components() > Attribute::kMaxComponents) {
+      continue;
+    }
+    Attribute attribute{name, generic->num_components(), std::vector<float>(np * generic->num_components())};
+    for (std::size_t p = 0; p < np; ++p) {
+      if (!generic->ConvertValue<float>(generic->mapped_index(draco::PointIndex(static_cast<std::uint32_t>(p))),
+                                        generic->num_components(), &attribute.values[p * generic->num_components()])) {
+        throw InvalidInput("frame", "Draco attribute " + name + " is unreadable at point " + std::to_string(p));
+      }
+    }
+    mesh.attributes.push_back(std::move(attribute));
   }
   mesh.triangles.resize(in->num_faces());
   for (std::uint32_t f = 0; f < in->num_faces(); ++f) {

@@ -4,15 +4,19 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <limits>
 #include <map>
 #include <numeric>
+#include <optional>
 #include <tuple>
 #include <vector>
 
+#include "core/mesh/mesh_io.h"
+#include "core/util/base64.h"
 #include "core/util/errors.h"
 #include "core/util/json_read.h"
 
@@ -115,23 +119,30 @@ class GlbReader {
       : bytes_(bytes), name_(name), limits_(limits) {}
 
   Mesh read() {
-    if (bytes_.size() < 20 || u32_at(bytes_, 0) != kMagic) bad("no glTF binary header (a .gltf text file is not read)");
-    if (u32_at(bytes_, 4) != 2) bad("glTF version " + std::to_string(u32_at(bytes_, 4)) + ", not 2");
-    if (u32_at(bytes_, 8) > bytes_.size()) bad("the header states more bytes than the file has");
-    const std::string_view file = bytes_.substr(0, u32_at(bytes_, 8));
     std::string_view json;
-    for (std::size_t at = 12; at + 8 <= file.size();) {
-      const std::uint32_t length = u32_at(file, at), type = u32_at(file, at + 4);
-      if (length > file.size() - at - 8) bad("a chunk runs past the end of the file");
-      const std::string_view data = file.substr(at + 8, length);
-      if (at == 12 && type != kJsonChunk) bad("the first chunk is not JSON");
-      if (at == 12) json = data;
-      if (type == kBinChunk && at > 12 && bin_.data() == nullptr) bin_ = data;
-      at += 8 + std::size_t{length};
+    const std::size_t first = bytes_.find_first_not_of(" \t\r\n");
+    if (first != std::string_view::npos && bytes_[first] == '{') {
+      json = bytes_;  // a .gltf text file: its one buffer a data URI (embedded_buffer())
+      text_ = true;
+    } else {
+      if (bytes_.size() < 20 || u32_at(bytes_, 0) != kMagic) bad("neither glTF JSON nor a glTF binary header");
+      if (u32_at(bytes_, 4) != 2) bad("glTF version " + std::to_string(u32_at(bytes_, 4)) + ", not 2");
+      if (u32_at(bytes_, 8) > bytes_.size()) bad("the header states more bytes than the file has");
+      const std::string_view file = bytes_.substr(0, u32_at(bytes_, 8));
+      for (std::size_t at = 12; at + 8 <= file.size();) {
+        const std::uint32_t length = u32_at(file, at), type = u32_at(file, at + 4);
+        if (length > file.size() - at - 8) bad("a chunk runs past the end of the file");
+        const std::string_view data = file.substr(at + 8, length);
+        if (at == 12 && type != kJsonChunk) bad("the first chunk is not JSON");
+        if (at == 12) json = data;
+        if (type == kBinChunk && at > 12 && bin_.data() == nullptr) bin_ = data;
+        at += 8 + std::size_t{length};
+      }
+      if (json.data() == nullptr) bad("no JSON chunk");
     }
-    if (json.data() == nullptr) bad("no JSON chunk");
     root_ = parse_json(json, "file", name_);
     if (!root_.is_object()) bad("the JSON is not an object");
+    if (text_) embedded_buffer();
     const JsonValue* asset = root_.find("asset");
     const JsonValue* version = asset ? asset->find("version") : nullptr;
     if (version == nullptr || version->kind != JsonValue::Kind::kString || version->string.substr(0, 2) != "2.") {
@@ -151,6 +162,25 @@ class GlbReader {
 
  private:
   [[noreturn]] void bad(const std::string& what) const { throw InvalidInput("file", name_ + ": " + what); }
+
+  // A .gltf's buffer 0 from its base64 data URI, as the binary chunk of a .glb (buffers in other files are not read).
+  void embedded_buffer() {
+    const JsonValue& buffers = list("buffers");
+    if (buffers.items.empty()) return;
+    const JsonValue* uri = buffers.items[0].find("uri");
+    const std::string_view text =
+        uri != nullptr && uri->kind == JsonValue::Kind::kString ? std::string_view(uri->string) : std::string_view();
+    const std::size_t comma = text.find(',');
+    if (text.substr(0, 5) != "data:" || comma == std::string_view::npos ||
+        text.substr(0, comma).find(";base64") == std::string_view::npos) {
+      bad("buffer 0 is not a base64 data URI (a buffer in another file is not read: write the file as .glb or embed "
+          "its buffer)");
+    }
+    std::optional<std::string> bytes = decode_base64(text.substr(comma + 1));
+    if (!bytes) bad("buffer 0's data URI is not valid base64");
+    embedded_ = std::move(*bytes);
+    bin_ = embedded_;
+  }
 
   // root_[key] as an array (an empty one when absent).
   const JsonValue& list(const char* key) const {
@@ -197,7 +227,7 @@ class GlbReader {
   std::string_view range(const JsonValue& v, const std::string& where) const {
     const std::size_t buffer = integer(v.find("buffer"), where + ".buffer");
     const JsonValue& b = item("buffers", buffer, where);
-    if (buffer != 0 || b.find("uri") != nullptr) {
+    if (buffer != 0 || (b.find("uri") != nullptr && !text_)) {
       bad(where + " is in a buffer outside the file's binary chunk; pack the file as one self-contained .glb");
     }
     const std::size_t offset = v.find("byteOffset") ? integer(v.find("byteOffset"), where + ".byteOffset") : 0;
@@ -599,6 +629,8 @@ class GlbReader {
   const std::string& name_;
   const MeshReadLimits& limits_;
   std::string_view bin_;
+  bool text_ = false;     // a .gltf (JSON) file, not a .glb
+  std::string embedded_;  // a .gltf's buffer 0, decoded from its data URI
   JsonValue root_;
   bool ours_ = false;  // written by to_gltf (asset.generator "surfacer"): welded through _SEAM only
   std::vector<Vec3> vertices_;
@@ -632,6 +664,69 @@ std::string pack_glb(std::string json, std::string bin) {
     out += bin;
   }
   return out;
+}
+
+std::string write_gltf(const Mesh& mesh) {
+  check_mesh_writable(mesh, ".gltf");
+  const std::string asset = R"("asset": {"version": "2.0", "generator": "surfacer"})";
+  if (mesh.triangles.empty()) return "{" + asset + R"(, "scene": 0, "scenes": [{"nodes": []}]})" + "\n";
+  const std::size_t n = mesh.vertices.size();
+  const bool normals = !mesh.normals.empty();
+  std::string bin;
+  bin.reserve(n * (normals ? 24 : 12) + mesh.triangles.size() * 12);
+  auto put = [&bin](auto value) { bin.append(reinterpret_cast<const char*>(&value), sizeof value); };
+  std::array<float, 3> lo{}, hi{};
+  lo.fill(std::numeric_limits<float>::max());
+  hi.fill(std::numeric_limits<float>::lowest());
+  for (const Vec3& p : mesh.vertices) {
+    for (int c = 0; c < 3; ++c) {
+      const auto v = static_cast<float>(p[c]);
+      lo[c] = std::min(lo[c], v);
+      hi[c] = std::max(hi[c], v);
+      put(v);
+    }
+  }
+  const std::size_t positions_bytes = bin.size();
+  if (normals) {
+    for (const Vec3& normal : mesh.normals) {
+      const double length = normal.norm();
+      const Vec3 unit = length > 0 ? Vec3(normal / length) : Vec3(0, 0, 1);  // glTF requires unit NORMALs
+      for (int c = 0; c < 3; ++c) put(static_cast<float>(unit[c]));
+    }
+  }
+  const std::size_t indices_offset = bin.size();
+  for (const Triangle& t : mesh.triangles) {
+    for (const std::uint32_t v : t) put(v);
+  }
+  auto number = [](float v) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%.9g", static_cast<double>(v));  // 9 digits: exact for a float
+    return std::string(text);
+  };
+  auto triple = [&](const std::array<float, 3>& v) {
+    return "[" + number(v[0]) + ", " + number(v[1]) + ", " + number(v[2]) + "]";
+  };
+  const std::string count = std::to_string(n), length = std::to_string(bin.size());
+  std::string json = "{" + asset + R"(, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],)";
+  json += R"( "meshes": [{"primitives": [{"attributes": {"POSITION": 0)";
+  json += normals ? R"(, "NORMAL": 2}, )" : "}, ";
+  json += R"("indices": 1, "mode": 4}]}],)";
+  json += R"( "accessors": [{"bufferView": 0, "componentType": 5126, "count": )" + count +
+          R"(, "type": "VEC3", "min": )" + triple(lo) + R"(, "max": )" + triple(hi) + "}, ";
+  json += R"({"bufferView": 1, "componentType": 5125, "count": )" + std::to_string(3 * mesh.triangles.size()) +
+          R"(, "type": "SCALAR"})";
+  if (normals) json += R"(, {"bufferView": 2, "componentType": 5126, "count": )" + count + R"(, "type": "VEC3"})";
+  json += R"(], "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": )" + std::to_string(positions_bytes) +
+          R"(, "target": 34962}, {"buffer": 0, "byteOffset": )" + std::to_string(indices_offset) +
+          R"(, "byteLength": )" + std::to_string(bin.size() - indices_offset) + R"(, "target": 34963})";
+  if (normals) {
+    json += R"(, {"buffer": 0, "byteOffset": )" + std::to_string(positions_bytes) + R"(, "byteLength": )" +
+            std::to_string(indices_offset - positions_bytes) + R"(, "target": 34962})";
+  }
+  json += R"(], "buffers": [{"byteLength": )" + length + R"(, "uri": "data:application/octet-stream;base64,)";
+  append_base64(json, bin);
+  json += "\"}]}\n";
+  return json;
 }
 
 Mesh parse_glb(std::string_view bytes, const std::string& name, const MeshReadLimits& limits) {

@@ -1,5 +1,6 @@
-// Binary glTF 2.0 (.glb): reading one as a triangle mesh (a start mesh or any mesh input, the .glb files the CLI writes
-// included), and the container and numbers that reading and writing (core/mesh/frame_codec.h, to_gltf) share.
+// glTF 2.0: reading a .glb or .gltf as a triangle mesh (a start mesh or any mesh input, the files the CLI writes
+// included), writing a plain .gltf, and the container and numbers that reading and writing (core/mesh/frame_codec.h,
+// to_gltf) share.
 #pragma once
 
 #include <string>
@@ -38,6 +39,13 @@ std::string pack_glb(std::string json, std::string bin);
 // non-finite positions or transforms, meshopt views that do not decode or claim more than their bytes can hold;
 // ResourceLimit("max_triangles") past limits.max_triangles (checked before the triangles or a meshopt view are
 // allocated, so a small file that instances a mesh many times cannot exhaust memory).
+// A .gltf (JSON text, glTF 2.0 with no extension) as parse_glb reads it too: its one buffer a base64 data URI.
 Mesh parse_glb(std::string_view bytes, const std::string& name, const MeshReadLimits& limits = {});
+
+// `mesh` as a plain .gltf: JSON text whose one buffer is a base64 data URI (a third larger than binary), with float
+// POSITION (and its min/max), unit float NORMAL when the mesh has normals, and uint32 indices; no compression
+// extension, for readers without Draco or meshoptimizer (Debian's Blender, VTK's vtkGLTFReader). Positions are
+// rounded to float. An empty mesh is a scene with no nodes. Throws InvalidInput as check_mesh_writable.
+std::string write_gltf(const Mesh& mesh);
 
 }  // namespace surfacer

@@ -78,6 +78,14 @@ class PlyBuilder final : public ply::ElementReader {
         }
         has_normals_ = layout_.nx >= 0 && layout_.ny >= 0 && layout_.nz >= 0 && !e.properties[layout_.nx].list &&
                        !e.properties[layout_.ny].list && !e.properties[layout_.nz].list;
+        // Every other vertex property is a per-vertex attribute (write_ply's vertex properties).
+        attribute_properties_ = ply::attribute_properties(e, [&](int p) {
+          return p == layout_.x || p == layout_.y || p == layout_.z ||
+                 (has_normals_ && (p == layout_.nx || p == layout_.ny || p == layout_.nz));
+        });
+        for (const ply::AttributeProperties& a : attribute_properties_) {
+          mesh_.attributes.push_back({a.name, static_cast<int>(a.properties.size()), {}});
+        }
       } else if (e.name == "face") {
         layout_.indices = e.find({"vertex_indices", "vertex_index"});
         if (layout_.indices < 0) {
@@ -117,6 +125,11 @@ class PlyBuilder final : public ply::ElementReader {
   void vertex(std::span<const double> values) {
     mesh_.vertices.emplace_back(values[layout_.x], values[layout_.y], values[layout_.z]);
     if (has_normals_) mesh_.normals.emplace_back(values[layout_.nx], values[layout_.ny], values[layout_.nz]);
+    for (std::size_t a = 0; a < attribute_properties_.size(); ++a) {
+      for (int p : attribute_properties_[a].properties) {
+        mesh_.attributes[a].values.push_back(static_cast<float>(values[static_cast<std::size_t>(p)]));
+      }
+    }
   }
 
   // One face's vertex indices (whole numbers); `where` locates it for messages.
@@ -143,6 +156,7 @@ class PlyBuilder final : public ply::ElementReader {
   const std::string& name_;
   PlyLayout layout_;
   bool has_normals_ = false;
+  std::vector<ply::AttributeProperties> attribute_properties_;  // of mesh_.attributes, in order
   std::uint64_t vertex_count_ = 0;
   Mesh mesh_;
 };
@@ -252,6 +266,17 @@ std::string read_file(const std::filesystem::path& path) {
 
 }  // namespace
 
+void check_attributes(const Mesh& mesh) {
+  for (const Attribute& a : mesh.attributes) {
+    if (a.components < 1 || a.components > Attribute::kMaxComponents ||
+        a.values.size() != mesh.vertices.size() * static_cast<std::size_t>(a.components)) {
+      throw InvalidInput("attributes", "mesh attribute " + a.name + " has " + std::to_string(a.values.size()) +
+                                           " values of " + std::to_string(a.components) + " components for " +
+                                           std::to_string(mesh.vertices.size()) + " vertices");
+    }
+  }
+}
+
 void check_mesh_writable(const Mesh& mesh, std::string_view format) {
   if (mesh.vertices.size() > static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max())) {
     throw InvalidInput("vertices", "mesh has too many vertices for a " + std::string(format) + " file (max 2^31 - 1)");
@@ -260,6 +285,7 @@ void check_mesh_writable(const Mesh& mesh, std::string_view format) {
     throw InvalidInput("normals", "mesh has " + std::to_string(mesh.normals.size()) + " normals for " +
                                       std::to_string(mesh.vertices.size()) + " vertices");
   }
+  check_attributes(mesh);
   for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
     for (std::uint32_t v : mesh.triangles[t]) {
       if (v >= mesh.vertices.size()) {
@@ -278,8 +304,9 @@ MeshFormat mesh_format_from_path(const std::filesystem::path& path) {
   if (ext == ".obj") return MeshFormat::kObj;
   if (ext == ".drc") return MeshFormat::kDraco;
   if (ext == ".glb") return MeshFormat::kGlb;
-  throw InvalidInput("file",
-                     path.string() + ": unknown mesh file extension '" + ext + "'; use .ply, .obj, .drc or .glb");
+  if (ext == ".gltf") return MeshFormat::kGltf;
+  throw InvalidInput("file", path.string() + ": unknown mesh file extension '" + ext +
+                                 "'; use .ply, .obj, .drc, .glb or .gltf");
 }
 
 Mesh parse_mesh(std::string_view bytes, MeshFormat format, const std::string& name_for_errors,
@@ -297,6 +324,7 @@ Mesh parse_mesh(std::string_view bytes, MeshFormat format, const std::string& na
         throw InvalidInput("file", name_for_errors + ": " + e.what());
       }
     case MeshFormat::kGlb:
+    case MeshFormat::kGltf:
       return parse_glb(bytes, name_for_errors, limits);
   }
   throw Internal("parse_mesh: unknown format");
@@ -317,10 +345,16 @@ std::string write_ply(const Mesh& mesh, bool double_precision) {
   append_uint(out, mesh.vertices.size());
   out += std::string("\nproperty ") + type + " x\nproperty " + type + " y\nproperty " + type + " z\n";
   if (normals) out += "property float nx\nproperty float ny\nproperty float nz\n";
+  std::size_t attribute_floats = 0;
+  for (const Attribute& a : mesh.attributes) {
+    for (int c = 0; c < a.components; ++c)
+      out += "property float " + ply::attribute_property(a.name, a.components, c) + "\n";
+    attribute_floats += static_cast<std::size_t>(a.components);
+  }
   out += "element face ";
   append_uint(out, mesh.triangles.size());
   out += "\nproperty list uchar int vertex_indices\nend_header\n";
-  const std::size_t vertex_bytes = (double_precision ? 24 : 12) + (normals ? 12 : 0);
+  const std::size_t vertex_bytes = (double_precision ? 24 : 12) + (normals ? 12 : 0) + 4 * attribute_floats;
   out.reserve(out.size() + mesh.vertices.size() * vertex_bytes + mesh.triangles.size() * 13);
   for (std::size_t v = 0; v < mesh.vertices.size(); ++v) {
     const Vec3& p = mesh.vertices[v];
@@ -333,6 +367,10 @@ std::string write_ply(const Mesh& mesh, bool double_precision) {
     }
     if (normals) {
       for (int c = 0; c < 3; ++c) append_le<float>(out, static_cast<float>(mesh.normals[v][c]));
+    }
+    for (const Attribute& a : mesh.attributes) {
+      const std::size_t n = static_cast<std::size_t>(a.components);
+      for (std::size_t c = 0; c < n; ++c) append_le<float>(out, a.values[v * n + c]);
     }
   }
   for (const Triangle& t : mesh.triangles) {
@@ -386,6 +424,9 @@ void write_mesh(const std::filesystem::path& path, const Mesh& mesh) {
       break;
     case MeshFormat::kGlb:
       bytes = to_gltf(mesh, ThreadExecutor(0));  // encoded on every core
+      break;
+    case MeshFormat::kGltf:
+      bytes = write_gltf(mesh);
       break;
   }
   std::ofstream out(path, std::ios::binary | std::ios::trunc);

@@ -11,6 +11,7 @@
 #include <string_view>
 
 #include "core/mesh/mesh_io.h"
+#include "core/util/base64.h"
 #include "core/util/errors.h"
 
 namespace surfacer {
@@ -43,6 +44,31 @@ std::string vectors(const std::vector<Vec3>& values, bool float64, bool big_endi
   return out;
 }
 
+// An attribute's values as Float32.
+std::string floats(const std::vector<float>& values, bool big_endian) {
+  std::string out;
+  out.reserve(values.size() * 4);
+  for (float v : values) append_raw<float>(out, v, big_endian);
+  return out;
+}
+
+// A legacy array name is one token: white space and '%' written as %XX, which VTK's reader decodes.
+std::string legacy_name(const std::string& name) {
+  std::string out;
+  for (char c : name) {
+    if (c == '%' || static_cast<unsigned char>(c) <= ' ') {
+      static constexpr char kHex[] = "0123456789ABCDEF";
+      out += '%';
+      out += kHex[static_cast<unsigned char>(c) >> 4];
+      out += kHex[static_cast<unsigned char>(c) & 15];
+    } else {
+      out += c;
+    }
+  }
+  return out;
+}
+
+
 // --- Legacy ----------------------------------------------------------------------------------------------------------
 
 std::string legacy(const Mesh& mesh, bool double_precision) {
@@ -67,39 +93,28 @@ std::string legacy(const Mesh& mesh, bool double_precision) {
   out += "\nCELL_TYPES " + std::to_string(triangles) + "\n";
   for (std::size_t t = 0; t < triangles; ++t) append_raw<std::int32_t>(out, kVtkTriangle, true);
   out += "\n";
+  if (!mesh.normals.empty() || !mesh.attributes.empty())
+    out += "POINT_DATA " + std::to_string(mesh.vertices.size()) + "\n";
   if (!mesh.normals.empty()) {
     // VECTORS rather than NORMALS: VTK reads both, meshio (and the readers built on it) only VECTORS.
-    out += "POINT_DATA " + std::to_string(mesh.vertices.size()) + "\nVECTORS Normals float\n";
+    out += "VECTORS Normals float\n";
     out += vectors(mesh.normals, false, true);
+    out += "\n";
+  }
+  // Attributes under their names: 3 components as VECTORS, 1, 2 or 4 as SCALARS with that many components.
+  for (const Attribute& a : mesh.attributes) {
+    if (a.components == 3) {
+      out += "VECTORS " + legacy_name(a.name) + " float\n";
+    } else {
+      out += "SCALARS " + legacy_name(a.name) + " float " + std::to_string(a.components) + "\nLOOKUP_TABLE default\n";
+    }
+    out += floats(a.values, true);
     out += "\n";
   }
   return out;
 }
 
 // --- XML -------------------------------------------------------------------------------------------------------------
-
-void append_base64(std::string& out, std::string_view bytes) {
-  static constexpr char kDigits[] = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-  out.reserve(out.size() + (bytes.size() + 2) / 3 * 4);
-  std::size_t i = 0;
-  for (; i + 2 < bytes.size(); i += 3) {
-    const unsigned v = static_cast<unsigned char>(bytes[i]) << 16 | static_cast<unsigned char>(bytes[i + 1]) << 8 |
-                       static_cast<unsigned char>(bytes[i + 2]);
-    out += kDigits[v >> 18];
-    out += kDigits[(v >> 12) & 63];
-    out += kDigits[(v >> 6) & 63];
-    out += kDigits[v & 63];
-  }
-  if (i < bytes.size()) {
-    const bool two = i + 1 < bytes.size();
-    const unsigned v =
-        static_cast<unsigned char>(bytes[i]) << 16 | (two ? static_cast<unsigned char>(bytes[i + 1]) << 8 : 0u);
-    out += kDigits[v >> 18];
-    out += kDigits[(v >> 12) & 63];
-    out += two ? kDigits[(v >> 6) & 63] : '=';
-    out += '=';
-  }
-}
 
 // One DataArray's content in VTK's compressed binary layout: the header (UInt64 little-endian: number of blocks,
 // uncompressed block size, uncompressed size of a partial last block or 0, then each block's compressed size) and
@@ -129,11 +144,11 @@ std::string compressed_base64(std::string_view data) {
   return out;
 }
 
-void data_array(std::string& out, const char* type, const char* name, int components, std::string_view data) {
+void data_array(std::string& out, const char* type, const std::string& name, int components, std::string_view data) {
   out += "        <DataArray type=\"";
   out += type;
   out += "\" Name=\"";
-  out += name;
+  out += xml_escape(name);
   out += "\" NumberOfComponents=\"" + std::to_string(components) + "\" format=\"binary\">\n          ";
   out += compressed_base64(data);
   out += "\n        </DataArray>\n";
@@ -169,9 +184,11 @@ std::string xml(const Mesh& mesh, bool double_precision) {
       "  <UnstructuredGrid>\n"
       "    <Piece NumberOfPoints=\"" +
       std::to_string(mesh.vertices.size()) + "\" NumberOfCells=\"" + std::to_string(triangles) + "\">\n";
-  if (!mesh.normals.empty()) {
-    out += "      <PointData Normals=\"Normals\">\n";
-    data_array(out, "Float32", "Normals", 3, vectors(mesh.normals, false, false));
+  if (!mesh.normals.empty() || !mesh.attributes.empty()) {
+    out += mesh.normals.empty() ? "      <PointData>\n" : "      <PointData Normals=\"Normals\">\n";
+    if (!mesh.normals.empty()) data_array(out, "Float32", "Normals", 3, vectors(mesh.normals, false, false));
+    for (const Attribute& a : mesh.attributes)
+      data_array(out, "Float32", a.name, a.components, floats(a.values, false));
     out += "      </PointData>\n";
   }
   out += "      <Points>\n";
@@ -190,5 +207,31 @@ std::string xml(const Mesh& mesh, bool double_precision) {
 std::string write_vtk(const Mesh& mesh, bool double_precision) { return legacy(mesh, double_precision); }
 
 std::string write_vtu(const Mesh& mesh, bool double_precision) { return xml(mesh, double_precision); }
+
+std::string xml_escape(std::string_view text) {
+  std::string out;
+  for (const char c : text) {
+    switch (c) {
+      case '&':
+        out += "&amp;";
+        break;
+      case '<':
+        out += "&lt;";
+        break;
+      case '>':
+        out += "&gt;";
+        break;
+      case '"':
+        out += "&quot;";
+        break;
+      case '\'':
+        out += "&apos;";
+        break;
+      default:
+        out += c;
+    }
+  }
+  return out;
+}
 
 }  // namespace surfacer

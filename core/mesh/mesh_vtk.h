@@ -14,6 +14,7 @@
 #pragma once
 
 #include <string>
+#include <string_view>
 
 #include "core/mesh/mesh.h"
 
@@ -21,5 +22,8 @@ namespace surfacer {
 
 std::string write_vtk(const Mesh& mesh, bool double_precision = false);
 std::string write_vtu(const Mesh& mesh, bool double_precision = false);
+
+// `text` with XML's five special characters escaped, for an attribute value (array names, .pvd file names).
+std::string xml_escape(std::string_view text);
 
 }  // namespace surfacer

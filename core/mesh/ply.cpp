@@ -337,4 +337,44 @@ void read_data(std::string_view bytes, const Header& header, ElementReader& read
   }
 }
 
+std::string attribute_property(const std::string& name, int components, int c) {
+  static const char kAxes[] = "xyzw";
+  return components == 1 ? name : name + "_" + kAxes[c];
+}
+
+std::vector<AttributeProperties> attribute_properties(const Element& element, const std::function<bool(int)>& taken) {
+  constexpr std::size_t kMaxRun = 4;
+  const auto& props = element.properties;
+  auto free = [&](std::size_t p) { return !props[p].list && !taken(static_cast<int>(p)); };
+  std::vector<AttributeProperties> out;
+  for (std::size_t p = 0; p < props.size();) {
+    if (!free(p)) {
+      ++p;
+      continue;
+    }
+    const std::string& first = props[p].name;
+    const std::size_t cut = first.rfind('_');
+    const std::string suffix = cut == std::string::npos ? "" : first.substr(cut);
+    std::size_t run = 1;
+    if (cut > 0 && (suffix == "_x" || suffix == "_0")) {
+      const std::string base = first.substr(0, cut);
+      const char* const axes = suffix == "_x" ? "xyzw" : "0123";
+      while (run < kMaxRun && p + run < props.size() && free(p + run) &&
+             props[p + run].name == base + "_" + axes[run]) {
+        ++run;
+      }
+      if (run > 1) {
+        AttributeProperties group{base, {}};
+        for (std::size_t c = 0; c < run; ++c) group.properties.push_back(static_cast<int>(p + c));
+        out.push_back(std::move(group));
+        p += run;
+        continue;
+      }
+    }
+    out.push_back({first, {static_cast<int>(p)}});
+    ++p;
+  }
+  return out;
+}
+
 }  // namespace surfacer::ply

@@ -7,6 +7,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <initializer_list>
 #include <optional>
 #include <span>
@@ -48,6 +49,18 @@ struct Header {
   std::size_t data_offset = 0;  // first byte after "end_header\n"
   std::size_t data_line = 0;    // line number of the first data line
 };
+
+// Per-vertex (per-point) attributes as PLY properties: a scalar is one property NAME; a vector of 2 to 4 components
+// is NAME_x NAME_y [NAME_z [NAME_w]] in a row (what Houdini, CloudCompare and splashsurf write). The property of
+// component c of an attribute `name` with `components` components:
+std::string attribute_property(const std::string& name, int components, int c);
+// The element's attributes: every non-list property for which `taken` is false, runs NAME_x NAME_y ... (or NAME_0
+// NAME_1 ...) of up to 4 grouped into one vector NAME; each with its property indices, in file order.
+struct AttributeProperties {
+  std::string name;
+  std::vector<int> properties;
+};
+std::vector<AttributeProperties> attribute_properties(const Element& element, const std::function<bool(int)>& taken);
 
 // Throws InvalidInput("file") naming the line: not a PLY file, an unknown keyword, format or type, a malformed line,
 // no format line, no end_header.

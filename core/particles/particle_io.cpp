@@ -47,6 +47,18 @@ bool is_radius_name(std::string_view name) {
   return n == "radius" || n == "pscale";
 }
 
+void keep_attribute(ParticleFrame& frame, const std::string& name, std::int64_t components,
+                    const std::vector<double>& values) {
+  if (name.empty() || components < 1 || components > Attribute::kMaxComponents) return;
+  const std::string n = lower(name);
+  if (n == "x" || n == "y" || n == "z" || is_radius_name(n) || find_attribute(frame, name) != nullptr) return;
+  Attribute attribute;
+  attribute.name = name;
+  attribute.components = static_cast<int>(components);
+  attribute.values.assign(values.begin(), values.end());  // (float conversion; checked where they are used)
+  frame.attributes.push_back(std::move(attribute));
+}
+
 std::optional<Scalar> scalar_from_name(std::string_view name) {
   const std::string n = lower(name);
   if (n == "char" || n == "int8") return Scalar::kI8;
@@ -215,6 +227,21 @@ std::size_t capped_reserve(std::int64_t declared, std::size_t bytes_left, std::s
 
 }  // namespace particle_io_detail
 
+const Attribute* find_attribute(const ParticleFrame& frame, std::string_view name) {
+  for (const Attribute& attribute : frame.attributes) {
+    if (attribute.name == name) return &attribute;
+  }
+  return nullptr;
+}
+
+std::string attribute_list(const ParticleFrame& frame) {
+  std::string list;
+  for (const Attribute& attribute : frame.attributes) {
+    list += (list.empty() ? "" : ", ") + attribute.name + " (" + std::to_string(attribute.components) + ")";
+  }
+  return list.empty() ? "none" : list;
+}
+
 namespace {
 
 using namespace particle_io_detail;
@@ -313,6 +340,8 @@ ParticleFrame parse_xyz(std::string_view text, const std::string& name) {
   std::size_t pos = 0, line_no = 0;
   std::size_t columns = 0;  // 0 until the first content line
   int cx = 0, cy = 1, cz = 2, cr = -1;
+  std::vector<std::pair<std::string, int>> named;  // the header's other columns: scalar attributes
+  std::vector<std::vector<double>> named_values;
   std::vector<std::string_view> tokens;
   while (pos < text.size()) {
     std::size_t eol = text.find('\n', pos);
@@ -343,6 +372,10 @@ ParticleFrame parse_xyz(std::string_view text, const std::string& name) {
           if (n == "z" && cz < 0) cz = ci;
           if ((n == "radius" || n == "pscale" || n == "r") && cr < 0) cr = ci;
         }
+        for (std::size_t c = 0; c < tokens.size(); ++c) {
+          const int ci = static_cast<int>(c);
+          if (ci != cx && ci != cy && ci != cz && ci != cr) named.emplace_back(std::string(tokens[c]), ci);
+        }
         if (cx < 0 || cy < 0 || cz < 0) {
           fail(name, line_at(line_no),
                quote(tokens[0]) + " is not a number, and as a header line the columns do not name x, y and z");
@@ -371,6 +404,20 @@ ParticleFrame parse_xyz(std::string_view text, const std::string& name) {
     };
     frame.positions.emplace_back(value(cx), value(cy), value(cz));
     if (cr >= 0) frame.radii.push_back(value(cr));
+    named_values.resize(named.size());
+    for (std::size_t a = 0; a < named.size(); ++a) {
+      double v = 0.0;
+      // A column that is not numbers throughout (names, tags) is no attribute.
+      if (named[a].second >= 0 && parse_double(tokens[static_cast<std::size_t>(named[a].second)], v)) {
+        named_values[a].push_back(v);
+      } else {
+        named[a].second = -1;
+      }
+    }
+  }
+  named_values.resize(named.size());  // a header without data rows names columns that have no values
+  for (std::size_t a = 0; a < named.size(); ++a) {
+    if (named[a].second >= 0) keep_attribute(frame, named[a].first, 1, named_values[a]);
   }
   return frame;
 }
@@ -475,6 +522,12 @@ ParticleFrame parse_bgeo(std::string_view bytes, const std::string& name) {
   // Point attribute dictionary: every attribute adds `size` 32-bit words to each point record after x y z w.
   std::size_t words = 4;
   std::optional<std::size_t> radius_word;
+  struct Kept {
+    std::string name;
+    std::size_t word = 0, size = 0;
+    bool integer = false;
+  };
+  std::vector<Kept> kept;  // float, int and vector attributes: ParticleFrame::attributes
   for (std::int32_t a = 0; a < point_attributes; ++a) {
     const std::string what = "point attribute " + std::to_string(a);
     const std::uint16_t name_length = in.u16(what + " name length");
@@ -494,7 +547,11 @@ ParticleFrame parse_bgeo(std::string_view bytes, const std::string& name) {
            "point attribute '" + attribute + "' has type " + std::to_string(type) +
                (type == 2 ? " (string), which classic BGEO readers cannot skip" : ", which is unknown"));
     }
-    if ((attribute == "pscale" || attribute == "radius") && type == 0 && size == 1 && !radius_word) radius_word = words;
+    if ((attribute == "pscale" || attribute == "radius") && type == 0 && size == 1 && !radius_word) {
+      radius_word = words;
+    } else if (type == 0 || type == 1 || type == 5) {
+      kept.push_back({attribute, words, size, type == 1});
+    }
     words += size;
   }
 
@@ -517,6 +574,19 @@ ParticleFrame parse_bgeo(std::string_view bytes, const std::string& name) {
     frame.positions[i] = v;
     if (radius_word) frame.radii[i] = read_scalar(p + 4 * *radius_word, Scalar::kF32, true);
     in.skip(record, "point");
+  }
+  std::vector<double> values;
+  for (const Kept& k : kept) {
+    if (k.size < 1 || k.size > static_cast<std::size_t>(Attribute::kMaxComponents)) continue;
+    values.resize(frame.positions.size() * k.size);
+    const char* base = in.at() - frame.positions.size() * record;
+    for (std::size_t i = 0; i < frame.positions.size(); ++i) {
+      for (std::size_t c = 0; c < k.size; ++c) {
+        values[i * k.size + c] =
+            read_scalar(base + i * record + 4 * (k.word + c), k.integer ? Scalar::kI32 : Scalar::kF32, true);
+      }
+    }
+    keep_attribute(frame, k.name, static_cast<std::int64_t>(k.size), values);
   }
   // Primitives, groups and detail attributes follow; a particle frame needs none of them.
   return frame;

@@ -19,10 +19,19 @@
 //                   (<InformationKey>) skipped; radii from a PointData DataArray named radius or pscale. Compressed
 //                   arrays inflate to at most ParticleReadLimits::max_bytes in all, and a block that claims more than
 //                   zlib (1032:1) or LZ4 (255:1) can produce from its bytes is refused before anything is allocated.
-//   .json           splashsurf's JSON: a list of [x, y, z] lists, e.g. [[0, 0, 0], [0.1, 0, 0]].
+//   .json           splashsurf's JSON: a list of [x, y, z] lists, e.g. [[0, 0, 0], [0.1, 0, 0]]; or an object of
+//                   per-particle lists {"positions": [[x, y, z], ...], "radius": [r, ...], "velocity": [[u, v, w],
+//                   ...], ...} (a radius or pscale list gives the radii, every other list an attribute).
 //   .bin            raw little-endian float32 x y z triples, no header.
 //   .bgeo .bhclassic  Houdini classic binary geometry (magic "Bgeo", version 5; as written by Partio and
 //                   SPlisHSPlasH): the point positions, radii from a float point attribute named pscale or radius.
+//
+// Attributes (ParticleFrame::attributes): every other per-point array of 1 to 4 numbers is kept under its name, as
+// float32: VTK legacy POINT_DATA SCALARS, VECTORS, NORMALS and FIELD arrays; VTK XML PointData DataArrays (kept when
+// every <Piece> has them); PLY vertex properties (NAME_x, NAME_y, NAME_z ... in a row make one vector NAME); BGEO
+// float and int point attributes; named columns of .xyz/.csv text; the lists of a .json object. Arrays of other sizes
+// (tensors) and string arrays are skipped; .bin carries none. Values are converted to float32 as they are and not
+// checked: whoever uses an array checks it (the client, before it uploads the arrays named by --interpolate).
 //
 // Every problem (unreadable file, unknown extension, bad syntax, wrong counts, truncation, non-finite coordinates,
 // unsupported variant) throws surfacer::Error(kInvalidInput, "file") whose message starts with the file name and names
@@ -48,7 +57,15 @@ namespace surfacer {
 struct ParticleFrame {
   std::vector<Vec3> positions;
   std::vector<double> radii;  // empty, or one per position (as stored; not validated here)
+  // The file's other per-particle arrays of 1 to Attribute::kMaxComponents numbers (velocity, density, ...), one
+  // element per position each, under the file's names, in file order (see "Attributes" above).
+  std::vector<Attribute> attributes;
 };
+
+// The attribute named `name` of `frame`, or nullptr.
+const Attribute* find_attribute(const ParticleFrame& frame, std::string_view name);
+// "velocity (3), density (1)", or "none": the attributes a frame has, for messages.
+std::string attribute_list(const ParticleFrame& frame);
 
 enum class ParticleFormat { kXyz, kPly, kVtk, kVtu, kBin, kBgeo, kJson };
 

@@ -5,6 +5,7 @@
 #include <optional>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include "core/particles/particle_io.h"
 #include "core/util/format.h"
@@ -21,6 +22,13 @@ std::size_t line_of(std::string_view text, std::size_t offset);
 
 std::string lower(std::string_view s);
 bool is_radius_name(std::string_view name);  // "radius" or "pscale", any case
+
+// Appends an attribute `name` of `components` values per point from `values` (points x components, as read) to
+// `frame`, unless components is outside 1..Attribute::kMaxComponents, the name is empty or already taken (the first
+// array of a name wins), or the name is a position/radius column. Values are not checked (a non-finite one in an
+// array nobody uses is no error; pack_particle_records checks the arrays it sends).
+void keep_attribute(ParticleFrame& frame, const std::string& name, std::int64_t components,
+                    const std::vector<double>& values);
 
 enum class Scalar { kI8, kU8, kI16, kU16, kI32, kU32, kI64, kU64, kF32, kF64 };
 // PLY and VTK type names (char uchar short ... float double, int8 ... float64, unsigned_char ..., vtktypeint64).

@@ -1,6 +1,8 @@
-// PLY point clouds for core/particles/particle_io.h: the first "vertex" element's x, y, z and optional radius/pscale,
+// PLY point clouds for core/particles/particle_io.h: the first "vertex" element's x, y, z, optional radius/pscale and
+// other scalar properties as attributes (NAME_x NAME_y NAME_z [NAME_w], or NAME_0 NAME_1 ..., in a row: one vector),
 // read through the one PLY reader (core/mesh/ply.h). Elements before it are read past; nothing after it is read.
 #include <string>
+#include <vector>
 
 #include "core/mesh/ply.h"
 #include "core/particles/particle_io_detail.h"
@@ -23,6 +25,7 @@ class PointReader final : public ply::ElementReader {
     if (x_ < 0 || y_ < 0 || z_ < 0) {
       fail(name, line_at(vertex.header_line), "element 'vertex' lacks an x, y or z property");
     }
+    group_attributes();
   }
 
   void begin(const ply::Element& e, std::size_t capacity) override {
@@ -38,13 +41,35 @@ class PointReader final : public ply::ElementReader {
     check_finite(p, name_, item.where.text() + " (vertex " + std::to_string(item.index) + ")");
     frame_.positions.push_back(p);
     if (r_ >= 0) frame_.radii.push_back(item.scalars[static_cast<std::size_t>(r_)]);
+    for (Group& group : groups_) {
+      for (int p : group.properties) group.values.push_back(item.scalars[static_cast<std::size_t>(p)]);
+    }
   }
 
   bool last(const ply::Element& e) const override { return &e == &vertex_; }
 
-  ParticleFrame take() { return std::move(frame_); }
+  ParticleFrame take() {
+    for (const Group& group : groups_) {
+      keep_attribute(frame_, group.name, static_cast<std::int64_t>(group.properties.size()), group.values);
+    }
+    return std::move(frame_);
+  }
 
  private:
+  struct Group {
+    std::string name;
+    std::vector<int> properties;
+    std::vector<double> values;
+  };
+
+  void group_attributes() {
+    for (ply::AttributeProperties& a :
+         ply::attribute_properties(vertex_, [&](int p) { return p == x_ || p == y_ || p == z_ || p == r_; })) {
+      groups_.push_back({std::move(a.name), std::move(a.properties), {}});
+    }
+  }
+
+  std::vector<Group> groups_;
   const ply::Element& vertex_;
   const std::string& name_;
   int x_ = -1, y_ = -1, z_ = -1, r_ = -1;

@@ -91,7 +91,7 @@ class LegacyReader {
         point_data = key == "POINT_DATA";
         attribute_count = c_.count("attribute count");
       } else if (key == "SCALARS") {
-        const std::string array(c_.expect("scalars name"));
+        const std::string array = decode_name(c_.expect("scalars name"));
         const Scalar type = scalar(c_.expect("scalars type"));
         std::int64_t components = 1;
         const std::string_view rest = c_.rest_of_line();
@@ -108,8 +108,12 @@ class LegacyReader {
         if (upper(c_.expect("LOOKUP_TABLE")) != "LOOKUP_TABLE") fail(name_, where(c_.pos), "expected LOOKUP_TABLE");
         c_.expect("lookup table name");
         const bool radius = point_data && components == 1 && is_radius_name(array);
-        read_values(attribute_count, components, type, "SCALARS " + array, radius ? &values : nullptr);
-        if (radius) frame.radii = values;
+        read_values(attribute_count, components, type, "SCALARS " + array, point_data ? &values : nullptr);
+        if (radius) {
+          frame.radii = values;
+        } else if (point_data) {
+          keep_attribute(frame, array, components, values);
+        }
       } else if (key == "LOOKUP_TABLE") {
         c_.expect("lookup table name");
         read_values(c_.count("lookup table size"), 4, binary_ ? Scalar::kU8 : Scalar::kF64, "LOOKUP_TABLE", nullptr);
@@ -118,9 +122,11 @@ class LegacyReader {
         const std::int64_t n = c_.count("number of color components");
         read_values(attribute_count, n, binary_ ? Scalar::kU8 : Scalar::kF64, "COLOR_SCALARS", nullptr);
       } else if (key == "VECTORS" || key == "NORMALS" || key == "TENSORS" || key == "TENSORS6") {
-        c_.expect("array name");
+        const std::string array = decode_name(c_.expect("array name"));
         const std::int64_t n = key == "TENSORS" ? 9 : key == "TENSORS6" ? 6 : 3;
-        read_values(attribute_count, n, scalar(c_.expect("array type")), key, nullptr);
+        const bool keep = point_data && n <= Attribute::kMaxComponents;
+        read_values(attribute_count, n, scalar(c_.expect("array type")), key, keep ? &values : nullptr);
+        if (keep) keep_attribute(frame, array, n, values);
       } else if (key == "TEXTURE_COORDINATES") {
         c_.expect("array name");
         const std::int64_t dim = c_.count("texture dimension");
@@ -129,7 +135,7 @@ class LegacyReader {
         c_.expect("field name");
         const std::int64_t arrays = c_.count("number of arrays");
         for (std::int64_t a = 0; a < arrays; ++a) {
-          const std::string array(c_.expect("array name"));
+          const std::string array = decode_name(c_.expect("array name"));
           if (upper(array) == "METADATA") {
             skip_metadata();
             --a;
@@ -142,11 +148,16 @@ class LegacyReader {
             if (have_points) return finish(frame, points);  // e.g. string arrays after the points: nothing we need
             fail(name_, where(c_.pos), "unsupported FIELD array type '" + std::string(type_name.substr(0, 40)) + "'");
           }
-          const bool radius =
-              components == 1 && is_radius_name(array) && (point_data || !have_points || tuples == points);
+          const bool per_point = point_data || !have_points || tuples == points;
+          const bool radius = components == 1 && is_radius_name(array) && per_point;
+          const bool keep = per_point && components <= Attribute::kMaxComponents;
           read_values(tuples, components, *scalar_from_name(type_name), "FIELD array " + array,
-                      radius ? &values : nullptr);
-          if (radius) frame.radii = values;
+                      radius || keep ? &values : nullptr);
+          if (radius) {
+            frame.radii = values;
+          } else if (keep) {
+            keep_attribute(frame, array, components, values);
+          }
         }
       } else if (key == "METADATA") {
         skip_metadata();
@@ -169,7 +180,29 @@ class LegacyReader {
            "radius array has " + std::to_string(frame.radii.size()) + " values for " + std::to_string(points) +
                " points");
     }
+    // Arrays of another length (a FIELD before the POINTS that turned out not to be per point) are no attributes.
+    std::erase_if(frame.attributes, [&](const Attribute& a) { return a.count() != static_cast<std::size_t>(points); });
     return std::move(frame);
+  }
+
+  // Legacy array names are one token, with white space and '%' written %XX (vtkDataWriter); decoded here.
+  static std::string decode_name(std::string_view token) {
+    std::string out;
+    for (std::size_t i = 0; i < token.size(); ++i) {
+      const auto hex = [](char c) {
+        return c >= '0' && c <= '9'   ? c - '0'
+               : c >= 'A' && c <= 'F' ? c - 'A' + 10
+               : c >= 'a' && c <= 'f' ? c - 'a' + 10
+                                      : -1;
+      };
+      if (token[i] == '%' && i + 2 < token.size() && hex(token[i + 1]) >= 0 && hex(token[i + 2]) >= 0) {
+        out += static_cast<char>(hex(token[i + 1]) * 16 + hex(token[i + 2]));
+        i += 2;
+      } else {
+        out += token[i];
+      }
+    }
+    return out;
   }
 
   Scalar scalar(std::string_view type) const {
@@ -247,7 +280,9 @@ struct Tag {
 struct ArrayRef {
   Tag tag;
   bool points = false;
-  std::int64_t count = 0;               // values: points x 3, or radii
+  std::string attribute;                // a PointData array other than the radius: its name (else empty)
+  std::int64_t components = 1;          // ... and its components
+  std::int64_t count = 0;               // values: points x components
   std::string_view content;             // inline arrays: the text between the tags
   std::size_t content_at = 0;           // ... and where it starts
   std::optional<std::uint64_t> offset;  // appended arrays: offset into the appended data
@@ -336,14 +371,16 @@ class XmlReader {
                  (stack.back() == "Points" ||
                   // The piece's first radius (or pscale) array; a second one is other data, not more radii.
                   (stack.back() == "PointData" && !piece_radius &&
-                   is_radius_name(tag->attribute("Name").value_or(""))))) {
+                   is_radius_name(tag->attribute("Name").value_or(""))) ||
+                  is_attribute_array(*tag, stack.back()))) {
         if (piece_points < 0) fail(name_, where(tag->begin), "DataArray outside a <Piece>");
         const bool points = stack.back() == "Points";
-        const std::int64_t components = points ? 3 : 1;
         double nc = 1.0;
         if (const auto a = tag->attribute("NumberOfComponents")) {
           if (!parse_double(*a, nc)) nc = -1.0;
         }
+        const bool attribute = !points && !is_radius_name(tag->attribute("Name").value_or(""));
+        const std::int64_t components = points ? 3 : attribute ? static_cast<std::int64_t>(nc) : 1;
         if (nc != static_cast<double>(components) && points) {
           fail(name_, where(tag->begin), "Points DataArray must have NumberOfComponents=\"3\"");
         }
@@ -353,6 +390,8 @@ class XmlReader {
           ArrayRef array;
           array.tag = *tag;
           array.points = points;
+          if (attribute) array.attribute = std::string(tag->attribute("Name").value_or(""));
+          array.components = components;
           array.count = piece_points * components;
           if (is_appended) {
             double offset = -1.0;
@@ -375,7 +414,7 @@ class XmlReader {
           arrays.push_back(std::move(array));
           if (points) {
             piece_points_read += piece_points;
-          } else {
+          } else if (!attribute) {
             piece_radius = true;
           }
         }
@@ -388,6 +427,12 @@ class XmlReader {
       fail(name_, where(text_.size()), "some pieces have a radius array and some do not");
     }
     ParticleFrame frame;
+    struct Collected {
+      std::string name;
+      std::int64_t components = 1;
+      std::vector<double> values;
+    };
+    std::vector<Collected> attributes;
     for (ArrayRef& array : arrays) {
       const std::vector<double> values = array.offset ? decode(array) : std::move(array.values);
       if (array.points) {
@@ -398,8 +443,22 @@ class XmlReader {
           }
           frame.positions.push_back(p);
         }
-      } else {
+      } else if (array.attribute.empty()) {
         frame.radii.insert(frame.radii.end(), values.begin(), values.end());
+      } else {
+        auto it = std::find_if(attributes.begin(), attributes.end(),
+                               [&](const auto& a) { return a.name == array.attribute; });
+        if (it == attributes.end()) {
+          attributes.push_back({array.attribute, array.components, {}});
+          it = attributes.end() - 1;
+        }
+        if (it->components == array.components) it->values.insert(it->values.end(), values.begin(), values.end());
+      }
+    }
+    // An array that some piece lacks (or has with other components) is no attribute.
+    for (const auto& a : attributes) {
+      if (a.values.size() == frame.positions.size() * static_cast<std::size_t>(a.components)) {
+        keep_attribute(frame, a.name, a.components, a.values);
       }
     }
     // Each piece checks its own counts; this holds the sum to them too, as the legacy reader's finish() does.
@@ -413,6 +472,19 @@ class XmlReader {
 
  private:
   std::string where(std::size_t offset) const { return line_at(line_of(text_, offset)); }
+
+  // A PointData array of 1 to Attribute::kMaxComponents numbers other than the radius: an attribute.
+  static bool is_attribute_array(const Tag& tag, std::string_view parent) {
+    if (parent != "PointData") return false;
+    const std::string_view name = tag.attribute("Name").value_or("");
+    if (name.empty() || is_radius_name(name)) return false;
+    if (!scalar_from_name(tag.attribute("type").value_or(""))) return false;
+    double nc = 1.0;
+    if (const auto a = tag.attribute("NumberOfComponents")) {
+      if (!parse_double(*a, nc)) return false;
+    }
+    return nc >= 1 && nc <= Attribute::kMaxComponents && nc == std::floor(nc);
+  }
 
   // <AppendedData encoding="raw|base64">, then optional white space and '_': the data starts after the '_'.
   void appended(const Tag& tag) {

@@ -40,6 +40,12 @@ constexpr int kMaxNewtonSteps = 16;
 // A cusp is held by a vertex only when its axis is within 60 degrees of the vertex normal (docs/ALGORITHMS.md §1,
 // CHOICE "cusps held"): a cusp seen edge-on belongs to another side of the fluid.
 constexpr double kCuspFacing = 0.5;
+// Particles closer than this (in r_inner) to an earlier one are merged into it (docs/ALGORITHMS.md §1, CHOICE
+// "coincident particles merged").
+constexpr double kCoincidentTolerance = 1e-6;
+// A vertex with more outer spheres than this passing near it holds no cusp (docs/ALGORITHMS.md §1, CHOICE "coincident
+// particles merged"): the search is cubic in them.
+constexpr std::size_t kMaxCuspSpheres = 96;
 // Rounds of 1-ring sums that carry the cusps' planes to the vertices around them (CHOICE "a start on the cusps'
 // planes"): enough to cover r_outer, at most this many.
 constexpr int kMaxDescentPasses = 16;
@@ -881,11 +887,38 @@ std::size_t drop_bubbles(Mesh& mesh, const Particles& P, double span) {
   return dropped;
 }
 
+// Every particle within `tolerance` of an earlier kept one (group_coincident) merged into it, which takes the largest
+// radii of its group (docs/ALGORITHMS.md §1, CHOICE "coincident particles merged"): exact duplicates leave the unions
+// of the inner and outer balls as they were; near ones move them by at most `tolerance`. Returns, per kept particle,
+// how many input particles it stands for; empty (and P untouched) when nothing merged. P is not indexed.
+std::vector<std::uint32_t> merge_coincident(Particles& P, double tolerance, const RunControl& control) {
+  const CoincidentGroups groups = group_coincident(P.positions, tolerance, control);
+  const std::size_t kept = groups.kept.size();
+  if (kept == P.positions.size()) return {};
+  std::vector<std::uint32_t> weight(kept, 0);
+  for (const std::uint32_t g : groups.group) ++weight[g];
+  if (P.weighted) {
+    std::vector<double> inner(kept, 0.0), outer(kept, 0.0);
+    for (std::size_t i = 0; i < groups.group.size(); ++i) {
+      const std::uint32_t g = groups.group[i];
+      inner[g] = std::max(inner[g], P.inner[i]);
+      outer[g] = std::max(outer[g], P.outer[i]);
+    }
+    P.inner = std::move(inner);
+    P.outer = std::move(outer);
+    P.min_inner = *std::min_element(P.inner.begin(), P.inner.end());
+  }
+  for (std::size_t k = 0; k < kept; ++k) P.positions[k] = P.positions[groups.kept[k]];  // kept[k] >= k
+  P.positions.resize(kept);
+  return weight;
+}
+
 // Union-find over particles whose r_outer balls overlap; returns the kept flags and the number of dropped clusters.
+// A particle counts `weight` input particles (empty: one each).
 // Its own spatial hash with cells of the largest reach (2 max r_outer), so a query touches at most 27 cells even for
 // scattered spray.
-std::vector<char> filter_components(const Particles& all, int min_size, std::size_t& dropped,
-                                    const RunControl& control) {
+std::vector<char> filter_components(const Particles& all, int min_size, std::span<const std::uint32_t> weight,
+                                    std::size_t& dropped, const RunControl& control) {
   const std::size_t n = all.positions.size();
   const SpatialHash hash(all.positions, 2.0 * all.max_outer);
   std::vector<double> outer(all.weighted ? n : 0);
@@ -915,7 +948,7 @@ std::vector<char> filter_components(const Particles& all, int min_size, std::siz
     });
   }
   std::vector<std::uint32_t> size(n, 0);
-  for (std::uint32_t s = 0; s < n; ++s) ++size[find(s)];
+  for (std::uint32_t s = 0; s < n; ++s) size[find(s)] += weight.empty() ? 1 : weight[order[s]];
   std::vector<char> keep(n, 0);
   dropped = 0;
   for (std::uint32_t s = 0; s < n; ++s) {
@@ -1187,6 +1220,7 @@ class Smoother {
       BandScratch scratch;
       std::size_t lowered = 0;
       for (std::size_t i = begin; i < end; ++i) {
+        if (((i - begin) & 63) == 63) control.check();
         const Vec3& at = x_[i];  // where step 3 left it
         const Vec3& n = normals_[i];
         double cell = 0.0;
@@ -1235,7 +1269,11 @@ class Smoother {
             }
             return true;
           };
-          const std::optional<HeldCusp> held = lowest_cusp(x, n, cell, scratch.spheres, scratch.deeper, owns);
+          // The search is cubic in the spheres around the vertex: past kMaxCuspSpheres (a cluster far denser than
+          // any fluid, CHOICE "coincident particles merged") the vertex holds none.
+          const std::optional<HeldCusp> held = scratch.spheres.size() <= kMaxCuspSpheres
+                                                   ? lowest_cusp(x, n, cell, scratch.spheres, scratch.deeper, owns)
+                                                   : std::nullopt;
           cusp_[i] = held ? held->plane : CuspPlane{};
           // A cusp below the inner edge: the vertex waits there (eq. 3.5 does not hold around it).
           if (held && held->bound < hi) {
@@ -1458,10 +1496,15 @@ void ParticleSurfacer::State::distance_field(std::span<const Vec3> input, std::s
   }
   const double field_band = kFieldBandSpacings * h;
   P.index(P.max_outer + field_band);
+  std::vector<std::uint32_t> weight;  // per particle, the input particles it stands for; empty: one each
+  if (const double tolerance = kCoincidentTolerance * r_inner; P.hash.any_pair_within(tolerance, control)) {
+    weight = merge_coincident(P, tolerance, control);
+    P.index(P.max_outer + field_band);
+  }
 
   if (o.min_particles_per_component > 1) {
     const std::vector<char> keep =
-        filter_components(P, o.min_particles_per_component, stats.components_dropped, control);
+        filter_components(P, o.min_particles_per_component, weight, stats.components_dropped, control);
     if (stats.components_dropped > 0) {
       std::size_t k = 0;
       for (std::size_t i = 0; i < P.positions.size(); ++i) {
@@ -1471,6 +1514,7 @@ void ParticleSurfacer::State::distance_field(std::span<const Vec3> input, std::s
           P.inner[k] = P.inner[i];
           P.outer[k] = P.outer[i];
         }
+        if (!weight.empty()) weight[k] = weight[i];
         ++k;
       }
       P.positions.resize(k);
@@ -1478,10 +1522,12 @@ void ParticleSurfacer::State::distance_field(std::span<const Vec3> input, std::s
         P.inner.resize(k);
         P.outer.resize(k);
       }
+      if (!weight.empty()) weight.resize(k);
       if (k > 0) P.index(P.max_outer + field_band);
     }
   }
-  stats.particles_used = P.positions.size();
+  stats.particles_used =
+      weight.empty() ? P.positions.size() : std::accumulate(weight.begin(), weight.end(), std::size_t{0});
   control.report("distance_field", 1.0);
 }
 

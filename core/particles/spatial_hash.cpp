@@ -4,6 +4,7 @@
 #include <bit>
 #include <numeric>
 #include <string>
+#include <unordered_map>
 
 #include "core/util/errors.h"
 
@@ -203,6 +204,73 @@ bool SpatialHash::any_within(const Vec3& q, double radius) const {
 
 void SpatialHash::within(const Vec3& q, double radius, std::vector<std::uint32_t>& out) const {
   for_each_within(q, radius, [&](std::uint32_t index, const Vec3&, double) { out.push_back(index); });
+}
+
+bool SpatialHash::any_pair_within(double distance, const RunControl& control) const {
+  const double d2 = distance * distance;
+  for (std::uint32_t s = 0; s < points_.size(); ++s) {
+    if ((s & 63) == 0) control.check();
+    const Vec3& p = points_[s];
+    const bool none = for_each_range(p.array() - distance, p.array() + distance, [&](std::uint32_t b, std::uint32_t e) {
+      for (std::uint32_t t = std::max(b, s + 1); t < e; ++t) {
+        if ((points_[t] - p).squaredNorm() <= d2) return false;
+      }
+      return true;
+    });
+    if (!none) return true;
+  }
+  return false;
+}
+
+CoincidentGroups group_coincident(std::span<const Vec3> points, double tolerance, const RunControl& control) {
+  CoincidentGroups out;
+  out.group.resize(points.size());
+  if (points.empty()) return out;
+  // Cells of edge `tolerance`, at least 2^-40 of the largest coordinate so that cell indices stay far inside int64.
+  double scale = 0.0;
+  for (const Vec3& p : points) scale = std::max(scale, p.cwiseAbs().maxCoeff());
+  double cell = std::max(tolerance, std::ldexp(scale, -40));
+  if (!(cell > 0.0)) cell = 1.0;  // every point at the origin
+  const double inv = 1.0 / cell;
+  const auto key = [](std::int64_t i, std::int64_t j, std::int64_t k) {
+    std::uint64_t h = static_cast<std::uint64_t>(i) * 0x9E3779B97F4A7C15ull;
+    h ^= static_cast<std::uint64_t>(j) * 0xC2B2AE3D27D4EB4Full + (h << 6) + (h >> 2);
+    h ^= static_cast<std::uint64_t>(k) * 0x165667B19E3779F9ull + (h << 6) + (h >> 2);
+    return h;
+  };
+  // Per cell key, the last kept point in it (a position in out.kept); earlier ones through `previous`.
+  constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
+  std::unordered_map<std::uint64_t, std::uint32_t> last_in_cell;
+  last_in_cell.reserve(points.size());
+  std::vector<std::uint32_t> previous;
+  const double tolerance2 = tolerance * tolerance;
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    if ((i & 4095) == 0) control.check();
+    const Vec3& p = points[i];
+    std::int64_t c[3];
+    for (int a = 0; a < 3; ++a) c[a] = static_cast<std::int64_t>(std::floor(p[a] * inv));
+    std::uint32_t joined = kNone;
+    for (std::int64_t dk = -1; dk <= 1; ++dk) {
+      for (std::int64_t dj = -1; dj <= 1; ++dj) {
+        for (std::int64_t di = -1; di <= 1; ++di) {
+          const auto it = last_in_cell.find(key(c[0] + di, c[1] + dj, c[2] + dk));
+          if (it == last_in_cell.end()) continue;
+          for (std::uint32_t k = it->second; k != kNone; k = previous[k]) {
+            if (k < joined && (points[out.kept[k]] - p).squaredNorm() <= tolerance2) joined = k;
+          }
+        }
+      }
+    }
+    if (joined == kNone) {
+      joined = static_cast<std::uint32_t>(out.kept.size());
+      out.kept.push_back(static_cast<std::uint32_t>(i));
+      const auto [it, fresh] = last_in_cell.try_emplace(key(c[0], c[1], c[2]), joined);
+      previous.push_back(fresh ? kNone : it->second);
+      it->second = joined;
+    }
+    out.group[i] = joined;
+  }
+  return out;
 }
 
 }  // namespace surfacer

@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "core/mesh/mesh.h"
+#include "core/util/run_control.h"
 
 namespace surfacer {
 
@@ -62,6 +63,10 @@ class SpatialHash {
   // Whether some point lies strictly closer than `radius` to q (stops at the first one found: the cell holding q
   // first, then the box of the ball).
   bool any_within(const Vec3& q, double radius) const;
+
+  // Whether two of the points lie within `distance` (>= 0) of each other; stops at the first such pair. About one
+  // cell's points per point when `distance` is below the cell size. control.check() every 64 points.
+  bool any_pair_within(double distance, const RunControl& control = {}) const;
 
   // Appends the input indices of all points with |p - q| <= radius (in cell order) to `out`.
   void within(const Vec3& q, double radius, std::vector<std::uint32_t>& out) const;
@@ -169,5 +174,16 @@ class SpatialHash {
   std::vector<std::uint32_t> table_;       // sparse: power-of-two open-addressing table of indices into cells_
   std::uint64_t mask_ = 0;
 };
+
+// Points closer than `tolerance` (>= 0, scene units) grouped greedily in input order: each point joins the first
+// earlier kept point within `tolerance` of it (distance <= tolerance), or is kept itself. Kept points are pairwise
+// farther apart than `tolerance`, so each lookup visits a bounded number of them: O(points) expected time whatever
+// the points' multiplicity (a hash map of cells of edge `tolerance`, or coarser where coordinates are too large for
+// such cells). control.check() every 4096 points. Coordinates must be finite.
+struct CoincidentGroups {
+  std::vector<std::uint32_t> kept;   // indices of the kept points, ascending
+  std::vector<std::uint32_t> group;  // per point, the position in `kept` of the point it joined (its own when kept)
+};
+CoincidentGroups group_coincident(std::span<const Vec3> points, double tolerance, const RunControl& control = {});
 
 }  // namespace surfacer

@@ -13,7 +13,7 @@ unknown keyword is a TypeError.
 """
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Dict, Iterator, List, Optional
 
 import numpy as np
@@ -32,38 +32,46 @@ class Frame:
     vertices: (N,3) float64; triangles: (M,3) int32 indices into vertices, counter-clockwise seen from outside;
     normals: (N,3) float64 unit normals when the job asked for them (``normals=True``), else None; stats: the
     server's FrameStats as a dict (vertices, triangles, check (closed, edge_manifold, ...), timings, metrics,
-    iteration)."""
+    iteration); attributes: the particle attributes carried onto the vertices (``interpolate=[...]``), by name, each
+    a float32 array of (N,) for a scalar or (N,k) for a vector."""
 
     index: int
     vertices: np.ndarray
     triangles: np.ndarray
     normals: Optional[np.ndarray]
     stats: Dict[str, Any]
+    attributes: Dict[str, np.ndarray] = field(default_factory=dict)
 
-    def write(self, path) -> None:
-        """Writes the mesh with the CLI's own writers, the format by the extension: .ply (binary), .obj, .drc or .glb
-        (glTF with Draco pieces, encoded on every core)."""
-        _surfacer.write_mesh(os.fspath(path), self.vertices, self.triangles, self.normals)
+    def write(self, path, vdb_voxel_size: Optional[float] = None) -> None:
+        """Writes the mesh with the CLI's own writers, the format by the extension: .ply (binary; attributes as vertex
+        properties), .obj, .drc, .glb (glTF with Draco pieces, encoded on every core), .gltf (plain glTF, for readers
+        without Draco) or .vdb (an OpenVDB narrow-band level set named "surface", voxels of edge vdb_voxel_size, by
+        default the mean edge length)."""
+        _surfacer.write_mesh(os.fspath(path), self.vertices, self.triangles, self.normals, self.attributes,
+                             vdb_voxel_size or 0.0)
 
 
 @dataclass(frozen=True)
 class Mesh:
     """A triangle mesh read from a file (``read_mesh``): vertices (N,3) float64; triangles (M,3) int32, counter-clockwise
-    seen from outside; normals (N,3) float64 when the file has them, else None."""
+    seen from outside; normals (N,3) float64 when the file has them, else None; attributes: other per-vertex
+    properties of a .ply (``Frame.attributes``)."""
 
     vertices: np.ndarray
     triangles: np.ndarray
     normals: Optional[np.ndarray]
+    attributes: Dict[str, np.ndarray] = field(default_factory=dict)
 
-    def write(self, path) -> None:
+    def write(self, path, vdb_voxel_size: Optional[float] = None) -> None:
         """Writes the mesh as ``Frame.write`` does."""
-        _surfacer.write_mesh(os.fspath(path), self.vertices, self.triangles, self.normals)
+        _surfacer.write_mesh(os.fspath(path), self.vertices, self.triangles, self.normals, self.attributes,
+                             vdb_voxel_size or 0.0)
 
 
 def read_mesh(path) -> Mesh:
-    """Reads a mesh file with the CLI's own readers, the format by the extension: .ply, .obj, .drc or .glb (binary
-    glTF: every triangle primitive of its scene; a .glb the CLI or ``Frame.write`` wrote reads back as the frame's
-    mesh, its pieces welded). A file that is not such a mesh raises surfacer.UsageError naming what is wrong."""
+    """Reads a mesh file with the CLI's own readers, the format by the extension: .ply, .obj, .drc, .glb or .gltf
+    (every triangle primitive of its scene; a .gltf's buffer embedded as a data URI; a .glb the CLI or
+    ``Frame.write`` wrote reads back as the frame's mesh, its pieces welded). A file that is not such a mesh raises surfacer.UsageError naming what is wrong."""
     return Mesh(*_surfacer.read_mesh(os.fspath(path)))
 
 
@@ -153,7 +161,7 @@ class Client:
 
     def optimize(self, scene, **options) -> Job:
         """Optimizes a mesh toward the scene's surface (Ohtake-Belyaev-Pasko 2002): snapshot frames, the last one the
-        result. Options (surfacer.v1.OptimizeJob's fields): start_mesh (a .ply/.obj/.drc/.glb path) or
+        result. Options (surfacer.v1.OptimizeJob's fields): start_mesh (a .ply/.obj/.drc/.glb/.gltf path) or
         polygonize_cells, polygonize_cell_size, polygonize_method, polygonize_bounds (aliases start_cells,
         start_method, start_bounds); max_iterations (alias iterations), tolerance, snapshot_every, flows ("d,n,t" or a
         list), c_d, c_n, c_t, step_bound, modified_flows, t_flow_iterations, subdivision_threshold (alias

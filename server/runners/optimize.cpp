@@ -25,6 +25,7 @@ MeshFormat sniff_mesh_format(const std::string& bytes) {
   if (bytes.rfind("ply", 0) == 0) return MeshFormat::kPly;
   if (bytes.rfind("DRACO", 0) == 0) return MeshFormat::kDraco;
   if (bytes.rfind("glTF", 0) == 0) return MeshFormat::kGlb;
+  if (bytes.rfind("{", 0) == 0) return MeshFormat::kGltf;
   return MeshFormat::kObj;
 }
 
@@ -162,6 +163,7 @@ std::unique_ptr<JobRunner> make_optimize_runner(const v1::JobSpec& spec, const J
       read_limits.max_triangles = context.limits.max_triangles;
       start = parse_mesh(blob->bytes, sniff_mesh_format(blob->bytes), "upload " + job.mesh_upload_id(), read_limits);
       validate_start_mesh(*start);
+      start->attributes.clear();  // the optimizer moves, adds and removes vertices: per-vertex arrays do not carry
     } catch (const Error& e) {
       if (e.kind() == ErrorKind::kResourceLimit) {
         throw ResourceLimit(e.field(), path + ".mesh_upload_id: " + e.what() + "; raise --max-triangles");

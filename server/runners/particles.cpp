@@ -1,4 +1,5 @@
 // Job `particles`: particle frames -> one smooth, watertight mesh per frame (Williams 2008), frames in parallel.
+#include "core/particles/attribute_interpolation.h"
 #include "core/particles/particle_surfacer.h"
 #include "core/util/errors.h"
 #include "server/runners/frames.h"
@@ -11,9 +12,11 @@ namespace {
 
 class ParticlesRunner final : public JobRunner {
  public:
-  ParticlesRunner(std::vector<v1::ParticleFrame> frames, const wire::UploadLookup& uploads,
-                  ParticleSurfacingOptions options, FrameMaker frame_maker, const Limits& limits, int worker_threads)
+  ParticlesRunner(std::vector<v1::ParticleFrame> frames, std::vector<std::vector<std::string>> interpolate,
+                  const wire::UploadLookup& uploads, ParticleSurfacingOptions options, FrameMaker frame_maker,
+                  const Limits& limits, int worker_threads)
       : frames_(std::move(frames)),
+        interpolate_(std::move(interpolate)),
         uploads_(uploads),
         options_(std::move(options)),
         frame_maker_(std::move(frame_maker)),
@@ -43,6 +46,20 @@ class ParticlesRunner final : public JobRunner {
     timer.add("polish", stats.seconds_polish);
     if (options.erosion) timer.add("erosion", stats.seconds_erosion);
     timer.add("cleanup", stats.seconds_cleanup);
+    if (!interpolate_[index].empty()) {
+      std::vector<Attribute> carried;
+      for (const std::string& name : interpolate_[index]) {
+        for (const Attribute& a : data.attributes) {
+          if (a.name == name) carried.push_back(a);
+        }
+      }
+      timer.run("interpolate", [&] {
+        AttributeInterpolationOptions support =
+            AttributeInterpolationOptions::particle_support(stats.r_inner, stats.r_outer, data.radii);
+        support.threads = options.threads;
+        mesh.attributes = interpolate_attributes(data.positions, carried, mesh.vertices, support, control);
+      });
+    }
     FrameOutput frame = frame_maker_.make(std::move(mesh), timer, control);
     auto& metrics = *frame.stats.mutable_metrics();
     metrics["particles"] = static_cast<double>(stats.particles);
@@ -66,6 +83,7 @@ class ParticlesRunner final : public JobRunner {
 
  private:
   std::vector<v1::ParticleFrame> frames_;
+  std::vector<std::vector<std::string>> interpolate_;  // per frame: the attributes carried onto its vertices
   const wire::UploadLookup& uploads_;
   ParticleSurfacingOptions options_;
   FrameMaker frame_maker_;
@@ -82,6 +100,12 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
     throw InvalidInput(path + ".frames", path + ".frames is empty; give at least one particle frame");
   }
   check_frame_count(job.frames_size(), path + ".frames", context.limits);
+  if (job.interpolate_size() > 0 && spec.output().encoding() != v1::MESH_ENCODING_PLY) {
+    throw InvalidInput("spec.output.encoding",
+                       "spec.particles.interpolate: interpolated attributes travel in raw frames only "
+                       "(spec.output.encoding MESH_ENCODING_PLY, --encoding raw); Draco and meshopt frames do not "
+                       "carry them yet");
+  }
   ParticleSurfacingOptions options = wire::particle_options(job, spec.output().normals(), path);
   options.container_solid = wire::container_solid(job, context.uploads, path);
 
@@ -90,7 +114,9 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
   std::vector<v1::ParticleFrame> frames(job.frames().begin(), job.frames().end());
   std::vector<wire::ParticleSummary> summaries;
   summaries.reserve(frames.size());
+  std::vector<std::vector<std::string>> interpolate;
   for (int i = 0; i < job.frames_size(); ++i) {
+    interpolate.push_back(wire::interpolated_attributes(job, i, path));
     summaries.push_back(wire::summarize_particle_frame(job.frames(i), path + ".frames[" + std::to_string(i) + "]",
                                                        context.uploads, context.limits.max_particles));
   }
@@ -101,9 +127,9 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), box, "spec.output");
   // The sliver repair also removes triangles that would be degenerate once quantized on the job's grid.
   options.output_grid = encoding.grid();
-  return std::make_unique<ParticlesRunner>(std::move(frames), context.uploads, std::move(options),
-                                           FrameMaker(encoding, context.limits.max_triangles, context.executor),
-                                           context.limits, context.worker_threads);
+  return std::make_unique<ParticlesRunner>(
+      std::move(frames), std::move(interpolate), context.uploads, std::move(options),
+      FrameMaker(encoding, context.limits.max_triangles, context.executor), context.limits, context.worker_threads);
 }
 
 }  // namespace surfacer::server

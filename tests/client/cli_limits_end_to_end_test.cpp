@@ -1,6 +1,7 @@
 // The CLI against a `surfacer-server` child at the edges of what the protocol allows: `list` follows ListJobs pages,
 // a scene nested past the depth limit is refused before connecting with the server's own message, and particle
-// files that inflate past what the server accepts are refused early, naming the file (exit 2).
+// files that inflate past what the server accepts are refused early, naming the file (exit 2), and a spec too large
+// for one request is refused saying how to split it.
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
 
@@ -85,6 +86,26 @@ TEST_F(CliLimitsEndToEnd, ANameOverTheLimitIsRefusedBeforeConnecting) {
   EXPECT_EQ(r.code, 2) << r;
   EXPECT_NE(r.err.find("spec.name is 1025 bytes; the limit is 1024 bytes"), std::string::npos) << r;
   EXPECT_NE(r.err.find("--name"), std::string::npos) << r;
+}
+
+TEST_F(CliLimitsEndToEnd, TooManyInlineScenesAreRefusedWithTheFrameLimitNeverGrpcsOwnMessage) {
+  // 260000 scenes fit in one request and meet the server's frame limit; more pass gRPC's message limit, where the
+  // server could only answer with gRPC's "larger than max": the client says what is large and how to split it.
+  for (int scenes : {260000, 300000, 600000}) {
+    std::string json = R"({"isosurface": {"cells": 8, "scenes": [)";
+    for (int i = 0; i < scenes; ++i) json += std::string(i == 0 ? "" : ",") + R"({"root": {"sphere": {"radius": 1}}})";
+    json += "]}}";
+    const fs::path spec = dir_ / "many_scenes.json";
+    write_file(spec, json);
+    const ProcessResult r = cli({"run", "--spec", spec.string(), "-o", (dir_ / "many").string()});
+    EXPECT_EQ(r.code, 4) << r;
+    EXPECT_EQ(r.err.find("larger than max"), std::string::npos) << r;
+    const std::string expected =
+        scenes == 260000 ? "spec.isosurface.scenes asks for 260000 frames, over the server's limit of 100000"
+                         : std::to_string(scenes) + " scenes, over the " + std::to_string(wire::kMaxMessageBytes) +
+                               " a request may carry: split it into several jobs (the server takes at most 100000";
+    EXPECT_NE(r.err.find(expected), std::string::npos) << r;
+  }
 }
 
 // `args` run under a 1.5 GB address-space limit: a CLI that inflated a bomb whole would fail to allocate.

@@ -97,6 +97,51 @@ TEST(MeshGltf, WriteMeshAndReadMeshRoundTrip) {
   }
 }
 
+// A plain .gltf (JSON with its buffer as a data URI) reads back as the mesh: the same triangles, the vertices rounded
+// to float, unit normals along the mesh's own; an empty mesh is an empty scene.
+TEST(MeshGltf, PlainGltfRoundTripsThroughWriteMeshAndReadMesh) {
+  const std::filesystem::path dir = testing::fresh_temp_dir("mesh_gltf_plain");
+  const FieldPtr sphere = make_sphere(Vec3(0.3, -0.2, 0.1), 1.0);
+  const Mesh with_normals = polygonized(sphere, Polygonizer::kTiles, 24, true);
+  ASSERT_FALSE(with_normals.normals.empty());
+  for (const Mesh& mesh : {testing::icosphere(3), testing::torus_mesh(1.0, 0.3, 48, 24), with_normals, Mesh{}}) {
+    const std::filesystem::path file = dir / "mesh.gltf";
+    write_mesh(file, mesh);
+    const Mesh read = read_mesh(file);
+    // The reader numbers vertices in the order the triangles use them: compare corner by corner.
+    ASSERT_EQ(read.vertices.size(), mesh.triangles.empty() ? 0 : mesh.vertices.size());
+    ASSERT_EQ(read.triangles.size(), mesh.triangles.size());
+    ASSERT_EQ(read.normals.empty(), mesh.normals.empty() || mesh.triangles.empty());
+    for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+      for (int k = 0; k < 3; ++k) {
+        const std::uint32_t a = read.triangles[t][k], b = mesh.triangles[t][k];
+        ASSERT_EQ(read.vertices[a], mesh.vertices[b].cast<float>().cast<double>()) << t;
+        if (read.normals.empty()) continue;
+        EXPECT_NEAR(read.normals[a].norm(), 1.0, 1e-6);
+        EXPECT_GT(read.normals[a].dot(mesh.normals[b].normalized()), 1.0 - 1e-6);
+      }
+    }
+    if (!mesh.triangles.empty()) testing::expect_same_topology(check_mesh(read), check_mesh(mesh), "the .gltf");
+  }
+  // What a .gltf reader must not take: a buffer in another file, a data URI that is not base64.
+  const std::string good = write_gltf(testing::unit_cube());
+  ASSERT_NO_THROW(parse_glb(good, "good.gltf"));
+  auto refused = [&](const std::string& from, const std::string& to, const std::string& words) {
+    std::string bad = good;
+    bad.replace(bad.find(from), from.size(), to);
+    try {
+      parse_glb(bad, "bad.gltf");
+      ADD_FAILURE() << "read: " << words;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(words), std::string::npos) << e.what();
+      EXPECT_EQ(std::string(e.what()).rfind("bad.gltf: ", 0), 0u) << e.what();
+    }
+  };
+  refused("data:application/octet-stream;base64,", "cube.bin#", "buffer 0 is not a base64 data URI");
+  refused("base64,", "base64,*", "buffer 0's data URI is not valid base64");
+  refused("\"byteLength\": 96", "\"byteLength\": 960", "(bufferView 0) runs past the binary chunk");
+}
+
 // Another exporter's file: plain accessors (strided float positions, indices of every unsigned type), triangles or
 // fans, and nodes whose transforms (translation, rotation, scale, matrix, nesting, a mirror) place the instances.
 TEST(MeshGltf, PlainAccessorsModesAndNodeTransforms) {
@@ -179,7 +224,7 @@ TEST(MeshGltf, RefusesWhatItDoesNotReadNamingWhy) {
   const std::string good = plain_glb(cube, R"([{"mesh":0}])", "[0]");
   ASSERT_NO_THROW(parse_glb(good, "good.glb"));
   auto replaced = [&](const std::string& from, const std::string& to) { return json_replaced(good, from, to); };
-  expect_refused("solid cube\n", "no glTF binary header");
+  expect_refused("solid cube\n", "neither glTF JSON nor a glTF binary header");
   expect_refused(good.substr(0, good.size() / 2), "more bytes than the file has");
   std::string v1 = good;
   v1[4] = 1;

@@ -354,5 +354,28 @@ TEST(MeshIo, EmptyMesh) {
   EXPECT_TRUE(o.vertices.empty() && o.triangles.empty());
 }
 
+TEST(MeshIo, PlyCarriesVertexAttributes) {
+  Mesh mesh = test_mesh(true);
+  const std::size_t n = mesh.vertices.size();
+  Attribute density{"density", 1, {}}, velocity{"velocity", 3, {}};
+  for (std::size_t i = 0; i < n; ++i) density.values.push_back(1000.0f + static_cast<float>(i));
+  for (std::size_t i = 0; i < 3 * n; ++i) velocity.values.push_back(0.5f * static_cast<float>(i) - 7.0f);
+  mesh.attributes = {density, velocity};
+  for (const bool double_precision : {false, true}) {
+    const std::string ply = write_ply(mesh, double_precision);
+    EXPECT_NE(ply.find("property float velocity_x\nproperty float velocity_y\nproperty float velocity_z\n"),
+              std::string::npos);
+    const Mesh back = parse_mesh(ply, MeshFormat::kPly, "a.ply");
+    EXPECT_EQ(back.triangles, mesh.triangles);
+    EXPECT_EQ(back.normals.size(), n);
+    ASSERT_EQ(back.attributes.size(), 2u);
+    EXPECT_EQ(back.attributes[0].name, "density");
+    EXPECT_EQ(back.attributes[0].values, density.values);
+    EXPECT_EQ(back.attributes[1].name, "velocity");
+    EXPECT_EQ(back.attributes[1].components, 3);
+    EXPECT_EQ(back.attributes[1].values, velocity.values);
+  }
+}
+
 }  // namespace
 }  // namespace surfacer

@@ -204,6 +204,44 @@ TEST(MeshVtk, XmlRoundTrip) {
   }
 }
 
+// Mesh attributes of 1 to 4 components come back under their names from .vtk, .vtu and .ply (read by the particle
+// readers, which keep point arrays, and by the mesh PLY reader).
+Mesh mesh_with_attributes() {
+  Mesh mesh = testing::torus_mesh(3, 1, 24, 12, Vec3(0, 0, 0));
+  const std::size_t n = mesh.vertices.size();
+  const std::vector<std::pair<std::string, int>> layout = {
+      {"density", 1}, {"uv", 2}, {"velocity", 3}, {"rgba", 4}, {"foam mask", 1}};
+  for (const auto& [name, components] : layout) {
+    Attribute a{name, components, {}};
+    for (std::size_t i = 0; i < n * static_cast<std::size_t>(components); ++i) {
+      a.values.push_back(static_cast<float>(i) * 0.25f - 3.0f);
+    }
+    mesh.attributes.push_back(a);
+  }
+  return mesh;
+}
+
+void expect_attributes(const std::vector<Attribute>& got, const std::vector<Attribute>& want) {
+  ASSERT_EQ(got.size(), want.size());
+  for (std::size_t i = 0; i < want.size(); ++i) {
+    EXPECT_EQ(got[i].name, want[i].name);
+    EXPECT_EQ(got[i].components, want[i].components) << want[i].name;
+    EXPECT_EQ(got[i].values, want[i].values) << want[i].name;
+  }
+}
+
+TEST(MeshVtk, AttributesAreNamedPointArrays) {
+  const Mesh mesh = mesh_with_attributes();
+  expect_attributes(parse_particles(write_vtk(mesh), ParticleFormat::kVtk, "a.vtk").attributes, mesh.attributes);
+  expect_attributes(parse_particles(write_vtu(mesh), ParticleFormat::kVtu, "a.vtu").attributes, mesh.attributes);
+  const std::string vtu = write_vtu(mesh);
+  EXPECT_NE(vtu.find("Name=\"velocity\" NumberOfComponents=\"3\""), std::string::npos);
+  EXPECT_NE(write_vtk(mesh).find("SCALARS foam%20mask float 1"), std::string::npos);
+  Mesh wrong = mesh;
+  wrong.attributes[0].values.pop_back();
+  EXPECT_THROW(write_vtu(wrong), Error);
+}
+
 TEST(MeshVtk, FilesOnDiskReadBack) {
   const std::filesystem::path dir = testing::fresh_temp_dir("mesh_vtk");
   const Mesh mesh = testing::torus_mesh(2, 0.5);

@@ -893,5 +893,101 @@ TEST(ParticleIo, ExpandSequence) {
   }
 }
 
+// --- Attributes ------------------------------------------------------------------------------------------------------
+
+void expect_attribute(const ParticleFrame& f, const std::string& name, int components, const std::vector<float>& v) {
+  const Attribute* a = find_attribute(f, name);
+  ASSERT_NE(a, nullptr) << name << " not among " << attribute_list(f);
+  EXPECT_EQ(a->components, components) << name;
+  EXPECT_EQ(a->values, v) << name;
+}
+
+TEST(ParticleIo, VtkLegacyKeepsPointArraysAsAttributes) {
+  const std::string text =
+      "# vtk DataFile Version 3.0\nfluid\nASCII\nDATASET POLYDATA\nPOINTS 2 float\n0 0 0 1 0 0\n"
+      "POINT_DATA 2\nSCALARS density float 1\nLOOKUP_TABLE default\n1000 998.5\n"
+      "VECTORS velocity float\n1 2 3 4 5 6\nSCALARS radius float\nLOOKUP_TABLE default\n0.1 0.2\n"
+      "FIELD FieldData 2\nfoam 1 2 float\n0 1\nstress 9 2 float\n0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0\n";
+  const ParticleFrame f = parse_particles(text, ParticleFormat::kVtk, "a.vtk");
+  EXPECT_EQ(f.radii, (std::vector<double>{0.1, 0.2}));
+  expect_attribute(f, "density", 1, {1000.0f, 998.5f});
+  expect_attribute(f, "velocity", 3, {1, 2, 3, 4, 5, 6});
+  expect_attribute(f, "foam", 1, {0, 1});
+  EXPECT_EQ(find_attribute(f, "stress"), nullptr);  // 9 components: a tensor, not kept
+  EXPECT_EQ(find_attribute(f, "radius"), nullptr);
+  EXPECT_EQ(attribute_list(f), "density (1), velocity (3), foam (1)");
+}
+
+TEST(ParticleIo, VtuKeepsPointDataOfEveryPiece) {
+  VtuStyle st;
+  std::string s = "<VTKFile type=\"PolyData\">\n<PolyData>\n";
+  for (int piece = 0; piece < 2; ++piece) {
+    const double o = piece;
+    s += "<Piece NumberOfPoints=\"2\">\n<PointData>\n";
+    s += vtu_array({o, o + 0.5}, "density", 1, st);
+    s += vtu_array({1, 2, 3, 4, 5, 6}, "velocity", 3, st);
+    if (piece == 0) s += vtu_array({7, 8}, "only_first", 1, st);
+    s += "</PointData>\n<Points>\n" + vtu_array({o, 0, 0, o, 1, 0}, "Points", 3, st) + "</Points>\n</Piece>\n";
+  }
+  s += "</PolyData>\n</VTKFile>\n";
+  const ParticleFrame f = parse_particles(s, ParticleFormat::kVtu, "p.vtp");
+  ASSERT_EQ(f.positions.size(), 4u);
+  expect_attribute(f, "density", 1, {0, 0.5, 1, 1.5});
+  expect_attribute(f, "velocity", 3, {1, 2, 3, 4, 5, 6, 1, 2, 3, 4, 5, 6});
+  EXPECT_EQ(find_attribute(f, "only_first"), nullptr);
+}
+
+TEST(ParticleIo, PlyGroupsVectorPropertiesAndKeepsScalars) {
+  const std::string text =
+      "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
+      "property float velocity_x\nproperty float velocity_y\nproperty float velocity_z\nproperty float density\n"
+      "property float pscale\nend_header\n0 0 0 1 2 3 1000 0.1\n1 0 0 4 5 6 999 0.1\n";
+  const ParticleFrame f = parse_particles(text, ParticleFormat::kPly, "p.ply");
+  expect_attribute(f, "velocity", 3, {1, 2, 3, 4, 5, 6});
+  expect_attribute(f, "density", 1, {1000, 999});
+  EXPECT_EQ(f.attributes.size(), 2u);
+}
+
+TEST(ParticleIo, XyzHeaderColumnsBecomeAttributes) {
+  const ParticleFrame f =
+      parse_particles("x,y,z,density,tag\n0,0,0,2.5,a\n1,0,0,3.5,b\n", ParticleFormat::kXyz, "p.csv");
+  expect_attribute(f, "density", 1, {2.5, 3.5});
+  EXPECT_EQ(find_attribute(f, "tag"), nullptr);  // not numbers
+  // A header whose extra columns have no rows under them (found by fuzz_particles: it indexed past the values).
+  for (const char* text : {"x,y,z,density\n", "id,Z,y,x,psc0+AppendedDataale,0.25,9\n"}) {
+    try {
+      const ParticleFrame empty = parse_particles(text, ParticleFormat::kXyz, "h.csv");
+      EXPECT_TRUE(empty.positions.empty());
+    } catch (const Error& e) {
+      EXPECT_EQ(e.kind(), ErrorKind::kInvalidInput) << e.what();
+    }
+  }
+}
+
+TEST(ParticleIo, BgeoKeepsFloatAndVectorPointAttributes) {
+  const ParticleFrame f = sample_frame(true, 5);
+  const ParticleFrame back = parse_particles(write_bgeo(f), ParticleFormat::kBgeo, "p.bgeo");
+  expect_same(back, f);
+  expect_attribute(back, "v", 3, std::vector<float>(15, 0.25f));
+  EXPECT_EQ(find_attribute(back, "kind"), nullptr);    // an indexed string
+  EXPECT_EQ(find_attribute(back, "pscale"), nullptr);  // the radius
+}
+
+TEST(ParticleIo, JsonObjectOfArraysCarriesRadiiAndAttributes) {
+  const ParticleFrame f = parse_particles(
+      "{\"positions\": [[0, 0, 0], [1, 0, 0]], \"radius\": [0.5, 0.25], \"velocity\": [[1, 2, 3], [4, 5, 6]],\n"
+      " \"density\": [1000, 999]}",
+      ParticleFormat::kJson, "p.json");
+  ASSERT_EQ(f.positions.size(), 2u);
+  EXPECT_EQ(f.positions[1], Vec3(1, 0, 0));
+  EXPECT_EQ(f.radii, (std::vector<double>{0.5, 0.25}));
+  expect_attribute(f, "velocity", 3, {1, 2, 3, 4, 5, 6});
+  expect_attribute(f, "density", 1, {1000, 999});
+  for (const char* bad : {"{\"density\": [1]}", "{\"positions\": [[0, 0, 0]], \"density\": [1, 2]}",
+                          "{\"positions\": [[0, 0]]}", "{\"positions\": [[0, 0, 0]], \"v\": [[1, 2], [3]]}"}) {
+    EXPECT_THROW(parse_particles(bad, ParticleFormat::kJson, "bad.json"), Error) << bad;
+  }
+}
+
 }  // namespace
 }  // namespace surfacer

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <limits>
 #include <random>
@@ -160,6 +161,68 @@ TEST(SpatialHash, RejectsBadArguments) {
   } catch (const Error& e) {
     EXPECT_EQ(e.kind(), ErrorKind::kResourceLimit);
   }
+}
+
+// group_coincident against the greedy rule done by brute force: clusters of near points, exact duplicates and
+// points exactly the tolerance apart.
+TEST(GroupCoincident, MatchesTheGreedyRule) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> coord(-1.0, 1.0), jitter(-1e-4, 1e-4);
+  const double tolerance = 1e-4;
+  std::vector<Vec3> points;
+  for (int c = 0; c < 60; ++c) {
+    const Vec3 centre(coord(rng), coord(rng), coord(rng));
+    for (int i = 0; i < 1 + c % 7; ++i) points.push_back(centre + Vec3(jitter(rng), jitter(rng), jitter(rng)));
+    if (c % 5 == 0) points.push_back(centre);
+    if (c % 9 == 0) points.push_back(centre + Vec3(tolerance, 0, 0));
+  }
+  std::shuffle(points.begin(), points.end(), rng);
+  const CoincidentGroups groups = group_coincident(points, tolerance);
+  std::vector<std::uint32_t> kept;
+  for (std::uint32_t i = 0; i < points.size(); ++i) {
+    std::uint32_t joined = static_cast<std::uint32_t>(kept.size());
+    for (std::uint32_t k = 0; k < kept.size(); ++k) {
+      if ((points[kept[k]] - points[i]).norm() <= tolerance) {
+        joined = k;
+        break;
+      }
+    }
+    if (joined == kept.size()) kept.push_back(i);
+    ASSERT_EQ(groups.group[i], joined) << i;
+  }
+  EXPECT_EQ(groups.kept, kept);
+  EXPECT_LT(kept.size(), points.size());
+}
+
+TEST(SpatialHash, AnyPairWithinFindsTheClosePairOnly) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> coord(0.0, 1.0);
+  std::vector<Vec3> points(20000);
+  for (Vec3& p : points) p = Vec3(coord(rng), coord(rng), coord(rng));
+  double closest = std::numeric_limits<double>::infinity();
+  const SpatialHash hash(points, 0.05);
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    hash.for_each_within(points[i], 0.01, [&](std::uint32_t j, const Vec3&, double d2) {
+      if (j != i) closest = std::min(closest, std::sqrt(d2));
+    });
+  }
+  ASSERT_LT(closest, 0.01);
+  EXPECT_FALSE(hash.any_pair_within(0.999 * closest));
+  EXPECT_TRUE(hash.any_pair_within(closest * (1.0 + 1e-12)));
+  points.push_back(points[123] + Vec3(0, 0, 1e-12));
+  EXPECT_TRUE(SpatialHash(points, 0.05).any_pair_within(1e-12));
+  EXPECT_TRUE(SpatialHash(std::vector<Vec3>(3, Vec3::Ones()), 1.0).any_pair_within(0.0));
+  EXPECT_FALSE(SpatialHash(std::vector<Vec3>{Vec3::Ones()}, 1.0).any_pair_within(1.0));
+}
+
+TEST(GroupCoincident, ManyIdenticalPointsInLinearTime) {
+  const std::vector<Vec3> same(1000000, Vec3(3.0, -2.0, 1e6));
+  const auto t0 = std::chrono::steady_clock::now();
+  const CoincidentGroups groups = group_coincident(same, 0.0);
+  EXPECT_LT(std::chrono::steady_clock::now() - t0, std::chrono::seconds(2));
+  EXPECT_EQ(groups.kept, std::vector<std::uint32_t>{0});
+  EXPECT_TRUE(std::all_of(groups.group.begin(), groups.group.end(), [](std::uint32_t g) { return g == 0; }));
+  EXPECT_TRUE(group_coincident({}, 1.0).kept.empty());
 }
 
 }  // namespace

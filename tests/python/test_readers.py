@@ -1,6 +1,6 @@
-"""Our mesh files read back by the real third-party readers a user opens them with: VTK 9 (ParaView's library) and
-meshio (the Blender sequence loaders' library), both from Debian (python3-vtk9, python3-meshio, installed by
-scripts/setup.sh). Frames are written by the `surfacer` CLI (CTest sets SURFACER_CLI_BINARY)."""
+"""Our mesh files read back by the real third-party readers a user opens them with: VTK 9 (ParaView's library),
+meshio (the Blender sequence loaders' library) and pyopenvdb (OpenVDB's own), all from Debian (python3-vtk9,
+python3-meshio, python3-openvdb, installed by scripts/setup.sh). Frames are written by the `surfacer` CLI (CTest sets SURFACER_CLI_BINARY)."""
 
 import os
 import subprocess
@@ -54,6 +54,93 @@ def test_vtk_and_meshio_read_our_vtk_and_vtu_with_normals(scene, encoding, tmp_p
         assert mesh.cells[0].type == "triangle"
         np.testing.assert_array_equal(mesh.cells[0].data, reference.triangles)
         np.testing.assert_allclose(mesh.point_data["Normals"], reference.normals, atol=1e-6, err_msg=str(path))
+
+
+@pytest.mark.parametrize("scene,encoding,normals", [("torus", "draco", True), ("csg_block", "raw", False),
+                                                    ("gyroid_in_sphere", "meshopt", True)])
+def test_vtk_reads_our_plain_gltf(scene, encoding, normals, tmp_path):
+    """--format gltf is for readers without Draco (Debian's Blender, VTK): VTK's own glTF reader gets the frame."""
+    from vtkmodules.vtkIOGeometry import vtkGLTFReader
+    out = tmp_path / "out"
+    subprocess.run([cli(), "run", "isosurface", "--scene", str(SCENES / (scene + ".json")), "--cells", "24",
+                    "--encoding", encoding, "-o", str(out), "--format", "ply,gltf"] + (["--normals"] if normals else []),
+                   check=True, capture_output=True, timeout=120)
+    reference = surfacer.read_mesh(out / "frame_0000.ply")
+    reader = vtkGLTFReader()
+    reader.SetFileName(str(out / "frame_0000.gltf"))
+    reader.Update()
+    blocks = reader.GetOutput()
+    iterator = blocks.NewIterator()
+    iterator.InitTraversal()
+    meshes = []
+    while not iterator.IsDoneWithTraversal():
+        meshes.append(iterator.GetCurrentDataObject())
+        iterator.GoToNextItem()
+    assert len(meshes) == 1
+    mesh = meshes[0]
+    assert mesh.GetNumberOfPoints() == len(reference.vertices)
+    assert mesh.GetNumberOfCells() == len(reference.triangles)
+    points = vtk_to_numpy(mesh.GetPoints().GetData()).astype(np.float64)
+    np.testing.assert_allclose(points, reference.vertices, atol=1e-6)
+    polys = vtk_to_numpy(mesh.GetPolys().GetConnectivityArray()).reshape(-1, 3)
+    np.testing.assert_array_equal(polys, reference.triangles)
+    if normals:
+        np.testing.assert_allclose(vtk_to_numpy(mesh.GetPointData().GetNormals()), reference.normals, atol=1e-6)
+    else:
+        assert mesh.GetPointData().GetNormals() is None
+    # And our own reader (Python's read_mesh, the CLI's --start-mesh) takes it back.
+    again = surfacer.read_mesh(out / "frame_0000.gltf")
+    assert len(again.triangles) == len(reference.triangles)
+
+
+@pytest.mark.parametrize("voxel", [None, 0.05, 0.11])
+def test_pyopenvdb_reads_our_vdb_as_the_level_set_of_the_frame(voxel, tmp_path):
+    """--format vdb: OpenVDB's own reader gets a level set named "surface" whose values are the signed distance to
+    the frame's sphere (negative inside) within the narrow band, at the voxel size asked for (else the mean edge)."""
+    import pyopenvdb
+    out = tmp_path / "out"
+    center, radius = np.array([0.2, -0.1, 0.05]), 0.8
+    scene = tmp_path / "ball.json"
+    scene.write_text('{"root": {"sphere": {"center": {"x": 0.2, "y": -0.1, "z": 0.05}, "radius": 0.8}}}')
+    subprocess.run([cli(), "run", "isosurface", "--scene", str(scene), "--cells", "40", "-o", str(out),
+                    "--format", "ply,vdb"] + (["--vdb-voxel-size", str(voxel)] if voxel else []),
+                   check=True, capture_output=True, timeout=120)
+    mesh = surfacer.read_mesh(out / "frame_0000.ply")
+    edges = np.concatenate([mesh.vertices[mesh.triangles[:, k]] - mesh.vertices[mesh.triangles[:, (k + 1) % 3]]
+                            for k in range(3)])
+    expected_voxel = voxel or float(np.mean(np.linalg.norm(edges, axis=1)))
+    grid = pyopenvdb.read(str(out / "frame_0000.vdb"), "surface")
+    assert grid.gridClass == pyopenvdb.GridClass.LEVEL_SET
+    np.testing.assert_allclose(grid.transform.voxelSize(), [expected_voxel] * 3, rtol=1e-6)
+    band = grid.background
+    np.testing.assert_allclose(band, 3 * expected_voxel, rtol=1e-5)
+    accessor = grid.getConstAccessor()
+    rng = np.random.default_rng(3)
+    directions = rng.normal(size=(200, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    for offset in (-2.0, -0.5, 0.0, 0.5, 2.0):  # in voxels from the surface, inside the band
+        for d in directions:
+            point = center + d * (radius + offset * expected_voxel)
+            ijk = grid.transform.worldToIndexCellCentered(tuple(point))
+            centre = np.array(grid.transform.indexToWorld(ijk))
+            distance = np.linalg.norm(centre - center) - radius
+            assert abs(accessor.getValue(ijk) - distance) < 0.5 * expected_voxel + 0.01 * radius, (point, offset)
+    assert accessor.getValue(grid.transform.worldToIndexCellCentered(tuple(center))) == -band
+    assert accessor.getValue(grid.transform.worldToIndexCellCentered((5.0, 5.0, 5.0))) == band
+    # Python writes the same file.
+    frame_path = tmp_path / "again.vdb"
+    mesh.write(frame_path, vdb_voxel_size=voxel)
+    again = pyopenvdb.read(str(frame_path), "surface")
+    assert again.activeVoxelCount() == grid.activeVoxelCount()
+
+
+def test_a_vdb_voxel_too_small_for_the_surface_is_refused_before_any_voxel(tmp_path):
+    result = subprocess.run([cli(), "run", "isosurface", "--scene", str(SCENES / "sphere.json"), "--cells", "16",
+                             "-o", str(tmp_path / "out"), "--format", "vdb", "--vdb-voxel-size", "1e-5"],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2, result.stderr
+    assert "--vdb-voxel-size 1e-05: the surface's band would hold about" in result.stderr
+    assert "use a voxel size of at least" in result.stderr
 
 
 def test_pvd_gives_paraview_the_input_frame_numbers_as_times(tmp_path):

@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <thread>
 
+#include "server/job.h"
 #include "server/store.h"
 #include "server/uploads.h"
 #include "tests/server/test_client.h"
@@ -150,6 +151,43 @@ TEST(DurableStore, ACancelIsDurableBeforeItIsAcknowledged) {
   }
 }
 
+// A job running each time its server is killed (say it is what brings the server down) resumes, counting the
+// interruptions; the kMaxInterruptedRuns-th restart fails it instead of running it again.
+TEST(DurableStore, AJobInterruptedRepeatedlyIsFailedNotResumedForever) {
+  const fs::path dir = fresh_temp_dir("durable-interrupted");
+  const fs::path data = dir / "data";
+  const int frames = 12;
+  std::string id;
+  int done = 0;
+  for (int life = 0; life < server::Job::kMaxInterruptedRuns; ++life) {
+    ServerProcess p(dir, 1, {"--data-dir", data.string()});
+    ASSERT_GT(p.port(), 0) << p.log();
+    auto stub = make_stub(p.address());
+    if (life == 0) ASSERT_TRUE(submit(*stub, sphere_sequence(frames, 150), &id).ok());
+    EXPECT_EQ(get_job(*stub, id).interrupted_runs(), life);
+    // Killed once it has made a frame in this life (so it was running, and the store says so).
+    const int before = done;
+    const auto until = std::chrono::steady_clock::now() + 60s;
+    while (std::chrono::steady_clock::now() < until && (done = get_job(*stub, id).frames_done()) <= before) {
+      std::this_thread::sleep_for(5ms);
+    }
+    p.kill_now();
+    ASSERT_GT(done, before) << p.log();
+    ASSERT_LT(done, frames) << "the job finished before the kill: make frames slower";
+  }
+  ServerProcess p(dir, 1, {"--data-dir", data.string()});
+  ASSERT_GT(p.port(), 0) << p.log();
+  auto stub = make_stub(p.address());
+  const v1::Job job = get_job(*stub, id);
+  EXPECT_EQ(job.state(), v1::JOB_STATE_FAILED) << p.log();
+  EXPECT_EQ(job.interrupted_runs(), server::Job::kMaxInterruptedRuns);
+  EXPECT_EQ(job.error().code(), static_cast<int>(grpc::StatusCode::ABORTED));
+  EXPECT_NE(job.error().message().find("the server stopped 3 times while this job was running"), std::string::npos)
+      << job.error().message();
+  EXPECT_EQ(job.frames_done(), done);  // what it made is kept
+  EXPECT_EQ(p.log().find("event=job_started job=" + id), std::string::npos) << p.log();
+}
+
 TEST(DurableStore, AServerStoppingPastItsDrainDeadlineLeavesUnfinishedJobsToTheNext) {
   const fs::path dir = fresh_temp_dir("durable-suspend");
   const int frames = 8;
@@ -165,9 +203,19 @@ TEST(DurableStore, AServerStoppingPastItsDrainDeadlineLeavesUnfinishedJobsToTheN
     s.server->shutdown(server::ShutdownMode::kDrain, 0ms);  // a redeploy whose drain deadline has passed
   }
   ASSERT_GE(done_before, 1);
+  // Suspended cleanly more often than a crash would be tolerated: not an interruption.
+  for (int redeploy = 0; redeploy < server::Job::kMaxInterruptedRuns; ++redeploy) {
+    LoopbackServer s(durable_options(dir, 1));
+    const auto until = std::chrono::steady_clock::now() + 60s;
+    while (std::chrono::steady_clock::now() < until && get_job(*s.stub, id).state() != v1::JOB_STATE_RUNNING) {
+      std::this_thread::sleep_for(5ms);
+    }
+    s.server->shutdown(server::ShutdownMode::kDrain, 0ms);
+  }
   LoopbackServer s(durable_options(dir));
   const auto r = watch_job(*s.stub, id);
   EXPECT_EQ(r.final_job.state(), v1::JOB_STATE_SUCCEEDED) << r.final_job.error().message();
+  EXPECT_EQ(r.final_job.interrupted_runs(), 0);
   EXPECT_EQ(static_cast<int>(r.frames.size()), frames);
   EXPECT_TRUE(r.integrity_error.empty()) << r.integrity_error;
 }

@@ -11,6 +11,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -25,6 +26,7 @@
 #include <thread>
 #include <vector>
 
+#include "server/http_request_head.h"
 #include "server/metrics_http.h"
 
 namespace surfacer::server {
@@ -894,6 +896,91 @@ TEST_F(MetricsHttpTest, StopIsPromptWhileAClientHoldsAnIdleConnection) {
   server->stop();  // idempotent
   close(idle);
   close(partial);
+}
+
+// A connection from `source` (an IPv4 loopback address such as "127.0.0.2") to the server's loopback port.
+int connect_from(const char* source, int port) {
+  const int fd = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+  if (fd < 0) return -1;
+  sockaddr_in local{};
+  local.sin_family = AF_INET;
+  inet_pton(AF_INET, source, &local.sin_addr);
+  sockaddr_in remote{};
+  remote.sin_family = AF_INET;
+  remote.sin_port = htons(static_cast<std::uint16_t>(port));
+  remote.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  if (bind(fd, reinterpret_cast<sockaddr*>(&local), sizeof local) != 0 ||
+      connect(fd, reinterpret_cast<sockaddr*>(&remote), sizeof remote) != 0) {
+    close(fd);
+    return -1;
+  }
+  timeval tv{5, 0};
+  setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
+  return fd;
+}
+
+// 200 idle connections from one peer (more than max_connections) used to take every slot: every scrape was closed
+// unanswered for as long as they were held. Now the oldest idle connection gives way to each new one, one peer holds
+// at most max_connections_per_peer, and another peer's connection is left alone.
+TEST_F(MetricsHttpTest, IdleConnectionsFromOnePeerDoNotLockScrapesOut) {
+  auto server = MetricsHttpServer::start(registry, "127.0.0.1:0");
+  const int port = server->port();
+  const int other_peer = connect_from("127.0.0.2", port);
+  ASSERT_GE(other_peer, 0) << std::strerror(errno);
+  std::vector<int> idle;
+  for (int i = 0; i < 200; ++i) {
+    const int fd = connect_to(port);
+    ASSERT_GE(fd, 0) << "connection " << i;
+    idle.push_back(fd);
+  }
+  EXPECT_EQ(get(port, "/healthz").status, 200);  // the server has seen all of them by now
+  // The other peer's connection, idle all along (within the read timeout), still serves its request.
+  ASSERT_TRUE(send_all(other_peer, "GET /metrics HTTP/1.1\r\n\r\n"));
+  EXPECT_EQ(parse_response(read_all(other_peer)).status, 200);
+  close(other_peer);
+  const auto start = Clock::now();
+  int ok = 0;
+  for (int i = 0; i < 50; ++i) ok += get(port, "/metrics").status == 200;
+  EXPECT_EQ(ok, 50);
+  EXPECT_LT(Clock::now() - start, 2s);
+  // The attacker keeps at most max_connections_per_peer of its 200: the rest were closed by the server.
+  int open = 0;
+  for (const int fd : idle) {
+    pollfd p{fd, POLLIN, 0};
+    char byte;
+    open += poll(&p, 1, 0) == 0 || recv(fd, &byte, 1, MSG_DONTWAIT) > 0;
+  }
+  EXPECT_LE(open, MetricsHttpOptions{}.max_connections_per_peer);
+  for (const int fd : idle) close(fd);
+}
+
+TEST_F(MetricsHttpTest, IdleConnectionsAreClosedAfterTheReadTimeout) {
+  MetricsHttpOptions options;
+  options.read_timeout = 200ms;
+  auto server = MetricsHttpServer::start(registry, "127.0.0.1:0", options);
+  const int fd = connect_to(server->port());
+  ASSERT_GE(fd, 0);
+  const auto start = Clock::now();
+  const HttpResponse closed = parse_response(read_all(fd));  // returns once the server closes
+  EXPECT_EQ(closed.status, 408) << closed.raw;
+  EXPECT_LT(Clock::now() - start, 1500ms);
+  close(fd);
+}
+
+TEST(HttpRequestHead, ParsesAndRefuses) {
+  const std::string_view request = "GET /metrics?x=1 HTTP/1.1\r\nHost: a\r\n\r\ntrailing";
+  ASSERT_EQ(request_head_end(request), request.find("trailing"));
+  const RequestHead ok = parse_request_head(request.substr(0, request_head_end(request)));
+  EXPECT_EQ(ok.error_status, 0) << ok.error;
+  EXPECT_EQ(ok.method, "GET");
+  EXPECT_EQ(ok.path, "/metrics");
+  EXPECT_EQ(request_head_end("GET / HTTP/1.1\r\nHost: a\r\n"), std::string_view::npos);
+  EXPECT_EQ(request_head_end("GET / HTTP/1.1\n\n"), 16u);
+  EXPECT_EQ(parse_request_head("GET / HTTP/2\r\n\r\n").error_status, 505);
+  for (std::string_view bad : {""sv, "GET\r\n\r\n"sv, "GET / HTTP/1.1\r\n: x\r\n\r\n"sv, "GET x HTTP/1.1\r\n\r\n"sv,
+                               "G@T / HTTP/1.1\r\n\r\n"sv}) {
+    EXPECT_EQ(parse_request_head(bad).error_status, 400) << bad;
+  }
 }
 
 TEST_F(MetricsHttpTest, HealthCallbackAndRenderFailures) {

@@ -245,6 +245,81 @@ TEST(ParticlesJob, BadParticlesAndOptionsNameTheField) {
   expect(spec, grpc::StatusCode::INVALID_ARGUMENT, "upload_id");
 }
 
+// Uploaded records x y z, velocity (3) and density (1): the attributes named by interpolate come back as vertex
+// properties of the raw frames, a constant density exactly, the velocity (linear in x) within r_outer x |grad|.
+TEST(ParticlesJob, InterpolatedAttributesTravelInRawFrames) {
+  LoopbackServer s;
+  const double r_inner = 0.05, r_outer = 0.1;
+  const std::vector<Vec3> ball = particle_ball(Vec3(0, 0, 0), 0.3, 0.05, 4);
+  std::string bytes;
+  auto put = [&](double v) {
+    const float f = static_cast<float>(v);
+    bytes.append(reinterpret_cast<const char*>(&f), sizeof f);
+  };
+  for (const Vec3& p : ball) {
+    for (int a = 0; a < 3; ++a) put(p[a]);
+    put(3.0 * p.x());
+    put(0.0);
+    put(-1.0);
+    put(997.0);
+  }
+  v1::JobSpec spec;
+  auto* job = spec.mutable_particles();
+  auto* frame = job->add_frames();
+  frame->set_upload_id(upload(*s.stub, bytes));
+  auto* velocity = frame->add_attributes();
+  velocity->set_name("velocity");
+  velocity->set_components(3);
+  auto* density = frame->add_attributes();
+  density->set_name("density");
+  density->set_components(1);
+  job->set_r_inner(r_inner);
+  job->set_r_outer(r_outer);
+  job->add_interpolate("density");
+  job->add_interpolate("velocity");
+  // Draco and meshopt frames do not carry attributes: refused at submit, naming the encoding.
+  std::string id;
+  const auto refused = submit(*s.stub, spec, &id);
+  EXPECT_EQ(refused.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(refused.error_message().find("spec.output.encoding"), std::string::npos) << refused.error_message();
+  spec.mutable_output()->set_encoding(v1::MESH_ENCODING_PLY);
+  ASSERT_TRUE(submit(*s.stub, spec, &id).ok());
+  const auto result = watch_job(*s.stub, id);
+  ASSERT_EQ(result.states.back(), v1::JOB_STATE_SUCCEEDED) << result.final_job.error().message();
+  const Mesh mesh = decode_frame(result.frames.at(0).bytes, FrameCodec::kPly, ThreadExecutor(1));
+  ASSERT_EQ(mesh.attributes.size(), 2u);
+  EXPECT_EQ(mesh.attributes[0].name, "density");  // in the order interpolate names them
+  EXPECT_EQ(mesh.attributes[1].name, "velocity");
+  ASSERT_EQ(mesh.attributes[0].count(), mesh.vertices.size());
+  ASSERT_EQ(mesh.attributes[1].count(), mesh.vertices.size());
+  for (std::size_t v = 0; v < mesh.vertices.size(); ++v) {
+    ASSERT_EQ(mesh.attributes[0].values[v], 997.0f);
+    EXPECT_LE(std::abs(mesh.attributes[1].values[3 * v] - 3.0 * mesh.vertices[v].x()), 3.0 * r_outer + 1e-5);
+    ASSERT_EQ(mesh.attributes[1].values[3 * v + 2], -1.0f);
+  }
+
+  // A name the frame lacks names the frame and what it has; a record size that leaves out an attribute names it.
+  job->add_interpolate("foam");
+  const auto missing = submit(*s.stub, spec, nullptr);
+  EXPECT_EQ(missing.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(missing.error_message().find("spec.particles.frames[0] has no attribute \"foam\""), std::string::npos)
+      << missing.error_message();
+  EXPECT_NE(missing.error_message().find("velocity, density"), std::string::npos) << missing.error_message();
+  job->clear_interpolate();
+  job->add_interpolate("all");
+  // Components that make the records fail to divide the upload (28 bytes per particle as uploaded).
+  for (const int c : {1, 2, 4}) {
+    if (ball.size() * 7 % static_cast<std::size_t>(4 + c) != 0) {
+      velocity->set_components(c);
+      break;
+    }
+  }
+  ASSERT_NE(velocity->components(), 3);
+  const auto short_records = submit(*s.stub, spec, nullptr);
+  EXPECT_EQ(short_records.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(short_records.error_message().find("attribute values"), std::string::npos) << short_records.error_message();
+}
+
 TEST(OptimizeJob, SphereToCubeSnapshotsConvergeAndStayManifold) {
   LoopbackServer s;
   v1::JobSpec spec;

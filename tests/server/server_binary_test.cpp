@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <chrono>
+#include <csignal>
 #include <cstdint>
 #include <filesystem>
 #include <optional>
@@ -44,6 +45,40 @@ TEST(ServerBinary, ServesOnARealPortAndExitsZeroOnSigterm) {
   watcher.join();
   ASSERT_FALSE(watched.states.empty());
   EXPECT_EQ(watched.states.back(), v1::JOB_STATE_SUCCEEDED);
+  std::filesystem::remove_all(dir);
+}
+
+// A second SIGTERM during a drain cancels the job the drain waits for, and the process exits at once (it exits within
+// 2 s of it in any case, even when a job does not stop).
+TEST(ServerBinary, SecondSigtermEndsTheDrainAndExitsPromptly) {
+  const auto dir = fresh_temp_dir("second_signal");
+  const auto port_file = dir / "port";
+  ChildProcess server({server_binary().string(), "--listen", "127.0.0.1:0", "--port-file", port_file.string(),
+                       "--workers", "1", "--drain-seconds", "120"},
+                      dir / "out", dir / "err");
+  ASSERT_TRUE(server.started());
+  std::string port;
+  for (int i = 0; i < 1500 && (port.empty() || port.back() != '\n'); ++i) {
+    std::this_thread::sleep_for(20ms);
+    port = read_file(port_file);
+  }
+  ASSERT_FALSE(port.empty()) << read_file(dir / "err");
+  auto stub = make_stub("127.0.0.1:" + std::to_string(std::stoi(port)));
+  // Frames enough for a minute of work on one worker.
+  const std::vector<v1::Scene> scenes(2000, scene_from_json(R"({"root": {"sphere": {"radius": 1}}})"));
+  std::string id;
+  ASSERT_TRUE(submit(*stub, isosurface_spec(scenes, 96), &id).ok());
+  std::this_thread::sleep_for(300ms);
+  server.signal(SIGTERM);
+  std::this_thread::sleep_for(500ms);
+  EXPECT_FALSE(server.poll().has_value()) << "the first signal should drain, not exit";
+  const auto start = std::chrono::steady_clock::now();
+  server.signal(SIGTERM);
+  const int code = server.wait(10s);
+  const auto elapsed = std::chrono::steady_clock::now() - start;
+  EXPECT_TRUE(code == 0 || code == 2) << code << "\n" << read_file(dir / "err");
+  EXPECT_LT(elapsed, 3s) << std::chrono::duration<double>(elapsed).count() << " s";
+  EXPECT_NE(read_file(dir / "err").find("signal_again"), std::string::npos) << read_file(dir / "err");
   std::filesystem::remove_all(dir);
 }
 

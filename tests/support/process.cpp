@@ -97,15 +97,27 @@ void ChildProcess::signal(int sig) const {
   if (pid_ > 0 && !exited_) ::kill(pid_, sig);
 }
 
+namespace {
+// A "Key:   12345 kB" line of /proc/PID/status, in bytes.
+std::optional<std::uint64_t> status_kb_field(pid_t pid, const std::string& key) {
+  std::ifstream status("/proc/" + std::to_string(pid) + "/status");
+  std::string line;
+  while (std::getline(status, line)) {
+    if (line.rfind(key, 0) == 0) return std::stoull(line.substr(key.size())) * 1024;
+  }
+  return std::nullopt;
+}
+}  // namespace
+
 std::optional<std::uint64_t> ChildProcess::peak_rss_bytes() const {
   if (pid_ <= 0) return std::nullopt;
   if (exited_) return peak_rss_;
-  std::ifstream status("/proc/" + std::to_string(pid_) + "/status");
-  std::string line;
-  while (std::getline(status, line)) {
-    if (line.rfind("VmHWM:", 0) == 0) return std::stoull(line.substr(6)) * 1024;  // "VmHWM:   12345 kB"
-  }
-  return std::nullopt;
+  return status_kb_field(pid_, "VmHWM:");
+}
+
+std::optional<std::uint64_t> ChildProcess::resident_bytes() const {
+  if (pid_ <= 0 || exited_) return std::nullopt;
+  return status_kb_field(pid_, "VmRSS:");
 }
 
 std::optional<int> ChildProcess::poll() {

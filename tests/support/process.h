@@ -44,6 +44,8 @@ class ChildProcess {
   // Peak resident set size in bytes: VmHWM while the child runs, its rusage once it has exited normally; nullopt
   // when it never started or was killed by wait()'s timeout.
   std::optional<std::uint64_t> peak_rss_bytes() const;
+  // Resident set size now (VmRSS), in bytes; nullopt when the child is not running.
+  std::optional<std::uint64_t> resident_bytes() const;
 
  private:
   pid_t pid_ = -1;

@@ -44,6 +44,10 @@ std::optional<std::uint64_t> ServerProcess::peak_rss_bytes() const {
   return child_ ? child_->peak_rss_bytes() : std::nullopt;
 }
 
+std::optional<std::uint64_t> ServerProcess::resident_bytes() const {
+  return child_ ? child_->resident_bytes() : std::nullopt;
+}
+
 void ServerProcess::kill_now() {
   if (!child_) return;
   child_->signal(SIGKILL);

@@ -34,6 +34,8 @@ class ServerProcess {
   std::string log() const;
   // Its peak resident set size so far, in bytes (ChildProcess::peak_rss_bytes); nullopt once stopped.
   std::optional<std::uint64_t> peak_rss_bytes() const;
+  // Its resident set size now, in bytes (ChildProcess::resident_bytes); nullopt once stopped.
+  std::optional<std::uint64_t> resident_bytes() const;
   // SIGKILL and wait (a crash: no drain, connections reset).
   void kill_now();
   // SIGTERM and wait: the exit code (0 for a clean drain), or -1 when it did not exit within `within` (it is then
