@@ -195,6 +195,73 @@ class Nudger {
   std::unordered_map<std::uint32_t, GridPoint> moved_;  // vertex -> the grid point it left
 };
 
+// Collapses every edge whose two ends share a grid point (docs/ALGORITHMS.md §5 "Clean on the grid"): merging them
+// moves nothing a decoder sees, so no triangle can fold or turn degenerate by it; only the topology can forbid it
+// (OpenMesh's is_collapse_ok through MeshEditor). The degenerate triangles of the scan are the only places such an
+// edge can be, and the grid points do not change, so passes over them reach a fixed point: a pass that collapses
+// nothing ends the loop. Removed vertices and triangles are compacted away; normals and attributes follow their
+// vertices. Returns the number of collapses.
+std::int64_t collapse_coincident_edges(Mesh& mesh, Findings& f, int max_passes, const RunControl& control) {
+  const std::size_t nv = mesh.vertices.size();
+  const VertexTriangles adjacency = vertex_triangles(nv, mesh.triangles);
+  std::vector<char> gone(nv, 0);
+  std::int64_t collapses = 0;
+  {
+    MeshEditor editor(mesh.triangles, adjacency, nv);
+    std::vector<std::uint32_t> work = f.degenerate;
+    for (int pass = 0; pass < max_passes && !work.empty(); ++pass) {
+      control.check();
+      std::vector<std::uint32_t> left;
+      for (const std::uint32_t t : work) {
+        if (editor.removed(t)) continue;
+        bool done = false;
+        for (int k = 0; k < 3 && !done; ++k) {
+          const std::uint32_t a = mesh.triangles[t][static_cast<std::size_t>(k)];
+          const std::uint32_t b = mesh.triangles[t][static_cast<std::size_t>((k + 1) % 3)];
+          if (f.points[a] != f.points[b]) continue;
+          for (const auto& [keep, lost] : {std::pair(a, b), std::pair(b, a)}) {
+            if (!editor.collapse_site(t, keep, lost)) continue;
+            editor.collapse(t, keep, lost);
+            gone[lost] = 1;
+            ++collapses;
+            done = true;
+            break;
+          }
+        }
+        if (!done) left.push_back(t);
+      }
+      if (left.size() == work.size()) break;
+      work.swap(left);
+    }
+  }
+  if (collapses == 0) return 0;
+  std::vector<std::uint32_t> remap(nv, MeshEditor::kNone);
+  std::uint32_t next = 0;
+  for (std::size_t v = 0; v < nv; ++v) {
+    if (gone[v]) continue;
+    mesh.vertices[next] = mesh.vertices[v];
+    f.points[next] = f.points[v];
+    if (!mesh.normals.empty()) mesh.normals[next] = mesh.normals[v];
+    for (Attribute& attribute : mesh.attributes) {
+      const auto c = static_cast<std::size_t>(attribute.components);
+      std::copy_n(attribute.values.begin() + static_cast<std::ptrdiff_t>(v * c), c,
+                  attribute.values.begin() + static_cast<std::ptrdiff_t>(next * c));
+    }
+    remap[v] = next++;
+  }
+  mesh.vertices.resize(next);
+  f.points.resize(next);
+  if (!mesh.normals.empty()) mesh.normals.resize(next);
+  for (Attribute& attribute : mesh.attributes) attribute.values.resize(next * static_cast<std::size_t>(attribute.components));
+  std::size_t kept = 0;
+  for (const Triangle& t : mesh.triangles) {
+    if (t[0] == MeshEditor::kNone) continue;
+    mesh.triangles[kept++] = Triangle{remap[t[0]], remap[t[1]], remap[t[2]]};
+  }
+  mesh.triangles.resize(kept);
+  return collapses;
+}
+
 }  // namespace
 
 GridCleanupReport clean_on_grid(Mesh& mesh, const QuantizationGrid& grid, const GridCleanupOptions& options,
@@ -210,6 +277,10 @@ GridCleanupReport clean_on_grid(Mesh& mesh, const QuantizationGrid& grid, const 
   Findings f = scan(mesh, grid, threads);
   report.degenerate_found = static_cast<std::int64_t>(f.degenerate.size());
   report.coincident_found = static_cast<std::int64_t>(f.coincident.size());
+  if (!f.degenerate.empty()) {
+    report.collapses += collapse_coincident_edges(mesh, f, options.max_rounds, control);
+    f = scan(mesh, grid, threads);
+  }
   for (int round = 0; round < options.max_rounds && !(f.degenerate.empty() && f.coincident.empty()); ++round) {
     control.check();
     if (!f.degenerate.empty()) {
