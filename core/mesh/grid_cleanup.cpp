@@ -201,13 +201,20 @@ class Nudger {
 // edge can be, and the grid points do not change, so passes over them reach a fixed point: a pass that collapses
 // nothing ends the loop. Removed vertices and triangles are compacted away; normals and attributes follow their
 // vertices. Returns the number of collapses.
-std::int64_t collapse_coincident_edges(Mesh& mesh, Findings& f, int max_passes, const RunControl& control) {
+std::int64_t collapse_coincident_edges(Mesh& mesh, Findings& f, int max_passes, int min_valence,
+                                       const RunControl& control) {
   const std::size_t nv = mesh.vertices.size();
   const VertexTriangles adjacency = vertex_triangles(nv, mesh.triangles);
   std::vector<char> gone(nv, 0);
   std::int64_t collapses = 0;
   {
     MeshEditor editor(mesh.triangles, adjacency, nv);
+    const auto floor = static_cast<std::size_t>(min_valence);
+    // The valence floor of the sliver repair: a vertex at or above it does not go below it.
+    auto may_lose = [&](std::uint32_t v) {
+      const std::size_t valence = editor.neighbours(v).size();
+      return valence < floor || valence - 1 >= floor;
+    };
     std::vector<std::uint32_t> work = f.degenerate;
     for (int pass = 0; pass < max_passes && !work.empty(); ++pass) {
       control.check();
@@ -220,7 +227,13 @@ std::int64_t collapse_coincident_edges(Mesh& mesh, Findings& f, int max_passes, 
           const std::uint32_t b = mesh.triangles[t][static_cast<std::size_t>((k + 1) % 3)];
           if (f.points[a] != f.points[b]) continue;
           for (const auto& [keep, lost] : {std::pair(a, b), std::pair(b, a)}) {
-            if (!editor.collapse_site(t, keep, lost)) continue;
+            const auto site = editor.collapse_site(t, keep, lost);
+            if (!site) continue;
+            const Triangle& tri = mesh.triangles[t];
+            const std::uint32_t third = tri[0] != a && tri[0] != b ? tri[0] : tri[1] != a && tri[1] != b ? tri[1] : tri[2];
+            const std::size_t kept_valence = editor.neighbours(keep).size();
+            const std::size_t merged = kept_valence + editor.neighbours(lost).size() - 4;
+            if (!may_lose(third) || !may_lose(site->vertex) || (merged < floor && kept_valence >= floor)) continue;
             editor.collapse(t, keep, lost);
             gone[lost] = 1;
             ++collapses;
@@ -278,7 +291,7 @@ GridCleanupReport clean_on_grid(Mesh& mesh, const QuantizationGrid& grid, const 
   report.degenerate_found = static_cast<std::int64_t>(f.degenerate.size());
   report.coincident_found = static_cast<std::int64_t>(f.coincident.size());
   if (!f.degenerate.empty()) {
-    report.collapses += collapse_coincident_edges(mesh, f, options.max_rounds, control);
+    report.collapses += collapse_coincident_edges(mesh, f, options.max_rounds, options.min_valence, control);
     f = scan(mesh, grid, threads);
   }
   for (int round = 0; round < options.max_rounds && !(f.degenerate.empty() && f.coincident.empty()); ++round) {

@@ -72,7 +72,6 @@ FrameOutput FrameMaker::make(Mesh mesh, StageTimer& timer, const RunControl& con
     control.report("grid_cleanup", 0.0);
     GridCleanupOptions cleanup_options;
     cleanup_options.threads = executor.concurrency();
-    cleanup_options.min_valence = 3;  // validity only: a frame on its grid may lose valence, never closure
     cleanup = check_timer.run("grid_cleanup", [&] { return clean_on_grid(mesh, *grid, cleanup_options, control); });
   }
   MeshReport report;
