@@ -55,4 +55,16 @@ struct QuantizationGrid {
   }
 };
 
+// Whether grid points a, b, c are collinear (or repeat a point), exactly: coordinates below 2^30, so the cross product
+// fits in 64 bits. Such a triangle has zero area once decoded.
+inline bool collinear_on_grid(const std::array<std::uint32_t, 3>& a, const std::array<std::uint32_t, 3>& b,
+                              const std::array<std::uint32_t, 3>& c) {
+  std::array<std::int64_t, 3> u, v;
+  for (int k = 0; k < 3; ++k) {
+    u[k] = static_cast<std::int64_t>(b[k]) - static_cast<std::int64_t>(a[k]);
+    v[k] = static_cast<std::int64_t>(c[k]) - static_cast<std::int64_t>(a[k]);
+  }
+  return u[1] * v[2] == u[2] * v[1] && u[2] * v[0] == u[0] * v[2] && u[0] * v[1] == u[1] * v[0];
+}
+
 }  // namespace surfacer
