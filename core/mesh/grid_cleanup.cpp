@@ -45,7 +45,7 @@ Findings scan(const Mesh& mesh, const QuantizationGrid& grid, int threads) {
   const std::size_t nv = mesh.vertices.size(), nt = mesh.triangles.size();
   f.points.resize(nv);
   for_chunks(nv, threads, [&](std::size_t begin, std::size_t end) {
-    for (std::size_t v = begin; v < end; ++v) f.points[v] = grid.quantize(mesh.vertices[v]);
+    for (std::size_t v = begin; v < end; ++v) f.points[v] = grid.frame_point(mesh.vertices[v]);
   });
   std::vector<char> used(nv, 0);
   {
@@ -322,7 +322,7 @@ GridCleanupReport clean_on_grid(Mesh& mesh, const QuantizationGrid& grid, const 
 
 void snap_to_grid(std::vector<Vec3>& vertices, const QuantizationGrid& grid, int threads) {
   for_chunks(vertices.size(), resolve_threads(threads), [&](std::size_t begin, std::size_t end) {
-    for (std::size_t v = begin; v < end; ++v) vertices[v] = grid.dequantize(grid.quantize(vertices[v]));
+    for (std::size_t v = begin; v < end; ++v) vertices[v] = grid.dequantize(grid.frame_point(vertices[v]));
   });
 }
 

@@ -36,7 +36,7 @@ class Repair {
       : mesh_(mesh), x_(mesh.vertices), tris_(mesh.triangles), o_(options) {
     if (o_.grid) {
       snapped_.resize(x_.size());
-      for (std::size_t v = 0; v < x_.size(); ++v) snapped_[v] = o_.grid->quantize(x_[v]);
+      for (std::size_t v = 0; v < x_.size(); ++v) snapped_[v] = o_.grid->frame_point(x_[v]);
     }
   }
 
@@ -253,7 +253,7 @@ class Repair {
   // Vertex v at p, and its grid point.
   void put(std::uint32_t v, const Vec3& p) {
     x_[v] = p;
-    if (o_.grid) snapped_[v] = o_.grid->quantize(p);
+    if (o_.grid) snapped_[v] = o_.grid->frame_point(p);
   }
 
   // How good a vertex's triangles are, for relocate(): fewer degenerate on the grid first, then fewer below the

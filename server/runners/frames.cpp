@@ -53,6 +53,11 @@ std::future<std::string> FrameMaker::start_own_thread(const Mesh& mesh) const {
   return result;
 }
 
+double FrameMaker::vertex_margin() const {
+  const std::optional<QuantizationGrid> grid = encoding_.grid();
+  return grid ? kMarginSteps * grid->step() : 0.0;
+}
+
 FrameOutput FrameMaker::make(Mesh mesh, StageTimer& timer, const RunControl& control) const {
   if (static_cast<std::int64_t>(mesh.triangles.size()) > max_triangles_) {
     throw ResourceLimit("max_triangles", "the mesh has " + std::to_string(mesh.triangles.size()) +
@@ -74,18 +79,13 @@ FrameOutput FrameMaker::make(Mesh mesh, StageTimer& timer, const RunControl& con
     cleanup_options.threads = executor.concurrency();
     cleanup = check_timer.run("grid_cleanup", [&] { return clean_on_grid(mesh, *grid, cleanup_options, control); });
   }
+  // Every position is put on its grid point, so that the checks (area and volume included) see what a decoder
+  // reads and the encoder, quantizing the same points again, reproduces them exactly.
+  if (grid) snap_to_grid(mesh.vertices, *grid, executor.concurrency());
   MeshReport report;
-  // The checks see the positions a decoder reads; the encoder gets the mesh's own (it quantizes them itself, and
-  // refuses vertices outside the box).
   auto check = [&] {
     control.report("check", 0.0);
-    std::vector<Vec3> own;
-    if (grid) {
-      own = mesh.vertices;
-      snap_to_grid(mesh.vertices, *grid, executor.concurrency());
-    }
     report = check_timer.run("check", [&] { return check_mesh(mesh, executor, control); });
-    if (grid) mesh.vertices.swap(own);
   };
   if (options.codec == FrameCodec::kDraco && mesh.triangles.size() > options.max_piece_triangles) {
     // One Draco mesh, on a thread of its own while the checks run on the executor.

@@ -62,6 +62,12 @@ class FrameMaker {
 
   const FrameEncoding& encoding() const { return encoding_; }
 
+  // The margin a polygonizer keeps between its vertices and the ends of their edges for these frames
+  // (PolygonizeGrid::vertex_margin): kMarginSteps steps of the quantization grid, 0 for lossless frames. Vertices
+  // near a zero sample then keep distinct grid points, so the grid cleanup has little left to do.
+  double vertex_margin() const;
+  static constexpr double kMarginSteps = 3.0;
+
  private:
   // Starts encoding `mesh` as one Draco mesh on a detached thread.
   std::future<std::string> start_own_thread(const Mesh& mesh) const;

@@ -1,7 +1,7 @@
 // Frames are clean on their quantization grid and their stats describe the mesh delivered (docs/ALGORITHMS.md §5
-// "Frames"): across the example scenes, both polygonizers, several resolutions and 10..16 bits, the frame's check equals
-// a fresh check of the decoded mesh, what is left unclean (zero-area triangles, vertices at one position) is what the
-// frame reports (grid_left), and a frame with nothing left is closed and manifold when the lossless (PLY) frame is.
+// "Clean on the grid"): across the example scenes, both polygonizers, several resolutions, 10..16 bits and the three
+// quantizing codecs, the decoded mesh has no zero-area triangle and no two vertices at one position, is closed and
+// manifold when the lossless (PLY) frame is, and the frame's check equals a fresh check of the decoded mesh.
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
@@ -105,18 +105,18 @@ void expect_clean_frames(const std::vector<int>& cells_list, const std::vector<i
             spec.mutable_output()->set_quantization_bits(bits);
             spec.mutable_output()->set_encoding(encoding);
             const ReceivedFrame frame = run(spec);
-            const FrameCodec codec =
-                encoding == v1::MESH_ENCODING_DRACO ? FrameCodec::kDraco : FrameCodec::kMeshopt;
+            const FrameCodec codec = encoding == v1::MESH_ENCODING_DRACO          ? FrameCodec::kDraco
+                                     : encoding == v1::MESH_ENCODING_DRACO_PIECES ? FrameCodec::kDracoPieces
+                                                                                  : FrameCodec::kMeshopt;
             const Mesh decoded = decode_frame(frame.bytes, codec, executor);
             const MeshReport fresh = check_mesh(decoded);
-            // What the cleanup could not merge or move (the valence floor, two sheets within a grid step) is
-            // reported, never hidden: the frame's check counts the zero-area triangles and grid_left the rest.
-            const std::int64_t coincident = coincident_vertices(decoded);
-            EXPECT_EQ(zero_area_triangles(decoded), fresh.degenerate_triangles);
-            EXPECT_EQ(static_cast<double>(coincident + fresh.degenerate_triangles),
-                      frame.header.stats().metrics().at("grid_left"));
-            if (coincident + fresh.degenerate_triangles == 0 && source.closed && source.edge_manifold &&
-                source.vertex_manifold) {
+            // Clean as decoded: no zero-area triangle, no two vertices at one position, and as closed and
+            // manifold as the lossless frame; nothing left that the frame would have to report.
+            EXPECT_EQ(zero_area_triangles(decoded), 0);
+            EXPECT_EQ(fresh.degenerate_triangles, 0);
+            EXPECT_EQ(coincident_vertices(decoded), 0);
+            EXPECT_EQ(frame.header.stats().metrics().at("grid_left"), 0.0);
+            if (source.closed && source.edge_manifold && source.vertex_manifold) {
               EXPECT_TRUE(mesh_has(fresh, kClosedManifold));
             }
             EXPECT_EQ(frame.header.stats().vertices(), static_cast<std::int64_t>(decoded.vertices.size()));
@@ -131,15 +131,9 @@ void expect_clean_frames(const std::vector<int>& cells_list, const std::vector<i
   EXPECT_GE(frames, static_cast<int>(2 * scenes.size() * cells_list.size() * bits_list.size() * encodings.size()));
 }
 
-TEST(QuantizedFrames, MeshoptFramesAreCleanOnTheirGridAndDescribedByTheirStats) {
-  expect_clean_frames({20, 48}, {10, 12, 14, 16}, {v1::MESH_ENCODING_MESHOPT});
-}
-
-// DISABLED: Draco frames' stats do not match their decoded mesh: Draco's decoded positions differ from the grid's
-// model (core/mesh/quantization.h) by a step at a few vertices, so area, volume, angles and degenerate counts differ
-// and coincident vertices appear that the cleanup did not see; meshopt frames pass.
-TEST(QuantizedFrames, DISABLED_AreCleanOnTheirGridAndDescribedByTheirStats) {
-  expect_clean_frames({20, 48, 96}, {10, 11, 12, 14, 16}, {v1::MESH_ENCODING_DRACO, v1::MESH_ENCODING_MESHOPT});
+TEST(QuantizedFrames, AreCleanOnTheirGridAndDescribedByTheirStats) {
+  expect_clean_frames({20, 48, 96}, {10, 12, 14, 16},
+                      {v1::MESH_ENCODING_DRACO, v1::MESH_ENCODING_DRACO_PIECES, v1::MESH_ENCODING_MESHOPT});
 }
 
 }  // namespace
