@@ -61,8 +61,11 @@ QuantizationBox checked_box(const Mesh& mesh, const DracoOptions& options, const
   const int vertex_blocks = static_cast<int>((nv + kBlock - 1) / kBlock);
   const int triangle_blocks = static_cast<int>((nf + kBlock - 1) / kBlock);
   const std::optional<Aabb>& bounds = options.quantization_bounds;
-  // Vertices may touch the box (marching cubes puts them exactly on its faces); allow rounding slack only.
-  const double tolerance = bounds ? 1e-9 * bounds->size().maxCoeff() : 0.0;
+  // Vertices may touch the box (marching cubes puts them exactly on its faces), and a frame's grid points may lie
+  // outside it by float32 rounding (QuantizationGrid::frame_point): allow rounding slack only.
+  const double tolerance =
+      bounds ? 1e-9 * bounds->size().maxCoeff() + QuantizationGrid::of(*bounds, options.quantization_bits).float_slack()
+             : 0.0;
   struct Found {
     std::size_t non_finite, outside, bad_triangle;
     Aabb box = Aabb::empty();
@@ -192,6 +195,27 @@ double draco_max_error(const Aabb& box, int quantization_bits) {
   return 0.5 * step * std::sqrt(3.0) + 8.0 * std::numeric_limits<float>::epsilon() * magnitude;
 }
 
+namespace {
+
+// Draco's SetAttributeExplicitQuantization keeps the origin and range as option strings written by std::to_string,
+// i.e. rounded to 6 decimals (an origin of -1.7510416 becomes -1.751042, and a range below 5e-7 becomes 0), so the
+// frame's grid would not be the job's (docs/ALGORITHMS.md §5 "Frames"). The same options, rewritten with 9
+// significant digits, which strtof reads back as the very same floats.
+void set_explicit_quantization(draco::Encoder& encoder, int bits, const float origin[3], float range) {
+  encoder.SetAttributeExplicitQuantization(draco::GeometryAttribute::POSITION, bits, 3, origin, range);
+  const draco::Options* set = encoder.options().FindAttributeOptions(draco::GeometryAttribute::POSITION);
+  draco::Options exact = set ? *set : draco::Options();
+  char text[128];
+  std::snprintf(text, sizeof text, "%.9g %.9g %.9g", static_cast<double>(origin[0]), static_cast<double>(origin[1]),
+                static_cast<double>(origin[2]));
+  exact.SetString("quantization_origin", text);
+  std::snprintf(text, sizeof text, "%.9g", static_cast<double>(range));
+  exact.SetString("quantization_range", text);
+  encoder.options().SetAttributeOptions(draco::GeometryAttribute::POSITION, exact);
+}
+
+}  // namespace
+
 struct DracoEncoder::State {
   draco::Mesh mesh;
   draco::Encoder encoder;
@@ -221,8 +245,7 @@ DracoEncoder::DracoEncoder(const Mesh& mesh, const DracoOptions& options) : stat
   draco::Encoder& encoder = state_->encoder;
   const float origin[3] = {static_cast<float>(q.origin.x()), static_cast<float>(q.origin.y()),
                            static_cast<float>(q.origin.z())};
-  encoder.SetAttributeExplicitQuantization(draco::GeometryAttribute::POSITION, options.quantization_bits, 3, origin,
-                                           static_cast<float>(q.range));
+  set_explicit_quantization(encoder, options.quantization_bits, origin, static_cast<float>(q.range));
   if (encode_normals) encoder.SetAttributeQuantization(draco::GeometryAttribute::NORMAL, options.normal_bits);
   encoder.SetSpeedOptions(options.speed, options.speed);
   if (mesh.triangles.empty()) encoder.SetEncodingMethod(draco::MESH_SEQUENTIAL_ENCODING);

@@ -20,16 +20,6 @@ constexpr double kPi = 3.14159265358979323846;
 constexpr std::uint32_t kDead = MeshEditor::kNone;  // a removed triangle, or no vertex
 using GridPoint = std::array<std::uint32_t, 3>;
 
-// Collinear (or repeated) grid points, exactly: coordinates below 2^30, so the cross product fits in 64 bits.
-bool degenerate(const GridPoint& a, const GridPoint& b, const GridPoint& c) {
-  std::array<std::int64_t, 3> u, v;
-  for (int k = 0; k < 3; ++k) {
-    u[k] = static_cast<std::int64_t>(b[k]) - static_cast<std::int64_t>(a[k]);
-    v[k] = static_cast<std::int64_t>(c[k]) - static_cast<std::int64_t>(a[k]);
-  }
-  return u[1] * v[2] == u[2] * v[1] && u[2] * v[0] == u[0] * v[2] && u[0] * v[1] == u[1] * v[0];
-}
-
 // A candidate repair of one bad triangle: flip one of its edges, or collapse one onto one of its ends.
 struct Move {
   enum class Kind { kFlip, kCollapse } kind = Kind::kFlip;
@@ -46,13 +36,13 @@ class Repair {
       : mesh_(mesh), x_(mesh.vertices), tris_(mesh.triangles), o_(options) {
     if (o_.grid) {
       snapped_.resize(x_.size());
-      for (std::size_t v = 0; v < x_.size(); ++v) snapped_[v] = o_.grid->quantize(x_[v]);
+      for (std::size_t v = 0; v < x_.size(); ++v) snapped_[v] = o_.grid->frame_point(x_[v]);
     }
   }
 
   bool bad(const Triangle& t) const {
     if (t[0] == kDead) return false;
-    if (o_.grid && degenerate(snapped_[t[0]], snapped_[t[1]], snapped_[t[2]])) return true;  // quality -1
+    if (o_.grid && collinear_on_grid(snapped_[t[0]], snapped_[t[1]], snapped_[t[2]])) return true;  // quality -1
     return !clearly_good(t) && min_angle_degrees(x_[t[0]], x_[t[1]], x_[t[2]]) < o_.min_angle_degrees;
   }
 
@@ -104,7 +94,7 @@ class Repair {
 
   // A triangle's smallest angle in degrees; -1 when it is degenerate on the output grid.
   double quality(const Triangle& t) const {
-    if (o_.grid && degenerate(snapped_[t[0]], snapped_[t[1]], snapped_[t[2]])) return -1.0;
+    if (o_.grid && collinear_on_grid(snapped_[t[0]], snapped_[t[1]], snapped_[t[2]])) return -1.0;
     return min_angle_degrees(x_[t[0]], x_[t[1]], x_[t[2]]);
   }
   Vec3 normal(const Triangle& t) const { return (x_[t[1]] - x_[t[0]]).cross(x_[t[2]] - x_[t[0]]); }
@@ -263,7 +253,7 @@ class Repair {
   // Vertex v at p, and its grid point.
   void put(std::uint32_t v, const Vec3& p) {
     x_[v] = p;
-    if (o_.grid) snapped_[v] = o_.grid->quantize(p);
+    if (o_.grid) snapped_[v] = o_.grid->frame_point(p);
   }
 
   // How good a vertex's triangles are, for relocate(): fewer degenerate on the grid first, then fewer below the

@@ -28,6 +28,7 @@
 #include <string>
 #include <vector>
 
+#include "core/polygonize/edge_margin.h"
 #include "core/polygonize/mc_tables.h"
 #include "core/scene/scene.h"
 #include "core/util/errors.h"
@@ -68,8 +69,9 @@ struct Grid {
   std::array<int, 3> cells{};
   std::array<int, 3> points{};
   std::array<std::vector<double>, 3> coords;
+  double vertex_margin = 0.0;  // MarchingCubesOptions::vertex_margin
 
-  Grid(const MarchingCubesOptions& options) : cells(options.cells) {
+  Grid(const MarchingCubesOptions& options) : cells(options.cells), vertex_margin(options.vertex_margin) {
     for (int a = 0; a < 3; ++a) {
       points[a] = cells[a] + 1;
       coords[a].resize(points[a]);
@@ -105,6 +107,7 @@ void validate(const MarchingCubesOptions& options) {
     throw InvalidInput("threads",
                        "threads (" + std::to_string(options.threads) + ") must be >= 0; 0 uses every hardware thread");
   }
+  check_vertex_margin(options.vertex_margin);
 }
 
 // Per point row: the inside bit of its first and last point, and the range of x-edges that may be crossed:
@@ -375,8 +378,10 @@ class SlabMesher {
     }
     // v0 and v1 have different inside bits, so v0 != v1; t in [0, 1].
     const double a = static_cast<double>(v0), b = static_cast<double>(v1);
-    const double t = a / (a - b);
     std::array<int, 3> idx{i, j, k};
+    const double floor =
+        edge_parameter_floor(grid_.vertex_margin, grid_.coords[axis][idx[axis] + 1] - grid_.coords[axis][idx[axis]]);
+    const double t = std::clamp(a / (a - b), floor, 1.0 - floor);
     Vec3 p(grid_.coords[0][i], grid_.coords[1][j], grid_.coords[2][k]);
     p[axis] = (1.0 - t) * grid_.coords[axis][idx[axis]] + t * grid_.coords[axis][idx[axis] + 1];
     out_.vertices.push_back(p);

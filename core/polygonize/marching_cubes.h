@@ -25,6 +25,10 @@ struct MarchingCubesOptions {
   // The mesh is byte-identical to the dense one; evaluations drop to about surface area / cell size^2 times a small
   // factor plus a quadtree overhead. No effect without a bound or for pre-sampled input.
   bool sparse = false;
+  // Each vertex at least this far (scene units, >= 0) from both ends of its edge, but never more than a quarter of
+  // the edge: a frame runner sets a few quantization steps, so that vertices near a zero sample keep distinct grid
+  // points and their triangles keep some area on the grid (docs/ALGORITHMS.md §5 "Clean on the grid"). 0: off.
+  double vertex_margin = 0.0;
 };
 
 // Mesh of {f = 0} for a normalized field (negative inside). Output: welded (one vertex per crossed grid edge),

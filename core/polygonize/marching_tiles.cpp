@@ -58,6 +58,7 @@
 #include <vector>
 
 #include "core/polygonize/a15_table.h"
+#include "core/polygonize/edge_margin.h"
 #include "core/scene/scene.h"
 #include "core/util/errors.h"
 #include "core/util/parallel.h"
@@ -543,13 +544,16 @@ class BlockMesher {
   Vec3 edge_point(Scratch& s, int pc, int i, int j, int k, const EdgeInfo& info, double& param) const {
     const double fa = exact_value(s, static_cast<std::size_t>(pc) * 8 + info.value[0]);
     const double fb = exact_value(s, static_cast<std::size_t>(pc) * 8 + info.value[1]);
-    param = std::clamp(fa / (fa - fb), kMinT, 1.0 - kMinT);
     const std::array<std::int64_t, 3> base{4 * (c0_[0] + i), 4 * (c0_[1] + j), 4 * (c0_[2] + k)};
-    Vec3 p;
+    Vec3 xa, xb;
     for (int a = 0; a < 3; ++a) {
-      const double xa = lat_.world(a, base[a] + info.lattice[0][a]), xb = lat_.world(a, base[a] + info.lattice[1][a]);
-      p[a] = xa + param * (xb - xa);
+      xa[a] = lat_.world(a, base[a] + info.lattice[0][a]);
+      xb[a] = lat_.world(a, base[a] + info.lattice[1][a]);
     }
+    const double floor = std::max(kMinT, edge_parameter_floor(options_.vertex_margin, (xb - xa).norm()));
+    param = std::clamp(fa / (fa - fb), floor, 1.0 - floor);
+    Vec3 p;
+    for (int a = 0; a < 3; ++a) p[a] = xa[a] + param * (xb[a] - xa[a]);
     return p;
   }
 
@@ -688,6 +692,7 @@ void validate(const MarchingTilesOptions& o) {
     throw InvalidInput("spacing", "spacing (" + format_number(o.spacing) +
                                       ") must be a finite number > 0: the mean distance between lattice samples");
   }
+  check_vertex_margin(o.vertex_margin);
   if (o.threads < 0) {
     throw InvalidInput("threads",
                        "threads (" + std::to_string(o.threads) + ") must be >= 0; 0 uses every hardware thread");

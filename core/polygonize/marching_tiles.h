@@ -38,6 +38,10 @@ struct MarchingTilesOptions {
   // (blob sums add every kernel's steepest slope) excludes little at coarse spacings, so kLipschitz then visits most
   // blocks inside field.bounds(); kSignScan is cheaper there but can miss components smaller than ~3.5 spacings.
   TileSearch search = TileSearch::kAuto;
+  // Each vertex at least this far (scene units, >= 0) from both ends of its edge, but never more than a quarter of
+  // the edge: a frame runner sets a few quantization steps, so that vertices near a zero sample keep distinct grid
+  // points and their triangles keep some area on the grid (docs/ALGORITHMS.md §5 "Clean on the grid"). 0: off.
+  double vertex_margin = 0.0;
 };
 
 // Mesh of {f = 0} of a normalized field (negative inside): welded (one vertex per crossed lattice edge), oriented

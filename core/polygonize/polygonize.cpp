@@ -90,6 +90,7 @@ MarchingCubesOptions cubes_options(const PolygonizeGrid& grid) {
   options.normals = grid.normals;
   options.threads = grid.threads;
   options.sparse = true;  // the same mesh as dense; skips samples the field's Lipschitz bound rules out
+  options.vertex_margin = grid.vertex_margin;
   return options;
 }
 
@@ -99,6 +100,7 @@ MarchingTilesOptions tiles_options(const PolygonizeGrid& grid) {
   options.spacing = grid.h;
   options.normals = grid.normals;
   options.threads = grid.threads;
+  options.vertex_margin = grid.vertex_margin;
   return options;
 }
 

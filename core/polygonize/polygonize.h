@@ -55,6 +55,10 @@ struct PolygonizeGrid {
   double cell_count = 1.0;
   bool normals = false;
   int threads = 0;
+  // Each vertex at least this far (scene units, >= 0) from both ends of its edge, but never more than a quarter of
+  // the edge: a frame runner sets a few quantization steps, so that vertices near a zero sample keep distinct grid
+  // points and their triangles keep some area on the grid (docs/ALGORITHMS.md §5 "Clean on the grid"). 0: off.
+  double vertex_margin = 0.0;
 };
 
 // Resolves `options` for `fields` (the union of their bounds is the default region). Validates the options first.

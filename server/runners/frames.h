@@ -49,16 +49,24 @@ class FrameMaker {
   // calling thread. Throws nothing; the encoding was validated by wire::frame_encoding.
   FrameMaker(FrameEncoding encoding, std::int64_t max_triangles, const Executor* executor);
 
-  // The frame of `mesh`, its stats holding every timing of `timer` plus "encode" and "check" (wall seconds of
-  // each). The checks run first, then the encoding, each on every thread of the executor; a standard Draco frame is
-  // encoded while the checks run. The checks and a pieced codec's pieces run as items of the executor and stop
+  // The frame of `mesh`, its stats holding every timing of `timer` plus "grid_cleanup", "encode" and "check" (wall
+  // seconds of each). On a quantizing codec the mesh is first made clean on the job's grid (core/mesh/grid_cleanup.h;
+  // metrics grid_degenerate_found, grid_coincident_found, grid_nudges, grid_left), and the checks (area and volume
+  // included) are of the mesh as a decoder reads it: every vertex on its grid point. The checks run first, then the
+  // encoding, each on every thread of the executor; a standard Draco frame is encoded while the checks run. The checks and a pieced codec's pieces run as items of the executor and stop
   // between items when `control` fires. A standard Draco frame's encoder cannot be interrupted: above one piece's
   // size it runs on a thread of its own, which a cancel leaves to finish in the background, so that the caller is
   // free at once. Throws ResourceLimit when the mesh has more than max_triangles triangles, Cancelled, and what the
   // codec throws.
-  FrameOutput make(const Mesh& mesh, StageTimer& timer, const RunControl& control) const;
+  FrameOutput make(Mesh mesh, StageTimer& timer, const RunControl& control) const;
 
   const FrameEncoding& encoding() const { return encoding_; }
+
+  // The margin a polygonizer keeps between its vertices and the ends of their edges for these frames
+  // (PolygonizeGrid::vertex_margin): kMarginSteps steps of the quantization grid, 0 for lossless frames. Vertices
+  // near a zero sample then keep distinct grid points, so the grid cleanup has little left to do.
+  double vertex_margin() const;
+  static constexpr double kMarginSteps = 3.0;
 
  private:
   // Starts encoding `mesh` as one Draco mesh on a detached thread.

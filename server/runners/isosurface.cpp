@@ -27,6 +27,7 @@ class IsosurfaceRunner final : public JobRunner {
     // A single frame gets every core; a sequence runs its frames in parallel, one thread each.
     PolygonizeGrid grid = grid_;
     grid.threads = fields_.size() == 1 ? worker_threads_ : 1;
+    grid.vertex_margin = frames_.vertex_margin();
     TaskMemory memory(limits_, memory_, "isosurface frame " + std::to_string(index),
                       TaskMemory::kPolygonizeBytesPerTriangle);
     memory.reserve_fixed(polygonize_fixed_bytes(grid));

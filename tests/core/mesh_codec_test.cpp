@@ -2,7 +2,11 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <array>
 #include <random>
+#include <string>
+#include <vector>
 
 #include "core/mesh/mesh_checks.h"
 #include "core/mesh/mesh_io.h"
@@ -85,6 +89,34 @@ TEST(MeshCodec, SharedQuantizationBoxPutsFramesOnOneGrid) {
     for (int c = 0; c < 3; ++c) {
       const double k = (qa[c] - options.quantization_bounds->min[c]) / step;
       EXPECT_NEAR(k, std::round(k), 1e-3);
+    }
+  }
+}
+
+// The decoded positions are exactly the job grid's points (quantization_grid): Draco would keep an explicit origin and
+// range rounded to 6 decimals, off the grid the frames' stats and the pieced codecs use, and a range under 5e-7 would
+// become 0. Boxes with origins that 6 decimals do not hold, at scene scales from 1e-6 to 1e4.
+TEST(MeshCodec, DecodedPositionsAreTheJobGridsPointsExactly) {
+  for (const double scale : {1e-6, 1e-3, 1.0, 7.3, 1e4}) {
+    const Vec3 centre = Vec3(0.1234567, -0.7510416, 0.3333333) * scale;
+    const Mesh m = testing::icosphere(3, 0.9 * scale, centre);
+    for (const int bits : {10, 14, 16}) {
+      SCOPED_TRACE(std::to_string(scale) + " scale, " + std::to_string(bits) + " bits");
+      DracoOptions options;
+      options.quantization_bits = bits;
+      options.quantization_bounds = Aabb{centre - Vec3(1.0000001, 1.3, 0.97) * scale, centre + Vec3::Constant(scale)};
+      const QuantizationGrid grid = quantization_grid(m, options);
+      const Mesh d = decode_draco(encode_draco(m, options));
+      ASSERT_EQ(d.vertices.size(), m.vertices.size());
+      std::vector<std::array<double, 3>> expected, decoded;
+      for (const Vec3& p : m.vertices) {
+        const Vec3 q = grid.dequantize(grid.quantize(p));
+        expected.push_back({q[0], q[1], q[2]});
+      }
+      for (const Vec3& p : d.vertices) decoded.push_back({p[0], p[1], p[2]});
+      std::sort(expected.begin(), expected.end());
+      std::sort(decoded.begin(), decoded.end());
+      EXPECT_EQ(decoded, expected);
     }
   }
 }
