@@ -29,21 +29,24 @@ struct DecimateOptions {
   // No new triangle gets a smaller angle (degrees, in [0, 30]). Triangles of the input below it are left as they
   // are unless a collapse removes them.
   double min_angle_degrees = 10.0;
+  // Threads for the regions of a large mesh (0: hardware threads). The result does not depend on it.
+  int threads = 0;
   // Largest turn of a face normal by one collapse, in degrees.
   static constexpr double kMaxNormalDeviationDegrees = 45.0;
 };
 
-// Throws InvalidInput("tolerance" / "min_angle_degrees") naming the value and the range.
+// Throws InvalidInput("tolerance" / "min_angle_degrees" / "threads") naming the value and the range.
 void validate(const DecimateOptions& options);
 
 struct DecimateStats {
   std::size_t vertices_before = 0, triangles_before = 0;
   std::size_t vertices_after = 0, triangles_after = 0;
   std::size_t collapses = 0;
+  std::size_t regions = 0;  // of the first pass over regions; 1 when the mesh was decimated whole
   double seconds = 0.0;
 };
 
-// Whether a point (scene units) may lie on the decimated surface. Called from the calling thread only.
+// Whether a point (scene units) may lie on the decimated surface. Called from several threads at once.
 using SurfacePointRule = std::function<bool(const Vec3&)>;
 
 // `mesh` decimated under `options` (see the header comment): vertices a subset of the input's in their input order,

@@ -2,6 +2,11 @@
 
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
 #include <map>
 #include <random>
 #include <string>
@@ -100,6 +105,69 @@ std::vector<Case> cases() {
 
 double min_angle(const Mesh& mesh) { return check_mesh(mesh).min_angle_degrees; }
 
+// Squared distance from p to triangle (a, b, c): the nearest of the plane's foot (when inside) and the three edges.
+double squared_distance(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
+  const auto to_segment = [&](const Vec3& u, const Vec3& v) {
+    const Vec3 e = v - u;
+    const double t = std::clamp((p - u).dot(e) / std::max(e.squaredNorm(), 1e-300), 0.0, 1.0);
+    return (u + t * e - p).squaredNorm();
+  };
+  double best = std::min({to_segment(a, b), to_segment(b, c), to_segment(c, a)});
+  const Vec3 n = (b - a).cross(c - a);
+  const double n2 = n.squaredNorm();
+  if (n2 > 0.0) {
+    const Vec3 foot = p - n * ((p - a).dot(n) / n2);
+    if ((b - a).cross(foot - a).dot(n) >= 0.0 && (c - b).cross(foot - b).dot(n) >= 0.0 &&
+        (a - c).cross(foot - c).dot(n) >= 0.0) {
+      best = std::min(best, (foot - p).squaredNorm());
+    }
+  }
+  return best;
+}
+
+// The largest distance from a vertex of `input` to the triangles of `output` (the one-sided Hausdorff distance at
+// the input's vertices), through a grid of cells of edge `cell` over the triangles' boxes grown by `reach`; a vertex
+// with no triangle within `reach` counts as infinitely far.
+double largest_vertex_distance(const Mesh& input, const Mesh& output, double reach) {
+  Eigen::Array3d lo = Eigen::Array3d::Constant(1e300);
+  for (const Vec3& p : input.vertices) lo = lo.min(p.array());
+  double cell = reach;
+  for (const Triangle& t : output.triangles) {
+    for (int k = 0; k < 3; ++k) cell = std::max(cell, (output.vertices[t[k]] - output.vertices[t[(k + 1) % 3]]).norm());
+  }
+  const auto key = [&](const Eigen::Array3d& p) {
+    const Eigen::Array3d c = ((p - lo) / cell).floor();
+    return std::array<std::int64_t, 3>{static_cast<std::int64_t>(c[0]), static_cast<std::int64_t>(c[1]),
+                                       static_cast<std::int64_t>(c[2])};
+  };
+  std::map<std::array<std::int64_t, 3>, std::vector<std::uint32_t>> cells;
+  for (std::uint32_t t = 0; t < output.triangles.size(); ++t) {
+    Eigen::Array3d a = Eigen::Array3d::Constant(1e300), b = -a;
+    for (const std::uint32_t v : output.triangles[t]) {
+      a = a.min(output.vertices[v].array());
+      b = b.max(output.vertices[v].array());
+    }
+    const auto k0 = key(a - reach), k1 = key(b + reach);
+    for (std::int64_t i = k0[0]; i <= k1[0]; ++i)
+      for (std::int64_t j = k0[1]; j <= k1[1]; ++j)
+        for (std::int64_t k = k0[2]; k <= k1[2]; ++k) cells[{i, j, k}].push_back(t);
+  }
+  double largest = 0.0;
+  for (const Vec3& p : input.vertices) {
+    double best = std::numeric_limits<double>::infinity();
+    const auto found = cells.find(key(p.array()));
+    if (found != cells.end()) {
+      for (const std::uint32_t t : found->second) {
+        const Triangle& tri = output.triangles[t];
+        best = std::min(best, squared_distance(p, output.vertices[tri[0]], output.vertices[tri[1]],
+                                               output.vertices[tri[2]]));
+      }
+    }
+    largest = std::max(largest, std::sqrt(best));
+  }
+  return largest;
+}
+
 TEST(Decimate, FewerTrianglesWithToleranceEveryVertexKeptEveryNewTriangleAcceptable) {
   for (Case& c : cases()) {
     SCOPED_TRACE(c.name);
@@ -149,14 +217,37 @@ TEST(Decimate, FewerTrianglesWithToleranceEveryVertexKeptEveryNewTriangleAccepta
         if (!rule((a + b + d) / 3.0)) ++unacceptable_triangles;
       }
       EXPECT_EQ(unacceptable_triangles, 0u);
-      // Every removed vertex stays within the tolerance of the decimated surface (checked against its vertices and
-      // triangles: the nearest vertex bounds it from above only where the surface is flat, so measure to triangles).
-      if (tolerance > 0.0) EXPECT_LT(out.triangles.size(), c.mesh.triangles.size());
+      // Every removed vertex stays within the tolerance of the decimated surface (measured to its triangles: the
+      // nearest vertex bounds it from above only where the surface is flat).
+      if (tolerance > 0.0) {
+        EXPECT_LT(out.triangles.size(), c.mesh.triangles.size());
+        EXPECT_LE(largest_vertex_distance(c.mesh, out, 2.0 * tolerance), tolerance * (1.0 + 1e-9));
+      }
+      // The target of particle frames: at TOL = 0.1 r_inner, at least 4x fewer triangles.
+      if (!c.field && std::abs(tolerance - 0.1 * 0.006) < 1e-12) {
+        EXPECT_GE(c.mesh.triangles.size(), 4 * out.triangles.size());
+      }
       std::printf("%-18s tol %-8.4g triangles %8zu -> %8zu (%.2fx) min angle %.2f -> %.2f, %.3f s\n", c.name.c_str(),
                   tolerance, c.mesh.triangles.size(), out.triangles.size(),
                   static_cast<double>(c.mesh.triangles.size()) / std::max<std::size_t>(out.triangles.size(), 1),
                   input.min_angle_degrees, report.min_angle_degrees, stats.seconds);
     }
+  }
+}
+
+// Meshes of several regions (decimated in parallel, DecimateStats::regions > 1) give the same bytes whatever the
+// number of threads.
+TEST(Decimate, SameMeshWithOneOrTwoThreads) {
+  for (Case& c : cases()) {
+    if (c.field) continue;
+    SCOPED_TRACE(c.name);
+    DecimateStats one, two;
+    const Mesh a = decimate(c.mesh, {.tolerance = 0.0006, .threads = 1}, c.rule, {}, &one);
+    const Mesh b = decimate(c.mesh, {.tolerance = 0.0006, .threads = 2}, c.rule, {}, &two);
+    EXPECT_GT(one.regions, 1u);
+    EXPECT_EQ(one.regions, two.regions);
+    EXPECT_EQ(a.vertices, b.vertices);
+    EXPECT_EQ(a.triangles, b.triangles);
   }
 }
 
@@ -187,6 +278,7 @@ TEST(Decimate, RefusesBadOptionsNamingTheField) {
       [&] { decimate(mesh, {.tolerance = std::numeric_limits<double>::infinity()}); }, "tolerance"));
   EXPECT_TRUE(testing::throws_invalid_input([&] { decimate(mesh, {.tolerance = 0.1, .min_angle_degrees = 45.0}); },
                                             "min_angle_degrees"));
+  EXPECT_TRUE(testing::throws_invalid_input([&] { decimate(mesh, {.tolerance = 0.1, .threads = -1}); }, "threads"));
 }
 
 TEST(Decimate, StopsWhenCancelled) {
