@@ -1,12 +1,15 @@
-// Error-bounded level of detail (docs/ALGORITHMS.md §5, CHOICE "Decimation"): halfedge collapses chosen by OpenMesh's
-// Decimater (Garland-Heckbert quadrics order them), each accepted only when
-//  * every point of the removed vertices' neighbourhoods stays within `tolerance` of the decimated surface
-//    (OpenMesh's ModHausdorffT: the original vertices a face stands for are within tolerance of it),
+// Error-bounded level of detail (docs/ALGORITHMS.md §5, CHOICE "Decimation"): halfedge collapses on an OpenMesh
+// TriMesh in the order of Garland-Heckbert quadrics (the cheapest collapse first), each accepted only when
+//  * every input vertex removed so far stays within `tolerance` of the decimated surface (each is held by one face
+//    within `tolerance` of it; a collapse must find such a face among the new ones for each sample it moves),
 //  * no face normal turns by more than kMaxNormalDeviationDegrees (no fold-overs),
 //  * no angle of a new triangle is below min_angle_degrees,
-//  * the engine's own rule for a surface point (`acceptable`) holds at the centroid and at the new edges' midpoints of
-//    every new triangle (particle frames: the band r_inner <= d <= r_outer; fields: |f| / |grad f| <= tolerance),
-//  * OpenMesh's is_collapse_ok (the link condition): a closed manifold mesh stays closed and manifold.
+//  * the engine's own rule for a surface point (`acceptable`) holds at the centroid of every new triangle and at the
+//    midpoint of every new edge (particle frames: the band r_inner <= d <= r_outer; fields: |f| / |grad f| <=
+//    tolerance),
+//  * the link condition holds (as OpenMesh's is_collapse_ok): a closed manifold mesh stays closed and manifold.
+// Large meshes are decimated by regions in parallel (vertices shared by regions frozen), then across the seams; the
+// result does not depend on the number of threads.
 // Halfedge collapses keep every surviving vertex at its position, so a vertex that satisfied the engine's rule still
 // does, and per-vertex data (normals, attributes) is kept by index (compacted with the vertices).
 #pragma once
