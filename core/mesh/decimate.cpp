@@ -1,16 +1,17 @@
 // Decimation (core/mesh/decimate.h, docs/ALGORITHMS.md §5 CHOICE "Decimation").
 //
-// The loop is our own on an OpenMesh TriMesh (its collapse and is_collapse_ok): a heap of vertices keyed by the
-// quadric cost of their cheapest collapse, whose expensive checks (fan geometry, the Hausdorff samples, the engine's
-// rule) run only when a vertex reaches the top of the heap (lazy evaluation: the key is a lower bound of the cost of
-// its cheapest legal collapse, made exact at the top and pushed back when another vertex is then cheaper). A large
-// mesh is cut into regions (cells of a grid, each triangle in the cell of its centroid) decimated in parallel with
-// the vertices they share frozen, then one pass over the merged mesh starting from the seams.
+// The loop is our own on an OpenMesh TriMesh (its collapse; the link condition as its is_collapse_ok): a heap of
+// vertices keyed by the quadric cost of their cheapest collapse, whose expensive checks (fan geometry, the Hausdorff
+// samples, the engine's rule) run only when a vertex reaches the top of the heap (lazy evaluation: the key is a lower
+// bound of the cost of its cheapest legal collapse, made exact at the top and pushed back when another vertex is then
+// cheaper). A large mesh is cut into regions (cells of a grid, each triangle in the cell of its centroid) decimated
+// in parallel with the vertices they share frozen, twice (the second grid shifted by half a cell), then one pass over
+// the merged mesh starting from the last seams.
 //
 // Hausdorff samples: every removed vertex is a point held by one face of the current mesh, within the tolerance of
 // it; a collapse gathers the points of the faces at v0 (and v0 itself) and is legal only when each lies within the
 // tolerance of one of the faces the collapse leaves at v1, which then holds it (as OpenMesh's ModHausdorffT, with
-// the points as singly linked lists of vertex ids).
+// the points as singly linked lists of positions).
 #include "core/mesh/decimate.h"
 
 #include <Eigen/Geometry>
