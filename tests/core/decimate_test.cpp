@@ -125,8 +125,8 @@ double squared_distance(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3&
   return best;
 }
 
-// The largest distance from a vertex of `input` to the triangles of `output` (the one-sided Hausdorff distance at
-// the input's vertices), through a grid of cells of edge `cell` over the triangles' boxes grown by `reach`; a vertex
+// The largest distance from a vertex of `input`'s triangles to the triangles of `output` (the one-sided Hausdorff
+// distance at the input's vertices), through a grid of cells of edge `cell` over the triangles' boxes grown by `reach`; a vertex
 // with no triangle within `reach` counts as infinitely far.
 double largest_vertex_distance(const Mesh& input, const Mesh& output, double reach) {
   Eigen::Array3d lo = Eigen::Array3d::Constant(1e300);
@@ -152,8 +152,14 @@ double largest_vertex_distance(const Mesh& input, const Mesh& output, double rea
       for (std::int64_t j = k0[1]; j <= k1[1]; ++j)
         for (std::int64_t k = k0[2]; k <= k1[2]; ++k) cells[{i, j, k}].push_back(t);
   }
+  std::vector<bool> used(input.vertices.size(), false);
+  for (const Triangle& t : input.triangles) {
+    for (const std::uint32_t v : t) used[v] = true;
+  }
   double largest = 0.0;
-  for (const Vec3& p : input.vertices) {
+  for (std::size_t v = 0; v < input.vertices.size(); ++v) {
+    if (!used[v]) continue;
+    const Vec3& p = input.vertices[v];
     double best = std::numeric_limits<double>::infinity();
     const auto found = cells.find(key(p.array()));
     if (found != cells.end()) {
@@ -249,6 +255,44 @@ TEST(Decimate, SameMeshWithOneOrTwoThreads) {
     EXPECT_EQ(a.vertices, b.vertices);
     EXPECT_EQ(a.triangles, b.triangles);
   }
+}
+
+// An open mesh of several regions: its boundary stays exactly as it was (boundary vertices are locked, and so are
+// vertices shared by regions until the last pass), the rest stays manifold and within the tolerance.
+TEST(Decimate, OpenMeshKeepsItsBoundaryAcrossRegions) {
+  const Mesh sphere = testing::icosphere(6);
+  Mesh cap;
+  cap.vertices = sphere.vertices;
+  for (const Triangle& t : sphere.triangles) {
+    const Vec3 centroid = (sphere.vertices[t[0]] + sphere.vertices[t[1]] + sphere.vertices[t[2]]) / 3.0;
+    if (centroid.z() < 0.5) cap.triangles.push_back(t);
+  }
+  const auto boundary = [](const Mesh& mesh) {
+    std::map<std::pair<std::uint32_t, std::uint32_t>, int> edges;
+    for (const Triangle& t : mesh.triangles) {
+      for (int k = 0; k < 3; ++k) ++edges[std::minmax(t[k], t[(k + 1) % 3])];
+    }
+    std::vector<std::array<double, 6>> out;
+    for (const auto& [edge, count] : edges) {
+      if (count != 1) continue;
+      const Vec3 &a = mesh.vertices[edge.first], &b = mesh.vertices[edge.second];
+      out.push_back(a.x() < b.x() ? std::array{a.x(), a.y(), a.z(), b.x(), b.y(), b.z()}
+                                  : std::array{b.x(), b.y(), b.z(), a.x(), a.y(), a.z()});
+    }
+    std::sort(out.begin(), out.end());
+    return out;
+  };
+  DecimateStats stats;
+  const Mesh out = decimate(cap, {.tolerance = 0.01, .threads = 2}, {}, {}, &stats);
+  EXPECT_GT(stats.regions, 1u);
+  EXPECT_LT(4 * out.triangles.size(), cap.triangles.size());
+  const MeshReport report = check_mesh(out);
+  EXPECT_TRUE(report.edge_manifold && report.vertex_manifold && report.oriented);
+  EXPECT_EQ(report.components, check_mesh(cap).components);
+  EXPECT_EQ(boundary(out), boundary(cap));
+  EXPECT_LE(largest_vertex_distance(cap, out, 0.02), 0.01 * (1.0 + 1e-9));
+  const Mesh one = decimate(cap, {.tolerance = 0.01, .threads = 1});
+  EXPECT_EQ(one.triangles, out.triangles);
 }
 
 TEST(Decimate, KeepsNormalsAndAttributesOfTheKeptVertices) {
