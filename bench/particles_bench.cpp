@@ -10,7 +10,8 @@
 //   --repeat R      repetitions of each of our timed runs (default 3); seconds are the minimum over them
 //   --vdb-repeat R  the same for OpenVDB's runs (default 1: one takes 10-30 s on the 500 k block, 2 cores)
 //   --section S     block, flatness, scale or decimate only (default block and flatness; scale and decimate run
-//                   only when asked); decimate: the block (--particles) and droplets decimated at TOL = 0.1 r_inner
+//                   only when asked); decimate: the block (--particles) and droplets decimated at TOL = 0.1 r_inner,
+//                   with the largest thread count and with 1 (the two meshes must be identical)
 //                   (docs/ALGORITHMS.md §5, CHOICE "Decimation")
 //   --scale-sizes L the scale section's block sizes in millions of particles (default 0.5,2,13.5,50)
 //   --threads T     one thread count for both sides (default: 1, then 2)
@@ -735,8 +736,10 @@ std::vector<Vec3> droplet_particles(double d) {
 }
 
 // --section decimate: the block and the droplets surfaced (min_angle_degrees = the decimation's 10), then decimated
-// at TOL = 0.1 r_inner under the particle band rule; prints the triangle ratio, min angle, faithful fraction,
-// closed/manifold and the seconds of surfacing and decimation (one run each, max threads).
+// at TOL = 0.1 r_inner under the particle band rule with the largest thread count and with 1 thread; prints the
+// triangle ratio, min angle, faithful fraction, closed/manifold, the seconds (wall and process CPU) of surfacing and of
+// both decimations, decimate / surfacing, and whether the two decimations are identical (one run each). Fails when a mesh is not
+// closed and manifold, a vertex is not faithful or the thread counts disagree.
 bool bench_decimate(const Config& cfg) {
   bool ok = true;
   const int threads = *std::max_element(cfg.threads.begin(), cfg.threads.end());
@@ -755,25 +758,34 @@ bool bench_decimate(const Config& cfg) {
     options.min_angle_degrees = DecimateOptions{}.min_angle_degrees;
     ParticleSurfacingStats stats;
     const auto t0 = std::chrono::steady_clock::now();
+    const double c0 = cpu_seconds();
     const Mesh mesh = surface_particles(set.particles, {}, options, {}, &stats);
     const double surfacing = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const double surfacing_cpu = cpu_seconds() - c0;
     const SurfacePointRule rule = particle_band_rule(set.particles, {}, stats.r_inner, stats.r_outer);
-    DecimateStats dstats;
-    const Mesh out = decimate(mesh, {.tolerance = 0.1 * stats.r_inner}, rule, {}, &dstats);
+    DecimateStats dstats, one_thread;
+    const double c1 = cpu_seconds();
+    const Mesh out = decimate(mesh, {.tolerance = 0.1 * stats.r_inner, .threads = threads}, rule, {}, &dstats);
+    const double decimate_cpu = cpu_seconds() - c1;
+    const Mesh out1 = decimate(mesh, {.tolerance = 0.1 * stats.r_inner, .threads = 1}, rule, {}, &one_thread);
+    const bool same = out1.vertices == out.vertices && out1.triangles == out.triangles;
     std::size_t faithful = 0;
     for (const Vec3& v : out.vertices) faithful += rule(v) ? 1 : 0;
     const MeshReport before = check_mesh(mesh), after = check_mesh(out);
     const bool closed = after.closed && after.edge_manifold && after.vertex_manifold && after.oriented;
-    ok = ok && closed && faithful == out.vertices.size();
+    ok = ok && closed && faithful == out.vertices.size() && same;
     std::printf(
         "  %-8s %zu particles: %zu -> %zu triangles (%.2fx), min angle %.2f -> %.2f deg, faithful %.4f %%, closed "
-        "manifold %s; surfacing %.3f s, decimate %.3f s\n",
+        "manifold %s; surfacing %.3f s (CPU %.3f s), decimate %.3f s (CPU %.3f s; %.2fx the surfacing's time, %.2fx "
+        "its CPU; 1 thread %.3f s, same mesh %s)\n",
         set.name, set.particles.size(), mesh.triangles.size(), out.triangles.size(),
         static_cast<double>(mesh.triangles.size()) /
             static_cast<double>(std::max<std::size_t>(1, out.triangles.size())),
         before.min_angle_degrees, after.min_angle_degrees,
         100.0 * static_cast<double>(faithful) / static_cast<double>(std::max<std::size_t>(1, out.vertices.size())),
-        closed ? "yes" : "NO", surfacing, dstats.seconds);
+        closed ? "yes" : "NO", surfacing, surfacing_cpu, dstats.seconds, decimate_cpu, dstats.seconds / surfacing,
+        decimate_cpu / surfacing_cpu, one_thread.seconds,
+        same ? "yes" : "NO");
     std::fflush(stdout);
   }
   std::printf("\n");

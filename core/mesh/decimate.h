@@ -1,12 +1,15 @@
-// Error-bounded level of detail (docs/ALGORITHMS.md §5, CHOICE "Decimation"): halfedge collapses chosen by OpenMesh's
-// Decimater (Garland-Heckbert quadrics order them), each accepted only when
-//  * every point of the removed vertices' neighbourhoods stays within `tolerance` of the decimated surface
-//    (OpenMesh's ModHausdorffT: the original vertices a face stands for are within tolerance of it),
+// Error-bounded level of detail (docs/ALGORITHMS.md §5, CHOICE "Decimation"): halfedge collapses on an OpenMesh
+// TriMesh in the order of Garland-Heckbert quadrics (the cheapest collapse first), each accepted only when
+//  * every input vertex removed so far stays within `tolerance` of the decimated surface (each is held by one face
+//    within `tolerance` of it; a collapse must find such a face among the new ones for each sample it moves),
 //  * no face normal turns by more than kMaxNormalDeviationDegrees (no fold-overs),
 //  * no angle of a new triangle is below min_angle_degrees,
-//  * the engine's own rule for a surface point (`acceptable`) holds at the centroid and at the new edges' midpoints of
-//    every new triangle (particle frames: the band r_inner <= d <= r_outer; fields: |f| / |grad f| <= tolerance),
-//  * OpenMesh's is_collapse_ok (the link condition): a closed manifold mesh stays closed and manifold.
+//  * the engine's own rule for a surface point (`acceptable`) holds at the centroid of every new triangle and at the
+//    midpoint of every new edge (particle frames: the band r_inner <= d <= r_outer; fields: |f| / |grad f| <=
+//    tolerance),
+//  * the link condition holds (as OpenMesh's is_collapse_ok): a closed manifold mesh stays closed and manifold.
+// Large meshes are decimated by regions in parallel (vertices shared by regions frozen), then across the seams; the
+// result does not depend on the number of threads.
 // Halfedge collapses keep every surviving vertex at its position, so a vertex that satisfied the engine's rule still
 // does, and per-vertex data (normals, attributes) is kept by index (compacted with the vertices).
 #pragma once
@@ -29,21 +32,24 @@ struct DecimateOptions {
   // No new triangle gets a smaller angle (degrees, in [0, 30]). Triangles of the input below it are left as they
   // are unless a collapse removes them.
   double min_angle_degrees = 10.0;
+  // Threads for the regions of a large mesh (0: hardware threads). The result does not depend on it.
+  int threads = 0;
   // Largest turn of a face normal by one collapse, in degrees.
   static constexpr double kMaxNormalDeviationDegrees = 45.0;
 };
 
-// Throws InvalidInput("tolerance" / "min_angle_degrees") naming the value and the range.
+// Throws InvalidInput("tolerance" / "min_angle_degrees" / "threads") naming the value and the range.
 void validate(const DecimateOptions& options);
 
 struct DecimateStats {
   std::size_t vertices_before = 0, triangles_before = 0;
   std::size_t vertices_after = 0, triangles_after = 0;
   std::size_t collapses = 0;
+  std::size_t regions = 0;  // of the first pass over regions; 1 when the mesh was decimated whole
   double seconds = 0.0;
 };
 
-// Whether a point (scene units) may lie on the decimated surface. Called from the calling thread only.
+// Whether a point (scene units) may lie on the decimated surface. Called from several threads at once.
 using SurfacePointRule = std::function<bool(const Vec3&)>;
 
 // `mesh` decimated under `options` (see the header comment): vertices a subset of the input's in their input order,

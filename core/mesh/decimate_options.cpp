@@ -1,6 +1,7 @@
 // The check of DecimateOptions (core/mesh/decimate.h), apart from the Decimater so that what validates a job's options
 // (wire/output.cpp) does not link OpenMesh.
 #include <cmath>
+#include <string>
 
 #include "core/mesh/decimate.h"
 #include "core/util/errors.h"
@@ -16,6 +17,9 @@ void validate(const DecimateOptions& options) {
   if (!(options.min_angle_degrees >= 0.0 && options.min_angle_degrees <= 30.0)) {
     throw InvalidInput("min_angle_degrees",
                        "min_angle_degrees (" + format_number(options.min_angle_degrees) + ") must be in [0, 30]");
+  }
+  if (options.threads < 0) {
+    throw InvalidInput("threads", "threads (" + std::to_string(options.threads) + ") must be >= 0 (0: hardware threads)");
   }
 }
 

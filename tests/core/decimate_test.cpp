@@ -2,6 +2,11 @@
 
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
 #include <map>
 #include <random>
 #include <string>
@@ -100,6 +105,75 @@ std::vector<Case> cases() {
 
 double min_angle(const Mesh& mesh) { return check_mesh(mesh).min_angle_degrees; }
 
+// Squared distance from p to triangle (a, b, c): the nearest of the plane's foot (when inside) and the three edges.
+double squared_distance(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
+  const auto to_segment = [&](const Vec3& u, const Vec3& v) {
+    const Vec3 e = v - u;
+    const double t = std::clamp((p - u).dot(e) / std::max(e.squaredNorm(), 1e-300), 0.0, 1.0);
+    return (u + t * e - p).squaredNorm();
+  };
+  double best = std::min({to_segment(a, b), to_segment(b, c), to_segment(c, a)});
+  const Vec3 n = (b - a).cross(c - a);
+  const double n2 = n.squaredNorm();
+  if (n2 > 0.0) {
+    const Vec3 foot = p - n * ((p - a).dot(n) / n2);
+    if ((b - a).cross(foot - a).dot(n) >= 0.0 && (c - b).cross(foot - b).dot(n) >= 0.0 &&
+        (a - c).cross(foot - c).dot(n) >= 0.0) {
+      best = std::min(best, (foot - p).squaredNorm());
+    }
+  }
+  return best;
+}
+
+// The largest distance from a vertex of `input`'s triangles to the triangles of `output` (the one-sided Hausdorff
+// distance at the input's vertices), through a grid of cells of edge `cell` over the triangles' boxes grown by `reach`; a vertex
+// with no triangle within `reach` counts as infinitely far.
+double largest_vertex_distance(const Mesh& input, const Mesh& output, double reach) {
+  Eigen::Array3d lo = Eigen::Array3d::Constant(1e300);
+  for (const Vec3& p : input.vertices) lo = lo.min(p.array());
+  double cell = reach;
+  for (const Triangle& t : output.triangles) {
+    for (int k = 0; k < 3; ++k) cell = std::max(cell, (output.vertices[t[k]] - output.vertices[t[(k + 1) % 3]]).norm());
+  }
+  const auto key = [&](const Eigen::Array3d& p) {
+    const Eigen::Array3d c = ((p - lo) / cell).floor();
+    return std::array<std::int64_t, 3>{static_cast<std::int64_t>(c[0]), static_cast<std::int64_t>(c[1]),
+                                       static_cast<std::int64_t>(c[2])};
+  };
+  std::map<std::array<std::int64_t, 3>, std::vector<std::uint32_t>> cells;
+  for (std::uint32_t t = 0; t < output.triangles.size(); ++t) {
+    Eigen::Array3d a = Eigen::Array3d::Constant(1e300), b = -a;
+    for (const std::uint32_t v : output.triangles[t]) {
+      a = a.min(output.vertices[v].array());
+      b = b.max(output.vertices[v].array());
+    }
+    const auto k0 = key(a - reach), k1 = key(b + reach);
+    for (std::int64_t i = k0[0]; i <= k1[0]; ++i)
+      for (std::int64_t j = k0[1]; j <= k1[1]; ++j)
+        for (std::int64_t k = k0[2]; k <= k1[2]; ++k) cells[{i, j, k}].push_back(t);
+  }
+  std::vector<bool> used(input.vertices.size(), false);
+  for (const Triangle& t : input.triangles) {
+    for (const std::uint32_t v : t) used[v] = true;
+  }
+  double largest = 0.0;
+  for (std::size_t v = 0; v < input.vertices.size(); ++v) {
+    if (!used[v]) continue;
+    const Vec3& p = input.vertices[v];
+    double best = std::numeric_limits<double>::infinity();
+    const auto found = cells.find(key(p.array()));
+    if (found != cells.end()) {
+      for (const std::uint32_t t : found->second) {
+        const Triangle& tri = output.triangles[t];
+        best = std::min(best, squared_distance(p, output.vertices[tri[0]], output.vertices[tri[1]],
+                                               output.vertices[tri[2]]));
+      }
+    }
+    largest = std::max(largest, std::sqrt(best));
+  }
+  return largest;
+}
+
 TEST(Decimate, FewerTrianglesWithToleranceEveryVertexKeptEveryNewTriangleAcceptable) {
   for (Case& c : cases()) {
     SCOPED_TRACE(c.name);
@@ -149,15 +223,76 @@ TEST(Decimate, FewerTrianglesWithToleranceEveryVertexKeptEveryNewTriangleAccepta
         if (!rule((a + b + d) / 3.0)) ++unacceptable_triangles;
       }
       EXPECT_EQ(unacceptable_triangles, 0u);
-      // Every removed vertex stays within the tolerance of the decimated surface (checked against its vertices and
-      // triangles: the nearest vertex bounds it from above only where the surface is flat, so measure to triangles).
-      if (tolerance > 0.0) EXPECT_LT(out.triangles.size(), c.mesh.triangles.size());
+      // Every removed vertex stays within the tolerance of the decimated surface (measured to its triangles: the
+      // nearest vertex bounds it from above only where the surface is flat).
+      if (tolerance > 0.0) {
+        EXPECT_LT(out.triangles.size(), c.mesh.triangles.size());
+        EXPECT_LE(largest_vertex_distance(c.mesh, out, 2.0 * tolerance), tolerance * (1.0 + 1e-9));
+      }
+      // The target of particle frames: at TOL = 0.1 r_inner, at least 4x fewer triangles.
+      if (!c.field && std::abs(tolerance - 0.1 * 0.006) < 1e-12) {
+        EXPECT_GE(c.mesh.triangles.size(), 4 * out.triangles.size());
+      }
       std::printf("%-18s tol %-8.4g triangles %8zu -> %8zu (%.2fx) min angle %.2f -> %.2f, %.3f s\n", c.name.c_str(),
                   tolerance, c.mesh.triangles.size(), out.triangles.size(),
                   static_cast<double>(c.mesh.triangles.size()) / std::max<std::size_t>(out.triangles.size(), 1),
                   input.min_angle_degrees, report.min_angle_degrees, stats.seconds);
     }
   }
+}
+
+// Meshes of several regions (decimated in parallel, DecimateStats::regions > 1) give the same bytes whatever the
+// number of threads.
+TEST(Decimate, SameMeshWithOneOrTwoThreads) {
+  for (Case& c : cases()) {
+    if (c.field) continue;
+    SCOPED_TRACE(c.name);
+    DecimateStats one, two;
+    const Mesh a = decimate(c.mesh, {.tolerance = 0.0006, .threads = 1}, c.rule, {}, &one);
+    const Mesh b = decimate(c.mesh, {.tolerance = 0.0006, .threads = 2}, c.rule, {}, &two);
+    EXPECT_GT(one.regions, 1u);
+    EXPECT_EQ(one.regions, two.regions);
+    EXPECT_EQ(a.vertices, b.vertices);
+    EXPECT_EQ(a.triangles, b.triangles);
+  }
+}
+
+// An open mesh of several regions: its boundary stays exactly as it was (boundary vertices are locked, and so are
+// vertices shared by regions until the last pass), the rest stays manifold and within the tolerance.
+TEST(Decimate, OpenMeshKeepsItsBoundaryAcrossRegions) {
+  const Mesh sphere = testing::icosphere(6);
+  Mesh cap;
+  cap.vertices = sphere.vertices;
+  for (const Triangle& t : sphere.triangles) {
+    const Vec3 centroid = (sphere.vertices[t[0]] + sphere.vertices[t[1]] + sphere.vertices[t[2]]) / 3.0;
+    if (centroid.z() < 0.5) cap.triangles.push_back(t);
+  }
+  const auto boundary = [](const Mesh& mesh) {
+    std::map<std::pair<std::uint32_t, std::uint32_t>, int> edges;
+    for (const Triangle& t : mesh.triangles) {
+      for (int k = 0; k < 3; ++k) ++edges[std::minmax(t[k], t[(k + 1) % 3])];
+    }
+    std::vector<std::array<double, 6>> out;
+    for (const auto& [edge, count] : edges) {
+      if (count != 1) continue;
+      const Vec3 &a = mesh.vertices[edge.first], &b = mesh.vertices[edge.second];
+      out.push_back(a.x() < b.x() ? std::array{a.x(), a.y(), a.z(), b.x(), b.y(), b.z()}
+                                  : std::array{b.x(), b.y(), b.z(), a.x(), a.y(), a.z()});
+    }
+    std::sort(out.begin(), out.end());
+    return out;
+  };
+  DecimateStats stats;
+  const Mesh out = decimate(cap, {.tolerance = 0.01, .threads = 2}, {}, {}, &stats);
+  EXPECT_GT(stats.regions, 1u);
+  EXPECT_LT(4 * out.triangles.size(), cap.triangles.size());
+  const MeshReport report = check_mesh(out);
+  EXPECT_TRUE(report.edge_manifold && report.vertex_manifold && report.oriented);
+  EXPECT_EQ(report.components, check_mesh(cap).components);
+  EXPECT_EQ(boundary(out), boundary(cap));
+  EXPECT_LE(largest_vertex_distance(cap, out, 0.02), 0.01 * (1.0 + 1e-9));
+  const Mesh one = decimate(cap, {.tolerance = 0.01, .threads = 1});
+  EXPECT_EQ(one.triangles, out.triangles);
 }
 
 TEST(Decimate, KeepsNormalsAndAttributesOfTheKeptVertices) {
@@ -187,6 +322,7 @@ TEST(Decimate, RefusesBadOptionsNamingTheField) {
       [&] { decimate(mesh, {.tolerance = std::numeric_limits<double>::infinity()}); }, "tolerance"));
   EXPECT_TRUE(testing::throws_invalid_input([&] { decimate(mesh, {.tolerance = 0.1, .min_angle_degrees = 45.0}); },
                                             "min_angle_degrees"));
+  EXPECT_TRUE(testing::throws_invalid_input([&] { decimate(mesh, {.tolerance = 0.1, .threads = -1}); }, "threads"));
 }
 
 TEST(Decimate, StopsWhenCancelled) {
