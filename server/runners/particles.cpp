@@ -174,10 +174,14 @@ class ParticlesRunner final : public JobRunner {
 };
 
 // An open sequence's quantization box when the request gives none: the submitted frames' box grown by its own
-// extent on every side, so that later frames may move about (docs/ALGORITHMS.md §5, "Open sequences").
-Aabb open_sequence_box(const Aabb& box) {
+// extent on every side, so that later frames may move about, and clipped to the container box as the frames' box is
+// (docs/ALGORITHMS.md §5, "Open sequences").
+Aabb open_sequence_box(const v1::ParticlesJob& job, const Aabb& box) {
   const Vec3 extent = box.max - box.min;
-  return {box.min - extent, box.max + extent};
+  Aabb grown{box.min - extent, box.max + extent};
+  // The frames' box lies inside the container already (particle_sequence_box), so the clipped box still holds it.
+  if (job.container().has_box()) grown.intersect(wire::to_aabb(job.container().box(), "spec.particles.container.box"));
+  return grown;
 }
 
 }  // namespace
@@ -213,7 +217,7 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
         .positions;
   });
   const FrameEncoding encoding =
-      wire::frame_encoding(spec.output(), job.open() ? open_sequence_box(box) : box, "spec.output");
+      wire::frame_encoding(spec.output(), job.open() ? open_sequence_box(job, box) : box, "spec.output");
   // The sliver repair also removes triangles that would be degenerate once quantized on the job's grid.
   options.output_grid = encoding.grid();
   const Aabb quantization_box = encoding.options.draco.quantization_bounds.value_or(box);
