@@ -146,8 +146,10 @@ ExitCode run_single(const ConnectOptions& connect, PreparedJob prepared, const F
 
   // Inputs are read and uploaded one at a time; a bad file stops here, before any job is queued. A particle sequence
   // goes as an open one where the server takes it: submitted with its first frame, the others uploaded while the
-  // server surfaces the earlier ones (SequenceFeeder).
+  // server surfaces the earlier ones (SequenceFeeder; docs/ALGORITHMS.md §5, "Open sequences").
   const bool open_sequence = streams_as_open_sequence(*connection, spec, prepared.uploads);
+  // Every frame is read once first: a bad file fails here, and the quantization box is the whole sequence's.
+  if (open_sequence) pin_particles_from_inputs(prepared, input_limits(*connection));
   UploadSummary uploaded =
       upload_inputs(*connection, spec, prepared.uploads, progress, &interrupted, open_sequence ? 1 : SIZE_MAX);
   if (interrupted) throw CliError(ExitCode::kCancelled, "interrupted before the job was submitted");
