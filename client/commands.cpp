@@ -1,7 +1,6 @@
 #include "client/commands.h"
 
 #include <grpcpp/client_context.h>
-#include <optional>
 
 #include <algorithm>
 #include <atomic>

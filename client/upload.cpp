@@ -170,8 +170,8 @@ void upload_one(Connection& connection, v1::JobSpec& spec, const PendingUpload& 
   summary.bytes += result.bytes;
   if (data.particles && pending.frame >= 0) summary.particles[pending.frame] = *data.particles;
   progress.line("uploaded " + std::to_string(summary.uploads) + "/" + std::to_string(total) + ": " +
-                pending.description + ": " + (data.detail.empty() ? "" : data.detail + ", ") +
-                size_text(result.bytes) + " -> " + result.upload_id);
+                pending.description + ": " + (data.detail.empty() ? "" : data.detail + ", ") + size_text(result.bytes) +
+                " -> " + result.upload_id);
 }
 
 }  // namespace

@@ -93,9 +93,10 @@ grpc::Status Job::append_frames(const v1::AppendFramesRequest& request, std::vec
     }
     if (!open_) {
       return {grpc::StatusCode::FAILED_PRECONDITION,
-              "job " + id_ + (runner_ && runner_->open() ? " has already ended its sequence (end was sent)"
-                                                         : " is not an open sequence (submit it with "
-                                                           "spec.particles.open)") +
+              "job " + id_ +
+                  (runner_ && runner_->open() ? " has already ended its sequence (end was sent)"
+                                              : " is not an open sequence (submit it with "
+                                                "spec.particles.open)") +
                   ": no frame can join it"};
     }
   }
@@ -107,9 +108,9 @@ grpc::Status Job::append_frames(const v1::AppendFramesRequest& request, std::vec
       std::lock_guard lock(mutex_);
       if (is_terminal(state_)) return grpc::Status::OK;
       error_.set_code(kGrpcAborted);
-      error_.set_message(utf8_prefix("the client ended the sequence after " + std::to_string(tasks_total_) +
-                                         " frames: " + request.abort_reason(),
-                                     wire::kMaxErrorBytes));
+      error_.set_message(utf8_prefix(
+          "the client ended the sequence after " + std::to_string(tasks_total_) + " frames: " + request.abort_reason(),
+          wire::kMaxErrorBytes));
       open_ = false;
       finish_locked(v1::JOB_STATE_FAILED);
     }
@@ -161,12 +162,12 @@ bool Job::expire_if_idle(std::chrono::steady_clock::time_point cutoff,
     if (!open_ || is_terminal(state_) || cancel_requested_ || suspended_) return false;
     if (std::max(last_append_, last_upload) >= cutoff) return false;
     error_.set_code(static_cast<int>(grpc::StatusCode::DEADLINE_EXCEEDED));
-    error_.set_message(utf8_prefix(
-        "the open sequence got no frame, no end and no upload for " +
-            format_number(std::chrono::duration<double>(timeout).count()) + " s" +
-            " (the server's --upload-idle-timeout) after " + std::to_string(tasks_total_) +
-            " frames: its client stopped sending (disconnected?); frames already done are kept",
-        wire::kMaxErrorBytes));
+    error_.set_message(
+        utf8_prefix("the open sequence got no frame, no end and no upload for " +
+                        format_number(std::chrono::duration<double>(timeout).count()) + " s" +
+                        " (the server's --upload-idle-timeout) after " + std::to_string(tasks_total_) +
+                        " frames: its client stopped sending (disconnected?); frames already done are kept",
+                    wire::kMaxErrorBytes));
     open_ = false;
     finish_locked(v1::JOB_STATE_FAILED);
   }

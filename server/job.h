@@ -2,6 +2,8 @@
 // its tasks; a job runner (server/runners/runner.h) computes them.
 #pragma once
 
+#include <grpcpp/support/status.h>
+
 #include <atomic>
 #include <chrono>
 #include <cstdint>
@@ -13,8 +15,6 @@
 #include <set>
 #include <string>
 #include <vector>
-
-#include <grpcpp/support/status.h>
 
 #include "core/util/run_control.h"
 #include "server/runners/runner.h"

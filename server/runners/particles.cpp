@@ -82,8 +82,7 @@ class ParticlesRunner final : public JobRunner {
     for (std::size_t i = 0; i < frames_.size(); ++i) probe.add_frames();
     probe.mutable_frames()->MergeFrom(frames);
     for (int i = 0; i < frames.size(); ++i) {
-      interpolate_.push_back(
-          wire::interpolated_attributes(probe, static_cast<int>(frames_.size()), "spec.particles"));
+      interpolate_.push_back(wire::interpolated_attributes(probe, static_cast<int>(frames_.size()), "spec.particles"));
       frames_.push_back(frames[i]);
     }
   }
@@ -223,8 +222,7 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
   const Aabb quantization_box = encoding.options.draco.quantization_bounds.value_or(box);
   return std::make_unique<ParticlesRunner>(job, std::move(interpolate), context.uploads, std::move(options),
                                            FrameMaker(encoding, context.limits.max_triangles, context.executor),
-                                           context.limits, context.worker_threads, context.memory,
-                                           quantization_box);
+                                           context.limits, context.worker_threads, context.memory, quantization_box);
 }
 
 }  // namespace surfacer::server
