@@ -10,6 +10,7 @@
 #include <iomanip>
 #include <map>
 #include <mutex>
+#include <optional>
 #include <ostream>
 #include <sstream>
 
@@ -142,12 +143,18 @@ ExitCode run_single(const ConnectOptions& connect, PreparedJob prepared, const F
     if (watcher != nullptr) watcher->stop();
   });
 
-  // Inputs are read and uploaded one at a time; a bad file stops here, before any job is queued.
-  const UploadSummary uploaded = upload_inputs(*connection, spec, prepared.uploads, progress, &interrupted);
+  // Inputs are read and uploaded one at a time; a bad file stops here, before any job is queued. A particle sequence
+  // goes as an open one where the server takes it: submitted with its first frame, the others uploaded while the
+  // server surfaces the earlier ones (SequenceFeeder; docs/ALGORITHMS.md §5, "Open sequences").
+  const bool open_sequence = streams_as_open_sequence(*connection, spec, prepared.uploads);
+  // Every frame is read once first: a bad file fails here, and the quantization box is the whole sequence's.
+  if (open_sequence) pin_particles_from_inputs(prepared, input_limits(*connection));
+  UploadSummary uploaded =
+      upload_inputs(*connection, spec, prepared.uploads, progress, &interrupted, open_sequence ? 1 : SIZE_MAX);
   if (interrupted) throw CliError(ExitCode::kCancelled, "interrupted before the job was submitted");
 
   v1::Job job;
-  const std::string id = submit_job(*connection, spec, &job);
+  const std::string id = submit_job(*connection, open_sequence ? open_sequence_spec(spec) : spec, &job);
   {
     std::lock_guard lock(mutex);
     job_id = id;
@@ -156,8 +163,12 @@ ExitCode run_single(const ConnectOptions& connect, PreparedJob prepared, const F
     cancel_job(*connection, id);
     throw CliError(ExitCode::kCancelled, "interrupted: job " + id + " cancelled");
   }
+  std::optional<SequenceFeeder> feeder;
   std::string frames;
-  if (job.frames_total() > 0) {
+  if (open_sequence) {
+    feeder.emplace(*connection, id, spec, prepared.uploads, uploaded, progress, &interrupted);
+    frames = " (" + std::to_string(prepared.uploads.size()) + " frames, the rest uploaded while it runs)";
+  } else if (job.frames_total() > 0) {
     frames = " (" + std::to_string(job.frames_total()) + " frame" + (job.frames_total() == 1 ? "" : "s") + ")";
   }
   progress.line("submitted job " + id + frames + " to " + connection->describe());
@@ -183,6 +194,11 @@ ExitCode run_single(const ConnectOptions& connect, PreparedJob prepared, const F
   {
     std::lock_guard lock(mutex);
     watcher = nullptr;
+  }
+  if (feeder) {
+    // A frame that could not be read or uploaded failed the job: its error is the one to report.
+    if (result.job.state() != v1::JOB_STATE_SUCCEEDED) feeder->stop();
+    uploaded = feeder->finish();
   }
   return finish_watch(result, writer, progress, start, interrupted, sink, uploaded.particles);
 }

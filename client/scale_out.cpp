@@ -511,11 +511,7 @@ void pin_whole_job_geometry(v1::JobSpec& spec, const std::vector<wire::ParticleS
   if (spec.has_particles()) pin_particles(spec, particle_frames, first_frame);
 }
 
-namespace {
-
-// Reads every particle frame once (the files are read again, batch by batch, when uploaded) to pin the whole
-// sequence's quantization box.
-void pin_particles_from_inputs(PreparedJob& prepared) {
+void pin_particles_from_inputs(PreparedJob& prepared, const InputLimits& limits) {
   v1::JobSpec scratch = prepared.spec;
   const int frames = scratch.particles().frames_size();
   std::vector<wire::ParticleSummary> boxes(static_cast<std::size_t>(frames));
@@ -535,7 +531,7 @@ void pin_particles_from_inputs(PreparedJob& prepared) {
       if (p.frame == g) pending = &p;
     }
     if (pending != nullptr) {
-      const UploadData data = pending->read(scratch, InputLimits{});  // before connecting: each server checks its own
+      const UploadData data = pending->read(scratch, limits);
       const bool with_radius = scratch.particles().frames(g).with_radius();
       std::size_t floats = with_radius ? 4 : 3;
       for (const v1::ParticleAttribute& a : scratch.particles().frames(g).attributes()) {
@@ -559,8 +555,6 @@ void pin_particles_from_inputs(PreparedJob& prepared) {
   pin_whole_job_geometry(prepared.spec, boxes, first);
 }
 
-}  // namespace
-
 ExitCode run_scale_out(const ConnectOptions& connect, const std::vector<std::string>& servers, PreparedJob prepared,
                        const FrameOutputOptions& output, std::ostream& err, ProgressMode mode) {
   const auto start = std::chrono::steady_clock::now();
@@ -572,7 +566,7 @@ ExitCode run_scale_out(const ConnectOptions& connect, const std::vector<std::str
   }
   for (const std::string& server : servers) check_token_transport(server, connect.security);
   if (prepared.spec.has_particles()) {
-    pin_particles_from_inputs(prepared);
+    pin_particles_from_inputs(prepared);  // before connecting: each server checks its own limits
   } else {
     pin_whole_job_geometry(prepared.spec, {}, {});
   }

@@ -62,6 +62,12 @@ std::optional<std::string> find_upload_reference(const v1::JobSpec& spec);
 void pin_whole_job_geometry(v1::JobSpec& spec, const std::vector<wire::ParticleSummary>& particle_frames,
                             const std::vector<Vec3>& first_frame);
 
+// Reads every particle frame of `prepared` once within `limits` (the uploads read them again), which refuses a bad
+// file before any job is queued (CliError(kUsage) naming it), and pins the whole sequence's quantization box
+// (pin_whole_job_geometry) unless the spec gives one. For jobs whose frames are uploaded while the job runs: a
+// sequence split across servers, an open sequence.
+void pin_particles_from_inputs(PreparedJob& prepared, const InputLimits& limits = {});
+
 // The whole `run` of a sequence job across `servers` (already resolved "HOST:PORT" targets, at least two).
 // Returns kSuccess or throws CliError (see the header comment for the codes).
 ExitCode run_scale_out(const ConnectOptions& connect, const std::vector<std::string>& servers, PreparedJob prepared,

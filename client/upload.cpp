@@ -12,6 +12,7 @@
 #include "client/connection.h"
 #include "client/exit_codes.h"
 #include "client/progress.h"
+#include "client/rpc_error.h"
 #include "core/util/crc32.h"
 #include "core/util/format.h"
 
@@ -150,32 +151,127 @@ InputLimits input_limits(Connection& connection) {
   return limits;
 }
 
+namespace {
+
+// Reads and uploads one pending input within `limits`, filling the spec's upload id; one progress line ("uploaded
+// N/TOTAL: ...").
+void upload_one(Connection& connection, v1::JobSpec& spec, const PendingUpload& pending, const InputLimits& limits,
+                ProgressDisplay& progress, const std::atomic<bool>* stop, int total, UploadSummary& summary) {
+  // Read one input, upload it, drop it: only one input is in memory at a time.
+  UploadData data = pending.read(spec, limits);
+  const std::uint64_t size = data.file ? data.file_bytes : data.bytes.size();
+  UploadSettings settings;
+  settings.deadline = upload_deadline(connection, size);
+  settings.stop = stop;
+  const UploadResult result = data.file ? upload_file(connection.stub(), data.name, *data.file, settings)
+                                        : upload_bytes(connection.stub(), data.name, data.bytes, settings);
+  pending.set_id(spec, result.upload_id);
+  ++summary.uploads;
+  summary.bytes += result.bytes;
+  if (data.particles && pending.frame >= 0) summary.particles[pending.frame] = *data.particles;
+  progress.line("uploaded " + std::to_string(summary.uploads) + "/" + std::to_string(total) + ": " +
+                pending.description + ": " + (data.detail.empty() ? "" : data.detail + ", ") + size_text(result.bytes) +
+                " -> " + result.upload_id);
+}
+
+}  // namespace
+
 UploadSummary upload_inputs(Connection& connection, v1::JobSpec& spec, const std::vector<PendingUpload>& uploads,
-                            ProgressDisplay& progress, const std::atomic<bool>* stop) {
+                            ProgressDisplay& progress, const std::atomic<bool>* stop, std::size_t count) {
   UploadSummary summary;
   const InputLimits limits = uploads.empty() ? InputLimits{} : input_limits(connection);
   const int total = static_cast<int>(uploads.size());
-  for (const PendingUpload& pending : uploads) {
+  for (std::size_t i = 0; i < std::min(count, uploads.size()); ++i) {
     if (stop != nullptr && stop->load()) {
       throw CliError(ExitCode::kCancelled, "interrupted before the job was submitted (while uploading inputs)");
     }
-    // Read one input, upload it, drop it: only one input is in memory at a time.
-    UploadData data = pending.read(spec, limits);
-    const std::uint64_t size = data.file ? data.file_bytes : data.bytes.size();
-    UploadSettings settings;
-    settings.deadline = upload_deadline(connection, size);
-    settings.stop = stop;
-    const UploadResult result = data.file ? upload_file(connection.stub(), data.name, *data.file, settings)
-                                          : upload_bytes(connection.stub(), data.name, data.bytes, settings);
-    pending.set_id(spec, result.upload_id);
-    ++summary.uploads;
-    summary.bytes += result.bytes;
-    if (data.particles && pending.frame >= 0) summary.particles[pending.frame] = *data.particles;
-    progress.line("uploaded " + std::to_string(summary.uploads) + "/" + std::to_string(total) + ": " +
-                  pending.description + ": " + (data.detail.empty() ? "" : data.detail + ", ") +
-                  size_text(result.bytes) + " -> " + result.upload_id);
+    upload_one(connection, spec, uploads[i], limits, progress, stop, total, summary);
   }
   return summary;
+}
+
+bool streams_as_open_sequence(Connection& connection, const v1::JobSpec& spec,
+                              const std::vector<PendingUpload>& uploads) {
+  if (!spec.has_particles() || uploads.size() < 2 || spec.particles().frames_size() != static_cast<int>(uploads.size()))
+    return false;
+  for (std::size_t i = 0; i < uploads.size(); ++i) {
+    if (uploads[i].frame != static_cast<int>(i)) return false;
+  }
+  const auto& info = connection.server_info();
+  return info && info->open_sequences();
+}
+
+v1::JobSpec open_sequence_spec(const v1::JobSpec& spec) {
+  v1::JobSpec first = spec;
+  v1::ParticlesJob& job = *first.mutable_particles();
+  while (job.frames_size() > 1) job.mutable_frames()->RemoveLast();
+  job.set_open(true);
+  return first;
+}
+
+v1::Job append_frames(Connection& connection, const std::string& job_id, const std::vector<v1::ParticleFrame>& frames,
+                      bool end, const std::string& abort_reason) {
+  v1::AppendFramesRequest request;
+  request.set_job_id(job_id);
+  for (const v1::ParticleFrame& frame : frames) *request.add_frames() = frame;
+  request.set_end(end);
+  request.set_abort_reason(abort_reason);
+  grpc::ClientContext context;
+  context.set_deadline(connection.unary_deadline());
+  v1::Job job;
+  const grpc::Status status = connection.stub().AppendFrames(&context, request, &job);
+  if (!status.ok()) throw rpc_error("adding frames to job " + job_id, status);
+  return job;
+}
+
+SequenceFeeder::SequenceFeeder(Connection& connection, std::string job_id, v1::JobSpec spec,
+                               std::vector<PendingUpload> uploads, UploadSummary summary, ProgressDisplay& progress,
+                               const std::atomic<bool>* stop)
+    : connection_(connection),
+      job_id_(std::move(job_id)),
+      spec_(std::move(spec)),
+      uploads_(std::move(uploads)),
+      summary_(std::move(summary)),
+      progress_(progress),
+      stop_(stop),
+      thread_([this] { run(); }) {}
+
+SequenceFeeder::~SequenceFeeder() {
+  quit_ = true;
+  if (thread_.joinable()) thread_.join();
+}
+
+void SequenceFeeder::run() {
+  const InputLimits limits = input_limits(connection_);
+  const int total = static_cast<int>(uploads_.size());
+  const auto stopped = [this] {
+    if (stop_ != nullptr && stop_->load()) quit_ = true;
+    return quit_.load();
+  };
+  for (int k = 1; k < total && !stopped(); ++k) {
+    try {
+      upload_one(connection_, spec_, uploads_[k], limits, progress_, &quit_, total, summary_);
+      append_frames(connection_, job_id_, {spec_.particles().frames(k)}, k + 1 == total);
+    } catch (const CliError& e) {
+      // A job that has finished (cancelled by Ctrl-C, failed on a frame) takes no more frames: nothing to report.
+      if (stopped() || e.status_code() == static_cast<int>(grpc::StatusCode::FAILED_PRECONDITION)) return;
+      error_ = std::current_exception();
+      try {
+        append_frames(connection_, job_id_, {}, false, uploads_[k].description + ": " + e.what());
+      } catch (const CliError&) {
+        // The server is gone or the job is over: the watcher reports that.
+      }
+      return;
+    }
+  }
+}
+
+void SequenceFeeder::stop() { quit_ = true; }
+
+UploadSummary SequenceFeeder::finish() {
+  if (thread_.joinable()) thread_.join();
+  if (error_) std::rethrow_exception(error_);
+  return summary_;
 }
 
 }  // namespace surfacer::client

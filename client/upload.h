@@ -6,12 +6,14 @@
 #include <atomic>
 #include <chrono>
 #include <cstdint>
+#include <exception>
 #include <filesystem>
 #include <functional>
 #include <map>
 #include <optional>
 #include <string>
 #include <string_view>
+#include <thread>
 #include <vector>
 
 #include "client/frame_assembler.h"
@@ -83,8 +85,57 @@ InputLimits input_limits(Connection& connection);
 
 // Reads and uploads every pending input in order (read within input_limits()), filling the spec's upload ids; one
 // progress line per input. Errors as read() and upload_bytes()/upload_file(); CliError(kCancelled) when `stop`
-// fires in between.
+// fires in between. `count`: only the first `count` inputs (an open sequence's first frame).
 UploadSummary upload_inputs(Connection& connection, v1::JobSpec& spec, const std::vector<PendingUpload>& uploads,
-                            ProgressDisplay& progress, const std::atomic<bool>* stop = nullptr);
+                            ProgressDisplay& progress, const std::atomic<bool>* stop = nullptr,
+                            std::size_t count = SIZE_MAX);
+
+// --- Open sequences (ParticlesJob.open, AppendFrames; docs/ALGORITHMS.md §5, "Open sequences") ---------------------
+
+// Whether `spec` can go to the server of `connection` as an open sequence: a particles job whose inputs are its
+// frames, each uploaded, more than one, to a server whose ServerInfo says open_sequences (older servers take the
+// whole sequence at submit, as before).
+bool streams_as_open_sequence(Connection& connection, const v1::JobSpec& spec,
+                              const std::vector<PendingUpload>& uploads);
+// The spec an open sequence is submitted with: `spec`'s options and first frame, open set.
+v1::JobSpec open_sequence_spec(const v1::JobSpec& spec);
+// AppendFrames: `frames` join open job `job_id` (`end`: the last ones), or, with `abort_reason`, the job fails with
+// it. Throws rpc_error("adding frames to job ID", status) (FAILED_PRECONDITION once the job has finished).
+v1::Job append_frames(Connection& connection, const std::string& job_id, const std::vector<v1::ParticleFrame>& frames,
+                      bool end, const std::string& abort_reason = "");
+
+// Uploads frames 1.. of an open sequence on a thread of its own, one at a time, each appended to the job once
+// uploaded (the last with end), while the caller watches the job: the server surfaces frame k while frame k + 1
+// uploads. A frame that cannot be read or uploaded fails the job (AppendFrames' abort_reason), and its error is
+// rethrown by finish(); a job that finished meanwhile (cancelled, failed) just stops the uploads.
+class SequenceFeeder {
+ public:
+  // `spec`: the whole job, frame 0 uploaded; `summary`: what uploading frame 0 gave. `stop` (may be null) ends the
+  // uploads (Ctrl-C). `progress` must outlive the feeder.
+  SequenceFeeder(Connection& connection, std::string job_id, v1::JobSpec spec, std::vector<PendingUpload> uploads,
+                 UploadSummary summary, ProgressDisplay& progress, const std::atomic<bool>* stop);
+  ~SequenceFeeder();  // stops and joins
+  SequenceFeeder(const SequenceFeeder&) = delete;
+  SequenceFeeder& operator=(const SequenceFeeder&) = delete;
+
+  // Abandons the uploads still to come and the one in flight (the job has finished).
+  void stop();
+  // Waits for the uploads to end; returns what was uploaded, or rethrows the error that failed the job.
+  UploadSummary finish();
+
+ private:
+  void run();
+
+  Connection& connection_;
+  const std::string job_id_;
+  v1::JobSpec spec_;
+  const std::vector<PendingUpload> uploads_;
+  UploadSummary summary_;
+  ProgressDisplay& progress_;
+  const std::atomic<bool>* stop_;
+  std::atomic<bool> quit_{false};
+  std::exception_ptr error_;
+  std::thread thread_;
+};
 
 }  // namespace surfacer::client

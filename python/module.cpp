@@ -577,6 +577,56 @@ class Client {
         [stop] { *stop = true; });
   }
 
+  // --- Open sequences (client/upload.h): a job submitted with its first frame, the others appended as they come.
+
+  // Whether the server takes open sequences (ServerInfo.open_sequences).
+  bool open_sequences() {
+    py::gil_scoped_release release;
+    const auto& info = connection().server_info();
+    return info && info->open_sequences();
+  }
+
+  // As submit(), with the job open (ParticlesJob.open): `inputs` holds its first frame.
+  std::string submit_open(const std::string& kind, const py::tuple& inputs, const py::dict& kwargs) {
+    auto in = std::make_shared<Inputs>();
+    const JobOptions options = job_options(kind, inputs, kwargs, *in);
+    auto prepared = std::make_shared<PreparedJob>(prepare_job(options, in->memory));
+    Connection& connection = this->connection();
+    auto stop = std::make_shared<std::atomic<bool>>(false);
+    return interruptible<std::string>(
+        [&connection, in, prepared, stop]() {
+          std::ostringstream quiet;
+          ProgressDisplay progress(quiet, false);
+          upload_inputs(connection, prepared->spec, prepared->uploads, progress, stop.get());
+          if (*stop) throw CliError(ExitCode::kCancelled, "interrupted before the job was submitted");
+          const std::string id = submit_job(connection, open_sequence_spec(prepared->spec));
+          if (*stop) cancel_job(connection, id);
+          return id;
+        },
+        [stop] { *stop = true; });
+  }
+
+  // Prepares `inputs` (one frame) with the job's keywords, as submit() would, uploads it and appends it to the open
+  // job `job_id` (called from the thread that drains the caller's iterable; the GIL is released while uploading).
+  void append(const std::string& job_id, const std::string& kind, const py::tuple& inputs, const py::dict& kwargs) {
+    Inputs in;
+    const JobOptions options = job_options(kind, inputs, kwargs, in);
+    PreparedJob prepared = prepare_job(options, in.memory);
+    Connection& connection = this->connection();
+    py::gil_scoped_release release;
+    std::ostringstream quiet;
+    ProgressDisplay progress(quiet, false);
+    upload_inputs(connection, prepared.spec, prepared.uploads, progress);
+    append_frames(connection, job_id, {prepared.spec.particles().frames(0)}, false);
+  }
+
+  // Ends the open job's sequence, or with `abort_reason` fails the job with it.
+  void end(const std::string& job_id, const std::string& abort_reason) {
+    Connection& connection = this->connection();
+    py::gil_scoped_release release;
+    append_frames(connection, job_id, {}, abort_reason.empty(), abort_reason);
+  }
+
   py::object status(const std::string& id) {
     v1::Job job;
     {
@@ -997,6 +1047,10 @@ PYBIND11_MODULE(_surfacer, m) {
       .def_property_readonly("local", &Client::local)
       .def("describe", &Client::describe)
       .def("submit", &Client::submit, py::arg("kind"), py::arg("inputs"), py::arg("options"))
+      .def("open_sequences", &Client::open_sequences)
+      .def("submit_open", &Client::submit_open, py::arg("kind"), py::arg("inputs"), py::arg("options"))
+      .def("append", &Client::append, py::arg("job_id"), py::arg("kind"), py::arg("inputs"), py::arg("options"))
+      .def("end", &Client::end, py::arg("job_id"), py::arg("abort_reason") = "")
       .def(
           "stream",
           [](Client& client, const std::string& job_id, int from_frame, bool owns_job, py::object progress) {

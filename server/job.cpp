@@ -52,7 +52,10 @@ Job::Job(JobInit init)
       upload_ids_(std::move(init.upload_ids)),
       hooks_(init.hooks),
       tasks_total_(runner_ ? runner_->task_count() : 0),
-      frames_total_(runner_ ? runner_->frame_count() : 0) {
+      frames_total_(runner_ ? runner_->frame_count() : 0),
+      spec_(std::move(init.spec)),
+      open_(runner_ && runner_->open()) {
+  if (!open_) spec_.Clear();
   created_ = now_timestamp();
   progress_.set_frames_total(frames_total_);
 }
@@ -69,6 +72,110 @@ JobInit plain_init(std::string id, std::string name, std::unique_ptr<JobRunner> 
 
 Job::Job(std::string id, std::string name, std::unique_ptr<JobRunner> runner)
     : Job(plain_init(std::move(id), std::move(name), std::move(runner))) {}
+
+std::vector<std::string> Job::upload_ids() const {
+  std::lock_guard lock(mutex_);
+  return upload_ids_;
+}
+
+bool Job::open() const {
+  std::lock_guard lock(mutex_);
+  return open_;
+}
+
+grpc::Status Job::append_frames(const v1::AppendFramesRequest& request, std::vector<int>& tasks) {
+  std::lock_guard append_lock(append_mutex_);
+  {
+    std::lock_guard lock(mutex_);
+    if (is_terminal(state_) || cancel_requested_) {
+      return {grpc::StatusCode::FAILED_PRECONDITION,
+              "job " + id_ + " has finished (" + v1::JobState_Name(state_) + "): no frame can join it"};
+    }
+    if (!open_) {
+      return {grpc::StatusCode::FAILED_PRECONDITION,
+              "job " + id_ +
+                  (runner_ && runner_->open() ? " has already ended its sequence (end was sent)"
+                                              : " is not an open sequence (submit it with "
+                                                "spec.particles.open)") +
+                  ": no frame can join it"};
+    }
+  }
+  if (!request.abort_reason().empty()) {
+    if (request.frames_size() > 0 || request.end()) {
+      return {grpc::StatusCode::INVALID_ARGUMENT, "abort_reason is sent alone, without frames or end"};
+    }
+    {
+      std::lock_guard lock(mutex_);
+      if (is_terminal(state_)) return grpc::Status::OK;
+      error_.set_code(kGrpcAborted);
+      error_.set_message(utf8_prefix(
+          "the client ended the sequence after " + std::to_string(tasks_total_) + " frames: " + request.abort_reason(),
+          wire::kMaxErrorBytes));
+      open_ = false;
+      finish_locked(v1::JOB_STATE_FAILED);
+    }
+    cancel_.cancel();  // stops the frames still running
+    finished_hooks();
+    notify();
+    return grpc::Status::OK;
+  }
+  try {
+    runner_->check_appended(request.frames(), "frames");
+    v1::ParticlesJob& stored = *spec_.mutable_particles();
+    stored.mutable_frames()->MergeFrom(request.frames());
+    stored.set_open(!request.end());
+    if (store_) store_->update_job_spec(id_, spec_);
+  } catch (...) {
+    // The stored spec is unchanged when the write failed; take the frames back out of the copy too.
+    v1::ParticlesJob& stored = *spec_.mutable_particles();
+    while (stored.frames_size() > tasks_total_) stored.mutable_frames()->RemoveLast();
+    stored.set_open(true);
+    return status_from_exception(std::current_exception());
+  }
+  runner_->append(request.frames());
+  bool finished = false;
+  {
+    std::lock_guard lock(mutex_);
+    for (const v1::ParticleFrame& frame : request.frames()) {
+      if (!frame.upload_id().empty()) upload_ids_.push_back(frame.upload_id());
+      tasks.push_back(tasks_total_++);
+    }
+    frames_total_ = std::max(frames_total_, tasks_total_);
+    progress_.set_frames_total(frames_total_);
+    // The fraction of an open sequence is of the frames known so far: it may drop as frames join.
+    progress_.set_fraction(static_cast<double>(tasks_done_) / std::max(1, tasks_total_));
+    ++progress_version_;
+    open_ = !request.end();
+    last_append_ = std::chrono::steady_clock::now();
+    bump_state_locked();
+    finished = settle_locked();
+  }
+  if (finished) finished_hooks();
+  notify();
+  return grpc::Status::OK;
+}
+
+bool Job::expire_if_idle(std::chrono::steady_clock::time_point cutoff,
+                         std::chrono::steady_clock::time_point last_upload, std::chrono::milliseconds timeout) {
+  {
+    std::lock_guard lock(mutex_);
+    if (!open_ || is_terminal(state_) || cancel_requested_ || suspended_) return false;
+    if (std::max(last_append_, last_upload) >= cutoff) return false;
+    error_.set_code(static_cast<int>(grpc::StatusCode::DEADLINE_EXCEEDED));
+    error_.set_message(
+        utf8_prefix("the open sequence got no frame, no end and no upload for " +
+                        format_number(std::chrono::duration<double>(timeout).count()) + " s" +
+                        " (the server's --upload-idle-timeout) after " + std::to_string(tasks_total_) +
+                        " frames: its client stopped sending (disconnected?); frames already done are kept",
+                    wire::kMaxErrorBytes));
+    open_ = false;
+    finish_locked(v1::JOB_STATE_FAILED);
+  }
+  cancel_.cancel();
+  finished_hooks();
+  notify();
+  return true;
+}
 
 std::int64_t Job::stored_bytes() const {
   std::lock_guard lock(mutex_);
@@ -529,7 +636,7 @@ bool Job::settle_locked() {
     finish_locked(v1::JOB_STATE_CANCELLED);
     return true;
   }
-  if (tasks_settled_ < tasks_total_) return false;
+  if (open_ || tasks_settled_ < tasks_total_) return false;  // an open sequence waits for frames or its end
   if (tasks_done_ == tasks_total_) frames_total_ = frames_done_;  // open-ended jobs end with what they emitted
   progress_.set_frames_total(frames_total_);
   finish_locked(tasks_done_ == tasks_total_ ? v1::JOB_STATE_SUCCEEDED : v1::JOB_STATE_FAILED);

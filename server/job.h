@@ -2,6 +2,8 @@
 // its tasks; a job runner (server/runners/runner.h) computes them.
 #pragma once
 
+#include <grpcpp/support/status.h>
+
 #include <atomic>
 #include <chrono>
 #include <cstdint>
@@ -74,6 +76,8 @@ struct JobInit {
   std::int64_t max_stored_bytes = 0;  // the owner's quota (0 = unlimited)
   std::vector<std::string> upload_ids;
   const JobHooks* hooks = nullptr;
+  // The spec as stored; kept (and rewritten in the store as frames join) only while the job is an open sequence.
+  v1::JobSpec spec;
 };
 
 class Job : public FrameSink {
@@ -88,7 +92,8 @@ class Job : public FrameSink {
   const std::string& id() const { return id_; }
   const std::string& owner() const { return owner_; }
   const std::string& kind() const { return kind_; }
-  const std::vector<std::string>& upload_ids() const { return upload_ids_; }
+  // The uploads the job uses (an open sequence's grow as frames join).
+  std::vector<std::string> upload_ids() const;
   // Bytes of this job's frames (in memory or in the store).
   std::int64_t stored_bytes() const;
   JobRunner& runner() { return *runner_; }
@@ -132,6 +137,17 @@ class Job : public FrameSink {
   void checkpoint(int task, int next_frame, std::string state) override;
   // fraction: of the current task.
   void set_progress(int frame_index, std::string_view stage, double fraction);
+  // --- Open sequences (ParticlesJob.open; docs/ALGORITHMS.md §5, "Open sequences") ---------------------------
+  // Adds the request's frames as new tasks (their indices go to `tasks`, for the scheduler), ends the sequence on
+  // `end`, or fails the job on `abort_reason`. The spec with the new frames is in the store before this returns.
+  // FAILED_PRECONDITION when the job is not an open sequence or has finished; the runner's refusal of a frame
+  // (INVALID_ARGUMENT naming frames[i], RESOURCE_EXHAUSTED past --max-frames); the store's (data_dir).
+  grpc::Status append_frames(const v1::AppendFramesRequest& request, std::vector<int>& tasks);
+  // Fails an open sequence that took no frame, no end and no upload of its owner since `cutoff` (last_upload: the
+  // owner's latest upload chunk); `timeout` is what the message names. Returns whether it did.
+  bool expire_if_idle(std::chrono::steady_clock::time_point cutoff, std::chrono::steady_clock::time_point last_upload,
+                      std::chrono::milliseconds timeout);
+  bool open() const;
   // Requests cancellation; returns true when this call finished the job (nothing was running).
   bool cancel(const std::string& reason);
   // The server is stopping with a durable store: running tasks stop (as on cancel) and the store holds the job as
@@ -159,9 +175,9 @@ class Job : public FrameSink {
   Store* const store_;
   Usage* const usage_;
   const std::int64_t max_stored_bytes_;
-  const std::vector<std::string> upload_ids_;
+  std::vector<std::string> upload_ids_;  // guarded by mutex_
   const JobHooks* const hooks_;
-  const int tasks_total_;
+  int tasks_total_;  // grows in an open sequence (guarded by mutex_)
   int frames_total_;
   CancelToken cancel_;
 
@@ -186,6 +202,11 @@ class Job : public FrameSink {
   google::protobuf::Timestamp created_, started_, finished_;
   std::chrono::steady_clock::time_point finished_steady_{};
   std::vector<std::weak_ptr<JobListener>> listeners_;
+  // Open sequences: the stored spec, whether frames may still join, and when one (or the request to end) last came.
+  std::mutex append_mutex_;  // one append at a time, held across the store write
+  v1::JobSpec spec_;
+  bool open_ = false;
+  std::chrono::steady_clock::time_point last_append_ = std::chrono::steady_clock::now();
   mutable std::atomic<bool> persist_pending_{false};
 };
 

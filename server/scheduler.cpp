@@ -60,6 +60,16 @@ void Scheduler::resume(std::shared_ptr<Job> job, std::vector<int> tasks) {
   for (int i = 0; i < n; ++i) pool_.post([this] { run_next_task(); });
 }
 
+void Scheduler::add_tasks(const std::shared_ptr<Job>& job, std::vector<int> tasks) {
+  const int n = static_cast<int>(tasks.size());
+  if (n == 0) return;
+  {
+    std::lock_guard lock(mutex_);
+    pending_.push_back({job, std::move(tasks), 0});
+  }
+  for (int i = 0; i < n; ++i) pool_.post([this] { run_next_task(); });
+}
+
 void Scheduler::run_next_task() {
   std::shared_ptr<Job> job;
   int task = -1;

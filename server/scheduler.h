@@ -28,6 +28,8 @@ class Scheduler {
   void submit(std::shared_ptr<Job> job, const std::function<void(int active)>& check_owner = {});
   // A job restored from the store: runs `tasks` (finished jobs: none; they are only kept for watching).
   void resume(std::shared_ptr<Job> job, std::vector<int> tasks);
+  // Tasks that joined a running job (an open sequence's new frames), queued behind the other jobs' tasks.
+  void add_tasks(const std::shared_ptr<Job>& job, std::vector<int> tasks);
   std::shared_ptr<Job> find(const std::string& id) const;
   std::vector<std::shared_ptr<Job>> list() const;
   int queued_jobs() const;

@@ -120,6 +120,8 @@ struct SurfacerServer::Impl {
 
   // Brings back what the store holds: uploads, finished jobs (for watching) and unfinished ones (resumed).
   void restore();
+  // Fails open sequences whose client went quiet (--upload-idle-timeout; Job::expire_if_idle).
+  void expire_idle_sequences();
   void retention();
   // Writes again the job states the store refused (see Job::persist).
   void retry_pending_writes();
@@ -246,6 +248,7 @@ void SurfacerServer::Impl::restore() {
     init.max_stored_bytes = tenant ? tenant->max_stored_bytes : 0;
     init.upload_ids = stored.upload_ids;
     init.hooks = &hooks;
+    init.spec = stored.spec;
     grpc::Status failure;
     if (!finished) {
       try {
@@ -290,7 +293,9 @@ void SurfacerServer::Impl::retention() {
   auto unused_uploads = [&] {
     std::set<std::string> used;
     for (const auto& job : scheduler.list()) {
-      if (!job->terminal()) used.insert(job->upload_ids().begin(), job->upload_ids().end());
+      if (job->terminal()) continue;
+      const std::vector<std::string> ids = job->upload_ids();
+      used.insert(ids.begin(), ids.end());
     }
     std::vector<UploadInfo> out;
     for (auto& u : uploads.list()) {
@@ -334,6 +339,17 @@ void SurfacerServer::Impl::retention() {
   }
 }
 
+void SurfacerServer::Impl::expire_idle_sequences() {
+  const std::chrono::milliseconds timeout = state.options.upload_idle_timeout;
+  const auto cutoff = std::chrono::steady_clock::now() - timeout;
+  for (const auto& job : scheduler.list()) {
+    if (!job->open()) continue;
+    if (job->expire_if_idle(cutoff, state.upload_activity.last(job->owner()), timeout)) {
+      log_event(LogLevel::kWarn, "sequence_idle", {{"job", job->id()}, {"note", "--upload-idle-timeout"}});
+    }
+  }
+}
+
 void SurfacerServer::Impl::retry_pending_writes() {
   if (!store) return;
   std::vector<std::shared_ptr<Job>> pending;
@@ -355,6 +371,7 @@ void SurfacerServer::Impl::janitor_loop() {
     if (shutting_down) break;
     lock.unlock();
     try {
+      expire_idle_sequences();
       retry_pending_writes();
       if (std::chrono::steady_clock::now() >= next_retention) {
         next_retention = std::chrono::steady_clock::now() + state.options.retention_interval;

@@ -300,6 +300,7 @@ class UploadReactor final : public grpc::ServerReadReactor<v1::UploadChunk>, pub
       }
       return;
     }
+    state_.upload_activity.touch(tenant_.name);
     if (const grpc::Status status = assembler_.add(chunk_); !status.ok()) {
       finished_ = true;
       lock.unlock();
@@ -495,8 +496,11 @@ void SurfacerService::submit(const v1::SubmitJobRequest& request, const Tenant& 
   init.max_stored_bytes = tenant.max_stored_bytes;
   init.upload_ids = std::move(uploads);
   init.hooks = state_.hooks;
+  v1::JobSpec stored_spec = request.spec();
+  init.runner->pin(stored_spec);  // what a restart must not derive again (an open sequence's box)
+  init.spec = stored_spec;
   auto job = std::make_shared<Job>(std::move(init));
-  if (state_.store) state_.store->put_job(job->id(), tenant.name, request.spec(), job->snapshot());
+  if (state_.store) state_.store->put_job(job->id(), tenant.name, stored_spec, job->snapshot());
   try {
     state_.scheduler->submit(job, check_running);
   } catch (...) {
@@ -514,6 +518,34 @@ grpc::ServerReadReactor<v1::UploadChunk>* SurfacerService::Upload(grpc::Callback
   const Tenant* tenant = authenticate(state_, *context, auth_status);
   if (!tenant) return new FailedRead(auth_status);
   return new UploadReactor(state_, *context, *tenant, response, *open_uploads_);
+}
+
+grpc::ServerUnaryReactor* SurfacerService::AppendFrames(grpc::CallbackServerContext* context,
+                                                        const v1::AppendFramesRequest* request, v1::Job* response) {
+  auto* reactor = context->DefaultReactor();
+  const Tenant* tenant = tenant_or_finish(state_, *context, reactor);
+  if (!tenant) return reactor;
+  auto job = find_owned(state_, request->job_id(), *tenant);
+  if (!job) {
+    reactor->Finish(invalid_job_id(request->job_id()));
+    return reactor;
+  }
+  grpc::Status status;
+  try {
+    wire::check_request_limits(*request, "request");
+    // Another tenant's uploads do not exist for this one.
+    for (const auto& [path, id] : Store::referenced_upload_fields(*request, "request")) {
+      if (!state_.uploads->owned_by(id, tenant->name)) throw wire::unknown_upload(id, path);
+    }
+    std::vector<int> tasks;
+    status = job->append_frames(*request, tasks);
+    state_.scheduler->add_tasks(job, std::move(tasks));
+  } catch (...) {
+    status = status_from_exception(std::current_exception());
+  }
+  if (status.ok()) *response = job->snapshot();
+  reactor->Finish(status);
+  return reactor;
 }
 
 grpc::ServerWriteReactor<v1::JobEvent>* SurfacerService::WatchJob(grpc::CallbackServerContext* context,
@@ -656,6 +688,7 @@ grpc::ServerUnaryReactor* SurfacerService::GetServerInfo(grpc::CallbackServerCon
   out->set_max_id_bytes(static_cast<std::int32_t>(wire::kMaxIdBytes));
   out->set_max_scene_depth(wire::kMaxSceneDepth);
   out->set_max_list_page_size(wire::kMaxListPageSize);
+  response->set_open_sequences(true);
   reactor->Finish(grpc::Status::OK);
   return reactor;
 }

@@ -33,6 +33,7 @@ struct ServiceState {
   const JobHooks* hooks = nullptr;
   ServerMetrics* metrics = nullptr;
   MemoryBudget* memory = nullptr;  // --memory-budget: uploads being received and watch streams draw from it
+  UploadActivity upload_activity;  // each tenant's latest upload chunk (open sequences' idle check)
   std::atomic<bool> accepting{true};
 };
 
@@ -49,6 +50,8 @@ class SurfacerService final : public v1::Surfacer::WithRawCallbackMethod_SubmitJ
                                       grpc::ByteBuffer* response) override;
   grpc::ServerReadReactor<v1::UploadChunk>* Upload(grpc::CallbackServerContext* context,
                                                    v1::UploadResponse* response) override;
+  grpc::ServerUnaryReactor* AppendFrames(grpc::CallbackServerContext* context, const v1::AppendFramesRequest* request,
+                                         v1::Job* response) override;
   grpc::ServerWriteReactor<v1::JobEvent>* WatchJob(grpc::CallbackServerContext* context,
                                                    const v1::WatchJobRequest* request) override;
   grpc::ServerUnaryReactor* GetJob(grpc::CallbackServerContext* context, const v1::GetJobRequest* request,

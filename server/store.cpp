@@ -309,6 +309,13 @@ void Store::update_job(const v1::Job& snapshot) {
   s.run();
 }
 
+void Store::update_job_spec(const std::string& id, const v1::JobSpec& spec) {
+  std::lock_guard lock(mutex_);
+  Stmt s(db_, "UPDATE jobs SET spec = ? WHERE id = ?");
+  s.blob(1, spec.SerializeAsString()).bind(2, id);
+  s.run();
+}
+
 void Store::put_frame(const std::string& job_id, const v1::FrameHeader& header, const std::string& bytes,
                       const RunControl& control) {
   const fs::path path = frame_path(job_id, header.frame_index());

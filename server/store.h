@@ -70,6 +70,8 @@ class Store {
   // the store is unchanged then.
   void put_job(const std::string& id, const std::string& owner, const v1::JobSpec& spec, const v1::Job& snapshot);
   void update_job(const v1::Job& snapshot);
+  // Replaces a job's spec (an open sequence's, as frames join it).
+  void update_job_spec(const std::string& id, const v1::JobSpec& spec);
   // Writes the frame's bytes and records its header, atomically. The bytes go out in pieces of a few MiB and
   // `control` is checked between them: a cancel leaves nothing stored and throws Cancelled.
   void put_frame(const std::string& job_id, const v1::FrameHeader& header, const std::string& bytes,

@@ -21,6 +21,18 @@ std::string random_id(const char* prefix) {
   return id;
 }
 
+void UploadActivity::touch(const std::string& owner) {
+  const auto now = std::chrono::steady_clock::now();
+  std::lock_guard lock(mutex_);
+  last_[owner] = now;
+}
+
+std::chrono::steady_clock::time_point UploadActivity::last(const std::string& owner) const {
+  std::lock_guard lock(mutex_);
+  auto it = last_.find(owner);
+  return it == last_.end() ? std::chrono::steady_clock::time_point::min() : it->second;
+}
+
 UploadStore::UploadStore(Store* store) : store_(store) {}
 
 void UploadStore::restore() {

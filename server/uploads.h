@@ -57,6 +57,19 @@ class UploadStore final : public wire::UploadLookup {
   std::int64_t total_bytes_ = 0;
 };
 
+// When each tenant last sent an upload chunk: an open sequence whose client is still uploading its next frame is not
+// idle (Job::expire_if_idle). Thread-safe.
+class UploadActivity {
+ public:
+  void touch(const std::string& owner);
+  // The time_point's minimum when `owner` never uploaded.
+  std::chrono::steady_clock::time_point last(const std::string& owner) const;
+
+ private:
+  mutable std::mutex mutex_;
+  std::unordered_map<std::string, std::chrono::steady_clock::time_point> last_;
+};
+
 // "u-" / "j-" + 16 random hex digits.
 std::string random_id(const char* prefix);
 

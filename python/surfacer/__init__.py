@@ -17,6 +17,7 @@ when the job succeeded (a fast job may send no other event); an exception it rai
 """
 
 import os
+import threading
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, Iterator, List, Optional
 
@@ -130,6 +131,17 @@ class Job:
         return "<surfacer.Job %s>" % self.id
 
 
+def _streams(frames) -> bool:
+    """Whether `frames` goes as an open sequence: an iterable that is not a list, tuple, array, dict or path."""
+    if isinstance(frames, (list, tuple, np.ndarray, dict, str, bytes, os.PathLike)):
+        return False
+    try:
+        iter(frames)
+    except TypeError:
+        return False
+    return True
+
+
 def _progress_callable(progress):
     if progress is not None and not callable(progress):
         raise TypeError("progress=%r is not callable: give a function progress(frame, stage, fraction)" % (progress,))
@@ -172,7 +184,16 @@ class Client:
         erosion, unconstrained_polish, vertex_only_band, min_angle_degrees (alias min_angle), container_box,
         container_solid (dict or path; alias container_scene), min_particles_per_component (alias min_particles),
         start, end, and every job's. Values are checked with the server's own checks before anything is
-        submitted (UsageError naming the keyword)."""
+        submitted (UsageError naming the keyword).
+
+        ``frames`` may also be any other iterable, a generator included: the job is then an open sequence, submitted
+        with the first frame it yields and taking each later one as it comes (uploaded from a thread of its own), so
+        that frames are surfaced and iterated while the iterable is still producing. Its quantization box is then the
+        first frame's grown by its own extent on every side unless ``quantization_bounds`` is given (a frame outside
+        fails the job, naming it); an exception the iterable raises fails the job with its text. A list (or tuple)
+        is uploaded whole before the job starts, as is any iterable for a server without open sequences."""
+        if _streams(frames):
+            return self._run_open("particles", frames, options)
         return self._run("particles", (frames,), options)
 
     def optimize(self, scene, **options) -> Job:
@@ -200,6 +221,34 @@ class Client:
         velocity_origin, velocity_spacing and velocity_dims. Options: grid_spacing, frame_interval, frames
         (required), enright_period (alias period), bounds, beta, gamma, delta, cfl, polygonizer, and every job's."""
         return self._run("active_advect", (scene,), options)
+
+    def _run_open(self, kind, frames, options) -> Job:
+        it = iter(frames)
+        try:
+            first = next(it)
+        except StopIteration:
+            return self._run(kind, ([],), options)
+        if not self._client.open_sequences():
+            return self._run(kind, ([first, *it],), options)
+        progress = _progress_callable(options.pop("progress", None))
+        job_id = self._client.submit_open(kind, ([first],), options)
+        job = Job(self._client.stream(job_id, 0, True, progress))
+
+        def feed():
+            index = 1
+            try:
+                for frame in it:
+                    self._client.append(job_id, kind, ([frame],), options)
+                    index += 1
+                self._client.end(job_id)
+            except Exception as e:  # the iterable failed, or the job refused the frame or has finished
+                try:
+                    self._client.end(job_id, "frame %d: %s: %s" % (index, type(e).__name__, e))
+                except Exception:
+                    pass  # the job has finished already (cancelled, failed): its iteration says why
+
+        threading.Thread(target=feed, name="surfacer-open-sequence", daemon=True).start()
+        return job
 
     def _run(self, kind, inputs, options) -> Job:
         progress = _progress_callable(options.pop("progress", None))

@@ -1,4 +1,9 @@
-// Job `particles`: particle frames -> one smooth, watertight mesh per frame (Williams 2008), frames in parallel.
+// Job `particles`: particle frames -> one smooth, watertight mesh per frame (Williams 2008), frames in parallel. An
+// open sequence (ParticlesJob.open) takes more frames while it runs (docs/ALGORITHMS.md §5, "Open sequences").
+#include <deque>
+#include <mutex>
+#include <span>
+
 #include "core/particles/attribute_interpolation.h"
 #include "core/particles/particle_surfacer.h"
 #include "core/util/errors.h"
@@ -7,36 +12,102 @@
 #include "server/runners/runner.h"
 #include "wire/job_options.h"
 #include "wire/particle_frames.h"
+#include "wire/scene.h"
 
 namespace surfacer::server {
 namespace {
 
 class ParticlesRunner final : public JobRunner {
  public:
-  ParticlesRunner(std::vector<v1::ParticleFrame> frames, std::vector<std::vector<std::string>> interpolate,
+  ParticlesRunner(v1::ParticlesJob job, std::vector<std::vector<std::string>> interpolate,
                   const wire::UploadLookup& uploads, ParticleSurfacingOptions options, FrameMaker frame_maker,
-                  const Limits& limits, int worker_threads, MemoryBudget* memory)
-      : frames_(std::move(frames)),
-        interpolate_(std::move(interpolate)),
+                  const Limits& limits, int worker_threads, MemoryBudget* memory, Aabb box)
+      : job_(std::move(job)),
+        frames_(job_.frames().begin(), job_.frames().end()),
+        interpolate_(interpolate.begin(), interpolate.end()),
         uploads_(uploads),
         options_(std::move(options)),
         frame_maker_(std::move(frame_maker)),
         limits_(limits),
         worker_threads_(worker_threads),
-        memory_(memory) {}
+        memory_(memory),
+        box_(box) {}
 
   std::string kind() const override { return "particles"; }
-  int task_count() const override { return static_cast<int>(frames_.size()); }
+  int task_count() const override {
+    std::lock_guard lock(mutex_);
+    return static_cast<int>(frames_.size());
+  }
   int frame_count() const override { return task_count(); }
+  bool open() const override { return job_.open(); }
+
+  void check_appended(const google::protobuf::RepeatedPtrField<v1::ParticleFrame>& frames,
+                      const std::string& path) const override {
+    if (!job_.open()) JobRunner::check_appended(frames, path);
+    const int first = task_count();
+    check_frame_count(static_cast<std::int64_t>(first) + frames.size(), path, limits_);
+    v1::ParticlesJob probe = job_;  // the job's options with the new frames at their indices
+    probe.clear_frames();
+    for (int i = 0; i < first; ++i) probe.add_frames();
+    probe.mutable_frames()->MergeFrom(frames);
+    for (int i = 0; i < frames.size(); ++i) {
+      const std::string at = path + "[" + std::to_string(i) + "]";
+      try {
+        wire::interpolated_attributes(probe, first + i, "spec.particles");
+        const wire::ParticleSummary summary =
+            wire::summarize_particle_frame(frames[i], at, uploads_, limits_.max_particles);
+        wire::require_r_inner_frame(probe, static_cast<std::size_t>(first + i), summary.max_radius > 0.0);
+        if (!frame_maker_.encoding().grid()) continue;  // lossless frames have no grid to leave
+        // The box this frame alone would need (its particles padded by the surface's reach) must lie in the job's.
+        const Aabb need = wire::particles_job_box(probe, std::span(&summary, 1), [&] {
+          return wire::load_particle_frame(frames[i], at, uploads_, limits_.max_particles).positions;
+        });
+        if ((need.min.array() < box_.min.array()).any() || (need.max.array() > box_.max.array()).any()) {
+          throw InvalidInput("spec.output.quantization_bounds",
+                             at + ": its surface can reach outside the job's quantization box (fixed by the first "
+                                  "frames of the open sequence); give spec.output.quantization_bounds "
+                                  "(--quantization-bounds) covering every frame");
+        }
+      } catch (const Error& e) {
+        if (e.kind() != ErrorKind::kInvalidInput || e.field() == "spec.output.quantization_bounds") throw;
+        throw InvalidInput(at, at + ": " + e.what());
+      }
+    }
+  }
+
+  void append(const google::protobuf::RepeatedPtrField<v1::ParticleFrame>& frames) override {
+    std::lock_guard lock(mutex_);
+    v1::ParticlesJob probe = job_;
+    probe.clear_frames();
+    for (std::size_t i = 0; i < frames_.size(); ++i) probe.add_frames();
+    probe.mutable_frames()->MergeFrom(frames);
+    for (int i = 0; i < frames.size(); ++i) {
+      interpolate_.push_back(wire::interpolated_attributes(probe, static_cast<int>(frames_.size()), "spec.particles"));
+      frames_.push_back(frames[i]);
+    }
+  }
+
+  void pin(v1::JobSpec& spec) const override {
+    if (job_.open() && !spec.output().has_quantization_bounds()) {
+      wire::set_bounds(*spec.mutable_output()->mutable_quantization_bounds(), box_);
+    }
+  }
 
   void run_task(int index, FrameSink& sink, const RunControl& control) override {
     const std::string path = "spec.particles.frames[" + std::to_string(index) + "]";
+    v1::ParticleFrame input;
+    std::vector<std::string> interpolate;
+    {
+      std::lock_guard lock(mutex_);
+      input = frames_[index];
+      interpolate = interpolate_[index];
+    }
     StageTimer timer;
-    const wire::ParticleData data = timer.run(
-        "decode", [&] { return wire::load_particle_frame(frames_[index], path, uploads_, limits_.max_particles); });
+    const wire::ParticleData data =
+        timer.run("decode", [&] { return wire::load_particle_frame(input, path, uploads_, limits_.max_particles); });
     ParticleSurfacingOptions options = options_;
-    // A single frame gets every core; a sequence runs its frames in parallel, one thread each.
-    options.threads = frames_.size() == 1 ? worker_threads_ : 1;
+    // A single frame gets every core; a sequence (an open one too) runs its frames in parallel, one thread each.
+    options.threads = frames_.size() == 1 && !job_.open() ? worker_threads_ : 1;
     ParticleSurfacingStats stats;
     TaskMemory memory(limits_, memory_, "particles frame " + std::to_string(index),
                       TaskMemory::kMeshWorkBytesPerTriangle);
@@ -51,9 +122,9 @@ class ParticlesRunner final : public JobRunner {
     timer.add("polish", stats.seconds_polish);
     if (options.erosion) timer.add("erosion", stats.seconds_erosion);
     timer.add("cleanup", stats.seconds_cleanup);
-    if (!interpolate_[index].empty()) {
+    if (!interpolate.empty()) {
       std::vector<Attribute> carried;
-      for (const std::string& name : interpolate_[index]) {
+      for (const std::string& name : interpolate) {
         for (const Attribute& a : data.attributes) {
           if (a.name == name) carried.push_back(a);
         }
@@ -88,15 +159,29 @@ class ParticlesRunner final : public JobRunner {
   }
 
  private:
-  std::vector<v1::ParticleFrame> frames_;
-  std::vector<std::vector<std::string>> interpolate_;  // per frame: the attributes carried onto its vertices
+  const v1::ParticlesJob job_;  // the options and the submitted frames (appended ones are in frames_ only)
+  mutable std::mutex mutex_;    // frames_ and interpolate_, which grow in an open sequence
+  std::deque<v1::ParticleFrame> frames_;
+  std::deque<std::vector<std::string>> interpolate_;  // per frame: the attributes carried onto its vertices
   const wire::UploadLookup& uploads_;
   ParticleSurfacingOptions options_;
   FrameMaker frame_maker_;
   Limits limits_;
   int worker_threads_;
   MemoryBudget* memory_;
+  Aabb box_;  // the quantization box
 };
+
+// An open sequence's quantization box when the request gives none: the submitted frames' box grown by its own
+// extent on every side, so that later frames may move about, and clipped to the container box as the frames' box is
+// (docs/ALGORITHMS.md §5, "Open sequences").
+Aabb open_sequence_box(const v1::ParticlesJob& job, const Aabb& box) {
+  const Vec3 extent = box.max - box.min;
+  Aabb grown{box.min - extent, box.max + extent};
+  // The frames' box lies inside the container already (particle_sequence_box), so the clipped box still holds it.
+  if (job.container().has_box()) grown.intersect(wire::to_aabb(job.container().box(), "spec.particles.container.box"));
+  return grown;
+}
 
 }  // namespace
 
@@ -118,9 +203,8 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
 
   // Every frame is checked now (so bad data fails the submit, not a frame later), and the quantization box is the
   // union of the frames' particles, padded by how far the surface can reach.
-  std::vector<v1::ParticleFrame> frames(job.frames().begin(), job.frames().end());
   std::vector<wire::ParticleSummary> summaries;
-  summaries.reserve(frames.size());
+  summaries.reserve(job.frames_size());
   std::vector<std::vector<std::string>> interpolate;
   for (int i = 0; i < job.frames_size(); ++i) {
     interpolate.push_back(wire::interpolated_attributes(job, i, path));
@@ -131,13 +215,14 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
     return wire::load_particle_frame(job.frames(0), path + ".frames[0]", context.uploads, context.limits.max_particles)
         .positions;
   });
-  const FrameEncoding encoding = wire::frame_encoding(spec.output(), box, "spec.output");
+  const FrameEncoding encoding =
+      wire::frame_encoding(spec.output(), job.open() ? open_sequence_box(job, box) : box, "spec.output");
   // The sliver repair also removes triangles that would be degenerate once quantized on the job's grid.
   options.output_grid = encoding.grid();
-  return std::make_unique<ParticlesRunner>(std::move(frames), std::move(interpolate), context.uploads,
-                                           std::move(options),
+  const Aabb quantization_box = encoding.options.draco.quantization_bounds.value_or(box);
+  return std::make_unique<ParticlesRunner>(job, std::move(interpolate), context.uploads, std::move(options),
                                            FrameMaker(encoding, context.limits.max_triangles, context.executor),
-                                           context.limits, context.worker_threads, context.memory);
+                                           context.limits, context.worker_threads, context.memory, quantization_box);
 }
 
 }  // namespace surfacer::server

@@ -49,6 +49,11 @@ std::int64_t TaskMemory::reserved_bytes() const {
   return reservation_.bytes();
 }
 
+void JobRunner::check_appended(const google::protobuf::RepeatedPtrField<v1::ParticleFrame>&,
+                               const std::string& path) const {
+  throw InvalidInput(path, "this " + kind() + " job is not an open sequence: frames cannot join it");
+}
+
 void check_frame_count(std::int64_t count, const std::string& field_path, const Limits& limits) {
   if (count > limits.max_frames) {
     throw ResourceLimit("max_frames", field_path + " asks for " + std::to_string(count) +

@@ -59,6 +59,20 @@ class JobRunner {
   // Called before run_task after a server restart with the task's last checkpoint (see FrameSink::checkpoint).
   // A runner that cannot use it ignores it and starts the task over (frames already stored are not sent again).
   virtual void resume_from(int /*task*/, int /*next_frame*/, std::string /*state*/) {}
+
+  // Open sequences (ParticlesJob.open; docs/ALGORITHMS.md §5, "Open sequences"): frames join the job while it runs,
+  // one task each. Whether the job was submitted open (it stays so until its end marker, which the job tracks).
+  virtual bool open() const { return false; }
+  // Checks `frames` (at `path`: "frames", named "frames[i]") as the job's next ones, from task_count() on, with the
+  // checks submit makes; throws surfacer::Error naming the frame (InvalidInput, ResourceLimit past --max-frames).
+  // A runner that is not open throws InvalidInput.
+  virtual void check_appended(const google::protobuf::RepeatedPtrField<v1::ParticleFrame>& frames,
+                              const std::string& path) const;
+  // Adds frames check_appended() accepted as tasks task_count(), task_count() + 1, ... Thread-safe with run_task.
+  virtual void append(const google::protobuf::RepeatedPtrField<v1::ParticleFrame>& /*frames*/) {}
+  // Writes into `spec` what the runner derived and must keep when it is rebuilt from the stored spec after a
+  // restart (an open sequence's quantization box, which later frames no longer define).
+  virtual void pin(v1::JobSpec& /*spec*/) const {}
 };
 
 struct JobContext {

@@ -146,6 +146,31 @@ TEST_F(CliJobsEndToEnd, ParticleSequenceByPatternWritesFramesInOrder) {
   EXPECT_NE(r.err.find("3 frames, "), std::string::npos) << r;
 }
 
+// `run` sends a particle sequence as an open one: the job is queued with its first frame, and the others join it as
+// they are uploaded (the server's log has the job submitted with one frame); the frames are the whole sequence's.
+TEST_F(CliJobsEndToEnd, ParticleSequenceJoinsTheJobFrameByFrame) {
+  for (int i = 0; i < 4; ++i) {
+    write_file(dir_ / ("drop_" + std::to_string(i) + ".xyz"), particle_ball(Vec3(0.1 * i, 0, 0), 0.2, 0.05, 20 + i));
+  }
+  ProcessResult r = cli({"run", "particles", "--input", (dir_ / "drop_{}.xyz").string(), "--r-inner", "0.03", "-o",
+                         (dir_ / "open").string(), "--format", "ply"});
+  ASSERT_EQ(r.code, 0) << r;
+  EXPECT_NE(r.err.find("(4 frames, the rest uploaded while it runs)"), std::string::npos) << r;
+  const std::size_t at = r.err.find("submitted job ");
+  ASSERT_NE(at, std::string::npos) << r;
+  const std::string id = r.err.substr(at + 14, r.err.find(' ', at + 14) - at - 14);
+  const std::string log = server_->log();
+  const std::size_t submitted = log.find("event=job_submitted job=" + id);
+  ASSERT_NE(submitted, std::string::npos) << id << "\n" << log;
+  EXPECT_NE(log.substr(submitted, log.find('\n', submitted) - submitted).find("frames=1"), std::string::npos) << log;
+  for (int i = 0; i < 4; ++i) {
+    const fs::path frame = dir_ / "open" / ("frame_000" + std::to_string(i) + ".ply");
+    ASSERT_TRUE(fs::exists(frame)) << frame << "\n" << r;
+    EXPECT_TRUE(mesh_file_has(frame, kClosedFrame));
+    EXPECT_NEAR(centroid(read_mesh(frame)).x(), 0.1 * i, 0.02) << "frame " << i;
+  }
+}
+
 TEST_F(CliJobsEndToEnd, BadParticleFileExitsTwoNamingFileAndLineAndQueuesNoJob) {
   write_file(dir_ / "drop_0.xyz", particle_ball(Vec3(0, 0, 0), 0.2, 0.05, 3));
   write_file(dir_ / "drop_1.xyz", "0 0 0\n0.1 0.1 0.1\n0.2 zero 0.2\n");
