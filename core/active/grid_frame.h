@@ -21,8 +21,8 @@ class GridFrame {
   // is unbounded and node (0, 0, 0) is at the coordinate origin.
   GridFrame(double h, double band_width, const std::optional<Aabb>& domain);
 
-  double spacing() const { return h_; }
-  double inv_spacing() const { return inv_h_; }
+  double spacing() const { return spacing_; }
+  double inv_spacing() const { return inv_spacing_; }
   // The ramp's half-width w (units of h): f = clamp(-d / (w h), -1, 1).
   double band_width() const { return ramp_; }
   const Vec3& origin() const { return origin_; }
@@ -31,8 +31,8 @@ class GridFrame {
   std::int64_t last_node(int axis) const { return last_node_[axis]; }
 
   Vec3 node_position(const sparse::BlockCoord& b, int x, int y, int z) const {
-    return origin_ + h_ * Vec3(double(sparse::kBlockSize) * b[0] + x, double(sparse::kBlockSize) * b[1] + y,
-                               double(sparse::kBlockSize) * b[2] + z);
+    return origin_ + spacing_ * Vec3(double(sparse::kBlockSize) * b[0] + x, double(sparse::kBlockSize) * b[1] + y,
+                                     double(sparse::kBlockSize) * b[2] + z);
   }
   bool node_in_domain(const sparse::BlockCoord& b, int x, int y, int z) const {
     if (!has_domain_) return true;
@@ -82,7 +82,7 @@ class GridFrame {
   }
 
  private:
-  double h_ = 0.0, inv_h_ = 0.0;
+  double spacing_ = 0.0, inv_spacing_ = 0.0;
   double ramp_ = 3.0;
   Vec3 origin_ = Vec3::Zero();
   bool has_domain_ = false;
@@ -90,7 +90,7 @@ class GridFrame {
 };
 
 inline GridFrame::GridFrame(double h, double band_width, const std::optional<Aabb>& domain)
-    : h_(h), inv_h_(1.0 / h), ramp_(band_width), has_domain_(domain.has_value()) {
+    : spacing_(h), inv_spacing_(1.0 / h), ramp_(band_width), has_domain_(domain.has_value()) {
   if (!domain) return;
   origin_ = domain->min;
   for (int a = 0; a < 3; ++a) {

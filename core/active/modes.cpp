@@ -15,6 +15,7 @@ namespace surfacer {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
+constexpr int kCellCorners = 8;  // corner k of a grid cell at offset (k & 1, (k >> 1) & 1, k >> 2)
 
 ActiveFrame make_frame(const ActiveSurface& surface, const ActiveFrameStats& stats, int index,
                        const RunControl& control) {
@@ -151,7 +152,7 @@ Vec3 VelocityGrid::operator()(const Vec3& p) const {
     t[a] = u - i0[a];
   }
   Vec3 r = Vec3::Zero();
-  for (int k = 0; k < 8; ++k) {  // the cell's 2^3 corners
+  for (int k = 0; k < kCellCorners; ++k) {
     double w = 1.0;
     std::size_t idx = 0;
     for (int a = 2; a >= 0; --a) {

@@ -47,14 +47,16 @@ float* mesh_scratch(std::size_t size) {
   return buffer.data();
 }
 
-// Cube edge e (mc_tables.h numbering) as (lower corner offset, axis).
+// Cube edge e (mc_tables.h numbering: kEdgesPerAxis edges along x, then along y, then along z) as (lower corner
+// offset, axis).
 struct CubeEdge {
   int dx, dy, dz, axis;
 };
+constexpr int kEdgesPerAxis = 4;
 constexpr CubeEdge cube_edge(int e) {
-  if (e < 4) return {0, e & 1, e >> 1, 0};
-  if (e < 8) return {(e - 4) & 1, 0, (e - 4) >> 1, 1};
-  return {(e - 8) & 1, (e - 8) >> 1, 0, 2};
+  if (e < kEdgesPerAxis) return {0, e & 1, e >> 1, 0};
+  if (e < 2 * kEdgesPerAxis) return {(e - kEdgesPerAxis) & 1, 0, (e - kEdgesPerAxis) >> 1, 1};
+  return {(e - 2 * kEdgesPerAxis) & 1, (e - 2 * kEdgesPerAxis) >> 1, 0, 2};
 }
 
 struct BlockMeasure {

@@ -22,10 +22,17 @@ namespace {
 
 class Cleaner {
  public:
-  Cleaner(std::vector<Vec3>& p, std::vector<Triangle>& tris, RedGreenHierarchy& h, std::vector<Vec3>& m,
-          const VertexTriangles& adjacency, const Field& field, const CleanupOptions& o)
-      : p_(p), tris_(tris), h_(h), m_(m), adjacency_(adjacency), field_(field), o_(o) {
-    cap_cos_ = std::cos(o.cap_angle_degrees * 3.14159265358979323846 / 180.0);
+  Cleaner(std::vector<Vec3>& positions, std::vector<Triangle>& tris, RedGreenHierarchy& hierarchy,
+          std::vector<Vec3>& field_normals, const VertexTriangles& adjacency, const Field& field,
+          const CleanupOptions& options)
+      : positions_(positions),
+        tris_(tris),
+        hierarchy_(hierarchy),
+        field_normals_(field_normals),
+        adjacency_(adjacency),
+        field_(field),
+        options_(options) {
+    cap_cos_ = std::cos(options.cap_angle_degrees * 3.14159265358979323846 / 180.0);
   }
 
   CleanupCounts run(const RunControl& control) {
@@ -35,8 +42,8 @@ class Cleaner {
     }
     CleanupCounts counts;
     if (candidates.empty()) return counts;
-    editor_.emplace(tris_, adjacency_, p_.size());
-    for (int pass = 0; pass < o_.max_passes && !candidates.empty(); ++pass) {
+    editor_.emplace(tris_, adjacency_, positions_.size());
+    for (int pass = 0; pass < options_.max_passes && !candidates.empty(); ++pass) {
       control.check();
       touched_.clear();
       for (std::int32_t t : candidates) {
@@ -70,7 +77,7 @@ class Cleaner {
   // Cosine of the largest angle of t (opposite its longest edge) and the corner it sits at; 1 when degenerate.
   double largest_cos(const Triangle& t, int& corner) const {
     std::array<double, 3> e2;  // e2[k]: squared length of the edge opposite corner k
-    for (int k = 0; k < 3; ++k) e2[k] = (p_[t[(k + 2) % 3]] - p_[t[(k + 1) % 3]]).squaredNorm();
+    for (int k = 0; k < 3; ++k) e2[k] = (positions_[t[(k + 2) % 3]] - positions_[t[(k + 1) % 3]]).squaredNorm();
     corner = static_cast<int>(std::max_element(e2.begin(), e2.end()) - e2.begin());
     const double a2 = e2[(corner + 1) % 3], b2 = e2[(corner + 2) % 3];
     const double den = 2.0 * std::sqrt(a2 * b2);
@@ -83,54 +90,54 @@ class Cleaner {
   // Index k of the needle edge (t[k], t[k+1]) of t, or -1.
   int needle_edge(const Triangle& t) const {
     std::array<double, 3> len2;
-    for (int k = 0; k < 3; ++k) len2[k] = (p_[t[(k + 1) % 3]] - p_[t[k]]).squaredNorm();
+    for (int k = 0; k < 3; ++k) len2[k] = (positions_[t[(k + 1) % 3]] - positions_[t[k]]).squaredNorm();
     const int k = static_cast<int>(std::min_element(len2.begin(), len2.end()) - len2.begin());
-    const double r2 = o_.needle_ratio * o_.needle_ratio;
+    const double r2 = options_.needle_ratio * options_.needle_ratio;
     return len2[k] < r2 * std::min(len2[(k + 1) % 3], len2[(k + 2) % 3]) ? k : -1;
   }
   // |n_T - m_T|² with the field normal at T's centroid (2 for a degenerate triangle).
   double deviation(std::int32_t t) const {
     const Triangle& tri = tris_[t];
-    const Vec3 n = (p_[tri[1]] - p_[tri[0]]).cross(p_[tri[2]] - p_[tri[0]]);
+    const Vec3 n = (positions_[tri[1]] - positions_[tri[0]]).cross(positions_[tri[2]] - positions_[tri[0]]);
     const double len = n.norm();
-    return len <= o_.degenerate_cross ? 2.0 : (n / len - m_[t]).squaredNorm();
+    return len <= options_.degenerate_cross ? 2.0 : (n / len - field_normals_[t]).squaredNorm();
   }
   bool problem(std::int32_t t) const {
-    return largest_cos(tris_[t]) < cap_cos_ || needle_edge(tris_[t]) >= 0 || deviation(t) > o_.flip_deviation;
+    return largest_cos(tris_[t]) < cap_cos_ || needle_edge(tris_[t]) >= 0 || deviation(t) > options_.flip_deviation;
   }
   Vec3 field_normal(const Triangle& t) const {
     Vec3 g;
-    field_.value_and_gradient((p_[t[0]] + p_[t[1]] + p_[t[2]]) / 3.0, g);
+    field_.value_and_gradient((positions_[t[0]] + positions_[t[1]] + positions_[t[2]]) / 3.0, g);
     const double len = g.norm();
     return len > 0.0 ? Vec3(g / len) : Vec3::Zero();
   }
   // n·m(centroid), or -2 for a degenerate triangle.
   double score(const Triangle& t) const {
-    const Vec3 n = (p_[t[1]] - p_[t[0]]).cross(p_[t[2]] - p_[t[0]]);
+    const Vec3 n = (positions_[t[1]] - positions_[t[0]]).cross(positions_[t[2]] - positions_[t[0]]);
     const double len = n.norm();
-    return len <= o_.degenerate_cross ? -2.0 : n.dot(field_normal(t)) / len;
+    return len <= options_.degenerate_cross ? -2.0 : n.dot(field_normal(t)) / len;
   }
   double energy(const Triangle& t, const Vec3& m) const {  // A |n - m|²
-    const Vec3 n = (p_[t[1]] - p_[t[0]]).cross(p_[t[2]] - p_[t[0]]);
+    const Vec3 n = (positions_[t[1]] - positions_[t[0]]).cross(positions_[t[2]] - positions_[t[0]]);
     const double len = n.norm();
-    return len <= o_.degenerate_cross ? 0.0 : 0.5 * len * (n / len - m).squaredNorm();
+    return len <= options_.degenerate_cross ? 0.0 : 0.5 * len * (n / len - m).squaredNorm();
   }
 
   bool removed(std::int32_t t) const { return tris_[t][0] == MeshEditor::kNone; }
 
   // A green pair with a changed child is dissolved (both children become plain triangles).
   void dissolve(std::int32_t t) {
-    const std::int32_t g = h_.green_group[t];
+    const std::int32_t g = hierarchy_.green_group[t];
     if (g < 0) return;
     if (group_children_.empty()) {
-      group_children_.assign(h_.green_parents.size(), {-1, -1});
+      group_children_.assign(hierarchy_.green_parents.size(), {-1, -1});
       for (std::size_t i = 0; i < tris_.size(); ++i) {
-        const std::int32_t gi = h_.green_group[i];
+        const std::int32_t gi = hierarchy_.green_group[i];
         if (gi >= 0) group_children_[gi][group_children_[gi][0] < 0 ? 0 : 1] = static_cast<std::int32_t>(i);
       }
     }
     for (std::int32_t c : group_children_[g]) {
-      if (c >= 0) h_.green_group[c] = -1;
+      if (c >= 0) hierarchy_.green_group[c] = -1;
     }
   }
 
@@ -145,7 +152,7 @@ class Cleaner {
     if (!site) return false;
     t2 = static_cast<std::int32_t>(site->triangle);
     y = site->vertex;
-    return y != x && h_.midpoints.count(edge_key(x, y)) == 0;
+    return y != x && hierarchy_.midpoints.count(edge_key(x, y)) == 0;
   }
   bool flip_valid(std::int32_t t, int k) {
     return editor_->flip_site(static_cast<std::uint32_t>(t), tris_[t][(k + 1) % 3], tris_[t][(k + 2) % 3]).has_value();
@@ -157,8 +164,8 @@ class Cleaner {
     dissolve(t);
     dissolve(t2);
     editor_->flip(static_cast<std::uint32_t>(t), u, v);
-    m_[t] = field_normal(tris_[t]);
-    m_[t2] = field_normal(tris_[t2]);
+    field_normals_[t] = field_normal(tris_[t]);
+    field_normals_[t2] = field_normal(tris_[t2]);
     touched_.push_back(t);
     touched_.push_back(t2);
   }
@@ -174,7 +181,7 @@ class Cleaner {
     const std::uint32_t x = tris_[t][k], u = tris_[t][(k + 1) % 3], v = tris_[t][(k + 2) % 3];
     const Triangle a{u, y, x}, b{y, v, x};
     if (!(std::min(largest_cos(a), largest_cos(b)) > std::min(old_cos, largest_cos(tris_[t2])))) return false;
-    if (score(a) < o_.min_cos || score(b) < o_.min_cos || !flip_valid(t, k)) return false;
+    if (score(a) < options_.min_cos || score(b) < options_.min_cos || !flip_valid(t, k)) return false;
     apply_flip(t, t2, k);
     return true;
   }
@@ -182,7 +189,7 @@ class Cleaner {
   // Deviating triangle: flip the edge that lowers A |n - m|² of the pair the most (by at least 1 %), when the new
   // triangles face along the field and are no caps.
   bool try_deviation_flip(std::int32_t t) {
-    if (deviation(t) <= o_.flip_deviation) return false;
+    if (deviation(t) <= options_.flip_deviation) return false;
     double best_gain = 0.0;
     int best = -1;
     std::int32_t best_t2 = -1;
@@ -193,10 +200,10 @@ class Cleaner {
       const std::uint32_t x = tris_[t][k], u = tris_[t][(k + 1) % 3], v = tris_[t][(k + 2) % 3];
       const Triangle a{u, y, x}, b{y, v, x};
       if (!(std::min(largest_cos(a), largest_cos(b)) > cap_cos_)) continue;
-      const double before = energy(tris_[t], m_[t]) + energy(tris_[t2], m_[t2]);
+      const double before = energy(tris_[t], field_normals_[t]) + energy(tris_[t2], field_normals_[t2]);
       const double gain = before - energy(a, field_normal(a)) - energy(b, field_normal(b));
       if (!(gain > 0.01 * before) || gain <= best_gain) continue;
-      if (score(a) < o_.min_cos || score(b) < o_.min_cos || !flip_valid(t, k)) continue;
+      if (score(a) < options_.min_cos || score(b) < options_.min_cos || !flip_valid(t, k)) continue;
       best_gain = gain;
       best = k;
       best_t2 = t2;
@@ -217,7 +224,7 @@ class Cleaner {
     if (!site) return false;
     const auto t2 = static_cast<std::int32_t>(site->triangle);
     for (std::uint32_t y : editor_->neighbours(b)) {
-      if (y != a && h_.midpoints.count(edge_key(a, y)) != 0) return false;
+      if (y != a && hierarchy_.midpoints.count(edge_key(a, y)) != 0) return false;
     }
     std::vector<std::uint32_t> around = editor_->triangles_around(a);
     const std::vector<std::uint32_t> around_b = editor_->triangles_around(b);
@@ -230,7 +237,7 @@ class Cleaner {
       const auto f = static_cast<std::int32_t>(uf);
       if (f == t || f == t2) continue;
       changed.push_back(f);
-      floor.push_back(std::min(o_.min_cos, score(tris_[f])));
+      floor.push_back(std::min(options_.min_cos, score(tris_[f])));
     }
     auto renamed = [&](std::int32_t f) {
       Triangle r = tris_[f];
@@ -240,10 +247,10 @@ class Cleaner {
       return r;
     };
     // Place a at the midpoint, else at a, else at b: the first where every changed triangle passes the guard test.
-    const Vec3 pa = p_[a];
+    const Vec3 pa = positions_[a];
     bool ok = false;
-    for (const Vec3& x : {Vec3(0.5 * (p_[a] + p_[b])), Vec3(p_[a]), Vec3(p_[b])}) {
-      p_[a] = x;
+    for (const Vec3& x : {Vec3(0.5 * (positions_[a] + positions_[b])), Vec3(positions_[a]), Vec3(positions_[b])}) {
+      positions_[a] = x;
       ok = true;
       for (std::size_t i = 0; i < changed.size() && ok; ++i) {
         const double s = score(renamed(changed[i]));
@@ -252,13 +259,13 @@ class Cleaner {
       if (ok) break;
     }
     if (!ok) {
-      p_[a] = pa;
+      positions_[a] = pa;
       return false;
     }
     for (const std::uint32_t f : around) dissolve(static_cast<std::int32_t>(f));
     editor_->collapse(static_cast<std::uint32_t>(t), a, b);
     for (std::int32_t f : changed) {
-      m_[f] = field_normal(tris_[f]);
+      field_normals_[f] = field_normal(tris_[f]);
       touched_.push_back(f);
     }
     dead_.insert(b);
@@ -272,31 +279,31 @@ class Cleaner {
     for (std::size_t t = 0; t < tris_.size(); ++t) {
       if (removed(t)) continue;
       tris_[out] = tris_[t];
-      m_[out] = m_[t];
-      h_.green_group[out] = h_.green_group[t];
+      field_normals_[out] = field_normals_[t];
+      hierarchy_.green_group[out] = hierarchy_.green_group[t];
       ++out;
     }
     tris_.resize(out);
-    m_.resize(out);
-    h_.green_group.resize(out);
-    for (auto it = h_.midpoints.begin(); it != h_.midpoints.end();) {
+    field_normals_.resize(out);
+    hierarchy_.green_group.resize(out);
+    for (auto it = hierarchy_.midpoints.begin(); it != hierarchy_.midpoints.end();) {
       const auto lo = static_cast<std::uint32_t>(it->first >> 32);
       const auto hi = static_cast<std::uint32_t>(it->first & 0xffffffffu);
       if (dead_.count(lo) || dead_.count(hi) || dead_.count(it->second)) {
-        it = h_.midpoints.erase(it);
+        it = hierarchy_.midpoints.erase(it);
       } else {
         ++it;
       }
     }
   }
 
-  std::vector<Vec3>& p_;
+  std::vector<Vec3>& positions_;
   std::vector<Triangle>& tris_;
-  RedGreenHierarchy& h_;
-  std::vector<Vec3>& m_;
+  RedGreenHierarchy& hierarchy_;
+  std::vector<Vec3>& field_normals_;
   const VertexTriangles& adjacency_;
   const Field& field_;
-  const CleanupOptions& o_;
+  const CleanupOptions& options_;
   double cap_cos_ = -1.0;
   std::optional<MeshEditor> editor_;  // made at the first candidate
   std::vector<std::int32_t> touched_;

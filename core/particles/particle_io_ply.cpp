@@ -17,12 +17,12 @@ class PointReader final : public ply::ElementReader {
       const ply::Property& prop = vertex.properties[p];
       if (prop.list) continue;
       const int pi = static_cast<int>(p);
-      if (prop.name == "x" && x_ < 0) x_ = pi;
-      if (prop.name == "y" && y_ < 0) y_ = pi;
-      if (prop.name == "z" && z_ < 0) z_ = pi;
-      if (is_radius_name(prop.name) && r_ < 0) r_ = pi;
+      if (prop.name == "x" && x_property_ < 0) x_property_ = pi;
+      if (prop.name == "y" && y_property_ < 0) y_property_ = pi;
+      if (prop.name == "z" && z_property_ < 0) z_property_ = pi;
+      if (is_radius_name(prop.name) && radius_property_ < 0) radius_property_ = pi;
     }
-    if (x_ < 0 || y_ < 0 || z_ < 0) {
+    if (x_property_ < 0 || y_property_ < 0 || z_property_ < 0) {
       fail(name, line_at(vertex.header_line), "element 'vertex' lacks an x, y or z property");
     }
     group_attributes();
@@ -31,16 +31,17 @@ class PointReader final : public ply::ElementReader {
   void begin(const ply::Element& e, std::size_t capacity) override {
     if (&e != &vertex_) return;
     frame_.positions.reserve(std::min<std::uint64_t>(e.count, capacity));
-    if (r_ >= 0) frame_.radii.reserve(frame_.positions.capacity());
+    if (radius_property_ >= 0) frame_.radii.reserve(frame_.positions.capacity());
   }
 
   void item(const ply::Element& e, const ply::Item& item) override {
     if (&e != &vertex_) return;
-    const Vec3 p(item.scalars[static_cast<std::size_t>(x_)], item.scalars[static_cast<std::size_t>(y_)],
-                 item.scalars[static_cast<std::size_t>(z_)]);
+    const Vec3 p(item.scalars[static_cast<std::size_t>(x_property_)],
+                 item.scalars[static_cast<std::size_t>(y_property_)],
+                 item.scalars[static_cast<std::size_t>(z_property_)]);
     check_finite(p, name_, item.where.text() + " (vertex " + std::to_string(item.index) + ")");
     frame_.positions.push_back(p);
-    if (r_ >= 0) frame_.radii.push_back(item.scalars[static_cast<std::size_t>(r_)]);
+    if (radius_property_ >= 0) frame_.radii.push_back(item.scalars[static_cast<std::size_t>(radius_property_)]);
     for (Group& group : groups_) {
       for (int p : group.properties) group.values.push_back(item.scalars[static_cast<std::size_t>(p)]);
     }
@@ -63,8 +64,9 @@ class PointReader final : public ply::ElementReader {
   };
 
   void group_attributes() {
-    for (ply::AttributeProperties& a :
-         ply::attribute_properties(vertex_, [&](int p) { return p == x_ || p == y_ || p == z_ || p == r_; })) {
+    for (ply::AttributeProperties& a : ply::attribute_properties(vertex_, [&](int p) {
+           return p == x_property_ || p == y_property_ || p == z_property_ || p == radius_property_;
+         })) {
       groups_.push_back({std::move(a.name), std::move(a.properties), {}});
     }
   }
@@ -72,7 +74,7 @@ class PointReader final : public ply::ElementReader {
   std::vector<Group> groups_;
   const ply::Element& vertex_;
   const std::string& name_;
-  int x_ = -1, y_ = -1, z_ = -1, r_ = -1;
+  int x_property_ = -1, y_property_ = -1, z_property_ = -1, radius_property_ = -1;
   ParticleFrame frame_;
 };
 

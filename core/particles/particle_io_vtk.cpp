@@ -104,22 +104,22 @@ void append_triangles(const CellList& cells, std::int64_t points, std::vector<Tr
 class LegacyReader {
  public:
   LegacyReader(std::string_view bytes, const std::string& name, bool surface_cells)
-      : c_{bytes, name}, name_(name), surface_cells_(surface_cells) {}
+      : cursor_{bytes, name}, name_(name), surface_cells_(surface_cells) {}
 
   ParticleFrame read() {
-    const std::string_view first = c_.rest_of_line();
+    const std::string_view first = cursor_.rest_of_line();
     if (first.rfind("# vtk DataFile Version", 0) != 0) {
       fail(name_, line_at(1), "not a VTK legacy file (the first line must start with '# vtk DataFile Version')");
     }
-    c_.rest_of_line();  // title
-    const std::size_t mode_line = c_.line;
-    const std::string mode = upper(c_.expect("ASCII or BINARY"));
+    cursor_.rest_of_line();  // title
+    const std::size_t mode_line = cursor_.line;
+    const std::string mode = upper(cursor_.expect("ASCII or BINARY"));
     if (mode == "BINARY") {
       binary_ = true;
     } else if (mode != "ASCII") {
       fail(name_, line_at(mode_line), "expected ASCII or BINARY on line 3, got '" + mode.substr(0, 40) + "'");
     }
-    c_.report_bytes = binary_;
+    cursor_.report_bytes = binary_;
     ParticleFrame frame;
     bool have_points = false;
     bool point_data = false;  // inside POINT_DATA (else CELL_DATA or before either)
@@ -127,20 +127,20 @@ class LegacyReader {
     std::int64_t points = 0;
     std::vector<double> values;
     while (true) {
-      const std::optional<std::string_view> token = c_.next();
+      const std::optional<std::string_view> token = cursor_.next();
       if (!token) break;
-      const std::size_t at = c_.pos - token->size();
+      const std::size_t at = cursor_.pos - token->size();
       const std::string key = upper(*token);
       if (key == "DATASET") {
-        const std::string type = upper(c_.expect("dataset type"));
+        const std::string type = upper(cursor_.expect("dataset type"));
         if (type != "POLYDATA" && type != "UNSTRUCTURED_GRID") {
           fail(name_, where(at),
                "DATASET " + type.substr(0, 40) + " is not supported; use POLYDATA or UNSTRUCTURED_GRID");
         }
       } else if (key == "POINTS") {
         if (have_points) fail(name_, where(at), "second POINTS section");
-        points = c_.count("number of points");
-        const Scalar type = scalar(c_.expect("point type"));
+        points = cursor_.count("number of points");
+        const Scalar type = scalar(cursor_.expect("point type"));
         read_values(points, 3, type, "POINTS", &values);
         frame.positions.resize(static_cast<std::size_t>(points));
         for (std::size_t i = 0; i < frame.positions.size(); ++i) {
@@ -150,29 +150,30 @@ class LegacyReader {
         have_points = true;
       } else if (key == "VERTICES" || key == "LINES" || key == "POLYGONS" || key == "TRIANGLE_STRIPS" ||
                  key == "CELLS") {
-        const std::int64_t n = c_.count("cell count");
-        const std::int64_t size = c_.count("cell list size");
+        const std::int64_t n = cursor_.count("cell count");
+        const std::int64_t size = cursor_.count("cell list size");
         // Surface cells are kept (ParticleFrame::triangles); vertices and lines are read past.
         const bool keep = surface_cells_ && (key == "POLYGONS" || key == "TRIANGLE_STRIPS" || key == "CELLS");
         CellList cells;
         cells.typed = key == "CELLS";
         cells.type = key == "TRIANGLE_STRIPS" ? kVtkTriangleStrip : kVtkPolygon;
-        const std::size_t save_pos = c_.pos, save_line = c_.line;
-        const std::optional<std::string_view> next = c_.next();
+        const std::size_t save_pos = cursor_.pos, save_line = cursor_.line;
+        const std::optional<std::string_view> next = cursor_.next();
         if (next && upper(*next) == "OFFSETS") {  // VTK 5.1: OFFSETS <type> n values, CONNECTIVITY <type> size values
-          read_values(n, 1, scalar(c_.expect("offsets type")), "OFFSETS", keep ? &cells.offsets : nullptr);
-          if (upper(c_.expect("CONNECTIVITY")) != "CONNECTIVITY") fail(name_, where(c_.pos), "expected CONNECTIVITY");
-          read_values(size, 1, scalar(c_.expect("connectivity type")), "CONNECTIVITY",
+          read_values(n, 1, scalar(cursor_.expect("offsets type")), "OFFSETS", keep ? &cells.offsets : nullptr);
+          if (upper(cursor_.expect("CONNECTIVITY")) != "CONNECTIVITY")
+            fail(name_, where(cursor_.pos), "expected CONNECTIVITY");
+          read_values(size, 1, scalar(cursor_.expect("connectivity type")), "CONNECTIVITY",
                       keep ? &cells.connectivity : nullptr);
         } else {
-          c_.pos = save_pos;
-          c_.line = save_line;
+          cursor_.pos = save_pos;
+          cursor_.line = save_line;
           read_values(size, 1, Scalar::kI32, key, keep ? &values : nullptr);
           if (keep) split_cell_list(values, n, cells, name_, where(at));
         }
         if (keep) cell_lists_.push_back(std::move(cells));
       } else if (key == "CELL_TYPES") {
-        const std::int64_t n = c_.count("cell count");
+        const std::int64_t n = cursor_.count("cell count");
         // The types of the last CELLS read (none when reading points only).
         const auto cells =
             std::find_if(cell_lists_.rbegin(), cell_lists_.rend(), [](const CellList& c) { return c.typed; });
@@ -180,24 +181,25 @@ class LegacyReader {
         read_values(n, 1, Scalar::kI32, "CELL_TYPES", types);
       } else if (key == "POINT_DATA" || key == "CELL_DATA") {
         point_data = key == "POINT_DATA";
-        attribute_count = c_.count("attribute count");
+        attribute_count = cursor_.count("attribute count");
       } else if (key == "SCALARS") {
-        const std::string array = decode_name(c_.expect("scalars name"));
-        const Scalar type = scalar(c_.expect("scalars type"));
+        const std::string array = decode_name(cursor_.expect("scalars name"));
+        const Scalar type = scalar(cursor_.expect("scalars type"));
         std::int64_t components = 1;
-        const std::string_view rest = c_.rest_of_line();
+        const std::string_view rest = cursor_.rest_of_line();
         if (rest.find_first_not_of(" \t") != std::string_view::npos) {
           double v = 0.0;
           const std::size_t b = rest.find_first_not_of(" \t");
           const std::size_t e = rest.find_first_of(" \t", b);
           if (!parse_double(rest.substr(b, e == std::string_view::npos ? e : e - b), v) || v < 1 || v > 4 ||
               v != std::floor(v)) {
-            fail(name_, where(c_.pos), "bad number of components in SCALARS " + array);
+            fail(name_, where(cursor_.pos), "bad number of components in SCALARS " + array);
           }
           components = static_cast<std::int64_t>(v);
         }
-        if (upper(c_.expect("LOOKUP_TABLE")) != "LOOKUP_TABLE") fail(name_, where(c_.pos), "expected LOOKUP_TABLE");
-        c_.expect("lookup table name");
+        if (upper(cursor_.expect("LOOKUP_TABLE")) != "LOOKUP_TABLE")
+          fail(name_, where(cursor_.pos), "expected LOOKUP_TABLE");
+        cursor_.expect("lookup table name");
         const bool radius = point_data && components == 1 && is_radius_name(array);
         read_values(attribute_count, components, type, "SCALARS " + array, point_data ? &values : nullptr);
         if (radius) {
@@ -206,38 +208,40 @@ class LegacyReader {
           keep_attribute(frame, array, components, values);
         }
       } else if (key == "LOOKUP_TABLE") {
-        c_.expect("lookup table name");
-        read_values(c_.count("lookup table size"), 4, binary_ ? Scalar::kU8 : Scalar::kF64, "LOOKUP_TABLE", nullptr);
+        cursor_.expect("lookup table name");
+        read_values(cursor_.count("lookup table size"), 4, binary_ ? Scalar::kU8 : Scalar::kF64, "LOOKUP_TABLE",
+                    nullptr);
       } else if (key == "COLOR_SCALARS") {
-        c_.expect("color scalars name");
-        const std::int64_t n = c_.count("number of color components");
+        cursor_.expect("color scalars name");
+        const std::int64_t n = cursor_.count("number of color components");
         read_values(attribute_count, n, binary_ ? Scalar::kU8 : Scalar::kF64, "COLOR_SCALARS", nullptr);
       } else if (key == "VECTORS" || key == "NORMALS" || key == "TENSORS" || key == "TENSORS6") {
-        const std::string array = decode_name(c_.expect("array name"));
+        const std::string array = decode_name(cursor_.expect("array name"));
         const std::int64_t n = key == "TENSORS" ? 9 : key == "TENSORS6" ? 6 : 3;
         const bool keep = point_data && n <= Attribute::kMaxComponents;
-        read_values(attribute_count, n, scalar(c_.expect("array type")), key, keep ? &values : nullptr);
+        read_values(attribute_count, n, scalar(cursor_.expect("array type")), key, keep ? &values : nullptr);
         if (keep) keep_attribute(frame, array, n, values);
       } else if (key == "TEXTURE_COORDINATES") {
-        c_.expect("array name");
-        const std::int64_t dim = c_.count("texture dimension");
-        read_values(attribute_count, dim, scalar(c_.expect("array type")), key, nullptr);
+        cursor_.expect("array name");
+        const std::int64_t dim = cursor_.count("texture dimension");
+        read_values(attribute_count, dim, scalar(cursor_.expect("array type")), key, nullptr);
       } else if (key == "FIELD") {
-        c_.expect("field name");
-        const std::int64_t arrays = c_.count("number of arrays");
+        cursor_.expect("field name");
+        const std::int64_t arrays = cursor_.count("number of arrays");
         for (std::int64_t a = 0; a < arrays; ++a) {
-          const std::string array = decode_name(c_.expect("array name"));
+          const std::string array = decode_name(cursor_.expect("array name"));
           if (upper(array) == "METADATA") {
             skip_metadata();
             --a;
             continue;
           }
-          const std::int64_t components = c_.count("number of components");
-          const std::int64_t tuples = c_.count("number of tuples");
-          const std::string_view type_name = c_.expect("array type");
+          const std::int64_t components = cursor_.count("number of components");
+          const std::int64_t tuples = cursor_.count("number of tuples");
+          const std::string_view type_name = cursor_.expect("array type");
           if (!scalar_from_name(type_name)) {
             if (have_points) return finish(frame, points);  // e.g. string arrays after the points: nothing we need
-            fail(name_, where(c_.pos), "unsupported FIELD array type '" + std::string(type_name.substr(0, 40)) + "'");
+            fail(name_, where(cursor_.pos),
+                 "unsupported FIELD array type '" + std::string(type_name.substr(0, 40)) + "'");
           }
           const bool per_point = point_data || !have_points || tuples == points;
           const bool radius = components == 1 && is_radius_name(array) && per_point;
@@ -258,22 +262,25 @@ class LegacyReader {
         fail(name_, where(at), "unexpected keyword '" + std::string(token->substr(0, 40)) + "' before POINTS");
       }
     }
-    if (!have_points) fail(name_, where(c_.pos), "no POINTS section");
+    if (!have_points) fail(name_, where(cursor_.pos), "no POINTS section");
     return finish(frame, points);
   }
 
  private:
-  std::string where(std::size_t offset) const { return binary_ ? byte_at(offset) : line_at(line_of(c_.text, offset)); }
+  std::string where(std::size_t offset) const {
+    return binary_ ? byte_at(offset) : line_at(line_of(cursor_.text, offset));
+  }
 
   ParticleFrame finish(ParticleFrame& frame, std::int64_t points) const {
     if (!frame.radii.empty() && frame.radii.size() != static_cast<std::size_t>(points)) {
-      fail(name_, where(c_.pos),
+      fail(name_, where(cursor_.pos),
            "radius array has " + std::to_string(frame.radii.size()) + " values for " + std::to_string(points) +
                " points");
     }
     // Arrays of another length (a FIELD before the POINTS that turned out not to be per point) are no attributes.
     std::erase_if(frame.attributes, [&](const Attribute& a) { return a.count() != static_cast<std::size_t>(points); });
-    for (const CellList& cells : cell_lists_) append_triangles(cells, points, frame.triangles, name_, where(c_.pos));
+    for (const CellList& cells : cell_lists_)
+      append_triangles(cells, points, frame.triangles, name_, where(cursor_.pos));
     return std::move(frame);
   }
 
@@ -299,14 +306,14 @@ class LegacyReader {
 
   Scalar scalar(std::string_view type) const {
     const std::optional<Scalar> s = scalar_from_name(type);
-    if (!s) fail(name_, where(c_.pos), "unsupported data type '" + std::string(type.substr(0, 40)) + "'");
+    if (!s) fail(name_, where(cursor_.pos), "unsupported data type '" + std::string(type.substr(0, 40)) + "'");
     return *s;
   }
 
   void skip_metadata() {
-    c_.rest_of_line();
-    while (c_.pos < c_.text.size()) {
-      const std::string_view l = c_.rest_of_line();
+    cursor_.rest_of_line();
+    while (cursor_.pos < cursor_.text.size()) {
+      const std::string_view l = cursor_.rest_of_line();
       if (l.find_first_not_of(" \t") == std::string_view::npos) break;
     }
   }
@@ -317,35 +324,35 @@ class LegacyReader {
                    std::vector<double>* out) {
     if (tuples < 0 || components < 0 ||
         (components > 0 && tuples > std::numeric_limits<std::int64_t>::max() / components)) {
-      fail(name_, where(c_.pos), "bad size of " + what);
+      fail(name_, where(cursor_.pos), "bad size of " + what);
     }
     const std::int64_t count = tuples * components;
     if (out != nullptr) out->clear();
     if (!binary_) {
-      if (out != nullptr) out->reserve(capped_reserve(count, c_.text.size() - c_.pos, 2));
+      if (out != nullptr) out->reserve(capped_reserve(count, cursor_.text.size() - cursor_.pos, 2));
       for (std::int64_t i = 0; i < count; ++i) {
-        const double v = c_.number(what + " value " + std::to_string(i) + " of " + std::to_string(count));
+        const double v = cursor_.number(what + " value " + std::to_string(i) + " of " + std::to_string(count));
         if (out != nullptr) out->push_back(v);
       }
       return;
     }
-    c_.skip_line();
+    cursor_.skip_line();
     const std::size_t size = scalar_size(type);
-    const std::size_t left = c_.text.size() - c_.pos;
+    const std::size_t left = cursor_.text.size() - cursor_.pos;
     if (static_cast<std::uint64_t>(count) > left / size) {
-      fail(name_, byte_at(c_.pos),
+      fail(name_, byte_at(cursor_.pos),
            "truncated " + what + " (needs " + std::to_string(count) + " x " + std::to_string(size) + " bytes, " +
                std::to_string(left) + " left)");
     }
     if (out != nullptr) {
       out->resize(static_cast<std::size_t>(count));
       for (std::size_t i = 0; i < out->size(); ++i)
-        (*out)[i] = read_scalar(c_.text.data() + c_.pos + i * size, type, true);
+        (*out)[i] = read_scalar(cursor_.text.data() + cursor_.pos + i * size, type, true);
     }
-    c_.pos += static_cast<std::size_t>(count) * size;
+    cursor_.pos += static_cast<std::size_t>(count) * size;
   }
 
-  TextCursor c_;
+  TextCursor cursor_;
   const std::string& name_;
   bool binary_ = false;
   const bool surface_cells_;

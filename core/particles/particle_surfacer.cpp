@@ -602,19 +602,19 @@ class InsideMask {
 class ParticleField final : public Field {
  public:
   ParticleField(const Particles& particles, double band, int threads)
-      : p_(particles), band_(band), inside_(particles, threads) {}
+      : particles_(particles), band_(band), inside_(particles, threads) {}
 
   double value(const Vec3& x) const override {
     count();
-    if (!p_.weighted) {
-      const double d = p_.hash.bounded_distance(x, p_.r_outer + band_, p_.r_outer - band_);
-      return std::isinf(d) ? band_ : d - p_.r_outer;
+    if (!particles_.weighted) {
+      const double d = particles_.hash.bounded_distance(x, particles_.r_outer + band_, particles_.r_outer - band_);
+      return std::isinf(d) ? band_ : d - particles_.r_outer;
     }
     double best = band_;
-    const std::span<const Vec3> pts = p_.hash.sorted_points();
-    const double r = p_.max_outer + band_;
-    p_.hash.for_each_range(x.array() - r, x.array() + r, [&](std::uint32_t begin, std::uint32_t end) {
-      for (std::uint32_t s = begin; s < end; ++s) best = std::min(best, (pts[s] - x).norm() - p_.slot_outer[s]);
+    const std::span<const Vec3> pts = particles_.hash.sorted_points();
+    const double r = particles_.max_outer + band_;
+    particles_.hash.for_each_range(x.array() - r, x.array() + r, [&](std::uint32_t begin, std::uint32_t end) {
+      for (std::uint32_t s = begin; s < end; ++s) best = std::min(best, (pts[s] - x).norm() - particles_.slot_outer[s]);
       return best >= -band_;
     });
     return best;
@@ -624,15 +624,15 @@ class ParticleField final : public Field {
   double sign_value(const Vec3& x) const override {
     count();
     if (inside_.certainly_inside(x)) return -band_;
-    if (!p_.weighted) return p_.hash.any_within(x, p_.r_outer) ? -band_ : band_;
-    const std::span<const Vec3> pts = p_.hash.sorted_points();
+    if (!particles_.weighted) return particles_.hash.any_within(x, particles_.r_outer) ? -band_ : band_;
+    const std::span<const Vec3> pts = particles_.hash.sorted_points();
     bool inside = false;
-    p_.hash.for_each_range(x.array() - p_.max_outer, x.array() + p_.max_outer,
-                           [&](std::uint32_t begin, std::uint32_t end) {
-                             for (std::uint32_t s = begin; s < end && !inside; ++s)
-                               inside = (pts[s] - x).norm() < p_.slot_outer[s];
-                             return !inside;
-                           });
+    particles_.hash.for_each_range(x.array() - particles_.max_outer, x.array() + particles_.max_outer,
+                                   [&](std::uint32_t begin, std::uint32_t end) {
+                                     for (std::uint32_t s = begin; s < end && !inside; ++s)
+                                       inside = (pts[s] - x).norm() < particles_.slot_outer[s];
+                                     return !inside;
+                                   });
     return inside ? -band_ : band_;
   }
   bool sign_is_cheaper() const override { return true; }
@@ -642,20 +642,20 @@ class ParticleField final : public Field {
   double value_and_gradient(const Vec3& x, Vec3& gradient) const override {
     count();
     Particles::Hit hit;
-    if (p_.weighted) {
+    if (particles_.weighted) {
       Particles::Hit in;
-      p_.nearest_weighted(x, in, hit);
+      particles_.nearest_weighted(x, in, hit);
     } else {
-      hit = p_.nearest(x);
-      hit.value = hit.distance - p_.r_outer;
+      hit = particles_.nearest(x);
+      hit.value = hit.distance - particles_.r_outer;
     }
-    const Vec3 d = x - p_.positions[hit.index];
+    const Vec3 d = x - particles_.positions[hit.index];
     gradient = hit.distance > 0.0 ? Vec3(d / hit.distance) : Vec3::UnitZ();
     return hit.value;
   }
 
   std::optional<Aabb> bounds() const override {
-    return Aabb{p_.box.min.array() - p_.max_outer, p_.box.max.array() + p_.max_outer};
+    return Aabb{particles_.box.min.array() - particles_.max_outer, particles_.box.max.array() + particles_.max_outer};
   }
 
   std::int64_t evaluations() const {
@@ -675,7 +675,7 @@ class ParticleField final : public Field {
   }
   static constexpr unsigned kCounters = 16;
 
-  const Particles& p_;
+  const Particles& particles_;
   double band_;
   InsideMask inside_;
   mutable std::array<Counter, kCounters> counters_;
@@ -1076,16 +1076,16 @@ class Smoother {
 
   Smoother(Mesh& mesh, const ParticleSurfacingOptions& options, const Particles& particles, int threads)
       : mesh_(mesh),
-        x_(mesh.vertices),
-        n_(x_.size()),
-        o_(options),
-        P_(particles),
+        positions_(mesh.vertices),
+        vertex_count_(positions_.size()),
+        options_(options),
+        particles_(particles),
         threads_(threads),
-        ring_(ps::one_ring(n_, mesh.triangles, threads)),
-        blocks_(ps::default_block_count(n_)) {
-    container_.box = o_.container_box;
-    container_.solid = o_.container_solid.get();
-    container_.inside_margin = 1e-9 * P_.r_inner;
+        ring_(ps::one_ring(vertex_count_, mesh.triangles, threads)),
+        blocks_(ps::default_block_count(vertex_count_)) {
+    container_.box = options_.container_box;
+    container_.solid = options_.container_solid.get();
+    container_.inside_margin = 1e-9 * particles_.r_inner;
   }
 
   const ps::Graph& ring() const { return ring_; }
@@ -1093,14 +1093,14 @@ class Smoother {
   // Step 3, then the projection of every vertex into the band (and the container).
   void laplacian(const RunControl& control) {
     const ps::SweepPlan plan = ps::plan_sweeps(ring_, blocks_);
-    for (int s = 0; s < o_.laplacian_sweeps; ++s) {
+    for (int s = 0; s < options_.laplacian_sweeps; ++s) {
       control.check();
-      ps::laplacian_sweep(x_, ring_, o_.relaxation, plan, threads_);
-      control.report("laplacian", (s + 1.0) / o_.laplacian_sweeps);
+      ps::laplacian_sweep(positions_, ring_, options_.relaxation, plan, threads_);
+      control.report("laplacian", (s + 1.0) / options_.laplacian_sweeps);
     }
     control.check();
     // The thesis' projection; else every vertex is brought into the band along its normal in step 4.
-    if (o_.vertex_only_band) constrain(true);
+    if (options_.vertex_only_band) constrain(true);
   }
 
   // Step 4 (with the end of step 3): the normals fixed; every vertex brought into the band along its normal, its
@@ -1110,22 +1110,25 @@ class Smoother {
   void build_b(const RunControl& control, ParticleSurfacingStats& stats) {
     normals_ = smoothed_normals();
     {
-      std::vector<Vec3> start(n_);  // written in parallel by intervals(): first touched by the threads that use it
+      std::vector<Vec3> start(
+          vertex_count_);  // written in parallel by intervals(): first touched by the threads that use it
       intervals(start, control, stats);
-      x_.swap(start);
+      positions_.swap(start);
     }
-    if (!o_.vertex_only_band) descend(control);
-    smoothing_.emplace(ring_, mesh_.triangles, x_, normals_, blocks_, threads_, control);
-    stats.seam_fraction = n_ > 0 ? static_cast<double>(smoothing_->plan().seams.size()) / static_cast<double>(n_) : 0.0;
+    if (!options_.vertex_only_band) descend(control);
+    smoothing_.emplace(ring_, mesh_.triangles, positions_, normals_, blocks_, threads_, control);
+    stats.seam_fraction =
+        vertex_count_ > 0 ? static_cast<double>(smoothing_->plan().seams.size()) / static_cast<double>(vertex_count_)
+                          : 0.0;
     control.report("build_b", 1.0);
   }
 
   // Step 5: sweeps clamped to the band, then the faithfulness after them.
   void bilaplacian(const RunControl& control, ParticleSurfacingStats& stats) {
-    for (int s = 0; s < o_.bilaplacian_sweeps; ++s) {
+    for (int s = 0; s < options_.bilaplacian_sweeps; ++s) {
       control.check();
       smoothing_->sweep(lo_, hi_, kOverRelaxation, threads_);
-      control.report("bilaplacian", (s + 1.0) / o_.bilaplacian_sweeps);
+      control.report("bilaplacian", (s + 1.0) / options_.bilaplacian_sweeps);
     }
     faithfulness(stats.faithful_after_constrained, stats.max_violation_after_constrained);
   }
@@ -1135,15 +1138,15 @@ class Smoother {
   // "faithful at the end").
   void polish(const RunControl& control, ParticleSurfacingStats& stats) {
     offsets_.assign(smoothing_->offsets().begin(), smoothing_->offsets().end());  // before the sweeps
-    for (int s = 0; s < o_.polish_sweeps; ++s) {
+    for (int s = 0; s < options_.polish_sweeps; ++s) {
       control.check();
       smoothing_->sweep(container_lo_, container_hi_, kOverRelaxation, threads_);
-      control.report("polish", (s + 1.0) / o_.polish_sweeps);
+      control.report("polish", (s + 1.0) / options_.polish_sweeps);
     }
     faithfulness(stats.faithful_after_polish_sweeps, stats.max_violation_after_polish_sweeps);
-    if (!o_.unconstrained_polish) stats.max_final_projection = smoothing_->clamp(lo_, hi_);
+    if (!options_.unconstrained_polish) stats.max_final_projection = smoothing_->clamp(lo_, hi_);
     const std::span<const double> t = smoothing_->offsets();
-    for (std::size_t i = 0; i < n_; ++i) {
+    for (std::size_t i = 0; i < vertex_count_; ++i) {
       stats.max_polish_displacement = std::max(stats.max_polish_displacement, std::abs(t[i] - offsets_[i]));
     }
     std::copy(t.begin(), t.end(), offsets_.begin());
@@ -1160,13 +1163,13 @@ class Smoother {
   // Step 7, when asked for.
   void erosion(const RunControl& control, ParticleSurfacingStats& stats) {
     control.check();
-    const std::vector<Vec3> before = x_;
-    const std::vector<Vec3> normals = ps::vertex_normals(x_, mesh_.triangles, threads_);
-    const double depth = *o_.erosion * P_.r_inner;
-    for (std::size_t i = 0; i < n_; ++i) x_[i] -= depth * normals[i];
+    const std::vector<Vec3> before = positions_;
+    const std::vector<Vec3> normals = ps::vertex_normals(positions_, mesh_.triangles, threads_);
+    const double depth = *options_.erosion * particles_.r_inner;
+    for (std::size_t i = 0; i < vertex_count_; ++i) positions_[i] -= depth * normals[i];
     constrain(false);
-    for (std::size_t i = 0; i < n_; ++i) {
-      stats.max_polish_displacement = std::max(stats.max_polish_displacement, (x_[i] - before[i]).norm());
+    for (std::size_t i = 0; i < vertex_count_; ++i) {
+      stats.max_polish_displacement = std::max(stats.max_polish_displacement, (positions_[i] - before[i]).norm());
     }
     control.report("erosion", 1.0);
   }
@@ -1178,12 +1181,12 @@ class Smoother {
     BandScratch scratch;
     project_along(x, n, scratch);
     if (container_.active()) container_.project(x);
-    return P_.faithful(P_.weighted ? P_.violation(x) : P_.violation_uniform(x));
+    return particles_.faithful(particles_.weighted ? particles_.violation(x) : particles_.violation_uniform(x));
   }
 
   // The figures of the final surface.
   void finish(ParticleSurfacingStats& stats) {
-    if (o_.erosion && *o_.erosion > 0.0) {
+    if (options_.erosion && *options_.erosion > 0.0) {
       measure(stats.faithful_after_polish, stats.max_violation_after_polish);  // erosion leaves the band on purpose
     } else {
       faithfulness(stats.faithful_after_polish, stats.max_violation_after_polish);
@@ -1194,9 +1197,9 @@ class Smoother {
   // Area-weighted vertex normals averaged once over the 1-ring: the r_outer start is corrugated at the particle
   // scale, and these tilt less with it.
   std::vector<Vec3> smoothed_normals() const {
-    const std::vector<Vec3> raw = ps::vertex_normals(x_, mesh_.triangles, threads_);
-    std::vector<Vec3> out(n_);
-    for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
+    const std::vector<Vec3> raw = ps::vertex_normals(positions_, mesh_.triangles, threads_);
+    std::vector<Vec3> out(vertex_count_);
+    for_chunks(vertex_count_, threads_, [&](std::size_t begin, std::size_t end) {
       for (std::size_t i = begin; i < end; ++i) {
         Vec3 sum = raw[i];
         for (std::uint32_t e = ring_.offsets[i]; e < ring_.offsets[i + 1]; ++e) sum += raw[ring_.cols[e]];
@@ -1215,32 +1218,32 @@ class Smoother {
   // longest 1-ring edge of its start; the root mean square edge (summed per vertex, then in vertex order) sets the
   // descent's passes.
   void intervals(std::vector<Vec3>& x0, const RunControl& control, ParticleSurfacingStats& stats) {
-    band_lo_.resize(n_);
-    band_hi_.resize(n_);
-    lo_.resize(n_);
-    hi_.resize(n_);
+    band_lo_.resize(vertex_count_);
+    band_hi_.resize(vertex_count_);
+    lo_.resize(vertex_count_);
+    hi_.resize(vertex_count_);
     if (container_.box) {  // else every vertex's container interval is the whole line, and none is stored
-      container_lo_.resize(n_);
-      container_hi_.resize(n_);
+      container_lo_.resize(vertex_count_);
+      container_hi_.resize(vertex_count_);
     }
-    const bool cusps = !o_.vertex_only_band;
-    if (cusps) cusp_.resize(n_);
-    std::vector<double> edge_sum(cusps ? n_ : 0);
+    const bool cusps = !options_.vertex_only_band;
+    if (cusps) cusp_.resize(vertex_count_);
+    std::vector<double> edge_sum(cusps ? vertex_count_ : 0);
     const double reach = this->reach();
     std::atomic<std::size_t> cusp_vertices{0};
-    for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
+    for_chunks(vertex_count_, threads_, [&](std::size_t begin, std::size_t end) {
       control.check();
       BandScratch scratch;
       std::size_t lowered = 0;
       for (std::size_t i = begin; i < end; ++i) {
         if (((i - begin) & 63) == 63) control.check();
-        const Vec3& at = x_[i];  // where step 3 left it
+        const Vec3& at = positions_[i];  // where step 3 left it
         const Vec3& n = normals_[i];
         double cell = 0.0;
         if (cusps) {
           double sum = 0.0, longest = 0.0;  // squared lengths
           for (std::uint32_t e = ring_.offsets[i]; e < ring_.offsets[i + 1]; ++e) {
-            const double length2 = (x_[ring_.cols[e]] - at).squaredNorm();
+            const double length2 = (positions_[ring_.cols[e]] - at).squaredNorm();
             longest = std::max(longest, length2);
             sum += length2;
           }
@@ -1249,16 +1252,16 @@ class Smoother {
         }
         // The band at a point placed otherwise than along the line: empty when that point is not faithful.
         const auto band_at = [&](const Vec3& y, double cusp_cell) {
-          const std::optional<Particles::LineBand> there = P_.band_on_line(y, n, reach, cusp_cell, scratch);
+          const std::optional<Particles::LineBand> there = particles_.band_on_line(y, n, reach, cusp_cell, scratch);
           return there && there->at == 0.0 ? there->band : Interval{0.0, 0.0};
         };
         Vec3 x = at;
         Interval band;
-        if (const std::optional<Particles::LineBand> line = P_.band_on_line(at, n, reach, cell, scratch)) {
+        if (const std::optional<Particles::LineBand> line = particles_.band_on_line(at, n, reach, cell, scratch)) {
           x += line->at * n;
           band = line->band;
         } else {  // no faithful point of the line within reach: the thesis' projection
-          P_.project_any(x);
+          particles_.project_any(x);
           band = band_at(x, cell);
         }
         if (container_.active()) {
@@ -1278,7 +1281,7 @@ class Smoother {
           const auto owns = [&](const Vec3& q) {
             const double mine = (q - at).squaredNorm();
             for (std::uint32_t e = ring_.offsets[i]; e < ring_.offsets[i + 1]; ++e) {
-              if ((q - x_[ring_.cols[e]]).squaredNorm() < mine) return false;
+              if ((q - positions_[ring_.cols[e]]).squaredNorm() < mine) return false;
             }
             return true;
           };
@@ -1330,13 +1333,13 @@ class Smoother {
   // plane, clamped into its interval. x0 moves with it, the intervals shift by the move (the same lines), so the sweeps
   // start at offset 0 again. Sums in a fixed order per vertex: the same start whatever the threads.
   void descend(const RunControl& control) {
-    if (n_ == 0 || !(rms_edge_ > 0.0)) return;
-    const double outer = P_.weighted ? P_.max_outer : P_.r_outer;
+    if (vertex_count_ == 0 || !(rms_edge_ > 0.0)) return;
+    const double outer = particles_.weighted ? particles_.max_outer : particles_.r_outer;
     const int passes = static_cast<int>(std::clamp(std::ceil(outer / rms_edge_), 1.0, double{kMaxDescentPasses}));
-    Buffer<CuspPlane> next(n_);
+    Buffer<CuspPlane> next(vertex_count_);
     for (int pass = 0; pass < passes; ++pass) {
       control.check();
-      for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
+      for_chunks(vertex_count_, threads_, [&](std::size_t begin, std::size_t end) {
         for (std::size_t i = begin; i < end; ++i) {
           Eigen::Vector4d sum = cusp_[i].equation;
           for (std::uint32_t e = ring_.offsets[i]; e < ring_.offsets[i + 1]; ++e) sum += cusp_[ring_.cols[e]].equation;
@@ -1345,13 +1348,13 @@ class Smoother {
       });
       std::swap(cusp_, next);
     }
-    for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
+    for_chunks(vertex_count_, threads_, [&](std::size_t begin, std::size_t end) {
       for (std::size_t i = begin; i < end; ++i) {
         const Vec3 axis = cusp_[i].axis();
         const double facing = axis.dot(normals_[i]);
         if (!(facing > 0.0 && facing >= kCuspFacing * axis.norm())) continue;  // none near, or facing away
-        const double move = std::clamp((cusp_[i].offset() - axis.dot(x_[i])) / facing, lo_[i], hi_[i]);
-        x_[i] += move * normals_[i];
+        const double move = std::clamp((cusp_[i].offset() - axis.dot(positions_[i])) / facing, lo_[i], hi_[i]);
+        positions_[i] += move * normals_[i];
         for (Buffer<double>* bound : {&lo_, &hi_, &band_lo_, &band_hi_, &container_lo_, &container_hi_}) {
           if (!bound->empty()) (*bound)[i] -= move;  // the container's are empty without a box (the whole line)
         }
@@ -1363,8 +1366,8 @@ class Smoother {
   // x = x0 + t n (and the container solid, which wins over the band).
   void place() {
     const std::span<const double> t = smoothing_->offsets();
-    for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
-      for (std::size_t i = begin; i < end; ++i) x_[i] += t[i] * normals_[i];  // x0 + t n
+    for_chunks(vertex_count_, threads_, [&](std::size_t begin, std::size_t end) {
+      for (std::size_t i = begin; i < end; ++i) positions_[i] += t[i] * normals_[i];  // x0 + t n
     });
     if (container_.solid != nullptr) constrain(false);
   }
@@ -1376,35 +1379,35 @@ class Smoother {
     const std::span<const double> t = smoothing_ ? smoothing_->offsets() : std::span<const double>(offsets_);
     std::size_t good = 0;
     double worst = 0.0;
-    for (std::size_t i = 0; i < n_; ++i) {
+    for (std::size_t i = 0; i < vertex_count_; ++i) {
       const double v = std::max({band_lo_[i] - t[i], t[i] - band_hi_[i], 0.0});
       good += v == 0.0;
       worst = std::max(worst, v);
     }
-    fraction = n_ > 0 ? static_cast<double>(good) / static_cast<double>(n_) : 1.0;
+    fraction = vertex_count_ > 0 ? static_cast<double>(good) / static_cast<double>(vertex_count_) : 1.0;
     max_violation = worst;
   }
 
   // x to the nearest faithful point of the line x + t n, |t| <= reach; without one, the thesis' projection to the
   // band's nearest point.
   void project_along(Vec3& x, const Vec3& n, BandScratch& scratch) const {
-    if (const std::optional<Particles::LineBand> line = P_.band_on_line(x, n, reach(), 0.0, scratch)) {
+    if (const std::optional<Particles::LineBand> line = particles_.band_on_line(x, n, reach(), 0.0, scratch)) {
       x += line->at * n;
     } else {
-      P_.project_any(x);
+      particles_.project_any(x);
     }
   }
   // From the outer edge of the band to its inner edge (with per-particle radii, the widest such span: equal radii
   // give the uniform intervals).
-  double reach() const { return P_.max_outer - P_.min_inner; }
+  double reach() const { return particles_.max_outer - particles_.min_inner; }
 
   // The particle band (when `to_particles`) and the container, on every vertex.
   void constrain(bool to_particles) {
     if (!to_particles && !container_.active()) return;
-    for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
+    for_chunks(vertex_count_, threads_, [&](std::size_t begin, std::size_t end) {
       for (std::size_t i = begin; i < end; ++i) {
-        if (to_particles) P_.project_any(x_[i]);
-        if (container_.active()) container_.project(x_[i]);
+        if (to_particles) particles_.project_any(positions_[i]);
+        if (container_.active()) container_.project(positions_[i]);
       }
     });
   }
@@ -1414,27 +1417,28 @@ class Smoother {
     std::mutex mutex;
     std::size_t good_total = 0;
     double worst_total = 0.0;
-    for_chunks(n_, threads_, [&](std::size_t begin, std::size_t end) {
+    for_chunks(vertex_count_, threads_, [&](std::size_t begin, std::size_t end) {
       std::size_t good = 0;
       double worst = 0.0;
       for (std::size_t i = begin; i < end; ++i) {
-        const double v = P_.weighted ? P_.violation(x_[i]) : P_.violation_uniform(x_[i]);
-        good += P_.faithful(v);
+        const double v =
+            particles_.weighted ? particles_.violation(positions_[i]) : particles_.violation_uniform(positions_[i]);
+        good += particles_.faithful(v);
         worst = std::max(worst, v);
       }
       const std::lock_guard lock(mutex);
       good_total += good;
       worst_total = std::max(worst_total, worst);
     });
-    fraction = n_ > 0 ? static_cast<double>(good_total) / static_cast<double>(n_) : 1.0;
+    fraction = vertex_count_ > 0 ? static_cast<double>(good_total) / static_cast<double>(vertex_count_) : 1.0;
     max_violation = worst_total;
   }
 
   Mesh& mesh_;
-  std::vector<Vec3>& x_;
-  const std::size_t n_;
-  const ParticleSurfacingOptions& o_;
-  const Particles& P_;
+  std::vector<Vec3>& positions_;
+  const std::size_t vertex_count_;
+  const ParticleSurfacingOptions& options_;
+  const Particles& particles_;
   const int threads_;
   const ps::Graph ring_;
   const std::size_t blocks_;
