@@ -559,18 +559,24 @@ class Client {
   // Prepares the job, uploads its inputs and submits it; Ctrl-C during the uploads abandons them (no job is
   // queued), during the submission cancels the job.
   std::string submit(const std::string& kind, const py::tuple& inputs, const py::dict& kwargs) {
+    return submit_job_of(kind, inputs, kwargs, /*open=*/false);
+  }
+
+  // submit() and submit_open(): the spec as prepared, or opened for frames that join it.
+  std::string submit_job_of(const std::string& kind, const py::tuple& inputs, const py::dict& kwargs, bool open) {
     auto in = std::make_shared<Inputs>();
     const JobOptions options = job_options(kind, inputs, kwargs, *in);
     auto prepared = std::make_shared<PreparedJob>(prepare_job(options, in->memory));
     Connection& connection = this->connection();
     auto stop = std::make_shared<std::atomic<bool>>(false);
     return interruptible<std::string>(
-        [&connection, in, prepared, stop]() {
+        [&connection, in, prepared, stop, open]() {
           std::ostringstream quiet;
           ProgressDisplay progress(quiet, false);
           upload_inputs(connection, prepared->spec, prepared->uploads, progress, stop.get());
           if (*stop) throw CliError(ExitCode::kCancelled, "interrupted before the job was submitted");
-          const std::string id = submit_job(connection, prepared->spec);
+          const std::string id =
+              submit_job(connection, open ? open_sequence_spec(prepared->spec) : prepared->spec);
           if (*stop) cancel_job(connection, id);
           return id;
         },
@@ -588,22 +594,7 @@ class Client {
 
   // As submit(), with the job open (ParticlesJob.open): `inputs` holds its first frame.
   std::string submit_open(const std::string& kind, const py::tuple& inputs, const py::dict& kwargs) {
-    auto in = std::make_shared<Inputs>();
-    const JobOptions options = job_options(kind, inputs, kwargs, *in);
-    auto prepared = std::make_shared<PreparedJob>(prepare_job(options, in->memory));
-    Connection& connection = this->connection();
-    auto stop = std::make_shared<std::atomic<bool>>(false);
-    return interruptible<std::string>(
-        [&connection, in, prepared, stop]() {
-          std::ostringstream quiet;
-          ProgressDisplay progress(quiet, false);
-          upload_inputs(connection, prepared->spec, prepared->uploads, progress, stop.get());
-          if (*stop) throw CliError(ExitCode::kCancelled, "interrupted before the job was submitted");
-          const std::string id = submit_job(connection, open_sequence_spec(prepared->spec));
-          if (*stop) cancel_job(connection, id);
-          return id;
-        },
-        [stop] { *stop = true; });
+    return submit_job_of(kind, inputs, kwargs, /*open=*/true);
   }
 
   // Prepares `inputs` (one frame) with the job's keywords, as submit() would, uploads it and appends it to the open
