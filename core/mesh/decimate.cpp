@@ -209,7 +209,7 @@ class VertexHeap {
 // One pass over a patch: its own TriMesh, heap and sample lists.
 class PatchDecimator {
  public:
-  PatchDecimator(Shared& shared, const Patch& patch) : s_(shared), patch_(patch) {}
+  PatchDecimator(Shared& shared, const Patch& patch) : shared_(shared), patch_(patch) {}
 
   Patch run() {
     build();
@@ -221,7 +221,7 @@ class PatchDecimator {
   // After run() in the first pass: the frozen vertices' quadrics from this patch's triangles alone.
   std::vector<std::pair<std::uint32_t, Quadric>> frozen_quadrics() const {
     std::vector<std::pair<std::uint32_t, Quadric>> out;
-    if (s_.initial) {
+    if (shared_.initial) {
       for (std::size_t v = 0; v < global_.size(); ++v) {
         if (lock_[v] == kFrozen) out.emplace_back(global_[v], quadrics_[v]);
       }
@@ -236,7 +236,7 @@ class PatchDecimator {
   const Quadric& quadric(VertexHandle v) const { return quadrics_[v.idx()]; }
 
   void build() {
-    const Mesh& mesh = s_.mesh;
+    const Mesh& mesh = shared_.mesh;
     // Local vertices in increasing input order; corner_[3 t + k] is corner k of triangle t in local numbering.
     const std::size_t n = patch_.triangles.size();
     std::vector<std::uint64_t> corners(3 * n);
@@ -255,7 +255,7 @@ class PatchDecimator {
     // Positions and quadrics in local order: a region's are then near in memory.
     positions_.reserve(global_.size());
     for (const std::uint32_t v : global_) positions_.push_back(mesh.vertices[v]);
-    if (s_.initial) {
+    if (shared_.initial) {
       quadrics_.resize(global_.size());
       for (std::size_t t = 0; t < n; ++t) {
         const std::uint32_t* c = &corner_[3 * t];
@@ -271,7 +271,7 @@ class PatchDecimator {
       }
     } else {
       quadrics_.reserve(global_.size());
-      for (const std::uint32_t v : global_) quadrics_.push_back(s_.quadrics[v]);
+      for (const std::uint32_t v : global_) quadrics_.push_back(shared_.quadrics[v]);
     }
     om_.request_vertex_status();
     om_.request_edge_status();
@@ -298,7 +298,7 @@ class PatchDecimator {
     // Boundary vertices stay: locking them keeps every boundary (and any face OpenMesh refused) exactly as it was.
     for (const VertexHandle v : om_.vertices()) {
       if (om_.is_boundary(v) || om_.is_isolated(v)) lock_[v.idx()] = std::max<std::uint8_t>(lock_[v.idx()], kKeep);
-      if (!s_.frozen.empty() && s_.frozen[global_[v.idx()]]) lock_[v.idx()] = kFrozen;
+      if (!shared_.frozen.empty() && shared_.frozen[global_[v.idx()]]) lock_[v.idx()] = kFrozen;
     }
     floor_.assign(global_.size(), -std::numeric_limits<double>::infinity());
     heap_ = VertexHeap(global_.size());
@@ -311,7 +311,7 @@ class PatchDecimator {
     for (std::size_t v = 0; v < global_.size(); ++v) om_.add_vertex(TriMesh::Point(0.0, 0.0, 0.0));
     added_.assign(patch_.triangles.size(), 1);
     for (std::size_t t = 0; t < patch_.triangles.size(); ++t) {
-      if ((t & 4095) == 4095) s_.control.check();
+      if ((t & 4095) == 4095) shared_.control.check();
       const VertexHandle a(static_cast<int>(corner_[3 * t])), b(static_cast<int>(corner_[3 * t + 1])),
           c(static_cast<int>(corner_[3 * t + 2]));
       if (!om_.add_face(a, b, c).is_valid()) {
@@ -359,7 +359,8 @@ class PatchDecimator {
       if (half[h].is_valid()) continue;  // made with its opposite
       const std::uint32_t from = corner_[h], to = to_of(h);
       if (find(from, to) != h) return false;
-      const HalfedgeHandle made = om_.new_edge(VertexHandle(static_cast<int>(from)), VertexHandle(static_cast<int>(to)));
+      const HalfedgeHandle made =
+          om_.new_edge(VertexHandle(static_cast<int>(from)), VertexHandle(static_cast<int>(to)));
       half[h] = made;
       const std::uint32_t opposite = find(to, from);
       if (opposite == kNone - 1) return false;
@@ -429,7 +430,7 @@ class PatchDecimator {
 
   void fill_heap() {
     for (const VertexHandle v : om_.vertices()) {
-      if (s_.seed.empty() || s_.seed[global_[v.idx()]]) push(v);
+      if (shared_.seed.empty() || shared_.seed[global_[v.idx()]]) push(v);
     }
   }
 
@@ -451,10 +452,10 @@ class PatchDecimator {
       const Vec3& a = position(om_.to_vertex_handle(out));
       const Vec3& b = position(om_.to_vertex_handle(om_.next_halfedge_handle(out)));
       const Fan face{f, {p1, a, b}};
-      if (max_cosine(p1, a, b) > s_.max_cos_angle) return false;
+      if (max_cosine(p1, a, b) > shared_.max_cos_angle) return false;
       const Vec3 n_old = (a - p0).cross(b - p0);
       const Vec3 n_new = (a - p1).cross(b - p1);
-      if (n_old.dot(n_new) < s_.min_cos_normal * n_old.norm() * n_new.norm()) return false;
+      if (n_old.dot(n_new) < shared_.min_cos_normal * n_old.norm() * n_new.norm()) return false;
       fan_.push_back(face);
     }
     if (fan_.empty()) return false;
@@ -497,8 +498,8 @@ class PatchDecimator {
 
     // The engine's rule at the new triangles' centroids and the midpoints of the new edges (v1, w), w a neighbour of
     // v0 but not of v1.
-    if (s_.rule != nullptr) {
-      const SurfacePointRule& rule = *s_.rule;
+    if (shared_.rule != nullptr) {
+      const SurfacePointRule& rule = *shared_.rule;
       for (const Fan& face : fan_) {
         if (!rule((face.corner[0] + face.corner[1] + face.corner[2]) / 3.0)) return false;
       }
@@ -514,7 +515,7 @@ class PatchDecimator {
   int place(const Vec3& q, int first) const {
     const auto near = [&](int i) {
       const auto& c = fan_[i].corner;
-      return squared_distance_to_triangle(q, c[0], c[1], c[2]) <= s_.tolerance2;
+      return squared_distance_to_triangle(q, c[0], c[1], c[2]) <= shared_.tolerance2;
     };
     if (first >= 0 && near(first)) return first;
     for (int i = 0; i < static_cast<int>(fan_.size()); ++i) {
@@ -538,7 +539,7 @@ class PatchDecimator {
     head = static_cast<std::int32_t>(node_point_.size() - 1);
 
     quadrics_[v1.idx()] += quadrics_[v0.idx()];
-    s_.removed[global_[v0.idx()]] = 1;
+    shared_.removed[global_[v0.idx()]] = 1;
     support_.clear();
     for (const VertexHandle w : om_.vv_range(v0)) support_.push_back(w);
     om_.collapse(h);
@@ -563,7 +564,7 @@ class PatchDecimator {
     std::vector<std::pair<double, HalfedgeHandle>> candidates;
     std::size_t pops = 0;
     while (!heap_.empty()) {
-      if ((++pops & 1023) == 0) s_.control.check();
+      if ((++pops & 1023) == 0) shared_.control.check();
       const std::uint32_t v = heap_.pop();
       const VertexHandle v0(static_cast<int>(v));
       candidates.clear();
@@ -589,11 +590,11 @@ class PatchDecimator {
         }
       }
     }
-    s_.collapses += collapses_;
+    shared_.collapses += collapses_;
     // The quadrics of this pass's own vertices for the next pass (frozen ones are other regions' too).
-    if (!s_.quadrics.empty()) {
+    if (!shared_.quadrics.empty()) {
       for (std::size_t v = 0; v < global_.size(); ++v) {
-        if (lock_[v] != kFrozen) s_.quadrics[global_[v]] = quadrics_[v];
+        if (lock_[v] != kFrozen) shared_.quadrics[global_[v]] = quadrics_[v];
       }
     }
   }
@@ -627,7 +628,7 @@ class PatchDecimator {
     std::array<Vec3, 3> corner;  // with v0 at p1
   };
 
-  Shared& s_;
+  Shared& shared_;
   const Patch& patch_;
   TriMesh om_;
   std::vector<std::uint32_t> global_;      // local vertex -> input vertex

@@ -88,7 +88,10 @@ Findings scan(const Mesh& mesh, const QuantizationGrid& grid, int threads) {
 class Nudger {
  public:
   Nudger(Mesh& mesh, const QuantizationGrid& grid, Findings& findings)
-      : mesh_(mesh), grid_(grid), f_(findings), adjacency_(vertex_triangles(mesh.vertices.size(), mesh.triangles)) {}
+      : mesh_(mesh),
+        grid_(grid),
+        findings_(findings),
+        adjacency_(vertex_triangles(mesh.vertices.size(), mesh.triangles)) {}
 
   // Nudges one vertex of triangle t (the one that moves least), unless t is no longer degenerate.
   bool fix_triangle(std::uint32_t t) {
@@ -119,14 +122,16 @@ class Nudger {
   std::int64_t nudges = 0;
 
  private:
-  const GridPoint& point(std::uint32_t v) const { return f_.points[v]; }
+  const GridPoint& point(std::uint32_t v) const { return findings_.points[v]; }
 
   // Vertices on grid point g: those the scan found there, plus the moves since.
   int occupancy(const GridPoint& g) const {
     const std::uint64_t key = key_of(g, grid_.bits);
     int count = 0;
-    auto it = std::lower_bound(f_.keys.begin(), f_.keys.end(), std::pair<std::uint64_t, std::uint32_t>(key, 0));
-    for (; it != f_.keys.end() && it->first == key; ++it) count += moved_.count(it->second) == 0 && point(it->second) == g;
+    auto it =
+        std::lower_bound(findings_.keys.begin(), findings_.keys.end(), std::pair<std::uint64_t, std::uint32_t>(key, 0));
+    for (; it != findings_.keys.end() && it->first == key; ++it)
+      count += moved_.count(it->second) == 0 && point(it->second) == g;
     for (const auto& [v, from] : moved_) count += point(v) == g;
     return count;
   }
@@ -183,14 +188,14 @@ class Nudger {
 
   void move(std::uint32_t v, const GridPoint& to) {
     moved_.emplace(v, point(v));
-    f_.points[v] = to;
+    findings_.points[v] = to;
     mesh_.vertices[v] = grid_.dequantize(to);
     ++nudges;
   }
 
   Mesh& mesh_;
   const QuantizationGrid& grid_;
-  Findings& f_;
+  Findings& findings_;
   VertexTriangles adjacency_;
   std::unordered_map<std::uint32_t, GridPoint> moved_;  // vertex -> the grid point it left
 };
@@ -230,7 +235,9 @@ std::int64_t collapse_coincident_edges(Mesh& mesh, Findings& f, int max_passes, 
             const auto site = editor.collapse_site(t, keep, lost);
             if (!site) continue;
             const Triangle& tri = mesh.triangles[t];
-            const std::uint32_t third = tri[0] != a && tri[0] != b ? tri[0] : tri[1] != a && tri[1] != b ? tri[1] : tri[2];
+            const std::uint32_t third = tri[0] != a && tri[0] != b   ? tri[0]
+                                        : tri[1] != a && tri[1] != b ? tri[1]
+                                                                     : tri[2];
             const std::size_t kept_valence = editor.neighbours(keep).size();
             const std::size_t merged = kept_valence + editor.neighbours(lost).size() - 4;
             if (!may_lose(third) || !may_lose(site->vertex) || (merged < floor && kept_valence >= floor)) continue;
@@ -265,7 +272,8 @@ std::int64_t collapse_coincident_edges(Mesh& mesh, Findings& f, int max_passes, 
   mesh.vertices.resize(next);
   f.points.resize(next);
   if (!mesh.normals.empty()) mesh.normals.resize(next);
-  for (Attribute& attribute : mesh.attributes) attribute.values.resize(next * static_cast<std::size_t>(attribute.components));
+  for (Attribute& attribute : mesh.attributes)
+    attribute.values.resize(next * static_cast<std::size_t>(attribute.components));
   std::size_t kept = 0;
   for (const Triangle& t : mesh.triangles) {
     if (t[0] == MeshEditor::kNone) continue;

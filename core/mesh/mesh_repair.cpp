@@ -33,17 +33,18 @@ struct Move {
 class Repair {
  public:
   Repair(Mesh& mesh, const SliverOptions& options)
-      : mesh_(mesh), x_(mesh.vertices), tris_(mesh.triangles), o_(options) {
-    if (o_.grid) {
-      snapped_.resize(x_.size());
-      for (std::size_t v = 0; v < x_.size(); ++v) snapped_[v] = o_.grid->frame_point(x_[v]);
+      : mesh_(mesh), positions_(mesh.vertices), tris_(mesh.triangles), options_(options) {
+    if (options_.grid) {
+      snapped_.resize(positions_.size());
+      for (std::size_t v = 0; v < positions_.size(); ++v) snapped_[v] = options_.grid->frame_point(positions_[v]);
     }
   }
 
   bool bad(const Triangle& t) const {
     if (t[0] == kDead) return false;
-    if (o_.grid && collinear_on_grid(snapped_[t[0]], snapped_[t[1]], snapped_[t[2]])) return true;  // quality -1
-    return !clearly_good(t) && min_angle_degrees(x_[t[0]], x_[t[1]], x_[t[2]]) < o_.min_angle_degrees;
+    if (options_.grid && collinear_on_grid(snapped_[t[0]], snapped_[t[1]], snapped_[t[2]])) return true;  // quality -1
+    return !clearly_good(t) &&
+           min_angle_degrees(positions_[t[0]], positions_[t[1]], positions_[t[2]]) < options_.min_angle_degrees;
   }
 
   // Repairs triangle t if it is still bad: of the flips of its three edges and the collapses of each edge onto
@@ -53,8 +54,8 @@ class Repair {
   bool repair(std::uint32_t t, std::vector<std::uint32_t>& changed) {
     if (!bad(tris_[t])) return false;
     if (!editor_) {  // built at the first bad triangle only
-      adjacency_ = vertex_triangles(x_.size(), tris_);
-      editor_.emplace(tris_, adjacency_, x_.size());
+      adjacency_ = vertex_triangles(positions_.size(), tris_);
+      editor_.emplace(tris_, adjacency_, positions_.size());
     }
     undo_.clear();
     std::vector<Move> moves = candidates(t);
@@ -77,7 +78,7 @@ class Repair {
       }
       roll_back(mark);  // the raising flips served nothing: the mesh stays as it was
     }
-    return o_.place && relocate(t, changed);
+    return options_.place && relocate(t, changed);
   }
 
  private:
@@ -85,7 +86,7 @@ class Repair {
   // tan(min angle) (u . v) with a margin far above rounding (the smallest angle is below 60 degrees, so at its corner
   // u . v > 0); the exact test decides the rest.
   bool clearly_good(const Triangle& t) const {
-    const Vec3 &a = x_[t[0]], &b = x_[t[1]], &c = x_[t[2]];
+    const Vec3 &a = positions_[t[0]], &b = positions_[t[1]], &c = positions_[t[2]];
     const Vec3 ab = b - a, ac = c - a, bc = c - b;
     const double cross = ab.cross(ac).norm();
     const double bound = tan_min_angle_ * (1.0 + 1e-9);
@@ -94,15 +95,18 @@ class Repair {
 
   // A triangle's smallest angle in degrees; -1 when it is degenerate on the output grid.
   double quality(const Triangle& t) const {
-    if (o_.grid && collinear_on_grid(snapped_[t[0]], snapped_[t[1]], snapped_[t[2]])) return -1.0;
-    return min_angle_degrees(x_[t[0]], x_[t[1]], x_[t[2]]);
+    if (options_.grid && collinear_on_grid(snapped_[t[0]], snapped_[t[1]], snapped_[t[2]])) return -1.0;
+    return min_angle_degrees(positions_[t[0]], positions_[t[1]], positions_[t[2]]);
   }
-  Vec3 normal(const Triangle& t) const { return (x_[t[1]] - x_[t[0]]).cross(x_[t[2]] - x_[t[0]]); }
+  Vec3 normal(const Triangle& t) const {
+    return (positions_[t[1]] - positions_[t[0]]).cross(positions_[t[2]] - positions_[t[0]]);
+  }
   std::size_t valence(std::uint32_t v) const { return edit().triangle_count(v); }
   // A vertex may lose one neighbour when it stays at or above the floor, or was below it already.
   bool may_lose(std::uint32_t v) const {
     const std::size_t val = valence(v);
-    return val < static_cast<std::size_t>(o_.min_valence) || val - 1 >= static_cast<std::size_t>(o_.min_valence);
+    return val < static_cast<std::size_t>(options_.min_valence) ||
+           val - 1 >= static_cast<std::size_t>(options_.min_valence);
   }
   // The other triangle of directed edge (a, b) of triangle t (the one holding b -> a), or kDead when there is none
   // or the edge is not manifold.
@@ -125,7 +129,7 @@ class Repair {
     std::erase_if(moves, [](const Move& m) { return !(m.after > m.before); });
     // First the moves that leave no bad triangle, flips before collapses (a flip keeps every vertex); then by quality.
     auto rank = [&](const Move& m) {
-      const bool good = m.after >= o_.min_angle_degrees;
+      const bool good = m.after >= options_.min_angle_degrees;
       return std::tuple(good, good && m.kind == Move::Kind::kFlip, m.after);
     };
     std::stable_sort(moves.begin(), moves.end(), [&](const Move& a, const Move& b) { return rank(a) > rank(b); });
@@ -173,7 +177,7 @@ class Repair {
     std::vector<std::uint32_t> common;
     std::set_intersection(na.begin(), na.end(), nb.begin(), nb.end(), std::back_inserter(common));
     if (common.size() != 2) return std::nullopt;
-    const std::size_t merged = na.size() + nb.size() - 4, floor = static_cast<std::size_t>(o_.min_valence);
+    const std::size_t merged = na.size() + nb.size() - 4, floor = static_cast<std::size_t>(options_.min_valence);
     if (merged < floor && std::max(na.size(), nb.size()) >= floor) return std::nullopt;
     Move m;
     m.kind = Move::Kind::kCollapse;
@@ -252,8 +256,8 @@ class Repair {
 
   // Vertex v at p, and its grid point.
   void put(std::uint32_t v, const Vec3& p) {
-    x_[v] = p;
-    if (o_.grid) snapped_[v] = o_.grid->frame_point(p);
+    positions_[v] = p;
+    if (options_.grid) snapped_[v] = options_.grid->frame_point(p);
   }
 
   // How good a vertex's triangles are, for relocate(): fewer degenerate on the grid first, then fewer below the
@@ -275,7 +279,7 @@ class Repair {
         ++s.degenerate;
         continue;
       }
-      s.bad += q < o_.min_angle_degrees ? 1 : 0;
+      s.bad += q < options_.min_angle_degrees ? 1 : 0;
       s.worst = std::min(s.worst, q);
     }
     return s;
@@ -284,8 +288,8 @@ class Repair {
   // Moves the vertex of t whose move leaves its triangles best (Score), when that is better than now. Each vertex is
   // proposed at two centroids of its neighbours, projected on its tangent plane (the plane of its area-weighted
   // normal): the plain one, and one weighted by the length of the edge to each neighbour, which a knot of
-  // near-coincident vertices does not hold back. Each proposal is placed by o_.place and refused when it turns one of
-  // the vertex's triangles away from that normal (a triangle that faced away already may stay so).
+  // near-coincident vertices does not hold back. Each proposal is placed by options_.place and refused when it turns
+  // one of the vertex's triangles away from that normal (a triangle that faced away already may stay so).
   bool relocate(std::uint32_t t, std::vector<std::uint32_t>& changed) {
     std::uint32_t best_vertex = kDead;
     Vec3 best_position = Vec3::Zero();
@@ -303,16 +307,16 @@ class Repair {
       Vec3 plain = Vec3::Zero(), weighted = Vec3::Zero();
       double length = 0.0;
       for (const std::uint32_t w : ring) {
-        const double l = (x_[w] - x_[v]).norm();
-        plain += x_[w];
-        weighted += l * x_[w];
+        const double l = (positions_[w] - positions_[v]).norm();
+        plain += positions_[w];
+        weighted += l * positions_[w];
         length += l;
       }
       plain /= static_cast<double>(ring.size());
-      const Vec3 old = x_[v];
+      const Vec3 old = positions_[v];
       for (const Vec3& centroid : {plain, length > 0.0 ? Vec3(weighted / length) : plain}) {
         Vec3 proposal = centroid - (centroid - old).dot(n) * n;
-        if (!o_.place(v, proposal, n)) continue;
+        if (!options_.place(v, proposal, n)) continue;
         put(v, proposal);
         bool turned = false;
         for (std::size_t i = 0; i < fan.size(); ++i) {
@@ -356,7 +360,7 @@ class Repair {
       const std::uint32_t other = across(s, p, q);
       if (other == kDead || is_near(other)) continue;
       std::optional<Move> m = evaluate_flip(s, k);
-      if (!m || !(m->after >= o_.min_angle_degrees) || !allowed(s, *m)) continue;
+      if (!m || !(m->after >= options_.min_angle_degrees) || !allowed(s, *m)) continue;
       if (m->blocked[0] != kDead) {
         if (depth == 0) continue;
         bool raised = true;
@@ -371,7 +375,7 @@ class Repair {
         const int k2 = opposite(s, p2, q2);
         if (p2 != p || q2 != q) continue;
         m = evaluate_flip(s, k2);
-        if (!m || m->blocked[0] != kDead || !(m->after >= o_.min_angle_degrees) || !allowed(s, *m)) continue;
+        if (!m || m->blocked[0] != kDead || !(m->after >= options_.min_angle_degrees) || !allowed(s, *m)) continue;
       }
       apply_flip(s, k, changed);
       return true;
@@ -383,16 +387,16 @@ class Repair {
   // Removes the collapsed vertices and triangles (the others keep their order).
   void compact() {
     if (dead_vertices_.empty()) return;
-    std::vector<std::uint32_t> remap(x_.size(), 0);
+    std::vector<std::uint32_t> remap(positions_.size(), 0);
     for (const std::uint32_t v : dead_vertices_) remap[v] = kDead;
     std::uint32_t next = 0;
-    for (std::size_t v = 0; v < x_.size(); ++v) {
+    for (std::size_t v = 0; v < positions_.size(); ++v) {
       if (remap[v] == kDead) continue;
-      x_[next] = x_[v];
+      positions_[next] = positions_[v];
       if (!mesh_.normals.empty()) mesh_.normals[next] = mesh_.normals[v];
       remap[v] = next++;
     }
-    x_.resize(next);
+    positions_.resize(next);
     if (!mesh_.normals.empty()) mesh_.normals.resize(next);
     std::size_t kept = 0;
     for (const Triangle& t : tris_) {
@@ -406,10 +410,10 @@ class Repair {
 
  private:
   Mesh& mesh_;
-  std::vector<Vec3>& x_;
+  std::vector<Vec3>& positions_;
   std::vector<Triangle>& tris_;
-  const SliverOptions& o_;
-  const double tan_min_angle_ = std::tan(o_.min_angle_degrees * kPi / 180.0);
+  const SliverOptions& options_;
+  const double tan_min_angle_ = std::tan(options_.min_angle_degrees * kPi / 180.0);
   VertexTriangles adjacency_;                 // of the triangles on entry, for the editor
   mutable std::optional<MeshEditor> editor_;  // its queries load neighbourhoods: logically const
   MeshEditor& edit() const { return *editor_; }

@@ -372,7 +372,7 @@ OffsetSmoothing::OffsetSmoothing(const Graph& ring, Cotangent cotangent, std::sp
       x0_(x0),
       normals_(normals),
       plan_(plan_two_ring_sweeps(ring, blocks, threads)),
-      t_(ring.rows(), 0.0),
+      offsets_(ring.rows(), 0.0),
       z_(ring.rows()) {
   entries_.resize(cotangent.w.size());
   pack([&](std::uint32_t e) { return cotangent.w[e]; }, threads);
@@ -385,7 +385,7 @@ OffsetSmoothing::OffsetSmoothing(const Graph& ring, std::span<const Triangle> tr
       x0_(x0),
       normals_(normals),
       plan_(plan_two_ring_sweeps(ring, blocks, threads)),
-      t_(ring.rows(), 0.0),
+      offsets_(ring.rows(), 0.0),
       z_(ring.rows()) {
   entries_.resize(ring.cols.size());
   assemble_cotangent(
@@ -416,7 +416,7 @@ void OffsetSmoothing::pack(W&& w_of, int threads) {
 }
 
 void OffsetSmoothing::update_z(int threads) {
-  const std::span<const double> t = t_;
+  const std::span<const double> t = offsets_;
   const std::size_t n = ring_.rows();
   const int chunks = static_cast<int>(std::min<std::size_t>(64, n / 4096 + 1));
   parallel_for(chunks, threads, [&](int c) {
@@ -437,7 +437,7 @@ void OffsetSmoothing::sweep(std::span<const double> lo, std::span<const double> 
     update_z(threads);
     z_current_ = true;
   }
-  std::vector<double>& t = t_;
+  std::vector<double>& t = offsets_;
   const bool bounded = !lo.empty();
   const float step = static_cast<float>(omega);
   auto update = [&](std::uint32_t i) {
@@ -463,11 +463,11 @@ void OffsetSmoothing::sweep(std::span<const double> lo, std::span<const double> 
 
 double OffsetSmoothing::clamp(std::span<const double> lo, std::span<const double> hi) {
   double largest = 0.0;
-  for (std::size_t i = 0; i < t_.size(); ++i) {
-    const double clamped = std::clamp(t_[i], lo[i], hi[i]);
-    if (clamped == t_[i]) continue;
-    largest = std::max(largest, std::abs(clamped - t_[i]));
-    t_[i] = clamped;
+  for (std::size_t i = 0; i < offsets_.size(); ++i) {
+    const double clamped = std::clamp(offsets_[i], lo[i], hi[i]);
+    if (clamped == offsets_[i]) continue;
+    largest = std::max(largest, std::abs(clamped - offsets_[i]));
+    offsets_[i] = clamped;
     z_current_ = false;
   }
   return largest;

@@ -100,10 +100,10 @@ class OffsetSmoothing {
   void sweep(std::span<const double> lo, std::span<const double> hi, double omega, int threads);
   // Every offset into [lo_i, hi_i]; returns the largest move.
   double clamp(std::span<const double> lo, std::span<const double> hi);
-  std::span<const double> offsets() const { return t_; }
+  std::span<const double> offsets() const { return offsets_; }
   // x^T B x summed over the coordinates, for x = x0 + t n (the current offsets when t is not given).
   double energy(std::span<const double> t) const;
-  double energy() const { return energy(t_); }
+  double energy() const { return energy(offsets_); }
   const SweepPlan& plan() const { return plan_; }
 
  private:
@@ -127,7 +127,7 @@ class OffsetSmoothing {
   Buffer<double> w_diag_, inv_area_;
   std::span<const Vec3> x0_, normals_;
   SweepPlan plan_;
-  std::vector<double> t_;
+  std::vector<double> offsets_;
   Buffer<Eigen::Vector3f> z_;  // float: the sweep's working set stays in cache; t and x stay double
   bool z_current_ = false;     // z == W (x0 + t n)
 };
