@@ -45,6 +45,7 @@
 
 #include "core/active/engine.h"
 #include "core/active/schemes.h"
+#include "core/polygonize/edge_margin.h"
 #include "core/util/errors.h"
 #include "core/util/format.h"
 #include "core/util/parallel.h"
@@ -120,6 +121,7 @@ void validate(const ActiveSurfaceOptions& o) {
   }
   if (o.threads < 0) throw InvalidInput("threads", "threads must be >= 0 (0: all hardware threads)");
   if (o.max_blocks < 1) throw InvalidInput("max_blocks", "max_blocks must be >= 1");
+  check_vertex_margin(o.vertex_margin);
   if (o.polygonizer != Polygonizer::kCubes && o.polygonizer != Polygonizer::kTiles) {
     throw InvalidInput("polygonizer", "polygonizer must be tiles or cubes");
   }

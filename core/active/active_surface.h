@@ -101,6 +101,9 @@ struct ActiveSurfaceOptions {
   Polygonizer polygonizer = Polygonizer::kTiles;
   bool normals = false;  // per-vertex unit normals in polygonize()
   int threads = 0;       // 0: hardware threads
+  // polygonize() keeps each vertex this far from both ends of its grid edge (at most a quarter of the edge; scene
+  // units, >= 0): a few quantization steps for quantized frames (docs/ALGORITHMS.md §5 "Clean on the grid"). 0: off.
+  double vertex_margin = 0.0;
   // Allocated blocks (8^3 nodes, about 8.5 KB each) above this throw ResourceLimit("max_blocks").
   std::int64_t max_blocks = std::int64_t{1} << 16;
 };

@@ -21,6 +21,7 @@
 
 #include "core/active/engine.h"
 #include "core/active/schemes.h"
+#include "core/polygonize/edge_margin.h"
 #include "core/polygonize/marching_tiles.h"
 #include "core/polygonize/mc_tables.h"
 #include "core/util/errors.h"
@@ -285,6 +286,7 @@ Mesh active_detail::Engine::cubes_mesh(bool normals, const RunControl& control) 
   // Pass 1: vertices of the crossed edges owned by each band block.
   std::vector<std::vector<Vec3>> verts(nb), norms(nb);
   std::vector<std::vector<std::int32_t>> ids(nb);
+  const double floor = edge_parameter_floor(opt.vertex_margin, frame.spacing());
   parallel_for(nb, threads, [&](int b) {
     if ((b & 31) == 0) control.check();
     if (!band[b]) return;
@@ -303,7 +305,7 @@ Mesh active_detail::Engine::cubes_mesh(bool normals, const RunControl& control) 
           for (int a = 0; a < 3; ++a) {
             const float v0 = p[0], v1 = p[st[a]];
             if ((v0 > 0.0f) == (v1 > 0.0f)) continue;
-            const double t = double(v0) / (double(v0) - double(v1));
+            const double t = std::clamp(double(v0) / (double(v0) - double(v1)), floor, 1.0 - floor);
             Vec3 q(double(kBlockSize) * bc[0] + x, double(kBlockSize) * bc[1] + y, double(kBlockSize) * bc[2] + z);
             q[a] += t;
             map[local_index(x, y, z) * 3 + a] = static_cast<std::int32_t>(verts[b].size());
@@ -423,6 +425,7 @@ Mesh active_detail::Engine::tiles_mesh(bool normals, const RunControl& control) 
   o.spacing = frame.spacing();
   o.normals = normals;
   o.threads = opt.threads;
+  o.vertex_margin = opt.vertex_margin;
   o.seeds = seeds;
   // Every crossing lies in its band block: within the block's half-diagonal of the seed (plus a lattice cell).
   o.seed_radius = (4.0 * std::sqrt(3.0) + 2.0) * frame.spacing();

@@ -257,9 +257,11 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
                     (e.field() == "h" ? widest : initial_source) + ": " + e.what());
   }
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), *region, "spec.output");
-  return std::make_unique<ActiveRunner>(job, context.uploads, options,
-                                        FrameMaker(encoding, context.limits.max_triangles, context.executor),
-                                        context.limits, frames_expected, context.memory);
+  FrameMaker frames(encoding, context.limits.max_triangles, context.executor);
+  ActiveSurfaceOptions surface_options = options;
+  surface_options.vertex_margin = frames.vertex_margin();
+  return std::make_unique<ActiveRunner>(job, context.uploads, surface_options, std::move(frames), context.limits,
+                                        frames_expected, context.memory);
 }
 
 }  // namespace surfacer::server

@@ -131,6 +131,63 @@ void expect_clean_frames(const std::vector<int>& cells_list, const std::vector<i
   EXPECT_GE(frames, static_cast<int>(2 * scenes.size() * cells_list.size() * bits_list.size() * encodings.size()));
 }
 
+// The active and optimize engines' frames alike: an Enright advection of a sphere polygonized by either method
+// (the active engine's own polygonizers, with the same margin) and an optimization of csg_block with snapshots, at 10
+// and 14 bits, every frame clean as decoded and equal to its stats.
+TEST(QuantizedFrames, ActiveAndOptimizeFramesAreCleanToo) {
+  server::ServerOptions options;
+  options.listen = "";
+  auto server = server::SurfacerServer::start(options);
+  auto stub = v1::Surfacer::NewStub(server->in_process_channel());
+  ThreadExecutor executor(1);
+  const v1::Scene sphere = scene_from_file(SURFACER_SOURCE_DIR "/examples/scenes/sphere.json");
+  const v1::Scene block = scene_from_file(SURFACER_SOURCE_DIR "/examples/scenes/csg_block.json");
+  std::vector<std::pair<std::string, v1::JobSpec>> specs;
+  for (const v1::Polygonizer method : {v1::POLYGONIZER_CUBES, v1::POLYGONIZER_TILES}) {
+    v1::JobSpec spec;
+    auto* job = spec.mutable_active();
+    job->set_grid_spacing(0.03);
+    job->set_polygonizer(method);
+    *job->mutable_advect()->mutable_shape() = sphere;
+    job->mutable_advect()->mutable_enright();
+    job->mutable_advect()->set_frames(2);
+    job->mutable_advect()->set_frame_interval(0.3);
+    specs.emplace_back(method == v1::POLYGONIZER_CUBES ? "advect cubes" : "advect tiles", spec);
+  }
+  {
+    v1::JobSpec spec;
+    auto* job = spec.mutable_optimize();
+    *job->mutable_scene() = block;
+    job->mutable_polygonize()->set_cells(24);
+    job->set_max_iterations(20);
+    job->set_snapshot_every(10);
+    specs.emplace_back("optimize", spec);
+  }
+  int frames = 0;
+  for (auto& [name, spec] : specs) {
+    for (const int bits : {10, 14}) {
+      SCOPED_TRACE(name + ", " + std::to_string(bits) + " bits");
+      spec.mutable_output()->set_quantization_bits(bits);
+      std::string id;
+      const grpc::Status status = submit(*stub, spec, &id);
+      ASSERT_TRUE(status.ok()) << status.error_message();
+      const WatchResult result = watch_job(*stub, id);
+      ASSERT_GE(result.frames.size(), 2u) << result.final_job.error().message();
+      for (const auto& [index, frame] : result.frames) {
+        const Mesh decoded = decode_frame(frame.bytes, FrameCodec::kDraco, executor);
+        const MeshReport fresh = check_mesh(decoded);
+        EXPECT_EQ(zero_area_triangles(decoded), 0);
+        EXPECT_EQ(coincident_vertices(decoded), 0);
+        EXPECT_EQ(frame.header.stats().metrics().at("grid_left"), 0.0);
+        EXPECT_TRUE(mesh_has(fresh, kClosedManifold));
+        expect_same_check(frame.header.stats().check(), fresh);
+        ++frames;
+      }
+    }
+  }
+  EXPECT_GE(frames, 12);
+}
+
 TEST(QuantizedFrames, AreCleanOnTheirGridAndDescribedByTheirStats) {
   expect_clean_frames({20, 48, 96}, {10, 12, 14, 16},
                       {v1::MESH_ENCODING_DRACO, v1::MESH_ENCODING_DRACO_PIECES, v1::MESH_ENCODING_MESHOPT});
