@@ -216,13 +216,7 @@ TEST_P(CancelStage, TheNextQueuedJobStartsWithinHalfASecond) {
   ASSERT_TRUE(in_stage) << "never saw stage " << c.stage << "; saw " << ::testing::PrintToString(stages);
 
   const auto cancelled_at = Clock::now();
-  {
-    grpc::ClientContext context;
-    v1::CancelJobRequest cancel;
-    cancel.set_job_id(slow);
-    v1::Job job;
-    ASSERT_TRUE(s.stub->CancelJob(&context, cancel, &job).ok());
-  }
+  ASSERT_TRUE(cancel_job(*s.stub, slow).ok());
   // Measured here (the server's timestamps may be whole seconds): the first GetJob that finds it started.
   const auto until = Clock::now() + 60s;
   while (get_job(*s.stub, next).state() == v1::JOB_STATE_QUEUED && Clock::now() < until) {

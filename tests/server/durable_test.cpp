@@ -130,11 +130,8 @@ TEST(DurableStore, ACancelIsDurableBeforeItIsAcknowledged) {
       while (std::chrono::steady_clock::now() < until && get_job(*stub, busy).frames_done() < 1) {
         std::this_thread::sleep_for(5ms);
       }
-      grpc::ClientContext context;
-      v1::CancelJobRequest request;
-      request.set_job_id(id);
       v1::Job answer;
-      ASSERT_TRUE(stub->CancelJob(&context, request, &answer).ok());
+      ASSERT_TRUE(cancel_job(*stub, id, &answer).ok());
       p.kill_now();
       ASSERT_LT(answer.frames_done(), frames) << "the job finished before the cancel: make frames slower";
     }

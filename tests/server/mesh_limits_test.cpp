@@ -140,13 +140,7 @@ TEST(MeshLimits, CancelDuringOptimizeSubdivisionFreesTheWorker) {
       continue;
     }
     const auto cancelled_at = Clock::now();
-    {
-      grpc::ClientContext context;
-      v1::CancelJobRequest cancel;
-      cancel.set_job_id(slow);
-      v1::Job reply;
-      ASSERT_TRUE(s.stub->CancelJob(&context, cancel, &reply).ok());
-    }
+    ASSERT_TRUE(cancel_job(*s.stub, slow).ok());
     while (get_job(*s.stub, next).state() == v1::JOB_STATE_QUEUED &&
            Clock::now() < cancelled_at + std::chrono::seconds(60)) {
       std::this_thread::sleep_for(std::chrono::milliseconds(2));

@@ -178,11 +178,7 @@ TEST(OpenSequence, CancelWhileWaitingForFramesFinishesAtOnce) {
   ASSERT_TRUE(submit(*s.stub, open_spec(droplet(*s.stub, 0)), &id).ok());
   ASSERT_EQ(wait_frames(*s.stub, id, 1).frames_done(), 1);
   const auto start = std::chrono::steady_clock::now();
-  grpc::ClientContext context;
-  v1::CancelJobRequest request;
-  request.set_job_id(id);
-  v1::Job answer;
-  ASSERT_TRUE(s.stub->CancelJob(&context, request, &answer).ok());
+  ASSERT_TRUE(cancel_job(*s.stub, id).ok());
   v1::Job job = get_job(*s.stub, id);
   while (job.state() != v1::JOB_STATE_CANCELLED && std::chrono::steady_clock::now() - start < 5s) {
     std::this_thread::sleep_for(5ms);

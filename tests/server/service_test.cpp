@@ -162,13 +162,7 @@ TEST(Service, CancelStopsARunningJobWithinHalfASecond) {
   wait_for_state(*s.stub, id, v1::JOB_STATE_RUNNING);
   std::this_thread::sleep_for(100ms);
   const auto start = std::chrono::steady_clock::now();
-  {
-    grpc::ClientContext context;
-    v1::CancelJobRequest request;
-    request.set_job_id(id);
-    v1::Job job;
-    ASSERT_TRUE(s.stub->CancelJob(&context, request, &job).ok());
-  }
+  ASSERT_TRUE(cancel_job(*s.stub, id).ok());
   wait_for_state(*s.stub, id, v1::JOB_STATE_CANCELLED);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   EXPECT_LT(seconds, 0.5);
@@ -265,13 +259,7 @@ TEST(Service, BadInputGetsNamedFieldsAndTheServerKeepsServing) {
   EXPECT_EQ(status.error_code(), grpc::StatusCode::NOT_FOUND);
   EXPECT_NE(status.error_message().find("job_id"), std::string::npos);
   EXPECT_EQ(watch_job(*s.stub, "j-nope").status.error_code(), grpc::StatusCode::NOT_FOUND);
-  {
-    grpc::ClientContext context;
-    v1::CancelJobRequest request;
-    request.set_job_id("j-nope");
-    v1::Job job;
-    EXPECT_EQ(s.stub->CancelJob(&context, request, &job).error_code(), grpc::StatusCode::NOT_FOUND);
-  }
+  EXPECT_EQ(cancel_job(*s.stub, "j-nope").error_code(), grpc::StatusCode::NOT_FOUND);
   // The background job and a fresh one still succeed.
   EXPECT_EQ(watch_job(*s.stub, slow_id).states.back(), v1::JOB_STATE_SUCCEEDED);
   ASSERT_TRUE(submit(*s.stub, isosurface_spec({scene_from_json(kSphere)}, 16), &id).ok());

@@ -199,11 +199,7 @@ TEST(SubmitChecks, TextFieldsOverTheirLimitsAreRefusedAndNeverEchoed) {
     const auto watched = watch_job(*s.stub, job_id);
     EXPECT_LT(watched.status.error_message().size(), 200u);
     EXPECT_FALSE(watched.status.ok());
-    grpc::ClientContext context;
-    v1::CancelJobRequest request;
-    request.set_job_id(job_id);
-    v1::Job job;
-    status = s.stub->CancelJob(&context, request, &job);
+    status = cancel_job(*s.stub, job_id);
     EXPECT_FALSE(status.ok());
     EXPECT_LT(status.error_message().size(), 200u);
   }

@@ -119,6 +119,14 @@ grpc::Status submit(v1::Surfacer::Stub& stub, const v1::JobSpec& spec, std::stri
   return status;
 }
 
+grpc::Status cancel_job(v1::Surfacer::Stub& stub, const std::string& id, v1::Job* job) {
+  grpc::ClientContext context;
+  v1::CancelJobRequest request;
+  request.set_job_id(id);
+  v1::Job answer;
+  return stub.CancelJob(&context, request, job ? job : &answer);
+}
+
 std::string upload(v1::Surfacer::Stub& stub, const std::string& bytes, v1::UploadResponse* response_out) {
   grpc::ClientContext context;
   v1::UploadResponse response;

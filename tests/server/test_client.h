@@ -60,6 +60,9 @@ v1::Job get_job(v1::Surfacer::Stub& stub, const std::string& id, grpc::Status* s
 grpc::Status submit(v1::Surfacer::Stub& stub, const v1::JobSpec& spec, std::string* job_id,
                     const std::string& token = "");
 
+// CancelJob of `id`; the job as answered in *job.
+grpc::Status cancel_job(v1::Surfacer::Stub& stub, const std::string& id, v1::Job* job = nullptr);
+
 // The value of one sample line `name{labels} value` (labels as printed) of a Prometheus text exposition, or -1.
 double metric_sample(const std::string& text, const std::string& series);
 
