@@ -157,7 +157,7 @@ class ActiveRunner final : public JobRunner {
 std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const JobContext& context) {
   const auto& job = spec.active();
   const std::string path = "spec.active";
-  const ActiveSurfaceOptions options = wire::active_options(job, spec.output().normals(), path);
+  ActiveSurfaceOptions options = wire::active_options(job, spec.output().normals(), path);
 
   // Validate the mode now and find the region the surface can occupy (the frames' quantization box).
   // With bounds, the surface closes just outside the last grid nodes inside them: up to a cell beyond.
@@ -258,9 +258,8 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
   }
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), *region, "spec.output");
   FrameMaker frames(encoding, context.limits.max_triangles, context.executor);
-  ActiveSurfaceOptions surface_options = options;
-  surface_options.vertex_margin = frames.vertex_margin();
-  return std::make_unique<ActiveRunner>(job, context.uploads, surface_options, std::move(frames), context.limits,
+  options.vertex_margin = frames.vertex_margin();
+  return std::make_unique<ActiveRunner>(job, context.uploads, options, std::move(frames), context.limits,
                                         frames_expected, context.memory);
 }
 
