@@ -67,7 +67,7 @@ class ActiveRunner final : public JobRunner {
       StageTimer timer;
       timer.add("evolve", std::chrono::duration<double>(now - last).count());
       // The engine's potential lives on its sparse grid only: the tolerance bound alone (docs/ALGORITHMS.md §5).
-      FrameOutput out = decimated_frame(frames_, frame.mesh, {}, timer, control);
+      FrameOutput out = decimated_frame(frames_, std::move(frame.mesh), {}, timer, control);
       auto& m = *out.stats.mutable_metrics();
       const ActiveFrameStats& s = frame.stats;
       m["time"] = s.time;

@@ -2,13 +2,14 @@
 
 namespace surfacer::server {
 
-FrameOutput decimated_frame(const FrameMaker& frames, const Mesh& mesh, const SurfacePointRule& rule,
-                            StageTimer& timer, const RunControl& control) {
+FrameOutput decimated_frame(const FrameMaker& frames, Mesh mesh, const SurfacePointRule& rule, StageTimer& timer,
+                            const RunControl& control) {
   const DecimateOptions& options = frames.encoding().decimate;
-  if (options.tolerance == 0.0) return frames.make(mesh, timer, control);
-  const Mesh decimated = timer.run("decimate", [&] { return decimate(mesh, options, rule, control); });
-  FrameOutput frame = frames.make(decimated, timer, control);
-  (*frame.stats.mutable_metrics())["triangles_before_decimate"] = static_cast<double>(mesh.triangles.size());
+  if (options.tolerance == 0.0) return frames.make(std::move(mesh), timer, control);
+  const auto triangles_before = static_cast<double>(mesh.triangles.size());
+  Mesh decimated = timer.run("decimate", [&] { return decimate(mesh, options, rule, control); });
+  FrameOutput frame = frames.make(std::move(decimated), timer, control);
+  (*frame.stats.mutable_metrics())["triangles_before_decimate"] = triangles_before;
   return frame;
 }
 

@@ -9,9 +9,10 @@ namespace surfacer::server {
 
 // The frame of `mesh` (FrameMaker::make), decimated first when the job's output asks for it
 // (frames.encoding().decimate.tolerance > 0) under `rule` (empty: the tolerance bound alone): the stage "decimate" is
-// timed in `timer` and the metric "triangles_before_decimate" records the engine's triangle count. Throws what
+// timed in `timer` and the metric "triangles_before_decimate" records the engine's triangle count. `mesh` is taken by
+// value, as FrameMaker::make snaps its positions: callers that no longer need theirs move it in. Throws what
 // decimate() and FrameMaker::make throw.
-FrameOutput decimated_frame(const FrameMaker& frames, const Mesh& mesh, const SurfacePointRule& rule,
-                            StageTimer& timer, const RunControl& control);
+FrameOutput decimated_frame(const FrameMaker& frames, Mesh mesh, const SurfacePointRule& rule, StageTimer& timer,
+                            const RunControl& control);
 
 }  // namespace surfacer::server

@@ -54,10 +54,10 @@ class FrameMaker {
   // metrics grid_degenerate_found, grid_coincident_found, grid_nudges, grid_left) and every vertex put on its grid
   // point, so the checks (area and volume included) are of the mesh a decoder reads. The checks run first, then the
   // encoding, each on every thread of the executor; a standard Draco frame is encoded while the checks run. The
-  // checks and a pieced codec's pieces run as items of the executor and stop between items when `control` fires. A standard Draco frame's encoder cannot be interrupted: above one piece's
-  // size it runs on a thread of its own, which a cancel leaves to finish in the background, so that the caller is
-  // free at once. Throws ResourceLimit when the mesh has more than max_triangles triangles, Cancelled, and what the
-  // codec throws.
+  // checks and a pieced codec's pieces run as items of the executor and stop between items when `control` fires. A
+  // standard Draco frame's encoder cannot be interrupted: above one piece's size it runs on a thread of its own,
+  // which a cancel leaves to finish in the background, so that the caller is free at once. Throws ResourceLimit when
+  // the mesh has more than max_triangles triangles, Cancelled, and what the codec throws.
   FrameOutput make(Mesh mesh, StageTimer& timer, const RunControl& control) const;
 
   const FrameEncoding& encoding() const { return encoding_; }

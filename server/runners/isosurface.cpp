@@ -33,11 +33,11 @@ class IsosurfaceRunner final : public JobRunner {
     memory.reserve_fixed(polygonize_fixed_bytes(grid));
     const RunControl task = memory.control(control);
     StageTimer timer;
-    const Mesh mesh = timer.run("polygonize", [&] { return polygonize(*fields_[index], grid, task); });
+    Mesh mesh = timer.run("polygonize", [&] { return polygonize(*fields_[index], grid, task); });
     control.check();
     sink.emit(index,
-              decimated_frame(frames_, mesh, zero_set_rule(*fields_[index], frames_.encoding().decimate.tolerance),
-                              timer, task));
+              decimated_frame(frames_, std::move(mesh),
+                              zero_set_rule(*fields_[index], frames_.encoding().decimate.tolerance), timer, task));
   }
 
  private:

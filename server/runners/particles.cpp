@@ -136,8 +136,9 @@ class ParticlesRunner final : public JobRunner {
         mesh.attributes = interpolate_attributes(data.positions, carried, mesh.vertices, support, control);
       });
     }
-    FrameOutput frame = decimated_frame(
-        frame_maker_, mesh, particle_band_rule(data.positions, data.radii, stats.r_inner, stats.r_outer), timer, task);
+    FrameOutput frame =
+        decimated_frame(frame_maker_, std::move(mesh),
+                        particle_band_rule(data.positions, data.radii, stats.r_inner, stats.r_outer), timer, task);
     auto& metrics = *frame.stats.mutable_metrics();
     metrics["particles"] = static_cast<double>(stats.particles);
     metrics["particles_used"] = static_cast<double>(stats.particles_used);
