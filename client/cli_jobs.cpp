@@ -225,21 +225,12 @@ void add_output_flags(CLI::App* app, OutputFlags& flags) {
 
 void add_job_common_flags(CLI::App* app, JobOptions& job) {
   app->add_option("--name", job.name, "free text shown by `surfacer list` (default: the first input's file name)");
-  CLI::Option* encoding =
-      app->add_option_function<std::string>(
-             "--encoding", [&job](const std::string& codec) { set_encoding(job, codec, "--encoding"); },
-             "frames on the wire: draco (the default: small; standard .drc files), "
-             "meshopt (meshoptimizer's codecs: ~10x faster to encode and decode, ~3x "
-             "larger: for fast networks) or raw (lossless binary PLY, double "
-             "precision)")
-          ->check(CLI::IsMember({"draco", "meshopt", "raw"}))
-          ->type_name("CODEC");
+  add_table_flags(app, JobTable::kOutput, job);  // --encoding, --normals, --quantization-bits, ..., --decimate
+  const JobField& encoding = job_field(JobTable::kOutput, "encoding");
   app->add_flag_callback(
-         "--raw", [&job] { set_encoding(job, "raw", "--raw"); }, "the same as --encoding raw")
-      ->excludes(encoding);
-  app->add_flag_callback(
-      "--normals", [&job] { job.spec.mutable_output()->set_normals(true); }, "per-vertex normals in every frame");
-  add_table_flags(app, JobTable::kOutput, job);  // --quantization-bits, --quantization-bounds, --decimate
+         "--raw", [&job, &encoding] { set_job_field(job.spec, JobTable::kOutput, encoding, "raw", "--raw", job.names); },
+         "the same as --encoding raw")
+      ->excludes(app->get_option(cli_flag(spelling(encoding))));
 }
 
 void add_job_types(CLI::App* parent, const std::string& verb, JobFlags& flags, OutputFlags* output) {

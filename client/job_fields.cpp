@@ -54,10 +54,22 @@ std::vector<JobField> isosurface_fields() {
 std::vector<JobField> output_fields() {
   const DracoOptions draco;
   return {
+      {.path = "encoding",
+       .help = "frames on the wire: draco (the default: small; standard .drc files), meshopt (meshoptimizer's codecs: "
+               "~10x faster to encode and decode, ~3x larger: for fast networks) or raw (lossless binary PLY, double "
+               "precision; also spelled ply); draco_pieces is Draco in pieces encoded and decoded on every core, which "
+               "the client picks itself when it writes no .drc file",
+       .value_name = "CODEC",
+       .words = {{"raw", "ply"}}},
+      {.path = "normals", .help = "per-vertex normals in every frame"},
       {.path = "quantization_bits",
        .help = "position quantization of Draco and meshopt frames, in bits",
        .value_name = "B",
        .default_value = [=] { return whole(draco.quantization_bits); }},
+      {.path = "draco_speed",
+       .help = "Draco encoder speed, 0 (smallest frames) to 10 (fastest encode; about 8x larger)",
+       .value_name = "S",
+       .default_value = [=] { return whole(draco.speed); }},
       {.path = "quantization_bounds",
        .help = "the box every frame's positions are quantized on: x0,y0,z0,x1,y1,z1 (default: the job's bounds); give "
                "the whole sequence's box to make frames surfaced in parts (a Slurm array, Kubernetes pods) identical "
@@ -362,8 +374,9 @@ void set_vec3(pb::Message& vec, const std::vector<double>& v, std::size_t at) {
   r->SetDouble(&vec, d->FindFieldByName("z"), v[at + 2]);
 }
 
-// Sets the scalar or Bounds/Vec3 field `fd` of `message` from `text`.
-void set_value(pb::Message& message, const pb::FieldDescriptor* fd, const std::string& text, const std::string& name) {
+// Sets the scalar or Bounds/Vec3 field `fd` of `message` from `text`; an enum also takes `words` (JobField::words).
+void set_value(pb::Message& message, const pb::FieldDescriptor* fd, const std::string& text, const std::string& name,
+               const std::vector<std::pair<std::string, std::string>>& words) {
   const pb::Reflection* r = message.GetReflection();
   if (fd->is_repeated()) {
     if (fd->cpp_type() != pb::FieldDescriptor::CPPTYPE_STRING) {
@@ -407,12 +420,16 @@ void set_value(pb::Message& message, const pb::FieldDescriptor* fd, const std::s
       r->SetBool(&message, fd, text == "true");
       return;
     case pb::FieldDescriptor::CPPTYPE_ENUM: {
-      std::string known;
+      std::string known, wanted = text;
+      for (const auto& [word, short_name] : words) {
+        if (word == text) wanted = short_name;
+        known += (known.empty() ? "" : " or ") + word;
+      }
       for (int i = 0; i < fd->enum_type()->value_count(); ++i) {
         const pb::EnumValueDescriptor* value = fd->enum_type()->value(i);
         if (value->number() == 0) continue;  // UNSPECIFIED: the default, by leaving the field unset
         const std::string short_name = short_enum_name(*value);
-        if (short_name == text) {
+        if (short_name == wanted) {
           r->SetEnumValue(&message, fd, value->number());
           return;
         }
@@ -460,7 +477,8 @@ void check_oneof(const pb::Message& message, const pb::FieldDescriptor* fd, cons
 }
 
 void set_path(v1::JobSpec& spec, JobTable table, const std::string& path, const std::string& text,
-              const std::string& name, std::map<std::string, std::string>& names) {
+              const std::string& name, std::map<std::string, std::string>& names,
+              const std::vector<std::pair<std::string, std::string>>& words = {}) {
   pb::Message& root = table_message(spec, table);
   const std::string base = table_path(table);
   // Each message on the way may be a oneof member (optimize's polygonize, advect's grid): check before creating.
@@ -474,7 +492,7 @@ void set_path(v1::JobSpec& spec, JobTable table, const std::string& path, const 
     if (fd == nullptr) throw std::logic_error("job field table: no field " + path + " in " + root.GetTypeName());
     check_oneof(*message, fd, prefix, name, names);
     if (dot == std::string::npos) {
-      set_value(*message, fd, text, name);
+      set_value(*message, fd, text, name, words);
       break;
     }
     message = message->GetReflection()->MutableMessage(message, fd);
@@ -514,6 +532,13 @@ const std::vector<JobField>& job_fields(JobTable table) {
       return output;
   }
   return isosurface;
+}
+
+const JobField& job_field(JobTable table, const std::string& path) {
+  const std::vector<JobField>& fields = job_fields(table);
+  const auto it = std::find_if(fields.begin(), fields.end(), [&](const JobField& f) { return f.path == path; });
+  if (it == fields.end()) throw std::logic_error("job field table: no field " + path + " in " + table_path(table));
+  return *it;
 }
 
 std::string spelling(const JobField& field) { return field.name.empty() ? field.path : field.name; }
@@ -580,7 +605,8 @@ const pb::FieldDescriptor* field_descriptor(JobTable table, const std::string& p
 }
 
 // The Python annotation of one proto field's keyword value.
-std::string python_field_type(const pb::FieldDescriptor& fd) {
+std::string python_field_type(const pb::FieldDescriptor& fd,
+                              const std::vector<std::pair<std::string, std::string>>& words = {}) {
   switch (fd.cpp_type()) {
     case pb::FieldDescriptor::CPPTYPE_DOUBLE:
     case pb::FieldDescriptor::CPPTYPE_FLOAT:
@@ -599,6 +625,7 @@ std::string python_field_type(const pb::FieldDescriptor& fd) {
         if (e->value(i)->number() == 0) continue;  // UNSPECIFIED: the default, not a value a user gives
         names += (names.empty() ? "" : ", ") + ("\"" + short_enum_name(*e->value(i)) + "\"");
       }
+      for (const auto& word : words) names += ", \"" + word.first + "\"";
       return "Literal[" + names + "]";
     }
     case pb::FieldDescriptor::CPPTYPE_MESSAGE:  // Bounds and Vec3: x0,y0,z0,x1,y1,z1 and x,y,z
@@ -626,7 +653,7 @@ std::string python_type(JobTable table, const JobField& field) {
   }
   const pb::FieldDescriptor* fd = field_descriptor(table, field.path);
   if (fd == nullptr) throw std::logic_error("job field table: no field " + field.path);
-  const std::string type = python_field_type(*fd);
+  const std::string type = python_field_type(*fd, field.words);
   return fd->is_repeated() ? "Union[" + type + ", Sequence[" + type + "]]" : type;
 }
 
@@ -647,7 +674,7 @@ std::string keyword(const std::string& spelling) {
 void set_job_field(v1::JobSpec& spec, JobTable table, const JobField& field, const std::string& text,
                    const std::string& name, std::map<std::string, std::string>& names) {
   if (field.parts.empty()) {
-    set_path(spec, table, field.path, text, name, names);
+    set_path(spec, table, field.path, text, name, names, field.words);
     return;
   }
   const std::vector<std::string> items = split(text);

@@ -18,6 +18,7 @@
 #include <functional>
 #include <map>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace google::protobuf {
@@ -50,10 +51,15 @@ struct JobField {
   // set of names (`member_set` true: each field's name is its first letter, listed ones true, the others false).
   std::vector<std::string> parts = {};
   bool member_set = false;
+  // For an enum field, words accepted beside the values' own short names, each {word, short name}: encoding's "raw"
+  // for "ply". Listed in errors and in the Python annotation.
+  std::vector<std::pair<std::string, std::string>> words = {};
 };
 
 // The fields of `table`, in --help order.
 const std::vector<JobField>& job_fields(JobTable table);
+// The field of `table` at `path` ("encoding"); throws std::logic_error when the table has none.
+const JobField& job_field(JobTable table, const std::string& path);
 // The field's own spelling: `name`, else `path` ("container.box").
 std::string spelling(const JobField& field);
 

@@ -295,16 +295,6 @@ v1::JobSpec read_job_spec_file(const std::filesystem::path& path) {
   return parse_json_file<v1::JobSpec>(path, "job spec file", "spec");
 }
 
-void set_encoding(JobOptions& options, const std::string& codec, const std::string& name) {
-  if (codec != "draco" && codec != "meshopt" && codec != "raw") {
-    throw CliError(ExitCode::kUsage, name + " must be draco, meshopt or raw, not " + codec);
-  }
-  options.spec.mutable_output()->set_encoding(codec == "raw"       ? v1::MESH_ENCODING_PLY
-                                              : codec == "meshopt" ? v1::MESH_ENCODING_MESHOPT
-                                                                   : v1::MESH_ENCODING_DRACO);
-  options.names["spec.output.encoding"] = name;
-}
-
 void check_job(const JobOptions& options) {
   const v1::JobSpec& spec = options.spec;
   if (spec.has_active() && spec.active().has_advect()) {

@@ -44,11 +44,6 @@ struct InMemoryInputs {
 // a.json"). Throws CliError(kUsage).
 v1::Scene parse_scene_json(const std::string& text, const std::string& where);
 
-// The frame encoding named `codec` ("draco", "meshopt", or "raw": lossless PLY) into options.spec's output, the field
-// recorded as named `name` ("--encoding", "--raw", "encoding") for errors. Throws CliError(kUsage) naming `name` for
-// another word.
-void set_encoding(JobOptions& options, const std::string& codec, const std::string& name);
-
 // Checks the options of `options.spec` with the server's own wire::check_job_options() (every range, default and
 // combination is core's, stated once). Throws CliError(kUsage) with the server's message, prefixed by the field's
 // name as the user gave it ("--r-outer: spec.particles.r_outer (0.05) must exceed r_inner (0.1); ...").

@@ -336,15 +336,10 @@ struct Inputs {
   }
 };
 
-// name, encoding, normals, and the output table (quantization_bits, quantization_bounds, decimate): every job type's
-// output options.
+// name and the output table (encoding, normals, quantization_bits, ...): every job type's output options.
 void add_common(Setters& s, JobOptions& job) {
   s["name"] = {[&job](py::handle v, const std::string&) { job.name = v.cast<std::string>(); }, "str"};
-  s["encoding"] = {[&job](py::handle v, const std::string& name) { set_encoding(job, v.cast<std::string>(), name); },
-                   "Literal[\"draco\", \"meshopt\", \"raw\"]"};
-  s["normals"] = {[&job](py::handle v, const std::string&) { job.spec.mutable_output()->set_normals(v.cast<bool>()); },
-                  "bool"};
-  add_table(s, job, JobTable::kOutput);  // quantization_bits, quantization_bounds, decimate
+  add_table(s, job, JobTable::kOutput);  // encoding, normals, quantization_bits, quantization_bounds, decimate
 }
 
 void add_particle_range(Setters& s, ParticleInputOptions& input) {

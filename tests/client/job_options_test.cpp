@@ -176,7 +176,9 @@ TEST(JobOptions, ProtoNamesAndTheirAliasesSetTheSameFields) {
                                                                   {{"run", "active", "coat"}, JobTable::kActive},
                                                                   {{"run", "active", "coat"}, JobTable::kCoat},
                                                                   {{"run", "active", "morph"}, JobTable::kMorph},
-                                                                  {{"run", "active", "advect"}, JobTable::kAdvect}}) {
+                                                                  {{"run", "active", "advect"}, JobTable::kAdvect},
+                                                                  {{"run", "particles"}, JobTable::kOutput},
+                                                                  {{"run", "active", "morph"}, JobTable::kOutput}}) {
     std::vector<std::string> args = command;
     args.push_back("--help");
     const ParsedCli help = parse_cli(args);
@@ -477,12 +479,8 @@ TEST(JobOptions, EveryNewSubcommandHasHelpWithAnExample) {
 
 // The table's values from text: the syntax of each proto type, errors naming the spelling given.
 TEST(JobOptions, TableValuesFromText) {
-  const auto field = [](JobTable table, const std::string& path) -> const JobField& {
-    for (const JobField& f : job_fields(table)) {
-      if (f.path == path) return f;
-    }
-    throw std::logic_error("no field " + path);
-  };
+  const auto field = [](JobTable table, const std::string& path) -> const JobField& { return job_field(table, path); };
+  EXPECT_THROW(field(JobTable::kOutput, "no_such_field"), std::logic_error);
   v1::JobSpec spec;
   std::map<std::string, std::string> names;
   set_job_field(spec, JobTable::kIsosurface, field(JobTable::kIsosurface, "bounds"), "-1,-2,-3,1,2,3", "--bounds",
@@ -526,6 +524,30 @@ TEST(JobOptions, TableValuesFromText) {
   EXPECT_THROW(set_job_field(spec, JobTable::kIsosurface, field(JobTable::kIsosurface, "method"), "unspecified",
                              "--method", names),
                CliError);
+  // An enum takes its values' short names and the table's words for them: encoding's "raw" is the proto's PLY.
+  const JobField& encoding = field(JobTable::kOutput, "encoding");
+  for (const auto& [text, value] : std::vector<std::pair<std::string, v1::MeshEncoding>>{
+           {"raw", v1::MESH_ENCODING_PLY},
+           {"ply", v1::MESH_ENCODING_PLY},
+           {"draco", v1::MESH_ENCODING_DRACO},
+           {"draco_pieces", v1::MESH_ENCODING_DRACO_PIECES},
+           {"meshopt", v1::MESH_ENCODING_MESHOPT}}) {
+    set_job_field(spec, JobTable::kOutput, encoding, text, "--encoding", names);
+    EXPECT_EQ(spec.output().encoding(), value) << text;
+  }
+  try {
+    set_job_field(spec, JobTable::kOutput, encoding, "zstd", "encoding", names);
+    ADD_FAILURE() << "zstd was taken";
+  } catch (const CliError& e) {
+    EXPECT_EQ(std::string(e.what()), "encoding must be raw or draco or ply or draco_pieces or meshopt, not zstd");
+  }
+  EXPECT_EQ(python_type(JobTable::kOutput, encoding),
+            "Literal[\"draco\", \"ply\", \"draco_pieces\", \"meshopt\", \"raw\"]");
+  // Every field of spec.output is in the output table: a front end cannot miss one.
+  const auto* output = v1::OutputOptions::descriptor();
+  for (int i = 0; i < output->field_count(); ++i) {
+    EXPECT_NO_THROW(field(JobTable::kOutput, output->field(i)->name())) << output->field(i)->name();
+  }
   // Spellings: flag and keyword of a path and of an alias.
   EXPECT_EQ(cli_flag("container.box"), "--container-box");
   EXPECT_EQ(keyword("container.box"), "container_box");
