@@ -37,7 +37,8 @@ class ActiveRunner final : public JobRunner {
 
   void run_task(int, FrameSink& sink, const RunControl& job_control) override {
     // Each frame's mesh is held to --max-triangles as it is polygonized; the largest one's memory stays reserved.
-    TaskMemory memory(limits_, memory_, "active surface", TaskMemory::kPolygonizeBytesPerTriangle);
+    TaskMemory memory(limits_, memory_, "active surface",
+                      task_bytes_per_triangle(frames_, TaskMemory::kPolygonizeBytesPerTriangle));
     const RunControl control = memory.control(job_control);
     // After a restart: continue from the last checkpoint (the mode's blob carries its next frame); a blob this build
     // cannot read starts over, and Job::emit drops the frames already stored.

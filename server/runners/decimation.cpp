@@ -2,6 +2,10 @@
 
 namespace surfacer::server {
 
+std::int64_t task_bytes_per_triangle(const FrameMaker& frames, std::int64_t engine_bytes) {
+  return engine_bytes + (frames.encoding().decimate.tolerance > 0.0 ? TaskMemory::kDecimateBytesPerTriangle : 0);
+}
+
 FrameOutput decimated_frame(const FrameMaker& frames, Mesh mesh, const SurfacePointRule& rule, StageTimer& timer,
                             const RunControl& control) {
   const DecimateOptions& options = frames.encoding().decimate;

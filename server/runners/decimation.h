@@ -12,6 +12,10 @@ namespace surfacer::server {
 // timed in `timer` and the metric "triangles_before_decimate" records the engine's triangle count. `mesh` is taken by
 // value, as FrameMaker::make snaps its positions: callers that no longer need theirs move it in. Throws what
 // decimate() and FrameMaker::make throw.
+// The memory a task of the job reserves per triangle of its mesh (TaskMemory): `engine_bytes` (one of TaskMemory's
+// k*BytesPerTriangle), plus TaskMemory::kDecimateBytesPerTriangle when its frames are decimated.
+std::int64_t task_bytes_per_triangle(const FrameMaker& frames, std::int64_t engine_bytes);
+
 FrameOutput decimated_frame(const FrameMaker& frames, Mesh mesh, const SurfacePointRule& rule, StageTimer& timer,
                             const RunControl& control);
 

@@ -29,7 +29,7 @@ class IsosurfaceRunner final : public JobRunner {
     grid.threads = fields_.size() == 1 ? worker_threads_ : 1;
     grid.vertex_margin = frames_.vertex_margin();
     TaskMemory memory(limits_, memory_, "isosurface frame " + std::to_string(index),
-                      TaskMemory::kPolygonizeBytesPerTriangle);
+                      task_bytes_per_triangle(frames_, TaskMemory::kPolygonizeBytesPerTriangle));
     memory.reserve_fixed(polygonize_fixed_bytes(grid));
     const RunControl task = memory.control(control);
     StageTimer timer;

@@ -55,7 +55,8 @@ class OptimizeRunner final : public JobRunner {
   void run_task(int, FrameSink& sink, const RunControl& job_control) override {
     // The start mesh's polygonization and every subdivision round are held to --max-triangles as they build, and
     // reserve their memory first.
-    TaskMemory memory(limits_, memory_, "optimize", TaskMemory::kMeshWorkBytesPerTriangle);
+    TaskMemory memory(limits_, memory_, "optimize",
+                      task_bytes_per_triangle(frames_, TaskMemory::kMeshWorkBytesPerTriangle));
     const RunControl control = memory.control(job_control);
     MeshOptimizerOptions options = options_;
     options.threads = threads_;

@@ -110,7 +110,7 @@ class ParticlesRunner final : public JobRunner {
     options.threads = frames_.size() == 1 && !job_.open() ? worker_threads_ : 1;
     ParticleSurfacingStats stats;
     TaskMemory memory(limits_, memory_, "particles frame " + std::to_string(index),
-                      TaskMemory::kMeshWorkBytesPerTriangle);
+                      task_bytes_per_triangle(frame_maker_, TaskMemory::kMeshWorkBytesPerTriangle));
     const RunControl task = memory.control(control);
     Mesh mesh = surface_particles(data.positions, data.radii, options, task, &stats);
     control.check();

@@ -110,6 +110,41 @@ TEST(MeshLimits, AJobPastTheMemoryBudgetFailsWhileOneAlongsideSucceeds) {
   }
 }
 
+// Decimated frames reserve the decimator's memory too (TaskMemory::kDecimateBytesPerTriangle): under a budget between
+// what the engine's mesh takes and what decimating it adds, the plain job runs and the decimating one fails naming
+// --memory-budget before it decimates, for both polygonizers (tiles make about twice the triangles).
+TEST(MeshLimits, DecimatedFramesReserveTheDecimatorsMemoryToo) {
+  for (const v1::Polygonizer method : {v1::POLYGONIZER_CUBES, v1::POLYGONIZER_TILES}) {
+    SCOPED_TRACE("method " + std::to_string(method));
+    const v1::JobSpec plain = gyroid_in_sphere(0.3, 0.06, 48, method);
+    v1::JobSpec decimating = plain;
+    decimating.mutable_output()->set_decimate(0.01);
+    // The engine's triangles, from a run without a budget.
+    std::int64_t triangles = 0;
+    {
+      LoopbackServer s;
+      std::string id;
+      ASSERT_TRUE(submit(*s.stub, decimating, &id).ok());
+      const WatchResult watched = watch_job(*s.stub, id);
+      ASSERT_EQ(watched.final_job.state(), v1::JOB_STATE_SUCCEEDED) << watched.final_job.error().message();
+      ASSERT_EQ(watched.frames.size(), 1u);
+      const v1::FrameStats& stats = watched.frames.at(0).header.stats();
+      triangles = static_cast<std::int64_t>(stats.metrics().at("triangles_before_decimate"));
+      EXPECT_LT(stats.triangles(), triangles);
+    }
+    ASSERT_GT(triangles, 50'000);
+    auto options = LoopbackServer::default_options();
+    // Between 192 and 288 bytes per triangle (the grid's slabs take a few MiB of the difference).
+    options.limits.memory_budget_bytes = triangles * 250;
+    LoopbackServer s(options);
+    EXPECT_EQ(run_job(*s.stub, plain).state(), v1::JOB_STATE_SUCCEEDED);
+    const v1::Job refused = run_job(*s.stub, decimating);
+    ASSERT_EQ(refused.state(), v1::JOB_STATE_FAILED);
+    EXPECT_EQ(refused.error().code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << refused.error().message();
+    EXPECT_NE(refused.error().message().find("--memory-budget"), std::string::npos) << refused.error().message();
+  }
+}
+
 // Optimize with subdivision everywhere (threshold 1e-12) and a large budget, cancelled at several moments of its
 // run (in flows, in red-green refinement, in the trial copies): the job queued behind it starts within a bound.
 TEST(MeshLimits, CancelDuringOptimizeSubdivisionFreesTheWorker) {
