@@ -163,7 +163,8 @@ void add_active(CLI::App* parent, const std::string& verb, JobFlags& flags, Outp
   add_table_flags(coat, JobTable::kCoat, flags.job);
   add_active_common(coat, flags, output);
   coat->footer("Example:\n  " + coat_example +
-               "\nParticle frames are uploaded one at a time before the job is queued (as for `particles`).\n\n" +
+               "\nParticle frames are uploaded one at a time before the job is queued (only `particles` jobs start\n"
+               "with the first frame and take the others as they are uploaded).\n\n" +
                kGlobalNote);
 
   CLI::App* morph = active->add_subcommand("morph", "Morph scene A into scene B, one frame per output step");
