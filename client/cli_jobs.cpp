@@ -97,18 +97,16 @@ void add_particles(CLI::App* parent, const std::string& verb, JobFlags& flags, O
        "--format ply",
        "surfacer run particles --input drop.xyz --derive-r-inner --container-box 0,0,0,1,1,1 -o out/"},
       {"surfacer --server localhost:50051 submit particles --input 'sim/fluid_{}.bgeo' --r-inner 0.01"},
-      std::string(verb == "run"
-                      ? "Every frame is read once first (a bad file stops the command, exit 2, naming the file and\n"
-                        "the line or byte, before any job is queued); then the job starts with the first frame and\n"
-                        "each later one joins it as it is uploaded (float32), so the server surfaces frame k while\n"
-                        "frame k+1 uploads (a server without open sequences gets them all first). "
-                      : "Frames are uploaded one at a time (float32) before the job is queued; a bad file stops the\n"
-                        "command (exit 2) naming the file and the line or byte. ") +
-          "frame_NNNN carries the input's frame number (one\npattern, or increasing numbers), else N counts the "
+      std::string("Every frame is read once first (a bad file stops the command, exit 2, naming the file and\n"
+                  "the line or byte, before any job is queued); then the job starts with the first frame and\n"
+                  "each later one joins it as it is uploaded (float32), so the server surfaces frame k while\n"
+                  "frame k+1 uploads (a server without open sequences gets them all first).\n") +
+          "frame_NNNN carries the input's frame number (one pattern, or increasing numbers), else N\ncounts the "
           "inputs from 0. " +
-          (verb == "run" ? "A table of particles,\ntriangles and seconds per frame is printed at the end.\n"
-                         : "The job id is printed\nonce every frame is uploaded; `surfacer watch ID -o DIR` fetches "
-                           "the meshes and prints the table.\n"));
+          (verb == "run" ? "A table of particles, triangles and seconds per frame is printed at the\nend.\n"
+                         : "The job id is printed once every frame is uploaded and part of the job\n(whose first "
+                           "frames may be done by then); `surfacer watch ID -o DIR` fetches the meshes\nand prints "
+                           "the table.\n"));
   flags.particles_app = app;
 }
 
@@ -165,7 +163,8 @@ void add_active(CLI::App* parent, const std::string& verb, JobFlags& flags, Outp
   add_table_flags(coat, JobTable::kCoat, flags.job);
   add_active_common(coat, flags, output);
   coat->footer("Example:\n  " + coat_example +
-               "\nParticle frames are uploaded one at a time before the job is queued (as for `particles`).\n\n" +
+               "\nParticle frames are uploaded one at a time before the job is queued (only `particles` jobs start\n"
+               "with the first frame and take the others as they are uploaded).\n\n" +
                kGlobalNote);
 
   CLI::App* morph = active->add_subcommand("morph", "Morph scene A into scene B, one frame per output step");

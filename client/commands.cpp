@@ -118,6 +118,33 @@ ExitCode finish_watch(const WatchResult& result, const FrameWriter& writer, Prog
   }
 }
 
+// A job queued by queue_job(): its id and the job as queued, and whether it is an open sequence (then `uploaded` is
+// what uploading its first frame gave, and the feeder uploads the others).
+struct QueuedJob {
+  std::string id;
+  v1::Job job;
+  bool open = false;
+  UploadSummary uploaded;
+};
+
+// Uploads what goes before SubmitJob and submits: every input, or for a sequence that goes as an open one
+// (streams_as_open_sequence) its first frame only, after every frame was read once (pin_particles_from_inputs: a bad
+// file fails here, before any job is queued, and the quantization box is the whole sequence's).
+// CliError(kCancelled) when `stop` fires before the job is submitted.
+QueuedJob queue_job(Connection& connection, PreparedJob& prepared, ProgressDisplay& progress,
+                    const std::atomic<bool>* stop) {
+  QueuedJob queued;
+  queued.open = streams_as_open_sequence(connection, prepared.spec, prepared.uploads);
+  if (queued.open) pin_particles_from_inputs(prepared, input_limits(connection));
+  queued.uploaded =
+      upload_inputs(connection, prepared.spec, prepared.uploads, progress, stop, queued.open ? 1 : SIZE_MAX);
+  if (stop != nullptr && stop->load()) {
+    throw CliError(ExitCode::kCancelled, "interrupted before the job was submitted");
+  }
+  queued.id = submit_job(connection, queued.open ? open_sequence_spec(prepared.spec) : prepared.spec, &queued.job);
+  return queued;
+}
+
 // `run` against one server (or the in-process one).
 ExitCode run_single(const ConnectOptions& connect, PreparedJob prepared, const FrameOutputOptions& output,
                     const ReportSink& sink, ReconnectPolicy policy = {}) {
@@ -146,15 +173,11 @@ ExitCode run_single(const ConnectOptions& connect, PreparedJob prepared, const F
   // Inputs are read and uploaded one at a time; a bad file stops here, before any job is queued. A particle sequence
   // goes as an open one where the server takes it: submitted with its first frame, the others uploaded while the
   // server surfaces the earlier ones (SequenceFeeder; docs/ALGORITHMS.md §5, "Open sequences").
-  const bool open_sequence = streams_as_open_sequence(*connection, spec, prepared.uploads);
-  // Every frame is read once first: a bad file fails here, and the quantization box is the whole sequence's.
-  if (open_sequence) pin_particles_from_inputs(prepared, input_limits(*connection));
-  UploadSummary uploaded =
-      upload_inputs(*connection, spec, prepared.uploads, progress, &interrupted, open_sequence ? 1 : SIZE_MAX);
-  if (interrupted) throw CliError(ExitCode::kCancelled, "interrupted before the job was submitted");
-
-  v1::Job job;
-  const std::string id = submit_job(*connection, open_sequence ? open_sequence_spec(spec) : spec, &job);
+  const QueuedJob queued = queue_job(*connection, prepared, progress, &interrupted);
+  const bool open_sequence = queued.open;
+  UploadSummary uploaded = queued.uploaded;
+  const v1::Job& job = queued.job;
+  const std::string& id = queued.id;
   {
     std::lock_guard lock(mutex);
     job_id = id;
@@ -266,14 +289,10 @@ ExitCode run_submit(const ConnectOptions& connect, const SubmitCommand& command,
   PreparedJob prepared = prepare_job(command.job);
   auto connection = Connection::open(connect);
   warn_local(*connection, err);
-  if (!prepared.uploads.empty()) {
-    std::atomic<bool> interrupted{false};
-    InterruptHandler interrupts([&](int) { interrupted = true; });
-    ProgressDisplay progress(err, tty);
-    upload_inputs(*connection, prepared.spec, prepared.uploads, progress, &interrupted);
-    if (interrupted) throw CliError(ExitCode::kCancelled, "interrupted before the job was submitted");
-  }
-  out << submit_job(*connection, prepared.spec, nullptr) << "\n" << std::flush;
+  std::atomic<bool> interrupted{false};
+  InterruptHandler interrupts([&](int) { interrupted = true; });
+  ProgressDisplay progress(err, tty);
+  out << submit_with_inputs(*connection, prepared, progress, &interrupted) << "\n" << std::flush;
   return ExitCode::kSuccess;
 }
 
@@ -385,6 +404,42 @@ std::string submit_job(Connection& connection, const v1::JobSpec& spec, v1::Job*
   }
   if (job != nullptr) *job = response.job();
   return response.job_id();
+}
+
+std::string submit_with_inputs(Connection& connection, PreparedJob& prepared, ProgressDisplay& progress,
+                               const std::atomic<bool>* stop) {
+  QueuedJob queued = queue_job(connection, prepared, progress, stop);
+  const std::string id = queued.id;
+  const auto interrupted = [&] {
+    if (stop == nullptr || !stop->load()) return;
+    cancel_job(connection, id);
+    throw CliError(ExitCode::kCancelled, "interrupted: job " + id + " cancelled");
+  };
+  if (!queued.open) {
+    interrupted();
+    return id;
+  }
+  // The frames after the first join the job as they are uploaded; this returns once the sequence is ended.
+  SequenceFeeder feeder(connection, id, prepared.spec, prepared.uploads, std::move(queued.uploaded), progress, stop);
+  UploadSummary uploaded;
+  try {
+    uploaded = feeder.finish();
+  } catch (const CliError& e) {
+    throw CliError(e.code(),
+                   std::string(e.what()) + "; job " + id +
+                       " failed at that frame (the frames before it are kept: `surfacer watch " + id + "`)",
+                   e.status_code());
+  }
+  interrupted();
+  if (!feeder.ended()) {
+    const v1::Job job = get_job(connection, id);
+    const std::string reason = job_error_text(job);
+    throw CliError(job.state() == v1::JOB_STATE_CANCELLED ? ExitCode::kCancelled : ExitCode::kJobFailed,
+                   "job " + id + " ended (" + state_name(job.state()) + (reason.empty() ? "" : ": " + reason) +
+                       ") after " + std::to_string(uploaded.uploads) + " of " +
+                       std::to_string(prepared.uploads.size()) + " frames were uploaded");
+  }
+  return id;
 }
 
 v1::Job get_job(Connection& connection, const std::string& job_id) {

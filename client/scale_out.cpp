@@ -13,6 +13,7 @@
 #include <limits>
 #include <mutex>
 #include <set>
+#include <sstream>
 #include <thread>
 
 #include "client/connection.h"
@@ -248,26 +249,20 @@ class ScaleOut {
     if (remaining_ == 0) ready_.notify_all();
   }
 
-  // Uploads the batch's inputs to `connection` and returns the sub-job's spec.
-  v1::JobSpec prepare_batch(Connection& connection, const std::vector<int>& batch) {
-    if (prepared_.uploads.empty()) return sub_job_spec(prepared_.spec, batch);
-    v1::JobSpec scratch = prepared_.spec;  // uploads record their ids (and with_radius) at global indices
+  // The pending uploads of the batch's frames, in the batch's order.
+  std::vector<PendingUpload> batch_uploads(const std::vector<int>& batch) const {
+    std::vector<PendingUpload> uploads;
     for (int g : batch) {
       for (const PendingUpload& pending : prepared_.uploads) {
-        if (pending.frame != g) continue;
-        UploadData data = pending.read(scratch, input_limits(connection));
-        const std::uint64_t size = data.file ? data.file_bytes : data.bytes.size();
-        UploadSettings settings;
-        settings.deadline = upload_deadline(connection, size);
-        settings.stop = &stop_flag_;
-        const UploadResult result = data.file ? upload_file(connection.stub(), data.name, *data.file, settings)
-                                              : upload_bytes(connection.stub(), data.name, data.bytes, settings);
-        pending.set_id(scratch, result.upload_id);
-        std::lock_guard lock(mutex_);
-        if (data.particles) particles_[g] = *data.particles;
+        if (pending.frame == g) uploads.push_back(pending);
       }
     }
-    return sub_job_spec(scratch, batch);
+    return uploads;
+  }
+
+  void count_particles(const UploadSummary& uploaded) {
+    std::lock_guard lock(mutex_);
+    for (const auto& [g, particles] : uploaded.particles) particles_[g] = particles;
   }
 
   std::string submit(Connection& connection, ServerSlot& slot, const v1::JobSpec& spec, const std::vector<int>& batch) {
@@ -281,13 +276,30 @@ class ScaleOut {
     return response.job_id();
   }
 
+  // Runs one batch as a sub-job on `connection`. A particle batch of several frames, each uploaded, goes to a server
+  // that takes open sequences as one: submitted once its first frame is uploaded, the others joining it as they are
+  // uploaded (SequenceFeeder) while it surfaces the first; otherwise the batch's inputs are all uploaded first.
   void run_batch(Connection& connection, ServerSlot& slot, const std::vector<int>& batch, std::string& job_id) {
-    const v1::JobSpec spec = prepare_batch(connection, batch);
+    v1::JobSpec scratch = prepared_.spec;  // uploads record their ids (and with_radius) at global indices
+    const std::vector<PendingUpload> uploads = batch_uploads(batch);
+    const bool open = scratch.has_particles() && batch.size() >= 2 && uploads.size() == batch.size() &&
+                      takes_open_sequences(connection);
+    std::ostringstream quiet;  // uploads are not reported one by one here: the frames are
+    ProgressDisplay upload_progress(quiet, false);
+    UploadSummary uploaded =
+        upload_inputs(connection, scratch, uploads, upload_progress, &stop_flag_, open ? 1 : SIZE_MAX);
+    const v1::JobSpec spec = open ? open_sequence_spec(sub_job_spec(scratch, batch)) : sub_job_spec(scratch, batch);
     job_id = submit(connection, slot, spec, batch);
     {
       std::lock_guard lock(mutex_);
       ++slot.sub_jobs;
       if (stopping_) return;  // the caller cancels it
+    }
+    std::optional<SequenceFeeder> feeder;
+    if (open) {
+      feeder.emplace(connection, job_id, scratch, uploads, uploaded, upload_progress, &stop_flag_);
+    } else {
+      count_particles(uploaded);
     }
     if (verbose_) progress_.line(frames_text(batch) + " -> job " + job_id + " on " + slot.address);
     ReconnectPolicy policy;
@@ -313,6 +325,11 @@ class ScaleOut {
     {
       std::lock_guard lock(mutex_);
       slot.watcher = nullptr;
+    }
+    if (feeder) {
+      // A frame that could not be read or uploaded failed the sub-job: its error is the one to report.
+      if (result.job.state() != v1::JOB_STATE_SUCCEEDED) feeder->stop();
+      count_particles(feeder->finish());
     }
     switch (result.job.state()) {
       case v1::JOB_STATE_SUCCEEDED:

@@ -3,12 +3,14 @@
 // A frame sequence (isosurface with several scenes, particles with several frames) is split into small batches of
 // frames kept in one shared queue. One worker thread per server takes a batch, uploads what the batch needs to that
 // server, submits a sub-job with only those frames, watches it, and writes each frame under its index in the whole
-// sequence; stats.csv is written in that global order. Every sub-job gets the same grid and quantization box the
-// whole job would have had (pin_whole_job_geometry), so the frames are the ones a single server would produce.
-// A server that becomes unreachable (stream broken and not back within --timeout, or UNAVAILABLE) is marked dead
-// and the frames of its batch not yet written go back to the queue for the others; the run succeeds while one
-// server lives (exit 3 when none does). A sub-job that fails (bad input) fails the run (exit 4) and cancels the
-// sub-jobs on the other servers, as does Ctrl-C (exit 5).
+// sequence; stats.csv is written in that global order. A particle batch goes to a server that takes open sequences
+// as one (docs/ALGORITHMS.md §5, "Open sequences"): its sub-job is submitted once the batch's first frame is
+// uploaded and the others join it as they are uploaded, so the server surfaces the first while the rest upload. Every
+// sub-job gets the same grid and quantization box the whole job would have had (pin_whole_job_geometry), so the frames
+// are the ones a single server would produce. A server that becomes unreachable (stream broken and not back within
+// --timeout, or UNAVAILABLE) is marked dead and the frames of its batch not yet written go back to the queue for the
+// others; the run succeeds while one server lives (exit 3 when none does). A sub-job that fails (bad input) fails the
+// run (exit 4) and cancels the sub-jobs on the other servers, as does Ctrl-C (exit 5).
 //
 // Any other job (optimize, active, a single frame) runs whole on the first server that answers and is resubmitted
 // from scratch to the next one when its server dies (run_run in commands.cpp).

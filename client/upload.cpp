@@ -197,6 +197,10 @@ bool streams_as_open_sequence(Connection& connection, const v1::JobSpec& spec,
   for (std::size_t i = 0; i < uploads.size(); ++i) {
     if (uploads[i].frame != static_cast<int>(i)) return false;
   }
+  return takes_open_sequences(connection);
+}
+
+bool takes_open_sequences(Connection& connection) {
   const auto& info = connection.server_info();
   return info && info->open_sequences();
 }
@@ -251,13 +255,15 @@ void SequenceFeeder::run() {
   for (int k = 1; k < total && !stopped(); ++k) {
     try {
       upload_one(connection_, spec_, uploads_[k], limits, progress_, &quit_, total, summary_);
-      append_frames(connection_, job_id_, {spec_.particles().frames(k)}, k + 1 == total);
+      append_frames(connection_, job_id_, {spec_.particles().frames(uploads_[k].frame)}, k + 1 == total);
+      if (k + 1 == total) ended_ = true;
     } catch (const CliError& e) {
       // A job that has finished (cancelled by Ctrl-C, failed on a frame) takes no more frames: nothing to report.
       if (stopped() || e.status_code() == static_cast<int>(grpc::StatusCode::FAILED_PRECONDITION)) return;
-      error_ = std::current_exception();
+      const std::string reason = uploads_[k].description + ": " + e.what();
+      error_ = std::make_exception_ptr(CliError(e.code(), reason, e.status_code()));
       try {
-        append_frames(connection_, job_id_, {}, false, uploads_[k].description + ": " + e.what());
+        append_frames(connection_, job_id_, {}, false, reason);
       } catch (const CliError&) {
         // The server is gone or the job is over: the watcher reports that.
       }

@@ -92,9 +92,11 @@ UploadSummary upload_inputs(Connection& connection, v1::JobSpec& spec, const std
 
 // --- Open sequences (ParticlesJob.open, AppendFrames; docs/ALGORITHMS.md §5, "Open sequences") ---------------------
 
+// Whether the server of `connection` takes open sequences (its ServerInfo says open_sequences; older servers take a
+// whole sequence at submit).
+bool takes_open_sequences(Connection& connection);
 // Whether `spec` can go to the server of `connection` as an open sequence: a particles job whose inputs are its
-// frames, each uploaded, more than one, to a server whose ServerInfo says open_sequences (older servers take the
-// whole sequence at submit, as before).
+// frames, each uploaded, more than one, to a server that takes_open_sequences().
 bool streams_as_open_sequence(Connection& connection, const v1::JobSpec& spec,
                               const std::vector<PendingUpload>& uploads);
 // The spec an open sequence is submitted with: `spec`'s options and first frame, open set.
@@ -104,14 +106,17 @@ v1::JobSpec open_sequence_spec(const v1::JobSpec& spec);
 v1::Job append_frames(Connection& connection, const std::string& job_id, const std::vector<v1::ParticleFrame>& frames,
                       bool end, const std::string& abort_reason = "");
 
-// Uploads frames 1.. of an open sequence on a thread of its own, one at a time, each appended to the job once
-// uploaded (the last with end), while the caller watches the job: the server surfaces frame k while frame k + 1
-// uploads. A frame that cannot be read or uploaded fails the job (AppendFrames' abort_reason), and its error is
-// rethrown by finish(); a job that finished meanwhile (cancelled, failed) just stops the uploads.
+// Uploads the inputs after the first of an open sequence on a thread of its own, one at a time, each appended to the
+// job once uploaded (the last with end), while the caller watches the job (or waits for finish()): the server
+// surfaces frame k while frame k + 1 uploads. A frame that cannot be read or uploaded fails the job (AppendFrames'
+// abort_reason), and its error, prefixed with the frame's description, is rethrown by finish(); a job that finished
+// meanwhile (cancelled, failed) just stops the uploads (ended() then says false).
 class SequenceFeeder {
  public:
-  // `spec`: the whole job, frame 0 uploaded; `summary`: what uploading frame 0 gave. `stop` (may be null) ends the
-  // uploads (Ctrl-C). `progress` must outlive the feeder.
+  // `spec`: the whole job, `uploads[0]` uploaded (its id in `spec`); `summary`: what uploading it gave. The open
+  // job's frames are `spec`'s frames uploads[0].frame, uploads[1].frame, ... in this order (a sub-job of a sequence
+  // split across servers takes some of its frames). `stop` (may be null) ends the uploads (Ctrl-C). `progress` must
+  // outlive the feeder.
   SequenceFeeder(Connection& connection, std::string job_id, v1::JobSpec spec, std::vector<PendingUpload> uploads,
                  UploadSummary summary, ProgressDisplay& progress, const std::atomic<bool>* stop);
   ~SequenceFeeder();  // stops and joins
@@ -122,6 +127,9 @@ class SequenceFeeder {
   void stop();
   // Waits for the uploads to end; returns what was uploaded, or rethrows the error that failed the job.
   UploadSummary finish();
+  // After finish(): whether every frame joined the job and its sequence was ended (false when the feeder was
+  // stopped or the job finished first).
+  bool ended() const { return ended_; }
 
  private:
   void run();
@@ -135,6 +143,7 @@ class SequenceFeeder {
   const std::atomic<bool>* stop_;
   std::atomic<bool> quit_{false};
   std::exception_ptr error_;
+  bool ended_ = false;
   std::thread thread_;
 };
 

@@ -248,6 +248,7 @@ void apply(const py::dict& kwargs, const Setters& setters, const std::string& fu
 // them in the options ("scene[0]", "frame[2]").
 struct Inputs {
   InMemoryInputs memory;
+  int first_frame = 0;  // the sequence's index of the first particle frame given (frames appended to an open job)
 
   // A scene: a path, or a dict in protobuf's JSON mapping of surfacer.v1.Scene.
   std::filesystem::path scene(py::handle value, const std::string& what) {
@@ -321,7 +322,7 @@ struct Inputs {
     }
     std::vector<std::string> inputs;
     for (std::size_t i = 0; i < items.size(); ++i) {
-      const std::string key = "frame[" + std::to_string(i) + "]";
+      const std::string key = "frame[" + std::to_string(first_frame + static_cast<int>(i)) + "]";
       if (is_path_like(items[i])) {
         inputs.push_back(path_of(items[i]));
         continue;
@@ -551,8 +552,9 @@ class Client {
   bool local() { return connection().local(); }
   std::string describe() { return connection().describe(); }
 
-  // Prepares the job, uploads its inputs and submits it; Ctrl-C during the uploads abandons them (no job is
-  // queued), during the submission cancels the job.
+  // Prepares the job, uploads its inputs and submits it as the CLI's submit does (submit_with_inputs: a particle
+  // sequence joins its job frame by frame on a server that takes open sequences), returning once every input is in
+  // the job; Ctrl-C before the job is queued abandons the uploads (no job), after it cancels the job.
   std::string submit(const std::string& kind, const py::tuple& inputs, const py::dict& kwargs) {
     return submit_job_of(kind, inputs, kwargs, /*open=*/false);
   }
@@ -568,10 +570,10 @@ class Client {
         [&connection, in, prepared, stop, open]() {
           std::ostringstream quiet;
           ProgressDisplay progress(quiet, false);
+          if (!open) return submit_with_inputs(connection, *prepared, progress, stop.get());
           upload_inputs(connection, prepared->spec, prepared->uploads, progress, stop.get());
           if (*stop) throw CliError(ExitCode::kCancelled, "interrupted before the job was submitted");
-          const std::string id =
-              submit_job(connection, open ? open_sequence_spec(prepared->spec) : prepared->spec);
+          const std::string id = submit_job(connection, open_sequence_spec(prepared->spec));
           if (*stop) cancel_job(connection, id);
           return id;
         },
@@ -592,10 +594,13 @@ class Client {
     return submit_job_of(kind, inputs, kwargs, /*open=*/true);
   }
 
-  // Prepares `inputs` (one frame) with the job's keywords, as submit() would, uploads it and appends it to the open
-  // job `job_id` (called from the thread that drains the caller's iterable; the GIL is released while uploading).
-  void append(const std::string& job_id, const std::string& kind, const py::tuple& inputs, const py::dict& kwargs) {
+  // Prepares `inputs` (one frame, frame `index` of the sequence, as errors name it) with the job's keywords, as
+  // submit() would, uploads it and appends it to the open job `job_id` (called from the thread that drains the
+  // caller's iterable; the GIL is released while uploading).
+  void append(const std::string& job_id, const std::string& kind, const py::tuple& inputs, const py::dict& kwargs,
+              int index) {
     Inputs in;
+    in.first_frame = index;
     const JobOptions options = job_options(kind, inputs, kwargs, in);
     PreparedJob prepared = prepare_job(options, in.memory);
     Connection& connection = this->connection();
@@ -1035,7 +1040,8 @@ PYBIND11_MODULE(_surfacer, m) {
       .def("submit", &Client::submit, py::arg("kind"), py::arg("inputs"), py::arg("options"))
       .def("open_sequences", &Client::open_sequences)
       .def("submit_open", &Client::submit_open, py::arg("kind"), py::arg("inputs"), py::arg("options"))
-      .def("append", &Client::append, py::arg("job_id"), py::arg("kind"), py::arg("inputs"), py::arg("options"))
+      .def("append", &Client::append, py::arg("job_id"), py::arg("kind"), py::arg("inputs"), py::arg("options"),
+           py::arg("index"))
       .def("end", &Client::end, py::arg("job_id"), py::arg("abort_reason") = "")
       .def(
           "stream",

@@ -104,18 +104,19 @@ grpc::Status Job::append_frames(const v1::AppendFramesRequest& request, std::vec
     if (request.frames_size() > 0 || request.end()) {
       return {grpc::StatusCode::INVALID_ARGUMENT, "abort_reason is sent alone, without frames or end"};
     }
+    bool finished = false;
     {
       std::lock_guard lock(mutex_);
       if (is_terminal(state_)) return grpc::Status::OK;
-      error_.set_code(kGrpcAborted);
-      error_.set_message(utf8_prefix(
+      // The frames it has taken are still computed (they are the client's good ones); the job then fails with this.
+      abort_message_ = utf8_prefix(
           "the client ended the sequence after " + std::to_string(tasks_total_) + " frames: " + request.abort_reason(),
-          wire::kMaxErrorBytes));
+          wire::kMaxErrorBytes);
       open_ = false;
-      finish_locked(v1::JOB_STATE_FAILED);
+      last_append_ = std::chrono::steady_clock::now();
+      finished = settle_locked();
     }
-    cancel_.cancel();  // stops the frames still running
-    finished_hooks();
+    if (finished) finished_hooks();
     notify();
     return grpc::Status::OK;
   }
@@ -639,6 +640,12 @@ bool Job::settle_locked() {
   if (open_ || tasks_settled_ < tasks_total_) return false;  // an open sequence waits for frames or its end
   if (tasks_done_ == tasks_total_) frames_total_ = frames_done_;  // open-ended jobs end with what they emitted
   progress_.set_frames_total(frames_total_);
+  if (abort_message_) {  // an open sequence its client ended with abort_reason
+    error_.set_code(kGrpcAborted);
+    error_.set_message(*abort_message_);
+    finish_locked(v1::JOB_STATE_FAILED);
+    return true;
+  }
   finish_locked(tasks_done_ == tasks_total_ ? v1::JOB_STATE_SUCCEEDED : v1::JOB_STATE_FAILED);
   return true;
 }

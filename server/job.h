@@ -12,6 +12,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <set>
 #include <string>
 #include <vector>
@@ -139,9 +140,10 @@ class Job : public FrameSink {
   void set_progress(int frame_index, std::string_view stage, double fraction);
   // --- Open sequences (ParticlesJob.open; docs/ALGORITHMS.md §5, "Open sequences") ---------------------------
   // Adds the request's frames as new tasks (their indices go to `tasks`, for the scheduler), ends the sequence on
-  // `end`, or fails the job on `abort_reason`. The spec with the new frames is in the store before this returns.
-  // FAILED_PRECONDITION when the job is not an open sequence or has finished; the runner's refusal of a frame
-  // (INVALID_ARGUMENT naming frames[i], RESOURCE_EXHAUSTED past --max-frames); the store's (data_dir).
+  // `end`, or on `abort_reason` ends it so that the job fails once the frames it took are done. The spec with the new
+  // frames is in the store before this returns. FAILED_PRECONDITION when the job is not an open sequence or has
+  // finished; the runner's refusal of a frame (INVALID_ARGUMENT naming frames[i], RESOURCE_EXHAUSTED past
+  // --max-frames); the store's (data_dir).
   grpc::Status append_frames(const v1::AppendFramesRequest& request, std::vector<int>& tasks);
   // Fails an open sequence that took no frame, no end and no upload of its owner since `cutoff` (last_upload: the
   // owner's latest upload chunk); `timeout` is what the message names. Returns whether it did.
@@ -206,6 +208,7 @@ class Job : public FrameSink {
   std::mutex append_mutex_;  // one append at a time, held across the store write
   v1::JobSpec spec_;
   bool open_ = false;
+  std::optional<std::string> abort_message_;  // AppendFrames' abort_reason: the job fails once its frames settle
   std::chrono::steady_clock::time_point last_append_ = std::chrono::steady_clock::now();
   mutable std::atomic<bool> persist_pending_{false};
 };

@@ -191,7 +191,9 @@ class Client:
         that frames are surfaced and iterated while the iterable is still producing. Its quantization box is then the
         first frame's grown by its own extent on every side unless ``quantization_bounds`` is given (a frame outside
         fails the job, naming it); an exception the iterable raises fails the job with its text. A list (or tuple)
-        is uploaded whole before the job starts, as is any iterable for a server without open sequences."""
+        goes as the CLI's sequences do: every frame read once first (its quantization box the whole sequence's), the
+        job started with the first frame and the others joining it as they are uploaded, iteration starting once
+        all are in. A server without open sequences gets any sequence whole before the job starts."""
         if _streams(frames):
             return self._run_open("particles", frames, options)
         return self._run("particles", (frames,), options)
@@ -235,20 +237,34 @@ class Client:
         job = Job(self._client.stream(job_id, 0, True, progress))
 
         def feed():
-            index = 1
             try:
-                for frame in it:
-                    self._client.append(job_id, kind, ([frame],), options)
-                    index += 1
-                self._client.end(job_id)
-            except Exception as e:  # the iterable failed, or the job refused the frame or has finished
-                try:
-                    self._client.end(job_id, "frame %d: %s: %s" % (index, type(e).__name__, e))
-                except Exception:
-                    pass  # the job has finished already (cancelled, failed): its iteration says why
+                self._feed(job_id, kind, it, options)
+            except BaseException:
+                pass  # the job failed with the error (or had finished already): its iteration says why
 
         threading.Thread(target=feed, name="surfacer-open-sequence", daemon=True).start()
         return job
+
+    def _feed(self, job_id, kind, it, options) -> None:
+        """Appends each frame `it` yields (frames 1, 2, ...) to the open job `job_id`, then ends its sequence. An
+        exception on the way (the iterable's, a frame refused, Ctrl-C) fails the job with "frame K: TYPE: text"
+        and is raised again; an Error as JobFailed naming the job and frame K (the frames before it are kept)."""
+        index = 1
+        try:
+            for frame in it:
+                self._client.append(job_id, kind, ([frame],), options, index)
+                index += 1
+            self._client.end(job_id)
+        except BaseException as e:
+            reason = "frame %d: %s: %s" % (index, type(e).__name__, e)
+            try:
+                self._client.end(job_id, reason)
+            except Exception:
+                pass  # the job has finished already (cancelled, failed)
+            if not isinstance(e, Exception):
+                raise
+            raise JobFailed("job %s failed at %s (the frames before it are kept: Client.watch(%r))"
+                            % (job_id, reason, job_id), getattr(e, "code", "ABORTED"), 4) from e
 
     def _run(self, kind, inputs, options) -> Job:
         progress = _progress_callable(options.pop("progress", None))
@@ -258,8 +274,24 @@ class Client:
     # -- jobs by id ------------------------------------------------------------------------------------------------
 
     def submit(self, kind: str, *inputs, **options) -> str:
-        """Submits a job without watching it and returns its id. kind: "isosurface", "particles", "optimize",
-        "active_coat", "active_morph" or "active_advect"; inputs and options as for the method of that name."""
+        """Submits a job without watching it and returns its id once every input is uploaded and part of the job.
+        kind: "isosurface", "particles", "optimize", "active_coat", "active_morph" or "active_advect"; inputs and
+        options as for the method of that name. A particle sequence starts as soon as its first frame is uploaded,
+        the others joining it as they are uploaded (a generator's as it yields them; see ``particles``), so its
+        first frames may be done when this returns. A frame that fails once the job started (a generator that
+        raises, a frame refused) fails the job and raises JobFailed naming the job and the frame; the frames before
+        it are kept (``watch``)."""
+        if kind == "particles" and len(inputs) == 1 and _streams(inputs[0]):
+            it = iter(inputs[0])
+            try:
+                first = next(it)
+            except StopIteration:
+                return self._client.submit(kind, ([],), options)
+            if not self._client.open_sequences():
+                return self._client.submit(kind, ([first, *it],), options)
+            job_id = self._client.submit_open(kind, ([first],), options)
+            self._feed(job_id, kind, it, options)
+            return job_id
         return self._client.submit(kind, inputs, options)
 
     def watch(self, job_id: str, from_frame: int = 0,

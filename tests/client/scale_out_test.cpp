@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
@@ -19,7 +20,9 @@
 #include <thread>
 
 #include "client/cli.h"
+#include "client/job_spec.h"
 #include "client/server_list.h"
+#include "client/upload.h"
 #include "tests/support/files.h"
 #include "tests/support/mesh_expectations.h"
 #include "tests/support/process.h"
@@ -306,6 +309,30 @@ class ScaleOutEndToEnd : public ::testing::Test {
     EXPECT_EQ(csv_prefix(csv, 11), csv_prefix(read_file(ref / "stats.csv"), 11));
   }
 
+  // drop_0000.xyz ..: `frames` jittered lattice balls drifting along x; returns their pattern.
+  std::string write_droplets(int frames) {
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> jitter(-0.01, 0.01);
+    for (int f = 0; f < frames; ++f) {
+      std::string text;
+      char line[96];
+      for (int k = -6; k <= 6; ++k) {
+        for (int j = -6; j <= 6; ++j) {
+          for (int i = -6; i <= 6; ++i) {
+            if (i * i + j * j + k * k > 30) continue;
+            std::snprintf(line, sizeof line, "%.6f %.6f %.6f\n", 0.1 * i + 0.05 * f + jitter(rng),
+                          0.1 * j + jitter(rng), 0.1 * k + jitter(rng));
+            text += line;
+          }
+        }
+      }
+      char name[32];
+      std::snprintf(name, sizeof name, "drop_%04d.xyz", f);
+      write_file(dir_ / name, text);
+    }
+    return (dir_ / "drop_{:04d}.xyz").string();
+  }
+
   fs::path dir_;
   std::vector<std::unique_ptr<ServerProcess>> servers_;
   int list_counter_ = 0;
@@ -352,26 +379,7 @@ TEST_F(ScaleOutEndToEnd, AServerKilledDuringItsFirstBatchLosesNothing) {
 TEST_F(ScaleOutEndToEnd, ParticleSequenceSplitAcrossServersMatchesOneServer) {
   start_servers(2);
   constexpr int kFrames = 6;
-  std::mt19937 rng(7);
-  std::uniform_real_distribution<double> jitter(-0.01, 0.01);
-  for (int f = 0; f < kFrames; ++f) {  // a jittered lattice ball drifting along x
-    std::string text;
-    char line[96];
-    for (int k = -6; k <= 6; ++k) {
-      for (int j = -6; j <= 6; ++j) {
-        for (int i = -6; i <= 6; ++i) {
-          if (i * i + j * j + k * k > 30) continue;
-          std::snprintf(line, sizeof line, "%.6f %.6f %.6f\n", 0.1 * i + 0.05 * f + jitter(rng), 0.1 * j + jitter(rng),
-                        0.1 * k + jitter(rng));
-          text += line;
-        }
-      }
-    }
-    char name[32];
-    std::snprintf(name, sizeof name, "drop_%04d.xyz", f);
-    write_file(dir_ / name, text);
-  }
-  const std::string pattern = (dir_ / "drop_{:04d}.xyz").string();
+  const std::string pattern = write_droplets(kFrames);
   const ProcessResult r = cli({"--server", server_list(), "run", "particles", "--input", pattern, "--derive-r-inner",
                                "-o", (dir_ / "out").string()},
                               "run");
@@ -387,6 +395,63 @@ TEST_F(ScaleOutEndToEnd, ParticleSequenceSplitAcrossServersMatchesOneServer) {
   for (const auto& s : servers_) {
     EXPECT_EQ(r.err.find(s->address() + ": 0 frames"), std::string::npos) << r;
   }
+}
+
+// Batches of two frames go to servers that take open sequences as open sub-jobs: each is queued with its first frame,
+// which is done (its file written) while the second is still being read for its upload; the frames are byte for byte
+// those of one server.
+TEST_F(ScaleOutEndToEnd, ParticleBatchesStreamIntoTheirSubJobs) {
+  start_servers(2);
+  constexpr int kFrames = 12;  // batches of 2 across 2 servers (make_batches)
+  const std::string pattern = write_droplets(kFrames);
+  JobOptions options;
+  options.particles.inputs = {pattern};
+  options.spec.mutable_particles()->set_derive_r_inner(true);
+  PreparedJob prepared = prepare_job(options);
+  ASSERT_EQ(prepared.uploads.size(), static_cast<std::size_t>(kFrames));
+  const fs::path out = dir_ / "out";
+  // The second frame of each batch waits, in its upload's read (its first read is the check before any job), until
+  // the batch's first frame is written: with every frame uploaded before the sub-job started it would wait in vain.
+  auto streamed = std::make_shared<std::atomic<int>>(0);
+  for (int g = 1; g < kFrames; g += 2) {
+    PendingUpload& pending = prepared.uploads[static_cast<std::size_t>(g)];
+    auto reads = std::make_shared<int>(0);
+    char first[32];
+    std::snprintf(first, sizeof first, "frame_%04d.drc", g - 1);
+    pending.read = [read = pending.read, reads, file = out / first, streamed](v1::JobSpec& spec,
+                                                                              const InputLimits& limits) {
+      if (++*reads == 2) {
+        const auto until = std::chrono::steady_clock::now() + 20s;
+        while (!fs::exists(file) && std::chrono::steady_clock::now() < until) std::this_thread::sleep_for(10ms);
+        if (fs::exists(file)) ++*streamed;
+      }
+      return read(spec, limits);
+    };
+  }
+  ConnectOptions connect;
+  connect.server = server_list();
+  FrameOutputOptions output;
+  output.dir = out;
+  output.frame_numbers = prepared.frame_numbers;
+  std::ostringstream err;
+  ASSERT_EQ(
+      run_scale_out(connect, parse_server_list(server_list()), std::move(prepared), output, err, ProgressMode::kLines),
+      ExitCode::kSuccess)
+      << err.str();
+  EXPECT_EQ(*streamed, kFrames / 2) << err.str();
+  for (const auto& s : servers_) {  // every sub-job was queued open, with one frame
+    const std::string log = s->log();
+    for (std::size_t at = log.find("event=job_submitted"); at != std::string::npos;
+         at = log.find("event=job_submitted", at + 1)) {
+      EXPECT_NE(log.substr(at, log.find('\n', at) - at).find("frames=1"), std::string::npos) << log;
+    }
+  }
+  const ProcessResult ref = cli({"--server", servers_[0]->address(), "run", "particles", "--input", pattern,
+                                 "--derive-r-inner", "-o", (dir_ / "ref").string()},
+                                "ref");
+  ASSERT_EQ(ref.code, 0) << ref;
+  expect_exactly_frames(out, kFrames);
+  expect_same_as_reference(out, dir_ / "ref", kFrames);
 }
 
 TEST_F(ScaleOutEndToEnd, EveryServerDeadExitsThree) {

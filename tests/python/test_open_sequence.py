@@ -4,7 +4,9 @@ in-process one. A generator that waits for the first mesh would wait forever if 
 before the job started: it gives up after WAIT seconds, so that behaviour fails the test instead of hanging it."""
 
 import threading
+import time
 
+import numpy as np
 import pytest
 
 import surfacer
@@ -62,3 +64,60 @@ def test_an_iterator_that_is_not_a_list_streams_and_a_list_does_not(remote_clien
         assert_closed(a)
         # The same surface; only the quantization grid differs (an open sequence's box is grown).
         assert abs(len(a.triangles) - len(b.triangles)) <= 0.02 * len(b.triangles)
+
+
+def test_submit_of_a_generator_starts_the_job_at_its_first_frame(remote_client, server_address):
+    """Client.submit with a generator returns the id once every frame is in the job, the job having surfaced frame 0
+    while the generator was still producing; the frames are those of the same frames submitted as a list."""
+    name = "submit-generator"
+    bounds = (-0.5, -0.5, -0.5, 0.6, 0.5, 0.5)  # the same quantization grid for both submissions
+    balls = [lattice_ball(0.3, 0.05) + [0.03 * k, 0.0, 0.0] for k in range(4)]
+    seen = []
+    with surfacer.Client(server_address) as other:
+        def frames():
+            yield balls[0]
+            deadline = time.monotonic() + WAIT
+            while time.monotonic() < deadline and not any(
+                    j["name"] == name and j["frames_done"] >= 1 for j in other.list(["running"])):
+                time.sleep(0.02)
+            seen.append(any(j["name"] == name and j["frames_done"] >= 1 for j in other.list()))
+            yield from balls[1:]
+
+        job_id = remote_client.submit("particles", frames(), r_inner=0.05, name=name, quantization_bounds=bounds)
+    assert seen == [True], "frame 0 was not done while the generator was still producing"
+    assert remote_client.status(job_id)["frames_total"] == 4
+    streamed = sorted(remote_client.watch(job_id), key=lambda f: f.index)
+    whole_id = remote_client.submit("particles", balls, r_inner=0.05, quantization_bounds=bounds)
+    whole = sorted(remote_client.watch(whole_id), key=lambda f: f.index)
+    assert [f.index for f in streamed] == [f.index for f in whole] == [0, 1, 2, 3]
+    for a, b in zip(streamed, whole):
+        assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.triangles, b.triangles)
+
+
+def test_submit_of_a_generator_with_a_nan_frame_fails_the_job_naming_it(remote_client):
+    """A frame that is refused in the middle (a NaN coordinate) fails the job naming that frame and what is wrong;
+    submit raises JobFailed naming the job, whose frames before it are kept."""
+    name = "submit-nan-frame"
+
+    def frames():
+        for k in range(3):
+            yield lattice_ball(0.3, 0.05) + [0.02 * k, 0.0, 0.0]
+        bad = lattice_ball(0.3, 0.05)
+        bad[7, 1] = np.nan
+        yield bad
+        yield lattice_ball(0.3, 0.05)
+
+    with pytest.raises(surfacer.JobFailed) as failure:
+        remote_client.submit("particles", frames(), r_inner=0.05, name=name)
+    message = str(failure.value)
+    assert "frame 3" in message and "not finite" in message, message
+    job_id = next(j["id"] for j in remote_client.list() if j["name"] == name)
+    assert job_id in message
+    kept = []
+    with pytest.raises(surfacer.JobFailed, match="frame 3"):
+        for frame in remote_client.watch(job_id):
+            kept.append(frame.index)
+    assert sorted(kept) == [0, 1, 2]
+    state = remote_client.status(job_id)
+    assert state["state"] == "JOB_STATE_FAILED"
+    assert "frame 3" in state["error"]["message"] and "not finite" in state["error"]["message"], state

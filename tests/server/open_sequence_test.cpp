@@ -142,6 +142,22 @@ TEST(OpenSequence, AnEndWithoutFramesFinishesAndAnAbortFails) {
       << a.final_job.error().message();
 }
 
+// An abort right after frames joined: they are still computed and kept, then the job fails with the reason.
+TEST(OpenSequence, AnAbortKeepsTheFramesTakenAndThenFails) {
+  LoopbackServer s;
+  std::string id;
+  ASSERT_TRUE(submit(*s.stub, open_spec(droplet(*s.stub, 0)), &id).ok());
+  ASSERT_TRUE(append(*s.stub, id, {droplet(*s.stub, 1), droplet(*s.stub, 2)}, false).ok());
+  ASSERT_TRUE(append(*s.stub, id, {}, false, nullptr, "frame 3: particle 7 is NaN").ok());
+  EXPECT_EQ(append(*s.stub, id, {droplet(*s.stub, 3)}, false).error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+  const WatchResult r = watch_job(*s.stub, id);
+  EXPECT_EQ(r.final_job.state(), v1::JOB_STATE_FAILED);
+  EXPECT_NE(r.final_job.error().message().find("after 3 frames: frame 3: particle 7 is NaN"), std::string::npos)
+      << r.final_job.error().message();
+  ASSERT_EQ(r.frames.size(), 3u);
+  for (int i = 0; i < 3; ++i) EXPECT_TRUE(r.frames.count(i)) << "frame " << i;
+}
+
 // A client that disconnects mid-sequence (no frame, no end) fails its job after --upload-idle-timeout instead of
 // leaving it waiting forever; an upload in progress counts as activity.
 TEST(OpenSequence, AQuietClientFailsTheJobNamingTheIdleTimeout) {
