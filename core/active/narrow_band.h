@@ -6,6 +6,7 @@
 // that evolve the potential (Motion, Stepper) read and write the blocks' channels.
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <functional>
 #include <optional>
@@ -116,8 +117,18 @@ class NarrowBand {
 
  private:
   double missing_sign(std::int64_t gx, std::int64_t gy, std::int64_t gz) const;
-  // f = min(f, wall potential) over block `block`'s channel (GridFrame::wall_potential).
-  void apply_wall(int block, int channel);
+  // f = min(f, wall potential) over block `block`'s channel (GridFrame::wall_potential). Inline, as the topology's
+  // allocation loop wants it (measured: out of line it costs that loop about a third more instructions).
+  void apply_wall(int block, int channel) {
+    const sparse::BlockCoord& c = grid_.coord(block);
+    if (!frame_.near_wall(c)) return;
+    float* f = grid_.data(block, channel);
+    for (int z = 0; z < sparse::kBlockSize; ++z)
+      for (int y = 0; y < sparse::kBlockSize; ++y)
+        for (int x = 0; x < sparse::kBlockSize; ++x)
+          f[sparse::local_index(x, y, z)] =
+              std::min(f[sparse::local_index(x, y, z)], frame_.wall_potential(c, x, y, z));
+  }
   ActiveMeasures measure(const CrossingSpeed* speed, std::vector<std::vector<float>>* edges,
                          const RunControl& control) const;
 
