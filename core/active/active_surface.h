@@ -18,10 +18,10 @@
 //   terms act on top (ALGORITHMS §4, "Advection"): df/dt = -u . grad f + s |grad f|, so delta holds the volume an
 //   advection scheme loses, beta smooths, gamma holds the area (alpha needs a target: set_target).
 //
-// Engine (core/active/active_surface.cpp; the choices and their measurements are explained there):
-// * Storage: a hash of 8^3-node blocks (core/active/sparse_grid.h) allocated around the band only, so memory grows with
-// the
-//   surface area and the grid is unbounded; about 8.5 KB per block (4 float channels + bookkeeping).
+// Engine (core/active/engine.h and its parts; the choices and their measurements are explained atop
+// core/active/active_surface.cpp):
+// * Storage: a hash of 8^3-node blocks (core/active/sparse_grid.h) allocated around the band only, so memory grows
+//   with the surface area and the grid is unbounded; about 8.5 KB per block (4 float channels + bookkeeping).
 // * Potential profile: f = clamp(-d / (band_width h), -1, 1), d the signed distance (negative inside). Nodes with
 //   |f| < 1, or with a 6-neighbour of the other sign, form the band; the active nodes are the band and its
 //   6-neighbours (woken nodes). Nodes outside the active set keep their value; blocks are allocated around band

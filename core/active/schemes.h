@@ -1,9 +1,11 @@
-// Finite-difference kernels of the active surface engine (core/active/active_surface.cpp), on a dense apron array with
-// strides. Internal to core; not part of the public API.
+// Finite-difference kernels of the active surface engine (core/active/narrow_band.cpp, motion.cpp, stepper.cpp), on a
+// dense apron array with strides. Internal to core; not part of the public API.
 #pragma once
 
 #include <algorithm>
 #include <cmath>
+#include <cstddef>
+#include <vector>
 
 #include "core/active/sparse_grid.h"
 
@@ -30,6 +32,13 @@ inline double curvature(const float* f, int sx, int sy, int sz, double inv_h) {
                      2.0 * fx * fz * fxz - 2.0 * fy * fz * fyz;
   // Differences are in grid units: kappa = -num / (g2^1.5) / h.
   return -num / (g2 * std::sqrt(g2)) * inv_h;
+}
+
+// Per-thread scratch arrays of the engine's passes (aprons, stage rates): slot in [0, 6), at least `size` floats.
+inline float* scratch(int slot, std::size_t size) {
+  thread_local std::vector<float> buffers[6];
+  if (buffers[slot].size() < size) buffers[slot].resize(size);
+  return buffers[slot].data();
 }
 
 inline constexpr int kApronSide = sparse::apron_side<3>();  // a block with the 3-node WENO apron

@@ -1,17 +1,16 @@
-// Polygonization and measures of the active surface's potential (core/active/active_surface.h).
+// Polygonization and measures of the active surface's potential (NarrowBand, core/active/narrow_band.h).
 //
 // * Sparse Marching Cubes on the potential's own grid, with the table of core/polygonize/mc_tables.h (so ambiguous
-// faces are
-//   resolved as in core/polygonize/marching_cubes.cpp). A crossed grid edge belongs to the block of its lower node; a
-//   cube to the block of its lowest corner. Vertices are created per block in (node, axis) order and blocks are
-//   concatenated in block order, so the mesh does not depend on the thread count. A vertex is computed from the global
-//   node coordinates and the two samples of its edge in a fixed order, so every cube sharing an edge computes the same
-//   point bit for bit; the unwelded measures (area, divergence-theorem volume) therefore see a closed surface.
+//   faces are resolved as in core/polygonize/marching_cubes.cpp). A crossed grid edge belongs to the block of its
+//   lower node; a cube to the block of its lowest corner. Vertices are created per block in (node, axis) order and
+//   blocks are concatenated in block order, so the mesh does not depend on the thread count. A vertex is computed
+//   from the global node coordinates and the two samples of its edge in a fixed order, so every cube sharing an edge
+//   computes the same point bit for bit; the unwelded measures (area, divergence-theorem volume) therefore see a
+//   closed surface.
 // * The sample points of the speed extension are these edge crossings; the speed is stored per (node, axis) of the
 //   owning block, the target evaluated once per crossing.
 // * Marching Tiles (core/polygonize/marching_tiles.h) runs on the trilinear interpolant of f through a Field adapter,
-// seeded
-//   with one point per band block (the mean of its crossings).
+//   seeded with one point per band block (the mean of its crossings).
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
@@ -19,7 +18,7 @@
 #include <numeric>
 #include <string>
 
-#include "core/active/engine.h"
+#include "core/active/narrow_band.h"
 #include "core/active/schemes.h"
 #include "core/polygonize/edge_margin.h"
 #include "core/polygonize/marching_tiles.h"
@@ -91,7 +90,7 @@ int count_components(const Mesh& mesh) {
 // The trilinear potential as a normalized Field (negative inside) for Marching Tiles.
 class PotentialField final : public Field {
  public:
-  PotentialField(const active_detail::Engine& impl, const Aabb& box) : impl_(impl), box_(box) {}
+  PotentialField(const active_detail::NarrowBand& band, const Aabb& box) : band_(band), box_(box) {}
   double value(const Vec3& p) const override {
     Vec3 g;
     return value_and_gradient(p, g);
@@ -100,7 +99,7 @@ class PotentialField final : public Field {
   std::optional<Aabb> bounds() const override { return box_; }
 
  private:
-  const active_detail::Engine& impl_;
+  const active_detail::NarrowBand& band_;
   Aabb box_;
 };
 
@@ -108,7 +107,7 @@ class PotentialField final : public Field {
 
 double PotentialField::value_and_gradient(const Vec3& p, Vec3& gradient) const {
   Vec3 g;
-  const double v = impl_.trilinear(p, &g);
+  const double v = band_.trilinear(p, &g);
   gradient = -g;
   return -v;
 }
@@ -116,19 +115,19 @@ double PotentialField::value_and_gradient(const Vec3& p, Vec3& gradient) const {
 // Sign (+1 inside, -1 outside) of the saturated region around node g of a missing block: the value of the first
 // allocated node along +x (blocks are allocated around the whole band, so that node is saturated with the region's
 // sign); outside when no block follows.
-double active_detail::Engine::missing_sign(std::int64_t gx, std::int64_t gy, std::int64_t gz) const {
+double active_detail::NarrowBand::missing_sign(std::int64_t gx, std::int64_t gy, std::int64_t gz) const {
   const int by = block_of(gy), bz = block_of(gz);
   const int ly = static_cast<int>(gy - std::int64_t{kBlockSize} * by),
             lz = static_cast<int>(gz - std::int64_t{kBlockSize} * bz);
-  for (int bx = block_of(gx) + 1; bx <= max_block_x; ++bx) {
-    const int b = grid.find(bx, by, bz);
-    if (b >= 0) return grid.data(b, kChanF)[local_index(0, ly, lz)] > 0.0f ? 1.0 : -1.0;
+  for (int bx = block_of(gx) + 1; bx <= max_block_x_; ++bx) {
+    const int b = grid_.find(bx, by, bz);
+    if (b >= 0) return grid_.data(b, kChanF)[local_index(0, ly, lz)] > 0.0f ? 1.0 : -1.0;
   }
   return -1.0;
 }
 
-double active_detail::Engine::trilinear(const Vec3& p, Vec3* gradient) const {
-  const Vec3 u = (p - frame.origin()) * frame.inv_spacing();
+double active_detail::NarrowBand::trilinear(const Vec3& p, Vec3* gradient) const {
+  const Vec3 u = (p - frame_.origin()) * frame_.inv_spacing();
   if (!u.allFinite()) {
     if (gradient != nullptr) *gradient = Vec3::Zero();
     return -1.0;
@@ -139,8 +138,8 @@ double active_detail::Engine::trilinear(const Vec3& p, Vec3* gradient) const {
     std::int64_t g[3];
     for (int a = 0; a < 3; ++a) g[a] = static_cast<std::int64_t>(fl[a]) + ((k >> a) & 1);
     const int bx = block_of(g[0]), by = block_of(g[1]), bz = block_of(g[2]);
-    const int b = grid.find(bx, by, bz);
-    c[k] = b >= 0 ? grid.data(
+    const int b = grid_.find(bx, by, bz);
+    c[k] = b >= 0 ? grid_.data(
                         b, kChanF)[local_index(static_cast<int>(g[0] & kBlockMask), static_cast<int>(g[1] & kBlockMask),
                                                static_cast<int>(g[2] & kBlockMask))]
                   : missing_sign(g[0], g[1], g[2]);
@@ -160,19 +159,29 @@ double active_detail::Engine::trilinear(const Vec3& p, Vec3* gradient) const {
     v += w * c[k];
     grad += dw * c[k];
   }
-  if (gradient != nullptr) *gradient = grad * frame.inv_spacing();
+  if (gradient != nullptr) *gradient = grad * frame_.inv_spacing();
   return v;
 }
 
 // ------------------------------------------------------------------------------------------------------------------
 
-ActiveMeasures active_detail::Engine::measure(std::vector<std::vector<float>>* edges, const RunControl& control) const {
+ActiveMeasures active_detail::NarrowBand::measure(const RunControl& control) const {
+  return measure(nullptr, nullptr, control);
+}
+
+ActiveMeasures active_detail::NarrowBand::measure(const CrossingSpeed& speed, std::vector<std::vector<float>>& edges,
+                                                  const RunControl& control) const {
+  return measure(&speed, &edges, control);
+}
+
+ActiveMeasures active_detail::NarrowBand::measure(const CrossingSpeed* speed, std::vector<std::vector<float>>* edges,
+                                                  const RunControl& control) const {
   control.check();
-  const int nb = grid.block_count();
+  const int nb = grid_.block_count();
   if (edges != nullptr) {
     edges->resize(nb);
     for (int b = 0; b < nb; ++b) {
-      if (band[b]) {
+      if (band_[b]) {
         (*edges)[b].assign(std::size_t{3} * kBlockNodes, kNaN);
       } else {
         (*edges)[b].clear();
@@ -180,27 +189,28 @@ ActiveMeasures active_detail::Engine::measure(std::vector<std::vector<float>>* e
     }
   }
   if (nb == 0) return {};
-  const Vec3 ref = frame.node_position(grid.coord(0), 0, 0, 0);
-  const double kmax = opt.max_curvature * frame.inv_spacing();
-  const bool want_target = target && opt.alpha > 0.0;
-  const bool want_kappa = opt.beta > 0.0 || opt.gamma > 0.0;
+  const Vec3 ref = frame_.node_position(grid_.coord(0), 0, 0, 0);
+  // The speed's terms (used only when sampling, so `speed` is then given).
+  const double kmax = speed != nullptr ? speed->max_curvature * frame_.inv_spacing() : 0.0;
+  const bool want_target = speed != nullptr && speed->target != nullptr;
+  const bool want_kappa = speed != nullptr && speed->curvature;
   std::vector<BlockMeasure> parts(nb);
-  parallel_for(nb, threads, [&](int b) {
+  parallel_for(nb, threads_, [&](int b) {
     if ((b & 31) == 0) control.check();
     const bool cubes = owns_cubes(b);
-    const bool sample = edges != nullptr && band[b];
+    const bool sample = edges != nullptr && band_[b];
     if (!cubes && !sample) return;
     constexpr int G = 2;
     constexpr std::ptrdiff_t S = apron_side<G>();
     float* ap = mesh_scratch(S * S * S);
-    grid.gather<G>(b, kChanF, ap);
-    const sparse::BlockCoord& bc = grid.coord(b);
+    grid_.gather<G>(b, kChanF, ap);
+    const sparse::BlockCoord& bc = grid_.coord(b);
     const double base[3] = {double(kBlockSize) * bc[0], double(kBlockSize) * bc[1], double(kBlockSize) * bc[2]};
     auto vertex = [&](int x, int y, int z, int axis, double v0, double v1) {
       const double t = v0 / (v0 - v1);
       Vec3 q(base[0] + x, base[1] + y, base[2] + z);
       q[axis] += t;
-      return Vec3(frame.origin() + frame.spacing() * q);
+      return Vec3(frame_.origin() + frame_.spacing() * q);
     };
     BlockMeasure& part = parts[b];
     if (sample) {
@@ -218,17 +228,17 @@ ActiveMeasures active_detail::Engine::measure(std::vector<std::vector<float>>* e
               double s = 0.0;
               if (want_target) {
                 Vec3 grad;
-                s -= opt.alpha * target->value_and_gradient(vertex(x, y, z, a, v0, v1), grad);
+                s -= speed->alpha * speed->target->value_and_gradient(vertex(x, y, z, a, v0, v1), grad);
                 const double gn = grad.norm();
                 if (std::isfinite(gn)) part.max_grad = std::max(part.max_grad, gn);
               }
               if (want_kappa) {
                 const double k0 =
-                    std::clamp(active_detail::curvature(p, 1, S, S * S, frame.inv_spacing()), -kmax, kmax);
+                    std::clamp(active_detail::curvature(p, 1, S, S * S, frame_.inv_spacing()), -kmax, kmax);
                 const double k1 =
-                    std::clamp(active_detail::curvature(p + st[a], 1, S, S * S, frame.inv_spacing()), -kmax, kmax);
+                    std::clamp(active_detail::curvature(p + st[a], 1, S, S * S, frame_.inv_spacing()), -kmax, kmax);
                 const double k = (1.0 - t) * k0 + t * k1;
-                s -= opt.beta * k;
+                s -= speed->beta * k;
                 part.sum_abs_kappa += std::abs(k);
               }
               out[local_index(x, y, z) * 3 + a] = static_cast<float>(s);
@@ -280,21 +290,21 @@ ActiveMeasures active_detail::Engine::measure(std::vector<std::vector<float>>* e
   return m;
 }
 
-Mesh active_detail::Engine::cubes_mesh(bool normals, const RunControl& control) const {
+Mesh active_detail::NarrowBand::cubes_mesh(bool normals, const RunControl& control) const {
   control.check();
-  const int nb = grid.block_count();
+  const int nb = grid_.block_count();
   // Pass 1: vertices of the crossed edges owned by each band block.
   std::vector<std::vector<Vec3>> verts(nb), norms(nb);
   std::vector<std::vector<std::int32_t>> ids(nb);
-  const double floor = edge_parameter_floor(opt.vertex_margin, frame.spacing());
-  parallel_for(nb, threads, [&](int b) {
+  const double floor = edge_parameter_floor(vertex_margin_, frame_.spacing());
+  parallel_for(nb, threads_, [&](int b) {
     if ((b & 31) == 0) control.check();
-    if (!band[b]) return;
+    if (!band_[b]) return;
     constexpr int G = 2;
     constexpr std::ptrdiff_t S = apron_side<G>();
     float* ap = mesh_scratch(S * S * S);
-    grid.gather<G>(b, kChanF, ap);
-    const sparse::BlockCoord& bc = grid.coord(b);
+    grid_.gather<G>(b, kChanF, ap);
+    const sparse::BlockCoord& bc = grid_.coord(b);
     std::vector<std::int32_t>& map = ids[b];
     map.assign(std::size_t{3} * kBlockNodes, -1);
     const std::ptrdiff_t st[3] = {1, S, S * S};
@@ -309,7 +319,7 @@ Mesh active_detail::Engine::cubes_mesh(bool normals, const RunControl& control) 
             Vec3 q(double(kBlockSize) * bc[0] + x, double(kBlockSize) * bc[1] + y, double(kBlockSize) * bc[2] + z);
             q[a] += t;
             map[local_index(x, y, z) * 3 + a] = static_cast<std::int32_t>(verts[b].size());
-            verts[b].push_back(frame.origin() + frame.spacing() * q);
+            verts[b].push_back(frame_.origin() + frame_.spacing() * q);
             if (normals) {
               // -grad f by central differences at both ends, interpolated.
               auto grad = [&](const float* c) { return Vec3(c[1] - c[-1], c[S] - c[-S], c[S * S] - c[-S * S]); };
@@ -333,14 +343,14 @@ Mesh active_detail::Engine::cubes_mesh(bool normals, const RunControl& control) 
   }
   // Pass 2: triangles of the cubes owned by each block.
   std::vector<std::vector<Triangle>> tris(nb);
-  parallel_for(nb, threads, [&](int b) {
+  parallel_for(nb, threads_, [&](int b) {
     if ((b & 31) == 0) control.check();
     if (!owns_cubes(b)) return;
     constexpr int G = 1;
     constexpr std::ptrdiff_t S = apron_side<G>();
     (void)S;
     float* ap = mesh_scratch(std::size_t{apron_side<G>()} * apron_side<G>() * apron_side<G>());
-    grid.gather<G>(b, kChanF, ap);
+    grid_.gather<G>(b, kChanF, ap);
     for (int z = 0; z < kBlockSize; ++z)
       for (int y = 0; y < kBlockSize; ++y)
         for (int x = 0; x < kBlockSize; ++x) {
@@ -356,7 +366,7 @@ Mesh active_detail::Engine::cubes_mesh(bool normals, const RunControl& control) 
               int lx = x + ce.dx, ly = y + ce.dy, lz = z + ce.dz;
               const int ox = lx >> sparse::kBlockLog2, oy = ly >> sparse::kBlockLog2,
                         oz = lz >> sparse::kBlockLog2;  // 0 or 1
-              const int owner = grid.neighbor(b, neighbor_slot(ox, oy, oz));
+              const int owner = grid_.neighbor(b, neighbor_slot(ox, oy, oz));
               lx &= kBlockMask;
               ly &= kBlockMask;
               lz &= kBlockMask;
@@ -382,18 +392,18 @@ Mesh active_detail::Engine::cubes_mesh(bool normals, const RunControl& control) 
   return mesh;
 }
 
-Mesh active_detail::Engine::tiles_mesh(bool normals, const RunControl& control) const {
+Mesh active_detail::NarrowBand::tiles_mesh(bool normals, const RunControl& control) const {
   control.check();
-  const int nb = grid.block_count();
+  const int nb = grid_.block_count();
   // One seed per band block with crossings: the mean of its crossings.
   std::vector<Vec3> block_seed(nb, Vec3::Constant(std::numeric_limits<double>::quiet_NaN()));
-  parallel_for(nb, threads, [&](int b) {
-    if (!band[b]) return;
+  parallel_for(nb, threads_, [&](int b) {
+    if (!band_[b]) return;
     constexpr int G = 1;
     constexpr std::ptrdiff_t S = apron_side<G>();
     float* ap = mesh_scratch(S * S * S);
-    grid.gather<G>(b, kChanF, ap);
-    const sparse::BlockCoord& bc = grid.coord(b);
+    grid_.gather<G>(b, kChanF, ap);
+    const sparse::BlockCoord& bc = grid_.coord(b);
     const std::ptrdiff_t st[3] = {1, S, S * S};
     Vec3 sum = Vec3::Zero();
     int n = 0;
@@ -405,7 +415,7 @@ Mesh active_detail::Engine::tiles_mesh(bool normals, const RunControl& control) 
             if ((p[0] > 0.0f) == (p[st[a]] > 0.0f)) continue;
             Vec3 q(double(kBlockSize) * bc[0] + x, double(kBlockSize) * bc[1] + y, double(kBlockSize) * bc[2] + z);
             q[a] += double(p[0]) / (double(p[0]) - double(p[st[a]]));
-            sum += frame.origin() + frame.spacing() * q;
+            sum += frame_.origin() + frame_.spacing() * q;
             ++n;
           }
         }
@@ -414,30 +424,30 @@ Mesh active_detail::Engine::tiles_mesh(bool normals, const RunControl& control) 
   std::vector<Vec3> seeds;
   Aabb box = Aabb::empty();
   for (int b = 0; b < nb; ++b) {
-    const sparse::BlockCoord& bc = grid.coord(b);
-    box.merge(Aabb{frame.node_position(bc, 0, 0, 0), frame.node_position(bc, kBlockSize, kBlockSize, kBlockSize)});
+    const sparse::BlockCoord& bc = grid_.coord(b);
+    box.merge(Aabb{frame_.node_position(bc, 0, 0, 0), frame_.node_position(bc, kBlockSize, kBlockSize, kBlockSize)});
     if (!std::isnan(block_seed[b][0])) seeds.push_back(block_seed[b]);
   }
   if (seeds.empty()) return {};
   PotentialField field(*this, box);
   MarchingTilesOptions o;
   o.bounds = box;
-  o.spacing = frame.spacing();
+  o.spacing = frame_.spacing();
   o.normals = normals;
-  o.threads = opt.threads;
-  o.vertex_margin = opt.vertex_margin;
+  o.threads = tiles_threads_;
+  o.vertex_margin = vertex_margin_;
   o.seeds = seeds;
   // Every crossing lies in its band block: within the block's half-diagonal of the seed (plus a lattice cell).
-  o.seed_radius = (4.0 * std::sqrt(3.0) + 2.0) * frame.spacing();
+  o.seed_radius = (4.0 * std::sqrt(3.0) + 2.0) * frame_.spacing();
   return marching_tiles(field, o, control);
 }
 
-void active_detail::Engine::finish_stats(ActiveFrameStats& s, const RunControl& control) const {
-  const ActiveMeasures m = measure(nullptr, control);
+void active_detail::NarrowBand::surface_stats(ActiveFrameStats& s, const RunControl& control) const {
+  const ActiveMeasures m = measure(control);
   s.area = m.area;
   s.volume = m.volume;
   s.components = count_components(cubes_mesh(false, control));
-  s.memory_bytes = grid.memory_bytes();
+  s.memory_bytes = grid_.memory_bytes();
 }
 
 }  // namespace surfacer

@@ -1,0 +1,69 @@
+// The time stepping of the active surface (core/active/active_surface.h; docs/ALGORITHMS.md §4, "Time step"): the
+// simulated time, the sub-step's size, the TVD-RK3 stages (Shu & Osher 1988), the reinitialization counter and the
+// last sub-step's figures. Internal to core/active; steps a NarrowBand with a Motion.
+#pragma once
+
+#include <cstdint>
+
+#include "core/active/active_surface.h"
+#include "core/active/motion.h"
+#include "core/active/narrow_band.h"
+
+namespace surfacer::active_detail {
+
+class Stepper {
+ public:
+  // The reinitialization interval of `options` (validated by the caller).
+  explicit Stepper(const ActiveSurfaceOptions& options) : reinit_interval_(options.reinit_interval) {}
+
+  // What a checkpoint holds of the stepper (core/active/state.cpp).
+  struct Record {
+    double time = 0.0;
+    double last_dt = 0.0;  // >= 0
+    double last_max_dfdt = 0.0;
+    double last_max_speed = 0.0;
+    int steps_since_reinit = 0;  // >= 0
+    std::int64_t last_node_steps = 0;
+  };
+  Record record() const;
+  // Continues from a checkpoint: until the next sub-step, a new velocity keeps last_dt (the saved run's velocity is
+  // assumed), so the next step is bounded as in the uninterrupted run.
+  void restore(const Record& record);
+
+  // What one sub-step did.
+  struct SubStep {
+    double dt = 0.0;
+    std::int64_t node_steps = 0;  // active nodes updated
+    bool reinitialized = false;
+  };
+  // One sub-step of at most dt_limit (infinity: the CFL step): the extended speed (normal-speed modes and
+  // Motion::advect_controls()), the three stages, the topology, and a reinitialization every reinit_interval
+  // sub-steps. Throws ResourceLimit("max_blocks"), Cancelled.
+  SubStep step(double dt_limit, NarrowBand& band, Motion& motion, const RunControl& control);
+
+  double time() const { return time_; }
+  // Sets the time to a frame's end reached within rounding by the sub-steps.
+  void land(double frame_end) { time_ = frame_end; }
+  // The velocity changed: the next advecting step is not bounded by the last one (unless restored and not stepped).
+  void velocity_changed() {
+    if (!restored_) last_dt_ = 0.0;
+  }
+  // Max |df/dt| and max speed over the active nodes at the last sub-step.
+  double last_max_dfdt() const { return last_max_dfdt_; }
+  double last_max_speed() const { return last_max_speed_; }
+
+ private:
+  // TVD-RK3 from the stage-1 rates into kChanA. Returns the dt taken (an advecting step may be retried shorter).
+  double runge_kutta(double dt, int rate_channel, NarrowBand& band, const Motion& motion, const RunControl& control);
+
+  int reinit_interval_;
+  double time_ = 0.0;
+  int steps_since_reinit_ = 0;
+  double last_dt_ = 0.0;
+  std::int64_t last_node_steps_ = 0;
+  double last_max_dfdt_ = 0.0;
+  double last_max_speed_ = 0.0;
+  bool restored_ = false;  // restored from a checkpoint and not stepped since
+};
+
+}  // namespace surfacer::active_detail
