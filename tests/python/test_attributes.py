@@ -51,6 +51,27 @@ def test_dict_frames_interpolate_onto_frame_attributes(local_client, tmp_path):
     np.testing.assert_array_equal(back.attributes["density"], frame.attributes["density"])
 
 
+@pytest.mark.parametrize("encoding", ["draco", "meshopt", "raw"])
+def test_every_encoding_carries_the_attributes_and_glb_keeps_them(local_client, encoding, tmp_path):
+    ball = lattice_ball()
+    density, velocity = fields(ball)
+    (frame,) = local_client.particles([{"positions": ball, "density": density, "velocity": velocity}], r_inner=0.04,
+                                      interpolate=["density", "velocity"], encoding=encoding)
+    assert list(frame.attributes) == ["density", "velocity"]
+    check_frame_attributes(frame.vertices, frame.attributes["density"], frame.attributes["velocity"], 0.08)
+    # .glb (Draco pieces of the frame's mesh, re-quantized on its own box) and plain .gltf (float32 positions):
+    # _DENSITY and _VELOCITY, read back under their names; in the .gltf each vertex's values bit for bit.
+    for suffix in (".glb", ".gltf"):
+        frame.write(tmp_path / ("mesh" + suffix))
+        back = surfacer.read_mesh(tmp_path / ("mesh" + suffix))
+        assert list(back.attributes) == ["density", "velocity"], suffix
+        check_frame_attributes(back.vertices, back.attributes["density"], back.attributes["velocity"], 0.08)
+        if suffix == ".gltf":
+            at = {tuple(p): i for i, p in enumerate(frame.vertices.astype(np.float32))}
+            order = [at[tuple(p)] for p in back.vertices.astype(np.float32)]
+            np.testing.assert_array_equal(back.attributes["velocity"], frame.attributes["velocity"][order])
+
+
 def test_all_and_a_missing_attribute(local_client):
     ball = lattice_ball()
     density, _ = fields(ball)
@@ -108,7 +129,7 @@ def test_cli_interpolates_from_third_party_files_and_they_read_ours(writer, tmp_
                                               point_data={"density": density, "velocity": velocity}))
     out = tmp_path / "out"
     subprocess.run([cli(), "run", "particles", "--input", str(source), "--r-inner", "0.04", "--interpolate",
-                    "velocity,density", "-o", str(out), "--format", "ply,vtk,vtu,drc"],
+                    "velocity,density", "-o", str(out), "--format", "ply,vtk,vtu,drc,glb,gltf"],
                    check=True, capture_output=True, timeout=120)
     reference = surfacer.read_mesh(out / "frame_0000.ply")
     check_frame_attributes(reference.vertices, reference.attributes["density"], reference.attributes["velocity"],
@@ -117,6 +138,12 @@ def test_cli_interpolates_from_third_party_files_and_they_read_ours(writer, tmp_
     assert len(draco.vertices) == len(reference.vertices)
     np.testing.assert_array_equal(draco.attributes["density"], np.float32(998.25))
     assert draco.attributes["velocity"].shape == reference.attributes["velocity"].shape
+    for suffix in (".glb", ".gltf"):  # _VELOCITY and _DENSITY, named back by the mesh's extras
+        back = surfacer.read_mesh(out / ("frame_0000" + suffix))
+        assert sorted(back.attributes) == ["density", "velocity"], suffix
+        np.testing.assert_array_equal(back.attributes["density"], np.float32(998.25))
+        assert back.attributes["velocity"].shape == (len(back.vertices), 3)
+        np.testing.assert_array_equal(back.attributes["velocity"][:, 2], np.float32(-0.5))
     for suffix in (".vtk", ".vtu"):
         path = out / ("frame_0000" + suffix)
         points, arrays = vtk_point_arrays(path)
