@@ -419,18 +419,25 @@ class GlbReader {
   };
 
   // The application-specific attributes of a primitive (all but _SEAM), in the file's order, with the names the
-  // mesh's extras give them (gltf_attribute_semantics), else the semantic without its underscore.
+  // mesh's extras give them (gltf_attribute_semantics), else the semantic without its underscore; a name that is
+  // empty or taken already becomes the semantic itself, and a semantic listed twice is read once (Mesh::attributes
+  // have distinct names).
   std::vector<std::pair<std::string, std::string>> custom_attributes(std::size_t mesh, const JsonValue& attributes,
                                                                      const std::string& where) const {
     const JsonValue* extras = item("meshes", mesh, where).find("extras");
     const JsonValue* names = extras ? extras->find(kGltfAttributeNamesKey) : nullptr;
     std::vector<std::pair<std::string, std::string>> out;  // (semantic, name)
+    auto taken = [&](const std::string& name) {
+      return std::any_of(out.begin(), out.end(), [&](const auto& o) { return o.second == name; });
+    };
     for (const JsonMember& m : attributes.members) {
       if (m.name.empty() || m.name[0] != '_' || m.name == kGltfSeamSemantic) continue;
-      const JsonValue* name = names ? names->find(m.name) : nullptr;
-      out.emplace_back(m.name, name && name->kind == JsonValue::Kind::kString && !name->string.empty()
-                                   ? name->string
-                                   : m.name.substr(1));
+      if (std::any_of(out.begin(), out.end(), [&](const auto& o) { return o.first == m.name; })) continue;
+      const JsonValue* given = names ? names->find(m.name) : nullptr;
+      std::string name = given && given->kind == JsonValue::Kind::kString ? given->string : m.name.substr(1);
+      if (name.empty() || taken(name)) name = m.name;
+      if (taken(name)) continue;
+      out.emplace_back(m.name, std::move(name));
     }
     return out;
   }
