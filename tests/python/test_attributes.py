@@ -1,6 +1,8 @@
 """Particle attributes end to end: dict frames and files made by the real VTK (python3-vtk9) and meshio carry velocity
 and density through interpolate=/--interpolate onto the mesh, and our .vtu/.vtk/.ply outputs read back in VTK and
-meshio with the arrays under the same names (and .drc through our Draco reader). CTest sets PYTHONPATH and SURFACER_CLI_BINARY (tests/CMakeLists.txt)."""
+meshio with the arrays under the same names (and .drc through our Draco reader); every encoding carries them, and
+.glb/.gltf hold them as _NAME attributes (VTK's glTF reader reads the plain ones).
+CTest sets PYTHONPATH and SURFACER_CLI_BINARY (tests/CMakeLists.txt)."""
 
 import os
 import subprocess
@@ -154,6 +156,35 @@ def test_cli_interpolates_from_third_party_files_and_they_read_ours(writer, tmp_
         for name in ("density", "velocity"):
             np.testing.assert_array_equal(np.asarray(mesh.point_data[name]).reshape(reference.attributes[name].shape),
                                           reference.attributes[name], err_msg=str(path))
+
+
+def test_vtk_gltf_reader_reads_the_attributes_of_plain_gltf(tmp_path):
+    """VTK's own glTF reader (no Draco or meshopt in VTK 9.1) takes the raw frames' plain .glb and .gltf: the
+    attributes are point arrays _DENSITY and _VELOCITY holding the frame's values, vertex for vertex."""
+    from vtkmodules.vtkIOGeometry import vtkGLTFReader
+    ball = lattice_ball()
+    density, velocity = fields(ball)
+    source = tmp_path / "fluid.vtu"
+    write_vtk_input(source, ball, density, velocity)
+    out = tmp_path / "out"
+    subprocess.run([cli(), "run", "particles", "--input", str(source), "--r-inner", "0.04", "--interpolate",
+                    "velocity,density", "--encoding", "raw", "-o", str(out), "--format", "ply,glb,gltf"],
+                   check=True, capture_output=True, timeout=120)
+    reference = surfacer.read_mesh(out / "frame_0000.ply")
+    for suffix in (".glb", ".gltf"):
+        reader = vtkGLTFReader()
+        reader.SetFileName(str(out / ("frame_0000" + suffix)))
+        reader.Update()
+        blocks = reader.GetOutput().NewIterator()
+        blocks.InitTraversal()
+        mesh = blocks.GetCurrentDataObject()
+        data = mesh.GetPointData()
+        arrays = {data.GetArrayName(i): vtk_to_numpy(data.GetArray(i)) for i in range(data.GetNumberOfArrays())}
+        assert sorted(arrays) == ["_DENSITY", "_VELOCITY"], suffix
+        points = vtk_to_numpy(mesh.GetPoints().GetData()).astype(np.float64)
+        np.testing.assert_allclose(points, reference.vertices, atol=1e-6, err_msg=suffix)
+        np.testing.assert_array_equal(arrays["_DENSITY"], reference.attributes["density"], err_msg=suffix)
+        np.testing.assert_array_equal(arrays["_VELOCITY"], reference.attributes["velocity"], err_msg=suffix)
 
 
 def test_cli_names_the_file_and_its_attributes_when_one_is_missing(tmp_path):
