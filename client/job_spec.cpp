@@ -335,11 +335,6 @@ PreparedJob prepare_job(const JobOptions& options, const InMemoryInputs& in_memo
     spec = options.spec;
     build_inputs(options, prepared, in_memory);
   }
-  // Interpolated attributes travel in raw frames (the one encoding that carries them): the default when none is given.
-  if (spec.has_particles() && spec.particles().interpolate_size() > 0 &&
-      spec.output().encoding() == v1::MESH_ENCODING_UNSPECIFIED) {
-    spec.mutable_output()->set_encoding(v1::MESH_ENCODING_PLY);
-  }
   if (options.name) {
     spec.set_name(*options.name);
   } else if (spec.name().size() > wire::kMaxNameBytes) {
@@ -364,13 +359,12 @@ std::optional<int> frames_before_run(const v1::JobSpec& spec) {
 void fit_encoding_to_files(v1::JobSpec& spec, const std::vector<FileFormat>& formats) {
   v1::OutputOptions* output = spec.mutable_output();
   if (spec.has_particles() && spec.particles().interpolate_size() > 0) {
+    // Every encoding carries them; OBJ and VDB files have no place for them.
     for (FileFormat format : formats) {
-      if (format == FileFormat::kPly || format == FileFormat::kVtk || format == FileFormat::kVtu ||
-          format == FileFormat::kDrc) {
-        continue;
-      }
+      if (format != FileFormat::kObj && format != FileFormat::kVdb) continue;
       throw CliError(ExitCode::kUsage, std::string("--interpolate with --format ") + file_format_name(format) +
-                                           ": only ply, vtk, vtu and drc files carry the interpolated attributes");
+                                           ": only ply, vtk, vtu, drc, glb and gltf files carry the interpolated "
+                                           "attributes");
     }
   }
   if (std::find(formats.begin(), formats.end(), FileFormat::kGlb) != formats.end() &&

@@ -1,6 +1,7 @@
 // Writes the seeds of the mesh fuzz target (fuzz/fuzz_mesh.cpp) that Python cannot encode, so fuzz/make_seeds.py
 // runs this (built with the tests as fuzz/fuzz_frame_seeds): pieced frames as a server encodes them (selectors 5 and
-// 6: Draco pieces and meshopt pieces, one piece and several, with and without normals) and binary glTF files
+// 6: Draco pieces and meshopt pieces, one piece and several, with and without normals and attributes) and binary glTF
+// files
 // (selector 7: the CLI's .glb of such frames, and another exporter's plain accessors, nodes and fans).
 // Usage: fuzz_frame_seeds DIR   (writes DIR/seed_frame_*)
 #include <cstdio>
@@ -25,6 +26,7 @@ int main(int argc, char** argv) {
     int cells;  // 8: 544 triangles, one piece; 11: 1052 triangles, four pieces of the smallest size
     bool normals;
     int bits;
+    bool attributes = false;  // a scalar and a 3-vector a vertex (Mesh::attributes)
   };
   const Seed seeds[] = {
       {"draco_pieces_one", FrameCodec::kDracoPieces, 8, false, 14},
@@ -33,9 +35,19 @@ int main(int argc, char** argv) {
       {"meshopt_one", FrameCodec::kMeshopt, 8, false, 14},
       {"meshopt_four", FrameCodec::kMeshopt, 11, false, 8},
       {"meshopt_normals", FrameCodec::kMeshopt, 6, true, 10},
+      {"draco_pieces_attributes", FrameCodec::kDracoPieces, 11, false, 12, true},
+      {"meshopt_attributes", FrameCodec::kMeshopt, 11, true, 12, true},
   };
   for (const Seed& s : seeds) {
-    const Mesh mesh = testing::polygonized(sphere, Polygonizer::kCubes, s.cells, s.normals);
+    Mesh mesh = testing::polygonized(sphere, Polygonizer::kCubes, s.cells, s.normals);
+    if (s.attributes) {
+      Attribute density{"density", 1, {}}, velocity{"velocity", 3, {}};
+      for (const Vec3& p : mesh.vertices) {
+        density.values.push_back(998.25f);
+        for (int c = 0; c < 3; ++c) velocity.values.push_back(static_cast<float>(p[c] - 2.0 * p[(c + 1) % 3]));
+      }
+      mesh.attributes = {density, velocity};
+    }
     FrameCodecOptions o;
     o.codec = s.codec;
     o.draco.quantization_bits = s.bits;

@@ -6,6 +6,10 @@
 //   none), u8 Draco attribute ids of its position, normals and seam tags (255: none, and for meshopt pieces), u8 0;
 //   then the pieces' bytes, in order. The directory says all a glTF file needs (to_gltf), so nothing is decoded to
 //   write one.
+// Version 3, written for meshes with Mesh::attributes (version 2 for the others, which earlier clients read): the
+//   directory entry's last byte is the Draco id of the piece's first attribute (255: none, and for meshopt pieces;
+//   the others follow it), and the directory is followed by the attributes' names: u8 count, per attribute u8
+//   components, u16 name bytes, the name. Each piece holds its vertices' values, unnamed, in this order.
 // Version 1 (per piece only bytes, vertices, triangles) is still read: frames an earlier server kept in a job store.
 #include "core/mesh/frame_codec.h"
 
@@ -28,11 +32,12 @@ namespace surfacer {
 namespace {
 
 constexpr char kMagic[4] = {'S', 'F', 'P', 'C'};
-constexpr std::uint8_t kVersion = 2;
+constexpr std::uint8_t kVersion = 3;
+constexpr std::uint8_t kVersionWithoutAttributes = 2;
 constexpr std::uint8_t kNormalsFlag = 1;
 constexpr std::size_t kMinPieceTriangles = 1024;
 constexpr std::size_t kHeaderBytes = 4 + 4 + 16 + 4 + 16;
-constexpr std::size_t kDirectoryEntryBytes[3] = {0, 12, 44};  // by version
+constexpr std::size_t kDirectoryEntryBytes[4] = {0, 12, 44, 44};  // by version
 constexpr std::uint8_t kNoAttribute = 255;
 
 std::uint8_t container_codec(FrameCodec codec) { return codec == FrameCodec::kDracoPieces ? 1 : 2; }
@@ -88,6 +93,8 @@ struct Container {
   QuantizationGrid grid;
   std::uint64_t vertices = 0, triangles = 0;
   std::vector<PieceEntry> pieces;
+  // Version 3: the attributes' names and components (no values), in the pieces' order.
+  std::vector<Attribute> attributes;
   std::vector<std::string_view> payloads;
 };
 
@@ -129,7 +136,12 @@ Container read_container(std::string_view bytes) {
       e.found.position = attribute_id(get<std::uint8_t>(bytes, at));
       e.found.normal = attribute_id(get<std::uint8_t>(bytes, at));
       e.found.seam = attribute_id(get<std::uint8_t>(bytes, at));
-      if (get<std::uint8_t>(bytes, at) != 0) bad("a directory entry with unknown fields");
+      const auto last = get<std::uint8_t>(bytes, at);
+      if (c.version >= 3) {
+        e.found.attributes = attribute_id(last);
+      } else if (last != 0) {
+        bad("a directory entry with unknown fields");
+      }
       for (int a = 0; a < 3; ++a) {
         if (e.min[a] > e.max[a] || e.max[a] > c.grid.max_value()) bad("a piece's bounds off the grid");
       }
@@ -139,6 +151,20 @@ Container read_container(std::string_view bytes) {
     payload += e.bytes;
     triangles += e.triangles;
     if (e.vertices > 3ull * e.triangles) bad("a piece with more vertices than its triangles use");
+  }
+  if (c.version >= 3) {
+    const auto count = get<std::uint8_t>(bytes, at);
+    for (std::uint8_t a = 0; a < count; ++a) {
+      Attribute& attribute = c.attributes.emplace_back();
+      attribute.components = get<std::uint8_t>(bytes, at);
+      const auto length = get<std::uint16_t>(bytes, at);
+      if (bytes.size() - at < length) bad("truncated attribute names");
+      attribute.name = std::string(bytes.substr(at, length));
+      at += length;
+      if (attribute.components < 1 || attribute.components > Attribute::kMaxComponents || attribute.name.empty()) {
+        bad("an attribute of " + std::to_string(attribute.components) + " components named '" + attribute.name + "'");
+      }
+    }
   }
   if (payload != bytes.size() - at) bad("pieces of " + std::to_string(payload) + " bytes after the directory");
   if (triangles != c.triangles || c.vertices > 3 * c.triangles) bad("piece counts disagree with the header");
@@ -174,6 +200,17 @@ Mesh clamped_to(const Mesh& mesh, const Aabb& cube) {
 std::string encode_pieces(const Mesh& mesh, const FrameCodecOptions& options, const Executor& executor,
                           const RunControl& control) {
   const QuantizationGrid grid = quantization_grid(mesh, options.draco, executor);
+  check_attributes(mesh);
+  if (mesh.attributes.size() > std::numeric_limits<std::uint8_t>::max()) {
+    throw InvalidInput(
+        "attributes", "a frame of " + std::to_string(mesh.attributes.size()) + " attributes; frames carry at most 255");
+  }
+  for (const Attribute& a : mesh.attributes) {
+    if (a.name.empty() || a.name.size() > std::numeric_limits<std::uint16_t>::max()) {
+      throw InvalidInput("attributes", "an attribute name of " + std::to_string(a.name.size()) +
+                                           " bytes; frames carry names of 1 to 65535 bytes");
+    }
+  }
   control.check();
   MeshPieces cut(mesh, grid, options.max_piece_triangles, executor, control);
   const int n = cut.count();
@@ -201,12 +238,14 @@ std::string encode_pieces(const Mesh& mesh, const FrameCodecOptions& options, co
     if (e.found.points > 0) set_bounds(piece.positions, e);
     control.report("encode", static_cast<double>(done.fetch_add(1) + 1) / n);
   });
-  std::size_t total = kHeaderBytes + n * kDirectoryEntryBytes[kVersion];
+  const std::uint8_t version = mesh.attributes.empty() ? kVersionWithoutAttributes : kVersion;
+  std::size_t total = kHeaderBytes + n * kDirectoryEntryBytes[version] + (version >= 3 ? 1 : 0);
+  for (const Attribute& a : mesh.attributes) total += 3 + a.name.size();
   for (const std::string& p : payloads) total += p.size();
   std::string out;
   out.reserve(total);
   put(out, kMagic, 4);
-  put(out, kVersion);
+  put(out, version);
   put(out, container_codec(options.codec));
   put(out, static_cast<std::uint8_t>(grid.bits));
   put(out, static_cast<std::uint8_t>(normals ? kNormalsFlag : 0));
@@ -225,7 +264,15 @@ std::string encode_pieces(const Mesh& mesh, const FrameCodecOptions& options, co
     put(out, attribute_byte(e.found.position));
     put(out, attribute_byte(e.found.normal));
     put(out, attribute_byte(e.found.seam));
-    put(out, std::uint8_t{0});
+    put(out, version >= 3 ? attribute_byte(e.found.attributes) : std::uint8_t{0});
+  }
+  if (version >= 3) {
+    put(out, static_cast<std::uint8_t>(mesh.attributes.size()));
+    for (const Attribute& a : mesh.attributes) {
+      put(out, static_cast<std::uint8_t>(a.components));
+      put(out, static_cast<std::uint16_t>(a.name.size()));
+      put(out, a.name.data(), a.name.size());
+    }
   }
   for (const std::string& p : payloads) out += p;
   return out;
@@ -258,6 +305,23 @@ Mesh decode_pieces(std::string_view bytes, FrameCodec codec, const Executor& exe
     if ((c.codec == 1 ? nv < c.pieces[p].vertices : nv != c.pieces[p].vertices) ||
         piece.triangles.size() != c.pieces[p].triangles || piece.normals.size() != (c.normals ? nv : 0)) {
       bad("piece " + std::to_string(p) + " does not hold what the directory says");
+    }
+    // A piece without points holds no attributes (Draco writes none); the others hold the frame's, unnamed.
+    if (nv == 0) piece.attributes.clear();
+    if (nv > 0 && piece.attributes.size() != c.attributes.size()) {
+      bad("piece " + std::to_string(p) + " holds " + std::to_string(piece.attributes.size()) +
+          " attributes, the frame names " + std::to_string(c.attributes.size()));
+    }
+    for (std::size_t a = 0; a < piece.attributes.size(); ++a) {
+      if (piece.attributes[a].components != c.attributes[a].components) {
+        bad("piece " + std::to_string(p) + "'s attribute " + c.attributes[a].name + " has " +
+            std::to_string(piece.attributes[a].components) + " components, the frame says " +
+            std::to_string(c.attributes[a].components));
+      }
+      piece.attributes[a].name = c.attributes[a].name;
+    }
+    if (nv == 0) {
+      for (const Attribute& a : c.attributes) piece.attributes.push_back(Attribute{a.name, a.components, {}});
     }
   });
   Mesh mesh = weld(pieces, c.grid, executor);
@@ -338,6 +402,8 @@ std::string draco_gltf(const Container& c, const Executor& executor) {
   // has seam tags) in that order, and buffer view k for kept piece k. _SEAM (an application attribute, which other
   // readers pass over) names the seam vertices as the frame's tags do, so a reader can weld the pieces' copies
   // exactly as the client welds a frame (parse_glb does).
+  // The frame's attributes follow, each a FLOAT accessor under its semantic (gltf_attribute_semantics).
+  const std::vector<std::string> semantics = gltf_attribute_semantics(c.attributes);
   JsonWriter w;
   begin_gltf(w, !kept.empty(), "KHR_draco_mesh_compression");
   if (!kept.empty()) {
@@ -345,21 +411,29 @@ std::string draco_gltf(const Container& c, const Executor& executor) {
     int accessor = 0;
     for (std::size_t k = 0; k < kept.size(); ++k) {
       const DracoPieceInfo& ids = primitives[kept[k]].found;
+      if (!semantics.empty() && ids.attributes < 0) bad("piece " + std::to_string(kept[k]) + " has no attributes");
       const int normal = ids.normal >= 0 ? accessor + 2 : -1;
       const int seam = ids.seam >= 0 ? accessor + (normal >= 0 ? 3 : 2) : -1;
+      const int first_attribute = accessor + 2 + (normal >= 0 ? 1 : 0) + (seam >= 0 ? 1 : 0);
       w.begin_object().key("attributes").begin_object().key("POSITION").value(accessor);
       if (normal >= 0) w.key("NORMAL").value(normal);
-      if (seam >= 0) w.key("_SEAM").value(seam);
+      if (seam >= 0) w.key(kGltfSeamSemantic).value(seam);
+      for (std::size_t a = 0; a < semantics.size(); ++a)
+        w.key(semantics[a]).value(first_attribute + static_cast<int>(a));
       w.end_object().key("indices").value(accessor + 1);
       w.key("extensions").begin_object().key("KHR_draco_mesh_compression").begin_object();
       w.key("bufferView").value(static_cast<int>(k)).key("attributes").begin_object();
       w.key("POSITION").value(ids.position);
       if (normal >= 0) w.key("NORMAL").value(ids.normal);
-      if (seam >= 0) w.key("_SEAM").value(ids.seam);
+      if (seam >= 0) w.key(kGltfSeamSemantic).value(ids.seam);
+      for (std::size_t a = 0; a < semantics.size(); ++a)
+        w.key(semantics[a]).value(ids.attributes + static_cast<int>(a));
       w.end_object().end_object().end_object().end_object();
-      accessor += 2 + (normal >= 0 ? 1 : 0) + (seam >= 0 ? 1 : 0);
+      accessor = first_attribute + static_cast<int>(semantics.size());
     }
-    w.end_array().end_object().end_array();
+    w.end_array();
+    write_gltf_mesh_extras(w, c.attributes);
+    w.end_object().end_array();
     w.key("accessors").begin_array();
     for (const int p : kept) {
       const PieceEntry& prim = primitives[p];
@@ -375,6 +449,10 @@ std::string draco_gltf(const Container& c, const Executor& executor) {
       }
       if (prim.found.seam >= 0) {
         w.begin_object().key("componentType").value(gltf::kUnsignedShort).key("type").value("SCALAR");
+        w.key("count").value(std::uint64_t{prim.found.points}).end_object();
+      }
+      for (const Attribute& a : c.attributes) {
+        w.begin_object().key("componentType").value(gltf::kFloat).key("type").value(gltf_accessor_type(a.components));
         w.key("count").value(std::uint64_t{prim.found.points}).end_object();
       }
     }
@@ -403,7 +481,7 @@ std::string meshopt_gltf(const Container& c, const Executor& executor) {
     streams[p] = meshopt_streams(c.payloads[p]);
     const PieceEntry& e = c.pieces[p];
     if (streams[p].vertices != e.vertices || streams[p].triangles != e.triangles ||
-        (streams[p].normal_bits > 0) != c.normals) {
+        (streams[p].normal_bits > 0) != c.normals || streams[p].attributes.size() != c.attributes.size()) {
       bad("piece " + std::to_string(p) + " does not hold what the directory says");
     }
     normals[p] = gltf_octahedral_normals(streams[p]);
@@ -423,7 +501,7 @@ std::string meshopt_gltf(const Container& c, const Executor& executor) {
                       const char* filter, int target) {
     views.push_back({0, stream.size(), fallback, stride, count, mode, filter, target});
     views.back().offset = append_aligned(bin, stream);
-    fallback += stride * count;  // 8 or 4 bytes a value: stays 4-byte aligned
+    fallback += stride * count;  // a multiple of 4 bytes a value: stays 4-byte aligned
   };
   std::vector<int> kept;
   for (int p = 0; p < n; ++p) {
@@ -432,23 +510,36 @@ std::string meshopt_gltf(const Container& c, const Executor& executor) {
     add_view(streams[p].vertex, 8, streams[p].vertices, "ATTRIBUTES", nullptr, 34962);
     add_view(streams[p].index, 4, 3 * std::size_t{streams[p].triangles}, "TRIANGLES", nullptr, 34963);
     if (c.normals) add_view(normals[p], 8, streams[p].vertices, "ATTRIBUTES", "OCTAHEDRAL", 34962);
+    for (std::size_t a = 0; a < c.attributes.size(); ++a) {
+      const MeshoptStreams::AttributeStream& stream = streams[p].attributes[a];
+      if (stream.components != c.attributes[a].components) {
+        bad("piece " + std::to_string(p) + " does not hold the attributes the frame names");
+      }
+      add_view(stream.stream, 4 * std::size_t(stream.components), streams[p].vertices, "ATTRIBUTES", nullptr, 34962);
+    }
   }
   append_aligned(bin, {});  // the buffer's byteLength is the padded chunk's
-  // Per primitive the accessors POSITION, indices, _SEAM and NORMAL (with normals), over its buffer views: vertices,
-  // triangles and normals. _SEAM's tags name the seam vertices as the frame's do (see draco_gltf).
+  // Per primitive the accessors POSITION, indices, _SEAM, NORMAL (with normals) and the frame's attributes, over its
+  // buffer views: vertices, triangles, normals and one per attribute. _SEAM's tags name the seam vertices as the
+  // frame's do (see draco_gltf).
+  const std::vector<std::string> semantics = gltf_attribute_semantics(c.attributes);
+  const int named = static_cast<int>(semantics.size());
   JsonWriter w;
   begin_gltf(w, !kept.empty(), "EXT_meshopt_compression");
   if (!kept.empty()) {
-    const int per = c.normals ? 4 : 3;  // accessors per primitive
-    const int views_per = c.normals ? 3 : 2;
+    const int per = (c.normals ? 4 : 3) + named;  // accessors per primitive
+    const int views_per = (c.normals ? 3 : 2) + named;
     w.key("meshes").begin_array().begin_object().key("primitives").begin_array();
     for (std::size_t k = 0; k < kept.size(); ++k) {
       const int a = static_cast<int>(k) * per;
-      w.begin_object().key("attributes").begin_object().key("POSITION").value(a).key("_SEAM").value(a + 2);
+      w.begin_object().key("attributes").begin_object().key("POSITION").value(a).key(kGltfSeamSemantic).value(a + 2);
       if (c.normals) w.key("NORMAL").value(a + 3);
+      for (int i = 0; i < named; ++i) w.key(semantics[i]).value(a + (c.normals ? 4 : 3) + i);
       w.end_object().key("indices").value(a + 1).end_object();
     }
-    w.end_array().end_object().end_array();
+    w.end_array();
+    write_gltf_mesh_extras(w, c.attributes);
+    w.end_object().end_array();
     w.key("accessors").begin_array();
     for (std::size_t k = 0; k < kept.size(); ++k) {
       const PieceEntry& e = c.pieces[kept[k]];
@@ -464,6 +555,11 @@ std::string meshopt_gltf(const Container& c, const Executor& executor) {
       if (c.normals) {
         w.begin_object().key("bufferView").value(v + 2).key("componentType").value(gltf::kShort);
         w.key("normalized").value(true).key("type").value("VEC3");
+        w.key("count").value(std::uint64_t{e.vertices}).end_object();
+      }
+      for (int i = 0; i < named; ++i) {
+        w.begin_object().key("bufferView").value(v + (c.normals ? 3 : 2) + i).key("componentType").value(gltf::kFloat);
+        w.key("type").value(gltf_accessor_type(c.attributes[i].components));
         w.key("count").value(std::uint64_t{e.vertices}).end_object();
       }
     }

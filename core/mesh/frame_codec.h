@@ -1,6 +1,7 @@
 // A frame's bytes in every codec the service speaks (docs/ALGORITHMS.md §5 "Frames"): one standard Draco mesh, Draco
 // pieces or meshoptimizer pieces (encoded and decoded in parallel, welded exactly; core/mesh/mesh_pieces.h), or
-// lossless PLY. Every codec but PLY puts the vertices on the job's quantization grid.
+// lossless PLY. Every codec but PLY puts the vertices on the job's quantization grid; every codec carries the mesh's
+// attributes (Mesh::attributes) as float32, bit for bit.
 #pragma once
 
 #include <cstddef>
@@ -40,7 +41,8 @@ void validate(const FrameCodecOptions& options);
 
 // The bytes of `mesh` in options.codec. Pieces are encoded as items of `executor` (their bytes do not depend on it)
 // and `control` is checked between them (Cancelled). Throws like encode_draco (bad mesh, vertices outside the
-// quantization box). A one-piece Draco or PLY frame is encoded on the calling thread, uninterruptibly.
+// quantization box), and for pieced codecs InvalidInput("attributes") for more than 255 attributes or a name of more
+// than 65535 bytes. A one-piece Draco or PLY frame is encoded on the calling thread, uninterruptibly.
 std::string encode_frame(const Mesh& mesh, const FrameCodecOptions& options, const Executor& executor,
                          const RunControl& control = {});
 
@@ -60,7 +62,9 @@ std::string to_standard_draco(std::string_view bytes, FrameCodec codec, const Me
 // core/mesh/mesh_gltf.h). A pieced frame goes in as received, the accessors' counts and bounds taken from its
 // directory: each Draco piece's stream as a KHR_draco_mesh_compression primitive, each meshopt piece's streams as
 // EXT_meshopt_compression buffer views (its normals, if any, are laid out again for that extension's OCTAHEDRAL
-// filter). Nothing is decoded, except the pieces of a version 1 Draco frame (from an earlier server: their bounds)
+// filter). The frame's attributes (Mesh::attributes) are FLOAT application attributes named by
+// gltf_attribute_semantics (core/mesh/mesh_gltf.h), in the Draco streams or as meshopt buffer views of their own.
+// Nothing is decoded, except the pieces of a version 1 Draco frame (from an earlier server: their bounds)
 // and a version 1 meshopt frame, which becomes Draco pieces of `decoded()`, as does a one-mesh Draco or PLY frame
 // (on the mesh's own box with the default bits). `decoded` (decode_frame of the same bytes) is called only then.
 // Throws InvalidInput("quantization_bits") for a grid of more than 16 bits, which glTF cannot hold, and

@@ -383,14 +383,15 @@ Mesh decode_draco(std::string_view bytes, const MeshReadLimits& limits) {
 
 namespace {
 
+// Returns the attribute's id.
 template <class T>
-void add_integer_attribute(draco::Mesh& out, draco::GeometryAttribute::Type type, draco::DataType data_type,
-                           int components, const std::vector<T>& values) {
+int add_integer_attribute(draco::Mesh& out, draco::GeometryAttribute::Type type, draco::DataType data_type,
+                          int components, const std::vector<T>& values) {
   auto attribute = std::make_unique<draco::PointAttribute>();
   const std::size_t count = values.size() / components;
   attribute->Init(type, components, data_type, false, count);
   if (!values.empty()) attribute->buffer()->Write(0, values.data(), values.size() * sizeof(T));
-  out.AddAttribute(std::move(attribute));
+  return out.AddAttribute(std::move(attribute));
 }
 
 bool unsigned_attribute(const draco::PointAttribute& attribute) {
@@ -425,24 +426,38 @@ std::string encode_draco_piece(const QuantizedPiece& piece, int grid_bits, const
   const std::size_t nv = piece.triangles.empty() ? 0 : piece.positions.size();
   draco::Mesh out;
   out.set_num_points(static_cast<draco::PointIndex::ValueType>(nv));
+  DracoPieceInfo ids;
   if (nv > 0 && grid_bits <= 16) {
     std::vector<std::uint16_t> values(3 * nv);
     for (std::size_t v = 0; v < nv; ++v) {
       for (int c = 0; c < 3; ++c) values[3 * v + c] = static_cast<std::uint16_t>(piece.positions[v][c]);
     }
-    add_integer_attribute(out, draco::GeometryAttribute::POSITION, draco::DT_UINT16, 3, values);
+    ids.position = add_integer_attribute(out, draco::GeometryAttribute::POSITION, draco::DT_UINT16, 3, values);
   } else if (nv > 0) {
     std::vector<std::uint32_t> values(3 * nv);
     for (std::size_t v = 0; v < nv; ++v) {
       for (int c = 0; c < 3; ++c) values[3 * v + c] = piece.positions[v][c];
     }
-    add_integer_attribute(out, draco::GeometryAttribute::POSITION, draco::DT_UINT32, 3, values);
+    ids.position = add_integer_attribute(out, draco::GeometryAttribute::POSITION, draco::DT_UINT32, 3, values);
   }
   if (nv > 0 && std::any_of(piece.seam_tags.begin(), piece.seam_tags.end(), [](std::uint16_t t) { return t != 0; })) {
-    add_integer_attribute(out, draco::GeometryAttribute::GENERIC, draco::DT_UINT16, 1, piece.seam_tags);
+    ids.seam = add_integer_attribute(out, draco::GeometryAttribute::GENERIC, draco::DT_UINT16, 1, piece.seam_tags);
   }
   const bool encode_normals = nv > 0 && options.normals && !piece.normals.empty();
-  if (encode_normals) add_float3_attribute(out, draco::GeometryAttribute::NORMAL, piece.normals, std::nullopt);
+  if (encode_normals) {
+    ids.normal = add_float3_attribute(out, draco::GeometryAttribute::NORMAL, piece.normals, std::nullopt);
+  }
+  for (std::size_t a = 0; a < piece.attributes.size() && nv > 0; ++a) {
+    const Attribute& attribute = piece.attributes[a];
+    if (attribute.components < 1 || attribute.components > Attribute::kMaxComponents ||
+        attribute.values.size() != nv * static_cast<std::size_t>(attribute.components)) {
+      throw InvalidInput("attributes", "a piece's attribute " + attribute.name + " does not hold 1 to " +
+                                           std::to_string(Attribute::kMaxComponents) + " values per vertex");
+    }
+    const int id = add_integer_attribute(out, draco::GeometryAttribute::GENERIC, draco::DT_FLOAT32,
+                                         attribute.components, attribute.values);
+    if (a == 0) ids.attributes = id;
+  }
   out.SetNumFaces(piece.triangles.size());
   for (std::size_t t = 0; t < piece.triangles.size(); ++t) {
     draco::Mesh::Face face;
@@ -466,17 +481,8 @@ std::string encode_draco_piece(const QuantizedPiece& piece, int grid_bits, const
     points = encoder.num_encoded_points();
   }
   if (info) {
-    *info = DracoPieceInfo{};
+    *info = ids;
     info->points = *points;
-    if (const draco::PointAttribute* a = out.GetNamedAttribute(draco::GeometryAttribute::POSITION)) {
-      info->position = static_cast<int>(a->unique_id());
-    }
-    if (const draco::PointAttribute* a = out.GetNamedAttribute(draco::GeometryAttribute::NORMAL)) {
-      info->normal = static_cast<int>(a->unique_id());
-    }
-    if (const draco::PointAttribute* a = out.GetNamedAttribute(draco::GeometryAttribute::GENERIC)) {
-      info->seam = static_cast<int>(a->unique_id());
-    }
   }
   return std::string(buffer.data(), buffer.size());
 }
@@ -514,10 +520,34 @@ QuantizedPiece decode_draco_piece(std::string_view bytes, int grid_bits, DracoPi
     }
   }
   piece.seam_tags.assign(np, 0);
-  if (const draco::PointAttribute* tags = in->GetNamedAttribute(draco::GeometryAttribute::GENERIC)) {
-    if (tags->num_components() != 1 || !unsigned_attribute(*tags)) {
-      throw InvalidInput("frame", "a Draco piece's seam tags are not one unsigned integer per point");
+  const draco::PointAttribute* tags = nullptr;
+  for (int id = 0; id < in->num_attributes(); ++id) {
+    const draco::PointAttribute* generic = in->attribute(id);
+    if (generic == nullptr || generic->attribute_type() != draco::GeometryAttribute::GENERIC) continue;
+    if (unsigned_attribute(*generic)) {
+      if (tags != nullptr || generic->num_components() != 1) {
+        throw InvalidInput("frame", "a Draco piece's seam tags are not one unsigned integer per point");
+      }
+      tags = generic;
+      continue;
     }
+    if (generic->data_type() != draco::DT_FLOAT32 || generic->num_components() < 1 ||
+        generic->num_components() > Attribute::kMaxComponents) {
+      throw InvalidInput("frame", "a Draco piece's attribute " + std::to_string(id) + " is not 1 to " +
+                                      std::to_string(Attribute::kMaxComponents) + " floats per point");
+    }
+    if (info && piece.attributes.empty()) info->attributes = static_cast<int>(generic->unique_id());
+    const int k = generic->num_components();
+    Attribute& attribute = piece.attributes.emplace_back(Attribute{"", k, std::vector<float>(np * k)});
+    for (std::size_t p = 0; p < np; ++p) {
+      if (!generic->ConvertValue<float>(generic->mapped_index(draco::PointIndex(static_cast<std::uint32_t>(p))), k,
+                                        &attribute.values[p * k])) {
+        throw InvalidInput("frame", "a Draco piece's attribute " + std::to_string(id) + " is unreadable at point " +
+                                        std::to_string(p));
+      }
+    }
+  }
+  if (tags != nullptr) {
     if (info) info->seam = static_cast<int>(tags->unique_id());
     for (std::size_t p = 0; p < np; ++p) {
       if (!tags->ConvertValue<std::uint16_t, 1>(tags->mapped_index(draco::PointIndex(static_cast<std::uint32_t>(p))),

@@ -81,23 +81,27 @@ double draco_max_error(const Aabb& box, int quantization_bits);
 
 // What a Draco piece holds for its decoder: its points (Draco writes a vertex whose triangles in the piece form
 // separate fans as one point per fan, so there may be more points than the piece's vertices) and the Draco attribute
-// ids of its position, normals and seam tags (-1: none), which glTF's KHR_draco_mesh_compression names.
+// ids of its position, normals, seam tags and first attribute (the others follow it; -1: none), which glTF's
+// KHR_draco_mesh_compression names.
 struct DracoPieceInfo {
   std::size_t points = 0;
   int position = -1;
   int normal = -1;
   int seam = -1;
+  int attributes = -1;
   bool operator==(const DracoPieceInfo&) const = default;
 };
 // One piece of a frame (core/mesh/mesh_pieces.h) as Draco bytes: the grid coordinates as an integer POSITION
 // attribute (16-bit for grids of up to 16 bits; Draco's own quantization is not needed, they are on the grid
 // already), the seam tags as a 16-bit GENERIC attribute when some are non-zero, and the normals as encode_draco
-// writes them (options.normals, options.normal_bits). options.speed applies; its quantization fields do not. Fills
-// `info` (what decode_draco_piece will find) when given.
+// writes them (options.normals, options.normal_bits), then the piece's attributes as GENERIC float32 attributes
+// (unquantized: bit for bit), in order and without names (a frame names them once, core/mesh/frame_codec.h).
+// options.speed applies; its quantization fields do not. Fills `info` (what decode_draco_piece will find) when given.
 std::string encode_draco_piece(const QuantizedPiece& piece, int grid_bits, const DracoOptions& options,
                                DracoPieceInfo* info = nullptr);
 // Throws InvalidInput("frame") when the bytes are not such a piece (no integer POSITION, coordinates beyond
-// 2^grid_bits - 1). Fills `info` when given.
+// 2^grid_bits - 1, attributes of more than 4 components). The seam tags are the GENERIC attribute of unsigned
+// integers, the attributes the float ones (returned unnamed, in order of their ids). Fills `info` when given.
 QuantizedPiece decode_draco_piece(std::string_view bytes, int grid_bits, DracoPieceInfo* info = nullptr);
 
 }  // namespace surfacer

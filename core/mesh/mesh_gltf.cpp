@@ -5,6 +5,7 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <array>
+#include <cctype>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -18,6 +19,7 @@
 #include "core/mesh/mesh_io.h"
 #include "core/util/base64.h"
 #include "core/util/errors.h"
+#include "core/util/json.h"
 #include "core/util/json_read.h"
 
 namespace surfacer {
@@ -410,10 +412,35 @@ class GlbReader {
   // A primitive's triangles over the points they use, in the file's coordinates.
   struct Part {
     std::vector<Vec3> points;
-    std::vector<Vec3> normals;        // one per point, or none
-    std::vector<std::uint32_t> weld;  // per point: kByPosition, a seam tag or kAlone
+    std::vector<Vec3> normals;          // one per point, or none
+    std::vector<std::uint32_t> weld;    // per point: kByPosition, a seam tag or kAlone
+    std::vector<Attribute> attributes;  // application-specific ones, named, one element per point each
     std::vector<Triangle> triangles;
   };
+
+  // The application-specific attributes of a primitive (all but _SEAM), in the file's order, with the names the
+  // mesh's extras give them (gltf_attribute_semantics), else the semantic without its underscore; a name that is
+  // empty or taken already becomes the semantic itself, and a semantic listed twice is read once (Mesh::attributes
+  // have distinct names).
+  std::vector<std::pair<std::string, std::string>> custom_attributes(std::size_t mesh, const JsonValue& attributes,
+                                                                     const std::string& where) const {
+    const JsonValue* extras = item("meshes", mesh, where).find("extras");
+    const JsonValue* names = extras ? extras->find(kGltfAttributeNamesKey) : nullptr;
+    std::vector<std::pair<std::string, std::string>> out;  // (semantic, name)
+    auto taken = [&](const std::string& name) {
+      return std::any_of(out.begin(), out.end(), [&](const auto& o) { return o.second == name; });
+    };
+    for (const JsonMember& m : attributes.members) {
+      if (m.name.empty() || m.name[0] != '_' || m.name == kGltfSeamSemantic) continue;
+      if (std::any_of(out.begin(), out.end(), [&](const auto& o) { return o.first == m.name; })) continue;
+      const JsonValue* given = names ? names->find(m.name) : nullptr;
+      std::string name = given && given->kind == JsonValue::Kind::kString ? given->string : m.name.substr(1);
+      if (name.empty() || taken(name)) name = m.name;
+      if (taken(name)) continue;
+      out.emplace_back(m.name, std::move(name));
+    }
+    return out;
+  }
 
   // Primitive p of mesh `index`, read and decoded once however many nodes instance it.
   const Part& part(std::size_t index, std::size_t p, const JsonValue& prim, const std::string& where) {
@@ -433,8 +460,10 @@ class GlbReader {
     std::vector<Vec3> points;
     std::vector<std::uint32_t> weld;  // per point: kByPosition, a seam tag or kAlone
     std::vector<Vec3> normals;
+    std::vector<Attribute> custom;  // per point
     std::vector<std::size_t> indices;
-    const JsonValue* seam = attributes->find("_SEAM");
+    const JsonValue* seam = attributes->find(kGltfSeamSemantic);
+    const auto named = custom_attributes(index, *attributes, where);
     if (draco != nullptr) {
       if (mode != 4) bad(where + " is Draco-compressed with mode " + std::to_string(mode));
       const std::string_view data =
@@ -442,13 +471,24 @@ class GlbReader {
       const JsonValue* ids = draco->find("attributes");
       Mesh decoded;
       try {
-        if (seam != nullptr) {  // the pieces of a frame: grid coordinates and seam tags
+        // The pieces of a frame: grid coordinates, seam tags (none in a frame of one piece), attributes.
+        if (seam != nullptr || (ours_ && !named.empty())) {
           DracoPieceInfo info;
           QuantizedPiece piece = decode_draco_piece(data, 16, &info);
-          if (ids == nullptr || info.seam < 0 || info.position < 0 ||
-              integer(ids->find("_SEAM"), where + " Draco _SEAM") != static_cast<std::size_t>(info.seam) ||
+          if (ids == nullptr || info.position < 0 ||
+              (seam != nullptr && (info.seam < 0 || integer(ids->find(kGltfSeamSemantic), where + " Draco _SEAM") !=
+                                                        static_cast<std::size_t>(info.seam))) ||
               integer(ids->find("POSITION"), where + " Draco POSITION") != static_cast<std::size_t>(info.position)) {
             bad(where + ": the Draco stream's attributes are not the ones the primitive names");
+          }
+          for (const auto& [semantic, name] : named) {
+            const std::size_t id = integer(ids->find(semantic), where + " Draco " + semantic);
+            const std::size_t first = info.attributes < 0 ? piece.attributes.size() : info.attributes;
+            if (id < first || id - first >= piece.attributes.size()) {
+              bad(where + ": the Draco stream has no attribute " + std::to_string(id) + " for " + semantic);
+            }
+            custom.push_back(std::move(piece.attributes[id - first]));
+            custom.back().name = name;
           }
           for (const auto& q : piece.positions) decoded.vertices.emplace_back(q[0], q[1], q[2]);
           for (std::uint16_t tag : piece.seam_tags) weld.push_back(tag == 0 ? kAlone : tag);
@@ -496,6 +536,17 @@ class GlbReader {
         normals.resize(a.count);
         for (std::size_t i = 0; i < a.count; ++i) normals[i] = Vec3(a.get(i, 0), a.get(i, 1), a.get(i, 2));
       }
+      for (const auto& [semantic, name] : named) {
+        const Accessor a =
+            accessor(integer(attributes->find(semantic), where + ".attributes." + semantic), where + " " + semantic);
+        if (a.count != points.size()) bad(where + " has a " + semantic + " that is not one element per vertex");
+        Attribute& attribute = custom.emplace_back(Attribute{name, a.components, {}});
+        attribute.values.resize(a.count * a.components);
+        for (std::size_t i = 0; i < a.count; ++i) {
+          for (int c = 0; c < a.components; ++c)
+            attribute.values[i * a.components + c] = static_cast<float>(a.get(i, c));
+        }
+      }
       // Meshopt pieces (and Draco pieces decompressed by another tool) keep the tags as plain data: a SCALAR, or the
       // last component of a VEC4 (meshopt's 8-byte vertices x, y, z, tag: glTF aligns attributes on 4 bytes).
       if (seam != nullptr) {
@@ -516,6 +567,10 @@ class GlbReader {
     }
     // The triangles, and only the points they use (a file may list points no triangle of the primitive uses).
     Part out;
+    for (const Attribute& a : custom) {
+      if (a.values.size() != points.size() * a.components) bad(where + " has a " + a.name + " of another count");
+      out.attributes.push_back(Attribute{a.name, a.components, {}});
+    }
     std::vector<std::uint32_t> local(points.size(), std::numeric_limits<std::uint32_t>::max());
     auto add = [&](std::size_t a, std::size_t b, std::size_t c) {
       Triangle t;
@@ -527,6 +582,10 @@ class GlbReader {
           out.points.push_back(points[corners[k]]);
           out.weld.push_back(weld[corners[k]]);
           if (!normals.empty()) out.normals.push_back(normals[corners[k]]);
+          for (std::size_t a = 0; a < custom.size(); ++a) {
+            const auto begin = custom[a].values.begin() + corners[k] * custom[a].components;
+            out.attributes[a].values.insert(out.attributes[a].values.end(), begin, begin + custom[a].components);
+          }
         }
         t[k] = l;
       }
@@ -579,6 +638,17 @@ class GlbReader {
       }
       weld_.insert(weld_.end(), part.weld.begin(), part.weld.end());
       if (part.normals.empty()) all_normals_ = false;
+      // The mesh keeps the attributes every primitive has alike (names and components, in order).
+      if (base == 0 && attributes_.empty() && same_attributes_) {
+        for (const Attribute& a : part.attributes) attributes_.push_back(Attribute{a.name, a.components, {}});
+      }
+      same_attributes_ = same_attributes_ && part.attributes.size() == attributes_.size();
+      for (std::size_t a = 0; same_attributes_ && a < attributes_.size(); ++a) {
+        same_attributes_ = part.attributes[a].name == attributes_[a].name &&
+                           part.attributes[a].components == attributes_[a].components;
+        attributes_[a].values.insert(attributes_[a].values.end(), part.attributes[a].values.begin(),
+                                     part.attributes[a].values.end());
+      }
       for (const Vec3& n : part.normals) {
         const Vec3 m = normal_map * n;
         const double length = m.norm();
@@ -612,11 +682,18 @@ class GlbReader {
     std::vector<std::uint32_t> id(n, std::numeric_limits<std::uint32_t>::max());
     Mesh mesh;
     const bool normals = all_normals_ && n > 0;
+    if (same_attributes_ && n > 0) {
+      for (const Attribute& a : attributes_) mesh.attributes.push_back(Attribute{a.name, a.components, {}});
+    }
     for (std::size_t v = 0; v < n; ++v) {
       if (first[v] != v) continue;
       id[v] = static_cast<std::uint32_t>(mesh.vertices.size());
       mesh.vertices.push_back(vertices_[v]);
-      if (normals) mesh.normals.push_back(normals_[v]);  // a welded vertex takes its first copy's normal
+      if (normals) mesh.normals.push_back(normals_[v]);  // a welded vertex takes its first copy's normal (and values)
+      for (std::size_t a = 0; a < mesh.attributes.size(); ++a) {
+        const auto begin = attributes_[a].values.begin() + v * attributes_[a].components;
+        mesh.attributes[a].values.insert(mesh.attributes[a].values.end(), begin, begin + attributes_[a].components);
+      }
     }
     mesh.triangles = std::move(triangles_);
     for (Triangle& t : mesh.triangles) {
@@ -634,15 +711,58 @@ class GlbReader {
   JsonValue root_;
   bool ours_ = false;  // written by to_gltf (asset.generator "surfacer"): welded through _SEAM only
   std::vector<Vec3> vertices_;
-  std::vector<std::uint32_t> weld_;  // per vertex, its weld class
-  std::vector<Vec3> normals_;        // per vertex of the primitives that have normals
-  bool all_normals_ = true;          // every primitive has them: the mesh gets normals
+  std::vector<std::uint32_t> weld_;    // per vertex, its weld class
+  std::vector<Vec3> normals_;          // per vertex of the primitives that have normals
+  bool all_normals_ = true;            // every primitive has them: the mesh gets normals
+  std::vector<Attribute> attributes_;  // per vertex, while every primitive has the same ones
+  bool same_attributes_ = true;
   std::vector<Triangle> triangles_;
   std::map<std::pair<std::size_t, std::size_t>, Part> parts_;  // by (mesh, primitive)
   mutable std::map<std::size_t, std::string> decompressed_;    // EXT_meshopt_compression buffer views, by index
 };
 
 }  // namespace
+
+std::vector<std::string> gltf_attribute_semantics(const std::vector<Attribute>& attributes) {
+  std::vector<std::string> out;
+  auto taken = [&](const std::string& semantic) {
+    return semantic == kGltfSeamSemantic || std::find(out.begin(), out.end(), semantic) != out.end();
+  };
+  for (const Attribute& a : attributes) {
+    std::string semantic = "_";
+    for (const char c : a.name) {
+      const auto u = static_cast<unsigned char>(c);
+      semantic += std::isalnum(u) && u < 0x80 ? static_cast<char>(std::toupper(u)) : '_';
+    }
+    std::string unique = semantic;
+    for (int k = 2; taken(unique); ++k) unique = semantic + "_" + std::to_string(k);
+    out.push_back(std::move(unique));
+  }
+  return out;
+}
+
+const char* gltf_accessor_type(int components) {
+  switch (components) {
+    case 1:
+      return "SCALAR";
+    case 2:
+      return "VEC2";
+    case 3:
+      return "VEC3";
+    case 4:
+      return "VEC4";
+    default:
+      throw Internal("a glTF accessor of " + std::to_string(components) + " components");
+  }
+}
+
+void write_gltf_mesh_extras(JsonWriter& w, const std::vector<Attribute>& attributes) {
+  if (attributes.empty()) return;
+  const std::vector<std::string> semantics = gltf_attribute_semantics(attributes);
+  w.key("extras").begin_object().key(kGltfAttributeNamesKey).begin_object();
+  for (std::size_t a = 0; a < attributes.size(); ++a) w.key(semantics[a]).value(attributes[a].name);
+  w.end_object().end_object();
+}
 
 std::string pack_glb(std::string json, std::string bin) {
   while (json.size() % 4 != 0) json.push_back(' ');
@@ -698,6 +818,12 @@ std::string plain_gltf(const Mesh& mesh, bool embed, std::string& bin) {
       for (int c = 0; c < 3; ++c) put(static_cast<float>(unit[c]));
     }
   }
+  // Each attribute's floats, in a buffer view of its own (after the normals: 4-byte values keep every view aligned).
+  std::vector<std::size_t> attribute_offsets;
+  for (const Attribute& a : mesh.attributes) {
+    attribute_offsets.push_back(bin.size());
+    bin.append(reinterpret_cast<const char*>(a.values.data()), a.values.size() * sizeof(float));
+  }
   const std::size_t indices_offset = bin.size();
   for (const Triangle& t : mesh.triangles) {
     for (const std::uint32_t v : t) put(v);
@@ -712,20 +838,44 @@ std::string plain_gltf(const Mesh& mesh, bool embed, std::string& bin) {
   };
   const std::string count = std::to_string(n), length = std::to_string(bin.size());
   std::string json = "{" + asset + R"(, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],)";
+  // Accessors and buffer views: 0 positions, 1 indices, 2 normals (with normals), then one per attribute.
+  const std::size_t first_attribute = normals ? 3 : 2;
+  const std::vector<std::string> semantics = gltf_attribute_semantics(mesh.attributes);
   json += R"( "meshes": [{"primitives": [{"attributes": {"POSITION": 0)";
-  json += normals ? R"(, "NORMAL": 2}, )" : "}, ";
-  json += R"("indices": 1, "mode": 4}]}],)";
+  if (normals) json += R"(, "NORMAL": 2)";
+  for (std::size_t a = 0; a < semantics.size(); ++a) {
+    json += ", " + json_quote(semantics[a]) + ": " + std::to_string(first_attribute + a);
+  }
+  json += R"(}, "indices": 1, "mode": 4}])";
+  if (!mesh.attributes.empty()) {
+    JsonWriter extras;
+    extras.begin_object();
+    write_gltf_mesh_extras(extras, mesh.attributes);
+    extras.end_object();
+    json += ", " + extras.str().substr(1, extras.str().size() - 2);
+  }
+  json += "}],";
   json += R"( "accessors": [{"bufferView": 0, "componentType": 5126, "count": )" + count +
           R"(, "type": "VEC3", "min": )" + triple(lo) + R"(, "max": )" + triple(hi) + "}, ";
   json += R"({"bufferView": 1, "componentType": 5125, "count": )" + std::to_string(3 * mesh.triangles.size()) +
           R"(, "type": "SCALAR"})";
   if (normals) json += R"(, {"bufferView": 2, "componentType": 5126, "count": )" + count + R"(, "type": "VEC3"})";
+  for (std::size_t a = 0; a < mesh.attributes.size(); ++a) {
+    json += R"(, {"bufferView": )" + std::to_string(first_attribute + a) + R"(, "componentType": 5126, "count": )" +
+            count + R"(, "type": ")" + gltf_accessor_type(mesh.attributes[a].components) + "\"}";
+  }
   json += R"(], "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": )" + std::to_string(positions_bytes) +
           R"(, "target": 34962}, {"buffer": 0, "byteOffset": )" + std::to_string(indices_offset) +
           R"(, "byteLength": )" + std::to_string(bin.size() - indices_offset) + R"(, "target": 34963})";
   if (normals) {
+    const std::size_t end = attribute_offsets.empty() ? indices_offset : attribute_offsets[0];
     json += R"(, {"buffer": 0, "byteOffset": )" + std::to_string(positions_bytes) + R"(, "byteLength": )" +
-            std::to_string(indices_offset - positions_bytes) + R"(, "target": 34962})";
+            std::to_string(end - positions_bytes) + R"(, "target": 34962})";
+  }
+  for (std::size_t a = 0; a < mesh.attributes.size(); ++a) {
+    const std::size_t end = a + 1 < attribute_offsets.size() ? attribute_offsets[a + 1] : indices_offset;
+    json += R"(, {"buffer": 0, "byteOffset": )" + std::to_string(attribute_offsets[a]) + R"(, "byteLength": )" +
+            std::to_string(end - attribute_offsets[a]) + R"(, "target": 34962})";
   }
   json += R"(], "buffers": [{"byteLength": )" + length;
   if (embed) {

@@ -198,11 +198,20 @@ QuantizedPiece MeshPieces::take(int p) {
   out.seam_tags.assign(nv, 0);
   const bool normals = !mesh_.normals.empty();
   if (normals) out.normals.resize(nv);
+  out.attributes.reserve(mesh_.attributes.size());
+  for (const Attribute& a : mesh_.attributes) {
+    Attribute& local = out.attributes.emplace_back(Attribute{a.name, a.components, {}});
+    local.values.resize(nv * static_cast<std::size_t>(a.components));
+  }
   for (std::size_t l = 0; l < nv; ++l) {
     const std::uint32_t v = piece.globals[l];
     out.positions[l] = grid_.quantize(mesh_.vertices[v]);
     if (owner_ && (owner_[v] & kShared)) out.seam_tags[l] = static_cast<std::uint16_t>(owner_[v] & 0xffffu);
     if (normals) out.normals[l] = mesh_.normals[v];
+    for (std::size_t a = 0; a < out.attributes.size(); ++a) {
+      const auto k = static_cast<std::size_t>(out.attributes[a].components);
+      std::copy_n(mesh_.attributes[a].values.begin() + v * k, k, out.attributes[a].values.begin() + l * k);
+    }
   }
   out.triangles = std::move(piece.triangles);
   piece = Piece{};
@@ -218,6 +227,20 @@ Mesh weld(const std::vector<QuantizedPiece>& pieces, const QuantizationGrid& gri
     const std::string where = "piece " + std::to_string(p) + ": ";
     if (piece.seam_tags.size() != nv || piece.normals.size() != (normals ? nv : 0)) {
       throw InvalidInput("frame", where + "attributes do not match its " + std::to_string(nv) + " vertices");
+    }
+    if (piece.attributes.size() != pieces[0].attributes.size()) {
+      throw InvalidInput("frame", where + std::to_string(piece.attributes.size()) + " attributes, piece 0 has " +
+                                      std::to_string(pieces[0].attributes.size()));
+    }
+    for (std::size_t a = 0; a < piece.attributes.size(); ++a) {
+      const Attribute& attribute = piece.attributes[a];
+      if (attribute.name != pieces[0].attributes[a].name ||
+          attribute.components != pieces[0].attributes[a].components || attribute.components < 1 ||
+          attribute.components > Attribute::kMaxComponents ||
+          attribute.values.size() != nv * static_cast<std::size_t>(attribute.components)) {
+        throw InvalidInput("frame", where + "attribute " + std::to_string(a) + " (" + attribute.name +
+                                        ") does not match piece 0's or its " + std::to_string(nv) + " vertices");
+      }
     }
   }
   // Shared vertices: (grid point, tag, piece, local index), sorted; the first of each group is the one kept.
@@ -269,6 +292,11 @@ Mesh weld(const std::vector<QuantizedPiece>& pieces, const QuantizationGrid& gri
   Mesh mesh;
   mesh.vertices.resize(first[n]);
   if (normals) mesh.normals.resize(first[n]);
+  if (n > 0) {
+    for (const Attribute& a : pieces[0].attributes) {
+      mesh.attributes.push_back(Attribute{a.name, a.components, std::vector<float>(first[n] * a.components)});
+    }
+  }
   std::vector<std::vector<std::uint32_t>> global(n);
   const std::uint32_t max_value = grid.max_value();
   executor.for_each(n, [&](int p) {
@@ -286,6 +314,10 @@ Mesh weld(const std::vector<QuantizedPiece>& pieces, const QuantizationGrid& gri
       g[l] = next;
       mesh.vertices[next] = grid.dequantize(q);
       if (normals) mesh.normals[next] = piece.normals[l];
+      for (std::size_t a = 0; a < mesh.attributes.size(); ++a) {
+        const auto k = static_cast<std::size_t>(mesh.attributes[a].components);
+        std::copy_n(piece.attributes[a].values.begin() + l * k, k, mesh.attributes[a].values.begin() + next * k);
+      }
       ++next;
     }
   });

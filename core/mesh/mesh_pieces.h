@@ -25,6 +25,9 @@ struct QuantizedPiece {
   std::vector<std::uint16_t> seam_tags;
   std::vector<Triangle> triangles;  // local vertex indices, counter-clockwise as in the mesh
   std::vector<Vec3> normals;        // empty or one unit normal per vertex
+  // The mesh's Mesh::attributes, one element per vertex of the piece each, in the mesh's order. A decoder that does
+  // not know the names (they travel once per frame, core/mesh/frame_codec.h) leaves them empty.
+  std::vector<Attribute> attributes;
 };
 
 // The pieces of a mesh: cut once (on `executor`, cancellable through `control`), then each taken once with take(p),
@@ -44,7 +47,8 @@ class MeshPieces {
   // Vertices and triangles of the welded mesh (what weld() returns for the pieces).
   std::size_t vertices() const { return vertices_; }
   std::size_t triangles() const { return triangles_; }
-  // Piece p, positions quantized on the grid (normals when the mesh has them). Once per piece: its triangles move out.
+  // Piece p, positions quantized on the grid (normals and attributes when the mesh has them). Once per piece: its
+  // triangles move out.
   QuantizedPiece take(int p);
 
  private:
@@ -69,8 +73,9 @@ class MeshPieces {
 
 // The mesh of decoded pieces: seam vertices (same grid point, same tag) become one vertex, the first copy in piece
 // order, then vertex order; the other vertices follow piece by piece. Positions are the grid points as Draco's
-// decoder returns them. Throws InvalidInput("frame") for pieces that contradict each other (a tag without partner,
-// a grid coordinate beyond the grid, a triangle index out of range).
+// decoder returns them; normals and attributes are the kept copy's (the pieces' copies of a vertex hold the same
+// values). Throws InvalidInput("frame") for pieces that contradict each other (a tag without partner, a grid
+// coordinate beyond the grid, a triangle index out of range, attributes that differ in count, components or name).
 Mesh weld(const std::vector<QuantizedPiece>& pieces, const QuantizationGrid& grid, const Executor& executor);
 
 }  // namespace surfacer

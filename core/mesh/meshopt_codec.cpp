@@ -12,6 +12,7 @@ namespace surfacer {
 namespace {
 
 constexpr std::uint8_t kNormalsFlag = 1;
+constexpr std::uint8_t kAttributesFlag = 2;
 
 // Index codec version 1 (smaller on our meshes); the decoder reads either. Set once, before any encode.
 void use_index_codec_v1() {
@@ -59,6 +60,16 @@ struct Reader {
 template <class T>
 std::size_t encode_vertices(std::vector<unsigned char>& out, const std::vector<T>& values, std::size_t count) {
   constexpr std::size_t stride = sizeof(T);
+  out.resize(meshopt_encodeVertexBufferBound(count, stride));
+  const std::size_t size = meshopt_encodeVertexBuffer(out.data(), out.size(), values.data(), count, stride);
+  if (size == 0 && count > 0) throw Internal("meshopt vertex encoder failed");
+  return size;
+}
+
+// Float attributes: `components` floats a vertex, one meshopt vertex of 4 x components bytes (lossless).
+std::size_t encode_floats(std::vector<unsigned char>& out, const std::vector<float>& values, int components,
+                          std::size_t count) {
+  const std::size_t stride = sizeof(float) * static_cast<std::size_t>(components);
   out.resize(meshopt_encodeVertexBufferBound(count, stride));
   const std::size_t size = meshopt_encodeVertexBuffer(out.data(), out.size(), values.data(), count, stride);
   if (size == 0 && count > 0) throw Internal("meshopt vertex encoder failed");
@@ -147,7 +158,9 @@ std::string encode_meshopt_piece(const QuantizedPiece& piece, int grid_bits, int
   std::string out;
   put_u32(out, static_cast<std::uint32_t>(nv));
   put_u32(out, static_cast<std::uint32_t>(nt));
-  out.push_back(static_cast<char>(normals ? kNormalsFlag : 0));
+  const bool attributes = !piece.attributes.empty();
+  if (piece.attributes.size() > 255) throw InvalidInput("attributes", "more than 255 attributes");
+  out.push_back(static_cast<char>((normals ? kNormalsFlag : 0) | (attributes ? kAttributesFlag : 0)));
   std::vector<unsigned char> stream;
   if (grid_bits <= 16) {
     put_stream(out, stream, encode_vertices(stream, pack_vertices<std::uint16_t>(piece), nv));
@@ -171,6 +184,18 @@ std::string encode_meshopt_piece(const QuantizedPiece& piece, int grid_bits, int
     put_stream(out, stream, encode_vertices(stream, values, nv));
     out.push_back(static_cast<char>(bits));
   }
+  if (attributes) {
+    out.push_back(static_cast<char>(piece.attributes.size()));
+    for (const Attribute& a : piece.attributes) {
+      if (a.components < 1 || a.components > Attribute::kMaxComponents ||
+          a.values.size() != nv * static_cast<std::size_t>(a.components)) {
+        throw InvalidInput("attributes", "a piece's attribute " + a.name + " does not hold 1 to " +
+                                             std::to_string(Attribute::kMaxComponents) + " values per vertex");
+      }
+      out.push_back(static_cast<char>(a.components));
+      put_stream(out, stream, encode_floats(stream, a.values, a.components, nv));
+    }
+  }
   return out;
 }
 
@@ -180,7 +205,7 @@ MeshoptStreams meshopt_streams(std::string_view bytes) {
   s.vertices = in.u32();
   s.triangles = in.u32();
   const std::uint8_t flags = in.u8();
-  if (flags & ~kNormalsFlag) bad("has unknown flags");
+  if (flags & ~(kNormalsFlag | kAttributesFlag)) bad("has unknown flags");
   s.vertex = in.stream();
   s.index = in.stream();
   // Bounds before anyone allocates: a vertex takes at least 1/16 byte of its stream, a triangle at least half a byte.
@@ -192,6 +217,17 @@ MeshoptStreams meshopt_streams(std::string_view bytes) {
     s.normal = in.stream();
     s.normal_bits = in.u8();
     if (s.normal_bits < 2 || s.normal_bits > 16) bad("has normals of " + std::to_string(s.normal_bits) + " bits");
+  }
+  if (flags & kAttributesFlag) {
+    const std::uint8_t count = in.u8();
+    if (count == 0) bad("has an empty attribute list");
+    for (std::uint8_t a = 0; a < count; ++a) {
+      const int components = in.u8();
+      if (components < 1 || components > Attribute::kMaxComponents) {
+        bad("has an attribute of " + std::to_string(components) + " components");
+      }
+      s.attributes.push_back({components, in.stream()});
+    }
   }
   if (in.at != bytes.size()) bad("has trailing bytes");
   return s;
@@ -224,6 +260,15 @@ QuantizedPiece decode_meshopt_piece(std::string_view bytes, int grid_bits) {
     for (std::size_t v = 0; v < nv; ++v) {
       piece.normals[v] =
           from_octahedral(std::clamp(values[v].x / scale, -1.0, 1.0), std::clamp(values[v].y / scale, -1.0, 1.0));
+    }
+  }
+  for (const MeshoptStreams::AttributeStream& a : s.attributes) {
+    Attribute& attribute = piece.attributes.emplace_back(Attribute{"", a.components, {}});
+    attribute.values.resize(nv * static_cast<std::size_t>(a.components));
+    if (nv > 0 &&
+        meshopt_decodeVertexBuffer(attribute.values.data(), nv, sizeof(float) * a.components,
+                                   reinterpret_cast<const unsigned char*>(a.stream.data()), a.stream.size()) != 0) {
+      bad("has a malformed attribute stream");
     }
   }
   return piece;

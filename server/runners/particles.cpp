@@ -193,12 +193,6 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
     throw InvalidInput(path + ".frames", path + ".frames is empty; give at least one particle frame");
   }
   check_frame_count(job.frames_size(), path + ".frames", context.limits);
-  if (job.interpolate_size() > 0 && spec.output().encoding() != v1::MESH_ENCODING_PLY) {
-    throw InvalidInput("spec.output.encoding",
-                       "spec.particles.interpolate: interpolated attributes travel in raw frames only "
-                       "(spec.output.encoding MESH_ENCODING_PLY, --encoding raw); Draco and meshopt frames do not "
-                       "carry them yet");
-  }
   ParticleSurfacingOptions options = wire::particle_options(job, spec.output().normals(), path);
   options.container_solid = wire::container_solid(job, context.uploads, path);
 

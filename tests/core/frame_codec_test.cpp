@@ -350,6 +350,142 @@ TEST(FrameCodec, GltfFromTheDirectoryIsTheFileDecodingGives) {
   }
 }
 
+// A mesh's attributes as a frame carries them: an id per vertex (its index, exact in float32) to find the original
+// vertex after a codec reorders, splits or welds them, a constant, a velocity linear in the position, and names that
+// glTF cannot take as they are (a dot; "seam", whose semantic _SEAM our pieces use already), with 1 to 4 components.
+Mesh with_attributes(Mesh mesh) {
+  const std::size_t n = mesh.vertices.size();
+  Attribute id{"id", 1, {}}, density{"density", 1, {}}, velocity{"velocity", 3, {}}, foam{"foam.mask", 2, {}},
+      seam{"seam", 4, {}};
+  for (std::size_t v = 0; v < n; ++v) {
+    const Vec3& p = mesh.vertices[v];
+    id.values.push_back(static_cast<float>(v));
+    density.values.push_back(998.25f);
+    for (const double x : {0.5 * p.x() - p.y() + 2.0 * p.z(), 2.0 * p.x(), -0.5}) {
+      velocity.values.push_back(static_cast<float>(x));
+    }
+    foam.values.insert(foam.values.end(), {static_cast<float>(p.z()), 1.0f / 3.0f});
+    seam.values.insert(seam.values.end(),
+                       {1e-30f, -0.0f, std::numeric_limits<float>::max(), static_cast<float>(v % 7)});
+  }
+  mesh.attributes = {id, density, velocity, foam, seam};
+  return mesh;
+}
+
+// `read` holds `original`'s attributes, by name, in order, with their components, and each vertex the values of the
+// original vertex its id names, bit for bit, at a point within `error` of that vertex.
+void expect_attributes_of(const Mesh& read, const Mesh& original, double error) {
+  ASSERT_EQ(read.attributes.size(), original.attributes.size());
+  for (std::size_t a = 0; a < original.attributes.size(); ++a) {
+    EXPECT_EQ(read.attributes[a].name, original.attributes[a].name);
+    ASSERT_EQ(read.attributes[a].components, original.attributes[a].components) << original.attributes[a].name;
+    ASSERT_EQ(read.attributes[a].count(), read.vertices.size()) << original.attributes[a].name;
+  }
+  if (read.attributes.empty()) return;
+  const std::vector<float>& ids = read.attributes[0].values;
+  for (std::size_t v = 0; v < read.vertices.size(); ++v) {
+    const auto id = static_cast<std::size_t>(ids[v]);
+    ASSERT_LT(id, original.vertices.size());
+    ASSERT_LE((read.vertices[v] - original.vertices[id]).norm(), error) << "vertex " << v << " (id " << id << ")";
+    for (std::size_t a = 1; a < original.attributes.size(); ++a) {
+      const auto k = static_cast<std::size_t>(original.attributes[a].components);
+      for (std::size_t c = 0; c < k; ++c) {
+        const float got = read.attributes[a].values[v * k + c], want = original.attributes[a].values[id * k + c];
+        ASSERT_EQ(std::memcmp(&got, &want, sizeof got), 0)
+            << original.attributes[a].name << "[" << c << "] of vertex " << v << ": " << got << " for " << want;
+      }
+    }
+  }
+}
+
+// Every codec carries Mesh::attributes (Draco and meshopt pieces as unquantized float32 streams, named once per frame)
+// and gives them back bit for bit on the decoded vertices; so do the .glb files of every codec (_NAME application
+// attributes in KHR_draco_mesh_compression and EXT_meshopt_compression primitives, and in plain glTF), read back by
+// parse_glb with their names. Frames without attributes stay version 2.
+TEST(FrameCodec, AttributesComeBackFromEveryCodecAndGltf) {
+  const ThreadExecutor two(2);
+  std::vector<Case> all = cases();
+  for (const std::size_t pick : {std::size_t{4}, std::size_t{12}, std::size_t{13}, std::size_t{14}}) {
+    const Case& c = all.at(pick);  // a sphere of several pieces, normals, holes with bowties, empty
+    const Mesh mesh = with_attributes(c.mesh);
+    for (FrameCodec codec : {FrameCodec::kDraco, FrameCodec::kDracoPieces, FrameCodec::kMeshopt, FrameCodec::kPly}) {
+      for (const std::size_t piece : {std::size_t{1024}, std::size_t{1} << 20}) {
+        SCOPED_TRACE(c.name + ", " + std::string(frame_codec_name(codec)) + ", pieces of " + std::to_string(piece));
+        FrameCodecOptions o = options_for(codec, c.box, piece, 16);
+        o.draco.normals = !c.mesh.normals.empty();
+        const std::string bytes = encode_frame(mesh, o, two);
+        if (codec == FrameCodec::kDracoPieces || codec == FrameCodec::kMeshopt) {
+          EXPECT_EQ(bytes[4], 3);
+          EXPECT_EQ(encode_frame(c.mesh, o, two)[4], 2);
+        }
+        const Mesh frame = decode_frame(bytes, codec, two);
+        if (mesh.triangles.empty()) {  // nothing to carry (a one-mesh Draco frame keeps no names either)
+          EXPECT_TRUE(frame.vertices.empty());
+          EXPECT_TRUE(parse_glb(to_gltf(
+                                    bytes, codec, [&]() -> const Mesh& { return frame; }, two),
+                                "frame.glb")
+                          .attributes.empty());
+          continue;
+        }
+        const double error = codec == FrameCodec::kPly ? 0.0 : draco_max_error(c.box, 16);
+        expect_attributes_of(frame, mesh, error);
+        EXPECT_EQ(frame.triangles.size(), decode_frame(encode_frame(c.mesh, o, two), codec, two).triangles.size());
+        EXPECT_EQ(decode_draco(to_standard_draco(bytes, codec, frame)).attributes.size(), mesh.attributes.size());
+        const std::string glb = to_gltf(
+            bytes, codec, [&]() -> const Mesh& { return frame; }, two);
+        EXPECT_NE(glb.find("\"_FOAM_MASK\""), std::string::npos);
+        EXPECT_NE(glb.find("\"_SEAM_2\":"), std::string::npos);
+        for (const auto& [file, name] : {std::pair{glb, "frame.glb"}, std::pair{write_glb(frame), "plain.glb"},
+                                         std::pair{write_gltf(frame), "plain.gltf"}}) {
+          SCOPED_TRACE(name);
+          const Mesh read = parse_glb(file, name);
+          // The .glb of a pieced frame is on its grid; of a one-mesh frame, on the mesh's own box with 14 bits.
+          expect_attributes_of(read, mesh, error + draco_max_error(c.box, 14) + 1e-6);
+        }
+      }
+    }
+  }
+}
+
+TEST(FrameCodec, GltfAttributeSemanticsAreUpperCaseUnderscoredAndDistinct) {
+  std::vector<Attribute> attributes;
+  for (const char* name : {"velocity", "foam mask", "seam", "Velocity", "v\xc3\xa9lo", "_x", "TEXCOORD_0"}) {
+    attributes.push_back(Attribute{name, 1, {}});
+  }
+  EXPECT_EQ(
+      gltf_attribute_semantics(attributes),
+      (std::vector<std::string>{"_VELOCITY", "_FOAM_MASK", "_SEAM_2", "_VELOCITY_2", "_V__LO", "__X", "_TEXCOORD_0"}));
+}
+
+// A version 3 frame whose attribute names are cut short, or that names more attributes than its pieces hold, is
+// refused.
+TEST(FrameCodec, AttributeTableThatDisagreesWithThePiecesIsInvalidInput) {
+  const Case c = cases()[2];
+  const Mesh mesh = with_attributes(c.mesh);
+  for (FrameCodec codec : {FrameCodec::kDracoPieces, FrameCodec::kMeshopt}) {
+    const std::string bytes = encode_frame(mesh, options_for(codec, c.box, 1024), ThreadExecutor(2));
+    std::uint32_t count = 0;
+    std::memcpy(&count, bytes.data() + 24, 4);
+    const std::size_t table = 44 + 44 * std::size_t{count};
+    ASSERT_EQ(static_cast<std::uint8_t>(bytes[table]), mesh.attributes.size());
+    std::string fewer = bytes;
+    fewer[table] = static_cast<char>(mesh.attributes.size() - 1);
+    std::string more = bytes;
+    more[table] = static_cast<char>(mesh.attributes.size() + 1);
+    std::string components = bytes;
+    components[table + 1] = 2;  // "id" is a scalar
+    for (const std::string* damaged : {&fewer, &more, &components}) {
+      try {
+        decode_frame(*damaged, codec, ThreadExecutor(2));
+        ADD_FAILURE() << frame_codec_name(codec) << ": a damaged attribute table decoded";
+      } catch (const Error& e) {
+        EXPECT_EQ(e.kind(), ErrorKind::kInvalidInput);
+        EXPECT_EQ(e.field(), "frame");
+      }
+    }
+  }
+}
+
 // A directory that does not say what the pieces hold is refused when they are decoded.
 TEST(FrameCodec, DirectoryThatDisagreesWithItsPiecesIsInvalidInput) {
   const Case c = cases()[2];  // sphere, cubes, 40 cells: several pieces of 1024

@@ -153,6 +153,34 @@ TEST(MeshGltf, PlainGltfRoundTripsThroughWriteMeshAndReadMesh) {
   refused("\"byteLength\": 96", "\"byteLength\": 960", "(bufferView 0) runs past the binary chunk");
 }
 
+// Application attributes named by our extras read back under their names; without the extras (another writer's
+// file) a _NAME reads as NAME; two semantics the extras give one name stay distinct (the second keeps its semantic).
+TEST(MeshGltf, ApplicationAttributesKeepDistinctNames) {
+  Mesh cube = testing::unit_cube();
+  for (const char* name : {"a", "b"}) {
+    cube.attributes.push_back(
+        Attribute{name, 1, std::vector<float>(cube.vertices.size(), name[0] == 'a' ? 1.5f : 2.5f)});
+  }
+  const std::string good = write_gltf(cube);
+  auto names = [](const Mesh& mesh) {
+    std::vector<std::string> out;
+    for (const Attribute& a : mesh.attributes) out.push_back(a.name);
+    return out;
+  };
+  EXPECT_EQ(names(parse_glb(good, "good.gltf")), (std::vector<std::string>{"a", "b"}));
+  auto edited = [&](const std::string& from, const std::string& to) {
+    std::string text = good;
+    const std::size_t at = text.find(from);
+    EXPECT_NE(at, std::string::npos) << from;
+    if (at != std::string::npos) text.replace(at, from.size(), to);
+    return parse_glb(text, "edited.gltf");
+  };
+  EXPECT_EQ(names(edited("\"extras\"", "\"other\"")), (std::vector<std::string>{"A", "B"}));
+  const Mesh clash = edited("\"_B\":\"b\"", "\"_B\":\"a\"");
+  ASSERT_EQ(names(clash), (std::vector<std::string>{"a", "_B"}));
+  EXPECT_EQ(clash.attributes[1].values, std::vector<float>(clash.vertices.size(), 2.5f));
+}
+
 // Another exporter's file: plain accessors (strided float positions, indices of every unsigned type), triangles or
 // fans, and nodes whose transforms (translation, rotation, scale, matrix, nesting, a mirror) place the instances.
 TEST(MeshGltf, PlainAccessorsModesAndNodeTransforms) {

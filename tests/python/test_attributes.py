@@ -1,6 +1,8 @@
 """Particle attributes end to end: dict frames and files made by the real VTK (python3-vtk9) and meshio carry velocity
 and density through interpolate=/--interpolate onto the mesh, and our .vtu/.vtk/.ply outputs read back in VTK and
-meshio with the arrays under the same names (and .drc through our Draco reader). CTest sets PYTHONPATH and SURFACER_CLI_BINARY (tests/CMakeLists.txt)."""
+meshio with the arrays under the same names (and .drc through our Draco reader); every encoding carries them, and
+.glb/.gltf hold them as _NAME attributes (VTK's glTF reader reads the plain ones).
+CTest sets PYTHONPATH and SURFACER_CLI_BINARY (tests/CMakeLists.txt)."""
 
 import os
 import subprocess
@@ -49,6 +51,27 @@ def test_dict_frames_interpolate_onto_frame_attributes(local_client, tmp_path):
     back = surfacer.read_mesh(tmp_path / "mesh.ply")
     np.testing.assert_array_equal(back.attributes["velocity"], frame.attributes["velocity"])
     np.testing.assert_array_equal(back.attributes["density"], frame.attributes["density"])
+
+
+@pytest.mark.parametrize("encoding", ["draco", "meshopt", "raw"])
+def test_every_encoding_carries_the_attributes_and_glb_keeps_them(local_client, encoding, tmp_path):
+    ball = lattice_ball()
+    density, velocity = fields(ball)
+    (frame,) = local_client.particles([{"positions": ball, "density": density, "velocity": velocity}], r_inner=0.04,
+                                      interpolate=["density", "velocity"], encoding=encoding)
+    assert list(frame.attributes) == ["density", "velocity"]
+    check_frame_attributes(frame.vertices, frame.attributes["density"], frame.attributes["velocity"], 0.08)
+    # .glb (Draco pieces of the frame's mesh, re-quantized on its own box) and plain .gltf (float32 positions):
+    # _DENSITY and _VELOCITY, read back under their names; in the .gltf each vertex's values bit for bit.
+    for suffix in (".glb", ".gltf"):
+        frame.write(tmp_path / ("mesh" + suffix))
+        back = surfacer.read_mesh(tmp_path / ("mesh" + suffix))
+        assert list(back.attributes) == ["density", "velocity"], suffix
+        check_frame_attributes(back.vertices, back.attributes["density"], back.attributes["velocity"], 0.08)
+        if suffix == ".gltf":
+            at = {tuple(p): i for i, p in enumerate(frame.vertices.astype(np.float32))}
+            order = [at[tuple(p)] for p in back.vertices.astype(np.float32)]
+            np.testing.assert_array_equal(back.attributes["velocity"], frame.attributes["velocity"][order])
 
 
 def test_all_and_a_missing_attribute(local_client):
@@ -108,7 +131,7 @@ def test_cli_interpolates_from_third_party_files_and_they_read_ours(writer, tmp_
                                               point_data={"density": density, "velocity": velocity}))
     out = tmp_path / "out"
     subprocess.run([cli(), "run", "particles", "--input", str(source), "--r-inner", "0.04", "--interpolate",
-                    "velocity,density", "-o", str(out), "--format", "ply,vtk,vtu,drc"],
+                    "velocity,density", "-o", str(out), "--format", "ply,vtk,vtu,drc,glb,gltf"],
                    check=True, capture_output=True, timeout=120)
     reference = surfacer.read_mesh(out / "frame_0000.ply")
     check_frame_attributes(reference.vertices, reference.attributes["density"], reference.attributes["velocity"],
@@ -117,6 +140,12 @@ def test_cli_interpolates_from_third_party_files_and_they_read_ours(writer, tmp_
     assert len(draco.vertices) == len(reference.vertices)
     np.testing.assert_array_equal(draco.attributes["density"], np.float32(998.25))
     assert draco.attributes["velocity"].shape == reference.attributes["velocity"].shape
+    for suffix in (".glb", ".gltf"):  # _VELOCITY and _DENSITY, named back by the mesh's extras
+        back = surfacer.read_mesh(out / ("frame_0000" + suffix))
+        assert sorted(back.attributes) == ["density", "velocity"], suffix
+        np.testing.assert_array_equal(back.attributes["density"], np.float32(998.25))
+        assert back.attributes["velocity"].shape == (len(back.vertices), 3)
+        np.testing.assert_array_equal(back.attributes["velocity"][:, 2], np.float32(-0.5))
     for suffix in (".vtk", ".vtu"):
         path = out / ("frame_0000" + suffix)
         points, arrays = vtk_point_arrays(path)
@@ -127,6 +156,35 @@ def test_cli_interpolates_from_third_party_files_and_they_read_ours(writer, tmp_
         for name in ("density", "velocity"):
             np.testing.assert_array_equal(np.asarray(mesh.point_data[name]).reshape(reference.attributes[name].shape),
                                           reference.attributes[name], err_msg=str(path))
+
+
+def test_vtk_gltf_reader_reads_the_attributes_of_plain_gltf(tmp_path):
+    """VTK's own glTF reader (no Draco or meshopt in VTK 9.1) takes the raw frames' plain .glb and .gltf: the
+    attributes are point arrays _DENSITY and _VELOCITY holding the frame's values, vertex for vertex."""
+    from vtkmodules.vtkIOGeometry import vtkGLTFReader
+    ball = lattice_ball()
+    density, velocity = fields(ball)
+    source = tmp_path / "fluid.vtu"
+    write_vtk_input(source, ball, density, velocity)
+    out = tmp_path / "out"
+    subprocess.run([cli(), "run", "particles", "--input", str(source), "--r-inner", "0.04", "--interpolate",
+                    "velocity,density", "--encoding", "raw", "-o", str(out), "--format", "ply,glb,gltf"],
+                   check=True, capture_output=True, timeout=120)
+    reference = surfacer.read_mesh(out / "frame_0000.ply")
+    for suffix in (".glb", ".gltf"):
+        reader = vtkGLTFReader()
+        reader.SetFileName(str(out / ("frame_0000" + suffix)))
+        reader.Update()
+        blocks = reader.GetOutput().NewIterator()
+        blocks.InitTraversal()
+        mesh = blocks.GetCurrentDataObject()
+        data = mesh.GetPointData()
+        arrays = {data.GetArrayName(i): vtk_to_numpy(data.GetArray(i)) for i in range(data.GetNumberOfArrays())}
+        assert sorted(arrays) == ["_DENSITY", "_VELOCITY"], suffix
+        points = vtk_to_numpy(mesh.GetPoints().GetData()).astype(np.float64)
+        np.testing.assert_allclose(points, reference.vertices, atol=1e-6, err_msg=suffix)
+        np.testing.assert_array_equal(arrays["_DENSITY"], reference.attributes["density"], err_msg=suffix)
+        np.testing.assert_array_equal(arrays["_VELOCITY"], reference.attributes["velocity"], err_msg=suffix)
 
 
 def test_cli_names_the_file_and_its_attributes_when_one_is_missing(tmp_path):

@@ -3,6 +3,7 @@
 
 #include <Eigen/Geometry>
 #include <cmath>
+#include <map>
 
 #include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_checks.h"
@@ -230,8 +231,9 @@ TEST(ParticlesJob, BadParticlesAndOptionsNameTheField) {
 }
 
 // Uploaded records x y z, velocity (3) and density (1): the attributes named by interpolate come back as vertex
-// properties of the raw frames, a constant density exactly, the velocity (linear in x) within r_outer x |grad|.
-TEST(ParticlesJob, InterpolatedAttributesTravelInRawFrames) {
+// attributes of the frames in every encoding (the default Draco, Draco pieces, meshopt, raw PLY), a constant density
+// exactly, the velocity (linear in x) within r_outer x |grad|, and the same values, bit for bit, in each.
+TEST(ParticlesJob, InterpolatedAttributesTravelInEveryEncoding) {
   LoopbackServer s;
   const double r_inner = 0.05, r_outer = 0.1;
   const std::vector<Vec3> ball = particle_ball(Vec3(0, 0, 0), 0.3, 0.05, 4);
@@ -261,25 +263,51 @@ TEST(ParticlesJob, InterpolatedAttributesTravelInRawFrames) {
   job->set_r_outer(r_outer);
   job->add_interpolate("density");
   job->add_interpolate("velocity");
-  // Draco and meshopt frames do not carry attributes: refused at submit, naming the encoding.
-  std::string id;
-  const auto refused = submit(*s.stub, spec, &id);
-  EXPECT_EQ(refused.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
-  EXPECT_NE(refused.error_message().find("spec.output.encoding"), std::string::npos) << refused.error_message();
-  spec.mutable_output()->set_encoding(v1::MESH_ENCODING_PLY);
-  ASSERT_TRUE(submit(*s.stub, spec, &id).ok());
-  const auto result = watch_job(*s.stub, id);
-  ASSERT_EQ(result.states.back(), v1::JOB_STATE_SUCCEEDED) << result.final_job.error().message();
-  const Mesh mesh = decode_frame(result.frames.at(0).bytes, FrameCodec::kPly, ThreadExecutor(1));
-  ASSERT_EQ(mesh.attributes.size(), 2u);
-  EXPECT_EQ(mesh.attributes[0].name, "density");  // in the order interpolate names them
-  EXPECT_EQ(mesh.attributes[1].name, "velocity");
-  ASSERT_EQ(mesh.attributes[0].count(), mesh.vertices.size());
-  ASSERT_EQ(mesh.attributes[1].count(), mesh.vertices.size());
-  for (std::size_t v = 0; v < mesh.vertices.size(); ++v) {
-    ASSERT_EQ(mesh.attributes[0].values[v], 997.0f);
-    EXPECT_LE(std::abs(mesh.attributes[1].values[3 * v] - 3.0 * mesh.vertices[v].x()), 3.0 * r_outer + 1e-5);
-    ASSERT_EQ(mesh.attributes[1].values[3 * v + 2], -1.0f);
+  // One quantization grid, given: the raw frame's values at each of its points, which every other encoding must give
+  // back at that point.
+  auto* bounds = spec.mutable_output()->mutable_quantization_bounds();
+  for (auto* corner : {bounds->mutable_min(), bounds->mutable_max()}) {
+    const double c = corner == bounds->mutable_min() ? -1.0 : 1.0;
+    corner->set_x(c);
+    corner->set_y(c);
+    corner->set_z(c);
+  }
+  spec.mutable_output()->set_quantization_bits(14);
+  const QuantizationGrid grid = QuantizationGrid::of(Aabb{Vec3::Constant(-1), Vec3::Constant(1)}, 14);
+  std::map<std::array<std::uint32_t, 3>, std::vector<float>> raw;
+  for (const v1::MeshEncoding encoding : {v1::MESH_ENCODING_PLY, v1::MESH_ENCODING_UNSPECIFIED,
+                                          v1::MESH_ENCODING_DRACO_PIECES, v1::MESH_ENCODING_MESHOPT}) {
+    SCOPED_TRACE(v1::MeshEncoding_Name(encoding));
+    spec.mutable_output()->set_encoding(encoding);
+    std::string id;
+    ASSERT_TRUE(submit(*s.stub, spec, &id).ok());
+    const auto result = watch_job(*s.stub, id);
+    ASSERT_EQ(result.states.back(), v1::JOB_STATE_SUCCEEDED) << result.final_job.error().message();
+    const std::optional<FrameCodec> codec = wire::frame_codec(encoding);
+    ASSERT_TRUE(codec);
+    const Mesh mesh = decode_frame(result.frames.at(0).bytes, *codec, ThreadExecutor(1));
+    ASSERT_EQ(mesh.attributes.size(), 2u);
+    EXPECT_EQ(mesh.attributes[0].name, "density");  // in the order interpolate names them
+    EXPECT_EQ(mesh.attributes[1].name, "velocity");
+    ASSERT_EQ(mesh.attributes[0].count(), mesh.vertices.size());
+    ASSERT_EQ(mesh.attributes[1].components, 3);
+    ASSERT_EQ(mesh.attributes[1].count(), mesh.vertices.size());
+    std::size_t matched = 0;
+    for (std::size_t v = 0; v < mesh.vertices.size(); ++v) {
+      ASSERT_EQ(mesh.attributes[0].values[v], 997.0f);
+      EXPECT_LE(std::abs(mesh.attributes[1].values[3 * v] - 3.0 * mesh.vertices[v].x()), 3.0 * r_outer + 1e-4);
+      ASSERT_EQ(mesh.attributes[1].values[3 * v + 2], -1.0f);
+      const std::vector<float> values(mesh.attributes[1].values.begin() + 3 * v,
+                                      mesh.attributes[1].values.begin() + 3 * v + 3);
+      const auto point = grid.quantize(mesh.vertices[v]);
+      if (encoding == v1::MESH_ENCODING_PLY) {
+        raw[point] = values;
+      } else if (const auto it = raw.find(point); it != raw.end()) {
+        EXPECT_EQ(it->second, values) << "vertex " << v;
+        ++matched;
+      }
+    }
+    if (encoding != v1::MESH_ENCODING_PLY) EXPECT_GT(matched, mesh.vertices.size() / 2);
   }
 
   // A name the frame lacks names the frame and what it has; a record size that leaves out an attribute names it.
