@@ -13,6 +13,7 @@
 #include "core/mesh/mesh_io.h"
 #include "core/util/base64.h"
 #include "core/util/errors.h"
+#include "core/util/text.h"
 
 namespace surfacer {
 namespace {
@@ -52,23 +53,6 @@ std::string floats(const std::vector<float>& values, bool big_endian) {
   return out;
 }
 
-// A legacy array name is one token: white space and '%' written as %XX, which VTK's reader decodes.
-std::string legacy_name(const std::string& name) {
-  std::string out;
-  for (char c : name) {
-    if (c == '%' || static_cast<unsigned char>(c) <= ' ') {
-      static constexpr char kHex[] = "0123456789ABCDEF";
-      out += '%';
-      out += kHex[static_cast<unsigned char>(c) >> 4];
-      out += kHex[static_cast<unsigned char>(c) & 15];
-    } else {
-      out += c;
-    }
-  }
-  return out;
-}
-
-
 // --- Legacy ----------------------------------------------------------------------------------------------------------
 
 std::string legacy(const Mesh& mesh, bool double_precision) {
@@ -104,9 +88,9 @@ std::string legacy(const Mesh& mesh, bool double_precision) {
   // Attributes under their names: 3 components as VECTORS, 1, 2 or 4 as SCALARS with that many components.
   for (const Attribute& a : mesh.attributes) {
     if (a.components == 3) {
-      out += "VECTORS " + legacy_name(a.name) + " float\n";
+      out += "VECTORS " + token_name(a.name) + " float\n";
     } else {
-      out += "SCALARS " + legacy_name(a.name) + " float " + std::to_string(a.components) + "\nLOOKUP_TABLE default\n";
+      out += "SCALARS " + token_name(a.name) + " float " + std::to_string(a.components) + "\nLOOKUP_TABLE default\n";
     }
     out += floats(a.values, true);
     out += "\n";

@@ -339,7 +339,8 @@ void read_data(std::string_view bytes, const Header& header, ElementReader& read
 
 std::string attribute_property(const std::string& name, int components, int c) {
   static const char kAxes[] = "xyzw";
-  return components == 1 ? name : name + "_" + kAxes[c];
+  const std::string token = token_name(name);  // one token: white space as %20
+  return components == 1 ? token : token + "_" + kAxes[c];
 }
 
 std::vector<AttributeProperties> attribute_properties(const Element& element, const std::function<bool(int)>& taken) {
@@ -364,14 +365,14 @@ std::vector<AttributeProperties> attribute_properties(const Element& element, co
         ++run;
       }
       if (run > 1) {
-        AttributeProperties group{base, {}};
+        AttributeProperties group{token_name_decoded(base), {}};
         for (std::size_t c = 0; c < run; ++c) group.properties.push_back(static_cast<int>(p + c));
         out.push_back(std::move(group));
         p += run;
         continue;
       }
     }
-    out.push_back({first, {static_cast<int>(p)}});
+    out.push_back({token_name_decoded(first), {static_cast<int>(p)}});
     ++p;
   }
   return out;

@@ -55,7 +55,9 @@ struct Header {
 // component c of an attribute `name` with `components` components:
 std::string attribute_property(const std::string& name, int components, int c);
 // The element's attributes: every non-list property for which `taken` is false, runs NAME_x NAME_y ... (or NAME_0
-// NAME_1 ...) of up to 4 grouped into one vector NAME; each with its property indices, in file order.
+// NAME_1 ...) of up to 4 grouped into one vector NAME; each with its property indices, in file order. Names are one
+// token each: attribute_property() writes white space and '%' as %XX (core/util/text.h token_name) and
+// attribute_properties() decodes them.
 struct AttributeProperties {
   std::string name;
   std::vector<int> properties;

@@ -5,6 +5,7 @@
 #include <charconv>
 #include <cstddef>
 #include <cstdint>
+#include <string>
 #include <string_view>
 #include <system_error>
 #include <vector>
@@ -12,6 +13,44 @@
 namespace surfacer {
 
 inline bool is_blank(char c) { return c == ' ' || c == '\t' || c == '\r' || c == '\f' || c == '\v'; }
+
+// A name written as one whitespace-free token (VTK legacy array names, PLY property names): '%', white space and
+// control characters as %XX (upper-case hex), as VTK's legacy writer does and its reader decodes.
+inline std::string token_name(std::string_view name) {
+  static constexpr char kHex[] = "0123456789ABCDEF";
+  std::string out;
+  for (const char c : name) {
+    const auto byte = static_cast<unsigned char>(c);
+    if (c == '%' || byte <= ' ' || byte == 0x7f) {
+      out += '%';
+      out += kHex[byte >> 4];
+      out += kHex[byte & 15];
+    } else {
+      out += c;
+    }
+  }
+  return out;
+}
+
+// The name a token_name() token stands for: every %XX (hex, either case) decoded; anything else kept as it is.
+inline std::string token_name_decoded(std::string_view token) {
+  const auto hex = [](char c) {
+    return c >= '0' && c <= '9'   ? c - '0'
+           : c >= 'a' && c <= 'f' ? c - 'a' + 10
+           : c >= 'A' && c <= 'F' ? c - 'A' + 10
+                                  : -1;
+  };
+  std::string out;
+  for (std::size_t i = 0; i < token.size(); ++i) {
+    if (token[i] == '%' && i + 2 < token.size() && hex(token[i + 1]) >= 0 && hex(token[i + 2]) >= 0) {
+      out += static_cast<char>(hex(token[i + 1]) * 16 + hex(token[i + 2]));
+      i += 2;
+    } else {
+      out += token[i];
+    }
+  }
+  return out;
+}
 
 // Splits a line into whitespace-separated tokens (reusing `out`).
 inline void tokenize(std::string_view line, std::vector<std::string_view>& out) {

@@ -11,6 +11,7 @@
 #include "core/mesh/mesh_codec.h"
 #include "core/util/allocation_budget.h"
 #include "core/util/errors.h"
+#include "core/util/text.h"
 #include "tests/support/error_expectations.h"
 #include "tests/support/files.h"
 #include "tests/support/test_meshes.h"
@@ -375,6 +376,34 @@ TEST(MeshIo, PlyCarriesVertexAttributes) {
     EXPECT_EQ(back.attributes[1].components, 3);
     EXPECT_EQ(back.attributes[1].values, velocity.values);
   }
+}
+
+// Names a particle file may carry (a VTU DataArray's Name is free text) are one token in the PLY header, %XX-encoded
+// as legacy VTK writes them (core/util/text.h), and come back as they were; other readers see one token per property.
+TEST(MeshIo, PlyAttributeNamesWithSpacesAndPercentSurvive) {
+  Mesh mesh = test_mesh(false);
+  const std::size_t n = mesh.vertices.size();
+  const std::vector<std::string> names = {"foam mask", "50% wet", "tab\there", "v\u00e9locit\u00e9 2"};
+  for (std::size_t k = 0; k < names.size(); ++k) {
+    Attribute a{names[k], k == 0 ? 1 : 3, {}};
+    for (std::size_t i = 0; i < n * static_cast<std::size_t>(a.components); ++i) {
+      a.values.push_back(static_cast<float>(k) + 0.25f * static_cast<float>(i));
+    }
+    mesh.attributes.push_back(a);
+  }
+  for (const bool double_precision : {false, true}) {
+    const std::string ply = write_ply(mesh, double_precision);
+    EXPECT_NE(ply.find("property float foam%20mask\n"), std::string::npos);
+    EXPECT_NE(ply.find("property float 50%25%20wet_x\n"), std::string::npos);
+    const Mesh back = parse_mesh(ply, MeshFormat::kPly, "a.ply");
+    ASSERT_EQ(back.attributes.size(), names.size());
+    for (std::size_t k = 0; k < names.size(); ++k) {
+      EXPECT_EQ(back.attributes[k].name, names[k]);
+      EXPECT_EQ(back.attributes[k].values, mesh.attributes[k].values);
+    }
+  }
+  EXPECT_EQ(token_name_decoded("a%2"), "a%2");  // not an escape: kept
+  EXPECT_EQ(token_name_decoded("a%zz%41"), "a%zzA");
 }
 
 }  // namespace
