@@ -12,7 +12,6 @@
 
 #include "core/mesh/mesh.h"
 #include "core/mesh/quantization.h"
-#include "core/util/parallel.h"
 #include "core/util/run_control.h"
 
 namespace surfacer {
@@ -27,15 +26,15 @@ struct QuantizedPiece {
   std::vector<Vec3> normals;        // empty or one unit normal per vertex
 };
 
-// The pieces of a mesh: cut once (on `executor`, cancellable through `control`), then each taken once with take(p),
-// from any thread.
+// The pieces of a mesh: cut once (on up to `threads` threads, cancellable through `control`), then each taken once with
+// take(p), from any thread.
 class MeshPieces {
  public:
   // Triangles with a repeated vertex index are left out (they carry no surface; Draco drops them as well) and so are
   // vertices no triangle uses. Every vertex must lie in the grid's box (callers clamp or check first). Frames up to
   // max_piece_triangles triangles are one piece. When more than 65535 shared vertices fall on one grid point (never
   // on real surfaces) the whole frame is one piece.
-  MeshPieces(const Mesh& mesh, const QuantizationGrid& grid, std::size_t max_piece_triangles, const Executor& executor,
+  MeshPieces(const Mesh& mesh, const QuantizationGrid& grid, std::size_t max_piece_triangles, int threads,
              const RunControl& control = {});
   MeshPieces(const MeshPieces&) = delete;
   MeshPieces& operator=(const MeshPieces&) = delete;
@@ -52,7 +51,7 @@ class MeshPieces {
     std::vector<std::uint32_t> globals;  // mesh vertex of each local vertex, in order of first use
     std::vector<Triangle> triangles;     // local indices
   };
-  void cut(std::size_t max_piece_triangles, const Executor& executor, const RunControl& control);
+  void cut(std::size_t max_piece_triangles, int threads, const RunControl& control);
   class WindowPool;
   // Numbers the vertices of triangles [begin, end) in order of first use into `piece`.
   void number(std::size_t begin, std::size_t end, Piece& piece, WindowPool& windows) const;
@@ -71,6 +70,6 @@ class MeshPieces {
 // order, then vertex order; the other vertices follow piece by piece. Positions are the grid points as Draco's
 // decoder returns them. Throws InvalidInput("frame") for pieces that contradict each other (a tag without partner,
 // a grid coordinate beyond the grid, a triangle index out of range).
-Mesh weld(const std::vector<QuantizedPiece>& pieces, const QuantizationGrid& grid, const Executor& executor);
+Mesh weld(const std::vector<QuantizedPiece>& pieces, const QuantizationGrid& grid, int threads);
 
 }  // namespace surfacer

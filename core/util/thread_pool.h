@@ -9,6 +9,7 @@
 // TBB's partitioners do not hand items out in increasing order, so it would only have supplied the threads.
 #pragma once
 
+#include <functional>
 #include <type_traits>
 
 namespace surfacer {
@@ -26,8 +27,14 @@ class WorkRef {
   void (*call_)(void*) noexcept;
 };
 
-// Threads of the pool: hardware threads - 1 (the caller of a loop is the other one), 0 on a single-core machine.
+// Threads of the pool: hardware threads - 1 (the caller of a loop is the other one; 0 on a single-core machine) until
+// reserve_pool_threads or post asks for more.
 int pool_threads();
+
+// Grows the pool to at least `threads` threads (it never shrinks); returns pool_threads(). A process that runs its own
+// work on the pool (the server's jobs, through post) reserves a thread for each task it runs at once plus the helpers
+// their loops should find.
+int reserve_pool_threads(int threads);
 
 // Runs work() on the calling thread and, at the same time, on up to `helpers` pool threads that are free now or
 // become free while the caller's own work() runs; returns once every work() that started has returned. A helper that
@@ -37,5 +44,11 @@ int pool_threads();
 // call after the first to return finds nothing). Newer calls are served first, so nested loops finish before their
 // parents hand out more work. Concurrent threads of the process: at most pool_threads() + the threads that call.
 void run_with_helpers(int helpers, WorkRef work);
+
+// Queues task() to run once on a pool thread, in posting order (first in, first out), for long work such as a job's
+// task: a free pool thread takes the oldest queued task before it helps a loop, so a task starts as soon as a thread
+// is free, and the loops a task runs find the threads that no task holds (run_with_helpers). Nothing waits for a task
+// here: the poster keeps its own count if it must. Grows an empty pool to one thread. task() must not throw.
+void post(std::function<void()> task);
 
 }  // namespace surfacer
