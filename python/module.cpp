@@ -45,6 +45,7 @@
 #include "core/particles/particle_io.h"
 #include "core/util/errors.h"
 #include "core/util/format.h"
+#include "core/util/parallel.h"
 #include "wire/output.h"
 
 namespace py = pybind11;
