@@ -1,12 +1,24 @@
-// The process-wide pool of helper threads behind parallel_for (core/util/parallel.h): one set of threads, started
-// on first use and kept for the life of the process, so a parallel loop costs a wake-up of idle threads instead of
-// the creation and join of new ones.
+// The process-wide pool of threads behind parallel_for (core/util/parallel.h) and the server's jobs
+// (server/worker_pool.h posts their tasks here): one set of threads, started on first use and kept for the life of
+// the process, so a parallel loop costs a wake-up of idle threads instead of the creation and join of new ones, and a
+// loop inside a job is helped by the threads no job holds (docs/ALGORITHMS.md "Threads").
 // CHOICE: our own pool, not TBB (libtbb-dev 2021.8). Measured on 2 hardware threads, shared machine, wall seconds,
 // two runs each, the same hand-out loop on: threads started per call / this pool / tbb::task_group:
 //   20000 calls of 8 items of ~1 us (threads = 2):            2.09-2.11 / 0.24-0.29 / 0.37-0.57
 //   200 calls of 8 items, each a nested call of 64 items:     0.89-0.98 / 0.79-0.80 / 0.88-0.91
 //   50 calls of 64 chunks of 16k items:                      0.29-0.31 / 0.29-0.30 / 0.28-0.29
 // TBB's partitioners do not hand items out in increasing order, so it would only have supplied the threads.
+// CHOICE: the server's jobs on this pool, not on a worker pool of their own beside it. Its size is max(--workers,
+// hardware threads): --workers tasks run at once, and when fewer run their loops find a helper for every core; the
+// separate pools let workers + hardware threads - 1 threads compute. Measured against the separate pools on 2
+// hardware threads (--workers 2), shared machine (load average 5-7), new/old:
+//   load_bench, 8 clients, 8-10 s against a surfacer-server, 7 pairs: jobs/s 0.82-1.56 (median 0.92: the machine's
+//     noise), server CPU per finished job 31.8-32.9 ms against 31.0-33.3 ms; the server's own threads under load 5
+//     against 6 (gRPC's threads unchanged);
+//   service_bench --section 5 (8 frames at 96 cells, three codecs), 4 pairs: CPU 1.04 (0.88-1.17), wall 1.04
+//     (1.02-1.19), peak memory 94 against 107 MiB;
+//   service_bench --section 1 (single-frame jobs at 160 cells, four codecs), three calls of 3-4 pairs: CPU 1.00,
+//     0.99, 1.05 (0.93-1.14), wall 1.16, 0.91, 0.96 (0.71-1.18), peak memory 630-647 against 756-789 MiB.
 #pragma once
 
 #include <functional>

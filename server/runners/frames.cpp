@@ -4,7 +4,9 @@
 #include <atomic>
 #include <chrono>
 #include <future>
+#include <latch>
 #include <memory>
+#include <optional>
 
 #include "core/mesh/frame_codec.h"
 #include "core/mesh/grid_cleanup.h"
@@ -16,22 +18,38 @@ namespace surfacer::server {
 namespace {
 
 // One Draco mesh encoded beside the checks, by whichever thread claims it first: a pool thread (the task is posted
-// as soon as the frame is made) or the frame's own thread once its checks are done. Shared by both, so a pool thread
-// may finish it after a cancelled frame has returned; the encoder holds its own copy of the mesh.
+// as soon as the frame is made) or the frame's own thread once its checks are done. The encoder's copy of the mesh
+// is made by the thread that claimed it, so it is held only while it is encoded; a pool thread's encoding may
+// outlive a cancelled frame, which waits only for that copy (`copied`) before its mesh goes.
 struct SideEncoding {
-  SideEncoding(const Mesh& mesh, const DracoOptions& options) : encoder(mesh, options) {}
-  DracoEncoder encoder;
+  SideEncoding(const Mesh& mesh, const DracoOptions& options) : mesh(mesh), options(options) {}
+  const Mesh& mesh;  // valid until `copied` by a pool thread, or while the frame's own thread encodes
+  const DracoOptions options;
   std::atomic<bool> claimed{false};
+  std::latch copied{1};
   std::promise<std::string> bytes;
   // Encodes unless another thread claimed it; true when this call did.
   bool run() {
     if (claimed.exchange(true, std::memory_order_acq_rel)) return false;
     try {
-      bytes.set_value(encoder.encode());
+      std::optional<DracoEncoder> encoder;
+      try {
+        encoder.emplace(mesh, options);
+      } catch (...) {
+        copied.count_down();
+        throw;
+      }
+      copied.count_down();
+      bytes.set_value(encoder->encode());
     } catch (...) {
       bytes.set_exception(std::current_exception());
     }
     return true;
+  }
+  // Called by the frame's own thread on its way out: when no pool thread has begun, none will; else waits for the
+  // pool thread's copy of the mesh.
+  void leave() {
+    if (claimed.exchange(true, std::memory_order_acq_rel)) copied.wait();
   }
 };
 
@@ -104,13 +122,13 @@ FrameOutput FrameMaker::make(Mesh mesh, StageTimer& timer, const RunControl& con
       surfacer::post([side] { side->run(); });
       try {
         check();
+        control.report("encode", 0.0);
+        side->run();  // no pool thread was free: encoded here, uninterruptibly
+        while (encoded.wait_for(std::chrono::milliseconds(10)) != std::future_status::ready) control.check();
       } catch (...) {
-        side->claimed.store(true, std::memory_order_release);  // cancelled: a pool thread that has not begun skips it
+        side->leave();  // cancelled: a pool thread that has not begun skips it
         throw;
       }
-      control.report("encode", 0.0);
-      side->run();  // no pool thread was free: encoded here, uninterruptibly
-      while (encoded.wait_for(std::chrono::milliseconds(10)) != std::future_status::ready) control.check();
       return encoded.get();
     });
   } else {

@@ -57,7 +57,8 @@ class FrameMaker {
   // checks and a pieced codec's pieces run as items of parallel loops and stop between items when `control` fires. A
   // standard Draco frame's encoder cannot be interrupted: above one piece's size it is posted to the process-wide
   // pool beside the checks (the caller runs it itself when no pool thread has taken it by the time the checks end),
-  // and a cancel leaves a pool thread's encoding to finish in the background, so that the caller is free at once.
+  // and a cancel leaves a pool thread's encoding to finish in the background, so that the caller is free as soon as
+  // that thread has its copy of the mesh.
   // Throws ResourceLimit when the mesh has more than max_triangles triangles, Cancelled, and what the codec throws.
   FrameOutput make(Mesh mesh, StageTimer& timer, const RunControl& control) const;
 
