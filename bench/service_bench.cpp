@@ -256,7 +256,7 @@ int main(int argc, char** argv) {
                   poly, r.stage("encode"), r.stage("check"), r.wall, r.wall / poly,
                   static_cast<double>(r.bytes) / static_cast<double>(r.triangles));
     }
-    ThreadExecutor one(1), all(hw);
+    const int one = 1, all = hw;
     const double check_one = median_time(repeat, [&] { check_mesh(mesh, one); });
     const double check_all = median_time(repeat, [&] { check_mesh(mesh, all); });
     std::printf("4. checks: %.3f s on 1 thread, %.3f s on %d (%.1f %% of polygonize; target <= 15 %%)\n", check_one,
@@ -272,13 +272,13 @@ int main(int argc, char** argv) {
 
   if (want(2)) {
     options.codec = FrameCodec::kDraco;
-    const double standard = median_time(repeat, [&] { encode_frame(mesh, options, ThreadExecutor(1)); });
+    const double standard = median_time(repeat, [&] { encode_frame(mesh, options, 1); });
     std::printf("\n2. encode of the %zu-triangle cubes frame; old path: one Draco mesh on 1 thread, %.3f s\n",
                 mesh.triangles.size(), standard);
     for (FrameCodec codec : {FrameCodec::kDracoPieces, FrameCodec::kMeshopt}) {
       options.codec = codec;
       for (int threads : {1, 2, 4}) {
-        const double t = median_time(repeat, [&] { encode_frame(mesh, options, ThreadExecutor(threads)); });
+        const double t = median_time(repeat, [&] { encode_frame(mesh, options, threads); });
         std::printf("   %-13s %d thread%s %8.3f s  %.2fx the old path%s\n",
                     std::string(frame_codec_name(codec)).c_str(), threads, threads == 1 ? " " : "s", t, t / standard,
                     codec == FrameCodec::kDracoPieces && threads == 2 ? " (target <= 0.55x on 2 cores)" : "");
@@ -292,7 +292,7 @@ int main(int argc, char** argv) {
     for (FrameCodec codec : kCodecs) {
       options.codec = codec;
       std::string bytes;
-      const ThreadExecutor all(hw);
+      const int all = hw;
       const double enc = median_time(repeat, [&] { bytes = encode_frame(mesh, options, all); });
       const double dec = median_time(repeat, [&] { decode_frame(bytes, codec, all); });
       std::printf("   %-13s %8.2f %12.1f %12.1f\n", std::string(frame_codec_name(codec)).c_str(),

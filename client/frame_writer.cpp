@@ -19,6 +19,7 @@
 #include "core/mesh/mesh_vtk.h"
 #include "core/util/errors.h"
 #include "core/util/json.h"
+#include "core/util/parallel.h"
 #include "wire/output.h"
 
 namespace surfacer::client {
@@ -160,7 +161,8 @@ std::string iterations_csv(const std::map<int, v1::FrameStats>& stats) {
   return csv;
 }
 
-FrameWriter::FrameWriter(FrameOutputOptions options) : options_(std::move(options)), decode_executor_(0) {
+FrameWriter::FrameWriter(FrameOutputOptions options)
+    : options_(std::move(options)), decode_threads_(resolve_threads(0)) {
   std::error_code ec;
   std::filesystem::create_directories(options_.dir, ec);
   if (ec || !std::filesystem::is_directory(options_.dir)) {
@@ -193,7 +195,7 @@ std::vector<std::filesystem::path> FrameWriter::write(const ReceivedFrame& frame
   auto decoded = [&]() -> const Mesh& {
     if (!mesh) {
       try {
-        mesh = decode_frame(frame.bytes, codec, decode_executor_);
+        mesh = decode_frame(frame.bytes, codec, decode_threads_);
       } catch (const std::exception& e) {
         throw CliError(ExitCode::kIntegrity, "frame " + std::to_string(frame.index) + ": its " +
                                                  std::string(frame_codec_name(codec)) +
@@ -244,7 +246,7 @@ std::vector<std::filesystem::path> FrameWriter::write(const ReceivedFrame& frame
           break;
         }
         try {
-          converted = to_gltf(frame.bytes, codec, decoded, decode_executor_);
+          converted = to_gltf(frame.bytes, codec, decoded, decode_threads_);
         } catch (const Error& e) {
           if (e.kind() != ErrorKind::kInvalidInput || e.field() != "quantization_bits") throw;
           throw CliError(ExitCode::kUsage, "frame " + std::to_string(frame.index) + ": --format glb: " + e.what());

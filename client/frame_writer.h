@@ -13,7 +13,6 @@
 #include "client/frame_assembler.h"
 #include "client/options.h"
 #include "core/mesh/frame_codec.h"
-#include "core/util/parallel.h"
 #include "surfacer/v1/surfacer.pb.h"
 
 namespace surfacer::client {
@@ -80,7 +79,7 @@ class FrameWriter {
   void write_time_series() const;
 
   FrameOutputOptions options_;
-  ThreadExecutor decode_executor_;  // every core
+  int decode_threads_;  // every core (resolve_threads(0))
   std::map<int, v1::FrameStats> stats_;
   std::map<int, std::vector<std::filesystem::path>> files_;
   std::string kind_;

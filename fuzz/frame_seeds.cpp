@@ -54,11 +54,11 @@ int main(int argc, char** argv) {
     o.draco.quantization_bounds = Aabb{Vec3::Constant(-1.5), Vec3::Constant(1.5)};
     o.draco.normals = s.normals;
     o.max_piece_triangles = 1024;  // the smallest pieces
-    const std::string bytes = encode_frame(mesh, o, ThreadExecutor(1));
+    const std::string bytes = encode_frame(mesh, o, 1);
     const char selector = s.codec == FrameCodec::kDracoPieces ? 5 : 6;  // fuzz_mesh.cpp's selectors
     std::ofstream(dir + "/seed_frame_" + s.name, std::ios::binary) << selector << bytes;
     std::printf("seed_frame_%s: %zu triangles, %zu bytes\n", s.name, mesh.triangles.size(), bytes.size() + 1);
-    const std::string glb = to_gltf(bytes, s.codec, {}, ThreadExecutor(1));  // pieced frames: nothing decoded
+    const std::string glb = to_gltf(bytes, s.codec, {}, 1);  // pieced frames: nothing decoded
     std::ofstream(dir + "/seed_glb_" + s.name, std::ios::binary) << char{7} << glb;
   }
   const Mesh cube = testing::unit_cube();

@@ -88,7 +88,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
       case 5:
       case 6: {
         const FrameCodec codec = selector == 5 ? FrameCodec::kDracoPieces : FrameCodec::kMeshopt;
-        const ThreadExecutor one(1);
+        const int one = 1;
         std::optional<Mesh> decoded;  // what to_gltf asks for a version 1 meshopt frame
         auto decode = [&]() -> const Mesh& {
           if (!decoded) decoded = decode_frame(bytes, codec, one);

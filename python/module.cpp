@@ -45,6 +45,7 @@
 #include "core/particles/particle_io.h"
 #include "core/util/errors.h"
 #include "core/util/format.h"
+#include "core/util/parallel.h"
 #include "wire/output.h"
 
 namespace py = pybind11;
@@ -832,7 +833,7 @@ class FrameStream {
     decoded.index = frame.index;
     decoded.stats = frame.stats;
     try {
-      decoded.mesh = decode_frame(frame.bytes, *codec, decoder_);
+      decoded.mesh = decode_frame(frame.bytes, *codec, decode_threads_);
     } catch (const Error& e) {
       throw CliError(ExitCode::kIntegrity, "frame " + std::to_string(frame.index) + ": " +
                                                std::string(frame_codec_name(*codec)) +
@@ -909,7 +910,7 @@ class FrameStream {
   std::string job_id_;
   int from_frame_;
   bool owns_job_;
-  ThreadExecutor decoder_{0};                   // pieced frames decode on every core
+  int decode_threads_ = resolve_threads(0);     // pieced frames decode on every core
   ProgressDisplay progress_{std::cerr, false};  // quiet: only reconnect lines
   std::unique_ptr<JobWatcher> watcher_;
   std::thread thread_;

@@ -40,7 +40,10 @@ int main(int argc, char** argv) {
   app.add_option("--listen", options.listen, "host:port to listen on (port 0 picks a free port)")
       ->capture_default_str();
   app.add_option("--port-file", port_file, "write the bound port to this file once listening");
-  app.add_option("--workers", options.workers, "worker threads (0 = hardware threads)")->capture_default_str();
+  app.add_option("--workers", options.workers,
+                 "job tasks run at once (0 = hardware threads), on one pool of max(N, hardware) threads that also "
+                 "runs their loops")
+      ->capture_default_str();
   app.add_option("--max-queued-jobs", options.max_queued_jobs,
                  "jobs waiting for a worker beyond this are refused with RESOURCE_EXHAUSTED")
       ->capture_default_str();

@@ -21,7 +21,7 @@ struct Limits {
 struct ServerOptions {
   // host:port to listen on; port 0 picks a free port (see port()). Empty: in-process only.
   std::string listen = "127.0.0.1:50051";
-  int workers = 0;           // worker threads; 0 = hardware threads
+  int workers = 0;           // job tasks run at once; 0 = hardware threads (server/worker_pool.h)
   int max_queued_jobs = 64;  // jobs waiting for a worker beyond this answer RESOURCE_EXHAUSTED
   Limits limits;
   // Finished jobs (and their frames) are kept this long after finishing, for WatchJob/GetJob (--retain-hours);

@@ -95,7 +95,6 @@ struct SurfacerServer::Impl {
         threads(options.workers > 0 ? options.workers
                                     : std::max(1, static_cast<int>(std::thread::hardware_concurrency()))),
         pool(threads),
-        executor(pool),
         store(options.data_dir.empty() ? nullptr : Store::open(options.data_dir)),
         auth(options.tokens_file.empty() ? nullptr : TokenAuth::load(options.tokens_file)),
         uploads(store.get()),
@@ -104,7 +103,6 @@ struct SurfacerServer::Impl {
         service(state) {
     state.options = options;
     state.worker_threads = threads;
-    state.executor = &executor;
     state.scheduler = &scheduler;
     state.uploads = &uploads;
     state.store = store.get();
@@ -131,7 +129,6 @@ struct SurfacerServer::Impl {
   MemoryBudget memory;
   int threads;
   WorkerPool pool;
-  PoolExecutor executor;
   std::unique_ptr<Store> store;
   std::unique_ptr<TokenAuth> auth;
   Usage usage;
@@ -252,7 +249,7 @@ void SurfacerServer::Impl::restore() {
     grpc::Status failure;
     if (!finished) {
       try {
-        JobContext context{state.options.limits, uploads, threads, &executor, &memory};
+        JobContext context{state.options.limits, uploads, threads, &memory};
         init.runner = make_job_runner(stored.spec, context);
       } catch (...) {
         failure = status_from_exception(std::current_exception());

@@ -484,8 +484,7 @@ void SurfacerService::submit(const v1::SubmitJobRequest& request, const Tenant& 
     }
   };
   check_running(state_.scheduler->active_jobs(tenant.name));
-  JobContext job_context{state_.options.limits, *state_.uploads, state_.worker_threads, state_.executor,
-                         state_.memory};
+  JobContext job_context{state_.options.limits, *state_.uploads, state_.worker_threads, state_.memory};
   JobInit init;
   init.id = random_id("j-");
   init.name = request.spec().name();

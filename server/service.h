@@ -23,7 +23,6 @@ class WatchSlots;
 struct ServiceState {
   ServerOptions options;
   int worker_threads = 1;
-  const Executor* executor = nullptr;  // the worker pool, for the frames' checks and pieces
   Scheduler* scheduler = nullptr;
   UploadStore* uploads = nullptr;
   Store* store = nullptr;           // null: memory only

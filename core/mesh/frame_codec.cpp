@@ -27,6 +27,7 @@
 #include "core/mesh/meshopt_codec.h"
 #include "core/util/errors.h"
 #include "core/util/json.h"
+#include "core/util/parallel.h"
 
 namespace surfacer {
 namespace {
@@ -197,9 +198,8 @@ Mesh clamped_to(const Mesh& mesh, const Aabb& cube) {
   return clamped;
 }
 
-std::string encode_pieces(const Mesh& mesh, const FrameCodecOptions& options, const Executor& executor,
-                          const RunControl& control) {
-  const QuantizationGrid grid = quantization_grid(mesh, options.draco, executor);
+std::string encode_pieces(const Mesh& mesh, const FrameCodecOptions& options, int threads, const RunControl& control) {
+  const QuantizationGrid grid = quantization_grid(mesh, options.draco, threads);
   check_attributes(mesh);
   if (mesh.attributes.size() > std::numeric_limits<std::uint8_t>::max()) {
     throw InvalidInput(
@@ -212,13 +212,13 @@ std::string encode_pieces(const Mesh& mesh, const FrameCodecOptions& options, co
     }
   }
   control.check();
-  MeshPieces cut(mesh, grid, options.max_piece_triangles, executor, control);
+  MeshPieces cut(mesh, grid, options.max_piece_triangles, threads, control);
   const int n = cut.count();
   const bool normals = options.draco.normals && !mesh.normals.empty();
   std::vector<std::string> payloads(n);
   std::vector<PieceEntry> entries(n);
   std::atomic<int> done{0};
-  executor.for_each(n, [&](int p) {
+  parallel_for(n, threads, [&](int p) {
     control.check();
     QuantizedPiece piece = cut.take(p);
     if (!normals) piece.normals.clear();
@@ -278,12 +278,12 @@ std::string encode_pieces(const Mesh& mesh, const FrameCodecOptions& options, co
   return out;
 }
 
-Mesh decode_pieces(std::string_view bytes, FrameCodec codec, const Executor& executor) {
+Mesh decode_pieces(std::string_view bytes, FrameCodec codec, int threads) {
   const Container c = read_container(bytes);
   if (c.codec != container_codec(codec)) bad("its pieces are not " + std::string(frame_codec_name(codec)));
   const int n = static_cast<int>(c.pieces.size());
   std::vector<QuantizedPiece> pieces(n);
-  executor.for_each(n, [&](int p) {
+  parallel_for(n, threads, [&](int p) {
     QuantizedPiece& piece = pieces[p];
     PieceEntry found;
     if (c.codec == 1) {
@@ -324,7 +324,7 @@ Mesh decode_pieces(std::string_view bytes, FrameCodec codec, const Executor& exe
       for (const Attribute& a : c.attributes) piece.attributes.push_back(Attribute{a.name, a.components, {}});
     }
   });
-  Mesh mesh = weld(pieces, c.grid, executor);
+  Mesh mesh = weld(pieces, c.grid, threads);
   if (c.codec == 1 ? mesh.vertices.size() < c.vertices : mesh.vertices.size() != c.vertices) {
     bad("the pieces weld into " + std::to_string(mesh.vertices.size()) + " vertices, the header says " +
         std::to_string(c.vertices));
@@ -374,7 +374,7 @@ std::size_t append_aligned(std::string& bin, std::string_view data) {
 }
 
 // A Draco-pieces frame as a .glb: one KHR_draco_mesh_compression primitive per piece, its stream as received.
-std::string draco_gltf(const Container& c, const Executor& executor) {
+std::string draco_gltf(const Container& c, int threads) {
   if (c.codec != container_codec(FrameCodec::kDracoPieces)) bad("its pieces are not Draco pieces");
   check_gltf_bits(c);
   // Each piece's counts, its points' bounds and the Draco ids of its attributes: the directory's, or for a version 1
@@ -382,7 +382,7 @@ std::string draco_gltf(const Container& c, const Executor& executor) {
   const int n = static_cast<int>(c.pieces.size());
   std::vector<PieceEntry> primitives = c.pieces;
   if (c.version < 2) {
-    executor.for_each(n, [&](int p) {
+    parallel_for(n, threads, [&](int p) {
       const QuantizedPiece piece = decode_draco_piece(c.payloads[p], c.grid.bits, &primitives[p].found);
       if (piece.triangles.size() != c.pieces[p].triangles) bad("piece " + std::to_string(p) + " has other triangles");
       set_bounds(piece.positions, primitives[p]);
@@ -472,12 +472,12 @@ std::string draco_gltf(const Container& c, const Executor& executor) {
 // component is the tag (glTF aligns attributes on 4 bytes, so the tag at byte 6 cannot be an accessor of its own),
 // and their first three components as POSITION. Normals are the one stream laid out again, for the extension's
 // OCTAHEDRAL filter.
-std::string meshopt_gltf(const Container& c, const Executor& executor) {
+std::string meshopt_gltf(const Container& c, int threads) {
   check_gltf_bits(c);
   const int n = static_cast<int>(c.pieces.size());
   std::vector<MeshoptStreams> streams(n);
   std::vector<std::string> normals(n);
-  executor.for_each(n, [&](int p) {
+  parallel_for(n, threads, [&](int p) {
     streams[p] = meshopt_streams(c.payloads[p]);
     const PieceEntry& e = c.pieces[p];
     if (streams[p].vertices != e.vertices || streams[p].triangles != e.triangles ||
@@ -611,8 +611,7 @@ void validate(const FrameCodecOptions& options) {
   }
 }
 
-std::string encode_frame(const Mesh& mesh, const FrameCodecOptions& options, const Executor& executor,
-                         const RunControl& control) {
+std::string encode_frame(const Mesh& mesh, const FrameCodecOptions& options, int threads, const RunControl& control) {
   validate(options);
   switch (options.codec) {
     case FrameCodec::kDraco:
@@ -621,12 +620,12 @@ std::string encode_frame(const Mesh& mesh, const FrameCodecOptions& options, con
       return write_ply(mesh, /*double_precision=*/true);
     case FrameCodec::kDracoPieces:
     case FrameCodec::kMeshopt:
-      return encode_pieces(mesh, options, executor, control);
+      return encode_pieces(mesh, options, threads, control);
   }
   throw Internal("unknown frame codec");
 }
 
-Mesh decode_frame(std::string_view bytes, FrameCodec codec, const Executor& executor) {
+Mesh decode_frame(std::string_view bytes, FrameCodec codec, int threads) {
   switch (codec) {
     case FrameCodec::kDraco:
       return decode_draco(bytes);
@@ -634,7 +633,7 @@ Mesh decode_frame(std::string_view bytes, FrameCodec codec, const Executor& exec
       return parse_mesh(bytes, MeshFormat::kPly, "frame");
     case FrameCodec::kDracoPieces:
     case FrameCodec::kMeshopt:
-      return decode_pieces(bytes, codec, executor);
+      return decode_pieces(bytes, codec, threads);
   }
   throw Internal("unknown frame codec");
 }
@@ -665,31 +664,31 @@ void check_gltf_quantization_bits(int bits) {
 }
 
 std::string to_gltf(std::string_view bytes, FrameCodec codec, const std::function<const Mesh&()>& decoded,
-                    const Executor& executor) {
+                    int threads) {
   auto mesh = [&]() -> const Mesh& {
     if (!decoded) throw Internal("to_gltf needs the decoded mesh of this frame");
     return decoded();
   };
-  if (codec == FrameCodec::kDracoPieces) return draco_gltf(read_container(bytes), executor);
+  if (codec == FrameCodec::kDracoPieces) return draco_gltf(read_container(bytes), threads);
   if (codec == FrameCodec::kMeshopt) {
     const Container c = read_container(bytes);
     if (c.codec != container_codec(FrameCodec::kMeshopt)) bad("its pieces are not meshopt pieces");
-    if (c.version >= 2) return meshopt_gltf(c, executor);
+    if (c.version >= 2) return meshopt_gltf(c, threads);
     // A version 1 frame (kept by an earlier server) has no bounds in its directory: Draco pieces of its mesh.
     FrameCodecOptions options;
     options.codec = FrameCodec::kDracoPieces;
     options.draco = on_grid(c.grid, mesh());
-    const std::string pieced = encode_frame(clamped_to(mesh(), *options.draco.quantization_bounds), options, executor);
-    return draco_gltf(read_container(pieced), executor);
+    const std::string pieced = encode_frame(clamped_to(mesh(), *options.draco.quantization_bounds), options, threads);
+    return draco_gltf(read_container(pieced), threads);
   }
-  return to_gltf(mesh(), executor);
+  return to_gltf(mesh(), threads);
 }
 
-std::string to_gltf(const Mesh& mesh, const Executor& executor) {
+std::string to_gltf(const Mesh& mesh, int threads) {
   FrameCodecOptions options;
   options.codec = FrameCodec::kDracoPieces;
   options.draco.normals = !mesh.normals.empty();
-  return draco_gltf(read_container(encode_frame(mesh, options, executor)), executor);
+  return draco_gltf(read_container(encode_frame(mesh, options, threads)), threads);
 }
 
 }  // namespace surfacer

@@ -11,7 +11,6 @@
 
 #include "core/mesh/mesh.h"
 #include "core/mesh/mesh_codec.h"
-#include "core/util/parallel.h"
 #include "core/util/run_control.h"
 
 namespace surfacer {
@@ -39,16 +38,17 @@ struct FrameCodecOptions {
 // Throws InvalidInput naming the option (DracoOptions' names, "max_piece_triangles").
 void validate(const FrameCodecOptions& options);
 
-// The bytes of `mesh` in options.codec. Pieces are encoded as items of `executor` (their bytes do not depend on it)
-// and `control` is checked between them (Cancelled). Throws like encode_draco (bad mesh, vertices outside the
-// quantization box), and for pieced codecs InvalidInput("attributes") for more than 255 attributes or a name of more
-// than 65535 bytes. A one-piece Draco or PLY frame is encoded on the calling thread, uninterruptibly.
-std::string encode_frame(const Mesh& mesh, const FrameCodecOptions& options, const Executor& executor,
+// The bytes of `mesh` in options.codec. Pieces are encoded by parallel_for on up to `threads` (>= 1) threads (their
+// bytes do not depend on it) and `control` is checked between them (Cancelled). Throws like encode_draco (bad mesh,
+// vertices outside the quantization box), and for pieced codecs InvalidInput("attributes") for more than 255
+// attributes or a name of more than 65535 bytes. A one-piece Draco or PLY frame is encoded on the calling thread,
+// uninterruptibly.
+std::string encode_frame(const Mesh& mesh, const FrameCodecOptions& options, int threads,
                          const RunControl& control = {});
 
-// The mesh of a frame's bytes in `codec`; pieces are decoded on `executor` and welded. Throws InvalidInput("frame")
-// when the bytes are not such a frame.
-Mesh decode_frame(std::string_view bytes, FrameCodec codec, const Executor& executor);
+// The mesh of a frame's bytes in `codec`; pieces are decoded and welded on up to `threads` (>= 1) threads. Throws
+// InvalidInput("frame") when the bytes are not such a frame.
+Mesh decode_frame(std::string_view bytes, FrameCodec codec, int threads);
 
 // The frame as one standard Draco mesh, what Debian's draco_decoder reads (the CLI's frame_NNNN.drc): kDraco bytes
 // as they are; a pieced frame re-encoded from `decoded` (decode_frame of the same bytes) on the frame's own grid, so
@@ -69,14 +69,14 @@ std::string to_standard_draco(std::string_view bytes, FrameCodec codec, const Me
 // (on the mesh's own box with the default bits). `decoded` (decode_frame of the same bytes) is called only then.
 // Throws InvalidInput("quantization_bits") for a grid of more than 16 bits, which glTF cannot hold, and
 // InvalidInput("frame") for bytes that are not such a frame.
-std::string to_gltf(std::string_view bytes, FrameCodec codec, const std::function<const Mesh&()>& decoded,
-                    const Executor& executor);
+std::string to_gltf(std::string_view bytes, FrameCodec codec, const std::function<const Mesh&()>& decoded, int threads);
 // The most position bits glTF holds (KHR_mesh_quantization's 16-bit integers), and its check: throws
 // InvalidInput("quantization_bits") naming the fix for more. to_gltf() and the client's choice of a run's encoding both
 // call it.
 inline constexpr int kMaxGltfQuantizationBits = 16;
 void check_gltf_quantization_bits(int bits);
-// `mesh` as such a file: Draco pieces on the mesh's own box with the default bits, encoded on `executor`.
-std::string to_gltf(const Mesh& mesh, const Executor& executor);
+// `mesh` as such a file: Draco pieces on the mesh's own box with the default bits, encoded on up to `threads` (>= 1)
+// threads.
+std::string to_gltf(const Mesh& mesh, int threads);
 
 }  // namespace surfacer

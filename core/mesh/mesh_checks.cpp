@@ -11,7 +11,7 @@
 // link graph's connectivity (a small union-find) decides whether the triangles around v form one fan.
 //
 // Parallel and deterministic: triangles and vertices are cut into blocks of fixed size, each block's sums are kept
-// apart and added in block order, so the report's bits do not depend on the executor. The table is built without
+// apart and added in block order, so the report's bits do not depend on the threads. The table is built without
 // atomics (RowBuckets, core/util/parallel.h): the triangles are cut into a few contiguous parts (one per thread, at
 // most kMaxParts), each of which counts its corners per vertex while the triangle pass reads it anyway, then writes
 // them at its cursors. Every triangle is read twice by one thread, and a vertex's corners come in triangle order
@@ -36,6 +36,7 @@
 #include <utility>
 
 #include "core/util/errors.h"
+#include "core/util/parallel.h"
 
 #if defined(__SSE2__)
 #include <emmintrin.h>
@@ -196,9 +197,9 @@ struct VertexSums {
 
 class Checker {
  public:
-  Checker(const Mesh& mesh, const Executor& executor, const RunControl& control)
+  Checker(const Mesh& mesh, int threads, const RunControl& control)
       : mesh_(mesh),
-        executor_(executor),
+        threads_(threads),
         control_(control),
         nv_(mesh.vertices.size()),
         nf_(mesh.triangles.size()),
@@ -220,12 +221,12 @@ class Checker {
   void prepare_vertices() {
     const int vertex_blocks = block_count(nv_, kVertexBlock);
     const int triangle_blocks = block_count(nf_, kTriangleBlock);
-    parts_ = std::clamp(executor_.concurrency(), 1, std::clamp(triangle_blocks, 1, kMaxParts));
+    parts_ = std::clamp(threads_, 1, std::clamp(triangle_blocks, 1, kMaxParts));
     part_begin_.resize(parts_ + 1);
     for (int p = 0; p <= parts_; ++p) part_begin_[p] = static_cast<std::size_t>(triangle_blocks) * p / parts_;
     buckets_.emplace(nv_, parts_);
     std::vector<Aabb> boxes(vertex_blocks, Aabb::empty());
-    executor_.for_each(vertex_blocks, [&](int b) {
+    parallel_for(vertex_blocks, threads_, [&](int b) {
       control_.check();
       const std::size_t begin = b * kVertexBlock, end = std::min(nv_, (b + 1) * kVertexBlock);
       components_.reset(begin, end);
@@ -246,7 +247,7 @@ class Checker {
     triangle_sums_.assign(block_count(nf_, kTriangleBlock), TriangleSums{});
     std::vector<std::size_t> first_bad(parts_, nf_);
     const double min_area = 1e-14 * diag2_;
-    executor_.for_each(parts_, [&](int part) {
+    parallel_for(parts_, threads_, [&](int part) {
       std::uint32_t* count = buckets_->count(part);
       for (std::size_t block = part_begin_[part]; block < part_begin_[part + 1]; ++block) {
         control_.check();
@@ -304,7 +305,7 @@ class Checker {
   void build_offsets() {
     start_.resize(nv_ + 1);
     const std::uint32_t corners = buckets_->place(start_.data(), [&](int blocks, auto&& body) {
-      executor_.for_each(blocks, [&](int b) {
+      parallel_for(blocks, threads_, [&](int b) {
         control_.check();
         body(b);
       });
@@ -315,7 +316,7 @@ class Checker {
   // corners_[start_[v] ..  start_[v + 1]): the corners (4 t + c) at vertex v, in triangle order; triangles with a
   // repeated index are left out of the topology.
   void fill_corners() {
-    executor_.for_each(parts_, [&](int part) {
+    parallel_for(parts_, threads_, [&](int part) {
       control_.check();
       std::uint32_t* next = buckets_->cursor(part);
       const std::size_t end = std::min(nf_, part_begin_[part + 1] * kTriangleBlock);
@@ -339,7 +340,7 @@ class Checker {
     const int blocks = block_count(nv_, kVertexBlock);
     vertex_sums_.assign(blocks, VertexSums{});
     std::vector<std::vector<std::array<std::uint32_t, 2>>> later(blocks);
-    executor_.for_each(blocks, [&](int block) {
+    parallel_for(blocks, threads_, [&](int block) {
       control_.check();
       VertexSums s;
       Scratch scratch;
@@ -356,7 +357,7 @@ class Checker {
       later[block] = std::move(links.later);
     });
     // The edges between blocks, in parallel on the atomic union-find.
-    executor_.for_each(blocks, [&](int block) {
+    parallel_for(blocks, threads_, [&](int block) {
       control_.check();
       std::int64_t made = 0;
       for (const auto& [v, w] : later[block]) made += components_.unite(v, w) ? 1 : 0;
@@ -523,7 +524,7 @@ class Checker {
   }
 
   const Mesh& mesh_;
-  const Executor& executor_;
+  const int threads_;
   const RunControl& control_;
   const std::size_t nv_;
   const std::size_t nf_;
@@ -540,10 +541,10 @@ class Checker {
 
 }  // namespace
 
-MeshReport check_mesh(const Mesh& mesh) { return check_mesh(mesh, ThreadExecutor(1)); }
+MeshReport check_mesh(const Mesh& mesh) { return check_mesh(mesh, 1); }
 
-MeshReport check_mesh(const Mesh& mesh, const Executor& executor, const RunControl& control) {
-  return Checker(mesh, executor, control).run();
+MeshReport check_mesh(const Mesh& mesh, int threads, const RunControl& control) {
+  return Checker(mesh, threads, control).run();
 }
 
 }  // namespace surfacer

@@ -5,7 +5,6 @@
 #include <vector>
 
 #include "core/mesh/mesh.h"
-#include "core/util/parallel.h"
 #include "core/util/run_control.h"
 
 namespace surfacer {
@@ -37,8 +36,8 @@ struct MeshReport {
 // scratch memory, plus 4 per vertex and thread (8 threads at most) and 8 per edge between blocks of 32768 vertices.
 // Throws InvalidInput("triangles") when a triangle uses a vertex index >= vertices.size() (the lowest such triangle).
 MeshReport check_mesh(const Mesh& mesh);
-// The same report, bit for bit whatever the executor, with the work spread over `executor` in blocks; throws
-// Cancelled between blocks when `control` fires.
-MeshReport check_mesh(const Mesh& mesh, const Executor& executor, const RunControl& control = {});
+// The same report, bit for bit whatever the threads, with the work spread in blocks over up to `threads` (>= 1)
+// threads; throws Cancelled between blocks when `control` fires.
+MeshReport check_mesh(const Mesh& mesh, int threads, const RunControl& control = {});
 
 }  // namespace surfacer

@@ -21,6 +21,7 @@
 #include "core/util/allocation_budget.h"
 #include "core/util/checks.h"
 #include "core/util/errors.h"
+#include "core/util/parallel.h"
 
 namespace surfacer {
 
@@ -48,8 +49,8 @@ struct QuantizationBox {
 // Checks the mesh for encoding and returns its quantization box: options.quantization_bounds, else the mesh's own
 // box. Throws for the first problem in this order: the options, the normals' count, the lowest non-finite vertex, the
 // lowest triangle with an index out of range, the lowest vertex outside quantization_bounds. Blocks of vertices and
-// of triangles are items of `executor`; the error is the same whatever it is.
-QuantizationBox checked_box(const Mesh& mesh, const DracoOptions& options, const Executor& executor) {
+// of triangles are items of one parallel_for on `threads` threads; the error is the same whatever their number.
+QuantizationBox checked_box(const Mesh& mesh, const DracoOptions& options, int threads) {
   validate(options);
   if (!mesh.normals.empty() && mesh.normals.size() != mesh.vertices.size()) {
     throw InvalidInput("normals", "mesh has " + std::to_string(mesh.normals.size()) + " normals for " +
@@ -71,7 +72,7 @@ QuantizationBox checked_box(const Mesh& mesh, const DracoOptions& options, const
     Aabb box = Aabb::empty();
   };
   std::vector<Found> found(vertex_blocks + triangle_blocks, Found{nv, nv, nf});
-  executor.for_each(vertex_blocks + triangle_blocks, [&](int item) {
+  parallel_for(vertex_blocks + triangle_blocks, threads, [&](int item) {
     Found& f = found[item];
     if (item < vertex_blocks) {
       const std::size_t end = std::min(nv, (item + 1) * kBlock);
@@ -174,11 +175,11 @@ void add_named_attributes(draco::Mesh& out, const Mesh& mesh) {
 }  // namespace
 
 QuantizationGrid quantization_grid(const Mesh& mesh, const DracoOptions& options) {
-  return quantization_grid(mesh, options, ThreadExecutor(1));
+  return quantization_grid(mesh, options, 1);
 }
 
-QuantizationGrid quantization_grid(const Mesh& mesh, const DracoOptions& options, const Executor& executor) {
-  const QuantizationBox q = checked_box(mesh, options, executor);
+QuantizationGrid quantization_grid(const Mesh& mesh, const DracoOptions& options, int threads) {
+  const QuantizationBox q = checked_box(mesh, options, threads);
   QuantizationGrid grid;
   for (int c = 0; c < 3; ++c) grid.origin[c] = static_cast<float>(q.origin[c]);
   grid.range = static_cast<float>(q.range);
@@ -222,7 +223,7 @@ struct DracoEncoder::State {
 };
 
 DracoEncoder::DracoEncoder(const Mesh& mesh, const DracoOptions& options) : state_(std::make_unique<State>()) {
-  const QuantizationBox q = checked_box(mesh, options, ThreadExecutor(1));
+  const QuantizationBox q = checked_box(mesh, options, 1);
   const bool encode_normals = options.normals && !mesh.normals.empty();
 
   draco::Mesh& out = state_->mesh;

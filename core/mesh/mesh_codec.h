@@ -70,8 +70,8 @@ Mesh decode_draco(std::string_view bytes, const MeshReadLimits& limits = {});
 
 // The grid `mesh` is quantized on: options.quantization_bounds, else the mesh's own bounding box. Checks the mesh
 // first and throws as encode_draco does (non-finite vertices, bad indices, normals, vertices outside the box), with
-// blocks of vertices and triangles as items of `executor` (the same error whatever it is).
-QuantizationGrid quantization_grid(const Mesh& mesh, const DracoOptions& options, const Executor& executor);
+// blocks of vertices and triangles spread over up to `threads` (>= 1) threads (the same error whatever their number).
+QuantizationGrid quantization_grid(const Mesh& mesh, const DracoOptions& options, int threads);
 QuantizationGrid quantization_grid(const Mesh& mesh, const DracoOptions& options);  // on the calling thread
 
 // Largest position error quantization can introduce: half a quantization step along the box's longest side

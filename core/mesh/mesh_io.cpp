@@ -23,6 +23,7 @@
 #include "core/mesh/mesh_vtk.h"
 #include "core/mesh/ply.h"
 #include "core/util/errors.h"
+#include "core/util/parallel.h"
 #include "core/util/text.h"
 
 namespace surfacer {
@@ -433,7 +434,7 @@ std::string mesh_file_bytes(const std::filesystem::path& path, const Mesh& mesh)
     case MeshFormat::kDraco:
       return encode_draco(mesh, DracoOptions{});
     case MeshFormat::kGlb:
-      return to_gltf(mesh, ThreadExecutor(0));  // encoded on every core
+      return to_gltf(mesh, resolve_threads(0));  // encoded on every core
     case MeshFormat::kGltf:
       return write_gltf(mesh);
   }

@@ -14,6 +14,7 @@
 #include <string>
 
 #include "core/util/errors.h"
+#include "core/util/parallel.h"
 
 namespace surfacer {
 namespace {
@@ -58,13 +59,13 @@ class MeshPieces::WindowPool {
   std::vector<std::vector<std::uint32_t>> free_;
 };
 
-MeshPieces::MeshPieces(const Mesh& mesh, const QuantizationGrid& grid, std::size_t max_piece_triangles,
-                       const Executor& executor, const RunControl& control)
+MeshPieces::MeshPieces(const Mesh& mesh, const QuantizationGrid& grid, std::size_t max_piece_triangles, int threads,
+                       const RunControl& control)
     : mesh_(mesh), grid_(grid) {
-  cut(std::max<std::size_t>(1, max_piece_triangles), executor, control);
+  cut(std::max<std::size_t>(1, max_piece_triangles), threads, control);
 }
 
-void MeshPieces::cut(std::size_t max_piece_triangles, const Executor& executor, const RunControl& control) {
+void MeshPieces::cut(std::size_t max_piece_triangles, int threads, const RunControl& control) {
   const std::size_t nf = mesh_.triangles.size();
   const std::size_t nv = mesh_.vertices.size();
   // As many pieces as needed, rounded up to a multiple of kPieceMultiple so that they share out evenly over 1, 2 and 4
@@ -76,7 +77,7 @@ void MeshPieces::cut(std::size_t max_piece_triangles, const Executor& executor, 
   // Written where a piece claims a vertex, and read only there.
   owner_ = n > 1 ? std::make_unique_for_overwrite<std::uint32_t[]>(nv) : nullptr;
   WindowPool windows;
-  executor.for_each(static_cast<int>(n), [&](int p) {
+  parallel_for(static_cast<int>(n), threads, [&](int p) {
     control.check();
     number(nf * p / n, nf * (p + 1) / n, pieces_[p], windows);
     // Every piece writes its number on its vertices; one of the writes stays.
@@ -100,7 +101,7 @@ void MeshPieces::cut(std::size_t max_piece_triangles, const Executor& executor, 
   };
   std::vector<std::vector<Seam>> listed(n);
   std::vector<std::size_t> owned(n, 0);
-  executor.for_each(static_cast<int>(n), [&](int p) {
+  parallel_for(static_cast<int>(n), threads, [&](int p) {
     control.check();
     for (std::uint32_t v : pieces_[p].globals) {
       if (std::atomic_ref(owner_[v]).load(std::memory_order_relaxed) == static_cast<std::uint32_t>(p)) {
@@ -120,7 +121,7 @@ void MeshPieces::cut(std::size_t max_piece_triangles, const Executor& executor, 
   for (std::size_t i = 0; i < seams.size(); ++i) {
     rank = i > 0 && seams[i].key == seams[i - 1].key ? rank + 1 : 1;
     if (rank > std::numeric_limits<std::uint16_t>::max()) {  // never on real surfaces: one piece, no seams
-      cut(std::numeric_limits<std::size_t>::max(), executor, control);
+      cut(std::numeric_limits<std::size_t>::max(), threads, control);
       return;
     }
     owner_[seams[i].vertex] = kShared | rank;
@@ -218,7 +219,7 @@ QuantizedPiece MeshPieces::take(int p) {
   return out;
 }
 
-Mesh weld(const std::vector<QuantizedPiece>& pieces, const QuantizationGrid& grid, const Executor& executor) {
+Mesh weld(const std::vector<QuantizedPiece>& pieces, const QuantizationGrid& grid, int threads) {
   const int n = static_cast<int>(pieces.size());
   const bool normals = n > 0 && !pieces[0].normals.empty();
   for (int p = 0; p < n; ++p) {
@@ -299,7 +300,7 @@ Mesh weld(const std::vector<QuantizedPiece>& pieces, const QuantizationGrid& gri
   }
   std::vector<std::vector<std::uint32_t>> global(n);
   const std::uint32_t max_value = grid.max_value();
-  executor.for_each(n, [&](int p) {
+  parallel_for(n, threads, [&](int p) {
     const QuantizedPiece& piece = pieces[p];
     std::vector<std::uint32_t>& g = global[p];
     g.assign(piece.positions.size(), kUnset);
@@ -331,7 +332,7 @@ Mesh weld(const std::vector<QuantizedPiece>& pieces, const QuantizationGrid& gri
   std::vector<std::size_t> first_triangle(n + 1, 0);
   for (int p = 0; p < n; ++p) first_triangle[p + 1] = first_triangle[p] + pieces[p].triangles.size();
   mesh.triangles.resize(first_triangle[n]);
-  executor.for_each(n, [&](int p) {
+  parallel_for(n, threads, [&](int p) {
     const QuantizedPiece& piece = pieces[p];
     const std::vector<std::uint32_t>& g = global[p];
     for (std::size_t t = 0; t < piece.triangles.size(); ++t) {

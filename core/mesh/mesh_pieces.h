@@ -12,7 +12,6 @@
 
 #include "core/mesh/mesh.h"
 #include "core/mesh/quantization.h"
-#include "core/util/parallel.h"
 #include "core/util/run_control.h"
 
 namespace surfacer {
@@ -30,15 +29,15 @@ struct QuantizedPiece {
   std::vector<Attribute> attributes;
 };
 
-// The pieces of a mesh: cut once (on `executor`, cancellable through `control`), then each taken once with take(p),
-// from any thread.
+// The pieces of a mesh: cut once (on up to `threads` threads, cancellable through `control`), then each taken once with
+// take(p), from any thread.
 class MeshPieces {
  public:
   // Triangles with a repeated vertex index are left out (they carry no surface; Draco drops them as well) and so are
   // vertices no triangle uses. Every vertex must lie in the grid's box (callers clamp or check first). Frames up to
   // max_piece_triangles triangles are one piece. When more than 65535 shared vertices fall on one grid point (never
   // on real surfaces) the whole frame is one piece.
-  MeshPieces(const Mesh& mesh, const QuantizationGrid& grid, std::size_t max_piece_triangles, const Executor& executor,
+  MeshPieces(const Mesh& mesh, const QuantizationGrid& grid, std::size_t max_piece_triangles, int threads,
              const RunControl& control = {});
   MeshPieces(const MeshPieces&) = delete;
   MeshPieces& operator=(const MeshPieces&) = delete;
@@ -56,7 +55,7 @@ class MeshPieces {
     std::vector<std::uint32_t> globals;  // mesh vertex of each local vertex, in order of first use
     std::vector<Triangle> triangles;     // local indices
   };
-  void cut(std::size_t max_piece_triangles, const Executor& executor, const RunControl& control);
+  void cut(std::size_t max_piece_triangles, int threads, const RunControl& control);
   class WindowPool;
   // Numbers the vertices of triangles [begin, end) in order of first use into `piece`.
   void number(std::size_t begin, std::size_t end, Piece& piece, WindowPool& windows) const;
@@ -76,6 +75,6 @@ class MeshPieces {
 // decoder returns them; normals and attributes are the kept copy's (the pieces' copies of a vertex hold the same
 // values). Throws InvalidInput("frame") for pieces that contradict each other (a tag without partner, a grid
 // coordinate beyond the grid, a triangle index out of range, attributes that differ in count, components or name).
-Mesh weld(const std::vector<QuantizedPiece>& pieces, const QuantizationGrid& grid, const Executor& executor);
+Mesh weld(const std::vector<QuantizedPiece>& pieces, const QuantizationGrid& grid, int threads);
 
 }  // namespace surfacer

@@ -5,7 +5,6 @@
 #include <atomic>
 #include <cstdint>
 #include <exception>
-#include <functional>
 #include <memory>
 #include <mutex>
 #include <numeric>
@@ -153,30 +152,6 @@ class RowBuckets {
   std::size_t rows_;
   int parts_;
   Buffer<std::uint32_t> counts_;
-};
-
-// Where a data-parallel loop runs. Engines that take one let a server run their items on its own worker pool
-// (server/worker_pool.h) next to other work, instead of starting threads; ThreadExecutor is the fork-join default.
-class Executor {
- public:
-  virtual ~Executor() = default;
-  // Threads that may run items at once (>= 1); a hint for cutting work, never a promise.
-  virtual int concurrency() const = 0;
-  // Runs body(i) for every i in [0, items), in any order, possibly in parallel, the calling thread included; returns
-  // once every call has returned. The first exception stops the hand-out of further items and is rethrown. Calls
-  // may nest (a body may call for_each again).
-  virtual void for_each(int items, const std::function<void(int)>& body) const = 0;
-};
-
-// parallel_for on `threads` threads (0: hardware threads).
-class ThreadExecutor final : public Executor {
- public:
-  explicit ThreadExecutor(int threads = 1) : threads_(resolve_threads(threads)) {}
-  int concurrency() const override { return threads_; }
-  void for_each(int items, const std::function<void(int)>& body) const override { parallel_for(items, threads_, body); }
-
- private:
-  int threads_;
 };
 
 }  // namespace surfacer

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <atomic>
 #include <condition_variable>
+#include <deque>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <thread>
@@ -22,11 +24,24 @@ struct Call {
 
 class Pool {
  public:
-  explicit Pool(int threads) {
-    threads_.reserve(threads);
-    for (int t = 0; t < threads; ++t) threads_.emplace_back([this] { serve(); });
+  explicit Pool(int threads) { reserve(threads); }
+  int threads() const { return thread_count_.load(std::memory_order_relaxed); }
+
+  int reserve(int threads) {
+    std::lock_guard lock(mutex_);
+    while (static_cast<int>(threads_.size()) < threads) threads_.emplace_back([this] { serve(); });
+    thread_count_.store(static_cast<int>(threads_.size()), std::memory_order_relaxed);
+    return static_cast<int>(threads_.size());
   }
-  int threads() const { return static_cast<int>(threads_.size()); }
+
+  void post(std::function<void()> task) {
+    if (threads() == 0) reserve(1);
+    {
+      std::lock_guard lock(mutex_);
+      tasks_.push_back(std::move(task));
+    }
+    cv_.notify_one();
+  }
 
   void run(int helpers, WorkRef work) {
     helpers = std::min(helpers, threads());
@@ -57,14 +72,24 @@ class Pool {
   void serve() {
     for (;;) {
       std::shared_ptr<Call> call;
+      std::function<void()> task;
       {
         std::unique_lock lock(mutex_);
         ++idle_;
-        cv_.wait(lock, [this] { return !open_.empty(); });
+        cv_.wait(lock, [this] { return !tasks_.empty() || !open_.empty(); });
         --idle_;
-        call = open_.back();  // the newest call: an inner loop before the outer loop's next items
-        call->active.fetch_add(1, std::memory_order_relaxed);
-        if (--call->wanted == 0) open_.pop_back();
+        if (!tasks_.empty()) {  // the oldest task first: it may start a job's loops, which the others then help
+          task = std::move(tasks_.front());
+          tasks_.pop_front();
+        } else {
+          call = open_.back();  // the newest call: an inner loop before the outer loop's next items
+          call->active.fetch_add(1, std::memory_order_relaxed);
+          if (--call->wanted == 0) open_.pop_back();
+        }
+      }
+      if (task) {
+        task();
+        continue;
       }
       call->work();
       if (call->active.fetch_sub(1, std::memory_order_acq_rel) == 1) call->active.notify_all();
@@ -74,8 +99,10 @@ class Pool {
   std::mutex mutex_;
   std::condition_variable cv_;
   std::vector<std::shared_ptr<Call>> open_;  // calls that still want helpers, oldest first
-  int idle_ = 0;                              // pool threads waiting for a call
-  std::vector<std::thread> threads_;
+  std::deque<std::function<void()>> tasks_;  // posted tasks not yet started, oldest first
+  int idle_ = 0;                             // pool threads waiting for a call or a task
+  std::vector<std::thread> threads_;         // grows only, under mutex_
+  std::atomic<int> thread_count_{0};         // threads_.size(), read without the lock
 };
 
 // Never destroyed: its threads wait for work until the process exits, and a loop running on a detached thread at
@@ -90,6 +117,10 @@ Pool& pool() {
 
 int pool_threads() { return pool().threads(); }
 
+int reserve_pool_threads(int threads) { return pool().reserve(threads); }
+
 void run_with_helpers(int helpers, WorkRef work) { pool().run(helpers, work); }
+
+void post(std::function<void()> task) { pool().post(std::move(task)); }
 
 }  // namespace surfacer

@@ -258,7 +258,7 @@ std::unique_ptr<JobRunner> make_active_runner(const v1::JobSpec& spec, const Job
                     (e.field() == "h" ? widest : initial_source) + ": " + e.what());
   }
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), *region, "spec.output");
-  FrameMaker frames(encoding, context.limits.max_triangles, context.executor);
+  FrameMaker frames(encoding, context.limits.max_triangles, context.worker_threads);
   options.vertex_margin = frames.vertex_margin();
   return std::make_unique<ActiveRunner>(job, context.uploads, options, std::move(frames), context.limits,
                                         frames_expected, context.memory);

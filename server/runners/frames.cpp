@@ -1,16 +1,59 @@
 #include "server/runners/frames.h"
 
+#include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <future>
+#include <latch>
 #include <memory>
-#include <thread>
+#include <optional>
 
 #include "core/mesh/frame_codec.h"
 #include "core/mesh/grid_cleanup.h"
 #include "core/mesh/mesh_codec.h"
 #include "core/util/errors.h"
+#include "core/util/thread_pool.h"
 
 namespace surfacer::server {
+namespace {
+
+// One Draco mesh encoded beside the checks, by whichever thread claims it first: a pool thread (the task is posted
+// as soon as the frame is made) or the frame's own thread once its checks are done. The encoder's copy of the mesh
+// is made by the thread that claimed it, so it is held only while it is encoded; a pool thread's encoding may
+// outlive a cancelled frame, which waits only for that copy (`copied`) before its mesh goes.
+struct SideEncoding {
+  SideEncoding(const Mesh& mesh, const DracoOptions& options) : mesh(mesh), options(options) {}
+  const Mesh& mesh;  // valid until `copied` by a pool thread, or while the frame's own thread encodes
+  const DracoOptions options;
+  std::atomic<bool> claimed{false};
+  std::latch copied{1};
+  std::promise<std::string> bytes;
+  // Encodes unless another thread claimed it; true when this call did.
+  bool run() {
+    if (claimed.exchange(true, std::memory_order_acq_rel)) return false;
+    try {
+      std::optional<DracoEncoder> encoder;
+      try {
+        encoder.emplace(mesh, options);
+      } catch (...) {
+        copied.count_down();
+        throw;
+      }
+      copied.count_down();
+      bytes.set_value(encoder->encode());
+    } catch (...) {
+      bytes.set_exception(std::current_exception());
+    }
+    return true;
+  }
+  // Called by the frame's own thread on its way out: when no pool thread has begun, none will; else waits for the
+  // pool thread's copy of the mesh.
+  void leave() {
+    if (claimed.exchange(true, std::memory_order_acq_rel)) copied.wait();
+  }
+};
+
+}  // namespace
 
 double StageTimer::now() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
@@ -35,23 +78,8 @@ void fill_mesh_check(const MeshReport& r, v1::MeshCheck& out) {
   out.set_volume(r.volume);
 }
 
-FrameMaker::FrameMaker(FrameEncoding encoding, std::int64_t max_triangles, const Executor* executor)
-    : encoding_(std::move(encoding)), max_triangles_(max_triangles), executor_(executor), inline_executor_(1) {}
-
-std::future<std::string> FrameMaker::start_own_thread(const Mesh& mesh) const {
-  // The thread owns the encoder (which holds its own copy of the mesh) and the promise, so it may outlive the frame.
-  auto encoder = std::make_shared<DracoEncoder>(mesh, encoding_.options.draco);
-  auto promise = std::make_shared<std::promise<std::string>>();
-  std::future<std::string> result = promise->get_future();
-  std::thread([encoder, promise] {
-    try {
-      promise->set_value(encoder->encode());
-    } catch (...) {
-      promise->set_exception(std::current_exception());
-    }
-  }).detach();
-  return result;
-}
+FrameMaker::FrameMaker(FrameEncoding encoding, std::int64_t max_triangles, int threads)
+    : encoding_(std::move(encoding)), max_triangles_(max_triangles), threads_(std::max(1, threads)) {}
 
 double FrameMaker::vertex_margin() const {
   const std::optional<QuantizationGrid> grid = encoding_.grid();
@@ -66,7 +94,6 @@ FrameOutput FrameMaker::make(Mesh mesh, StageTimer& timer, const RunControl& con
                                              "; lower the resolution or start the server with a larger "
                                              "--max-triangles");
   }
-  const Executor& executor = executor_ ? *executor_ : inline_executor_;
   const FrameCodecOptions& options = encoding_.options;
   FrameOutput out;
   out.encoding = encoding_.mesh_encoding();
@@ -76,32 +103,40 @@ FrameOutput FrameMaker::make(Mesh mesh, StageTimer& timer, const RunControl& con
   if (grid) {
     control.report("grid_cleanup", 0.0);
     GridCleanupOptions cleanup_options;
-    cleanup_options.threads = executor.concurrency();
+    cleanup_options.threads = threads_;
     cleanup = check_timer.run("grid_cleanup", [&] { return clean_on_grid(mesh, *grid, cleanup_options, control); });
   }
   // Every position is put on its grid point, so that the checks (area and volume included) see what a decoder
   // reads and the encoder, quantizing the same points again, reproduces them exactly.
-  if (grid) snap_to_grid(mesh.vertices, *grid, executor.concurrency());
+  if (grid) snap_to_grid(mesh.vertices, *grid, threads_);
   MeshReport report;
   auto check = [&] {
     control.report("check", 0.0);
-    report = check_timer.run("check", [&] { return check_mesh(mesh, executor, control); });
+    report = check_timer.run("check", [&] { return check_mesh(mesh, threads_, control); });
   };
   if (options.codec == FrameCodec::kDraco && mesh.triangles.size() > options.max_piece_triangles) {
-    // One Draco mesh, on a thread of its own while the checks run on the executor.
+    // One Draco mesh, on a pool thread while the checks run on the others (SideEncoding).
     out.bytes = encode_timer.run("encode", [&] {
-      std::future<std::string> encoded = start_own_thread(mesh);
-      check();
-      control.report("encode", 0.0);
-      while (encoded.wait_for(std::chrono::milliseconds(10)) != std::future_status::ready) control.check();
+      auto side = std::make_shared<SideEncoding>(mesh, options.draco);
+      std::future<std::string> encoded = side->bytes.get_future();
+      surfacer::post([side] { side->run(); });
+      try {
+        check();
+        control.report("encode", 0.0);
+        side->run();  // no pool thread was free: encoded here, uninterruptibly
+        while (encoded.wait_for(std::chrono::milliseconds(10)) != std::future_status::ready) control.check();
+      } catch (...) {
+        side->leave();  // cancelled: a pool thread that has not begun skips it
+        throw;
+      }
       return encoded.get();
     });
   } else {
-    // The checks, then the encoding, each on every thread of the executor: run side by side as two items, each
-    // would get one thread only, since a pool thread waiting for its items does not run the other item's pieces.
+    // The checks, then the encoding, each on every one of the threads: run side by side as two items, each would get
+    // one thread only, since a pool thread waiting for its items does not run the other item's pieces.
     check();
     control.report("encode", 0.0);
-    out.bytes = encode_timer.run("encode", [&] { return encode_frame(mesh, options, executor, control); });
+    out.bytes = encode_timer.run("encode", [&] { return encode_frame(mesh, options, threads_, control); });
   }
   out.stats.set_vertices(static_cast<std::int64_t>(mesh.vertices.size()));
   out.stats.set_triangles(static_cast<std::int64_t>(mesh.triangles.size()));

@@ -9,7 +9,6 @@
 
 #include "core/mesh/mesh.h"
 #include "core/mesh/mesh_checks.h"
-#include "core/util/parallel.h"
 #include "server/runners/runner.h"
 #include "wire/output.h"
 
@@ -45,19 +44,22 @@ void fill_mesh_check(const MeshReport& report, v1::MeshCheck& out);
 // Turns a job's meshes into frames: checks, stats and encoding (docs/ALGORITHMS.md §5 "Frames").
 class FrameMaker {
  public:
-  // `executor`: where the checks and the pieces of a pieced codec run (the server's worker pool); null: on the
-  // calling thread. Throws nothing; the encoding was validated by wire::frame_encoding.
-  FrameMaker(FrameEncoding encoding, std::int64_t max_triangles, const Executor* executor);
+  // `threads` (>= 1; less is taken as 1): the threads the checks and the pieces of a pieced codec run on, the calling
+  // thread and free threads of the process-wide pool. Throws nothing; the encoding was validated by
+  // wire::frame_encoding.
+  FrameMaker(FrameEncoding encoding, std::int64_t max_triangles, int threads);
 
   // The frame of `mesh`, its stats holding every timing of `timer` plus "grid_cleanup", "encode" and "check" (wall
   // seconds of each). On a quantizing codec the mesh is first made clean on the job's grid (core/mesh/grid_cleanup.h;
   // metrics grid_degenerate_found, grid_coincident_found, grid_nudges, grid_left) and every vertex put on its grid
   // point, so the checks (area and volume included) are of the mesh a decoder reads. The checks run first, then the
-  // encoding, each on every thread of the executor; a standard Draco frame is encoded while the checks run. The
-  // checks and a pieced codec's pieces run as items of the executor and stop between items when `control` fires. A
-  // standard Draco frame's encoder cannot be interrupted: above one piece's size it runs on a thread of its own,
-  // which a cancel leaves to finish in the background, so that the caller is free at once. Throws ResourceLimit when
-  // the mesh has more than max_triangles triangles, Cancelled, and what the codec throws.
+  // encoding, each on every one of `threads`; a standard Draco frame is encoded while the checks run. The
+  // checks and a pieced codec's pieces run as items of parallel loops and stop between items when `control` fires. A
+  // standard Draco frame's encoder cannot be interrupted: above one piece's size it is posted to the process-wide
+  // pool beside the checks (the caller runs it itself when no pool thread has taken it by the time the checks end),
+  // and a cancel leaves a pool thread's encoding to finish in the background, so that the caller is free as soon as
+  // that thread has its copy of the mesh.
+  // Throws ResourceLimit when the mesh has more than max_triangles triangles, Cancelled, and what the codec throws.
   FrameOutput make(Mesh mesh, StageTimer& timer, const RunControl& control) const;
 
   const FrameEncoding& encoding() const { return encoding_; }
@@ -69,13 +71,9 @@ class FrameMaker {
   static constexpr double kMarginSteps = 3.0;
 
  private:
-  // Starts encoding `mesh` as one Draco mesh on a detached thread.
-  std::future<std::string> start_own_thread(const Mesh& mesh) const;
-
   FrameEncoding encoding_;
   std::int64_t max_triangles_;
-  const Executor* executor_;
-  ThreadExecutor inline_executor_;
+  int threads_;
 };
 
 // Keeps checkpoints under ~10% of the task's time: one is taken only when the work since the previous one took at

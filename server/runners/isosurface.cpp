@@ -64,7 +64,7 @@ std::unique_ptr<JobRunner> make_isosurface_runner(const v1::JobSpec& spec, const
   check_grid_cells(grid, path, context.limits);
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), grid.bounds, "spec.output");
   return std::make_unique<IsosurfaceRunner>(
-      std::move(fields), grid, FrameMaker(encoding, context.limits.max_triangles, context.executor), context);
+      std::move(fields), grid, FrameMaker(encoding, context.limits.max_triangles, context.worker_threads), context);
 }
 
 }  // namespace surfacer::server

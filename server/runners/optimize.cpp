@@ -202,7 +202,7 @@ std::unique_ptr<JobRunner> make_optimize_runner(const v1::JobSpec& spec, const J
   box = box.padded(kBoxPadFraction * box.size().norm());
   const FrameEncoding encoding = wire::frame_encoding(spec.output(), box, "spec.output");
   return std::make_unique<OptimizeRunner>(std::move(field), std::move(start), grid, options,
-                                          FrameMaker(encoding, context.limits.max_triangles, context.executor),
+                                          FrameMaker(encoding, context.limits.max_triangles, context.worker_threads),
                                           context);
 }
 

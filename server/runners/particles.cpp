@@ -216,7 +216,7 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
   options.output_grid = encoding.grid();
   const Aabb quantization_box = encoding.options.draco.quantization_bounds.value_or(box);
   return std::make_unique<ParticlesRunner>(job, std::move(interpolate), context.uploads, std::move(options),
-                                           FrameMaker(encoding, context.limits.max_triangles, context.executor),
+                                           FrameMaker(encoding, context.limits.max_triangles, context.worker_threads),
                                            context.limits, context.worker_threads, context.memory, quantization_box);
 }
 

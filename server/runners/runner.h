@@ -9,7 +9,6 @@
 #include <mutex>
 #include <string>
 
-#include "core/util/parallel.h"
 #include "core/util/run_control.h"
 #include "core/util/triangle_limit.h"
 #include "server/memory_budget.h"
@@ -78,9 +77,9 @@ class JobRunner {
 struct JobContext {
   const Limits& limits;
   const wire::UploadLookup& uploads;
+  // Threads a task's loops run on (>= 1), its frames' checks and encoding included: the task's own thread and free
+  // threads of the process-wide pool (core/util/parallel.h).
   int worker_threads = 1;
-  // Where frames are checked and encoded (the worker pool); null: on the task's own thread.
-  const Executor* executor = nullptr;
   // The server's memory budget (--memory-budget) that tasks building meshes draw from (TaskMemory); null: none.
   MemoryBudget* memory = nullptr;
 };

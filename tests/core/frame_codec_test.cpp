@@ -106,7 +106,7 @@ TEST(FrameCodec, PiecesWeldIntoTheSameSurfaceAsOneDracoMesh) {
         SCOPED_TRACE(c.name + ", " + std::string(frame_codec_name(codec)) + ", pieces of " + std::to_string(piece));
         const FrameCodecOptions o = options_for(codec, c.box, piece);
         const QuantizationGrid grid = QuantizationGrid::of(c.box, 14);
-        const Mesh decoded = decode_frame(encode_frame(c.mesh, o, ThreadExecutor(2)), codec, ThreadExecutor(3));
+        const Mesh decoded = decode_frame(encode_frame(c.mesh, o, 2), codec, 3);
         const Mesh reference = decode_draco(encode_draco(c.mesh, o.draco));
         EXPECT_EQ(quantized_triangles(decoded, grid), quantized_triangles(reference, grid));
         // Welded exactly: the topology of the original mesh (no seam left open, no vertex merged wrongly). Draco
@@ -139,8 +139,7 @@ TEST(FrameCodec, PiecesAreEvenAndShareOutOverCores) {
     const std::size_t triangles = c.mesh.triangles.size();
     for (std::size_t piece : {std::size_t{1024}, std::size_t{5000}, std::size_t{30000}, std::size_t{1} << 20}) {
       SCOPED_TRACE(c.name + ", pieces of " + std::to_string(piece));
-      const std::string bytes =
-          encode_frame(c.mesh, options_for(FrameCodec::kMeshopt, c.box, piece), ThreadExecutor(2));
+      const std::string bytes = encode_frame(c.mesh, options_for(FrameCodec::kMeshopt, c.box, piece), 2);
       const std::uint32_t count = u32_at(bytes, 24);
       if (triangles <= piece) {
         EXPECT_EQ(count, 1u);
@@ -164,9 +163,9 @@ TEST(FrameCodec, BytesDoNotDependOnTheThreads) {
   for (const Case& c : cases()) {
     for (FrameCodec codec : {FrameCodec::kDracoPieces, FrameCodec::kMeshopt}) {
       const FrameCodecOptions o = options_for(codec, c.box, 2048);
-      const std::string one = encode_frame(c.mesh, o, ThreadExecutor(1));
+      const std::string one = encode_frame(c.mesh, o, 1);
       for (int threads : {2, 5}) {
-        EXPECT_EQ(encode_frame(c.mesh, o, ThreadExecutor(threads)), one)
+        EXPECT_EQ(encode_frame(c.mesh, o, threads), one)
             << c.name << ", " << frame_codec_name(codec) << ", " << threads << " threads";
       }
     }
@@ -181,7 +180,7 @@ TEST(FrameCodec, BadMeshNamesItsFirstProblemWhateverTheThreads) {
   const Aabb box{Vec3::Constant(-1.0), Vec3::Constant(1.0)};
   auto message = [&](const Mesh& m, int threads) {
     try {
-      encode_frame(m, options_for(FrameCodec::kMeshopt, box, 1 << 18), ThreadExecutor(threads));
+      encode_frame(m, options_for(FrameCodec::kMeshopt, box, 1 << 18), threads);
     } catch (const Error& e) {
       return std::string(e.field()) + ": " + e.what();
     }
@@ -212,8 +211,8 @@ TEST(FrameCodec, StandardDracoOfPiecesIsOnTheJobGrid) {
   for (const Case& c : cases()) {
     for (int bits : {10, 14, 18}) {
       const FrameCodecOptions o = options_for(FrameCodec::kMeshopt, c.box, 2048, bits);
-      const std::string bytes = encode_frame(c.mesh, o, ThreadExecutor(2));
-      const Mesh decoded = decode_frame(bytes, o.codec, ThreadExecutor(2));
+      const std::string bytes = encode_frame(c.mesh, o, 2);
+      const Mesh decoded = decode_frame(bytes, o.codec, 2);
       const Mesh standard = decode_draco(to_standard_draco(bytes, o.codec, decoded));
       const Mesh reference = decode_draco(encode_draco(c.mesh, o.draco));
       const QuantizationGrid grid = QuantizationGrid::of(c.box, bits);
@@ -225,7 +224,7 @@ TEST(FrameCodec, StandardDracoOfPiecesIsOnTheJobGrid) {
 // to_gltf's edges (the end-to-end test reads full files): an empty frame is a scene with one empty node (glTF has no
 // empty accessors); a grid of more than 16 bits is refused naming quantization_bits, whatever the frame's codec.
 TEST(FrameCodec, GltfOfAnEmptyFrameAndOfADeepGrid) {
-  const ThreadExecutor two(2);
+  const int two = 2;
   for (FrameCodec codec : {FrameCodec::kDracoPieces, FrameCodec::kMeshopt, FrameCodec::kDraco, FrameCodec::kPly}) {
     SCOPED_TRACE(std::string(frame_codec_name(codec)));
     const Mesh empty;
@@ -270,7 +269,7 @@ std::string as_version_1(const std::string& v2) {
 // A version 1 meshopt frame (no bounds in its directory) becomes Draco pieces of its decoded mesh, which read back
 // as the same triangles.
 TEST(FrameCodec, MeshoptGltfHoldsTheFramesStreams) {
-  const ThreadExecutor two(2);
+  const int two = 2;
   for (const Case& c : cases()) {
     // 3-bit normals are below the OCTAHEDRAL filter's least 4 bits: rounded onto them.
     for (const auto& [piece, normal_bits] :
@@ -329,7 +328,7 @@ TEST(FrameCodec, MeshoptGltfHoldsTheFramesStreams) {
 // The directory says what decoding the pieces finds (points, bounds, attribute ids), so to_gltf writes from it alone
 // the same file it writes for a version 1 frame by decoding every piece; and version 1 frames still decode.
 TEST(FrameCodec, GltfFromTheDirectoryIsTheFileDecodingGives) {
-  const ThreadExecutor two(2);
+  const int two = 2;
   std::vector<Case> all = cases();
   for (const Case& c : all) {
     for (std::size_t piece : {std::size_t{1024}, std::size_t{1} << 20}) {
@@ -403,7 +402,7 @@ void expect_attributes_of(const Mesh& read, const Mesh& original, double error) 
 // attributes in KHR_draco_mesh_compression and EXT_meshopt_compression primitives, and in plain glTF), read back by
 // parse_glb with their names. Frames without attributes stay version 2.
 TEST(FrameCodec, AttributesComeBackFromEveryCodecAndGltf) {
-  const ThreadExecutor two(2);
+  const int two = 2;
   std::vector<Case> all = cases();
   for (const std::size_t pick : {std::size_t{4}, std::size_t{12}, std::size_t{13}, std::size_t{14}}) {
     const Case& c = all.at(pick);  // a sphere of several pieces, normals, holes with bowties, empty
@@ -463,7 +462,7 @@ TEST(FrameCodec, AttributeTableThatDisagreesWithThePiecesIsInvalidInput) {
   const Case c = cases()[2];
   const Mesh mesh = with_attributes(c.mesh);
   for (FrameCodec codec : {FrameCodec::kDracoPieces, FrameCodec::kMeshopt}) {
-    const std::string bytes = encode_frame(mesh, options_for(codec, c.box, 1024), ThreadExecutor(2));
+    const std::string bytes = encode_frame(mesh, options_for(codec, c.box, 1024), 2);
     std::uint32_t count = 0;
     std::memcpy(&count, bytes.data() + 24, 4);
     const std::size_t table = 44 + 44 * std::size_t{count};
@@ -476,7 +475,7 @@ TEST(FrameCodec, AttributeTableThatDisagreesWithThePiecesIsInvalidInput) {
     components[table + 1] = 2;  // "id" is a scalar
     for (const std::string* damaged : {&fewer, &more, &components}) {
       try {
-        decode_frame(*damaged, codec, ThreadExecutor(2));
+        decode_frame(*damaged, codec, 2);
         ADD_FAILURE() << frame_codec_name(codec) << ": a damaged attribute table decoded";
       } catch (const Error& e) {
         EXPECT_EQ(e.kind(), ErrorKind::kInvalidInput);
@@ -490,8 +489,8 @@ TEST(FrameCodec, AttributeTableThatDisagreesWithThePiecesIsInvalidInput) {
 TEST(FrameCodec, DirectoryThatDisagreesWithItsPiecesIsInvalidInput) {
   const Case c = cases()[2];  // sphere, cubes, 40 cells: several pieces of 1024
   for (FrameCodec codec : {FrameCodec::kDracoPieces, FrameCodec::kMeshopt}) {
-    const std::string bytes = encode_frame(c.mesh, options_for(codec, c.box, 1024), ThreadExecutor(2));
-    ASSERT_NO_THROW(decode_frame(bytes, codec, ThreadExecutor(2)));
+    const std::string bytes = encode_frame(c.mesh, options_for(codec, c.box, 1024), 2);
+    ASSERT_NO_THROW(decode_frame(bytes, codec, 2));
     // Piece 1's points (entry offset 12) and its max x (offset 28), each one higher or lower.
     for (std::size_t field : {std::size_t{12}, std::size_t{28}}) {
       for (int delta : {-1, 1}) {
@@ -502,7 +501,7 @@ TEST(FrameCodec, DirectoryThatDisagreesWithItsPiecesIsInvalidInput) {
         value += static_cast<std::uint32_t>(delta);
         std::memcpy(damaged.data() + at, &value, 4);
         try {
-          decode_frame(damaged, codec, ThreadExecutor(2));
+          decode_frame(damaged, codec, 2);
           ADD_FAILURE() << frame_codec_name(codec) << ": field at " << field << " off by " << delta << " decoded";
         } catch (const Error& e) {
           EXPECT_EQ(e.kind(), ErrorKind::kInvalidInput);
@@ -517,26 +516,25 @@ TEST(FrameCodec, CorruptedPiecedFramesAreInvalidInput) {
   const Case c = cases()[2];  // sphere, cubes, 40 cells: several pieces of 1024
   std::mt19937 rng(5);
   for (FrameCodec codec : {FrameCodec::kDracoPieces, FrameCodec::kMeshopt}) {
-    const std::string bytes = encode_frame(c.mesh, options_for(codec, c.box, 1024), ThreadExecutor(2));
+    const std::string bytes = encode_frame(c.mesh, options_for(codec, c.box, 1024), 2);
     auto expect_rejected_or_decoded = [&](const std::string& damaged) {
       try {
-        decode_frame(damaged, codec, ThreadExecutor(2));  // a flip inside a coordinate may still decode
+        decode_frame(damaged, codec, 2);  // a flip inside a coordinate may still decode
       } catch (const Error& e) {
         EXPECT_EQ(e.kind(), ErrorKind::kInvalidInput);
         EXPECT_EQ(e.field(), "frame");
       }
     };
     for (std::size_t size : {std::size_t{0}, std::size_t{3}, std::size_t{40}, bytes.size() / 2, bytes.size() - 1}) {
-      EXPECT_THROW(decode_frame(bytes.substr(0, size), codec, ThreadExecutor(1)), Error) << size;
+      EXPECT_THROW(decode_frame(bytes.substr(0, size), codec, 1), Error) << size;
     }
     for (int i = 0; i < 200; ++i) {
       std::string damaged = bytes;
       damaged[rng() % damaged.size()] ^= static_cast<char>(1u << (rng() % 8));
       expect_rejected_or_decoded(damaged);
     }
-    EXPECT_THROW(decode_frame(bytes, codec == FrameCodec::kMeshopt ? FrameCodec::kDracoPieces : FrameCodec::kMeshopt,
-                              ThreadExecutor(1)),
-                 Error);
+    EXPECT_THROW(
+        decode_frame(bytes, codec == FrameCodec::kMeshopt ? FrameCodec::kDracoPieces : FrameCodec::kMeshopt, 1), Error);
   }
 }
 
@@ -546,8 +544,7 @@ TEST(FrameCodec, CancelStopsBetweenPieces) {
   token.cancel();
   RunControl control;
   control.cancel = &token;
-  EXPECT_THROW(encode_frame(c.mesh, options_for(FrameCodec::kDracoPieces, c.box, 1024), ThreadExecutor(2), control),
-               Error);
+  EXPECT_THROW(encode_frame(c.mesh, options_for(FrameCodec::kDracoPieces, c.box, 1024), 2, control), Error);
 }
 
 }  // namespace

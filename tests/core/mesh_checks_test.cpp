@@ -172,7 +172,7 @@ TEST(MeshChecks, OutOfRangeIndexNamesTheFirstBadTriangleWhateverTheThreads) {
     for (int threads : {1, 2, 3, 8}) {
       SCOPED_TRACE("first bad " + std::to_string(first) + ", " + std::to_string(threads) + " threads");
       try {
-        check_mesh(m, ThreadExecutor(threads));
+        check_mesh(m, threads);
         ADD_FAILURE() << "no error";
       } catch (const Error& e) {
         EXPECT_EQ(e.field(), "triangles");
@@ -189,7 +189,7 @@ TEST(MeshChecks, OutOfRangeIndexNamesTheFirstBadTriangleWhateverTheThreads) {
 TEST(MeshChecks, MillionTriangles) {
   const Mesh m = testing::icosphere(8);
   for (int threads : {1, 3}) {
-    const MeshReport r = check_mesh(m, ThreadExecutor(threads));
+    const MeshReport r = check_mesh(m, threads);
     EXPECT_TRUE(r.closed && r.vertex_manifold && r.oriented);
     EXPECT_EQ(r.euler_characteristic, 2);
     EXPECT_EQ(r.components, 1);
@@ -341,21 +341,21 @@ TEST(MeshChecks, ComponentsWhateverTheVertexOrder) {
     for (const Mesh* mesh : {&m, &shuffled}) {
       const std::string name = std::to_string(spheres) + (mesh == &m ? " spheres" : " spheres, shuffled");
       for (int threads : {1, 2, 4}) {
-        expect_same_topology(check_mesh(*mesh, ThreadExecutor(threads)), reference,
+        expect_same_topology(check_mesh(*mesh, threads), reference,
                              name + " on " + std::to_string(threads) + " threads");
       }
     }
   }
 }
 
-TEST(MeshChecks, SameBitsWhateverTheExecutor) {
+TEST(MeshChecks, SameBitsWhateverTheThreads) {
   auto meshes = defective_meshes();
   meshes.emplace_back("icosphere(7)", testing::icosphere(7));  // several blocks of triangles and vertices
   for (const auto& [name, mesh] : meshes) {
     SCOPED_TRACE(name);
     const MeshReport one = check_mesh(mesh);
     for (int threads : {2, 3, 8}) {
-      const MeshReport r = check_mesh(mesh, ThreadExecutor(threads));
+      const MeshReport r = check_mesh(mesh, threads);
       expect_same_topology(r, one, name + " on " + std::to_string(threads) + " threads");
       EXPECT_EQ(r.area, one.area);
       EXPECT_EQ(r.volume, one.volume);
@@ -372,7 +372,7 @@ TEST(MeshChecks, CancelledBetweenBlocks) {
   token.cancel();
   RunControl control;
   control.cancel = &token;
-  EXPECT_THROW(check_mesh(m, ThreadExecutor(2), control), Error);
+  EXPECT_THROW(check_mesh(m, 2, control), Error);
 }
 
 }  // namespace

@@ -30,7 +30,7 @@ using testing::quantized_triangles;
 // grid, and as many vertices (the pieces' copies of a seam vertex weld into one, distinct vertices on one grid point
 // stay apart), whatever the codec, the pieces and the grid.
 TEST(MeshGltf, TheCliGlbOfAFrameReadsBackAsItsMesh) {
-  const ThreadExecutor two(2);
+  const int two = 2;
   const FieldPtr gyroid = make_csg(CsgOp::kIntersection, {make_gyroid(1.0, 0.12), make_sphere(Vec3::Zero(), 1.5)});
   const FieldPtr sphere = make_sphere(Vec3(0.1, -0.2, 0.05), 1.0);
   const Aabb box{Vec3::Constant(-2), Vec3::Constant(2)};
@@ -302,7 +302,7 @@ TEST(MeshGltf, RefusesWhatItDoesNotReadNamingWhy) {
 // A meshopt frame's .glb (EXT_meshopt_compression) whose buffer views say something the extension does not allow,
 // or whose streams do not decode, is refused naming the place; its decoded size is bounded before it is allocated.
 TEST(MeshGltf, RefusesMeshoptBufferViewsNamingWhy) {
-  const ThreadExecutor two(2);
+  const int two = 2;
   FrameCodecOptions o;
   o.codec = FrameCodec::kMeshopt;
   o.draco.quantization_bounds = Aabb{Vec3::Constant(-1.5), Vec3::Constant(1.5)};

@@ -34,7 +34,7 @@ std::int64_t triangles_of(const v1::JobSpec& spec, LoopbackServer& s, v1::FrameS
   EXPECT_EQ(result.states.back(), v1::JOB_STATE_SUCCEEDED) << result.final_job.error().message();
   if (result.frames.size() != 1) return -1;
   *stats = result.frames.at(0).header.stats();
-  *mesh = decode_frame(result.frames.at(0).bytes, *wire::frame_codec(spec.output().encoding()), ThreadExecutor(1));
+  *mesh = decode_frame(result.frames.at(0).bytes, *wire::frame_codec(spec.output().encoding()), 1);
   return stats->triangles();
 }
 

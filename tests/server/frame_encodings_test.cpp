@@ -43,7 +43,7 @@ TEST(FrameEncodings, PiecedFramesAreTheSameBytesOnAnyNumberOfWorkers) {
         EXPECT_EQ(frame_bytes(workers, spec, &stats), one) << workers << " workers";
         EXPECT_EQ(stats.check().SerializeAsString(), one_stats.check().SerializeAsString()) << workers << " workers";
       }
-      const Mesh mesh = decode_frame(one, *wire::frame_codec(encoding), ThreadExecutor(2));
+      const Mesh mesh = decode_frame(one, *wire::frame_codec(encoding), 2);
       EXPECT_EQ(static_cast<std::int64_t>(mesh.triangles.size()), one_stats.triangles());
       EXPECT_TRUE(mesh_has(check_mesh(mesh), kClosedManifold));
     }

@@ -94,7 +94,7 @@ TEST(ParticlesJob, NoTriangleCollapsesOnTheJobsQuantizationGrid) {
       const auto result = watch_job(*s.stub, id);
       ASSERT_EQ(result.states.back(), v1::JOB_STATE_SUCCEEDED) << result.final_job.error().message();
       const auto& frame = result.frames.at(0);
-      const Mesh mesh = decode_frame(frame.bytes, *wire::frame_codec(encoding), ThreadExecutor(2));
+      const Mesh mesh = decode_frame(frame.bytes, *wire::frame_codec(encoding), 2);
       ASSERT_GT(mesh.triangles.size(), 1000u);
       std::size_t zero_area = 0;
       for (const auto& t : mesh.triangles) {
@@ -285,7 +285,7 @@ TEST(ParticlesJob, InterpolatedAttributesTravelInEveryEncoding) {
     ASSERT_EQ(result.states.back(), v1::JOB_STATE_SUCCEEDED) << result.final_job.error().message();
     const std::optional<FrameCodec> codec = wire::frame_codec(encoding);
     ASSERT_TRUE(codec);
-    const Mesh mesh = decode_frame(result.frames.at(0).bytes, *codec, ThreadExecutor(1));
+    const Mesh mesh = decode_frame(result.frames.at(0).bytes, *codec, 1);
     ASSERT_EQ(mesh.attributes.size(), 2u);
     EXPECT_EQ(mesh.attributes[0].name, "density");  // in the order interpolate names them
     EXPECT_EQ(mesh.attributes[1].name, "velocity");

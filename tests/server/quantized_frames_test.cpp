@@ -75,7 +75,7 @@ void expect_clean_frames(const std::vector<int>& cells_list, const std::vector<i
   options.listen = "";
   auto server = server::SurfacerServer::start(options);
   auto stub = v1::Surfacer::NewStub(server->in_process_channel());
-  ThreadExecutor executor(1);
+  const int threads = 1;
   std::map<std::string, v1::Scene> scenes;
   for (const auto& entry : std::filesystem::directory_iterator(SURFACER_SOURCE_DIR "/examples/scenes")) {
     if (entry.path().extension() == ".json") scenes[entry.path().stem().string()] = scene_from_file(entry.path());
@@ -97,7 +97,7 @@ void expect_clean_frames(const std::vector<int>& cells_list, const std::vector<i
         spec.mutable_isosurface()->set_method(method);
         v1::JobSpec lossless = spec;
         lossless.mutable_output()->set_encoding(v1::MESH_ENCODING_PLY);
-        const MeshReport source = check_mesh(decode_frame(run(lossless).bytes, FrameCodec::kPly, executor));
+        const MeshReport source = check_mesh(decode_frame(run(lossless).bytes, FrameCodec::kPly, threads));
         for (const int bits : bits_list) {
           for (const v1::MeshEncoding encoding : encodings) {
             SCOPED_TRACE(name + (method == v1::POLYGONIZER_CUBES ? " cubes " : " tiles ") + std::to_string(cells) +
@@ -108,7 +108,7 @@ void expect_clean_frames(const std::vector<int>& cells_list, const std::vector<i
             const FrameCodec codec = encoding == v1::MESH_ENCODING_DRACO          ? FrameCodec::kDraco
                                      : encoding == v1::MESH_ENCODING_DRACO_PIECES ? FrameCodec::kDracoPieces
                                                                                   : FrameCodec::kMeshopt;
-            const Mesh decoded = decode_frame(frame.bytes, codec, executor);
+            const Mesh decoded = decode_frame(frame.bytes, codec, threads);
             const MeshReport fresh = check_mesh(decoded);
             // Clean as decoded: no zero-area triangle, no two vertices at one position, and as closed and
             // manifold as the lossless frame; nothing left that the frame would have to report.
@@ -139,7 +139,7 @@ TEST(QuantizedFrames, ActiveAndOptimizeFramesAreCleanToo) {
   options.listen = "";
   auto server = server::SurfacerServer::start(options);
   auto stub = v1::Surfacer::NewStub(server->in_process_channel());
-  ThreadExecutor executor(1);
+  const int threads = 1;
   const v1::Scene sphere = scene_from_file(SURFACER_SOURCE_DIR "/examples/scenes/sphere.json");
   const v1::Scene block = scene_from_file(SURFACER_SOURCE_DIR "/examples/scenes/csg_block.json");
   std::vector<std::pair<std::string, v1::JobSpec>> specs;
@@ -174,7 +174,7 @@ TEST(QuantizedFrames, ActiveAndOptimizeFramesAreCleanToo) {
       const WatchResult result = watch_job(*stub, id);
       ASSERT_GE(result.frames.size(), 2u) << result.final_job.error().message();
       for (const auto& [index, frame] : result.frames) {
-        const Mesh decoded = decode_frame(frame.bytes, FrameCodec::kDraco, executor);
+        const Mesh decoded = decode_frame(frame.bytes, FrameCodec::kDraco, threads);
         const MeshReport fresh = check_mesh(decoded);
         EXPECT_EQ(zero_area_triangles(decoded), 0);
         EXPECT_EQ(coincident_vertices(decoded), 0);
