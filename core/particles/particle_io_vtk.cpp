@@ -14,6 +14,7 @@
 
 #include "core/particles/particle_io_detail.h"
 #include "core/util/errors.h"
+#include "core/util/text.h"
 
 namespace surfacer::particle_io_detail {
 namespace {
@@ -183,7 +184,7 @@ class LegacyReader {
         point_data = key == "POINT_DATA";
         attribute_count = cursor_.count("attribute count");
       } else if (key == "SCALARS") {
-        const std::string array = decode_name(cursor_.expect("scalars name"));
+        const std::string array = token_name_decoded(cursor_.expect("scalars name"));
         const Scalar type = scalar(cursor_.expect("scalars type"));
         std::int64_t components = 1;
         const std::string_view rest = cursor_.rest_of_line();
@@ -216,7 +217,7 @@ class LegacyReader {
         const std::int64_t n = cursor_.count("number of color components");
         read_values(attribute_count, n, binary_ ? Scalar::kU8 : Scalar::kF64, "COLOR_SCALARS", nullptr);
       } else if (key == "VECTORS" || key == "NORMALS" || key == "TENSORS" || key == "TENSORS6") {
-        const std::string array = decode_name(cursor_.expect("array name"));
+        const std::string array = token_name_decoded(cursor_.expect("array name"));
         const std::int64_t n = key == "TENSORS" ? 9 : key == "TENSORS6" ? 6 : 3;
         const bool keep = point_data && n <= Attribute::kMaxComponents;
         read_values(attribute_count, n, scalar(cursor_.expect("array type")), key, keep ? &values : nullptr);
@@ -229,7 +230,7 @@ class LegacyReader {
         cursor_.expect("field name");
         const std::int64_t arrays = cursor_.count("number of arrays");
         for (std::int64_t a = 0; a < arrays; ++a) {
-          const std::string array = decode_name(cursor_.expect("array name"));
+          const std::string array = token_name_decoded(cursor_.expect("array name"));
           if (upper(array) == "METADATA") {
             skip_metadata();
             --a;
@@ -282,26 +283,6 @@ class LegacyReader {
     for (const CellList& cells : cell_lists_)
       append_triangles(cells, points, frame.triangles, name_, where(cursor_.pos));
     return std::move(frame);
-  }
-
-  // Legacy array names are one token, with white space and '%' written %XX (vtkDataWriter); decoded here.
-  static std::string decode_name(std::string_view token) {
-    std::string out;
-    for (std::size_t i = 0; i < token.size(); ++i) {
-      const auto hex = [](char c) {
-        return c >= '0' && c <= '9'   ? c - '0'
-               : c >= 'A' && c <= 'F' ? c - 'A' + 10
-               : c >= 'a' && c <= 'f' ? c - 'a' + 10
-                                      : -1;
-      };
-      if (token[i] == '%' && i + 2 < token.size() && hex(token[i + 1]) >= 0 && hex(token[i + 2]) >= 0) {
-        out += static_cast<char>(hex(token[i + 1]) * 16 + hex(token[i + 2]));
-        i += 2;
-      } else {
-        out += token[i];
-      }
-    }
-    return out;
   }
 
   Scalar scalar(std::string_view type) const {
