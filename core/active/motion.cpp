@@ -207,13 +207,11 @@ void Motion::stage_rate(NarrowBand& band, int b, int in_ch, double t_stage, floa
         ms = std::max(ms, v.norm());
       }
     }
-    advect_rate_block(ap, u, u + kBlockNodes, u + std::ptrdiff_t{2} * kBlockNodes, inv_h_f, rate);
     if (advect_controls()) {
       // The control terms' normal speed on top of the advection: df/dt = -u . grad f + s |grad f|, each term upwinded
-      // on its own, and the block's speed is the largest |u| + |s|.
+      // on its own (one WENO pass for both), and the block's speed is the largest |u| + |s|.
       const float* speed = band.data(b, kChanSpeed);
       float* s = scratch(4, kBlockNodes);
-      float* normal_rate = scratch(5, kBlockNodes);
       std::fill_n(s, kBlockNodes, 0.0f);
       ms = 0.0;
       for (const std::uint16_t i : band.active(b)) {
@@ -221,8 +219,9 @@ void Motion::stage_rate(NarrowBand& band, int b, int in_ch, double t_stage, floa
         const Vec3 ui(u[i], u[kBlockNodes + i], u[2 * kBlockNodes + i]);
         ms = std::max(ms, ui.norm() + std::abs(static_cast<double>(speed[i])));
       }
-      normal_rate_block(ap, s, inv_h_f, normal_rate);
-      for (const std::uint16_t i : band.active(b)) rate[i] += normal_rate[i];
+      advect_normal_rate_block(ap, u, u + kBlockNodes, u + std::ptrdiff_t{2} * kBlockNodes, s, inv_h_f, rate);
+    } else {
+      advect_rate_block(ap, u, u + kBlockNodes, u + std::ptrdiff_t{2} * kBlockNodes, inv_h_f, rate);
     }
     if (max_speed != nullptr) *max_speed = ms;
   } else {
