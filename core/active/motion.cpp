@@ -67,9 +67,22 @@ void Motion::extend_speed(NarrowBand& band, const RunControl& control) {
   sampling.beta = beta_;
   sampling.curvature = beta_ > 0.0 || gamma_ > 0.0;
   sampling.max_curvature = max_curvature_;
+  const int nb = band.block_count();
+  if (!sampling.target && !sampling.curvature) {
+    // Volume control alone: the speed is the uniform volume term at every node (the crossings would carry 0 and the
+    // extension would spread it unchanged), so only the measures are taken (ALGORITHMS §4, "Control terms on top of
+    // advection").
+    measures_.set_last(band.measure(control));
+    const float v = static_cast<float>(measures_.speed(gamma_, delta_));
+    parallel_for(nb, band.threads(), [&](int b) {
+      float* s = band.data(b, kChanSpeed);
+      std::fill_n(s, kBlockNodes, kNaN);
+      for (const std::uint16_t i : band.active(b)) s[i] = v;
+    });
+    return;
+  }
   measures_.set_last(band.measure(sampling, edge_speed_, control));
   const double gterm = measures_.speed(gamma_, delta_);
-  const int nb = band.block_count();
   // Level 0: mean over the crossed incident edges.
   const float gterm_f = static_cast<float>(gterm);
   parallel_for(nb, band.threads(), [&](int b) {
