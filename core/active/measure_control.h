@@ -46,7 +46,7 @@ class MeasureControl {
   // (kbar the mean |kappa| at the sample points); infinity when neither acts.
   double stable_dt(double gamma, double delta, double cfl) const {
     double dt = std::numeric_limits<double>::infinity();
-    if (delta > 0.0 && volume0_ > 0.0 && last_.area > 0.0) dt = std::min(dt, cfl * volume0_ / (delta * last_.area));
+    if (delta > 0.0 && volume0_ > 0.0 && last_.area > 0.0) dt = std::min(dt, volume0_ / (delta * last_.area));
     if (gamma > 0.0 && area0_ > 0.0 && last_.area > 0.0 && last_.mean_abs_curvature > 0.0) {
       dt = std::min(dt, cfl * area0_ / (gamma * last_.mean_abs_curvature * last_.area));
     }
