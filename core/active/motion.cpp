@@ -73,14 +73,11 @@ void Motion::extend_speed(NarrowBand& band, const RunControl& control) {
     // extension would spread it unchanged), so only the measures are taken (ALGORITHMS §4, "Control terms on top of
     // advection").
     measures_.set_last(band.measure(control));
-    const float v = static_cast<float>(measures_.speed(gamma_, delta_));
-    parallel_for(nb, band.threads(), [&](int b) {
-      float* s = band.data(b, kChanSpeed);
-      std::fill_n(s, kBlockNodes, kNaN);
-      for (const std::uint16_t i : band.active(b)) s[i] = v;
-    });
+    uniform_control_ = advecting();
+    fill_speed(band, static_cast<float>(measures_.speed(gamma_, delta_)));
     return;
   }
+  uniform_control_ = false;
   measures_.set_last(band.measure(sampling, edge_speed_, control));
   const double gterm = measures_.speed(gamma_, delta_);
   // Level 0: mean over the crossed incident edges.
@@ -251,6 +248,24 @@ void Motion::stage_rate(NarrowBand& band, int b, int in_ch, double t_stage, floa
   }
 }
 
+void Motion::fill_speed(NarrowBand& band, float speed) {
+  parallel_for(band.block_count(), band.threads(), [&](int b) {
+    float* s = band.data(b, kChanSpeed);
+    std::fill_n(s, kBlockNodes, kNaN);
+    for (const std::uint16_t i : band.active(b)) s[i] = speed;
+  });
+}
+
+bool Motion::limit_control(double dt, NarrowBand& band) {
+  if (!uniform_control_) return false;
+  const ActiveMeasures& m = measures_.last();
+  const double v0 = measures_.reference_volume();
+  if (!(v0 > 0.0 && m.area > 0.0 && delta_ * m.area * dt > v0)) return false;
+  // The speed that moves the whole volume deficit in dt (at most the controller's own speed).
+  fill_speed(band, static_cast<float>((v0 - m.volume) / (m.area * dt)));
+  return true;
+}
+
 double Motion::stable_dt(double vmax, double h) const {
   const bool advect = advecting();
   const double cfl = cfl_;
@@ -265,7 +280,8 @@ double Motion::stable_dt(double vmax, double h) const {
     if (target_ && alpha_ > 0.0 && m.max_target_gradient > 0.0) {
       dt_stable = std::min(dt_stable, cfl / (alpha_ * m.max_target_gradient));
     }
-    dt_stable = std::min(dt_stable, measures_.stable_dt(gamma_, delta_, cfl));
+    // Volume control alone while advecting is limited in its gain instead (limit_control).
+    if (!uniform_control_) dt_stable = std::min(dt_stable, measures_.stable_dt(gamma_, delta_, cfl));
   }
   return dt_stable;
 }
