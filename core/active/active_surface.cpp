@@ -25,8 +25,10 @@
 //   rejected (recomputed with a smaller dt) when |u| at the second stage breaks the CFL limit of 1.
 // * Control terms on top of advection (not in the paper, nor in OpenVDB's LevelSetAdvection): with beta, gamma or
 //   delta (or alpha and a target) the extended normal speed s is added, df/dt = -u . grad f + s |grad f|, each term
-//   upwinded on its own, s frozen over the sub-step, the CFL speed |u| + |s|, and the controllers' step bounds as in
-//   the normal-speed modes. Volume control then holds the volume the advection scheme loses (Enright test).
+//   upwinded on its own (one WENO pass for both), s frozen over the sub-step, the CFL speed |u| + |s|, and the
+//   controllers' step bounds as in the normal-speed modes, except volume control alone: its speed is uniform (measured,
+//   not sampled or extended) and limited to move at most the volume deficit in the sub-step instead of bounding it.
+//   Volume control then holds the volume the advection scheme loses (Enright test) at about the plain run's cost.
 // * Reinitialization every reinit_interval sub-steps: d_tau = -S(d0) (|grad d| - 1) in grid units, Godunov with
 //   second-order ENO differences, pseudo-time step 1/2, ceil(2 (w - 1)) + 2 iterations over all allocated blocks. The
 //   surface must not move, and every rescaling of the nodes at a crossed edge moves the linearly interpolated

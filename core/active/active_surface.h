@@ -35,10 +35,11 @@
 //   (Borges et al. 2008): Godunov's Hamiltonian for s |grad f|, per-axis upwinding for u . grad f. Time: third-order
 //   TVD Runge-Kutta (Shu & Osher 1988) in every mode; in normal-speed modes the speed is frozen over a sub-step.
 //   Updates are Jacobi (every stage reads the previous stage only).
-// * Time step: dt = cfl * min(h / V, h^2 / (6 D), 1 / (alpha max|grad g|), V0 / (delta A), A0 / (gamma kbar A))
+// * Time step: dt = min(cfl * min(h / V, h^2 / (6 D), 1 / (alpha max|grad g|), A0 / (gamma kbar A)), V0 / (delta A))
 //   with V = max |s| (or max |u|) over the active nodes, D = beta (the coefficient of the second derivatives in
 //   -beta kappa |grad f|; the 3-D explicit bound, ALGORITHMS §4 CHOICE) and the last three the relaxation rates of
-//   the tracking, volume and area controllers (kbar = mean |kappa| at the sample points); an advecting step
+//   the tracking, area and volume controllers (kbar = mean |kappa| at the sample points; volume control alone on top
+//   of an advection is limited in gain instead of bounding dt: ALGORITHMS §4, "Controller bounds"); an advecting step
 //   also caps dt at twice the previous step and rejects a step whose second stage sees |u| dt > h. Several sub-steps
 //   per output frame; the last one is shortened to land on the frame time.
 // * Reinitialization every reinit_interval sub-steps to the clamped distance profile (PDE, second-order ENO

@@ -111,6 +111,38 @@ SURFACER_KERNEL_CLONES void advect_rate_block(const float* ap, const float* ux, 
   }
 }
 
+// The advection and the normal speed from one set of WENO differences: the same operations as advect_rate_block
+// followed by normal_rate_block and a sum, in the same order, so the result equals that sum bit for bit.
+SURFACER_KERNEL_CLONES void advect_normal_rate_block(const float* ap, const float* ux, const float* uy,
+                                                     const float* uz, const float* speed, float inv_h, float* rate) {
+  const std::ptrdiff_t strides[3] = {1, kS, kS * kS};
+  const float* u[3] = {ux, uy, uz};
+  const v8f zero = {0, 0, 0, 0, 0, 0, 0, 0}, one = {1, 1, 1, 1, 1, 1, 1, 1};
+  for (std::ptrdiff_t r = 0; r < sparse::kBlockRows; ++r) {
+    const float* row = row_start(ap, r & sparse::kBlockMask, r >> sparse::kBlockLog2);
+    const v8f s = SURFACER_LOAD8(speed + kRow * r);
+    const v8f sigma = s > 0.0f ? one : -one;
+    v8f acc = zero, g2 = zero;
+    for (int a = 0; a < 3; ++a) {
+      v8f dm, dp;
+      weno_row(row, strides[a], dm, dp);
+      const v8f ua = SURFACER_LOAD8(u[a] + kRow * r);
+      acc -= ua * (ua > 0.0f ? dm : dp);
+      const v8f sdm = sigma * dm, sdp = sigma * dp;
+      const v8f am = sdm < zero ? sdm : zero, bp = sdp > zero ? sdp : zero;
+      const v8f am2 = am * am, bp2 = bp * bp;
+      g2 += am2 > bp2 ? am2 : bp2;
+    }
+    float tmp[kRow];
+    SURFACER_STORE8(tmp, g2);
+    for (int k = 0; k < kRow; ++k) tmp[k] = std::sqrt(tmp[k]);
+    const v8f g = SURFACER_LOAD8(tmp);
+    const v8f advect_rate = acc * inv_h;
+    const v8f normal_rate = s * g * inv_h;
+    SURFACER_STORE8(rate + kRow * r, advect_rate + normal_rate);
+  }
+}
+
 #undef SURFACER_LOAD8
 #undef SURFACER_STORE8
 

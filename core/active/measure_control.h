@@ -42,11 +42,12 @@ class MeasureControl {
     if (delta > 0.0 && volume0_ > 0.0) s += delta * (volume0_ - last_.volume) / volume0_;
     return s;
   }
-  // The controls' bound on an explicit step: cfl times the smaller of V0 / (delta A) and A0 / (gamma kbar A)
+  // The controls' bound on an explicit step: the smaller of V0 / (delta A) (no cfl: with its speed frozen over the
+  // sub-step, volume control is forward Euler on V, monotone up to there) and cfl A0 / (gamma kbar A)
   // (kbar the mean |kappa| at the sample points); infinity when neither acts.
   double stable_dt(double gamma, double delta, double cfl) const {
     double dt = std::numeric_limits<double>::infinity();
-    if (delta > 0.0 && volume0_ > 0.0 && last_.area > 0.0) dt = std::min(dt, cfl * volume0_ / (delta * last_.area));
+    if (delta > 0.0 && volume0_ > 0.0 && last_.area > 0.0) dt = std::min(dt, volume0_ / (delta * last_.area));
     if (gamma > 0.0 && area0_ > 0.0 && last_.area > 0.0 && last_.mean_abs_curvature > 0.0) {
       dt = std::min(dt, cfl * area0_ / (gamma * last_.mean_abs_curvature * last_.area));
     }

@@ -67,9 +67,19 @@ void Motion::extend_speed(NarrowBand& band, const RunControl& control) {
   sampling.beta = beta_;
   sampling.curvature = beta_ > 0.0 || gamma_ > 0.0;
   sampling.max_curvature = max_curvature_;
+  const int nb = band.block_count();
+  if (!sampling.target && !sampling.curvature) {
+    // Volume control alone: the speed is the uniform volume term at every node (the crossings would carry 0 and the
+    // extension would spread it unchanged), so only the measures are taken (ALGORITHMS §4, "Control terms on top of
+    // advection").
+    measures_.set_last(band.measure(control));
+    uniform_control_ = advecting();
+    fill_speed(band, static_cast<float>(measures_.speed(gamma_, delta_)));
+    return;
+  }
+  uniform_control_ = false;
   measures_.set_last(band.measure(sampling, edge_speed_, control));
   const double gterm = measures_.speed(gamma_, delta_);
-  const int nb = band.block_count();
   // Level 0: mean over the crossed incident edges.
   const float gterm_f = static_cast<float>(gterm);
   parallel_for(nb, band.threads(), [&](int b) {
@@ -207,13 +217,11 @@ void Motion::stage_rate(NarrowBand& band, int b, int in_ch, double t_stage, floa
         ms = std::max(ms, v.norm());
       }
     }
-    advect_rate_block(ap, u, u + kBlockNodes, u + std::ptrdiff_t{2} * kBlockNodes, inv_h_f, rate);
     if (advect_controls()) {
       // The control terms' normal speed on top of the advection: df/dt = -u . grad f + s |grad f|, each term upwinded
-      // on its own, and the block's speed is the largest |u| + |s|.
+      // on its own (one WENO pass for both), and the block's speed is the largest |u| + |s|.
       const float* speed = band.data(b, kChanSpeed);
       float* s = scratch(4, kBlockNodes);
-      float* normal_rate = scratch(5, kBlockNodes);
       std::fill_n(s, kBlockNodes, 0.0f);
       ms = 0.0;
       for (const std::uint16_t i : band.active(b)) {
@@ -221,8 +229,9 @@ void Motion::stage_rate(NarrowBand& band, int b, int in_ch, double t_stage, floa
         const Vec3 ui(u[i], u[kBlockNodes + i], u[2 * kBlockNodes + i]);
         ms = std::max(ms, ui.norm() + std::abs(static_cast<double>(speed[i])));
       }
-      normal_rate_block(ap, s, inv_h_f, normal_rate);
-      for (const std::uint16_t i : band.active(b)) rate[i] += normal_rate[i];
+      advect_normal_rate_block(ap, u, u + kBlockNodes, u + std::ptrdiff_t{2} * kBlockNodes, s, inv_h_f, rate);
+    } else {
+      advect_rate_block(ap, u, u + kBlockNodes, u + std::ptrdiff_t{2} * kBlockNodes, inv_h_f, rate);
     }
     if (max_speed != nullptr) *max_speed = ms;
   } else {
@@ -239,6 +248,24 @@ void Motion::stage_rate(NarrowBand& band, int b, int in_ch, double t_stage, floa
   }
 }
 
+void Motion::fill_speed(NarrowBand& band, float speed) {
+  parallel_for(band.block_count(), band.threads(), [&](int b) {
+    float* s = band.data(b, kChanSpeed);
+    std::fill_n(s, kBlockNodes, kNaN);
+    for (const std::uint16_t i : band.active(b)) s[i] = speed;
+  });
+}
+
+bool Motion::limit_control(double dt, NarrowBand& band) {
+  if (!uniform_control_) return false;
+  const ActiveMeasures& m = measures_.last();
+  const double v0 = measures_.reference_volume();
+  if (!(v0 > 0.0 && m.area > 0.0 && delta_ * m.area * dt > v0)) return false;
+  // The speed that moves the whole volume deficit in dt (at most the controller's own speed).
+  fill_speed(band, static_cast<float>((v0 - m.volume) / (m.area * dt)));
+  return true;
+}
+
 double Motion::stable_dt(double vmax, double h) const {
   const bool advect = advecting();
   const double cfl = cfl_;
@@ -253,7 +280,8 @@ double Motion::stable_dt(double vmax, double h) const {
     if (target_ && alpha_ > 0.0 && m.max_target_gradient > 0.0) {
       dt_stable = std::min(dt_stable, cfl / (alpha_ * m.max_target_gradient));
     }
-    dt_stable = std::min(dt_stable, measures_.stable_dt(gamma_, delta_, cfl));
+    // Volume control alone while advecting is limited in its gain instead (limit_control).
+    if (!uniform_control_) dt_stable = std::min(dt_stable, measures_.stable_dt(gamma_, delta_, cfl));
   }
   return dt_stable;
 }

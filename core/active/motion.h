@@ -50,10 +50,18 @@ class Motion {
   // advect_controls()) the tension's and the controllers' bounds (ALGORITHMS §4, "Time step"); infinity when nothing
   // bounds it.
   double stable_dt(double vmax, double h) const;
+  // Volume control alone on top of an advection (its speed uniform, set by extend_speed): when the controller's speed
+  // would move more than the volume deficit in a sub-step of dt, sets the speed that moves exactly the deficit and
+  // returns true (the stage-1 rate must then be computed again); else false. stable_dt then leaves out the volume
+  // bound (ALGORITHMS §4, "Controller bounds").
+  bool limit_control(double dt, NarrowBand& band);
   // cfl, or 1 when the options fix the sub-step count.
   double cfl() const { return cfl_; }
 
  private:
+  // `speed` at the active nodes of kChanSpeed, NaN elsewhere.
+  static void fill_speed(NarrowBand& band, float speed);
+
   double alpha_, beta_, gamma_, delta_;
   double max_curvature_;  // units of 1/h
   double cfl_;
@@ -64,6 +72,7 @@ class Motion {
   int velocity_cache_ = -1;      // first of the 3 channels caching spatial(x) (NaN: not evaluated), or -1
   int advect_rate_ = -1;         // the stage-1 rate's channel under advect_controls(), or -1 before its first use
   MeasureControl measures_;
+  bool uniform_control_ = false;  // the last extend_speed set the uniform volume speed while advecting
   std::vector<std::vector<float>> edge_speed_;  // per block (band blocks): speed per (node, axis), NaN: none
 };
 

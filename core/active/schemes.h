@@ -78,4 +78,9 @@ void normal_rate_block(const float* ap, const float* speed, float inv_h, float* 
 // Advection: rate = -u . grad f, upwind per axis; u given per node (3 arrays).
 void advect_rate_block(const float* ap, const float* ux, const float* uy, const float* uz, float inv_h, float* rate);
 
+// Both (the control terms on top of an advection): rate = -u . grad f + s |grad f|, each term upwinded on its own as
+// above, from one WENO pass; equal bit for bit to advect_rate_block's rate plus normal_rate_block's.
+void advect_normal_rate_block(const float* ap, const float* ux, const float* uy, const float* uz, const float* speed,
+                              float inv_h, float* rate);
+
 }  // namespace surfacer::active_detail

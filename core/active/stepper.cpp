@@ -129,34 +129,42 @@ Stepper::SubStep Stepper::step(double dt_limit, NarrowBand& band, Motion& motion
   // Stage 1: L(f) (into A in normal-speed modes; when advecting into Speed, free unless it holds the control speed,
   // else into the extra channel, so that a rejected step can restart from it), with the maxima for the time step.
   const int rate_ch = advect ? advect_rate_channel : kChanA;
-  control.check();
-  parallel_for(nb, band.threads(), [&](int b) {
-    const float* f = band.data(b, kChanF);
-    float* out = band.data(b, rate_ch);
-    std::copy_n(f, kBlockNodes, out);
-    if (band.active(b).empty()) return;
-    float* rate = scratch(3, kBlockNodes);
-    motion.stage_rate(band, b, kChanF, time_, rate, &block_max_speed[b]);
-    double mr = 0.0;
-    for (const std::uint16_t i : band.active(b)) {
-      out[i] = rate[i];
-      mr = std::max(mr, static_cast<double>(std::abs(rate[i])));
-    }
-    block_max_rate[b] = mr;
-  });
   double vmax = 0.0, rmax = 0.0;
-  for (int b = 0; b < nb; ++b) {
-    vmax = std::max(vmax, block_max_speed[b]);
-    rmax = std::max(rmax, block_max_rate[b]);
-  }
-  last_max_speed_ = vmax;
-  last_max_dfdt_ = rmax;
+  auto stage_one = [&] {
+    control.check();
+    parallel_for(nb, band.threads(), [&](int b) {
+      const float* f = band.data(b, kChanF);
+      float* out = band.data(b, rate_ch);
+      std::copy_n(f, kBlockNodes, out);
+      if (band.active(b).empty()) return;
+      float* rate = scratch(3, kBlockNodes);
+      motion.stage_rate(band, b, kChanF, time_, rate, &block_max_speed[b]);
+      double mr = 0.0;
+      for (const std::uint16_t i : band.active(b)) {
+        out[i] = rate[i];
+        mr = std::max(mr, static_cast<double>(std::abs(rate[i])));
+      }
+      block_max_rate[b] = mr;
+    });
+    vmax = 0.0;
+    rmax = 0.0;
+    for (int b = 0; b < nb; ++b) {
+      vmax = std::max(vmax, block_max_speed[b]);
+      rmax = std::max(rmax, block_max_rate[b]);
+    }
+    last_max_speed_ = vmax;
+    last_max_dfdt_ = rmax;
+  };
+  stage_one();
   double dt_stable = motion.stable_dt(vmax, band.frame().spacing());
   // A time-dependent velocity may grow within the step: at most double the previous step, and the stages reject
   // the step when the velocity they see breaks the CFL bound.
   if (advect && last_dt_ > 0.0) dt_stable = std::min(dt_stable, 2.0 * last_dt_);
   double dt = std::min(dt_limit, dt_stable);
   if (!std::isfinite(dt)) dt = cfl * band.frame().spacing();  // nothing moves: any step leaves f unchanged
+  // A volume control that would overshoot in dt moves the deficit exactly instead: stage 1 again with its speed (no
+  // faster than before, so dt keeps within the CFL bound).
+  if (advect && motion.limit_control(dt, band)) stage_one();
 
   dt = runge_kutta(dt, rate_ch, band, motion, control);
   last_dt_ = dt;
