@@ -660,8 +660,16 @@ struct Grid {
   std::array<double, 3> dims{};
 };
 
-// The grid whose cells hold about kRegionTriangles triangles each (a surface crossing a cell of edge L has about L^2
-// of area in it), at most kMaxCells per axis, or nullopt when the mesh holds fewer than two regions' worth.
+std::pair<std::vector<std::uint32_t>, std::uint32_t> assign_regions(const Mesh& mesh,
+                                                                    const std::vector<Triangle>& triangles,
+                                                                    const Grid& grid, double shift);
+
+// The grid whose cells hold about kRegionTriangles triangles each, at most kMaxCells per axis, or nullopt when the
+// mesh holds fewer than two regions' worth. The first guess assumes one sheet of surface per cell (a surface
+// crossing a cell of edge L has about L^2 of area in it); while the occupied cells then hold more than 1.5 times
+// the target on average (a surface folded into several sheets per cell, as a gyroid), the edge shrinks by the square
+// root of the excess (docs/ALGORITHMS.md §5 CHOICE "Decimation": regions larger than a core's cache are slower per
+// collapse).
 std::optional<Grid> region_grid(const Mesh& mesh) {
   const std::size_t n = mesh.triangles.size();
   if (static_cast<double>(n) < 2.0 * kRegionTriangles) return std::nullopt;
@@ -675,10 +683,19 @@ std::optional<Grid> region_grid(const Mesh& mesh) {
     const Vec3 &a = mesh.vertices[t[0]], &b = mesh.vertices[t[1]], &c = mesh.vertices[t[2]];
     area += 0.5 * (b - a).cross(c - a).norm();
   }
-  Grid grid{lo, std::sqrt(kRegionTriangles * area / static_cast<double>(n)), {}};
-  grid.edge = std::max(grid.edge, (hi - lo).maxCoeff() / kMaxCells);
+  const double smallest = (hi - lo).maxCoeff() / kMaxCells;
+  Grid grid{lo, std::max(std::sqrt(kRegionTriangles * area / static_cast<double>(n)), smallest), {}};
   if (!(grid.edge > 0.0) || !std::isfinite(grid.edge)) return std::nullopt;
-  for (int a = 0; a < 3; ++a) grid.dims[a] = std::floor((hi[a] - lo[a]) / grid.edge) + 2.0;  // room for the shift
+  const auto size = [&] {
+    for (int a = 0; a < 3; ++a) grid.dims[a] = std::floor((hi[a] - lo[a]) / grid.edge) + 2.0;  // room for the shift
+  };
+  size();
+  for (int refine = 0; refine < 3 && grid.edge > smallest; ++refine) {
+    const double mean = static_cast<double>(n) / assign_regions(mesh, mesh.triangles, grid, 0.0).second;
+    if (mean <= 1.5 * kRegionTriangles) break;
+    grid.edge = std::max(grid.edge * std::sqrt(kRegionTriangles / mean), smallest);
+    size();
+  }
   return grid;
 }
 

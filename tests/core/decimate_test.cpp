@@ -257,6 +257,27 @@ TEST(Decimate, SameMeshWithOneOrTwoThreads) {
   }
 }
 
+// A surface folded into several sheets per region cell (a gyroid): its regions still hold about 8 k triangles each
+// (at most 1.5 times that on average), and the guarantees and the thread independence hold across their seams.
+TEST(Decimate, FoldedSurfaceGetsRegionsOfTheTargetSize) {
+  const FieldPtr field =
+      make_csg(CsgOp::kIntersection, {make_gyroid(1.0, 0.12), make_sphere(Vec3::Zero(), 1.5)});
+  const Mesh mesh = testing::polygonized(field, Polygonizer::kCubes, 96);
+  const double tolerance = 0.004;
+  const SurfacePointRule rule = zero_set_rule(*field, tolerance);
+  DecimateStats one, two;
+  const Mesh a = decimate(mesh, {.tolerance = tolerance, .threads = 1}, rule, {}, &one);
+  const Mesh b = decimate(mesh, {.tolerance = tolerance, .threads = 2}, rule, {}, &two);
+  std::printf("folded gyroid: %zu -> %zu triangles, %zu regions\n", mesh.triangles.size(), a.triangles.size(),
+              one.regions);
+  EXPECT_GE(static_cast<double>(one.regions), static_cast<double>(mesh.triangles.size()) / (1.5 * 8192.0));
+  EXPECT_EQ(a.vertices, b.vertices);
+  EXPECT_EQ(a.triangles, b.triangles);
+  EXPECT_LT(a.triangles.size(), mesh.triangles.size());
+  EXPECT_TRUE(mesh_has(check_mesh(a), kClosedManifold));
+  EXPECT_LE(largest_vertex_distance(mesh, a, 2.0 * tolerance), tolerance * (1.0 + 1e-9));
+}
+
 // An open mesh of several regions: its boundary stays exactly as it was (boundary vertices are locked, and so are
 // vertices shared by regions until the last pass), the rest stays manifold and within the tolerance.
 TEST(Decimate, OpenMeshKeepsItsBoundaryAcrossRegions) {
