@@ -64,6 +64,23 @@ constexpr std::ptrdiff_t kS = kApronSide;
 constexpr std::ptrdiff_t kRow = sparse::kBlockSize;  // a row of a block along x: one v8f
 static_assert(sizeof(v8f) == kRow * sizeof(float), "a block row is one 8-float vector");
 
+// Adds to g2 the square of Godunov's upwind difference along one axis for the sign `sigma` of the normal speed.
+SURFACER_ALWAYS_INLINE void add_godunov_square(const v8f& sigma, const v8f& dm, const v8f& dp, v8f& g2) {
+  const v8f zero = {0, 0, 0, 0, 0, 0, 0, 0};
+  const v8f sdm = sigma * dm, sdp = sigma * dp;
+  const v8f a = sdm < zero ? sdm : zero, b = sdp > zero ? sdp : zero;
+  const v8f a2 = a * a, b2 = b * b;
+  g2 += a2 > b2 ? a2 : b2;
+}
+
+// The square root of every lane of x into out (scalar sqrt: the same IEEE result in every build).
+SURFACER_ALWAYS_INLINE void sqrt_lanes(const v8f& x, v8f& out) {
+  float tmp[kRow];
+  SURFACER_STORE8(tmp, x);
+  for (int k = 0; k < kRow; ++k) tmp[k] = std::sqrt(tmp[k]);
+  out = SURFACER_LOAD8(tmp);
+}
+
 const float* row_start(const float* ap, std::ptrdiff_t y, std::ptrdiff_t z) {
   return ap + 3 + kS * ((y + 3) + kS * (z + 3));
 }
@@ -81,15 +98,10 @@ SURFACER_KERNEL_CLONES void normal_rate_block(const float* ap, const float* spee
     for (const std::ptrdiff_t st : strides) {
       v8f dm, dp;
       weno_row(row, st, dm, dp);
-      const v8f sdm = sigma * dm, sdp = sigma * dp;
-      const v8f a = sdm < zero ? sdm : zero, b = sdp > zero ? sdp : zero;
-      const v8f a2 = a * a, b2 = b * b;
-      g2 += a2 > b2 ? a2 : b2;
+      add_godunov_square(sigma, dm, dp, g2);
     }
-    float tmp[kRow];
-    SURFACER_STORE8(tmp, g2);
-    for (int k = 0; k < kRow; ++k) tmp[k] = std::sqrt(tmp[k]);
-    const v8f g = SURFACER_LOAD8(tmp);
+    v8f g;
+    sqrt_lanes(g2, g);
     SURFACER_STORE8(rate + kRow * r, s * g * inv_h);
   }
 }
@@ -113,8 +125,8 @@ SURFACER_KERNEL_CLONES void advect_rate_block(const float* ap, const float* ux, 
 
 // The advection and the normal speed from one set of WENO differences: the same operations as advect_rate_block
 // followed by normal_rate_block and a sum, in the same order, so the result equals that sum bit for bit.
-SURFACER_KERNEL_CLONES void advect_normal_rate_block(const float* ap, const float* ux, const float* uy,
-                                                     const float* uz, const float* speed, float inv_h, float* rate) {
+SURFACER_KERNEL_CLONES void advect_normal_rate_block(const float* ap, const float* ux, const float* uy, const float* uz,
+                                                     const float* speed, float inv_h, float* rate) {
   const std::ptrdiff_t strides[3] = {1, kS, kS * kS};
   const float* u[3] = {ux, uy, uz};
   const v8f zero = {0, 0, 0, 0, 0, 0, 0, 0}, one = {1, 1, 1, 1, 1, 1, 1, 1};
@@ -128,15 +140,10 @@ SURFACER_KERNEL_CLONES void advect_normal_rate_block(const float* ap, const floa
       weno_row(row, strides[a], dm, dp);
       const v8f ua = SURFACER_LOAD8(u[a] + kRow * r);
       acc -= ua * (ua > 0.0f ? dm : dp);
-      const v8f sdm = sigma * dm, sdp = sigma * dp;
-      const v8f am = sdm < zero ? sdm : zero, bp = sdp > zero ? sdp : zero;
-      const v8f am2 = am * am, bp2 = bp * bp;
-      g2 += am2 > bp2 ? am2 : bp2;
+      add_godunov_square(sigma, dm, dp, g2);
     }
-    float tmp[kRow];
-    SURFACER_STORE8(tmp, g2);
-    for (int k = 0; k < kRow; ++k) tmp[k] = std::sqrt(tmp[k]);
-    const v8f g = SURFACER_LOAD8(tmp);
+    v8f g;
+    sqrt_lanes(g2, g);
     const v8f advect_rate = acc * inv_h;
     const v8f normal_rate = s * g * inv_h;
     SURFACER_STORE8(rate + kRow * r, advect_rate + normal_rate);
