@@ -27,6 +27,13 @@ using sparse::neighbor_slot;
 constexpr double kInf = std::numeric_limits<double>::infinity();
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
+// Whether an active node of the block has no speed yet (NaN in `speed`).
+bool speed_missing(const std::vector<std::uint16_t>& active, const float* speed) {
+  bool missing = false;
+  for (const std::uint16_t i : active) missing |= std::isnan(speed[i]);
+  return missing;
+}
+
 }  // namespace
 
 Motion::Motion(const ActiveSurfaceOptions& options)
@@ -130,9 +137,7 @@ void Motion::extend_speed(NarrowBand& band, const RunControl& control) {
       const float* s = band.data(b, kChanSpeed);
       float* out = band.data(b, kChanA);
       std::copy_n(s, kBlockNodes, out);
-      bool need = false;
-      for (const std::uint16_t i : band.active(b)) need |= std::isnan(s[i]);
-      if (!need) return;
+      if (!speed_missing(band.active(b), s)) return;
       constexpr int G = 1;
       constexpr std::ptrdiff_t S = apron_side<G>();
       float* ap = scratch(0, S * S * S);
@@ -161,9 +166,7 @@ void Motion::extend_speed(NarrowBand& band, const RunControl& control) {
   // Fallback: the speed at the node itself.
   parallel_for(nb, band.threads(), [&](int b) {
     float* s = band.data(b, kChanSpeed);
-    bool need = false;
-    for (const std::uint16_t i : band.active(b)) need |= std::isnan(s[i]);
-    if (!need) return;
+    if (!speed_missing(band.active(b), s)) return;
     constexpr int G = 1;
     constexpr std::ptrdiff_t S = apron_side<G>();
     float* ap = scratch(0, S * S * S);
