@@ -20,6 +20,7 @@
 #include "core/util/checks.h"
 #include "core/util/errors.h"
 #include "core/util/format.h"
+#include "core/util/memory.h"
 #include "core/util/parallel.h"
 
 namespace surfacer {
@@ -1153,11 +1154,11 @@ class Smoother {
     place();
     // What the sweeps needed goes before the cleanup stage: the final offsets and the band are all that is read later.
     smoothing_.reset();
-    normals_ = {};
-    lo_ = {};
-    hi_ = {};
-    container_lo_ = {};
-    container_hi_ = {};
+    release(normals_);
+    release(lo_);
+    release(hi_);
+    release(container_lo_);
+    release(container_hi_);
   }
 
   // Step 7, when asked for.
@@ -1360,7 +1361,7 @@ class Smoother {
         }
       }
     });
-    cusp_ = {};
+    release(cusp_);
   }
 
   // x = x0 + t n (and the container solid, which wins over the band).
@@ -1574,6 +1575,7 @@ void ParticleSurfacer::State::smooth(Mesh& mesh, int threads, const RunControl& 
   Clock::time_point t0 = Clock::now();
   mesh.normals.clear();
   Smoother smoother(mesh, o, particles, threads);
+  return_free_memory();  // the 1-ring's buckets
   stats.initial_min_valence = min_valence(smoother.ring());
   smoother.laplacian(control);
   stats.seconds_laplacian = seconds_since(t0);
@@ -1585,6 +1587,7 @@ void ParticleSurfacer::State::smooth(Mesh& mesh, int threads, const RunControl& 
   stats.seconds_bilaplacian = seconds_since(t0);
   t0 = Clock::now();
   smoother.polish(control, stats);
+  return_free_memory();
   stats.seconds_polish = seconds_since(t0);
   if (o.erosion && *o.erosion > 0.0) {
     t0 = Clock::now();
@@ -1636,11 +1639,15 @@ Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const d
 
   Clock::time_point t0 = Clock::now();
   distance_field(input, radii, threads, control, stats);
+  // Each stage's scratch goes back to the system before the next one's arrays (docs/ALGORITHMS.md §1, CHOICE
+  // "memory returned between stages").
+  return_free_memory();
   stats.seconds_distance_field = seconds_since(t0);
   if (particles.positions.empty()) return finish({});
 
   t0 = Clock::now();
   Mesh mesh = polygonize(threads, control, stats);
+  return_free_memory();  // the tiles' block outputs: many small blocks, which the smoothing's arrays would not reuse
   stats.seconds_polygonize = seconds_since(t0);
   if (initial_only) {
     stats.initial_min_valence = min_valence(ps::one_ring(mesh.vertices.size(), mesh.triangles, threads));
