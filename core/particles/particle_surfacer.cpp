@@ -159,7 +159,10 @@ std::optional<HeldCusp> lowest_cusp(const Vec3& x, const Vec3& n, double cell, s
 }
 
 struct Particles {
-  std::vector<Vec3> positions;
+  // The particles in use, in input order: a view of the caller's array for the run, or of `edited` once coincident
+  // particles were merged or small components dropped (no copy of the input otherwise).
+  std::span<const Vec3> positions;
+  std::vector<Vec3> edited;
   std::vector<double> inner, outer;            // per particle; empty when uniform
   std::vector<double> slot_inner, slot_outer;  // the same in hash slot order (weighted search)
   bool weighted = false;
@@ -167,6 +170,12 @@ struct Particles {
   double min_inner = 0.0, max_inner = 0.0, max_outer = 0.0;
   Aabb box;
   SpatialHash hash;
+
+  // `kept` becomes the particles in use.
+  void replace_positions(std::vector<Vec3> kept) {
+    edited = std::move(kept);
+    positions = edited;
+  }
 
   // `reach`: the largest query radius (the field's r_outer + band).
   void index(double reach) {
@@ -909,8 +918,9 @@ std::vector<std::uint32_t> merge_coincident(Particles& P, double tolerance, cons
     P.outer = std::move(outer);
     P.min_inner = *std::min_element(P.inner.begin(), P.inner.end());
   }
-  for (std::size_t k = 0; k < kept; ++k) P.positions[k] = P.positions[groups.kept[k]];  // kept[k] >= k
-  P.positions.resize(kept);
+  std::vector<Vec3> positions(kept);
+  for (std::size_t k = 0; k < kept; ++k) positions[k] = P.positions[groups.kept[k]];
+  P.replace_positions(std::move(positions));
   return weight;
 }
 
@@ -1499,7 +1509,8 @@ void ParticleSurfacer::State::distance_field(std::span<const Vec3> input, std::s
   stats.spacing = h;
   P.r_inner = r_inner;
   P.r_outer = r_outer;
-  P.positions.assign(input.begin(), input.end());
+  P.positions = input;
+  release(P.edited);  // a previous frame's
   P.inner.clear();
   P.outer.clear();
   if (P.weighted) {
@@ -1527,9 +1538,11 @@ void ParticleSurfacer::State::distance_field(std::span<const Vec3> input, std::s
         filter_components(P, o.min_particles_per_component, weight, stats.components_dropped, control);
     if (stats.components_dropped > 0) {
       std::size_t k = 0;
+      std::vector<Vec3> positions;
+      positions.reserve(static_cast<std::size_t>(std::count(keep.begin(), keep.end(), 1)));
       for (std::size_t i = 0; i < P.positions.size(); ++i) {
         if (!keep[i]) continue;
-        P.positions[k] = P.positions[i];
+        positions.push_back(P.positions[i]);
         if (P.weighted) {
           P.inner[k] = P.inner[i];
           P.outer[k] = P.outer[i];
@@ -1537,7 +1550,7 @@ void ParticleSurfacer::State::distance_field(std::span<const Vec3> input, std::s
         if (!weight.empty()) weight[k] = weight[i];
         ++k;
       }
-      P.positions.resize(k);
+      P.replace_positions(std::move(positions));
       if (P.weighted) {
         P.inner.resize(k);
         P.outer.resize(k);
