@@ -1162,11 +1162,10 @@ class Smoother {
     }
     std::copy(t.begin(), t.end(), offsets_.begin());
     place();
-    // What the sweeps needed goes before the cleanup stage: the final offsets and the band are all that is read later.
+    // What the sweeps needed goes before the cleanup stage: the final offsets and the band (lo_, hi_ and the
+    // exceptions) are all that is read later.
     smoothing_.reset();
     release(normals_);
-    release(lo_);
-    release(hi_);
     release(container_lo_);
     release(container_hi_);
   }
@@ -1229,8 +1228,7 @@ class Smoother {
   // longest 1-ring edge of its start; the root mean square edge (summed per vertex, then in vertex order) sets the
   // descent's passes.
   void intervals(std::vector<Vec3>& x0, const RunControl& control, ParticleSurfacingStats& stats) {
-    band_lo_.resize(vertex_count_);
-    band_hi_.resize(vertex_count_);
+    std::mutex exceptions_mutex;
     lo_.resize(vertex_count_);
     hi_.resize(vertex_count_);
     if (container_.box) {  // else every vertex's container interval is the whole line, and none is stored
@@ -1246,6 +1244,7 @@ class Smoother {
       control.check();
       BandScratch scratch;
       std::size_t lowered = 0;
+      std::vector<BandException> exceptions;
       for (std::size_t i = begin; i < end; ++i) {
         if (((i - begin) & 63) == 63) control.check();
         const Vec3& at = positions_[i];  // where step 3 left it
@@ -1308,8 +1307,6 @@ class Smoother {
             ++lowered;
           }
         }
-        band_lo_[i] = band.lo;
-        band_hi_[i] = band.hi;
         double container_lo = -kInf, container_hi = kInf;
         if (container_.box) {
           for (int a = 0; a < 3; ++a) {
@@ -1326,9 +1323,16 @@ class Smoother {
         lo_[i] = std::max(band.lo, container_lo);
         hi_[i] = std::min(hi, container_hi);
         if (lo_[i] > hi_[i]) lo_[i] = hi_[i] = std::clamp(0.0, container_lo, container_hi);  // the wall wins
+        if (band.lo != lo_[i] || band.hi != hi_[i]) {
+          exceptions.push_back({static_cast<std::uint32_t>(i), band.lo, band.hi});
+        }
       }
       cusp_vertices += lowered;
+      const std::lock_guard lock(exceptions_mutex);
+      band_exceptions_.insert(band_exceptions_.end(), exceptions.begin(), exceptions.end());
     });
+    std::sort(band_exceptions_.begin(), band_exceptions_.end(),
+              [](const BandException& a, const BandException& b) { return a.vertex < b.vertex; });
     stats.cusp_vertices = cusp_vertices.load();
     if (cusps) {
       double total = 0.0;
@@ -1366,8 +1370,12 @@ class Smoother {
         if (!(facing > 0.0 && facing >= kCuspFacing * axis.norm())) continue;  // none near, or facing away
         const double move = std::clamp((cusp_[i].offset() - axis.dot(positions_[i])) / facing, lo_[i], hi_[i]);
         positions_[i] += move * normals_[i];
-        for (Buffer<double>* bound : {&lo_, &hi_, &band_lo_, &band_hi_, &container_lo_, &container_hi_}) {
+        for (Buffer<double>* bound : {&lo_, &hi_, &container_lo_, &container_hi_}) {
           if (!bound->empty()) (*bound)[i] -= move;  // the container's are empty without a box (the whole line)
+        }
+        if (BandException* band = band_exception(i)) {
+          band->lo -= move;
+          band->hi -= move;
         }
       }
     });
@@ -1390,8 +1398,15 @@ class Smoother {
     const std::span<const double> t = smoothing_ ? smoothing_->offsets() : std::span<const double>(offsets_);
     std::size_t good = 0;
     double worst = 0.0;
+    auto exception = band_exceptions_.begin();
     for (std::size_t i = 0; i < vertex_count_; ++i) {
-      const double v = std::max({band_lo_[i] - t[i], t[i] - band_hi_[i], 0.0});
+      double band_lo = lo_[i], band_hi = hi_[i];
+      if (exception != band_exceptions_.end() && exception->vertex == i) {
+        band_lo = exception->lo;
+        band_hi = exception->hi;
+        ++exception;
+      }
+      const double v = std::max({band_lo - t[i], t[i] - band_hi, 0.0});
       good += v == 0.0;
       worst = std::max(worst, v);
     }
@@ -1459,7 +1474,20 @@ class Smoother {
   double rms_edge_ = 0.0;   // of the mesh at step 4
   std::optional<ps::OffsetSmoothing> smoothing_;
   std::vector<double> offsets_;  // polish: the offsets before its sweeps, then the final ones (the smoothing is gone)
-  Buffer<double> lo_, hi_, band_lo_, band_hi_, container_lo_, container_hi_;
+  // Per vertex, its interval of offsets for the constrained sweeps, and the container box's (empty without one).
+  Buffer<double> lo_, hi_, container_lo_, container_hi_;
+  // Its band interval, stored only where it differs from (lo_, hi_): a cusp below the band's upper end, or a wall
+  // (7 % of the block's vertices), sorted by vertex.
+  struct BandException {
+    std::uint32_t vertex;
+    double lo, hi;
+  };
+  std::vector<BandException> band_exceptions_;
+  BandException* band_exception(std::size_t vertex) {
+    const auto it = std::lower_bound(band_exceptions_.begin(), band_exceptions_.end(), vertex,
+                                     [](const BandException& e, std::size_t v) { return e.vertex < v; });
+    return it != band_exceptions_.end() && it->vertex == vertex ? &*it : nullptr;
+  }
 };
 
 }  // namespace
