@@ -389,8 +389,7 @@ OffsetSmoothing::OffsetSmoothing(const Graph& ring, std::span<const Triangle> tr
       z_(ring.rows()) {
   w_.resize(ring.cols.size());
   assemble_cotangent(
-      x0, triangles, ring, threads, control, [&](std::uint32_t e, float w) { w_[e] = w; }, w_diag_,
-      inv_area_);
+      x0, triangles, ring, threads, control, [&](std::uint32_t e, float w) { w_[e] = w; }, w_diag_, inv_area_);
   pack([&](std::uint32_t e) { return w_[e]; }, threads);
 }
 

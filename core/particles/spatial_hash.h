@@ -181,8 +181,8 @@ class SpatialHash {
   std::vector<std::uint32_t> group_start_;
   std::vector<std::uint8_t> cell_offset_;
   std::vector<std::uint32_t> wide_start_;
-  std::vector<Cell> cells_;                // sparse: occupied cells in cell order
-  std::vector<std::uint32_t> table_;       // sparse: power-of-two open-addressing table of indices into cells_
+  std::vector<Cell> cells_;           // sparse: occupied cells in cell order
+  std::vector<std::uint32_t> table_;  // sparse: power-of-two open-addressing table of indices into cells_
   std::uint64_t mask_ = 0;
 };
 
