@@ -408,8 +408,7 @@ void OffsetSmoothing::pack(W&& w_of, int threads) {
         d += w * c;
       }
       // inv_diag 0: a vertex without area does not move.
-      rows_[i] = {normals_[i].cast<float>(), static_cast<float>(c_diag), static_cast<float>(w_diag_[i]),
-                  d > 0.0 ? static_cast<float>(1.0 / d) : 0.0f};
+      rows_[i] = {normals_[i].cast<float>(), d > 0.0 ? static_cast<float>(1.0 / d) : 0.0f};
     }
   });
 }
@@ -443,7 +442,7 @@ void OffsetSmoothing::sweep(std::span<const double> lo, std::span<const double> 
     const Row& row = rows_[i];
     if (row.inv_diag == 0.0f) return;
     const std::uint32_t begin = ring_.offsets[i], end = ring_.offsets[i + 1];
-    float grad = row.c_diag * row.normal.dot(z_[i]);
+    float grad = diagonal_coefficient(i) * row.normal.dot(z_[i]);
     for (std::uint32_t e = begin; e < end; ++e) grad += coefficient(e) * row.normal.dot(z_[ring_.cols[e]]);
     double next = t[i] - static_cast<double>(step * grad * row.inv_diag);
     if (bounded) next = std::clamp(next, lo[i], hi[i]);
@@ -451,7 +450,7 @@ void OffsetSmoothing::sweep(std::span<const double> lo, std::span<const double> 
     if (delta == 0.0) return;
     t[i] = next;
     const Eigen::Vector3f dn = static_cast<float>(delta) * row.normal;
-    z_[i] += row.w_diag * dn;
+    z_[i] += static_cast<float>(w_diag_[i]) * dn;
     for (std::uint32_t e = begin; e < end; ++e) z_[ring_.cols[e]] += w_[e] * dn;
   };
   parallel_for(static_cast<int>(plan_.blocks()), threads, [&](int b) {

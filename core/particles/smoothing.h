@@ -112,17 +112,18 @@ class OffsetSmoothing {
   template <class W>
   void pack(W&& w_of, int threads);
 
-  // What one update reads: per vertex its normal, W_ii / D_ii, W_ii and 1 / B_ii (packed); per ring entry W_ik
-  // (aligned with ring.cols), and W_ik / D_kk from it and 1 / D_kk (coefficient(), not stored: the matrix's largest
-  // array would be twice as large).
+  // What one update reads: per vertex its normal and 1 / B_ii (packed), W_ii and 1 / D_ii; per ring entry W_ik
+  // (aligned with ring.cols). W_ik / D_kk and W_ii / D_ii are formed from them as the sweep uses them (coefficient(),
+  // diagonal_coefficient()), not stored: the same floats in half the bytes.
   struct Row {
     Eigen::Vector3f normal;
-    float c_diag, w_diag, inv_diag;
+    float inv_diag;
   };
   // W_ik / D_kk for ring entry e (column k), rounded to float as the sweep uses it.
   float coefficient(std::uint32_t e) const {
     return static_cast<float>(static_cast<double>(w_[e]) * inv_area_[ring_.cols[e]]);
   }
+  float diagonal_coefficient(std::size_t i) const { return static_cast<float>(w_diag_[i] * inv_area_[i]); }
   const Graph& ring_;
   Buffer<Row> rows_;
   Buffer<float> w_;
