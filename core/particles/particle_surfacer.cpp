@@ -20,6 +20,7 @@
 #include "core/util/checks.h"
 #include "core/util/errors.h"
 #include "core/util/format.h"
+#include "core/util/memory.h"
 #include "core/util/parallel.h"
 
 namespace surfacer {
@@ -158,7 +159,10 @@ std::optional<HeldCusp> lowest_cusp(const Vec3& x, const Vec3& n, double cell, s
 }
 
 struct Particles {
-  std::vector<Vec3> positions;
+  // The particles in use, in input order: a view of the caller's array for the run, or of `edited` once coincident
+  // particles were merged or small components dropped (no copy of the input otherwise).
+  std::span<const Vec3> positions;
+  std::vector<Vec3> edited;
   std::vector<double> inner, outer;            // per particle; empty when uniform
   std::vector<double> slot_inner, slot_outer;  // the same in hash slot order (weighted search)
   bool weighted = false;
@@ -166,6 +170,12 @@ struct Particles {
   double min_inner = 0.0, max_inner = 0.0, max_outer = 0.0;
   Aabb box;
   SpatialHash hash;
+
+  // `kept` becomes the particles in use.
+  void replace_positions(std::vector<Vec3> kept) {
+    edited = std::move(kept);
+    positions = edited;
+  }
 
   // `reach`: the largest query radius (the field's r_outer + band).
   void index(double reach) {
@@ -908,8 +918,9 @@ std::vector<std::uint32_t> merge_coincident(Particles& P, double tolerance, cons
     P.outer = std::move(outer);
     P.min_inner = *std::min_element(P.inner.begin(), P.inner.end());
   }
-  for (std::size_t k = 0; k < kept; ++k) P.positions[k] = P.positions[groups.kept[k]];  // kept[k] >= k
-  P.positions.resize(kept);
+  std::vector<Vec3> positions(kept);
+  for (std::size_t k = 0; k < kept; ++k) positions[k] = P.positions[groups.kept[k]];
+  P.replace_positions(std::move(positions));
   return weight;
 }
 
@@ -1151,13 +1162,12 @@ class Smoother {
     }
     std::copy(t.begin(), t.end(), offsets_.begin());
     place();
-    // What the sweeps needed goes before the cleanup stage: the final offsets and the band are all that is read later.
+    // What the sweeps needed goes before the cleanup stage: the final offsets and the band (lo_, hi_ and the
+    // exceptions) are all that is read later.
     smoothing_.reset();
-    normals_ = {};
-    lo_ = {};
-    hi_ = {};
-    container_lo_ = {};
-    container_hi_ = {};
+    release(normals_);
+    release(container_lo_);
+    release(container_hi_);
   }
 
   // Step 7, when asked for.
@@ -1218,8 +1228,7 @@ class Smoother {
   // longest 1-ring edge of its start; the root mean square edge (summed per vertex, then in vertex order) sets the
   // descent's passes.
   void intervals(std::vector<Vec3>& x0, const RunControl& control, ParticleSurfacingStats& stats) {
-    band_lo_.resize(vertex_count_);
-    band_hi_.resize(vertex_count_);
+    std::mutex exceptions_mutex;
     lo_.resize(vertex_count_);
     hi_.resize(vertex_count_);
     if (container_.box) {  // else every vertex's container interval is the whole line, and none is stored
@@ -1235,6 +1244,7 @@ class Smoother {
       control.check();
       BandScratch scratch;
       std::size_t lowered = 0;
+      std::vector<BandException> exceptions;
       for (std::size_t i = begin; i < end; ++i) {
         if (((i - begin) & 63) == 63) control.check();
         const Vec3& at = positions_[i];  // where step 3 left it
@@ -1297,8 +1307,6 @@ class Smoother {
             ++lowered;
           }
         }
-        band_lo_[i] = band.lo;
-        band_hi_[i] = band.hi;
         double container_lo = -kInf, container_hi = kInf;
         if (container_.box) {
           for (int a = 0; a < 3; ++a) {
@@ -1315,9 +1323,16 @@ class Smoother {
         lo_[i] = std::max(band.lo, container_lo);
         hi_[i] = std::min(hi, container_hi);
         if (lo_[i] > hi_[i]) lo_[i] = hi_[i] = std::clamp(0.0, container_lo, container_hi);  // the wall wins
+        if (band.lo != lo_[i] || band.hi != hi_[i]) {
+          exceptions.push_back({static_cast<std::uint32_t>(i), band.lo, band.hi});
+        }
       }
       cusp_vertices += lowered;
+      const std::lock_guard lock(exceptions_mutex);
+      band_exceptions_.insert(band_exceptions_.end(), exceptions.begin(), exceptions.end());
     });
+    std::sort(band_exceptions_.begin(), band_exceptions_.end(),
+              [](const BandException& a, const BandException& b) { return a.vertex < b.vertex; });
     stats.cusp_vertices = cusp_vertices.load();
     if (cusps) {
       double total = 0.0;
@@ -1355,12 +1370,16 @@ class Smoother {
         if (!(facing > 0.0 && facing >= kCuspFacing * axis.norm())) continue;  // none near, or facing away
         const double move = std::clamp((cusp_[i].offset() - axis.dot(positions_[i])) / facing, lo_[i], hi_[i]);
         positions_[i] += move * normals_[i];
-        for (Buffer<double>* bound : {&lo_, &hi_, &band_lo_, &band_hi_, &container_lo_, &container_hi_}) {
+        for (Buffer<double>* bound : {&lo_, &hi_, &container_lo_, &container_hi_}) {
           if (!bound->empty()) (*bound)[i] -= move;  // the container's are empty without a box (the whole line)
+        }
+        if (BandException* band = band_exception(i)) {
+          band->lo -= move;
+          band->hi -= move;
         }
       }
     });
-    cusp_ = {};
+    release(cusp_);
   }
 
   // x = x0 + t n (and the container solid, which wins over the band).
@@ -1379,8 +1398,15 @@ class Smoother {
     const std::span<const double> t = smoothing_ ? smoothing_->offsets() : std::span<const double>(offsets_);
     std::size_t good = 0;
     double worst = 0.0;
+    auto exception = band_exceptions_.begin();
     for (std::size_t i = 0; i < vertex_count_; ++i) {
-      const double v = std::max({band_lo_[i] - t[i], t[i] - band_hi_[i], 0.0});
+      double band_lo = lo_[i], band_hi = hi_[i];
+      if (exception != band_exceptions_.end() && exception->vertex == i) {
+        band_lo = exception->lo;
+        band_hi = exception->hi;
+        ++exception;
+      }
+      const double v = std::max({band_lo - t[i], t[i] - band_hi, 0.0});
       good += v == 0.0;
       worst = std::max(worst, v);
     }
@@ -1448,7 +1474,20 @@ class Smoother {
   double rms_edge_ = 0.0;   // of the mesh at step 4
   std::optional<ps::OffsetSmoothing> smoothing_;
   std::vector<double> offsets_;  // polish: the offsets before its sweeps, then the final ones (the smoothing is gone)
-  Buffer<double> lo_, hi_, band_lo_, band_hi_, container_lo_, container_hi_;
+  // Per vertex, its interval of offsets for the constrained sweeps, and the container box's (empty without one).
+  Buffer<double> lo_, hi_, container_lo_, container_hi_;
+  // Its band interval, stored only where it differs from (lo_, hi_): a cusp below the band's upper end, or a wall
+  // (7 % of the block's vertices), sorted by vertex.
+  struct BandException {
+    std::uint32_t vertex;
+    double lo, hi;
+  };
+  std::vector<BandException> band_exceptions_;
+  BandException* band_exception(std::size_t vertex) {
+    const auto it = std::lower_bound(band_exceptions_.begin(), band_exceptions_.end(), vertex,
+                                     [](const BandException& e, std::size_t v) { return e.vertex < v; });
+    return it != band_exceptions_.end() && it->vertex == vertex ? &*it : nullptr;
+  }
 };
 
 }  // namespace
@@ -1498,7 +1537,8 @@ void ParticleSurfacer::State::distance_field(std::span<const Vec3> input, std::s
   stats.spacing = h;
   P.r_inner = r_inner;
   P.r_outer = r_outer;
-  P.positions.assign(input.begin(), input.end());
+  P.positions = input;
+  release(P.edited);  // a previous frame's
   P.inner.clear();
   P.outer.clear();
   if (P.weighted) {
@@ -1526,9 +1566,11 @@ void ParticleSurfacer::State::distance_field(std::span<const Vec3> input, std::s
         filter_components(P, o.min_particles_per_component, weight, stats.components_dropped, control);
     if (stats.components_dropped > 0) {
       std::size_t k = 0;
+      std::vector<Vec3> positions;
+      positions.reserve(static_cast<std::size_t>(std::count(keep.begin(), keep.end(), 1)));
       for (std::size_t i = 0; i < P.positions.size(); ++i) {
         if (!keep[i]) continue;
-        P.positions[k] = P.positions[i];
+        positions.push_back(P.positions[i]);
         if (P.weighted) {
           P.inner[k] = P.inner[i];
           P.outer[k] = P.outer[i];
@@ -1536,7 +1578,7 @@ void ParticleSurfacer::State::distance_field(std::span<const Vec3> input, std::s
         if (!weight.empty()) weight[k] = weight[i];
         ++k;
       }
-      P.positions.resize(k);
+      P.replace_positions(std::move(positions));
       if (P.weighted) {
         P.inner.resize(k);
         P.outer.resize(k);
@@ -1574,6 +1616,7 @@ void ParticleSurfacer::State::smooth(Mesh& mesh, int threads, const RunControl& 
   Clock::time_point t0 = Clock::now();
   mesh.normals.clear();
   Smoother smoother(mesh, o, particles, threads);
+  return_free_memory();  // the 1-ring's buckets
   stats.initial_min_valence = min_valence(smoother.ring());
   smoother.laplacian(control);
   stats.seconds_laplacian = seconds_since(t0);
@@ -1585,6 +1628,7 @@ void ParticleSurfacer::State::smooth(Mesh& mesh, int threads, const RunControl& 
   stats.seconds_bilaplacian = seconds_since(t0);
   t0 = Clock::now();
   smoother.polish(control, stats);
+  return_free_memory();
   stats.seconds_polish = seconds_since(t0);
   if (o.erosion && *o.erosion > 0.0) {
     t0 = Clock::now();
@@ -1636,11 +1680,15 @@ Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const d
 
   Clock::time_point t0 = Clock::now();
   distance_field(input, radii, threads, control, stats);
+  // Each stage's scratch goes back to the system before the next one's arrays (docs/ALGORITHMS.md §1, CHOICE
+  // "memory returned between stages").
+  return_free_memory();
   stats.seconds_distance_field = seconds_since(t0);
   if (particles.positions.empty()) return finish({});
 
   t0 = Clock::now();
   Mesh mesh = polygonize(threads, control, stats);
+  return_free_memory();  // the tiles' block outputs: many small blocks, which the smoothing's arrays would not reuse
   stats.seconds_polygonize = seconds_since(t0);
   if (initial_only) {
     stats.initial_min_valence = min_valence(ps::one_ring(mesh.vertices.size(), mesh.triangles, threads));

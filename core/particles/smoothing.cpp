@@ -374,7 +374,7 @@ OffsetSmoothing::OffsetSmoothing(const Graph& ring, Cotangent cotangent, std::sp
       plan_(plan_two_ring_sweeps(ring, blocks, threads)),
       offsets_(ring.rows(), 0.0),
       z_(ring.rows()) {
-  entries_.resize(cotangent.w.size());
+  w_.resize(cotangent.w.size());
   pack([&](std::uint32_t e) { return cotangent.w[e]; }, threads);
 }
 
@@ -387,11 +387,10 @@ OffsetSmoothing::OffsetSmoothing(const Graph& ring, std::span<const Triangle> tr
       plan_(plan_two_ring_sweeps(ring, blocks, threads)),
       offsets_(ring.rows(), 0.0),
       z_(ring.rows()) {
-  entries_.resize(ring.cols.size());
+  w_.resize(ring.cols.size());
   assemble_cotangent(
-      x0, triangles, ring, threads, control, [&](std::uint32_t e, float w) { entries_[e].w = w; }, w_diag_,
-      inv_area_);
-  pack([&](std::uint32_t e) { return entries_[e].w; }, threads);
+      x0, triangles, ring, threads, control, [&](std::uint32_t e, float w) { w_[e] = w; }, w_diag_, inv_area_);
+  pack([&](std::uint32_t e) { return w_[e]; }, threads);
 }
 
 template <class W>
@@ -405,12 +404,11 @@ void OffsetSmoothing::pack(W&& w_of, int threads) {
       double d = w_diag_[i] * c_diag;
       for (std::uint32_t e = ring.offsets[i]; e < ring.offsets[i + 1]; ++e) {
         const double w = w_of(e), c = w * inv_area_[ring.cols[e]];
-        entries_[e] = {static_cast<float>(c), static_cast<float>(w)};
+        w_[e] = static_cast<float>(w);
         d += w * c;
       }
       // inv_diag 0: a vertex without area does not move.
-      rows_[i] = {normals_[i].cast<float>(), static_cast<float>(c_diag), static_cast<float>(w_diag_[i]),
-                  d > 0.0 ? static_cast<float>(1.0 / d) : 0.0f};
+      rows_[i] = {normals_[i].cast<float>(), d > 0.0 ? static_cast<float>(1.0 / d) : 0.0f};
     }
   });
 }
@@ -425,7 +423,7 @@ void OffsetSmoothing::update_z(int threads) {
       Vec3 z = w_diag_[k] * (x0_[k] + t[k] * normals_[k]);
       for (std::uint32_t e = ring_.offsets[k]; e < ring_.offsets[k + 1]; ++e) {
         const std::uint32_t j = ring_.cols[e];
-        z += static_cast<double>(entries_[e].w) * (x0_[j] + t[j] * normals_[j]);
+        z += static_cast<double>(w_[e]) * (x0_[j] + t[j] * normals_[j]);
       }
       z_[k] = z.cast<float>();
     }
@@ -444,16 +442,16 @@ void OffsetSmoothing::sweep(std::span<const double> lo, std::span<const double> 
     const Row& row = rows_[i];
     if (row.inv_diag == 0.0f) return;
     const std::uint32_t begin = ring_.offsets[i], end = ring_.offsets[i + 1];
-    float grad = row.c_diag * row.normal.dot(z_[i]);
-    for (std::uint32_t e = begin; e < end; ++e) grad += entries_[e].c * row.normal.dot(z_[ring_.cols[e]]);
+    float grad = diagonal_coefficient(i) * row.normal.dot(z_[i]);
+    for (std::uint32_t e = begin; e < end; ++e) grad += coefficient(e) * row.normal.dot(z_[ring_.cols[e]]);
     double next = t[i] - static_cast<double>(step * grad * row.inv_diag);
     if (bounded) next = std::clamp(next, lo[i], hi[i]);
     const double delta = next - t[i];
     if (delta == 0.0) return;
     t[i] = next;
     const Eigen::Vector3f dn = static_cast<float>(delta) * row.normal;
-    z_[i] += row.w_diag * dn;
-    for (std::uint32_t e = begin; e < end; ++e) z_[ring_.cols[e]] += entries_[e].w * dn;
+    z_[i] += static_cast<float>(w_diag_[i]) * dn;
+    for (std::uint32_t e = begin; e < end; ++e) z_[ring_.cols[e]] += w_[e] * dn;
   };
   parallel_for(static_cast<int>(plan_.blocks()), threads, [&](int b) {
     for (std::uint32_t s = plan_.block_begin[b]; s < plan_.block_begin[b + 1]; ++s) update(plan_.interior[s]);
@@ -480,7 +478,7 @@ double OffsetSmoothing::energy(std::span<const double> t) const {
     Vec3 z = w_diag_[k] * (x0_[k] + t[k] * normals_[k]);
     for (std::uint32_t f = ring_.offsets[k]; f < ring_.offsets[k + 1]; ++f) {
       const std::uint32_t j = ring_.cols[f];
-      z += static_cast<double>(entries_[f].w) * (x0_[j] + t[j] * normals_[j]);
+      z += static_cast<double>(w_[f]) * (x0_[j] + t[j] * normals_[j]);
     }
     e += inv_area_[k] * z.squaredNorm();
   }

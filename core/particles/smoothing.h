@@ -108,22 +108,25 @@ class OffsetSmoothing {
 
  private:
   void update_z(int threads);
-  // rows_ and entries_ from W (w_of(e), ring entry e), w_diag_, inv_area_ and the normals; entries_ sized.
+  // rows_ and w_ from W (w_of(e), ring entry e), w_diag_, inv_area_ and the normals; w_ sized.
   template <class W>
   void pack(W&& w_of, int threads);
 
-  // What one update reads, packed so that a sweep streams two arrays besides t and the bounds: per vertex its normal,
-  // W_ii / D_ii, W_ii and 1 / B_ii; per ring entry W_ik / D_kk and W_ik (aligned with ring.cols).
+  // What one update reads: per vertex its normal and 1 / B_ii (packed), W_ii and 1 / D_ii; per ring entry W_ik
+  // (aligned with ring.cols). W_ik / D_kk and W_ii / D_ii are formed from them as the sweep uses them (coefficient(),
+  // diagonal_coefficient()), not stored: the same floats in half the bytes.
   struct Row {
     Eigen::Vector3f normal;
-    float c_diag, w_diag, inv_diag;
+    float inv_diag;
   };
-  struct Entry {
-    float c, w;
-  };
+  // W_ik / D_kk for ring entry e (column k), rounded to float as the sweep uses it.
+  float coefficient(std::uint32_t e) const {
+    return static_cast<float>(static_cast<double>(w_[e]) * inv_area_[ring_.cols[e]]);
+  }
+  float diagonal_coefficient(std::size_t i) const { return static_cast<float>(w_diag_[i] * inv_area_[i]); }
   const Graph& ring_;
   Buffer<Row> rows_;
-  Buffer<Entry> entries_;
+  Buffer<float> w_;
   Buffer<double> w_diag_, inv_area_;
   std::span<const Vec3> x0_, normals_;
   SweepPlan plan_;

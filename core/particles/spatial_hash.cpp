@@ -19,7 +19,9 @@ void SpatialHash::build(std::span<const Vec3> points, double cell_size) {
   }
   points_.clear();
   order_.clear();
-  cell_start_.clear();
+  group_start_.clear();
+  cell_offset_.clear();
+  wide_start_.clear();
   cells_.clear();
   table_.clear();
   occupied_cells_ = 0;
@@ -66,23 +68,42 @@ void SpatialHash::build(std::span<const Vec3> points, double cell_size) {
     // Counting sort by linear cell index (x fastest), stable in input order.
     const std::size_t cells = static_cast<std::size_t>(total);
     std::vector<std::uint32_t> cell_of_point(n);
-    cell_start_.assign(cells + 1, 0);
+    std::vector<std::uint32_t> cell_start(cells + 1, 0);
     for (std::size_t i = 0; i < n; ++i) {
       int c[3];
       cell_of(points[i], c);
       const std::size_t id = (static_cast<std::size_t>(c[2]) * dims_[1] + c[1]) * dims_[0] + c[0];
       cell_of_point[i] = static_cast<std::uint32_t>(id);
-      ++cell_start_[id + 1];
+      ++cell_start[id + 1];
     }
     for (std::size_t c = 0; c < cells; ++c) {
-      occupied_cells_ += cell_start_[c + 1] != 0;
-      cell_start_[c + 1] += cell_start_[c];
+      occupied_cells_ += cell_start[c + 1] != 0;
+      cell_start[c + 1] += cell_start[c];
     }
-    std::vector<std::uint32_t> fill(cell_start_.begin(), cell_start_.end() - 1);
-    for (std::size_t i = 0; i < n; ++i) {
-      const std::uint32_t s = fill[cell_of_point[i]]++;
-      points_[s] = points[i];
-      order_[s] = static_cast<std::uint32_t>(i);
+    {
+      std::vector<std::uint32_t> fill(cell_start.begin(), cell_start.end() - 1);
+      for (std::size_t i = 0; i < n; ++i) {
+        const std::uint32_t s = fill[cell_of_point[i]]++;
+        points_[s] = points[i];
+        order_[s] = static_cast<std::uint32_t>(i);
+      }
+    }
+    // The compact offsets when every group's points fit a byte.
+    const std::size_t groups = (cells >> kGroupBits) + 1;  // the end offset (index `cells`) has a group too
+    bool narrow = true;
+    for (std::size_t g = 0; g < groups && narrow; ++g) {
+      const std::size_t last = std::min(cells, ((g + 1) << kGroupBits) - 1);
+      narrow = cell_start[last] - cell_start[g << kGroupBits] <= 0xFFu;
+    }
+    if (!narrow) {
+      wide_start_ = std::move(cell_start);
+      return;
+    }
+    group_start_.resize(groups);
+    cell_offset_.resize(cells + 1);
+    for (std::size_t g = 0; g < groups; ++g) group_start_[g] = cell_start[g << kGroupBits];
+    for (std::size_t c = 0; c <= cells; ++c) {
+      cell_offset_[c] = static_cast<std::uint8_t>(cell_start[c] - group_start_[c >> kGroupBits]);
     }
     return;
   }
@@ -126,7 +147,8 @@ void SpatialHash::build(std::span<const Vec3> points, double cell_size) {
 
 std::size_t SpatialHash::memory_bytes() const {
   return points_.capacity() * sizeof(Vec3) + order_.capacity() * sizeof(std::uint32_t) +
-         cell_start_.capacity() * sizeof(std::uint32_t) + cells_.capacity() * sizeof(Cell) +
+         group_start_.capacity() * sizeof(std::uint32_t) + cell_offset_.capacity() +
+         wide_start_.capacity() * sizeof(std::uint32_t) + cells_.capacity() * sizeof(Cell) +
          table_.capacity() * sizeof(std::uint32_t);
 }
 

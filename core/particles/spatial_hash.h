@@ -3,8 +3,10 @@
 //
 // Points are copied in cell order (counting sort by cell, stable by input index), so points that are near in space are
 // near in memory and a query touches a few short contiguous ranges. Cells are addressed either
-//   * densely: one uint32 start offset per cell of the points' bounding box, used while the box holds at most
-//     8 cells per point (+ 4096), so a row of cells along x is one contiguous range; or
+//   * densely: a start offset per cell of the points' bounding box, used while the box holds at most 8 cells per point
+//     (+ 4096), so a row of cells along x is one contiguous range. The offsets are stored compactly: one uint32 per
+//     group of 32 cells and one byte per cell counting from it (about 1.1 bytes per cell), or one uint32 per cell
+//     when some group holds more than 255 points; or
 //   * sparsely: an open-addressing hash table of occupied cells only, for scattered data (spray, a few points far from
 //     the rest) where a dense box would waste memory. Memory is then O(points), whatever the extent.
 // Queries are const and thread-safe. Coordinates must be finite.
@@ -109,8 +111,8 @@ class SpatialHash {
       for (int k = c0[2]; k <= c1[2]; ++k) {
         for (int j = c0[1]; j <= c1[1]; ++j) {
           const std::size_t row = (static_cast<std::size_t>(k) * dims_[1] + j) * dims_[0];
-          const std::uint32_t begin = cell_start_[row + c0[0]];
-          const std::uint32_t end = cell_start_[row + c1[0] + 1];
+          const std::uint32_t begin = cell_start(row + c0[0]);
+          const std::uint32_t end = cell_start(row + c1[0] + 1);
           if (begin < end && !call(begin, end)) return false;
         }
       }
@@ -145,6 +147,11 @@ class SpatialHash {
     std::uint32_t begin = 0, end = 0;
   };
   static constexpr std::uint32_t kEmpty = 0xFFFFFFFFu;
+  static constexpr int kGroupBits = 5;  // cells per group of the compact dense offsets: 32
+  // Dense: the slot of the first point of linear cell c (c up to the cell count: the end).
+  std::uint32_t cell_start(std::size_t c) const {
+    return wide_start_.empty() ? group_start_[c >> kGroupBits] + cell_offset_[c] : wide_start_[c];
+  }
   static std::uint64_t hash(std::int32_t i, std::int32_t j, std::int32_t k) {
     std::uint64_t h = static_cast<std::uint32_t>(i) * 0x9E3779B185EBCA87ull;
     h ^= static_cast<std::uint32_t>(j) * 0xC2B2AE3D27D4EB4Full;
@@ -169,9 +176,13 @@ class SpatialHash {
   int dims_[3] = {0, 0, 0};
   bool dense_ = true;
   std::size_t occupied_cells_ = 0;
-  std::vector<std::uint32_t> cell_start_;  // dense: dims product + 1 offsets
-  std::vector<Cell> cells_;                // sparse: occupied cells in cell order
-  std::vector<std::uint32_t> table_;       // sparse: power-of-two open-addressing table of indices into cells_
+  // Dense: per group of cells, its first slot, and per cell (dims product + 1) its first slot less its group's; or,
+  // when a group holds more than 255 points, every cell's first slot in wide_start_ (the other two empty).
+  std::vector<std::uint32_t> group_start_;
+  std::vector<std::uint8_t> cell_offset_;
+  std::vector<std::uint32_t> wide_start_;
+  std::vector<Cell> cells_;           // sparse: occupied cells in cell order
+  std::vector<std::uint32_t> table_;  // sparse: power-of-two open-addressing table of indices into cells_
   std::uint64_t mask_ = 0;
 };
 

@@ -86,6 +86,23 @@ TEST(SpatialHash, DenseLayoutMatchesBruteForce) {
   check_against_brute_force(random_points(3000, 1.0, 1), 0.1, 1.5, true);
 }
 
+TEST(SpatialHash, DenseLayoutWithCrowdedCellsMatchesBruteForce) {
+  // 3000 points in 27 cells: a group of cells holds more than a byte's count, so every cell keeps a full offset.
+  check_against_brute_force(random_points(3000, 0.14, 5), 0.1, 1.5, true);
+}
+
+TEST(SpatialHash, DenseOffsetsTakeAboutAByteACell) {
+  const std::vector<Vec3> points = random_points(3000, 1.0, 6);
+  const double cell = 0.08;
+  const SpatialHash hash(points, cell);
+  ASSERT_TRUE(hash.dense());
+  const Aabb box = Aabb::of(points);
+  double cells = 1.0;
+  for (int a = 0; a < 3; ++a) cells *= std::floor((box.max[a] - box.min[a]) / cell) + 1.0;
+  const double per_point = sizeof(Vec3) + sizeof(std::uint32_t);  // the sorted copy and the order
+  EXPECT_LE(static_cast<double>(hash.memory_bytes()), per_point * points.size() + 1.2 * cells + 64.0);
+}
+
 TEST(SpatialHash, SparseLayoutMatchesBruteForce) {
   const std::vector<Vec3> points = clump_and_spray(2);
   check_against_brute_force(points, 0.1, 1.5, false);
