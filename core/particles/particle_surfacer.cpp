@@ -1678,6 +1678,12 @@ Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const d
   check_inputs(input, radii);
   if (input.empty()) return finish({});
 
+  // particles.positions views `input` (the caller's) for this run only: the view goes when the run returns or throws,
+  // so a surfacer kept for the next frame holds no pointer into this one's array.
+  struct ForgetInput {
+    Particles& P;
+    ~ForgetInput() { P.positions = {}; }
+  } forget_input{particles};
   Clock::time_point t0 = Clock::now();
   distance_field(input, radii, threads, control, stats);
   // Each stage's scratch goes back to the system before the next one's arrays (docs/ALGORITHMS.md §1, CHOICE
