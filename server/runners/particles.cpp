@@ -17,6 +17,15 @@
 namespace surfacer::server {
 namespace {
 
+// The memory a frame's particles take while it is surfaced, besides its mesh (TaskMemory::kParticleBytes).
+std::int64_t particle_bytes(const wire::ParticleData& data) {
+  const auto particles = static_cast<std::int64_t>(data.positions.size());
+  std::int64_t bytes = particles * TaskMemory::kParticleBytes;
+  if (!data.radii.empty()) bytes += particles * TaskMemory::kWeightedParticleBytes;
+  for (const Attribute& a : data.attributes) bytes += static_cast<std::int64_t>(a.values.size() * sizeof(float));
+  return bytes;
+}
+
 class ParticlesRunner final : public JobRunner {
  public:
   ParticlesRunner(v1::ParticlesJob job, std::vector<std::vector<std::string>> interpolate,
@@ -111,6 +120,7 @@ class ParticlesRunner final : public JobRunner {
     ParticleSurfacingStats stats;
     TaskMemory memory(limits_, memory_, "particles frame " + std::to_string(index),
                       task_bytes_per_triangle(frame_maker_, TaskMemory::kMeshWorkBytesPerTriangle));
+    memory.reserve_fixed(particle_bytes(data));
     const RunControl task = memory.control(control);
     Mesh mesh = surface_particles(data.positions, data.radii, options, task, &stats);
     control.check();

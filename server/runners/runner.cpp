@@ -30,7 +30,9 @@ void TaskMemory::reserve_triangles(std::int64_t triangles) {
 void TaskMemory::grow_locked() {
   if (budget_ == nullptr) return;
   const std::int64_t bytes = fixed_bytes_ + triangles_ * bytes_per_triangle_;
-  const std::string what = what_ + " (a mesh of up to " + std::to_string(triangles_) + " triangles)";
+  const std::string what = what_ + " (" +
+                           (fixed_bytes_ > 0 ? std::to_string(fixed_bytes_) + " bytes of working memory and " : "") +
+                           "a mesh of up to " + std::to_string(triangles_) + " triangles)";
   if (reservation_.bytes() == 0) {
     reservation_ = budget_->reserve(bytes, what);
   } else {

@@ -108,6 +108,13 @@ class TaskMemory {
   // 256 cells (cubes, 2.1 M triangles, TOL 0.002), 38 at 200 cells (tiles, 4.2 M), 16 for a 256 k-particle block
   // (1.19 M triangles, TOL 0.0006), whose smoothing arrays are freed before.
   static constexpr std::int64_t kDecimateBytesPerTriangle = 96;
+  // Particle frames reserve this per particle as well (reserve_fixed, before surfacing), since a frame's particles can
+  // take more memory than its triangles (a deep block, or many coincident particles): the decoded positions (24 bytes)
+  // and the surfacer's spatial hash (sorted copy 24, order 4, cell directory about 5), with room for its scratch.
+  // Per-particle radii add kWeightedParticleBytes (decoded, then inner and outer in input and hash order); interpolated
+  // attributes add their decoded floats.
+  static constexpr std::int64_t kParticleBytes = 64;
+  static constexpr std::int64_t kWeightedParticleBytes = 40;
 
   // `what` names the task in a refusal ("isosurface frame 3"); bytes_per_triangle: one of the two above (plus the third
   // when decimating; task_bytes_per_triangle); budget null: nothing is reserved.

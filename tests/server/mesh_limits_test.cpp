@@ -1,17 +1,19 @@
 // Jobs that build meshes are bounded before the work: polygonization stops as soon as its triangles pass
 // --max-triangles (RESOURCE_EXHAUSTED naming the flag, the count reached and the fix) instead of building the whole
-// mesh and counting it; a task's mesh memory is reserved from --memory-budget as it grows, so a job past the budget
-// fails naming it while a job alongside goes on; a cancel during optimize's subdivision frees the worker quickly.
-// Memory is read from /proc/<pid>/status of a surfacer-server process.
+// mesh and counting it; a task's mesh memory (and a particle frame's particles) is reserved from --memory-budget as it
+// grows, so a job past the budget fails naming it while a job alongside goes on; a cancel during optimize's subdivision
+// frees the worker quickly. Memory is read from /proc/<pid>/status of a surfacer-server process.
 #include <gtest/gtest.h>
 
 #include <chrono>
 #include <string>
 #include <thread>
 
+#include "server/runners/runner.h"
 #include "tests/server/test_client.h"
 #include "tests/support/files.h"
 #include "tests/support/server_process.h"
+#include "tests/support/test_meshes.h"
 
 namespace surfacer::testing {
 namespace {
@@ -143,6 +145,63 @@ TEST(MeshLimits, DecimatedFramesReserveTheDecimatorsMemoryToo) {
     EXPECT_EQ(refused.error().code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << refused.error().message();
     EXPECT_NE(refused.error().message().find("--memory-budget"), std::string::npos) << refused.error().message();
   }
+}
+
+// A particle frame reserves its particles' memory besides its mesh's (TaskMemory::kParticleBytes): a small ball
+// whose particles come many times over (merged as coincident: the mesh is the ball's) fails under a budget the ball
+// alone runs in, naming --memory-budget and the frame, and runs under one that holds its particles too.
+TEST(MeshLimits, ParticleFramesReserveTheirParticlesToo) {
+  const double d = 0.05;
+  const std::vector<Vec3> ball = particle_ball(Vec3::Zero(), 0.25, d, 3);
+  const auto job = [&](int copies) {
+    v1::JobSpec spec;
+    v1::ParticlesJob* particles = spec.mutable_particles();
+    particles->set_r_inner(0.6 * d);
+    particles->set_spacing_factor(3.0);  // a coarse mesh: few triangles for many particles
+    v1::ParticleFrame* frame = particles->add_frames();
+    for (int k = 0; k < copies; ++k) {
+      for (const Vec3& p : ball) {
+        for (int a = 0; a < 3; ++a) frame->add_positions(static_cast<float>(p[a]));
+      }
+    }
+    return spec;
+  };
+  // The ball's triangles, from a run without a budget.
+  std::int64_t triangles = 0;
+  {
+    LoopbackServer s;
+    const v1::Job done = run_job(*s.stub, job(1));
+    ASSERT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED) << done.error().message();
+    std::string id;
+    ASSERT_TRUE(submit(*s.stub, job(1), &id).ok());
+    const WatchResult watched = watch_job(*s.stub, id);
+    ASSERT_EQ(watched.frames.size(), 1u);
+    triangles = watched.frames.at(0).header.stats().triangles();
+  }
+  ASSERT_GT(triangles, 500);
+  // Room for the ball's largest mesh (the initial one: at most 4x the final), its particles and the job's WatchJob
+  // stream; far below what the copies' particles take.
+  const std::int64_t ball_bytes = static_cast<std::int64_t>(ball.size()) * server::TaskMemory::kParticleBytes;
+  const std::int64_t budget = 4 * triangles * server::TaskMemory::kMeshWorkBytesPerTriangle + ball_bytes + 4 * kMiB;
+  const int copies = static_cast<int>(2 * budget / ball_bytes) + 1;
+  SCOPED_TRACE("ball " + std::to_string(ball.size()) + " particles, " + std::to_string(triangles) +
+               " triangles; budget " + std::to_string(budget >> 20) + " MiB; copies " + std::to_string(copies));
+  auto options = LoopbackServer::default_options();
+  options.limits.memory_budget_bytes = budget;
+  {
+    LoopbackServer s(options);
+    const v1::Job alone = run_job(*s.stub, job(1));
+    EXPECT_EQ(alone.state(), v1::JOB_STATE_SUCCEEDED) << alone.error().message();
+    const v1::Job refused = run_job(*s.stub, job(copies));
+    ASSERT_EQ(refused.state(), v1::JOB_STATE_FAILED);
+    EXPECT_EQ(refused.error().code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << refused.error().message();
+    EXPECT_NE(refused.error().message().find("--memory-budget"), std::string::npos) << refused.error().message();
+    EXPECT_NE(refused.error().message().find("particles frame 0"), std::string::npos) << refused.error().message();
+  }
+  options.limits.memory_budget_bytes = budget + copies * ball_bytes;
+  LoopbackServer s(options);
+  const v1::Job done = run_job(*s.stub, job(copies));
+  EXPECT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED) << done.error().message();
 }
 
 // Optimize with subdivision everywhere (threshold 1e-12) and a large budget, cancelled at several moments of its
