@@ -10,6 +10,7 @@
 // Queries are const and thread-safe. Coordinates must be finite.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -96,15 +97,10 @@ class SpatialHash {
         return true;
       }
     };
-    if (points_.empty()) return true;
-    int c0[3], c1[3];
-    for (int a = 0; a < 3; ++a) {
-      const double l = std::floor((lo[a] - origin_[a]) * inv_cell_);
-      const double h = std::floor((hi[a] - origin_[a]) * inv_cell_);
-      if (!(h >= 0.0) || !(l < static_cast<double>(dims_[a]))) return true;  // also rejects NaN
-      c0[a] = l < 0.0 ? 0 : static_cast<int>(l);
-      c1[a] = h >= static_cast<double>(dims_[a]) ? dims_[a] - 1 : static_cast<int>(h);
-    }
+    const std::optional<CellBox> box = cell_box(lo, hi);
+    if (!box) return true;
+    const int* c0 = box->lo;
+    const int* c1 = box->hi;
     if (dense_) {
       for (int k = c0[2]; k <= c1[2]; ++k) {
         for (int j = c0[1]; j <= c1[1]; ++j) {
@@ -136,6 +132,33 @@ class SpatialHash {
     return true;
   }
 
+  // The cells for_each_range(lo, hi) visits, as inclusive ranges of cell coordinates per axis; nullopt when the box
+  // misses the grid (or is NaN).
+  struct CellBox {
+    int lo[3], hi[3];
+  };
+  std::optional<CellBox> cell_box(const Eigen::Array3d& lo, const Eigen::Array3d& hi) const {
+    if (points_.empty()) return std::nullopt;
+    CellBox box;
+    for (int a = 0; a < 3; ++a) {
+      const double l = std::floor((lo[a] - origin_[a]) * inv_cell_);
+      const double h = std::floor((hi[a] - origin_[a]) * inv_cell_);
+      if (!(h >= 0.0) || !(l < static_cast<double>(dims_[a]))) return std::nullopt;  // also rejects NaN
+      box.lo[a] = l < 0.0 ? 0 : static_cast<int>(l);
+      box.hi[a] = h >= static_cast<double>(dims_[a]) ? dims_[a] - 1 : static_cast<int>(h);
+    }
+    return box;
+  }
+  // Whether sorted_points()[slot] lies in one of the cells of `box`: whether for_each_range over the box that made it
+  // visits that slot.
+  bool in_cells(const CellBox& box, std::uint32_t slot) const {
+    for (int a = 0; a < 3; ++a) {
+      const int c = cell_coordinate(points_[slot][a], a);
+      if (c < box.lo[a] || c > box.hi[a]) return false;
+    }
+    return true;
+  }
+
   std::span<const Vec3> sorted_points() const { return points_; }
   std::span<const std::uint32_t> order() const { return order_; }
 
@@ -145,6 +168,10 @@ class SpatialHash {
     std::uint32_t begin = 0, end = 0;
   };
   static constexpr std::uint32_t kEmpty = 0xFFFFFFFFu;
+  // The cell coordinate along `axis` of a point of the grid, clamped: the top face of the box rounds into the last cell.
+  int cell_coordinate(double v, int axis) const {
+    return std::clamp(static_cast<int>((v - origin_[axis]) * inv_cell_), 0, dims_[axis] - 1);
+  }
   static std::uint64_t hash(std::int32_t i, std::int32_t j, std::int32_t k) {
     std::uint64_t h = static_cast<std::uint32_t>(i) * 0x9E3779B185EBCA87ull;
     h ^= static_cast<std::uint32_t>(j) * 0xC2B2AE3D27D4EB4Full;
