@@ -137,12 +137,15 @@ class SpatialHash {
   struct CellBox {
     int lo[3], hi[3];
   };
-  std::optional<CellBox> cell_box(const Eigen::Array3d& lo, const Eigen::Array3d& hi) const {
+  // Inlined into every query (for_each_range is their inner loop).
+  [[gnu::always_inline]] std::optional<CellBox> cell_box(const Eigen::Array3d& lo, const Eigen::Array3d& hi) const {
     if (points_.empty()) return std::nullopt;
     CellBox box;
     for (int a = 0; a < 3; ++a) {
-      const double l = std::floor((lo[a] - origin_[a]) * inv_cell_);
-      const double h = std::floor((hi[a] - origin_[a]) * inv_cell_);
+      // In cells from the origin; the floor of l and h is taken by truncation where they are >= 0, the only place an
+      // integer is taken of them (the comparisons with 0 and dims give the same answers for l, h and their floors).
+      const double l = (lo[a] - origin_[a]) * inv_cell_;
+      const double h = (hi[a] - origin_[a]) * inv_cell_;
       if (!(h >= 0.0) || !(l < static_cast<double>(dims_[a]))) return std::nullopt;  // also rejects NaN
       box.lo[a] = l < 0.0 ? 0 : static_cast<int>(l);
       box.hi[a] = h >= static_cast<double>(dims_[a]) ? dims_[a] - 1 : static_cast<int>(h);
