@@ -171,7 +171,8 @@ class SpatialHash {
     std::uint32_t begin = 0, end = 0;
   };
   static constexpr std::uint32_t kEmpty = 0xFFFFFFFFu;
-  // The cell coordinate along `axis` of a point of the grid, clamped: the top face of the box rounds into the last cell.
+  // The cell coordinate along `axis` of a point of the grid, clamped: the top face of the box rounds into the last
+  // cell.
   int cell_coordinate(double v, int axis) const {
     return std::clamp(static_cast<int>((v - origin_[axis]) * inv_cell_), 0, dims_[axis] - 1);
   }
