@@ -35,6 +35,9 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 constexpr double kBandTolerance = 1e-12;     // relative slack before a projection moves a vertex
 constexpr double kFaithfulTolerance = 1e-9;  // relative slack of the faithfulness statistics
 constexpr int kMaxProjectionRounds = 8;
+// Relative slack of the box tests by which a band query skips particles that cannot matter (Particles::band_on_line):
+// far above the rounding of a chord's ends (~1e-8 of the query's reach, the square root of a cancelling difference).
+constexpr double kSkipSlack = 1e-6;
 // The first radius of a nearest-particle search, in r_outer (Particles::nearest).
 constexpr double kFirstSearch = 1.25;
 constexpr int kMaxNewtonSteps = 16;
@@ -90,6 +93,8 @@ struct BandScratch {
   // The outer balls within their radius + cell of the vertex: those whose sphere passes within cell of it, and those
   // deeper around it.
   std::vector<Ball> spheres, deeper;
+  // The hash's slot ranges [first, second) a band query reads, in ascending order (Particles::band_on_line).
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> ranges;
 };
 
 // The lowest cusp a vertex x (unit normal n, Voronoi cell within `cell` of x) holds below: a point q where three outer
@@ -243,31 +248,14 @@ struct Particles {
   }
   bool faithful(double violation) const { return violation <= kFaithfulTolerance * (weighted ? max_outer : r_outer); }
 
-  // add(p, inner, outer) for every particle whose outer sphere can meet the segment x + t n, |t| <= reach (and a few
-  // more): the particles of a box around it.
-  template <class Add>
-  void for_each_near_line(const Vec3& x, const Vec3& n, double reach, Add&& add) const {
-    const double radius = weighted ? max_outer : r_outer;
-    const Eigen::Array3d half = reach * n.array().abs() + radius;
-    const std::span<const Vec3> pts = hash.sorted_points();
-    hash.for_each_range(x.array() - half, x.array() + half, [&](std::uint32_t begin, std::uint32_t end) {
-      for (std::uint32_t slot = begin; slot < end; ++slot) {
-        if (weighted) {
-          add(pts[slot], slot_inner[slot], slot_outer[slot]);
-        } else {
-          add(pts[slot], r_inner, r_outer);
-        }
-      }
-    });
-  }
-
   // The band along the line x + t n (|t| <= reach) at its faithful point nearest to x: that point's offset `at`, and
   // the offsets around it for which the line stays faithful, as an interval relative to it; nullopt when no point of
   // the line within reach is faithful. Along the line the particles' outer balls allow t in a union of closed
-  // intervals (chords) and their inner balls forbid t in open ones; every particle that can matter lies within
-  // max_outer + reach of x. `at` is 0 when x is faithful, else an end of one of the chords (the nearest point of such
-  // a union to 0 is one), taken on the sphere itself, inside the tolerance the chords allow. Exact. When cell > 0,
-  // scratch.spheres and scratch.deeper receive the outer balls lowest_cusp needs around the faithful point.
+  // intervals (chords) and their inner balls forbid t in open ones; the chords are those of the particles in the hash
+  // cells of the box around the segment (|t| <= reach) grown by max_outer. `at` is 0 when x is faithful, else an end of
+  // one of the chords (the nearest point of such a union to 0 is one), taken on the sphere itself, inside the
+  // tolerance the chords allow. Exact. When cell > 0, scratch.spheres and scratch.deeper receive the outer balls
+  // lowest_cusp needs around the faithful point (balls_near); one walk of the hash serves both.
   struct LineBand {
     double at = 0.0;
     Interval band;
@@ -284,22 +272,61 @@ struct Particles {
     ends.clear();
     scratch.spheres.clear();
     scratch.deeper.clear();
-    auto add = [&](const Vec3& p, double inner, double outer) {
-      const Vec3 q = x - p;
-      const double q2 = q.squaredNorm();
-      const double b = n.dot(q), c = q2 - b * b;  // t along the line, c: squared distance of p to it
-      const double ro = outer * (1.0 + kBandTolerance), ri = inner * (1.0 - kBandTolerance);
-      if (c < ro * ro) {
+    const double radius = weighted ? max_outer : r_outer;
+    const Eigen::Array3d half = reach * n.array().abs() + radius;
+    const Eigen::Array3d line_lo = x.array() - half, line_hi = x.array() + half;
+    std::vector<std::pair<std::uint32_t, std::uint32_t>>& ranges = scratch.ranges;
+    ranges.clear();
+    const auto keep = [&ranges](std::uint32_t begin, std::uint32_t end) { ranges.emplace_back(begin, end); };
+    if (cell > 0.0) {
+      // Also every ball balls_near can take, wherever on the segment it is asked: the box of its query about any point
+      // of the segment, grown by far more than the rounding of either box.
+      const Eigen::Array3d wide = reach * n.array().abs() + (radius + cell);
+      const double margin = kSkipSlack * (x.cwiseAbs().maxCoeff() + wide.maxCoeff());
+      hash.for_each_range(x.array() - wide - margin, x.array() + wide + margin, keep);
+    } else {
+      hash.for_each_range(line_lo, line_hi, keep);
+    }
+    // Only the chords that meet [-reach, reach] are kept: one beyond it changes neither the faithful points within
+    // reach nor the band's piece there (which is clamped to reach) nor the inner bounds (which start at +-reach), and
+    // its ends are out of reach. A particle outside `near` (the line's box grown by far more than the chords'
+    // tolerance and their rounding) has no such chord. The wider walk for balls_near holds more than the line's cells:
+    // a chord of a particle outside the line's box is kept only when its cell is one of them (never, but for rounding
+    // at the box's faces), so the chords are those of the line's cells.
+    const double slack = kSkipSlack * (x.cwiseAbs().maxCoeff() + reach + radius);
+    const Eigen::Array3d near_lo = line_lo - slack, near_hi = line_hi + slack;
+    std::optional<SpatialHash::CellBox> line_cells;
+    bool line_cells_known = cell <= 0.0;
+    const double uniform_ro = r_outer * (1.0 + kBandTolerance), uniform_ri = r_inner * (1.0 - kBandTolerance);
+    const std::span<const Vec3> pts = hash.sorted_points();
+    for (const auto& [begin, end] : ranges) {
+      for (std::uint32_t slot = begin; slot < end; ++slot) {
+        const Vec3& p = pts[slot];
+        if (!((p.array() >= near_lo).all() && (p.array() <= near_hi).all())) continue;
+        const Vec3 q = x - p;
+        const double b = n.dot(q), c = q.squaredNorm() - b * b;  // t along the line, c: squared distance of p to it
+        const double ro = weighted ? slot_outer[slot] * (1.0 + kBandTolerance) : uniform_ro;
+        if (!(c < ro * ro)) continue;
         const double h = std::sqrt(ro * ro - c);
-        allowed.push_back({-b - h, -b + h});
+        const Interval chord{-b - h, -b + h};
+        if (chord.hi < -reach || chord.lo > reach) continue;
+        if (cell > 0.0 && !((p.array() >= line_lo).all() && (p.array() <= line_hi).all())) {
+          if (!line_cells_known) {
+            line_cells = hash.cell_box(line_lo, line_hi);
+            line_cells_known = true;
+          }
+          if (!line_cells || !hash.in_cells(*line_cells, slot)) continue;
+        }
+        const double inner = weighted ? slot_inner[slot] : r_inner, outer = weighted ? slot_outer[slot] : r_outer;
+        const double ri = weighted ? inner * (1.0 - kBandTolerance) : uniform_ri;
+        allowed.push_back(chord);
         if (c < ri * ri) {
           const double hi = std::sqrt(ri * ri - c);
           forbidden.push_back({-b - hi, -b + hi});  // open
         }
         chords.push_back({b, c, inner, outer});
       }
-    };
-    for_each_near_line(x, n, reach, add);
+    }
     const auto faithful_at = [&](double t) {
       const auto holds = [t](const Interval& c) { return c.lo <= t && t <= c.hi; };
       const auto inside = [t](const Interval& c) { return c.lo < t && t < c.hi; };
@@ -377,15 +404,35 @@ struct Particles {
     return line;
   }
 
-  // Into scratch.spheres and scratch.deeper, the outer balls within their radius + cell of x, as lowest_cusp needs
-  // them: those whose sphere passes within cell of x, and the others.
+  // Into scratch.spheres and scratch.deeper, in hash order, the outer balls within their radius + cell of x, as
+  // lowest_cusp needs them: those whose sphere passes within cell of x, and the others. The candidates are those
+  // SpatialHash::for_each_within(x, max_outer + cell) finds: of the particles in the hash cells of the box x +-
+  // (max_outer + cell), those within that distance of x. They are taken from the slots of scratch.ranges, which must
+  // hold them all.
   void balls_near(const Vec3& x, double cell, BandScratch& scratch) const {
-    hash.for_each_within(x, (weighted ? max_outer : r_outer) + cell,
-                         [&](std::uint32_t index, const Vec3& p, double d2) {
-                           const double r = weighted ? outer[index] : r_outer;
-                           if (d2 > (r + cell) * (r + cell)) return;
-                           (d2 >= (r - cell) * (r - cell) ? scratch.spheres : scratch.deeper).push_back({p, r});
-                         });
+    const double radius = (weighted ? max_outer : r_outer) + cell;
+    const double r2 = radius * radius;
+    const Eigen::Array3d lo = x.array() - radius, hi = x.array() + radius;
+    std::optional<SpatialHash::CellBox> cells;  // the box's cells, asked only for a point outside the box itself
+    bool cells_known = false;
+    const std::span<const Vec3> pts = hash.sorted_points();
+    for (const auto& [begin, end] : scratch.ranges) {
+      for (std::uint32_t slot = begin; slot < end; ++slot) {
+        const Vec3& p = pts[slot];
+        const double d2 = (p - x).squaredNorm();
+        if (!(d2 <= r2)) continue;
+        if (!((p.array() >= lo).all() && (p.array() <= hi).all())) {
+          if (!cells_known) {
+            cells = hash.cell_box(lo, hi);
+            cells_known = true;
+          }
+          if (!cells || !hash.in_cells(*cells, slot)) continue;
+        }
+        const double r = weighted ? slot_outer[slot] : r_outer;
+        if (d2 > (r + cell) * (r + cell)) continue;
+        (d2 >= (r - cell) * (r - cell) ? scratch.spheres : scratch.deeper).push_back({p, r});
+      }
+    }
   }
 
   // Uniform radii: moves x into the faithful band (see the header): out of the nearest inner ball (again while the

@@ -52,12 +52,8 @@ void SpatialHash::build(std::span<const Vec3> points, double cell_size) {
     dims_[a] = static_cast<int>(cells);
     total *= cells;
   }
-  // Cell coordinates of a point, clamped: the top face of the box rounds into the last cell.
   auto cell_of = [&](const Vec3& p, int c[3]) {
-    for (int a = 0; a < 3; ++a) {
-      const int v = static_cast<int>((p[a] - origin_[a]) * inv_cell_);
-      c[a] = std::clamp(v, 0, dims_[a] - 1);
-    }
+    for (int a = 0; a < 3; ++a) c[a] = cell_coordinate(p[a], a);
   };
 
   const std::size_t n = points.size();

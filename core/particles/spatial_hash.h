@@ -12,6 +12,7 @@
 // Queries are const and thread-safe. Coordinates must be finite.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -98,15 +99,10 @@ class SpatialHash {
         return true;
       }
     };
-    if (points_.empty()) return true;
-    int c0[3], c1[3];
-    for (int a = 0; a < 3; ++a) {
-      const double l = std::floor((lo[a] - origin_[a]) * inv_cell_);
-      const double h = std::floor((hi[a] - origin_[a]) * inv_cell_);
-      if (!(h >= 0.0) || !(l < static_cast<double>(dims_[a]))) return true;  // also rejects NaN
-      c0[a] = l < 0.0 ? 0 : static_cast<int>(l);
-      c1[a] = h >= static_cast<double>(dims_[a]) ? dims_[a] - 1 : static_cast<int>(h);
-    }
+    const std::optional<CellBox> box = cell_box(lo, hi);
+    if (!box) return true;
+    const int* c0 = box->lo;
+    const int* c1 = box->hi;
     if (dense_) {
       for (int k = c0[2]; k <= c1[2]; ++k) {
         for (int j = c0[1]; j <= c1[1]; ++j) {
@@ -138,6 +134,36 @@ class SpatialHash {
     return true;
   }
 
+  // The cells for_each_range(lo, hi) visits, as inclusive ranges of cell coordinates per axis; nullopt when the box
+  // misses the grid (or is NaN).
+  struct CellBox {
+    int lo[3], hi[3];
+  };
+  // Inlined into every query (for_each_range is their inner loop).
+  [[gnu::always_inline]] std::optional<CellBox> cell_box(const Eigen::Array3d& lo, const Eigen::Array3d& hi) const {
+    if (points_.empty()) return std::nullopt;
+    CellBox box;
+    for (int a = 0; a < 3; ++a) {
+      // In cells from the origin; the floor of l and h is taken by truncation where they are >= 0, the only place an
+      // integer is taken of them (the comparisons with 0 and dims give the same answers for l, h and their floors).
+      const double l = (lo[a] - origin_[a]) * inv_cell_;
+      const double h = (hi[a] - origin_[a]) * inv_cell_;
+      if (!(h >= 0.0) || !(l < static_cast<double>(dims_[a]))) return std::nullopt;  // also rejects NaN
+      box.lo[a] = l < 0.0 ? 0 : static_cast<int>(l);
+      box.hi[a] = h >= static_cast<double>(dims_[a]) ? dims_[a] - 1 : static_cast<int>(h);
+    }
+    return box;
+  }
+  // Whether sorted_points()[slot] lies in one of the cells of `box`: whether for_each_range over the box that made it
+  // visits that slot.
+  bool in_cells(const CellBox& box, std::uint32_t slot) const {
+    for (int a = 0; a < 3; ++a) {
+      const int c = cell_coordinate(points_[slot][a], a);
+      if (c < box.lo[a] || c > box.hi[a]) return false;
+    }
+    return true;
+  }
+
   std::span<const Vec3> sorted_points() const { return points_; }
   std::span<const std::uint32_t> order() const { return order_; }
 
@@ -151,6 +177,11 @@ class SpatialHash {
   // Dense: the slot of the first point of linear cell c (c up to the cell count: the end).
   std::uint32_t cell_start(std::size_t c) const {
     return wide_start_.empty() ? group_start_[c >> kGroupBits] + cell_offset_[c] : wide_start_[c];
+  }
+  // The cell coordinate along `axis` of a point of the grid, clamped: the top face of the box rounds into the last
+  // cell.
+  int cell_coordinate(double v, int axis) const {
+    return std::clamp(static_cast<int>((v - origin_[axis]) * inv_cell_), 0, dims_[axis] - 1);
   }
   static std::uint64_t hash(std::int32_t i, std::int32_t j, std::int32_t k) {
     std::uint64_t h = static_cast<std::uint32_t>(i) * 0x9E3779B185EBCA87ull;
