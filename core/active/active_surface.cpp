@@ -95,9 +95,12 @@ void validate(const ActiveSurfaceOptions& o) {
   }
   if (o.substeps_per_frame < 1) throw InvalidInput("substeps_per_frame", "substeps_per_frame must be >= 1");
   if (o.max_substeps_per_frame < 1) throw InvalidInput("max_substeps_per_frame", "max_substeps_per_frame must be >= 1");
-  if (o.reinit_interval < 1)
-    throw InvalidInput("reinit_interval",
-                       "reinit_interval must be >= 1; the default is " + std::to_string(defaults.reinit_interval));
+  if (o.reinit_interval && *o.reinit_interval < 1) {
+    throw InvalidInput("reinit_interval", "reinit_interval must be >= 1; the default is " +
+                                              std::to_string(ActiveSurfaceOptions::kReinitInterval) + " (" +
+                                              std::to_string(ActiveSurfaceOptions::kCompensatedReinitInterval) +
+                                              " with error_compensation)");
+  }
   if (!(o.max_curvature > 0.0) || !std::isfinite(o.max_curvature)) {
     throw InvalidInput("max_curvature", "max_curvature must be > 0 (in units of 1/h); the default is " +
                                             format_number(defaults.max_curvature));
