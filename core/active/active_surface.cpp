@@ -23,6 +23,9 @@
 //   run densely over the 512 nodes of each block with an active node (vectorized), keeping only active results.
 // * Time-dependent velocities: the step is chosen from |u| at the step's start, at most twice the previous step, and
 //   rejected (recomputed with a smaller dt) when |u| at the second stage breaks the CFL limit of 1.
+// * Error compensation (error_compensation, advecting only; not in the paper): every sub-step taken back and forth
+//   (BFECC, Dupont & Liu 2003), the forward pass repeated from f0 + (f0 - f2) / 2, f2 the backward pass's result; the
+//   ramp is then reinitialized every 64 sub-steps (ActiveSurfaceOptions::kCompensatedReinitInterval).
 // * Control terms on top of advection (not in the paper, nor in OpenVDB's LevelSetAdvection): with beta, gamma or
 //   delta (or alpha and a target) the extended normal speed s is added, df/dt = -u . grad f + s |grad f|, each term
 //   upwinded on its own (one WENO pass for both), s frozen over the sub-step, the CFL speed |u| + |s|, and the

@@ -45,7 +45,8 @@ void Stepper::restore(const Record& record) {
 
 // TVD-RK3 from the stage-1 rates (kChanA, or rate_channel when advecting), into kChanA: Shu-Osher's three
 // stages, the result clamped to [-1, 1] and cut by the domain wall. An advecting step whose stage-2 speed breaks the
-// CFL bound is retried shorter (at most kMaxCflRetries times). Returns the dt taken.
+// CFL bound is retried shorter (at most kMaxCflRetries times) when may_retry. From t_start forward, or backward in
+// time when reverse (error compensation). Returns the dt taken.
 double Stepper::runge_kutta(double dt, int rate_channel, double t_start, bool reverse, bool may_retry, NarrowBand& band,
                             const Motion& motion, const RunControl& control) {
   const double dir = reverse ? -1.0 : 1.0;

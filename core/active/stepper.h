@@ -60,7 +60,7 @@ class Stepper {
   double runge_kutta(double dt, int rate_channel, double t_start, bool reverse, bool may_retry, NarrowBand& band,
                      const Motion& motion, const RunControl& control);
   // Back-and-forth error compensation of an advecting sub-step of dt whose forward result is in kChanA (ALGORITHMS
-  // §4, "Advection"): the compensated result into kChanA, kChanF then scratch.
+  // §4, "Error compensation"): the compensated result into kChanA, kChanF then scratch.
   void compensate(double dt, int rate_channel, NarrowBand& band, const Motion& motion, const RunControl& control);
 
   int reinit_interval_;
