@@ -9,11 +9,14 @@
 //                                OpenVDB's field functor is); by default the separable (cached u(x)) form runs too,
 //                                then again with volume control (delta) on top, and a table puts them side by side
 //   active_bench --delta D       the volume control of those runs (repeatable; default 1; 0: none)
+//   active_bench --compensate    the Enright runs with error compensation (BFECC on every sub-step)
+//   active_bench --cfl C         the Enright runs' CFL number (default the engine's, 0.5)
 //   options: --threads T (default 2), --particles N (default 10000), --frames F (>= 2, default 200),
 //            --alpha A (tracking alpha = A * kernel radius, > 0, default 0.3), --beta B (tension beta = B * radius^2,
 //            default 0.02), --dropout D (fraction of the particles absent from each frame, below 1, default 0.1)
 //   A flag the others make useless is refused like a bad value (exit 2): --coat-only with --enright, --full,
-//   --general-only or --delta; --full with --enright; --delta with --general-only; a coating flag (--particles,
+//   --general-only, --delta, --compensate or --cfl; --full with --enright; --delta with --general-only; a coating flag
+//   (--particles,
 //   --frames, --alpha, --beta, --dropout) with --enright.
 //
 // Enright (Enright, Fedkiw, Ferziger & Mitchell 2002, §5.3): sphere r = 0.15 at (0.35, 0.35, 0.35) in the unit cube,
@@ -39,6 +42,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <optional>
 #include <random>
 #include <string>
 #include <vector>
@@ -81,6 +85,12 @@ class Sphere final : public Field {
   double r_;
 };
 
+// How the Enright runs step: error compensation and the CFL number (nullopt: the engine's default).
+struct EnrightScheme {
+  bool compensate = false;
+  std::optional<double> cfl;
+};
+
 struct EnrightResult {
   double delta = 0.0;
   double dv_half = 0.0, dv_end = 0.0;  // volume change at T/2 and T, %
@@ -90,13 +100,15 @@ struct EnrightResult {
   double wall = 0.0;
 };
 
-EnrightResult enright(int n, int threads, bool separable, double delta = 0.0) {
+EnrightResult enright(int n, int threads, const EnrightScheme& scheme, bool separable, double delta = 0.0) {
   const double period = 3.0;
   ActiveSurfaceOptions o;
   o.h = 1.0 / n;
   o.domain = Aabb{Vec3::Zero(), Vec3::Ones()};
   o.threads = threads;
   o.delta = delta;
+  o.error_compensation = scheme.compensate;
+  if (scheme.cfl) o.cfl = scheme.cfl;
   const Sphere sphere(Vec3(0.35, 0.35, 0.35), 0.15);
   const double w0 = wall_seconds(), c0 = cpu_seconds();
   ActiveSurface surface(sphere, o);
@@ -108,10 +120,11 @@ EnrightResult enright(int n, int threads, bool separable, double delta = 0.0) {
   const ActiveFrameStats s0 = surface.stats();
   const double exact = 4.0 / 3.0 * 3.14159265358979323846 * 0.15 * 0.15 * 0.15;
   std::printf(
-      "\nEnright %d^3, %s velocity (h = %.5f, band_width %.0f, reinit every %d, %d threads, delta %g): V0 %.6f "
-      "(exact %.6f), %lld active nodes\n",
-      n, separable ? "separable (cached)" : "general (per node and stage)", o.h, o.band_width, o.reinit_interval,
-      threads, delta, s0.volume, exact, static_cast<long long>(s0.active_nodes));
+      "\nEnright %d^3, %s velocity (h = %.5f, band_width %.0f, reinit every %d, cfl %g%s, %d threads, delta %g): "
+      "V0 %.6f (exact %.6f), %lld active nodes\n",
+      n, separable ? "separable (cached)" : "general (per node and stage)", o.h, o.band_width,
+      o.reinitialization_interval(), *o.cfl, o.error_compensation ? ", error compensation" : "", threads, delta,
+      s0.volume, exact, static_cast<long long>(s0.active_nodes));
   std::printf("  %6s %9s %6s %10s %10s %6s %5s %9s %9s %10s %10s\n", "t", "dV", "steps", "active", "peak act.",
               "reinit", "comp", "wall s", "cpu s", "us/n-s wall", "us/n-s cpu");
   const int frames = 8;
@@ -151,11 +164,12 @@ EnrightResult enright(int n, int threads, bool separable, double delta = 0.0) {
 // with each delta.
 void print_delta_table(int n, const std::vector<EnrightResult>& runs) {
   std::printf("\nEnright %d^3, volume control on top of the advection (normal speed delta (V0 - V) / V0):\n", n);
-  std::printf("  %8s %10s %10s %12s %16s %7s %8s\n", "delta", "dV(T/2)", "dV(T)", "max |dV|", "sphere dist (h)",
-              "steps", "wall s");
+  std::printf("  %8s %10s %10s %12s %16s %16s %7s %8s\n", "delta", "dV(T/2)", "dV(T)", "max |dV|", "sphere dist (h)",
+              "(% of r)", "steps", "wall s");
+  const double radius_in_h = 0.15 * n;  // the sphere's r in grid spacings
   for (const EnrightResult& r : runs) {
-    std::printf("  %8g %9.2f%% %9.2f%% %11.2f%% %16.2f %7d %8.1f\n", r.delta, r.dv_half, r.dv_end, r.max_abs_dv,
-                r.shape_error, r.steps, r.wall);
+    std::printf("  %8g %9.2f%% %9.2f%% %11.2f%% %16.2f %15.2f%% %7d %8.1f\n", r.delta, r.dv_half, r.dv_end,
+                r.max_abs_dv, r.shape_error, 100.0 * r.shape_error / radius_in_h, r.steps, r.wall);
   }
 }
 
@@ -374,8 +388,8 @@ void coat(int particles, int frames, int threads, double alpha_scale, double bet
 }
 
 constexpr const char* kUsage =
-    "usage: active_bench [--full] [--enright N]... [--coat-only] [--general-only] [--delta D]... [--threads T]\n"
-    "                    [--particles N] [--frames F] [--alpha A] [--beta B] [--dropout D]\n";
+    "usage: active_bench [--full] [--enright N]... [--coat-only] [--general-only] [--delta D]... [--compensate]\n"
+    "                    [--cfl C] [--threads T] [--particles N] [--frames F] [--alpha A] [--beta B] [--dropout D]\n";
 
 }  // namespace
 
@@ -386,15 +400,21 @@ int main(int argc, char** argv) {
   std::vector<int> sizes;
   std::vector<double> deltas;
   bool deltas_given = false;
+  EnrightScheme scheme;
   // The last flag given that only the Enright runs use, and the last that only the coating sequence uses.
   std::string enright_flag, coating_flag;
   bench::Args args(argc, argv, "active_bench", kUsage);
   while (args.next()) {
     const std::string& a = args.flag();
-    if (a == "--full" || a == "--general-only" || a == "--enright" || a == "--delta") {
+    if (a == "--full" || a == "--general-only" || a == "--enright" || a == "--delta" || a == "--compensate" ||
+        a == "--cfl") {
       enright_flag = a;
       if (a == "--full") {
         full = true;
+      } else if (a == "--compensate") {
+        scheme.compensate = true;
+      } else if (a == "--cfl") {
+        scheme.cfl = args.number({.min = 0.0, .max = 1.0, .min_open = true});
       } else if (a == "--general-only") {
         general_only = true;
       } else if (a == "--enright") {
@@ -450,10 +470,10 @@ int main(int argc, char** argv) {
       "Anchor (OpenVDB LevelSetAdvection, HJ-WENO5 + TVD-RK2, this machine): dV(T) -36.1%% at 100^3, -25.3%% at "
       "128^3, -7.35%% at 200^3; ~0.5 us per active voxel per step\n");
   for (const int n : sizes) {
-    enright(n, threads, false);
+    enright(n, threads, scheme, false);
     if (general_only) continue;
-    std::vector<EnrightResult> runs = {enright(n, threads, true)};
-    for (const double delta : deltas) runs.push_back(enright(n, threads, true, delta));
+    std::vector<EnrightResult> runs = {enright(n, threads, scheme, true)};
+    for (const double delta : deltas) runs.push_back(enright(n, threads, scheme, true, delta));
     if (!deltas.empty()) print_delta_table(n, runs);
   }
   if (!enright_only) coat(particles, frames, threads, alpha_scale, beta_scale, dropout);

@@ -159,6 +159,7 @@ ActiveSurfaceOptions active_options(const v1::ActiveJob& job, bool normals, cons
   if (job.has_gamma()) options.gamma = job.gamma();
   if (job.has_delta()) options.delta = job.delta();
   if (job.has_cfl()) options.cfl = job.cfl();
+  if (job.has_advect()) options.error_compensation = job.advect().error_compensation();
   if (job.coat().has_substeps_per_frame()) {
     // A fixed number of sub-steps per frame instead of the CFL-sized ones (each still no longer than the stability
     // bound allows).

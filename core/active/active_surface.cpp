@@ -23,6 +23,9 @@
 //   run densely over the 512 nodes of each block with an active node (vectorized), keeping only active results.
 // * Time-dependent velocities: the step is chosen from |u| at the step's start, at most twice the previous step, and
 //   rejected (recomputed with a smaller dt) when |u| at the second stage breaks the CFL limit of 1.
+// * Error compensation (error_compensation, advecting only; not in the paper): every sub-step taken back and forth
+//   (BFECC, Dupont & Liu 2003), the forward pass repeated from f0 + (f0 - f2) / 2, f2 the backward pass's result; the
+//   ramp is then reinitialized every 64 sub-steps (ActiveSurfaceOptions::kCompensatedReinitInterval).
 // * Control terms on top of advection (not in the paper, nor in OpenVDB's LevelSetAdvection): with beta, gamma or
 //   delta (or alpha and a target) the extended normal speed s is added, df/dt = -u . grad f + s |grad f|, each term
 //   upwinded on its own (one WENO pass for both), s frozen over the sub-step, the CFL speed |u| + |s|, and the
@@ -95,9 +98,12 @@ void validate(const ActiveSurfaceOptions& o) {
   }
   if (o.substeps_per_frame < 1) throw InvalidInput("substeps_per_frame", "substeps_per_frame must be >= 1");
   if (o.max_substeps_per_frame < 1) throw InvalidInput("max_substeps_per_frame", "max_substeps_per_frame must be >= 1");
-  if (o.reinit_interval < 1)
-    throw InvalidInput("reinit_interval",
-                       "reinit_interval must be >= 1; the default is " + std::to_string(defaults.reinit_interval));
+  if (o.reinit_interval && *o.reinit_interval < 1) {
+    throw InvalidInput("reinit_interval", "reinit_interval must be >= 1; the default is " +
+                                              std::to_string(ActiveSurfaceOptions::kReinitInterval) + " (" +
+                                              std::to_string(ActiveSurfaceOptions::kCompensatedReinitInterval) +
+                                              " with error_compensation)");
+  }
   if (!(o.max_curvature > 0.0) || !std::isfinite(o.max_curvature)) {
     throw InvalidInput("max_curvature", "max_curvature must be > 0 (in units of 1/h); the default is " +
                                             format_number(defaults.max_curvature));

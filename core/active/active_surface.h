@@ -94,9 +94,23 @@ struct ActiveSurfaceOptions {
   int substeps_per_frame = 10;  // used when cfl is nullopt; >= 1
   // A frame needing more sub-steps throws ResourceLimit("max_substeps_per_frame").
   int max_substeps_per_frame = 100000;  // >= 1
-  // Reinitialize the ramp every this many sub-steps (>= 1). Rarer reinitialization keeps more volume under strong
-  // stretching (each one perturbs the WENO stencils) but lets the band widen (more active nodes).
-  int reinit_interval = 16;
+  // Reinitialize the ramp every this many sub-steps (>= 1); nullopt: kReinitInterval, or kCompensatedReinitInterval
+  // with error_compensation (reinitialization_interval() resolves it). Rarer reinitialization keeps more volume under
+  // strong stretching (each one perturbs the WENO stencils) but lets the band widen (more active nodes).
+  std::optional<int> reinit_interval;
+  static constexpr int kReinitInterval = 16;
+  // With error compensation rarer reinitialization keeps the shape markedly better (Enright test at 100^3;
+  // docs/ALGORITHMS.md §4, "Error compensation").
+  static constexpr int kCompensatedReinitInterval = 64;
+  int reinitialization_interval() const {
+    return reinit_interval.value_or(error_compensation ? kCompensatedReinitInterval : kReinitInterval);
+  }
+  // Advecting only: back-and-forth error compensation of every sub-step (BFECC, Dupont & Liu 2003): three Runge-Kutta
+  // passes (forward, backward, forward from the corrected start) instead of one, so about 3 times the work per
+  // sub-step for markedly less numerical loss (docs/ALGORITHMS.md §4, "Error compensation"), and one more float
+  // channel per block (2 KB). Best with cfl 0.9 (as accurate as 0.5, 0.57 times the sub-steps). Ignored in
+  // normal-speed modes.
+  bool error_compensation = false;
   // Clamp of |kappa| (curvature the grid can carry), in units of 1/h; > 0.
   double max_curvature = 1.0;
   Polygonizer polygonizer = Polygonizer::kTiles;

@@ -187,7 +187,8 @@ void Motion::extend_speed(NarrowBand& band, const RunControl& control) {
   });
 }
 
-void Motion::stage_rate(NarrowBand& band, int b, int in_ch, double t_stage, float* rate, double* max_speed) const {
+void Motion::stage_rate(NarrowBand& band, int b, int in_ch, double t_stage, float* rate, double* max_speed,
+                        bool reverse) const {
   const bool advect = advecting();
   const float inv_h_f = static_cast<float>(band.frame().inv_spacing());
   constexpr std::size_t kApron = kApronSide;
@@ -199,7 +200,7 @@ void Motion::stage_rate(NarrowBand& band, int b, int in_ch, double t_stage, floa
     const sparse::BlockCoord& c = band.grid().coord(b);
     double ms = 0.0;
     if (separable_.spatial) {
-      const double scale = separable_.time_scale ? separable_.time_scale(t_stage) : 1.0;
+      const double scale = (separable_.time_scale ? separable_.time_scale(t_stage) : 1.0) * (reverse ? -1.0 : 1.0);
       float* cache[3] = {band.data(b, velocity_cache_), band.data(b, velocity_cache_ + 1),
                          band.data(b, velocity_cache_ + 2)};
       for (const std::uint16_t i : band.active(b)) {
@@ -213,7 +214,8 @@ void Motion::stage_rate(NarrowBand& band, int b, int in_ch, double t_stage, floa
       }
     } else {
       for (const std::uint16_t i : band.active(b)) {
-        const Vec3 v = velocity_(band.frame().node_position(c, local_x(i), local_y(i), local_z(i)), t_stage);
+        Vec3 v = velocity_(band.frame().node_position(c, local_x(i), local_y(i), local_z(i)), t_stage);
+        if (reverse) v = -v;
         u[i] = static_cast<float>(v.x());
         u[kBlockNodes + i] = static_cast<float>(v.y());
         u[2 * kBlockNodes + i] = static_cast<float>(v.z());
@@ -228,7 +230,7 @@ void Motion::stage_rate(NarrowBand& band, int b, int in_ch, double t_stage, floa
       std::fill_n(s, kBlockNodes, 0.0f);
       ms = 0.0;
       for (const std::uint16_t i : band.active(b)) {
-        s[i] = speed[i];
+        s[i] = reverse ? -speed[i] : speed[i];
         const Vec3 ui(u[i], u[kBlockNodes + i], u[2 * kBlockNodes + i]);
         ms = std::max(ms, ui.norm() + std::abs(static_cast<double>(speed[i])));
       }

@@ -44,8 +44,11 @@ class Motion {
   void extend_speed(NarrowBand& band, const RunControl& control);
   // The rate df/dt of block `block` from channel `in_channel` at time `stage_time` into rate[kBlockNodes] (kept at the
   // active nodes), and the block's largest speed (|u| + |s| when both act) into *max_speed when given. Fills the
-  // velocity cache of the block's active nodes. Called concurrently for distinct blocks.
-  void stage_rate(NarrowBand& band, int block, int in_channel, double stage_time, float* rate, double* max_speed) const;
+  // velocity cache of the block's active nodes. `reverse` (advecting only): the rate of the motion run backward in
+  // time (velocity and normal speed negated), for the backward pass of error compensation. Called concurrently for
+  // distinct blocks.
+  void stage_rate(NarrowBand& band, int block, int in_channel, double stage_time, float* rate, double* max_speed,
+                  bool reverse = false) const;
   // The largest stable sub-step for speed vmax on grid spacing h: the CFL bound, and in normal-speed modes (or with
   // advect_controls()) the tension's and the controllers' bounds (ALGORITHMS §4, "Time step"); infinity when nothing
   // bounds it.
@@ -72,7 +75,7 @@ class Motion {
   int velocity_cache_ = -1;      // first of the 3 channels caching spatial(x) (NaN: not evaluated), or -1
   int advect_rate_ = -1;         // the stage-1 rate's channel under advect_controls(), or -1 before its first use
   MeasureControl measures_;
-  bool uniform_control_ = false;  // the last extend_speed set the uniform volume speed while advecting
+  bool uniform_control_ = false;                // the last extend_speed set the uniform volume speed while advecting
   std::vector<std::vector<float>> edge_speed_;  // per block (band blocks): speed per (node, axis), NaN: none
 };
 

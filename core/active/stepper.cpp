@@ -45,9 +45,11 @@ void Stepper::restore(const Record& record) {
 
 // TVD-RK3 from the stage-1 rates (kChanA, or rate_channel when advecting), into kChanA: Shu-Osher's three
 // stages, the result clamped to [-1, 1] and cut by the domain wall. An advecting step whose stage-2 speed breaks the
-// CFL bound is retried shorter (at most kMaxCflRetries times). Returns the dt taken.
-double Stepper::runge_kutta(double dt, int rate_channel, NarrowBand& band, const Motion& motion,
-                            const RunControl& control) {
+// CFL bound is retried shorter (at most kMaxCflRetries times) when may_retry. From t_start forward, or backward in
+// time when reverse (error compensation). Returns the dt taken.
+double Stepper::runge_kutta(double dt, int rate_channel, double t_start, bool reverse, bool may_retry, NarrowBand& band,
+                            const Motion& motion, const RunControl& control) {
+  const double dir = reverse ? -1.0 : 1.0;
   const bool advect = motion.advecting();
   const int nb = band.block_count();
   const double cfl = motion.cfl();
@@ -79,13 +81,13 @@ double Stepper::runge_kutta(double dt, int rate_channel, NarrowBand& band, const
       std::copy_n(f, kBlockNodes, out);
       if (band.active(b).empty()) return;
       float* rate = scratch(3, kBlockNodes);
-      motion.stage_rate(band, b, kChanA, time_ + dt, rate, &block_max_speed[b]);
+      motion.stage_rate(band, b, kChanA, t_start + dir * dt, rate, &block_max_speed[b], reverse);
       for (const std::uint16_t i : band.active(b)) out[i] = 0.75f * f[i] + 0.25f * (in[i] + dt_f * rate[i]);
     });
     if (advect) {
       // No block left (the surface vanished under the grid's resolution): no speed at all.
       const double v2 = nb == 0 ? 0.0 : *std::max_element(block_max_speed.begin(), block_max_speed.end());
-      if (v2 * dt > band.frame().spacing() &&
+      if (may_retry && v2 * dt > band.frame().spacing() &&
           attempt < kMaxCflRetries) {  // beyond the CFL limit of 1 at t + dt: retry with the larger speed
         dt = std::min(dt, cfl * band.frame().spacing() / v2);
         continue;
@@ -100,7 +102,7 @@ double Stepper::runge_kutta(double dt, int rate_channel, NarrowBand& band, const
       std::copy_n(f, kBlockNodes, out);
       if (band.active(b).empty()) return;
       float* rate = scratch(3, kBlockNodes);
-      motion.stage_rate(band, b, kChanB, time_ + 0.5 * dt, rate, nullptr);
+      motion.stage_rate(band, b, kChanB, t_start + dir * 0.5 * dt, rate, nullptr, reverse);
       const sparse::BlockCoord& c = band.grid().coord(b);
       const GridFrame& frame = band.frame();
       for (const std::uint16_t i : band.active(b)) {
@@ -113,6 +115,41 @@ double Stepper::runge_kutta(double dt, int rate_channel, NarrowBand& band, const
     break;
   }
   return dt;
+}
+
+// BFECC (Dupont & Liu 2003) on the forward result in kChanA (f1 = A(f0)): back from f1 to t (A run backward in
+// time, f2 = A_back(f1)), then forward again from the corrected f0 + (f0 - f2) / 2 (clamped to [-1, 1]) into kChanA,
+// over the same active nodes and dt. The error of A is to first order the same both ways, so it cancels.
+void Stepper::compensate(double dt, int rate_channel, NarrowBand& band, const Motion& motion,
+                         const RunControl& control) {
+  const int nb = band.block_count();
+  if (keep_channel_ < 0) keep_channel_ = band.add_channels(1, 0.0f, NarrowBand::NewBlocks::kFill);
+  const int keep = keep_channel_;
+  parallel_for(nb, band.threads(), [&](int b) { std::copy_n(band.data(b, kChanF), kBlockNodes, band.data(b, keep)); });
+  band.swap_channels(kChanF, kChanA);  // f1 in F
+  // The stage-1 rate of f (in F) at time t, backward or forward, into rate_channel.
+  auto first_stage = [&](double t, bool reverse) {
+    control.check();
+    parallel_for(nb, band.threads(), [&](int b) {
+      float* out = band.data(b, rate_channel);
+      std::copy_n(band.data(b, kChanF), kBlockNodes, out);
+      if (band.active(b).empty()) return;
+      float* rate = scratch(3, kBlockNodes);
+      motion.stage_rate(band, b, kChanF, t, rate, nullptr, reverse);
+      for (const std::uint16_t i : band.active(b)) out[i] = rate[i];
+    });
+  };
+  first_stage(time_ + dt, true);
+  runge_kutta(dt, rate_channel, time_ + dt, true, false, band, motion, control);  // f2 in A
+  parallel_for(nb, band.threads(), [&](int b) {
+    const float* f0 = band.data(b, keep);
+    const float* back = band.data(b, kChanA);
+    float* out = band.data(b, kChanF);
+    std::copy_n(f0, kBlockNodes, out);
+    for (const std::uint16_t i : band.active(b)) out[i] = std::clamp(f0[i] + 0.5f * (f0[i] - back[i]), -1.0f, 1.0f);
+  });
+  first_stage(time_, false);
+  runge_kutta(dt, rate_channel, time_, false, false, band, motion, control);
 }
 
 Stepper::SubStep Stepper::step(double dt_limit, NarrowBand& band, Motion& motion, const RunControl& control) {
@@ -166,7 +203,8 @@ Stepper::SubStep Stepper::step(double dt_limit, NarrowBand& band, Motion& motion
   // faster than before, so dt keeps within the CFL bound).
   if (advect && motion.limit_control(dt, band)) stage_one();
 
-  dt = runge_kutta(dt, rate_ch, band, motion, control);
+  dt = runge_kutta(dt, rate_ch, time_, false, true, band, motion, control);
+  if (advect && compensate_) compensate(dt, rate_ch, band, motion, control);
   last_dt_ = dt;
   restored_ = false;
   last_node_steps_ = band.active_count();

@@ -14,7 +14,8 @@ namespace surfacer::active_detail {
 class Stepper {
  public:
   // The reinitialization interval of `options` (validated by the caller).
-  explicit Stepper(const ActiveSurfaceOptions& options) : reinit_interval_(options.reinit_interval) {}
+  explicit Stepper(const ActiveSurfaceOptions& options)
+      : reinit_interval_(options.reinitialization_interval()), compensate_(options.error_compensation) {}
 
   // What a checkpoint holds of the stepper (core/active/state.cpp).
   struct Record {
@@ -53,10 +54,18 @@ class Stepper {
   double last_max_speed() const { return last_max_speed_; }
 
  private:
-  // TVD-RK3 from the stage-1 rates into kChanA. Returns the dt taken (an advecting step may be retried shorter).
-  double runge_kutta(double dt, int rate_channel, NarrowBand& band, const Motion& motion, const RunControl& control);
+  // TVD-RK3 over [t_start, t_start + dt] (reverse: back to t_start - dt, velocity and normal speed negated), from f
+  // and the stage-1 rates in rate_channel, into kChanA; may_retry: an advecting step whose stage-2 speed breaks the CFL
+  // bound is retried shorter. Returns the dt taken.
+  double runge_kutta(double dt, int rate_channel, double t_start, bool reverse, bool may_retry, NarrowBand& band,
+                     const Motion& motion, const RunControl& control);
+  // Back-and-forth error compensation of an advecting sub-step of dt whose forward result is in kChanA (ALGORITHMS
+  // §4, "Error compensation"): the compensated result into kChanA, kChanF then scratch.
+  void compensate(double dt, int rate_channel, NarrowBand& band, const Motion& motion, const RunControl& control);
 
   int reinit_interval_;
+  bool compensate_;        // options.error_compensation
+  int keep_channel_ = -1;  // f at the sub-step's start during compensate(), or -1 before its first use
   double time_ = 0.0;
   int steps_since_reinit_ = 0;
   double last_dt_ = 0.0;

@@ -221,7 +221,8 @@ class Client:
     def active_advect(self, scene, **options) -> Job:
         """Advects a scene by the Enright test field, or by a sampled one: velocity_grid (a raw float32 file) with
         velocity_origin, velocity_spacing and velocity_dims. Options: grid_spacing, frame_interval, frames
-        (required), enright_period (alias period), bounds, beta, gamma, delta, cfl, polygonizer, and every job's."""
+        (required), enright_period (alias period), error_compensation, bounds, beta, gamma, delta, cfl, polygonizer,
+        and every job's."""
         return self._run("active_advect", (scene,), options)
 
     def _run_open(self, kind, frames, options) -> Job:

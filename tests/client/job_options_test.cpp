@@ -335,6 +335,11 @@ TEST(JobOptions, ActiveModes) {
   EXPECT_FALSE(enright.velocity_grid);
   EXPECT_EQ(e.frame_interval(), 0.25);
   EXPECT_EQ(e.frames(), 8);
+  EXPECT_FALSE(e.error_compensation());
+  const JobOptions compensated =
+      run_job(parse_cli({"run", "active", "advect", "--scene", "s.json", "--enright", "--frame-interval", "0.25",
+                         "--frames", "8", "--grid-spacing", "0.01", "--error-compensation", "-o", "d"}));
+  EXPECT_TRUE(compensated.spec.active().advect().error_compensation());
 
   const JobOptions grid = run_job(parse_cli({"run",
                                              "active",
@@ -471,8 +476,9 @@ TEST(JobOptions, EveryNewSubcommandHasHelpWithAnExample) {
     EXPECT_NE(particles.out.find(flag), std::string::npos) << flag;
   }
   const ParsedCli advect = parse_cli({"run", "active", "advect", "--help"});
-  for (const char* flag : {"--enright", "--period", "--velocity-grid", "--velocity-origin", "--velocity-spacing",
-                           "--velocity-dims", "--frame-interval", "--frames", "--grid-spacing", "--alpha", "--cfl"}) {
+  for (const char* flag :
+       {"--enright", "--period", "--velocity-grid", "--velocity-origin", "--velocity-spacing", "--velocity-dims",
+        "--frame-interval", "--frames", "--grid-spacing", "--alpha", "--cfl", "--error-compensation"}) {
     EXPECT_NE(advect.out.find(flag), std::string::npos) << flag;
   }
 }
