@@ -103,8 +103,6 @@ std::vector<Case> cases() {
   return out;
 }
 
-double min_angle(const Mesh& mesh) { return check_mesh(mesh).min_angle_degrees; }
-
 // Squared distance from p to triangle (a, b, c): the nearest of the plane's foot (when inside) and the three edges.
 double squared_distance(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
   const auto to_segment = [&](const Vec3& u, const Vec3& v) {
