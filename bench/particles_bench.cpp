@@ -3,16 +3,17 @@
 // each voxel size and thread count) happens in a forked child that generates its own particles, so the peak RSS the
 // parent reads from wait4 is that run's alone.
 //
-//   particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness|scale] [--threads T]
-//                   [--flatness-sweeps N] [--scale-sizes M,M,...] [--write DIR]
+//   particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness|scale|decimate|wide]
+//                   [--threads T] [--flatness-sweeps N] [--scale-sizes M,M,...] [--write DIR]
 //
 //   --particles N   block size (default 500000): the 100 x 50 x 100 block scaled by cbrt(N / 500000) per axis
 //   --repeat R      repetitions of each of our timed runs (default 3); seconds are the minimum over them
 //   --vdb-repeat R  the same for OpenVDB's runs (default 1: one takes 10-30 s on the 500 k block, 2 cores)
-//   --section S     block, flatness, scale or decimate only (default block and flatness; scale and decimate run
-//                   only when asked); decimate: the block (--particles) and droplets decimated at TOL = 0.1 r_inner,
-//                   with the largest thread count and with 1 (the two meshes must be identical)
-//                   (docs/ALGORITHMS.md §5, CHOICE "Decimation")
+//   --section S     block, flatness, scale, decimate or wide only (default block and flatness; scale, decimate and
+//                   wide run only when asked); decimate: the block (--particles) and droplets decimated at TOL =
+//                   0.1 r_inner, with the largest thread count and with 1 (the two meshes must be identical)
+//                   (docs/ALGORITHMS.md §5, CHOICE "Decimation"); wide: lattices with r_inner of 1-3 spacings
+//                   (bench_wide)
 //   --scale-sizes L the scale section's block sizes in millions of particles (default 0.5,2,13.5,50)
 //   --threads T     one thread count for both sides (default: 1, then 2)
 //   --flatness-sweeps N  Bilaplacian sweeps of the flatness slabs (default: the option's default); many (e.g. 1000)
@@ -111,7 +112,7 @@ struct Config {
   int repeat = 3;
   int vdb_repeat = 1;  // an OpenVDB run of the 500 k block takes 10-30 s
   std::vector<int> threads = {1, 2};
-  bool block = true, flatness = true, scale = false, decimate = false;
+  bool block = true, flatness = true, scale = false, decimate = false, wide = false;
   std::vector<double> scale_millions = {0.5, 2.0, 13.5, 50.0};
   std::optional<int> flatness_sweeps;
   std::string write_dir;
@@ -825,9 +826,54 @@ bool bench_decimate(const Config& cfg) {
   return ok;
 }
 
+// --section wide: a 40^3 lattice (d 0.01, no jitter) at r_inner of 1, 2 and 3 d, the radii a user who takes r_inner
+// for a kernel radius gives: many outer spheres pass near each vertex, and the cusp search is cubic in them. Printed:
+// triangles, vertices holding a cusp, build_b and surface seconds, and the surface seconds without cusps
+// (vertex_only_band) beside them.
+constexpr std::array<double, 3> kWideRatios = {1.0, 2.0, 3.0};  // r_inner / d
+
+bool bench_wide(const Config& cfg) {
+  const int threads = *std::max_element(cfg.threads.begin(), cfg.threads.end());
+  constexpr double d = 0.01;
+  constexpr int n = 40;
+  std::printf(
+      "wide  a %d^3 lattice, d %.3g, no jitter, r_inner several spacings wide (r_outer 2 r_inner), %d threads, one "
+      "run each; no cusps: vertex_only_band\n",
+      n, d, threads);
+  std::printf("  %9s %10s %12s %10s %10s %14s %9s\n", "r_inner/d", "triangles", "cusp verts", "build_b s", "surface s",
+              "no cusps s", "ratio");
+  bool ok = true;
+  for (const double ratio : kWideRatios) {
+    DataSet set;
+    char name[32];
+    std::snprintf(name, sizeof name, "wide_%.0fd", ratio);
+    set.name = name;
+    set.particles = [] { return lattice({n, n, n}, d, 0.0, 9); };
+    set.options.r_inner = ratio * d;
+    DataSet plain = set;
+    plain.name += "_vertex_only_band";
+    plain.options.vertex_only_band = true;
+    const auto run = in_child<OursResult>([&] { return run_ours(set, threads, 1, cfg.write_dir); });
+    const auto bare = in_child<OursResult>([&] { return run_ours(plain, threads, 1, cfg.write_dir); });
+    if (!run || !bare) {
+      std::printf("  %9.1f FAILED\n", ratio);
+      ok = false;
+      continue;
+    }
+    const OursResult& r = run->value;
+    ok = ok && r.mesh.closed_manifold;
+    std::printf("  %9.1f %10zu %12zu %10.3f %10.3f %14.3f %8.1fx%s\n", ratio, r.mesh.triangles, r.stats.cusp_vertices,
+                r.stats.seconds_build_b, r.time.surface, bare->value.time.surface,
+                r.time.surface / bare->value.time.surface, r.mesh.closed_manifold ? "" : "  mesh NOT closed manifold");
+    std::fflush(stdout);
+  }
+  std::printf("\n");
+  return ok;
+}
+
 constexpr const char* kUsage =
     "usage: particles_bench [--particles N] [--repeat R] [--vdb-repeat R]\n"
-    "                       [--section block|flatness|scale|decimate] [--threads T] [--flatness-sweeps N]\n"
+    "                       [--section block|flatness|scale|decimate|wide] [--threads T] [--flatness-sweeps N]\n"
     "                       [--scale-sizes M,M,...] [--write DIR]\n";
 
 }  // namespace
@@ -851,13 +897,15 @@ int main(int argc, char** argv) {
       cfg.vdb_repeat = args.integer(1);
       block_flag = flag;
     } else if (flag == "--section") {
-      const std::string section = args.value("block, flatness, scale or decimate");
-      if (section != "block" && section != "flatness" && section != "scale" && section != "decimate")
-        args.error("--section is block, flatness, scale or decimate, got '" + section + "'");
+      const std::string section = args.value("block, flatness, scale, decimate or wide");
+      if (section != "block" && section != "flatness" && section != "scale" && section != "decimate" &&
+          section != "wide")
+        args.error("--section is block, flatness, scale, decimate or wide, got '" + section + "'");
       cfg.block = section == "block";
       cfg.flatness = section == "flatness";
       cfg.scale = section == "scale";
       cfg.decimate = section == "decimate";
+      cfg.wide = section == "wide";
     } else if (flag == "--threads") {
       cfg.threads = {args.integer(1)};
     } else if (flag == "--flatness-sweeps") {
@@ -898,6 +946,7 @@ int main(int argc, char** argv) {
   bool ok = true;
   if (cfg.block) ok = bench_block(cfg) && ok;
   if (cfg.flatness) ok = bench_flatness(cfg) && ok;
+  if (cfg.wide) ok = bench_wide(cfg) && ok;
   if (cfg.scale) ok = bench_scale(cfg) && ok;
   if (cfg.decimate) ok = bench_decimate(cfg) && ok;
   if (getloadavg(load, 3) >= 0) std::printf("load average %.2f at the end\n", load[0]);
