@@ -1158,13 +1158,11 @@ void require_r_inner_source(bool frame_has_radii, bool has_r_inner, bool derive_
 struct ParticleSurfacer::State {
   ParticleSurfacingOptions options;
   Particles particles;
-  // This run's frame is large enough that its stages' free pages go back to the system (give_back_memory).
-  bool give_back = false;
-
-  // return_free_memory() between stages of a large frame (docs/ALGORITHMS.md §1, CHOICE "memory returned between
-  // stages"); a small frame's pages are reused by its next stages and frames, and returning them costs page faults.
-  void give_back_memory() const {
-    if (give_back) return_free_memory();
+  // return_free_memory() between stages of a frame of at least kGiveBackParticles (stats.particles: the input's count)
+  // (docs/ALGORITHMS.md §1, CHOICE "memory returned between stages"); a small frame's pages are reused by its next
+  // stages and frames, and returning them costs page faults.
+  static void give_back_memory(const ParticleSurfacingStats& stats) {
+    if (stats.particles >= kGiveBackParticles) return_free_memory();
   }
 
   Mesh run(std::span<const Vec3> input, std::span<const double> radii, const RunControl& control,
@@ -1730,7 +1728,7 @@ void ParticleSurfacer::State::smooth(Mesh& mesh, int threads, const RunControl& 
   Clock::time_point t0 = Clock::now();
   mesh.normals.clear();
   Smoother smoother(mesh, o, particles, threads);
-  give_back_memory();  // the 1-ring's buckets
+  give_back_memory(stats);  // the 1-ring's buckets
   stats.initial_min_valence = min_valence(smoother.ring());
   smoother.laplacian(control);
   stats.seconds_laplacian = seconds_since(t0);
@@ -1742,7 +1740,7 @@ void ParticleSurfacer::State::smooth(Mesh& mesh, int threads, const RunControl& 
   stats.seconds_bilaplacian = seconds_since(t0);
   t0 = Clock::now();
   smoother.polish(control, stats);
-  give_back_memory();
+  give_back_memory(stats);
   stats.seconds_polish = seconds_since(t0);
   if (o.erosion && *o.erosion > 0.0) {
     t0 = Clock::now();
@@ -1799,17 +1797,16 @@ Mesh ParticleSurfacer::State::run(std::span<const Vec3> input, std::span<const d
     ~ForgetInput() { P.positions = {}; }
   } forget_input{particles};
   Clock::time_point t0 = Clock::now();
-  give_back = input.size() >= kGiveBackParticles;
   distance_field(input, radii, threads, control, stats);
   // Each stage's scratch goes back to the system before the next one's arrays (docs/ALGORITHMS.md §1, CHOICE
   // "memory returned between stages").
-  give_back_memory();
+  give_back_memory(stats);
   stats.seconds_distance_field = seconds_since(t0);
   if (particles.positions.empty()) return finish({});
 
   t0 = Clock::now();
   Mesh mesh = polygonize(threads, control, stats);
-  give_back_memory();  // the tiles' block outputs: many small blocks, which the smoothing's arrays would not reuse
+  give_back_memory(stats);  // the tiles' block outputs: many small blocks, which the smoothing's arrays would not reuse
   stats.seconds_polygonize = seconds_since(t0);
   if (initial_only) {
     stats.initial_min_valence = min_valence(ps::one_ring(mesh.vertices.size(), mesh.triangles, threads));
