@@ -127,19 +127,7 @@ void Stepper::compensate(double dt, int rate_channel, NarrowBand& band, const Mo
   const int keep = keep_channel_;
   parallel_for(nb, band.threads(), [&](int b) { std::copy_n(band.data(b, kChanF), kBlockNodes, band.data(b, keep)); });
   band.swap_channels(kChanF, kChanA);  // f1 in F
-  // The stage-1 rate of f (in F) at time t, backward or forward, into rate_channel.
-  auto first_stage = [&](double t, bool reverse) {
-    control.check();
-    parallel_for(nb, band.threads(), [&](int b) {
-      float* out = band.data(b, rate_channel);
-      std::copy_n(band.data(b, kChanF), kBlockNodes, out);
-      if (band.active(b).empty()) return;
-      float* rate = scratch(3, kBlockNodes);
-      motion.stage_rate(band, b, kChanF, t, rate, nullptr, reverse);
-      for (const std::uint16_t i : band.active(b)) out[i] = rate[i];
-    });
-  };
-  first_stage(time_ + dt, true);
+  stage_one_rates(time_ + dt, true, rate_channel, band, motion, control);
   runge_kutta(dt, rate_channel, time_ + dt, true, false, band, motion, control);  // f2 in A
   parallel_for(nb, band.threads(), [&](int b) {
     const float* f0 = band.data(b, keep);
@@ -148,8 +136,27 @@ void Stepper::compensate(double dt, int rate_channel, NarrowBand& band, const Mo
     std::copy_n(f0, kBlockNodes, out);
     for (const std::uint16_t i : band.active(b)) out[i] = std::clamp(f0[i] + 0.5f * (f0[i] - back[i]), -1.0f, 1.0f);
   });
-  first_stage(time_, false);
+  stage_one_rates(time_, false, rate_channel, band, motion, control);
   runge_kutta(dt, rate_channel, time_, false, false, band, motion, control);
+}
+
+void Stepper::stage_one_rates(double t, bool reverse, int rate_channel, NarrowBand& band, const Motion& motion,
+                              const RunControl& control, double* max_speed, double* max_rate) const {
+  control.check();
+  parallel_for(band.block_count(), band.threads(), [&](int b) {
+    const float* f = band.data(b, kChanF);
+    float* out = band.data(b, rate_channel);
+    std::copy_n(f, kBlockNodes, out);
+    if (band.active(b).empty()) return;
+    float* rate = scratch(3, kBlockNodes);
+    motion.stage_rate(band, b, kChanF, t, rate, max_speed != nullptr ? &max_speed[b] : nullptr, reverse);
+    double mr = 0.0;
+    for (const std::uint16_t i : band.active(b)) {
+      out[i] = rate[i];
+      mr = std::max(mr, static_cast<double>(std::abs(rate[i])));
+    }
+    if (max_rate != nullptr) max_rate[b] = mr;
+  });
 }
 
 Stepper::SubStep Stepper::step(double dt_limit, NarrowBand& band, Motion& motion, const RunControl& control) {
@@ -168,21 +175,7 @@ Stepper::SubStep Stepper::step(double dt_limit, NarrowBand& band, Motion& motion
   const int rate_ch = advect ? advect_rate_channel : kChanA;
   double vmax = 0.0, rmax = 0.0;
   auto stage_one = [&] {
-    control.check();
-    parallel_for(nb, band.threads(), [&](int b) {
-      const float* f = band.data(b, kChanF);
-      float* out = band.data(b, rate_ch);
-      std::copy_n(f, kBlockNodes, out);
-      if (band.active(b).empty()) return;
-      float* rate = scratch(3, kBlockNodes);
-      motion.stage_rate(band, b, kChanF, time_, rate, &block_max_speed[b]);
-      double mr = 0.0;
-      for (const std::uint16_t i : band.active(b)) {
-        out[i] = rate[i];
-        mr = std::max(mr, static_cast<double>(std::abs(rate[i])));
-      }
-      block_max_rate[b] = mr;
-    });
+    stage_one_rates(time_, false, rate_ch, band, motion, control, block_max_speed.data(), block_max_rate.data());
     vmax = 0.0;
     rmax = 0.0;
     for (int b = 0; b < nb; ++b) {

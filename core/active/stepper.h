@@ -59,6 +59,11 @@ class Stepper {
   // bound is retried shorter. Returns the dt taken.
   double runge_kutta(double dt, int rate_channel, double t_start, bool reverse, bool may_retry, NarrowBand& band,
                      const Motion& motion, const RunControl& control);
+  // Stage 1: the rates L(f) of kChanF at time t (reverse: backward in time) into rate_channel at the active nodes (f
+  // elsewhere); per block, the largest speed into max_speed and the largest |L| into max_rate when they are given
+  // (one element per block).
+  void stage_one_rates(double t, bool reverse, int rate_channel, NarrowBand& band, const Motion& motion,
+                       const RunControl& control, double* max_speed = nullptr, double* max_rate = nullptr) const;
   // Back-and-forth error compensation of an advecting sub-step of dt whose forward result is in kChanA (ALGORITHMS
   // §4, "Error compensation"): the compensated result into kChanA, kChanF then scratch.
   void compensate(double dt, int rate_channel, NarrowBand& band, const Motion& motion, const RunControl& control);
