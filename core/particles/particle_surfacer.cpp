@@ -1357,7 +1357,9 @@ class Smoother {
       std::size_t lowered = 0;
       std::vector<BandException> exceptions;
       for (std::size_t i = begin; i < end; ++i) {
-        if (((i - begin) & 63) == 63) control.check();
+        // Every vertex: one cusp search can take milliseconds where many outer spheres pass near it (kMaxCuspSpheres
+        // of them: about 15 ms), so 64 of them could keep a cancelled job past half a second; a check is one load.
+        control.check();
         const Vec3& at = positions_[i];  // where step 3 left it
         const Vec3& n = normals_[i];
         double cell = 0.0;
