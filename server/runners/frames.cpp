@@ -7,6 +7,7 @@
 #include <latch>
 #include <memory>
 #include <optional>
+#include <thread>
 
 #include "core/mesh/frame_codec.h"
 #include "core/mesh/grid_cleanup.h"
@@ -18,12 +19,13 @@ namespace surfacer::server {
 namespace {
 
 // One Draco mesh encoded beside the checks, by whichever thread claims it first: a pool thread (the task is posted
-// as soon as the frame is made) or the frame's own thread once its checks are done. The encoder's copy of the mesh
-// is made by the thread that claimed it, so it is held only while it is encoded; a pool thread's encoding may
+// as soon as the frame is made) or, when none has taken it by the end of the checks, a thread started for it, so the
+// frame's own thread only waits, and gives up at a cancel (Draco's encoder cannot be stopped). The encoder's copy of
+// the mesh is made by the thread that claimed it, so it is held only while it is encoded; a pool thread's encoding may
 // outlive a cancelled frame, which waits only for that copy (`copied`) before its mesh goes.
 struct SideEncoding {
   SideEncoding(const Mesh& mesh, const DracoOptions& options) : mesh(mesh), options(options) {}
-  const Mesh& mesh;  // valid until `copied` by a pool thread, or while the frame's own thread encodes
+  const Mesh& mesh;  // valid until `copied` by the thread that claimed it
   const DracoOptions options;
   std::atomic<bool> claimed{false};
   std::latch copied{1};
@@ -46,8 +48,8 @@ struct SideEncoding {
     }
     return true;
   }
-  // Called by the frame's own thread on its way out: when no pool thread has begun, none will; else waits for the
-  // pool thread's copy of the mesh.
+  // Called by the frame's own thread on its way out: when no thread has claimed it, none will; else waits for the
+  // claiming thread's copy of the mesh.
   void leave() {
     if (claimed.exchange(true, std::memory_order_acq_rel)) copied.wait();
   }
@@ -123,7 +125,9 @@ FrameOutput FrameMaker::make(Mesh mesh, StageTimer& timer, const RunControl& con
       try {
         check();
         control.report("encode", 0.0);
-        side->run();  // no pool thread was free: encoded here, uninterruptibly
+        // No pool thread has taken it (each is busy, e.g. with a cancelled job's encode, which Draco cannot stop): a
+        // thread of its own encodes it, so this one can still give up at a cancel.
+        if (!side->claimed.load(std::memory_order_acquire)) std::thread([side] { side->run(); }).detach();
         while (encoded.wait_for(std::chrono::milliseconds(10)) != std::future_status::ready) control.check();
       } catch (...) {
         side->leave();  // cancelled: a pool thread that has not begun skips it
