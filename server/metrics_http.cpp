@@ -11,6 +11,7 @@
 
 #include <algorithm>
 #include <cerrno>
+#include <compare>
 #include <cstring>
 #include <stdexcept>
 #include <utility>
@@ -142,40 +143,47 @@ struct Connection {
   int fd = -1;
   Phase phase = Phase::kReading;
   PeerKey peer;
-  std::uint64_t serial = 0;  // accept order: smaller is older
+  std::uint64_t serial = 0;     // accept order: smaller is older
+  Clock::time_point last_byte;  // when the last byte of the request came, or the accept
   std::string in;
   std::string out;
   std::size_t sent = 0;
   Clock::time_point deadline;
 };
 
-// Which open connection (of `peer` only, unless null) gives way to a new one, by kind: answered ones (lingering),
-// then idle ones (waiting for a request head of which no byte has come, not even unread in the socket), then
-// those with part of a request, then those being answered; the oldest of the first kind present. nullptr when there
-// is none.
-Connection* eviction_victim(std::vector<Connection>& connections, const PeerKey* peer) {
-  const auto rank = [](const Connection& c) {
+// Which open connection (of `peer` only, unless null) gives way to a new one: an answered one (lingering) first,
+// then the request being read that has gone longest without a byte (counting from its accept; bytes waiting unread in
+// the socket count as now), then one being answered; the oldest of each. A client that has just connected and not yet
+// sent its request is as fresh as any, so the stalled ones go before it. nullptr when there is none.
+Connection* eviction_victim(std::vector<Connection>& connections, const PeerKey* peer, Clock::time_point now) {
+  struct Key {
+    int rank;
+    Clock::time_point since;
+    std::uint64_t serial;
+    auto operator<=>(const Key&) const = default;
+  };
+  const auto key = [now](const Connection& c) {
     switch (c.phase) {
       case Connection::Phase::kLingering:
-        return 0;
+        return Key{0, {}, c.serial};
       case Connection::Phase::kReading: {
         int pending = 0;
-        const bool idle = c.in.empty() && ioctl(c.fd, FIONREAD, &pending) == 0 && pending == 0;
-        return idle ? 1 : 2;
+        const bool waiting = ioctl(c.fd, FIONREAD, &pending) == 0 && pending > 0;
+        return Key{1, waiting ? now : c.last_byte, c.serial};
       }
       case Connection::Phase::kWriting:
-        return 3;
+        break;
     }
-    return 3;
+    return Key{2, {}, c.serial};
   };
   Connection* victim = nullptr;
-  int victim_rank = 0;
+  Key victim_key{};
   for (Connection& c : connections) {
     if (c.fd < 0 || (peer != nullptr && c.peer != *peer)) continue;
-    const int r = rank(c);
-    if (victim == nullptr || r < victim_rank || (r == victim_rank && c.serial < victim->serial)) {
+    const Key k = key(c);
+    if (victim == nullptr || k < victim_key) {
       victim = &c;
-      victim_rank = r;
+      victim_key = k;
     }
   }
   return victim;
@@ -331,6 +339,7 @@ void MetricsHttpServer::run() {
       const ssize_t n = recv(c.fd, buffer, sizeof buffer, 0);
       if (n > 0) {
         c.in.append(buffer, static_cast<std::size_t>(n));
+        c.last_byte = now;
       } else if (n == 0) {
         eof = true;
         break;
@@ -410,14 +419,15 @@ void MetricsHttpServer::run() {
       c.peer = peer_key(from);
       c.serial = accepted++;
       c.deadline = now + options_.read_timeout;
+      c.last_byte = now;
       const auto same_peer = std::count_if(connections.begin(), connections.end(),
                                            [&](const Connection& o) { return o.fd >= 0 && o.peer == c.peer; });
       if (same_peer >= options_.max_connections_per_peer) {
-        close_connection(*eviction_victim(connections, &c.peer));
+        close_connection(*eviction_victim(connections, &c.peer, now));
       }
       std::erase_if(connections, [](const Connection& o) { return o.fd < 0; });
       if (connections.size() >= static_cast<std::size_t>(options_.max_connections)) {
-        close_connection(*eviction_victim(connections, nullptr));
+        close_connection(*eviction_victim(connections, nullptr, now));
         std::erase_if(connections, [](const Connection& o) { return o.fd < 0; });
       }
       connections.push_back(std::move(c));

@@ -15,8 +15,8 @@
 // Idle clients cannot lock scrapes out: a connection holds its slot at most read_timeout before its request head is
 // complete, and a new connection is never refused: when its peer address already holds max_connections_per_peer
 // connections, or the server holds max_connections, one of that peer's (or of all) is closed for it: an answered one
-// still lingering, else the oldest idle one (no byte of a request yet), else the oldest with part of a request, else
-// the oldest being answered.
+// still lingering, else the request being read that has gone longest without a byte (a connection that has just been
+// accepted and has sent nothing yet is fresh: it is a client about to send), else the oldest being answered.
 //
 // Why not prometheus-cpp's pull Exposer (civetweb), which would replace this file: civetweb serves each connection on
 // one of its num_threads worker threads (2 by default in Exposer) for as long as the connection stays open, up to its

@@ -974,6 +974,44 @@ TEST_F(MetricsHttpTest, IdleConnectionsFromOnePeerDoNotLockScrapesOut) {
   for (const int fd : idle) close(fd);
 }
 
+// A client that has connected but not yet sent its request is the freshest connection there is: when its address is
+// at max_connections_per_peer, the connections that sent part of a request and then went quiet give way first. Each
+// connection below is known to be accepted (a request from another address is answered after it) before the next.
+TEST_F(MetricsHttpTest, AClientAboutToSendOutlastsStalledOnes) {
+  auto server = MetricsHttpServer::start(registry, "127.0.0.1:0");
+  const int port = server->port();
+  const auto accepted = [&] {
+    const int probe = connect_from("127.0.0.2", port);
+    ASSERT_GE(probe, 0) << std::strerror(errno);
+    ASSERT_TRUE(send_all(probe, "GET /healthz HTTP/1.1\r\n\r\n"));
+    ASSERT_EQ(parse_response(read_all(probe)).status, 200);
+    close(probe);
+  };
+  std::vector<int> stalled;
+  for (int i = 0; i < MetricsHttpOptions{}.max_connections_per_peer; ++i) {
+    stalled.push_back(connect_to(port));
+    ASSERT_GE(stalled.back(), 0);
+    ASSERT_TRUE(send_all(stalled.back(), "GET /metrics HTTP/1.1\r\nHost: slow"));
+  }
+  accepted();
+  std::this_thread::sleep_for(20ms);  // the stalled ones are now quiet for a while
+  for (int round = 0; round < 3; ++round) {
+    const int about_to_send = connect_to(port);
+    ASSERT_GE(about_to_send, 0);
+    accepted();
+    const int next = connect_to(port);  // the peer is over its limit again
+    ASSERT_GE(next, 0);
+    accepted();
+    ASSERT_TRUE(send_all(about_to_send, "GET /healthz HTTP/1.1\r\n\r\n")) << "round " << round;
+    EXPECT_EQ(parse_response(read_all(about_to_send)).status, 200) << "round " << round;
+    close(about_to_send);
+    ASSERT_TRUE(send_all(next, "GET /healthz HTTP/1.1\r\n\r\n"));
+    EXPECT_EQ(parse_response(read_all(next)).status, 200) << "round " << round;
+    close(next);
+  }
+  for (const int fd : stalled) close(fd);
+}
+
 TEST_F(MetricsHttpTest, IdleConnectionsAreClosedAfterTheReadTimeout) {
   MetricsHttpOptions options;
   options.read_timeout = 200ms;
