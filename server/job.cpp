@@ -250,9 +250,9 @@ std::vector<int> Job::restore(const StoredJob& stored) {
   }
   if (usage_) usage_->add(owner_, stored_bytes());
   if (interrupted) {
-    log_event(is_terminal(state()) ? LogLevel::kWarn : LogLevel::kInfo, "job_interrupted",
-              {{"job", id_}, {"interrupted_runs", std::to_string(interrupted_runs_)}, {"state",
-                                                                                        v1::JobState_Name(state())}});
+    log_event(
+        is_terminal(state()) ? LogLevel::kWarn : LogLevel::kInfo, "job_interrupted",
+        {{"job", id_}, {"interrupted_runs", std::to_string(interrupted_runs_)}, {"state", v1::JobState_Name(state())}});
   }
   // The store holds it as QUEUED from here (and its count) until a task starts: a crash before then is not counted.
   if (interrupted || (todo.empty() && !is_terminal(stored.snapshot.state()))) persist();
@@ -426,7 +426,15 @@ bool Job::next_event(WatchCursor& cursor, v1::JobEvent& event) const {
     snapshot_locked(*event.mutable_state());
     return true;
   }
-  // 3. The next finished frame.
+  // 3. Once the job has ended, its last progress (the final frames_total) before the frames still to send: the
+  //    state event for the last frames an open sequence took is not sent once the job is terminal, and a watcher that
+  //    last saw the earlier total would otherwise get those frames beyond it.
+  if (term && cursor.progress_version_sent != progress_version_ && cursor.next_frame < frames_.size()) {
+    cursor.progress_version_sent = progress_version_;
+    *event.mutable_progress() = progress_;
+    return true;
+  }
+  // 4. The next finished frame.
   while (cursor.next_frame < frames_.size()) {
     auto record = frames_[cursor.next_frame++];
     if (cursor.skip_frames || record->header.frame_index() < cursor.from_frame) continue;
@@ -439,13 +447,13 @@ bool Job::next_event(WatchCursor& cursor, v1::JobEvent& event) const {
     }
     return true;
   }
-  // 4. New progress.
+  // 5. New progress.
   if (!term && cursor.progress_version_sent != progress_version_) {
     cursor.progress_version_sent = progress_version_;
     *event.mutable_progress() = progress_;
     return true;
   }
-  // 5. The terminal state, last.
+  // 6. The terminal state, last.
   if (term) {
     cursor.state_version_sent = state_version_;
     cursor.done = true;
@@ -637,7 +645,7 @@ bool Job::settle_locked() {
     finish_locked(v1::JOB_STATE_CANCELLED);
     return true;
   }
-  if (open_ || tasks_settled_ < tasks_total_) return false;  // an open sequence waits for frames or its end
+  if (open_ || tasks_settled_ < tasks_total_) return false;       // an open sequence waits for frames or its end
   if (tasks_done_ == tasks_total_) frames_total_ = frames_done_;  // open-ended jobs end with what they emitted
   progress_.set_frames_total(frames_total_);
   if (abort_message_) {  // an open sequence its client ended with abort_reason

@@ -108,7 +108,8 @@ class Job : public FrameSink {
   void add_listener(std::weak_ptr<JobListener> listener);
 
   // The next event for a watcher at `cursor`: chunks of the frame in flight, then a changed state, then the next
-  // finished frame (index >= from_frame), then new progress; the terminal state comes last, after every frame.
+  // finished frame (index >= from_frame), then new progress; the terminal state comes last, after every frame. No
+  // frame goes out before an event with a frames_total above its index.
   // Returns false when there is nothing to send yet.
   bool next_event(WatchCursor& cursor, v1::JobEvent& event) const;
 

@@ -8,6 +8,8 @@
 #include <filesystem>
 #include <thread>
 
+#include "server/job.h"
+#include "server/runners/runner.h"
 #include "tests/server/test_client.h"
 #include "tests/support/files.h"
 #include "tests/support/server_process.h"
@@ -124,6 +126,72 @@ TEST(OpenSequence, FramesJoinARunningJobUntilTheEndMarker) {
   EXPECT_EQ(not_open.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
   EXPECT_NE(not_open.error_message().find("not an open sequence"), std::string::npos) << not_open.error_message();
   EXPECT_EQ(watch_job(*s.stub, closed_id).final_job.frames_total(), 1);
+}
+
+// A runner of one frame per task that takes appended frames; the test drives the job's transitions itself.
+class OpenRunner : public server::JobRunner {
+ public:
+  std::string kind() const override { return "particles"; }
+  int task_count() const override { return 1; }
+  int frame_count() const override { return 1; }
+  void run_task(int, server::FrameSink&, const RunControl&) override {}
+  bool open() const override { return true; }
+  void check_appended(const google::protobuf::RepeatedPtrField<v1::ParticleFrame>&, const std::string&) const override {
+  }
+};
+
+// A watcher that looks only now and then (a busy stream) must never get a frame beyond the frames_total it has been
+// told, even when the sequence's last frames joined and were surfaced, and the job finished, between two looks: the
+// client takes such a frame for a broken server. Driven on the Job itself, so the interleaving is exact.
+TEST(OpenSequence, NoFrameReachesAWatcherBeyondTheTotalItWasTold) {
+  for (const int last_batch : {1, 3}) {
+    server::JobInit init;
+    init.id = "j-open";
+    init.runner = std::make_unique<OpenRunner>();
+    init.spec = open_spec(v1::ParticleFrame());
+    server::Job job(std::move(init));
+    server::WatchCursor cursor;
+    int told = 0;
+    std::vector<int> frames;
+    const auto look = [&] {
+      v1::JobEvent event;
+      while (job.next_event(cursor, event)) {
+        if (event.has_state()) told = std::max(told, event.state().frames_total());
+        if (event.has_progress()) told = std::max(told, event.progress().frames_total());
+        if (event.has_frame()) {
+          EXPECT_LT(event.frame().frame_index(), told) << "batch of " << last_batch;
+          frames.push_back(event.frame().frame_index());
+        }
+      }
+    };
+    const auto surface = [&](int task) {
+      ASSERT_TRUE(job.task_started());
+      server::FrameOutput output;
+      output.bytes = "mesh " + std::to_string(task);
+      job.emit(task, std::move(output));
+      job.task_succeeded(task);
+    };
+    surface(0);
+    look();
+    v1::AppendFramesRequest more;
+    more.set_job_id("j-open");
+    more.add_frames();
+    std::vector<int> tasks;
+    ASSERT_TRUE(job.append_frames(more, tasks).ok());
+    surface(1);
+    look();
+    ASSERT_EQ(told, 2);
+    more.clear_frames();
+    for (int i = 0; i < last_batch; ++i) more.add_frames();
+    more.set_end(true);
+    tasks.clear();
+    ASSERT_TRUE(job.append_frames(more, tasks).ok());
+    for (const int task : tasks) surface(task);
+    ASSERT_EQ(job.state(), v1::JOB_STATE_SUCCEEDED);
+    look();  // the watcher's first look since frame 1
+    EXPECT_EQ(static_cast<int>(frames.size()), 2 + last_batch);
+    EXPECT_EQ(told, 2 + last_batch);
+  }
 }
 
 TEST(OpenSequence, AnEndWithoutFramesFinishesAndAnAbortFails) {
