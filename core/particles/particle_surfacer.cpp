@@ -12,9 +12,11 @@
 #include <cmath>
 #include <limits>
 #include <mutex>
+#include <numbers>
 #include <numeric>
 #include <string>
 
+#include "core/particles/cusp_search.h"
 #include "core/particles/smoothing.h"
 #include "core/particles/spatial_hash.h"
 #include "core/polygonize/marching_tiles.h"
@@ -28,6 +30,12 @@ namespace surfacer {
 namespace {
 
 namespace ps = particle_smoothing;
+using particle_cusps::Ball;
+using particle_cusps::CuspPlane;
+using particle_cusps::HeldCusp;
+using particle_cusps::kCuspFacing;
+using particle_cusps::kMaxCuspSpheres;
+using particle_cusps::lowest_cusp;
 using Clock = std::chrono::steady_clock;
 
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
@@ -42,23 +50,14 @@ constexpr double kSkipSlack = 1e-6;
 // The first radius of a nearest-particle search, in r_outer (Particles::nearest).
 constexpr double kFirstSearch = 1.25;
 constexpr int kMaxNewtonSteps = 16;
-// A cusp is held by a vertex only when its axis is within 60 degrees of the vertex normal (docs/ALGORITHMS.md §1,
-// CHOICE "cusps held"): a cusp seen edge-on belongs to another side of the fluid.
-constexpr double kCuspFacing = 0.5;
 // Particles closer than this (in r_inner) to an earlier one are merged into it (docs/ALGORITHMS.md §1, CHOICE
 // "coincident particles merged").
 constexpr double kCoincidentTolerance = 1e-6;
-// A vertex with more outer spheres than this passing near it holds no cusp (docs/ALGORITHMS.md §1, CHOICE "coincident
-// particles merged"): the search is cubic in them.
-constexpr std::size_t kMaxCuspSpheres = 96;
 // Frames of at least this many particles give their stages' free pages back to the system (docs/ALGORITHMS.md §1,
 // CHOICE "memory returned between stages"). Below it the pages are soon reused: 24 frames of 64 k particles on 2
 // workers took 1.9-2.7 s of system time with the trims against 0.6-1.2 s without, for a peak 411-435 MB against
 // 467-470 MB.
 constexpr std::size_t kGiveBackParticles = 250'000;
-// lowest_cusp: pairs of spheres whose circle passes within cell (1 + this) + this radius of x may share a cusp with a
-// third (a margin far above rounding; the exact test follows).
-constexpr double kCuspPairMargin = 1e-6;
 // Rounds of 1-ring sums that carry the cusps' planes to the vertices around them (CHOICE "a start on the cusps'
 // planes"): enough to cover r_outer, at most this many.
 constexpr int kMaxDescentPasses = 16;
@@ -68,26 +67,6 @@ constexpr int kMaxDescentPasses = 16;
 // The particles in use, a spatial hash over them (cell = the largest r_outer) and their radii.
 struct Interval {
   double lo = 0.0, hi = 0.0;
-};
-
-// An outer ball near a vertex.
-struct Ball {
-  Vec3 centre;
-  double radius;
-};
-
-// The plane through a cusp perpendicular to its axis, (axis, offset) . (y, -1) = 0; the particles lie on the side
-// axis . y < offset. All zero: no plane. One 4-vector, so that sums of planes are two SIMD adds.
-struct CuspPlane {
-  Eigen::Vector4d equation = Eigen::Vector4d::Zero();
-  Vec3 axis() const { return equation.head<3>(); }
-  double offset() const { return equation[3]; }
-};
-
-// What a held cusp asks of a vertex x + t n: t <= bound, the plane through the cusp.
-struct HeldCusp {
-  double bound = kInf;
-  CuspPlane plane;
 };
 
 // A thread's scratch for band queries.
@@ -105,121 +84,6 @@ struct BandScratch {
   // The hash's slot ranges [first, second) a band query reads, in ascending order (Particles::band_on_line).
   std::vector<std::pair<std::uint32_t, std::uint32_t>> ranges;
 };
-
-// The lowest cusp a vertex x (unit normal n, Voronoi cell within `cell` of x) holds below: a point q where three outer
-// spheres meet and that lies in no outer ball (a vertex of the boundary of their union), within `cell` of x, that
-// owns(q) gives to this vertex, and whose axis (the unit normal of its three centres' plane, on q's side) faces the
-// vertex's outside (axis . n >= kCuspFacing). `spheres` must hold every outer ball whose sphere passes within cell of
-// x (the only ones on which such a q can lie) and `deeper` every other ball within its radius + cell of x: together,
-// all the balls that can contain q. The bound keeps x + t n on the particles' side of the plane through q
-// perpendicular to its axis; the lowest bound over the cusps wins. nullopt when no cusp qualifies.
-template <class Owns>
-std::optional<HeldCusp> lowest_cusp(const Vec3& x, const Vec3& n, double cell, std::span<const Ball> spheres,
-                                    std::span<const Ball> deeper, Owns&& owns) {
-  std::optional<HeldCusp> best;
-  const std::size_t k = spheres.size();
-  if (k < 3) return best;
-  const auto inside = [](const Vec3& q, const Ball& ball) {
-    return (q - ball.centre).squaredNorm() < ball.radius * ball.radius * (1.0 - 1e-9);
-  };
-  // The squared distance from x to the circle where the spheres of A and B meet (centre A + u ex, radius rho, in the
-  // plane normal to ex); nullopt when they do not meet in a circle.
-  struct Circle {
-    Vec3 ex;
-    double u, distance2;
-  };
-  const auto circle = [&x](const Ball& A, const Ball& B) -> std::optional<Circle> {
-    const Vec3 ab = B.centre - A.centre;
-    const double dab = ab.norm();
-    if (!(dab > 0.0) || dab >= A.radius + B.radius) return std::nullopt;
-    const Vec3 ex = ab / dab;
-    const double u = (A.radius * A.radius - B.radius * B.radius + dab * dab) / (2.0 * dab);
-    const double rho2 = A.radius * A.radius - u * u;
-    if (!(rho2 >= 0.0)) return std::nullopt;
-    const Vec3 rel = x - A.centre - u * ex;
-    const double axial = rel.dot(ex), radial = std::sqrt(std::max(0.0, rel.squaredNorm() - axial * axial));
-    const double gap = radial - std::sqrt(rho2);
-    return Circle{ex, u, axial * axial + gap * gap};
-  };
-  // A q of spheres a, b, c lies on all three circles of their pairs, within cell of x. So c is tried only with the
-  // spheres whose circles with a and with b pass within cell of x, up to a margin far above rounding (near[a] bit c:
-  // the pair passes): the same q are found as by trying every c, in the same order, at a fraction of the cost when
-  // many spheres pass near x (balls many particle spacings wide).
-  static_assert(kMaxCuspSpheres <= 128);
-  std::array<std::array<std::uint64_t, 2>, kMaxCuspSpheres> near{};
-  const double loose = cell * (1.0 + kCuspPairMargin) + kCuspPairMargin * spheres.front().radius;
-  for (std::size_t a = 0; a < k; ++a) {
-    for (std::size_t b = a + 1; b < k; ++b) {
-      const std::optional<Circle> ab = circle(spheres[a], spheres[b]);
-      if (!ab || ab->distance2 > loose * loose) continue;
-      near[a][b >> 6] |= std::uint64_t{1} << (b & 63);
-      near[b][a >> 6] |= std::uint64_t{1} << (a & 63);
-    }
-  }
-  // Whether another ball covers a q does not depend on the order they are tried in: the balls deepest around x first
-  // (most often the one that covers), so the test mostly ends at its first ball.
-  std::array<std::uint8_t, kMaxCuspSpheres> by_depth;
-  std::array<double, kMaxCuspSpheres> depth;
-  for (std::size_t m = 0; m < k; ++m) {
-    by_depth[m] = static_cast<std::uint8_t>(m);
-    depth[m] = (x - spheres[m].centre).norm() - spheres[m].radius;
-  }
-  std::sort(
-      by_depth.begin(), by_depth.begin() + static_cast<std::ptrdiff_t>(k),
-      [&depth](std::uint8_t l, std::uint8_t r) { return depth[l] < depth[r] || (depth[l] == depth[r] && l < r); });
-  for (std::size_t a = 0; a < k; ++a) {
-    const Ball& A = spheres[a];
-    for (std::size_t b = a + 1; b < k; ++b) {
-      if (!(near[a][b >> 6] >> (b & 63) & 1)) continue;
-      const Ball& B = spheres[b];
-      // Their circle must pass within cell of x.
-      const std::optional<Circle> ab = circle(A, B);
-      if (!ab || ab->distance2 > cell * cell) continue;
-      const Vec3& ex = ab->ex;
-      const double u = ab->u, dab = (B.centre - A.centre).norm();
-      std::array<std::uint64_t, 2> third{near[a][0] & near[b][0], near[a][1] & near[b][1]};
-      third[b >> 6] &= ~((std::uint64_t{2} << (b & 63)) - 1);  // c > b
-      if (b >= 64) third[0] = 0;
-      for (std::size_t word = 0; word < 2; ++word) {
-        for (std::uint64_t bits = third[word]; bits != 0; bits &= bits - 1) {
-          const std::size_t c = word * 64 + static_cast<std::size_t>(std::countr_zero(bits));
-          const Ball& C = spheres[c];
-          // The frame of the three centres: A at 0, B on ex, C in the (ex, ey) plane (trilateration).
-          const Vec3 ac = C.centre - A.centre;
-          const double i = ex.dot(ac);
-          const Vec3 off = ac - i * ex;
-          const double j = off.norm();
-          if (!(j > 1e-9 * dab)) continue;  // collinear centres: the spheres meet in a circle or not at all
-          const Vec3 ey = off / j;
-          const double ra2 = A.radius * A.radius;
-          const double v = (ra2 - C.radius * C.radius + i * i + j * j) / (2.0 * j) - (i / j) * u;
-          const double w2 = ra2 - u * u - v * v;
-          if (!(w2 >= 0.0)) continue;
-          const Vec3 foot = A.centre + u * ex + v * ey;
-          const Vec3 ez = ex.cross(ey);
-          for (const double side : {1.0, -1.0}) {
-            const Vec3 axis = side * ez;
-            const double facing = axis.dot(n);
-            if (facing < kCuspFacing) continue;
-            const Vec3 q = foot + side * std::sqrt(w2) * ez;
-            if ((q - x).squaredNorm() > cell * cell) continue;
-            const double bound = (q - x).dot(axis) / facing;
-            if (best && bound >= best->bound) continue;
-            // In another ball? (The three defining spheres pass through q.)
-            bool covered = std::any_of(deeper.begin(), deeper.end(), [&](const Ball& ball) { return inside(q, ball); });
-            for (std::size_t o = 0; o < k && !covered; ++o) {
-              const std::size_t m = by_depth[o];
-              covered = m != a && m != b && m != c && inside(q, spheres[m]);
-            }
-            if (covered || !owns(q)) continue;
-            best = HeldCusp{bound, CuspPlane{Eigen::Vector4d(axis.x(), axis.y(), axis.z(), axis.dot(q))}};
-          }
-        }
-      }
-    }
-  }
-  return best;
-}
 
 struct Particles {
   // The particles in use, in input order: a view of the caller's array for the run, or of `edited` once coincident

@@ -277,6 +277,27 @@ TEST(ParticleSurfacer, SquareLatticesAcrossSpacingsGiveFlatTopFaces) {
   }
 }
 
+// r_inner a few spacings wide (a kernel radius taken for r_inner): dozens of outer spheres pass near each vertex, and
+// the top face still rests on the cusps as a plane, every vertex faithful (docs/ALGORITHMS.md §1, CHOICE "cusps
+// held"). The search itself is held against every triple in cusp_search_test.cpp.
+TEST(ParticleSurfacer, WideRadiiOnLatticesStillGiveFlatTopFaces) {
+  for (const int kind : {0, 1}) {
+    for (const double r_inner : {1.5, 2.0, 3.0}) {
+      SCOPED_TRACE(::testing::Message() << "kind " << kind << ", r_inner " << r_inner << " d");
+      const LatticeSlab slab = lattice_slab(kind, 26, 3, 1.0);
+      ParticleSurfacingStats stats;
+      const Face face = top_face(surface_particles(slab.particles, {}, options(r_inner), {}, &stats), slab,
+                                 2.0 * r_inner + 2.0);
+      ASSERT_GT(face.vertices, 20);
+      EXPECT_LT(face.rms, 0.005 * r_inner);
+      EXPECT_LE(face.mean, slab.plane(2.0 * r_inner) + 1e-3 * r_inner);
+      EXPECT_GE(face.mean, slab.plane(2.0 * r_inner) - 0.02 * r_inner);
+      EXPECT_EQ(stats.faithful_after_polish, 1.0);
+      EXPECT_GT(stats.cusp_vertices, 0u);
+    }
+  }
+}
+
 // Lattices the tests of the method were not built on: square, triangular (eq. 3.6) and face-centred cubic slabs,
 // turned to arbitrary orientations, at spacings and radii where the equations hold.
 TEST(ParticleSurfacer, LatticesInAnyOrientationGiveFlatFaces) {
