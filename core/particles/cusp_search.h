@@ -56,6 +56,54 @@ struct HeldCusp {
   CuspPlane plane;
 };
 
+// Whether q is inside the ball (by more than rounding): a point on its sphere is not.
+inline bool inside_ball(const Vec3& q, const Ball& ball) {
+  return (q - ball.centre).squaredNorm() < ball.radius * ball.radius * (1.0 - 1e-9);
+}
+
+// The circle where the spheres of A and B meet: centre A + u ex, in the plane normal to ex, with the squared distance
+// from x to it; nullopt when they do not meet in a circle.
+struct Circle {
+  Vec3 ex;
+  double u, distance2;
+};
+inline std::optional<Circle> pair_circle(const Ball& A, const Ball& B, const Vec3& x) {
+  const Vec3 ab = B.centre - A.centre;
+  const double dab = ab.norm();
+  if (!(dab > 0.0) || dab >= A.radius + B.radius) return std::nullopt;
+  const Vec3 ex = ab / dab;
+  const double u = (A.radius * A.radius - B.radius * B.radius + dab * dab) / (2.0 * dab);
+  const double rho2 = A.radius * A.radius - u * u;
+  if (!(rho2 >= 0.0)) return std::nullopt;
+  const Vec3 rel = x - A.centre - u * ex;
+  const double axial = rel.dot(ex), radial = std::sqrt(std::max(0.0, rel.squaredNorm() - axial * axial));
+  const double gap = radial - std::sqrt(rho2);
+  return Circle{ex, u, axial * axial + gap * gap};
+}
+
+// Where a third sphere C meets the circle of A and B (A and B dab apart): the points foot +- sqrt(w2) ez, ez the unit
+// normal of the three centres' plane (trilateration in the frame A at 0, B on ex, C in the (ex, ey) plane); nullopt
+// when the centres are collinear (the spheres meet in a circle or not at all) or C misses the circle.
+struct TriplePoints {
+  Vec3 foot, ez;
+  double w2;
+};
+inline std::optional<TriplePoints> triple_points(const Ball& A, const Circle& ab, double dab, const Ball& C) {
+  const Vec3& ex = ab.ex;
+  const double u = ab.u;
+  const Vec3 ac = C.centre - A.centre;
+  const double i = ex.dot(ac);
+  const Vec3 off = ac - i * ex;
+  const double j = off.norm();
+  if (!(j > 1e-9 * dab)) return std::nullopt;
+  const Vec3 ey = off / j;
+  const double ra2 = A.radius * A.radius;
+  const double v = (ra2 - C.radius * C.radius + i * i + j * j) / (2.0 * j) - (i / j) * u;
+  const double w2 = ra2 - u * u - v * v;
+  if (!(w2 >= 0.0)) return std::nullopt;
+  return TriplePoints{A.centre + u * ex + v * ey, ex.cross(ey), w2};
+}
+
 // The lowest cusp a vertex x (unit normal n, Voronoi cell within `cell` of x) holds below: a point q where three outer
 // spheres meet and that lies in no outer ball (a vertex of the boundary of their union), within `cell` of x, that
 // owns(q) gives to this vertex, and whose axis (the unit normal of its three centres' plane, on q's side) faces the
@@ -69,28 +117,6 @@ std::optional<HeldCusp> lowest_cusp(const Vec3& x, const Vec3& n, double cell, s
   std::optional<HeldCusp> best;
   const std::size_t k = spheres.size();
   if (k < 3) return best;
-  const auto inside = [](const Vec3& q, const Ball& ball) {
-    return (q - ball.centre).squaredNorm() < ball.radius * ball.radius * (1.0 - 1e-9);
-  };
-  // The squared distance from x to the circle where the spheres of A and B meet (centre A + u ex, radius rho, in the
-  // plane normal to ex); nullopt when they do not meet in a circle.
-  struct Circle {
-    Vec3 ex;
-    double u, distance2;
-  };
-  const auto circle = [&x](const Ball& A, const Ball& B) -> std::optional<Circle> {
-    const Vec3 ab = B.centre - A.centre;
-    const double dab = ab.norm();
-    if (!(dab > 0.0) || dab >= A.radius + B.radius) return std::nullopt;
-    const Vec3 ex = ab / dab;
-    const double u = (A.radius * A.radius - B.radius * B.radius + dab * dab) / (2.0 * dab);
-    const double rho2 = A.radius * A.radius - u * u;
-    if (!(rho2 >= 0.0)) return std::nullopt;
-    const Vec3 rel = x - A.centre - u * ex;
-    const double axial = rel.dot(ex), radial = std::sqrt(std::max(0.0, rel.squaredNorm() - axial * axial));
-    const double gap = radial - std::sqrt(rho2);
-    return Circle{ex, u, axial * axial + gap * gap};
-  };
   // A q of spheres a, b, c lies on all three circles of their pairs, within cell of x. So c is tried only with the
   // spheres whose circles with a and with b pass within cell of x, up to a margin far above rounding (near[a] bit c:
   // the pair passes): the same q are found as by trying every c, in the same order, at a fraction of the cost when
@@ -100,7 +126,7 @@ std::optional<HeldCusp> lowest_cusp(const Vec3& x, const Vec3& n, double cell, s
   const double loose = cell * (1.0 + kCuspPairMargin) + kCuspPairMargin * spheres.front().radius;
   for (std::size_t a = 0; a < k; ++a) {
     for (std::size_t b = a + 1; b < k; ++b) {
-      const std::optional<Circle> ab = circle(spheres[a], spheres[b]);
+      const std::optional<Circle> ab = pair_circle(spheres[a], spheres[b], x);
       if (!ab || ab->distance2 > loose * loose) continue;
       near[a][b >> 6] |= std::uint64_t{1} << (b & 63);
       near[b][a >> 6] |= std::uint64_t{1} << (a & 63);
@@ -152,10 +178,9 @@ std::optional<HeldCusp> lowest_cusp(const Vec3& x, const Vec3& n, double cell, s
       if (!(near[a][b >> 6] >> (b & 63) & 1)) continue;
       const Ball& B = spheres[b];
       // Their circle must pass within cell of x.
-      const std::optional<Circle> ab = circle(A, B);
+      const std::optional<Circle> ab = pair_circle(A, B, x);
       if (!ab || ab->distance2 > cell * cell) continue;
-      const Vec3& ex = ab->ex;
-      const double u = ab->u, dab = (B.centre - A.centre).norm();
+      const double dab = (B.centre - A.centre).norm();
       std::array<std::uint64_t, 2> third{near[a][0] & near[b][0], near[a][1] & near[b][1]};
       third[b >> 6] &= ~((std::uint64_t{2} << (b & 63)) - 1);  // c > b
       if (b >= 64) third[0] = 0;
@@ -176,20 +201,11 @@ std::optional<HeldCusp> lowest_cusp(const Vec3& x, const Vec3& n, double cell, s
       for (std::size_t word = 0; word < 2; ++word) {
         for (std::uint64_t bits = third[word]; bits != 0; bits &= bits - 1) {
           const std::size_t c = word * 64 + static_cast<std::size_t>(std::countr_zero(bits));
-          const Ball& C = spheres[c];
-          // The frame of the three centres: A at 0, B on ex, C in the (ex, ey) plane (trilateration).
-          const Vec3 ac = C.centre - A.centre;
-          const double i = ex.dot(ac);
-          const Vec3 off = ac - i * ex;
-          const double j = off.norm();
-          if (!(j > 1e-9 * dab)) continue;  // collinear centres: the spheres meet in a circle or not at all
-          const Vec3 ey = off / j;
-          const double ra2 = A.radius * A.radius;
-          const double v = (ra2 - C.radius * C.radius + i * i + j * j) / (2.0 * j) - (i / j) * u;
-          const double w2 = ra2 - u * u - v * v;
-          if (!(w2 >= 0.0)) continue;
-          const Vec3 foot = A.centre + u * ex + v * ey;
-          const Vec3 ez = ex.cross(ey);
+          const std::optional<TriplePoints> meet = triple_points(A, *ab, dab, spheres[c]);
+          if (!meet) continue;
+          const Vec3& foot = meet->foot;
+          const Vec3& ez = meet->ez;
+          const double w2 = meet->w2;
           for (const double side : {1.0, -1.0}) {
             const Vec3 axis = side * ez;
             const double facing = axis.dot(n);
@@ -199,10 +215,11 @@ std::optional<HeldCusp> lowest_cusp(const Vec3& x, const Vec3& n, double cell, s
             const double bound = (q - x).dot(axis) / facing;
             if (best && bound >= best->bound) continue;
             // In another ball? (The three defining spheres pass through q.)
-            bool covered = std::any_of(deeper.begin(), deeper.end(), [&](const Ball& ball) { return inside(q, ball); });
+            bool covered =
+                std::any_of(deeper.begin(), deeper.end(), [&](const Ball& ball) { return inside_ball(q, ball); });
             for (std::size_t o = 0; o < k && !covered; ++o) {
               const std::size_t m = by_depth[o];
-              covered = m != a && m != b && m != c && inside(q, spheres[m]);
+              covered = m != a && m != b && m != c && inside_ball(q, spheres[m]);
             }
             if (covered || !owns(q)) continue;
             best = HeldCusp{bound, CuspPlane{Eigen::Vector4d(axis.x(), axis.y(), axis.z(), axis.dot(q))}};

@@ -17,57 +17,34 @@
 namespace surfacer::particle_cusps {
 namespace {
 
-bool inside(const Vec3& q, const Ball& ball) {
-  return (q - ball.centre).squaredNorm() < ball.radius * ball.radius * (1.0 - 1e-9);
-}
-
-// Every triple of `spheres` whose pair's circle passes within cell of x, in order; the arithmetic of lowest_cusp.
+// Every triple of `spheres` whose pair's circle passes within cell of x, in order, each cusp with the arithmetic of
+// lowest_cusp (pair_circle, triple_points): no pair or third sphere is skipped, and every ball is tried for cover.
 template <class Owns>
 std::optional<HeldCusp> every_triple(const Vec3& x, const Vec3& n, double cell, const std::vector<Ball>& spheres,
                                      const std::vector<Ball>& deeper, Owns&& owns) {
   std::optional<HeldCusp> best;
   const std::size_t k = spheres.size();
   for (std::size_t a = 0; a < k; ++a) {
-    const Ball& A = spheres[a];
     for (std::size_t b = a + 1; b < k; ++b) {
-      const Ball& B = spheres[b];
-      const Vec3 ab = B.centre - A.centre;
-      const double dab = ab.norm();
-      if (!(dab > 0.0) || dab >= A.radius + B.radius) continue;
-      const Vec3 ex = ab / dab;
-      const double u = (A.radius * A.radius - B.radius * B.radius + dab * dab) / (2.0 * dab);
-      const double rho2 = A.radius * A.radius - u * u;
-      if (!(rho2 >= 0.0)) continue;
-      const Vec3 rel = x - A.centre - u * ex;
-      const double axial = rel.dot(ex), radial = std::sqrt(std::max(0.0, rel.squaredNorm() - axial * axial));
-      const double gap = radial - std::sqrt(rho2);
-      if (axial * axial + gap * gap > cell * cell) continue;
+      const std::optional<Circle> ab = pair_circle(spheres[a], spheres[b], x);
+      if (!ab || ab->distance2 > cell * cell) continue;
+      const double dab = (spheres[b].centre - spheres[a].centre).norm();
       for (std::size_t c = b + 1; c < k; ++c) {
-        const Ball& C = spheres[c];
-        const Vec3 ac = C.centre - A.centre;
-        const double i = ex.dot(ac);
-        const Vec3 off = ac - i * ex;
-        const double j = off.norm();
-        if (!(j > 1e-9 * dab)) continue;
-        const Vec3 ey = off / j;
-        const double ra2 = A.radius * A.radius;
-        const double v = (ra2 - C.radius * C.radius + i * i + j * j) / (2.0 * j) - (i / j) * u;
-        const double w2 = ra2 - u * u - v * v;
-        if (!(w2 >= 0.0)) continue;
-        const Vec3 foot = A.centre + u * ex + v * ey;
-        const Vec3 ez = ex.cross(ey);
+        const std::optional<TriplePoints> meet = triple_points(spheres[a], *ab, dab, spheres[c]);
+        if (!meet) continue;
         for (const double side : {1.0, -1.0}) {
-          const Vec3 axis = side * ez;
+          const Vec3 axis = side * meet->ez;
           const double facing = axis.dot(n);
           if (facing < kCuspFacing) continue;
-          const Vec3 q = foot + side * std::sqrt(w2) * ez;
+          const Vec3 q = meet->foot + side * std::sqrt(meet->w2) * meet->ez;
           if ((q - x).squaredNorm() > cell * cell) continue;
           const double bound = (q - x).dot(axis) / facing;
           if (best && bound >= best->bound) continue;
           bool covered = false;
-          for (const Ball& ball : deeper) covered = covered || inside(q, ball);
-          for (std::size_t m = 0; m < k; ++m)
-            covered = covered || (m != a && m != b && m != c && inside(q, spheres[m]));
+          for (const Ball& ball : deeper) covered = covered || inside_ball(q, ball);
+          for (std::size_t m = 0; m < k; ++m) {
+            covered = covered || (m != a && m != b && m != c && inside_ball(q, spheres[m]));
+          }
           if (covered || !owns(q)) continue;
           best = HeldCusp{bound, CuspPlane{Eigen::Vector4d(axis.x(), axis.y(), axis.z(), axis.dot(q))}};
         }
