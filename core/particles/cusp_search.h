@@ -14,6 +14,7 @@
 #include <limits>
 #include <optional>
 #include <span>
+#include <vector>
 
 #include "core/util/geometry.h"
 
@@ -110,10 +111,11 @@ inline std::optional<TriplePoints> triple_points(const Ball& A, const Circle& ab
 // vertex's outside (axis . n >= kCuspFacing). `spheres` must hold every outer ball whose sphere passes within cell of
 // x (the only ones on which such a q can lie) and `deeper` every other ball within its radius + cell of x: together,
 // all the balls that can contain q. The bound keeps x + t n on the particles' side of the plane through q
-// perpendicular to its axis; the lowest bound over the cusps wins. nullopt when no cusp qualifies.
+// perpendicular to its axis; the lowest bound over the cusps wins. nullopt when no cusp qualifies. `circles` is
+// scratch (the circles of the pairs that pass near x, computed once).
 template <class Owns>
 std::optional<HeldCusp> lowest_cusp(const Vec3& x, const Vec3& n, double cell, std::span<const Ball> spheres,
-                                    std::span<const Ball> deeper, Owns&& owns) {
+                                    std::span<const Ball> deeper, Owns&& owns, std::vector<Circle>& circles) {
   std::optional<HeldCusp> best;
   const std::size_t k = spheres.size();
   if (k < 3) return best;
@@ -124,10 +126,12 @@ std::optional<HeldCusp> lowest_cusp(const Vec3& x, const Vec3& n, double cell, s
   static_assert(kMaxCuspSpheres <= 128);
   std::array<std::array<std::uint64_t, 2>, kMaxCuspSpheres> near{};
   const double loose = cell * (1.0 + kCuspPairMargin) + kCuspPairMargin * spheres.front().radius;
+  circles.clear();  // in the order the pairs are tried below
   for (std::size_t a = 0; a < k; ++a) {
     for (std::size_t b = a + 1; b < k; ++b) {
       const std::optional<Circle> ab = pair_circle(spheres[a], spheres[b], x);
       if (!ab || ab->distance2 > loose * loose) continue;
+      circles.push_back(*ab);
       near[a][b >> 6] |= std::uint64_t{1} << (b & 63);
       near[b][a >> 6] |= std::uint64_t{1} << (a & 63);
     }
@@ -172,14 +176,15 @@ std::optional<HeldCusp> lowest_cusp(const Vec3& x, const Vec3& n, double cell, s
     const double cos_gap = cd * cx + std::sqrt(std::max(0.0, 1.0 - cd * cd)) * std::sqrt(std::max(0.0, 1.0 - cx * cx));
     return cos_apart > cos_gap + kCuspArcMargin;
   };
+  std::size_t next_circle = 0;
   for (std::size_t a = 0; a < k; ++a) {
     const Ball& A = spheres[a];
     for (std::size_t b = a + 1; b < k; ++b) {
       if (!(near[a][b >> 6] >> (b & 63) & 1)) continue;
       const Ball& B = spheres[b];
       // Their circle must pass within cell of x.
-      const std::optional<Circle> ab = pair_circle(A, B, x);
-      if (!ab || ab->distance2 > cell * cell) continue;
+      const Circle* ab = &circles[next_circle++];
+      if (ab->distance2 > cell * cell) continue;
       const double dab = (B.centre - A.centre).norm();
       std::array<std::uint64_t, 2> third{near[a][0] & near[b][0], near[a][1] & near[b][1]};
       third[b >> 6] &= ~((std::uint64_t{2} << (b & 63)) - 1);  // c > b

@@ -81,6 +81,7 @@ struct BandScratch {
   // The outer balls within their radius + cell of the vertex: those whose sphere passes within cell of it, and those
   // deeper around it.
   std::vector<Ball> spheres, deeper;
+  std::vector<particle_cusps::Circle> circles;  // lowest_cusp's
   // The hash's slot ranges [first, second) a band query reads, in ascending order (Particles::band_on_line).
   std::vector<std::pair<std::uint32_t, std::uint32_t>> ranges;
 };
@@ -1274,9 +1275,10 @@ class Smoother {
           };
           // The search is cubic in the spheres around the vertex: past kMaxCuspSpheres (a cluster far denser than
           // any fluid, CHOICE "coincident particles merged") the vertex holds none.
-          const std::optional<HeldCusp> held = scratch.spheres.size() <= kMaxCuspSpheres
-                                                   ? lowest_cusp(x, n, cell, scratch.spheres, scratch.deeper, owns)
-                                                   : std::nullopt;
+          const std::optional<HeldCusp> held =
+              scratch.spheres.size() <= kMaxCuspSpheres
+                  ? lowest_cusp(x, n, cell, scratch.spheres, scratch.deeper, owns, scratch.circles)
+                  : std::nullopt;
 
           cusp_[i] = held ? held->plane : CuspPlane{};
           // A cusp below the inner edge: the vertex waits there (eq. 3.5 does not hold around it).

@@ -104,6 +104,7 @@ TEST(CuspSearch, FindsWhatTheSearchOfEveryTripleFinds) {
   const auto uniform = [&](double lo, double hi) { return lo + (hi - lo) * unit(rng); };
   int cases = 0, with_cusp = 0, without = 0, wide = 0;
   std::vector<Ball> spheres, deeper;
+  std::vector<Circle> circles;
   for (int round = 0; round < 900; ++round) {
     const int shape = round % 6;  // 0-2 lattices, 3 jittered lattice, 4 random cloud, 5 per-particle radii
     const double radius = shape == 5 ? 1.5 : uniform(1.2, shape <= 2 ? 5.0 : 3.0);
@@ -138,7 +139,7 @@ TEST(CuspSearch, FindsWhatTheSearchOfEveryTripleFinds) {
       }
       return true;
     };
-    const std::optional<HeldCusp> fast = lowest_cusp(x, n, cell, spheres, deeper, owns);
+    const std::optional<HeldCusp> fast = lowest_cusp(x, n, cell, spheres, deeper, owns, circles);
     const std::optional<HeldCusp> slow = every_triple(x, n, cell, spheres, deeper, owns);
     ++cases;
     wide += spheres.size() >= 30;
