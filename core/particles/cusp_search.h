@@ -62,11 +62,11 @@ inline bool inside_ball(const Vec3& q, const Ball& ball) {
   return (q - ball.centre).squaredNorm() < ball.radius * ball.radius * (1.0 - 1e-9);
 }
 
-// The circle where the spheres of A and B meet: centre A + u ex, in the plane normal to ex, with the squared distance
-// from x to it; nullopt when they do not meet in a circle.
+// The circle where the spheres of A and B (dab apart) meet: centre A + u ex, in the plane normal to ex, of squared
+// radius rho2, with the squared distance from x to it; nullopt when they do not meet in a circle.
 struct Circle {
   Vec3 ex;
-  double u, distance2;
+  double dab, u, rho2, distance2;
 };
 inline std::optional<Circle> pair_circle(const Ball& A, const Ball& B, const Vec3& x) {
   const Vec3 ab = B.centre - A.centre;
@@ -79,19 +79,19 @@ inline std::optional<Circle> pair_circle(const Ball& A, const Ball& B, const Vec
   const Vec3 rel = x - A.centre - u * ex;
   const double axial = rel.dot(ex), radial = std::sqrt(std::max(0.0, rel.squaredNorm() - axial * axial));
   const double gap = radial - std::sqrt(rho2);
-  return Circle{ex, u, axial * axial + gap * gap};
+  return Circle{ex, dab, u, rho2, axial * axial + gap * gap};
 }
 
-// Where a third sphere C meets the circle of A and B (A and B dab apart): the points foot +- sqrt(w2) ez, ez the unit
-// normal of the three centres' plane (trilateration in the frame A at 0, B on ex, C in the (ex, ey) plane); nullopt
-// when the centres are collinear (the spheres meet in a circle or not at all) or C misses the circle.
+// Where a third sphere C meets the circle of A and B: the points foot +- sqrt(w2) ez, ez the unit normal of the three
+// centres' plane (trilateration in the frame A at 0, B on ex, C in the (ex, ey) plane); nullopt when the centres are
+// collinear (the spheres meet in a circle or not at all) or C misses the circle.
 struct TriplePoints {
   Vec3 foot, ez;
   double w2;
 };
-inline std::optional<TriplePoints> triple_points(const Ball& A, const Circle& ab, double dab, const Ball& C) {
+inline std::optional<TriplePoints> triple_points(const Ball& A, const Circle& ab, const Ball& C) {
   const Vec3& ex = ab.ex;
-  const double u = ab.u;
+  const double u = ab.u, dab = ab.dab;
   const Vec3 ac = C.centre - A.centre;
   const double i = ex.dot(ac);
   const Vec3 off = ac - i * ex;
@@ -125,7 +125,8 @@ std::optional<HeldCusp> lowest_cusp(const Vec3& x, const Vec3& n, double cell, s
   // many spheres pass near x (balls many particle spacings wide).
   static_assert(kMaxCuspSpheres <= 128);
   std::array<std::array<std::uint64_t, 2>, kMaxCuspSpheres> near{};
-  const double loose = cell * (1.0 + kCuspPairMargin) + kCuspPairMargin * spheres.front().radius;
+  const double scale = spheres.front().radius;  // of the margins
+  const double loose = cell * (1.0 + kCuspPairMargin) + kCuspPairMargin * scale;
   circles.clear();  // in the order the pairs are tried below
   for (std::size_t a = 0; a < k; ++a) {
     for (std::size_t b = a + 1; b < k; ++b) {
@@ -152,9 +153,8 @@ std::optional<HeldCusp> lowest_cusp(const Vec3& x, const Vec3& n, double cell, s
   // covered by D, as the test below finds it. A q is computed on the circle up to rounding (about 1e-8 of the radius
   // at worst, where the spheres are nearly tangent), far below the margin. False whenever the arcs are not well
   // defined (x or D's centre near the circle's axis, a tiny circle): the pair is then searched.
-  const double scale = spheres.front().radius;
   const auto arc_inside = [&](const Ball& A, const Circle& ab, const Ball& D) {
-    const double rho2 = A.radius * A.radius - ab.u * ab.u;
+    const double rho2 = ab.rho2;
     if (!(rho2 > 1e-6 * scale * scale)) return false;
     const double rho = std::sqrt(rho2);
     const Vec3 centre = A.centre + ab.u * ab.ex;
@@ -181,11 +181,9 @@ std::optional<HeldCusp> lowest_cusp(const Vec3& x, const Vec3& n, double cell, s
     const Ball& A = spheres[a];
     for (std::size_t b = a + 1; b < k; ++b) {
       if (!(near[a][b >> 6] >> (b & 63) & 1)) continue;
-      const Ball& B = spheres[b];
       // Their circle must pass within cell of x.
-      const Circle* ab = &circles[next_circle++];
-      if (ab->distance2 > cell * cell) continue;
-      const double dab = (B.centre - A.centre).norm();
+      const Circle& ab = circles[next_circle++];
+      if (ab.distance2 > cell * cell) continue;
       std::array<std::uint64_t, 2> third{near[a][0] & near[b][0], near[a][1] & near[b][1]};
       third[b >> 6] &= ~((std::uint64_t{2} << (b & 63)) - 1);  // c > b
       if (b >= 64) third[0] = 0;
@@ -200,13 +198,13 @@ std::optional<HeldCusp> lowest_cusp(const Vec3& x, const Vec3& n, double cell, s
         const std::size_t m = by_depth[o];
         if (m == a || m == b) continue;
         ++tried;
-        covered_arc = arc_inside(A, *ab, spheres[m]);
+        covered_arc = arc_inside(A, ab, spheres[m]);
       }
       if (covered_arc) continue;
       for (std::size_t word = 0; word < 2; ++word) {
         for (std::uint64_t bits = third[word]; bits != 0; bits &= bits - 1) {
           const std::size_t c = word * 64 + static_cast<std::size_t>(std::countr_zero(bits));
-          const std::optional<TriplePoints> meet = triple_points(A, *ab, dab, spheres[c]);
+          const std::optional<TriplePoints> meet = triple_points(A, ab, spheres[c]);
           if (!meet) continue;
           const Vec3& foot = meet->foot;
           const Vec3& ez = meet->ez;

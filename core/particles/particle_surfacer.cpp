@@ -7,12 +7,10 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
-#include <bit>
 #include <chrono>
 #include <cmath>
 #include <limits>
 #include <mutex>
-#include <numbers>
 #include <numeric>
 #include <string>
 
@@ -218,8 +216,7 @@ struct Particles {
     // at the box's faces), so the chords are those of the line's cells.
     const double slack = kSkipSlack * (x.cwiseAbs().maxCoeff() + reach + radius);
     const Eigen::Array3d near_lo = line_lo - slack, near_hi = line_hi + slack;
-    std::optional<SpatialHash::CellBox> line_cells;
-    bool line_cells_known = cell <= 0.0;
+    SpatialHash::RangeVisits line_visits(hash, line_lo, line_hi);
     const double uniform_ro = r_outer * (1.0 + kBandTolerance), uniform_ri = r_inner * (1.0 - kBandTolerance);
     const std::span<const Vec3> pts = hash.sorted_points();
     for (const auto& [begin, end] : ranges) {
@@ -233,13 +230,7 @@ struct Particles {
         const double h = std::sqrt(ro * ro - c);
         const Interval chord{-b - h, -b + h};
         if (chord.hi < -reach || chord.lo > reach) continue;
-        if (cell > 0.0 && !((p.array() >= line_lo).all() && (p.array() <= line_hi).all())) {
-          if (!line_cells_known) {
-            line_cells = hash.cell_box(line_lo, line_hi);
-            line_cells_known = true;
-          }
-          if (!line_cells || !hash.in_cells(*line_cells, slot)) continue;
-        }
+        if (cell > 0.0 && !line_visits(slot)) continue;
         const double inner = weighted ? slot_inner[slot] : r_inner, outer = weighted ? slot_outer[slot] : r_outer;
         const double ri = weighted ? inner * (1.0 - kBandTolerance) : uniform_ri;
         allowed.push_back(chord);
@@ -335,22 +326,14 @@ struct Particles {
   void balls_near(const Vec3& x, double cell, BandScratch& scratch) const {
     const double radius = (weighted ? max_outer : r_outer) + cell;
     const double r2 = radius * radius;
-    const Eigen::Array3d lo = x.array() - radius, hi = x.array() + radius;
-    std::optional<SpatialHash::CellBox> cells;  // the box's cells, asked only for a point outside the box itself
-    bool cells_known = false;
+    SpatialHash::RangeVisits visits(hash, x.array() - radius, x.array() + radius);
     const std::span<const Vec3> pts = hash.sorted_points();
     for (const auto& [begin, end] : scratch.ranges) {
       for (std::uint32_t slot = begin; slot < end; ++slot) {
         const Vec3& p = pts[slot];
         const double d2 = (p - x).squaredNorm();
         if (!(d2 <= r2)) continue;
-        if (!((p.array() >= lo).all() && (p.array() <= hi).all())) {
-          if (!cells_known) {
-            cells = hash.cell_box(lo, hi);
-            cells_known = true;
-          }
-          if (!cells || !hash.in_cells(*cells, slot)) continue;
-        }
+        if (!visits(slot)) continue;
         const double r = weighted ? slot_outer[slot] : r_outer;
         if (d2 > (r + cell) * (r + cell)) continue;
         (d2 >= (r - cell) * (r - cell) ? scratch.spheres : scratch.deeper).push_back({p, r});
@@ -1279,7 +1262,6 @@ class Smoother {
               scratch.spheres.size() <= kMaxCuspSpheres
                   ? lowest_cusp(x, n, cell, scratch.spheres, scratch.deeper, owns, scratch.circles)
                   : std::nullopt;
-
           cusp_[i] = held ? held->plane : CuspPlane{};
           // A cusp below the inner edge: the vertex waits there (eq. 3.5 does not hold around it).
           if (held && held->bound < hi) {

@@ -163,6 +163,30 @@ class SpatialHash {
     }
     return true;
   }
+  // Whether for_each_range(lo, hi) visits a slot, for the slots of a wider walk: a point inside the box is visited;
+  // one outside it only when its cell is one of the box's (where rounding puts it at the box's faces), the cells being
+  // worked out at the first such point.
+  class RangeVisits {
+   public:
+    RangeVisits(const SpatialHash& hash, const Eigen::Array3d& lo, const Eigen::Array3d& hi)
+        : hash_(hash), lo_(lo), hi_(hi) {}
+    bool operator()(std::uint32_t slot) {
+      const Vec3& p = hash_.points_[slot];
+      if ((p.array() >= lo_).all() && (p.array() <= hi_).all()) return true;
+      if (cells_state_ == kUnknown) {
+        const std::optional<CellBox> box = hash_.cell_box(lo_, hi_);
+        cells_state_ = box ? kKnown : kNone;
+        if (box) cells_ = *box;
+      }
+      return cells_state_ == kKnown && hash_.in_cells(cells_, slot);
+    }
+
+   private:
+    const SpatialHash& hash_;
+    Eigen::Array3d lo_, hi_;
+    enum { kUnknown, kKnown, kNone } cells_state_ = kUnknown;  // kNone: the box misses the grid
+    CellBox cells_{};
+  };
 
   std::span<const Vec3> sorted_points() const { return points_; }
   std::span<const std::uint32_t> order() const { return order_; }

@@ -28,9 +28,8 @@ std::optional<HeldCusp> every_triple(const Vec3& x, const Vec3& n, double cell, 
     for (std::size_t b = a + 1; b < k; ++b) {
       const std::optional<Circle> ab = pair_circle(spheres[a], spheres[b], x);
       if (!ab || ab->distance2 > cell * cell) continue;
-      const double dab = (spheres[b].centre - spheres[a].centre).norm();
       for (std::size_t c = b + 1; c < k; ++c) {
-        const std::optional<TriplePoints> meet = triple_points(spheres[a], *ab, dab, spheres[c]);
+        const std::optional<TriplePoints> meet = triple_points(spheres[a], *ab, spheres[c]);
         if (!meet) continue;
         for (const double side : {1.0, -1.0}) {
           const Vec3 axis = side * meet->ez;
