@@ -170,11 +170,10 @@ TEST(MeshLimits, ParticleFramesReserveTheirParticlesToo) {
   std::int64_t triangles = 0;
   {
     LoopbackServer s;
-    const v1::Job done = run_job(*s.stub, job(1));
-    ASSERT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED) << done.error().message();
     std::string id;
     ASSERT_TRUE(submit(*s.stub, job(1), &id).ok());
     const WatchResult watched = watch_job(*s.stub, id);
+    ASSERT_EQ(watched.final_job.state(), v1::JOB_STATE_SUCCEEDED) << watched.final_job.error().message();
     ASSERT_EQ(watched.frames.size(), 1u);
     triangles = watched.frames.at(0).header.stats().triangles();
   }
