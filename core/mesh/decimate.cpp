@@ -62,7 +62,6 @@ constexpr int kSeamPasses = 4;
 // A region's triangles, about (the grid's cells are sized for it from the mean triangle area); meshes with fewer
 // than two regions' worth are decimated in one pass.
 
-
 // Whether an angle of triangle (a, b, c) has a cosine above max_cos (in [0, 1]): an angle below the smallest allowed.
 // Without roots: at an acute corner, u.v > m |u| |v| <=> (u.v)^2 > m^2 |u|^2 |v|^2. A corner with an edge of length
 // 0 counts as a cosine of 1.
@@ -123,8 +122,8 @@ struct Quadric {
   }
   double operator()(const Vec3& p) const {
     const double x = p.x(), y = p.y(), z = p.z();
-    return m[0] * x * x + 2.0 * m[1] * x * y + 2.0 * m[2] * x * z + 2.0 * m[3] * x + m[4] * y * y +
-           2.0 * m[5] * y * z + 2.0 * m[6] * y + m[7] * z * z + 2.0 * m[8] * z + m[9];
+    return m[0] * x * x + 2.0 * m[1] * x * y + 2.0 * m[2] * x * z + 2.0 * m[3] * x + m[4] * y * y + 2.0 * m[5] * y * z +
+           2.0 * m[6] * y + m[7] * z * z + 2.0 * m[8] * z + m[9];
   }
 };
 
@@ -435,7 +434,9 @@ class PatchDecimator {
     }
     om_.resize(vertices, edges, n);
     const auto handle = [&](std::uint32_t h) { return HalfedgeHandle(static_cast<int>(half[h])); };
-    for (std::uint32_t h = 0; h < 3 * n; ++h) om_.set_vertex_handle(handle(h), VertexHandle(static_cast<int>(to_of(h))));
+    for (std::uint32_t h = 0; h < 3 * n; ++h) {
+      om_.set_vertex_handle(handle(h), VertexHandle(static_cast<int>(to_of(h))));
+    }
     for (const Boundary& b : boundary) om_.set_vertex_handle(b.halfedge, VertexHandle(static_cast<int>(b.to)));
     for (std::uint32_t t = 0; t < n; ++t) {
       const FaceHandle f(static_cast<int>(t));
@@ -482,7 +483,9 @@ class PatchDecimator {
         } while (!om_.is_boundary(om_.opposite_halfedge_handle(h)));
         in[j] = om_.opposite_halfedge_handle(h);
       }
-      for (std::uint32_t j = 0; j < k; ++j) om_.set_next_halfedge_handle(in[j], shared_vertex[i + (j + 1) % k].halfedge);
+      for (std::uint32_t j = 0; j < k; ++j) {
+        om_.set_next_halfedge_handle(in[j], shared_vertex[i + (j + 1) % k].halfedge);
+      }
       i += k;
     }
     for (std::size_t v = 0; v < vertices; ++v) {
@@ -839,8 +842,11 @@ class PatchDecimator {
       p.d01 = p.ab.dot(p.ac);
       p.d11 = p.ac.dot(p.ac);
       const double denominator = p.d00 * p.d11 - p.d01 * p.d01;
-      if (!(denominator > 0.0) || !std::isfinite(1.0 / denominator)) p.normal2 = 0.0;  // degenerate: exact path
-      else p.inverse = 1.0 / denominator;
+      if (!(denominator > 0.0) || !std::isfinite(1.0 / denominator)) {
+        p.normal2 = 0.0;  // degenerate: exact path
+      } else {
+        p.inverse = 1.0 / denominator;
+      }
       return p;
     }
   };
@@ -848,20 +854,20 @@ class PatchDecimator {
   Shared& shared_;
   const Patch& patch_;
   TriMesh om_;
-  std::vector<std::uint32_t> global_;      // local vertex -> input vertex
-  std::vector<std::uint32_t> corner_;      // 3 t + k: the local vertex at corner k of patch triangle t
-  std::vector<std::uint8_t> added_;        // per patch triangle when built by add_faces(): whether it was added
-  std::vector<Vec3> positions_;            // per local vertex
-  std::vector<Quadric> quadrics_;          // per local vertex
-  std::vector<std::uint8_t> lock_;         // per local vertex
-  std::vector<double> floor_;              // per local vertex: its collapses cheaper than this were found illegal
-  std::vector<std::uint8_t> changed_;      // per local vertex: whether its fan changed in this run
-  std::vector<std::uint32_t> shaped_;      // per local vertex: the v1 whose fan geometry shape_legal() last passed
-                                           // since the vertex's fan changed, or kNone
-  std::vector<std::uint32_t> refused_;     // patch triangles OpenMesh refused
-  std::vector<std::int32_t> head_;         // per face: its first sample node, or -1
-  std::vector<Vec3> node_point_;            // per sample node: the removed input vertex's position
-  std::vector<std::int32_t> node_next_;     // per sample node: the next of its face's list, or -1
+  std::vector<std::uint32_t> global_;    // local vertex -> input vertex
+  std::vector<std::uint32_t> corner_;    // 3 t + k: the local vertex at corner k of patch triangle t
+  std::vector<std::uint8_t> added_;      // per patch triangle when built by add_faces(): whether it was added
+  std::vector<Vec3> positions_;          // per local vertex
+  std::vector<Quadric> quadrics_;        // per local vertex
+  std::vector<std::uint8_t> lock_;       // per local vertex
+  std::vector<double> floor_;            // per local vertex: its collapses cheaper than this were found illegal
+  std::vector<std::uint8_t> changed_;    // per local vertex: whether its fan changed in this run
+  std::vector<std::uint32_t> shaped_;    // per local vertex: the v1 whose fan geometry shape_legal() last passed
+                                         // since the vertex's fan changed, or kNone
+  std::vector<std::uint32_t> refused_;   // patch triangles OpenMesh refused
+  std::vector<std::int32_t> head_;       // per face: its first sample node, or -1
+  std::vector<Vec3> node_point_;         // per sample node: the removed input vertex's position
+  std::vector<std::int32_t> node_next_;  // per sample node: the next of its face's list, or -1
   VertexHeap heap_{0};
   std::size_t collapses_ = 0;
   // Scratch of shape_legal(), faithful() and collapse().
@@ -880,6 +886,30 @@ struct Grid {
   double edge = 0.0;
   std::array<double, 3> dims{};
 };
+
+// Regions numbered in the order of their first triangles, a region per key: key(t) (below `keys`) for each of the
+// `triangles` that `active` marks (every one when it is empty), the others getting the count. Returns the region of
+// each triangle and the count.
+template <class Key>
+std::pair<std::vector<std::uint32_t>, std::uint32_t> number_regions(std::size_t triangles,
+                                                                    const std::vector<std::uint8_t>& active,
+                                                                    std::size_t keys, Key&& key) {
+  std::vector<std::uint32_t> region(triangles);
+  std::vector<std::uint32_t> number(keys, kNone);
+  std::uint32_t count = 0;
+  for (std::size_t t = 0; t < triangles; ++t) {
+    if (!active.empty() && !active[t]) continue;
+    std::uint32_t& r = number[key(t)];
+    if (r == kNone) r = count++;
+    region[t] = r;
+  }
+  if (!active.empty()) {
+    for (std::size_t t = 0; t < triangles; ++t) {
+      if (!active[t]) region[t] = count;
+    }
+  }
+  return {std::move(region), count};
+}
 
 std::pair<std::vector<std::uint32_t>, std::uint32_t> assign_regions(const Mesh& mesh,
                                                                     const std::vector<Triangle>& triangles,
@@ -913,7 +943,7 @@ std::optional<Grid> region_grid(const Mesh& mesh) {
   };
   size();
   for (int refine = 0; refine < 3 && grid.edge > smallest; ++refine) {
-    const double mean = static_cast<double>(n) / assign_regions(mesh, mesh.triangles, grid, 0.0, {}).second;
+    const double mean = static_cast<double>(n) / assign_regions(mesh, mesh.triangles, grid, 0.0).second;
     if (mean <= 1.5 * kRegionTriangles) break;
     grid.edge = std::max(grid.edge * std::sqrt(kRegionTriangles / mean), smallest);
     size();
@@ -928,11 +958,8 @@ std::pair<std::vector<std::uint32_t>, std::uint32_t> assign_regions(const Mesh& 
                                                                     const std::vector<Triangle>& triangles,
                                                                     const Grid& grid, double shift,
                                                                     const std::vector<std::uint8_t>& active) {
-  std::vector<std::uint32_t> region(triangles.size());
-  std::vector<std::uint32_t> number(static_cast<std::size_t>(grid.dims[0] * grid.dims[1] * grid.dims[2]), kNone);
-  std::uint32_t count = 0;
-  for (std::size_t i = 0; i < triangles.size(); ++i) {
-    if (!active.empty() && !active[i]) continue;
+  const auto cells = static_cast<std::size_t>(grid.dims[0] * grid.dims[1] * grid.dims[2]);
+  return number_regions(triangles.size(), active, cells, [&](std::size_t i) {
     const Triangle& t = triangles[i];
     const Vec3 centroid = (mesh.vertices[t[0]] + mesh.vertices[t[1]] + mesh.vertices[t[2]]) / 3.0;
     double index = 0.0;
@@ -940,16 +967,8 @@ std::pair<std::vector<std::uint32_t>, std::uint32_t> assign_regions(const Mesh& 
       const double u = std::floor((centroid[a] - grid.origin[a]) / grid.edge + shift);
       index = index * grid.dims[a] + std::clamp(u, 0.0, grid.dims[a] - 1.0);
     }
-    std::uint32_t& r = number[static_cast<std::size_t>(index)];
-    if (r == kNone) r = count++;
-    region[i] = r;
-  }
-  if (!active.empty()) {
-    for (std::size_t i = 0; i < triangles.size(); ++i) {
-      if (!active[i]) region[i] = count;
-    }
-  }
-  return {std::move(region), count};
+    return static_cast<std::size_t>(index);
+  });
 }
 
 // One pass over the regions of `input` (region[t] < count; region[t] == count: left as it is) on `threads`, each
@@ -1073,19 +1092,7 @@ std::pair<std::vector<std::uint32_t>, std::uint32_t> components(const std::vecto
       a = std::min(a, b);
     }
   }
-  std::vector<std::uint32_t> number(vertices, kNone);
-  std::vector<std::uint32_t> region(triangles.size());
-  std::uint32_t count = 0;
-  for (std::size_t t = 0; t < triangles.size(); ++t) {
-    if (!active[t]) continue;
-    std::uint32_t& r = number[find(triangles[t][0])];
-    if (r == kNone) r = count++;
-    region[t] = r;
-  }
-  for (std::size_t t = 0; t < triangles.size(); ++t) {
-    if (!active[t]) region[t] = count;
-  }
-  return {std::move(region), count};
+  return number_regions(triangles.size(), active, vertices, [&](std::size_t t) { return find(triangles[t][0]); });
 }
 
 Mesh assemble(const Mesh& mesh, const Shared& shared, const std::vector<Triangle>& triangles) {
@@ -1209,16 +1216,16 @@ SurfacePointRule particle_band_rule(std::span<const Vec3> particles, std::span<c
       const double qx = x.x(), qy = x.y(), qz = x.z();
       const std::span<const Vec3> points = hash->sorted_points();
       bool near = false;
-      const bool clear = hash->for_each_range(x.array() - half_width, x.array() + half_width,
-                                              [&](std::uint32_t b, std::uint32_t e) {
-        for (std::uint32_t s = b; s < e; ++s) {
-          const double dx = points[s].x() - qx, dy = points[s].y() - qy, dz = points[s].z() - qz;
-          const double d2 = dx * dx + dy * dy + dz * dz;
-          if (d2 < inner2) return false;
-          near = near || d2 < outer2;
-        }
-        return true;
-      });
+      const bool clear =
+          hash->for_each_range(x.array() - half_width, x.array() + half_width, [&](std::uint32_t b, std::uint32_t e) {
+            for (std::uint32_t s = b; s < e; ++s) {
+              const double dx = points[s].x() - qx, dy = points[s].y() - qy, dz = points[s].z() - qz;
+              const double d2 = dx * dx + dy * dy + dz * dz;
+              if (d2 < inner2) return false;
+              near = near || d2 < outer2;
+            }
+            return true;
+          });
       return clear && (near || hash->any_within(x, outer));
     };
   }
