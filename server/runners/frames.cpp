@@ -7,6 +7,7 @@
 #include <latch>
 #include <memory>
 #include <optional>
+#include <system_error>
 #include <thread>
 
 #include "core/mesh/frame_codec.h"
@@ -19,8 +20,9 @@ namespace surfacer::server {
 namespace {
 
 // One Draco mesh encoded beside the checks, by whichever thread claims it first: a pool thread (the task is posted
-// as soon as the frame is made) or, when none has taken it by the end of the checks, a thread started for it, so the
-// frame's own thread only waits, and gives up at a cancel (Draco's encoder cannot be stopped). The encoder's copy of
+// as soon as the frame is made) or, when none has taken it by the end of the checks, a thread started for it (at most
+// kMaxEncodeThreads at once; past them, the frame's own thread), so the frame's own thread only waits, and gives up
+// at a cancel (Draco's encoder cannot be stopped). The encoder's copy of
 // the mesh is made by the thread that claimed it, so it is held only while it is encoded; a pool thread's encoding may
 // outlive a cancelled frame, which waits only for that copy (`copied`) before its mesh goes.
 struct SideEncoding {
@@ -54,6 +56,12 @@ struct SideEncoding {
     if (claimed.exchange(true, std::memory_order_acq_rel)) copied.wait();
   }
 };
+
+// Encodes on threads started for them (FrameMaker::make) running at once, at most. Each holds its copy of a frame's
+// mesh until Draco returns, also after the frame was cancelled, so their number bounds that memory; past it the
+// frame's own thread encodes, and a cancel then waits for Draco.
+constexpr int kMaxEncodeThreads = 4;
+std::atomic<int> encode_threads{0};
 
 }  // namespace
 
@@ -126,8 +134,24 @@ FrameOutput FrameMaker::make(Mesh mesh, StageTimer& timer, const RunControl& con
         check();
         control.report("encode", 0.0);
         // No pool thread has taken it (each is busy, e.g. with a cancelled job's encode, which Draco cannot stop): a
-        // thread of its own encodes it, so this one can still give up at a cancel.
-        if (!side->claimed.load(std::memory_order_acquire)) std::thread([side] { side->run(); }).detach();
+        // thread of its own encodes it, so this one can still give up at a cancel (up to kMaxEncodeThreads of them).
+        if (!side->claimed.load(std::memory_order_acquire)) {
+          bool started = false;
+          if (encode_threads.fetch_add(1, std::memory_order_relaxed) < kMaxEncodeThreads) {
+            try {
+              std::thread([side] {
+                side->run();
+                encode_threads.fetch_sub(1, std::memory_order_relaxed);
+              }).detach();
+              started = true;
+            } catch (const std::system_error&) {  // no thread to be had: encoded here
+            }
+          }
+          if (!started) {
+            encode_threads.fetch_sub(1, std::memory_order_relaxed);
+            side->run();
+          }
+        }
         while (encoded.wait_for(std::chrono::milliseconds(10)) != std::future_status::ready) control.check();
       } catch (...) {
         side->leave();  // cancelled: a pool thread that has not begun skips it
