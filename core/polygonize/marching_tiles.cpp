@@ -713,6 +713,17 @@ void validate(const MarchingTilesOptions& o) {
       throw InvalidInput("seeds[" + std::to_string(i) + "]", "seeds[" + std::to_string(i) + "] is not finite");
     }
   }
+  if (!o.seed_radii.empty() && o.seed_radii.size() != o.seeds.size()) {
+    throw InvalidInput("seed_radii", "seed_radii has " + std::to_string(o.seed_radii.size()) + " values for " +
+                                         std::to_string(o.seeds.size()) + " seeds; give one per seed, or none");
+  }
+  for (std::size_t i = 0; i < o.seed_radii.size(); ++i) {
+    if (!(std::isfinite(o.seed_radii[i]) && o.seed_radii[i] >= 0.0)) {
+      throw InvalidInput(
+          "seed_radii[" + std::to_string(i) + "]",
+          "seed_radii[" + std::to_string(i) + "] (" + format_number(o.seed_radii[i]) + ") must be finite and >= 0");
+    }
+  }
 }
 
 Lattice make_lattice(const MarchingTilesOptions& o) {
@@ -762,12 +773,13 @@ std::optional<Aabb> search_region(const Field& field, const MarchingTilesOptions
   return region;
 }
 
-// Calls add(key) for every block whose reachable box lies within o.seed_radius of `seed` and that known(key) does
-// not report as added already (the same block may still come more than once).
+// Calls add(key) for every block whose reachable box lies within o.seed_radius (+ o.seed_radii[i]) of seed i and
+// that known(key) does not report as added already (the same block may still come more than once).
 template <class Known, class Add>
-void blocks_near_seed(const Lattice& lat, const MarchingTilesOptions& o, const Vec3& seed, const RunControl& control,
+void blocks_near_seed(const Lattice& lat, const MarchingTilesOptions& o, std::size_t i, const RunControl& control,
                       Known&& known, Add&& add) {
-  const double r = o.seed_radius;
+  const Vec3& seed = o.seeds[i];
+  const double r = o.seed_radius + (o.seed_radii.empty() ? 0.0 : o.seed_radii[i]);
   const double block_world = 4.0 * kBlock * lat.unit;
   std::array<std::int64_t, 3> lo, hi;
   for (int a = 0; a < 3; ++a) {
@@ -814,7 +826,7 @@ std::vector<std::uint64_t> seed_blocks(const Lattice& lat, const MarchingTilesOp
         if (((i - begin) & 1023) == 0) control.check();
         auto word = [&](std::uint64_t key) { return std::atomic_ref<std::uint64_t>(bits[key >> 6]); };
         blocks_near_seed(
-            lat, o, o.seeds[i], control,
+            lat, o, i, control,
             [&](std::uint64_t key) { return (word(key).load(std::memory_order_relaxed) >> (key & 63)) & 1; },
             [&](std::uint64_t key) { word(key).fetch_or(std::uint64_t{1} << (key & 63), std::memory_order_relaxed); });
       }
@@ -825,11 +837,10 @@ std::vector<std::uint64_t> seed_blocks(const Lattice& lat, const MarchingTilesOp
     return keys;
   }
   std::unordered_set<std::uint64_t> set;
-  std::size_t n = 0;
-  for (const Vec3& seed : o.seeds) {
-    if ((++n & 1023) == 0) control.check();
+  for (std::size_t i = 0; i < o.seeds.size(); ++i) {
+    if (((i + 1) & 1023) == 0) control.check();
     blocks_near_seed(
-        lat, o, seed, control, [](std::uint64_t) { return false; }, [&](std::uint64_t key) { set.insert(key); });
+        lat, o, i, control, [](std::uint64_t) { return false; }, [&](std::uint64_t key) { set.insert(key); });
   }
   keys.assign(set.begin(), set.end());
   std::sort(keys.begin(), keys.end());

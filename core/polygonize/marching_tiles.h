@@ -34,6 +34,9 @@ struct MarchingTilesOptions {
   // plus Lipschitz bounds where the field provides them), so time and memory grow with surface area.
   std::span<const Vec3> seeds;
   double seed_radius = 0.0;
+  // Per seed (empty, or one per seed, finite and >= 0): added to seed_radius for that seed, so that seeds of very
+  // different reach (particles of per-particle radii) each cover only their own.
+  std::span<const double> seed_radii;
   // Without seeds: how the blocks near the surface are found. A bound much larger than the field's typical slope
   // (blob sums add every kernel's steepest slope) excludes little at coarse spacings, so kLipschitz then visits most
   // blocks inside field.bounds(); kSignScan is cheaper there but can miss components smaller than ~3.5 spacings.

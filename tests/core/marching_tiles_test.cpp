@@ -438,6 +438,60 @@ TEST(MarchingTiles, SeedsModeIsClosedAndMatchesFullSearch) {
   RecordProperty("full_evaluations", std::to_string(full_count.calls()));
 }
 
+// Balls of radii r_i: min_i |x - p_i| - r_i.
+class BallsField final : public Field {
+ public:
+  BallsField(std::vector<Vec3> centres, std::vector<double> radii) : centres_(std::move(centres)), radii_(radii) {}
+  double value(const Vec3& p) const override {
+    double f = HUGE_VAL;
+    for (std::size_t i = 0; i < centres_.size(); ++i) f = std::min(f, (p - centres_[i]).norm() - radii_[i]);
+    return f;
+  }
+  double value_and_gradient(const Vec3& p, Vec3& g) const override {
+    double f = HUGE_VAL;
+    for (std::size_t i = 0; i < centres_.size(); ++i) {
+      const double d = (p - centres_[i]).norm();
+      if (d - radii_[i] < f) {
+        f = d - radii_[i];
+        g = (p - centres_[i]) / d;
+      }
+    }
+    return f;
+  }
+  std::optional<Aabb> bounds() const override { return std::nullopt; }
+
+ private:
+  std::vector<Vec3> centres_;
+  std::vector<double> radii_;
+};
+
+// Seeds of their own radii (a large ball among small ones) visit fewer blocks than one radius covering the largest,
+// and give the same mesh.
+TEST(MarchingTiles, SeedsOfTheirOwnRadiiMatchOneRadiusForAll) {
+  std::vector<Vec3> centres;
+  std::vector<double> radii;
+  for (int i = 0; i < 12; ++i) {
+    centres.emplace_back(-0.6 + 0.1 * i, 0.05 * (i % 3), -0.3);
+    radii.push_back(0.04 + 0.002 * (i % 4));
+  }
+  centres.emplace_back(0.3, 0.3, 0.3);
+  radii.push_back(0.35);
+  const BallsField field(centres, radii);
+  MarchingTilesOptions o = tile_options(1.0, 0.02, 2);
+  o.seeds = centres;
+  o.seed_radius = 0.35 + 0.02;
+  CountingField one_count(field);
+  const Mesh one = marching_tiles(one_count, o);
+  o.seed_radius = 0.02;
+  o.seed_radii = radii;
+  CountingField own_count(field);
+  const Mesh own = marching_tiles(own_count, o);
+  EXPECT_TRUE(mesh_has(check_mesh(own), kGoodClosed, kMinValence));
+  EXPECT_EQ(own.vertices, one.vertices);
+  EXPECT_EQ(own.triangles, one.triangles);
+  EXPECT_LT(2 * own_count.calls(), one_count.calls());
+}
+
 // A field's inside test lets the polygonizer skip cells whose tetrahedra lie inside; it must not change the mesh.
 // Here: balls (no Lipschitz bound given) whose inside test is exact for boxes (a box is inside a ball when its
 // farthest corner is), against the same field answering nothing.
@@ -656,6 +710,17 @@ TEST(MarchingTiles, InvalidOptionsNameTheField) {
   o.seeds = seeds;
   o.seed_radius = 0.5;
   expect_invalid(o, "seeds[1]");
+  const std::vector<double> seed_radii = {0.1, -0.1};
+  o.seeds = std::span(seeds).first(1);
+  o.seed_radii = seed_radii;
+  expect_invalid(o, "seed_radii");  // one per seed
+  o.seeds = std::span(seeds).first(1);
+  o.seed_radii = std::span(seed_radii).first(1);
+  EXPECT_NO_THROW(marching_tiles(*make_sphere(Vec3::Zero(), 0.3), o));
+  const std::vector<Vec3> two = {Vec3::Zero(), Vec3(0.1, 0, 0)};
+  o.seeds = two;
+  o.seed_radii = seed_radii;
+  expect_invalid(o, "seed_radii[1]");
   // Too fine a lattice is a resource limit, not invalid input.
   o = tile_options(1.0, 1e-12);
   EXPECT_TRUE(testing::throws_error([&] { marching_tiles(*make_sphere(Vec3::Zero(), 0.5), o); },
