@@ -15,6 +15,7 @@
 #include <string>
 
 #include "core/particles/cusp_search.h"
+#include "core/particles/particle_index.h"
 #include "core/particles/smoothing.h"
 #include "core/particles/spatial_hash.h"
 #include "core/polygonize/marching_tiles.h"
@@ -34,19 +35,15 @@ using particle_cusps::HeldCusp;
 using particle_cusps::kCuspFacing;
 using particle_cusps::kMaxCuspSpheres;
 using particle_cusps::lowest_cusp;
+using particle_index::BandScratch;
+using particle_index::Interval;
+using particle_index::kInf;
+using particle_index::Particles;
+using particle_index::Tier;
 using Clock = std::chrono::steady_clock;
 
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
-constexpr double kInf = std::numeric_limits<double>::infinity();
-constexpr double kBandTolerance = 1e-12;     // relative slack before a projection moves a vertex
-constexpr double kFaithfulTolerance = 1e-9;  // relative slack of the faithfulness statistics
-constexpr int kMaxProjectionRounds = 8;
-// Relative slack of the box tests by which a band query skips particles that cannot matter (Particles::band_on_line):
-// far above the rounding of a chord's ends (~1e-8 of the query's reach, the square root of a cancelling difference).
-constexpr double kSkipSlack = 1e-6;
-// The first radius of a nearest-particle search, in r_outer (Particles::nearest).
-constexpr double kFirstSearch = 1.25;
 constexpr int kMaxNewtonSteps = 16;
 // Particles closer than this (in r_inner) to an earlier one are merged into it (docs/ALGORITHMS.md §1, CHOICE
 // "coincident particles merged").
@@ -60,338 +57,9 @@ constexpr std::size_t kGiveBackParticles = 250'000;
 // planes"): enough to cover r_outer, at most this many.
 constexpr int kMaxDescentPasses = 16;
 
-// --- Particles ------------------------------------------------------------------------------------------------------
-
-// The particles in use, a spatial hash over them (cell = the largest r_outer) and their radii.
-struct Interval {
-  double lo = 0.0, hi = 0.0;
-};
-
-// A thread's scratch for band queries.
-struct BandScratch {
-  std::vector<Interval> allowed, forbidden;
-  std::vector<double> ends;
-  // The particles whose outer balls meet a line: t along it of the foot (-b) and squared distance c, and their radii.
-  struct Chord {
-    double b, c, inner, outer;
-  };
-  std::vector<Chord> chords;
-  // The outer balls within their radius + cell of the vertex: those whose sphere passes within cell of it, and those
-  // deeper around it.
-  std::vector<Ball> spheres, deeper;
-  std::vector<particle_cusps::Circle> circles;  // lowest_cusp's
-  // The hash's slot ranges [first, second) a band query reads, in ascending order (Particles::band_on_line).
-  std::vector<std::pair<std::uint32_t, std::uint32_t>> ranges;
-};
-
-struct Particles {
-  // The particles in use, in input order: a view of the caller's array for the run, or of `edited` once coincident
-  // particles were merged or small components dropped (no copy of the input otherwise).
-  std::span<const Vec3> positions;
-  std::vector<Vec3> edited;
-  std::vector<double> inner, outer;            // per particle; empty when uniform
-  std::vector<double> slot_inner, slot_outer;  // the same in hash slot order (weighted search)
-  bool weighted = false;
-  double r_inner = 0.0, r_outer = 0.0;  // uniform radii, or (weighted) the reference r_inner and ratio * it
-  double min_inner = 0.0, max_inner = 0.0, max_outer = 0.0;
-  Aabb box;
-  SpatialHash hash;
-
-  // `kept` becomes the particles in use.
-  void replace_positions(std::vector<Vec3> kept) {
-    edited = std::move(kept);
-    positions = edited;
-  }
-
-  // `reach`: the largest query radius (the field's r_outer + band).
-  void index(double reach) {
-    box = Aabb::of(positions);
-    // Dense data: cells of r_inner (uniform radii) keep the scans short. Scattered data (the hash falls back to its
-    // sparse layout, one table lookup per cell): cells of the query reach, so a query looks up at most 27 cells.
-    hash.build(positions, weighted ? max_outer : r_inner);
-    if (!hash.dense()) hash.build(positions, std::max(reach, weighted ? max_outer : r_inner));
-    if (weighted) {
-      slot_inner.resize(positions.size());
-      slot_outer.resize(positions.size());
-      for (std::size_t s = 0; s < positions.size(); ++s) {
-        slot_inner[s] = inner[hash.order()[s]];
-        slot_outer[s] = outer[hash.order()[s]];
-      }
-    }
-  }
-
-  double all_radius(const Vec3& x) const {
-    return (x - 0.5 * (box.min + box.max)).norm() + 0.5 * (box.max - box.min).norm() + max_outer;
-  }
-
-  struct Hit {
-    std::uint32_t index = 0;
-    double distance = kInf;
-    double value = kInf;  // distance - the particle's radius of the query
-  };
-
-  // Exact nearest particle (uniform radii). Particles must be non-empty.
-  // The queries come from near the r_outer surface (lattice points within 1.25 h of it, vertices before the snap:
-  // after the Laplacian sweeps 44 % of the block's lie outside r_outer, none beyond 1.12 r_outer), so the search
-  // starts at kFirstSearch r_outer and mostly ends there. Starting at one cell and retrying without a bound took three
-  // rounds, the last one 8 times the volume, for every vertex outside r_outer.
-  Hit nearest(const Vec3& x) const {
-    const std::optional<SpatialHash::Neighbor> n = hash.nearest(x, kInf, kFirstSearch * r_outer);
-    return Hit{n->index, n->distance, n->distance};
-  }
-
-  // Exact minimisers of |x - p_i| - inner_i and |x - p_i| - outer_i (weighted radii).
-  void nearest_weighted(const Vec3& x, Hit& in, Hit& out) const {
-    double r = kFirstSearch * max_outer;  // as in nearest()
-    const std::span<const Vec3> pts = hash.sorted_points();
-    while (true) {
-      in = out = Hit{};
-      hash.for_each_range(x.array() - r, x.array() + r, [&](std::uint32_t begin, std::uint32_t end) {
-        for (std::uint32_t s = begin; s < end; ++s) {
-          const double d = (pts[s] - x).norm();
-          if (d - slot_inner[s] < in.value) in = Hit{s, d, d - slot_inner[s]};
-          if (d - slot_outer[s] < out.value) out = Hit{s, d, d - slot_outer[s]};
-        }
-      });
-      // Particles outside the box are farther than r, so their values exceed r - max radius.
-      if ((in.value + max_inner <= r && out.value + max_outer <= r) || r > all_radius(x)) break;
-      r *= 2.0;
-    }
-    in.index = hash.order()[in.index];
-    out.index = hash.order()[out.index];
-  }
-
-  // Weighted radii: distance outside the faithful band (0 when faithful), exact.
-  double violation(const Vec3& x) const {
-    Hit in, out;
-    nearest_weighted(x, in, out);
-    return std::max({-in.value, out.value, 0.0});
-  }
-  bool faithful(double violation) const { return violation <= kFaithfulTolerance * (weighted ? max_outer : r_outer); }
-
-  // The band along the line x + t n (|t| <= reach) at its faithful point nearest to x: that point's offset `at`, and
-  // the offsets around it for which the line stays faithful, as an interval relative to it; nullopt when no point of
-  // the line within reach is faithful. Along the line the particles' outer balls allow t in a union of closed
-  // intervals (chords) and their inner balls forbid t in open ones; the chords are those of the particles in the hash
-  // cells of the box around the segment (|t| <= reach) grown by max_outer. `at` is 0 when x is faithful, else an end of
-  // one of the chords (the nearest point of such a union to 0 is one), taken on the sphere itself, inside the
-  // tolerance the chords allow. Exact. When cell > 0, scratch.spheres and scratch.deeper receive the outer balls
-  // lowest_cusp needs around the faithful point (balls_near); one walk of the hash serves both.
-  struct LineBand {
-    double at = 0.0;
-    Interval band;
-  };
-  std::optional<LineBand> band_on_line(const Vec3& x, const Vec3& n, double reach, double cell,
-                                       BandScratch& scratch) const {
-    std::vector<Interval>& allowed = scratch.allowed;
-    std::vector<Interval>& forbidden = scratch.forbidden;
-    std::vector<double>& ends = scratch.ends;
-    std::vector<BandScratch::Chord>& chords = scratch.chords;
-    chords.clear();
-    allowed.clear();
-    forbidden.clear();
-    ends.clear();
-    scratch.spheres.clear();
-    scratch.deeper.clear();
-    const double radius = weighted ? max_outer : r_outer;
-    const Eigen::Array3d half = reach * n.array().abs() + radius;
-    const Eigen::Array3d line_lo = x.array() - half, line_hi = x.array() + half;
-    std::vector<std::pair<std::uint32_t, std::uint32_t>>& ranges = scratch.ranges;
-    ranges.clear();
-    const auto keep = [&ranges](std::uint32_t begin, std::uint32_t end) { ranges.emplace_back(begin, end); };
-    if (cell > 0.0) {
-      // Also every ball balls_near can take, wherever on the segment it is asked: the box of its query about any point
-      // of the segment, grown by far more than the rounding of either box.
-      const Eigen::Array3d wide = reach * n.array().abs() + (radius + cell);
-      const double margin = kSkipSlack * (x.cwiseAbs().maxCoeff() + wide.maxCoeff());
-      hash.for_each_range(x.array() - wide - margin, x.array() + wide + margin, keep);
-    } else {
-      hash.for_each_range(line_lo, line_hi, keep);
-    }
-    // Only the chords that meet [-reach, reach] are kept: one beyond it changes neither the faithful points within
-    // reach nor the band's piece there (which is clamped to reach) nor the inner bounds (which start at +-reach), and
-    // its ends are out of reach. A particle outside `near` (the line's box grown by far more than the chords'
-    // tolerance and their rounding) has no such chord. The wider walk for balls_near holds more than the line's cells:
-    // a chord of a particle outside the line's box is kept only when its cell is one of them (never, but for rounding
-    // at the box's faces), so the chords are those of the line's cells.
-    const double slack = kSkipSlack * (x.cwiseAbs().maxCoeff() + reach + radius);
-    const Eigen::Array3d near_lo = line_lo - slack, near_hi = line_hi + slack;
-    SpatialHash::RangeVisits line_visits(hash, line_lo, line_hi);
-    const double uniform_ro = r_outer * (1.0 + kBandTolerance), uniform_ri = r_inner * (1.0 - kBandTolerance);
-    const std::span<const Vec3> pts = hash.sorted_points();
-    for (const auto& [begin, end] : ranges) {
-      for (std::uint32_t slot = begin; slot < end; ++slot) {
-        const Vec3& p = pts[slot];
-        if (!((p.array() >= near_lo).all() && (p.array() <= near_hi).all())) continue;
-        const Vec3 q = x - p;
-        const double b = n.dot(q), c = q.squaredNorm() - b * b;  // t along the line, c: squared distance of p to it
-        const double ro = weighted ? slot_outer[slot] * (1.0 + kBandTolerance) : uniform_ro;
-        if (!(c < ro * ro)) continue;
-        const double h = std::sqrt(ro * ro - c);
-        const Interval chord{-b - h, -b + h};
-        if (chord.hi < -reach || chord.lo > reach) continue;
-        if (cell > 0.0 && !line_visits(slot)) continue;
-        const double inner = weighted ? slot_inner[slot] : r_inner, outer = weighted ? slot_outer[slot] : r_outer;
-        const double ri = weighted ? inner * (1.0 - kBandTolerance) : uniform_ri;
-        allowed.push_back(chord);
-        if (c < ri * ri) {
-          const double hi = std::sqrt(ri * ri - c);
-          forbidden.push_back({-b - hi, -b + hi});  // open
-        }
-        chords.push_back({b, c, inner, outer});
-      }
-    }
-    const auto faithful_at = [&](double t) {
-      const auto holds = [t](const Interval& c) { return c.lo <= t && t <= c.hi; };
-      const auto inside = [t](const Interval& c) { return c.lo < t && t < c.hi; };
-      return std::any_of(allowed.begin(), allowed.end(), holds) &&
-             std::none_of(forbidden.begin(), forbidden.end(), inside);
-    };
-    LineBand line;
-    if (!faithful_at(0.0)) {
-      // The candidates: the ends of every chord on the spheres themselves (inside the tolerance faithful_at allows).
-      for (const BandScratch::Chord& k : chords) {
-        const double outer = std::sqrt(std::max(0.0, k.outer * k.outer - k.c));
-        ends.insert(ends.end(), {-k.b - outer, -k.b + outer});
-        if (k.c < k.inner * k.inner) {
-          const double inner = std::sqrt(k.inner * k.inner - k.c);
-          ends.insert(ends.end(), {-k.b - inner, -k.b + inner});
-        }
-      }
-      std::erase_if(ends, [reach](double t) { return !(std::abs(t) <= reach); });
-      // The nearest first (ties: the lower), without sorting them all: mostly the first is faithful.
-      const auto nearer = [](double a, double b) {
-        return std::abs(a) < std::abs(b) || (std::abs(a) == std::abs(b) && a < b);
-      };
-      for (;;) {
-        if (ends.empty()) return std::nullopt;
-        const auto it = std::min_element(ends.begin(), ends.end(), nearer);
-        if (faithful_at(*it)) {
-          line.at = *it;
-          break;
-        }
-        *it = ends.back();
-        ends.pop_back();
-      }
-    }
-    const double at = line.at;
-    // The piece of the union of the allowed intervals that holds `at`: the intervals holding it, then grown by every
-    // interval that meets it until none does (no sort: a few passes over a short list). Absorbed intervals are
-    // swapped to the front. The nearest forbidden intervals on either side bound it.
-    Interval piece{0.0, -1.0};  // empty
-    std::size_t absorbed = 0;
-    for (std::size_t k = 0; k < allowed.size(); ++k) {
-      if (allowed[k].lo <= at && allowed[k].hi >= at) {
-        piece =
-            absorbed == 0 ? allowed[k] : Interval{std::min(piece.lo, allowed[k].lo), std::max(piece.hi, allowed[k].hi)};
-        std::swap(allowed[absorbed++], allowed[k]);
-      }
-    }
-    if (absorbed == 0) {
-      line.band = {0.0, 0.0};
-    } else {
-      for (bool grew = true; grew;) {
-        grew = false;
-        for (std::size_t k = absorbed; k < allowed.size(); ++k) {
-          if (allowed[k].lo <= piece.hi && allowed[k].hi >= piece.lo) {
-            piece.lo = std::min(piece.lo, allowed[k].lo);
-            piece.hi = std::max(piece.hi, allowed[k].hi);
-            std::swap(allowed[absorbed++], allowed[k]);
-            grew = true;
-          }
-        }
-      }
-      double lo_in = -reach, hi_in = reach;
-      for (const Interval& f : forbidden) {
-        if (f.lo >= at) {
-          hi_in = std::min(hi_in, f.lo);
-        } else if (f.hi <= at) {
-          lo_in = std::max(lo_in, f.hi);
-        } else {  // `at` inside an inner ball: only a rounding-level violation can get here
-          hi_in = std::min(hi_in, at);
-          lo_in = std::max(lo_in, at);
-        }
-      }
-      line.band = {std::max({piece.lo, lo_in, -reach}) - at, std::min({piece.hi, hi_in, reach}) - at};
-    }
-    if (cell > 0.0) balls_near(x + at * n, cell, scratch);
-    return line;
-  }
-
-  // Into scratch.spheres and scratch.deeper, in hash order, the outer balls within their radius + cell of x, as
-  // lowest_cusp needs them: those whose sphere passes within cell of x, and the others. The candidates are those
-  // SpatialHash::for_each_within(x, max_outer + cell) finds: of the particles in the hash cells of the box x +-
-  // (max_outer + cell), those within that distance of x. They are taken from the slots of scratch.ranges, which must
-  // hold them all.
-  void balls_near(const Vec3& x, double cell, BandScratch& scratch) const {
-    const double radius = (weighted ? max_outer : r_outer) + cell;
-    const double r2 = radius * radius;
-    SpatialHash::RangeVisits visits(hash, x.array() - radius, x.array() + radius);
-    const std::span<const Vec3> pts = hash.sorted_points();
-    for (const auto& [begin, end] : scratch.ranges) {
-      for (std::uint32_t slot = begin; slot < end; ++slot) {
-        const Vec3& p = pts[slot];
-        const double d2 = (p - x).squaredNorm();
-        if (!(d2 <= r2)) continue;
-        if (!visits(slot)) continue;
-        const double r = weighted ? slot_outer[slot] : r_outer;
-        if (d2 > (r + cell) * (r + cell)) continue;
-        (d2 >= (r - cell) * (r - cell) ? scratch.spheres : scratch.deeper).push_back({p, r});
-      }
-    }
-  }
-
-  // Uniform radii: moves x into the faithful band (see the header): out of the nearest inner ball (again while the
-  // push lands in another), or toward the nearest particle onto its outer sphere (it stays the nearest on the way).
-  void project_uniform(Vec3& x) const {
-    for (int round = 0; round < kMaxProjectionRounds; ++round) {
-      const Hit n = nearest(x);
-      const Vec3& p = positions[n.index];
-      if (n.distance < r_inner * (1.0 - kBandTolerance)) {
-        x = p + r_inner * (n.distance > 0.0 ? Vec3((x - p) / n.distance) : Vec3::UnitZ());
-        continue;
-      }
-      if (n.distance > r_outer * (1.0 + kBandTolerance)) x = p + (x - p) * (r_outer / n.distance);
-      return;
-    }
-  }
-  double violation_uniform(const Vec3& x) const {
-    const double d = nearest(x).distance;
-    return std::max({r_inner - d, d - r_outer, 0.0});
-  }
-
-  // The thesis' projection (see the header) for either kind of radii.
-  void project_any(Vec3& x) const {
-    if (weighted) {
-      project(x);
-    } else {
-      project_uniform(x);
-    }
-  }
-
-  // Weighted radii: moves x into the faithful band (see the header); returns false when rounds ran out.
-  bool project(Vec3& x) const {
-    for (int round = 0; round < kMaxProjectionRounds; ++round) {
-      Hit in, out;
-      nearest_weighted(x, in, out);
-      if (in.value < -kBandTolerance * inner[in.index]) {
-        const Vec3& p = positions[in.index];
-        x = p + inner[in.index] * (in.distance > 0.0 ? Vec3((x - p) / in.distance) : Vec3::UnitZ());
-        continue;
-      }
-      if (out.value > kBandTolerance * outer[out.index]) {
-        const Vec3& p = positions[out.index];
-        x = p + (x - p) * (outer[out.index] / out.distance);
-        continue;  // may land inside the inner ball of a larger particle
-      }
-      return true;
-    }
-    return false;
-  }
-};
-
 // Where f < 0 is certain without a search: a bit per cube of side c of a grid over the particles, set when some
-// particle lies closer than r_outer - c sqrt(3) / 2 to the cube's centre (per-particle radii: the smallest r_outer_i),
+// particle lies closer than r_outer - c sqrt(3) / 2 to the cube's centre (per-particle radii: the smallest r_outer_i of
+// the tier holding the most particles, and only the particles of that tier and those above),
 // so that every point of the cube is strictly inside that particle's ball. Inside a fluid nearly every sample of the
 // polygonizer falls in such a cube and its sign costs one bit lookup, and Marching Tiles skips the cubes of cells
 // whose boxes it covers (covers()). Built by rasterizing each particle's ball row by row as spans of
@@ -404,11 +72,16 @@ class InsideMask {
   static constexpr double kMaxBitsPerParticle = 512.0;
 
   InsideMask(const Particles& P, int threads) {
-    if (P.positions.empty() || !P.hash.dense()) return;
-    // Per-particle radii: every ball holds the ball of the smallest radii about the same centre, so a mask of those
-    // is a sound one.
-    const double r_inner = P.weighted ? *std::min_element(P.inner.begin(), P.inner.end()) : P.r_inner;
-    const double r_outer = P.weighted ? *std::min_element(P.outer.begin(), P.outer.end()) : P.r_outer;
+    // Scattered data (the largest tier's hash is sparse) is left to the search.
+    if (P.positions.empty()) return;
+    const Tier* most = &P.tiers[P.main_tier];
+    if (!most->hash.dense()) return;
+    // Per-particle radii: the balls of the smallest radii of the largest tier, about the centres of that tier and of
+    // the tiers above (each ball holds such a ball about its centre), so a sound mask; the smaller tiers' particles
+    // are left to the search, so that a few tiny radii do not make the cubes too many to keep.
+    first_tier_ = P.main_tier;
+    const double r_inner = P.weighted ? *std::min_element(most->slot_inner.begin(), most->slot_inner.end()) : P.r_inner;
+    const double r_outer = P.weighted ? *std::min_element(most->slot_outer.begin(), most->slot_outer.end()) : P.r_outer;
     // Half r_inner, or coarser when r_outer is many times r_inner, so that a ball spans at most kMaxReachCells cells.
     cell_ = std::max(0.5 * r_inner, r_outer / Stencils::kMaxReachCells);
     const double reach = r_outer - cell_ * std::sqrt(3.0) / 2.0;
@@ -422,9 +95,8 @@ class InsideMask {
         static_cast<double>(row_words_) * static_cast<double>(dims_[1]) * static_cast<double>(dims_[2]);
     if (64.0 * words > kMaxBitsPerParticle * static_cast<double>(P.positions.size()) + 65536.0) return;
     words_.assign(static_cast<std::size_t>(words), 0);
-    // Particles in hash order are sorted by z cell (the hash's cells are x fastest), so each slab's particles are a
-    // contiguous range found by binary search on z.
-    const std::span<const Vec3> pts = P.hash.sorted_points();
+    // A tier's particles in hash order are sorted by z cell (the hash's cells are x fastest), so each slab's
+    // particles are a contiguous range of each tier found by binary search on z.
     const double inv = 1.0 / cell_;
     const Stencils stencils(reach * inv);
     const int slabs = static_cast<int>(std::min<std::int64_t>(dims_[2], 4 * resolve_threads(threads)));
@@ -432,26 +104,7 @@ class InsideMask {
       const std::int64_t kb = dims_[2] * slab / slabs, ke = dims_[2] * (slab + 1) / slabs;  // rows [kb, ke)
       const double z_lo = origin_.z() + (kb - stencils.reach) * cell_,
                    z_hi = origin_.z() + (ke + stencils.reach) * cell_;
-      const auto first = std::lower_bound(pts.begin(), pts.end(), z_lo - P.hash.cell_size(),
-                                          [](const Vec3& p, double z) { return p.z() < z; });
-      for (auto it = first; it != pts.end() && it->z() <= z_hi + P.hash.cell_size(); ++it) {
-        const Vec3 q = (*it - origin_) * inv;  // in cells; cell (i, j, k) has its centre at (i + 0.5, ...)
-        std::int64_t base[3];
-        int cls = 0;
-        for (int a = 2; a >= 0; --a) {
-          const double fl = std::floor(q[a]);
-          base[a] = static_cast<std::int64_t>(fl);
-          cls = cls * Stencils::kClasses +
-                std::min(Stencils::kClasses - 1, static_cast<int>((q[a] - fl) * Stencils::kClasses));
-        }
-        for (const Stencils::Row& row : stencils.rows(cls)) {
-          const std::int64_t k = base[2] + row.dk, j = base[1] + row.dj;
-          if (k < kb || k >= ke || j < 0 || j >= dims_[1]) continue;
-          const std::int64_t i0 = std::max<std::int64_t>(0, base[0] + row.di0);
-          const std::int64_t i1 = std::min<std::int64_t>(dims_[0] - 1, base[0] + row.di1);
-          if (i0 <= i1) set_span(&words_[static_cast<std::size_t>((k * dims_[1] + j) * row_words_)], i0, i1 - i0 + 1);
-        }
-      }
+      for (std::size_t t = first_tier_; t < P.tiers.size(); ++t) rasterize(P.tiers[t], stencils, kb, ke, z_lo, z_hi);
     });
   }
 
@@ -541,6 +194,33 @@ class InsideMask {
     std::vector<std::uint32_t> start_;
   };
 
+  // Sets the bits of the rows [kb, ke) that the tier's particles with z in [z_lo, z_hi] cover.
+  void rasterize(const Tier& tier, const Stencils& stencils, std::int64_t kb, std::int64_t ke, double z_lo,
+                 double z_hi) {
+    const std::span<const Vec3> pts = tier.hash.sorted_points();
+    const double inv = 1.0 / cell_, slack = tier.hash.cell_size();
+    const auto first =
+        std::lower_bound(pts.begin(), pts.end(), z_lo - slack, [](const Vec3& p, double z) { return p.z() < z; });
+    for (auto it = first; it != pts.end() && it->z() <= z_hi + slack; ++it) {
+      const Vec3 q = (*it - origin_) * inv;  // in cells; cell (i, j, k) has its centre at (i + 0.5, ...)
+      std::int64_t base[3];
+      int cls = 0;
+      for (int a = 2; a >= 0; --a) {
+        const double fl = std::floor(q[a]);
+        base[a] = static_cast<std::int64_t>(fl);
+        cls = cls * Stencils::kClasses +
+              std::min(Stencils::kClasses - 1, static_cast<int>((q[a] - fl) * Stencils::kClasses));
+      }
+      for (const Stencils::Row& row : stencils.rows(cls)) {
+        const std::int64_t k = base[2] + row.dk, j = base[1] + row.dj;
+        if (k < kb || k >= ke || j < 0 || j >= dims_[1]) continue;
+        const std::int64_t i0 = std::max<std::int64_t>(0, base[0] + row.di0);
+        const std::int64_t i1 = std::min<std::int64_t>(dims_[0] - 1, base[0] + row.di1);
+        if (i0 <= i1) set_span(&words_[static_cast<std::size_t>((k * dims_[1] + j) * row_words_)], i0, i1 - i0 + 1);
+      }
+    }
+  }
+
   static void set_span(std::uint64_t* row, std::int64_t first, std::int64_t count) {
     while (count > 0) {
       const std::int64_t b = first & 63;
@@ -551,6 +231,7 @@ class InsideMask {
     }
   }
 
+  std::size_t first_tier_ = 0;  // the tiers rasterized: this one and those above
   double cell_ = 0.0;
   Vec3 origin_ = Vec3::Zero();
   std::int64_t dims_[3] = {0, 0, 0};
@@ -570,16 +251,20 @@ class ParticleField final : public Field {
   double value(const Vec3& x) const override {
     count();
     if (!particles_.weighted) {
-      const double d = particles_.hash.bounded_distance(x, particles_.r_outer + band_, particles_.r_outer - band_);
+      const double d = particles_.hash().bounded_distance(x, particles_.r_outer + band_, particles_.r_outer - band_);
       return std::isinf(d) ? band_ : d - particles_.r_outer;
     }
     double best = band_;
-    const std::span<const Vec3> pts = particles_.hash.sorted_points();
-    const double r = particles_.max_outer + band_;
-    particles_.hash.for_each_range(x.array() - r, x.array() + r, [&](std::uint32_t begin, std::uint32_t end) {
-      for (std::uint32_t s = begin; s < end; ++s) best = std::min(best, (pts[s] - x).norm() - particles_.slot_outer[s]);
-      return best >= -band_;
-    });
+    for (const Tier& t : particles_.tiers) {
+      const std::span<const Vec3> pts = t.hash.sorted_points();
+      const double r = t.max_outer + band_;
+      if (!t.hash.for_each_range(x.array() - r, x.array() + r, [&](std::uint32_t begin, std::uint32_t end) {
+            for (std::uint32_t s = begin; s < end; ++s) best = std::min(best, (pts[s] - x).norm() - t.slot_outer[s]);
+            return best >= -band_;
+          })) {
+        break;
+      }
+    }
     return best;
   }
 
@@ -587,15 +272,18 @@ class ParticleField final : public Field {
   double sign_value(const Vec3& x) const override {
     count();
     if (inside_.certainly_inside(x)) return -band_;
-    if (!particles_.weighted) return particles_.hash.any_within(x, particles_.r_outer) ? -band_ : band_;
-    const std::span<const Vec3> pts = particles_.hash.sorted_points();
+    if (!particles_.weighted) return particles_.hash().any_within(x, particles_.r_outer) ? -band_ : band_;
     bool inside = false;
-    particles_.hash.for_each_range(x.array() - particles_.max_outer, x.array() + particles_.max_outer,
-                                   [&](std::uint32_t begin, std::uint32_t end) {
-                                     for (std::uint32_t s = begin; s < end && !inside; ++s)
-                                       inside = (pts[s] - x).norm() < particles_.slot_outer[s];
-                                     return !inside;
-                                   });
+    for (const Tier& t : particles_.tiers) {
+      const std::span<const Vec3> pts = t.hash.sorted_points();
+      t.hash.for_each_range(x.array() - t.max_outer, x.array() + t.max_outer,
+                            [&](std::uint32_t begin, std::uint32_t end) {
+                              for (std::uint32_t s = begin; s < end && !inside; ++s)
+                                inside = (pts[s] - x).norm() < t.slot_outer[s];
+                              return !inside;
+                            });
+      if (inside) break;
+    }
     return inside ? -band_ : band_;
   }
   bool sign_is_cheaper() const override { return true; }
@@ -818,15 +506,19 @@ std::size_t drop_bubbles(Mesh& mesh, const Particles& P, double span) {
   }
   std::vector<char> drop(smalls.size(), 0);
   std::size_t dropped = 0;
-  const std::span<const Vec3> pts = P.hash.sorted_points();
   for (std::size_t c = 0; c < smalls.size(); ++c) {
     const Aabb& b = box[smalls[c]];
     bool holds = false;
-    P.hash.for_each_range(b.min.array(), b.max.array(), [&](std::uint32_t begin, std::uint32_t end) {
-      for (std::uint32_t s = begin; s < end && !holds; ++s) {
-        holds = b.contains(pts[s]) && encloses(mesh.vertices, faces[c], pts[s]);
-      }
-    });
+    for (const Tier& t : P.tiers) {
+      const std::span<const Vec3> pts = t.hash.sorted_points();
+      t.hash.for_each_range(b.min.array(), b.max.array(), [&](std::uint32_t begin, std::uint32_t end) {
+        for (std::uint32_t s = begin; s < end && !holds; ++s) {
+          holds = b.contains(pts[s]) && encloses(mesh.vertices, faces[c], pts[s]);
+        }
+        return !holds;
+      });
+      if (holds) break;
+    }
     if (!holds) {
       drop[c] = 1;
       ++dropped;
@@ -879,14 +571,31 @@ std::vector<std::uint32_t> merge_coincident(Particles& P, double tolerance, cons
 
 // Union-find over particles whose r_outer balls overlap; returns the kept flags and the number of dropped clusters.
 // A particle counts `weight` input particles (empty: one each).
-// Its own spatial hash with cells of the largest reach (2 max r_outer), so a query touches at most 27 cells even for
-// scattered spray.
+// Per tier a spatial hash of its own with cells of the tier's largest reach (2 of its largest r_outer), so a query
+// touches at most 27 cells even for scattered spray. A particle is paired with those of its own tier and of the tiers
+// above, each searched as far as its own r_outer and that tier's largest one reach.
 std::vector<char> filter_components(const Particles& all, int min_size, std::span<const std::uint32_t> weight,
                                     std::size_t& dropped, const RunControl& control) {
   const std::size_t n = all.positions.size();
-  const SpatialHash hash(all.positions, 2.0 * all.max_outer);
-  std::vector<double> outer(all.weighted ? n : 0);
-  for (std::size_t s = 0; s < outer.size(); ++s) outer[s] = all.outer[hash.order()[s]];
+  struct Level {
+    SpatialHash hash;
+    std::vector<std::uint32_t> particle;  // per slot
+    std::vector<double> outer;            // per slot
+    double max_outer = 0.0;
+  };
+  std::vector<Level> levels(all.tiers.size());
+  for (std::size_t k = 0; k < levels.size(); ++k) {
+    const Tier& tier = all.tiers[k];
+    Level& level = levels[k];
+    level.hash.build(tier.hash.sorted_points(), all.hash_cell(2.0 * tier.max_outer));
+    level.max_outer = tier.max_outer;
+    level.particle.resize(level.hash.size());
+    level.outer.resize(level.hash.size());
+    for (std::uint32_t s = 0; s < level.hash.size(); ++s) {
+      level.particle[s] = tier.particle(level.hash.order()[s]);
+      level.outer[s] = all.weighted ? all.outer[level.particle[s]] : all.r_outer;
+    }
+  }
   std::vector<std::uint32_t> parent(n);
   std::iota(parent.begin(), parent.end(), 0u);
   auto find = [&](std::uint32_t i) {
@@ -896,29 +605,37 @@ std::vector<char> filter_components(const Particles& all, int min_size, std::spa
     }
     return i;
   };
-  const std::span<const Vec3> pts = hash.sorted_points();
-  const std::span<const std::uint32_t> order = hash.order();
-  for (std::uint32_t s = 0; s < n; ++s) {
-    if ((s & 4095) == 0) control.check();
-    const double ro = all.weighted ? outer[s] : all.r_outer;
-    const double reach = ro + all.max_outer;
-    hash.for_each_range(pts[s].array() - reach, pts[s].array() + reach, [&](std::uint32_t b, std::uint32_t e) {
-      for (std::uint32_t t = std::max(b, s + 1); t < e; ++t) {
-        const double limit = ro + (all.weighted ? outer[t] : all.r_outer);
-        if ((pts[t] - pts[s]).squaredNorm() > limit * limit) continue;
-        const std::uint32_t a = find(s), c = find(t);
-        if (a != c) parent[std::max(a, c)] = std::min(a, c);
+  std::size_t visited = 0;
+  for (std::size_t k = 0; k < levels.size(); ++k) {
+    const Level& level = levels[k];
+    const std::span<const Vec3> pts = level.hash.sorted_points();
+    for (std::uint32_t s = 0; s < pts.size(); ++s) {
+      if ((visited++ & 4095) == 0) control.check();
+      const double ro = level.outer[s];
+      for (std::size_t k2 = k; k2 < levels.size(); ++k2) {
+        const Level& other = levels[k2];
+        const std::span<const Vec3> other_pts = other.hash.sorted_points();
+        const double reach = ro + other.max_outer;
+        other.hash.for_each_range(pts[s].array() - reach, pts[s].array() + reach,
+                                  [&](std::uint32_t b, std::uint32_t e) {
+                                    for (std::uint32_t t = k2 == k ? std::max(b, s + 1) : b; t < e; ++t) {
+                                      const double limit = ro + other.outer[t];
+                                      if ((other_pts[t] - pts[s]).squaredNorm() > limit * limit) continue;
+                                      const std::uint32_t x = find(level.particle[s]), y = find(other.particle[t]);
+                                      if (x != y) parent[std::max(x, y)] = std::min(x, y);
+                                    }
+                                  });
       }
-    });
+    }
   }
   std::vector<std::uint32_t> size(n, 0);
-  for (std::uint32_t s = 0; s < n; ++s) size[find(s)] += weight.empty() ? 1 : weight[order[s]];
+  for (std::uint32_t i = 0; i < n; ++i) size[find(i)] += weight.empty() ? 1 : weight[i];
   std::vector<char> keep(n, 0);
   dropped = 0;
-  for (std::uint32_t s = 0; s < n; ++s) {
-    const std::uint32_t root = find(s);
-    keep[order[s]] = size[root] >= static_cast<std::uint32_t>(min_size);
-    if (root == s && size[root] < static_cast<std::uint32_t>(min_size)) ++dropped;
+  for (std::uint32_t i = 0; i < n; ++i) {
+    const std::uint32_t root = find(i);
+    keep[i] = size[root] >= static_cast<std::uint32_t>(min_size);
+    if (root == i && size[root] < static_cast<std::uint32_t>(min_size)) ++dropped;
   }
   return keep;
 }
@@ -1516,11 +1233,11 @@ void ParticleSurfacer::State::distance_field(std::span<const Vec3> input, std::s
     P.max_outer = r_outer;
   }
   const double field_band = kFieldBandSpacings * h;
-  P.index(P.max_outer + field_band);
+  P.index(field_band);
   std::vector<std::uint32_t> weight;  // per particle, the input particles it stands for; empty: one each
-  if (const double tolerance = kCoincidentTolerance * r_inner; P.hash.any_pair_within(tolerance, control)) {
+  if (const double tolerance = kCoincidentTolerance * r_inner; P.any_pair_within(tolerance, control)) {
     weight = merge_coincident(P, tolerance, control);
-    P.index(P.max_outer + field_band);
+    P.index(field_band);
   }
 
   if (o.min_particles_per_component > 1) {
@@ -1546,7 +1263,7 @@ void ParticleSurfacer::State::distance_field(std::span<const Vec3> input, std::s
         P.outer.resize(k);
       }
       if (!weight.empty()) weight.resize(k);
-      if (k > 0) P.index(P.max_outer + field_band);
+      if (k > 0) P.index(field_band);
     }
   }
   stats.particles_used =
@@ -1563,7 +1280,8 @@ Mesh ParticleSurfacer::State::polygonize(int threads, const RunControl& control,
   mt.spacing = h;
   mt.threads = threads;
   mt.seeds = P.positions;
-  mt.seed_radius = P.max_outer + h;
+  mt.seed_radius = (P.weighted ? 0.0 : P.r_outer) + h;
+  if (P.weighted) mt.seed_radii = P.outer;  // each particle's own reach
   stats.seeds = mt.seeds.size();
   Mesh mesh = marching_tiles(field, mt, control);
   stats.field_evaluations = field.evaluations();

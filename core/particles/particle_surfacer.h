@@ -42,7 +42,8 @@
 // radius (it sets the sample spacing and the erosion depth; derive_r_inner is ignored). The field is
 // min_i(|x - p_i| - r_outer_i) (its zero set is the union of the r_outer_i balls), and faithfulness means
 // min_i(|x - p_i| - r_inner_i) >= 0 >= min_i(|x - p_i| - r_outer_i); projection uses the particle attaining each
-// minimum. The spatial hash cell is the largest r_outer_i, so widely varying radii cost speed, not correctness.
+// minimum. The particles are searched in tiers of radii within a factor 2 (core/particles/particle_index.h), so one
+// particle far larger than the rest costs about its own surface, not a search as wide as its radius for every vertex.
 //
 // Parallelism: vertices are renumbered along a Morton curve and cut into contiguous blocks (a count that depends only
 // on the vertex count); a sweep first updates, in parallel, every block's interior vertices (whose matrix row reads

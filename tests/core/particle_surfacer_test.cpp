@@ -286,8 +286,8 @@ TEST(ParticleSurfacer, WideRadiiOnLatticesStillGiveFlatTopFaces) {
       SCOPED_TRACE(::testing::Message() << "kind " << kind << ", r_inner " << r_inner << " d");
       const LatticeSlab slab = lattice_slab(kind, 26, 3, 1.0);
       ParticleSurfacingStats stats;
-      const Face face = top_face(surface_particles(slab.particles, {}, options(r_inner), {}, &stats), slab,
-                                 2.0 * r_inner + 2.0);
+      const Face face =
+          top_face(surface_particles(slab.particles, {}, options(r_inner), {}, &stats), slab, 2.0 * r_inner + 2.0);
       ASSERT_GT(face.vertices, 20);
       EXPECT_LT(face.rms, 0.005 * r_inner);
       EXPECT_LE(face.mean, slab.plane(2.0 * r_inner) + 1e-3 * r_inner);
@@ -925,6 +925,53 @@ TEST(ParticleSurfacer, PerParticleRadiiScaleTheBand) {
   for (std::size_t i = 0; i < uniform.vertices.size(); ++i)
     diff = std::max(diff, (uniform.vertices[i] - weighted.vertices[i]).norm());
   EXPECT_LT(diff, 1e-9);
+}
+
+// Particles far larger than the rest (a pscale left at its default among simulation particles) are searched in tiers
+// of their own (docs/ALGORITHMS.md §1, CHOICE "radius tiers"): every vertex stays faithful to the balls of its own
+// radii, on the large balls as on the small ones, and a small particle touching a large one is one component with it.
+TEST(ParticleSurfacer, LargeParticlesAmongSmallOnesKeepEveryVertexFaithful) {
+  std::vector<Vec3> particles = blob(Vec3(0, 0, 0), 0.6, 0.1, 11);
+  std::vector<double> radii(particles.size(), 0.05);
+  const auto add = [&](const Vec3& p, double r) {
+    particles.push_back(p);
+    radii.push_back(r);
+  };
+  add(Vec3(0.7, 0.0, 0.0), 0.4);  // overlapping the blob's side
+  add(Vec3(0.0, 0.0, 0.2), 1.5);  // inside the blob, wider than it: every small ball lies in its outer ball
+  add(Vec3(6.0, 0.0, 0.0), 0.8);  // apart, with one small particle touching it
+  add(Vec3(6.0, 0.85, 0.0), 0.05);
+  add(Vec3(-6.0, 0.0, 0.0), 0.05);  // a lone small particle
+  for (const double big : {0.9, 0.0}) {
+    std::vector<Vec3> p = particles;
+    std::vector<double> r = radii;
+    if (big == 0.0) {  // without the widest one: the blob and the ball at its side
+      p.erase(p.begin() + static_cast<std::ptrdiff_t>(p.size()) - 4);
+      r.erase(r.begin() + static_cast<std::ptrdiff_t>(r.size()) - 4);
+    }
+    ParticleSurfacingOptions o;
+    o.r_inner = 0.05;
+    o.spacing_factor = 2.5;  // the large spheres' area would take most of the time
+    o.min_particles_per_component = 2;
+    ParticleSurfacingStats stats;
+    const Mesh mesh = surface_particles(p, r, o, {}, &stats);
+    const MeshReport report = check_mesh(mesh);
+    EXPECT_TRUE(report.closed && report.edge_manifold && report.vertex_manifold) << big;
+    EXPECT_EQ(report.components, 2) << big;  // the blob with its large ball(s); the pair
+    EXPECT_EQ(stats.components_dropped, 1u) << big;
+    EXPECT_EQ(stats.faithful_after_polish, 1.0) << big;
+    double worst = 0.0;
+    for (const Vec3& v : mesh.vertices) {
+      double inner = 1e9, outer = 1e9;
+      for (std::size_t i = 0; i < p.size(); ++i) {
+        const double d = (p[i] - v).norm();
+        inner = std::min(inner, d - r[i]);
+        outer = std::min(outer, d - 2 * r[i]);
+      }
+      worst = std::max({worst, -inner, outer});
+    }
+    EXPECT_LE(worst, 1e-9) << big;
+  }
 }
 
 TEST(ParticleSurfacer, DropsSmallComponentsWhenAsked) {
