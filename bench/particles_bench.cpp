@@ -3,17 +3,18 @@
 // each voxel size and thread count) happens in a forked child that generates its own particles, so the peak RSS the
 // parent reads from wait4 is that run's alone.
 //
-//   particles_bench [--particles N] [--repeat R] [--vdb-repeat R] [--section block|flatness|scale|decimate|wide]
+//   particles_bench [--particles N] [--repeat R] [--vdb-repeat R]
+//                   [--section block|flatness|scale|decimate|wide|radii]
 //                   [--threads T] [--flatness-sweeps N] [--scale-sizes M,M,...] [--write DIR]
 //
 //   --particles N   block size (default 500000): the 100 x 50 x 100 block scaled by cbrt(N / 500000) per axis
 //   --repeat R      repetitions of each of our timed runs (default 3); seconds are the minimum over them
 //   --vdb-repeat R  the same for OpenVDB's runs (default 1: one takes 10-30 s on the 500 k block, 2 cores)
-//   --section S     block, flatness, scale, decimate or wide only (default block and flatness; scale, decimate and
-//                   wide run only when asked); decimate: the block (--particles) and droplets decimated at TOL =
+//   --section S     block, flatness, scale, decimate, wide or radii only (default block and flatness; the others run
+//                   only when asked); decimate: the block (--particles) and droplets decimated at TOL =
 //                   0.1 r_inner, with the largest thread count and with 1 (the two meshes must be identical)
 //                   (docs/ALGORITHMS.md §5, CHOICE "Decimation"); wide: lattices with r_inner of 1-3 spacings
-//                   (bench_wide)
+//                   (bench_wide); radii: droplets with per-particle radii, one of them 5-100x (bench_radii)
 //   --scale-sizes L the scale section's block sizes in millions of particles (default 0.5,2,13.5,50)
 //   --threads T     one thread count for both sides (default: 1, then 2)
 //   --flatness-sweeps N  Bilaplacian sweeps of the flatness slabs (default: the option's default); many (e.g. 1000)
@@ -112,7 +113,7 @@ struct Config {
   int repeat = 3;
   int vdb_repeat = 1;  // an OpenVDB run of the 500 k block takes 10-30 s
   std::vector<int> threads = {1, 2};
-  bool block = true, flatness = true, scale = false, decimate = false, wide = false;
+  bool block = true, flatness = true, scale = false, decimate = false, wide = false, radii = false;
   std::vector<double> scale_millions = {0.5, 2.0, 13.5, 50.0};
   std::optional<int> flatness_sweeps;
   std::string write_dir;
@@ -871,9 +872,69 @@ bool bench_wide(const Config& cfg) {
   return ok;
 }
 
+// --section radii: the droplets (droplet_particles, d = kBlockSpacing) with per-particle radii 0.6 d x U(0.6, 1.5)
+// (seed 5), as they are and with one particle's radius (the first one's, at a droplet's surface) multiplied by 5, 20
+// and 100: a pscale left at its default among simulation particles. The large particle's sphere adds its own
+// triangles, so beside the seconds and their ratio to the droplets alone the line prints microseconds per output
+// triangle: one particle should cost about its own surface (docs/ALGORITHMS.md §1, CHOICE "radius tiers"), not
+// widen every search to its radius. One run each, each in its own child.
+constexpr std::array<double, 4> kOutlierFactors = {1.0, 5.0, 20.0, 100.0};
+
+struct RadiiResult {
+  double seconds = 0.0;
+  ParticleSurfacingStats stats;
+  MeshFacts mesh;
+};
+
+bool bench_radii(const Config& cfg) {
+  const int threads = *std::max_element(cfg.threads.begin(), cfg.threads.end());
+  constexpr double d = kBlockSpacing;
+  std::printf(
+      "radii  droplets with per-particle radii 0.6 d x U(0.6, 1.5), d %.3g, one radius multiplied by the factor, %d "
+      "threads, one run each\n",
+      d, threads);
+  std::printf("  %7s %10s %10s %10s %10s %12s %9s\n", "factor", "particles", "triangles", "build_b s", "surface s",
+              "us/triangle", "ratio");
+  bool ok = true;
+  double alone = 0.0;
+  for (const double factor : kOutlierFactors) {
+    const auto run = in_child<RadiiResult>([&] {
+      const std::vector<Vec3> particles = droplet_particles(d);
+      std::mt19937 rng(5);
+      std::uniform_real_distribution<double> u(0.6, 1.5);
+      std::vector<double> radii(particles.size());
+      for (double& r : radii) r = 0.6 * d * u(rng);
+      radii.front() *= factor;
+      ParticleSurfacingOptions options;
+      options.threads = threads;
+      RadiiResult r;
+      const auto t0 = std::chrono::steady_clock::now();
+      const Mesh mesh = surface_particles(particles, radii, options, {}, &r.stats);
+      r.seconds = seconds_since(t0);
+      r.mesh = facts_of(mesh);
+      return r;
+    });
+    if (!run) {
+      std::printf("  %7.0f FAILED\n", factor);
+      ok = false;
+      continue;
+    }
+    const RadiiResult& r = run->value;
+    if (factor == 1.0) alone = r.seconds;
+    const bool good = r.mesh.closed_manifold && r.stats.faithful_after_polish == 1.0;
+    ok = ok && good;
+    std::printf("  %7.0f %10zu %10zu %10.3f %10.3f %12.2f %8.2fx%s\n", factor, r.stats.particles, r.mesh.triangles,
+                r.stats.seconds_build_b, r.seconds, 1e6 * r.seconds / static_cast<double>(r.mesh.triangles),
+                r.seconds / alone, good ? "" : "  mesh NOT closed manifold or NOT faithful");
+    std::fflush(stdout);
+  }
+  std::printf("\n");
+  return ok;
+}
+
 constexpr const char* kUsage =
     "usage: particles_bench [--particles N] [--repeat R] [--vdb-repeat R]\n"
-    "                       [--section block|flatness|scale|decimate|wide] [--threads T] [--flatness-sweeps N]\n"
+    "                       [--section block|flatness|scale|decimate|wide|radii] [--threads T] [--flatness-sweeps N]\n"
     "                       [--scale-sizes M,M,...] [--write DIR]\n";
 
 }  // namespace
@@ -897,15 +958,16 @@ int main(int argc, char** argv) {
       cfg.vdb_repeat = args.integer(1);
       block_flag = flag;
     } else if (flag == "--section") {
-      const std::string section = args.value("block, flatness, scale, decimate or wide");
+      const std::string section = args.value("block, flatness, scale, decimate, wide or radii");
       if (section != "block" && section != "flatness" && section != "scale" && section != "decimate" &&
-          section != "wide")
-        args.error("--section is block, flatness, scale, decimate or wide, got '" + section + "'");
+          section != "wide" && section != "radii")
+        args.error("--section is block, flatness, scale, decimate, wide or radii, got '" + section + "'");
       cfg.block = section == "block";
       cfg.flatness = section == "flatness";
       cfg.scale = section == "scale";
       cfg.decimate = section == "decimate";
       cfg.wide = section == "wide";
+      cfg.radii = section == "radii";
     } else if (flag == "--threads") {
       cfg.threads = {args.integer(1)};
     } else if (flag == "--flatness-sweeps") {
@@ -947,6 +1009,7 @@ int main(int argc, char** argv) {
   if (cfg.block) ok = bench_block(cfg) && ok;
   if (cfg.flatness) ok = bench_flatness(cfg) && ok;
   if (cfg.wide) ok = bench_wide(cfg) && ok;
+  if (cfg.radii) ok = bench_radii(cfg) && ok;
   if (cfg.scale) ok = bench_scale(cfg) && ok;
   if (cfg.decimate) ok = bench_decimate(cfg) && ok;
   if (getloadavg(load, 3) >= 0) std::printf("load average %.2f at the end\n", load[0]);
