@@ -11,6 +11,7 @@
 #include <cmath>
 #include <limits>
 #include <mutex>
+#include <numbers>
 #include <numeric>
 #include <string>
 
@@ -24,6 +25,7 @@
 #include "core/util/format.h"
 #include "core/util/memory.h"
 #include "core/util/parallel.h"
+#include "core/util/triangle_limit.h"
 
 namespace surfacer {
 namespace {
@@ -640,6 +642,33 @@ std::vector<char> filter_components(const Particles& all, int min_size, std::spa
   return keep;
 }
 
+// Marching Tiles' triangles per h^2 of surface, at least: each is a planar section of an A15 tetrahedron, whose edges
+// are at most sqrt(6) / a15::kMeanEdge = 1.063 h, so its area is at most pi (1.063 h)^2 / 4 = 0.887 h^2 (that of a disk
+// of the same diameter); halved for the chords by which a mesh falls inside the sphere it follows.
+constexpr double kFewestTrianglesPerArea = 0.5 / 0.887;
+
+// Refuses, before any lattice block is visited, a frame whose largest outer ball alone asks Marching Tiles for more
+// triangles than the limit allows (a radius far above the rest: its seed's blocks alone could take hours to list).
+// The union of the outer balls holds that ball, so its surface is no smaller than the ball's sphere (the nearest-point
+// projection onto a convex body shortens every surface around it).
+void require_room_for_largest_ball(const Particles& P, double h, const RunControl& control) {
+  if (!P.weighted || control.triangles == nullptr || P.outer.empty()) return;
+  const std::size_t i = static_cast<std::size_t>(std::max_element(P.outer.begin(), P.outer.end()) - P.outer.begin());
+  const double r = P.outer[i];
+  const double fewest = kFewestTrianglesPerArea * 4.0 * std::numbers::pi * r * r / (h * h);
+  const TriangleLimit& limit = *control.triangles;
+  if (!(fewest > static_cast<double>(limit.max_triangles))) return;
+  const Vec3& p = P.positions[i];
+  throw ResourceLimit(limit.name, "the particle at (" + format_number(p.x()) + ", " + format_number(p.y()) + ", " +
+                                      format_number(p.z()) + ") has r_outer " + format_number(r) +
+                                      ": its sphere alone needs at least " + format_number(fewest) +
+                                      " triangles at spacing " + format_number(h) + ", over the limit of " +
+                                      std::to_string(limit.max_triangles) + " triangles per mesh (" + limit.name +
+                                      "); check the radii (one far above the rest, such as a default pscale), use a "
+                                      "larger spacing_factor, or raise " +
+                                      limit.name);
+}
+
 int min_valence(const ps::Graph& ring) {
   int m = 0;
   for (std::size_t i = 0; i < ring.rows(); ++i) {
@@ -1198,8 +1227,13 @@ void ParticleSurfacer::State::distance_field(std::span<const Vec3> input, std::s
   P.weighted = !radii.empty();
   double r_inner = 0.0;
   if (P.weighted) {
-    r_inner =
-        o.r_inner ? *o.r_inner : std::accumulate(radii.begin(), radii.end(), 0.0) / static_cast<double>(radii.size());
+    if (o.r_inner) {
+      r_inner = *o.r_inner;
+    } else {  // the median (the upper one of an even count): a few radii far from the rest do not move it
+      std::vector<double> sorted(radii.begin(), radii.end());
+      std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() / 2), sorted.end());
+      r_inner = sorted[sorted.size() / 2];
+    }
   } else {
     r_inner = o.r_inner ? *o.r_inner : derive_r_inner(input, threads, control);
   }
@@ -1274,6 +1308,7 @@ void ParticleSurfacer::State::distance_field(std::span<const Vec3> input, std::s
 Mesh ParticleSurfacer::State::polygonize(int threads, const RunControl& control, ParticleSurfacingStats& stats) const {
   const Particles& P = particles;
   const double h = stats.spacing;
+  require_room_for_largest_ball(P, h, control);
   const ParticleField field(P, kFieldBandSpacings * h, threads);
   MarchingTilesOptions mt;
   mt.bounds = P.box.padded(P.max_outer + 2.0 * h);

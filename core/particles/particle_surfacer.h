@@ -38,8 +38,8 @@
 //    otherwise; no triangle angle below min_angle_degrees on sheets and droplets (slivers_left counts the rest).
 //
 // Per-particle radii (radii non-empty): particle i gets r_inner_i = radii[i] and r_outer_i = k * radii[i], where
-// k = r_outer / r_inner of the options (default 2) and the reference r_inner is options.r_inner when set, else the mean
-// radius (it sets the sample spacing and the erosion depth; derive_r_inner is ignored). The field is
+// k = r_outer / r_inner of the options (default 2) and the reference r_inner is options.r_inner when set, else the
+// median radius (it sets the sample spacing and the erosion depth; derive_r_inner is ignored). The field is
 // min_i(|x - p_i| - r_outer_i) (its zero set is the union of the r_outer_i balls), and faithfulness means
 // min_i(|x - p_i| - r_inner_i) >= 0 >= min_i(|x - p_i| - r_outer_i); projection uses the particle attaining each
 // minimum. The particles are searched in tiers of radii within a factor 2 (core/particles/particle_index.h), so one

@@ -15,6 +15,7 @@
 #include "core/mesh/mesh_repair.h"
 #include "core/particles/smoothing.h"
 #include "core/util/errors.h"
+#include "core/util/triangle_limit.h"
 #include "tests/support/error_expectations.h"
 #include "tests/support/mesh_expectations.h"
 #include "tests/support/test_meshes.h"
@@ -900,7 +901,7 @@ TEST(ParticleSurfacer, PerParticleRadiiScaleTheBand) {
     particles.push_back(q);
     radii.push_back(0.4);
   }
-  ParticleSurfacingOptions o;  // r_inner from the radii (mean); r_outer = 2 r_inner -> ratio 2
+  ParticleSurfacingOptions o;  // r_inner from the radii (median); r_outer = 2 r_inner -> ratio 2
   o.polish_sweeps = 0;
   const Mesh mesh = surface_particles(particles, radii, o);
   EXPECT_EQ(check_mesh(mesh).components, 2);
@@ -972,6 +973,38 @@ TEST(ParticleSurfacer, LargeParticlesAmongSmallOnesKeepEveryVertexFaithful) {
     }
     EXPECT_LE(worst, 1e-9) << big;
   }
+}
+
+// A radius whose sphere alone would need more triangles than the limit allows is refused before Marching Tiles lists a
+// block (listing the blocks of a ball of radius 2e6 at spacing 0.04 would not end), naming the limit and the particle;
+// a large radius within the limit is surfaced. The spacing follows the median radius, which the outlier leaves alone
+// (the mean would be 1e6 / 124).
+TEST(ParticleSurfacer, ARadiusWhoseSphereAloneIsOverTheTriangleLimitIsRefusedAtOnce) {
+  std::vector<Vec3> particles = blob(Vec3(0, 0, 0), 0.3, 0.1, 5);
+  std::vector<double> radii(particles.size(), 0.05);
+  particles.emplace_back(0.25, 0.5, 0.75);
+  radii.push_back(1e6);
+  ParticleSurfacingOptions o;  // r_inner: the median radius, 0.05
+  TriangleLimit limit;
+  limit.max_triangles = 1'000'000;
+  limit.name = "--max-triangles";
+  RunControl control;
+  control.triangles = &limit;
+  try {
+    (void)surface_particles(particles, radii, o, control);
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::kResourceLimit) << e.what();
+    EXPECT_EQ(e.field(), "--max-triangles");
+    const std::string message = e.what();
+    EXPECT_NE(message.find("(0.25, 0.5, 0.75) has r_outer 2e+06"), std::string::npos) << message;
+    EXPECT_NE(message.find("at spacing 0.04"), std::string::npos) << message;  // 0.8 x 0.05
+    EXPECT_NE(message.find("raise --max-triangles"), std::string::npos) << message;
+  }
+  radii.back() = 0.5;
+  const Mesh mesh = surface_particles(particles, radii, o, control);
+  EXPECT_TRUE(check_mesh(mesh).closed);
+  EXPECT_LT(mesh.triangles.size(), 1'000'000u);
 }
 
 TEST(ParticleSurfacer, DropsSmallComponentsWhenAsked) {
