@@ -7,12 +7,24 @@
 namespace surfacer::particle_index {
 namespace {
 
-// The pieces a tier's share of a band query's segment |t| <= window is read in: about two of the tier's largest
-// r_outer long, at most kMaxPieces; one (the whole segment at once) while the window is below two of them.
+// The pieces a tier's share of a band query's segment |t| <= window along n is read in: about two of the tier's
+// largest r_outer long (at most kMaxPieces), when the hash cells their boxes overlap are fewer in all than those of
+// the box around the whole segment (for a sparse hash: than its occupied cells, which a large box walks instead);
+// else one, the whole segment at once (always while the window is below two of the radii).
 struct Pieces {
-  Pieces(double window, double radius) : window(window) {
-    const double m = std::floor(window / radius);
-    count = m < 2.0 ? 1u : static_cast<std::uint32_t>(std::min(m, static_cast<double>(kMaxPieces)));
+  Pieces(double window, const Tier& tier, const Vec3& n) : window(window) {
+    const double radius = tier.max_outer, m = std::floor(window / radius);
+    count = 1;
+    if (m >= 2.0) {
+      const auto cells = [&](double half) {  // about the cells the box of a piece of that half length overlaps
+        double c = 1.0;
+        for (int a = 0; a < 3; ++a)
+          c *= std::floor(2.0 * (half * std::abs(n[a]) + radius) / tier.hash.cell_size()) + 2.0;
+        return tier.hash.dense() ? c : std::min(c, static_cast<double>(tier.hash.occupied_cells()));
+      };
+      const auto k = static_cast<std::uint32_t>(std::min(m, static_cast<double>(kMaxPieces)));
+      if (k * cells(window / k) < cells(window)) count = k;
+    }
     length = 2.0 * window / count;
   }
   // The half length of a piece and its centre's offset along the line (the whole segment: exactly window and 0).
@@ -169,7 +181,7 @@ std::optional<Particles::LineBand> Particles::band_on_line(const Vec3& x, const 
     bool exact = true;
     std::optional<LineBand> line = band_in_window(x, n, reach, window, cell, scratch, exact);
     if (exact || !(window < reach)) return line;
-    window = std::min(2.0 * window, reach);
+    window = std::min(kWindowGrowth * window, reach);
   }
 }
 
@@ -199,7 +211,7 @@ std::optional<Particles::LineBand> Particles::band_in_window(const Vec3& x, cons
   scratch.window = window;
   for (std::uint32_t k = 0; k < tiers.size(); ++k) {
     const Tier& t = tiers[k];
-    const Pieces pieces(window, t.max_outer);
+    const Pieces pieces(window, t, n);
     for (std::uint32_t j = 0; j < pieces.count; ++j) {
       const auto keep = [&ranges, k, j](std::uint32_t begin, std::uint32_t end) {
         ranges.push_back({k, j, begin, end});
@@ -240,7 +252,7 @@ std::optional<Particles::LineBand> Particles::band_in_window(const Vec3& x, cons
       if (range.tier != current_tier) {
         t = &tiers[range.tier];
         pts = t->hash.sorted_points();
-        pieces.emplace(window, t->max_outer);
+        pieces.emplace(window, *t, n);
       }
       current_tier = range.tier;
       current_piece = range.piece;
@@ -374,7 +386,7 @@ void Particles::balls_near(double at, double cell, BandScratch& scratch) const {
       current = range.tier;
       t = &tiers[current];
       pts = t->hash.sorted_points();
-      pieces.emplace(scratch.window, t->max_outer);
+      pieces.emplace(scratch.window, *t, n);
       const double radius = t->max_outer + cell;
       r2 = radius * radius;
       visits.emplace(t->hash, x.array() - radius, x.array() + radius);
