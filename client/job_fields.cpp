@@ -90,7 +90,8 @@ std::vector<JobField> particles_fields() {
   return {
       {.path = "r_inner",
        .help = "inner radius: every vertex stays at least this far from every particle (scene units); required "
-               "unless derive_r_inner is set or the frames carry per-particle radii",
+               "unless derive_r_inner is set or the frames carry per-particle radii (then each particle's own, and "
+               "the spacing follows the median radius unless r_inner is given)",
        .value_name = "R"},
       {.path = "derive_r_inner", .help = "derive r_inner from the mean nearest-neighbour spacing"},
       {.path = "r_outer",
