@@ -11,35 +11,31 @@ namespace {
 // largest r_outer long (at most kMaxPieces), when the hash cells their boxes overlap are fewer in all than those of
 // the box around the whole segment (for a sparse hash: than its occupied cells, which a large box walks instead);
 // else one, the whole segment at once (always while the window is below two of the radii).
-struct Pieces {
-  Pieces(double window, const Tier& tier, const Vec3& n) : window(window) {
-    const double radius = tier.max_outer, m = std::floor(window / radius);
-    count = 1;
-    if (m >= 2.0) {
-      const auto cells = [&](double half) {  // about the cells the box of a piece of that half length overlaps
-        double c = 1.0;
-        for (int a = 0; a < 3; ++a)
-          c *= std::floor(2.0 * (half * std::abs(n[a]) + radius) / tier.hash.cell_size()) + 2.0;
-        return tier.hash.dense() ? c : std::min(c, static_cast<double>(tier.hash.occupied_cells()));
-      };
-      const auto k = static_cast<std::uint32_t>(std::min(m, static_cast<double>(kMaxPieces)));
-      if (k * cells(window / k) < cells(window)) count = k;
-    }
-    length = 2.0 * window / count;
+LinePieces pieces_for(double window, const Tier& tier, const Vec3& n) {
+  LinePieces pieces;
+  pieces.window = window;
+  const double radius = tier.max_outer, m = std::floor(window / radius);
+  if (m >= 2.0) {
+    const auto cells = [&](double half) {  // about the cells the box of a piece of that half length overlaps
+      double c = 1.0;
+      for (int a = 0; a < 3; ++a) c *= std::floor(2.0 * (half * std::abs(n[a]) + radius) / tier.hash.cell_size()) + 2.0;
+      return tier.hash.dense() ? c : std::min(c, static_cast<double>(tier.hash.occupied_cells()));
+    };
+    const auto k = static_cast<std::uint32_t>(std::min(m, static_cast<double>(kMaxPieces)));
+    if (k * cells(window / k) < cells(window)) pieces.count = k;
   }
-  // The half length of a piece and its centre's offset along the line (the whole segment: exactly window and 0).
-  double half() const { return count == 1 ? window : 0.5 * length; }
-  double centre(std::uint32_t j) const { return count == 1 ? 0.0 : -window + (j + 0.5) * length; }
-  // The piece that holds offset s clamped into the segment: the one that reads a particle whose foot is at s.
-  std::uint32_t of(double s) const {
-    if (count == 1) return 0;
-    const double u = (std::clamp(s, -window, window) + window) / length;
-    return std::min(count - 1, static_cast<std::uint32_t>(u));
-  }
+  pieces.length = 2.0 * window / pieces.count;
+  return pieces;
+}
 
-  double window, length;
-  std::uint32_t count;
+// The box of piece j of the segment x + t n grown by `grow`: its centre, and its half extent per axis.
+struct PieceBox {
+  Eigen::Array3d centre, half;
 };
+PieceBox piece_box(const LinePieces& pieces, std::uint32_t j, const Vec3& x, const Vec3& n, double grow) {
+  const Vec3 centre = pieces.count == 1 ? x : Vec3(x + pieces.centre(j) * n);
+  return {centre.array(), pieces.half() * n.array().abs() + grow};
+}
 
 }  // namespace
 
@@ -206,29 +202,26 @@ std::optional<Particles::LineBand> Particles::band_in_window(const Vec3& x, cons
   scratch.deeper.clear();
   std::vector<SlotRange>& ranges = scratch.ranges;
   ranges.clear();
-  scratch.origin = x;
-  scratch.direction = n;
-  scratch.window = window;
+  scratch.pieces.clear();
   for (std::uint32_t k = 0; k < tiers.size(); ++k) {
     const Tier& t = tiers[k];
-    const Pieces pieces(window, t, n);
+    const LinePieces& pieces = scratch.pieces.emplace_back(pieces_for(window, t, n));
     for (std::uint32_t j = 0; j < pieces.count; ++j) {
       const auto keep = [&ranges, k, j](std::uint32_t begin, std::uint32_t end) {
         ranges.push_back({k, j, begin, end});
       };
-      const Vec3 centre = pieces.count == 1 ? x : Vec3(x + pieces.centre(j) * n);
       if (cell > 0.0) {
         // Also every ball balls_near can take, wherever in the window it is asked: the box of its query about any
         // point of the piece, grown by far more than the rounding of either box.
-        const Eigen::Array3d wide = pieces.half() * n.array().abs() + (t.max_outer + cell);
+        const PieceBox wide = piece_box(pieces, j, x, n, t.max_outer + cell);
         const double margin =
-            kSkipSlack * (x.cwiseAbs().maxCoeff() + wide.maxCoeff() + (pieces.count == 1 ? 0.0 : window));
-        t.hash.for_each_range(centre.array() - wide - margin, centre.array() + wide + margin, keep);
+            kSkipSlack * (x.cwiseAbs().maxCoeff() + wide.half.maxCoeff() + (pieces.count == 1 ? 0.0 : window));
+        t.hash.for_each_range(wide.centre - wide.half - margin, wide.centre + wide.half + margin, keep);
       } else {
         // A piece's walk is grown by the slack of `near` below (the whole segment's needs none: see there).
-        const Eigen::Array3d half = pieces.half() * n.array().abs() + t.max_outer;
+        const PieceBox line = piece_box(pieces, j, x, n, t.max_outer);
         const double margin = pieces.count == 1 ? 0.0 : kSkipSlack * (x.cwiseAbs().maxCoeff() + window + t.max_outer);
-        t.hash.for_each_range(centre.array() - half - margin, centre.array() + half + margin, keep);
+        t.hash.for_each_range(line.centre - line.half - margin, line.centre + line.half + margin, keep);
       }
     }
   }
@@ -243,7 +236,7 @@ std::optional<Particles::LineBand> Particles::band_in_window(const Vec3& x, cons
   const double uniform_ro = r_outer * (1.0 + kBandTolerance), uniform_ri = r_inner * (1.0 - kBandTolerance);
   std::uint32_t current_tier = std::numeric_limits<std::uint32_t>::max(), current_piece = 0;
   const Tier* t = nullptr;
-  std::optional<Pieces> pieces;
+  const LinePieces* pieces = nullptr;
   std::span<const Vec3> pts;
   Eigen::Array3d near_lo = Eigen::Array3d::Zero(), near_hi = Eigen::Array3d::Zero();
   std::optional<SpatialHash::RangeVisits> line_visits;
@@ -252,13 +245,12 @@ std::optional<Particles::LineBand> Particles::band_in_window(const Vec3& x, cons
       if (range.tier != current_tier) {
         t = &tiers[range.tier];
         pts = t->hash.sorted_points();
-        pieces.emplace(window, *t, n);
+        pieces = &scratch.pieces[range.tier];
       }
       current_tier = range.tier;
       current_piece = range.piece;
-      const Vec3 centre = pieces->count == 1 ? x : Vec3(x + pieces->centre(range.piece) * n);
-      const Eigen::Array3d half = pieces->half() * n.array().abs() + t->max_outer;
-      const Eigen::Array3d line_lo = centre.array() - half, line_hi = centre.array() + half;
+      const PieceBox line = piece_box(*pieces, range.piece, x, n, t->max_outer);
+      const Eigen::Array3d line_lo = line.centre - line.half, line_hi = line.centre + line.half;
       const double slack = kSkipSlack * (x.cwiseAbs().maxCoeff() + window + t->max_outer);
       near_lo = line_lo - slack;
       near_hi = line_hi + slack;
@@ -367,17 +359,15 @@ std::optional<Particles::LineBand> Particles::band_in_window(const Vec3& x, cons
     line.band = {lo - at, hi - at};
     exact = whole || (lo > -window && hi < window);
   }
-  if (cell > 0.0 && exact) balls_near(at, cell, scratch);
+  if (cell > 0.0 && exact) balls_near(x, n, at, cell, scratch);
   return line;
 }
 
-void Particles::balls_near(double at, double cell, BandScratch& scratch) const {
-  const Vec3& origin = scratch.origin;
-  const Vec3& n = scratch.direction;
+void Particles::balls_near(const Vec3& origin, const Vec3& n, double at, double cell, BandScratch& scratch) const {
   const Vec3 x = origin + at * n;
   std::uint32_t current = std::numeric_limits<std::uint32_t>::max();
   const Tier* t = nullptr;
-  std::optional<Pieces> pieces;
+  const LinePieces* pieces = nullptr;
   std::span<const Vec3> pts;
   double r2 = 0.0, reach = 0.0;
   std::optional<SpatialHash::RangeVisits> visits;
@@ -386,12 +376,12 @@ void Particles::balls_near(double at, double cell, BandScratch& scratch) const {
       current = range.tier;
       t = &tiers[current];
       pts = t->hash.sorted_points();
-      pieces.emplace(scratch.window, *t, n);
+      pieces = &scratch.pieces[current];
       const double radius = t->max_outer + cell;
       r2 = radius * radius;
       visits.emplace(t->hash, x.array() - radius, x.array() + radius);
       // A ball within `radius` of x has its foot within that of `at`: pieces farther along hold none of them.
-      reach = radius + kSkipSlack * (origin.cwiseAbs().maxCoeff() + scratch.window + radius);
+      reach = radius + kSkipSlack * (origin.cwiseAbs().maxCoeff() + pieces->window + radius);
     }
     if (pieces->count > 1) {
       const double lo = pieces->centre(range.piece) - pieces->half(), hi = lo + 2.0 * pieces->half();

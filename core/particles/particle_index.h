@@ -55,6 +55,23 @@ struct SlotRange {
   std::uint32_t tier, piece, begin, end;
 };
 
+// The pieces a tier's share of a band query's segment |t| <= window is read in (Particles::band_in_window): `count`
+// pieces of equal length, or one, the whole segment.
+struct LinePieces {
+  double window = 0.0, length = 0.0;
+  std::uint32_t count = 1;
+
+  // The half length of a piece and its centre's offset along the line (the whole segment: exactly window and 0).
+  double half() const { return count == 1 ? window : 0.5 * length; }
+  double centre(std::uint32_t j) const { return count == 1 ? 0.0 : -window + (j + 0.5) * length; }
+  // The piece that holds offset s clamped into the segment: the one that reads a particle whose foot is at s.
+  std::uint32_t of(double s) const {
+    if (count == 1) return 0;
+    const double u = (std::clamp(s, -window, window) + window) / length;
+    return std::min(count - 1, static_cast<std::uint32_t>(u));
+  }
+};
+
 // A thread's scratch for band queries.
 struct BandScratch {
   std::vector<Interval> allowed, forbidden;
@@ -68,11 +85,10 @@ struct BandScratch {
   // deeper around it.
   std::vector<particle_cusps::Ball> spheres, deeper;
   std::vector<particle_cusps::Circle> circles;  // lowest_cusp's
-  // The tiers' slot ranges a band query reads, by tier and piece, each piece's in ascending order, and the segment
-  // they were read for: x + t n, |t| <= window (Particles::band_in_window).
+  // The tiers' slot ranges a band query reads, by tier and piece, each piece's in ascending order, and per tier the
+  // pieces they were read for (Particles::band_in_window).
   std::vector<SlotRange> ranges;
-  Vec3 origin = Vec3::Zero(), direction = Vec3::Zero();
-  double window = 0.0;
+  std::vector<LinePieces> pieces;
 };
 
 // The particles of one tier in a spatial hash, with their radii in slot order (per-particle radii).
@@ -210,10 +226,11 @@ struct Particles {
   std::optional<LineBand> band_in_window(const Vec3& x, const Vec3& n, double reach, double window, double cell,
                                          BandScratch& scratch, bool& exact) const;
   // Into scratch.spheres and scratch.deeper, in tier then hash order, the outer balls within their radius + cell of
-  // the segment's point at offset `at`, as lowest_cusp needs them: those whose sphere passes within cell of it, and
-  // the others. The candidates are those SpatialHash::for_each_within(point, tier's max_outer + cell) finds in each
-  // tier. They are taken from the slots of scratch.ranges, which must hold them all.
-  void balls_near(double at, double cell, BandScratch& scratch) const;
+  // x + at n, as lowest_cusp needs them: those whose sphere passes within cell of it, and the others. The candidates
+  // are those SpatialHash::for_each_within(x + at n, tier's max_outer + cell) finds in each tier. They are taken from
+  // the slots of scratch.ranges, which band_in_window read for the segment x + t n, |t| <= window, and which must hold
+  // them all.
+  void balls_near(const Vec3& x, const Vec3& n, double at, double cell, BandScratch& scratch) const;
 };
 
 }  // namespace surfacer::particle_index

@@ -81,7 +81,6 @@ class InsideMask {
     // Per-particle radii: the balls of the smallest radii of the largest tier, about the centres of that tier and of
     // the tiers above (each ball holds such a ball about its centre), so a sound mask; the smaller tiers' particles
     // are left to the search, so that a few tiny radii do not make the cubes too many to keep.
-    first_tier_ = P.main_tier;
     const double r_inner = P.weighted ? *std::min_element(most->slot_inner.begin(), most->slot_inner.end()) : P.r_inner;
     const double r_outer = P.weighted ? *std::min_element(most->slot_outer.begin(), most->slot_outer.end()) : P.r_outer;
     // Half r_inner, or coarser when r_outer is many times r_inner, so that a ball spans at most kMaxReachCells cells.
@@ -106,7 +105,7 @@ class InsideMask {
       const std::int64_t kb = dims_[2] * slab / slabs, ke = dims_[2] * (slab + 1) / slabs;  // rows [kb, ke)
       const double z_lo = origin_.z() + (kb - stencils.reach) * cell_,
                    z_hi = origin_.z() + (ke + stencils.reach) * cell_;
-      for (std::size_t t = first_tier_; t < P.tiers.size(); ++t) rasterize(P.tiers[t], stencils, kb, ke, z_lo, z_hi);
+      for (std::size_t t = P.main_tier; t < P.tiers.size(); ++t) rasterize(P.tiers[t], stencils, kb, ke, z_lo, z_hi);
     });
   }
 
@@ -233,7 +232,6 @@ class InsideMask {
     }
   }
 
-  std::size_t first_tier_ = 0;  // the tiers rasterized: this one and those above
   double cell_ = 0.0;
   Vec3 origin_ = Vec3::Zero();
   std::int64_t dims_[3] = {0, 0, 0};
