@@ -43,8 +43,7 @@ class Repair {
   bool bad(const Triangle& t) const {
     if (t[0] == kDead) return false;
     if (options_.grid && collinear_on_grid(snapped_[t[0]], snapped_[t[1]], snapped_[t[2]])) return true;  // quality -1
-    return !clearly_good(t) &&
-           min_angle_degrees(positions_[t[0]], positions_[t[1]], positions_[t[2]]) < options_.min_angle_degrees;
+    return !clearly_good(t) && min_angle_degrees(shown(t[0]), shown(t[1]), shown(t[2])) < options_.min_angle_degrees;
   }
 
   // Repairs triangle t if it is still bad: of the flips of its three edges and the collapses of each edge onto
@@ -86,18 +85,22 @@ class Repair {
   // tan(min angle) (u . v) with a margin far above rounding (the smallest angle is below 60 degrees, so at its corner
   // u . v > 0); the exact test decides the rest.
   bool clearly_good(const Triangle& t) const {
-    const Vec3 &a = positions_[t[0]], &b = positions_[t[1]], &c = positions_[t[2]];
+    const Vec3 a = shown(t[0]), b = shown(t[1]), c = shown(t[2]);
     const Vec3 ab = b - a, ac = c - a, bc = c - b;
     const double cross = ab.cross(ac).norm();
     const double bound = tan_min_angle_ * (1.0 + 1e-9);
     return cross > bound * ab.dot(ac) && cross > -bound * ab.dot(bc) && cross > bound * ac.dot(bc);
   }
 
-  // A triangle's smallest angle in degrees; -1 when it is degenerate on the output grid.
+  // A triangle's smallest angle in degrees, as its reader sees it (on the output grid when there is one); -1 when it
+  // is degenerate on the output grid.
   double quality(const Triangle& t) const {
     if (options_.grid && collinear_on_grid(snapped_[t[0]], snapped_[t[1]], snapped_[t[2]])) return -1.0;
-    return min_angle_degrees(positions_[t[0]], positions_[t[1]], positions_[t[2]]);
+    return min_angle_degrees(shown(t[0]), shown(t[1]), shown(t[2]));
   }
+  // Where a reader of the output finds vertex v: its grid point as Draco's decoder gives it when there is an output
+  // grid (the angles a frame shows are those of its grid points), else v itself.
+  Vec3 shown(std::uint32_t v) const { return options_.grid ? options_.grid->dequantize(snapped_[v]) : positions_[v]; }
   Vec3 normal(const Triangle& t) const {
     return (positions_[t[1]] - positions_[t[0]]).cross(positions_[t[2]] - positions_[t[0]]);
   }
@@ -260,15 +263,16 @@ class Repair {
     if (options_.grid) snapped_[v] = options_.grid->frame_point(p);
   }
 
-  // How good a vertex's triangles are, for relocate(): fewer degenerate on the grid first, then fewer below the
-  // angle threshold, then a larger smallest angle among the others.
+  // How good a vertex's triangles are, for relocate(): fewer degenerate on the grid first, then a larger smallest
+  // angle among the others, then fewer below the angle threshold. The smallest angle comes before the count: a move
+  // that takes two triangles above a threshold of 10 degrees may not leave a third at 0.3.
   struct Score {
     int degenerate = 0, bad = 0;
     double worst = std::numeric_limits<double>::infinity();
     bool better_than(const Score& o) const {
       if (degenerate != o.degenerate) return degenerate < o.degenerate;
-      if (bad != o.bad) return bad < o.bad;
-      return worst > o.worst;
+      if (worst != o.worst) return worst > o.worst;
+      return bad < o.bad;
     }
   };
   Score score(std::span<const std::uint32_t> triangles) const {

@@ -15,8 +15,9 @@ namespace surfacer {
 
 struct SliverOptions {
   double min_angle_degrees = 1.0;  // a triangle with a smaller angle is repaired; in [0, 30]
-  // When set, a triangle whose corners, quantized on the grid, are collinear (or repeat a point) is repaired too: the
-  // decoder would give it zero area.
+  // When set, angles are those of the triangles' corners quantized on the grid, as a decoder of the frame gives them
+  // (quantization moves each corner by up to half a step, which turns a triangle a few steps across), and a triangle
+  // whose corners there are collinear (or repeat a point) is repaired too: the decoder would give it zero area.
   std::optional<QuantizationGrid> grid;
   // A repair may not take a vertex whose valence is at least this below it (Marching Tiles meshes start at 5).
   int min_valence = 5;

@@ -253,6 +253,42 @@ TEST(MeshRepair, TrianglesDegenerateOnTheOutputGridAreRepaired) {
   EXPECT_GT(found, 20);  // the inputs do have such triangles
 }
 
+// With an output grid, the angles are those a reader of the frame sees: of the corners as Draco decodes their grid
+// points. Quantization moves a corner by up to half a step, so on grids where an edge spans 10-50 steps a triangle
+// above the threshold in double can show one below it, and the reverse; the repair leaves none below it as shown.
+TEST(MeshRepair, AnglesAreThoseOfTheDecodedGridPoints) {
+  std::int64_t hidden = 0;  // triangles at or above the threshold in double, below it as shown on the grid
+  for (const int bits : {7, 8, 9}) {
+    for (const double threshold : {5.0, 10.0, 15.0}) {
+      for (int seed = 0; seed < 3; ++seed) {
+        SCOPED_TRACE(::testing::Message() << "bits " << bits << " threshold " << threshold << " seed " << seed);
+        const Mesh before = sphere_with_slivers(seed, 12, 0.1, true, true);
+        const QuantizationGrid grid = QuantizationGrid::of(Aabb{Vec3(-1, -1, -1), Vec3(1, 1, 1)}, bits);
+        const auto decoded = [&](const Mesh& m) {
+          Mesh out = m;
+          for (Vec3& v : out.vertices) v = grid.dequantize(grid.frame_point(v));
+          return out;
+        };
+        const Mesh shown_before = decoded(before);
+        for (std::size_t t = 0; t < before.triangles.size(); ++t) {
+          const Triangle& f = before.triangles[t];
+          hidden +=
+              min_angle_degrees(before.vertices[f[0]], before.vertices[f[1]], before.vertices[f[2]]) >= threshold &&
+              min_angle_degrees(shown_before.vertices[f[0]], shown_before.vertices[f[1]], shown_before.vertices[f[2]]) <
+                  threshold;
+        }
+        Mesh m = before;
+        const SliverReport r = repair_slivers(m, {.min_angle_degrees = threshold, .grid = grid});
+        EXPECT_EQ(r.candidates, count_below(shown_before, threshold));
+        EXPECT_EQ(r.remaining, count_below(decoded(m), threshold));
+        EXPECT_LE(r.remaining, r.candidates / 10);
+        EXPECT_TRUE(testing::mesh_has(check_mesh(m), testing::kClosedManifold | testing::kPositiveVolume));
+      }
+    }
+  }
+  EXPECT_GT(hidden, 10);  // the grids do turn triangles below the threshold
+}
+
 // The valence floor: a repair never takes a vertex at or above min_valence below it.
 TEST(MeshRepair, KeepsTheValenceFloor) {
   for (int seed = 0; seed < 4; ++seed) {

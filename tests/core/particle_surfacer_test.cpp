@@ -738,11 +738,14 @@ TEST(ParticleSurfacer, UnconstrainedPolishMayLeaveTheBand) {
 
 // No angle below 1 degree (nor a triangle degenerate on the output grid) on sheets and droplets, the mesh still
 // closed and manifold with valence >= 5.
-// No angle below 1 degree and no triangle collinear once quantized on `grid`, in a closed manifold with valence >= 5.
+// No angle below 1 degree and no triangle collinear once quantized on `grid` (as a reader of the frame sees the mesh),
+// in a closed manifold with valence >= 5.
 void expect_no_sliver(const Mesh& mesh, const QuantizationGrid& grid, const ParticleSurfacingStats& stats) {
   const MeshReport r = check_mesh(mesh);
   EXPECT_TRUE(mesh_has(r, kClosedManifold | kNoDegenerateTriangles | kPositiveVolume, 5));
-  EXPECT_GE(r.min_angle_degrees, 1.0);
+  Mesh decoded = mesh;
+  for (Vec3& v : decoded.vertices) v = grid.dequantize(grid.frame_point(v));
+  EXPECT_GE(check_mesh(decoded).min_angle_degrees, 1.0);
   EXPECT_EQ(stats.slivers_left, 0);
   for (const Triangle& t : mesh.triangles) {
     std::array<Eigen::Matrix<std::int64_t, 3, 1>, 3> q;
