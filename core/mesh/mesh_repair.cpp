@@ -40,6 +40,9 @@ class Repair {
     }
   }
 
+  // A triangle's smallest angle as its reader sees it; -1 when degenerate on the output grid (worst of all).
+  double shown_quality(std::uint32_t t) const { return quality(tris_[t]); }
+
   bool bad(const Triangle& t) const {
     if (t[0] == kDead) return false;
     if (options_.grid && collinear_on_grid(snapped_[t[0]], snapped_[t[1]], snapped_[t[2]])) return true;  // quality -1
@@ -462,8 +465,18 @@ SliverReport repair_slivers(Mesh& mesh, const SliverOptions& options, const RunC
   }
   report.candidates = static_cast<std::int64_t>(candidates.size());
   std::vector<std::uint32_t> still_bad;
+  std::vector<std::pair<double, std::uint32_t>> order;
   for (int pass = 0; pass < options.max_passes && !candidates.empty(); ++pass) {
     control.check();
+    // Worst first: a move near a triangle can leave it with no move of its own, so the smallest angles choose first.
+    // A triangle found bad may have gone since (collapsed by a later repair of the pass that found it).
+    order.clear();
+    for (const std::uint32_t t : candidates) {
+      if (repair.bad(mesh.triangles[t])) order.emplace_back(repair.shown_quality(t), t);
+    }
+    std::sort(order.begin(), order.end());
+    candidates.resize(order.size());
+    for (std::size_t i = 0; i < order.size(); ++i) candidates[i] = order[i].second;
     std::vector<std::uint32_t> changed;
     still_bad.clear();
     bool progress = false;

@@ -38,8 +38,8 @@ struct SliverReport {
   std::int64_t remaining = 0;  // bad triangles no allowed repair removed
 };
 
-// Passes over the bad triangles until none is left or a pass repairs nothing (at most max_passes). For a bad
-// triangle, every move is weighed: the flip of each of its edges (with the triangle across it), and the collapse of
+// Passes over the bad triangles, worst first, until none is left or a pass repairs nothing (at most max_passes). For a
+// bad triangle, every move is weighed: the flip of each of its edges (with the triangle across it), and the collapse of
 // each edge onto either end. A move is valid when the mesh stays manifold (a flip's new edge does not exist yet; a
 // collapse's two ends share exactly the two opposite vertices, the link condition), no triangle turns over (a flip's
 // quad is convex seen along its normal), and the valence floor holds; it is taken when the worst of the triangles it

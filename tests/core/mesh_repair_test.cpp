@@ -289,6 +289,34 @@ TEST(MeshRepair, AnglesAreThoseOfTheDecodedGridPoints) {
   EXPECT_GT(hidden, 10);  // the grids do turn triangles below the threshold
 }
 
+// Many bad triangles side by side (a sphere whose vertices are pushed about along its surface, repaired at thresholds
+// up to 30 degrees, with and without a grid): a repair in a pass removes triangles that the pass found bad earlier,
+// which the next pass must not read. The mesh stays closed and manifold, and `remaining` counts what is bad at the end.
+TEST(MeshRepair, CrowdedSliversOverSeveralPasses) {
+  for (int seed = 0; seed < 6; ++seed) {
+    for (const double threshold : {10.0, 20.0, 30.0}) {
+      for (const bool on_grid : {false, true}) {
+        SCOPED_TRACE(::testing::Message() << "seed " << seed << " threshold " << threshold << " grid " << on_grid);
+        Mesh m = testing::icosphere(3);
+        std::mt19937 rng(static_cast<unsigned>(seed));
+        std::normal_distribution<double> jitter(0.0, 0.06);
+        for (Vec3& v : m.vertices) v = (v + Vec3(jitter(rng), jitter(rng), jitter(rng))).normalized();
+        SliverOptions o{.min_angle_degrees = threshold};
+        if (on_grid) o.grid = QuantizationGrid::of(Aabb{Vec3(-1, -1, -1), Vec3(1, 1, 1)}, 9);
+        const SliverReport r = repair_slivers(m, o);
+        EXPECT_GT(r.candidates, 50);
+        EXPECT_GT(r.collapses + r.flips, 0);
+        Mesh shown = m;
+        if (o.grid) {
+          for (Vec3& v : shown.vertices) v = o.grid->dequantize(o.grid->frame_point(v));
+        }
+        EXPECT_EQ(r.remaining, count_below(shown, threshold));
+        EXPECT_TRUE(testing::mesh_has(check_mesh(m), testing::kClosedManifold | testing::kPositiveVolume));
+      }
+    }
+  }
+}
+
 // The valence floor: a repair never takes a vertex at or above min_valence below it.
 TEST(MeshRepair, KeepsTheValenceFloor) {
   for (int seed = 0; seed < 4; ++seed) {
