@@ -35,7 +35,8 @@
 //    "Flat surfaces"). Curved fluid ends under the cusps between its particles: droplets enclose 4-15% less than
 //    with the thesis' band, closer to their particles' volume.
 //  * Every final vertex in the band (faithful_after_polish = 1) unless unconstrained_polish or the container says
-//    otherwise; no triangle angle below min_angle_degrees on sheets and droplets (slivers_left counts the rest).
+//    otherwise; no triangle angle below min_angle_degrees on droplets, as the output grid shows them; thin sheets
+//    keep a few in valence-5 knots of their rims (slivers_left counts them).
 //
 // Per-particle radii (radii non-empty): particle i gets r_inner_i = radii[i] and r_outer_i = k * radii[i], where
 // k = r_outer / r_inner of the options (default 2) and the reference r_inner is options.r_inner when set, else the
@@ -94,8 +95,9 @@ struct ParticleSurfacingOptions {
   // where the Laplacian stage left the vertices (fuller surfaces; faces over lattices are not flat).
   bool vertex_only_band = false;
   // Triangles with a smaller angle (degrees, in [0, 30]) are repaired at the end by edge flips and collapses
-  // (core/mesh/mesh_repair.h); 0 switches the repair off.
-  double min_angle_degrees = 1.0;
+  // (core/mesh/mesh_repair.h); 0 switches the repair off. 10 by default (docs/ALGORITHMS.md §1, CHOICE "sliver repair
+  // at 10°"): lattices give no angle below it, droplets a few hundred triangles per million.
+  double min_angle_degrees = 10.0;
   // The grid the frames are quantized on (the job's Draco box and bits), when known: triangles degenerate on it are
   // repaired too.
   std::optional<QuantizationGrid> output_grid;

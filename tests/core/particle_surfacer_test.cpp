@@ -738,15 +738,23 @@ TEST(ParticleSurfacer, UnconstrainedPolishMayLeaveTheBand) {
 
 // No angle below 1 degree (nor a triangle degenerate on the output grid) on sheets and droplets, the mesh still
 // closed and manifold with valence >= 5.
-// No angle below 1 degree and no triangle collinear once quantized on `grid` (as a reader of the frame sees the mesh),
-// in a closed manifold with valence >= 5.
-void expect_no_sliver(const Mesh& mesh, const QuantizationGrid& grid, const ParticleSurfacingStats& stats) {
+// The repair's promise, on the mesh as a reader of the frame sees it (quantized on `grid`): a closed manifold with
+// valence >= 5, no triangle collinear there, slivers_left counting exactly its triangles below the repair's threshold
+// (the default, 10 degrees), at most `max_left` of them, and none below 1 degree.
+void expect_no_sliver(const Mesh& mesh, const QuantizationGrid& grid, const ParticleSurfacingStats& stats,
+                      std::int64_t max_left = 0) {
   const MeshReport r = check_mesh(mesh);
   EXPECT_TRUE(mesh_has(r, kClosedManifold | kNoDegenerateTriangles | kPositiveVolume, 5));
   Mesh decoded = mesh;
   for (Vec3& v : decoded.vertices) v = grid.dequantize(grid.frame_point(v));
   EXPECT_GE(check_mesh(decoded).min_angle_degrees, 1.0);
-  EXPECT_EQ(stats.slivers_left, 0);
+  std::int64_t below = 0;
+  for (const Triangle& t : decoded.triangles) {
+    below += min_angle_degrees(decoded.vertices[t[0]], decoded.vertices[t[1]], decoded.vertices[t[2]]) <
+             ParticleSurfacingOptions{}.min_angle_degrees;
+  }
+  EXPECT_EQ(stats.slivers_left, below);
+  EXPECT_LE(stats.slivers_left, max_left);
   for (const Triangle& t : mesh.triangles) {
     std::array<Eigen::Matrix<std::int64_t, 3, 1>, 3> q;
     for (int k = 0; k < 3; ++k) {
@@ -815,7 +823,9 @@ TEST(ParticleSurfacer, EnrightSheetsEndWithoutSliversOnTheOutputGrid) {
         particle_sequence_box(Aabb::of(particles), 0.0, o.r_inner, o.r_outer, {}, std::nullopt), 14);
     ParticleSurfacingStats stats;
     const Mesh mesh = surface_particles(particles, {}, o, {}, &stats);
-    expect_no_sliver(mesh, *o.output_grid, stats);
+    // A few stay below the default 10 degrees, in valence-5 knots of the sheets' rims where no flip, collapse or move
+    // within the band makes them better (4 of the 194 found on our band, 52 of 563 on the thesis').
+    expect_no_sliver(mesh, *o.output_grid, stats, stats.slivers_found / 8);
     EXPECT_GT(stats.slivers_found, 0);
     EXPECT_GT(stats.bubbles_dropped, 0u);
     EXPECT_EQ(stats.faithful_after_polish, 1.0);
@@ -856,43 +866,50 @@ TEST(ParticleSurfacer, BubblesSmallerThanAParticleAreDropped) {
 }
 
 // Sparse random particles with a small r_inner make many tiny, tight components, where smoothing does leave slivers:
-// the repair removes most of them (those it leaves sit among vertices at the valence floor), the smallest angle only
-// grows, and the mesh stays closed and manifold with valence >= 5.
+// the repair removes most of them, the smallest angle only grows, slivers_left counts exactly what stays below the
+// threshold, and the mesh stays closed and manifold with valence >= 5. At 1 degree what it leaves sits among vertices
+// at the valence floor; at the default 10 also where no flip, collapse or move in the band makes a triangle better.
 TEST(ParticleSurfacer, SliverRepairOnSparseRandomParticles) {
   for (const std::uint32_t seed : {1u, 2u}) {
-    SCOPED_TRACE(seed);
     std::mt19937 rng(seed);
     std::uniform_real_distribution<double> u(0.0, 10.0);
     std::vector<Vec3> particles(1200);
     for (Vec3& p : particles) p = Vec3(u(rng), u(rng), u(rng));
     ParticleSurfacingOptions o = options(0.45);
-    ParticleSurfacingStats stats;
-    const Mesh mesh = surface_particles(particles, {}, o, {}, &stats);
-    const MeshReport repaired = check_mesh(mesh);
     o.min_angle_degrees = 0.0;
     const MeshReport raw = check_mesh(surface_particles(particles, {}, o));
     EXPECT_LT(raw.min_angle_degrees, 1.0);
-    EXPECT_GT(stats.slivers_found, 0);
-    EXPECT_LT(stats.slivers_left, stats.slivers_found);
-    EXPECT_GE(repaired.min_angle_degrees, raw.min_angle_degrees);
-    // What the repair leaves, the valence floor blocked: every sliver left has a corner of valence 5, the
-    // Marching Tiles minimum that no repair may go below (core/mesh/mesh_repair.h).
-    std::vector<std::set<std::uint32_t>> neighbours(mesh.vertices.size());
-    for (const Triangle& t : mesh.triangles) {
-      for (int c = 0; c < 3; ++c) {
-        neighbours[t[c]].insert(t[(c + 1) % 3]);
-        neighbours[t[c]].insert(t[(c + 2) % 3]);
+    double smallest_at_one = 0.0;
+    for (const double threshold : {1.0, ParticleSurfacingOptions{}.min_angle_degrees}) {
+      SCOPED_TRACE(::testing::Message() << "seed " << seed << " threshold " << threshold);
+      o.min_angle_degrees = threshold;
+      ParticleSurfacingStats stats;
+      const Mesh mesh = surface_particles(particles, {}, o, {}, &stats);
+      const MeshReport repaired = check_mesh(mesh);
+      EXPECT_GT(stats.slivers_found, 0);
+      EXPECT_LE(stats.slivers_left, stats.slivers_found / 8);
+      EXPECT_GE(repaired.min_angle_degrees, raw.min_angle_degrees);
+      EXPECT_GE(repaired.min_angle_degrees, smallest_at_one);  // a higher threshold never leaves a smaller angle
+      smallest_at_one = repaired.min_angle_degrees;
+      std::vector<std::set<std::uint32_t>> neighbours(mesh.vertices.size());
+      for (const Triangle& t : mesh.triangles) {
+        for (int c = 0; c < 3; ++c) {
+          neighbours[t[c]].insert(t[(c + 1) % 3]);
+          neighbours[t[c]].insert(t[(c + 2) % 3]);
+        }
       }
+      std::int64_t left = 0;
+      for (const Triangle& t : mesh.triangles) {
+        if (min_angle_degrees(mesh.vertices[t[0]], mesh.vertices[t[1]], mesh.vertices[t[2]]) >= threshold) continue;
+        ++left;
+        if (threshold == 1.0) {
+          EXPECT_TRUE(neighbours[t[0]].size() == 5 || neighbours[t[1]].size() == 5 || neighbours[t[2]].size() == 5);
+        }
+      }
+      EXPECT_EQ(left, stats.slivers_left);
+      EXPECT_TRUE(mesh_has(repaired, kClosedManifold | kNoDegenerateTriangles | kPositiveVolume, 5));
+      EXPECT_EQ(repaired.components, raw.components);
     }
-    std::int64_t left = 0;
-    for (const Triangle& t : mesh.triangles) {
-      if (min_angle_degrees(mesh.vertices[t[0]], mesh.vertices[t[1]], mesh.vertices[t[2]]) >= 1.0) continue;
-      ++left;
-      EXPECT_TRUE(neighbours[t[0]].size() == 5 || neighbours[t[1]].size() == 5 || neighbours[t[2]].size() == 5);
-    }
-    EXPECT_EQ(left, stats.slivers_left);
-    EXPECT_TRUE(mesh_has(repaired, kClosedManifold | kNoDegenerateTriangles | kPositiveVolume, 5));
-    EXPECT_EQ(repaired.components, raw.components);
   }
 }
 
@@ -1043,6 +1060,7 @@ TEST(ParticleSurfacer, DerivesInnerRadiusFromNearestNeighbourSpacing) {
 TEST(ParticleSurfacer, ErosionMovesTheSurfaceInward) {
   const std::vector<Vec3> particles = blob(Vec3(0, 0, 0), 1.5, 0.3, 7);
   ParticleSurfacingOptions o = options(0.25);
+  o.min_angle_degrees = 0.0;  // vertex for vertex: no repair that the eroded surface would make otherwise
   const Mesh plain = surface_particles(particles, {}, o);
   o.erosion = 0.4;
   ParticleSurfacingStats stats;
