@@ -58,7 +58,7 @@ std::vector<JobField> output_fields() {
        .help = "frames on the wire: draco (the default: small; standard .drc files), meshopt (meshoptimizer's codecs: "
                "~10x faster to encode and decode, ~3x larger: for fast networks) or raw (lossless binary PLY, double "
                "precision; also spelled ply); draco_pieces is Draco in pieces encoded and decoded on every core, which "
-               "the client picks itself when it writes no .drc file",
+               "the CLI picks itself when it writes no .drc file, and the Python package for draco",
        .value_name = "CODEC",
        .words = {{"raw", "ply"}}},
       {.path = "normals", .help = "per-vertex normals in every frame"},

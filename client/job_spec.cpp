@@ -356,6 +356,18 @@ std::optional<int> frames_before_run(const v1::JobSpec& spec) {
   return std::nullopt;
 }
 
+namespace {
+
+// Draco frames come in pieces, unless a standard .drc file is written from the stream (see job_spec.h).
+void ask_for_pieces_unless_drc(v1::OutputOptions& output, bool writes_drc) {
+  const bool draco = output.encoding() == v1::MESH_ENCODING_UNSPECIFIED || output.encoding() == v1::MESH_ENCODING_DRACO;
+  if (draco && !writes_drc) output.set_encoding(v1::MESH_ENCODING_DRACO_PIECES);
+}
+
+}  // namespace
+
+void fit_encoding_to_memory(v1::JobSpec& spec) { ask_for_pieces_unless_drc(*spec.mutable_output(), false); }
+
 void fit_encoding_to_files(v1::JobSpec& spec, const std::vector<FileFormat>& formats) {
   v1::OutputOptions* output = spec.mutable_output();
   if (spec.has_particles() && spec.particles().interpolate_size() > 0) {
@@ -376,11 +388,8 @@ void fit_encoding_to_files(v1::JobSpec& spec, const std::vector<FileFormat>& for
                                            std::to_string(output->quantization_bits()) + ": " + e.what());
     }
   }
-  const bool draco =
-      output->encoding() == v1::MESH_ENCODING_UNSPECIFIED || output->encoding() == v1::MESH_ENCODING_DRACO;
-  if (draco && !formats.empty() && std::find(formats.begin(), formats.end(), FileFormat::kDrc) == formats.end()) {
-    output->set_encoding(v1::MESH_ENCODING_DRACO_PIECES);
-  }
+  ask_for_pieces_unless_drc(
+      *output, formats.empty() || std::find(formats.begin(), formats.end(), FileFormat::kDrc) != formats.end());
 }
 
 }  // namespace surfacer::client

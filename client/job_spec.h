@@ -67,5 +67,8 @@ std::optional<int> frames_before_run(const v1::JobSpec& spec);
 // again here would cost more); a .glb file holds the pieces as they come. Other encodings are left alone. Throws
 // CliError(kUsage) when .glb files are asked for with more than 16 quantization bits (glTF cannot hold them).
 void fit_encoding_to_files(v1::JobSpec& spec, const std::vector<FileFormat>& formats);
+// The same for a client that keeps the frames in memory (the Python package): it writes no .drc from the stream, so
+// Draco frames come in pieces, and the welded mesh has the vertices of one Draco mesh on the job's grid.
+void fit_encoding_to_memory(v1::JobSpec& spec);
 
 }  // namespace surfacer::client

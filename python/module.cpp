@@ -565,6 +565,7 @@ class Client {
     auto in = std::make_shared<Inputs>();
     const JobOptions options = job_options(kind, inputs, kwargs, *in);
     auto prepared = std::make_shared<PreparedJob>(prepare_job(options, in->memory));
+    fit_encoding_to_memory(prepared->spec);
     Connection& connection = this->connection();
     auto stop = std::make_shared<std::atomic<bool>>(false);
     return interruptible<std::string>(

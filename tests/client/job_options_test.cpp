@@ -532,12 +532,12 @@ TEST(JobOptions, TableValuesFromText) {
                CliError);
   // An enum takes its values' short names and the table's words for them: encoding's "raw" is the proto's PLY.
   const JobField& encoding = field(JobTable::kOutput, "encoding");
-  for (const auto& [text, value] : std::vector<std::pair<std::string, v1::MeshEncoding>>{
-           {"raw", v1::MESH_ENCODING_PLY},
-           {"ply", v1::MESH_ENCODING_PLY},
-           {"draco", v1::MESH_ENCODING_DRACO},
-           {"draco_pieces", v1::MESH_ENCODING_DRACO_PIECES},
-           {"meshopt", v1::MESH_ENCODING_MESHOPT}}) {
+  for (const auto& [text, value] :
+       std::vector<std::pair<std::string, v1::MeshEncoding>>{{"raw", v1::MESH_ENCODING_PLY},
+                                                             {"ply", v1::MESH_ENCODING_PLY},
+                                                             {"draco", v1::MESH_ENCODING_DRACO},
+                                                             {"draco_pieces", v1::MESH_ENCODING_DRACO_PIECES},
+                                                             {"meshopt", v1::MESH_ENCODING_MESHOPT}}) {
     set_job_field(spec, JobTable::kOutput, encoding, text, "--encoding", names);
     EXPECT_EQ(spec.output().encoding(), value) << text;
   }
@@ -1025,6 +1025,39 @@ TEST(InMemoryInputs, ScenesAndParticleFramesStandInForFiles) {
   memory.particles["frame[0]"].positions.clear();
   const PreparedJob empty = prepare_job(particles, memory);
   EXPECT_THROW(empty.uploads[0].read(spec, InputLimits{}), CliError);
+}
+
+// What a client asks of the server: one Draco mesh only where a standard .drc file is written from the stream (the
+// CLI's default files, or .drc among them); every other Draco request comes in pieces, encoded and decoded on every
+// core: files without .drc, and the Python package, which keeps the frames in memory. Other encodings stay.
+TEST(JobOptions, DracoFramesComeInPiecesUnlessADrcFileIsWritten) {
+  using F = FileFormat;
+  const std::vector<std::vector<F>> writes_drc = {{}, {F::kDrc}, {F::kPly, F::kDrc}};
+  const std::vector<std::vector<F>> no_drc = {{F::kPly}, {F::kObj, F::kVtu}, {F::kGlb}};
+  for (const v1::MeshEncoding asked :
+       {v1::MESH_ENCODING_UNSPECIFIED, v1::MESH_ENCODING_DRACO, v1::MESH_ENCODING_DRACO_PIECES,
+        v1::MESH_ENCODING_MESHOPT, v1::MESH_ENCODING_PLY}) {
+    SCOPED_TRACE(v1::MeshEncoding_Name(asked));
+    const bool draco = asked == v1::MESH_ENCODING_UNSPECIFIED || asked == v1::MESH_ENCODING_DRACO;
+    const auto spec_asking = [asked] {
+      v1::JobSpec spec;
+      spec.mutable_output()->set_encoding(asked);
+      return spec;
+    };
+    for (const std::vector<F>& formats : writes_drc) {
+      v1::JobSpec spec = spec_asking();
+      fit_encoding_to_files(spec, formats);
+      EXPECT_EQ(spec.output().encoding(), asked);
+    }
+    for (const std::vector<F>& formats : no_drc) {
+      v1::JobSpec spec = spec_asking();
+      fit_encoding_to_files(spec, formats);
+      EXPECT_EQ(spec.output().encoding(), draco ? v1::MESH_ENCODING_DRACO_PIECES : asked);
+    }
+    v1::JobSpec spec = spec_asking();
+    fit_encoding_to_memory(spec);
+    EXPECT_EQ(spec.output().encoding(), draco ? v1::MESH_ENCODING_DRACO_PIECES : asked);
+  }
 }
 
 }  // namespace
