@@ -8,6 +8,7 @@
 #include <random>
 #include <set>
 
+#include "core/mesh/grid_cleanup.h"
 #include "core/mesh/mesh_checks.h"
 #include "tests/support/mesh_expectations.h"
 #include "tests/support/test_meshes.h"
@@ -266,7 +267,7 @@ TEST(MeshRepair, AnglesAreThoseOfTheDecodedGridPoints) {
         const QuantizationGrid grid = QuantizationGrid::of(Aabb{Vec3(-1, -1, -1), Vec3(1, 1, 1)}, bits);
         const auto decoded = [&](const Mesh& m) {
           Mesh out = m;
-          for (Vec3& v : out.vertices) v = grid.dequantize(grid.frame_point(v));
+          snap_to_grid(out.vertices, grid);
           return out;
         };
         const Mesh shown_before = decoded(before);
@@ -307,9 +308,7 @@ TEST(MeshRepair, CrowdedSliversOverSeveralPasses) {
         EXPECT_GT(r.candidates, 50);
         EXPECT_GT(r.collapses + r.flips, 0);
         Mesh shown = m;
-        if (o.grid) {
-          for (Vec3& v : shown.vertices) v = o.grid->dequantize(o.grid->frame_point(v));
-        }
+        if (o.grid) snap_to_grid(shown.vertices, *o.grid);
         EXPECT_EQ(r.remaining, count_below(shown, threshold));
         EXPECT_TRUE(testing::mesh_has(check_mesh(m), testing::kClosedManifold | testing::kPositiveVolume));
       }

@@ -12,6 +12,7 @@
 #include <span>
 #include <string>
 
+#include "core/mesh/grid_cleanup.h"
 #include "core/mesh/mesh_checks.h"
 #include "core/mesh/mesh_repair.h"
 #include "core/particles/smoothing.h"
@@ -736,8 +737,6 @@ TEST(ParticleSurfacer, UnconstrainedPolishMayLeaveTheBand) {
   EXPECT_LT(lowest, 0.999);
 }
 
-// No angle below 1 degree (nor a triangle degenerate on the output grid) on sheets and droplets, the mesh still
-// closed and manifold with valence >= 5.
 // The repair's promise, on the mesh as a reader of the frame sees it (quantized on `grid`): a closed manifold with
 // valence >= 5, no triangle collinear there, slivers_left counting exactly its triangles below the repair's threshold
 // (the default, 10 degrees), at most `max_left` of them, and none below 1 degree.
@@ -746,7 +745,7 @@ void expect_no_sliver(const Mesh& mesh, const QuantizationGrid& grid, const Part
   const MeshReport r = check_mesh(mesh);
   EXPECT_TRUE(mesh_has(r, kClosedManifold | kNoDegenerateTriangles | kPositiveVolume, 5));
   Mesh decoded = mesh;
-  for (Vec3& v : decoded.vertices) v = grid.dequantize(grid.frame_point(v));
+  snap_to_grid(decoded.vertices, grid);
   EXPECT_GE(check_mesh(decoded).min_angle_degrees, 1.0);
   std::int64_t below = 0;
   for (const Triangle& t : decoded.triangles) {
