@@ -38,7 +38,15 @@ v1::Job run_job(v1::Surfacer::Stub& stub, const v1::JobSpec& spec) {
   std::string id;
   const grpc::Status submitted = submit(stub, spec, &id);
   EXPECT_TRUE(submitted.ok()) << submitted.error_message();
-  return watch_job(stub, id).final_job;
+  // Under a tight budget the watch stream's own reservation can be refused while the job holds the memory (the
+  // server says to retry then), as a client retries.
+  WatchResult watched = watch_job(stub, id);
+  for (int retry = 0; retry < 50 && watched.status.error_code() == grpc::StatusCode::RESOURCE_EXHAUSTED; ++retry) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    watched = watch_job(stub, id);
+  }
+  EXPECT_TRUE(watched.status.ok()) << watched.status.error_message();
+  return watched.final_job;
 }
 
 // The case and more: every cells/limit pair fails with the limit's message, and the server's peak RSS stays
