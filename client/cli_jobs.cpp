@@ -206,12 +206,14 @@ void add_output_flags(CLI::App* app, OutputFlags& flags) {
                   "file pattern such as 'out/surface_{:04d}.ply' whose extension sets the format. NNNN is the "
                   "input sequence's own frame number (--start 100 writes frame_0100), else the frame index")
       ->type_name("DIR|PATTERN");
-  app->add_option("--format", flags.formats,
-                  "files per frame, comma-separated: drc,ply,obj,vtk,vtu,glb,gltf,vdb (default: .drc for Draco frames, "
-                  ".ply for meshopt and raw ones; vtk = legacy binary, vtu = VTK XML with zlib, for ParaView; glb = "
-                  "glTF with Draco pieces, encoded on every core, for three.js and glTF readers with Draco, up to 16 "
-                  "quantization bits; gltf = plain glTF, uncompressed, for readers without Draco such as Debian's "
-                  "Blender and VTK; vdb = OpenVDB narrow-band level set, for Houdini, Blender volumes and OpenVDB)")
+  app->add_option(
+         "--format", flags.formats,
+         "files per frame, comma-separated: drc,ply,obj,vtk,vtu,glb,gltf,vdb (default: .glb for Draco frames, "
+         ".drc over 16 quantization bits, .ply for meshopt and raw ones; drc = one standard Draco mesh, "
+         "encoded on one core; vtk = legacy binary, vtu = VTK XML with zlib, for ParaView; glb = "
+         "glTF with Draco pieces, encoded on every core, for three.js, Blender and glTF readers with Draco, "
+         "up to 16 quantization bits; gltf = plain glTF, uncompressed, for readers without Draco such as Debian's "
+         "Blender and VTK; vdb = OpenVDB narrow-band level set, for Houdini, Blender volumes and OpenVDB)")
       ->delimiter(',')
       ->check(CLI::IsMember(file_format_names()))
       ->type_name("LIST");
@@ -227,7 +229,8 @@ void add_job_common_flags(CLI::App* app, JobOptions& job) {
   add_table_flags(app, JobTable::kOutput, job);  // --encoding, --normals, --quantization-bits, ..., --decimate
   const JobField& encoding = job_field(JobTable::kOutput, "encoding");
   app->add_flag_callback(
-         "--raw", [&job, &encoding] { set_job_field(job.spec, JobTable::kOutput, encoding, "raw", "--raw", job.names); },
+         "--raw",
+         [&job, &encoding] { set_job_field(job.spec, JobTable::kOutput, encoding, "raw", "--raw", job.names); },
          "the same as --encoding raw")
       ->excludes(app->get_option(cli_flag(spelling(encoding))));
 }

@@ -287,6 +287,7 @@ ExitCode run_run(const ConnectOptions& connect, const RunCommand& run, const Rep
 ExitCode run_submit(const ConnectOptions& connect, const SubmitCommand& command, std::ostream& out, std::ostream& err,
                     bool tty) {
   PreparedJob prepared = prepare_job(command.job);
+  fit_encoding_to_files(prepared.spec, {});  // what `watch` writes by default, as `run` would
   auto connection = Connection::open(connect);
   warn_local(*connection, err);
   std::atomic<bool> interrupted{false};

@@ -189,7 +189,15 @@ std::vector<std::filesystem::path> FrameWriter::write(const ReceivedFrame& frame
   }
   const FrameCodec codec = *known;
   std::vector<FileFormat> formats = options_.formats;
-  if (formats.empty()) formats.push_back(default_format(codec));
+  if (formats.empty()) {
+    try {
+      formats.push_back(default_format(codec, frame.bytes));
+    } catch (const Error& e) {
+      throw CliError(ExitCode::kIntegrity, "frame " + std::to_string(frame.index) + ": its " +
+                                               std::string(frame_codec_name(codec)) +
+                                               " bytes passed the CRC-32 check but are not a frame: " + e.what());
+    }
+  }
 
   std::optional<Mesh> mesh;
   auto decoded = [&]() -> const Mesh& {
@@ -299,8 +307,17 @@ void FrameWriter::write_time_series() const {
   }
 }
 
-FileFormat default_format(FrameCodec codec) {
-  return codec == FrameCodec::kDraco || codec == FrameCodec::kDracoPieces ? FileFormat::kDrc : FileFormat::kPly;
+FileFormat default_format(FrameCodec codec, std::string_view bytes) {
+  switch (codec) {
+    case FrameCodec::kDracoPieces:
+      return gltf_holds(bytes, codec) ? FileFormat::kGlb : FileFormat::kDrc;
+    case FrameCodec::kDraco:
+      return FileFormat::kDrc;
+    case FrameCodec::kMeshopt:
+    case FrameCodec::kPly:
+      break;
+  }
+  return FileFormat::kPly;
 }
 
 }  // namespace surfacer::client

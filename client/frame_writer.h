@@ -35,8 +35,10 @@ std::string stats_csv(const std::map<int, v1::FrameStats>& stats);
 // column per metrics key seen in any frame (sorted: e_d, e_n, max_distance, min_angle_degrees, rms_distance, ...).
 std::string iterations_csv(const std::map<int, v1::FrameStats>& stats);
 
-// The file a frame is written as when no format is asked for: .drc for Draco (one mesh or pieces), .ply otherwise.
-FileFormat default_format(FrameCodec codec);
+// The file a frame is written as when no format is asked for: Draco pieces as they came, in a .glb (written on every
+// core, nothing decoded), unless their grid has more bits than glTF holds; one Draco mesh, or pieces on such a grid,
+// as a .drc; .ply for meshopt and raw frames. Throws InvalidInput("frame") for pieced bytes that are not a frame.
+FileFormat default_format(FrameCodec codec, std::string_view bytes);
 
 // A ParaView/VTK XML Collection (.pvd) of `frames` (time, file name relative to the .pvd), and the same as ParaView's
 // file-series JSON (.series), which also takes legacy .vtk files.

@@ -64,7 +64,8 @@ std::optional<int> frames_before_run(const v1::JobSpec& spec);
 // What a `run` that writes `formats` asks of the server (docs/ALGORITHMS.md §5 "Frames"): Draco frames come in
 // pieces, encoded on every core of the server and decoded on every core here, unless a .drc file is to be written
 // (a standard Draco file is one Draco mesh, which the server encodes on one core; welding pieces and encoding them
-// again here would cost more); a .glb file holds the pieces as they come. Other encodings are left alone. Throws
+// again here would cost more); a .glb file holds the pieces as they come, and is the file written when `formats` is
+// empty, unless the grid has more than 16 quantization bits (then a .drc). Other encodings are left alone. Throws
 // CliError(kUsage) when .glb files are asked for with more than 16 quantization bits (glTF cannot hold them).
 void fit_encoding_to_files(v1::JobSpec& spec, const std::vector<FileFormat>& formats);
 // The same for a client that keeps the frames in memory (the Python package): it writes no .drc from the stream, so

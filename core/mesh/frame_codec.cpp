@@ -663,6 +663,11 @@ void check_gltf_quantization_bits(int bits) {
   }
 }
 
+bool gltf_holds(std::string_view bytes, FrameCodec codec) {
+  if (codec != FrameCodec::kDracoPieces && codec != FrameCodec::kMeshopt) return true;  // encoded on default bits
+  return read_container(bytes).grid.bits <= kMaxGltfQuantizationBits;
+}
+
 std::string to_gltf(std::string_view bytes, FrameCodec codec, const std::function<const Mesh&()>& decoded,
                     int threads) {
   auto mesh = [&]() -> const Mesh& {

@@ -75,6 +75,9 @@ std::string to_gltf(std::string_view bytes, FrameCodec codec, const std::functio
 // call it.
 inline constexpr int kMaxGltfQuantizationBits = 16;
 void check_gltf_quantization_bits(int bits);
+// Whether to_gltf() writes the frame: false for a pieced frame on a grid of more than 16 bits. Reads a pieced frame's
+// header and directory only; throws InvalidInput("frame") for pieced bytes that are not such a frame.
+bool gltf_holds(std::string_view bytes, FrameCodec codec);
 // `mesh` as such a file: Draco pieces on the mesh's own box with the default bits, encoded on up to `threads` (>= 1)
 // threads.
 std::string to_gltf(const Mesh& mesh, int threads);

@@ -119,7 +119,7 @@ def compose_replica(deploy: Path, secrets: Path, tmp: Path, env: dict, cli: str,
         run = subprocess.run([cli, "--server", server, *tls, *token, "run", "isosurface", "--scene",
                               str(examples / "sphere.json"), "--cells", "16", "-o", str(out)],
                              env=env, capture_output=True, text=True, timeout=60)
-        expect(run.returncode == 0 and (out / "frame_0000.drc").is_file(),
+        expect(run.returncode == 0 and (out / "frame_0000.glb").is_file(),
                f"a job with the token: exit {run.returncode}\n{run.stderr}")
         job = re.search(r"\b(j-[0-9a-f]+)", run.stdout + run.stderr)
         anonymous = subprocess.run([cli, "--server", server, *tls, "list"], env=env, capture_output=True, text=True,

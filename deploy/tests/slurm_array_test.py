@@ -9,7 +9,7 @@ Exit status: 0 passed, 1 failed, 77 skipped (not root, or the Slurm daemons coul
 scripts/setup.sh installs slurm-wlm and munge; the reason and the daemons' logs are printed).
 
 The sequence is the Indexed Job test's: five particle frames numbered 10..14, here split by FRAMES_PER_TASK=2 into an
-array of three tasks (10-11, 12-13, 14). Frames are the default Draco .drc files: each task quantizes them on the box
+array of three tasks (10-11, 12-13, 14). Frames are standard Draco .drc files (--format drc): each task quantizes them on the box
 given by --quantization-bounds (the whole sequence's particles padded by more than r_outer), so every task's frames
 are the whole run's bit for bit. (Without it each task's grid would be its own range's box, one quantization step off.)
 """

@@ -76,6 +76,8 @@ class CliEndToEnd : public ::testing::Test {
 fs::path CliEndToEnd::root_;
 ServerProcess* CliEndToEnd::server_ = nullptr;
 
+// Every example scene gives a closed frame in the default file, a .glb of the Draco pieces, and in the standard .drc
+// that Debian's draco_decoder reads.
 TEST_F(CliEndToEnd, EveryExampleSceneGivesAClosedDracoFrame) {
   std::vector<fs::path> scenes;
   for (const auto& entry : fs::directory_iterator(fs::path(SURFACER_SOURCE_DIR) / "examples" / "scenes")) {
@@ -88,11 +90,14 @@ TEST_F(CliEndToEnd, EveryExampleSceneGivesAClosedDracoFrame) {
     const fs::path out = dir_ / scene.stem();
     ProcessResult r = cli({"run", "isosurface", "--scene", scene.string(), "-o", out.string(), "--cells", "48"});
     ASSERT_EQ(r.code, 0) << r;
-    ASSERT_TRUE(fs::exists(out / "frame_0000.drc")) << r;
+    EXPECT_FALSE(fs::exists(out / "frame_0000.drc")) << r;
+    EXPECT_TRUE(mesh_file_has(out / "frame_0000.glb", kClosed));
+    EXPECT_NE(r.err.find("wrote 1 frame to " + out.string() + "/"), std::string::npos) << r;
+    r = cli({"run", "isosurface", "--scene", scene.string(), "-o", out.string(), "--cells", "48", "--format", "drc"});
+    ASSERT_EQ(r.code, 0) << r;
     const fs::path ply = out / "frame_0000_decoded.ply";
     ASSERT_TRUE(draco_decoder_decodes(out / "frame_0000.drc", ply));
     EXPECT_TRUE(mesh_file_has(ply, kClosed));
-    EXPECT_NE(r.err.find("wrote 1 frame to " + out.string() + "/"), std::string::npos) << r;
   }
 }
 
@@ -100,8 +105,8 @@ TEST_F(CliEndToEnd, SequenceWritesOneFramePerSceneAndStatsRows) {
   ProcessResult r = cli({"run", "isosurface", "--scene", (root_ / "sphere.json").string(), "--scene",
                          (root_ / "torus.json").string(), "--cells", "40", "-o", (dir_ / "out").string()});
   ASSERT_EQ(r.code, 0) << r;
-  EXPECT_TRUE(fs::exists(dir_ / "out" / "frame_0000.drc"));
-  EXPECT_TRUE(fs::exists(dir_ / "out" / "frame_0001.drc"));
+  EXPECT_TRUE(fs::exists(dir_ / "out" / "frame_0000.glb"));
+  EXPECT_TRUE(fs::exists(dir_ / "out" / "frame_0001.glb"));
   const std::string csv = read_file(dir_ / "out" / "stats.csv");
   EXPECT_EQ(count_lines(csv), 3) << csv;  // header + 2 rows
   EXPECT_NE(csv.find("\n0,"), std::string::npos) << csv;
@@ -151,9 +156,9 @@ TEST_F(CliEndToEnd, SubmitThenWatchFromFrame) {
 
   ProcessResult w = cli({"watch", id, "--from-frame", "1", "-o", (dir_ / "w").string()});
   ASSERT_EQ(w.code, 0) << w;
-  EXPECT_FALSE(fs::exists(dir_ / "w" / "frame_0000.drc"));
-  EXPECT_TRUE(fs::exists(dir_ / "w" / "frame_0001.drc"));
-  EXPECT_TRUE(fs::exists(dir_ / "w" / "frame_0002.drc"));
+  EXPECT_FALSE(fs::exists(dir_ / "w" / "frame_0000.glb"));
+  EXPECT_TRUE(mesh_file_has(dir_ / "w" / "frame_0001.glb", kClosed));  // submit asks for what run asks for
+  EXPECT_TRUE(mesh_file_has(dir_ / "w" / "frame_0002.glb", kClosed));
   EXPECT_EQ(count_lines(read_file(dir_ / "w" / "stats.csv")), 3);
 
   ProcessResult st = cli({"status", id});
@@ -254,8 +259,8 @@ TEST_F(CliEndToEnd, LocalModeWritesClosedMeshes) {
            "--cells", "40", "-o", (dir_ / "local").string(), "--workers", "2"},
           /*remote=*/false);
   ASSERT_EQ(r.code, 0) << r;
-  EXPECT_TRUE(mesh_file_has(dir_ / "local" / "frame_0000.drc", kClosed));
-  EXPECT_TRUE(mesh_file_has(dir_ / "local" / "frame_0001.drc", kClosed));
+  EXPECT_TRUE(mesh_file_has(dir_ / "local" / "frame_0000.glb", kClosed));
+  EXPECT_TRUE(mesh_file_has(dir_ / "local" / "frame_0001.glb", kClosed));
   EXPECT_EQ(r.err.find("warning"), std::string::npos) << "run needs no in-process warning: " << r;
 
   ProcessResult list = cli({"list"}, /*remote=*/false);
@@ -317,10 +322,14 @@ TEST_F(CliEndToEnd, EveryEncodingWritesTheSameSurfaceInStandardFiles) {
       EXPECT_EQ(r.code, 0) << r;
       return dir_ / name;
     };
-    // The default: one standard Draco mesh on the wire, written as received.
-    const fs::path draco = run("draco", {});
+    // A .drc: one standard Draco mesh on the wire, written as received.
+    const fs::path draco = run("draco", {"--format", "drc"});
     ASSERT_TRUE(draco_decoder_decodes(draco / "frame_0000.drc", draco / "decoded.ply"));
     const Surface reference = surface_of(draco / "decoded.ply");
+    // The default: Draco pieces on the wire, written as a .glb as received.
+    const fs::path glb = run("glb", {});
+    EXPECT_FALSE(fs::exists(glb / "frame_0000.drc"));
+    expect_same_surface(surface_of(glb / "frame_0000.glb"), reference, "the default .glb");
     // No .drc asked for: Draco pieces on the wire, welded here.
     const fs::path pieces = run("pieces", {"--format", "ply,obj"});
     EXPECT_FALSE(fs::exists(pieces / "frame_0000.drc"));
@@ -343,7 +352,7 @@ TEST_F(CliEndToEnd, WatchWritesAStandardDracoFileOfAPiecedJob) {
   const ProcessResult submitted = cli({"submit", "--spec", (dir_ / "job.json").string()});
   ASSERT_EQ(submitted.code, 0) << submitted;
   const std::string id = submitted.out.substr(0, submitted.out.find('\n'));
-  const ProcessResult watched = cli({"watch", id, "-o", (dir_ / "watched").string()});
+  const ProcessResult watched = cli({"watch", id, "-o", (dir_ / "watched").string(), "--format", "drc"});
   ASSERT_EQ(watched.code, 0) << watched;
   ASSERT_TRUE(draco_decoder_decodes(dir_ / "watched" / "frame_0000.drc", dir_ / "watched" / "decoded.ply"));
   EXPECT_TRUE(mesh_file_has(dir_ / "watched" / "decoded.ply", kClosedManifold));

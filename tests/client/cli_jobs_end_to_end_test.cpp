@@ -405,7 +405,7 @@ TEST_F(CliJobsEndToEnd, SubmitParticlesThenWatch) {
   EXPECT_NE(s.err.find("uploaded 1/1: particle frame 0"), std::string::npos) << s;
   ProcessResult w = cli({"watch", id, "-o", (dir_ / "w").string()});
   ASSERT_EQ(w.code, 0) << w;
-  EXPECT_TRUE(mesh_file_has(dir_ / "w" / "frame_0000.drc", kClosedFrame));
+  EXPECT_TRUE(mesh_file_has(dir_ / "w" / "frame_0000.glb", kClosedFrame));
   EXPECT_NE(w.err.find("frame  particles  triangles  seconds"), std::string::npos) << w;
 }
 

@@ -11,9 +11,12 @@
 #include "client/frame_writer.h"
 #include "client/health.h"
 #include "client/job_spec.h"
+#include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_io.h"
 #include "core/util/crc32.h"
 #include "tests/support/files.h"
+#include "tests/support/test_meshes.h"
+#include "wire/output.h"
 
 namespace surfacer::client {
 namespace {
@@ -229,17 +232,72 @@ TEST(FrameWriter, ADirectoryThatTakesNoFilesIsAUsageErrorAtOnce) {
   fs::remove_all(dir);
 }
 
+// With no format asked for, each frame is written in the file that takes its bytes on every core: Draco pieces as a
+// .glb holding their streams (what to_gltf makes of them), or, on a grid of more bits than glTF holds, as a .drc; one
+// Draco mesh as the .drc it is; meshopt and raw frames as .ply.
 TEST(FrameWriter, DefaultFormatFollowsEncoding) {
   const fs::path dir = fresh_temp_dir("client_writer_default");
-  FrameWriter writer(FrameOutputOptions{dir, {}});
-  ReceivedFrame drc;
-  drc.index = 0;
-  drc.bytes = "not really draco";
-  writer.write(drc);
-  EXPECT_EQ(read_file(dir / "frame_0000.drc"), "not really draco");
-  // Asking for PLY of undecodable Draco bytes is an integrity error.
-  FrameWriter ply_writer(FrameOutputOptions{dir, {FileFormat::kPly}});
-  EXPECT_EQ(error_code_of([&] { ply_writer.write(drc); }), ExitCode::kIntegrity);
+  const Mesh sphere = testing::icosphere(4);
+  auto frame_of = [&](FrameCodec codec, int bits) {
+    FrameCodecOptions options;
+    options.codec = codec;
+    options.draco.quantization_bits = bits;
+    options.max_piece_triangles = 1024;  // several pieces
+    ReceivedFrame frame;
+    frame.index = 0;
+    frame.encoding = wire::mesh_encoding(codec);
+    frame.bytes = encode_frame(sphere, options, 2);
+    return frame;
+  };
+  auto only_file = [&] {
+    std::vector<fs::path> files;
+    for (const auto& entry : fs::directory_iterator(dir)) {
+      if (entry.path().filename() != "stats.csv") files.push_back(entry.path());
+    }
+    EXPECT_EQ(files.size(), 1u);
+    return files.empty() ? fs::path() : files.front();
+  };
+  for (const int bits : {8, 14, 16, 17, 20}) {
+    SCOPED_TRACE(std::to_string(bits) + " bits");
+    for (const FrameCodec codec :
+         {FrameCodec::kDraco, FrameCodec::kDracoPieces, FrameCodec::kMeshopt, FrameCodec::kPly}) {
+      SCOPED_TRACE(frame_codec_name(codec));
+      fs::remove_all(dir);
+      FrameWriter writer(FrameOutputOptions{dir, {}});
+      const ReceivedFrame frame = frame_of(codec, bits);
+      const std::vector<fs::path> written = writer.write(frame);
+      const fs::path file = only_file();
+      ASSERT_EQ(written, std::vector<fs::path>{file});
+      const Mesh decoded = decode_frame(frame.bytes, codec, 2);
+      if (codec == FrameCodec::kDracoPieces && bits <= kMaxGltfQuantizationBits) {
+        EXPECT_EQ(file.filename(), "frame_0000.glb");
+        EXPECT_EQ(read_file(file), to_gltf(frame.bytes, codec, nullptr, 2));  // the pieces as they came
+      } else if (codec == FrameCodec::kDraco || codec == FrameCodec::kDracoPieces) {
+        EXPECT_EQ(file.filename(), "frame_0000.drc");
+        if (codec == FrameCodec::kDraco) {
+          EXPECT_EQ(read_file(file), frame.bytes);
+        }
+      } else {
+        EXPECT_EQ(file.filename(), "frame_0000.ply");
+      }
+      // Whatever the file, it holds the frame's mesh.
+      const Mesh back = read_mesh(file);
+      EXPECT_EQ(back.triangles.size(), decoded.triangles.size());
+      EXPECT_EQ(back.vertices.size(), decoded.vertices.size());
+    }
+  }
+  // Bytes that are not what their encoding says are an integrity error, with or without a format asked for.
+  ReceivedFrame bad;
+  bad.index = 0;
+  bad.bytes = "not really draco";
+  for (const FrameCodec codec : {FrameCodec::kDraco, FrameCodec::kDracoPieces}) {
+    bad.encoding = wire::mesh_encoding(codec);
+    FrameWriter ply_writer(FrameOutputOptions{dir, {FileFormat::kPly}});
+    EXPECT_EQ(error_code_of([&] { ply_writer.write(bad); }), ExitCode::kIntegrity);
+  }
+  bad.encoding = wire::mesh_encoding(FrameCodec::kDracoPieces);  // its directory says which file takes it
+  FrameWriter default_writer(FrameOutputOptions{dir, {}});
+  EXPECT_EQ(error_code_of([&] { default_writer.write(bad); }), ExitCode::kIntegrity);
   fs::remove_all(dir);
 }
 

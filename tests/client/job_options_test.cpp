@@ -1027,36 +1027,59 @@ TEST(InMemoryInputs, ScenesAndParticleFramesStandInForFiles) {
   EXPECT_THROW(empty.uploads[0].read(spec, InputLimits{}), CliError);
 }
 
-// What a client asks of the server: one Draco mesh only where a standard .drc file is written from the stream (the
-// CLI's default files, or .drc among them); every other Draco request comes in pieces, encoded and decoded on every
-// core: files without .drc, and the Python package, which keeps the frames in memory. Other encodings stay.
+// What a client asks of the server: one Draco mesh only where a standard .drc file is written from the stream (.drc
+// among the files, or the CLI's default file on a grid glTF cannot hold); every other Draco request comes in pieces,
+// encoded and decoded on every core: the default .glb, files without .drc, and the Python package, which keeps the
+// frames in memory. Other encodings stay.
 TEST(JobOptions, DracoFramesComeInPiecesUnlessADrcFileIsWritten) {
   using F = FileFormat;
-  const std::vector<std::vector<F>> writes_drc = {{}, {F::kDrc}, {F::kPly, F::kDrc}};
+  const std::vector<std::vector<F>> writes_drc = {{F::kDrc}, {F::kPly, F::kDrc}, {F::kGlb, F::kDrc}};
   const std::vector<std::vector<F>> no_drc = {{F::kPly}, {F::kObj, F::kVtu}, {F::kGlb}};
   for (const v1::MeshEncoding asked :
        {v1::MESH_ENCODING_UNSPECIFIED, v1::MESH_ENCODING_DRACO, v1::MESH_ENCODING_DRACO_PIECES,
         v1::MESH_ENCODING_MESHOPT, v1::MESH_ENCODING_PLY}) {
     SCOPED_TRACE(v1::MeshEncoding_Name(asked));
     const bool draco = asked == v1::MESH_ENCODING_UNSPECIFIED || asked == v1::MESH_ENCODING_DRACO;
-    const auto spec_asking = [asked] {
-      v1::JobSpec spec;
-      spec.mutable_output()->set_encoding(asked);
-      return spec;
-    };
-    for (const std::vector<F>& formats : writes_drc) {
+    const v1::MeshEncoding pieces = draco ? v1::MESH_ENCODING_DRACO_PIECES : asked;
+    for (const std::optional<int> bits : {std::optional<int>{}, std::optional<int>{8}, std::optional<int>{16},
+                                          std::optional<int>{17}, std::optional<int>{24}}) {
+      SCOPED_TRACE(bits ? std::to_string(*bits) + " bits" : "default bits");
+      const auto spec_asking = [&] {
+        v1::JobSpec spec;
+        spec.mutable_output()->set_encoding(asked);
+        if (bits) spec.mutable_output()->set_quantization_bits(*bits);
+        return spec;
+      };
+      // glTF holds grids of up to 16 bits; raw frames go in a .glb without a grid.
+      const auto glb_refused = [&](const std::vector<F>& formats) {
+        return bits > 16 && asked != v1::MESH_ENCODING_PLY &&
+               std::find(formats.begin(), formats.end(), F::kGlb) != formats.end();
+      };
+      for (const std::vector<F>& formats : writes_drc) {
+        v1::JobSpec spec = spec_asking();
+        if (glb_refused(formats)) {
+          EXPECT_THROW(fit_encoding_to_files(spec, formats), CliError);
+          continue;
+        }
+        fit_encoding_to_files(spec, formats);
+        EXPECT_EQ(spec.output().encoding(), asked);
+      }
+      for (const std::vector<F>& formats : no_drc) {
+        v1::JobSpec spec = spec_asking();
+        if (glb_refused(formats)) {
+          EXPECT_THROW(fit_encoding_to_files(spec, formats), CliError);
+          continue;
+        }
+        fit_encoding_to_files(spec, formats);
+        EXPECT_EQ(spec.output().encoding(), pieces);
+      }
+      v1::JobSpec defaults = spec_asking();
+      fit_encoding_to_files(defaults, {});
+      EXPECT_EQ(defaults.output().encoding(), bits > 16 ? asked : pieces);
       v1::JobSpec spec = spec_asking();
-      fit_encoding_to_files(spec, formats);
-      EXPECT_EQ(spec.output().encoding(), asked);
+      fit_encoding_to_memory(spec);
+      EXPECT_EQ(spec.output().encoding(), pieces);
     }
-    for (const std::vector<F>& formats : no_drc) {
-      v1::JobSpec spec = spec_asking();
-      fit_encoding_to_files(spec, formats);
-      EXPECT_EQ(spec.output().encoding(), draco ? v1::MESH_ENCODING_DRACO_PIECES : asked);
-    }
-    v1::JobSpec spec = spec_asking();
-    fit_encoding_to_memory(spec);
-    EXPECT_EQ(spec.output().encoding(), draco ? v1::MESH_ENCODING_DRACO_PIECES : asked);
   }
 }
 

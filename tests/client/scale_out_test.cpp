@@ -1,6 +1,6 @@
 // Scale-out `run` (--server a,b,c): the splitting helpers, then real `surfacer-server` processes on loopback ports,
-// one of them SIGKILLed while it works on its first batch. Frames are compared byte for byte with a single-server
-// run and decoded with Debian's draco_decoder.
+// one of them SIGKILLed while it works on its first batch. Frames (the default .glb files) are compared byte for byte
+// with a single-server run and read back.
 #include "client/scale_out.h"
 
 #include <gtest/gtest.h>
@@ -272,30 +272,28 @@ class ScaleOutEndToEnd : public ::testing::Test {
     return cancelled;
   }
 
-  // frame_0000.drc .. frame_{n-1}.drc and stats.csv, nothing else (no temporary files).
+  // frame_0000.glb .. frame_{n-1}.glb (the default files) and stats.csv, nothing else (no temporary files).
   void expect_exactly_frames(const fs::path& out, int n) {
     std::set<std::string> names;
     for (const auto& entry : fs::directory_iterator(out)) names.insert(entry.path().filename().string());
     std::set<std::string> expected = {"stats.csv"};
     for (int i = 0; i < n; ++i) {
       char name[32];
-      std::snprintf(name, sizeof name, "frame_%04d.drc", i);
+      std::snprintf(name, sizeof name, "frame_%04d.glb", i);
       expected.insert(name);
     }
     EXPECT_EQ(names, expected);
   }
 
-  // Every frame decodes with Debian's draco_decoder to a closed mesh and equals the reference byte for byte;
+  // Every frame reads back as a closed mesh and equals the reference byte for byte;
   // stats.csv has one row per frame in order, with the reference's mesh figures.
   void expect_same_as_reference(const fs::path& out, const fs::path& ref, int n) {
     for (int i = 0; i < n; ++i) {
       char name[32];
-      std::snprintf(name, sizeof name, "frame_%04d.drc", i);
-      const fs::path drc = out / name;
-      const fs::path ply = dir_ / (std::string("decoded_") + name + ".ply");
-      ASSERT_TRUE(draco_decoder_decodes(drc, ply));
-      EXPECT_TRUE(mesh_file_has(ply, kClosed));
-      EXPECT_TRUE(read_file(drc) == read_file(ref / name)) << name << " differs from the single-server run";
+      std::snprintf(name, sizeof name, "frame_%04d.glb", i);
+      const fs::path glb = out / name;
+      EXPECT_TRUE(mesh_file_has(glb, kClosed));
+      EXPECT_TRUE(read_file(glb) == read_file(ref / name)) << name << " differs from the single-server run";
     }
     const std::string csv = read_file(out / "stats.csv");
     EXPECT_EQ(count_lines(csv), n + 1) << csv;
@@ -417,7 +415,7 @@ TEST_F(ScaleOutEndToEnd, ParticleBatchesStreamIntoTheirSubJobs) {
     PendingUpload& pending = prepared.uploads[static_cast<std::size_t>(g)];
     auto reads = std::make_shared<int>(0);
     char first[32];
-    std::snprintf(first, sizeof first, "frame_%04d.drc", g - 1);
+    std::snprintf(first, sizeof first, "frame_%04d.glb", g - 1);
     pending.read = [read = pending.read, reads, file = out / first, streamed](v1::JobSpec& spec,
                                                                               const InputLimits& limits) {
       if (++*reads == 2) {
@@ -433,6 +431,7 @@ TEST_F(ScaleOutEndToEnd, ParticleBatchesStreamIntoTheirSubJobs) {
   FrameOutputOptions output;
   output.dir = out;
   output.frame_numbers = prepared.frame_numbers;
+  fit_encoding_to_files(prepared.spec, output.formats);  // as `run` does
   std::ostringstream err;
   ASSERT_EQ(
       run_scale_out(connect, parse_server_list(server_list()), std::move(prepared), output, err, ProgressMode::kLines),
