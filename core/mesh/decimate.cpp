@@ -139,8 +139,9 @@ struct Shared {
   const Mesh& mesh;
   const SurfacePointRule* rule;  // null: no rule
   double tolerance2 = 0.0;
-  double max_cos_angle = 1.0;   // of the smallest angle allowed
-  double min_cos_normal = 0.0;  // of the largest normal turn allowed
+  double max_cos_angle = 1.0;            // of the smallest angle allowed
+  double min_cos_normal = 0.0;           // of the largest normal turn allowed
+  std::optional<QuantizationGrid> grid;  // the angles' (DecimateOptions::grid)
   const RunControl& control;
   // Whether this is the first pass (each patch sums its vertices' quadrics from its own triangles) or a later one
   // (quadrics reads them).
@@ -268,6 +269,8 @@ class PatchDecimator {
   enum Lock : std::uint8_t { kFree = 0, kKeep = 1, kFrozen = 2 };  // kKeep: never v0; kFrozen: never v0 or v1
 
   const Vec3& position(VertexHandle v) const { return positions_[v.idx()]; }
+  // Where a decoder of the frame reads it (DecimateOptions::grid), for the angles.
+  const Vec3& shown(VertexHandle v) const { return shown_.empty() ? positions_[v.idx()] : shown_[v.idx()]; }
   const Quadric& quadric(VertexHandle v) const { return quadrics_[v.idx()]; }
 
   void build() {
@@ -310,6 +313,11 @@ class PatchDecimator {
     // Positions and quadrics in local order: a region's are then near in memory.
     positions_.reserve(global_.size());
     for (const std::uint32_t v : global_) positions_.push_back(mesh.vertices[v]);
+    if (shared_.grid) {
+      shown_.reserve(global_.size());
+      for (const std::uint32_t v : global_)
+        shown_.push_back(shared_.grid->dequantize(shared_.grid->frame_point(mesh.vertices[v])));
+    }
     if (shared_.initial) {
       quadrics_.resize(global_.size());
       for (std::size_t t = 0; t < n; ++t) {
@@ -545,11 +553,12 @@ class PatchDecimator {
     for (const HalfedgeHandle out : om_.voh_range(v0)) {
       const FaceHandle f = om_.face_handle(out);
       if (!f.is_valid() || f == fl || f == fr) continue;
-      const Vec3& a = position(om_.to_vertex_handle(out));
-      const Vec3& b = position(om_.to_vertex_handle(om_.next_halfedge_handle(out)));
+      const VertexHandle va = om_.to_vertex_handle(out), vb = om_.to_vertex_handle(om_.next_halfedge_handle(out));
+      const Vec3& a = position(va);
+      const Vec3& b = position(vb);
       fan_.push_back({f, {p1, a, b}});
       if (measured) continue;
-      if (has_small_angle(p1, a, b, shared_.max_cos_angle)) return false;
+      if (has_small_angle(shown(v1), shown(va), shown(vb), shared_.max_cos_angle)) return false;
       if (turns_beyond((a - p0).cross(b - p0), (a - p1).cross(b - p1), shared_.min_cos_normal)) return false;
     }
     if (fan_.empty()) return false;
@@ -858,6 +867,7 @@ class PatchDecimator {
   std::vector<std::uint32_t> corner_;    // 3 t + k: the local vertex at corner k of patch triangle t
   std::vector<std::uint8_t> added_;      // per patch triangle when built by add_faces(): whether it was added
   std::vector<Vec3> positions_;          // per local vertex
+  std::vector<Vec3> shown_;              // per local vertex, on the grid (empty without one)
   std::vector<Quadric> quadrics_;        // per local vertex
   std::vector<std::uint8_t> lock_;       // per local vertex
   std::vector<double> floor_;            // per local vertex: its collapses cheaper than this were found illegal
@@ -1155,6 +1165,7 @@ Mesh decimate(const Mesh& mesh, const DecimateOptions& options, const SurfacePoi
                   .tolerance2 = options.tolerance * options.tolerance,
                   .max_cos_angle = std::cos(options.min_angle_degrees * std::numbers::pi / 180.0),
                   .min_cos_normal = std::cos(DecimateOptions::kMaxNormalDeviationDegrees * std::numbers::pi / 180.0),
+                  .grid = options.grid,
                   .control = control};
     shared.removed.assign(mesh.vertices.size(), 0);
     Patch whole;

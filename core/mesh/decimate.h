@@ -16,9 +16,11 @@
 
 #include <cstddef>
 #include <functional>
+#include <optional>
 #include <span>
 
 #include "core/mesh/mesh.h"
+#include "core/mesh/quantization.h"
 #include "core/util/run_control.h"
 
 namespace surfacer {
@@ -32,6 +34,9 @@ struct DecimateOptions {
   // No new triangle gets a smaller angle (degrees, in [0, 30]). Triangles of the input below it are left as they
   // are unless a collapse removes them.
   double min_angle_degrees = 10.0;
+  // When set, those angles are the ones of the corners' points on this grid, as a decoder of the frame reads them
+  // (quantization moves a corner by up to half a step).
+  std::optional<QuantizationGrid> grid{};
   // Threads for the regions of a large mesh (0: hardware threads). The result does not depend on it.
   int threads = 0;
   // Largest turn of a face normal by one collapse, in degrees.

@@ -149,6 +149,7 @@ struct TriangleSums {
   // Of all angles, as signed squared cosines cos * |cos| (monotonic in the cosine; no square root per angle).
   double max_cos = -2.0;
   double min_cos = 2.0;
+  std::int64_t below_angle = 0;
 
   void add(const TriangleSums& b) {
     degenerate += b.degenerate;
@@ -157,6 +158,7 @@ struct TriangleSums {
     volume += b.volume;
     max_cos = std::max(max_cos, b.max_cos);
     min_cos = std::min(min_cos, b.min_cos);
+    below_angle += b.below_angle;
   }
 };
 
@@ -197,10 +199,12 @@ struct VertexSums {
 
 class Checker {
  public:
-  Checker(const Mesh& mesh, int threads, const RunControl& control)
+  Checker(const Mesh& mesh, int threads, const RunControl& control, double below_degrees)
       : mesh_(mesh),
         threads_(threads),
         control_(control),
+        count_below_(below_degrees > 0.0),
+        below_cos_(std::cos(below_degrees * kPi / 180.0) * std::abs(std::cos(below_degrees * kPi / 180.0))),
         nv_(mesh.vertices.size()),
         nf_(mesh.triangles.size()),
         components_(nv_) {}
@@ -274,6 +278,7 @@ class Checker {
           s.volume += a.dot(b.cross(c));  // divided by 6 once, in report()
           if (!(twice_area >= 2.0 * min_area) || twice_area == 0.0) {
             ++s.degenerate;
+            if (count_below_) ++s.below_angle;
             continue;
           }
           const double ab2 = ab.squaredNorm(), ac2 = ac.squaredNorm(), bc2 = bc.squaredNorm();
@@ -283,8 +288,10 @@ class Checker {
           const double sa = da * std::abs(da) * bc2 * r;
           const double sb = db * std::abs(db) * ac2 * r;
           const double sc = dc * std::abs(dc) * ab2 * r;
-          s.max_cos = std::max({s.max_cos, sa, sb, sc});
+          const double largest = std::max({sa, sb, sc});  // of the smallest angle
+          s.max_cos = std::max(s.max_cos, largest);
           s.min_cos = std::min({s.min_cos, sa, sb, sc});
+          if (count_below_ && largest > below_cos_) ++s.below_angle;
         }
         triangle_sums_[block] = s;
       }
@@ -495,6 +502,7 @@ class Checker {
     TriangleSums t;
     for (const TriangleSums& b : triangle_sums_) t.add(b);
     r.degenerate_triangles = t.degenerate;
+    r.triangles_below_angle = t.below_angle;
     r.area = 0.5 * t.area;
     r.volume = t.volume / 6.0;
     auto degrees = [](double signed_square) {
@@ -526,6 +534,8 @@ class Checker {
   const Mesh& mesh_;
   const int threads_;
   const RunControl& control_;
+  const bool count_below_;
+  const double below_cos_;  // cos |cos| of below_degrees: an angle is below it when its own is larger
   const std::size_t nv_;
   const std::size_t nf_;
   double diag2_ = 0.0;
@@ -543,8 +553,8 @@ class Checker {
 
 MeshReport check_mesh(const Mesh& mesh) { return check_mesh(mesh, 1); }
 
-MeshReport check_mesh(const Mesh& mesh, int threads, const RunControl& control) {
-  return Checker(mesh, threads, control).run();
+MeshReport check_mesh(const Mesh& mesh, int threads, const RunControl& control, double below_degrees) {
+  return Checker(mesh, threads, control, below_degrees).run();
 }
 
 }  // namespace surfacer

@@ -24,6 +24,8 @@ struct MeshReport {
   int max_valence = 0;
   double min_angle_degrees = 0.0;
   double max_angle_degrees = 0.0;
+  // Triangles with an angle below check_mesh's `below_degrees`, zero-area ones included (0 when it is 0).
+  std::int64_t triangles_below_angle = 0;
   double area = 0.0;
   double volume = 0.0;  // signed enclosed volume (divergence theorem); > 0 for outward-oriented closed meshes
 };
@@ -37,7 +39,8 @@ struct MeshReport {
 // Throws InvalidInput("triangles") when a triangle uses a vertex index >= vertices.size() (the lowest such triangle).
 MeshReport check_mesh(const Mesh& mesh);
 // The same report, bit for bit whatever the threads, with the work spread in blocks over up to `threads` (>= 1)
-// threads; throws Cancelled between blocks when `control` fires.
-MeshReport check_mesh(const Mesh& mesh, int threads, const RunControl& control = {});
+// threads; throws Cancelled between blocks when `control` fires. `below_degrees` > 0 also counts the triangles with an
+// angle below it (MeshReport::triangles_below_angle).
+MeshReport check_mesh(const Mesh& mesh, int threads, const RunControl& control = {}, double below_degrees = 0.0);
 
 }  // namespace surfacer

@@ -18,7 +18,7 @@ struct SliverOptions {
   // When set, angles are those of the triangles' corners quantized on the grid, as a decoder of the frame gives them
   // (quantization moves each corner by up to half a step, which turns a triangle a few steps across), and a triangle
   // whose corners there are collinear (or repeat a point) is repaired too: the decoder would give it zero area.
-  std::optional<QuantizationGrid> grid;
+  std::optional<QuantizationGrid> grid{};
   // A repair may not take a vertex whose valence is at least this below it (Marching Tiles meshes start at 5).
   int min_valence = 5;
   int max_passes = 8;
@@ -27,7 +27,7 @@ struct SliverOptions {
   // proposal is the centroid of the vertex's neighbours in its tangent plane, and place(v, p, n) moves p to where
   // vertex v may lie (its data's constraints; n: v's unit area-weighted normal), or returns false to refuse. Unset:
   // positions never move.
-  std::function<bool(std::uint32_t vertex, Vec3& position, const Vec3& normal)> place;
+  std::function<bool(std::uint32_t vertex, Vec3& position, const Vec3& normal)> place{};
 };
 
 struct SliverReport {

@@ -8,8 +8,9 @@ std::int64_t task_bytes_per_triangle(const FrameMaker& frames, std::int64_t engi
 
 FrameOutput decimated_frame(const FrameMaker& frames, Mesh mesh, const SurfacePointRule& rule, StageTimer& timer,
                             const RunControl& control) {
-  const DecimateOptions& options = frames.encoding().decimate;
+  DecimateOptions options = frames.encoding().decimate;
   if (options.tolerance == 0.0) return frames.make(std::move(mesh), timer, control);
+  options.grid = frames.encoding().grid();  // angles as the frame's reader sees them
   const auto triangles_before = static_cast<double>(mesh.triangles.size());
   Mesh decimated = timer.run("decimate", [&] { return decimate(mesh, options, rule, control); });
   FrameOutput frame = frames.make(std::move(decimated), timer, control);

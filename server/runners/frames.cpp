@@ -122,7 +122,7 @@ FrameOutput FrameMaker::make(Mesh mesh, StageTimer& timer, const RunControl& con
   MeshReport report;
   auto check = [&] {
     control.report("check", 0.0);
-    report = check_timer.run("check", [&] { return check_mesh(mesh, threads_, control); });
+    report = check_timer.run("check", [&] { return check_mesh(mesh, threads_, control, sliver_degrees_); });
   };
   if (options.codec == FrameCodec::kDraco && mesh.triangles.size() > options.max_piece_triangles) {
     // One Draco mesh, on a pool thread while the checks run on the others (SideEncoding).
@@ -169,6 +169,9 @@ FrameOutput FrameMaker::make(Mesh mesh, StageTimer& timer, const RunControl& con
   out.stats.set_vertices(static_cast<std::int64_t>(mesh.vertices.size()));
   out.stats.set_triangles(static_cast<std::int64_t>(mesh.triangles.size()));
   fill_mesh_check(report, *out.stats.mutable_check());
+  if (sliver_degrees_ > 0.0) {
+    (*out.stats.mutable_metrics())["slivers_left"] = static_cast<double>(report.triangles_below_angle);
+  }
   if (grid) {
     auto& metrics = *out.stats.mutable_metrics();
     metrics["grid_degenerate_found"] = static_cast<double>(cleanup.degenerate_found);

@@ -64,6 +64,10 @@ class FrameMaker {
 
   const FrameEncoding& encoding() const { return encoding_; }
 
+  // Frames also state, as metric slivers_left, how many triangles of the mesh a decoder reads have an angle below
+  // `degrees` (> 0): the particle engine's repair threshold, counted after the grid cleanup and any decimation.
+  void count_slivers_below(double degrees) { sliver_degrees_ = degrees; }
+
   // The margin a polygonizer keeps between its vertices and the ends of their edges for these frames
   // (PolygonizeGrid::vertex_margin): kMarginSteps steps of the quantization grid, 0 for lossless frames. Vertices
   // near a zero sample then keep distinct grid points, so the grid cleanup has little left to do.
@@ -74,6 +78,7 @@ class FrameMaker {
   FrameEncoding encoding_;
   std::int64_t max_triangles_;
   int threads_;
+  double sliver_degrees_ = 0.0;  // count_slivers_below
 };
 
 // Keeps checkpoints under ~10% of the task's time: one is taken only when the work since the previous one took at

@@ -163,7 +163,6 @@ class ParticlesRunner final : public JobRunner {
     metrics["initial_min_valence"] = stats.initial_min_valence;
     metrics["field_evaluations"] = static_cast<double>(stats.field_evaluations);
     metrics["slivers_found"] = static_cast<double>(stats.slivers_found);
-    metrics["slivers_left"] = static_cast<double>(stats.slivers_left);
     metrics["cusp_vertices"] = static_cast<double>(stats.cusp_vertices);
     metrics["bubbles_dropped"] = static_cast<double>(stats.bubbles_dropped);
     sink.emit(index, std::move(frame));
@@ -220,14 +219,18 @@ std::unique_ptr<JobRunner> make_particles_runner(const v1::JobSpec& spec, const 
     return wire::load_particle_frame(job.frames(0), path + ".frames[0]", context.uploads, context.limits.max_particles)
         .positions;
   });
-  const FrameEncoding encoding =
+  FrameEncoding encoding =
       wire::frame_encoding(spec.output(), job.open() ? open_sequence_box(job, box) : box, "spec.output");
+  // Decimation makes no new triangle with an angle below the job's sliver threshold either, when that is the higher.
+  encoding.decimate.min_angle_degrees = std::max(encoding.decimate.min_angle_degrees, options.min_angle_degrees);
   // The sliver repair also removes triangles that would be degenerate once quantized on the job's grid.
   options.output_grid = encoding.grid();
   const Aabb quantization_box = encoding.options.draco.quantization_bounds.value_or(box);
+  FrameMaker frames(encoding, context.limits.max_triangles, context.worker_threads);
+  if (options.min_angle_degrees > 0.0) frames.count_slivers_below(options.min_angle_degrees);
   return std::make_unique<ParticlesRunner>(job, std::move(interpolate), context.uploads, std::move(options),
-                                           FrameMaker(encoding, context.limits.max_triangles, context.worker_threads),
-                                           context.limits, context.worker_threads, context.memory, quantization_box);
+                                           std::move(frames), context.limits, context.worker_threads, context.memory,
+                                           quantization_box);
 }
 
 }  // namespace surfacer::server

@@ -3,7 +3,6 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
-
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -11,7 +10,9 @@
 #include <random>
 #include <string>
 
+#include "core/mesh/grid_cleanup.h"
 #include "core/mesh/mesh_checks.h"
+#include "core/mesh/mesh_repair.h"
 #include "core/particles/particle_surfacer.h"
 #include "core/polygonize/polygonize.h"
 #include "core/scene/scene.h"
@@ -84,8 +85,8 @@ Case particle_case(const std::string& name, std::vector<Vec3> particles, double 
 std::vector<Case> cases() {
   std::vector<Case> out;
   out.push_back(field_case("sphere tiles", make_sphere(Vec3::Zero(), 1.0), Polygonizer::kTiles, 48, 1.0));
-  out.push_back(field_case("torus cubes", make_torus(Vec3::Zero(), Vec3::UnitZ(), 1.0, 0.35), Polygonizer::kCubes,
-                           64, 1.0));
+  out.push_back(
+      field_case("torus cubes", make_torus(Vec3::Zero(), Vec3::UnitZ(), 1.0, 0.35), Polygonizer::kCubes, 64, 1.0));
   for (int cells : {48}) {
     out.push_back(field_case("gyroid tiles " + std::to_string(cells),
                              make_csg(CsgOp::kIntersection, {make_gyroid(1.0, 0.12), make_sphere(Vec3::Zero(), 1.5)}),
@@ -124,8 +125,8 @@ double squared_distance(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3&
 }
 
 // The largest distance from a vertex of `input`'s triangles to the triangles of `output` (the one-sided Hausdorff
-// distance at the input's vertices), through a grid of cells of edge `cell` over the triangles' boxes grown by `reach`; a vertex
-// with no triangle within `reach` counts as infinitely far.
+// distance at the input's vertices), through a grid of cells of edge `cell` over the triangles' boxes grown by `reach`;
+// a vertex with no triangle within `reach` counts as infinitely far.
 double largest_vertex_distance(const Mesh& input, const Mesh& output, double reach) {
   Eigen::Array3d lo = Eigen::Array3d::Constant(1e300);
   for (const Vec3& p : input.vertices) lo = lo.min(p.array());
@@ -163,8 +164,8 @@ double largest_vertex_distance(const Mesh& input, const Mesh& output, double rea
     if (found != cells.end()) {
       for (const std::uint32_t t : found->second) {
         const Triangle& tri = output.triangles[t];
-        best = std::min(best, squared_distance(p, output.vertices[tri[0]], output.vertices[tri[1]],
-                                               output.vertices[tri[2]]));
+        best = std::min(best,
+                        squared_distance(p, output.vertices[tri[0]], output.vertices[tri[1]], output.vertices[tri[2]]));
       }
     }
     largest = std::max(largest, std::sqrt(best));
@@ -239,6 +240,55 @@ TEST(Decimate, FewerTrianglesWithToleranceEveryVertexKeptEveryNewTriangleAccepta
   }
 }
 
+// With the frame's grid, the angles a decimation keeps above its floor are those of the decoded corners: no triangle
+// it makes has an angle below min_angle_degrees once snapped to the grid, from coarse grids (edges of a few steps) to
+// fine ones, at floors of 10 and 20 degrees. Without the grid, coarse grids show such triangles.
+TEST(Decimate, NewTrianglesKeepTheFloorOnTheFramesGrid) {
+  std::size_t below_without_grid = 0;
+  for (Case& c : cases()) {
+    SCOPED_TRACE(c.name);
+    const double tolerance = c.tolerances[2];
+    const SurfacePointRule rule = c.field ? zero_set_rule(*c.field, tolerance) : c.rule;
+    std::map<std::array<std::uint32_t, 3>, int> input_triangles;
+    for (const Triangle& t : c.mesh.triangles) input_triangles[{t[0], t[1], t[2]}] = 1;
+    std::map<std::array<double, 3>, std::uint32_t> index_of;
+    for (std::uint32_t v = 0; v < c.mesh.vertices.size(); ++v) {
+      const Vec3& p = c.mesh.vertices[v];
+      index_of[{p.x(), p.y(), p.z()}] = v;
+    }
+    const Aabb box = Aabb::of(c.mesh.vertices);
+    for (const int bits : {9, 12}) {
+      for (const double floor : {10.0, 20.0}) {
+        for (const bool on_grid : {true, false}) {
+          SCOPED_TRACE(std::to_string(bits) + " bits, floor " + std::to_string(floor) + (on_grid ? "" : ", no grid"));
+          const QuantizationGrid grid = QuantizationGrid::of(box, bits);
+          DecimateOptions options{.tolerance = tolerance, .min_angle_degrees = floor};
+          if (on_grid) options.grid = grid;
+          const Mesh out = decimate(c.mesh, options, rule);
+          ASSERT_LT(out.triangles.size(), c.mesh.triangles.size());
+          std::vector<Vec3> shown = out.vertices;
+          snap_to_grid(shown, grid, 1);
+          std::size_t below = 0;
+          for (const Triangle& t : out.triangles) {
+            const auto orig = [&](std::uint32_t v) {
+              const Vec3& p = out.vertices[v];
+              return index_of.at({p.x(), p.y(), p.z()});
+            };
+            if (input_triangles.contains({orig(t[0]), orig(t[1]), orig(t[2])})) continue;  // not made here
+            below += min_angle_degrees(shown[t[0]], shown[t[1]], shown[t[2]]) < floor - 1e-6;
+          }
+          if (on_grid) {
+            EXPECT_EQ(below, 0u);
+          } else {
+            below_without_grid += below;
+          }
+        }
+      }
+    }
+  }
+  EXPECT_GT(below_without_grid, 0u);
+}
+
 // Meshes of several regions (decimated in parallel, DecimateStats::regions > 1) give the same bytes whatever the
 // number of threads.
 TEST(Decimate, SameMeshWithOneOrTwoThreads) {
@@ -258,8 +308,7 @@ TEST(Decimate, SameMeshWithOneOrTwoThreads) {
 // A surface folded into several sheets per region cell (a gyroid): its regions still hold about 8 k triangles each
 // (at most 1.5 times that on average), and the guarantees and the thread independence hold across their seams.
 TEST(Decimate, FoldedSurfaceGetsRegionsOfTheTargetSize) {
-  const FieldPtr field =
-      make_csg(CsgOp::kIntersection, {make_gyroid(1.0, 0.12), make_sphere(Vec3::Zero(), 1.5)});
+  const FieldPtr field = make_csg(CsgOp::kIntersection, {make_gyroid(1.0, 0.12), make_sphere(Vec3::Zero(), 1.5)});
   const Mesh mesh = testing::polygonized(field, Polygonizer::kCubes, 96);
   const double tolerance = 0.004;
   const SurfacePointRule rule = zero_set_rule(*field, tolerance);
@@ -350,8 +399,8 @@ TEST(Decimate, StopsWhenCancelled) {
   cancel.cancel();
   RunControl control;
   control.cancel = &cancel;
-  EXPECT_TRUE(testing::throws_error([&] { decimate(mesh, {.tolerance = 0.01}, {}, control); }, ErrorKind::kCancelled,
-                                    ""));
+  EXPECT_TRUE(
+      testing::throws_error([&] { decimate(mesh, {.tolerance = 0.01}, {}, control); }, ErrorKind::kCancelled, ""));
 }
 
 }  // namespace

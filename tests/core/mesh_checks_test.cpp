@@ -9,6 +9,7 @@
 #include <random>
 #include <set>
 
+#include "core/mesh/mesh_repair.h"
 #include "core/util/errors.h"
 #include "tests/support/mesh_expectations.h"
 #include "tests/support/test_meshes.h"
@@ -123,6 +124,35 @@ TEST(MeshChecks, DegenerateTriangles) {
   const MeshReport r = check_mesh(m);
   EXPECT_EQ(r.degenerate_triangles, 2);
   EXPECT_NEAR(r.min_angle_degrees, 45.0, 1e-9);  // angles skip degenerate triangles
+}
+
+// Triangles with an angle below a threshold, counted as a plain loop over the angles counts them (zero-area ones
+// included, repeated-index ones not), for thresholds over the whole range, on a jittered sphere of several blocks,
+// whatever the threads; nothing is counted without a threshold.
+TEST(MeshChecks, TrianglesBelowAnAngle) {
+  Mesh m = testing::icosphere(6);
+  std::mt19937 random(5);
+  std::uniform_real_distribution<double> jitter(-0.004, 0.004);
+  for (Vec3& v : m.vertices) v += Vec3(jitter(random), jitter(random), jitter(random));
+  m.triangles.push_back({0, 0, 1});  // repeated index
+  m.vertices.emplace_back(m.vertices[0] + Vec3(1, 0, 0));
+  m.vertices.emplace_back(m.vertices[0] + Vec3(2, 0, 0));
+  const auto n = static_cast<std::uint32_t>(m.vertices.size());
+  m.triangles.push_back({n - 2, n - 1, 0});  // collinear: zero area
+  std::vector<double> smallest;
+  for (std::size_t t = 0; t + 2 < m.triangles.size(); ++t) {
+    const Triangle& f = m.triangles[t];
+    smallest.push_back(min_angle_degrees(m.vertices[f[0]], m.vertices[f[1]], m.vertices[f[2]]));
+  }
+  EXPECT_EQ(check_mesh(m, 2).triangles_below_angle, 0);
+  const auto [lowest, highest] = std::minmax_element(smallest.begin(), smallest.end());
+  for (const double threshold : {0.5, *lowest + 1e-6, 20.0, 40.0, 50.0, *highest + 1e-6, 90.0}) {
+    SCOPED_TRACE(threshold);
+    const auto expected = std::count_if(smallest.begin(), smallest.end(), [&](double a) { return a < threshold; }) + 1;
+    for (const int threads : {1, 3}) {
+      EXPECT_EQ(check_mesh(m, threads, {}, threshold).triangles_below_angle, expected);
+    }
+  }
 }
 
 TEST(MeshChecks, ComponentsAndUnreferencedVertices) {

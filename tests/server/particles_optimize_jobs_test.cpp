@@ -4,10 +4,12 @@
 #include <Eigen/Geometry>
 #include <cmath>
 #include <map>
+#include <random>
 
 #include "core/mesh/frame_codec.h"
 #include "core/mesh/mesh_checks.h"
 #include "core/mesh/mesh_codec.h"
+#include "core/mesh/mesh_repair.h"
 #include "tests/server/test_client.h"
 #include "tests/support/mesh_expectations.h"
 #include "tests/support/test_meshes.h"
@@ -106,6 +108,63 @@ TEST(ParticlesJob, NoTriangleCollapsesOnTheJobsQuantizationGrid) {
       EXPECT_EQ(frame.header.stats().metrics().at("slivers_left"), 0.0);
     }
   }
+}
+
+// slivers_left is what a reader finds: the triangles of the decoded frame with an angle below the job's
+// min_angle_degrees, after the frame's grid cleanup and any decimation, on random clouds at coarse and fine grids.
+// Decimation adds none: its new triangles keep the job's threshold (when above its own 10 degrees) on the grid.
+TEST(ParticlesJob, SliversLeftCountsTheDecodedFramesTrianglesBelowTheThreshold) {
+  LoopbackServer s;
+  const double r_inner = 0.04;
+  int with_slivers = 0;
+  std::map<std::pair<double, int>, double> left_undecimated;  // by (threshold, bits), for the current seed
+  for (const unsigned seed : {1u, 2u}) {
+    std::mt19937 random(seed);
+    std::uniform_real_distribution<double> coordinate(0.0, 0.5);
+    std::vector<Vec3> cloud(400);
+    for (Vec3& p : cloud) p = Vec3(coordinate(random), coordinate(random), coordinate(random));
+    const std::string upload_id = upload(*s.stub, as_float32(cloud));
+    for (const double threshold : {1.0, 10.0, 25.0}) {
+      for (const double decimate : {0.0, 0.1 * r_inner}) {
+        for (const int bits : {10, 14}) {
+          SCOPED_TRACE("seed " + std::to_string(seed) + ", " + std::to_string(threshold) + " degrees, decimate " +
+                       std::to_string(decimate) + ", " + std::to_string(bits) + " bits");
+          v1::JobSpec spec;
+          spec.mutable_particles()->add_frames()->set_upload_id(upload_id);
+          spec.mutable_particles()->set_r_inner(r_inner);
+          spec.mutable_particles()->set_min_angle_degrees(threshold);
+          spec.mutable_output()->set_quantization_bits(bits);
+          spec.mutable_output()->set_decimate(decimate);
+          std::string id;
+          ASSERT_TRUE(submit(*s.stub, spec, &id).ok());
+          const auto result = watch_job(*s.stub, id);
+          ASSERT_EQ(result.states.back(), v1::JOB_STATE_SUCCEEDED) << result.final_job.error().message();
+          const auto& frame = result.frames.at(0);
+          const Mesh mesh = decode_draco(frame.bytes);
+          ASSERT_GT(mesh.triangles.size(), 1000u);
+          // Counted here at a hair's breadth on either side of the threshold: the server's count lies between.
+          std::int64_t below_less = 0, below_more = 0;
+          for (const auto& t : mesh.triangles) {
+            const double smallest = min_angle_degrees(mesh.vertices[t[0]], mesh.vertices[t[1]], mesh.vertices[t[2]]);
+            below_less += smallest < threshold - 1e-9;
+            below_more += smallest < threshold + 1e-9;
+          }
+          const double left = frame.header.stats().metrics().at("slivers_left");
+          EXPECT_GE(left, static_cast<double>(below_less));
+          EXPECT_LE(left, static_cast<double>(below_more));
+          with_slivers += left > 0;
+          if (decimate == 0.0) {
+            left_undecimated[{threshold, bits}] = left;
+          } else {
+            EXPECT_LT(static_cast<double>(mesh.triangles.size()),
+                      0.5 * frame.header.stats().metrics().at("triangles_before_decimate"));
+            EXPECT_LE(left, left_undecimated.at({threshold, bits}));
+          }
+        }
+      }
+    }
+  }
+  EXPECT_GT(with_slivers, 0);  // the cases reach frames that keep some
 }
 
 TEST(ParticlesJob, DerivedRadiusKeepsTheSurfaceInsideTheQuantizationBox) {
