@@ -43,9 +43,10 @@
 //    bilaplacian, polish), ns per vertex (of the Marching Tiles mesh) for polygonize, build_b and cleanup, ns per
 //    particle for distance_field;
 //  * end to end, as a particles job produces a frame: surfacing with output_grid set plus the encode at 14 bits on
-//    the job's box (particle_sequence_box), in seconds (minimum of the repetitions of the sum), to the default .drc
-//    (one Draco mesh: Draco's encoder runs on one thread) and to --format glb (Draco pieces on T threads, laid out as
-//    a .glb; the target, 1.2 s at 2 threads, is this one); user + sys CPU seconds (surface + .drc) and particles/s;
+//    the job's box (particle_sequence_box), in seconds (minimum of the repetitions of the sum), to --format drc
+//    (one Draco mesh: Draco's encoder runs on one thread) and to the default .glb (Draco pieces on T threads, laid
+//    out as a .glb; the target, 1.2 s at 2 threads, is this one); user + sys CPU seconds (surface + .drc) and
+//    particles/s;
 //    peak RSS of the child;
 //  * OpenVDB (bench/openvdb_reference.h): spheres of r_outer (the radius of our initial surface), ParticlesToLevelSet
 //    + volumeToMesh, no smoothing, its mesh Draco-encoded exactly as ours, at two voxel sizes:
@@ -324,8 +325,8 @@ Flatness flatness(const Mesh& mesh, const FlatTop& top) {
 }
 
 // Seconds of one side's run: the fastest repetition of surfacing + encode, and its parts. Two outputs are timed
-// after each surfacing: the default `.drc` (one standard Draco mesh, Draco's encoder on one thread: encode,
-// end_to_end, cpu) and `--format glb` (Draco pieces encoded on the run's threads and laid out as a .glb, what the
+// after each surfacing: `--format drc` (one standard Draco mesh, Draco's encoder on one thread: encode,
+// end_to_end, cpu) and the default `.glb` (Draco pieces encoded on the run's threads and laid out as a .glb, what the
 // service and the CLI do for it: encode_glb, end_to_end_glb).
 struct Timing {
   double surface = kInf, encode = kInf, end_to_end = kInf, cpu = kInf;
@@ -579,8 +580,8 @@ bool bench_block(const Config& cfg) {
   const int max_threads = *std::max_element(cfg.threads.begin(), cfg.threads.end());
   const double radius = s.r_outer;
   std::printf(
-      "  end to end = surface (output_grid on) + encode at %d bits on the job's box: e2e s to the default .drc (one "
-      "Draco mesh, one thread), e2e glb to --format glb (Draco pieces on T threads); cpu s: surface + .drc; "
+      "  end to end = surface (output_grid on) + encode at %d bits on the job's box: e2e s to --format drc (one Draco "
+      "mesh, one thread), e2e glb to the default .glb (Draco pieces on T threads); cpu s: surface + .drc; "
       "OpenVDB %s: spheres of r_outer, ParticlesToLevelSet + volumeToMesh, no smoothing, encoded the same ways\n",
       kDracoBits, bench::openvdb_version().c_str());
   const auto search = in_child<VoxelSearch>(
