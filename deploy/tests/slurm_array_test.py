@@ -9,7 +9,7 @@ Exit status: 0 passed, 1 failed, 77 skipped (not root, or the Slurm daemons coul
 scripts/setup.sh installs slurm-wlm and munge; the reason and the daemons' logs are printed).
 
 The sequence is the Indexed Job test's: five particle frames numbered 10..14, here split by FRAMES_PER_TASK=2 into an
-array of three tasks (10-11, 12-13, 14). Frames are standard Draco .drc files (--format drc): each task quantizes them on the box
+array of three tasks (10-11, 12-13, 14). Frames are the default .glb files (Draco pieces, encoded on every core of a task): each task quantizes them on the box
 given by --quantization-bounds (the whole sequence's particles padded by more than r_outer), so every task's frames
 are the whole run's bit for bit. (Without it each task's grid would be its own range's box, one quantization step off.)
 """
@@ -69,7 +69,7 @@ def main() -> int:
         cluster, inputs, out, ref = tmp / "cluster", tmp / "input", tmp / "out", tmp / "ref"
         inputs.mkdir()
         write_frames(inputs)
-        format_args = ["--quantization-bounds", sequence_box(inputs, 4 * float(R_INNER)), "--format", "drc"]
+        format_args = ["--quantization-bounds", sequence_box(inputs, 4 * float(R_INNER))]
         started = subprocess.run([local_slurm, "start", str(cluster)], capture_output=True, text=True, timeout=90)
         if started.returncode != 0:
             subprocess.run([local_slurm, "stop", str(cluster)], timeout=60)
@@ -108,7 +108,7 @@ def main() -> int:
                                    cwd=tmp, capture_output=True, text=True, timeout=120)
             expect(local.returncode == 0, f"the local run exited {local.returncode}:\n{local.stderr}")
             expected = frames_in(ref) if ref.exists() else {}
-            expect(sorted(expected) == [f"frame_{k:04d}.drc" for k in range(FIRST, FIRST + TOTAL)],
+            expect(sorted(expected) == [f"frame_{k:04d}.glb" for k in range(FIRST, FIRST + TOTAL)],
                    f"the local run wrote {sorted(expected)}")
             written = frames_in(out) if out.exists() else {}
             expect(sorted(written) == sorted(expected),
@@ -125,7 +125,7 @@ def main() -> int:
             # it redoes frames 12-13 and publishes the same bytes; the other tasks' frames are untouched.
             stale = out / ".part-1"
             stale.mkdir(parents=True, exist_ok=True)
-            (stale / "frame_0012.drc").write_text("half a frame from a killed attempt")
+            (stale / "frame_0012.glb").write_text("half a frame from a killed attempt")
             before = {name: (out / name).stat().st_mtime_ns for name in written}
             retry = subprocess.run(["sbatch", "--array=1", *small, sbatch_script],
                                    env=dict(env, SURFACER_ENTRY=os.path.join(deploy, "indexed-job-entry.sh")),
@@ -135,7 +135,7 @@ def main() -> int:
             expect(again == written, "the retried task changed the frames: "
                    f"{sorted(k for k in set(again) | set(written) if again.get(k) != written.get(k))}")
             rewritten = sorted(n for n in again if (out / n).stat().st_mtime_ns != before.get(n))
-            expect(rewritten == ["frame_0012.drc", "frame_0013.drc"],
+            expect(rewritten == ["frame_0012.glb", "frame_0013.glb"],
                    f"the retried task 1 rewrote {rewritten}, expected its own frames 12-13")
             expect(not stale.exists(), "the retried task left its part directory behind")
         finally:
