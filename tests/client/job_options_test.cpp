@@ -1055,23 +1055,16 @@ TEST(JobOptions, DracoFramesComeInPiecesUnlessADrcFileIsWritten) {
         return bits > 16 && asked != v1::MESH_ENCODING_PLY &&
                std::find(formats.begin(), formats.end(), F::kGlb) != formats.end();
       };
-      for (const std::vector<F>& formats : writes_drc) {
-        v1::JobSpec spec = spec_asking();
-        if (glb_refused(formats)) {
-          EXPECT_THROW(fit_encoding_to_files(spec, formats), CliError);
-          continue;
+      for (const bool drc : {true, false}) {
+        for (const std::vector<F>& formats : drc ? writes_drc : no_drc) {
+          v1::JobSpec spec = spec_asking();
+          if (glb_refused(formats)) {
+            EXPECT_THROW(fit_encoding_to_files(spec, formats), CliError);
+            continue;
+          }
+          fit_encoding_to_files(spec, formats);
+          EXPECT_EQ(spec.output().encoding(), drc ? asked : pieces);
         }
-        fit_encoding_to_files(spec, formats);
-        EXPECT_EQ(spec.output().encoding(), asked);
-      }
-      for (const std::vector<F>& formats : no_drc) {
-        v1::JobSpec spec = spec_asking();
-        if (glb_refused(formats)) {
-          EXPECT_THROW(fit_encoding_to_files(spec, formats), CliError);
-          continue;
-        }
-        fit_encoding_to_files(spec, formats);
-        EXPECT_EQ(spec.output().encoding(), pieces);
       }
       v1::JobSpec defaults = spec_asking();
       fit_encoding_to_files(defaults, {});
