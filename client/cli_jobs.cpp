@@ -211,7 +211,7 @@ void add_output_flags(CLI::App* app, OutputFlags& flags) {
          "files per frame, comma-separated: drc,ply,obj,vtk,vtu,glb,gltf,vdb (default: .glb for Draco frames, "
          ".drc over 16 quantization bits, .ply for meshopt and raw ones; drc = one standard Draco mesh, "
          "encoded on one core; vtk = legacy binary, vtu = VTK XML with zlib, for ParaView; glb = "
-         "glTF with Draco pieces, encoded on every core, for three.js, Blender and glTF readers with Draco, "
+         "glTF with Draco pieces, encoded on every core, for three.js, blender.org builds and glTF readers with Draco, "
          "up to 16 quantization bits; gltf = plain glTF, uncompressed, for readers without Draco such as Debian's "
          "Blender and VTK; vdb = OpenVDB narrow-band level set, for Houdini, Blender volumes and OpenVDB)")
       ->delimiter(',')
