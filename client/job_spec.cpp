@@ -390,8 +390,8 @@ void fit_encoding_to_files(v1::JobSpec& spec, const std::vector<FileFormat>& for
   }
   // With no format asked for, the pieces go to a .glb as they come (default_format, client/frame_writer.h): a .drc
   // only when glTF cannot hold the grid.
-  const bool glb_holds_grid =
-      !output->has_quantization_bits() || output->quantization_bits() <= kMaxGltfQuantizationBits;
+  const int bits = output->has_quantization_bits() ? output->quantization_bits() : DracoOptions{}.quantization_bits;
+  const bool glb_holds_grid = bits <= kMaxGltfQuantizationBits;
   const bool writes_drc =
       formats.empty() ? !glb_holds_grid : std::find(formats.begin(), formats.end(), FileFormat::kDrc) != formats.end();
   ask_for_pieces_unless_drc(*output, writes_drc);
