@@ -82,26 +82,26 @@ def check(name, args, attributes=()):
     for v, g in enumerate(map(tuple, grid)):
         wanted[g] = [ply.point_data[a][v] for a in attributes]
     ply_triangles = sorted(oriented(tuple(tuple(grid[c]) for c in t)) for t in ply.cells_dict["triangle"])
+    # Where the .glb holds each of the .ply's columns: a component of NORMAL (octahedral in the Draco streams, so
+    # within a few thousandths), or the application attribute _NAME, exactly.
+    columns = [("NORMAL", "xyz".index(a[1]), 5e-3) if a in ("nx", "ny", "nz") else ("_" + a.upper(), None, 0.0)
+               for a in attributes]
     glb_triangles = []
     mismatched_values = 0
     for p in read["primitives"]:
         expect(p["mode"] == 4, f"{name}: a primitive of mode {p['mode']}, not triangles")
         position = p["attributes"]["POSITION"]
         q = np.array(position["values"], dtype=np.int64).reshape(-1, 3)
-        for a in attributes:
-            semantic = {"nx": "NORMAL", "ny": "NORMAL", "nz": "NORMAL"}.get(a, "_" + a.upper())
+        for semantic, _, _ in columns:
             if not expect(semantic in p["attributes"], f"{name}: a primitive without {semantic}"):
                 return
             expect(p["attributes"][semantic]["count"] == position["count"], f"{name}: {semantic} count")
         for i, g in enumerate(map(tuple, q)):
             if g not in wanted:
                 continue  # counted below, as triangles that differ
-            for j, a in enumerate(attributes):
-                semantic = {"nx": "NORMAL", "ny": "NORMAL", "nz": "NORMAL"}.get(a, "_" + a.upper())
+            for j, (semantic, component, tolerance) in enumerate(columns):
                 values = p["attributes"][semantic]["values"]
-                value = values[3 * i + "xyz".index(a[1])] if semantic == "NORMAL" else values[i]
-                # Normals are octahedral in the Draco streams (--normal-bits): within a few thousandths.
-                tolerance = 5e-3 if semantic == "NORMAL" else 0.0
+                value = values[i] if component is None else values[3 * i + component]
                 if not math.isclose(value, float(wanted[g][j]), rel_tol=0.0, abs_tol=tolerance):
                     mismatched_values += 1
         indices = p["indices"]
