@@ -55,7 +55,8 @@ std::vector<JobField> output_fields() {
   const DracoOptions draco;
   return {
       {.path = "encoding",
-       .help = "frames on the wire: draco (the default: small; standard .drc files), meshopt (meshoptimizer's codecs: "
+       .help = "frames on the wire: draco (the default: small; one standard Draco mesh, as a .drc file holds), meshopt "
+               "(meshoptimizer's codecs: "
                "~10x faster to encode and decode, ~3x larger: for fast networks) or raw (lossless binary PLY, double "
                "precision; also spelled ply); draco_pieces is Draco in pieces encoded and decoded on every core, which "
                "the CLI picks itself when it writes no .drc file, and the Python package for draco",
